@@ -1,0 +1,61 @@
+"""Checks on user-supplied signals and parameters, shared by every method in ``identify``.
+
+Every failure raises :class:`InvalidInputError` (a ``ValueError``) whose message names the argument,
+the offending sample where there is one, and what was expected, so that a user never has to read a
+traceback from inside numpy or scipy.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+
+class InvalidInputError(ValueError):
+    """An argument given to an identification routine cannot be used as it is."""
+
+
+def as_signal(name: str, values: ArrayLike, *, min_samples: int = 1) -> NDArray[np.float64]:
+    """Return ``values`` as a finite 1-D float array, or raise naming ``name`` and the bad sample.
+
+    Parameters
+    ----------
+    name
+        The argument's public name, used in the error message.
+    values
+        Anything numpy can turn into a 1-D array of floats.
+    min_samples
+        The fewest samples the caller can work with.
+    """
+    try:
+        signal = np.asarray(values, dtype=float)
+    except (TypeError, ValueError) as err:
+        raise InvalidInputError(f"{name}: expected a 1-D array of numbers, got {type(values).__name__}") from err
+    if signal.ndim != 1:
+        raise InvalidInputError(f"{name}: expected a 1-D array, got shape {signal.shape}")
+    if signal.size < min_samples:
+        raise InvalidInputError(f"{name}: expected at least {min_samples} samples, got {signal.size}")
+    bad = np.flatnonzero(~np.isfinite(signal))
+    if bad.size:
+        raise InvalidInputError(
+            f"{name}: sample {bad[0]} is {signal[bad[0]]} ({bad.size} non-finite samples in all); "
+            "remove or interpolate them before identification"
+        )
+    return signal
+
+
+def same_length(**signals: NDArray[np.float64]) -> int:
+    """Return the common length of ``signals`` or raise naming the lengths that differ."""
+    lengths = {name: len(signal) for name, signal in signals.items()}
+    if len(set(lengths.values())) > 1:
+        described = ", ".join(f"{name} has {n}" for name, n in lengths.items())
+        raise InvalidInputError(f"signals must have the same number of samples: {described}")
+    return next(iter(lengths.values()))
+
+
+def positive(name: str, value: float) -> float:
+    """Return ``value`` as a float if it is finite and > 0, else raise naming ``name``."""
+    number = float(value)
+    if not np.isfinite(number) or number <= 0.0:
+        raise InvalidInputError(f"{name}: expected a finite number > 0, got {value!r}")
+    return number

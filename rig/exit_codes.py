@@ -1,0 +1,8 @@
+"""Exit codes of the ``rig`` command (documented in README.md, section "Exit codes")."""
+
+SUCCESS = 0
+UNEXPECTED_ERROR = 1
+BAD_INPUT = 2  # also argparse's own code for a usage error
+DEVICE_FAULT = 3  # a device reported a fault or the link to it failed
+EMPTY_FEASIBLE_SET = 4  # the data contradict the model structure and the noise bound
+INTERRUPTED = 130  # Ctrl-C, after a controlled stop
