@@ -1,0 +1,940 @@
+"""The blocks a gearbox model is built from, shared by the simulator and the model-discrepancy workflow.
+
+Every block is a frozen dataclass of parameters with two ways to run it that give bit-identical results:
+
+* ``block.apply(signal)`` runs a whole 1-D array, starting from rest;
+* ``block.stepper()`` returns a fresh object whose ``step(x: float) -> float`` advances one sample, so a
+  protocol front-end can tick the plant once per SYNC or per received frame.
+
+:class:`PlantModel` chains blocks in signal order (``blocks[0]`` sees the command). Sources:
+
+* Cerone, Piga, Regruto (2009), *Parameter bounds evaluation for linear system with output backlash*:
+  eq. (1) linear block :class:`LinearBlock`, eqs. (2)-(3) output backlash :class:`OutputBacklash`;
+* Pouliquen et al. (2013), *Subspace identification of Hammerstein systems with nonparametric input
+  backlash and switch nonlinearities*, Section II: :class:`InputBacklash` and :class:`InputSwitch` with
+  arbitrary borders (the direction signal delta(t) and eq. (2)), and the example borders of Section IV.
+
+The remaining blocks (:class:`DeadZone`, :class:`Saturation`, :class:`Delay`, :class:`Resonance`,
+:class:`OutputOffset`, :class:`CoulombFriction`) are the usual effects a real gearbox adds; their
+docstrings give the equation each implements. Angles are in radians throughout.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any, Protocol, runtime_checkable
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy import signal as scipy_signal
+
+from identify.validation import InvalidInputError, as_signal, positive
+
+__all__ = [
+    "ArctanBorder",
+    "Block",
+    "BlockStepper",
+    "CoulombFriction",
+    "DeadZone",
+    "Delay",
+    "InputBacklash",
+    "InputSwitch",
+    "LinearBlock",
+    "OutputBacklash",
+    "OutputOffset",
+    "PiecewiseLinearBorder",
+    "PlantModel",
+    "PlantStepper",
+    "Resonance",
+    "Saturation",
+    "pouliquen2013_backlash",
+    "pouliquen2013_switch",
+]
+
+Border = Callable[[float], float]
+"""A border of an input backlash or switch: a function of the input angle (rad) returning the output."""
+
+
+@runtime_checkable
+class BlockStepper(Protocol):
+    """Advances one block by one sample."""
+
+    def step(self, x: float) -> float: ...
+
+
+@runtime_checkable
+class Block(Protocol):
+    """What :class:`PlantModel` needs from a block."""
+
+    def apply(self, signal: ArrayLike) -> NDArray[np.float64]: ...
+
+    def stepper(self) -> BlockStepper: ...
+
+
+def _finite(name: str, value: float) -> float:
+    number = float(value)
+    if not math.isfinite(number):
+        raise InvalidInputError(f"{name}: expected a finite number, got {value!r}")
+    return number
+
+
+def _coefficients(name: str, values: Sequence[float]) -> tuple[float, ...]:
+    try:
+        numbers = tuple(float(v) for v in values)
+    except (TypeError, ValueError) as err:
+        raise InvalidInputError(f"{name}: expected a sequence of numbers, got {values!r}") from err
+    for index, number in enumerate(numbers):
+        if not math.isfinite(number):
+            raise InvalidInputError(f"{name}[{index}]: expected a finite number, got {number!r}")
+    return numbers
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Linear dynamics
+# ----------------------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class LinearBlock:
+    """Discrete-time linear block x_t = B(q^-1)/A(q^-1) u_t, eq. (1) of Cerone et al. (2009).
+
+    Parameters
+    ----------
+    a
+        ``(a1, ..., a_na)`` of A(q^-1) = 1 + a1 q^-1 + ... + a_na q^-na (the leading 1 is implied).
+    b
+        ``(b0, b1, ..., b_nb)`` of B(q^-1) = b0 + b1 q^-1 + ...; leading zeros are a pure delay.
+    sample_period_s
+        The sample period T the coefficients belong to.
+
+    Examples
+    --------
+    The linear block of Section 6 of Cerone et al. (2009), with unit static gain eq. (8):
+
+    >>> block = LinearBlock(a=(0.5, 0.7), b=(0.0, 1.4, 0.8), sample_period_s=1.0)
+    >>> round(block.static_gain, 12)
+    1.0
+    """
+
+    a: tuple[float, ...]
+    b: tuple[float, ...]
+    sample_period_s: float
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "a", _coefficients("a", self.a))
+        object.__setattr__(self, "b", _coefficients("b", self.b))
+        object.__setattr__(self, "sample_period_s", positive("sample_period_s", self.sample_period_s))
+        if not self.b:
+            raise InvalidInputError("b: expected at least one coefficient b0 of B(q^-1)")
+
+    @classmethod
+    def from_state_space(cls, A: ArrayLike, B: ArrayLike, C: ArrayLike, D: ArrayLike,
+                         sample_period_s: float) -> LinearBlock:
+        """Build the block from a single-input single-output realisation x+ = A x + B u, y = C x + D u
+        (the form of eq. (6)-(7) of Pouliquen et al. 2013)."""
+        A_matrix = np.atleast_2d(np.asarray(A, dtype=float))
+        n = A_matrix.shape[0]
+        if A_matrix.shape != (n, n):
+            raise InvalidInputError(f"A: expected a square matrix, got shape {A_matrix.shape}")
+        B_column = np.asarray(B, dtype=float).reshape(n, 1) if np.size(B) == n else None
+        C_row = np.asarray(C, dtype=float).reshape(1, n) if np.size(C) == n else None
+        if B_column is None:
+            raise InvalidInputError(f"B: expected {n} entries (one input), got shape {np.shape(B)}")
+        if C_row is None:
+            raise InvalidInputError(f"C: expected {n} entries (one output), got shape {np.shape(C)}")
+        if np.size(D) != 1:
+            raise InvalidInputError(f"D: expected a scalar (one input, one output), got shape {np.shape(D)}")
+        D_value = np.asarray(D, dtype=float).reshape(1, 1)
+        for name, matrix in (("A", A_matrix), ("B", B_column), ("C", C_row), ("D", D_value)):
+            if not np.all(np.isfinite(matrix)):
+                raise InvalidInputError(f"{name}: expected finite entries")
+        numerator, denominator = scipy_signal.ss2tf(A_matrix, B_column, C_row, D_value)
+        numerator = np.atleast_1d(np.squeeze(numerator))
+        b = tuple(float(v) for v in numerator / denominator[0])
+        a = tuple(float(v) for v in denominator[1:] / denominator[0])
+        return cls(a=a, b=b, sample_period_s=sample_period_s)
+
+    @property
+    def static_gain(self) -> float:
+        """G(1) = sum(b) / (1 + sum(a)), eq. (8) of Cerone et al. (2009)."""
+        denominator = 1.0 + sum(self.a)
+        if denominator == 0.0:
+            return math.inf
+        return sum(self.b) / denominator
+
+    @property
+    def poles(self) -> NDArray[np.complex128]:
+        """Roots of z^na A(z^-1)."""
+        return np.roots((1.0, *self.a)) if self.a else np.array([], dtype=complex)
+
+    def _padded(self) -> tuple[list[float], list[float]]:
+        order = max(len(self.a) + 1, len(self.b))
+        a = [1.0, *self.a] + [0.0] * (order - len(self.a) - 1)
+        b = list(self.b) + [0.0] * (order - len(self.b))
+        return a, b
+
+    def apply(self, signal: ArrayLike) -> NDArray[np.float64]:
+        """Filter a whole signal from rest (direct form II transposed, as :func:`scipy.signal.lfilter`)."""
+        u = as_signal("signal", signal)
+        a, b = self._padded()
+        return scipy_signal.lfilter(b, a, u)
+
+    def stepper(self) -> _LinearStepper:
+        a, b = self._padded()
+        return _LinearStepper(a, b)
+
+
+class _LinearStepper:
+    """Direct form II transposed, written with the same operation order as scipy's lfilter so that
+    stepping and :meth:`LinearBlock.apply` agree to the last bit."""
+
+    __slots__ = ("a", "b", "z")
+
+    def __init__(self, a: list[float], b: list[float]) -> None:
+        self.a = a
+        self.b = b
+        self.z = [0.0] * (len(a) - 1)
+
+    def step(self, x: float) -> float:
+        a, b, z = self.a, self.b, self.z
+        if not z:
+            return x * b[0]
+        y = z[0] + b[0] * x
+        last = len(z) - 1
+        for n in range(last):
+            z[n] = z[n + 1] + x * b[n + 1] - y * a[n + 1]
+        z[last] = x * b[last + 1] - y * a[last + 1]
+        return y
+
+
+@dataclass(frozen=True)
+class Resonance:
+    """A lightly damped second-order section with unit static gain, in series with the drive train.
+
+    Continuous prototype H(s) = w_n^2 / (s^2 + 2 zeta w_n s + w_n^2), w_n = 2 pi ``frequency_hz``,
+    discretised with the bilinear transform pre-warped at w_n, so the resonance sits exactly at
+    ``frequency_hz`` and the static gain is exactly 1; it adds no pure delay (use :class:`Delay` for that).
+
+    Parameters
+    ----------
+    frequency_hz
+        Undamped natural frequency, below the Nyquist frequency 1 / (2 T).
+    damping_ratio
+        zeta in (0, 1); a lightly damped mode has zeta of a few hundredths.
+    sample_period_s
+        Sample period T.
+    """
+
+    frequency_hz: float
+    damping_ratio: float
+    sample_period_s: float
+
+    def __post_init__(self) -> None:
+        period = positive("sample_period_s", self.sample_period_s)
+        frequency = positive("frequency_hz", self.frequency_hz)
+        if frequency >= 0.5 / period:
+            raise InvalidInputError(
+                f"frequency_hz: expected a frequency below the Nyquist frequency {0.5 / period:g} Hz, "
+                f"got {frequency:g}"
+            )
+        damping = _finite("damping_ratio", self.damping_ratio)
+        if not 0.0 < damping < 1.0:
+            raise InvalidInputError(f"damping_ratio: expected 0 < zeta < 1, got {damping:g}")
+        object.__setattr__(self, "frequency_hz", frequency)
+        object.__setattr__(self, "damping_ratio", damping)
+        object.__setattr__(self, "sample_period_s", period)
+
+    def to_linear_block(self) -> LinearBlock:
+        """The equivalent :class:`LinearBlock` (A and B of second order)."""
+        omega = 2.0 * math.pi * self.frequency_hz
+        k = omega / math.tan(omega * self.sample_period_s / 2.0)  # pre-warped bilinear constant
+        zeta = self.damping_ratio
+        a0 = k * k + 2.0 * zeta * omega * k + omega * omega
+        a1 = (2.0 * omega * omega - 2.0 * k * k) / a0
+        a2 = (k * k - 2.0 * zeta * omega * k + omega * omega) / a0
+        gain = omega * omega / a0
+        return LinearBlock(a=(a1, a2), b=(gain, 2.0 * gain, gain), sample_period_s=self.sample_period_s)
+
+    def apply(self, signal: ArrayLike) -> NDArray[np.float64]:
+        return self.to_linear_block().apply(signal)
+
+    def stepper(self) -> _LinearStepper:
+        return self.to_linear_block().stepper()
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Backlash, switch and their borders
+# ----------------------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class OutputBacklash:
+    """Backlash at the output of the linear block, eqs. (2)-(3) of Cerone et al. (2009).
+
+    .. math::
+
+        w_t = m_l (x_t + c_l)  if x_t <= z_l;\\quad
+        w_t = m_r (x_t - c_r)  if x_t >= z_r;\\quad
+        w_t = w_{t-1}          if z_l < x_t < z_r,
+
+    with z_l = w_{t-1}/m_l - c_l and z_r = w_{t-1}/m_r + c_r (eq. (3)). The cases are tested in this
+    order. ``initial_output`` is w_{-1}.
+
+    Parameters
+    ----------
+    m_l, c_l, m_r, c_r
+        Slopes (> 0) and dead-band half-widths (> 0, in rad of x) of the left and right lines;
+        gamma = [m_l c_l m_r c_r] in eq. (6).
+    initial_output
+        w_{-1}, the output the gearbox rests at before the first sample.
+    """
+
+    m_l: float
+    c_l: float
+    m_r: float
+    c_r: float
+    initial_output: float = 0.0
+
+    def __post_init__(self) -> None:
+        for name in ("m_l", "c_l", "m_r", "c_r"):
+            object.__setattr__(self, name, positive(name, getattr(self, name)))
+        object.__setattr__(self, "initial_output", _finite("initial_output", self.initial_output))
+
+    def apply(self, signal: ArrayLike) -> NDArray[np.float64]:
+        x = as_signal("signal", signal)
+        m_l, c_l, m_r, c_r = self.m_l, self.c_l, self.m_r, self.c_r
+        w = self.initial_output
+        out = []
+        append = out.append
+        for x_t in x.tolist():
+            if x_t <= w / m_l - c_l:
+                w = m_l * (x_t + c_l)
+            elif x_t >= w / m_r + c_r:
+                w = m_r * (x_t - c_r)
+            append(w)
+        return np.array(out, dtype=float)
+
+    def stepper(self) -> _OutputBacklashStepper:
+        return _OutputBacklashStepper(self)
+
+
+class _OutputBacklashStepper:
+    __slots__ = ("m_l", "c_l", "m_r", "c_r", "w")
+
+    def __init__(self, block: OutputBacklash) -> None:
+        self.m_l, self.c_l, self.m_r, self.c_r = block.m_l, block.c_l, block.m_r, block.c_r
+        self.w = block.initial_output
+
+    def step(self, x: float) -> float:
+        x = float(x)
+        w = self.w
+        if x <= w / self.m_l - self.c_l:
+            w = self.m_l * (x + self.c_l)
+        elif x >= w / self.m_r + self.c_r:
+            w = self.m_r * (x - self.c_r)
+        self.w = w
+        return w
+
+
+def _evaluate_border(border: Border, u: list[float], name: str) -> list[float]:
+    """Border values sample by sample; a border may offer ``evaluate_list`` that gives the same numbers."""
+    evaluate = getattr(border, "evaluate_list", None)
+    values = evaluate(u) if evaluate is not None else [float(border(v)) for v in u]
+    for index, value in enumerate(values):
+        if not math.isfinite(value):
+            raise InvalidInputError(f"{name}: the border returned {value} at input {u[index]!r} (sample {index})")
+    return values
+
+
+@dataclass(frozen=True)
+class PiecewiseLinearBorder:
+    """A border given by a node table: linear between nodes, constant beyond the end nodes.
+
+    This is the continuous piecewise-linear description of eq. (3) of Pouliquen et al. (2013) (after
+    Van Pelt and Bernstein 2001), evaluated with :func:`numpy.interp`.
+
+    Parameters
+    ----------
+    nodes_u
+        Strictly increasing input angles (rad), at least two.
+    values
+        Border output at each node.
+    """
+
+    nodes_u: tuple[float, ...]
+    values: tuple[float, ...]
+
+    def __post_init__(self) -> None:
+        nodes = _coefficients("nodes_u", self.nodes_u)
+        values = _coefficients("values", self.values)
+        if len(nodes) < 2:
+            raise InvalidInputError(f"nodes_u: expected at least 2 nodes, got {len(nodes)}")
+        if len(values) != len(nodes):
+            raise InvalidInputError(f"values: expected one value per node ({len(nodes)}), got {len(values)}")
+        steps = np.diff(nodes)
+        if np.any(steps <= 0.0):
+            bad = int(np.flatnonzero(steps <= 0.0)[0]) + 1
+            raise InvalidInputError(f"nodes_u: expected strictly increasing nodes, node {bad} is {nodes[bad]!r}")
+        object.__setattr__(self, "nodes_u", nodes)
+        object.__setattr__(self, "values", values)
+
+    def __call__(self, u: float) -> float:
+        return float(np.interp(u, self.nodes_u, self.values))
+
+    def evaluate_list(self, u: list[float]) -> list[float]:
+        return np.interp(np.asarray(u, dtype=float), self.nodes_u, self.values).tolist()
+
+
+@dataclass(frozen=True)
+class ArctanBorder:
+    """h(u) = arctan(u + ``input_shift``) + ``output_shift`` for lower_input < u <= upper_input,
+    ``lower_value`` for u <= lower_input and ``upper_value`` for u > upper_input.
+
+    The borders of the simulation study, Section IV of Pouliquen et al. (2013); see
+    :func:`pouliquen2013_backlash` and :func:`pouliquen2013_switch`. With the default infinite limits
+    the border is the plain shifted arctangent.
+    """
+
+    input_shift: float
+    output_shift: float = 0.0
+    lower_input: float = -math.inf
+    upper_input: float = math.inf
+    lower_value: float = 0.0
+    upper_value: float = 0.0
+
+    def __post_init__(self) -> None:
+        for name in ("input_shift", "output_shift", "lower_value", "upper_value"):
+            object.__setattr__(self, name, _finite(name, getattr(self, name)))
+        lower, upper = float(self.lower_input), float(self.upper_input)
+        if math.isnan(lower) or math.isnan(upper) or not lower < upper:
+            raise InvalidInputError(f"lower_input, upper_input: expected lower < upper, got {lower!r}, {upper!r}")
+        object.__setattr__(self, "lower_input", lower)
+        object.__setattr__(self, "upper_input", upper)
+
+    def __call__(self, u: float) -> float:
+        u = float(u)
+        if u <= self.lower_input:
+            return self.lower_value
+        if u > self.upper_input:
+            return self.upper_value
+        return math.atan(u + self.input_shift) + self.output_shift
+
+    def evaluate_list(self, u: list[float]) -> list[float]:
+        return [self(v) for v in u]
+
+
+def pouliquen2013_backlash() -> InputBacklash:
+    """The backlash of Section IV.B of Pouliquen et al. (2013): H_a(u) = arctan(u - 1) (ascending),
+    H_d(u) = arctan(u + 1) (descending)."""
+    return InputBacklash(ascending=ArctanBorder(input_shift=-1.0), descending=ArctanBorder(input_shift=1.0))
+
+
+def pouliquen2013_switch() -> InputSwitch:
+    """The switch of Section IV.A of Pouliquen et al. (2013), with H_0 = (arctan 3 - arctan 1)/2:
+    H_a(u) = arctan(u - 1) + H_0 and H_d(u) = arctan(u + 1) - H_0 on (-2, 2], -1 for u <= -2, 1 for u > 2
+    (as printed; the two arctangent branches meet at +-2 with value +-1.017, so each border has a jump of
+    0.017 there)."""
+    h0 = 0.5 * (math.atan(3.0) - math.atan(1.0))
+    limits = {"lower_input": -2.0, "upper_input": 2.0, "lower_value": -1.0, "upper_value": 1.0}
+    return InputSwitch(
+        ascending=ArctanBorder(input_shift=-1.0, output_shift=h0, **limits),
+        descending=ArctanBorder(input_shift=1.0, output_shift=-h0, **limits),
+    )
+
+
+def _check_border(name: str, border: Any) -> None:
+    if not callable(border):
+        raise InvalidInputError(f"{name}: expected a callable border u -> value, got {type(border).__name__}")
+
+
+@dataclass(frozen=True)
+class InputBacklash:
+    """Backlash with arbitrary borders at the plant input, Section II of Pouliquen et al. (2013).
+
+    The output follows the ascending border H_a while the input rises and pushes it, the descending border
+    H_d while the input falls and pushes it, and holds its last value in between:
+
+    .. math:: v_t = \\min(H_d(u_t), \\max(H_a(u_t), v_{t-1})),
+
+    which, for increasing borders with H_a <= H_d, is the direction form H[u] = delta P_a + (1-delta) P_d
+    of eq. (2) with the paths P_a, P_d extended by the horizontal inner segments.
+
+    Parameters
+    ----------
+    ascending, descending
+        Borders H_a and H_d (callables rad -> output; :class:`PiecewiseLinearBorder` for a node table).
+    initial_output
+        v_{-1}.
+    """
+
+    ascending: Border
+    descending: Border
+    initial_output: float = 0.0
+
+    def __post_init__(self) -> None:
+        _check_border("ascending", self.ascending)
+        _check_border("descending", self.descending)
+        object.__setattr__(self, "initial_output", _finite("initial_output", self.initial_output))
+
+    def apply(self, signal: ArrayLike) -> NDArray[np.float64]:
+        u = as_signal("signal", signal).tolist()
+        lows = _evaluate_border(self.ascending, u, "ascending")
+        highs = _evaluate_border(self.descending, u, "descending")
+        v = self.initial_output
+        out = []
+        append = out.append
+        for low, high in zip(lows, highs):
+            if v < low:
+                v = low
+            if v > high:
+                v = high
+            append(v)
+        return np.array(out, dtype=float)
+
+    def stepper(self) -> _InputBacklashStepper:
+        return _InputBacklashStepper(self)
+
+
+class _InputBacklashStepper:
+    __slots__ = ("ascending", "descending", "v")
+
+    def __init__(self, block: InputBacklash) -> None:
+        self.ascending = block.ascending
+        self.descending = block.descending
+        self.v = block.initial_output
+
+    def step(self, x: float) -> float:
+        x = float(x)
+        low = _evaluate_border(self.ascending, [x], "ascending")[0]
+        high = _evaluate_border(self.descending, [x], "descending")[0]
+        v = self.v
+        if v < low:
+            v = low
+        if v > high:
+            v = high
+        self.v = v
+        return v
+
+
+@dataclass(frozen=True)
+class InputSwitch:
+    """Switch with arbitrary borders at the plant input, Section II of Pouliquen et al. (2013), eq. (2):
+
+    .. math:: H[u_t] = \\delta_t H_a(u_t) + (1 - \\delta_t) H_d(u_t),
+
+    with the direction signal delta_t = 1 if u_t > u_{t-1}, delta_{t-1} if u_t = u_{t-1}, 0 if
+    u_t < u_{t-1}. The output jumps from one border to the other when the input reverses.
+
+    Parameters
+    ----------
+    ascending, descending
+        Borders H_a and H_d (callables rad -> output).
+    initial_input
+        u_{-1} (the rest position).
+    initial_ascending
+        delta_{-1}.
+    """
+
+    ascending: Border
+    descending: Border
+    initial_input: float = 0.0
+    initial_ascending: bool = True
+
+    def __post_init__(self) -> None:
+        _check_border("ascending", self.ascending)
+        _check_border("descending", self.descending)
+        object.__setattr__(self, "initial_input", _finite("initial_input", self.initial_input))
+        object.__setattr__(self, "initial_ascending", bool(self.initial_ascending))
+
+    def apply(self, signal: ArrayLike) -> NDArray[np.float64]:
+        u = as_signal("signal", signal).tolist()
+        ups = _evaluate_border(self.ascending, u, "ascending")
+        downs = _evaluate_border(self.descending, u, "descending")
+        previous = self.initial_input
+        ascending = self.initial_ascending
+        out = []
+        append = out.append
+        for u_t, up, down in zip(u, ups, downs):
+            if u_t > previous:
+                ascending = True
+            elif u_t < previous:
+                ascending = False
+            previous = u_t
+            append(up if ascending else down)
+        return np.array(out, dtype=float)
+
+    def stepper(self) -> _InputSwitchStepper:
+        return _InputSwitchStepper(self)
+
+
+class _InputSwitchStepper:
+    __slots__ = ("ascending", "descending", "previous", "rising")
+
+    def __init__(self, block: InputSwitch) -> None:
+        self.ascending = block.ascending
+        self.descending = block.descending
+        self.previous = block.initial_input
+        self.rising = block.initial_ascending
+
+    def step(self, x: float) -> float:
+        x = float(x)
+        if x > self.previous:
+            self.rising = True
+        elif x < self.previous:
+            self.rising = False
+        self.previous = x
+        border = self.ascending if self.rising else self.descending
+        return _evaluate_border(border, [x], "ascending" if self.rising else "descending")[0]
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Static input nonlinearities, delay, offset
+# ----------------------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class DeadZone:
+    """Static dead zone with unit slopes: y = u - left if u < left, u - right if u > right, else 0.
+
+    Parameters
+    ----------
+    left_rad, right_rad
+        Edges of the dead band, ``left_rad <= right_rad``.
+    """
+
+    left_rad: float
+    right_rad: float
+
+    def __post_init__(self) -> None:
+        left = _finite("left_rad", self.left_rad)
+        right = _finite("right_rad", self.right_rad)
+        if left > right:
+            raise InvalidInputError(f"left_rad, right_rad: expected left_rad <= right_rad, got {left:g} > {right:g}")
+        object.__setattr__(self, "left_rad", left)
+        object.__setattr__(self, "right_rad", right)
+
+    def apply(self, signal: ArrayLike) -> NDArray[np.float64]:
+        u = as_signal("signal", signal)
+        return np.where(u < self.left_rad, u - self.left_rad, np.where(u > self.right_rad, u - self.right_rad, 0.0))
+
+    def stepper(self) -> _StaticStepper:
+        left, right = self.left_rad, self.right_rad
+
+        def step(x: float) -> float:
+            x = float(x)
+            return x - left if x < left else (x - right if x > right else 0.0)
+
+        return _StaticStepper(step)
+
+
+@dataclass(frozen=True)
+class Saturation:
+    """Static saturation (travel limits): y = min(max(u, lower_rad), upper_rad)."""
+
+    lower_rad: float
+    upper_rad: float
+
+    def __post_init__(self) -> None:
+        lower = _finite("lower_rad", self.lower_rad)
+        upper = _finite("upper_rad", self.upper_rad)
+        if lower >= upper:
+            raise InvalidInputError(f"lower_rad, upper_rad: expected lower_rad < upper_rad, got {lower:g} >= {upper:g}")
+        object.__setattr__(self, "lower_rad", lower)
+        object.__setattr__(self, "upper_rad", upper)
+
+    def apply(self, signal: ArrayLike) -> NDArray[np.float64]:
+        return np.clip(as_signal("signal", signal), self.lower_rad, self.upper_rad)
+
+    def stepper(self) -> _StaticStepper:
+        lower, upper = self.lower_rad, self.upper_rad
+
+        def step(x: float) -> float:
+            x = float(x)
+            return lower if x < lower else (upper if x > upper else x)
+
+        return _StaticStepper(step)
+
+
+class _StaticStepper:
+    __slots__ = ("step",)
+
+    def __init__(self, step: Callable[[float], float]) -> None:
+        self.step = step
+
+
+@dataclass(frozen=True)
+class Delay:
+    """Pure delay y_t = u_{t - samples}, with y_t = 0 (rest) for t < samples."""
+
+    samples: int
+
+    def __post_init__(self) -> None:
+        if isinstance(self.samples, bool) or not isinstance(self.samples, (int, np.integer)) or self.samples < 0:
+            raise InvalidInputError(f"samples: expected an integer >= 0, got {self.samples!r}")
+        object.__setattr__(self, "samples", int(self.samples))
+
+    def apply(self, signal: ArrayLike) -> NDArray[np.float64]:
+        u = as_signal("signal", signal)
+        out = np.zeros_like(u)
+        if self.samples < u.size:
+            out[self.samples:] = u[: u.size - self.samples]
+        return out
+
+    def stepper(self) -> _DelayStepper:
+        return _DelayStepper(self.samples)
+
+
+class _DelayStepper:
+    __slots__ = ("buffer",)
+
+    def __init__(self, samples: int) -> None:
+        self.buffer: deque[float] = deque([0.0] * samples)
+
+    def step(self, x: float) -> float:
+        if not self.buffer:
+            return float(x)
+        self.buffer.append(float(x))
+        return self.buffer.popleft()
+
+
+@dataclass(frozen=True)
+class OutputOffset:
+    """Offset and slow linear drift of the measured angle: y_t = x_t + (offset + drift * t T).
+
+    Models a mounting offset of the load encoder and a thermal drift of the zero.
+    """
+
+    offset_rad: float
+    drift_rad_per_s: float
+    sample_period_s: float
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "offset_rad", _finite("offset_rad", self.offset_rad))
+        object.__setattr__(self, "drift_rad_per_s", _finite("drift_rad_per_s", self.drift_rad_per_s))
+        object.__setattr__(self, "sample_period_s", positive("sample_period_s", self.sample_period_s))
+
+    def apply(self, signal: ArrayLike) -> NDArray[np.float64]:
+        x = as_signal("signal", signal)
+        times = np.arange(x.size, dtype=float) * self.sample_period_s
+        return x + (self.offset_rad + self.drift_rad_per_s * times)
+
+    def stepper(self) -> _OffsetStepper:
+        return _OffsetStepper(self)
+
+
+class _OffsetStepper:
+    __slots__ = ("offset", "drift", "period", "k")
+
+    def __init__(self, block: OutputOffset) -> None:
+        self.offset, self.drift, self.period = block.offset_rad, block.drift_rad_per_s, block.sample_period_s
+        self.k = 0
+
+    def step(self, x: float) -> float:
+        time = float(self.k) * self.period
+        self.k += 1
+        return float(x) + (self.offset + self.drift * time)
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Friction
+# ----------------------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class CoulombFriction:
+    """Coulomb friction with stiction on a load driven through a compliant coupling (quasi-static).
+
+    The block's input x_t is the angle the drive train imposes; the load angle y_t is connected to it by a
+    torsional stiffness k, so the coupling torque is k (x_t - y_{t-1}) before the load moves. The load's
+    inertia is neglected at the sample rate (quasi-static), and friction opposes the direction of motion:
+
+    * sliding (the load moved in direction s = +-1 in the previous sample) continues while
+      s k (x_t - y_{t-1}) > T_c, with y_t = x_t - s T_c / k (the coupling holds exactly the Coulomb torque);
+    * otherwise the load breaks away when |k (x_t - y_{t-1})| > T_s, with s = sign(x_t - y_{t-1}) and
+      y_t = x_t - s T_c / k (it slips forward by (T_s - T_c)/k: stick-slip);
+    * otherwise it sticks: y_t = y_{t-1}.
+
+    With T_c = T_s this is a play operator of half-width T_s/k (friction plus compliance look like
+    backlash); with T_c < T_s it shows stick-slip at every start.
+
+    Parameters
+    ----------
+    breakaway_torque_nm
+        Static friction torque T_s > 0 that must be exceeded to start the load moving.
+    coulomb_torque_nm
+        Sliding friction torque T_c, 0 <= T_c <= T_s.
+    stiffness_nm_per_rad
+        Torsional stiffness k > 0 of the coupling between the drive train and the load.
+    initial_output_rad
+        y_{-1}, the load angle at rest before the first sample.
+    """
+
+    breakaway_torque_nm: float
+    coulomb_torque_nm: float
+    stiffness_nm_per_rad: float
+    initial_output_rad: float = 0.0
+
+    def __post_init__(self) -> None:
+        breakaway = positive("breakaway_torque_nm", self.breakaway_torque_nm)
+        coulomb = _finite("coulomb_torque_nm", self.coulomb_torque_nm)
+        if not 0.0 <= coulomb <= breakaway:
+            raise InvalidInputError(
+                f"coulomb_torque_nm: expected 0 <= coulomb_torque_nm <= breakaway_torque_nm ({breakaway:g}), got {coulomb:g}"
+            )
+        object.__setattr__(self, "breakaway_torque_nm", breakaway)
+        object.__setattr__(self, "coulomb_torque_nm", coulomb)
+        object.__setattr__(self, "stiffness_nm_per_rad", positive("stiffness_nm_per_rad", self.stiffness_nm_per_rad))
+        object.__setattr__(self, "initial_output_rad", _finite("initial_output_rad", self.initial_output_rad))
+
+    @property
+    def breakaway_deflection_rad(self) -> float:
+        """T_s / k: the twist of the coupling at which the load breaks away."""
+        return self.breakaway_torque_nm / self.stiffness_nm_per_rad
+
+    @property
+    def sliding_deflection_rad(self) -> float:
+        """T_c / k: the twist the coupling keeps while the load slides."""
+        return self.coulomb_torque_nm / self.stiffness_nm_per_rad
+
+    def apply(self, signal: ArrayLike) -> NDArray[np.float64]:
+        x = as_signal("signal", signal)
+        stepper = self.stepper()
+        step = stepper.step
+        return np.array([step(x_t) for x_t in x.tolist()], dtype=float)
+
+    def stepper(self) -> _FrictionStepper:
+        return _FrictionStepper(self)
+
+
+class _FrictionStepper:
+    __slots__ = ("stick", "slide", "y", "moving")
+
+    def __init__(self, block: CoulombFriction) -> None:
+        self.stick = block.breakaway_deflection_rad
+        self.slide = block.sliding_deflection_rad
+        self.y = block.initial_output_rad
+        self.moving = 0  # +1, -1 while sliding, 0 while stuck
+
+    def step(self, x: float) -> float:
+        x = float(x)
+        twist = x - self.y
+        if self.moving > 0 and twist > self.slide:
+            self.y = x - self.slide
+        elif self.moving < 0 and -twist > self.slide:
+            self.y = x + self.slide
+        elif twist > self.stick:
+            self.moving = 1
+            self.y = x - self.slide
+        elif -twist > self.stick:
+            self.moving = -1
+            self.y = x + self.slide
+        else:
+            self.moving = 0
+        return self.y
+
+
+# ----------------------------------------------------------------------------------------------------------
+# The chain
+# ----------------------------------------------------------------------------------------------------------
+
+
+def _check_block(index: int, block: Any) -> None:
+    if not (callable(getattr(block, "apply", None)) and callable(getattr(block, "stepper", None))):
+        raise InvalidInputError(
+            f"blocks[{index}]: expected a plant block with apply() and stepper(), got {type(block).__name__}"
+        )
+
+
+@dataclass(frozen=True)
+class PlantModel:
+    """A chain of blocks in signal order: ``blocks[0]`` receives the command, the last gives the load angle.
+
+    Examples
+    --------
+    The simulated example of Section 6 of Cerone et al. (2009): linear block, then output backlash.
+
+    >>> plant = PlantModel((LinearBlock((0.5, 0.7), (0.0, 1.4, 0.8), 1.0),
+    ...                     OutputBacklash(0.248, 0.0698, 0.252, 0.0349)))
+    >>> step_filter = LinearBlock(a=(-0.8125,), b=(0.0, 0.1875), sample_period_s=1.0)  # F(z), Section 3.1
+    >>> y = plant.simulate(step_filter.apply(np.ones(300)))
+    >>> round(float(y[-1]), 4)  # m_r (1 - c_r), eq. (11), when x_t does not overshoot
+    0.2432
+    """
+
+    blocks: tuple[Block, ...] = field(default_factory=tuple)
+
+    def __post_init__(self) -> None:
+        blocks = tuple(self.blocks)
+        for index, block in enumerate(blocks):
+            _check_block(index, block)
+        object.__setattr__(self, "blocks", blocks)
+        periods = {(type(b).__name__, b.sample_period_s) for b in blocks if hasattr(b, "sample_period_s")}
+        if len({period for _, period in periods}) > 1:
+            described = ", ".join(f"{name} {period:g} s" for name, period in sorted(periods))
+            raise InvalidInputError(f"blocks: the sample periods of the blocks differ ({described})")
+
+    @property
+    def sample_period_s(self) -> float | None:
+        """The sample period shared by the blocks that have one, or None if no block has one."""
+        for block in self.blocks:
+            period = getattr(block, "sample_period_s", None)
+            if period is not None:
+                return float(period)
+        return None
+
+    def simulate(self, command: ArrayLike) -> NDArray[np.float64]:
+        """Run a whole command signal (rad) through the chain from rest and return the output (rad)."""
+        y = as_signal("command", command)
+        for block in self.blocks:
+            y = block.apply(y)
+        return np.asarray(y, dtype=float)
+
+    def stepper(self) -> PlantStepper:
+        """A fresh stepper at rest; ``stepper().step(u_t)`` repeated gives :meth:`simulate` bit for bit."""
+        return PlantStepper(tuple(block.stepper() for block in self.blocks))
+
+    def with_block(self, block: Block, index: int | None = None) -> PlantModel:
+        """A new model with ``block`` inserted before position ``index`` (appended if None)."""
+        blocks = list(self.blocks)
+        if index is None:
+            blocks.append(block)
+        else:
+            if isinstance(index, bool) or not isinstance(index, (int, np.integer)) or not 0 <= index <= len(blocks):
+                raise InvalidInputError(f"index: expected an integer from 0 to {len(blocks)}, got {index!r}")
+            blocks.insert(int(index), block)
+        return PlantModel(tuple(blocks))
+
+    def without(self, block_type: type) -> PlantModel:
+        """A new model with every block of ``block_type`` removed; raises if there is none."""
+        kept = tuple(block for block in self.blocks if not isinstance(block, block_type))
+        if len(kept) == len(self.blocks):
+            present = ", ".join(type(block).__name__ for block in self.blocks) or "no blocks"
+            raise InvalidInputError(f"block_type: the model has no {block_type.__name__} (it has {present})")
+        return PlantModel(kept)
+
+    def find(self, block_type: type) -> tuple[Block, ...]:
+        """The blocks of ``block_type``, in signal order."""
+        return tuple(block for block in self.blocks if isinstance(block, block_type))
+
+
+class PlantStepper:
+    """Advances a :class:`PlantModel` one sample per :meth:`step`."""
+
+    __slots__ = ("_steps", "samples")
+
+    def __init__(self, steppers: tuple[BlockStepper, ...]) -> None:
+        self._steps = tuple(stepper.step for stepper in steppers)
+        self.samples = 0
+
+    def step(self, u_t: float) -> float:
+        """Feed one command sample (rad) and return the output sample (rad)."""
+        y = float(u_t)
+        if not math.isfinite(y):
+            raise InvalidInputError(f"u_t: sample {self.samples} is {u_t!r}; expected a finite angle in rad")
+        for step in self._steps:
+            y = step(y)
+        self.samples += 1
+        return y
