@@ -1,0 +1,424 @@
+"""Plant descriptions in TOML (``configs/plants/*.toml``) to and from the dataclasses of
+:mod:`identify.plant_blocks`, :mod:`rig.protocols.encoder_counts` and :mod:`sim_backend.noise`.
+
+Every key is validated by :mod:`rig.protocols.config_schema`: an error names the file, the dotted key and
+what was expected, and unknown keys are rejected. The format::
+
+    name = "cerone2009"                  # optional (default: the file name)
+    description = "..."                  # optional
+    sample_period_s = 1.0
+    seed = 2009                          # optional: seed of the noise generator
+
+    [encoder]                            # EncoderResolution
+    bits = 12
+    multi_turn_bits = 0                  # optional
+    signed = true                        # optional (default false)
+    direction = 1                        # optional, +1 or -1
+    offset_counts = 0                    # optional
+
+    [noise]
+    kind = "uniform"                     # quantization | uniform | gaussian | coloured
+    bound_rad = 7.67e-4                  # uniform
+    # std_rad = ... or snr_db = ...      # gaussian, coloured
+    # numerator = [1.0, 0.5]             # coloured: G_v(q) in q^-1
+    # denominator = [1.0, -0.85]
+
+    [[blocks]]                           # in signal order, the command enters the first
+    type = "linear"                      # see BLOCK_TYPES for every type and its keys
+    a = [0.5, 0.7]
+    b = [0.0, 1.4, 0.8]
+    # enabled = false                    # any block: keep it in the file but switch it off
+
+Input backlash and switch borders are inline tables: ``{ kind = "table", nodes_u = [...], values = [...] }``
+or ``{ kind = "arctan", input_shift = -1.0, output_shift = 0.0, lower_input = -2.0, upper_input = 2.0,
+lower_value = -1.0, upper_value = 1.0 }`` (the limits are optional).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from identify.plant_blocks import (
+    ArctanBorder,
+    Block,
+    CoulombFriction,
+    DeadZone,
+    Delay,
+    InputBacklash,
+    InputSwitch,
+    LinearBlock,
+    OutputBacklash,
+    OutputOffset,
+    PiecewiseLinearBorder,
+    PlantModel,
+    Resonance,
+    Saturation,
+)
+from identify.validation import InvalidInputError
+from rig.protocols.config_schema import ConfigTable, load_toml
+from rig.protocols.encoder_counts import EncoderResolution
+from rig.protocols.errors import ConfigError
+from sim_backend.noise import BoundedUniformNoise, ColouredNoise, GaussianNoise, NoiseModel, NoNoise
+from sim_backend.plant import SimulatedGearbox
+
+__all__ = ["BLOCK_TYPES", "PlantConfig", "load_plant_config", "plant_config_from_toml_text", "plant_config_to_toml"]
+
+
+@dataclass(frozen=True)
+class PlantConfig:
+    """A plant description: the blocks (with their on/off switches), the encoder, the noise and the seed."""
+
+    name: str
+    sample_period_s: float
+    encoder: EncoderResolution
+    noise: NoiseModel
+    blocks: tuple[Block, ...]
+    enabled: tuple[bool, ...] = ()
+    seed: int | None = None
+    description: str = ""
+    source: str = "<memory>"
+
+    def __post_init__(self) -> None:
+        if not self.enabled:
+            object.__setattr__(self, "enabled", (True,) * len(self.blocks))
+        if len(self.enabled) != len(self.blocks):
+            raise InvalidInputError(f"enabled: expected one switch per block ({len(self.blocks)}), got {len(self.enabled)}")
+
+    @property
+    def plant(self) -> PlantModel:
+        """The enabled blocks, in signal order."""
+        return PlantModel(tuple(block for block, on in zip(self.blocks, self.enabled) if on))
+
+    def gearbox(self, seed: int | None = None) -> SimulatedGearbox:
+        """The :class:`SimulatedGearbox`; ``seed`` overrides the config's seed."""
+        return SimulatedGearbox(
+            plant=self.plant,
+            encoder=self.encoder,
+            noise=self.noise,
+            sample_period_s=self.sample_period_s,
+            seed=seed if seed is not None else self.seed,
+            name=self.name,
+        )
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Reading
+# ----------------------------------------------------------------------------------------------------------
+
+
+def load_plant_config(path: str | Path) -> PlantConfig:
+    """Read and validate a plant config; raises :class:`ConfigError` naming the file and key."""
+    root = load_toml(path)
+    return _parse(root, default_name=Path(path).stem)
+
+
+def plant_config_from_toml_text(text: str, source: str = "<text>") -> PlantConfig:
+    """Parse a plant config from a TOML string (used by round trips and tests)."""
+    import tomllib
+
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as err:
+        raise ConfigError(source, "<file>", f"not valid TOML: {err}") from err
+    return _parse(ConfigTable(source, "", data), default_name="plant")
+
+
+def _parse(root: ConfigTable, default_name: str) -> PlantConfig:
+    name = root.string("name", default_name)
+    description = root.string("description", "")
+    period = root.number("sample_period_s", minimum=0.0, exclusive_minimum=True)
+    seed = root.integer("seed", None, minimum=0)
+    encoder = _parse_encoder(root.table("encoder"))
+    noise = _parse_noise(root.table("noise", {}))
+    blocks, enabled = [], []
+    for index, table in enumerate(_table_list(root, "blocks")):
+        block, on = _parse_block(table, period)
+        blocks.append(block)
+        enabled.append(on)
+    if not blocks:
+        raise root.error("blocks", "expected at least one [[blocks]] table")
+    root.finish()
+    config = PlantConfig(name=name, sample_period_s=period, encoder=encoder, noise=noise, blocks=tuple(blocks),
+                         enabled=tuple(enabled), seed=seed, description=description, source=root.source)
+    try:
+        config.plant  # noqa: B018 - validates the chain as a whole
+    except InvalidInputError as err:
+        raise root.error("blocks", str(err)) from err
+    return config
+
+
+def _table_list(root: ConfigTable, key: str) -> list[ConfigTable]:
+    # ConfigTable has no accessor for arrays of tables; _get marks the key as read like the public ones.
+    value = root._get(key, [])
+    if not isinstance(value, list) or not all(isinstance(item, dict) for item in value):
+        raise root.error(key, f"expected an array of tables [[{root.key_path(key)}]], got {value!r}")
+    return [ConfigTable(root.source, f"{root.key_path(key)}[{index}]", item) for index, item in enumerate(value)]
+
+
+def _build(table: ConfigTable, factory: Callable[..., Any], **kwargs: Any) -> Any:
+    try:
+        return factory(**kwargs)
+    except InvalidInputError as err:
+        message = str(err)
+        argument = message.split(":", 1)[0].split(",")[0].strip()
+        key = argument if argument in kwargs else "<table>"
+        raise table.error(key, message.split(":", 1)[1].strip() if key != "<table>" else message) from err
+
+
+def _parse_encoder(table: ConfigTable) -> EncoderResolution:
+    encoder = _build(
+        table,
+        EncoderResolution,
+        bits=table.integer("bits", minimum=1, maximum=32),
+        multi_turn_bits=table.integer("multi_turn_bits", 0, minimum=0, maximum=32),
+        signed=table.boolean("signed", False),
+        direction=table.integer("direction", 1, minimum=-1, maximum=1),
+        offset_counts=table.integer("offset_counts", 0, minimum=0),
+    )
+    table.finish()
+    return encoder
+
+
+NOISE_KINDS = ("quantization", "uniform", "gaussian", "coloured")
+
+
+def _parse_noise(table: ConfigTable) -> NoiseModel:
+    kind = table.string("kind", "quantization", choices=NOISE_KINDS)
+    if kind == "quantization":
+        noise: NoiseModel = NoNoise()
+    elif kind == "uniform":
+        noise = _build(table, BoundedUniformNoise, bound_rad=table.number("bound_rad", minimum=0.0, exclusive_minimum=True))
+    else:
+        std = table.number("std_rad", None, minimum=0.0, exclusive_minimum=True)
+        snr = table.number("snr_db", None)
+        if (std is None) == (snr is None):
+            raise table.error("std_rad", "give exactly one of std_rad and snr_db")
+        if kind == "gaussian":
+            noise = _build(table, GaussianNoise, std_rad=std, snr_db=snr)
+        else:
+            noise = _build(table, ColouredNoise, std_rad=std, snr_db=snr,
+                           numerator=tuple(table.numbers("numerator", [1.0, 0.5], min_length=1)),
+                           denominator=tuple(table.numbers("denominator", [1.0, -0.85], min_length=1)))
+    table.finish()
+    return noise
+
+
+def _parse_border(table: ConfigTable, key: str) -> Any:
+    border = table.table(key)
+    kind = border.string("kind", choices=("table", "arctan"))
+    if kind == "table":
+        result = _build(border, PiecewiseLinearBorder, nodes_u=tuple(border.numbers("nodes_u", min_length=2)),
+                        values=tuple(border.numbers("values", min_length=2)))
+    else:
+        result = _build(
+            border, ArctanBorder,
+            input_shift=border.number("input_shift"),
+            output_shift=border.number("output_shift", 0.0),
+            lower_input=border.number("lower_input", -math.inf) if border.has("lower_input") else -math.inf,
+            upper_input=border.number("upper_input", math.inf) if border.has("upper_input") else math.inf,
+            lower_value=border.number("lower_value", 0.0),
+            upper_value=border.number("upper_value", 0.0),
+        )
+    border.finish()
+    return result
+
+
+def _matrix(table: ConfigTable, key: str) -> list[list[float]]:
+    value = table._get(key, None)  # see _table_list
+    if not (isinstance(value, list) and value and all(
+            isinstance(row, list) and row and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in row)
+            for row in value)):
+        raise table.error(key, f"expected a matrix as a list of rows of numbers, got {value!r}")
+    return [[float(v) for v in row] for row in value]
+
+
+def _parse_block(table: ConfigTable, period: float) -> tuple[Block, bool]:
+    kind = table.string("type", choices=tuple(BLOCK_TYPES))
+    enabled = table.boolean("enabled", True)
+    block = BLOCK_TYPES[kind][1](table, period)
+    table.finish()
+    return block, enabled
+
+
+def _read_linear(t: ConfigTable, period: float) -> LinearBlock:
+    return _build(t, LinearBlock, a=tuple(t.numbers("a")), b=tuple(t.numbers("b", min_length=1)), sample_period_s=period)
+
+
+def _read_state_space(t: ConfigTable, period: float) -> LinearBlock:
+    A = _matrix(t, "A")
+    B, C = t.numbers("B", min_length=1), t.numbers("C", min_length=1)
+    D = t.number("D", 0.0)
+    try:
+        return LinearBlock.from_state_space(A, B, C, D, period)
+    except (InvalidInputError, ValueError) as err:
+        raise t.error(str(err).split(":", 1)[0], str(err)) from err
+
+
+def _read_output_backlash(t: ConfigTable, period: float) -> OutputBacklash:
+    return _build(t, OutputBacklash, m_l=t.number("m_l"), c_l=t.number("c_l"), m_r=t.number("m_r"),
+                  c_r=t.number("c_r"), initial_output=t.number("initial_output", 0.0))
+
+
+def _read_input_backlash(t: ConfigTable, period: float) -> InputBacklash:
+    return _build(t, InputBacklash, ascending=_parse_border(t, "ascending"), descending=_parse_border(t, "descending"),
+                  initial_output=t.number("initial_output", 0.0))
+
+
+def _read_input_switch(t: ConfigTable, period: float) -> InputSwitch:
+    return _build(t, InputSwitch, ascending=_parse_border(t, "ascending"), descending=_parse_border(t, "descending"),
+                  initial_input=t.number("initial_input", 0.0), initial_ascending=t.boolean("initial_ascending", True))
+
+
+def _read_dead_zone(t: ConfigTable, period: float) -> DeadZone:
+    return _build(t, DeadZone, left_rad=t.number("left_rad"), right_rad=t.number("right_rad"))
+
+
+def _read_saturation(t: ConfigTable, period: float) -> Saturation:
+    return _build(t, Saturation, lower_rad=t.number("lower_rad"), upper_rad=t.number("upper_rad"))
+
+
+def _read_delay(t: ConfigTable, period: float) -> Delay:
+    return _build(t, Delay, samples=t.integer("samples", minimum=0))
+
+
+def _read_resonance(t: ConfigTable, period: float) -> Resonance:
+    return _build(t, Resonance, frequency_hz=t.number("frequency_hz"), damping_ratio=t.number("damping_ratio"),
+                  sample_period_s=period)
+
+
+def _read_offset(t: ConfigTable, period: float) -> OutputOffset:
+    return _build(t, OutputOffset, offset_rad=t.number("offset_rad", 0.0), drift_rad_per_s=t.number("drift_rad_per_s", 0.0),
+                  sample_period_s=period)
+
+
+def _read_friction(t: ConfigTable, period: float) -> CoulombFriction:
+    return _build(t, CoulombFriction, breakaway_torque_nm=t.number("breakaway_torque_nm"),
+                  coulomb_torque_nm=t.number("coulomb_torque_nm"), stiffness_nm_per_rad=t.number("stiffness_nm_per_rad"),
+                  initial_output_rad=t.number("initial_output_rad", 0.0))
+
+
+BLOCK_TYPES: dict[str, tuple[type, Callable[[ConfigTable, float], Block]]] = {
+    "linear": (LinearBlock, _read_linear),
+    "state_space": (LinearBlock, _read_state_space),
+    "output_backlash": (OutputBacklash, _read_output_backlash),
+    "input_backlash": (InputBacklash, _read_input_backlash),
+    "input_switch": (InputSwitch, _read_input_switch),
+    "dead_zone": (DeadZone, _read_dead_zone),
+    "saturation": (Saturation, _read_saturation),
+    "delay": (Delay, _read_delay),
+    "resonance": (Resonance, _read_resonance),
+    "offset": (OutputOffset, _read_offset),
+    "coulomb_friction": (CoulombFriction, _read_friction),
+}
+"""``type`` in a ``[[blocks]]`` table -> (block class, reader)."""
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Writing
+# ----------------------------------------------------------------------------------------------------------
+
+
+def _value(value: Any) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, int):
+        return str(value)
+    if isinstance(value, float):
+        if math.isinf(value):
+            return "inf" if value > 0 else "-inf"
+        return repr(value)
+    if isinstance(value, str):
+        escaped = value.replace("\\", "\\\\").replace('"', '\\"').replace("\n", "\\n")
+        return f'"{escaped}"'
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(_value(item) for item in value) + "]"
+    if isinstance(value, dict):
+        return "{ " + ", ".join(f"{key} = {_value(item)}" for key, item in value.items()) + " }"
+    raise TypeError(f"cannot write {type(value).__name__} to TOML")
+
+
+def _border_fields(border: Any, key: str) -> dict[str, Any]:
+    if isinstance(border, PiecewiseLinearBorder):
+        return {"kind": "table", "nodes_u": list(border.nodes_u), "values": list(border.values)}
+    if isinstance(border, ArctanBorder):
+        fields: dict[str, Any] = {"kind": "arctan", "input_shift": border.input_shift, "output_shift": border.output_shift}
+        if math.isfinite(border.lower_input):
+            fields.update(lower_input=border.lower_input, lower_value=border.lower_value)
+        if math.isfinite(border.upper_input):
+            fields.update(upper_input=border.upper_input, upper_value=border.upper_value)
+        return fields
+    raise InvalidInputError(
+        f"{key}: a {type(border).__name__} border cannot be written to TOML; use PiecewiseLinearBorder or ArctanBorder"
+    )
+
+
+def _block_fields(block: Block) -> dict[str, Any]:
+    if isinstance(block, LinearBlock):
+        return {"type": "linear", "a": list(block.a), "b": list(block.b)}
+    if isinstance(block, OutputBacklash):
+        return {"type": "output_backlash", "m_l": block.m_l, "c_l": block.c_l, "m_r": block.m_r, "c_r": block.c_r,
+                "initial_output": block.initial_output}
+    if isinstance(block, InputBacklash):
+        return {"type": "input_backlash", "ascending": _border_fields(block.ascending, "ascending"),
+                "descending": _border_fields(block.descending, "descending"), "initial_output": block.initial_output}
+    if isinstance(block, InputSwitch):
+        return {"type": "input_switch", "ascending": _border_fields(block.ascending, "ascending"),
+                "descending": _border_fields(block.descending, "descending"), "initial_input": block.initial_input,
+                "initial_ascending": block.initial_ascending}
+    if isinstance(block, DeadZone):
+        return {"type": "dead_zone", "left_rad": block.left_rad, "right_rad": block.right_rad}
+    if isinstance(block, Saturation):
+        return {"type": "saturation", "lower_rad": block.lower_rad, "upper_rad": block.upper_rad}
+    if isinstance(block, Delay):
+        return {"type": "delay", "samples": block.samples}
+    if isinstance(block, Resonance):
+        return {"type": "resonance", "frequency_hz": block.frequency_hz, "damping_ratio": block.damping_ratio}
+    if isinstance(block, OutputOffset):
+        return {"type": "offset", "offset_rad": block.offset_rad, "drift_rad_per_s": block.drift_rad_per_s}
+    if isinstance(block, CoulombFriction):
+        return {"type": "coulomb_friction", "breakaway_torque_nm": block.breakaway_torque_nm,
+                "coulomb_torque_nm": block.coulomb_torque_nm, "stiffness_nm_per_rad": block.stiffness_nm_per_rad,
+                "initial_output_rad": block.initial_output_rad}
+    raise InvalidInputError(f"blocks: a {type(block).__name__} block has no TOML form")
+
+
+def _noise_fields(noise: NoiseModel) -> dict[str, Any]:
+    if isinstance(noise, NoNoise):
+        return {"kind": "quantization"}
+    if isinstance(noise, BoundedUniformNoise):
+        return {"kind": "uniform", "bound_rad": noise.bound_rad}
+    if isinstance(noise, (GaussianNoise, ColouredNoise)):
+        fields: dict[str, Any] = {"kind": noise.kind}
+        if noise.std_rad is not None:
+            fields["std_rad"] = noise.std_rad
+        else:
+            fields["snr_db"] = float(noise.snr_db)
+        if isinstance(noise, ColouredNoise):
+            fields.update(numerator=list(noise.numerator), denominator=list(noise.denominator))
+        return fields
+    raise InvalidInputError(f"noise: a {type(noise).__name__} has no TOML form")
+
+
+def plant_config_to_toml(config: PlantConfig) -> str:
+    """Write ``config`` as TOML that :func:`load_plant_config` reads back to an equal config."""
+    lines = [f"name = {_value(config.name)}"]
+    if config.description:
+        lines.append(f"description = {_value(config.description)}")
+    lines.append(f"sample_period_s = {_value(float(config.sample_period_s))}")
+    if config.seed is not None:
+        lines.append(f"seed = {_value(int(config.seed))}")
+    encoder = config.encoder
+    lines += ["", "[encoder]", f"bits = {encoder.bits}", f"multi_turn_bits = {encoder.multi_turn_bits}",
+              f"signed = {_value(encoder.signed)}", f"direction = {encoder.direction}",
+              f"offset_counts = {encoder.offset_counts}", "", "[noise]"]
+    lines += [f"{key} = {_value(value)}" for key, value in _noise_fields(config.noise).items()]
+    for block, on in zip(config.blocks, config.enabled):
+        lines += ["", "[[blocks]]"]
+        lines += [f"{key} = {_value(value)}" for key, value in _block_fields(block).items()]
+        if not on:
+            lines.append("enabled = false")
+    return "\n".join(lines) + "\n"
