@@ -1,0 +1,246 @@
+"""The experiment record: one data type for what the rig captured and what identification reads.
+
+A record holds, per sample, the time, the commanded input u_t, the measured load angle y_t, the raw encoder
+position value (None for data from other tools) and status flags, plus metadata that say where the data
+came from (plant or rig, transport, sample period, encoder bits, noise and its bound, excitation and its
+seed, config, software version). It checks itself on construction, so every consumer can rely on equal
+lengths, finite times that increase, and finite values wherever a sample is not marked lost.
+
+File I/O lives in :mod:`rig.log_file`; this module is pure data.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field, fields
+from enum import IntFlag
+from types import MappingProxyType
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from identify.validation import InvalidInputError
+
+__all__ = ["ExperimentMetadata", "ExperimentRecord", "SampleFlag"]
+
+
+class SampleFlag(IntFlag):
+    """Per-sample status bits (several may be set at once)."""
+
+    OK = 0
+    LOST = 1  #: no reading arrived for this sample; the angle is NaN
+    LATE = 2  #: the reading arrived after the sample's deadline (the value is real but its time is not exact)
+    DUPLICATE = 4  #: the device repeated its previous reading (no fresh measurement)
+    LIMITED = 8  #: the command was clipped by a configured limit before it was sent
+    FAULT = 16  #: the device reported a fault during this sample
+
+    @classmethod
+    def unusable(cls) -> SampleFlag:
+        """Flags that make a sample unusable for identification."""
+        return cls.LOST | cls.DUPLICATE | cls.FAULT
+
+
+_ALL_FLAGS = int(SampleFlag.LOST | SampleFlag.LATE | SampleFlag.DUPLICATE | SampleFlag.LIMITED | SampleFlag.FAULT)
+
+
+@dataclass(frozen=True)
+class ExperimentMetadata:
+    """Where a record came from.
+
+    Attributes
+    ----------
+    sample_period_s
+        The nominal sample period T.
+    source
+        The plant config name (simulation) or the rig name (hardware), or the file a foreign CSV came from.
+    transport
+        ``"offline"`` for ``rig simulate``, the transport name on a rig, ``"csv"`` for foreign data.
+    encoder_bits
+        Single-turn resolution of the load encoder, if known.
+    noise_kind, noise_bound_rad
+        The simulated noise model and its bound (``inf`` for Gaussian noise), if known.
+    excitation, excitation_seed
+        The excitation's name (or config file) and the seed it was generated with.
+    seed
+        Seed of the simulated noise, if any.
+    config
+        Free-form description of the configs used (e.g. file names or their parsed contents).
+    software_version
+        Version of this package that wrote the record.
+    extra
+        Anything else (kept on reading a newer log).
+    """
+
+    sample_period_s: float
+    source: str = ""
+    transport: str = ""
+    encoder_bits: int | None = None
+    noise_kind: str | None = None
+    noise_bound_rad: float | None = None
+    excitation: str | None = None
+    excitation_seed: int | None = None
+    seed: int | None = None
+    config: Mapping[str, Any] = field(default_factory=dict)
+    software_version: str = ""
+    extra: Mapping[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        period = self.sample_period_s
+        if isinstance(period, bool) or not isinstance(period, (int, float, np.floating)) or not (
+                math.isfinite(period) and period > 0):
+            raise InvalidInputError(f"sample_period_s: expected a finite number > 0, got {period!r}")
+        object.__setattr__(self, "sample_period_s", float(period))
+        if self.encoder_bits is not None and (isinstance(self.encoder_bits, bool) or not isinstance(self.encoder_bits, int)
+                                              or not 1 <= self.encoder_bits <= 32):
+            raise InvalidInputError(f"encoder_bits: expected an integer from 1 to 32, got {self.encoder_bits!r}")
+        if self.noise_bound_rad is not None:
+            bound = float(self.noise_bound_rad)
+            if math.isnan(bound) or bound < 0:
+                raise InvalidInputError(f"noise_bound_rad: expected a number >= 0 (inf allowed), got {self.noise_bound_rad!r}")
+            object.__setattr__(self, "noise_bound_rad", bound)
+        object.__setattr__(self, "config", MappingProxyType(dict(self.config)))
+        object.__setattr__(self, "extra", MappingProxyType(dict(self.extra)))
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain JSON-able dict (``inf`` bound written as the string ``"inf"``)."""
+        out: dict[str, Any] = {}
+        for item in fields(self):
+            value = getattr(self, item.name)
+            if isinstance(value, Mapping):
+                value = dict(value)
+            if item.name == "noise_bound_rad" and value is not None and math.isinf(value):
+                value = "inf"
+            out[item.name] = value
+        return out
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> ExperimentMetadata:
+        """Inverse of :meth:`to_dict`; unknown keys go to :attr:`extra`."""
+        if not isinstance(data, Mapping):
+            raise InvalidInputError(f"metadata: expected a mapping, got {type(data).__name__}")
+        known = {item.name for item in fields(cls)}
+        if "sample_period_s" not in data:
+            raise InvalidInputError("metadata: sample_period_s is missing")
+        values = {key: value for key, value in data.items() if key in known}
+        extra = dict(values.pop("extra", {}) or {})
+        extra.update({key: value for key, value in data.items() if key not in known})
+        if values.get("noise_bound_rad") == "inf":
+            values["noise_bound_rad"] = math.inf
+        return cls(**values, extra=extra)
+
+
+def _array(name: str, values: ArrayLike, dtype: Any) -> NDArray[Any]:
+    try:
+        array = np.array(values, dtype=dtype, copy=True)
+    except (TypeError, ValueError) as err:
+        raise InvalidInputError(f"{name}: expected a 1-D array of numbers, got {type(values).__name__}") from err
+    if array.ndim != 1:
+        raise InvalidInputError(f"{name}: expected a 1-D array, got shape {array.shape}")
+    array.setflags(write=False)
+    return array
+
+
+def _first_bad(name: str, mask: NDArray[np.bool_], values: NDArray[Any], problem: str) -> None:
+    bad = np.flatnonzero(mask)
+    if bad.size:
+        raise InvalidInputError(f"{name}: sample {bad[0]} is {values[bad[0]]!r}: {problem} ({bad.size} such samples)")
+
+
+@dataclass(frozen=True)
+class ExperimentRecord:
+    """Time, command, measured angle, encoder counts and flags of one experiment, with its metadata.
+
+    Attributes
+    ----------
+    time_s
+        Sample times, finite and strictly increasing.
+    command_rad
+        The commanded input u_t, finite.
+    angle_rad
+        The measured load angle y_t; NaN exactly where the sample is flagged LOST, finite elsewhere.
+    encoder_counts
+        Raw position values as the device reported them (int64; 0 where LOST), or None for data that came
+        without them.
+    flags
+        :class:`SampleFlag` bits per sample (uint8); all zero by default.
+    metadata
+        :class:`ExperimentMetadata`.
+    """
+
+    time_s: NDArray[np.float64]
+    command_rad: NDArray[np.float64]
+    angle_rad: NDArray[np.float64]
+    encoder_counts: NDArray[np.int64] | None
+    flags: NDArray[np.uint8] | None
+    metadata: ExperimentMetadata
+
+    def __post_init__(self) -> None:
+        time = _array("time_s", self.time_s, float)
+        command = _array("command_rad", self.command_rad, float)
+        angle = _array("angle_rad", self.angle_rad, float)
+        if time.size == 0:
+            raise InvalidInputError("time_s: expected at least one sample, got none")
+        lengths = {"time_s": time.size, "command_rad": command.size, "angle_rad": angle.size}
+        counts = None
+        if self.encoder_counts is not None:
+            raw = np.asarray(self.encoder_counts)
+            if raw.dtype.kind == "f":
+                if np.any(raw[np.isfinite(raw)] != np.round(raw[np.isfinite(raw)])):
+                    raise InvalidInputError("encoder_counts: expected integer position values")
+                raw = np.where(np.isfinite(raw), raw, 0)
+            counts = _array("encoder_counts", raw, np.int64)
+            lengths["encoder_counts"] = counts.size
+        if self.flags is None:
+            flags = _array("flags", np.zeros(time.size, dtype=np.uint8), np.uint8)
+        else:
+            raw_flags = np.asarray(self.flags)
+            if raw_flags.dtype.kind not in "iub" or np.any(raw_flags < 0) or np.any(raw_flags > _ALL_FLAGS) \
+                    or np.any(np.asarray(raw_flags, dtype=np.int64) & ~_ALL_FLAGS):
+                raise InvalidInputError(f"flags: expected SampleFlag bits (0 to {_ALL_FLAGS}), got {raw_flags!r}")
+            flags = _array("flags", raw_flags, np.uint8)
+            lengths["flags"] = flags.size
+        if len(set(lengths.values())) > 1:
+            described = ", ".join(f"{name} has {n}" for name, n in lengths.items())
+            raise InvalidInputError(f"signals must have the same number of samples: {described}")
+        if not isinstance(self.metadata, ExperimentMetadata):
+            raise InvalidInputError(f"metadata: expected ExperimentMetadata, got {type(self.metadata).__name__}")
+        _first_bad("time_s", ~np.isfinite(time), time, "expected a finite time")
+        steps = np.diff(time)
+        _first_bad("time_s", np.concatenate(([False], steps <= 0)), time, "times must increase strictly")
+        _first_bad("command_rad", ~np.isfinite(command), command, "expected a finite command")
+        lost = (flags & SampleFlag.LOST) != 0
+        _first_bad("angle_rad", ~lost & ~np.isfinite(angle), angle, "expected a finite angle (or the LOST flag)")
+        _first_bad("angle_rad", lost & ~np.isnan(angle), angle, "a LOST sample must have angle NaN")
+        if counts is not None and np.any(counts[lost] != 0):
+            counts = np.where(lost, 0, counts)  # a LOST sample has no reading: its counts are 0 by convention
+            counts.setflags(write=False)
+        for name, value in (("time_s", time), ("command_rad", command), ("angle_rad", angle),
+                            ("encoder_counts", counts), ("flags", flags)):
+            object.__setattr__(self, name, value)
+
+    def __len__(self) -> int:
+        return int(self.time_s.size)
+
+    @property
+    def num_samples(self) -> int:
+        return len(self)
+
+    @property
+    def sample_period_s(self) -> float:
+        return self.metadata.sample_period_s
+
+    @property
+    def valid_mask(self) -> NDArray[np.bool_]:
+        """True where the sample can be used: not LOST, DUPLICATE or FAULT."""
+        return (self.flags & int(SampleFlag.unusable())) == 0
+
+    @property
+    def lost_count(self) -> int:
+        """Number of samples flagged LOST."""
+        return int(np.count_nonzero(self.flags & SampleFlag.LOST))
+
+    def count_flag(self, flag: SampleFlag) -> int:
+        """Number of samples with ``flag`` set."""
+        return int(np.count_nonzero(self.flags & int(flag)))

@@ -1,0 +1,312 @@
+"""Experiment log files: self-describing, readable without this package, and crash-safe.
+
+Format ``rig-log v1`` (a CSV file with a commented header)::
+
+    # rig-log v1
+    # metadata {"sample_period_s": 0.001, "source": "cerone2009", ...}      <- one line of JSON
+    # units time_s=s command_rad=rad angle_rad=rad encoder_counts=counts flags=bits(1 LOST,2 LATE,...)
+    time_s,command_rad,angle_rad,encoder_counts,flags
+    0.0,0.0,0.0,0,0
+    0.001,0.25,nan,,1                                                        <- a LOST sample
+
+* pandas: ``pandas.read_csv(path, comment="#")``; numpy:
+  ``numpy.genfromtxt(path, delimiter=",", names=True, skip_header=3)`` (the header is always 3 comment
+  lines); MATLAB:
+  ``readtable(path, "CommentStyle", "#")``. The metadata line is plain JSON after ``# metadata ``.
+* Samples are appended one line each and flushed to the OS every ``flush_every`` samples (1 by default) or
+  after ``flush_interval_s``; a process killed at any instant leaves every flushed line readable, and a
+  torn last line is dropped on reading with a warning. ``close()`` flushes and fsyncs.
+* Floats are written with ``repr`` (shortest exact round trip).
+
+:func:`read_experiment_data` also accepts plain CSV files with columns ``t,u,y`` (seconds, radians) made by
+other tools, through :func:`rig.signal_files.read_signal_table`.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import time
+import warnings
+from collections.abc import Mapping
+from pathlib import Path
+from types import TracebackType
+from typing import Any, TextIO
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from identify.experiment_record import ExperimentMetadata, ExperimentRecord, SampleFlag
+from identify.validation import InvalidInputError
+from rig.protocols.errors import LogFileError
+from rig.signal_files import read_signal_table
+
+__all__ = ["COLUMNS", "FORMAT_LINE", "LogWriter", "read_experiment_data", "read_log", "write_log"]
+
+FORMAT_LINE = "# rig-log v1"
+COLUMNS = ("time_s", "command_rad", "angle_rad", "encoder_counts", "flags")
+_METADATA_PREFIX = "# metadata "
+_UNITS_LINE = ("# units time_s=s command_rad=rad angle_rad=rad encoder_counts=counts flags=bits("
+               + ",".join(f"{int(flag)} {flag.name}" for flag in SampleFlag if flag.value) + ")")
+
+
+def _metadata_dict(metadata: ExperimentMetadata | Mapping[str, Any]) -> dict[str, Any]:
+    if isinstance(metadata, ExperimentMetadata):
+        return metadata.to_dict()
+    return ExperimentMetadata.from_dict(metadata).to_dict()
+
+
+class LogWriter:
+    """Append samples to a ``rig-log v1`` file as they come.
+
+    Parameters
+    ----------
+    path
+        The file to create (an existing file is replaced).
+    metadata
+        :class:`~identify.experiment_record.ExperimentMetadata` (or a dict of its fields).
+    flush_every
+        Flush to the OS after this many samples (1: every sample).
+    flush_interval_s
+        Also flush when this much time has passed since the last flush (None: only by count).
+    fsync
+        Also fsync at every flush (survives power loss, costs a disk write per flush); ``close`` always
+        fsyncs.
+
+    Examples
+    --------
+    >>> with LogWriter(path, metadata) as log:          # doctest: +SKIP
+    ...     log.append(0.0, 0.1, 0.0, encoder_counts=0)
+    """
+
+    def __init__(self, path: str | Path, metadata: ExperimentMetadata | Mapping[str, Any], *,
+                 flush_every: int = 1, flush_interval_s: float | None = None, fsync: bool = False) -> None:
+        self.path = Path(path)
+        if isinstance(flush_every, bool) or not isinstance(flush_every, int) or flush_every < 1:
+            raise InvalidInputError(f"flush_every: expected an integer >= 1, got {flush_every!r}")
+        if flush_interval_s is not None and not (math.isfinite(flush_interval_s) and flush_interval_s > 0):
+            raise InvalidInputError(f"flush_interval_s: expected a number > 0 or None, got {flush_interval_s!r}")
+        header = json.dumps(_metadata_dict(metadata), allow_nan=False, default=str)
+        self.flush_every = flush_every
+        self.flush_interval_s = flush_interval_s
+        self.fsync = fsync
+        try:
+            self._file: TextIO | None = self.path.open("w", encoding="utf-8", newline="\n")
+        except OSError as err:
+            raise LogFileError(f"{self.path}: cannot open the log for writing: {err.strerror or err}") from err
+        self._file.write(f"{FORMAT_LINE}\n{_METADATA_PREFIX}{header}\n{_UNITS_LINE}\n{','.join(COLUMNS)}\n")
+        self._flush(sync=True)
+        self.samples = 0
+        self._pending = 0
+        self._last_time: float | None = None
+
+    def __enter__(self) -> LogWriter:
+        return self
+
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
+                 traceback: TracebackType | None) -> None:
+        self.close()
+
+    def _flush(self, sync: bool) -> None:
+        assert self._file is not None
+        self._file.flush()
+        if sync:
+            os.fsync(self._file.fileno())
+        self._last_flush = time.monotonic()
+
+    def append(self, time_s: float, command_rad: float, angle_rad: float, encoder_counts: int | None = None,
+               flags: int | SampleFlag = SampleFlag.OK) -> None:
+        """Write one sample. A LOST sample may pass ``angle_rad=nan``; times must increase."""
+        if self._file is None:
+            raise LogFileError(f"{self.path}: the log is closed")
+        time_value, command, angle, flag = float(time_s), float(command_rad), float(angle_rad), int(flags)
+        if not math.isfinite(time_value) or (self._last_time is not None and time_value <= self._last_time):
+            raise InvalidInputError(
+                f"time_s: sample {self.samples} at {time_s!r} s does not follow {self._last_time!r} s; times must increase"
+            )
+        if not math.isfinite(command):
+            raise InvalidInputError(f"command_rad: sample {self.samples} is {command_rad!r}")
+        if not 0 <= flag <= 255:
+            raise InvalidInputError(f"flags: sample {self.samples} has {flags!r}; expected SampleFlag bits")
+        lost = bool(flag & SampleFlag.LOST)
+        if lost:
+            angle = math.nan
+        elif not math.isfinite(angle):
+            raise InvalidInputError(f"angle_rad: sample {self.samples} is {angle_rad!r}; flag it LOST instead")
+        counts = "" if encoder_counts is None or lost else str(int(encoder_counts))
+        self._file.write(f"{time_value!r},{command!r},{angle!r},{counts},{flag}\n")
+        self._last_time = time_value
+        self.samples += 1
+        self._pending += 1
+        if self._pending >= self.flush_every or (
+                self.flush_interval_s is not None and time.monotonic() - self._last_flush >= self.flush_interval_s):
+            self._flush(sync=self.fsync)
+            self._pending = 0
+
+    def append_many(self, time_s: ArrayLike, command_rad: ArrayLike, angle_rad: ArrayLike,
+                    encoder_counts: ArrayLike | None = None, flags: ArrayLike | None = None) -> None:
+        """Write whole arrays (an offline simulation), one line per sample."""
+        times = np.asarray(time_s, dtype=float)
+        commands = np.asarray(command_rad, dtype=float)
+        angles = np.asarray(angle_rad, dtype=float)
+        counts = [None] * times.size if encoder_counts is None else np.asarray(encoder_counts).tolist()
+        flag_values = [0] * times.size if flags is None else np.asarray(flags).tolist()
+        for row in zip(times.tolist(), commands.tolist(), angles.tolist(), counts, flag_values):
+            self.append(*row)
+
+    def close(self) -> None:
+        """Flush, fsync and close (idempotent)."""
+        if self._file is None:
+            return
+        try:
+            self._flush(sync=True)
+        finally:
+            self._file.close()
+            self._file = None
+
+
+def write_log(path: str | Path, record: ExperimentRecord) -> None:
+    """Write a whole :class:`ExperimentRecord` as a log file."""
+    with LogWriter(path, record.metadata, flush_every=max(1, len(record))) as log:
+        log.append_many(record.time_s, record.command_rad, record.angle_rad, record.encoder_counts, record.flags)
+
+
+def _is_rig_log(path: Path) -> bool:
+    try:
+        with path.open("r", encoding="utf-8", errors="replace") as handle:
+            first = handle.readline()
+    except OSError:
+        return False
+    return first.startswith("# rig-log")
+
+
+def read_log(path: str | Path) -> ExperimentRecord:
+    """Read a ``rig-log v1`` file; raises :class:`LogFileError` naming the file, line and problem."""
+    path = Path(path)
+    if not path.is_file():
+        raise LogFileError(f"{path}: no such file")
+    try:
+        text = path.read_text(encoding="utf-8")
+    except UnicodeDecodeError as err:
+        raise LogFileError(f"{path}: not a text file (byte {err.start} is not UTF-8); expected a rig-log v1 CSV") from None
+    lines = text.split("\n")
+    if not text:
+        raise LogFileError(f"{path}: the file is empty; expected a '{FORMAT_LINE}' log")
+    first = lines[0].rstrip("\r")
+    if not first.startswith("# rig-log"):
+        raise LogFileError(
+            f"{path}: line 1: expected '{FORMAT_LINE}', got {first[:60]!r}; this is not a rig log "
+            "(plain CSV files with columns t,u,y are read by read_experiment_data)"
+        )
+    if first != FORMAT_LINE:
+        raise LogFileError(f"{path}: line 1: unsupported log format {first[2:]!r}; this version reads {FORMAT_LINE[2:]!r}")
+    torn = not text.endswith("\n")
+    if torn:
+        warnings.warn(f"{path}: the last line is incomplete (the writer stopped mid-line); it was dropped",
+                      stacklevel=2)
+        lines = lines[:-1]
+    elif lines[-1] == "":
+        lines = lines[:-1]
+    metadata_line, header_line = None, None
+    for number, line in enumerate(lines[1:], start=2):
+        if line.startswith(_METADATA_PREFIX):
+            metadata_line = number
+        elif not line.startswith("#"):
+            header_line = number
+            break
+    if metadata_line is None:
+        raise LogFileError(f"{path}: no '{_METADATA_PREFIX.strip()}' line in the header; the file is damaged")
+    try:
+        metadata = ExperimentMetadata.from_dict(json.loads(lines[metadata_line - 1][len(_METADATA_PREFIX):]))
+    except json.JSONDecodeError as err:
+        raise LogFileError(f"{path}: line {metadata_line}: the metadata is not valid JSON: {err.msg} at column {err.colno}") from None
+    except (InvalidInputError, TypeError) as err:
+        raise LogFileError(f"{path}: line {metadata_line}: bad metadata: {err}") from None
+    if header_line is None:
+        raise LogFileError(f"{path}: the header has no column line '{','.join(COLUMNS)}'; the file is damaged")
+    columns = tuple(name.strip() for name in lines[header_line - 1].split(","))
+    if columns != COLUMNS:
+        raise LogFileError(f"{path}: line {header_line}: expected columns {','.join(COLUMNS)}, got {','.join(columns)}")
+    rows = lines[header_line:]
+    n = len(rows)
+    time_s, command, angle = np.empty(n), np.empty(n), np.empty(n)
+    counts = np.zeros(n, dtype=np.int64)
+    flags = np.zeros(n, dtype=np.uint8)
+    has_counts = False
+    for index, row in enumerate(rows):
+        number = header_line + 1 + index
+        fields = row.rstrip("\r").split(",")
+        if len(fields) != len(COLUMNS):
+            raise LogFileError(f"{path}: line {number}: expected {len(COLUMNS)} values, got {len(fields)}")
+        try:
+            time_s[index], command[index], angle[index] = float(fields[0]), float(fields[1]), float(fields[2])
+        except ValueError:
+            column = next(name for name, text in zip(COLUMNS, fields) if not _is_float(text))
+            raise LogFileError(f"{path}: line {number}, column {column}: {fields[COLUMNS.index(column)]!r} is not a number") from None
+        try:
+            if fields[3].strip():
+                counts[index] = int(fields[3])
+                has_counts = True
+            flags[index] = int(fields[4])
+        except (ValueError, OverflowError):
+            column = "encoder_counts" if not _is_int(fields[3]) else "flags"
+            raise LogFileError(f"{path}: line {number}, column {column}: {fields[COLUMNS.index(column)]!r} is not an integer") from None
+    if n == 0:
+        raise LogFileError(f"{path}: the log has a header but no samples")
+    try:
+        return ExperimentRecord(time_s=time_s, command_rad=command, angle_rad=angle,
+                                encoder_counts=counts if has_counts else None, flags=flags, metadata=metadata)
+    except InvalidInputError as err:
+        raise LogFileError(f"{path}: {_with_line(str(err), header_line)}") from None
+
+
+def _is_float(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
+def _is_int(text: str) -> bool:
+    if not text.strip():
+        return True
+    try:
+        int(text)
+    except ValueError:
+        return False
+    return True
+
+
+def _with_line(message: str, header_line: int) -> str:
+    """Turn 'name: sample k is ...' into 'line L, column name: ...' for a reader looking at the file."""
+    name, _, rest = message.partition(": sample ")
+    if not rest:
+        return message
+    index_text, _, problem = rest.partition(" ")
+    try:
+        line = header_line + 1 + int(index_text)
+    except ValueError:
+        return message
+    return f"line {line}, column {name}: sample {index_text} {problem}"
+
+
+def read_experiment_data(path: str | Path) -> ExperimentRecord:
+    """Read a ``rig-log v1`` file, or a plain CSV with columns ``t,u,y`` (seconds, radians) from another
+    tool (``#`` comment lines allowed, other columns ignored). The sample period of a plain CSV is the
+    median time step."""
+    path = Path(path)
+    if _is_rig_log(path):
+        return read_log(path)
+    table = read_signal_table(path, ("t", "u", "y"))
+    t, u, y = table["t"], table["u"], table["y"]
+    steps = np.diff(t)
+    if t.size < 2 or np.any(steps <= 0):
+        bad = int(np.flatnonzero(steps <= 0)[0]) + 1 if t.size >= 2 else 0
+        raise LogFileError(
+            f"{path}: column t must increase strictly (seconds); data row {bad + 1} has t = {t[bad]!r}"
+            if t.size >= 2 else f"{path}: expected at least two samples, got {t.size}"
+        )
+    metadata = ExperimentMetadata(sample_period_s=float(np.median(steps)), source=str(path), transport="csv")
+    return ExperimentRecord(time_s=t, command_rad=u, angle_rad=y, encoder_counts=None, flags=None, metadata=metadata)

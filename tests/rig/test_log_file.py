@@ -1,0 +1,156 @@
+"""Log files: round trip, crash safety under SIGKILL, damaged and foreign files, plain t,u,y CSV."""
+
+from __future__ import annotations
+
+import math
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from identify.experiment_record import ExperimentMetadata, ExperimentRecord, SampleFlag
+from rig.log_file import LogWriter, read_experiment_data, read_log, write_log
+from rig.protocols.errors import LogFileError
+
+META = ExperimentMetadata(sample_period_s=1e-3, source="cerone2009", transport="offline", encoder_bits=12,
+                          noise_kind="uniform", noise_bound_rad=7.7e-4, excitation="prbs", excitation_seed=3,
+                          seed=2009, config={"plant": "configs/plants/cerone2009.toml"}, software_version="0.1.0")
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def sample_record() -> ExperimentRecord:
+    rng = np.random.default_rng(0)
+    n = 200
+    angle = rng.normal(0, 0.3, n)
+    flags = np.zeros(n, dtype=np.uint8)
+    flags[[5, 17]] = SampleFlag.LOST
+    flags[30] = SampleFlag.LATE | SampleFlag.LIMITED
+    angle[[5, 17]] = math.nan
+    return ExperimentRecord(time_s=np.arange(n) * 1e-3, command_rad=rng.uniform(-1, 1, n), angle_rad=angle,
+                            encoder_counts=rng.integers(-2048, 2048, n), flags=flags, metadata=META)
+
+
+def test_log_round_trip_is_exact(tmp_path):
+    original = sample_record()
+    path = tmp_path / "run.csv"
+    write_log(path, original)
+    again = read_log(path)
+    assert again.metadata == original.metadata
+    for name in ("time_s", "command_rad", "encoder_counts", "flags"):
+        assert np.array_equal(getattr(again, name), getattr(original, name)), name
+    assert np.array_equal(again.angle_rad, original.angle_rad, equal_nan=True)
+    assert again.lost_count == 2
+    assert read_experiment_data(path).metadata == original.metadata
+
+
+def test_log_opens_without_this_package_in_numpy(tmp_path):
+    path = tmp_path / "run.csv"
+    write_log(path, sample_record())
+    table = np.genfromtxt(path, delimiter=",", names=True, skip_header=3)  # the 3 comment lines
+    assert table.dtype.names == ("time_s", "command_rad", "angle_rad", "encoder_counts", "flags")
+    np.testing.assert_array_equal(table["time_s"], sample_record().time_s)
+    assert np.isnan(table["angle_rad"][5]) and table["flags"][5] == 1
+    header = path.read_text().splitlines()[:4]
+    assert header[0] == "# rig-log v1" and header[1].startswith('# metadata {"sample_period_s": 0.001')
+
+
+WRITER = """
+import sys, time
+from identify.experiment_record import ExperimentMetadata
+from rig.log_file import LogWriter
+log = LogWriter(sys.argv[1], ExperimentMetadata(sample_period_s=0.001, source="kill-test"), flush_every=1)
+k = 0
+while True:
+    log.append(k * 0.001, k * 0.5, -k * 0.25, encoder_counts=k)
+    k += 1
+    print(k, flush=True)
+"""
+
+
+def test_writer_killed_with_sigkill_leaves_every_flushed_sample_readable(tmp_path):
+    path = tmp_path / "killed.csv"
+    process = subprocess.Popen([sys.executable, "-c", WRITER, str(path)], stdout=subprocess.PIPE, text=True,
+                               cwd=ROOT, env={**os.environ, "PYTHONPATH": str(ROOT)})
+    try:
+        reported = 0
+        while reported < 2000:
+            line = process.stdout.readline()
+            assert line, "the writer stopped on its own"
+            reported = int(line)
+    finally:
+        os.kill(process.pid, signal.SIGKILL)
+        process.wait()
+        process.stdout.close()
+    assert process.returncode == -signal.SIGKILL
+    # every sample the writer had finished (and so flushed) before we read its report is in the file
+    record = read_log(path)
+    assert len(record) >= reported
+    k = np.arange(len(record))
+    np.testing.assert_array_equal(record.time_s, k * 0.001)
+    np.testing.assert_array_equal(record.command_rad, k * 0.5)
+    np.testing.assert_array_equal(record.encoder_counts, k)
+
+
+def test_torn_last_line_is_dropped_with_a_warning(tmp_path):
+    path = tmp_path / "torn.csv"
+    write_log(path, sample_record())
+    text = path.read_text()
+    path.write_text(text[:-7])  # cut the last line short
+    with pytest.warns(UserWarning, match="last line is incomplete"):
+        record = read_log(path)
+    assert len(record) == 199
+
+
+def test_writer_flushes_by_count_and_refuses_an_unwritable_path(tmp_path):
+    path = tmp_path / "batched.csv"
+    with LogWriter(path, META, flush_every=10) as log:
+        for k in range(15):
+            log.append(k * 1e-3, 0.0, 0.0)
+        assert path.read_text().count("\n") == 4 + 10  # header + the first flushed batch
+    assert len(read_log(path)) == 15 and read_log(path).encoder_counts is None
+    with pytest.raises(LogFileError, match="cannot open the log for writing"):
+        LogWriter(tmp_path / "no-such-dir" / "run.csv", META)
+    with LogWriter(tmp_path / "x.csv", META) as log:
+        log.append(0.0, 0.0, 0.0)
+        with pytest.raises(ValueError, match="times must increase"):
+            log.append(0.0, 0.0, 0.0)
+        with pytest.raises(ValueError, match="flag it LOST"):
+            log.append(1.0, 0.0, math.nan)
+
+
+@pytest.mark.parametrize(("mutate", "message"), [
+    (lambda text: "time,u\n1,2\n", "line 1: expected '# rig-log v1'"),
+    (lambda text: text.replace("# rig-log v1", "# rig-log v7"), "unsupported log format"),
+    (lambda text: text.replace('# metadata {"', "# metadata {'"), "line 2: the metadata is not valid JSON"),
+    (lambda text: text.replace("time_s,command_rad", "time,command_rad"), "line 4: expected columns"),
+    (lambda text: text.replace("\n0.002,", "\n0.002,zero", 1), "line 7, column command_rad"),
+    (lambda text: text.replace("\n0.003,", "\n0.0001,", 1), r"line 8, column time_s: sample 3 .*increase"),
+    (lambda text: text.replace(",0\n", ",0,0\n", 1), "line 5: expected 5 values, got 6"),
+    (lambda text: "", "the file is empty"),
+])
+def test_damaged_or_foreign_logs_are_named(tmp_path, mutate, message):
+    path = tmp_path / "bad.csv"
+    write_log(path, sample_record())
+    path.write_text(mutate(path.read_text()))
+    with pytest.raises(LogFileError, match=message):
+        read_log(path)
+
+
+def test_plain_t_u_y_csv_is_accepted_and_checked(tmp_path):
+    path = tmp_path / "foreign.csv"
+    path.write_text("# exported by another tool\nt,u,y,temperature\n0.0,0.1,0.0,20\n0.01,0.2,0.05,20\n0.02,0.3,0.1,20\n")
+    record = read_experiment_data(path)
+    np.testing.assert_array_equal(record.command_rad, [0.1, 0.2, 0.3])
+    assert record.encoder_counts is None and record.sample_period_s == pytest.approx(0.01)
+    assert record.metadata.transport == "csv"
+    path.write_text("t,u,y\n0.0,0.1,0.0\n0.0,0.2,0.05\n")
+    with pytest.raises(LogFileError, match="column t must increase"):
+        read_experiment_data(path)
+    path.write_text("time,input,output\n0,1,2\n")
+    with pytest.raises(LogFileError, match="missing column"):
+        read_experiment_data(path)
