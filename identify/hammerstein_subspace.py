@@ -1,0 +1,791 @@
+"""Subspace identification of a Hammerstein system with input backlash or switch (Pouliquen et al., CDC 2013).
+
+One experiment with the cyclic excitation of Table I (:mod:`identify.cyclic_excitation`) and one subspace
+step give both a state-space model (A, B, C, D) of the linear part G(q) and nonparametric (piecewise-linear)
+ascending and descending borders of the nonlinearity:
+
+1. lift the input: z(t) with H[u(t)] = μ0 + μ z(t) (eq. (4), :mod:`identify.border_lifting`); μ0 is the
+   output mean over a leading hold at u_min (Section III) or given;
+2. PI-MOESP on (z, y - μ0) (eqs. (8)-(13)): an LQ factorisation of the stacked block-Hankel matrices
+   [Z_f; Z_p; Y_f] gives the projection O_f of eq. (11) as L32 Q2; its left singular vectors span Γ_f;
+3. the order n from the largest gap between consecutive singular values (or given);
+4. A and C from the shift invariance of Γ_f (step 1 of Section III);
+5. bold B = B μ and bold D = D μ by linear least squares on the output with the initial state (step 2);
+6. the rank-1 split of [bold D; bold B] (eq. (14)) and the unit static gain G(1) = 1 (assumption A.2).
+
+Beyond the paper:
+
+* ``split="separate"`` is the variant of Remark 5: with A and C fixed, B, D and μ are estimated
+  separately by alternating least squares on the output error, which enforces the rank-1 structure that the
+  over-parameterised fit of step 5 ignores;
+* the output offset μ0 is re-estimated jointly with B and D (a constant regressor), so a short or noisy
+  hold costs little; ``estimate_offset=False`` keeps the paper's hold mean;
+* ``refine=True`` minimises the output error of the whole Hammerstein model (transfer-function parameters,
+  node slopes, offset and initial state) with :func:`scipy.optimize.least_squares`, starting from the
+  subspace estimate.
+
+Example
+-------
+>>> import numpy as np
+>>> from identify.cyclic_excitation import cyclic_random_excitation
+>>> from identify.border_lifting import PathNodes
+>>> from identify.plant_blocks import LinearBlock, PlantModel, pouliquen2013_backlash
+>>> u = cyclic_random_excitation(3000, -3.0, 3.0, hold_samples=50, rng=0)
+>>> G = LinearBlock(a=(-1.8858, 0.9048), b=(0.0, 0.1994, -0.1804), sample_period_s=1.0)
+>>> y = PlantModel((pouliquen2013_backlash(), G)).simulate(u)
+>>> model = identify_hammerstein(u, y, PathNodes.uniform(-3.0, 3.0, 8), hold_samples=50)
+>>> model.order, np.round(np.sort_complex(model.poles), 4).tolist()
+(2, [(0.9429-0.1255j), (0.9429+0.1255j)])
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+import numpy as np
+import scipy.linalg
+import scipy.optimize
+import scipy.signal
+from numpy.typing import ArrayLike, NDArray
+
+from identify.border_lifting import PathNodes, check_cyclic_input, lifted_input
+from identify.plant_blocks import InputBacklash, PiecewiseLinearBorder
+from identify.validation import InvalidInputError, as_signal, same_length
+
+__all__ = [
+    "HammersteinModel",
+    "RefinementReport",
+    "identify_hammerstein",
+    "pi_moesp_observability",
+    "select_order",
+]
+
+DEFAULT_FUTURE_HORIZON = 15
+DEFAULT_PAST_HORIZON = 15
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Results
+# ----------------------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class RefinementReport:
+    """What the optional output-error refinement did (``identify_hammerstein(..., refine=True)``).
+
+    Attributes
+    ----------
+    rms_before, rms_after
+        Root mean square output error on the identification data before (subspace estimate) and after.
+    evaluations
+        Number of residual evaluations of :func:`scipy.optimize.least_squares`.
+    converged
+        The optimiser's own success flag.
+    message
+        The optimiser's message.
+    """
+
+    rms_before: float
+    rms_after: float
+    evaluations: int
+    converged: bool
+    message: str
+
+
+def _frozen(name: str, values: ArrayLike, shape: tuple[int, ...]) -> NDArray[np.float64]:
+    array = np.array(values, dtype=float).reshape(shape)
+    if not np.all(np.isfinite(array)):
+        raise InvalidInputError(f"{name}: expected finite entries")
+    array.flags.writeable = False
+    return array
+
+
+@dataclass(frozen=True)
+class HammersteinModel:
+    """An identified Hammerstein model y = μ0 + G(q)(H[u] - μ0) with G(1) = 1 (eqs. (1), (4)-(6), A.2).
+
+    The linear part is x(t+1) = A x(t) + B w(t), y(t) - μ0 = C x(t) + D w(t) with w = H[u] - μ0 = μ z(t).
+
+    Attributes
+    ----------
+    A, B, C, D
+        State-space matrices of G(q): A (n, n), B (n,), C (n,), D scalar (0 when no feedthrough).
+    mu0
+        μ0 = H[u_min], the common start of both paths (A.1); it is also the output at rest at u_min.
+    ascending_border, descending_border
+        The paths P_a, P_d of eq. (3) as piecewise-linear functions of u, offset μ0 included; their
+        ``nodes_u`` and ``values`` are the node table.
+    mu_ascending, mu_descending
+        Node slopes μ_i^a, μ_i^d (eq. (3)).
+    singular_values
+        Singular values of the PI-MOESP projection (eq. (12)), largest first: look for the gap.
+    order
+        n, chosen from ``singular_values`` or given.
+    past_horizon, future_horizon
+        p and f of the block-Hankel matrices; ``num_columns`` is j.
+    split
+        ``"rank1"`` (eq. (14)) or ``"separate"`` (Remark 5).
+    initial_state
+        x(0) estimated with B and D (used for the fit diagnostics only; :meth:`simulate` starts at rest).
+    fit_percent
+        100 (1 - |y - y_model| / |y - mean(y)|) on the identification data (simulation, not prediction).
+    residual_rms
+        RMS of y - y_model on the identification data.
+    mu0_hold
+        The paper's μ0: the output mean over the hold (None if ``mu0`` was given).
+    refinement
+        Report of the output-error refinement, or None if it was not run.
+    """
+
+    A: NDArray[np.float64]
+    B: NDArray[np.float64]
+    C: NDArray[np.float64]
+    D: float
+    mu0: float
+    nodes: PathNodes
+    mu_ascending: NDArray[np.float64]
+    mu_descending: NDArray[np.float64]
+    singular_values: NDArray[np.float64]
+    order: int
+    past_horizon: int
+    future_horizon: int
+    num_columns: int
+    split: str
+    initial_state: NDArray[np.float64]
+    fit_percent: float
+    residual_rms: float
+    mu0_hold: float | None = None
+    refinement: RefinementReport | None = None
+    ascending_border: PiecewiseLinearBorder = field(init=False)
+    descending_border: PiecewiseLinearBorder = field(init=False)
+
+    def __post_init__(self) -> None:
+        n = int(self.order)
+        object.__setattr__(self, "A", _frozen("A", self.A, (n, n)))
+        object.__setattr__(self, "B", _frozen("B", self.B, (n,)))
+        object.__setattr__(self, "C", _frozen("C", self.C, (n,)))
+        object.__setattr__(self, "initial_state", _frozen("initial_state", self.initial_state, (n,)))
+        object.__setattr__(self, "D", float(self.D))
+        object.__setattr__(self, "mu0", float(self.mu0))
+        object.__setattr__(self, "mu_ascending",
+                           _frozen("mu_ascending", self.mu_ascending, (len(self.nodes.ascending) - 1,)))
+        object.__setattr__(self, "mu_descending",
+                           _frozen("mu_descending", self.mu_descending, (len(self.nodes.descending) - 1,)))
+        object.__setattr__(self, "singular_values",
+                           _frozen("singular_values", self.singular_values, (np.size(self.singular_values),)))
+        object.__setattr__(self, "ascending_border",
+                           _border(self.nodes.ascending, self.mu_ascending, self.mu0))
+        object.__setattr__(self, "descending_border",
+                           _border(self.nodes.descending, self.mu_descending, self.mu0))
+
+    @property
+    def mu(self) -> NDArray[np.float64]:
+        """μ of eq. (4): ascending slopes then descending slopes."""
+        return np.concatenate((self.mu_ascending, self.mu_descending))
+
+    @property
+    def poles(self) -> NDArray[np.complex128]:
+        """Eigenvalues of A (the poles of G)."""
+        return np.linalg.eigvals(self.A)
+
+    @property
+    def transfer_function(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """(numerator, denominator) of G, coefficients of q^0, q^-1, ..., q^-n; denominator[0] = 1."""
+        return _state_space_to_tf(self.A, self.B, self.C, self.D)
+
+    @property
+    def static_gain(self) -> float:
+        """G(1) = D + C (I - A)^-1 B; 1 by construction (A.2)."""
+        return float(self.D + self.C @ np.linalg.solve(np.eye(self.order) - self.A, self.B))
+
+    def frequency_response(self, omega_rad_per_sample: ArrayLike) -> NDArray[np.complex128]:
+        """G(e^{jω}) at normalised angular frequencies ω (rad/sample, 0..π)."""
+        omega = np.atleast_1d(np.asarray(omega_rad_per_sample, dtype=float))
+        numerator, denominator = self.transfer_function
+        _, response = scipy.signal.freqz(numerator, denominator, worN=omega)
+        return response
+
+    def nonlinearity_output(self, u: ArrayLike, *, nonlinearity: Literal["paths", "backlash"] = "paths",
+                            initial_direction: int = 0) -> NDArray[np.float64]:
+        """H[u(t)] of the identified model.
+
+        ``"paths"`` is eq. (2), H = δ P_a(u) + (1 - δ) P_d(u): exact for a switch and, for a backlash, for
+        inputs that reverse only at u_min and u_max (Table I). ``"backlash"`` runs a play operator between
+        the identified paths, v(t) = min(P_d(u), max(P_a(u), v(t-1))) from v(-1) = μ0, which also covers
+        a backlash driven by inputs that reverse inside the interval.
+        """
+        signal = as_signal("u", u)
+        if nonlinearity == "paths":
+            return self.mu0 + lifted_input(signal, self.nodes, initial_direction=initial_direction) @ self.mu
+        if nonlinearity == "backlash":
+            block = InputBacklash(self.ascending_border, self.descending_border, initial_output=self.mu0)
+            return block.apply(signal)
+        raise InvalidInputError(f"nonlinearity: expected 'paths' or 'backlash', got {nonlinearity!r}")
+
+    def simulate(self, u: ArrayLike, *, nonlinearity: Literal["paths", "backlash"] = "paths",
+                 initial_direction: int = 0) -> NDArray[np.float64]:
+        """Output of the identified model for input ``u``, starting at rest at u_min (output μ0).
+
+        See :meth:`nonlinearity_output` for ``nonlinearity``.
+        """
+        deviation = self.nonlinearity_output(u, nonlinearity=nonlinearity,
+                                             initial_direction=initial_direction) - self.mu0
+        numerator, denominator = self.transfer_function
+        return self.mu0 + scipy.signal.lfilter(numerator, denominator, deviation)
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain numbers for JSON: order, poles [[re, im]], A, B, C, D, mu0, borders, singular values."""
+        return {
+            "order": self.order,
+            "poles": [[float(p.real), float(p.imag)] for p in self.poles],
+            "A": self.A.tolist(),
+            "B": self.B.tolist(),
+            "C": self.C.tolist(),
+            "D": self.D,
+            "mu0": self.mu0,
+            "borders": {
+                "ascending": {"u": list(self.ascending_border.nodes_u), "h": list(self.ascending_border.values)},
+                "descending": {"u": list(self.descending_border.nodes_u), "h": list(self.descending_border.values)},
+            },
+            "singular_values": self.singular_values.tolist(),
+            "split": self.split,
+            "past_horizon": self.past_horizon,
+            "future_horizon": self.future_horizon,
+            "fit_percent": self.fit_percent,
+            "residual_rms": self.residual_rms,
+        }
+
+
+def _border(nodes: tuple[float, ...], slopes: NDArray[np.float64], mu0: float) -> PiecewiseLinearBorder:
+    """Node values of eq. (3): P(n_0) = μ0, P(n_i) = μ0 + Σ_{l<=i} μ_l (n_l - n_{l-1})."""
+    values = mu0 + np.concatenate(([0.0], np.cumsum(slopes * np.diff(nodes))))
+    return PiecewiseLinearBorder(tuple(nodes), tuple(float(v) for v in values))
+
+
+def _state_space_to_tf(A: NDArray[np.float64], B: NDArray[np.float64], C: NDArray[np.float64],
+                       D: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    n = A.shape[0]
+    numerator, denominator = scipy.signal.ss2tf(A, B.reshape(n, 1), C.reshape(1, n), np.array([[D]]))
+    return np.atleast_1d(np.squeeze(numerator)).astype(float), np.asarray(denominator, dtype=float)
+
+
+# ----------------------------------------------------------------------------------------------------------
+# PI-MOESP, eqs. (8)-(13)
+# ----------------------------------------------------------------------------------------------------------
+
+
+def _block_hankel(signal: NDArray[np.float64], first: int, num_blocks: int, num_columns: int) -> NDArray[np.float64]:
+    """Transposed block-Hankel matrix: row k is [s(first + k), ..., s(first + k + num_blocks - 1)]."""
+    m = signal.shape[1]
+    windows = np.lib.stride_tricks.sliding_window_view(signal, (num_blocks, m))[:, 0]
+    return windows[first : first + num_columns].reshape(num_columns, num_blocks * m)
+
+
+def _hankel_gram(w: NDArray[np.float64], num_blocks: int, num_columns: int) -> NDArray[np.float64]:
+    """H^T H for the transposed block-Hankel H = _block_hankel(w, 0, num_blocks, num_columns), in O(s M^2 j).
+
+    Block (b1, b2) is Σ_t w(t + b1) w(t + b2)^T over t < j; along a diagonal b2 - b1 = d it changes only by
+    the samples that enter and leave the window, so one lag product per d plus a running sum gives all
+    blocks without forming the j × s M matrix product.
+    """
+    s, j = num_blocks, num_columns
+    M = w.shape[1]
+    gram = np.empty((s, M, s, M))
+    head = w[:j].T
+    for d in range(s):
+        base = head @ w[d : d + j]                                   # Σ_t w(t) w(t + d)^T
+        if s - d > 1:
+            count = s - d - 1
+            enter = np.einsum("li,lk->lik", w[j : j + count], w[j + d : j + d + count])
+            leave = np.einsum("li,lk->lik", w[:count], w[d : d + count])
+            blocks = base + np.concatenate((np.zeros((1, M, M)), np.cumsum(enter - leave, axis=0)))
+        else:
+            blocks = base[None]
+        rows = np.arange(s - d)
+        gram[rows, :, rows + d, :] = blocks
+        gram[rows + d, :, rows, :] = blocks.transpose(0, 2, 1)
+    return gram.reshape(s * M, s * M)
+
+
+def pi_moesp_observability(
+    z: ArrayLike, y: ArrayLike, past_horizon: int, future_horizon: int,
+    *, factorisation: Literal["gram", "qr"] = "gram", remove_offset: bool = True,
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """Left singular vectors and singular values of the PI-MOESP projection O_f of eq. (11).
+
+    With the LQ factorisation [Z_f; Z_p; Y_f] = L Q (no explicit inverse), O_f = Y_f Φ^T (Φ Φ^T)^-1 Φ
+    Π_{Z_f}^⊥ = L32 Q2, so the SVD of the small block L32 (f × p m) gives the U_1 and S_1 of eq. (12).
+
+    Parameters
+    ----------
+    z
+        Inputs, shape (N, m) (the lifted input of eq. (4)) or (N,).
+    y
+        Outputs, shape (N,).
+    past_horizon, future_horizon
+        p and f.
+    factorisation
+        ``"gram"`` (default) gets the L factor of the input rows as the Cholesky factor of their Gram
+        matrix, which the Hankel structure gives in O((p+f) m^2 N) operations, and the output rows by
+        triangular solves; ``"qr"`` runs a Householder QR on the j × ((p+f) m + f) stacked matrix (slower,
+        and the reference the tests compare against).
+    remove_offset
+        Project out a constant as well as Z_f (equivalently, centre every Hankel row), so that a constant
+        output offset, such as an error in μ0, does not appear as an extra state.
+
+    Returns
+    -------
+    U, singular_values, input_diagonal
+        U (f, f) left singular vectors, the singular values (largest first), and |diag| of the input part of
+        L (a zero there means the input is not persistently exciting of order p + f).
+    """
+    inputs = np.asarray(z, dtype=float)
+    if inputs.ndim == 1:
+        inputs = inputs[:, None]
+    outputs = np.asarray(y, dtype=float).reshape(-1, 1)
+    p, f = int(past_horizon), int(future_horizon)
+    m = inputs.shape[1]
+    j = inputs.shape[0] - p - f + 1
+    a, b = f * m, (f + p) * m
+    if factorisation == "qr":
+        stacked = np.hstack((
+            _block_hankel(inputs, p, f, j),       # Z_f
+            _block_hankel(inputs, 0, p, j),       # Z_p
+            _block_hankel(outputs, p, f, j),      # Y_f
+        ))
+        if remove_offset:
+            stacked -= stacked.mean(axis=0)
+        R = scipy.linalg.lapack.dgeqrf(stacked, overwrite_a=True)[0][: b + f]
+        L32 = np.triu(R)[a:b, b:].T
+        input_diagonal = np.abs(np.diag(R)[:b])
+    elif factorisation == "gram":
+        s, M = p + f, m + 1
+        w = np.hstack((inputs, outputs))
+        gram = _hankel_gram(w, s, j)
+        if remove_offset:
+            # row sums of the Hankel matrix: Σ_{t<j} w(t + b), from one cumulative sum
+            cumulative = np.vstack((np.zeros((1, M)), np.cumsum(w, axis=0)))
+            sums = (cumulative[j : j + s] - cumulative[:s]).ravel()
+            gram -= np.outer(sums, sums) / j
+        index = np.arange(s * M).reshape(s, M)
+        order = np.concatenate((index[p:, :m].ravel(), index[:p, :m].ravel(), index[p:, m]))
+        gram = gram[np.ix_(order, order)]
+        try:
+            R_in = scipy.linalg.cholesky(gram[:b, :b], lower=False, check_finite=False)
+        except np.linalg.LinAlgError:
+            return np.eye(f), np.zeros(min(f, p * m)), np.zeros(b)
+        R_out = scipy.linalg.solve_triangular(R_in, gram[:b, b:], trans="T", check_finite=False)
+        L32 = R_out[a:b].T
+        input_diagonal = np.abs(np.diag(R_in))
+    else:
+        raise InvalidInputError(f"factorisation: expected 'gram' or 'qr', got {factorisation!r}")
+    U, singular_values, _ = scipy.linalg.svd(L32, full_matrices=True, check_finite=False)
+    return U, singular_values, input_diagonal
+
+
+def select_order(singular_values: ArrayLike, max_order: int) -> int:
+    """The n in 1..max_order with the largest ratio s_n / s_{n+1} of consecutive singular values (eq. (12))."""
+    s = np.asarray(singular_values, dtype=float)
+    top = min(int(max_order), s.size - 1)
+    if top < 1:
+        raise InvalidInputError(f"max_order: need at least two singular values to choose an order, got {s.size}")
+    floor = np.finfo(float).tiny
+    ratios = s[:top] / np.maximum(s[1 : top + 1], floor)
+    return int(np.argmax(ratios)) + 1
+
+
+# ----------------------------------------------------------------------------------------------------------
+# B, D and μ with A, C known
+# ----------------------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class _Regressors:
+    """The output as a linear function of θ = [vec bold B, bold D, x0, offset] (step 2 of Section III).
+
+    y(t) = Σ_i Σ_k bold B[i,k] F_i[t,k] + Σ_k bold D[k] z_k(t) + (C A^t) x0 + offset, where F_i is the
+    response of C (qI - A)^-1 e_i to each lifted input. The regressor matrix Ψ (N × K, K = n m + m + n + 1)
+    is reduced once by a QR factorisation, Ψ = Q R; every later least-squares problem whose parameters map
+    linearly into θ = T ϑ is then solved on the K-row system R T ϑ ≈ Q^T y.
+    """
+
+    R: NDArray[np.float64]          # (K, K)
+    qty: NDArray[np.float64]        # (K,)
+    residual_floor: float           # |y|^2 - |Q^T y|^2: the part of y outside the span of Ψ
+    O: NDArray[np.float64]          # (N, n): C A^t, for the free response
+    keep: NDArray[np.bool_]         # which entries of θ are estimated (D and the offset may be fixed at 0)
+    n: int
+    m: int
+    feedthrough: bool
+    offset: bool
+
+    @property
+    def num_nuisance(self) -> int:
+        return self.n + int(self.offset)
+
+    def solve(self, T: NDArray[np.float64]) -> tuple[NDArray[np.float64], float]:
+        """argmin_ϑ |y - Ψ T ϑ|^2 and the minimum."""
+        design = self.R @ T
+        theta = _lstsq(design, self.qty)
+        cost = float(np.sum((self.qty - design @ theta) ** 2)) + self.residual_floor
+        return theta, cost
+
+    def _nuisance_map(self, T: NDArray[np.float64], first_column: int) -> None:
+        n, m = self.n, self.m
+        T[n * m + m : n * m + m + n, first_column : first_column + n] = np.eye(n)
+        if self.offset:
+            T[-1, first_column + n] = 1.0
+
+    def map_for_fixed_mu(self, mu: NDArray[np.float64]) -> NDArray[np.float64]:
+        """T with θ = T [B, D, x0, offset] for fixed μ: bold B = B μ, bold D = D μ."""
+        n, m, k = self.n, self.m, self.num_nuisance
+        T = np.zeros((n * m + m + n + 1, n + 1 + k))
+        T[: n * m, :n] = np.kron(np.eye(n), mu[:, None])
+        T[n * m : n * m + m, n] = mu if self.feedthrough else 0.0
+        self._nuisance_map(T, n + 1)
+        return T
+
+    def map_for_fixed_gain(self, B: NDArray[np.float64], D: float) -> NDArray[np.float64]:
+        """T with θ = T [μ, x0, offset] for fixed B, D."""
+        n, m, k = self.n, self.m, self.num_nuisance
+        T = np.zeros((n * m + m + n + 1, m + k))
+        T[: n * m, :m] = np.kron(B[:, None], np.eye(m))
+        T[n * m : n * m + m, :m] = D * np.eye(m)
+        self._nuisance_map(T, m)
+        return T
+
+
+def _regressors(A: NDArray[np.float64], C: NDArray[np.float64], z: NDArray[np.float64], y: NDArray[np.float64],
+                feedthrough: bool, offset: bool) -> _Regressors:
+    n = A.shape[0]
+    N, m = z.shape
+    denominator = np.poly(A)
+    columns = np.empty((N, n * m + m + n + 1))
+    impulse = np.zeros(N + 1)
+    impulse[0] = 1.0
+    for i in range(n):
+        numerator, _ = scipy.signal.ss2tf(A, np.eye(n)[:, i : i + 1], C.reshape(1, n), np.zeros((1, 1)))
+        numerator = np.squeeze(numerator)
+        columns[:, i * m : (i + 1) * m] = scipy.signal.lfilter(numerator, denominator, z, axis=0)
+        columns[:, n * m + m + i] = scipy.signal.lfilter(numerator, denominator, impulse)[1:]  # C A^t e_i
+    columns[:, n * m : n * m + m] = z if feedthrough else 0.0
+    columns[:, -1] = 1.0 if offset else 0.0
+    O = columns[:, n * m + m : n * m + m + n].copy()
+    keep = np.ones(columns.shape[1], dtype=bool)
+    if not feedthrough:
+        keep[n * m : n * m + m] = False
+    if not offset:
+        keep[-1] = False
+    # QR of [Ψ, y]: R gives Ψ's factor, its last column Q^T y, and its last diagonal entry |y - Ψ θ_LS|.
+    augmented = np.column_stack((columns[:, keep], y))
+    k = augmented.shape[1] - 1
+    R_aug = np.triu(scipy.linalg.lapack.dgeqrf(augmented, overwrite_a=True)[0][: k + 1])
+    R, qty = R_aug[:k, :k], R_aug[:k, k]
+    # expand R back to the full θ layout with zero columns for fixed-at-zero parameters
+    R_full = np.zeros((k, columns.shape[1]))
+    R_full[:, keep] = R
+    floor = float(R_aug[k, k] ** 2)
+    return _Regressors(R_full, qty, floor, O, keep, n, m, feedthrough, offset)
+
+
+def _lstsq(matrix: NDArray[np.float64], target: NDArray[np.float64]) -> NDArray[np.float64]:
+    return scipy.linalg.lstsq(matrix, target, check_finite=False, lapack_driver="gelsy")[0]
+
+
+def _overparameterised_fit(reg: _Regressors) -> tuple[NDArray, NDArray, NDArray]:
+    """Step 2 of Section III: bold B (n, m), bold D (m,) and the nuisance (x0, offset) by least squares."""
+    n, m = reg.n, reg.m
+    selection = np.eye(reg.keep.size)[:, reg.keep]
+    theta = selection @ reg.solve(selection)[0]
+    return theta[: n * m].reshape(n, m), theta[n * m : n * m + m], _nuisance(reg, theta[n * m + m :])
+
+
+def _nuisance(reg: _Regressors, tail: NDArray[np.float64]) -> NDArray[np.float64]:
+    """[x0, offset] (offset 0 when it is not estimated)."""
+    return np.concatenate((tail[: reg.n], [tail[reg.n] if reg.offset else 0.0]))
+
+
+def _rank_one_split(bold_B: NDArray, bold_D: NDArray, feedthrough: bool) -> tuple[NDArray, float, NDArray]:
+    """Eq. (14): the dominant singular triple of [bold D; bold B] = [D; B] μ (bold B alone without D)."""
+    stacked = np.vstack((bold_D[None, :], bold_B)) if feedthrough else bold_B
+    U, s, Vt = np.linalg.svd(stacked, full_matrices=False)
+    column = U[:, 0] * s[0]
+    if feedthrough:
+        return column[1:], float(column[0]), Vt[0].copy()
+    return column, 0.0, Vt[0].copy()
+
+
+def _separate_fit(reg: _Regressors, mu: NDArray[np.float64], max_iterations: int = 500,
+                  tolerance: float = 1e-13) -> tuple[NDArray, float, NDArray, NDArray]:
+    """Remark 5: B, D and μ estimated separately with A, C fixed, by alternating least squares.
+
+    y(t) = Σ_i B_i (F_i(t) μ) + D (z(t) μ) + nuisance is linear in (B, D) for fixed μ and in μ for fixed
+    (B, D); no half-step can increase the residual, and the result satisfies bold B = B μ exactly instead
+    of truncating an unstructured estimate (eq. (14)). Each half-step is a small problem on the QR-reduced
+    regressors (:class:`_Regressors`).
+    """
+    n, m = reg.n, reg.m
+    previous = np.inf
+    B, D = np.zeros(n), 0.0
+    tail = np.zeros(reg.num_nuisance)
+    for _ in range(max_iterations):
+        theta, _ = reg.solve(reg.map_for_fixed_mu(mu))
+        B, D = theta[:n], float(theta[n]) if reg.feedthrough else 0.0
+        theta, cost = reg.solve(reg.map_for_fixed_gain(B, D))
+        mu, tail = theta[:m], theta[m:]
+        scale = np.linalg.norm(mu)  # keep the bilinear factors balanced
+        mu, B, D = mu / scale, B * scale, D * scale
+        if previous - cost <= tolerance * max(previous, np.finfo(float).tiny):
+            break
+        previous = cost
+    return B, D, mu, _nuisance(reg, tail)
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Output-error refinement (beyond the paper)
+# ----------------------------------------------------------------------------------------------------------
+
+
+def _refine(z: NDArray, y: NDArray, numerator: NDArray, denominator: NDArray, mu: NDArray, mu0: float,
+            free_response: NDArray, feedthrough: bool
+            ) -> tuple[NDArray, NDArray, NDArray, float, NDArray, RefinementReport]:
+    """Minimise Σ (y - μ0 - G(q) μ z)^2 over G (unit static gain), μ, μ0 and the initial filter state.
+
+    G = b(q^-1)/a(q^-1) with a = [1, a_1..a_n]; the last numerator coefficient is eliminated by
+    G(1) = Σb / (1 + Σa) = 1 (A.2), which also removes the scale ambiguity between G and μ.
+    """
+    n = len(denominator) - 1
+    b = np.zeros(n + 1)
+    b[: len(numerator)] = numerator[-(n + 1):] if len(numerator) > n + 1 else numerator
+    first_b = 0 if feedthrough else 1
+    m = z.shape[1]
+    # initial lfilter state (direct form II transposed) reproducing the subspace model's free response
+    probe = np.zeros(2 * n)
+    free = np.column_stack([scipy.signal.lfilter(b, denominator, probe, zi=np.eye(n)[k])[0] for k in range(n)])
+    zi0 = _lstsq(free, free_response[: 2 * n])
+
+    def unpack(params: NDArray) -> tuple[NDArray, NDArray, NDArray, float, NDArray]:
+        a = np.concatenate(([1.0], params[:n]))
+        b_free = params[n : 2 * n - first_b]
+        b_full = np.zeros(n + 1)
+        b_full[first_b:n] = b_free
+        b_full[n] = a.sum() - b_free.sum()
+        offset = 2 * n - first_b
+        return a, b_full, params[offset : offset + m], float(params[offset + m]), params[offset + m + 1 :]
+
+    def residual(params: NDArray) -> NDArray:
+        a, b_full, mu_k, mu0_k, zi = unpack(params)
+        with np.errstate(all="ignore"):
+            model = mu0_k + scipy.signal.lfilter(b_full, a, z @ mu_k, zi=zi)[0]
+        r = y - model
+        return np.where(np.isfinite(r), r, 1e6)
+
+    start = np.concatenate((denominator[1:], b[first_b:n], mu, [mu0], zi0))
+    before = residual(start)
+    solution = scipy.optimize.least_squares(residual, start, method="trf", x_scale="jac")
+    a, b_full, mu_new, mu0_new, zi = unpack(solution.x)
+    after = solution.fun
+    report = RefinementReport(
+        rms_before=float(np.sqrt(np.mean(before**2))), rms_after=float(np.sqrt(np.mean(after**2))),
+        evaluations=int(solution.nfev), converged=bool(solution.success), message=str(solution.message),
+    )
+    if not report.rms_after < report.rms_before or not np.all(np.abs(np.roots(a)) < 1.0):
+        return numerator, denominator, mu, mu0, zi0, report  # keep the subspace estimate
+    return b_full, a, mu_new, mu0_new, zi, report
+
+
+# ----------------------------------------------------------------------------------------------------------
+# The identification
+# ----------------------------------------------------------------------------------------------------------
+
+
+def _check_int(name: str, value: Any, lowest: int) -> int:
+    if isinstance(value, bool) or int(value) != value or value < lowest:
+        raise InvalidInputError(f"{name}: expected an integer >= {lowest}, got {value!r}")
+    return int(value)
+
+
+def identify_hammerstein(
+    u: ArrayLike,
+    y: ArrayLike,
+    nodes: PathNodes,
+    *,
+    hold_samples: int | None = None,
+    mu0: float | None = None,
+    order: int | Literal["auto"] = "auto",
+    max_order: int = 10,
+    past_horizon: int = DEFAULT_PAST_HORIZON,
+    future_horizon: int = DEFAULT_FUTURE_HORIZON,
+    feedthrough: bool = True,
+    split: Literal["rank1", "separate"] = "separate",
+    estimate_offset: bool = True,
+    refine: bool = False,
+    initial_direction: int = 0,
+    min_visits: int = 1,
+) -> HammersteinModel:
+    """Identify G(q) and the borders of an input backlash or switch from one Table I experiment.
+
+    Implements Section III of Pouliquen et al. (2013): the lifting of eq. (4), PI-MOESP (eqs. (8)-(13)),
+    A and C from Γ_f, bold B and bold D by least squares, the rank-1 split of eq. (14) and the unit static
+    gain of A.2. See the module docstring for what goes beyond the paper.
+
+    Parameters
+    ----------
+    u, y
+        Input and output, one sample each per time step, starting at u_min (with the hold, if any).
+    nodes
+        Path nodes (eq. (3)); :meth:`PathNodes.uniform` for equally spaced ones.
+    hold_samples
+        Length K of the leading hold at u_min: μ0 starts as the mean of y over it (Section III).
+    mu0
+        μ0 when it is known (then no hold is needed). With neither, μ0 starts at 0; with
+        ``estimate_offset`` (the default) it is re-estimated from all data anyway.
+    order
+        n, or ``"auto"``: the largest gap among the first ``max_order`` singular values.
+    past_horizon, future_horizon
+        p and f of the block-Hankel matrices (f > n and p > n; j = N - p - f + 1 columns).
+    feedthrough
+        Estimate D (the paper's eq. (6)); ``False`` fixes D = 0 for a strictly proper G.
+    split
+        ``"separate"`` (default: Remark 5, B, D and μ by alternating least squares with A, C fixed; it
+        was as accurate or better in ``benchmarks/pouliquen2013_hammerstein.py``) or ``"rank1"`` (eq. (14)).
+    estimate_offset
+        Re-estimate μ0 jointly with B and D (a constant regressor); ``False`` keeps the hold mean or ``mu0``.
+    refine
+        Run the output-error refinement after the subspace step (:class:`RefinementReport`).
+    initial_direction
+        δ(-1) of the direction signal (0: the input came down to u(0)).
+    min_visits
+        Fewest samples each node segment must hold on each path.
+
+    Raises
+    ------
+    InvalidInputError
+        Non-finite samples, lengths that differ, an input that does not follow the cyclic design (names the
+        sample, path or segment), too little data for the horizons, an input that is not persistently
+        exciting, an order the data do not support, or a linear part with no finite non-zero static gain.
+    """
+    u_signal = as_signal("u", u)
+    y_signal = as_signal("y", y)
+    N = same_length(u=u_signal, y=y_signal)
+    if not isinstance(nodes, PathNodes):
+        raise InvalidInputError(f"nodes: expected a PathNodes, got {type(nodes).__name__}")
+    p = _check_int("past_horizon", past_horizon, 1)
+    f = _check_int("future_horizon", future_horizon, 2)
+    max_order = _check_int("max_order", max_order, 1)
+    if split not in ("rank1", "separate"):
+        raise InvalidInputError(f"split: expected 'rank1' or 'separate', got {split!r}")
+
+    tolerance = 1e-9 * (nodes.u_max - nodes.u_min)
+    mu0_hold: float | None = None
+    if mu0 is not None:
+        if hold_samples is not None:
+            raise InvalidInputError("hold_samples, mu0: give one of them, not both")
+        mu0_start = float(mu0)
+        if not np.isfinite(mu0_start):
+            raise InvalidInputError(f"mu0: expected a finite number, got {mu0!r}")
+    elif hold_samples is not None:
+        K = _check_int("hold_samples", hold_samples, 1)
+        if K > N:
+            raise InvalidInputError(f"hold_samples: {K} is longer than the data ({N} samples)")
+        off_hold = np.flatnonzero(np.abs(u_signal[:K] - nodes.u_min) > tolerance)
+        if off_hold.size:
+            k = int(off_hold[0])
+            raise InvalidInputError(
+                f"hold_samples: sample {k} of the hold is u = {float(u_signal[k])}, expected u_min = {nodes.u_min}; "
+                "shorten hold_samples or give mu0"
+            )
+        mu0_hold = float(np.mean(y_signal[:K]))
+        mu0_start = mu0_hold
+    else:
+        if not estimate_offset:
+            raise InvalidInputError("hold_samples, mu0: give one of them, or set estimate_offset=True")
+        mu0_start = 0.0
+
+    m = nodes.num_lifted_inputs
+    j = N - p - f + 1
+    needed_columns = (p + f) * m + f
+    if j < needed_columns:
+        raise InvalidInputError(
+            f"u, y: {N} samples are too few for past_horizon={p}, future_horizon={f} and {m} lifted inputs: "
+            f"the Hankel matrices need at least {needed_columns} columns, i.e. {needed_columns + p + f - 1} samples"
+        )
+    check_cyclic_input(u_signal, nodes, initial_direction=initial_direction, tolerance=tolerance,
+                       min_visits=min_visits)
+
+    z = lifted_input(u_signal, nodes, initial_direction=initial_direction)
+    y_bar = y_signal - mu0_start
+    # The subspace step projects out a constant (an error in μ0 would otherwise look like an extra
+    # state); the offset itself is estimated in the least-squares step.
+    U, singular_values, input_diagonal = pi_moesp_observability(z, y_bar, p, f)
+    if input_diagonal.min() <= 1e-10 * input_diagonal.max():
+        raise InvalidInputError(
+            f"u: the lifted input is not persistently exciting of order p + f = {p + f} "
+            f"({m} lifted inputs): check the excitation or use fewer nodes or shorter horizons"
+        )
+    if order == "auto":
+        n = select_order(singular_values, min(max_order, f - 1, p))
+    else:
+        n = _check_int("order", order, 1)
+        if n >= f or n > p:
+            raise InvalidInputError(
+                f"order: {n} needs future_horizon > {n} and past_horizon >= {n}, got {f} and {p}"
+            )
+        if n > singular_values.size or singular_values[n - 1] <= 1e-12 * singular_values[0]:
+            raise InvalidInputError(
+                f"order: the data support at most order {int(np.sum(singular_values > 1e-12 * singular_values[0]))} "
+                f"(singular values {np.array2string(singular_values[: n + 1], precision=3)})"
+            )
+
+    # Step 1 of Section III: C and A from the extended observability matrix Γ_f = U_1 S_1^(1/2).
+    gamma = U[:, :n] * np.sqrt(singular_values[:n])
+    C = gamma[0].copy()
+    A = _lstsq(gamma[:-1], gamma[1:])
+
+    # Step 2: bold B, bold D (and x0, offset) by least squares; step 3: eq. (14) or Remark 5.
+    reg = _regressors(A, C, z, y_bar, feedthrough, estimate_offset)
+    bold_B, bold_D, nuisance = _overparameterised_fit(reg)
+    B, D, mu = _rank_one_split(bold_B, bold_D, feedthrough)
+    if split == "separate":
+        B, D, mu, nuisance = _separate_fit(reg, mu)
+    x0 = nuisance[:n]
+    mu0_final = mu0_start + (float(nuisance[n]) if estimate_offset else 0.0)
+
+    # A.2: scale so that G(1) = D + C (I - A)^-1 B = 1.
+    try:
+        gain = float(D + C @ np.linalg.solve(np.eye(n) - A, B))
+    except np.linalg.LinAlgError:
+        gain = np.inf
+    if not np.isfinite(gain) or abs(gain) < 1e-12 * (abs(D) + np.linalg.norm(C) * np.linalg.norm(B)):
+        raise InvalidInputError(
+            f"u, y: the identified linear part has static gain {gain}; the normalisation G(1) = 1 (assumption A.2) "
+            f"needs a finite non-zero gain (poles {np.round(np.linalg.eigvals(A), 4).tolist()})"
+        )
+    B, D, mu = B / gain, D / gain, mu * gain
+
+    num_a = len(nodes.ascending) - 1
+    numerator, denominator = _state_space_to_tf(A, B, C, D)
+    model_output = mu0_final + scipy.signal.lfilter(numerator, denominator, z @ mu) + reg.O @ x0
+    refinement = None
+    if refine:
+        numerator, denominator, mu, mu0_final, zi, refinement = _refine(
+            z, y_signal, numerator, denominator, mu, mu0_final, reg.O @ x0, feedthrough)
+        if refinement.rms_after < refinement.rms_before:
+            A_c, B_c, C_c, D_c = scipy.signal.tf2ss(numerator, denominator)
+            A, B, C, D = A_c, B_c[:, 0], C_c[0], float(D_c[0, 0])
+            # x(0) in the new coordinates: the free response of the refined filter state, matched on n samples
+            free = scipy.signal.lfilter(numerator, denominator, np.zeros(N), zi=zi)[0]
+            model_output = mu0_final + scipy.signal.lfilter(numerator, denominator, z @ mu) + free
+            observability = np.vstack([C @ np.linalg.matrix_power(A, k) for k in range(2 * n)])
+            x0 = _lstsq(observability, free[: 2 * n])
+    residual = y_signal - model_output
+    spread = np.linalg.norm(y_signal - y_signal.mean())
+    fit = 100.0 * (1.0 - np.linalg.norm(residual) / spread) if spread > 0 else float("nan")
+    return HammersteinModel(
+        A=A, B=B, C=C, D=D, mu0=mu0_final, nodes=nodes,
+        mu_ascending=mu[:num_a], mu_descending=mu[num_a:],
+        singular_values=singular_values, order=n, past_horizon=p, future_horizon=f, num_columns=j,
+        split=split, initial_state=x0, fit_percent=float(fit),
+        residual_rms=float(np.sqrt(np.mean(residual**2))), mu0_hold=mu0_hold, refinement=refinement,
+    )
