@@ -17,6 +17,8 @@ from rig.protocols.errors import ConfigError, DeviceFault, LogFileError, Transpo
 
 COMMAND_MODULES: tuple[str, ...] = (
     "rig.commands.identify",
+    "rig.commands.simulate",
+    "rig.commands.inspect",
 )
 
 EPILOG = """exit codes:

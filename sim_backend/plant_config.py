@@ -65,7 +65,8 @@ from rig.protocols.errors import ConfigError
 from sim_backend.noise import BoundedUniformNoise, ColouredNoise, GaussianNoise, NoiseModel, NoNoise
 from sim_backend.plant import SimulatedGearbox
 
-__all__ = ["BLOCK_TYPES", "PlantConfig", "load_plant_config", "plant_config_from_toml_text", "plant_config_to_toml"]
+__all__ = ["BLOCK_TYPES", "PlantConfig", "describe_noise", "load_plant_config", "plant_config_from_toml_text",
+           "plant_config_to_toml"]
 
 
 @dataclass(frozen=True)
@@ -401,6 +402,11 @@ def _noise_fields(noise: NoiseModel) -> dict[str, Any]:
             fields.update(numerator=list(noise.numerator), denominator=list(noise.denominator))
         return fields
     raise InvalidInputError(f"noise: a {type(noise).__name__} has no TOML form")
+
+
+def describe_noise(noise: NoiseModel) -> dict[str, Any]:
+    """The ``[noise]`` table of ``noise`` as a plain dict (what a log records about the noise)."""
+    return _noise_fields(noise)
 
 
 def plant_config_to_toml(config: PlantConfig) -> str:

@@ -1,0 +1,150 @@
+"""Experiment configs (``configs/experiments/*.toml``): which excitation to send, how long, with which seed.
+
+The signals come from ``identify``'s generators, so the rig sends exactly what the methods were designed
+for: :func:`identify.excitation_design.prbs_sequence` (the PRBS of Cerone et al. 2009, Section 4),
+:func:`identify.excitation_design.filtered_staircase` (the filtered square-wave staircase of their
+Section 3.1 and Appendix) and :func:`identify.cyclic_excitation.cyclic_random_excitation` (Table I of
+Pouliquen et al. 2013). The format::
+
+    name = "prbs"                        # optional (default: the file name)
+    description = "..."                  # optional
+    seed = 7                             # seed of the excitation's random generator
+
+    [excitation]
+    kind = "prbs"                        # prbs | filtered_staircase | cyclic_random
+    num_samples = 100
+    amplitude_rad = 1.0                  # ... the generator's own keyword arguments
+
+Every key is validated (unknown keys are rejected) and errors name the file and the key.
+"""
+
+from __future__ import annotations
+
+import inspect
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from identify.validation import InvalidInputError
+from rig.protocols.config_schema import ConfigTable, load_toml
+
+__all__ = ["EXCITATION_KINDS", "Excitation", "load_experiment_config"]
+
+
+@dataclass(frozen=True)
+class Excitation:
+    """A generated excitation and what is needed to generate it again."""
+
+    name: str
+    kind: str
+    command_rad: NDArray[np.float64]
+    seed: int | None
+    parameters: dict[str, Any] = field(default_factory=dict)
+    description: str = ""
+    source: str = "<memory>"
+
+    def metadata(self) -> dict[str, Any]:
+        """What a log records about the excitation."""
+        return {"name": self.name, "kind": self.kind, "seed": self.seed, "parameters": dict(self.parameters),
+                "source": self.source}
+
+
+def _prbs(table: ConfigTable, rng: np.random.Generator) -> tuple[NDArray[np.float64], dict[str, Any]]:
+    from identify.excitation_design import prbs_sequence
+
+    parameters = {"num_samples": table.integer("num_samples", minimum=1),
+                  "amplitude_rad": table.number("amplitude_rad", minimum=0.0, exclusive_minimum=True)}
+    return _call(table, prbs_sequence, parameters, rng), parameters
+
+
+def _filtered_staircase(table: ConfigTable, rng: np.random.Generator) -> tuple[NDArray[np.float64], dict[str, Any]]:
+    from identify.excitation_design import filtered_staircase
+
+    parameters = _generic_parameters(table, filtered_staircase)
+    return _call(table, filtered_staircase, parameters, rng), parameters
+
+
+def _cyclic_random(table: ConfigTable, rng: np.random.Generator) -> tuple[NDArray[np.float64], dict[str, Any]]:
+    from identify.cyclic_excitation import cyclic_random_excitation
+
+    parameters = {"num_samples": table.integer("num_samples", minimum=1),
+                  "u_min": table.number("u_min"), "u_max": table.number("u_max"),
+                  "hold_samples": table.integer("hold_samples", 0, minimum=0),
+                  "samples_per_step": table.integer("samples_per_step", 1, minimum=1)}
+    return _call(table, cyclic_random_excitation, parameters, rng), parameters
+
+
+EXCITATION_KINDS: dict[str, Callable[[ConfigTable, np.random.Generator], tuple[NDArray[np.float64], dict[str, Any]]]] = {
+    "prbs": _prbs,
+    "filtered_staircase": _filtered_staircase,
+    "cyclic_random": _cyclic_random,
+}
+"""``kind`` in ``[excitation]`` -> reader that validates the keys and calls identify's generator."""
+
+
+def _generic_parameters(table: ConfigTable, function: Callable[..., Any]) -> dict[str, Any]:
+    """Read the keys of ``table`` that name parameters of ``function`` (all but ``rng``), typed by their
+    annotation or default: integers, numbers, booleans, strings or lists of numbers."""
+    parameters: dict[str, Any] = {}
+    signature = inspect.signature(function)
+    for name, parameter in signature.parameters.items():
+        if name == "rng" or parameter.kind in (parameter.VAR_POSITIONAL, parameter.VAR_KEYWORD):
+            continue
+        if not table.has(name):
+            if parameter.default is inspect.Parameter.empty:
+                raise table.error(name, "is required but missing")
+            continue
+        value = table.data[name]
+        annotation = str(parameter.annotation)
+        if isinstance(value, bool):
+            parameters[name] = table.boolean(name)
+        elif isinstance(value, int) and ("int" in annotation and "float" not in annotation):
+            parameters[name] = table.integer(name)
+        elif isinstance(value, (int, float)):
+            parameters[name] = table.number(name)
+        elif isinstance(value, str):
+            parameters[name] = table.string(name)
+        elif isinstance(value, list):
+            parameters[name] = table.numbers(name)
+        else:
+            raise table.error(name, f"expected a number, string, boolean or list of numbers, got {value!r}")
+    return parameters
+
+
+def _call(table: ConfigTable, function: Callable[..., Any], parameters: dict[str, Any],
+          rng: np.random.Generator) -> NDArray[np.float64]:
+    try:
+        signal = function(**parameters, rng=rng)
+    except InvalidInputError as err:
+        key = str(err).split(":", 1)[0].split(",")[0].strip()
+        raise table.error(key if key in parameters else "<table>", str(err)) from err
+    return np.asarray(signal, dtype=float)
+
+
+def load_experiment_config(path: str | Path, seed: int | None = None) -> Excitation:
+    """Read an experiment config and generate its excitation; ``seed`` overrides the file's ``seed``.
+
+    Raises :class:`~rig.protocols.errors.ConfigError` naming the file and key on any invalid entry.
+    """
+    root = load_toml(path)
+    name = root.string("name", Path(path).stem)
+    description = root.string("description", "")
+    file_seed = root.integer("seed", None, minimum=0)
+    table = root.table("excitation")
+    kind = table.string("kind", choices=tuple(EXCITATION_KINDS))
+    used_seed = seed if seed is not None else file_seed
+    rng = np.random.default_rng(used_seed)
+    if used_seed is None:
+        used_seed = int(rng.bit_generator.seed_seq.entropy % (1 << 63))  # record the drawn seed
+        rng = np.random.default_rng(used_seed)
+    command, parameters = EXCITATION_KINDS[kind](table, rng)
+    table.finish()
+    root.finish()
+    if command.ndim != 1 or command.size == 0 or not np.all(np.isfinite(command)):
+        raise root.error("excitation", f"the {kind} generator returned no usable signal (shape {command.shape})")
+    return Excitation(name=name, kind=kind, command_rad=command, seed=used_seed, parameters=parameters,
+                      description=description, source=str(path))
