@@ -120,6 +120,8 @@ class EncoderResolution:
         """Position value the device reports for the load angle ``angle_rad``: rounded to the nearest count,
         counted in ``direction``, shifted by ``offset_counts`` and wrapped at 2**(n+m) (and two's-complement
         if ``signed``). Accepts a float (returns an int) or an array (returns an int64 array)."""
+        if isinstance(angle_rad, (float, int)) and not isinstance(angle_rad, bool):
+            return self._counts_from_float(float(angle_rad))
         angle = np.asarray(angle_rad, dtype=float)
         if not np.all(np.isfinite(angle)):
             raise InvalidInputError(f"angle_rad: expected finite angles, got {angle_rad!r}")
@@ -131,6 +133,33 @@ class EncoderResolution:
         if counts.ndim == 0:
             return int(counts)
         return counts
+
+    def _counts_from_float(self, angle: float) -> int:
+        # The same operations as the array path, in Python numbers (round() rounds half to even like
+        # numpy.rint), so one sample at a time gives the same counts, about 20 times faster.
+        if not math.isfinite(angle):
+            raise InvalidInputError(f"angle_rad: expected finite angles, got {angle!r}")
+        counts = (round(self.direction * angle / self.count_rad) % self.modulus + self.offset_counts) % self.modulus
+        if self.signed and counts >= self.modulus >> 1:
+            counts -= self.modulus
+        return counts
+
+    def _rad_from_int(self, counts: int, near_rad: float | None) -> float:
+        low = -(self.modulus >> 1) if self.signed else 0
+        if not low <= counts < low + self.modulus:
+            raise InvalidInputError(
+                f"counts: expected position values from {low} to {low + self.modulus - 1} "
+                f"({self.bits}+{self.multi_turn_bits} bits, {'signed' if self.signed else 'unsigned'}), got {counts!r}"
+            )
+        relative = (counts - self.offset_counts) % self.modulus
+        if self.direction < 0:
+            relative = (-relative) % self.modulus
+        if self.signed and relative >= self.modulus >> 1:
+            relative -= self.modulus
+        angle = float(relative) * self.count_rad
+        if near_rad is not None:
+            angle = angle + float(round((float(near_rad) - angle) / self.range_rad)) * self.range_rad
+        return angle
 
     @overload
     def rad_from_counts(self, counts: int, near_rad: float | None = None) -> float: ...
@@ -146,6 +175,9 @@ class EncoderResolution:
         ``near_rad`` picks, instead, the equivalent angle (modulo R) nearest to it, e.g. the previous
         reading, so that a load that turns past the wrap keeps a continuous angle.
         """
+        if isinstance(counts, (int, np.integer)) and not isinstance(counts, bool) and (
+                near_rad is None or isinstance(near_rad, (float, int))):
+            return self._rad_from_int(int(counts), near_rad)
         values = np.asarray(counts)
         if values.dtype.kind not in "iu" and not (values.dtype.kind == "f" and np.all(values == np.round(values))):
             raise InvalidInputError(f"counts: expected integer position values, got {counts!r}")

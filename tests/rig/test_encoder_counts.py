@@ -73,3 +73,15 @@ def test_invalid_resolutions_are_rejected_by_name():
         EncoderResolution(bits=12, offset_counts=4096)
     with pytest.raises(InvalidInputError, match="angle_rad"):
         EncoderResolution(bits=12).counts_from_rad(float("nan"))
+
+
+def test_one_sample_at_a_time_gives_the_same_counts_and_angles_as_arrays():
+    rng = np.random.default_rng(0)
+    for encoder in (EncoderResolution(12, signed=True), EncoderResolution(10, 3, False, -1, 77)):
+        angles = rng.uniform(-30, 30, 3000)
+        # exact half-count ties round to even in both paths
+        angles[:300] = (np.arange(300) - 150 + 0.5) * encoder.count_rad
+        counts = encoder.counts_from_rad(angles)
+        assert np.array_equal(counts, [encoder.counts_from_rad(float(a)) for a in angles])
+        decoded = encoder.rad_from_counts(counts, near_rad=angles)
+        assert np.array_equal(decoded, [encoder.rad_from_counts(int(c), near_rad=float(a)) for c, a in zip(counts, angles)])
