@@ -23,6 +23,7 @@ standard deviation given w.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from typing import Protocol, runtime_checkable
 
@@ -79,7 +80,7 @@ class _ChunkedSampler:
     """Draws the white sequence in chunks (a Generator gives the same numbers whether asked for one at a
     time or for an array), optionally colours it with a :class:`LinearBlock` stepper."""
 
-    def __init__(self, white: callable, colour: LinearBlock | None) -> None:
+    def __init__(self, white: Callable[[int], NDArray[np.float64]], colour: LinearBlock | None) -> None:
         self._white = white
         self._buffer: list[float] = []
         self._position = 0

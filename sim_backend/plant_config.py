@@ -38,7 +38,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -136,7 +136,7 @@ def _parse(root: ConfigTable, default_name: str) -> PlantConfig:
     encoder = _parse_encoder(root.table("encoder"))
     noise = _parse_noise(root.table("noise", {}))
     blocks, enabled = [], []
-    for index, table in enumerate(_table_list(root, "blocks")):
+    for table in _table_list(root, "blocks"):
         block, on = _parse_block(table, period)
         blocks.append(block)
         enabled.append(on)
