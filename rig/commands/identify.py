@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import importlib
 
-METHOD_MODULES: tuple[str, ...] = ()
+METHOD_MODULES: tuple[str, ...] = ("rig.commands.identify_hammerstein",)
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:

@@ -1,0 +1,170 @@
+"""``rig identify hammerstein DATA``: subspace identification of a Hammerstein model with input backlash or
+switch (Pouliquen et al. 2013; :mod:`identify.hammerstein_subspace`)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from rig import exit_codes
+
+DESCRIPTION = """\
+Identify a state-space model of the linear part and the ascending/descending borders of an input backlash
+or switch from one experiment with the cyclic excitation of Table I (Pouliquen et al. 2013).
+
+DATA is a CSV file with columns u and y (one row per sample; other columns are ignored) or a rig-log v1
+file (command_rad is u, angle_rad is y). The data start with a hold at u_min, whose mean output gives
+mu0 = H[u_min], unless --mu0 is given; without --hold-samples the hold is the leading run of samples at
+the first value. The borders are continuous piecewise-linear functions with nodes from --nodes or
+--num-nodes equally spaced nodes on [--u-min, --u-max] (default: the range of u)."""
+
+
+def _node_list(text: str) -> tuple[float, ...]:
+    try:
+        values = tuple(float(item) for item in text.split(",") if item.strip())
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated numbers, got {text!r}") from None
+    if len(values) < 2:
+        raise argparse.ArgumentTypeError(f"expected at least two nodes (u_min and u_max), got {text!r}")
+    return values
+
+
+def _order(text: str) -> int | str:
+    if text == "auto":
+        return text
+    try:
+        return int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a positive integer or 'auto', got {text!r}") from None
+
+
+def register(methods: argparse._SubParsersAction) -> None:
+    parser = methods.add_parser(
+        "hammerstein",
+        help="subspace identification with input backlash or switch (Pouliquen et al. 2013)",
+        description=DESCRIPTION,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    parser.add_argument("data", metavar="DATA.csv", help="CSV with columns u, y, or a rig-log v1 file")
+    nodes = parser.add_mutually_exclusive_group()
+    nodes.add_argument("--num-nodes", type=int, default=8, metavar="K",
+                       help="equally spaced nodes on [u_min, u_max], both ends included (default 8: n_p = 7)")
+    nodes.add_argument("--nodes", type=_node_list, metavar="V0,V1,...",
+                       help="node positions of both paths, strictly increasing, first u_min, last u_max; write --nodes=-3,-1,0,3 when the first is negative")
+    parser.add_argument("--descending-nodes", type=_node_list, metavar="V0,V1,...",
+                        help="other nodes for the descending path (Remark 3; same ends as --nodes)")
+    parser.add_argument("--u-min", type=float, default=None, help="start of the interval (default: min of u)")
+    parser.add_argument("--u-max", type=float, default=None, help="end of the interval (default: max of u)")
+    parser.add_argument("--order", type=_order, default="auto", metavar="N|auto",
+                        help="state dimension, or auto: the largest singular-value gap (default auto)")
+    mu0 = parser.add_mutually_exclusive_group()
+    mu0.add_argument("--hold-samples", type=int, default=None, metavar="K",
+                     help="length of the leading hold at u_min (default: the leading run at the first value)")
+    mu0.add_argument("--mu0", type=float, default=None, metavar="VALUE", help="H[u_min], when known (no hold needed)")
+    parser.add_argument("--past-horizon", type=int, default=None, metavar="P", help="past block rows p (default 15)")
+    parser.add_argument("--future-horizon", type=int, default=None, metavar="F", help="future block rows f (default 15)")
+    parser.add_argument("--split", choices=("separate", "rank1"), default="separate",
+                        help="B and mu: separately with A, C fixed (Remark 5, default) or by the rank-1 SVD of eq. (14)")
+    parser.add_argument("--no-feedthrough", action="store_true", help="fix D = 0 (strictly proper G)")
+    parser.add_argument("--refine", action="store_true",
+                        help="refine the subspace estimate by minimising the output error of the whole model")
+    parser.add_argument("--json", action="store_true", help="print the model as JSON")
+    parser.set_defaults(handler=run)
+
+
+def _read(path: Path):
+    """(u, y) from a rig-log v1 file or a CSV with columns u and y."""
+    from rig.signal_files import read_signal_table
+
+    with path.open("rb") as handle:
+        first = handle.readline()
+    if first.startswith(b"# rig-log"):
+        from rig.log_file import read_experiment_data
+
+        record = read_experiment_data(path)
+        return record.command_rad, record.angle_rad
+    table = read_signal_table(path, ("u", "y"))
+    return table["u"], table["y"]
+
+
+def run(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from identify.border_lifting import PathNodes, uniform_nodes
+    from identify.hammerstein_subspace import (
+        DEFAULT_FUTURE_HORIZON,
+        DEFAULT_PAST_HORIZON,
+        identify_hammerstein,
+    )
+    from identify.validation import InvalidInputError
+
+    path = Path(args.data)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no such file")
+    u, y = _read(path)
+    if u.size == 0:
+        raise InvalidInputError(f"{path}: no samples")
+    if args.nodes is not None:
+        if args.u_min is not None or args.u_max is not None:
+            raise InvalidInputError("--nodes: give either --nodes or --u-min/--u-max with --num-nodes, not both")
+        ascending = args.nodes
+    else:
+        u_min = float(np.min(u)) if args.u_min is None else args.u_min
+        u_max = float(np.max(u)) if args.u_max is None else args.u_max
+        ascending = tuple(uniform_nodes(u_min, u_max, args.num_nodes).tolist())
+    descending = args.descending_nodes if args.descending_nodes is not None else ascending
+    nodes = PathNodes(ascending, descending)
+
+    hold = args.hold_samples
+    if args.mu0 is None and hold is None:
+        leading = np.flatnonzero(u != u[0])
+        hold = int(leading[0]) if leading.size else int(u.size)
+        if abs(u[0] - nodes.u_min) > 1e-9 * (nodes.u_max - nodes.u_min):
+            raise InvalidInputError(
+                f"{path}: the data start at u = {float(u[0])}, not at u_min = {nodes.u_min}; start with the hold "
+                "at u_min or give --mu0"
+            )
+    model = identify_hammerstein(
+        u, y, nodes,
+        hold_samples=hold, mu0=args.mu0, order=args.order,
+        past_horizon=DEFAULT_PAST_HORIZON if args.past_horizon is None else args.past_horizon,
+        future_horizon=DEFAULT_FUTURE_HORIZON if args.future_horizon is None else args.future_horizon,
+        feedthrough=not args.no_feedthrough, split=args.split, refine=args.refine,
+    )
+    if args.json:
+        print(json.dumps(model.to_dict()))
+    else:
+        _print_table(model, path, hold)
+    sys.stdout.flush()
+    return exit_codes.SUCCESS
+
+
+def _print_table(model, path: Path, hold: int | None) -> None:
+    numerator, denominator = model.transfer_function
+    print(f"data             {path}")
+    print(f"order            {model.order}   (p = {model.past_horizon}, f = {model.future_horizon}, "
+          f"j = {model.num_columns} columns, B and mu: {model.split})")
+    shown = model.singular_values[: min(8, model.singular_values.size)]
+    print("singular values  " + "  ".join(f"{s:.4g}" + (" |" if k + 1 == model.order else "")
+                                          for k, s in enumerate(shown)))
+    for pole in model.poles:
+        print(f"pole             {pole.real:+.6f} {pole.imag:+.6f}j   |p| = {abs(pole):.6f}")
+    print("G(q^-1)          num " + " ".join(f"{c:+.6g}" for c in numerator))
+    print("                 den " + " ".join(f"{c:+.6g}" for c in denominator))
+    mu0_source = f"hold of {hold} samples, re-estimated" if model.mu0_hold is not None else "given/estimated"
+    print(f"mu0              {model.mu0:.6g}   ({mu0_source})")
+    print(f"fit              {model.fit_percent:.2f} %   residual RMS {model.residual_rms:.4g}")
+    if model.refinement is not None:
+        r = model.refinement
+        print(f"refinement       output-error RMS {r.rms_before:.4g} -> {r.rms_after:.4g} ({r.evaluations} evaluations)")
+    print()
+    asc, desc = model.ascending_border, model.descending_border
+    if asc.nodes_u == desc.nodes_u:
+        print(f"{'u':>10}  {'ascending h':>12}  {'descending h':>12}")
+        for u_node, h_a, h_d in zip(asc.nodes_u, asc.values, desc.values):
+            print(f"{u_node:>10.4g}  {h_a:>12.6g}  {h_d:>12.6g}")
+    else:
+        for name, border in (("ascending", asc), ("descending", desc)):
+            print(f"{name} border:  " + ", ".join(f"h({u:.4g}) = {h:.6g}" for u, h in zip(border.nodes_u, border.values)))
