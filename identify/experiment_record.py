@@ -60,7 +60,9 @@ class ExperimentMetadata:
     encoder_bits
         Single-turn resolution of the load encoder, if known.
     noise_kind, noise_bound_rad
-        The simulated noise model and its bound (``inf`` for Gaussian noise), if known.
+        The noise model, and the bound on the whole measurement error |y_t - w_t| (additive noise plus
+        the encoder's rounding; ``inf`` for Gaussian noise): the Delta eta of eq. (5) of Cerone et al.
+        (2009) that bounded-error identification may use.
     excitation, excitation_seed
         The excitation's name (or config file) and the seed it was generated with.
     seed

@@ -90,3 +90,14 @@ def test_experiment_config_seed_override_and_unknown_keys(tmp_path):
     unseeded.write_text('[excitation]\nkind = "cyclic_random"\nnum_samples = 10\nu_min = -1.0\nu_max = 1.0\n')
     drawn = load_experiment_config(unseeded)
     assert np.array_equal(load_experiment_config(unseeded, seed=drawn.seed).command_rad, drawn.command_rad)
+
+
+def test_logged_noise_bound_covers_noise_and_encoder_rounding(tmp_path):
+    out = tmp_path / "precision.csv"
+    assert main(["simulate", str(PLANTS / "precision_gearbox.toml"), "--excitation",
+                 str(EXPERIMENTS / "hammerstein_cyclic.toml"), "--out", str(out), "--json"]) == 0
+    record = read_log(out)
+    gearbox = SimulatedGearbox.from_toml(PLANTS / "precision_gearbox.toml")
+    assert record.metadata.noise_bound_rad == pytest.approx(2e-4 + np.pi / 4096)
+    assert record.metadata.noise_bound_rad == pytest.approx(gearbox.measurement_error_bound_rad)
+    assert record.metadata.config["additive_noise_bound_rad"] == 2e-4

@@ -57,6 +57,16 @@ def test_cerone_plant_reaches_the_right_line_of_the_backlash_at_steady_state():
     assert run.measured_angle_rad[-1] == pytest.approx(0.252 * (2.0 - 0.0349), abs=2 * np.pi / 4096)
 
 
+def test_cerone_noise_gives_the_snr_of_table_ii_for_12_bits():
+    gearbox = SimulatedGearbox.from_toml(PLANTS / "cerone2009.toml", seed=1)
+    prbs = np.random.default_rng(2).choice([-1.0, 1.0], size=20000)  # the +-1 PRBS of Section 6
+    run = gearbox.simulate(prbs)
+    error = run.measured_angle_rad - run.load_angle_rad
+    snr_db = 10 * np.log10(np.var(run.load_angle_rad) / np.var(error))
+    assert snr_db == pytest.approx(56.2, abs=1.5)  # Table II, n_bit = 12 (N = 100 there)
+    assert np.max(np.abs(error)) <= 2 * np.pi / 4096 + gearbox.encoder.quantization_bound_rad
+
+
 def test_same_seed_same_run_other_seed_other_noise_and_reset_restarts():
     plant = PlantModel((LinearBlock((0.5, 0.7), (0.0, 1.4, 0.8), 1e-3), OutputBacklash(0.248, 0.0698, 0.252, 0.0349)))
     make = lambda seed: SimulatedGearbox(plant, EncoderResolution(bits=16, signed=True),  # noqa: E731

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import pytest
@@ -30,7 +31,9 @@ def test_cerone_config_holds_the_paper_parameters():
     assert linear == LinearBlock(a=(0.5, 0.7), b=(0.0, 1.4, 0.8), sample_period_s=1e-3)
     assert linear.static_gain == pytest.approx(1.0)
     assert backlash == OutputBacklash(m_l=0.248, c_l=0.0698, m_r=0.252, c_r=0.0349)
-    assert config.encoder.bits == 12 and isinstance(config.noise, BoundedUniformNoise)
+    # the paper's error model: eta ~ U[-d, d], d = one count of a 12-bit encoder; a 32-bit encoder reads it
+    assert isinstance(config.noise, BoundedUniformNoise) and config.noise.bound_rad == pytest.approx(2 * math.pi / 4096)
+    assert config.encoder.bits == 32
     assert config.seed == 2009
 
 
