@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import sys
+import warnings
 from typing import Any
 
 from rig import exit_codes
@@ -29,7 +31,9 @@ def summary(path: str) -> dict[str, Any]:
     from identify.experiment_record import SampleFlag
     from rig.log_file import read_experiment_data
 
-    record = read_experiment_data(path)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        record = read_experiment_data(path)
     metadata = record.metadata.to_dict()
     duration = float(record.time_s[-1] - record.time_s[0])
     out: dict[str, Any] = {
@@ -40,6 +44,7 @@ def summary(path: str) -> dict[str, Any]:
         "duration_s": duration,
         "has_encoder_counts": record.encoder_counts is not None,
         "flags": {flag.name.lower(): record.count_flag(flag) for flag in SampleFlag if flag.value},
+        "warnings": [str(warning.message) for warning in caught],
     }
     out.update({key: value for key, value in metadata.items() if key not in out})
     return out
@@ -48,13 +53,15 @@ def summary(path: str) -> dict[str, Any]:
 def _text(value: Any) -> str:
     if isinstance(value, float) and math.isfinite(value):
         return f"{value:g}"
-    if isinstance(value, dict):
+    if isinstance(value, (dict, list)):
         return json.dumps(value) if value else "-"
     return "-" if value is None or value == "" else str(value)
 
 
 def run(args: argparse.Namespace) -> int:
     info = summary(args.log)
+    for message in info["warnings"]:
+        print(f"rig: warning: {message}", file=sys.stderr)
     if args.json:
         print(json.dumps(info))
         return exit_codes.SUCCESS

@@ -101,3 +101,16 @@ def test_logged_noise_bound_covers_noise_and_encoder_rounding(tmp_path):
     assert record.metadata.noise_bound_rad == pytest.approx(2e-4 + np.pi / 4096)
     assert record.metadata.noise_bound_rad == pytest.approx(gearbox.measurement_error_bound_rad)
     assert record.metadata.config["additive_noise_bound_rad"] == 2e-4
+
+
+def test_inspect_warns_about_a_torn_last_line(tmp_path, capsys):
+    out = tmp_path / "torn.csv"
+    assert main(["simulate", str(PLANTS / "cerone2009.toml"), "--excitation",
+                 str(EXPERIMENTS / "hammerstein_cyclic.toml"), "--out", str(out), "--json"]) == 0
+    capsys.readouterr()
+    out.write_text(out.read_text()[:-3])
+    assert main(["inspect", str(out), "--json"]) == 0
+    captured = capsys.readouterr()
+    info = json.loads(captured.out)
+    assert info["samples"] == 4099 and "last line is incomplete" in info["warnings"][0]
+    assert "rig: warning:" in captured.err
