@@ -84,6 +84,9 @@ class RefinementReport:
         The optimiser's own success flag.
     message
         The optimiser's message.
+    applied
+        Whether the refined model replaced the subspace estimate (it does unless the output error did not
+        decrease or the refined G is unstable).
     """
 
     rms_before: float
@@ -91,6 +94,7 @@ class RefinementReport:
     evaluations: int
     converged: bool
     message: str
+    applied: bool
 
 
 def _frozen(name: str, values: ArrayLike, shape: tuple[int, ...]) -> NDArray[np.float64]:
@@ -254,6 +258,10 @@ class HammersteinModel:
             "future_horizon": self.future_horizon,
             "fit_percent": self.fit_percent,
             "residual_rms": self.residual_rms,
+            "refinement": None if self.refinement is None else {
+                "rms_before": self.refinement.rms_before, "rms_after": self.refinement.rms_after,
+                "applied": self.refinement.applied, "evaluations": self.refinement.evaluations,
+            },
         }
 
 
@@ -585,12 +593,14 @@ def _refine(z: NDArray, y: NDArray, numerator: NDArray, denominator: NDArray, mu
     before = residual(start)
     solution = scipy.optimize.least_squares(residual, start, method="trf", x_scale="jac")
     a, b_full, mu_new, mu0_new, zi = unpack(solution.x)
-    after = solution.fun
+    rms_before = float(np.sqrt(np.mean(before**2)))
+    rms_after = float(np.sqrt(np.mean(solution.fun**2)))
+    applied = rms_after < rms_before and bool(np.all(np.abs(np.roots(a)) < 1.0))
     report = RefinementReport(
-        rms_before=float(np.sqrt(np.mean(before**2))), rms_after=float(np.sqrt(np.mean(after**2))),
-        evaluations=int(solution.nfev), converged=bool(solution.success), message=str(solution.message),
+        rms_before=rms_before, rms_after=rms_after if applied else rms_before, evaluations=int(solution.nfev),
+        converged=bool(solution.success), message=str(solution.message), applied=applied,
     )
-    if not report.rms_after < report.rms_before or not np.all(np.abs(np.roots(a)) < 1.0):
+    if not applied:
         return numerator, denominator, mu, mu0, zi0, report  # keep the subspace estimate
     return b_full, a, mu_new, mu0_new, zi, report
 
@@ -601,7 +611,11 @@ def _refine(z: NDArray, y: NDArray, numerator: NDArray, denominator: NDArray, mu
 
 
 def _check_int(name: str, value: Any, lowest: int) -> int:
-    if isinstance(value, bool) or int(value) != value or value < lowest:
+    try:
+        valid = not isinstance(value, bool) and int(value) == value and value >= lowest
+    except (TypeError, ValueError):
+        valid = False
+    if not valid:
         raise InvalidInputError(f"{name}: expected an integer >= {lowest}, got {value!r}")
     return int(value)
 
@@ -771,7 +785,7 @@ def identify_hammerstein(
     if refine:
         numerator, denominator, mu, mu0_final, zi, refinement = _refine(
             z, y_signal, numerator, denominator, mu, mu0_final, reg.O @ x0, feedthrough)
-        if refinement.rms_after < refinement.rms_before:
+        if refinement.applied:
             A_c, B_c, C_c, D_c = scipy.signal.tf2ss(numerator, denominator)
             A, B, C, D = A_c, B_c[:, 0], C_c[0], float(D_c[0, 0])
             # x(0) in the new coordinates: the free response of the refined filter state, matched on n samples

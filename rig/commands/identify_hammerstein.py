@@ -158,7 +158,9 @@ def _print_table(model, path: Path, hold: int | None) -> None:
     print(f"fit              {model.fit_percent:.2f} %   residual RMS {model.residual_rms:.4g}")
     if model.refinement is not None:
         r = model.refinement
-        print(f"refinement       output-error RMS {r.rms_before:.4g} -> {r.rms_after:.4g} ({r.evaluations} evaluations)")
+        outcome = "applied" if r.applied else "not applied: no improvement or unstable, subspace estimate kept"
+        print(f"refinement       output-error RMS {r.rms_before:.4g} -> {r.rms_after:.4g} "
+              f"({r.evaluations} evaluations, {outcome})")
     print()
     asc, desc = model.ascending_border, model.descending_border
     if asc.nodes_u == desc.nodes_u:

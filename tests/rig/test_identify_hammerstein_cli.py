@@ -55,8 +55,9 @@ def test_rig_log_input_and_table_output(tmp_path, capsys, data) -> None:
     log = tmp_path / "run.log.csv"
     with LogWriter(log, ExperimentMetadata(sample_period_s=0.01, source="test"), flush_every=4096) as writer:
         writer.append_many(np.arange(u.size) * 0.01, u, y)
-    assert main(["identify", "hammerstein", str(log), "--order", "2", "--hold-samples", str(HOLD)]) == 0
+    assert main(["identify", "hammerstein", str(log), "--order", "2", "--hold-samples", str(HOLD), "--refine"]) == 0
     text = capsys.readouterr().out
+    assert "refinement       output-error RMS" in text
     assert "order            2" in text
     assert "|p| = 0.951" in text
     rows = [line.split() for line in text.splitlines()]
