@@ -189,19 +189,22 @@ def check_cyclic_input(
         )
     delta = direction_signal(signal, initial_direction=initial_direction)
     turns = np.flatnonzero(np.diff(delta.astype(np.int8)) != 0) + 1  # delta changes at sample k
-    for k in turns.tolist():
-        # the turning point is the last sample before the first move in the new direction
-        turning_value = signal[k - 1]
-        if delta[k] == 1 and turning_value > low + tol:
+    # the turning point is the last sample before the first move in the new direction
+    turning_values = signal[turns - 1]
+    bad_up = (delta[turns] == 1) & (turning_values > low + tol)
+    bad_down = (delta[turns] == 0) & (turning_values < high - tol)
+    bad = np.flatnonzero(bad_up | bad_down)
+    if bad.size:
+        k = int(turns[bad[0]])
+        if bad_up[bad[0]]:
             raise InvalidInputError(
-                f"u: sample {k - 1} turns from descending to ascending at {float(turning_value)}, above u_min = {low}; "
+                f"u: sample {k - 1} turns from descending to ascending at {float(signal[k - 1])}, above u_min = {low}; "
                 "Table I reverses only at u_min and u_max, otherwise a backlash leaves the identified paths"
             )
-        if delta[k] == 0 and turning_value < high - tol:
-            raise InvalidInputError(
-                f"u: sample {k - 1} turns from ascending to descending at {float(turning_value)}, below u_max = {high}; "
-                "Table I reverses only at u_min and u_max, otherwise a backlash leaves the identified paths"
-            )
+        raise InvalidInputError(
+            f"u: sample {k - 1} turns from ascending to descending at {float(signal[k - 1])}, below u_max = {high}; "
+            "Table I reverses only at u_min and u_max, otherwise a backlash leaves the identified paths"
+        )
     moves = np.flatnonzero(np.diff(signal) != 0.0)
     if moves.size:
         first = int(moves[0])  # the first run starts at sample `first` and must start at an end

@@ -293,26 +293,27 @@ def _block_hankel(signal: NDArray[np.float64], first: int, num_blocks: int, num_
 def _hankel_gram(w: NDArray[np.float64], num_blocks: int, num_columns: int) -> NDArray[np.float64]:
     """H^T H for the transposed block-Hankel H = _block_hankel(w, 0, num_blocks, num_columns), in O(s M^2 j).
 
-    Block (b1, b2) is Σ_t w(t + b1) w(t + b2)^T over t < j; along a diagonal b2 - b1 = d it changes only by
-    the samples that enter and leave the window, so one lag product per d plus a running sum gives all
-    blocks without forming the j × s M matrix product.
+    Block (b1, b2) is Σ_{t<j} w(t + b1) w(t + b2)^T. Along a diagonal b2 - b1 = d it changes only by the
+    samples that enter and leave the window, so one lag product per d plus a running sum of s rank-one
+    corrections gives every block without forming the j × s M matrix product.
     """
     s, j = num_blocks, num_columns
     M = w.shape[1]
-    gram = np.empty((s, M, s, M))
     head = w[:j].T
-    for d in range(s):
-        base = head @ w[d : d + j]                                   # Σ_t w(t) w(t + d)^T
-        if s - d > 1:
-            count = s - d - 1
-            enter = np.einsum("li,lk->lik", w[j : j + count], w[j + d : j + d + count])
-            leave = np.einsum("li,lk->lik", w[:count], w[d : d + count])
-            blocks = base + np.concatenate((np.zeros((1, M, M)), np.cumsum(enter - leave, axis=0)))
-        else:
-            blocks = base[None]
-        rows = np.arange(s - d)
-        gram[rows, :, rows + d, :] = blocks
-        gram[rows + d, :, rows, :] = blocks.transpose(0, 2, 1)
+    base = np.stack([head @ w[d : d + j] for d in range(s)])            # (d, M, M): Σ_t w(t) w(t + d)^T
+    # corrections[d, b] = Σ_{l<b} w(j + l) w(j + l + d)^T - w(l) w(l + d)^T, for b + d < s
+    # (only l + d <= s - 2 is used; the zero padding fills the rest of the windows)
+    padded = np.vstack((w, np.zeros((2 * s, M))))
+    lead = np.lib.stride_tricks.sliding_window_view(padded[: 2 * s - 1], s, axis=0)          # (l, M, d): w(l + d)
+    tail = np.lib.stride_tricks.sliding_window_view(padded[j : j + 2 * s - 1], s, axis=0)    # w(j + l + d)
+    steps = np.einsum("li,lkd->dlik", padded[j : j + s], tail) - np.einsum("li,lkd->dlik", padded[:s], lead)
+    before = np.tri(s, s, -1)                                            # [b, l] = 1 for l < b
+    corrections = (before @ steps.reshape(s, s, M * M)).reshape(s, s, M, M)
+    b1, d = np.nonzero(np.arange(s)[:, None] + np.arange(s)[None, :] < s)
+    blocks = base[d] + corrections[d, b1]
+    gram = np.empty((s, M, s, M))
+    gram[b1, :, b1 + d, :] = blocks
+    gram[b1 + d, :, b1, :] = blocks.transpose(0, 2, 1)
     return gram.reshape(s * M, s * M)
 
 
