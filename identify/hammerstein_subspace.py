@@ -624,7 +624,7 @@ def _check_int(name: str, value: Any, lowest: int) -> int:
 def identify_hammerstein(
     u: ArrayLike,
     y: ArrayLike,
-    nodes: PathNodes,
+    nodes: PathNodes | ArrayLike,
     *,
     hold_samples: int | None = None,
     mu0: float | None = None,
@@ -650,7 +650,8 @@ def identify_hammerstein(
     u, y
         Input and output, one sample each per time step, starting at u_min (with the hold, if any).
     nodes
-        Path nodes (eq. (3)); :meth:`PathNodes.uniform` for equally spaced ones.
+        Path nodes (eq. (3)); :meth:`PathNodes.uniform` for equally spaced ones, or one sequence of node
+        positions shared by both paths.
     hold_samples
         Length K of the leading hold at u_min: μ0 starts as the mean of y over it (Section III).
     mu0
@@ -685,7 +686,13 @@ def identify_hammerstein(
     y_signal = as_signal("y", y)
     N = same_length(u=u_signal, y=y_signal)
     if not isinstance(nodes, PathNodes):
-        raise InvalidInputError(f"nodes: expected a PathNodes, got {type(nodes).__name__}")
+        try:
+            shared = tuple(float(v) for v in nodes)
+        except (TypeError, ValueError) as err:
+            raise InvalidInputError(
+                f"nodes: expected a PathNodes or a sequence of node positions, got {type(nodes).__name__}"
+            ) from err
+        nodes = PathNodes(shared, shared)
     p = _check_int("past_horizon", past_horizon, 1)
     f = _check_int("future_horizon", future_horizon, 2)
     max_order = _check_int("max_order", max_order, 1)

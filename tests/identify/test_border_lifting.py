@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from identify.border_lifting import (
     PathNodes,
@@ -96,3 +98,23 @@ def test_check_accepts_the_design_and_names_what_is_wrong() -> None:
 def test_check_reports_an_untraversed_path() -> None:
     with pytest.raises(InvalidInputError, match="ascending path is never traversed"):
         check_cyclic_input([-3.0, -3.0, -3.0], NODES)
+
+
+@settings(max_examples=30, deadline=None)
+@given(
+    interior_a=st.lists(st.floats(-0.99, 0.99), min_size=0, max_size=6, unique=True),
+    interior_d=st.lists(st.floats(-0.99, 0.99), min_size=0, max_size=6, unique=True),
+    seed=st.integers(0, 2**16),
+)
+def test_any_node_placement_reproduces_a_piecewise_linear_switch(interior_a, interior_d, seed) -> None:
+    """Eq. (4) holds for any nodes (Remark 3): z(t) μ + μ0 equals the switch output on Table I cycles."""
+    nodes = PathNodes((-1.0, *sorted(interior_a), 1.0), (-1.0, *sorted(interior_d), 1.0))
+    rng = np.random.default_rng(seed)
+    values_a = np.concatenate(([0.3], rng.normal(size=len(nodes.ascending) - 1)))
+    values_d = np.concatenate(([0.3], rng.normal(size=len(nodes.descending) - 1)))
+    switch = InputSwitch(PiecewiseLinearBorder(nodes.ascending, tuple(values_a)),
+                         PiecewiseLinearBorder(nodes.descending, tuple(values_d)),
+                         initial_input=-1.0, initial_ascending=False)
+    u = cyclic_random_excitation(400, -1.0, 1.0, 3, rng=rng)
+    mu = np.concatenate((np.diff(values_a) / np.diff(nodes.ascending), np.diff(values_d) / np.diff(nodes.descending)))
+    assert np.allclose(0.3 + lifted_input(u, nodes) @ mu, switch.apply(u), atol=1e-9)

@@ -76,6 +76,15 @@ def test_noise_free_data_recover_poles_gain_and_borders_to_machine_precision(
     assert np.max(np.abs(model.simulate(fresh) - exact_plant(kind).simulate(fresh))[600:]) < 1e-9
 
 
+def test_held_steps_and_a_plain_node_list_work_too() -> None:
+    """A rig that cannot follow a new set-point every sample holds each Table I value for 3 samples."""
+    u = cyclic_random_excitation(HOLD + 3 * 2500, -3.0, 3.0, HOLD, rng=6, samples_per_step=3)
+    y = exact_plant("backlash").simulate(u)
+    model = identify_hammerstein(u, y, list(X), hold_samples=HOLD)
+    assert np.max(np.abs(np.sort_complex(model.poles) - TRUE_POLES)) < 1e-10
+    assert np.max(np.abs(np.array(model.ascending_border.values) - H_A)) < 1e-10
+
+
 def test_backlash_mode_simulates_a_backlash_on_inputs_that_reverse_inside_the_interval(excitation) -> None:
     y = exact_plant("backlash").simulate(excitation)
     model = identify_hammerstein(excitation, y, NODES, hold_samples=HOLD, feedthrough=False)
@@ -198,6 +207,8 @@ def test_errors_name_the_problem(excitation) -> None:
         identify_hammerstein(excitation, y, NODES, hold_samples=HOLD, order=15)
     with pytest.raises(InvalidInputError, match="the data support at most order 2"):
         identify_hammerstein(excitation, y, NODES, hold_samples=HOLD, order=4)
+    with pytest.raises(InvalidInputError, match="nodes: expected a PathNodes or a sequence"):
+        identify_hammerstein(excitation, y, "nodes", hold_samples=HOLD)  # type: ignore[arg-type]
     with pytest.raises(InvalidInputError, match="split"):
         identify_hammerstein(excitation, y, NODES, hold_samples=HOLD, split="svd")  # type: ignore[arg-type]
     narrow = PathNodes.uniform(-2.0, 2.0, 5)
