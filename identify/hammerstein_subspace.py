@@ -7,7 +7,10 @@ ascending and descending borders of the nonlinearity:
 1. lift the input: z(t) with H[u(t)] = μ0 + μ z(t) (eq. (4), :mod:`identify.border_lifting`); μ0 is the
    output mean over a leading hold at u_min (Section III) or given;
 2. PI-MOESP on (z, y - μ0) (eqs. (8)-(13)): an LQ factorisation of the stacked block-Hankel matrices
-   [Z_f; Z_p; Y_f] gives the projection O_f of eq. (11) as L32 Q2; its left singular vectors span Γ_f;
+   [Z_f; Z_p; Y_f] gives the projection O_f of eq. (11) as L32 Q2; its left singular vectors span Γ_f.
+   The L factor is the Cholesky factor of the Gram matrix of the input rows, which the Hankel structure
+   gives in O((p+f) m^2 N), so no j × j projection and no explicit inverse is formed
+   (:func:`pi_moesp_observability`; ``factorisation="qr"`` is the Householder reference);
 3. the order n from the largest gap between consecutive singular values (or given);
 4. A and C from the shift invariance of Γ_f (step 1 of Section III);
 5. bold B = B μ and bold D = D μ by linear least squares on the output with the initial state (step 2);
@@ -23,6 +26,10 @@ Beyond the paper:
 * ``refine=True`` minimises the output error of the whole Hammerstein model (transfer-function parameters,
   node slopes, offset and initial state) with :func:`scipy.optimize.least_squares`, starting from the
   subspace estimate.
+
+Limitations: assumption A.1 (both paths start at μ0 = H[u_min]) is required: with Table I the direction
+signal δ(t) is 4-periodic, so a separate start offset of the ascending path would not be persistently
+exciting. G must have a finite non-zero static gain (A.2); a pure integrator cannot be normalised.
 
 Example
 -------
