@@ -1,0 +1,118 @@
+"""Bounds on the unmeasured inner signal x_t of a linear system with output backlash (Section 4 of Cerone et al. 2009).
+
+Invertible samples (Proposition 2): if y_t > y_{t-1} + 2Δη the backlash output rose, so it moved along the
+right line, w_t = m_r(x_t - c_r), and x_t = (y_t - η_t)/m_r + c_r (eqs. (25), (27)); if y_t < y_{t-1} - 2Δη it
+fell along the left line and x_t = (y_t - η_t)/m_l - c_l (eqs. (24), (26)). In (m, p = m·c) this is
+(y - η ± p)/m, linear-fractional in (m, p, η), so its extremes over D_γ and |η| <= Δη are at the polygon
+vertices and η = ±Δη (Proposition 4): every bound here is exact over D_γ.
+
+Beyond the paper, a non-invertible sample is not dropped. Every branch of eq. (2) puts x_t between
+w_t/m_l - c_l (left line: equality) and w_t/m_r + c_r (right line: equality; inside the dead band x_t lies
+strictly between the two), so
+
+    min(w/m_l - c_l, w/m_r + c_r) <= x_t <= max(w/m_l - c_l, w/m_r + c_r),
+
+which is the band w/m_l - c_l <= x_t <= w/m_r + c_r wherever the two lines do not cross, and stays valid
+where they do. Its extremes over D_γ and the noise are again at vertices and η = ±Δη.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from identify.feasible_parameter_set import BacklashFeasibleSet
+from identify.validation import InvalidInputError, as_signal
+
+__all__ = ["InnerSignalBounds", "bound_inner_signal"]
+
+_PAD_RELATIVE = 1e-12
+
+
+@dataclass(frozen=True)
+class InnerSignalBounds:
+    """x_t^min <= x_t <= x_t^max for every sample (eq. (23)), with x^c and Δx of eq. (28).
+
+    Attributes
+    ----------
+    lower_rad, upper_rad
+        x_t^min and x_t^max.
+    invertible
+        True where Proposition 2 holds (|y_t - y_{t-1}| > 2Δη; sample 0 has no predecessor and is never
+        invertible); elsewhere the band bound applies.
+    direction
+        +1 where the output rose (right line), -1 where it fell (left line), 0 for non-invertible samples.
+    """
+
+    lower_rad: NDArray[np.float64]
+    upper_rad: NDArray[np.float64]
+    invertible: NDArray[np.bool_]
+    direction: NDArray[np.int8]
+
+    @property
+    def center_rad(self) -> NDArray[np.float64]:
+        """x_t^c of eq. (28)."""
+        return 0.5 * (self.lower_rad + self.upper_rad)
+
+    @property
+    def half_width_rad(self) -> NDArray[np.float64]:
+        """Δx_t of eq. (28)."""
+        return 0.5 * (self.upper_rad - self.lower_rad)
+
+    @property
+    def num_invertible(self) -> int:
+        return int(np.count_nonzero(self.invertible))
+
+
+def _line_extremes(y: NDArray[np.float64], noise: float, slopes: NDArray[np.float64],
+                   offsets: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """min and max over vertices (slope m, offset ±p) and η = ±Δη of (y_t - η + offset)/m, per sample."""
+    values = np.concatenate([
+        (y[:, None] - noise + offsets[None, :]) / slopes[None, :],
+        (y[:, None] + noise + offsets[None, :]) / slopes[None, :],
+    ], axis=1)
+    return values.min(axis=1), values.max(axis=1)
+
+
+def bound_inner_signal(output_rad: ArrayLike, noise_bound_rad: float, backlash: BacklashFeasibleSet) -> InnerSignalBounds:
+    """Bounds on x_t from the dynamic experiment's outputs, Propositions 2-4 plus the band bound.
+
+    Parameters
+    ----------
+    output_rad
+        y_t, t = 0..N-1, measured output of the dynamic (PRBS) experiment.
+    noise_bound_rad
+        Δη >= 0 of eq. (5).
+    backlash
+        D_γ from :func:`identify.feasible_parameter_set.bound_backlash_parameters` (not empty).
+
+    Returns
+    -------
+    InnerSignalBounds
+        Guaranteed bounds (padded by 1e-12 relative against rounding) and the invertible-sample mask.
+    """
+    y = as_signal("output_rad", output_rad, min_samples=2)
+    noise = float(noise_bound_rad)
+    if not np.isfinite(noise) or noise < 0.0:
+        raise InvalidInputError(f"noise_bound_rad: expected a finite number >= 0, got {noise_bound_rad!r}")
+    if not isinstance(backlash, BacklashFeasibleSet):
+        raise InvalidInputError(f"backlash: expected a BacklashFeasibleSet, got {type(backlash).__name__}")
+    if backlash.is_empty:
+        raise InvalidInputError(f"backlash: the feasible set is empty ({backlash.explanation and backlash.explanation.message})")
+    right_low, right_high = _line_extremes(y, noise, backlash.right.slope_vertices,
+                                           backlash.right.slope_times_deadband_vertices)
+    left_low, left_high = _line_extremes(y, noise, backlash.left.slope_vertices,
+                                         -backlash.left.slope_times_deadband_vertices)
+    lower = np.minimum(left_low, right_low)
+    upper = np.maximum(left_high, right_high)
+    step = np.diff(y)
+    direction = np.zeros(y.size, dtype=np.int8)
+    direction[1:][step > 2.0 * noise] = 1
+    direction[1:][step < -2.0 * noise] = -1
+    rising, falling = direction == 1, direction == -1
+    lower = np.where(rising, right_low, np.where(falling, left_low, lower))
+    upper = np.where(rising, right_high, np.where(falling, left_high, upper))
+    pad = _PAD_RELATIVE * np.maximum(1.0, np.maximum(np.abs(lower), np.abs(upper)))
+    return InnerSignalBounds(lower - pad, upper + pad, direction != 0, direction)

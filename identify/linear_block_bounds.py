@@ -1,0 +1,548 @@
+"""Guaranteed bounds on the linear block A(q^-1) x_t = B(q^-1) u_t from bounded inner-signal data
+(Section 5 of Cerone et al. 2009).
+
+The inner signal is known only within bounds, x_t = x_t^c + δx_t with |δx_t| <= Δx_t (eqs. (28)-(30)),
+and the parameters θ = [a_1..a_na, b_nk..b_nb] satisfy, for t = n..N-1 with n = max(na, nb),
+
+    x_t^c + δx_t + Σ_i a_i (x_{t-i}^c + δx_{t-i}) = Σ_j b_j u_{t-j},        Σ_j b_j = 1 + Σ_i a_i  (eq. (8)).
+
+Two bounding methods, both returning guaranteed outer bounds:
+
+``"paper"`` (Cerone 1993, as the paper applies it): every equation's errors are taken on their own,
+|x_t^c + Σ a_i x_{t-i}^c - Σ b_j u_{t-j}| <= Δx_t + Σ |a_i| Δx_{t-i}; in each orthant of (a_1..a_na) the
+absolute values are linear, so the set is a polytope and every bound is an LP (2p LPs per orthant).
+
+``"coupled"`` (not in the paper): the same δx_s enters up to na+1 equations, so the exact feasible set is
+the projection of {(θ, δx) : all equations hold with shared δx}. The bilinear terms a_i δx_s are replaced by
+variables with McCormick envelopes over the current box of a_i and |δx_s| <= Δx_s, which is a convex outer
+relaxation; its LP bounds tighten the box of a_i, which tightens the envelopes, and this is iterated. The
+paper method's box is the starting box, so the coupled bounds are never wider. For every bound, the a-part
+of the extreme LP solution is then fixed and the (now exactly linear) problem in b and δx is solved again:
+that gives a point of the exact feasible set, so ``inner_lower``/``inner_upper`` show how close the outer
+bounds are to the exact ones.
+
+Guarantees against solver tolerances: every LP bound is replaced by the Neumaier-Shcherbina bound computed
+from the solver's dual values and the finite variable boxes (a valid bound for any dual vector), and an
+orthant is discarded only if a phase-1 LP proves it infeasible the same way. The a-priori box of a_i is
+|a_i| <= C(na, i), which holds for every asymptotically stable A (assumption (i) of Section 2): the coefficients
+of Π_k (1 - p_k q^-1) with |p_k| < 1 are bounded by the binomial ones.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.sparse as sp
+from numpy.typing import ArrayLike, NDArray
+from scipy.optimize import linprog
+
+from identify.feasible_parameter_set import ParameterInterval
+from identify.validation import InvalidInputError, as_signal, same_length
+
+__all__ = ["LINEAR_BOUND_METHODS", "EmptyLinearSetExplanation", "LinearBlockBounds", "LinearModelOrders",
+           "bound_linear_block"]
+
+LINEAR_BOUND_METHODS = ("paper", "coupled")
+
+_B_BOX = 1e6
+"""A-priori box |b_j| <= 1e6; a bound that reaches it is reported as unbounded (infinite)."""
+
+
+@dataclass(frozen=True)
+class LinearModelOrders:
+    """A(q^-1) = 1 + a_1 q^-1 + ... + a_na q^-na, B(q^-1) = b_nk q^-nk + ... + b_nb q^-nb."""
+
+    na: int
+    nk: int
+    nb: int
+
+    def __post_init__(self) -> None:
+        for name in ("na", "nk", "nb"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 0:
+                raise InvalidInputError(f"{name}: expected an integer >= 0, got {value!r}")
+        if self.nb < self.nk:
+            raise InvalidInputError(f"nb: expected nb >= nk (B has b_nk..b_nb), got nk={self.nk}, nb={self.nb}")
+
+    @property
+    def parameter_names(self) -> tuple[str, ...]:
+        """``a1..a<na>``, ``b<nk>..b<nb>`` (the order of θ)."""
+        return tuple(f"a{i}" for i in range(1, self.na + 1)) + tuple(f"b{j}" for j in range(self.nk, self.nb + 1))
+
+    @property
+    def num_parameters(self) -> int:
+        return self.na + self.nb - self.nk + 1
+
+    @property
+    def first_equation(self) -> int:
+        """n = max(na, nb): the first t whose regressors are all measured."""
+        return max(self.na, self.nb)
+
+
+@dataclass(frozen=True)
+class EmptyLinearSetExplanation:
+    """Why no linear block fits: the equations that conflict and the extra error they would need."""
+
+    conflicting_samples: tuple[int, ...]
+    required_extra_error_rad: float
+    message: str
+
+
+@dataclass(frozen=True)
+class LinearBlockBounds:
+    """Guaranteed parameter bounds of the linear block (Section 5), as data.
+
+    Attributes
+    ----------
+    method
+        ``"paper"`` or ``"coupled"``.
+    orders
+        The model structure.
+    intervals
+        Outer bounds per parameter name (``a1``, ..., ``b<nb>``); empty when the set is empty.
+    inner_lower, inner_upper
+        Per parameter, values attained by points verified to satisfy the exact (coupled) equations; the
+        exact bounds lie between these and the outer ones. None for the paper method.
+    inner_point
+        One verified point θ of the exact feasible set (coupled method), or None.
+    explanation
+        Set when the feasible set is empty.
+    num_linear_programs, num_tightening_rounds, feasible_orthants
+        Solver diagnostics.
+    max_certificate_gap
+        Largest difference between a solver's optimum and the certified (Neumaier-Shcherbina) bound used.
+    """
+
+    method: str
+    orders: LinearModelOrders
+    intervals: dict[str, ParameterInterval]
+    inner_lower: dict[str, float] | None
+    inner_upper: dict[str, float] | None
+    inner_point: dict[str, float] | None
+    explanation: EmptyLinearSetExplanation | None
+    num_linear_programs: int
+    num_tightening_rounds: int
+    feasible_orthants: tuple[tuple[int, ...], ...]
+    max_certificate_gap: float = field(default=0.0)
+
+    @property
+    def is_empty(self) -> bool:
+        return self.explanation is not None
+
+
+# ----------------------------------------------------------------------------------------------------------
+# certified LP bounds
+# ----------------------------------------------------------------------------------------------------------
+
+
+@dataclass
+class _LP:
+    """min c^T z subject to A_ub z <= b_ub, A_eq z = b_eq, lower <= z <= upper (all bounds finite)."""
+
+    A_ub: sp.csr_matrix
+    b_ub: NDArray[np.float64]
+    A_eq: sp.csr_matrix
+    b_eq: NDArray[np.float64]
+    lower: NDArray[np.float64]
+    upper: NDArray[np.float64]
+
+
+class _Counter:
+    def __init__(self) -> None:
+        self.solves = 0
+        self.max_gap = 0.0
+
+
+class _Solver:
+    """One HiGHS model of an :class:`_LP`, re-solved for many objectives from the previous basis."""
+
+    def __init__(self, lp: _LP) -> None:
+        import highspy
+
+        self.lp = lp
+        A = sp.vstack([lp.A_ub, lp.A_eq]).tocsc()
+        self.A = A.tocsr()
+        self.row_lower = np.concatenate([np.full(lp.b_ub.size, -np.inf), lp.b_eq])
+        self.row_upper = np.concatenate([lp.b_ub, lp.b_eq])
+        model = highspy.HighsLp()
+        model.num_col_ = int(A.shape[1])
+        model.num_row_ = int(A.shape[0])
+        model.col_cost_ = np.zeros(A.shape[1])
+        model.col_lower_ = lp.lower
+        model.col_upper_ = lp.upper
+        model.row_lower_ = self.row_lower
+        model.row_upper_ = self.row_upper
+        model.a_matrix_.format_ = highspy.MatrixFormat.kColwise
+        model.a_matrix_.start_ = A.indptr.astype(np.int32)
+        model.a_matrix_.index_ = A.indices.astype(np.int32)
+        model.a_matrix_.value_ = A.data.astype(float)
+        self.highs = highspy.Highs()
+        self.highs.setOptionValue("output_flag", False)
+        self.highs.setOptionValue("presolve", "off")
+        self.highs.setOptionValue("simplex_strategy", 4)  # primal simplex: a new cost keeps the basis feasible
+        self.highs.passModel(model)
+        self._status = highspy.HighsModelStatus
+        self.columns = np.arange(A.shape[1], dtype=np.int32)
+
+    def minimize(self, cost: NDArray[np.float64], counter: _Counter) -> tuple[float, NDArray[np.float64] | None]:
+        """Certified lower bound of min cost^T z (Neumaier-Shcherbina: valid for any dual vector, given the
+        finite column boxes) and the solver's minimiser; (inf, None) if the solver reports infeasibility."""
+        counter.solves += 1
+        highs = self.highs
+        highs.changeColsCost(self.columns.size, self.columns, np.asarray(cost, dtype=float))
+        highs.run()
+        status = highs.getModelStatus()
+        if status == self._status.kInfeasible:
+            return math.inf, None
+        if status != self._status.kOptimal:
+            raise RuntimeError(f"HiGHS failed on a bounding LP: {highs.modelStatusToString(status)}")
+        solution = highs.getSolution()
+        x = np.asarray(solution.col_value, dtype=float)
+        y = np.asarray(solution.row_dual, dtype=float)
+        # keep only dual signs that the finite row bounds support
+        y = np.where((y > 0.0) & ~np.isfinite(self.row_lower), 0.0, y)
+        y = np.where((y < 0.0) & ~np.isfinite(self.row_upper), 0.0, y)
+        row_term = np.where(y > 0.0, y * np.where(np.isfinite(self.row_lower), self.row_lower, 0.0),
+                            y * np.where(np.isfinite(self.row_upper), self.row_upper, 0.0))
+        reduced = cost - self.A.T @ y
+        box_term = np.minimum(reduced * self.lp.lower, reduced * self.lp.upper)
+        bound = float(row_term.sum() + box_term.sum())
+        bound -= 1e-13 * (float(np.abs(row_term).sum() + np.abs(box_term).sum()) + 1.0)  # rounding of the sums
+        objective = float(cost @ x)
+        bound = min(bound, objective)
+        counter.max_gap = max(counter.max_gap, objective - bound)
+        return bound, x
+
+
+def _certified_minimum(lp: _LP, cost: NDArray[np.float64], counter: _Counter) -> tuple[float, NDArray[np.float64] | None]:
+    return _Solver(lp).minimize(cost, counter)
+
+
+def _proven_infeasible(lp: _LP, counter: _Counter) -> bool:
+    """Phase 1: min τ >= 0 with every row relaxed by τ (equalities to |row| <= τ); infeasible iff the
+    certified lower bound on τ is > 0."""
+    A_all = sp.vstack([lp.A_ub, lp.A_eq, -lp.A_eq]).tocsr()
+    b_all = np.concatenate([lp.b_ub, lp.b_eq, -lp.b_eq])
+    relaxed = _LP(sp.hstack([A_all, -sp.csr_matrix(np.ones((A_all.shape[0], 1)))]).tocsr(), b_all,
+                  sp.csr_matrix((0, lp.lower.size + 1)), np.zeros(0),
+                  np.append(lp.lower, 0.0), np.append(lp.upper, 1e6))
+    cost = np.zeros(lp.lower.size + 1)
+    cost[-1] = 1.0
+    bound, _ = _certified_minimum(relaxed, cost, counter)
+    return bound > 0.0
+
+
+# ----------------------------------------------------------------------------------------------------------
+# problem data
+# ----------------------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class _Data:
+    orders: LinearModelOrders
+    u: NDArray[np.float64]
+    xc: NDArray[np.float64]
+    dx: NDArray[np.float64]
+    times: NDArray[np.int64]  # equation times t = n..N-1
+    regressors: NDArray[np.float64]  # psi_t: x_t^c = psi_t theta - (delta terms)
+
+    @property
+    def a_box(self) -> NDArray[np.float64]:
+        return np.array([math.comb(self.orders.na, i) for i in range(1, self.orders.na + 1)], dtype=float)
+
+
+def _prepare(input_rad: ArrayLike, inner_lower_rad: ArrayLike, inner_upper_rad: ArrayLike,
+             orders: LinearModelOrders) -> _Data:
+    u = as_signal("input_rad", input_rad)
+    lower = as_signal("inner_lower_rad", inner_lower_rad)
+    upper = as_signal("inner_upper_rad", inner_upper_rad)
+    same_length(input_rad=u, inner_lower_rad=lower, inner_upper_rad=upper)
+    bad = np.flatnonzero(lower > upper)
+    if bad.size:
+        raise InvalidInputError(f"inner_lower_rad: sample {bad[0]} is above inner_upper_rad ({lower[bad[0]]} > {upper[bad[0]]})")
+    n = orders.first_equation
+    p = orders.num_parameters
+    if u.size - n < p:
+        raise InvalidInputError(f"input_rad: {u.size} samples give {u.size - n} equations, fewer than the "
+                                f"{p} parameters of na={orders.na}, nk={orders.nk}, nb={orders.nb}")
+    times = np.arange(n, u.size)
+    xc, dx = 0.5 * (lower + upper), 0.5 * (upper - lower)
+    columns = [-xc[times - i] for i in range(1, orders.na + 1)] + [u[times - j] for j in range(orders.nk, orders.nb + 1)]
+    return _Data(orders, u, xc, dx, times, np.column_stack(columns))
+
+
+def _gain_row(orders: LinearModelOrders, width: int) -> tuple[sp.csr_matrix, NDArray[np.float64]]:
+    """Σ b_j - Σ a_i = 1 (eq. (8)) as one equality row over the first p variables."""
+    row = np.zeros(width)
+    row[: orders.na] = -1.0
+    row[orders.na: orders.num_parameters] = 1.0
+    return sp.csr_matrix(row), np.array([1.0])
+
+
+# ----------------------------------------------------------------------------------------------------------
+# the paper's method: errors in variables per equation, one polytope per orthant of a
+# ----------------------------------------------------------------------------------------------------------
+
+
+def _orthant_lp(data: _Data, signs: tuple[int, ...]) -> _LP:
+    orders = data.orders
+    na, p = orders.na, orders.num_parameters
+    psi = data.regressors
+    # d_t theta = Σ_i s_i a_i Δx_{t-i} = Σ |a_i| Δx_{t-i} in this orthant
+    d = np.zeros_like(psi)
+    for i in range(1, na + 1):
+        d[:, i - 1] = signs[i - 1] * data.dx[data.times - i]
+    x_t, dx_t = data.xc[data.times], data.dx[data.times]
+    # |x_t - psi theta| <= dx_t + d theta  <=>  psi theta - d theta <= x_t + dx_t ; -psi theta - d theta <= -x_t + dx_t
+    A_ub = np.vstack([psi - d, -psi - d])
+    b_ub = np.concatenate([x_t + dx_t, -x_t + dx_t])
+    A_eq, b_eq = _gain_row(orders, p)
+    lower = np.full(p, -_B_BOX)
+    upper = np.full(p, _B_BOX)
+    box = data.a_box
+    for i in range(na):
+        lower[i], upper[i] = (0.0, box[i]) if signs[i] > 0 else (-box[i], 0.0)
+    return _LP(sp.csr_matrix(A_ub), b_ub, A_eq, b_eq, lower, upper)
+
+
+def _bounds_over(lp: _LP, p: int, counter: _Counter) -> tuple[NDArray[np.float64], NDArray[np.float64], list[NDArray[np.float64]]]:
+    """Certified min and max of each of the first p variables, with the minimisers/maximisers."""
+    lows, highs, points = np.empty(p), np.empty(p), []
+    solver = _Solver(lp)
+    for k in range(p):
+        cost = np.zeros(lp.lower.size)
+        cost[k] = 1.0
+        lows[k], x_low = solver.minimize(cost, counter)
+        neg, x_high = solver.minimize(-cost, counter)
+        highs[k] = -neg
+        points.extend([x_low, x_high])
+    return lows, highs, points
+
+
+def _paper_bounds(data: _Data, counter: _Counter) -> tuple[NDArray[np.float64], NDArray[np.float64], list[tuple[int, ...]]]:
+    p = data.orders.num_parameters
+    lows, highs = np.full(p, math.inf), np.full(p, -math.inf)
+    feasible: list[tuple[int, ...]] = []
+    for signs in itertools.product((1, -1), repeat=data.orders.na):
+        lp = _orthant_lp(data, signs)
+        low, high, _ = _bounds_over(lp, p, counter)
+        if not np.all(np.isfinite(low)):
+            if _proven_infeasible(lp, counter):
+                continue
+            # Not provably empty (a sliver within the solver tolerance): keep the orthant with its box.
+            low, high = lp.lower[:p].copy(), lp.upper[:p].copy()
+        feasible.append(tuple(signs))
+        lows, highs = np.minimum(lows, low), np.maximum(highs, high)
+    return lows, highs, feasible
+
+
+# ----------------------------------------------------------------------------------------------------------
+# the coupled method: shared δx, McCormick envelopes, iterated tightening
+# ----------------------------------------------------------------------------------------------------------
+
+
+def _coupled_lp(data: _Data, theta_low: NDArray[np.float64], theta_high: NDArray[np.float64],
+                fixed_a: NDArray[np.float64] | None = None) -> _LP:
+    """Variables: θ (p), δx_s (N), and for each lag i the products z_{i,s} = a_i δx_s (N each).
+
+    Equations t: -psi_t θ + δx_t + Σ_i z_{i,t-i} = -x_t^c. With ``fixed_a`` the products are linear,
+    z_{i,s} = a_i δx_s exactly, and the LP is the exact feasible set for that a.
+    """
+    orders = data.orders
+    na, p = orders.na, orders.num_parameters
+    N = data.u.size
+    m = data.times.size
+    width = p + N + na * N
+    rows, cols, vals = [], [], []
+    eq_index = np.arange(m)
+    # -psi θ
+    for k in range(p):
+        rows.append(eq_index); cols.append(np.full(m, k)); vals.append(-data.regressors[:, k])
+    rows.append(eq_index); cols.append(p + data.times); vals.append(np.ones(m))
+    for i in range(1, na + 1):
+        rows.append(eq_index); cols.append(p + N + (i - 1) * N + data.times - i); vals.append(np.ones(m))
+    A_eq = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(m, width))
+    b_eq = -data.xc[data.times]
+    gain, gain_rhs = _gain_row(orders, width)
+    lower = np.concatenate([theta_low, -data.dx, np.zeros(na * N)])
+    upper = np.concatenate([theta_high, data.dx, np.zeros(na * N)])
+    ub_rows, ub_cols, ub_vals, ub_rhs = [], [], [], []
+    extra_eq: list[sp.csr_matrix] = []
+    extra_rhs: list[NDArray[np.float64]] = []
+    s_index = np.arange(N)
+    D = data.dx
+    base = 0
+    for i in range(na):
+        z_cols = p + N + i * N + s_index
+        d_cols = p + s_index
+        aL, aU = float(theta_low[i]), float(theta_high[i])
+        magnitude = max(abs(aL), abs(aU))
+        lower[z_cols], upper[z_cols] = -magnitude * D, magnitude * D
+        if fixed_a is not None:
+            # z - a δ = 0 exactly
+            count = N
+            r = np.arange(count)
+            block = sp.csr_matrix((np.concatenate([np.ones(count), -fixed_a[i] * np.ones(count)]),
+                                   (np.concatenate([r, r]), np.concatenate([z_cols, d_cols]))), shape=(count, width))
+            extra_eq.append(block)
+            extra_rhs.append(np.zeros(count))
+            continue
+        # four McCormick inequalities per s, in the variables (a_i, δx_s, z_{i,s}):
+        #   aL δ - D a - z <= -aL D ;  aU δ + D a - z <= aU D ;  -aU δ + D a + z <= aU D ;  -aL δ - D a + z <= -aL D
+        for coef_d, coef_a, coef_z, rhs in ((aL, -1.0, -1.0, -aL), (aU, 1.0, -1.0, aU), (-aU, 1.0, 1.0, aU), (-aL, -1.0, 1.0, -aL)):
+            r = base + s_index
+            ub_rows.extend([r, r, r]); ub_cols.extend([d_cols, np.full(N, i), z_cols])
+            ub_vals.extend([np.full(N, coef_d), coef_a * D, np.full(N, coef_z)])
+            ub_rhs.append(rhs * D)
+            base += N
+    if ub_rhs:
+        A_ub = sp.csr_matrix((np.concatenate(ub_vals), (np.concatenate(ub_rows), np.concatenate(ub_cols))),
+                             shape=(sum(len(x) for x in ub_rhs), width))
+        b_ub = np.concatenate(ub_rhs)
+    else:
+        A_ub, b_ub = sp.csr_matrix((0, width)), np.zeros(0)
+    A_eq_all = sp.vstack([A_eq, gain, *extra_eq]).tocsr()
+    b_eq_all = np.concatenate([b_eq, gain_rhs, *extra_rhs])
+    if fixed_a is not None:
+        lower[:na] = upper[:na] = fixed_a
+    return _LP(A_ub, b_ub, A_eq_all, b_eq_all, lower, upper)
+
+
+def _coupled_bounds(data: _Data, low: NDArray[np.float64], high: NDArray[np.float64], counter: _Counter,
+                    max_rounds: int, relative_improvement: float) -> tuple[NDArray[np.float64], NDArray[np.float64], int, list[NDArray[np.float64]]]:
+    p = data.orders.num_parameters
+    rounds = 0
+    points: list[NDArray[np.float64]] = []
+    while rounds < max_rounds:
+        rounds += 1
+        lp = _coupled_lp(data, low, high)
+        new_low, new_high, points = _bounds_over(lp, p, counter)
+        if not np.all(np.isfinite(new_low)):
+            if _proven_infeasible(lp, counter):
+                return np.full(p, math.nan), np.full(p, math.nan), rounds, []
+            break
+        new_low, new_high = np.maximum(new_low, low), np.minimum(new_high, high)
+        shrink = np.max((high - low - (new_high - new_low)) / np.maximum(high - low, 1e-300))
+        low, high = new_low, new_high
+        if data.orders.na == 0 or shrink < relative_improvement:
+            break
+    return low, high, rounds, points
+
+
+def _inner_values(data: _Data, low: NDArray[np.float64], high: NDArray[np.float64], points: list[NDArray[np.float64]],
+                  counter: _Counter) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64] | None]:
+    """Verified values: fix a at each extreme point's a (or, if that a admits no exact solution, half-way
+    towards the centre of the box), then optimise the exactly linear problem in (b, δx)."""
+    orders = data.orders
+    na, p = orders.na, orders.num_parameters
+    inner_low, inner_high = np.full(p, math.nan), np.full(p, math.nan)
+    witness = None
+    centre = 0.5 * (low[:na] + high[:na])
+    for k in range(p):
+        for direction, point in ((1.0, points[2 * k]), (-1.0, points[2 * k + 1])):
+            if point is None:
+                continue
+            extreme = np.clip(point[:na], low[:na], high[:na])
+            for weight in (1.0, 0.5, 0.0):
+                fixed = centre + weight * (extreme - centre)
+                lp = _coupled_lp(data, low, high, fixed_a=fixed)
+                cost = np.zeros(lp.lower.size)
+                cost[k] = direction
+                _, x = _Solver(lp).minimize(cost, counter)
+                if x is None:
+                    continue
+                # the solver's point satisfies the equations to its tolerance; report it only if it does
+                residual = np.max(np.abs(lp.A_eq @ x - lp.b_eq)) if lp.A_eq.shape[0] else 0.0
+                if residual > 1e-7 * max(1.0, float(np.max(np.abs(data.xc)))):
+                    continue
+                value = float(x[k])
+                if direction > 0:
+                    inner_low[k] = value if math.isnan(inner_low[k]) else min(inner_low[k], value)
+                else:
+                    inner_high[k] = value if math.isnan(inner_high[k]) else max(inner_high[k], value)
+                if witness is None:
+                    witness = x[:p].copy()
+                break
+    return inner_low, inner_high, witness
+
+
+def _explain(data: _Data, counter: _Counter) -> EmptyLinearSetExplanation:
+    """Smallest extra equation error τ (added to every paper-method inequality) that makes some orthant feasible."""
+    best_tau, best_rows = math.inf, np.zeros(0, dtype=int)
+    m = data.times.size
+    for signs in itertools.product((1, -1), repeat=data.orders.na):
+        lp = _orthant_lp(data, signs)
+        rows = lp.A_ub.shape[0]
+        A = sp.hstack([lp.A_ub, -sp.csr_matrix(np.ones((rows, 1)))]).tocsr()
+        cost = np.zeros(lp.lower.size + 1)
+        cost[-1] = 1.0
+        counter.solves += 1
+        result = linprog(cost, A_ub=A, b_ub=lp.b_ub, A_eq=sp.hstack([lp.A_eq, sp.csr_matrix((1, 1))]), b_eq=lp.b_eq,
+                         bounds=np.vstack([np.column_stack([lp.lower, lp.upper]), [[0.0, None]]]), method="highs")
+        if result.status == 0 and result.fun < best_tau:
+            best_tau = float(result.fun)
+            marginals = np.abs(result.ineqlin.marginals)
+            best_rows = np.flatnonzero(marginals[:m] + marginals[m:] > 1e-9)
+    samples = tuple(int(data.times[r]) for r in best_rows)
+    message = (
+        f"no linear block with na={data.orders.na}, nk={data.orders.nk}, nb={data.orders.nb} and unit static gain "
+        f"reproduces the inner-signal bounds; the equations at samples {list(samples)} conflict and would need an "
+        f"extra error of {best_tau:.3g} rad. Check: the noise bound is too small, the orders or the delay nk are "
+        "wrong, the backlash bounds do not hold for the dynamic experiment (different plant state, drift), or the "
+        "data are not from the assumed structure."
+    )
+    return EmptyLinearSetExplanation(samples, best_tau, message)
+
+
+def bound_linear_block(input_rad: ArrayLike, inner_lower_rad: ArrayLike, inner_upper_rad: ArrayLike, *,
+                       na: int, nk: int, nb: int, method: str = "coupled", max_tightening_rounds: int = 6,
+                       tightening_tolerance: float = 0.02) -> LinearBlockBounds:
+    """Guaranteed bounds on θ = [a_1..a_na, b_nk..b_nb] with unit static gain (eq. (8)), Section 5.
+
+    Parameters
+    ----------
+    input_rad
+        u_t of the dynamic experiment.
+    inner_lower_rad, inner_upper_rad
+        x_t^min, x_t^max from :func:`identify.inner_signal_bounds.bound_inner_signal` (eq. (23)).
+    na, nk, nb
+        Orders: A = 1 + a_1 q^-1 + ... + a_na q^-na, B = b_nk q^-nk + ... + b_nb q^-nb.
+    method
+        ``"paper"`` (per-equation errors, Cerone 1993) or ``"coupled"`` (shared errors, McCormick
+        relaxation with iterated tightening; never wider than ``"paper"``).
+    max_tightening_rounds, tightening_tolerance
+        Coupled method: stop after this many rounds or when no interval shrinks by more than this fraction.
+    """
+    if method not in LINEAR_BOUND_METHODS:
+        raise InvalidInputError(f"method: expected one of {', '.join(LINEAR_BOUND_METHODS)}, got {method!r}")
+    orders = LinearModelOrders(na, nk, nb)
+    data = _prepare(input_rad, inner_lower_rad, inner_upper_rad, orders)
+    counter = _Counter()
+    names = orders.parameter_names
+    low, high, feasible = _paper_bounds(data, counter)
+    if not feasible:
+        return LinearBlockBounds(method, orders, {}, None, None, None, _explain(data, counter), counter.solves, 0, (),
+                                 counter.max_gap)
+    rounds = 0
+    inner = (None, None, None)
+    if method == "coupled":
+        low, high, rounds, points = _coupled_bounds(data, low, high, counter, max_tightening_rounds, tightening_tolerance)
+        if np.any(np.isnan(low)):
+            return LinearBlockBounds(method, orders, {}, None, None, None, _explain(data, counter), counter.solves,
+                                     rounds, tuple(feasible), counter.max_gap)
+        if points:
+            inner_low, inner_high, witness = _inner_values(data, low, high, points, counter)
+            inner = ({n: float(v) for n, v in zip(names, inner_low)}, {n: float(v) for n, v in zip(names, inner_high)},
+                     None if witness is None else {n: float(v) for n, v in zip(names, witness)})
+    intervals = {}
+    for k, name in enumerate(names):
+        lo, hi = float(low[k]), float(high[k])
+        if k >= orders.na:
+            lo = -math.inf if lo <= -_B_BOX * (1 - 1e-9) else lo
+            hi = math.inf if hi >= _B_BOX * (1 - 1e-9) else hi
+        intervals[name] = ParameterInterval(lo, hi)
+    return LinearBlockBounds(method, orders, intervals, inner[0], inner[1], inner[2], None, counter.solves, rounds,
+                             tuple(feasible), counter.max_gap)
