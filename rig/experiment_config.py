@@ -12,15 +12,20 @@ Pouliquen et al. 2013). The format::
 
     [excitation]
     kind = "prbs"                        # prbs | filtered_staircase | cyclic_random
-    num_samples = 100
-    amplitude_rad = 1.0                  # ... the generator's own keyword arguments
+    num_samples = 100                    # the generator's own arguments (see EXCITATION_KINDS' readers)
+    amplitude_rad = 1.0
+
+``filtered_staircase`` takes ``amplitudes_rad = [...]`` or ``amplitude_min_rad``, ``amplitude_max_rad`` and
+``num_amplitudes`` (equally spaced), plus ``filter_pole``, ``samples_per_half_wave`` and optionally
+``filter_order`` and ``shuffle``; ``cyclic_random`` takes ``num_samples``, ``u_min``, ``u_max`` and optionally
+``hold_samples`` and ``samples_per_step``; ``prbs`` takes ``num_samples``, ``amplitude_rad`` and optionally
+``register_bits``.
 
 Every key is validated (unknown keys are rejected) and errors name the file and the key.
 """
 
 from __future__ import annotations
 
-import inspect
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -58,13 +63,26 @@ def _prbs(table: ConfigTable, rng: np.random.Generator) -> tuple[NDArray[np.floa
 
     parameters = {"num_samples": table.integer("num_samples", minimum=1),
                   "amplitude_rad": table.number("amplitude_rad", minimum=0.0, exclusive_minimum=True)}
+    if table.has("register_bits"):
+        parameters["register_bits"] = table.integer("register_bits", minimum=2, maximum=32)
     return _call(table, prbs_sequence, parameters, rng), parameters
 
 
 def _filtered_staircase(table: ConfigTable, rng: np.random.Generator) -> tuple[NDArray[np.float64], dict[str, Any]]:
     from identify.excitation_design import filtered_staircase
 
-    parameters = _generic_parameters(table, filtered_staircase)
+    if table.has("amplitudes_rad"):
+        amplitudes = table.numbers("amplitudes_rad", min_length=1)
+    else:  # M amplitudes equally spaced, as in Section 6 (50 values from 0.6 to 3)
+        low = table.number("amplitude_min_rad", minimum=0.0, exclusive_minimum=True)
+        high = table.number("amplitude_max_rad", minimum=low)
+        count = table.integer("num_amplitudes", minimum=1)
+        amplitudes = np.linspace(low, high, count).tolist()
+    parameters = {"amplitudes_rad": amplitudes,
+                  "filter_pole": table.number("filter_pole", minimum=0.0),
+                  "samples_per_half_wave": table.integer("samples_per_half_wave", minimum=1),
+                  "filter_order": table.integer("filter_order", 1, minimum=1),
+                  "shuffle": table.boolean("shuffle", False)}
     return _call(table, filtered_staircase, parameters, rng), parameters
 
 
@@ -84,35 +102,6 @@ EXCITATION_KINDS: dict[str, Callable[[ConfigTable, np.random.Generator], tuple[N
     "cyclic_random": _cyclic_random,
 }
 """``kind`` in ``[excitation]`` -> reader that validates the keys and calls identify's generator."""
-
-
-def _generic_parameters(table: ConfigTable, function: Callable[..., Any]) -> dict[str, Any]:
-    """Read the keys of ``table`` that name parameters of ``function`` (all but ``rng``), typed by their
-    annotation or default: integers, numbers, booleans, strings or lists of numbers."""
-    parameters: dict[str, Any] = {}
-    signature = inspect.signature(function)
-    for name, parameter in signature.parameters.items():
-        if name == "rng" or parameter.kind in (parameter.VAR_POSITIONAL, parameter.VAR_KEYWORD):
-            continue
-        if not table.has(name):
-            if parameter.default is inspect.Parameter.empty:
-                raise table.error(name, "is required but missing")
-            continue
-        value = table.data[name]
-        annotation = str(parameter.annotation)
-        if isinstance(value, bool):
-            parameters[name] = table.boolean(name)
-        elif isinstance(value, int) and ("int" in annotation and "float" not in annotation):
-            parameters[name] = table.integer(name)
-        elif isinstance(value, (int, float)):
-            parameters[name] = table.number(name)
-        elif isinstance(value, str):
-            parameters[name] = table.string(name)
-        elif isinstance(value, list):
-            parameters[name] = table.numbers(name)
-        else:
-            raise table.error(name, f"expected a number, string, boolean or list of numbers, got {value!r}")
-    return parameters
 
 
 def _call(table: ConfigTable, function: Callable[..., Any], parameters: dict[str, Any],

@@ -114,3 +114,31 @@ def test_inspect_warns_about_a_torn_last_line(tmp_path, capsys):
     info = json.loads(captured.out)
     assert info["samples"] == 4099 and "last line is incomplete" in info["warnings"][0]
     assert "rig: warning:" in captured.err
+
+
+def test_steady_staircase_through_the_cerone_plant_gives_the_steady_state_points_of_eqs_11_12(tmp_path):
+    from identify.excitation_design import staircase_steady_state_indices
+
+    out = tmp_path / "staircase.csv"
+    assert main(["simulate", str(PLANTS / "cerone2009.toml"), "--excitation",
+                 str(EXPERIMENTS / "steady_staircase.toml"), "--out", str(out), "--json"]) == 0
+    record = read_log(out)
+    parameters = record.metadata.config["excitation"]["parameters"]
+    amplitudes = np.array(parameters["amplitudes_rad"])
+    np.testing.assert_allclose(amplitudes, np.linspace(0.6, 3.0, 50))
+    steady = staircase_steady_state_indices(50, parameters["samples_per_half_wave"])
+    u, y = record.command_rad[steady], record.angle_rad[steady]
+    np.testing.assert_allclose(u[0::2], amplitudes, atol=1e-8)
+    np.testing.assert_allclose(u[1::2], -amplitudes, atol=1e-8)
+    bound = record.metadata.noise_bound_rad
+    assert bound == pytest.approx(2 * np.pi / 4096, rel=1e-6)
+    # eq. (11) on the positive half-waves, eq. (12) on the negative ones, within |eta| <= Delta eta
+    assert np.max(np.abs(y[0::2] - 0.252 * (u[0::2] - 0.0349))) <= bound
+    assert np.max(np.abs(y[1::2] - 0.248 * (u[1::2] + 0.0698))) <= bound
+
+
+def test_prbs_experiment_is_the_plus_minus_one_sequence_of_section_6():
+    excitation = load_experiment_config(EXPERIMENTS / "prbs.toml")
+    assert excitation.command_rad.size == 100
+    assert set(excitation.command_rad.tolist()) == {-1.0, 1.0}
+    assert excitation.kind == "prbs" and excitation.seed == 100
