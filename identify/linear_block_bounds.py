@@ -160,14 +160,16 @@ class _Solver:
     """One HiGHS model of an :class:`_LP`, re-solved for many objectives from the previous basis."""
 
     def __init__(self, lp: _LP) -> None:
-        import highspy
+        # The bare core class: highspy.Highs() prints a banner to stdout on construction (it would break
+        # ``--json`` output) and enables callbacks that we do not use.
+        from highspy._core import HighsLp, HighsModelStatus, MatrixFormat, _Highs
 
         self.lp = lp
         A = sp.vstack([lp.A_ub, lp.A_eq]).tocsc()
         self.A = A.tocsr()
         self.row_lower = np.concatenate([np.full(lp.b_ub.size, -np.inf), lp.b_eq])
         self.row_upper = np.concatenate([lp.b_ub, lp.b_eq])
-        model = highspy.HighsLp()
+        model = HighsLp()
         model.num_col_ = int(A.shape[1])
         model.num_row_ = int(A.shape[0])
         model.col_cost_ = np.zeros(A.shape[1])
@@ -175,16 +177,16 @@ class _Solver:
         model.col_upper_ = lp.upper
         model.row_lower_ = self.row_lower
         model.row_upper_ = self.row_upper
-        model.a_matrix_.format_ = highspy.MatrixFormat.kColwise
+        model.a_matrix_.format_ = MatrixFormat.kColwise
         model.a_matrix_.start_ = A.indptr.astype(np.int32)
         model.a_matrix_.index_ = A.indices.astype(np.int32)
         model.a_matrix_.value_ = A.data.astype(float)
-        self.highs = highspy.Highs()
+        self.highs = _Highs()
         self.highs.setOptionValue("output_flag", False)
         self.highs.setOptionValue("presolve", "off")
         self.highs.setOptionValue("simplex_strategy", 4)  # primal simplex: a new cost keeps the basis feasible
         self.highs.passModel(model)
-        self._status = highspy.HighsModelStatus
+        self._status = HighsModelStatus
         self.columns = np.arange(A.shape[1], dtype=np.int32)
 
     def minimize(self, cost: NDArray[np.float64], counter: _Counter) -> tuple[float, NDArray[np.float64] | None]:

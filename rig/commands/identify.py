@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import importlib
 
-METHOD_MODULES: tuple[str, ...] = ("rig.commands.identify_hammerstein",)
+METHOD_MODULES: tuple[str, ...] = ("rig.commands.identify_hammerstein", "rig.commands.identify_output_backlash")
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:

@@ -1,0 +1,116 @@
+"""``rig identify output-backlash``: guaranteed parameter bounds of a linear system with output backlash
+(Cerone, Piga and Regruto 2009; :mod:`identify.output_backlash_identification`)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from pathlib import Path
+
+from rig import exit_codes
+
+DESCRIPTION = """\
+Bound the parameters of a linear block followed by an output backlash from a steady-state experiment
+and a dynamic (PRBS) experiment with bounded output noise (Cerone, Piga, Regruto 2009).
+
+STEADY.csv has one row per steady-state point with columns u and y (radians): the input and output at
+the end of every half-wave of the filtered square-wave staircase, positive and negative half-waves in
+any order. DYNAMIC.csv has columns u and y per sample (a column t is ignored). Both may also be rig-log
+v1 files (command_rad is u, angle_rad is y). --noise-bound is the bound on the output error, e.g.
+2*pi/2**n for an n-bit encoder. All bounds are guaranteed to contain every parameter consistent with the
+data, the noise bound and the model structure; an empty feasible set exits with code 4 and says why."""
+
+
+def register(methods: argparse._SubParsersAction) -> None:
+    parser = methods.add_parser(
+        "output-backlash",
+        help="set-membership bounds of a linear system with output backlash (Cerone et al. 2009)",
+        description=DESCRIPTION,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    parser.add_argument("--steady", required=True, metavar="STEADY.csv", help="steady-state points, columns u, y")
+    parser.add_argument("--dynamic", required=True, metavar="DYNAMIC.csv", help="dynamic experiment, columns u, y")
+    parser.add_argument("--noise-bound", required=True, type=float, metavar="RAD",
+                        help="bound on the output measurement error (rad), > 0")
+    parser.add_argument("--na", required=True, type=int, help="order of A(q^-1) = 1 + a1 q^-1 + ... + a_na q^-na")
+    parser.add_argument("--nk", required=True, type=int, help="first coefficient b_nk of B(q^-1) (input delay)")
+    parser.add_argument("--nb", required=True, type=int, help="last coefficient b_nb of B(q^-1)")
+    parser.add_argument("--method", choices=("paper", "coupled"), default="coupled",
+                        help="coupled (default, tightest): shared inner-signal errors, McCormick LP relaxation; "
+                             "paper: errors-in-variables bounds per equation (Cerone 1993)")
+    parser.add_argument("--filter-step", type=float, default=None, metavar="RAD",
+                        help="amplitude of the step used to tune the filter pole, if known (alpha terms of eq. (14)-(15))")
+    parser.add_argument("--json", action="store_true", help="print the bounds as one JSON object")
+    parser.set_defaults(handler=run)
+
+
+def _read(path_text: str, role: str):
+    """(u, y) from a rig-log v1 file or a CSV with columns u and y."""
+    from rig.signal_files import read_signal_table
+
+    path = Path(path_text)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no such file ({role} data)")
+    with path.open("rb") as handle:
+        first = handle.readline()
+    if first.startswith(b"# rig-log"):
+        from rig.log_file import read_experiment_data
+
+        record = read_experiment_data(path)
+        return record.command_rad, record.angle_rad
+    table = read_signal_table(path, ("u", "y"))
+    return table["u"], table["y"]
+
+
+def _number(value: float) -> float | str:
+    return value if math.isfinite(value) else ("inf" if value > 0 else "-inf")
+
+
+def run(args: argparse.Namespace) -> int:
+    from identify.output_backlash_identification import bound_output_backlash_system
+    from identify.validation import InvalidInputError
+
+    steady_u, steady_y = _read(args.steady, "steady-state")
+    u, y = _read(args.dynamic, "dynamic")
+    try:
+        result = bound_output_backlash_system(steady_u, steady_y, u, y, args.noise_bound, na=args.na, nk=args.nk,
+                                              nb=args.nb, method=args.method,
+                                              filter_step_amplitude_rad=args.filter_step)
+    except InvalidInputError as err:
+        raise InvalidInputError(f"{err} (--steady {args.steady}, --dynamic {args.dynamic})") from err
+    if result.is_empty:
+        if args.json:
+            print(json.dumps({"empty": True, "explanation": result.explanation, "method": args.method}))
+        print(f"empty feasible set: {result.explanation}", file=sys.stderr)
+        return exit_codes.EMPTY_FEASIBLE_SET
+    backlash = result.backlash_intervals
+    linear = result.linear_intervals
+    inner = result.inner_signal
+    assert inner is not None and result.linear is not None
+    if args.json:
+        document = {
+            "backlash": {name: {k: _number(v) for k, v in interval.as_dict().items()} for name, interval in backlash.items()},
+            "linear": {name: {k: _number(v) for k, v in interval.as_dict().items()} for name, interval in linear.items()},
+            "method": args.method,
+            "invertible_samples": inner.num_invertible,
+            "samples": int(inner.lower_rad.size),
+        }
+        print(json.dumps(document))
+    else:
+        print(f"steady-state data  {args.steady}  ({len(steady_u)} points)")
+        print(f"dynamic data       {args.dynamic}  ({inner.lower_rad.size} samples, {inner.num_invertible} invertible)")
+        print(f"noise bound        {args.noise_bound:.6g} rad     method {args.method}")
+        print()
+        print(f"{'parameter':<10} {'lower':>14} {'upper':>14} {'center':>14} {'half-width':>11}")
+        for name, interval in (*backlash.items(), *linear.items()):
+            print(f"{name:<10} {interval.lower:>14.8g} {interval.upper:>14.8g} {interval.center:>14.8g} "
+                  f"{interval.half_width:>11.3g}")
+        if result.linear.inner_lower is not None and result.linear.inner_upper is not None:
+            print()
+            print("verified inner values (points of the exact feasible set reach at least these):")
+            for name in linear:
+                print(f"{name:<10} {result.linear.inner_lower[name]:>14.8g} {result.linear.inner_upper[name]:>14.8g}")
+    sys.stdout.flush()
+    return exit_codes.SUCCESS
