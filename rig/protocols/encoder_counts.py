@@ -81,9 +81,13 @@ class EncoderResolution:
             raise InvalidInputError(f"direction: expected +1 or -1, got {self.direction!r}")
         object.__setattr__(self, "direction", int(self.direction))
         offset = self.offset_counts
-        if isinstance(offset, bool) or not isinstance(offset, (int, np.integer)) or not 0 <= offset < self.modulus:
-            raise InvalidInputError(f"offset_counts: expected an integer from 0 to {self.modulus - 1}, got {offset!r}")
+        modulus = 1 << (self.bits + self.multi_turn_bits)
+        if isinstance(offset, bool) or not isinstance(offset, (int, np.integer)) or not 0 <= offset < modulus:
+            raise InvalidInputError(f"offset_counts: expected an integer from 0 to {modulus - 1}, got {offset!r}")
         object.__setattr__(self, "offset_counts", int(offset))
+        # derived constants, cached because a simulated device converts one sample per SYNC
+        object.__setattr__(self, "_modulus", 1 << (self.bits + self.multi_turn_bits))
+        object.__setattr__(self, "_count_rad", 2.0 * math.pi / (1 << self.bits))
 
     @property
     def counts_per_revolution(self) -> int:
@@ -93,12 +97,12 @@ class EncoderResolution:
     @property
     def modulus(self) -> int:
         """2**(n + m): the position value wraps here."""
-        return 1 << (self.bits + self.multi_turn_bits)
+        return self._modulus
 
     @property
     def count_rad(self) -> float:
         """One count in radians, 2 pi / 2**n."""
-        return 2.0 * math.pi / self.counts_per_revolution
+        return self._count_rad
 
     @property
     def quantization_bound_rad(self) -> float:
@@ -139,9 +143,10 @@ class EncoderResolution:
         # numpy.rint), so one sample at a time gives the same counts, about 20 times faster.
         if not math.isfinite(angle):
             raise InvalidInputError(f"angle_rad: expected finite angles, got {angle!r}")
-        counts = (round(self.direction * angle / self.count_rad) % self.modulus + self.offset_counts) % self.modulus
-        if self.signed and counts >= self.modulus >> 1:
-            counts -= self.modulus
+        modulus = self._modulus
+        counts = (round(self.direction * angle / self._count_rad) % modulus + self.offset_counts) % modulus
+        if self.signed and counts >= modulus >> 1:
+            counts -= modulus
         return counts
 
     def _rad_from_int(self, counts: int, near_rad: float | None) -> float:
