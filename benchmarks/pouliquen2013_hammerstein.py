@@ -262,8 +262,8 @@ def main() -> None:
     print("\nTargets: |mean pole error| <= 5e-3, pole sd <= 1e-2, border RMS <= 0.05 (average border).")
 
     print("\nA linear model that ignores the nonlinearity (order 2, u -> y, same data):")
-    print("| case | linear: mean pole error | linear: validation RMS | SIPPY MOESP u -> y: pole error | "
-          "Hammerstein: validation RMS |")
+    print(f"| case | linear: mean pole error | linear: validation RMS | SIPPY MOESP u -> y: pole error "
+          f"(first {args.sippy_runs} runs) | Hammerstein: validation RMS |")
     print("|---|---|---|---|---|")
     for case, poles, error, sippy_errors, hammerstein_error in linear_rows:
         sippy_text = f"{np.mean(sippy_errors):.1e}" if sippy_errors else "n/a (SIPPY not installed)"
