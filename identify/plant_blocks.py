@@ -349,6 +349,14 @@ def _evaluate_border(border: Border, u: list[float], name: str) -> list[float]:
     return values
 
 
+def _border_value(border: Border, x: float, name: str) -> float:
+    """One border value; the same number as :func:`_evaluate_border` gives for this sample."""
+    value = float(border(x))
+    if not math.isfinite(value):
+        raise InvalidInputError(f"{name}: the border returned {value} at input {x!r}")
+    return value
+
+
 @dataclass(frozen=True)
 class PiecewiseLinearBorder:
     """A border given by a node table: linear between nodes, constant beyond the end nodes.
@@ -508,8 +516,8 @@ class _InputBacklashStepper:
 
     def step(self, x: float) -> float:
         x = float(x)
-        low = _evaluate_border(self.ascending, [x], "ascending")[0]
-        high = _evaluate_border(self.descending, [x], "descending")[0]
+        low = _border_value(self.ascending, x, "ascending")
+        high = _border_value(self.descending, x, "descending")
         v = self.v
         if v < low:
             v = low
@@ -586,8 +594,9 @@ class _InputSwitchStepper:
         elif x < self.previous:
             self.rising = False
         self.previous = x
-        border = self.ascending if self.rising else self.descending
-        return _evaluate_border(border, [x], "ascending" if self.rising else "descending")[0]
+        if self.rising:
+            return _border_value(self.ascending, x, "ascending")
+        return _border_value(self.descending, x, "descending")
 
 
 # ----------------------------------------------------------------------------------------------------------
