@@ -39,7 +39,7 @@ def run(args: argparse.Namespace) -> int:
     from identify.experiment_record import ExperimentMetadata
     from rig.experiment_config import load_experiment_config
     from rig.log_file import LogWriter
-    from sim_backend.plant_config import describe_noise, load_plant_config
+    from sim_backend.plant_config import describe_noise, load_plant_config, plant_config_to_toml
 
     if args.seed is not None and args.seed < 0:
         raise ValueError(f"--seed: expected an integer >= 0, got {args.seed}")
@@ -58,7 +58,8 @@ def run(args: argparse.Namespace) -> int:
         excitation=excitation.name,
         excitation_seed=excitation.seed,
         seed=gearbox.seed,
-        config={"plant": str(args.plant), "excitation": excitation.metadata(), "noise": describe_noise(noise),
+        config={"plant": str(args.plant), "plant_toml": plant_config_to_toml(plant_config),
+                "excitation": excitation.metadata(), "noise": describe_noise(noise),
                 "additive_noise_bound_rad": _json_number(noise.noise_bound_rad),
                 "quantization_bound_rad": gearbox.encoder.quantization_bound_rad,
                 "encoder": {"bits": gearbox.encoder.bits, "multi_turn_bits": gearbox.encoder.multi_turn_bits,

@@ -6,6 +6,8 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from scipy import signal as scipy_signal
 
 from identify.plant_blocks import (
@@ -312,3 +314,27 @@ def test_plant_rejects_mismatched_periods_non_blocks_and_bad_samples():
     with pytest.raises(InvalidInputError, match="u_t: sample 0"):
         PlantModel((CERONE_LINEAR,)).stepper().step(float("inf"))
     assert PlantModel((CERONE_LINEAR,)).sample_period_s == 1e-3
+
+
+BLOCK_FACTORIES = (
+    lambda r: DeadZone(-r.uniform(0, 0.1), r.uniform(0, 0.1)),
+    lambda r: Saturation(-r.uniform(0.5, 2), r.uniform(0.5, 2)),
+    lambda r: Delay(int(r.integers(0, 4))),
+    lambda r: LinearBlock((r.uniform(-0.5, 0.5), r.uniform(-0.3, 0.3)), (0.0, r.uniform(0.1, 1), r.uniform(-0.5, 0.5)), 1e-3),
+    lambda r: Resonance(r.uniform(5, 400), r.uniform(0.01, 0.9), 1e-3),
+    lambda r: OutputBacklash(r.uniform(0.1, 1), r.uniform(0.01, 0.2), r.uniform(0.1, 1), r.uniform(0.01, 0.2)),
+    lambda r: CoulombFriction(r.uniform(0.1, 1), r.uniform(0, 0.1), r.uniform(5, 50)),
+    lambda r: OutputOffset(r.uniform(-0.1, 0.1), r.uniform(-0.1, 0.1), 1e-3),
+    lambda r: pouliquen2013_backlash(),
+    lambda r: pouliquen2013_switch(),
+)
+
+
+@settings(max_examples=40, deadline=None)
+@given(choices=st.lists(st.integers(0, len(BLOCK_FACTORIES) - 1), min_size=1, max_size=6), seed=st.integers(0, 2**31))
+def test_any_chain_steps_exactly_like_it_simulates(choices, seed):
+    rng = np.random.default_rng(seed)
+    plant = PlantModel(tuple(BLOCK_FACTORIES[index](rng) for index in choices))
+    u = np.cumsum(rng.normal(0, 0.2, 300))
+    stepper = plant.stepper()
+    assert np.array_equal([stepper.step(value) for value in u], plant.simulate(u))

@@ -37,6 +37,11 @@ def test_simulate_writes_a_log_that_matches_the_simulated_gearbox(tmp_path, caps
         "pouliquen2013_switch", "offline", 16, 9, 10)
     assert meta.noise_kind == "coloured" and meta.noise_bound_rad == np.inf
     assert meta.config["noise"]["std_rad"] > 0  # the SNR was turned into a level and recorded
+    # the log carries the whole plant description: it rebuilds the same truth
+    from sim_backend.plant_config import load_plant_config, plant_config_from_toml_text
+
+    assert plant_config_from_toml_text(meta.config["plant_toml"]).blocks == load_plant_config(
+        PLANTS / "pouliquen2013_switch.toml").blocks
 
 
 def test_inspect_reports_samples_lost_and_period_as_json(tmp_path, capsys):
