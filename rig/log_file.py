@@ -57,6 +57,16 @@ def _metadata_dict(metadata: ExperimentMetadata | Mapping[str, Any]) -> dict[str
     return ExperimentMetadata.from_dict(metadata).to_dict()
 
 
+def _json_default(value: Any) -> Any:
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, (set, frozenset)):
+        return sorted(value)
+    return str(value)
+
+
 class LogWriter:
     """Append samples to a ``rig-log v1`` file as they come.
 
@@ -87,7 +97,12 @@ class LogWriter:
             raise InvalidInputError(f"flush_every: expected an integer >= 1, got {flush_every!r}")
         if flush_interval_s is not None and not (math.isfinite(flush_interval_s) and flush_interval_s > 0):
             raise InvalidInputError(f"flush_interval_s: expected a number > 0 or None, got {flush_interval_s!r}")
-        header = json.dumps(_metadata_dict(metadata), allow_nan=False, default=str)
+        try:
+            header = json.dumps(_metadata_dict(metadata), allow_nan=False, default=_json_default)
+        except ValueError as err:
+            raise InvalidInputError(
+                f"metadata: {err} (write an infinite bound or a NaN as a string such as \"inf\")"
+            ) from err
         self.flush_every = flush_every
         self.flush_interval_s = flush_interval_s
         self.fsync = fsync

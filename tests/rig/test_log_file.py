@@ -154,3 +154,13 @@ def test_plain_t_u_y_csv_is_accepted_and_checked(tmp_path):
     path.write_text("time,input,output\n0,1,2\n")
     with pytest.raises(LogFileError, match="missing column"):
         read_experiment_data(path)
+
+
+def test_metadata_with_numpy_values_is_written_as_plain_json(tmp_path):
+    meta = ExperimentMetadata(sample_period_s=1e-3, config={"amplitudes_rad": np.linspace(0, 1, 3), "bits": np.int64(12)})
+    path = tmp_path / "np.csv"
+    with LogWriter(path, meta) as log:
+        log.append(0.0, 0.0, 0.0)
+    assert read_log(path).metadata.config == {"amplitudes_rad": [0.0, 0.5, 1.0], "bits": 12}
+    with pytest.raises(ValueError, match="metadata: .*inf"):
+        LogWriter(tmp_path / "nan.csv", ExperimentMetadata(sample_period_s=1e-3, config={"bound": math.inf}))
