@@ -297,6 +297,9 @@ def _block_hankel(signal: NDArray[np.float64], first: int, num_blocks: int, num_
     return windows[first : first + num_columns].reshape(num_columns, num_blocks * m)
 
 
+_GRAM_CHUNK = 4096
+
+
 def _hankel_gram(w: NDArray[np.float64], num_blocks: int, num_columns: int) -> NDArray[np.float64]:
     """H^T H for the transposed block-Hankel H = _block_hankel(w, 0, num_blocks, num_columns), in O(s M^2 j).
 
@@ -306,14 +309,19 @@ def _hankel_gram(w: NDArray[np.float64], num_blocks: int, num_columns: int) -> N
     """
     s, j = num_blocks, num_columns
     M = w.shape[1]
-    head = w[:j].T
-    base = np.stack([head @ w[d : d + j] for d in range(s)])            # (d, M, M): Σ_t w(t) w(t + d)^T
+    base = np.zeros((s, M, M))                                           # (d, M, M): Σ_t w(t) w(t + d)^T
+    for start in range(0, j, _GRAM_CHUNK):                               # chunks that stay in cache
+        stop = min(start + _GRAM_CHUNK, j)
+        head = w[start:stop].T
+        for d in range(s):
+            base[d] += head @ w[start + d : stop + d]
     # corrections[d, b] = Σ_{l<b} w(j + l) w(j + l + d)^T - w(l) w(l + d)^T, for b + d < s
     # (only l + d <= s - 2 is used; the zero padding fills the rest of the windows)
-    padded = np.vstack((w, np.zeros((2 * s, M))))
-    lead = np.lib.stride_tricks.sliding_window_view(padded[: 2 * s - 1], s, axis=0)          # (l, M, d): w(l + d)
-    tail = np.lib.stride_tricks.sliding_window_view(padded[j : j + 2 * s - 1], s, axis=0)    # w(j + l + d)
-    steps = np.einsum("li,lkd->dlik", padded[j : j + s], tail) - np.einsum("li,lkd->dlik", padded[:s], lead)
+    early = np.vstack((w[: 2 * s - 1], np.zeros((2 * s, M))))[: 2 * s - 1]
+    late = np.vstack((w[j:], np.zeros((2 * s, M))))[: 2 * s - 1]
+    lead = np.lib.stride_tricks.sliding_window_view(early, s, axis=0)    # (l, M, d): w(l + d)
+    tail = np.lib.stride_tricks.sliding_window_view(late, s, axis=0)     # w(j + l + d)
+    steps = np.einsum("li,lkd->dlik", late[:s], tail) - np.einsum("li,lkd->dlik", early[:s], lead)
     before = np.tri(s, s, -1)                                            # [b, l] = 1 for l < b
     corrections = (before @ steps.reshape(s, s, M * M)).reshape(s, s, M, M)
     b1, d = np.nonzero(np.arange(s)[:, None] + np.arange(s)[None, :] < s)
