@@ -102,13 +102,14 @@ def test_check_reports_an_untraversed_path() -> None:
 
 @settings(max_examples=30, deadline=None)
 @given(
-    interior_a=st.lists(st.floats(-0.99, 0.99), min_size=0, max_size=6, unique=True),
-    interior_d=st.lists(st.floats(-0.99, 0.99), min_size=0, max_size=6, unique=True),
+    interior_a=st.lists(st.integers(-99, 99), min_size=0, max_size=6, unique=True),  # in hundredths
+    interior_d=st.lists(st.integers(-99, 99), min_size=0, max_size=6, unique=True),
     seed=st.integers(0, 2**16),
 )
 def test_any_node_placement_reproduces_a_piecewise_linear_switch(interior_a, interior_d, seed) -> None:
     """Eq. (4) holds for any nodes (Remark 3): z(t) μ + μ0 equals the switch output on Table I cycles."""
-    nodes = PathNodes((-1.0, *sorted(interior_a), 1.0), (-1.0, *sorted(interior_d), 1.0))
+    nodes = PathNodes((-1.0, *(k / 100 for k in sorted(interior_a)), 1.0),
+                      (-1.0, *(k / 100 for k in sorted(interior_d)), 1.0))
     rng = np.random.default_rng(seed)
     values_a = np.concatenate(([0.3], rng.normal(size=len(nodes.ascending) - 1)))
     values_d = np.concatenate(([0.3], rng.normal(size=len(nodes.descending) - 1)))
