@@ -19,6 +19,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "rig.commands.identify",
     "rig.commands.simulate",
     "rig.commands.inspect",
+    "rig.commands.run",
 )
 
 EPILOG = """exit codes:

@@ -1,0 +1,160 @@
+"""``rig run CONFIG.toml --experiment EXP.toml --out LOG``: drive a rig (real or simulated) with an
+experiment's excitation at the config's fixed rate and write a ``rig-log v1`` file.
+
+This module is the application layer that wires simulated devices (``sim_backend``) to transports when
+the rig config has a ``[simulation]`` table (:func:`simulated_rig`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import json
+import math
+import sys
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+from rig import exit_codes
+
+__all__ = ["register", "run", "simulated_rig"]
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    parser = subparsers.add_parser(
+        "run",
+        help="drive a rig (real or simulated) with an experiment and write a log",
+        description=(
+            "Stream the excitation of an experiment config to the rig of a rig config at its fixed sample rate, "
+            "with software limits, a feedback watchdog and a controlled stop on any fault or Ctrl-C, and write "
+            "every sample (flagged LOST/LATE/DUPLICATE/FAULT) to a rig-log v1 file. A rig config with a "
+            "[simulation] table starts simulated devices that answer on the real protocol."
+        ),
+    )
+    parser.add_argument("config", metavar="CONFIG.toml", help="rig config (configs/sim_canopen.toml, configs/rig_*.toml, ...)")
+    parser.add_argument("--experiment", metavar="EXP.toml", required=True, help="experiment config (configs/experiments/*.toml)")
+    parser.add_argument("--out", metavar="LOG", required=True, help="log file to write (CSV, rig-log v1)")
+    parser.add_argument("--duration", type=float, default=None, metavar="S",
+                        help="run for S seconds (the excitation is cut, or repeated cyclically to fill S)")
+    parser.add_argument("--json", action="store_true",
+                        help='print {"log", "samples", "lost", "late", "rate_hz"} as JSON')
+    parser.set_defaults(handler=run)
+
+
+@contextlib.contextmanager
+def simulated_rig(config: Any, command_rad: Any = None) -> Iterator[tuple[str, Any]]:
+    """Start the simulated devices of a rig config with a ``[simulation]`` table; yield the URL the
+    transport must open and the simulated gearbox. Devices are stopped on exit."""
+    from sim_backend.plant_config import load_plant_config
+
+    from rig.protocols.errors import ConfigError
+
+    sim = config.simulation
+    plant_config = load_plant_config(sim.plant_path)
+    gearbox = plant_config.gearbox(seed=sim.seed)
+    if not math.isclose(gearbox.sample_period_s, config.sample_period_s, rel_tol=1e-9):
+        raise ConfigError(config.source, "sample_rate_hz",
+                          f"{config.sample_rate_hz:g} Hz differs from the simulated plant's "
+                          f"{1 / gearbox.sample_period_s:g} Hz ({sim.plant_path})")
+    if gearbox.encoder != config.encoder:
+        raise ConfigError(config.source, "encoder", f"differs from the simulated plant's encoder {gearbox.encoder}")
+    if command_rad is not None and getattr(gearbox.noise, "needs_reference", False):
+        gearbox = gearbox.calibrated_for(command_rad)
+    with contextlib.ExitStack() as stack:
+        url, _ = start_simulated_devices(config, gearbox, stack)
+        yield url, gearbox
+
+
+def start_simulated_devices(config: Any, gearbox: Any, stack: contextlib.ExitStack,
+                            **fault_injection: Any) -> tuple[str, Any]:
+    """Start the simulated device(s) for ``config``'s transport on ``gearbox`` (closed by ``stack``);
+    return the URL to open and the simulated drive (which records the controlwords it received).
+    ``fault_injection`` goes to the drive (tests)."""
+    if config.scheme == "serial":
+        from sim_backend.serial_device import SimulatedSerialDevice
+
+        device = stack.enter_context(SimulatedSerialDevice(
+            gearbox, drive_counts_per_revolution=config.drive.counts_per_revolution, **fault_injection))
+        return f"serial://{device.port}", device
+    from rig.protocols.errors import ConfigError
+
+    raise ConfigError(config.source, "simulation", f"there is no simulated device for {config.scheme}:// transports")
+
+
+def _metadata(config: Any, excitation: Any, gearbox: Any) -> Any:
+    from identify import __version__
+    from identify.experiment_record import ExperimentMetadata
+
+    rig_config = {"file": config.source, "name": config.name, "url": config.url, "sample_rate_hz": config.sample_rate_hz,
+                  "options": config.options, "drive_counts_per_revolution": config.drive.counts_per_revolution,
+                  "limits": {"position_min_rad": config.limits.position_min_rad,
+                             "position_max_rad": config.limits.position_max_rad,
+                             "rate_max_rad_per_s": config.limits.rate_max_rad_per_s},
+                  "encoder": {"bits": config.encoder.bits, "multi_turn_bits": config.encoder.multi_turn_bits,
+                              "signed": config.encoder.signed, "direction": config.encoder.direction,
+                              "offset_counts": config.encoder.offset_counts}}
+    values: dict[str, Any] = {}
+    if gearbox is not None:
+        from sim_backend.plant_config import describe_noise
+
+        values = {"noise_kind": gearbox.noise.kind,
+                  "noise_bound_rad": gearbox.noise.noise_bound_rad + gearbox.encoder.quantization_bound_rad,
+                  "seed": gearbox.seed}
+        rig_config["simulation"] = {"plant": str(config.simulation.plant_path), "noise": describe_noise(gearbox.noise)}
+    return ExperimentMetadata(
+        sample_period_s=config.sample_period_s, source=config.name, transport=config.url,
+        encoder_bits=config.encoder.bits, excitation=excitation.name, excitation_seed=excitation.seed,
+        config={"rig": rig_config, "excitation": excitation.metadata()}, software_version=__version__, **values)
+
+
+def run(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from rig.experiment_config import load_experiment_config
+    from rig.log_file import LogWriter
+    from rig.rig_config import load_rig_config
+    from rig.runner import run_experiment
+    from rig.transports import open_transport
+
+    config = load_rig_config(args.config)
+    excitation = load_experiment_config(args.experiment)
+    command = excitation.command_rad
+    if args.duration is not None:
+        if not (math.isfinite(args.duration) and args.duration > 0):
+            raise ValueError(f"--duration: expected a number of seconds > 0, got {args.duration}")
+        command = np.resize(command, max(1, int(round(args.duration * config.sample_rate_hz))))
+    progress_bar = None
+    with contextlib.ExitStack() as stack:
+        gearbox = None
+        url = config.url
+        if config.simulation is not None:
+            url, gearbox = stack.enter_context(simulated_rig(config, command))
+        transport = open_transport(url, **config.transport_options())
+        log = LogWriter(args.out, _metadata(config, excitation, gearbox), flush_every=10, flush_interval_s=0.05)
+        progress = None
+        if not args.json and sys.stderr.isatty():
+            from tqdm import tqdm
+
+            progress_bar = stack.enter_context(tqdm(total=command.size, unit="sample", file=sys.stderr))
+
+            def progress(done: int, late: int) -> None:
+                if done % 50 == 0 or done == command.size:
+                    progress_bar.n = done
+                    progress_bar.set_postfix(late=late, refresh=True)
+        summary = run_experiment(transport, command, log, feedback_timeout_s=config.feedback_timeout_s,
+                                 late_tolerance_s=config.late_tolerance_s, progress=progress)
+    result = {"log": str(args.out), "samples": summary.samples, "lost": summary.lost, "late": summary.late,
+              "rate_hz": summary.rate_hz}
+    if args.json:
+        print(json.dumps(result))
+    else:
+        print(f"rig         {config.name} ({url})")
+        print(f"experiment  {excitation.name} ({excitation.kind}, seed {excitation.seed})")
+        print(f"samples     {summary.samples} at {config.sample_rate_hz:g} Hz (achieved {summary.rate_hz:.6g} Hz)")
+        print(f"lost        {summary.lost}")
+        print(f"late        {summary.late}")
+        print(f"duplicate   {summary.duplicate}")
+        print(f"log         {Path(args.out)}")
+    sys.stdout.flush()
+    return exit_codes.SUCCESS

@@ -1,0 +1,221 @@
+"""The experiment runner: stream an excitation at a fixed rate and account for every sample.
+
+Scheduling uses absolute deadlines ``t_k = t_0 + k T`` (no drift: a late cycle does not shift the ones
+after it). Per cycle k the runner waits for ``t_k``, sends setpoint k, and waits for the feedback that
+answers it until ``t_{k+1}``. Each sample is written with :class:`~identify.experiment_record.SampleFlag`
+bits:
+
+LOST       no feedback with sequence number k arrived in its cycle (angle NaN)
+LATE       the cycle started more than ``late_tolerance_s`` after ``t_k``
+DUPLICATE  feedback k arrived more than once
+FAULT      the device reported a fault during the sample (the run stops after it)
+
+Rows are written one cycle behind the bus, so a duplicate arriving in the next cycle still marks its
+sample. Safety: the whole command is checked against the software limits before the first setpoint is
+sent; a feedback watchdog stops the run when nothing arrives for ``feedback_timeout_s``; any error,
+device fault or Ctrl-C ends with a controlled stop (quick stop, then disable) and the log closed,
+complete up to the stop.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from identify.experiment_record import SampleFlag
+from identify.validation import as_signal
+from rig.protocols.errors import DeviceFault, TransportError
+from rig.transports.base import Setpoint, Transport
+
+__all__ = ["RunSummary", "SampleSink", "run_experiment"]
+
+
+class SampleSink(Protocol):
+    """Where samples go (:class:`rig.log_file.LogWriter` is one)."""
+
+    def append(self, time_s: float, command_rad: float, angle_rad: float, encoder_counts: int | None = None,
+               flags: int = 0) -> None: ...
+
+    def close(self) -> None: ...
+
+
+@dataclass(frozen=True)
+class RunSummary:
+    """What a run did.
+
+    Attributes
+    ----------
+    samples
+        Samples written (sent setpoints).
+    lost, late, duplicate
+        Samples with the LOST, LATE, DUPLICATE flag.
+    stale
+        Feedback frames that arrived after their sample was declared lost (dropped).
+    frame_errors
+        Damaged frames the transport discarded (CRC, COBS, unknown type).
+    rate_hz
+        Achieved rate: samples / (time of the last send - time of the first send) * (samples - 1) / samples.
+    send_lateness_s
+        Per sample, actual send time minus its deadline t_k (the loop's timing jitter).
+    cpu_s, wall_s
+        Process CPU time and wall time of the streaming loop.
+    """
+
+    samples: int
+    lost: int
+    late: int
+    duplicate: int
+    stale: int
+    frame_errors: int
+    rate_hz: float
+    send_lateness_s: NDArray[np.float64]
+    cpu_s: float
+    wall_s: float
+
+
+class _Row:
+    __slots__ = ("seq", "time_s", "command_rad", "angle_rad", "counts", "flags")
+
+    def __init__(self, seq: int, time_s: float, command_rad: float) -> None:
+        self.seq, self.time_s, self.command_rad = seq, time_s, command_rad
+        self.angle_rad, self.counts, self.flags = math.nan, None, int(SampleFlag.LOST)
+
+
+def check_command(transport: Transport, command_rad: NDArray[np.float64]) -> None:
+    """Refuse the whole command before anything is sent if any sample breaks the software limits."""
+    previous = transport.initial_position_rad
+    for k, value in enumerate(command_rad.tolist()):
+        quantized = transport.drive.quantize_rad(value)
+        transport.limits.check(quantized, previous, transport.sample_period_s, k)
+        previous = quantized
+
+
+def run_experiment(transport: Transport, command_rad: ArrayLike, sink: SampleSink, *,
+                   feedback_timeout_s: float = 0.1, late_tolerance_s: float | None = None,
+                   progress: Callable[[int, int], None] | None = None,
+                   clock: Callable[[], float] = time.perf_counter) -> RunSummary:
+    """Open ``transport``, stream ``command_rad`` at its sample period into the rig, write every sample to
+    ``sink``, and stop and close everything whatever happens.
+
+    Parameters
+    ----------
+    transport
+        A transport not yet opened; it is opened here and always closed (controlled stop first).
+    command_rad
+        The drive position targets, one per sample.
+    sink
+        Receives one row per sample (time, command as sent, load angle, encoder counts, flags); always
+        closed, also on error.
+    feedback_timeout_s
+        Watchdog: stop with :class:`TransportError` when no feedback arrives for this long.
+    late_tolerance_s
+        A cycle starting later than this after its deadline is LATE (default: half a period).
+    progress
+        Called as ``progress(samples_done, late_so_far)`` after each sample.
+
+    Raises
+    ------
+    CommandRefused
+        A command beyond the software limits (nothing was sent).
+    DeviceFault, TransportError
+        The device faulted or the link failed; the log holds every sample up to the stop.
+    """
+    command = as_signal("command_rad", command_rad)
+    period = transport.sample_period_s
+    tolerance = 0.5 * period if late_tolerance_s is None else float(late_tolerance_s)
+    rows: list[_Row] = []
+    lateness = np.zeros(command.size)
+    counts = {"late": 0, "lost": 0, "duplicate": 0, "stale": 0}
+    received: set[int] = set()
+    cpu_start, wall_start = time.process_time(), clock()
+    sent_count = 0
+
+    def write_rows(keep: int) -> None:
+        while len(rows) > keep:
+            row = rows.pop(0)
+            if row.flags & SampleFlag.LOST:
+                counts["lost"] += 1
+            sink.append(row.time_s, row.command_rad, row.angle_rad, row.counts, row.flags)
+
+    def take(sample, k: int) -> bool:
+        """File a feedback sample; True if it answers cycle k."""
+        if sample.seq in received:
+            counts["duplicate"] += 1
+            for row in rows:
+                if row.seq == sample.seq:
+                    row.flags |= SampleFlag.DUPLICATE
+            return False
+        if sample.seq != k:
+            counts["stale"] += 1
+            return False
+        received.add(sample.seq)
+        row = rows[-1]
+        row.angle_rad, row.counts = sample.load_angle_rad, sample.encoder_counts
+        row.flags &= ~SampleFlag.LOST
+        return True
+
+    switch_interval = sys.getswitchinterval()
+    # Receive threads (pyserial readers, python-can notifiers, simulated devices) need the GIL within a
+    # fraction of a period, not after the default 5 ms.
+    sys.setswitchinterval(min(switch_interval, period / 20))
+    try:
+        transport.open()
+        check_command(transport, command)
+        start = clock() + 2 * period
+        last_feedback = start
+        for k, value in enumerate(command.tolist()):
+            deadline = start + k * period
+            now = clock()
+            if deadline - now > 0:
+                time.sleep(deadline - now)
+                now = clock()
+            lateness[k] = now - deadline
+            if now - last_feedback > feedback_timeout_s:
+                raise TransportError(f"{transport.name}: no feedback for {now - last_feedback:.3g} s "
+                                     f"(watchdog {feedback_timeout_s:g} s), stopping at sample {k}")
+            row = _Row(k, k * period, value)
+            rows.append(row)
+            sent = transport.send(Setpoint(k, value))
+            sent_count += 1
+            row.command_rad = sent.position_rad
+            if lateness[k] > tolerance:
+                row.flags |= SampleFlag.LATE
+                counts["late"] += 1
+            window_end = max(deadline + period, clock() + 0.5 * period)
+            while True:
+                sample = transport.receive(window_end - clock())
+                if sample is None:
+                    break
+                if take(sample, k):
+                    last_feedback = clock()
+                    break
+            write_rows(keep=1)
+            if progress is not None:
+                progress(k + 1, counts["late"])
+    except DeviceFault:
+        if rows:
+            rows[-1].flags |= SampleFlag.FAULT
+        raise
+    finally:
+        sys.setswitchinterval(switch_interval)
+        try:
+            transport.close()
+        finally:
+            try:
+                write_rows(keep=0)
+            finally:
+                sink.close()
+    wall = clock() - wall_start
+    rate = 0.0
+    if sent_count > 1:
+        rate = (sent_count - 1) / ((sent_count - 1) * period + lateness[sent_count - 1] - lateness[0])
+    return RunSummary(samples=sent_count, lost=counts["lost"], late=counts["late"], duplicate=counts["duplicate"],
+                      stale=counts["stale"], frame_errors=transport.frame_errors, rate_hz=rate,
+                      send_lateness_s=lateness[:sent_count], cpu_s=time.process_time() - cpu_start, wall_s=wall)

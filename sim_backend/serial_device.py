@@ -1,0 +1,133 @@
+"""A simulated rig behind a serial port: the device side of ``docs/serial_protocol.md`` on a pty pair.
+
+The host opens :attr:`SimulatedSerialDevice.port` (``/dev/pts/N``) with pyserial as it would open
+``/dev/ttyUSB0``. Each SETPOINT frame advances the simulated gearbox exactly one sample and is answered by
+one FEEDBACK frame with the same sequence number, so a run is deterministic whatever the host's timing.
+"""
+
+from __future__ import annotations
+
+import os
+import select
+import threading
+import tty
+from collections.abc import Iterable
+
+from rig.protocols import cia402
+from rig.protocols.serial_frames import FrameDecoder, MessageType, SerialMessage, encode_frame
+from sim_backend.plant import SimulatedGearbox
+
+__all__ = ["SimulatedSerialDevice"]
+
+
+class SimulatedSerialDevice:
+    """Drive + load encoder of a simulated gearbox, answering on a pty.
+
+    Parameters
+    ----------
+    gearbox
+        The plant; stepped once per SETPOINT frame received in OPERATION ENABLED.
+    drive_counts_per_revolution
+        Drive position scaling (target counts -> motor radians).
+    silent_seqs
+        Sample numbers whose FEEDBACK is not sent (the plant still steps): injected frame loss.
+    fault_at_seq
+        Sample number at which the drive goes to FAULT (error code ``fault_code``) and reports it.
+    """
+
+    def __init__(self, gearbox: SimulatedGearbox, *, drive_counts_per_revolution: int = 1 << 17,
+                 silent_seqs: Iterable[int] = (), fault_at_seq: int | None = None, fault_code: int = 0x7500) -> None:
+        self.gearbox = gearbox
+        self.drive = cia402.DriveScaling(int(drive_counts_per_revolution))
+        self.silent_seqs = frozenset(int(seq) & 0xFFFF for seq in silent_seqs)
+        self.fault_at_seq = fault_at_seq
+        self.fault_code = fault_code
+        self.state = cia402.DriveState.SWITCH_ON_DISABLED
+        self.controlword = 0
+        self.target_counts = 0
+        self.actual_counts = 0
+        self.setpoints = 0
+        self.controlwords: list[int] = []
+        self.frame_errors = 0
+        self._decoder = FrameDecoder()
+        self._master_fd, self._slave_fd = os.openpty()
+        tty.setraw(self._slave_fd)
+        self.port = os.ttyname(self._slave_fd)
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    def start(self) -> SimulatedSerialDevice:
+        self._thread = threading.Thread(target=self._serve, name=f"sim-serial-{self.port}", daemon=True)
+        self._thread.start()
+        return self
+
+    def close(self) -> None:
+        """Stop the device thread and close the pty (idempotent)."""
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=2.0)
+            self._thread = None
+        for fd_name in ("_master_fd", "_slave_fd"):
+            fd = getattr(self, fd_name)
+            if fd is not None:
+                os.close(fd)
+                setattr(self, fd_name, None)
+
+    def __enter__(self) -> SimulatedSerialDevice:
+        return self.start()
+
+    def __exit__(self, *exc_info: object) -> None:
+        self.close()
+
+    # -- device loop ----------------------------------------------------------------------------------------
+
+    def _serve(self) -> None:
+        while not self._stop.is_set():
+            ready, _, _ = select.select([self._master_fd], [], [], 0.05)
+            if not ready:
+                continue
+            try:
+                data = os.read(self._master_fd, 4096)
+            except OSError:
+                return
+            for message in self._decoder.feed(data):
+                reply = self.handle(message)
+                if reply:
+                    os.write(self._master_fd, reply)
+            self.frame_errors = self._decoder.errors
+
+    def handle(self, message: SerialMessage) -> bytes:
+        """The bytes the device answers to ``message`` (public so that tests can script exchanges)."""
+        if message.type is MessageType.CONTROL:
+            (controlword,) = message.fields
+            self.controlwords.append(controlword)
+            previous_state = self.state
+            self.state = cia402.next_state(self.state, controlword, self.controlword)
+            self.controlword = controlword
+            if self.state is cia402.DriveState.OPERATION_ENABLED and previous_state is not self.state:
+                self.target_counts = self.actual_counts  # no jump on enable
+            return self._status(message.seq)
+        if message.type is MessageType.STATUS_REQUEST:
+            return self._status(message.seq)
+        if message.type is MessageType.SETPOINT:
+            return self._setpoint(message)
+        return b""
+
+    def _status(self, seq: int) -> bytes:
+        return encode_frame(MessageType.STATUS, seq, cia402.statusword_for(self.state), self.actual_counts)
+
+    def _setpoint(self, message: SerialMessage) -> bytes:
+        if self.state is not cia402.DriveState.OPERATION_ENABLED:
+            return b""  # a drive not enabled ignores targets; the host sees the sample as lost
+        if self.fault_at_seq is not None and message.seq == self.fault_at_seq & 0xFFFF:
+            self.state = cia402.DriveState.FAULT
+            return encode_frame(MessageType.FAULT, 0, self.fault_code)
+        (self.target_counts,) = message.fields
+        command_rad = self.drive.rad_from_counts(self.target_counts)
+        sample = self.gearbox.step(command_rad)
+        self.actual_counts = self.target_counts
+        self.setpoints += 1
+        if message.seq in self.silent_seqs:
+            return b""
+        return encode_frame(MessageType.FEEDBACK, message.seq, cia402.statusword_for(self.state, target_reached=True),
+                            self.actual_counts, sample.encoder_counts & 0xFFFFFFFF)

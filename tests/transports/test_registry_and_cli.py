@@ -1,0 +1,98 @@
+"""The transport registry, rig configs and ``rig run`` end to end."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from identify.experiment_record import SampleFlag
+from rig import transports
+from rig.cli import main
+from rig.log_file import read_log
+from rig.protocols.encoder_counts import EncoderResolution
+from rig.protocols.errors import ConfigError, TransportError
+from rig.rig_config import load_rig_config
+from rig.transports import open_transport, parse_transport_url
+from sim_backend.plant_config import load_plant_config
+from sim_rigs import CONFIGS, ROOT, no_leaks, write_test_config  # noqa: F401  (no_leaks is a fixture)
+
+ENCODER = EncoderResolution(bits=12)
+
+
+def test_urls_name_the_transport_and_any_python_can_interface():
+    assert parse_transport_url("canopen://pcan/PCAN_USBBUS1") == (
+        "canopen", {"interface": "pcan", "channel": "PCAN_USBBUS1"})
+    assert parse_transport_url("can://kvaser/0") == ("can", {"interface": "kvaser", "channel": "0"})
+    assert parse_transport_url("serial:///dev/ttyUSB0") == ("serial", {"port": "/dev/ttyUSB0"})
+    with pytest.raises(ConfigError, match=r"unknown transport 'modbus://x' \(known: canopen://, can://, serial://\)"):
+        parse_transport_url("modbus://x")
+    with pytest.raises(ConfigError, match="'nosuchcard' is no python-can interface"):
+        parse_transport_url("canopen://nosuchcard/0")
+
+
+def test_unknown_options_are_rejected_not_ignored():
+    with pytest.raises(ConfigError, match=r"\[baud_rate\] not an option of the serial transport \(accepted: .*baudrate"):
+        open_transport("serial:///dev/ttyUSB0", encoder=ENCODER, sample_period_s=1e-3, baud_rate=9600)
+
+
+def test_a_missing_driver_fails_only_when_chosen_with_a_clear_message(monkeypatch):
+    monkeypatch.setitem(transports.BACKENDS, "serial", ("rig.transports._no_such_driver", "X", "pyserial"))
+    assert parse_transport_url("can://virtual/a")[0] == "can"  # other transports are unaffected
+    with pytest.raises(TransportError, match="the serial transport needs pyserial"):
+        open_transport("serial:///dev/ttyUSB0", encoder=ENCODER, sample_period_s=1e-3)
+
+
+def test_an_absent_port_is_a_transport_error_and_leaves_nothing_open(no_leaks):
+    transport = open_transport("serial:///dev/no_such_tty", encoder=ENCODER, sample_period_s=1e-3)
+    with pytest.raises(TransportError, match="cannot open serial port /dev/no_such_tty"):
+        transport.open()
+    assert not transport.is_open
+
+
+@pytest.mark.parametrize("name", ["sim_serial", "rig_serial"])
+def test_shipped_configs_validate(name):
+    config = load_rig_config(CONFIGS / f"{name}.toml")
+    assert config.scheme == "serial" and config.sample_rate_hz == 1000.0
+    assert (config.simulation is not None) == name.startswith("sim")
+
+
+def test_config_errors_name_the_file_and_the_key(tmp_path):
+    path = write_test_config("serial", tmp_path)
+    path.write_text(path.read_text().replace("baudrate = ", "baud = "))
+    with pytest.raises(ConfigError, match=r"sim_serial_test.toml: \[transport.baud\] not an option of the serial"):
+        load_rig_config(path)
+    path = write_test_config("serial", tmp_path)
+    path.write_text(path.read_text().replace("position_max_rad = 12.0", "position_max_rad = -13.0"))
+    with pytest.raises(ConfigError, match=r"\[limits.position_max_rad\] expected a number > position_min_rad"):
+        load_rig_config(path)
+
+
+def test_rig_run_writes_a_log_equal_to_the_offline_simulation(tmp_path, capsys, no_leaks):
+    config_path = write_test_config("serial", tmp_path)
+    out = tmp_path / "run.csv"
+    code = main(["run", str(config_path), "--experiment", str(CONFIGS / "experiments" / "prbs.toml"),
+                 "--out", str(out), "--duration", "0.3", "--json"])
+    assert code == 0
+    result = json.loads(capsys.readouterr().out)
+    assert result["log"] == str(out) and result["samples"] == 60 and result["rate_hz"] > 0
+    record = read_log(out)
+    assert record.num_samples == 60 and record.metadata.transport == "serial://pty"
+    assert record.metadata.sample_period_s == 0.005 and record.metadata.seed == 4
+    lost = (record.flags & SampleFlag.LOST) != 0
+    assert result["lost"] == lost.sum() and result["late"] == ((record.flags & SampleFlag.LATE) != 0).sum()
+    config = load_rig_config(config_path)
+    expected = load_plant_config(config.simulation.plant_path).gearbox(seed=4).simulate(record.command_rad)
+    np.testing.assert_array_equal(record.angle_rad[~lost], expected.measured_angle_rad[~lost])
+    # PRBS of +-1 rad (Cerone 2009), 100 samples cut to 60, quantised to the drive's counts
+    assert np.all(np.abs(np.abs(record.command_rad) - 1.0) < np.pi / 131072)
+
+
+def test_rig_run_refuses_an_experiment_beyond_the_limits_with_exit_code_2(tmp_path, capsys, no_leaks):
+    config_path = write_test_config("serial", tmp_path)
+    config_path.write_text(config_path.read_text().replace("position_max_rad = 12.0", "position_max_rad = 0.5"))
+    code = main(["run", str(config_path), "--experiment", str(CONFIGS / "experiments" / "prbs.toml"),
+                 "--out", str(tmp_path / "run.csv")])
+    assert code == 2
+    assert "outside the limits [-12, 0.5] rad" in capsys.readouterr().err

@@ -1,0 +1,88 @@
+"""The runner's safety and accounting against a simulated rig with injected faults."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from identify.experiment_record import SampleFlag
+from rig.protocols.errors import DeviceFault, TransportError
+from rig.runner import run_experiment
+from rig.transports import CommandLimits, CommandRefused
+from sim_rigs import ListSink, excitation, no_leaks, simulated  # noqa: F401  (no_leaks is a fixture)
+
+
+def _run(transport, config, command, sink, **kwargs):
+    return run_experiment(transport, command, sink, feedback_timeout_s=config.feedback_timeout_s,
+                          late_tolerance_s=config.late_tolerance_s, **kwargs)
+
+
+def test_commands_beyond_the_limits_are_refused_before_anything_is_sent(tmp_path, no_leaks):
+    command = excitation(40)
+    command[30] = 12.5  # position limit is 12 rad
+    sink = ListSink()
+    with simulated("serial", tmp_path) as (config, transport, _, drive):
+        with pytest.raises(CommandRefused, match=r"setpoint 30: position 12.5 rad is outside the limits \[-12, 12\]"):
+            _run(transport, config, command, sink)
+        assert drive.setpoints == 0
+        assert drive.controlwords[-2:] == [0x02, 0x00]  # brought up, then stopped in a controlled way
+    assert sink.closed and sink.rows == []
+
+
+def test_rate_limit_counts_the_jump_from_the_actual_position(tmp_path, no_leaks):
+    command = np.full(10, 5.0)  # from the actual position 0: 5 rad in one 5 ms sample = 1000 rad/s, allowed
+    command[5] = -11.0  # a 16 rad jump in 5 ms: 3200 rad/s
+    with simulated("serial", tmp_path) as (config, transport, _, drive):
+        transport.limits = CommandLimits(-12.0, 12.0, 1500.0)
+        with pytest.raises(CommandRefused, match=r"setpoint 5: rate 3200 rad/s .* exceeds the limit 1500 rad/s"):
+            _run(transport, config, command, ListSink())
+        assert drive.setpoints == 0
+
+
+def test_lost_feedback_is_flagged_per_sample_and_the_run_continues(tmp_path, no_leaks):
+    command = excitation(40)
+    sink = ListSink()
+    with simulated("serial", tmp_path, silent_seqs=[3, 17, 18]) as (config, transport, _, drive):
+        summary = _run(transport, config, command, sink)
+        assert drive.setpoints == 40
+    flags = np.array([row[4] for row in sink.rows])
+    lost = np.flatnonzero(flags & SampleFlag.LOST)
+    assert set(lost) >= {3, 17, 18}
+    assert summary.lost == len(lost) and len(sink.rows) == 40
+    assert all(np.isnan(sink.rows[k][2]) and sink.rows[k][3] is None for k in (3, 17, 18))
+
+
+def test_device_fault_stops_the_run_and_the_log_is_complete_up_to_it(tmp_path, no_leaks):
+    sink = ListSink()
+    with simulated("serial", tmp_path, fault_at_seq=25, fault_code=0x7500) as (config, transport, _, drive):
+        with pytest.raises(DeviceFault, match=r"\(code 0x7500\): the device reported a fault"):
+            _run(transport, config, excitation(40), sink)
+        assert drive.setpoints == 25
+    assert sink.closed and len(sink.rows) == 26
+    assert sink.rows[25][4] & SampleFlag.FAULT and sink.rows[25][4] & SampleFlag.LOST
+    assert not sink.rows[24][4] & SampleFlag.FAULT
+
+
+def test_watchdog_stops_a_run_whose_feedback_stopped(tmp_path, no_leaks):
+    sink = ListSink()
+    with simulated("serial", tmp_path, silent_seqs=range(10, 1000)) as (config, transport, _, drive):
+        with pytest.raises(TransportError, match=r"no feedback for .* \(watchdog 0.05 s\)"):
+            run_experiment(transport, excitation(200), sink, feedback_timeout_s=0.05, late_tolerance_s=0.0025)
+        assert drive.controlwords[-2:] == [0x02, 0x00]
+    flags = np.array([row[4] for row in sink.rows])
+    assert sink.closed and 10 < len(sink.rows) < 200 and np.all(flags[10:] & SampleFlag.LOST)
+
+
+def test_ctrl_c_ends_with_a_controlled_stop_and_a_closed_log(tmp_path, no_leaks):
+    sink = ListSink()
+
+    def interrupt_at_15(done: int, late: int) -> None:
+        if done == 15:
+            raise KeyboardInterrupt
+
+    with simulated("serial", tmp_path) as (config, transport, _, drive):
+        with pytest.raises(KeyboardInterrupt):
+            _run(transport, config, excitation(40), sink, progress=interrupt_at_15)
+        assert drive.controlwords[-2:] == [0x02, 0x00]
+        assert not transport.is_open
+    assert sink.closed and len(sink.rows) == 15
