@@ -108,10 +108,10 @@ def prbs_sequence(num_samples: int, amplitude_rad: float, rng: np.random.Generat
     return out
 
 
-def _pole(filter_pole: float) -> float:
+def _pole(filter_pole: float, name: str = "filter_pole") -> float:
     pole = float(filter_pole)
     if not np.isfinite(pole) or not 0.0 <= pole < 1.0:
-        raise InvalidInputError(f"filter_pole: expected a number in [0, 1), got {filter_pole!r}")
+        raise InvalidInputError(f"{name}: expected a number in [0, 1), got {filter_pole!r}")
     return pole
 
 
@@ -277,7 +277,7 @@ def design_filter_pole(run_step_experiment: Callable[[NDArray[np.float64]], Arra
     amplitude = float(step_amplitude_rad)
     if not np.isfinite(amplitude) or amplitude == 0.0:
         raise InvalidInputError(f"step_amplitude_rad: expected a finite non-zero number, got {step_amplitude_rad!r}")
-    a_bar = _pole(reference_pole)
+    a_bar = _pole(reference_pole, "reference_pole")
     if a_bar == 0.0:
         raise InvalidInputError("reference_pole: expected a pole in (0, 1), got 0")
     noise = float(noise_bound_rad)

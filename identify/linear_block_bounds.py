@@ -47,6 +47,12 @@ __all__ = ["LINEAR_BOUND_METHODS", "EmptyLinearSetExplanation", "LinearBlockBoun
 
 LINEAR_BOUND_METHODS = ("paper", "coupled")
 
+_DEFAULT_SETTINGS = {"solver": "simplex", "simplex_strategy": 1, "presolve": "on", "run_crossover": "on"}
+_RECOVERY_SETTINGS = (
+    {"solver": "simplex", "simplex_strategy": 1, "presolve": "on"},
+    {"solver": "simplex", "simplex_strategy": 1, "presolve": "off"},
+    {"solver": "ipm", "run_crossover": "off", "presolve": "on"},
+)
 _B_BOX = 1e6
 """A-priori box |b_j| <= 1e6; a bound that reaches it is reported as unbounded (infinite)."""
 
@@ -159,7 +165,7 @@ class _Counter:
 class _Solver:
     """One HiGHS model of an :class:`_LP`, re-solved for many objectives from the previous basis."""
 
-    def __init__(self, lp: _LP) -> None:
+    def __init__(self, lp: _LP, presolve: str = "on") -> None:
         # The bare core class: highspy.Highs() prints a banner to stdout on construction (it would break
         # ``--json`` output) and enables callbacks that we do not use.
         from highspy._core import HighsLp, HighsModelStatus, MatrixFormat, _Highs
@@ -183,11 +189,11 @@ class _Solver:
         model.a_matrix_.value_ = A.data.astype(float)
         self.highs = _Highs()
         self.highs.setOptionValue("output_flag", False)
-        self.highs.setOptionValue("presolve", "off")
-        self.highs.setOptionValue("simplex_strategy", 4)  # primal simplex: a new cost keeps the basis feasible
+        self.highs.setOptionValue("presolve", presolve)
         self.highs.passModel(model)
         self._status = HighsModelStatus
         self.columns = np.arange(A.shape[1], dtype=np.int32)
+        self.warm = False
 
     def minimize(self, cost: NDArray[np.float64], counter: _Counter) -> tuple[float, NDArray[np.float64] | None]:
         """Certified lower bound of min cost^T z (Neumaier-Shcherbina: valid for any dual vector, given the
@@ -197,6 +203,28 @@ class _Solver:
         highs.changeColsCost(self.columns.size, self.columns, np.asarray(cost, dtype=float))
         highs.run()
         status = highs.getModelStatus()
+        if status not in (self._status.kOptimal, self._status.kInfeasible):
+            # Recover from a stalled warm start or a numerically poor basis (the chained equations can make
+            # a basis very ill-conditioned): solve again from scratch, by dual simplex with and without
+            # presolve, then by the interior-point method without crossover (its duals are all the
+            # certificate needs).
+            for settings in _RECOVERY_SETTINGS:
+                highs.clearSolver()
+                for option, value in settings.items():
+                    highs.setOptionValue(option, value)
+                highs.run()
+                status = highs.getModelStatus()
+                if status in (self._status.kOptimal, self._status.kInfeasible):
+                    break
+            for option, value in _DEFAULT_SETTINGS.items():
+                highs.setOptionValue(option, value)
+            self.warm = False
+        if status == self._status.kOptimal and not self.warm:
+            # The optimal basis stays primal feasible when only the objective changes, so primal simplex
+            # without presolve continues from it for the next objectives.
+            highs.setOptionValue("simplex_strategy", 4)
+            highs.setOptionValue("presolve", "off")
+            self.warm = True
         if status == self._status.kInfeasible:
             return math.inf, None
         if status != self._status.kOptimal:
@@ -453,7 +481,11 @@ def _inner_values(data: _Data, low: NDArray[np.float64], high: NDArray[np.float6
                 lp = _coupled_lp(data, low, high, fixed_a=fixed)
                 cost = np.zeros(lp.lower.size)
                 cost[k] = direction
-                _, x = _Solver(lp).minimize(cost, counter)
+                try:
+                    # with a fixed the chained equations are solved best without presolve
+                    _, x = _Solver(lp, presolve="off").minimize(cost, counter)
+                except RuntimeError:
+                    x = None  # a diagnostic only: the outer bounds do not depend on it
                 if x is None:
                     continue
                 # the solver's point satisfies the equations to its tolerance; report it only if it does

@@ -1,0 +1,114 @@
+"""Linear-block bounds of Section 5 and the whole pipeline on the simulated example of Section 6."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from identify.linear_block_bounds import bound_linear_block
+from identify.output_backlash_identification import bound_output_backlash_system
+from identify.validation import InvalidInputError
+from cerone2009_data import GAMMA, THETA, experiment
+
+TABLE_II_15_BIT = {"a1": 4.3e-4, "a2": 2.5e-4, "b1": 4.3e-4, "b2": 7.2e-4}
+
+
+def _run(n_bit: int, seed: int, method: str = "coupled", num_samples: int = 100):
+    data = experiment(n_bit, seed, num_samples)
+    return data, bound_output_backlash_system(data.steady_input_rad, data.steady_output_rad, data.input_rad,
+                                              data.output_rad, data.noise_bound_rad, na=2, nk=1, nb=2, method=method)
+
+
+def test_fifteen_bit_example_recovers_theta_to_the_papers_precision() -> None:
+    _, paper = _run(15, 11, "paper")
+    _, coupled = _run(15, 11, "coupled")
+    for name, value in THETA.items():
+        for result in (paper, coupled):
+            interval = result.linear_intervals[name]
+            assert interval.contains(value)
+            assert abs(interval.center - value) <= TABLE_II_15_BIT[name]
+        assert paper.linear_intervals[name].half_width <= 2.5 * TABLE_II_15_BIT[name]
+        # the coupled relaxation: several times tighter than Table II (the benchmark reports the medians)
+        assert coupled.linear_intervals[name].half_width <= TABLE_II_15_BIT[name] / 3
+    for name, value in GAMMA.items():
+        assert coupled.backlash_intervals[name].contains(value)
+
+
+@pytest.mark.parametrize("n_bit", [15, 12, 10, 8])
+def test_true_parameters_inside_every_bound_and_coupled_inside_paper(n_bit: int) -> None:
+    for seed in (100 + n_bit, 200 + n_bit):
+        data, paper = _run(n_bit, seed, "paper")
+        inner = paper.inner_signal
+        assert inner is not None
+        coupled = bound_linear_block(data.input_rad, inner.lower_rad, inner.upper_rad, na=2, nk=1, nb=2,
+                                     method="coupled")
+        assert inner.num_invertible < data.input_rad.size  # non-invertible samples are used, not dropped
+        for name, value in THETA.items():
+            outer_paper, outer = paper.linear_intervals[name], coupled.intervals[name]
+            assert outer_paper.contains(value), (n_bit, seed, name, outer_paper)
+            assert outer.contains(value), (n_bit, seed, name, outer)
+            assert outer_paper.lower <= outer.lower and outer.upper <= outer_paper.upper
+            # verified inner values lie inside the outer bounds
+            assert coupled.inner_lower is not None and coupled.inner_upper is not None
+            assert outer.lower <= coupled.inner_lower[name] <= coupled.inner_upper[name] <= outer.upper
+        assert coupled.max_certificate_gap < 1e-6
+
+
+def test_unit_static_gain_holds_across_the_bounds() -> None:
+    _, result = _run(12, 5)
+    iv = result.linear_intervals
+    # Σb - Σa = 1 (eq. (8)) is a constraint: the centre of the box satisfies it to the box's size
+    gain_residual = iv["b1"].center + iv["b2"].center - iv["a1"].center - iv["a2"].center - 1.0
+    assert abs(gain_residual) <= sum(interval.half_width for interval in iv.values())
+    witness = result.linear.inner_point
+    assert witness is not None
+    assert witness["b1"] + witness["b2"] - witness["a1"] - witness["a2"] == pytest.approx(1.0, abs=1e-7)
+
+
+def test_wrong_orders_give_an_explained_empty_set() -> None:
+    data = experiment(12, 7)
+    result = bound_output_backlash_system(data.steady_input_rad, data.steady_output_rad, data.input_rad,
+                                          data.output_rad, data.noise_bound_rad, na=1, nk=0, nb=0)
+    assert result.is_empty and not result.backlash.is_empty
+    explanation = result.linear.explanation
+    assert explanation is not None and explanation.conflicting_samples
+    assert all(1 <= t < 100 for t in explanation.conflicting_samples)
+    assert explanation.required_extra_error_rad > 0.0
+    assert "orders" in result.explanation and "noise bound is too small" in result.explanation
+    with pytest.raises(InvalidInputError, match="empty"):
+        result.linear_intervals
+
+
+def test_empty_steady_state_set_stops_before_the_dynamic_stages() -> None:
+    data = experiment(12, 8)
+    steady_y = data.steady_output_rad.copy()
+    steady_y[3] -= 0.1
+    result = bound_output_backlash_system(data.steady_input_rad, steady_y, data.input_rad, data.output_rad,
+                                          data.noise_bound_rad, na=2, nk=1, nb=2)
+    assert result.is_empty and result.inner_signal is None and result.linear is None
+    assert result.explanation.startswith("steady-state data") and "[3" in result.explanation
+
+
+def test_validation_names_the_argument() -> None:
+    data = experiment(12, 9)
+    lower, upper = data.inner_rad - 0.01, data.inner_rad + 0.01
+    with pytest.raises(InvalidInputError, match="method"):
+        bound_linear_block(data.input_rad, lower, upper, na=2, nk=1, nb=2, method="best")
+    with pytest.raises(InvalidInputError, match="nb: expected nb >= nk"):
+        bound_linear_block(data.input_rad, lower, upper, na=2, nk=3, nb=2)
+    with pytest.raises(InvalidInputError, match="na: expected an integer >= 0"):
+        bound_linear_block(data.input_rad, lower, upper, na=-1, nk=1, nb=2)
+    with pytest.raises(InvalidInputError, match="fewer than the 4 parameters"):
+        bound_linear_block(data.input_rad[:5], lower[:5], upper[:5], na=2, nk=1, nb=2)
+    with pytest.raises(InvalidInputError, match="inner_lower_rad: sample 0 is above"):
+        bound_linear_block(data.input_rad, upper, lower, na=2, nk=1, nb=2)
+    with pytest.raises(InvalidInputError, match="same number of samples"):
+        bound_linear_block(data.input_rad[:50], lower, upper, na=2, nk=1, nb=2)
+    with pytest.raises(InvalidInputError, match="input_rad: sample 4 is nan"):
+        bad = data.input_rad.copy()
+        bad[4] = np.nan
+        bound_output_backlash_system(data.steady_input_rad, data.steady_output_rad, bad, data.output_rad,
+                                     data.noise_bound_rad, na=2, nk=1, nb=2)
+    with pytest.raises(InvalidInputError, match="noise_bound_rad"):
+        bound_output_backlash_system(data.steady_input_rad, data.steady_output_rad, data.input_rad,
+                                     data.output_rad, 0.0, na=2, nk=1, nb=2)

@@ -1,0 +1,82 @@
+"""``rig identify output-backlash``: JSON fields of the issue, table output, empty set exit code, bad input."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from identify.excitation_design import filtered_staircase, prbs_sequence, staircase_steady_state_indices
+from identify.plant_blocks import LinearBlock, OutputBacklash, PlantModel
+from rig import exit_codes
+from rig.cli import main
+
+PLANT = PlantModel((LinearBlock((0.5, 0.7), (0.0, 1.4, 0.8), 1.0), OutputBacklash(0.248, 0.0698, 0.252, 0.0349)))
+NOISE = 2 * np.pi / 2**12
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("cerone")
+    rng = np.random.default_rng(0)
+    staircase = filtered_staircase(list(np.linspace(0.6, 3.0, 50)), 0.8125, 100)
+    steady = staircase_steady_state_indices(50, 100)
+    steady_y = PLANT.simulate(staircase)[steady] + rng.uniform(-NOISE, NOISE, steady.size)
+    order = rng.permutation(steady.size)  # positive and negative half-waves mixed
+    steady_csv = folder / "steady.csv"
+    steady_csv.write_text("u,y\n" + "".join(f"{float(staircase[steady][k])!r},{float(steady_y[k])!r}\n" for k in order))
+    u = prbs_sequence(100, 1.0, rng=rng)
+    y = PLANT.simulate(u) + rng.uniform(-NOISE, NOISE, u.size)
+    dynamic_csv = folder / "dynamic.csv"
+    dynamic_csv.write_text("t,u,y\n" + "".join(f"{0.01 * k!r},{float(a)!r},{float(b)!r}\n" for k, (a, b) in enumerate(zip(u, y))))
+    return steady_csv, dynamic_csv
+
+
+def _args(files, *extra: str) -> list[str]:
+    steady, dynamic = files
+    return ["identify", "output-backlash", "--steady", str(steady), "--dynamic", str(dynamic),
+            "--noise-bound", repr(NOISE), "--na", "2", "--nk", "1", "--nb", "2", *extra]
+
+
+def test_json_has_exactly_the_issue_keys_and_bounds_contain_the_truth(files, capsys) -> None:
+    assert main(_args(files, "--json")) == exit_codes.SUCCESS
+    document = json.loads(capsys.readouterr().out)
+    assert set(document) == {"backlash", "linear", "method", "invertible_samples", "samples"}
+    assert list(document["backlash"]) == ["m_l", "c_l", "m_r", "c_r"]
+    assert list(document["linear"]) == ["a1", "a2", "b1", "b2"]
+    assert document["method"] == "coupled" and document["samples"] == 100
+    assert 50 < document["invertible_samples"] < 100
+    truth = {"m_l": 0.248, "c_l": 0.0698, "m_r": 0.252, "c_r": 0.0349, "a1": 0.5, "a2": 0.7, "b1": 1.4, "b2": 0.8}
+    for group in ("backlash", "linear"):
+        for name, bounds in document[group].items():
+            assert set(bounds) == {"lower", "upper", "center"}
+            assert bounds["lower"] <= truth[name] <= bounds["upper"]
+
+
+def test_paper_method_table_output(files, capsys) -> None:
+    assert main(_args(files, "--method", "paper")) == exit_codes.SUCCESS
+    out = capsys.readouterr().out
+    assert "method paper" in out and "half-width" in out
+    for name in ("m_l", "c_l", "m_r", "c_r", "a1", "a2", "b1", "b2"):
+        assert f"\n{name} " in out
+
+
+def test_too_small_noise_bound_exits_with_the_explanation(files, capsys) -> None:
+    steady, dynamic = files
+    code = main(["identify", "output-backlash", "--steady", str(steady), "--dynamic", str(dynamic),
+                 "--noise-bound", "1e-5", "--na", "2", "--nk", "1", "--nb", "2"])
+    assert code == exit_codes.EMPTY_FEASIBLE_SET
+    err = capsys.readouterr().err
+    assert "empty feasible set" in err and "noise bound is too small" in err
+
+
+def test_bad_input_exits_2_naming_the_problem(files, tmp_path, capsys) -> None:
+    broken = tmp_path / "broken.csv"
+    broken.write_text("u,z\n1,2\n")
+    steady, dynamic = files
+    assert main(["identify", "output-backlash", "--steady", str(broken), "--dynamic", str(dynamic),
+                 "--noise-bound", "1e-3", "--na", "2", "--nk", "1", "--nb", "2"]) == exit_codes.BAD_INPUT
+    assert "missing column(s) y" in capsys.readouterr().err
+    assert main(_args(files)[:-6] + ["--na", "2", "--nk", "3", "--nb", "2"]) == exit_codes.BAD_INPUT
+    assert "nb: expected nb >= nk" in capsys.readouterr().err
