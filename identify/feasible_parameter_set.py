@@ -22,7 +22,7 @@ would need and the steady-state points that conflict.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -79,12 +79,32 @@ class BacklashSidePolygon:
         p = m·c at the same vertices.
     sample_indices
         Indices (into the steady-state arrays) of the points of this side.
+    steady_input_rad, strip_lower_rad, strip_upper_rad
+        ū_k and the strip lo_k <= m ū_k ∓ p <= hi_k of each point (ȳ_k ∓ the widened noise bound), which
+        define the polygon (eqs. (16)-(17)).
     """
 
     side: str
     slope_vertices: NDArray[np.float64]
     slope_times_deadband_vertices: NDArray[np.float64]
     sample_indices: NDArray[np.int64]
+    steady_input_rad: NDArray[np.float64] = field(default_factory=lambda: np.empty(0))
+    strip_lower_rad: NDArray[np.float64] = field(default_factory=lambda: np.empty(0))
+    strip_upper_rad: NDArray[np.float64] = field(default_factory=lambda: np.empty(0))
+
+    def inverse_slope_rows(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """The polygon in (ρ, c) = (1/m, p/m) as rows G [ρ, c] <= h.
+
+        Dividing lo <= m ū ∓ p <= hi by m > 0 gives lo ρ <= ū ∓ c <= hi ρ, again linear: the same set,
+        in the coordinates in which the inverted backlash x = ρ w ± c is linear.
+        """
+        sign_c = -1.0 if self.side == "right" else 1.0  # right: m ū - p ; left: m ū + p
+        u, lo, hi = self.steady_input_rad, self.strip_lower_rad, self.strip_upper_rad
+        # lo ρ - (ū + sign_c c) <= 0  and  (ū + sign_c c) - hi ρ <= 0
+        rows = np.vstack([np.column_stack([lo, -sign_c * np.ones_like(u)]),
+                          np.column_stack([-hi, sign_c * np.ones_like(u)])])
+        rhs = np.concatenate([u, -u])
+        return rows, rhs
 
     @property
     def deadband_vertices(self) -> NDArray[np.float64]:
@@ -295,7 +315,8 @@ def bound_backlash_parameters(steady_input_rad: ArrayLike, steady_output_rad: Ar
                 "use larger amplitudes"
             )
         polygons[side] = BacklashSidePolygon(side, vertices[:, 0].copy() if len(vertices) else np.empty(0),
-                                             vertices[:, 1].copy() if len(vertices) else np.empty(0), indices)
+                                             vertices[:, 1].copy() if len(vertices) else np.empty(0), indices,
+                                             u[indices], y[indices] - widened[indices], y[indices] + widened[indices])
     left, right = polygons["left"], polygons["right"]
     if explanation is not None:
         return BacklashFeasibleSet(left, right, None, None, None, None, float(np.max(noise)), alpha, explanation)

@@ -24,9 +24,10 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from identify.feasible_parameter_set import BacklashFeasibleSet
+from identify.linear_block_bounds import SharedBacklashConstraints
 from identify.validation import InvalidInputError, as_signal
 
-__all__ = ["InnerSignalBounds", "bound_inner_signal"]
+__all__ = ["InnerSignalBounds", "bound_inner_signal", "shared_backlash_constraints"]
 
 _PAD_RELATIVE = 1e-12
 
@@ -116,3 +117,41 @@ def bound_inner_signal(output_rad: ArrayLike, noise_bound_rad: float, backlash: 
     upper = np.where(rising, right_high, np.where(falling, left_high, upper))
     pad = _PAD_RELATIVE * np.maximum(1.0, np.maximum(np.abs(lower), np.abs(upper)))
     return InnerSignalBounds(lower - pad, upper + pad, direction != 0, direction)
+
+
+def shared_backlash_constraints(output_rad: ArrayLike, noise_bound_rad: float, backlash: BacklashFeasibleSet,
+                                inner: InnerSignalBounds) -> SharedBacklashConstraints:
+    """Constraints that make every inverted sample use the same backlash (for the coupled linear bounds).
+
+    Eqs. (24)-(27) bound each x_t over all of D_γ separately; but the true γ is one point of D_γ for all t.
+    With ρ = 1/m the inversions x_t = ρ_r(y_t - η_t) + c_r and x_t = ρ_l(y_t - η_t) - c_l are linear in
+    (ρ, c) up to ζ_t = ρ η_t, |ζ_t| <= ρ^max Δη, and D_γ is a polygon in (ρ, c): see
+    :class:`identify.linear_block_bounds.SharedBacklashConstraints`.
+    """
+    y = as_signal("output_rad", output_rad, min_samples=2)
+    if y.size != inner.lower_rad.size:
+        raise InvalidInputError(f"output_rad: expected {inner.lower_rad.size} samples like the inner-signal bounds, got {y.size}")
+    noise = float(noise_bound_rad)
+    if not np.isfinite(noise) or noise < 0.0:
+        raise InvalidInputError(f"noise_bound_rad: expected a finite number >= 0, got {noise_bound_rad!r}")
+    if backlash.is_empty:
+        raise InvalidInputError("backlash: the feasible set is empty")
+    left_rows, left_rhs = backlash.left.inverse_slope_rows()
+    right_rows, right_rhs = backlash.right.inverse_slope_rows()
+    rows = np.zeros((left_rows.shape[0] + right_rows.shape[0], 4))
+    rows[: left_rows.shape[0], 0:2] = left_rows
+    rows[left_rows.shape[0]:, 2:4] = right_rows
+    rhs = np.concatenate([left_rhs, right_rhs])
+    bounds = []
+    for polygon in (backlash.left, backlash.right):
+        rho = 1.0 / polygon.slope_vertices
+        c = polygon.deadband_vertices
+        bounds.append((rho.min(), rho.max(), c.min(), c.max()))
+    pad = _PAD_RELATIVE
+    lower = np.array([bounds[0][0], bounds[0][2], bounds[1][0], bounds[1][2]])
+    upper = np.array([bounds[0][1], bounds[0][3], bounds[1][1], bounds[1][3]])
+    lower, upper = lower - pad * np.abs(lower) - 1e-15, upper + pad * np.abs(upper) + 1e-15
+    indices = np.flatnonzero(inner.invertible).astype(np.int64)
+    rising = inner.direction[indices] == 1
+    rho_max = np.where(rising, upper[2], upper[0])
+    return SharedBacklashConstraints(indices, rising, y[indices], rho_max * noise * (1.0 + pad), rows, rhs, lower, upper)

@@ -16,10 +16,13 @@ absolute values are linear, so the set is a polytope and every bound is an LP (2
 the projection of {(θ, δx) : all equations hold with shared δx}. The bilinear terms a_i δx_s are replaced by
 variables with McCormick envelopes over the current box of a_i and |δx_s| <= Δx_s, which is a convex outer
 relaxation; its LP bounds tighten the box of a_i, which tightens the envelopes, and this is iterated. The
-paper method's box is the starting box, so the coupled bounds are never wider. For every bound, the a-part
+paper method's box is the starting box, so the coupled bounds are never wider. With ``shared_backlash``
+the inverted samples are moreover tied to one backlash in D_γ (:class:`SharedBacklashConstraints`), rather
+than each taking its own worst case over D_γ as in eqs. (24)-(27). For every bound, the a-part
 of the extreme LP solution is then fixed and the (now exactly linear) problem in b and δx is solved again:
 that gives a point of the exact feasible set, so ``inner_lower``/``inner_upper`` show how close the outer
-bounds are to the exact ones.
+bounds are to the exact ones (if that a admits no exact solution, a is moved towards the box centre in
+steps 0.95, 0.8, 0.5, 0).
 
 Guarantees against solver tolerances: every LP bound is replaced by the Neumaier-Shcherbina bound computed
 from the solver's dual values and the finite variable boxes (a valid bound for any dual vector), and an
@@ -43,7 +46,7 @@ from identify.feasible_parameter_set import ParameterInterval
 from identify.validation import InvalidInputError, as_signal, same_length
 
 __all__ = ["LINEAR_BOUND_METHODS", "EmptyLinearSetExplanation", "LinearBlockBounds", "LinearModelOrders",
-           "bound_linear_block"]
+           "SharedBacklashConstraints", "bound_linear_block"]
 
 LINEAR_BOUND_METHODS = ("paper", "coupled")
 
@@ -86,6 +89,42 @@ class LinearModelOrders:
     def first_equation(self) -> int:
         """n = max(na, nb): the first t whose regressors are all measured."""
         return max(self.na, self.nb)
+
+
+@dataclass(frozen=True)
+class SharedBacklashConstraints:
+    """The backlash parameters shared by every inverted sample, for the coupled method.
+
+    For an inverted sample, x_t = ρ_r (y_t - η_t) + c_r (output rose) or x_t = ρ_l (y_t - η_t) - c_l (output
+    fell), with ρ = 1/m the same for all samples; with ζ_t = ρ η_t, |ζ_t| <= ρ^max Δη, this is linear in
+    (ρ_l, c_l, ρ_r, c_r, ζ_t), and D_γ is a polygon in (ρ, c) too
+    (:meth:`identify.feasible_parameter_set.BacklashSidePolygon.inverse_slope_rows`). Built by
+    :func:`identify.inner_signal_bounds.shared_backlash_constraints`.
+
+    Attributes
+    ----------
+    sample_indices
+        The inverted samples t.
+    rising
+        True where the output rose (right line), False where it fell (left line).
+    output_rad
+        y_t at those samples.
+    zeta_bound_rad
+        ρ^max Δη per sample.
+    rows, rhs
+        rows @ [ρ_l, c_l, ρ_r, c_r] <= rhs: both polygons.
+    lower, upper
+        Box of [ρ_l, c_l, ρ_r, c_r] (from the polygons' vertices).
+    """
+
+    sample_indices: NDArray[np.int64]
+    rising: NDArray[np.bool_]
+    output_rad: NDArray[np.float64]
+    zeta_bound_rad: NDArray[np.float64]
+    rows: NDArray[np.float64]
+    rhs: NDArray[np.float64]
+    lower: NDArray[np.float64]
+    upper: NDArray[np.float64]
 
 
 @dataclass(frozen=True)
@@ -278,6 +317,7 @@ class _Data:
     dx: NDArray[np.float64]
     times: NDArray[np.int64]  # equation times t = n..N-1
     regressors: NDArray[np.float64]  # psi_t: x_t^c = psi_t theta - (delta terms)
+    shared: SharedBacklashConstraints | None = None
 
     @property
     def a_box(self) -> NDArray[np.float64]:
@@ -285,7 +325,7 @@ class _Data:
 
 
 def _prepare(input_rad: ArrayLike, inner_lower_rad: ArrayLike, inner_upper_rad: ArrayLike,
-             orders: LinearModelOrders) -> _Data:
+             orders: LinearModelOrders, shared: SharedBacklashConstraints | None = None) -> _Data:
     u = as_signal("input_rad", input_rad)
     lower = as_signal("inner_lower_rad", inner_lower_rad)
     upper = as_signal("inner_upper_rad", inner_upper_rad)
@@ -301,7 +341,12 @@ def _prepare(input_rad: ArrayLike, inner_lower_rad: ArrayLike, inner_upper_rad: 
     times = np.arange(n, u.size)
     xc, dx = 0.5 * (lower + upper), 0.5 * (upper - lower)
     columns = [-xc[times - i] for i in range(1, orders.na + 1)] + [u[times - j] for j in range(orders.nk, orders.nb + 1)]
-    return _Data(orders, u, xc, dx, times, np.column_stack(columns))
+    if shared is not None:
+        if not isinstance(shared, SharedBacklashConstraints):
+            raise InvalidInputError(f"shared_backlash: expected SharedBacklashConstraints, got {type(shared).__name__}")
+        if shared.sample_indices.size and (shared.sample_indices.min() < 0 or shared.sample_indices.max() >= u.size):
+            raise InvalidInputError(f"shared_backlash: sample indices outside 0..{u.size - 1}")
+    return _Data(orders, u, xc, dx, times, np.column_stack(columns), shared)
 
 
 def _gain_row(orders: LinearModelOrders, width: int) -> tuple[sp.csr_matrix, NDArray[np.float64]]:
@@ -438,7 +483,33 @@ def _coupled_lp(data: _Data, theta_low: NDArray[np.float64], theta_high: NDArray
     b_eq_all = np.concatenate([b_eq, gain_rhs, *extra_rhs])
     if fixed_a is not None:
         lower[:na] = upper[:na] = fixed_a
-    return _LP(A_ub, b_ub, A_eq_all, b_eq_all, lower, upper)
+    lp = _LP(A_ub, b_ub, A_eq_all, b_eq_all, lower, upper)
+    return lp if data.shared is None else _with_shared_backlash(lp, data, p)
+
+
+def _with_shared_backlash(lp: _LP, data: _Data, p: int) -> _LP:
+    """Append the columns [ρ_l, c_l, ρ_r, c_r, ζ_1..ζ_K] and the rows that tie the inverted samples to them:
+    δx_t - y_t ρ_r - c_r + ζ_t = -x_t^c (rising), δx_t - y_t ρ_l + c_l + ζ_t = -x_t^c (falling)."""
+    shared = data.shared
+    assert shared is not None
+    K = shared.sample_indices.size
+    width = lp.lower.size
+    new_width = width + 4 + K
+    link_rows = np.arange(K)
+    rho_col = np.where(shared.rising, width + 2, width + 0)
+    c_col = np.where(shared.rising, width + 3, width + 1)
+    c_val = np.where(shared.rising, -1.0, 1.0)
+    link = sp.csr_matrix((np.concatenate([np.ones(K), -shared.output_rad, c_val, np.ones(K)]),
+                          (np.tile(link_rows, 4), np.concatenate([p + shared.sample_indices, rho_col, c_col,
+                                                                   width + 4 + link_rows]))), shape=(K, new_width))
+    polygon = sp.hstack([sp.csr_matrix((shared.rows.shape[0], width)), sp.csr_matrix(shared.rows),
+                         sp.csr_matrix((shared.rows.shape[0], K))]).tocsr()
+    A_ub = sp.vstack([sp.hstack([lp.A_ub, sp.csr_matrix((lp.A_ub.shape[0], 4 + K))]), polygon]).tocsr()
+    A_eq = sp.vstack([sp.hstack([lp.A_eq, sp.csr_matrix((lp.A_eq.shape[0], 4 + K))]), link]).tocsr()
+    return _LP(A_ub, np.concatenate([lp.b_ub, shared.rhs]), A_eq,
+               np.concatenate([lp.b_eq, -data.xc[shared.sample_indices]]),
+               np.concatenate([lp.lower, shared.lower, -shared.zeta_bound_rad]),
+               np.concatenate([lp.upper, shared.upper, shared.zeta_bound_rad]))
 
 
 def _coupled_bounds(data: _Data, low: NDArray[np.float64], high: NDArray[np.float64], counter: _Counter,
@@ -464,8 +535,8 @@ def _coupled_bounds(data: _Data, low: NDArray[np.float64], high: NDArray[np.floa
 
 def _inner_values(data: _Data, low: NDArray[np.float64], high: NDArray[np.float64], points: list[NDArray[np.float64]],
                   counter: _Counter) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64] | None]:
-    """Verified values: fix a at each extreme point's a (or, if that a admits no exact solution, half-way
-    towards the centre of the box), then optimise the exactly linear problem in (b, δx)."""
+    """Verified values: fix a at each extreme point's a (or, if that a admits no exact solution, a point
+    between it and the centre of the box), then optimise the exactly linear problem in (b, δx)."""
     orders = data.orders
     na, p = orders.na, orders.num_parameters
     inner_low, inner_high = np.full(p, math.nan), np.full(p, math.nan)
@@ -476,7 +547,7 @@ def _inner_values(data: _Data, low: NDArray[np.float64], high: NDArray[np.float6
             if point is None:
                 continue
             extreme = np.clip(point[:na], low[:na], high[:na])
-            for weight in (1.0, 0.5, 0.0):
+            for weight in (1.0, 0.95, 0.8, 0.5, 0.0):
                 fixed = centre + weight * (extreme - centre)
                 lp = _coupled_lp(data, low, high, fixed_a=fixed)
                 cost = np.zeros(lp.lower.size)
@@ -533,7 +604,8 @@ def _explain(data: _Data, counter: _Counter) -> EmptyLinearSetExplanation:
 
 def bound_linear_block(input_rad: ArrayLike, inner_lower_rad: ArrayLike, inner_upper_rad: ArrayLike, *,
                        na: int, nk: int, nb: int, method: str = "coupled", max_tightening_rounds: int = 6,
-                       tightening_tolerance: float = 0.02) -> LinearBlockBounds:
+                       tightening_tolerance: float = 0.02,
+                       shared_backlash: SharedBacklashConstraints | None = None) -> LinearBlockBounds:
     """Guaranteed bounds on θ = [a_1..a_na, b_nk..b_nb] with unit static gain (eq. (8)), Section 5.
 
     Parameters
@@ -549,11 +621,14 @@ def bound_linear_block(input_rad: ArrayLike, inner_lower_rad: ArrayLike, inner_u
         relaxation with iterated tightening; never wider than ``"paper"``).
     max_tightening_rounds, tightening_tolerance
         Coupled method: stop after this many rounds or when no interval shrinks by more than this fraction.
+    shared_backlash
+        Coupled method: tie the inverted samples to one backlash in D_γ instead of letting each sample take
+        its own worst case (from :func:`identify.inner_signal_bounds.shared_backlash_constraints`).
     """
     if method not in LINEAR_BOUND_METHODS:
         raise InvalidInputError(f"method: expected one of {', '.join(LINEAR_BOUND_METHODS)}, got {method!r}")
     orders = LinearModelOrders(na, nk, nb)
-    data = _prepare(input_rad, inner_lower_rad, inner_upper_rad, orders)
+    data = _prepare(input_rad, inner_lower_rad, inner_upper_rad, orders, shared_backlash)
     counter = _Counter()
     names = orders.parameter_names
     low, high, feasible = _paper_bounds(data, counter)

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 from numpy.typing import ArrayLike
 
 from identify.feasible_parameter_set import BacklashFeasibleSet, ParameterInterval, bound_backlash_parameters
-from identify.inner_signal_bounds import InnerSignalBounds, bound_inner_signal
+from identify.inner_signal_bounds import InnerSignalBounds, bound_inner_signal, shared_backlash_constraints
 from identify.linear_block_bounds import LINEAR_BOUND_METHODS, LinearBlockBounds, LinearModelOrders, bound_linear_block
 from identify.validation import InvalidInputError, as_signal, same_length
 
@@ -121,5 +121,7 @@ def bound_output_backlash_system(steady_input_rad: ArrayLike, steady_output_rad:
     if backlash.is_empty:
         return OutputBacklashIdentification(backlash, None, None, noise)
     inner = bound_inner_signal(y, noise, backlash)
-    linear = bound_linear_block(u, inner.lower_rad, inner.upper_rad, na=na, nk=nk, nb=nb, method=method)
+    shared = shared_backlash_constraints(y, noise, backlash, inner) if method == "coupled" else None
+    linear = bound_linear_block(u, inner.lower_rad, inner.upper_rad, na=na, nk=nk, nb=nb, method=method,
+                                shared_backlash=shared)
     return OutputBacklashIdentification(backlash, inner, linear, noise)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from identify.inner_signal_bounds import shared_backlash_constraints
 from identify.linear_block_bounds import bound_linear_block
 from identify.output_backlash_identification import bound_output_backlash_system
 from identify.validation import InvalidInputError
@@ -40,8 +41,13 @@ def test_true_parameters_inside_every_bound_and_coupled_inside_paper(n_bit: int)
         data, paper = _run(n_bit, seed, "paper")
         inner = paper.inner_signal
         assert inner is not None
+        shared = shared_backlash_constraints(data.output_rad, data.noise_bound_rad, paper.backlash, inner)
+        # the true (1/m, c) of both sides satisfy the polygon rows in (ρ, c)
+        truth = np.array([1 / GAMMA["m_l"], GAMMA["c_l"], 1 / GAMMA["m_r"], GAMMA["c_r"]])
+        assert np.all(shared.rows @ truth <= shared.rhs + 1e-12)
+        assert np.all((shared.lower <= truth) & (truth <= shared.upper))
         coupled = bound_linear_block(data.input_rad, inner.lower_rad, inner.upper_rad, na=2, nk=1, nb=2,
-                                     method="coupled")
+                                     method="coupled", shared_backlash=shared)
         assert inner.num_invertible < data.input_rad.size  # non-invertible samples are used, not dropped
         for name, value in THETA.items():
             outer_paper, outer = paper.linear_intervals[name], coupled.intervals[name]

@@ -1,0 +1,141 @@
+"""Reproduce Section 6 of Cerone, Piga and Regruto (2009) and compare with their Tables I and II.
+
+True γ = [0.248 0.0698 0.252 0.0349], θ = [0.5 0.7 1.4 0.8]; M = 50 steady-state amplitudes equally spaced
+in [0.6, 3] through the staircase filtered with a = 0.8125; PRBS ±1 with N samples; uniform noise in
+[-Δη, Δη] with Δη = 2π/2^n_bit. For every n_bit and Monte Carlo run both linear-block methods are run on
+the same inner-signal bounds. Printed: medians over the runs of the central estimates and half-widths,
+the fraction of runs whose bounds contain the true parameter, and the run time of the whole pipeline
+(stages 1-3) per method.
+
+Usage (from the repository root)::
+
+    nice -n 10 .venv/bin/python benchmarks/cerone2009_set_membership.py --runs 100 --num-samples 100
+    nice -n 10 .venv/bin/python benchmarks/cerone2009_set_membership.py --runs 20 --num-samples 1000
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import numpy as np
+
+from identify.excitation_design import filtered_staircase, prbs_sequence, staircase_steady_state_indices
+from identify.feasible_parameter_set import bound_backlash_parameters
+from identify.inner_signal_bounds import bound_inner_signal, shared_backlash_constraints
+from identify.linear_block_bounds import bound_linear_block
+from identify.plant_blocks import LinearBlock, OutputBacklash, PlantModel
+
+GAMMA = {"m_l": 0.248, "c_l": 0.0698, "m_r": 0.252, "c_r": 0.0349}
+THETA = {"a1": 0.5, "a2": 0.7, "b1": 1.4, "b2": 0.8}
+N_BITS = (15, 12, 10, 8)
+# Table I: (γ^c, Δγ) per n_bit, in the order m_l, c_l, m_r, c_r
+TABLE_I = {
+    15: ((0.2481, 1.1e-4), (0.0702, 4.8e-4), (0.2520, 2.1e-5), (0.0349, 1.0e-4)),
+    12: ((0.2474, 6.6e-4), (0.0678, 2.4e-3), (0.2521, 1.3e-4), (0.0354, 7.0e-4)),
+    10: ((0.2503, 2.8e-3), (0.0825, 1.6e-2), (0.2513, 8.0e-4), (0.0306, 5.2e-3)),
+    8: ((0.2475, 2.9e-3), (0.0655, 1.8e-2), (0.2615, 1.1e-2), (0.0625, 3.7e-2)),
+}
+# Table II (N = 100): SNR and (θ^c, Δθ) per n_bit, in the order a1, a2, b1, b2
+TABLE_II = {
+    15: (73.2, ((0.500, 4.3e-4), (0.700, 2.5e-4), (1.400, 4.3e-4), (0.800, 7.2e-4))),
+    12: (56.2, ((0.500, 4.8e-3), (0.700, 2.8e-3), (1.400, 8.7e-3), (0.800, 1.0e-2))),
+    10: (43.0, ((0.503, 1.8e-2), (0.698, 1.9e-2), (1.400, 4.2e-2), (0.806, 4.6e-2))),
+    8: (30.9, ((0.510, 6.9e-2), (0.706, 5.3e-2), (1.410, 1.1e-1), (0.805, 1.2e-1))),
+}
+METHODS = ("paper", "coupled")
+
+
+def run_once(n_bit: int, num_samples: int, rng: np.random.Generator, staircase: np.ndarray, steady: np.ndarray,
+             steady_w: np.ndarray, plant: PlantModel) -> dict:
+    delta = 2.0 * np.pi / 2**n_bit
+    steady_y = steady_w + rng.uniform(-delta, delta, steady.size)
+    u = prbs_sequence(num_samples, 1.0, rng=rng)
+    w = plant.simulate(u)
+    noise = rng.uniform(-delta, delta, num_samples)
+    y = w + noise
+    started = time.perf_counter()
+    backlash = bound_backlash_parameters(staircase[steady], steady_y, delta)
+    inner = bound_inner_signal(y, delta, backlash)
+    shared = time.perf_counter() - started
+    out = {"gamma": backlash.intervals(), "snr_db": 10 * np.log10(np.sum(w**2) / np.sum(noise**2)),
+           "invertible": inner.num_invertible}
+    for method in METHODS:
+        started = time.perf_counter()
+        shared = shared_backlash_constraints(y, delta, backlash, inner) if method == "coupled" else None
+        linear = bound_linear_block(u, inner.lower_rad, inner.upper_rad, na=2, nk=1, nb=2, method=method,
+                                    shared_backlash=shared)
+        out[method] = linear.intervals
+        if method == "coupled":
+            out["inner_gap"] = max((linear.intervals[k].upper - linear.intervals[k].lower)
+                                   / max(linear.inner_upper[k] - linear.inner_lower[k], 1e-300) for k in THETA)
+        out[method + "_time"] = shared + time.perf_counter() - started
+        out[method + "_lps"] = linear.num_linear_programs
+    return out
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--runs", type=int, default=100, help="Monte Carlo runs per n_bit (default 100)")
+    parser.add_argument("--num-samples", type=int, default=100, help="N of the PRBS experiment (default 100)")
+    parser.add_argument("--n-bits", type=int, nargs="+", default=list(N_BITS))
+    parser.add_argument("--seed", type=int, default=2009)
+    args = parser.parse_args()
+
+    plant = PlantModel((LinearBlock((0.5, 0.7), (0.0, 1.4, 0.8), 1.0), OutputBacklash(**GAMMA)))
+    staircase = filtered_staircase(list(np.linspace(0.6, 3.0, 50)), 0.8125, 100)
+    steady = staircase_steady_state_indices(50, 100)
+    steady_w = plant.simulate(staircase)[steady]
+    rng = np.random.default_rng(args.seed)
+
+    results = {}
+    for n_bit in args.n_bits:
+        results[n_bit] = [run_once(n_bit, args.num_samples, rng, staircase, steady, steady_w, plant)
+                          for _ in range(args.runs)]
+
+    print(f"Cerone, Piga, Regruto (2009), Section 6: {args.runs} Monte Carlo runs per n_bit, N = {args.num_samples}, "
+          f"M = 50, seed {args.seed}; medians over the runs; 'in' = fraction of runs whose bounds contain the truth")
+    print()
+    print("Table I (backlash, exact orthotope of D_gamma)")
+    print(f"{'n_bit':>5} {'param':>5} {'true':>7} | {'paper c':>8} {'paper D':>8} | {'ours c':>8} {'ours D':>8} {'in':>5}")
+    for n_bit in args.n_bits:
+        for k, name in enumerate(GAMMA):
+            centers = np.median([r["gamma"][name].center for r in results[n_bit]])
+            widths = np.median([r["gamma"][name].half_width for r in results[n_bit]])
+            inside = np.mean([r["gamma"][name].contains(GAMMA[name]) for r in results[n_bit]])
+            paper_c, paper_d = TABLE_I[n_bit][k]
+            print(f"{n_bit:>5} {name:>5} {GAMMA[name]:>7.4f} | {paper_c:>8.4f} {paper_d:>8.1e} | "
+                  f"{centers:>8.4f} {widths:>8.1e} {inside:>5.0%}")
+    print()
+    print(f"Table II (linear block, N = {args.num_samples}; the paper's Table II is for N = 100)")
+    print(f"{'n_bit':>5} {'SNR':>5} {'param':>5} {'true':>5} | {'paper c':>7} {'paper D':>8} | "
+          f"{'EIV c':>7} {'EIV D':>8} {'in':>5} | {'coupled c':>9} {'coupled D':>9} {'in':>5} {'II/coupled':>10}")
+    for n_bit in args.n_bits:
+        paper_snr, rows = TABLE_II[n_bit]
+        snr = np.median([r["snr_db"] for r in results[n_bit]])
+        for k, name in enumerate(THETA):
+            cells = []
+            for method in METHODS:
+                centers = np.median([r[method][name].center for r in results[n_bit]])
+                widths = np.median([r[method][name].half_width for r in results[n_bit]])
+                inside = np.mean([r[method][name].contains(THETA[name]) for r in results[n_bit]])
+                cells.append((centers, widths, inside))
+            paper_c, paper_d = rows[k]
+            (ec, ed, ein), (cc, cd, cin) = cells
+            print(f"{n_bit:>5} {snr:>5.1f} {name:>5} {THETA[name]:>5.3f} | {paper_c:>7.3f} {paper_d:>8.1e} | "
+                  f"{ec:>7.4f} {ed:>8.1e} {ein:>5.0%} | {cc:>9.5f} {cd:>9.1e} {cin:>5.0%} {paper_d / cd:>10.1f}")
+        print(f"{'':>5} (paper's SNR {paper_snr} dB; median invertible samples "
+              f"{np.median([r['invertible'] for r in results[n_bit]]):.0f} of {args.num_samples})")
+    print()
+    print("Whole pipeline time per run (stages 1-3, one core), seconds")
+    print(f"{'n_bit':>5} | {'EIV median':>10} {'EIV max':>8} | {'coupled median':>14} {'coupled max':>11} {'LPs':>4}")
+    for n_bit in args.n_bits:
+        paper_times = [r["paper_time"] for r in results[n_bit]]
+        coupled_times = [r["coupled_time"] for r in results[n_bit]]
+        lps = np.median([r["coupled_lps"] for r in results[n_bit]])
+        print(f"{n_bit:>5} | {np.median(paper_times):>10.3f} {np.max(paper_times):>8.3f} | "
+              f"{np.median(coupled_times):>14.3f} {np.max(coupled_times):>11.3f} {lps:>4.0f}")
+
+
+if __name__ == "__main__":
+    main()
