@@ -57,7 +57,7 @@ def run_once(n_bit: int, num_samples: int, rng: np.random.Generator, staircase: 
     started = time.perf_counter()
     backlash = bound_backlash_parameters(staircase[steady], steady_y, delta)
     inner = bound_inner_signal(y, delta, backlash)
-    shared = time.perf_counter() - started
+    stage12_s = time.perf_counter() - started
     out = {"gamma": backlash.intervals(), "snr_db": 10 * np.log10(np.sum(w**2) / np.sum(noise**2)),
            "invertible": inner.num_invertible}
     for method in METHODS:
@@ -69,7 +69,7 @@ def run_once(n_bit: int, num_samples: int, rng: np.random.Generator, staircase: 
         if method == "coupled":
             out["inner_gap"] = max((linear.intervals[k].upper - linear.intervals[k].lower)
                                    / max(linear.inner_upper[k] - linear.inner_lower[k], 1e-300) for k in THETA)
-        out[method + "_time"] = shared + time.perf_counter() - started
+        out[method + "_time"] = stage12_s + time.perf_counter() - started
         out[method + "_lps"] = linear.num_linear_programs
     return out
 
@@ -128,13 +128,17 @@ def main() -> None:
               f"{np.median([r['invertible'] for r in results[n_bit]]):.0f} of {args.num_samples})")
     print()
     print("Whole pipeline time per run (stages 1-3, one core), seconds")
-    print(f"{'n_bit':>5} | {'EIV median':>10} {'EIV max':>8} | {'coupled median':>14} {'coupled max':>11} {'LPs':>4}")
+    print(f"{'n_bit':>5} | {'EIV median':>10} {'EIV max':>8} | {'coupled median':>14} {'coupled max':>11} {'LPs':>4} "
+          f"{'outer/inner':>11}")
     for n_bit in args.n_bits:
         paper_times = [r["paper_time"] for r in results[n_bit]]
         coupled_times = [r["coupled_time"] for r in results[n_bit]]
         lps = np.median([r["coupled_lps"] for r in results[n_bit]])
+        gap = np.median([r["inner_gap"] for r in results[n_bit]])
         print(f"{n_bit:>5} | {np.median(paper_times):>10.3f} {np.max(paper_times):>8.3f} | "
-              f"{np.median(coupled_times):>14.3f} {np.max(coupled_times):>11.3f} {lps:>4.0f}")
+              f"{np.median(coupled_times):>14.3f} {np.max(coupled_times):>11.3f} {lps:>4.0f} {gap:>11.2f}")
+    print("(outer/inner: median over runs of the largest ratio, over the parameters, of the coupled outer interval to "
+          "the interval spanned by verified points of the exact feasible set; 1.00 = exact)")
 
 
 if __name__ == "__main__":

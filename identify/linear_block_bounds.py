@@ -391,6 +391,8 @@ def _bounds_over(lp: _LP, p: int, counter: _Counter) -> tuple[NDArray[np.float64
         cost = np.zeros(lp.lower.size)
         cost[k] = 1.0
         lows[k], x_low = solver.minimize(cost, counter)
+        if x_low is None:  # infeasible: no other objective can do better
+            return np.full(p, math.inf), np.full(p, -math.inf), []
         neg, x_high = solver.minimize(-cost, counter)
         highs[k] = -neg
         points.extend([x_low, x_high])
@@ -592,6 +594,11 @@ def _explain(data: _Data, counter: _Counter) -> EmptyLinearSetExplanation:
             marginals = np.abs(result.ineqlin.marginals)
             best_rows = np.flatnonzero(marginals[:m] + marginals[m:] > 1e-9)
     samples = tuple(int(data.times[r]) for r in best_rows)
+    if best_tau <= 0.0:
+        return EmptyLinearSetExplanation(samples, 0.0, (
+            "the equations are consistent one by one (Cerone 1993 bounds) but no single inner-signal sequence "
+            "satisfies them all with shared errors; the inner-signal bounds are probably too tight: check the noise "
+            "bound, the orders and the delay nk, and that the backlash did not change between the experiments."))
     message = (
         f"no linear block with na={data.orders.na}, nk={data.orders.nk}, nb={data.orders.nb} and unit static gain "
         f"reproduces the inner-signal bounds; the equations at samples {list(samples)} conflict and would need an "
