@@ -40,7 +40,6 @@ line puts its path in the URL.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -185,9 +184,12 @@ def load_rig_config(path: str | Path) -> RigConfig:
     if url == SIMULATED_SERIAL_URL and simulation is None:
         raise transport.error("url", f"{SIMULATED_SERIAL_URL} is the simulated device's pty: add a [simulation] table")
     root.finish()
-    if not math.isfinite(rate):
-        raise root.error("sample_rate_hz", "expected a finite rate")
-    return RigConfig(name=name, source=str(path), sample_rate_hz=rate, url=url, scheme=scheme, options=options,
+    config = RigConfig(name=name, source=str(path), sample_rate_hz=rate, url=url, scheme=scheme, options=options,
                      drive=drive, encoder=encoder, limits=CommandLimits(low, high, rate_limit),
                      feedback_timeout_s=feedback_timeout, late_tolerance_s=late_tolerance, simulation=simulation,
                      description=description, raw=dict(root.data))
+    try:  # the transport checks its options (bus load at this rate, EDS files, node-IDs) without I/O
+        transport_class(scheme)(**parse_transport_url(url)[1], **config.transport_options())
+    except ConfigError as err:
+        raise transport.error(err.key, err.problem) from err
+    return config

@@ -5,13 +5,14 @@ after it). Per cycle k the runner waits for ``t_k``, sends setpoint k, and waits
 answers it until ``t_{k+1}``. Each sample is written with :class:`~identify.experiment_record.SampleFlag`
 bits:
 
-LOST       no feedback with sequence number k arrived in its cycle (angle NaN)
-LATE       the cycle started more than ``late_tolerance_s`` after ``t_k``
+LOST       no feedback with sequence number k arrived by the end of cycle k + 1 (angle NaN)
+LATE       the cycle started more than ``late_tolerance_s`` after ``t_k``, or its feedback arrived only
+           in the next cycle
 DUPLICATE  feedback k arrived more than once
 FAULT      the device reported a fault during the sample (the run stops after it)
 
-Rows are written one cycle behind the bus, so a duplicate arriving in the next cycle still marks its
-sample. Safety: the whole command is checked against the software limits before the first setpoint is
+Rows are written one cycle behind the bus, so feedback arriving in the next cycle still fills its
+sample (flagged LATE) and a duplicate arriving then still marks it. Safety: the whole command is checked against the software limits before the first setpoint is
 sent; a feedback watchdog stops the run when nothing arrives for ``feedback_timeout_s``; any error,
 device fault or Ctrl-C ends with a controlled stop (quick stop, then disable) and the log closed,
 complete up to the stop.
@@ -31,10 +32,14 @@ from numpy.typing import ArrayLike, NDArray
 
 from identify.experiment_record import SampleFlag
 from identify.validation import as_signal
+from rig.protocols.cia402 import DriveState, state_from_statusword_or_none
 from rig.protocols.errors import DeviceFault, TransportError
 from rig.transports.base import Setpoint, Transport
 
 __all__ = ["RunSummary", "SampleSink", "run_experiment"]
+
+
+_FAULT_STATES = (DriveState.FAULT, DriveState.FAULT_REACTION_ACTIVE)
 
 
 class SampleSink(Protocol):
@@ -140,8 +145,8 @@ def run_experiment(transport: Transport, command_rad: ArrayLike, sink: SampleSin
     def write_rows(keep: int) -> None:
         while len(rows) > keep:
             row = rows.pop(0)
-            if row.flags & SampleFlag.LOST:
-                counts["lost"] += 1
+            counts["lost"] += bool(row.flags & SampleFlag.LOST)
+            counts["late"] += bool(row.flags & SampleFlag.LATE)
             sink.append(row.time_s, row.command_rad, row.angle_rad, row.counts, row.flags)
 
     def take(sample, k: int) -> bool:
@@ -152,14 +157,18 @@ def run_experiment(transport: Transport, command_rad: ArrayLike, sink: SampleSin
                 if row.seq == sample.seq:
                     row.flags |= SampleFlag.DUPLICATE
             return False
-        if sample.seq != k:
-            counts["stale"] += 1
+        row = next((row for row in rows if row.seq == sample.seq), None)
+        if row is None:
+            counts["stale"] += 1  # its row is written already (LOST) or it answers no setpoint of ours
             return False
         received.add(sample.seq)
-        row = rows[-1]
         row.angle_rad, row.counts = sample.load_angle_rad, sample.encoder_counts
         row.flags &= ~SampleFlag.LOST
-        return True
+        if state_from_statusword_or_none(sample.statusword) in _FAULT_STATES:
+            row.flags |= SampleFlag.FAULT  # the drive did not follow this setpoint
+        if sample.seq != k:
+            row.flags |= SampleFlag.LATE  # arrived in the next cycle: the value is real, its time is not exact
+        return sample.seq == k
 
     switch_interval = sys.getswitchinterval()
     # Receive threads (pyserial readers, python-can notifiers, simulated devices) need the GIL within a
@@ -180,14 +189,13 @@ def run_experiment(transport: Transport, command_rad: ArrayLike, sink: SampleSin
             if now - last_feedback > feedback_timeout_s:
                 raise TransportError(f"{transport.name}: no feedback for {now - last_feedback:.3g} s "
                                      f"(watchdog {feedback_timeout_s:g} s), stopping at sample {k}")
+            sent = transport.send(Setpoint(k, value))
             row = _Row(k, k * period, value)
             rows.append(row)
-            sent = transport.send(Setpoint(k, value))
             sent_count += 1
             row.command_rad = sent.position_rad
             if lateness[k] > tolerance:
                 row.flags |= SampleFlag.LATE
-                counts["late"] += 1
             window_end = max(deadline + period, clock() + 0.5 * period)
             while True:
                 sample = transport.receive(window_end - clock())
@@ -198,7 +206,7 @@ def run_experiment(transport: Transport, command_rad: ArrayLike, sink: SampleSin
                     break
             write_rows(keep=1)
             if progress is not None:
-                progress(k + 1, counts["late"])
+                progress(k + 1, counts["late"] + sum(bool(row.flags & SampleFlag.LATE) for row in rows))
     except DeviceFault:
         if rows:
             rows[-1].flags |= SampleFlag.FAULT

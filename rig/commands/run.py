@@ -79,6 +79,20 @@ def start_simulated_devices(config: Any, gearbox: Any, stack: contextlib.ExitSta
         return f"serial://{device.port}", device
     from rig.protocols.errors import ConfigError
 
+    if config.scheme == "canopen":
+        from rig.transports import parse_transport_url
+        from sim_backend.canopen_nodes import SimulatedCanOpenRig
+
+        _, where = parse_transport_url(config.url)
+        if where["interface"] != "virtual":
+            raise ConfigError(config.source, "transport.url", "a simulated CANopen rig runs on the virtual interface: "
+                                                              "canopen://virtual/CHANNEL")
+        options = config.options
+        rig = stack.enter_context(SimulatedCanOpenRig(
+            gearbox, channel=where["channel"], drive_node_id=options.get("drive_node_id", 1),
+            encoder_node_id=options.get("encoder_node_id", 2), bitrate=options.get("bitrate", 1_000_000),
+            drive_counts_per_revolution=config.drive.counts_per_revolution, **fault_injection))
+        return config.url, rig
     raise ConfigError(config.source, "simulation", f"there is no simulated device for {config.scheme}:// transports")
 
 

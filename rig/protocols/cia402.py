@@ -30,7 +30,7 @@ from rig.protocols.errors import DeviceFault, TransportError
 __all__ = [
     "CONTROLWORD_DISABLE_VOLTAGE", "CONTROLWORD_ENABLE_OPERATION", "CONTROLWORD_FAULT_RESET",
     "CONTROLWORD_QUICK_STOP", "CONTROLWORD_SHUTDOWN", "CONTROLWORD_SWITCH_ON", "DriveScaling", "DriveState",
-    "bring_to_operation_enabled", "next_controlword", "next_state", "state_from_statusword", "statusword_for",
+    "bring_to_operation_enabled", "next_controlword", "next_state", "state_from_statusword", "state_from_statusword_or_none", "statusword_for",
 ]
 
 CONTROLWORD_SHUTDOWN = 0x0006
@@ -65,6 +65,15 @@ def state_from_statusword(statusword: int) -> DriveState:
         if statusword & mask == value:
             return state
     raise TransportError(f"statusword 0x{statusword:04X} encodes no CiA 402 state")
+
+
+def state_from_statusword_or_none(statusword: int) -> DriveState | None:
+    """Like :func:`state_from_statusword`, but None for a pattern that is no state."""
+    for state in DriveState:
+        mask, value = state.value
+        if statusword & mask == value:
+            return state
+    return None
 
 
 def statusword_for(state: DriveState, *, voltage: bool = True, remote: bool = True,

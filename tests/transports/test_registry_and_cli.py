@@ -51,11 +51,22 @@ def test_an_absent_port_is_a_transport_error_and_leaves_nothing_open(no_leaks):
     assert not transport.is_open
 
 
-@pytest.mark.parametrize("name", ["sim_serial", "rig_serial"])
+@pytest.mark.parametrize("name", ["sim_serial", "rig_serial", "sim_canopen"])
 def test_shipped_configs_validate(name):
     config = load_rig_config(CONFIGS / f"{name}.toml")
-    assert config.scheme == "serial" and config.sample_rate_hz == 1000.0
+    assert config.scheme == name.split("_")[1] and config.sample_rate_hz == 1000.0
     assert (config.simulation is not None) == name.startswith("sim")
+
+
+def test_the_real_canopen_template_validates_once_it_names_real_eds_files(tmp_path):
+    text = (CONFIGS / "rig_canopen.toml").read_text()
+    with pytest.raises(ConfigError, match=r"rig_canopen.toml: \[transport.drive_eds\] no such EDS file /path/to/your_drive"):
+        load_rig_config(CONFIGS / "rig_canopen.toml")
+    text = text.replace("/path/to/your_drive.eds", str(CONFIGS / "eds" / "sim_drive_cia402.eds"))
+    text = text.replace("/path/to/your_encoder.eds", str(CONFIGS / "eds" / "sim_encoder_cia406.eds"))
+    (tmp_path / "rig.toml").write_text(text)
+    config = load_rig_config(tmp_path / "rig.toml")
+    assert config.url == "canopen://socketcan/can0" and config.options["bitrate"] == 1_000_000
 
 
 def test_config_errors_name_the_file_and_the_key(tmp_path):
@@ -69,8 +80,9 @@ def test_config_errors_name_the_file_and_the_key(tmp_path):
         load_rig_config(path)
 
 
-def test_rig_run_writes_a_log_equal_to_the_offline_simulation(tmp_path, capsys, no_leaks):
-    config_path = write_test_config("serial", tmp_path)
+@pytest.mark.parametrize("kind", ["serial", "canopen"])
+def test_rig_run_writes_a_log_equal_to_the_offline_simulation(kind, tmp_path, capsys, no_leaks):
+    config_path = write_test_config(kind, tmp_path)
     out = tmp_path / "run.csv"
     code = main(["run", str(config_path), "--experiment", str(CONFIGS / "experiments" / "prbs.toml"),
                  "--out", str(out), "--duration", "0.3", "--json"])
@@ -78,7 +90,7 @@ def test_rig_run_writes_a_log_equal_to_the_offline_simulation(tmp_path, capsys, 
     result = json.loads(capsys.readouterr().out)
     assert result["log"] == str(out) and result["samples"] == 60 and result["rate_hz"] > 0
     record = read_log(out)
-    assert record.num_samples == 60 and record.metadata.transport == "serial://pty"
+    assert record.num_samples == 60 and record.metadata.transport.startswith(f"{kind}://")
     assert record.metadata.sample_period_s == 0.005 and record.metadata.seed == 4
     lost = (record.flags & SampleFlag.LOST) != 0
     assert result["lost"] == lost.sum() and result["late"] == ((record.flags & SampleFlag.LATE) != 0).sum()

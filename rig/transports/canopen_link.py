@@ -1,0 +1,310 @@
+"""CANopen transport: a CiA 402 drive in cyclic synchronous position mode and a CiA 406 load encoder.
+
+Start-up (all by SDO, before any PDO flows):
+
+1. NMT pre-operational for both nodes; producer heartbeat (0x1017) set on both, communication cycle
+   period (0x1006) on the drive; mode of operation 0x6060 = 8 (cyclic synchronous position).
+2. PDO mapping: drive RPDO1 = target position 0x607A; drive TPDO1 = statusword 0x6041 + position actual
+   value 0x6064; encoder TPDO1 = position value 0x6004; TPDOs synchronous (transmission type 1: every SYNC).
+3. Encoder resolution read from 0x6501 (single-turn) and 0x6002 (total range) and checked against the
+   config (whose ``signed`` says how to read 0x6004, since vendors differ).
+4. NMT operational; the drive walked to OPERATION ENABLED through the CiA 402 state machine (fault reset
+   on a rising edge; the drive's target starts at its actual position, so enabling does not jump).
+
+Each sample: RPDO1 with the target, then SYNC, both from the runner's own scheduler (never triggered by
+TPDO arrival). The TPDOs answering that SYNC make one :class:`FeedbackSample`. TPDOs carry no SYNC
+counter, so each TPDO is attributed by its bus timestamp to the last SYNC sent before it: a TPDO that
+reaches Python late (a loaded host) is still filed under the right sample, provided the device put it on
+the bus before the next SYNC. A second answer to one SYNC is reported again and the runner flags the
+sample DUPLICATE (unusable).
+EMCY from either node, a drive FAULT in the statusword, or a heartbeat older than ``heartbeat_timeout_s``
+stop the run; on a fault the drive's error code 0x603F is read by SDO for the message.
+"""
+
+from __future__ import annotations
+
+import collections
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+from rig.protocols import cia402
+from rig.protocols.can_bus_load import bus_load
+from rig.protocols.errors import ConfigError, DeviceFault, TransportError
+from rig.transports.base import FeedbackSample, Setpoint, Transport
+
+__all__ = ["CanOpenTransport", "DEFAULT_DRIVE_EDS", "DEFAULT_ENCODER_EDS"]
+
+_CONFIGS = Path(__file__).resolve().parents[2] / "configs" / "eds"
+DEFAULT_DRIVE_EDS = _CONFIGS / "sim_drive_cia402.eds"
+DEFAULT_ENCODER_EDS = _CONFIGS / "sim_encoder_cia406.eds"
+CYCLIC_SYNCHRONOUS_POSITION = 8
+# data bytes of the frames of one cycle: SYNC, drive RPDO1 (0x607A), drive TPDO1 (0x6041 + 0x6064),
+# encoder TPDO1 (0x6004)
+CYCLE_FRAME_BYTES = (0, 4, 6, 4)
+
+
+class CanOpenTransport(Transport):
+    """The rig over CANopen.
+
+    Parameters
+    ----------
+    interface, channel
+        python-can interface name and channel (from ``canopen://INTERFACE/CHANNEL``).
+    bitrate
+        Bus bit rate; the cycle's frames must fit at the sample rate or the constructor raises
+        :class:`ConfigError` (worst-case bit stuffing, :mod:`rig.protocols.can_bus_load`).
+    drive_node_id, encoder_node_id
+        Node-IDs.
+    drive_eds, encoder_eds
+        Object dictionaries (the vendor's EDS for a real device; the simulated devices' by default).
+    heartbeat_ms
+        Producer heartbeat time written to 0x1017 of both nodes.
+    heartbeat_timeout_s
+        A node whose last heartbeat is older than this stops the run.
+    sdo_timeout_s
+        SDO response timeout.
+    skip_homing
+        Accepted for configs written for drives that need homing: this transport never homes (CSP
+        streams absolute targets from the actual position), so only ``true`` is allowed.
+    """
+
+    def __init__(self, interface: str, channel: str, *, bitrate: int = 1_000_000, drive_node_id: int = 1,
+                 encoder_node_id: int = 2, drive_eds: str = str(DEFAULT_DRIVE_EDS),
+                 encoder_eds: str = str(DEFAULT_ENCODER_EDS), heartbeat_ms: int = 100,
+                 heartbeat_timeout_s: float = 0.5, sdo_timeout_s: float = 0.5, skip_homing: bool = True,
+                 **kwargs: Any) -> None:
+        super().__init__(**kwargs)
+        self.interface, self.channel, self.bitrate = interface, channel, int(bitrate)
+        self.drive_node_id, self.encoder_node_id = int(drive_node_id), int(encoder_node_id)
+        self.drive_eds, self.encoder_eds = str(drive_eds), str(encoder_eds)
+        self.heartbeat_ms = int(heartbeat_ms)
+        self.heartbeat_timeout_s = float(heartbeat_timeout_s)
+        self.sdo_timeout_s = float(sdo_timeout_s)
+        if not skip_homing:
+            raise ConfigError("<transport>", "skip_homing", "homing is not supported; home the drive with its own "
+                                                            "tools first and set skip_homing = true")
+        if self.drive_node_id == self.encoder_node_id or not all(
+                1 <= node <= 127 for node in (self.drive_node_id, self.encoder_node_id)):
+            raise ConfigError("<transport>", "drive_node_id", "node-IDs must differ and lie in 1..127")
+        for key, path in (("drive_eds", self.drive_eds), ("encoder_eds", self.encoder_eds)):
+            if not Path(path).is_file():
+                raise ConfigError("<transport>", key, f"no such EDS file {path}")
+        self.load = bus_load(CYCLE_FRAME_BYTES, 1.0 / self.sample_period_s, self.bitrate)
+        if self.load.load > 1.0:
+            raise ConfigError("<transport>", "bitrate", (
+                f"{self.bitrate} bit/s cannot carry {1 / self.sample_period_s:g} Hz: one cycle takes "
+                f"{self.load.bits_per_cycle} bit ({100 * self.load.load:.0f}% load); the limit is "
+                f"{self.load.max_rate_hz:.0f} Hz"))
+        self.network = None
+        self._drive = None
+        self._encoder = None
+        self._rpdo = None
+        self._syncs: collections.deque[tuple[float, int]] = collections.deque(maxlen=256)
+        self._lock = threading.Lock()
+        self._parts: dict[int, dict[str, Any]] = {}
+        self._ready: collections.deque[FeedbackSample] = collections.deque()
+        self._arrived = threading.Condition(self._lock)
+        self._emcy: tuple[str, int] | None = None
+
+    # -- seam ----------------------------------------------------------------------------------------------
+
+    def _open(self) -> float:
+        try:
+            import canopen
+        except ImportError as err:  # pragma: no cover - canopen is a dependency
+            raise TransportError("the canopen transport needs the canopen package: pip install canopen") from err
+        try:
+            self.network = canopen.Network()
+            self.network.connect(interface=self.interface, channel=self.channel, bitrate=self.bitrate)
+            self._drive = self.network.add_node(self.drive_node_id, self.drive_eds)
+            self._encoder = self.network.add_node(self.encoder_node_id, self.encoder_eds)
+            for node in (self._drive, self._encoder):
+                node.sdo.RESPONSE_TIMEOUT = self.sdo_timeout_s
+                node.nmt.state = "PRE-OPERATIONAL"
+            return self._configure(canopen)
+        except (canopen.SdoAbortedError,) as err:
+            raise DeviceFault(self.name, err.code, f"refused a start-up SDO: {err}") from err
+        except (canopen.SdoCommunicationError, canopen.nmt.NmtError) as err:
+            raise TransportError(f"{self.name}: no answer during start-up: {err}") from err
+        except OSError as err:
+            raise TransportError(f"{self.name}: cannot open CAN {self.interface}/{self.channel}: {err}") from err
+        except Exception as err:
+            import can
+
+            if isinstance(err, can.CanError):
+                raise TransportError(f"{self.name}: CAN {self.interface}/{self.channel} failed: {err}") from err
+            raise
+
+    def _configure(self, canopen: Any) -> float:
+        drive, encoder = self._drive, self._encoder
+        for node in (drive, encoder):
+            node.sdo[0x1017].raw = self.heartbeat_ms
+        drive.sdo[0x1006].raw = int(round(self.sample_period_s * 1e6))
+        drive.sdo[0x6060].raw = CYCLIC_SYNCHRONOUS_POSITION
+        self._map_pdo(drive.rpdo, 1, [0x607A], 0x200 + self.drive_node_id)
+        self._map_pdo(drive.tpdo, 1, [0x6041, 0x6064], 0x180 + self.drive_node_id)
+        self._map_pdo(encoder.tpdo, 1, [0x6004], 0x180 + self.encoder_node_id)
+        self._check_encoder_resolution(encoder)
+        drive.tpdo[1].add_callback(self._on_drive_tpdo)
+        encoder.tpdo[1].add_callback(self._on_encoder_tpdo)
+        for node in (drive, encoder):
+            node.emcy.add_callback(lambda entry, node_id=node.id: self._on_emcy(node_id, entry))
+            node.nmt.state = "OPERATIONAL"
+        for node in (drive, encoder):
+            node.nmt.wait_for_heartbeat(timeout=max(3 * self.heartbeat_ms / 1000, 0.5))
+        cia402.bring_to_operation_enabled(
+            lambda word: drive.sdo[0x6040].__setattr__("raw", word), lambda: drive.sdo[0x6041].raw,
+            f"{self.name} drive {self.drive_node_id}", timeout_s=10 * self.sdo_timeout_s,
+            read_fault_code=lambda: drive.sdo[0x603F].raw)
+        actual = drive.sdo[0x6064].raw
+        self._rpdo = drive.rpdo[1]
+        self._rpdo["Target position"].raw = actual
+        return self.drive.rad_from_counts(actual)
+
+    @staticmethod
+    def _map_pdo(pdos: Any, number: int, indices: list[int], cob_id: int) -> None:
+        pdos.read()
+        pdo = pdos[number]
+        pdo.clear()
+        for index in indices:
+            pdo.add_variable(index)
+        pdo.cob_id = cob_id
+        pdo.trans_type = 1
+        pdo.enabled = True
+        pdo.save()
+
+    def _check_encoder_resolution(self, encoder: Any) -> None:
+        per_revolution = encoder.sdo[0x6501].raw
+        total = encoder.sdo[0x6002].raw
+        expected = (self.encoder.counts_per_revolution, self.encoder.modulus)
+        if (per_revolution, total) != expected:
+            raise DeviceFault(f"{self.name} encoder {self.encoder_node_id}", None, (
+                f"reports {per_revolution} counts per revolution and a range of {total} counts (0x6501, 0x6002), "
+                f"but the config says {expected[0]} and {expected[1]} ([encoder] bits, multi_turn_bits)"))
+
+    def _send(self, setpoint: Setpoint) -> None:
+        self._raise_device_fault()
+        self._check_heartbeats()
+        try:
+            self._rpdo["Target position"].raw = self.drive.counts_from_rad(setpoint.position_rad)
+            self._rpdo.transmit()
+            with self._lock:
+                self._syncs.append((time.time(), setpoint.seq))  # bus timestamps are time.time() based
+            self.network.sync.transmit()
+        except Exception as err:
+            raise TransportError(f"{self.name}: sending setpoint {setpoint.seq} failed: {err}") from err
+
+    def _recv_internal(self, timeout_s: float) -> FeedbackSample | None:
+        with self._arrived:
+            if not self._ready and self._emcy is None:
+                self._arrived.wait(timeout_s)
+            if self._emcy is None and self._ready:
+                return self._ready.popleft()
+        self._raise_device_fault()
+        self._check_heartbeats()
+        return None
+
+    def _stop(self) -> None:
+        drive = self._drive
+        if drive is None:
+            return
+        for controlword in (cia402.CONTROLWORD_QUICK_STOP, cia402.CONTROLWORD_DISABLE_VOLTAGE):
+            try:
+                drive.sdo[0x6040].raw = controlword
+            except Exception:  # noqa: BLE001 - the link or drive is gone: nothing more to do from here
+                break
+        try:
+            for node in (self._drive, self._encoder):
+                node.nmt.state = "PRE-OPERATIONAL"  # no more PDOs
+        except Exception:  # noqa: BLE001
+            pass
+
+    def _close(self) -> None:
+        network, self.network = self.network, None
+        if network is not None:
+            try:
+                network.disconnect()
+            except Exception:  # noqa: BLE001 - already down
+                pass
+
+    # -- receive side (python-can notifier thread) -----------------------------------------------------------
+
+    def _on_drive_tpdo(self, pdo: Any) -> None:
+        statusword = pdo[0].raw
+        actual = pdo[1].raw
+        self._file("drive", (statusword, actual), pdo.timestamp)
+        if cia402.state_from_statusword_or_none(statusword) in (cia402.DriveState.FAULT,
+                                                                 cia402.DriveState.FAULT_REACTION_ACTIVE):
+            with self._arrived:
+                if self._emcy is None:
+                    self._emcy = ("drive", 0)
+                self._arrived.notify_all()
+
+    def _on_encoder_tpdo(self, pdo: Any) -> None:
+        raw = pdo[0].raw
+        counts = raw - (1 << 32) if self.encoder.signed and raw >= 1 << 31 else raw
+        self._file("encoder", counts, pdo.timestamp)
+
+    def _sync_before(self, timestamp: float) -> int | None:
+        """The sample number of the last SYNC sent before bus time ``timestamp``."""
+        for sent_at, seq in reversed(self._syncs):
+            if sent_at <= timestamp:
+                return seq
+        return None
+
+    def _file(self, part: str, value: Any, timestamp: float) -> None:
+        received = time.perf_counter()
+        with self._arrived:
+            seq = self._sync_before(timestamp)
+            if seq is None:
+                return  # an answer to no SYNC of ours (e.g. left over from start-up)
+            parts = self._parts.setdefault(seq, {})
+            if part in parts and "drive" in parts and "encoder" in parts:
+                parts.clear()  # a second answer to the same SYNC: report the sample again, as a duplicate
+            parts[part] = value
+            if "drive" in parts and "encoder" in parts:
+                statusword, actual = parts["drive"]
+                self._ready.append(FeedbackSample(
+                    seq=seq, encoder_counts=parts["encoder"], load_angle_rad=self._decode_encoder(parts["encoder"]),
+                    drive_position_rad=self.drive.rad_from_counts(actual), statusword=statusword,
+                    host_time_s=received))
+                self._arrived.notify_all()
+            if len(self._parts) > 512:
+                for old in sorted(self._parts)[:256]:
+                    del self._parts[old]
+
+    def _on_emcy(self, node_id: int, entry: Any) -> None:
+        if entry.code & 0xFF00 == 0:
+            return  # error reset / no error
+        with self._arrived:
+            if self._emcy is None:
+                self._emcy = (f"node {node_id}", entry.code)
+            self._arrived.notify_all()
+
+    def _raise_device_fault(self) -> None:
+        with self._lock:
+            emcy = self._emcy
+        if emcy is None or self._fault is not None:
+            return
+        source, emcy_code = emcy
+        try:
+            error_code = self._drive.sdo[0x603F].raw
+        except Exception:  # noqa: BLE001 - the fault may have taken the SDO server down too
+            error_code = None
+        code = error_code if error_code else emcy_code
+        self._report_fault(DeviceFault(f"{self.name} drive {self.drive_node_id}", code,
+                                       f"fault (EMCY 0x{emcy_code:04X} from {source}; 0x603F = "
+                                       f"{'unreadable' if error_code is None else f'0x{error_code:04X}'})"))
+        self.raise_fault()
+
+    def _check_heartbeats(self) -> None:
+        now = time.time()
+        for role, node in (("drive", self._drive), ("encoder", self._encoder)):
+            last = node.nmt.timestamp
+            if last is not None and now - last > self.heartbeat_timeout_s:
+                fault = DeviceFault(f"{self.name} {role} {node.id}", None,
+                                    f"heartbeat lost (none for {now - last:.3g} s, timeout {self.heartbeat_timeout_s:g} s)")
+                self._report_fault(fault)
+                self.raise_fault()
