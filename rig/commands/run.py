@@ -37,6 +37,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--out", metavar="LOG", required=True, help="log file to write (CSV, rig-log v1)")
     parser.add_argument("--duration", type=float, default=None, metavar="S",
                         help="run for S seconds (the excitation is cut, or repeated cyclically to fill S)")
+    parser.add_argument("--can-trace", metavar="FILE.blf", default=None,
+                        help="CAN transports: write every frame to FILE (.blf, .asc, .log, .csv or .trc)")
     parser.add_argument("--json", action="store_true",
                         help='print {"log", "samples", "lost", "late", "rate_hz"} as JSON')
     parser.set_defaults(handler=run)
@@ -93,6 +95,18 @@ def start_simulated_devices(config: Any, gearbox: Any, stack: contextlib.ExitSta
             encoder_node_id=options.get("encoder_node_id", 2), bitrate=options.get("bitrate", 1_000_000),
             drive_counts_per_revolution=config.drive.counts_per_revolution, **fault_injection))
         return config.url, rig
+    if config.scheme == "can":
+        from rig.transports import parse_transport_url
+        from sim_backend.raw_can_device import SimulatedRawCanDevice
+
+        _, where = parse_transport_url(config.url)
+        if where["interface"] != "virtual":
+            raise ConfigError(config.source, "transport.url", "a simulated raw-CAN rig runs on the virtual interface: "
+                                                              "can://virtual/CHANNEL")
+        device = stack.enter_context(SimulatedRawCanDevice(
+            gearbox, channel=where["channel"], drive_counts_per_revolution=config.drive.counts_per_revolution,
+            bitrate=config.options.get("bitrate", 1_000_000), **fault_injection))
+        return config.url, device
     raise ConfigError(config.source, "simulation", f"there is no simulated device for {config.scheme}:// transports")
 
 
@@ -144,7 +158,12 @@ def run(args: argparse.Namespace) -> int:
         url = config.url
         if config.simulation is not None:
             url, gearbox = stack.enter_context(simulated_rig(config, command))
-        transport = open_transport(url, **config.transport_options())
+        options = config.transport_options()
+        if args.can_trace is not None:
+            if config.scheme not in ("canopen", "can"):
+                raise ValueError(f"--can-trace: the {config.scheme} transport has no CAN frames to trace")
+            options["trace_path"] = args.can_trace
+        transport = open_transport(url, **options)
         log = LogWriter(args.out, _metadata(config, excitation, gearbox), flush_every=10, flush_interval_s=0.05)
         progress = None
         if not args.json and sys.stderr.isatty():

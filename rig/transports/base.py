@@ -27,13 +27,29 @@ import threading
 import time
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
+from pathlib import Path
 from types import TracebackType
 
 from rig.protocols.cia402 import DriveScaling
 from rig.protocols.encoder_counts import EncoderResolution
-from rig.protocols.errors import RigError, TransportError
+from rig.protocols.errors import ConfigError, RigError, TransportError
 
-__all__ = ["CommandLimits", "CommandRefused", "DriveScaling", "FeedbackSample", "Setpoint", "Transport"]
+__all__ = ["CommandLimits", "CommandRefused", "DriveScaling", "FeedbackSample", "Setpoint", "Transport",
+           "check_trace_path"]
+
+TRACE_SUFFIXES = (".blf", ".asc", ".log", ".csv", ".trc")
+
+
+def check_trace_path(path: str | None) -> str | None:
+    """Validate a raw-frame trace file name for python-can's writers (by suffix). SqliteWriter (``.db``)
+    is refused: it buffers in a thread and drops frames when the disk cannot keep up."""
+    if path is None:
+        return None
+    suffix = Path(path).suffix.lower()
+    if suffix not in TRACE_SUFFIXES:
+        raise ConfigError("<transport>", "trace_path", f"{path}: expected a trace file ending in "
+                                                       f"{', '.join(TRACE_SUFFIXES)} (not .db: SqliteWriter drops frames)")
+    return str(path)
 
 
 class CommandRefused(RigError, ValueError):

@@ -32,7 +32,7 @@ from typing import Any
 from rig.protocols import cia402
 from rig.protocols.can_bus_load import bus_load
 from rig.protocols.errors import ConfigError, DeviceFault, TransportError
-from rig.transports.base import FeedbackSample, Setpoint, Transport
+from rig.transports.base import FeedbackSample, Setpoint, Transport, check_trace_path
 
 __all__ = ["CanOpenTransport", "DEFAULT_DRIVE_EDS", "DEFAULT_ENCODER_EDS"]
 
@@ -68,13 +68,16 @@ class CanOpenTransport(Transport):
     skip_homing
         Accepted for configs written for drives that need homing: this transport never homes (CSP
         streams absolute targets from the actual position), so only ``true`` is allowed.
+    trace_path
+        Write every frame on the bus (sent and received) to this file with python-can's writers
+        (``.blf``, ``.asc``, ``.log``, ``.csv``, ``.trc``; not ``.db``: SqliteWriter drops frames under load).
     """
 
     def __init__(self, interface: str, channel: str, *, bitrate: int = 1_000_000, drive_node_id: int = 1,
                  encoder_node_id: int = 2, drive_eds: str = str(DEFAULT_DRIVE_EDS),
                  encoder_eds: str = str(DEFAULT_ENCODER_EDS), heartbeat_ms: int = 100,
                  heartbeat_timeout_s: float = 0.5, sdo_timeout_s: float = 0.5, skip_homing: bool = True,
-                 **kwargs: Any) -> None:
+                 trace_path: str | None = None, **kwargs: Any) -> None:
         super().__init__(**kwargs)
         self.interface, self.channel, self.bitrate = interface, channel, int(bitrate)
         self.drive_node_id, self.encoder_node_id = int(drive_node_id), int(encoder_node_id)
@@ -91,6 +94,8 @@ class CanOpenTransport(Transport):
         for key, path in (("drive_eds", self.drive_eds), ("encoder_eds", self.encoder_eds)):
             if not Path(path).is_file():
                 raise ConfigError("<transport>", key, f"no such EDS file {path}")
+        self.trace_path = check_trace_path(trace_path)
+        self._trace = None
         self.load = bus_load(CYCLE_FRAME_BYTES, 1.0 / self.sample_period_s, self.bitrate)
         if self.load.load > 1.0:
             raise ConfigError("<transport>", "bitrate", (
@@ -117,7 +122,13 @@ class CanOpenTransport(Transport):
             raise TransportError("the canopen transport needs the canopen package: pip install canopen") from err
         try:
             self.network = canopen.Network()
-            self.network.connect(interface=self.interface, channel=self.channel, bitrate=self.bitrate)
+            self.network.connect(interface=self.interface, channel=self.channel, bitrate=self.bitrate,
+                                 receive_own_messages=self.trace_path is not None)
+            if self.trace_path is not None:
+                import can
+
+                self._trace = can.Logger(self.trace_path)
+                self.network.notifier.add_listener(self._trace)
             self._drive = self.network.add_node(self.drive_node_id, self.drive_eds)
             self._encoder = self.network.add_node(self.encoder_node_id, self.encoder_eds)
             for node in (self._drive, self._encoder):
@@ -228,6 +239,7 @@ class CanOpenTransport(Transport):
                 network.disconnect()
             except Exception:  # noqa: BLE001 - already down
                 pass
+        self._trace = None  # the network's notifier stopped (closed) it with its other listeners
 
     # -- receive side (python-can notifier thread) -----------------------------------------------------------
 

@@ -40,8 +40,9 @@ def write_test_config(kind: str, directory: Path) -> Path:
             line = "late_tolerance_s = 0.0025"
         elif line.startswith("feedback_timeout_s"):
             line = "feedback_timeout_s = 0.5"
-        elif line.startswith("url = \"canopen://virtual/"):
-            line = f'url = "canopen://virtual/test_{directory.name}"'  # one bus per test
+        elif line.startswith(("url = \"canopen://virtual/", "url = \"can://virtual/")):
+            scheme = line.split('"')[1].split(":")[0]
+            line = f'url = "{scheme}://virtual/test_{directory.name}"'  # one bus per test
         lines.append(line)
     path = directory / f"sim_{kind}_test.toml"
     path.write_text("\n".join(lines) + "\n")

@@ -14,7 +14,7 @@ from sim_backend.plant_config import load_plant_config
 
 from sim_rigs import ListSink, excitation, no_leaks, simulated  # noqa: F401  (no_leaks is a fixture)
 
-TRANSPORTS = ["serial", "canopen"]
+TRANSPORTS = ["serial", "canopen", "can"]
 NUM_SAMPLES = 120
 
 

@@ -51,7 +51,7 @@ def test_an_absent_port_is_a_transport_error_and_leaves_nothing_open(no_leaks):
     assert not transport.is_open
 
 
-@pytest.mark.parametrize("name", ["sim_serial", "rig_serial", "sim_canopen"])
+@pytest.mark.parametrize("name", ["sim_serial", "rig_serial", "sim_canopen", "sim_can"])
 def test_shipped_configs_validate(name):
     config = load_rig_config(CONFIGS / f"{name}.toml")
     assert config.scheme == name.split("_")[1] and config.sample_rate_hz == 1000.0
@@ -80,7 +80,7 @@ def test_config_errors_name_the_file_and_the_key(tmp_path):
         load_rig_config(path)
 
 
-@pytest.mark.parametrize("kind", ["serial", "canopen"])
+@pytest.mark.parametrize("kind", ["serial", "canopen", "can"])
 def test_rig_run_writes_a_log_equal_to_the_offline_simulation(kind, tmp_path, capsys, no_leaks):
     config_path = write_test_config(kind, tmp_path)
     out = tmp_path / "run.csv"

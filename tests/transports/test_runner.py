@@ -17,7 +17,7 @@ def _run(transport, config, command, sink, **kwargs):
                           late_tolerance_s=config.late_tolerance_s, **kwargs)
 
 
-TRANSPORTS = ["serial", "canopen"]
+TRANSPORTS = ["serial", "canopen", "can"]
 
 
 @pytest.mark.parametrize("kind", TRANSPORTS)
