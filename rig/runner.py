@@ -1,18 +1,18 @@
 """The experiment runner: stream an excitation at a fixed rate and account for every sample.
 
 Scheduling uses absolute deadlines ``t_k = t_0 + k T`` (no drift: a late cycle does not shift the ones
-after it). Per cycle k the runner waits for ``t_k``, sends setpoint k, and waits for the feedback that
-answers it until ``t_{k+1}``. Each sample is written with :class:`~identify.experiment_record.SampleFlag`
-bits:
+after it). Per cycle k the runner waits for ``t_k``, sends setpoint k, and files the feedback that
+arrives until sample k is answered or ``t_{k+1}`` comes; behind schedule it does not wait, so the loop
+catches up. Each sample is written with :class:`~identify.experiment_record.SampleFlag` bits:
 
-LOST       no feedback with sequence number k arrived by the end of cycle k + 1 (angle NaN)
-LATE       the cycle started more than ``late_tolerance_s`` after ``t_k``, or its feedback arrived only
-           in the next cycle
+LOST       no feedback with sequence number k arrived within PENDING_CYCLES cycles (angle NaN)
+LATE       the cycle started more than ``late_tolerance_s`` after ``t_k``, or its feedback arrived after
+           ``t_{k+1}``
 DUPLICATE  feedback k arrived more than once
 FAULT      the device reported a fault during the sample (the run stops after it)
 
-Rows are written one cycle behind the bus, so feedback arriving in the next cycle still fills its
-sample (flagged LATE) and a duplicate arriving then still marks it. Safety: the whole command is checked against the software limits before the first setpoint is
+Rows are written PENDING_CYCLES cycles behind the bus, so late feedback still fills its sample
+(flagged LATE) and a duplicate still marks it. Safety: the whole command is checked against the software limits before the first setpoint is
 sent; a feedback watchdog stops the run when nothing arrives for ``feedback_timeout_s``; any error,
 device fault or Ctrl-C ends with a controlled stop (quick stop, then disable) and the log closed,
 complete up to the stop.
@@ -40,6 +40,8 @@ __all__ = ["RunSummary", "SampleSink", "run_experiment"]
 
 
 _FAULT_STATES = (DriveState.FAULT, DriveState.FAULT_REACTION_ACTIVE)
+PENDING_CYCLES = 4
+"""Feedback is still filed under its sample this many cycles after the sample was sent."""
 
 
 class SampleSink(Protocol):
@@ -141,6 +143,7 @@ def run_experiment(transport: Transport, command_rad: ArrayLike, sink: SampleSin
     received: set[int] = set()
     cpu_start, wall_start = time.process_time(), clock()
     sent_count = 0
+    last_feedback = math.inf
 
     def write_rows(keep: int) -> None:
         while len(rows) > keep:
@@ -149,31 +152,33 @@ def run_experiment(transport: Transport, command_rad: ArrayLike, sink: SampleSin
             counts["late"] += bool(row.flags & SampleFlag.LATE)
             sink.append(row.time_s, row.command_rad, row.angle_rad, row.counts, row.flags)
 
-    def take(sample, k: int) -> bool:
-        """File a feedback sample; True if it answers cycle k."""
+    def take(sample) -> None:
+        """File a feedback sample under its sample number."""
+        nonlocal last_feedback
         if sample.seq in received:
             counts["duplicate"] += 1
             for row in rows:
                 if row.seq == sample.seq:
                     row.flags |= SampleFlag.DUPLICATE
-            return False
+            return
         row = next((row for row in rows if row.seq == sample.seq), None)
         if row is None:
-            counts["stale"] += 1  # its row is written already (LOST) or it answers no setpoint of ours
-            return False
+            counts["stale"] += 1  # its row is final already (LOST) or it answers no setpoint of ours
+            return
         received.add(sample.seq)
+        last_feedback = clock()
         row.angle_rad, row.counts = sample.load_angle_rad, sample.encoder_counts
         row.flags &= ~SampleFlag.LOST
         if state_from_statusword_or_none(sample.statusword) in _FAULT_STATES:
             row.flags |= SampleFlag.FAULT  # the drive did not follow this setpoint
-        if sample.seq != k:
-            row.flags |= SampleFlag.LATE  # arrived in the next cycle: the value is real, its time is not exact
-        return sample.seq == k
+        if last_feedback > start + (sample.seq + 1) * period:
+            row.flags |= SampleFlag.LATE  # arrived after the next deadline: the value is real, its time is not
 
     switch_interval = sys.getswitchinterval()
     # Receive threads (pyserial readers, python-can notifiers, simulated devices) need the GIL within a
     # fraction of a period, not after the default 5 ms.
-    sys.setswitchinterval(min(switch_interval, period / 20))
+    sys.setswitchinterval(min(switch_interval, period / 4))
+    start = math.inf
     try:
         transport.open()
         check_command(transport, command)
@@ -190,23 +195,28 @@ def run_experiment(transport: Transport, command_rad: ArrayLike, sink: SampleSin
                 raise TransportError(f"{transport.name}: no feedback for {now - last_feedback:.3g} s "
                                      f"(watchdog {feedback_timeout_s:g} s), stopping at sample {k}")
             sent = transport.send(Setpoint(k, value))
-            row = _Row(k, k * period, value)
+            row = _Row(k, k * period, sent.position_rad)
             rows.append(row)
             sent_count += 1
-            row.command_rad = sent.position_rad
             if lateness[k] > tolerance:
                 row.flags |= SampleFlag.LATE
-            window_end = max(deadline + period, clock() + 0.5 * period)
-            while True:
-                sample = transport.receive(window_end - clock())
+            # Take what arrives until sample k is answered or the next deadline comes; when behind
+            # schedule, only drain what is there, so that the loop catches up (answers of the last
+            # PENDING_CYCLES samples are still filed when they come later).
+            next_deadline = deadline + period
+            while k not in received:
+                sample = transport.receive(max(next_deadline - clock(), 0.0))
                 if sample is None:
                     break
-                if take(sample, k):
-                    last_feedback = clock()
-                    break
-            write_rows(keep=1)
+                take(sample)
+            write_rows(keep=PENDING_CYCLES)
             if progress is not None:
                 progress(k + 1, counts["late"] + sum(bool(row.flags & SampleFlag.LATE) for row in rows))
+        grace_end = clock() + PENDING_CYCLES * period
+        while rows and any(row.seq not in received for row in rows) and clock() < grace_end:
+            sample = transport.receive(max(grace_end - clock(), 0.0))
+            if sample is not None:
+                take(sample)
     except DeviceFault:
         if rows:
             rows[-1].flags |= SampleFlag.FAULT
