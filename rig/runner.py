@@ -3,7 +3,8 @@
 Scheduling uses absolute deadlines ``t_k = t_0 + k T`` (no drift: a late cycle does not shift the ones
 after it). Per cycle k the runner waits for ``t_k``, sends setpoint k, and files the feedback that
 arrives until sample k is answered or ``t_{k+1}`` comes; behind schedule it does not wait, so the loop
-catches up. Each sample is written with :class:`~identify.experiment_record.SampleFlag` bits:
+catches up, sending setpoints no closer than half a period (:data:`CATCH_UP_SPACING`). Each sample is
+written with :class:`~identify.experiment_record.SampleFlag` bits:
 
 LOST       no feedback with sequence number k arrived within PENDING_CYCLES cycles (angle NaN)
 LATE       the cycle started more than ``late_tolerance_s`` after ``t_k``, or its feedback arrived after
@@ -42,6 +43,8 @@ __all__ = ["RunSummary", "SampleSink", "run_experiment"]
 _FAULT_STATES = (DriveState.FAULT, DriveState.FAULT_REACTION_ACTIVE)
 PENDING_CYCLES = 4
 """Feedback is still filed under its sample this many cycles after the sample was sent."""
+CATCH_UP_SPACING = 0.5
+"""Behind schedule, consecutive setpoints are still sent at least this many periods apart."""
 
 
 class SampleSink(Protocol):
@@ -184,12 +187,17 @@ def run_experiment(transport: Transport, command_rad: ArrayLike, sink: SampleSin
         check_command(transport, command)
         start = clock() + 2 * period
         last_feedback = start
+        last_send = -math.inf
         for k, value in enumerate(command.tolist()):
             deadline = start + k * period
+            # behind schedule, catch up at most twice as fast: devices expect SYNCs/setpoints about a period
+            # apart (a CSP drive interpolates between them), not in a burst
+            send_at = max(deadline, last_send + CATCH_UP_SPACING * period)
             now = clock()
-            if deadline - now > 0:
-                time.sleep(deadline - now)
+            if send_at - now > 0:
+                time.sleep(send_at - now)
                 now = clock()
+            last_send = now
             lateness[k] = now - deadline
             if now - last_feedback > feedback_timeout_s:
                 raise TransportError(f"{transport.name}: no feedback for {now - last_feedback:.3g} s "

@@ -18,7 +18,9 @@ from typing import Any
 
 from rig import exit_codes
 
-__all__ = ["register", "run", "simulated_rig"]
+__all__ = ["DEFAULT_CONFIG", "register", "run", "simulated_rig", "start_simulated_devices"]
+
+DEFAULT_CONFIG = Path(__file__).resolve().parents[2] / "configs" / "sim_canopen.toml"
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -32,7 +34,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
             "[simulation] table starts simulated devices that answer on the real protocol."
         ),
     )
-    parser.add_argument("config", metavar="CONFIG.toml", help="rig config (configs/sim_canopen.toml, configs/rig_*.toml, ...)")
+    parser.add_argument("config", metavar="CONFIG.toml", nargs="?", default=str(DEFAULT_CONFIG),
+                        help="rig config (configs/sim_*.toml, configs/rig_*.toml; default: the simulated CANopen rig, "
+                             "configs/sim_canopen.toml)")
     parser.add_argument("--experiment", metavar="EXP.toml", required=True, help="experiment config (configs/experiments/*.toml)")
     parser.add_argument("--out", metavar="LOG", required=True, help="log file to write (CSV, rig-log v1)")
     parser.add_argument("--duration", type=float, default=None, metavar="S",

@@ -106,7 +106,7 @@ class CanOpenTransport(Transport):
         self._drive = None
         self._encoder = None
         self._rpdo = None
-        self._syncs: collections.deque[tuple[float, int]] = collections.deque(maxlen=256)
+        self._syncs: collections.deque[tuple[float, int]] = collections.deque(maxlen=4096)
         self._lock = threading.Lock()
         self._parts: dict[int, dict[str, Any]] = {}
         self._ready: collections.deque[FeedbackSample] = collections.deque()

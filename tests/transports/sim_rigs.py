@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import os
 import threading
 from pathlib import Path
 
@@ -49,17 +50,31 @@ def write_test_config(kind: str, directory: Path) -> Path:
     return path
 
 
+def _open_fds() -> set[str]:
+    return {os.readlink(f"/proc/self/fd/{fd}") for fd in os.listdir("/proc/self/fd")
+            if os.path.exists(f"/proc/self/fd/{fd}")}
+
+
 @pytest.fixture
 def no_leaks():
-    """Fail the test if it leaves threads running."""
+    """Fail the test if it leaves threads running, python-can virtual buses connected or ptys open."""
+    from can.interfaces import virtual
+
     before = set(threading.enumerate())
+    channels_before = set(virtual.channels)
+    fds_before = _open_fds()
     yield
     for _ in range(50):
         leaked = [thread for thread in threading.enumerate() if thread not in before and thread.is_alive()]
         if not leaked:
-            return
+            break
         threading.Event().wait(0.02)
-    raise AssertionError(f"threads leaked: {[thread.name for thread in leaked]}")
+    else:
+        raise AssertionError(f"threads leaked: {[thread.name for thread in leaked]}")
+    buses = {channel: len(queues) for channel, queues in virtual.channels.items() if channel not in channels_before}
+    assert not buses, f"virtual CAN buses left connected: {buses}"
+    ptys = sorted(fd for fd in _open_fds() - fds_before if fd.startswith(("/dev/pts", "/dev/ptmx")))
+    assert not ptys, f"ptys left open: {ptys}"
 
 
 @contextlib.contextmanager

@@ -108,3 +108,12 @@ def test_rig_run_refuses_an_experiment_beyond_the_limits_with_exit_code_2(tmp_pa
                  "--out", str(tmp_path / "run.csv")])
     assert code == 2
     assert "outside the limits [-12, 0.5] rad" in capsys.readouterr().err
+
+
+def test_rig_run_defaults_to_the_simulated_canopen_rig(tmp_path, capsys, no_leaks):
+    out = tmp_path / "default.csv"
+    assert main(["run", "--experiment", str(CONFIGS / "experiments" / "prbs.toml"), "--out", str(out),
+                 "--duration", "0.05", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["samples"] == 50
+    record = read_log(out)
+    assert record.metadata.transport == "canopen://virtual/sim_canopen" and record.metadata.sample_period_s == 0.001
