@@ -16,6 +16,7 @@ from rig import __version__, exit_codes
 from rig.protocols.errors import ConfigError, DeviceFault, LogFileError, TransportError
 
 COMMAND_MODULES: tuple[str, ...] = (
+    "rig.commands.demo",
     "rig.commands.identify",
     "rig.commands.simulate",
     "rig.commands.inspect",
