@@ -136,7 +136,7 @@ def _parse(root: ConfigTable, default_name: str) -> PlantConfig:
     encoder = _parse_encoder(root.table("encoder"))
     noise = _parse_noise(root.table("noise", {}))
     blocks, enabled = [], []
-    for table in _table_list(root, "blocks"):
+    for table in root.tables("blocks"):
         block, on = _parse_block(table, period)
         blocks.append(block)
         enabled.append(on)
@@ -150,14 +150,6 @@ def _parse(root: ConfigTable, default_name: str) -> PlantConfig:
     except InvalidInputError as err:
         raise root.error("blocks", str(err)) from err
     return config
-
-
-def _table_list(root: ConfigTable, key: str) -> list[ConfigTable]:
-    # ConfigTable has no accessor for arrays of tables; _get marks the key as read like the public ones.
-    value = root._get(key, [])
-    if not isinstance(value, list) or not all(isinstance(item, dict) for item in value):
-        raise root.error(key, f"expected an array of tables [[{root.key_path(key)}]], got {value!r}")
-    return [ConfigTable(root.source, f"{root.key_path(key)}[{index}]", item) for index, item in enumerate(value)]
 
 
 def _build(table: ConfigTable, factory: Callable[..., Any], **kwargs: Any) -> Any:
@@ -228,15 +220,6 @@ def _parse_border(table: ConfigTable, key: str) -> Any:
     return result
 
 
-def _matrix(table: ConfigTable, key: str) -> list[list[float]]:
-    value = table._get(key, None)  # see _table_list
-    if not (isinstance(value, list) and value and all(
-            isinstance(row, list) and row and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in row)
-            for row in value)):
-        raise table.error(key, f"expected a matrix as a list of rows of numbers, got {value!r}")
-    return [[float(v) for v in row] for row in value]
-
-
 def _parse_block(table: ConfigTable, period: float) -> tuple[Block, bool]:
     kind = table.string("type", choices=tuple(BLOCK_TYPES))
     enabled = table.boolean("enabled", True)
@@ -250,7 +233,7 @@ def _read_linear(t: ConfigTable, period: float) -> LinearBlock:
 
 
 def _read_state_space(t: ConfigTable, period: float) -> LinearBlock:
-    A = _matrix(t, "A")
+    A = t.matrix("A")
     B, C = t.numbers("B", min_length=1), t.numbers("C", min_length=1)
     D = t.number("D", 0.0)
     try:

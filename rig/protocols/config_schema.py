@@ -123,6 +123,23 @@ class ConfigTable:
             raise self.error(key, f"expected a table [{self.key_path(key)}], got {value!r}")
         return ConfigTable(self.source, self.key_path(key), value)
 
+    def tables(self, key: str, default: Any = _MISSING) -> list[ConfigTable]:
+        """An array of tables (``[[key]]`` in TOML), each validated on its own."""
+        value = self._get(key, default)
+        if not isinstance(value, list) or not all(isinstance(item, dict) for item in value):
+            raise self.error(key, f"expected an array of tables [[{self.key_path(key)}]], got {value!r}")
+        return [ConfigTable(self.source, f"{self.key_path(key)}[{index}]", item) for index, item in enumerate(value)]
+
+    def matrix(self, key: str, default: Any = _MISSING) -> list[list[float]]:
+        """A non-empty list of non-empty rows of finite numbers."""
+        value = self._get(key, default)
+        if not (isinstance(value, list) and value and all(
+                isinstance(row, list) and row and all(
+                    isinstance(item, (int, float)) and not isinstance(item, bool) and math.isfinite(item) for item in row)
+                for row in value)):
+            raise self.error(key, f"expected a matrix as a list of rows of numbers, got {value!r}")
+        return [[float(item) for item in row] for row in value]
+
     def finish(self) -> None:
         """Raise :class:`ConfigError` naming the first key that no validator read."""
         unknown = sorted(set(self.data) - self._read)

@@ -42,3 +42,17 @@ def test_wrong_type_range_and_missing(tmp_path):
 def test_invalid_toml_names_file(tmp_path):
     with pytest.raises(ConfigError, match=r"rig.toml: \[<file>\] not valid TOML"):
         load_toml(write(tmp_path, "rate_hz = = 3\n"))
+
+
+def test_arrays_of_tables_and_matrices(tmp_path):
+    table = load_toml(write(tmp_path, 'A = [[1, 2], [3, 4]]\n[[blocks]]\ntype = "delay"\n[[blocks]]\ntype = "gain"\n'))
+    blocks = table.tables("blocks")
+    assert [block.string("type") for block in blocks] == ["delay", "gain"]
+    assert blocks[1].key_path("x") == "blocks[1].x"
+    assert table.matrix("A") == [[1.0, 2.0], [3.0, 4.0]]
+    table.finish()
+    bad = load_toml(write(tmp_path, 'A = [[1, "x"]]\nblocks = 3\n'))
+    with pytest.raises(ConfigError, match=r"\[A\] expected a matrix"):
+        bad.matrix("A")
+    with pytest.raises(ConfigError, match=r"\[blocks\] expected an array of tables \[\[blocks\]\]"):
+        bad.tables("blocks")
