@@ -230,6 +230,7 @@ class _Solver:
         self.highs.setOptionValue("output_flag", False)
         self.highs.setOptionValue("presolve", presolve)
         self.highs.passModel(model)
+
         self._status = HighsModelStatus
         self.columns = np.arange(A.shape[1], dtype=np.int32)
         self.warm = False
@@ -384,7 +385,8 @@ def _orthant_lp(data: _Data, signs: tuple[int, ...]) -> _LP:
 
 
 def _bounds_over(lp: _LP, p: int, counter: _Counter) -> tuple[NDArray[np.float64], NDArray[np.float64], list[NDArray[np.float64]]]:
-    """Certified min and max of each of the first p variables, with the minimisers/maximisers."""
+    """Certified min and max of each of the first p variables, with the minimisers/maximisers
+    (``points[2k]`` minimises and ``points[2k + 1]`` maximises variable k)."""
     lows, highs, points = np.empty(p), np.empty(p), []
     solver = _Solver(lp)
     for k in range(p):
@@ -514,25 +516,71 @@ def _with_shared_backlash(lp: _LP, data: _Data, p: int) -> _LP:
                np.concatenate([lp.upper, shared.upper, shared.zeta_bound_rad]))
 
 
-def _coupled_bounds(data: _Data, low: NDArray[np.float64], high: NDArray[np.float64], counter: _Counter,
-                    max_rounds: int, relative_improvement: float) -> tuple[NDArray[np.float64], NDArray[np.float64], int, list[NDArray[np.float64]]]:
-    p = data.orders.num_parameters
+def _tighten(data: _Data, low: NDArray[np.float64], high: NDArray[np.float64], counter: _Counter, max_rounds: int,
+             relative_improvement: float, full_last_round: bool) -> tuple[NDArray[np.float64], NDArray[np.float64], int, list[NDArray[np.float64]], bool]:
+    """Rounds of the McCormick relaxation: LPs over a only tighten the box of a (which sets the envelopes)
+    until no a-interval shrinks by more than ``relative_improvement`` or ``max_rounds`` relaxations were
+    solved; with ``full_last_round`` the last round bounds every parameter. Returns the box, the rounds, the
+    extreme points of the last round and whether the relaxation was proven empty."""
+    p, na = data.orders.num_parameters, data.orders.na
     rounds = 0
-    points: list[NDArray[np.float64]] = []
-    while rounds < max_rounds:
+    converged = na == 0
+    while True:
         rounds += 1
+        final = converged or rounds >= max_rounds
         lp = _coupled_lp(data, low, high)
-        new_low, new_high, points = _bounds_over(lp, p, counter)
+        count = p if (final and full_last_round) else na
+        new_low, new_high, points = _bounds_over(lp, count, counter)
         if not np.all(np.isfinite(new_low)):
             if _proven_infeasible(lp, counter):
-                return np.full(p, math.nan), np.full(p, math.nan), rounds, []
-            break
-        new_low, new_high = np.maximum(new_low, low), np.minimum(new_high, high)
-        shrink = np.max((high - low - (new_high - new_low)) / np.maximum(high - low, 1e-300))
-        low, high = new_low, new_high
-        if data.orders.na == 0 or shrink < relative_improvement:
-            break
-    return low, high, rounds, points
+                return low, high, rounds, [], True
+            if final:
+                return low, high, rounds, [], False
+            converged = True  # not provably empty: finish with the last round on the current box
+            continue
+        shrink = np.max((high[:count] - low[:count] - (np.minimum(new_high, high[:count]) - np.maximum(new_low, low[:count])))
+                        / np.maximum(high[:count] - low[:count], 1e-300))
+        low, high = low.copy(), high.copy()
+        low[:count], high[:count] = np.maximum(new_low, low[:count]), np.minimum(new_high, high[:count])
+        if final:
+            return low, high, rounds, points, False
+        converged = shrink < relative_improvement
+
+
+_WINDOW = 200
+"""Samples used to tighten the box of a before the full-data relaxation (the set from a subset of the
+equations contains the full set, so its bounds are valid; the LPs are much smaller)."""
+
+
+def _coupled_bounds(data: _Data, low: NDArray[np.float64], high: NDArray[np.float64], counter: _Counter,
+                    max_rounds: int, relative_improvement: float) -> tuple[NDArray[np.float64], NDArray[np.float64], int, list[NDArray[np.float64]]]:
+    """Coupled bounds; for long records the box of a is first tightened on the first ``_WINDOW`` samples."""
+    p = data.orders.num_parameters
+    rounds = 0
+    if data.u.size > 2 * _WINDOW and data.orders.na:
+        window = _subset(data, _WINDOW)
+        low, high, used, _, empty = _tighten(window, low, high, counter, max_rounds, relative_improvement, False)
+        rounds += used
+        if empty:
+            return np.full(p, math.nan), np.full(p, math.nan), rounds, []
+        max_rounds = 1  # the window did the tightening: one full-data relaxation
+    low, high, used, points, empty = _tighten(data, low, high, counter, max_rounds, relative_improvement, True)
+    if empty:
+        return np.full(p, math.nan), np.full(p, math.nan), rounds + used, []
+    return low, high, rounds + used, points
+
+
+def _subset(data: _Data, count: int) -> _Data:
+    """The problem restricted to the first ``count`` samples."""
+    keep_eq = data.times < count
+    shared = data.shared
+    if shared is not None:
+        keep = shared.sample_indices < count
+        shared = SharedBacklashConstraints(shared.sample_indices[keep], shared.rising[keep], shared.output_rad[keep],
+                                           shared.zeta_bound_rad[keep], shared.rows, shared.rhs, shared.lower,
+                                           shared.upper)
+    return _Data(data.orders, data.u[:count], data.xc[:count], data.dx[:count], data.times[keep_eq],
+                 data.regressors[keep_eq], shared)
 
 
 def _inner_values(data: _Data, low: NDArray[np.float64], high: NDArray[np.float64], points: list[NDArray[np.float64]],

@@ -118,3 +118,15 @@ def test_validation_names_the_argument() -> None:
     with pytest.raises(InvalidInputError, match="noise_bound_rad"):
         bound_output_backlash_system(data.steady_input_rad, data.steady_output_rad, data.input_rad,
                                      data.output_rad, 0.0, na=2, nk=1, nb=2)
+
+
+def test_long_record_tightens_on_a_window_first_and_still_contains_the_truth() -> None:
+    # N = 500 > 2 x 200: the box of a is tightened on the first 200 samples, then one full relaxation
+    _, paper = _run(10, 21, "paper", num_samples=500)
+    _, coupled = _run(10, 21, "coupled", num_samples=500)
+    for name, value in THETA.items():
+        outer_paper, outer = paper.linear_intervals[name], coupled.linear_intervals[name]
+        assert outer.contains(value)
+        assert outer_paper.lower <= outer.lower and outer.upper <= outer_paper.upper
+        assert outer.half_width < outer_paper.half_width / 5
+    assert coupled.linear.num_tightening_rounds >= 2
