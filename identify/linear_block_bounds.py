@@ -24,6 +24,10 @@ that gives a point of the exact feasible set, so ``inner_lower``/``inner_upper``
 bounds are to the exact ones (if that a admits no exact solution, a is moved towards the box centre in
 steps 0.95, 0.8, 0.5, 0).
 
+For records longer than 400 samples the box of a is first tightened on the first 200 samples (the
+feasible set of a subset of the equations contains the full one, so those bounds are valid and the LPs
+are small), then one relaxation over all the data gives the bounds.
+
 Guarantees against solver tolerances: every LP bound is replaced by the Neumaier-Shcherbina bound computed
 from the solver's dual values and the finite variable boxes (a valid bound for any dual vector), and an
 orthant is discarded only if a phase-1 LP proves it infeasible the same way. The a-priori box of a_i is
