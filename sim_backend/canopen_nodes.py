@@ -136,6 +136,7 @@ class SimulatedCanOpenRig:
         self._counter = _FrameCounter()
         self._lock = threading.Lock()
         self._operational: set[int] = set()
+        self._sync_tpdos: dict[int, list[tuple[int, list[tuple[int, int, int]]]]] = {}
         self._started = False
 
     # -- lifecycle ------------------------------------------------------------------------------------------
@@ -220,6 +221,12 @@ class SimulatedCanOpenRig:
     def _configure_pdos(self, node: canopen.LocalNode) -> None:
         """Take the PDO mapping the master wrote by SDO (or the EDS default) from the dictionary."""
         node.tpdo.read(from_od=False)
+        # synchronous TPDOs as (COB-ID, [(index, subindex, bytes)]), packed directly on each SYNC
+        self._sync_tpdos[node.id] = [
+            (pdo_map.cob_id, [(variable.index, variable.subindex, variable.length // 8) for variable in pdo_map
+                              if variable.length])
+            for pdo_map in node.tpdo.map.values()
+            if pdo_map.enabled and pdo_map.trans_type is not None and 1 <= pdo_map.trans_type <= 240]
         if node is self.drive:
             node.rpdo.read(from_od=False)  # subscribes the enabled RPDOs
             for pdo_map in node.rpdo.map.values():
@@ -267,11 +274,8 @@ class SimulatedCanOpenRig:
         for node in (self.drive, self.encoder):
             if node.id not in self._operational or (silent and node is self.encoder):
                 continue
-            for pdo_map in node.tpdo.map.values():
-                if pdo_map.enabled and pdo_map.trans_type is not None and 1 <= pdo_map.trans_type <= 240:
-                    for variable in pdo_map:
-                        if variable.length:
-                            variable.set_data(node.get_data(variable.index, variable.subindex))
-                    frame = can.Message(arbitration_id=pdo_map.cob_id, data=bytes(pdo_map.data), is_extended_id=False)
-                    wire_time += frame_bits(len(frame.data)) / self.bitrate
-                    self.network.bus.send_at(frame, wire_time)
+            for cob_id, entries in self._sync_tpdos.get(node.id, ()):
+                payload = b"".join(node.get_data(index, subindex)[:size] for index, subindex, size in entries)
+                frame = can.Message(arbitration_id=cob_id, data=payload, is_extended_id=False)
+                wire_time += frame_bits(len(payload)) / self.bitrate
+                self.network.bus.send_at(frame, wire_time)

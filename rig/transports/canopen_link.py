@@ -24,6 +24,7 @@ stop the run; on a fault the drive's error code 0x603F is read by SDO for the me
 from __future__ import annotations
 
 import collections
+import struct
 import threading
 import time
 from pathlib import Path
@@ -43,6 +44,9 @@ CYCLIC_SYNCHRONOUS_POSITION = 8
 # data bytes of the frames of one cycle: SYNC, drive RPDO1 (0x607A), drive TPDO1 (0x6041 + 0x6064),
 # encoder TPDO1 (0x6004)
 CYCLE_FRAME_BYTES = (0, 4, 6, 4)
+_DRIVE_TPDO = struct.Struct("<Hi")  # 0x6041 statusword, 0x6064 position actual value
+_ENCODER_TPDO = struct.Struct("<I")  # 0x6004 position value
+_RPDO = struct.Struct("<i")  # 0x607A target position
 
 
 class CanOpenTransport(Transport):
@@ -105,7 +109,7 @@ class CanOpenTransport(Transport):
         self.network = None
         self._drive = None
         self._encoder = None
-        self._rpdo = None
+        self._rpdo_cob_id = 0x200 + self.drive_node_id
         self._syncs: collections.deque[tuple[float, int]] = collections.deque(maxlen=4096)
         self._lock = threading.Lock()
         self._parts: dict[int, dict[str, Any]] = {}
@@ -170,8 +174,7 @@ class CanOpenTransport(Transport):
             f"{self.name} drive {self.drive_node_id}", timeout_s=10 * self.sdo_timeout_s,
             read_fault_code=lambda: drive.sdo[0x603F].raw)
         actual = drive.sdo[0x6064].raw
-        self._rpdo = drive.rpdo[1]
-        self._rpdo["Target position"].raw = actual
+        self._rpdo_cob_id = drive.rpdo[1].cob_id
         return self.drive.rad_from_counts(actual)
 
     @staticmethod
@@ -199,8 +202,8 @@ class CanOpenTransport(Transport):
         self._raise_device_fault()
         self._check_heartbeats()
         try:
-            self._rpdo["Target position"].raw = self.drive.counts_from_rad(setpoint.position_rad)
-            self._rpdo.transmit()
+            target = _RPDO.pack(self.drive.counts_from_rad(setpoint.position_rad))  # RPDO1 = 0x607A
+            self.network.send_message(self._rpdo_cob_id, target)
             with self._lock:
                 self._syncs.append((time.time(), setpoint.seq))  # bus timestamps are time.time() based
             self.network.sync.transmit()
@@ -244,8 +247,7 @@ class CanOpenTransport(Transport):
     # -- receive side (python-can notifier thread) -----------------------------------------------------------
 
     def _on_drive_tpdo(self, pdo: Any) -> None:
-        statusword = pdo[0].raw
-        actual = pdo[1].raw
+        statusword, actual = _DRIVE_TPDO.unpack_from(pdo.data)  # the mapping written at start-up
         self._file("drive", (statusword, actual), pdo.timestamp)
         if cia402.state_from_statusword_or_none(statusword) in (cia402.DriveState.FAULT,
                                                                  cia402.DriveState.FAULT_REACTION_ACTIVE):
@@ -255,7 +257,7 @@ class CanOpenTransport(Transport):
                 self._arrived.notify_all()
 
     def _on_encoder_tpdo(self, pdo: Any) -> None:
-        raw = pdo[0].raw
+        (raw,) = _ENCODER_TPDO.unpack_from(pdo.data)
         counts = raw - (1 << 32) if self.encoder.signed and raw >= 1 << 31 else raw
         self._file("encoder", counts, pdo.timestamp)
 

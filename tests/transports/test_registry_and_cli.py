@@ -16,7 +16,7 @@ from rig.protocols.errors import ConfigError, TransportError
 from rig.rig_config import load_rig_config
 from rig.transports import open_transport, parse_transport_url
 from sim_backend.plant_config import load_plant_config
-from sim_rigs import CONFIGS, ROOT, no_leaks, write_test_config  # noqa: F401  (no_leaks is a fixture)
+from sim_rigs import CONFIGS, no_leaks, write_test_config  # noqa: F401  (no_leaks is a fixture)
 
 ENCODER = EncoderResolution(bits=12)
 
