@@ -37,7 +37,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("config", metavar="CONFIG.toml", nargs="?", default=str(DEFAULT_CONFIG),
                         help="rig config (configs/sim_*.toml, configs/rig_*.toml; default: the simulated CANopen rig, "
                              "configs/sim_canopen.toml)")
-    parser.add_argument("--experiment", metavar="EXP.toml", required=True, help="experiment config (configs/experiments/*.toml)")
+    parser.add_argument("--experiment", metavar="EXP.toml", required=True,
+                        help="experiment config (configs/experiments/*.toml), or a CSV file with a command_rad column "
+                             "(one value per sample; an optional time_s column must step by the rig's period)")
     parser.add_argument("--out", metavar="LOG", required=True, help="log file to write (CSV, rig-log v1)")
     parser.add_argument("--duration", type=float, default=None, metavar="S",
                         help="run for S seconds (the excitation is cut, or repeated cyclically to fill S)")
@@ -140,6 +142,25 @@ def _metadata(config: Any, excitation: Any, gearbox: Any) -> Any:
         config={"rig": rig_config, "excitation": excitation.metadata()}, software_version=__version__, **values)
 
 
+def load_command_file(path: str | Path, sample_period_s: float) -> Any:
+    """An excitation read from a CSV file with a ``command_rad`` column (and optionally ``time_s``)."""
+    import numpy as np
+
+    from rig.experiment_config import Excitation
+    from rig.protocols.errors import LogFileError
+    from rig.signal_files import read_signal_table
+
+    table = read_signal_table(path, ("command_rad",))
+    if "time_s" in table and table["time_s"].size > 1:
+        steps = np.diff(table["time_s"])
+        bad = np.flatnonzero(~np.isclose(steps, sample_period_s, rtol=1e-6, atol=1e-12))
+        if bad.size:
+            raise LogFileError(f"{path}: time_s steps by {steps[bad[0]]:g} s after row {bad[0] + 1}, but the rig samples "
+                               f"every {sample_period_s:g} s")
+    return Excitation(name=Path(path).stem, kind="file", command_rad=table["command_rad"], seed=None,
+                      source=str(path))
+
+
 def run(args: argparse.Namespace) -> int:
     import numpy as np
 
@@ -150,7 +171,10 @@ def run(args: argparse.Namespace) -> int:
     from rig.transports import open_transport
 
     config = load_rig_config(args.config)
-    excitation = load_experiment_config(args.experiment)
+    if Path(args.experiment).suffix.lower() == ".csv":
+        excitation = load_command_file(args.experiment, config.sample_period_s)
+    else:
+        excitation = load_experiment_config(args.experiment)
     command = excitation.command_rad
     if args.duration is not None:
         if not (math.isfinite(args.duration) and args.duration > 0):

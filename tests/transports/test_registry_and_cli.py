@@ -117,3 +117,18 @@ def test_rig_run_defaults_to_the_simulated_canopen_rig(tmp_path, capsys, no_leak
     assert json.loads(capsys.readouterr().out)["samples"] == 50
     record = read_log(out)
     assert record.metadata.transport == "canopen://virtual/sim_canopen" and record.metadata.sample_period_s == 0.001
+
+
+def test_rig_run_streams_a_command_file(tmp_path, capsys, no_leaks):
+    command = np.round(0.3 * np.sin(np.arange(30) / 5.0), 4).tolist()
+    path = tmp_path / "command.csv"
+    path.write_text("time_s,command_rad\n" + "".join(f"{k * 0.005!r},{value!r}\n" for k, value in enumerate(command)))
+    out = tmp_path / "run.csv"
+    assert main(["run", str(write_test_config("serial", tmp_path)), "--experiment", str(path), "--out", str(out),
+                 "--json"]) == 0
+    record = read_log(out)
+    np.testing.assert_allclose(record.command_rad, command, atol=np.pi / 131072)  # quantised to drive counts
+    assert record.metadata.excitation == "command"
+    path.write_text("time_s,command_rad\n0.0,0.1\n0.01,0.2\n")
+    assert main(["run", str(write_test_config("serial", tmp_path)), "--experiment", str(path), "--out", str(out)]) == 2
+    assert "time_s steps by 0.01 s after row 1, but the rig samples every 0.005 s" in capsys.readouterr().err
