@@ -133,6 +133,7 @@ class SimulatedCanOpenRig:
         self.controlwords: list[int] = []
         self.setpoints = 0
         self.syncs = 0
+        self.homed = False
         self._counter = _FrameCounter()
         self._lock = threading.Lock()
         self._operational: set[int] = set()
@@ -190,7 +191,10 @@ class SimulatedCanOpenRig:
 
     def _on_drive_read(self, index: int, subindex: int, od: object) -> int | None:
         if index == 0x6041:
-            return cia402.statusword_for(self.state, target_reached=True)
+            word = cia402.statusword_for(self.state, target_reached=True)
+            if self.homed and self._i8(self.drive, 0x6060) == cia402.HOMING_MODE:
+                word |= cia402.STATUSWORD_HOMING_ATTAINED
+            return word
         if index == 0x6061:
             return self._i8(self.drive, 0x6060)  # the mode is taken over at once
         return None
@@ -202,7 +206,12 @@ class SimulatedCanOpenRig:
                 self.controlwords.append(controlword)
                 previous_state = self.state
                 self.state = cia402.next_state(self.state, controlword, self.controlword)
+                starts_homing = controlword & 0x0010 and not self.controlword & 0x0010
                 self.controlword = controlword
+                if (starts_homing and self.state is cia402.DriveState.OPERATION_ENABLED
+                        and self._i8(self.drive, 0x6060) == cia402.HOMING_MODE):
+                    # homing method 37 (CiA 402: home on the current position): nothing moves
+                    self.homed = True
                 if self.state is cia402.DriveState.OPERATION_ENABLED and previous_state is not self.state:
                     actual = self.drive.get_data(0x6064, 0)
                     self.drive.data_store.setdefault(0x607A, {})[0] = actual  # no jump on enable

@@ -42,6 +42,11 @@ CONTROLWORD_FAULT_RESET = 0x0080  # acts on the rising edge of bit 7
 
 STATUSWORD_WARNING = 0x0080
 STATUSWORD_TARGET_REACHED = 0x0400
+STATUSWORD_HOMING_ATTAINED = 0x1000  # bit 12 in homing mode
+STATUSWORD_HOMING_ERROR = 0x2000  # bit 13 in homing mode
+CONTROLWORD_START_HOMING = 0x001F  # enable operation + bit 4 (operation mode specific: start homing)
+HOMING_MODE = 6
+CYCLIC_SYNCHRONOUS_POSITION_MODE = 8
 
 
 class DriveState(Enum):

@@ -3,13 +3,15 @@
 Start-up (all by SDO, before any PDO flows):
 
 1. NMT pre-operational for both nodes; producer heartbeat (0x1017) set on both, communication cycle
-   period (0x1006) on the drive; mode of operation 0x6060 = 8 (cyclic synchronous position).
+   period (0x1006) on the drive; mode of operation 0x6060 = 8 (cyclic synchronous position), or 6
+   (homing) first if ``skip_homing`` is false.
 2. PDO mapping: drive RPDO1 = target position 0x607A; drive TPDO1 = statusword 0x6041 + position actual
    value 0x6064; encoder TPDO1 = position value 0x6004; TPDOs synchronous (transmission type 1: every SYNC).
 3. Encoder resolution read from 0x6501 (single-turn) and 0x6002 (total range) and checked against the
    config (whose ``signed`` says how to read 0x6004, since vendors differ).
 4. NMT operational; the drive walked to OPERATION ENABLED through the CiA 402 state machine (fault reset
-   on a rising edge; the drive's target starts at its actual position, so enabling does not jump).
+   on a rising edge; the drive's target starts at its actual position, so enabling does not jump);
+   optional homing (mode 6, method 0x6098), then mode 8.
 
 Each sample: RPDO1 with the target, then SYNC, both from the runner's own scheduler (never triggered by
 TPDO arrival). The TPDOs answering that SYNC make one :class:`FeedbackSample`. TPDOs carry no SYNC
@@ -40,7 +42,6 @@ __all__ = ["CanOpenTransport", "DEFAULT_DRIVE_EDS", "DEFAULT_ENCODER_EDS"]
 _CONFIGS = Path(__file__).resolve().parents[2] / "configs" / "eds"
 DEFAULT_DRIVE_EDS = _CONFIGS / "sim_drive_cia402.eds"
 DEFAULT_ENCODER_EDS = _CONFIGS / "sim_encoder_cia406.eds"
-CYCLIC_SYNCHRONOUS_POSITION = 8
 # data bytes of the frames of one cycle: SYNC, drive RPDO1 (0x607A), drive TPDO1 (0x6041 + 0x6064),
 # encoder TPDO1 (0x6004)
 CYCLE_FRAME_BYTES = (0, 4, 6, 4)
@@ -70,8 +71,13 @@ class CanOpenTransport(Transport):
     sdo_timeout_s
         SDO response timeout.
     skip_homing
-        Accepted for configs written for drives that need homing: this transport never homes (CSP
-        streams absolute targets from the actual position), so only ``true`` is allowed.
+        True (default): stream from the actual position without homing. False: after enabling, home the
+        drive first (mode 6 with ``homing_method`` in 0x6098, start with controlword bit 4, wait for
+        statusword bit 12 "homing attained"; bit 13 is a homing error), then switch to CSP.
+    homing_method
+        CiA 402 homing method (0x6098); 37 = home on the current position (no motion).
+    homing_timeout_s
+        How long homing may take.
     trace_path
         Write every frame on the bus (sent and received) to this file with python-can's writers
         (``.blf``, ``.asc``, ``.log``, ``.csv``, ``.trc``; not ``.db``: SqliteWriter drops frames under load).
@@ -81,7 +87,8 @@ class CanOpenTransport(Transport):
                  encoder_node_id: int = 2, drive_eds: str = str(DEFAULT_DRIVE_EDS),
                  encoder_eds: str = str(DEFAULT_ENCODER_EDS), heartbeat_ms: int = 100,
                  heartbeat_timeout_s: float = 0.5, sdo_timeout_s: float = 0.5, skip_homing: bool = True,
-                 trace_path: str | None = None, **kwargs: Any) -> None:
+                 homing_method: int = 37, homing_timeout_s: float = 30.0, trace_path: str | None = None,
+                 **kwargs: Any) -> None:
         super().__init__(**kwargs)
         self.interface, self.channel, self.bitrate = interface, channel, int(bitrate)
         self.drive_node_id, self.encoder_node_id = int(drive_node_id), int(encoder_node_id)
@@ -89,9 +96,11 @@ class CanOpenTransport(Transport):
         self.heartbeat_ms = int(heartbeat_ms)
         self.heartbeat_timeout_s = float(heartbeat_timeout_s)
         self.sdo_timeout_s = float(sdo_timeout_s)
-        if not skip_homing:
-            raise ConfigError("<transport>", "skip_homing", "homing is not supported; home the drive with its own "
-                                                            "tools first and set skip_homing = true")
+        self.skip_homing = bool(skip_homing)
+        if not -128 <= int(homing_method) <= 127:
+            raise ConfigError("<transport>", "homing_method", f"expected a CiA 402 homing method (-128..127), got {homing_method}")
+        self.homing_method = int(homing_method)
+        self.homing_timeout_s = float(homing_timeout_s)
         if self.drive_node_id == self.encoder_node_id or not all(
                 1 <= node <= 127 for node in (self.drive_node_id, self.encoder_node_id)):
             raise ConfigError("<transport>", "drive_node_id", "node-IDs must differ and lie in 1..127")
@@ -157,7 +166,7 @@ class CanOpenTransport(Transport):
         for node in (drive, encoder):
             node.sdo[0x1017].raw = self.heartbeat_ms
         drive.sdo[0x1006].raw = int(round(self.sample_period_s * 1e6))
-        drive.sdo[0x6060].raw = CYCLIC_SYNCHRONOUS_POSITION
+        drive.sdo[0x6060].raw = cia402.CYCLIC_SYNCHRONOUS_POSITION_MODE if self.skip_homing else cia402.HOMING_MODE
         self._map_pdo(drive.rpdo, 1, [0x607A], 0x200 + self.drive_node_id)
         self._map_pdo(drive.tpdo, 1, [0x6041, 0x6064], 0x180 + self.drive_node_id)
         self._map_pdo(encoder.tpdo, 1, [0x6004], 0x180 + self.encoder_node_id)
@@ -173,9 +182,30 @@ class CanOpenTransport(Transport):
             lambda word: drive.sdo[0x6040].__setattr__("raw", word), lambda: drive.sdo[0x6041].raw,
             f"{self.name} drive {self.drive_node_id}", timeout_s=10 * self.sdo_timeout_s,
             read_fault_code=lambda: drive.sdo[0x603F].raw)
+        if not self.skip_homing:
+            self._home(drive)
         actual = drive.sdo[0x6064].raw
         self._rpdo_cob_id = drive.rpdo[1].cob_id
         return self.drive.rad_from_counts(actual)
+
+    def _home(self, drive: Any) -> None:
+        """Homing mode: start with bit 4, wait for "homing attained", then cyclic synchronous position."""
+        drive.sdo[0x6098].raw = self.homing_method
+        drive.sdo[0x6040].raw = cia402.CONTROLWORD_START_HOMING
+        deadline = time.monotonic() + self.homing_timeout_s
+        while True:
+            statusword = drive.sdo[0x6041].raw
+            if statusword & cia402.STATUSWORD_HOMING_ERROR:
+                raise DeviceFault(f"{self.name} drive {self.drive_node_id}", drive.sdo[0x603F].raw or None,
+                                  f"homing (method {self.homing_method}) failed: statusword 0x{statusword:04X}")
+            if statusword & cia402.STATUSWORD_HOMING_ATTAINED:
+                break
+            if time.monotonic() > deadline:
+                raise DeviceFault(f"{self.name} drive {self.drive_node_id}", None,
+                                  f"homing did not finish within {self.homing_timeout_s:g} s")
+            time.sleep(0.01)
+        drive.sdo[0x6040].raw = cia402.CONTROLWORD_ENABLE_OPERATION
+        drive.sdo[0x6060].raw = cia402.CYCLIC_SYNCHRONOUS_POSITION_MODE
 
     @staticmethod
     def _map_pdo(pdos: Any, number: int, indices: list[int], cob_id: int) -> None:

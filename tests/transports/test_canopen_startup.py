@@ -92,3 +92,19 @@ def test_the_simulated_bus_reports_its_load(tmp_path, no_leaks):
         frames, load = rig.frames, rig.bus_load()
     assert frames >= 4 * summary.samples  # SYNC, RPDO and two TPDOs per sample, plus SDO and heartbeats
     assert 0 < load < 1
+
+
+def test_homing_runs_before_streaming_when_not_skipped(tmp_path, no_leaks):
+    path = write_test_config("canopen", tmp_path)
+    path.write_text(path.read_text().replace("sdo_timeout_s = 0.5", "sdo_timeout_s = 0.5\nskip_homing = false"))
+    config = load_rig_config(path)
+    gearbox = load_plant_config(config.simulation.plant_path).gearbox(seed=config.simulation.seed)
+    with contextlib.ExitStack() as stack:
+        url, rig = start_simulated_devices(config, gearbox, stack)
+        transport = stack.enter_context(open_transport(url, **config.transport_options()))
+        transport.open()
+        assert rig.homed and _u(rig.drive, 0x6098, signed=True) == 37
+        assert _u(rig.drive, 0x6060, signed=True) == 8  # back in cyclic synchronous position for streaming
+        assert rig.controlwords == [0x06, 0x07, 0x0F, 0x1F, 0x0F]  # enable, start homing, then CSP
+        transport.send(Setpoint(0, 0.1))
+        assert transport.receive(timeout_s=1.0).seq == 0
