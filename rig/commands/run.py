@@ -116,7 +116,7 @@ def start_simulated_devices(config: Any, gearbox: Any, stack: contextlib.ExitSta
     raise ConfigError(config.source, "simulation", f"there is no simulated device for {config.scheme}:// transports")
 
 
-def _metadata(config: Any, excitation: Any, gearbox: Any) -> Any:
+def _metadata(config: Any, excitation: Any, gearbox: Any, num_samples: int) -> Any:
     from identify import __version__
     from identify.experiment_record import ExperimentMetadata
 
@@ -139,7 +139,9 @@ def _metadata(config: Any, excitation: Any, gearbox: Any) -> Any:
     return ExperimentMetadata(
         sample_period_s=config.sample_period_s, source=config.name, transport=config.url,
         encoder_bits=config.encoder.bits, excitation=excitation.name, excitation_seed=excitation.seed,
-        config={"rig": rig_config, "excitation": excitation.metadata()}, software_version=__version__, **values)
+        config={"rig": rig_config, "excitation": excitation.metadata(), "num_samples": num_samples,
+                "excitation_samples": int(excitation.command_rad.size)},  # cut or repeated cyclically to num_samples
+        software_version=__version__, **values)
 
 
 def load_command_file(path: str | Path, sample_period_s: float) -> Any:
@@ -192,7 +194,7 @@ def run(args: argparse.Namespace) -> int:
                 raise ValueError(f"--can-trace: the {config.scheme} transport has no CAN frames to trace")
             options["trace_path"] = args.can_trace
         transport = open_transport(url, **options)
-        log = LogWriter(args.out, _metadata(config, excitation, gearbox), flush_every=10, flush_interval_s=0.05)
+        log = LogWriter(args.out, _metadata(config, excitation, gearbox, command.size), flush_every=10, flush_interval_s=0.05)
         progress = None
         if not args.json and sys.stderr.isatty():
             from tqdm import tqdm
