@@ -48,6 +48,7 @@ CYCLE_FRAME_BYTES = (0, 4, 6, 4)
 _DRIVE_TPDO = struct.Struct("<Hi")  # 0x6041 statusword, 0x6064 position actual value
 _ENCODER_TPDO = struct.Struct("<I")  # 0x6004 position value
 _RPDO = struct.Struct("<i")  # 0x607A target position
+CLOCK_MISMATCH_S = 5.0  # bus timestamps further than this from time.time() are on another clock
 
 
 class CanOpenTransport(Transport):
@@ -292,7 +293,13 @@ class CanOpenTransport(Transport):
         self._file("encoder", counts, pdo.timestamp)
 
     def _sync_before(self, timestamp: float) -> int | None:
-        """The sample number of the last SYNC sent before bus time ``timestamp``."""
+        """The sample number of the last SYNC sent before bus time ``timestamp``. An interface whose
+        timestamps are not on the host's wall clock (some count from the adapter's start) cannot be
+        compared with the SYNC times: its frames are filed by arrival, under the last SYNC sent."""
+        if not self._syncs:
+            return None
+        if abs(timestamp - time.time()) > CLOCK_MISMATCH_S:
+            return self._syncs[-1][1]
         for sent_at, seq in reversed(self._syncs):
             if sent_at <= timestamp:
                 return seq

@@ -108,3 +108,21 @@ def test_homing_runs_before_streaming_when_not_skipped(tmp_path, no_leaks):
         assert rig.controlwords == [0x06, 0x07, 0x0F, 0x1F, 0x0F]  # enable, start homing, then CSP
         transport.send(Setpoint(0, 0.1))
         assert transport.receive(timeout_s=1.0).seq == 0
+
+
+def test_tpdos_are_filed_under_the_sync_before_their_bus_timestamp():
+    import time
+
+    from rig.transports.canopen_link import CanOpenTransport
+
+    transport = CanOpenTransport("virtual", "unused", encoder=EncoderResolution(bits=12, signed=True),
+                                 sample_period_s=1e-3)
+    now = time.time()
+    transport._syncs.extend([(now - 0.002, 7), (now - 0.001, 8), (now, 9)])
+    # a TPDO put on the bus 1.5 ms ago answers SYNC 7, however late the host reads it
+    transport._file("drive", (0x0637, 100), now - 0.0015)
+    transport._file("encoder", 4095, now - 0.0014)
+    sample = transport._ready.popleft()
+    assert (sample.seq, sample.encoder_counts, sample.statusword) == (7, -1, 0x0637)
+    assert transport._sync_before(now - 0.01) is None  # before any SYNC of ours: not an answer
+    assert transport._sync_before(12.5) == 9  # an adapter clock (seconds since its start): filed by arrival
