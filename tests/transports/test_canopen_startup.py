@@ -121,7 +121,7 @@ def test_tpdos_are_filed_under_the_sync_before_their_bus_timestamp():
     transport._syncs.extend([(now - 0.002, 7), (now - 0.001, 8), (now, 9)])
     # a TPDO put on the bus 1.5 ms ago answers SYNC 7, however late the host reads it
     transport._file("drive", (0x0637, 100), now - 0.0015)
-    transport._file("encoder", 4095, now - 0.0014)
+    transport._file("encoder", -1, now - 0.0014)
     sample = transport._ready.popleft()
     assert (sample.seq, sample.encoder_counts, sample.statusword) == (7, -1, 0x0637)
     assert transport._sync_before(now - 0.01) is None  # before any SYNC of ours: not an answer
