@@ -176,7 +176,7 @@ class SimulatedRigSession:
     def _run_once(self, name: str, command_rad: NDArray[np.float64], *, keep_log: bool) -> ExperimentRecord:
         import tempfile
 
-        from rig.commands.run import _metadata as experiment_log_metadata, simulated_rig
+        from rig.commands.run import experiment_log_metadata, simulated_rig
         from rig.experiment_config import Excitation
         from rig.log_file import LogWriter, read_log
         from rig.runner import run_experiment
@@ -190,7 +190,7 @@ class SimulatedRigSession:
                 log_path = Path(stack.enter_context(tempfile.TemporaryDirectory())) / f"{name}.csv"
             url, gearbox = stack.enter_context(simulated_rig(self.config, command_rad))
             excitation = Excitation(name=name, kind="demo", command_rad=command_rad, seed=None)
-            writer = LogWriter(log_path, experiment_log_metadata(self.config, excitation, gearbox),
+            writer = LogWriter(log_path, experiment_log_metadata(self.config, excitation, gearbox, command_rad.size),
                                flush_every=100, flush_interval_s=0.1)
             progress = self.progress(name, command_rad.size) if self.progress else None
             summary = run_experiment(open_transport(url, **self.config.transport_options()), command_rad, writer,

@@ -116,7 +116,9 @@ def start_simulated_devices(config: Any, gearbox: Any, stack: contextlib.ExitSta
     raise ConfigError(config.source, "simulation", f"there is no simulated device for {config.scheme}:// transports")
 
 
-def _metadata(config: Any, excitation: Any, gearbox: Any, num_samples: int) -> Any:
+def experiment_log_metadata(config: Any, excitation: Any, gearbox: Any, num_samples: int) -> Any:
+    """The metadata of a log of ``num_samples`` samples of ``excitation`` on the rig of ``config`` (and the
+    simulated ``gearbox``, if any)."""
     from identify import __version__
     from identify.experiment_record import ExperimentMetadata
 
@@ -194,7 +196,7 @@ def run(args: argparse.Namespace) -> int:
                 raise ValueError(f"--can-trace: the {config.scheme} transport has no CAN frames to trace")
             options["trace_path"] = args.can_trace
         transport = open_transport(url, **options)
-        log = LogWriter(args.out, _metadata(config, excitation, gearbox, command.size), flush_every=10, flush_interval_s=0.05)
+        log = LogWriter(args.out, experiment_log_metadata(config, excitation, gearbox, command.size), flush_every=10, flush_interval_s=0.05)
         progress = None
         if not args.json and sys.stderr.isatty():
             from tqdm import tqdm
