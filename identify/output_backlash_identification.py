@@ -75,7 +75,8 @@ class OutputBacklashIdentification:
 def bound_output_backlash_system(steady_input_rad: ArrayLike, steady_output_rad: ArrayLike, input_rad: ArrayLike,
                                  output_rad: ArrayLike, noise_bound_rad: float, *, na: int, nk: int, nb: int,
                                  method: str = "coupled",
-                                 filter_step_amplitude_rad: float | None = None) -> OutputBacklashIdentification:
+                                 filter_step_amplitude_rad: float | None = None,
+                                 verify_inner: bool = True) -> OutputBacklashIdentification:
     """Bound the parameters of a linear system with output backlash (Cerone et al. 2009, Sections 3-5).
 
     Parameters
@@ -92,6 +93,8 @@ def bound_output_backlash_system(steady_input_rad: ArrayLike, steady_output_rad:
         ``"coupled"`` (default, tightest) or ``"paper"`` (Cerone 1993 errors-in-variables bounds).
     filter_step_amplitude_rad
         r̄_F of the filter-pole search if known (α terms of eqs. (14)-(15)).
+    verify_inner
+        Coupled method: also compute verified inner values (see :func:`identify.linear_block_bounds.bound_linear_block`).
 
     Examples
     --------
@@ -123,5 +126,5 @@ def bound_output_backlash_system(steady_input_rad: ArrayLike, steady_output_rad:
     inner = bound_inner_signal(y, noise, backlash)
     shared = shared_backlash_constraints(y, noise, backlash, inner) if method == "coupled" else None
     linear = bound_linear_block(u, inner.lower_rad, inner.upper_rad, na=na, nk=nk, nb=nb, method=method,
-                                shared_backlash=shared)
+                                shared_backlash=shared, verify_inner=verify_inner)
     return OutputBacklashIdentification(backlash, inner, linear, noise)

@@ -130,3 +130,12 @@ def test_long_record_tightens_on_a_window_first_and_still_contains_the_truth() -
         assert outer_paper.lower <= outer.lower and outer.upper <= outer_paper.upper
         assert outer.half_width < outer_paper.half_width / 5
     assert coupled.linear.num_tightening_rounds >= 2
+
+
+def test_skipping_the_inner_verification_leaves_the_outer_bounds_unchanged() -> None:
+    data = experiment(12, 31)
+    args = (data.steady_input_rad, data.steady_output_rad, data.input_rad, data.output_rad, data.noise_bound_rad)
+    full = bound_output_backlash_system(*args, na=2, nk=1, nb=2)
+    fast = bound_output_backlash_system(*args, na=2, nk=1, nb=2, verify_inner=False)
+    assert fast.linear.inner_lower is None and full.linear.inner_lower is not None
+    assert fast.linear_intervals == full.linear_intervals
