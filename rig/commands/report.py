@@ -1,0 +1,342 @@
+"""``rig report RESULTS... --out DIR``: a static HTML page with PNG figures from the files a user has.
+
+RESULTS may be, in any order and mixed:
+
+* experiment logs (``rig-log v1``) or plain CSV files with columns ``t,u,y``: signals and loop timing;
+* the JSON printed by ``rig identify output-backlash --json`` (one file per method; several are shown side by
+  side): interval table, interval figure and the Bode magnitude of the linear-block box;
+* the JSON printed by ``rig identify hammerstein --json``: poles, borders and singular values;
+* the JSON printed by ``rig diagnose --json``: the missing effects and how much each closed the gap.
+
+Each file is recognised by its content (the log header, or the JSON keys); anything else is refused with a
+message naming the file and what was expected.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import re
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from rig import exit_codes
+
+__all__ = ["ResultFile", "read_result_file", "register", "report_sections", "run", "write_result_report"]
+
+DESCRIPTION = """\
+Write a static HTML report (index.html and PNG figures) from result files:
+
+  experiment logs (rig-log v1) or CSV files with columns t,u,y     signals and sample-period jitter
+  JSON of `rig identify output-backlash --json` (one per method)  intervals side by side, Bode of the box
+  JSON of `rig identify hammerstein --json`                      poles, borders, singular values
+  JSON of `rig diagnose --json`                                  missing effects and the gap they closed
+
+Save the JSON with e.g. `rig identify hammerstein run.csv --json > hammerstein.json`. The frequency axis
+of the Bode figure is in Hz when --sample-period is given or an experiment log is among the files, else in
+cycles per sample. The command prints the path of index.html."""
+
+EXPECTED = ("a rig-log v1 experiment log, a CSV file with columns t,u,y, or the JSON printed by "
+            "`rig identify output-backlash --json`, `rig identify hammerstein --json` or `rig diagnose --json`")
+
+
+@dataclass(frozen=True)
+class ResultFile:
+    """One input of the report: its path, its kind and its content.
+
+    ``kind`` is ``"experiment"`` (``content`` an :class:`identify.experiment_record.ExperimentRecord`),
+    ``"output_backlash"``, ``"hammerstein"`` or ``"diagnose"`` (``content`` the parsed JSON object).
+    """
+
+    path: Path
+    kind: str
+    content: Any
+
+    @property
+    def slug(self) -> str:
+        """The file stem reduced to the characters a figure name allows."""
+        return re.sub(r"[^A-Za-z0-9_-]+", "_", self.path.stem).strip("_") or "result"
+
+
+def _json_kind(document: Any) -> str | None:
+    if not isinstance(document, dict):
+        return None
+    keys = set(document)
+    if {"missing_effects", "gap_initial", "gap_final"} <= keys:
+        return "diagnose"
+    if {"order", "poles", "borders", "singular_values"} <= keys:
+        return "hammerstein"
+    if {"backlash", "linear", "method"} <= keys or (document.get("empty") is True and "method" in keys):
+        return "output_backlash"
+    return None
+
+
+def read_result_file(path: str | Path) -> ResultFile:
+    """Recognise and read one result file.
+
+    Raises
+    ------
+    FileNotFoundError
+        The path is not a file.
+    rig.protocols.errors.LogFileError
+        The file is none of the known kinds; the message names the file and what was expected.
+    """
+    from identify.validation import InvalidInputError
+    from rig.log_file import read_experiment_data
+    from rig.protocols.errors import LogFileError
+
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no such file (expected {EXPECTED})")
+    raw = path.read_bytes()
+    if raw.startswith(b"# rig-log"):
+        return ResultFile(path, "experiment", read_experiment_data(path))
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError:
+        raise LogFileError(f"{path}: not a text file; expected {EXPECTED}") from None
+    stripped = text.lstrip()
+    if stripped.startswith(("{", "[")):
+        try:
+            document = json.loads(text)
+        except json.JSONDecodeError as err:
+            raise LogFileError(f"{path}: invalid JSON ({err}); expected {EXPECTED}") from None
+        kind = _json_kind(document)
+        if kind is None:
+            keys = ", ".join(sorted(document)) if isinstance(document, dict) else type(document).__name__
+            raise LogFileError(
+                f"{path}: JSON with keys [{keys}] is not a result this command knows; expected the JSON of "
+                "`rig identify output-backlash --json` (keys backlash, linear, method), `rig identify hammerstein "
+                "--json` (keys order, poles, borders, singular_values) or `rig diagnose --json` (keys "
+                "missing_effects, gap_initial, gap_final)")
+        return ResultFile(path, kind, document)
+    try:
+        return ResultFile(path, "experiment", read_experiment_data(path))
+    except (LogFileError, InvalidInputError, ValueError) as err:
+        reason = str(err).removeprefix(f"{path}: ")
+        raise LogFileError(f"{path}: not a result file ({reason}); expected {EXPECTED}") from None
+
+
+# ----------------------------------------------------------------------------------------------------------
+# sections
+# ----------------------------------------------------------------------------------------------------------
+
+
+def _intervals(document: dict[str, Any], group: str, path: Path) -> dict[str, Any]:
+    from identify.feasible_parameter_set import ParameterInterval
+
+    def number(value: Any) -> float:
+        return float(value)  # the JSON writes infinite bounds as the strings "inf"/"-inf"; float() reads both
+
+    out = {}
+    for name, values in document.get(group, {}).items():
+        try:
+            out[name] = ParameterInterval(number(values["lower"]), number(values["upper"]))
+        except (KeyError, TypeError, ValueError):
+            raise ValueError(f"{path}: {group}.{name}: expected an object with numbers lower and upper, got "
+                             f"{values!r}") from None
+    return out
+
+
+def _experiment_section(result: ResultFile, used: set[str]):
+    import numpy as np
+
+    from rig.plots.experiment import signal_figure, timing_figure
+    from rig.report import ReportSection
+
+    record = result.content
+    slug = _unique(result.slug, used)
+    jitter = np.diff(record.time_s) - record.sample_period_s
+    text = (f"{result.path.name}: {len(record)} samples at a nominal period of {record.sample_period_s * 1e3:g} ms "
+            f"({record.metadata.transport or 'unknown transport'}); {record.lost_count} lost samples; largest period "
+            f"deviation {float(np.max(np.abs(jitter))) * 1e6 if jitter.size else 0.0:.0f} us.")
+    return ReportSection(f"Experiment: {result.path.name}", text=text,
+                         figures=(signal_figure(record, f"signals_{slug}"), timing_figure(record, f"timing_{slug}")))
+
+
+def _set_membership_section(results: list[ResultFile], sample_period_s: float | None, used: set[str]):
+    from rig.plots.set_membership import (linear_block_bode_figure, parameter_intervals_figure, parameter_sort_key,
+                                          parameter_unit)
+    from rig.report import ReportSection
+
+    methods: dict[str, dict[str, Any]] = {}
+    paragraphs = ["Guaranteed bounds of a linear block followed by an output backlash (Cerone, Piga and Regruto "
+                  "2009): every parameter consistent with the data, the noise bound and the model structure lies "
+                  "in its interval."]
+    for result in results:
+        document = result.content
+        label = str(document.get("method", result.slug))
+        if label in methods:
+            label = _unique(f"{label} ({result.slug})", set(methods))
+        if document.get("empty"):
+            paragraphs.append(f"{result.path.name} ({label} method): EMPTY feasible set. "
+                              f"{document.get('explanation', '')}")
+            continue
+        methods[label] = {**_intervals(document, "backlash", result.path), **_intervals(document, "linear", result.path)}
+        if "invertible_samples" in document and "samples" in document:
+            paragraphs.append(f"{result.path.name} ({label} method): {document['invertible_samples']} of "
+                              f"{document['samples']} dynamic samples invertible.")
+    figures = []
+    header: tuple[str, ...] = ()
+    rows: tuple[tuple[str, ...], ...] = ()
+    if methods:
+        names = sorted({name for per in methods.values() for name in per}, key=parameter_sort_key)
+        header = ("parameter", "unit", *(f"{label} {end}" for label in methods for end in ("lower", "upper")))
+        rows = tuple((name, parameter_unit(name),
+                      *(f"{getattr(per[name], end):.6g}" if name in per else "-"
+                        for per in methods.values() for end in ("lower", "upper")))
+                     for name in names)
+        base = _unique("set_membership", used)
+        figures.append(parameter_intervals_figure(methods, f"{base}_intervals"))
+        if any(re.fullmatch(r"b\d+", name) for per in methods.values() for name in per):
+            figures.append(linear_block_bode_figure(methods, f"{base}_bode", sample_period_s=sample_period_s))
+    return ReportSection("Set membership: output backlash and linear block", text="\n\n".join(paragraphs),
+                         table_header=header, table_rows=rows, figures=tuple(figures))
+
+
+def _hammerstein_section(result: ResultFile, sample_period_s: float | None, used: set[str]):
+    from rig.plots.hammerstein import borders_figure, poles_figure, singular_values_figure
+    from rig.report import ReportSection
+
+    document = result.content
+    slug = _unique(f"hammerstein_{result.slug}", used)
+    rows = [("order", str(document["order"]))]
+    rows += [(f"pole {k + 1}", f"{re_part:+.6f} {im_part:+.6f}j") for k, (re_part, im_part) in enumerate(document["poles"])]
+    for key, label in (("mu0", "mu0 = H[u_min] [rad]"), ("fit_percent", "simulation fit [%]"),
+                       ("residual_rms", "residual RMS [rad]"), ("split", "B and mu estimated")):
+        if key in document:
+            value = document[key]
+            rows.append((label, f"{value:.6g}" if isinstance(value, (int, float)) else str(value)))
+    text = (f"{result.path.name}: Hammerstein model with input backlash or switch identified by subspace "
+            "(Pouliquen et al. 2013).")
+    return ReportSection(f"Hammerstein model: {result.path.name}", text=text, table_header=("quantity", "value"),
+                         table_rows=tuple(rows),
+                         figures=(poles_figure(document, f"{slug}_poles", sample_period_s=sample_period_s),
+                                  borders_figure(document, f"{slug}_borders"),
+                                  singular_values_figure(document, f"{slug}_singular_values")))
+
+
+def _diagnose_section(result: ResultFile, used: set[str]):
+    from rig.report import ReportFigure, ReportSection
+
+    document = result.content
+    slug = _unique(f"diagnose_{result.slug}", used)
+    effects = list(document.get("missing_effects") or [])
+    try:
+        gap_initial = float(document["gap_initial"])
+        gap_final = float(document["gap_final"])
+        steps = [(str(e["effect"]), float(e["gap_before"]), float(e["gap_after"]), dict(e.get("parameters", {})))
+                 for e in effects]
+    except (KeyError, TypeError, ValueError) as err:
+        raise ValueError(f"{result.path}: expected the JSON of `rig diagnose --json` (missing_effects with effect, "
+                         f"parameters, gap_before, gap_after; gap_initial; gap_final): {err!r}") from None
+    rows = tuple((name, ", ".join(f"{key} = {value:.4g}" if isinstance(value, (int, float)) else f"{key} = {value}"
+                                  for key, value in parameters.items()) or "-",
+                  f"{before:.4g}", f"{after:.4g}") for name, before, after, parameters in steps)
+    fractions = ""
+    if "falsified_fraction_initial" in document and "falsified_fraction_final" in document:
+        fractions = (f" Samples outside the noise bound: {100 * float(document['falsified_fraction_initial']):.1f} % "
+                     f"before, {100 * float(document['falsified_fraction_final']):.1f} % after.")
+    named = ", ".join(name for name, *_ in steps) or "none (the model already explains the data)"
+    text = (f"{result.path.name}: missing effects named, in order: {named}. Free-run RMS error on the validation "
+            f"segment {gap_initial:.4g} rad before, {gap_final:.4g} rad after.{fractions}")
+    labels = ["start model"] + [f"+ {name}" for name, *_ in steps]
+    gaps = [gap_initial] + [after for _, _, after, _ in steps]
+
+    def draw(figure) -> None:
+        axes = figure.subplots()
+        positions = range(len(gaps))
+        axes.bar(positions, gaps, color=["tab:gray"] + ["tab:green"] * (len(gaps) - 1))
+        axes.set_xticks(list(positions), labels, fontsize=8)
+        axes.set_xlabel("model [-]")
+        axes.set_ylabel("validation gap (free-run RMS) [rad]")
+        axes.grid(True, axis="y", lw=0.3, alpha=0.5)
+
+    reduction = (1.0 - gap_final / gap_initial) * 100.0 if gap_initial > 0 else 0.0
+    caption = (f"Model discrepancy: the free-run RMS error on the validation segment for the start model and after "
+               f"each effect added ({named}); the gap went from {gap_initial:.4g} to {gap_final:.4g} rad "
+               f"({reduction:.0f} % smaller). Look for each added effect lowering the bar clearly; a last bar still far "
+               "above the noise level means something is still unexplained.")
+    return ReportSection(f"Model discrepancy: {result.path.name}", text=text,
+                         table_header=("missing effect", "parameters", "gap before [rad]", "gap after [rad]"),
+                         table_rows=rows, figures=(ReportFigure(f"{slug}_gap", caption, draw, size_in=(6.5, 3.5)),))
+
+
+def _unique(name: str, used: set[str]) -> str:
+    candidate, counter = name, 2
+    while candidate in used:
+        candidate = f"{name}_{counter}"
+        counter += 1
+    used.add(candidate)
+    return candidate
+
+
+def report_sections(results: list[ResultFile], *, sample_period_s: float | None = None) -> list:
+    """The report's sections: experiments, then set membership (all methods together), Hammerstein models and
+    discrepancy diagnoses, each in the order given.
+
+    ``sample_period_s`` sets the frequency axis of the Bode and pole figures; without it the first experiment
+    log's period is used, if any.
+    """
+    experiments = [result for result in results if result.kind == "experiment"]
+    if sample_period_s is None and experiments:
+        sample_period_s = float(experiments[0].content.sample_period_s)
+    used: set[str] = set()
+    sections = [_experiment_section(result, used) for result in experiments]
+    backlash_results = [result for result in results if result.kind == "output_backlash"]
+    if backlash_results:
+        sections.append(_set_membership_section(backlash_results, sample_period_s, used))
+    sections += [_hammerstein_section(result, sample_period_s, used) for result in results if result.kind == "hammerstein"]
+    sections += [_diagnose_section(result, used) for result in results if result.kind == "diagnose"]
+    return sections
+
+
+def write_result_report(paths: list[str | Path], out_dir: str | Path, *, title: str = "rig report",
+                        sample_period_s: float | None = None) -> tuple[Path, int]:
+    """Read every result file, write the report to ``out_dir``; return (index.html path, number of figures)."""
+    from rig.report import write_report
+
+    results = [read_result_file(path) for path in paths]
+    sections = report_sections(results, sample_period_s=sample_period_s)
+    index = write_report(out_dir, title, sections)
+    return index, sum(len(section.figures) for section in sections)
+
+
+def _positive_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number of seconds, got {text!r}") from None
+    if not value > 0.0 or value == float("inf"):
+        raise argparse.ArgumentTypeError(f"expected a finite number of seconds > 0, got {text!r}")
+    return value
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    parser = subparsers.add_parser(
+        "report",
+        help="write an HTML report with figures from logs and identification results",
+        description=DESCRIPTION,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    parser.add_argument("results", nargs="+", metavar="RESULT",
+                        help="experiment log, t,u,y CSV, or saved JSON of rig identify/diagnose --json")
+    parser.add_argument("--out", required=True, metavar="DIR", help="directory for index.html and the PNG figures")
+    parser.add_argument("--title", default="rig report", help="page title (default: rig report)")
+    parser.add_argument("--sample-period", type=_positive_float, default=None, metavar="S",
+                        help="sample period in seconds for frequency axes (default: from the first log, if any)")
+    parser.add_argument("--json", action="store_true", help='print {"report": PATH, "figures": N}')
+    parser.set_defaults(handler=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    index, count = write_result_report(args.results, args.out, title=args.title, sample_period_s=args.sample_period)
+    index = index.resolve()
+    if args.json:
+        print(json.dumps({"report": str(index), "figures": count}))
+    else:
+        print(index)
+    sys.stdout.flush()
+    return exit_codes.SUCCESS

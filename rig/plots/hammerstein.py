@@ -1,0 +1,220 @@
+"""Figures of a Hammerstein model identified by subspace (Pouliquen et al., CDC 2013;
+:mod:`identify.hammerstein_subspace`).
+
+* :func:`poles_figure`: the poles of G in the z-plane with the unit circle, and a zoom on them;
+* :func:`borders_figure`: the ascending and descending paths P_a, P_d (eq. (3)) with their nodes;
+* :func:`singular_values_figure`: the singular values of the PI-MOESP projection (eq. (12)) with the chosen
+  order marked.
+
+Each function takes a :class:`identify.hammerstein_subspace.HammersteinModel` or the dictionary of its
+``to_dict()`` (the JSON printed by ``rig identify hammerstein --json``) and a figure name, and returns a
+:class:`rig.report.ReportFigure`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from typing import Any, Union
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from identify.hammerstein_subspace import HammersteinModel
+from rig.report import ReportFigure
+
+__all__ = ["HammersteinSource", "borders_figure", "hammerstein_figures", "poles_figure", "singular_values_figure"]
+
+HammersteinSource = Union[HammersteinModel, Mapping[str, Any]]
+"""A model, or the dictionary of ``HammersteinModel.to_dict()`` / ``rig identify hammerstein --json``."""
+
+
+@dataclass(frozen=True)
+class _ModelView:
+    """The numbers the figures need, from a model or from its JSON."""
+
+    order: int
+    poles: NDArray[np.complex128]
+    ascending_u: NDArray[np.float64]
+    ascending_h: NDArray[np.float64]
+    descending_u: NDArray[np.float64]
+    descending_h: NDArray[np.float64]
+    singular_values: NDArray[np.float64]
+    fit_percent: float | None
+
+
+def _view(model: HammersteinSource) -> _ModelView:
+    if isinstance(model, HammersteinModel):
+        return _ModelView(model.order, np.asarray(model.poles, dtype=complex),
+                          np.asarray(model.ascending_border.nodes_u), np.asarray(model.ascending_border.values),
+                          np.asarray(model.descending_border.nodes_u), np.asarray(model.descending_border.values),
+                          np.asarray(model.singular_values), float(model.fit_percent))
+    if isinstance(model, Mapping):
+        missing = [key for key in ("order", "poles", "borders", "singular_values") if key not in model]
+        if missing:
+            raise ValueError(f"model: expected the keys of HammersteinModel.to_dict(); missing {', '.join(missing)}")
+        poles = np.array([complex(float(re), float(im)) for re, im in model["poles"]], dtype=complex)
+        borders = model["borders"]
+        fit = model.get("fit_percent")
+        return _ModelView(int(model["order"]), poles,
+                          np.asarray(borders["ascending"]["u"], dtype=float),
+                          np.asarray(borders["ascending"]["h"], dtype=float),
+                          np.asarray(borders["descending"]["u"], dtype=float),
+                          np.asarray(borders["descending"]["h"], dtype=float),
+                          np.asarray(model["singular_values"], dtype=float), None if fit is None else float(fit))
+    raise TypeError(f"model: expected a HammersteinModel or its to_dict() mapping, got {type(model).__name__}")
+
+
+def _matched_distance(estimated: NDArray[np.complex128], true: NDArray[np.complex128]) -> float:
+    """Largest distance from a true pole to its nearest estimated pole."""
+    if estimated.size == 0 or true.size == 0:
+        return float("nan")
+    return float(np.max(np.min(np.abs(true[:, None] - estimated[None, :]), axis=1)))
+
+
+def poles_figure(model: HammersteinSource, name: str, *, true_poles: ArrayLike | None = None,
+                 sample_period_s: float | None = None) -> ReportFigure:
+    """The poles of the identified G (eigenvalues of A, step 1 of Section III) in the z-plane.
+
+    Left: the whole unit circle (stability: every pole inside). Right: a zoom on the poles, where the
+    distance to the true poles reads.
+
+    Parameters
+    ----------
+    true_poles
+        Poles of the true G (simulation), drawn as circles.
+    sample_period_s
+        When given, the caption also states the poles' natural frequencies in Hz.
+    """
+    view = _view(model)
+    truth = None if true_poles is None else np.atleast_1d(np.asarray(true_poles, dtype=complex))
+    radius = float(np.max(np.abs(view.poles))) if view.poles.size else float("nan")
+    pole_text = ", ".join(f"{p.real:.4f}{p.imag:+.4f}j" for p in np.sort_complex(view.poles))
+    notes = [f"order {view.order}, poles {pole_text}, largest |p| = {radius:.4f}"
+             f" ({'stable' if radius < 1.0 else 'NOT stable'})"]
+    if sample_period_s is not None and view.poles.size:
+        with np.errstate(divide="ignore"):
+            frequencies = np.abs(np.log(view.poles.astype(complex))) / (2 * np.pi * float(sample_period_s))
+        notes.append("natural frequencies " + ", ".join(f"{f:.3g} Hz" for f in np.unique(np.round(frequencies, 12))))
+    if truth is not None:
+        notes.append(f"farthest true pole is {_matched_distance(view.poles, truth):.3g} from an estimated one")
+
+    def draw(figure) -> None:
+        whole, zoom = figure.subplots(1, 2)
+        angle = np.linspace(0.0, 2 * np.pi, 400)
+        points = [view.poles] + ([truth] if truth is not None else [])
+        everything = np.concatenate(points) if points else np.empty(0, dtype=complex)
+        for axes in (whole, zoom):
+            axes.plot(np.cos(angle), np.sin(angle), color="0.6", lw=0.8, label="unit circle")
+            axes.plot(view.poles.real, view.poles.imag, "x", color="tab:blue", ms=8, mew=1.5, label="identified poles")
+            if truth is not None:
+                axes.plot(truth.real, truth.imag, "o", mfc="none", color="tab:red", ms=9, label="true poles")
+            axes.axhline(0.0, color="0.85", lw=0.5)
+            axes.axvline(0.0, color="0.85", lw=0.5)
+            axes.set_xlabel("real part [-]")
+            axes.set_ylabel("imaginary part [-]")
+        whole.set_aspect("equal")
+        whole.set_xlim(-1.15, 1.15)
+        whole.set_ylim(-1.15, 1.15)
+        whole.legend(loc="lower left", fontsize=7)
+        if everything.size:
+            centre_re, centre_im = float(np.mean(everything.real)), float(np.mean(everything.imag))
+            half = max(float(np.max(np.abs(everything.real - centre_re))),
+                       float(np.max(np.abs(everything.imag - centre_im))), 1e-3) * 1.3
+            zoom.set_xlim(centre_re - half, centre_re + half)
+            zoom.set_ylim(centre_im - half, centre_im + half)
+        zoom.set_title("zoom on the poles", fontsize=9)
+
+    caption = (f"Poles of the identified linear part G in the z-plane (Pouliquen et al. 2013, step 1 of Section III: "
+               f"eigenvalues of A), with the unit circle{' and the true poles (red circles)' if truth is not None else ''}; "
+               f"right: zoom. {'; '.join(notes)}. Look for every pole inside the unit circle"
+               f"{' and on its true pole' if truth is not None else ''}.")
+    return ReportFigure(name, caption, draw, size_in=(8.0, 4.0))
+
+
+def borders_figure(model: HammersteinSource, name: str, *, true_ascending: Callable[[float], float] | None = None,
+                   true_descending: Callable[[float], float] | None = None) -> ReportFigure:
+    """The ascending and descending paths P_a, P_d of the nonlinearity (eq. (3)) with their nodes.
+
+    Parameters
+    ----------
+    true_ascending, true_descending
+        The true paths as callables u -> H (e.g. a border of :mod:`identify.plant_blocks`), drawn dashed;
+        the caption gives the largest error at the nodes. For a backlash, pass the paths the input actually
+        travels (the ascending path from u_min stays at H[u_min] until the ascending border reaches it).
+    """
+    view = _view(model)
+    notes = [f"{view.ascending_u.size} ascending and {view.descending_u.size} descending nodes on "
+             f"[{view.ascending_u[0]:.4g}, {view.ascending_u[-1]:.4g}] rad"]
+    gap = np.interp(view.ascending_u, view.descending_u, view.descending_h) - view.ascending_h
+    notes.append(f"largest vertical gap P_d - P_a = {float(np.max(gap)):.4g} rad (the play seen at the output)")
+    errors = []
+    for label, nodes_u, nodes_h, border in (("ascending", view.ascending_u, view.ascending_h, true_ascending),
+                                            ("descending", view.descending_u, view.descending_h, true_descending)):
+        if border is not None:
+            true_values = np.array([float(border(float(u))) for u in nodes_u])
+            errors.append(f"{label} {float(np.max(np.abs(nodes_h - true_values))):.3g} rad")
+    if errors:
+        notes.append("largest error at the nodes against the true paths: " + ", ".join(errors))
+    if view.fit_percent is not None:
+        notes.append(f"simulation fit {view.fit_percent:.1f} %")
+
+    def draw(figure) -> None:
+        axes = figure.subplots()
+        low, high = float(view.ascending_u[0]), float(view.ascending_u[-1])
+        grid = np.linspace(low, high, 300)
+        axes.plot(view.ascending_u, view.ascending_h, "-o", color="tab:orange", ms=4, label="ascending path P_a")
+        axes.plot(view.descending_u, view.descending_h, "-s", color="tab:blue", ms=4, label="descending path P_d")
+        if true_ascending is not None:
+            axes.plot(grid, [true_ascending(float(u)) for u in grid], "--", color="tab:red", lw=1.0,
+                      label="true ascending")
+        if true_descending is not None:
+            axes.plot(grid, [true_descending(float(u)) for u in grid], "--", color="navy", lw=1.0,
+                      label="true descending")
+        axes.set_xlabel("input u [rad]")
+        axes.set_ylabel("nonlinearity output H[u] [rad]")
+        axes.grid(True, lw=0.3, alpha=0.5)
+        axes.legend(loc="upper left", fontsize=7)
+
+    caption = (f"Borders of the input nonlinearity (Pouliquen et al. 2013, eq. (3)): piecewise-linear paths with "
+               f"their nodes{', true paths dashed' if errors else ''}. {'; '.join(notes)}. Look for the ascending "
+               "path below the descending one (backlash), both meeting at the ends, and the nodes on the true paths.")
+    return ReportFigure(name, caption, draw, size_in=(7.0, 4.5))
+
+
+def singular_values_figure(model: HammersteinSource, name: str) -> ReportFigure:
+    """Singular values of the PI-MOESP projection (eq. (12)) on a log scale, the chosen order marked."""
+    view = _view(model)
+    values = view.singular_values
+    order = view.order
+    if order < values.size and values[order] > 0:
+        gap_text = f"σ_{order}/σ_{order + 1} = {values[order - 1] / values[order]:.3g}"
+    else:
+        gap_text = "no singular value after the chosen order"
+    shown = min(values.size, max(3 * order, 12))
+
+    def draw(figure) -> None:
+        axes = figure.subplots()
+        index = np.arange(1, shown + 1)
+        axes.semilogy(index, values[:shown], "o-", color="tab:gray", ms=4, lw=0.8, label="singular values")
+        axes.semilogy(index[:order], values[:order], "o", color="tab:blue", ms=7, label=f"kept (order {order})")
+        axes.axvline(order + 0.5, color="tab:red", lw=1.0, ls="--", label="chosen order")
+        axes.set_xlabel("index k [-]")
+        axes.set_ylabel("singular value σ_k [rad]")
+        axes.grid(True, which="both", lw=0.3, alpha=0.5)
+        axes.legend(loc="upper right", fontsize=7)
+
+    caption = (f"Singular values of the PI-MOESP projection (Pouliquen et al. 2013, eqs. (11)-(12)), largest first, "
+               f"first {shown} of {values.size}; the order n = {order} is left of the dashed line, {gap_text}. Look "
+               "for a clear drop right after the chosen order: without one, the order is uncertain.")
+    return ReportFigure(name, caption, draw, size_in=(6.5, 3.8))
+
+
+def hammerstein_figures(model: HammersteinSource, prefix: str, *, true_poles: ArrayLike | None = None,
+                        true_ascending: Callable[[float], float] | None = None,
+                        true_descending: Callable[[float], float] | None = None,
+                        sample_period_s: float | None = None) -> list[ReportFigure]:
+    """The three figures of a Hammerstein model (poles, borders, singular values), names prefixed by ``prefix``."""
+    return [poles_figure(model, f"{prefix}poles", true_poles=true_poles, sample_period_s=sample_period_s),
+            borders_figure(model, f"{prefix}borders", true_ascending=true_ascending, true_descending=true_descending),
+            singular_values_figure(model, f"{prefix}singular_values")]

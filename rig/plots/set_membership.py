@@ -1,0 +1,686 @@
+"""Figures of the set-membership identification of a linear system with output backlash (Cerone, Piga and
+Regruto 2009; :mod:`identify.output_backlash_identification`).
+
+Each function takes a result and a figure name and returns a :class:`rig.report.ReportFigure` whose caption
+says what to look for, with the numbers that matter; matplotlib is used only inside the drawing functions.
+
+* :func:`backlash_characteristic_figure`: the lines w = m_r (x - c_r) and w = m_l (x + c_l) of every point of
+  D_γ (eqs. (13)-(17)) as a band, and the steady-state points (ū, ȳ) with their noise intervals;
+* :func:`feasible_polygons_figure`: D_γ^l and D_γ^r in the coordinates (m, m·c) where they are polygons;
+* :func:`inner_signal_figure`: the bounds x_t^min <= x_t <= x_t^max of eq. (23), invertible samples
+  (Proposition 2) marked;
+* :func:`parameter_intervals_figure`: the intervals of eqs. (18)-(20) and of Section 5, per method, against
+  the true values when known;
+* :func:`linear_block_bode_figure`: |G(e^{jω})| of the central model θ^c and its envelope over the
+  parameter box.
+
+Functions that only need intervals also take plain ``{name: ParameterInterval}`` mappings, so that
+``rig report`` can draw them from the JSON of ``rig identify output-backlash --json``.
+"""
+
+from __future__ import annotations
+
+import itertools
+import re
+from collections.abc import Mapping, Sequence
+from typing import Any, Union
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from identify.feasible_parameter_set import BacklashFeasibleSet, BacklashSidePolygon, ParameterInterval
+from identify.inner_signal_bounds import InnerSignalBounds
+from identify.linear_block_bounds import LinearBlockBounds
+from identify.output_backlash_identification import OutputBacklashIdentification
+from rig.report import ReportFigure
+
+__all__ = [
+    "BODE_MAX_CORNERS",
+    "IntervalSource",
+    "backlash_characteristic_figure",
+    "default_result_figures",
+    "feasible_polygons_figure",
+    "inner_signal_figure",
+    "linear_block_bode_figure",
+    "parameter_intervals_figure",
+    "parameter_sort_key",
+    "parameter_unit",
+]
+
+IntervalSource = Union[OutputBacklashIdentification, LinearBlockBounds, Mapping[str, ParameterInterval]]
+"""What the interval figures accept: a full result, the linear-block bounds, or ``{name: interval}``."""
+
+BODE_MAX_CORNERS = 1024
+"""Above this many box corners (more than 10 parameters) the envelope is taken over a random sample of
+corners (seed 0), and the caption says so."""
+
+_METHOD_COLOURS = ("tab:blue", "tab:orange", "tab:green", "tab:purple", "tab:brown", "tab:pink")
+_BACKLASH_ORDER = ("m_l", "c_l", "m_r", "c_r")
+
+
+def parameter_unit(name: str) -> str:
+    """Unit of a parameter of the output-backlash model: slopes m are rad/rad, dead bands c rad, a_i and b_j
+    dimensionless (the linear block maps rad to rad)."""
+    if name.startswith("m_"):
+        return "rad/rad"
+    if name.startswith("c_"):
+        return "rad"
+    return "-"
+
+
+# ----------------------------------------------------------------------------------------------------------
+# helpers
+# ----------------------------------------------------------------------------------------------------------
+
+
+def _backlash_set(result: OutputBacklashIdentification | BacklashFeasibleSet) -> BacklashFeasibleSet:
+    if isinstance(result, OutputBacklashIdentification):
+        return result.backlash
+    if isinstance(result, BacklashFeasibleSet):
+        return result
+    raise TypeError(f"result: expected an OutputBacklashIdentification or a BacklashFeasibleSet, got "
+                    f"{type(result).__name__}")
+
+
+def _true_backlash(true_backlash: Any) -> dict[str, float] | None:
+    """``{m_l, c_l, m_r, c_r}`` from an object with those attributes (e.g. plant_blocks.OutputBacklash) or a
+    mapping; None stays None."""
+    if true_backlash is None:
+        return None
+    if isinstance(true_backlash, Mapping):
+        return {name: float(true_backlash[name]) for name in _BACKLASH_ORDER}
+    return {name: float(getattr(true_backlash, name)) for name in _BACKLASH_ORDER}
+
+
+def _line_band(polygon: BacklashSidePolygon, x_rad: NDArray[np.float64]) -> tuple[NDArray, NDArray]:
+    """Lowest and highest w over the lines of one side of D_γ at each x.
+
+    w = m x ∓ p is linear in (m, p), so over the convex polygon its extremes are at vertices (the band is
+    exact, not sampled)."""
+    sign = -1.0 if polygon.side == "right" else 1.0
+    lines = np.outer(x_rad, polygon.slope_vertices) + sign * polygon.slope_times_deadband_vertices[None, :]
+    return lines.min(axis=1), lines.max(axis=1)
+
+
+def _central_line(polygon: BacklashSidePolygon) -> tuple[float, float]:
+    """(m, p) of the vertex mean: a point inside the convex polygon, used as the reference line."""
+    return float(np.mean(polygon.slope_vertices)), float(np.mean(polygon.slope_times_deadband_vertices))
+
+
+def _side_line(side: str, slope: float, slope_times_deadband: float, x_rad: NDArray) -> NDArray:
+    return slope * x_rad + (-slope_times_deadband if side == "right" else slope_times_deadband)
+
+
+def _point_in_polygon(polygon: BacklashSidePolygon, slope: float, slope_times_deadband: float) -> bool:
+    """Whether (m, p) satisfies every strip lo_k <= m ū_k ∓ p <= hi_k of the side (eqs. (16)-(17))."""
+    value = _side_line(polygon.side, slope, slope_times_deadband, polygon.steady_input_rad)
+    tolerance = 1e-12 * max(1.0, float(np.max(np.abs(value))))
+    return bool(np.all(polygon.strip_lower_rad - tolerance <= value)
+                and np.all(value <= polygon.strip_upper_rad + tolerance) and slope > 0 and slope_times_deadband >= 0)
+
+
+def _interval_text(interval: ParameterInterval | None, unit: str = "") -> str:
+    if interval is None:
+        return "empty"
+    suffix = f" {unit}" if unit and unit != "-" else ""
+    return f"[{interval.lower:.5g}, {interval.upper:.5g}]{suffix}"
+
+
+# ----------------------------------------------------------------------------------------------------------
+# backlash characteristic and polygons
+# ----------------------------------------------------------------------------------------------------------
+
+
+def backlash_characteristic_figure(result: OutputBacklashIdentification | BacklashFeasibleSet, name: str, *,
+                                   true_backlash: Any = None) -> ReportFigure:
+    """The backlash characteristic w(x): the feasible band of D_γ and the steady-state points.
+
+    Left panel: for each side, the band swept by the lines w = m_r x - p_r (right, eq. (11)) and
+    w = m_l x + p_l (left, eq. (12)) over all (m, p) of the polygon D_γ^r, D_γ^l (eqs. (14)-(17)), and the
+    2M steady-state points (ū_s, ȳ_s) with the interval ±(Δη̄ + α_s) that defines the strips. Right panel: the
+    same relative to a central line of each side (the vertex mean), in mrad, where the band's width is visible.
+
+    Parameters
+    ----------
+    result
+        The identification result (its ``backlash``) or the feasible set itself; the steady-state points are
+        read from its polygons.
+    name
+        File stem of the figure.
+    true_backlash
+        The true backlash (an object or mapping with ``m_l c_l m_r c_r``), drawn dashed when given.
+    """
+    backlash = _backlash_set(result)
+    truth = _true_backlash(true_backlash)
+    sides = (backlash.left, backlash.right)
+    all_inputs = np.concatenate([side.steady_input_rad for side in sides])
+    reach = 1.1 * float(np.max(np.abs(all_inputs)))
+    x_full = np.linspace(-reach, reach, 200)
+    widths_mrad: dict[str, float] = {}
+    for side in sides:
+        if not side.is_empty:
+            edge = np.array([float(np.max(np.abs(side.steady_input_rad))) * (1 if side.side == "right" else -1)])
+            low, high = _line_band(side, edge)
+            widths_mrad[side.side] = float(high[0] - low[0]) * 1e3
+    colours = {"left": "tab:blue", "right": "tab:orange"}
+
+    def draw(figure) -> None:
+        full_axes, zoom_axes = figure.subplots(1, 2)
+        for side in sides:
+            colour = colours[side.side]
+            centre = 0.5 * (side.strip_lower_rad + side.strip_upper_rad)
+            half = 0.5 * (side.strip_upper_rad - side.strip_lower_rad)
+            label = f"{side.side} half-wave points"
+            full_axes.errorbar(side.steady_input_rad, centre, yerr=half, fmt=".", ms=4, color=colour, label=label,
+                               capsize=2, lw=0.8)
+            if side.is_empty:
+                continue
+            low, high = _line_band(side, x_full)
+            full_axes.fill_between(x_full, low, high, color=colour, alpha=0.35, lw=0.8, edgecolor=colour,
+                                   label=f"{side.side} lines of D_γ")
+            slope, offset = _central_line(side)
+            x_side = np.linspace(0.0, reach, 100) if side.side == "right" else np.linspace(-reach, 0.0, 100)
+            reference = _side_line(side.side, slope, offset, x_side)
+            low, high = _line_band(side, x_side)
+            zoom_axes.fill_between(x_side, (low - reference) * 1e3, (high - reference) * 1e3, color=colour,
+                                   alpha=0.35, lw=0, label=f"{side.side} band")
+            point_reference = _side_line(side.side, slope, offset, side.steady_input_rad)
+            zoom_axes.errorbar(side.steady_input_rad, (centre - point_reference) * 1e3, yerr=half * 1e3, fmt=".",
+                               ms=4, color=colour, capsize=2, lw=0.8)
+            if truth is not None:
+                m_true = truth["m_r"] if side.side == "right" else truth["m_l"]
+                p_true = m_true * (truth["c_r"] if side.side == "right" else truth["c_l"])
+                zoom_axes.plot(x_side, (_side_line(side.side, m_true, p_true, x_side) - reference) * 1e3, "k--",
+                               lw=0.9)
+        if truth is not None:
+            for side_name in ("left", "right"):
+                m_true = truth[f"m_{side_name[0]}"]
+                p_true = m_true * truth[f"c_{side_name[0]}"]
+                full_axes.plot(x_full, _side_line(side_name, m_true, p_true, x_full), "k--", lw=0.8,
+                               label="true lines" if side_name == "left" else None)
+        full_axes.axhline(0.0, color="0.7", lw=0.5)
+        full_axes.axvline(0.0, color="0.7", lw=0.5)
+        full_axes.set_xlabel("inner signal x [rad]")
+        full_axes.set_ylabel("backlash output w [rad]")
+        full_axes.legend(loc="upper left", fontsize=7)
+        zoom_axes.axhline(0.0, color="0.7", lw=0.5)
+        zoom_axes.set_xlabel("inner signal x [rad]")
+        zoom_axes.set_ylabel("w - central line [mrad]")
+
+    count = int(all_inputs.size)
+    alpha_max = float(np.max(backlash.alpha_rad)) if backlash.alpha_rad.size else 0.0
+    widening = f" widened by α up to {alpha_max:.3g} rad (filter step known)" if alpha_max > 0 else ""
+    if backlash.is_empty:
+        assert backlash.explanation is not None
+        state = (f"The feasible set is EMPTY: {backlash.explanation.message} Look for the conflicting points "
+                 f"{list(backlash.explanation.conflicting_samples)} (indices of the steady-state points).")
+    else:
+        truth_text = ""
+        if truth is not None:
+            inside = [side.side for side in sides
+                      if _point_in_polygon(side, truth[f"m_{side.side[0]}"],
+                                           truth[f"m_{side.side[0]}"] * truth[f"c_{side.side[0]}"])]
+            truth_text = (f" The true lines (dashed) are inside the band on {len(inside)} of 2 sides"
+                          f"{' (' + ', '.join(inside) + ')' if inside else ''}.")
+        state = (f"Band width at the largest amplitude: left {widths_mrad.get('left', float('nan')):.3g} mrad, "
+                 f"right {widths_mrad.get('right', float('nan')):.3g} mrad; m_l in {_interval_text(backlash.m_l)}, "
+                 f"c_l in {_interval_text(backlash.c_l, 'rad')}, m_r in {_interval_text(backlash.m_r)}, "
+                 f"c_r in {_interval_text(backlash.c_r, 'rad')}.{truth_text} Look for every error bar touching "
+                 "its band (it must, by construction) and for a band that narrows where the points are dense.")
+    caption = (f"Backlash characteristic w(x) (Cerone et al. 2009, eqs. (11)-(17)): shaded, every line of the "
+               f"feasible set D_γ (exact, from the polygon vertices); dots, the {count} steady-state points with "
+               f"their noise interval ±Δη = ±{backlash.noise_bound_rad:.3g} rad{widening}. Right: the same relative "
+               f"to a central line of each side, in mrad. {state}")
+    return ReportFigure(name, caption, draw, size_in=(9.0, 4.0))
+
+
+def feasible_polygons_figure(result: OutputBacklashIdentification | BacklashFeasibleSet, name: str, *,
+                             true_backlash: Any = None) -> ReportFigure:
+    """D_γ^l and D_γ^r (eqs. (14)-(17)) as polygons in (m, m·c), with the true point when given.
+
+    In these coordinates each steady-state point is a strip and each side of D_γ their intersection; the
+    orthotope B_γ of eqs. (18)-(20) is the range of m and of c = p/m over the vertices.
+    """
+    backlash = _backlash_set(result)
+    truth = _true_backlash(true_backlash)
+    sides = (backlash.left, backlash.right)
+    verdicts = []
+    for side in sides:
+        letter = side.side[0]
+        if side.is_empty:
+            verdicts.append(f"{side.side}: EMPTY")
+            continue
+        text = (f"{side.side}: {side.slope_vertices.size} vertices, m_{letter} in "
+                f"{_interval_text(getattr(backlash, f'm_{letter}'))}, c_{letter} in "
+                f"{_interval_text(getattr(backlash, f'c_{letter}'), 'rad')}")
+        if truth is not None:
+            inside = _point_in_polygon(side, truth[f"m_{letter}"], truth[f"m_{letter}"] * truth[f"c_{letter}"])
+            text += f", true point {'inside' if inside else 'OUTSIDE'}"
+        verdicts.append(text)
+
+    def draw(figure) -> None:
+        from matplotlib.ticker import MaxNLocator
+
+        axes_pair = figure.subplots(1, 2)
+        for axes, side, colour in zip(axes_pair, sides, ("tab:blue", "tab:orange")):
+            letter = side.side[0]
+            if not side.is_empty:
+                m = np.r_[side.slope_vertices, side.slope_vertices[:1]]
+                p = np.r_[side.slope_times_deadband_vertices, side.slope_times_deadband_vertices[:1]]
+                axes.fill(m, p, color=colour, alpha=0.35, lw=0)
+                axes.plot(m, p, "-o", color=colour, ms=3, lw=1.0, label=f"D_γ^{letter} vertices")
+            else:
+                axes.text(0.5, 0.5, f"{side.side} side: empty", ha="center", va="center", transform=axes.transAxes)
+            if truth is not None:
+                axes.plot(truth[f"m_{letter}"], truth[f"m_{letter}"] * truth[f"c_{letter}"], "k*", ms=10,
+                          label="true (m, m·c)")
+            axes.set_title(f"{side.side} side ({'negative' if letter == 'l' else 'positive'} half-waves)",
+                           fontsize=9)
+            axes.set_xlabel(f"slope m_{letter} [rad/rad]")
+            axes.set_ylabel(f"m_{letter}·c_{letter} [rad]")
+            axes.xaxis.set_major_locator(MaxNLocator(4))
+            axes.legend(loc="best", fontsize=7)
+
+    caption = ("Feasible polygons of the backlash in (m, m·c) coordinates (Cerone et al. 2009, eqs. (14)-(17): "
+               "each steady-state point is a strip, each side the intersection of its strips). "
+               + "; ".join(verdicts) + ". Look for small polygons (tight bounds) and the true point inside.")
+    return ReportFigure(name, caption, draw, size_in=(8.0, 3.8))
+
+
+# ----------------------------------------------------------------------------------------------------------
+# inner signal
+# ----------------------------------------------------------------------------------------------------------
+
+
+def inner_signal_figure(result: OutputBacklashIdentification | InnerSignalBounds, name: str, *,
+                        sample_period_s: float | None = None, true_inner_rad: ArrayLike | None = None) -> ReportFigure:
+    """Bounds on the unmeasured inner signal x_t over time (eq. (23)), invertible samples marked.
+
+    Top: x_t^min..x_t^max; samples inverted through one backlash line (Proposition 2, eqs. (24)-(27)) as
+    points with error bars, the others as the band between the two lines (the band bound of
+    :mod:`identify.inner_signal_bounds`). Bottom: the half-width Δx_t of eq. (28) on a log scale.
+
+    Parameters
+    ----------
+    result
+        The identification result (its ``inner_signal``) or the bounds themselves.
+    sample_period_s
+        Time axis in seconds when given, else sample index.
+    true_inner_rad
+        The true x_t (simulation), drawn when given.
+    """
+    inner = result.inner_signal if isinstance(result, OutputBacklashIdentification) else result
+    if not isinstance(inner, InnerSignalBounds):
+        raise ValueError("result: the inner-signal bounds are missing (the backlash feasible set is empty)")
+    count = int(inner.lower_rad.size)
+    if sample_period_s is None:
+        time_axis, time_label = np.arange(count, dtype=float), "sample t [-]"
+    else:
+        time_axis, time_label = np.arange(count) * float(sample_period_s), "time [s]"
+    truth = None if true_inner_rad is None else np.asarray(true_inner_rad, dtype=float)
+    if truth is not None and truth.shape != (count,):
+        raise ValueError(f"true_inner_rad: expected {count} samples like the bounds, got shape {truth.shape}")
+    invertible = np.asarray(inner.invertible, dtype=bool)
+    half = inner.half_width_rad
+    median_inv = float(np.median(half[invertible])) * 1e3 if invertible.any() else float("nan")
+    median_band = float(np.median(half[~invertible])) * 1e3 if (~invertible).any() else float("nan")
+    truth_text = ""
+    if truth is not None:
+        inside = int(np.count_nonzero((inner.lower_rad <= truth) & (truth <= inner.upper_rad)))
+        truth_text = f" The true x_t (black) is inside the bounds at {inside} of {count} samples."
+
+    def draw(figure) -> None:
+        bound_axes, width_axes = figure.subplots(2, 1, sharex=True, height_ratios=(2, 1))
+        bound_axes.fill_between(time_axis, inner.lower_rad, inner.upper_rad, step="mid", color="0.8", lw=0,
+                                label="bounds x_t^min..x_t^max")
+        if (~invertible).any():
+            bound_axes.vlines(time_axis[~invertible], inner.lower_rad[~invertible], inner.upper_rad[~invertible],
+                              color="tab:gray", lw=1.5, label="band-bounded samples")
+        if invertible.any():
+            bound_axes.errorbar(time_axis[invertible], inner.center_rad[invertible], yerr=half[invertible],
+                                fmt="o", ms=2.5, color="tab:red", lw=0.8, label="invertible samples (Prop. 2)")
+        if truth is not None:
+            bound_axes.plot(time_axis, truth, "k-", lw=0.7, label="true x_t")
+        bound_axes.set_ylabel("inner signal x [rad]")
+        bound_axes.legend(loc="upper right", fontsize=7)
+        width_axes.semilogy(time_axis[~invertible], half[~invertible] * 1e3, "s", ms=3, color="tab:gray",
+                            label="band-bounded")
+        width_axes.semilogy(time_axis[invertible], half[invertible] * 1e3, "o", ms=2.5, color="tab:red",
+                            label="invertible")
+        width_axes.set_ylabel("half-width Δx [mrad]")
+        width_axes.set_xlabel(time_label)
+        width_axes.legend(loc="upper right", fontsize=7)
+
+    caption = (f"Bounds on the inner signal x_t over {count} samples (Cerone et al. 2009, Section 4, eqs. (23)-(28)): "
+               f"{inner.num_invertible} samples ({100.0 * inner.num_invertible / max(count, 1):.0f} %) are invertible "
+               f"(red, |y_t - y_(t-1)| > 2Δη), with median half-width {median_inv:.3g} mrad; the "
+               f"{count - inner.num_invertible} others (gray) are bounded by the band between the two backlash lines, "
+               f"median half-width {median_band:.3g} mrad.{truth_text} Look for many invertible samples: the linear "
+               "block's bounds are tight only where x_t is known closely.")
+    return ReportFigure(name, caption, draw, size_in=(8.0, 5.0))
+
+
+# ----------------------------------------------------------------------------------------------------------
+# parameter intervals
+# ----------------------------------------------------------------------------------------------------------
+
+
+def _intervals_of(source: IntervalSource) -> dict[str, ParameterInterval]:
+    """All intervals of a source, backlash first then the linear block, or ``{}`` for an empty result."""
+    if isinstance(source, OutputBacklashIdentification):
+        if source.is_empty:
+            return {}
+        return {**source.backlash_intervals, **source.linear_intervals}
+    if isinstance(source, LinearBlockBounds):
+        return {} if source.is_empty else dict(source.intervals)
+    if isinstance(source, Mapping):
+        return {str(key): value for key, value in source.items()}
+    raise TypeError(f"expected an OutputBacklashIdentification, LinearBlockBounds or a mapping of intervals, got "
+                    f"{type(source).__name__}")
+
+
+def _inner_values(source: IntervalSource) -> tuple[dict[str, float], dict[str, float]] | None:
+    linear = source.linear if isinstance(source, OutputBacklashIdentification) else source
+    if isinstance(linear, LinearBlockBounds) and linear.inner_lower is not None and linear.inner_upper is not None:
+        return linear.inner_lower, linear.inner_upper
+    return None
+
+
+def parameter_sort_key(name: str) -> tuple[int, int, str]:
+    """Model order: m_l c_l m_r c_r, then a1, a2, ..., then b<nk>.., then anything else by name."""
+    if name in _BACKLASH_ORDER:
+        return (0, _BACKLASH_ORDER.index(name), name)
+    match = re.fullmatch(r"([ab])(\d+)", name)
+    if match:
+        return (1 if match.group(1) == "a" else 2, int(match.group(2)), name)
+    return (3, 0, name)
+
+
+def parameter_intervals_figure(results: Mapping[str, IntervalSource], name: str, *,
+                               true_values: Mapping[str, float] | None = None,
+                               parameters: Sequence[str] | None = None) -> ReportFigure:
+    """Guaranteed parameter intervals of one or several methods side by side, against the true values.
+
+    One panel per parameter (``m_l c_l m_r c_r`` of eqs. (18)-(20), then ``a1.. b<nk>..`` of Section 5); in
+    each, one bar per method, and for the coupled method the verified inner values (points of the exact
+    feasible set reach at least these) as a thicker bar. The axis shows the deviation from the true value
+    (or, without it, from the first method's centre) so that intervals of widths 1e-4 and 1e-1 both read.
+
+    Parameters
+    ----------
+    results
+        Method label -> result, linear-block bounds or ``{name: ParameterInterval}``; an empty result shows
+        as "empty".
+    true_values
+        Parameter name -> true value (simulation), drawn as a red line at 0.
+    parameters
+        Which parameters to show (default: all, in model order).
+    """
+    if not results:
+        raise ValueError("results: expected at least one method's intervals")
+    intervals = {label: _intervals_of(source) for label, source in results.items()}
+    inner = {label: _inner_values(source) for label, source in results.items()}
+    names = list(parameters) if parameters is not None else sorted(
+        {key for per_method in intervals.values() for key in per_method}, key=parameter_sort_key)
+    if not names:
+        raise ValueError("results: no intervals to draw (every result is empty)")
+    labels = list(intervals)
+    truth = dict(true_values or {})
+    references: dict[str, float] = {}
+    for parameter in names:
+        if parameter in truth:
+            references[parameter] = float(truth[parameter])
+        else:
+            first = next((per[parameter] for per in intervals.values() if parameter in per), None)
+            references[parameter] = first.center if first is not None else 0.0
+
+    summary = []
+    for label in labels:
+        per = intervals[label]
+        if not per:
+            summary.append(f"{label}: empty feasible set")
+            continue
+        known = [p for p in names if p in per and p in truth]
+        contained = sum(per[p].contains(truth[p]) for p in known)
+        text = f"{label}: median half-width {np.median([per[p].half_width for p in names if p in per]):.3g}"
+        if known:
+            text += f", true value inside {contained} of {len(known)}"
+        summary.append(text)
+    if len(labels) >= 2 and intervals[labels[0]] and intervals[labels[-1]]:
+        common = [p for p in names if p in intervals[labels[0]] and p in intervals[labels[-1]]
+                  and re.fullmatch(r"[ab]\d+", p) and intervals[labels[0]][p].half_width > 0]
+        if common:
+            ratio = np.median([intervals[labels[-1]][p].half_width / intervals[labels[0]][p].half_width
+                               for p in common])
+            summary.append(f"median width ratio {labels[-1]}/{labels[0]} on the linear block = {ratio:.3g}")
+
+    columns = min(4, len(names))
+    rows = -(-len(names) // columns)
+
+    def draw(figure) -> None:
+        from matplotlib.ticker import MaxNLocator
+
+        axes_grid = np.atleast_1d(figure.subplots(rows, columns, squeeze=False)).ravel()
+        for axes, parameter in zip(axes_grid, names):
+            reference = references[parameter]
+            spans = [abs(value - reference) for per in intervals.values() if parameter in per
+                     for value in (per[parameter].lower, per[parameter].upper) if np.isfinite(value)]
+            exponent = int(np.floor(np.log10(max(spans)))) if spans and max(spans) > 0 else 0
+            exponent = 0 if -1 <= exponent <= 2 else exponent
+            scale = 10.0 ** -exponent
+            for row, label in enumerate(labels):
+                colour = _METHOD_COLOURS[row % len(_METHOD_COLOURS)]
+                interval = intervals[label].get(parameter)
+                if interval is None:
+                    axes.text(0.5, row, "empty", ha="center", va="center", fontsize=7, color=colour,
+                              transform=axes.get_yaxis_transform())
+                    continue
+                low, high = (interval.lower - reference) * scale, (interval.upper - reference) * scale
+                axes.plot([low, high], [row, row], "-", color=colour, lw=2.0, solid_capstyle="butt")
+                axes.plot([low, high], [row, row], "|", color=colour, ms=8)
+                values = inner[label]
+                if values is not None and parameter in values[0]:
+                    axes.plot([(values[0][parameter] - reference) * scale, (values[1][parameter] - reference) * scale],
+                              [row, row], "-", color=colour, lw=6.0, alpha=0.4, solid_capstyle="butt")
+            if parameter in truth:
+                axes.axvline(0.0, color="tab:red", lw=1.0)
+            axes.set_ylim(-0.8, len(labels) - 0.2)
+            axes.set_yticks(range(len(labels)), labels, fontsize=7)
+            axes.set_ylabel("method [-]", fontsize=7)
+            axes.tick_params(axis="x", labelsize=7)
+            axes.xaxis.set_major_locator(MaxNLocator(5))
+            sign = "-" if reference >= 0 else "+"
+            unit = parameter_unit(parameter)
+            scaled_unit = (f"1e{exponent} {unit}" if unit != "-" else f"1e{exponent}") if exponent else unit
+            axes.set_xlabel(f"{parameter} {sign} {abs(reference):.5g} [{scaled_unit}]", fontsize=8)
+        for axes in axes_grid[len(names):]:
+            axes.set_visible(False)
+
+    what = "true value (red line at 0)" if truth else "first method's centre (no true values given)"
+    caption = (f"Guaranteed parameter intervals per method ({', '.join(labels)}), each axis relative to the {what}; "
+               "backlash m, c from eqs. (18)-(20), linear block a_i, b_j from Section 5 of Cerone et al. (2009); "
+               "thick pale bars: verified inner values of the coupled method (the exact bounds lie between them and "
+               f"the thin bars). {'; '.join(summary)}. Look for every bar crossing the red line and for the tighter "
+               "method.")
+    return ReportFigure(name, caption, draw, size_in=(9.0, 1.0 + 1.35 * rows))
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Bode magnitude of the linear-block set
+# ----------------------------------------------------------------------------------------------------------
+
+
+def _polynomials(theta: Mapping[str, float]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """(B coefficients of q^0..q^-nb, A coefficients 1, a_1..a_na) from ``{a1.., b<nk>..}``."""
+    a_terms = {int(key[1:]): value for key, value in theta.items() if re.fullmatch(r"a\d+", key)}
+    b_terms = {int(key[1:]): value for key, value in theta.items() if re.fullmatch(r"b\d+", key)}
+    if not b_terms:
+        raise ValueError("linear intervals: expected parameters b<k> of B(q^-1), got "
+                         f"{', '.join(sorted(theta)) or 'none'}")
+    a = np.zeros(max(a_terms, default=0) + 1)
+    a[0] = 1.0
+    for index, value in a_terms.items():
+        a[index] = value
+    b = np.zeros(max(b_terms) + 1)
+    for index, value in b_terms.items():
+        b[index] = value
+    return b, a
+
+
+def _magnitude_db(b: NDArray, a: NDArray, omega: NDArray) -> NDArray[np.float64]:
+    z_inv = np.exp(-1j * omega)
+    numerator = np.polyval(b[::-1], z_inv)
+    denominator = np.polyval(a[::-1], z_inv)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return 20.0 * np.log10(np.abs(numerator) / np.abs(denominator))
+
+
+def _linear_intervals(source: IntervalSource) -> dict[str, ParameterInterval]:
+    return {key: value for key, value in _intervals_of(source).items() if re.fullmatch(r"[ab]\d+", key)}
+
+
+def _true_polynomials(true_linear: Any) -> tuple[NDArray, NDArray] | None:
+    if true_linear is None:
+        return None
+    if isinstance(true_linear, Mapping):
+        return _polynomials(true_linear)
+    if isinstance(true_linear, tuple) and len(true_linear) == 2:
+        a_part, b_part = true_linear
+    else:
+        a_part, b_part = true_linear.a, true_linear.b
+    return np.asarray(b_part, dtype=float), np.r_[1.0, np.asarray(a_part, dtype=float)]
+
+
+def linear_block_bode_figure(results: IntervalSource | Mapping[str, IntervalSource], name: str, *,
+                             sample_period_s: float | None = None, true_linear: Any = None,
+                             num_frequencies: int = 400) -> ReportFigure:
+    """Bode magnitude of the linear block G(q) = B(q^-1)/A(q^-1): central model and the parameter box's envelope.
+
+    The central model is θ^c, the centre of the intervals (eq. (19) applied to Section 5). The envelope is
+    the lowest and highest |G(e^{jω})| over the corners of the box of θ (all 2^p corners up to p = 10, else
+    :data:`BODE_MAX_CORNERS` random ones): a picture of the box, which contains the feasible set; corners need
+    not be feasible nor have unit static gain (eq. (8)), so the envelope is wider than the set's own.
+
+    Parameters
+    ----------
+    results
+        One source (a result, linear-block bounds or ``{name: ParameterInterval}`` with ``a<i>``/``b<j>``), or
+        method label -> source to overlay several methods.
+    sample_period_s
+        Frequencies in Hz when given, else in cycles per sample.
+    true_linear
+        The true block: an object with ``a`` (a_1..a_na) and ``b`` (b_0..b_nb), e.g.
+        :class:`identify.plant_blocks.LinearBlock`, a tuple ``(a, b)`` or a mapping ``{a1.., b<k>..}``.
+    """
+    if isinstance(results, (OutputBacklashIdentification, LinearBlockBounds)) or (
+            isinstance(results, Mapping) and results and all(isinstance(v, ParameterInterval) for v in results.values())):
+        sources: dict[str, Any] = {"": results}
+    else:
+        sources = dict(results)  # type: ignore[arg-type]
+    boxes = {label: _linear_intervals(source) for label, source in sources.items()}
+    boxes = {label: box for label, box in boxes.items() if box}
+    if not boxes:
+        raise ValueError("results: no linear-block intervals to draw (empty feasible set?)")
+    omega = np.logspace(np.log10(np.pi / 1000.0), np.log10(np.pi), num_frequencies)
+    if sample_period_s is None:
+        frequency, frequency_label, nyquist_text = omega / (2 * np.pi), "frequency [cycles/sample]", "0.5 cycles/sample"
+    else:
+        frequency = omega / (2 * np.pi * float(sample_period_s))
+        frequency_label = "frequency [Hz]"
+        nyquist_text = f"{0.5 / float(sample_period_s):.4g} Hz"
+    curves = {}
+    sampled = False
+    for label, box in boxes.items():
+        keys = sorted(box, key=parameter_sort_key)
+        centre = _magnitude_db(*_polynomials({k: box[k].center for k in keys}), omega)
+        corner_count = 2 ** len(keys)
+        if corner_count <= BODE_MAX_CORNERS:
+            corners: Any = itertools.product((0, 1), repeat=len(keys))
+        else:
+            sampled = True
+            corners = np.random.default_rng(0).integers(0, 2, size=(BODE_MAX_CORNERS, len(keys)))
+        low = np.full(omega.shape, np.inf)
+        high = np.full(omega.shape, -np.inf)
+        used = 0
+        for corner in corners:
+            theta = {k: (box[k].upper if bit else box[k].lower) for k, bit in zip(keys, corner)}
+            magnitude = _magnitude_db(*_polynomials(theta), omega)
+            finite = np.isfinite(magnitude)
+            low[finite] = np.minimum(low[finite], magnitude[finite])
+            high[finite] = np.maximum(high[finite], magnitude[finite])
+            used += 1
+        curves[label] = (centre, low, high, used)
+    true_db = None
+    if true_linear is not None:
+        polynomials = _true_polynomials(true_linear)
+        assert polynomials is not None
+        true_db = _magnitude_db(*polynomials, omega)
+
+    notes = []
+    for label, (centre, low, high, used) in curves.items():
+        spread = float(np.nanmax(high - low)) if np.any(np.isfinite(high - low)) else float("nan")
+        text = (f"{label + ': ' if label else ''}{used} corners, widest envelope {spread:.3g} dB, "
+                f"central |G| at the lowest frequency {centre[0]:.3g} dB")
+        if true_db is not None:
+            inside = np.mean((low - 1e-9 <= true_db) & (true_db <= high + 1e-9)) * 100.0
+            text += f", true |G| inside the envelope at {inside:.0f} % of frequencies"
+        notes.append(text)
+
+    reference_db = next(iter(curves.values()))[0]
+    reference_label = next(iter(curves)) or "central model"
+
+    def draw(figure) -> None:
+        axes, deviation_axes = figure.subplots(2, 1, sharex=True, height_ratios=(3, 2))
+        for index, (label, (centre, low, high, _)) in enumerate(curves.items()):
+            colour = _METHOD_COLOURS[index % len(_METHOD_COLOURS)]
+            prefix = f"{label}: " if label else ""
+            axes.fill_between(frequency, low, high, color=colour, alpha=0.25, lw=0, label=f"{prefix}box envelope")
+            axes.plot(frequency, centre, color=colour, lw=1.2, label=f"{prefix}central model θ^c")
+            deviation_axes.fill_between(frequency, low - reference_db, high - reference_db, color=colour, alpha=0.25,
+                                        lw=0.6, edgecolor=colour)
+            deviation_axes.plot(frequency, centre - reference_db, color=colour, lw=1.0)
+        if true_db is not None:
+            axes.plot(frequency, true_db, "k--", lw=1.0, label="true G")
+            deviation_axes.plot(frequency, true_db - reference_db, "k--", lw=1.0)
+        axes.set_xscale("log")
+        axes.set_ylabel("magnitude |G| [dB]")
+        axes.grid(True, which="both", lw=0.3, alpha=0.5)
+        axes.legend(loc="best", fontsize=7)
+        deviation_axes.set_xlabel(frequency_label)
+        deviation_axes.set_ylabel(f"|G| - {reference_label} θ^c [dB]" if next(iter(curves)) else "|G| - |G(θ^c)| [dB]",
+                                  fontsize=8)
+        deviation_axes.grid(True, which="both", lw=0.3, alpha=0.5)
+
+    corner_text = (f"a random sample of {BODE_MAX_CORNERS} corners (seed 0)" if sampled else "all corners")
+    caption = (f"Bode magnitude of the linear block G = B/A (Cerone et al. 2009, Section 5) up to the Nyquist "
+               f"frequency {nyquist_text}: line, the central model θ^c; shaded, the envelope of |G| over {corner_text} "
+               "of the parameter box (the box's envelope: it contains every model of the feasible set, but box "
+               "corners need not be feasible nor have unit static gain, so it is wider than the set itself)"
+               f"{'; dashed, the true model' if true_db is not None else ''}. {'; '.join(notes)}. Look for the true "
+               "curve inside the envelope and a narrow envelope where the excitation had power. Bottom: the same "
+               "relative to the first central model, where the envelope's width reads.")
+    return ReportFigure(name, caption, draw, size_in=(7.5, 5.5))
+
+
+def default_result_figures(results: Mapping[str, OutputBacklashIdentification], prefix: str, *,
+                           sample_period_s: float | None = None, true_backlash: Any = None,
+                           true_linear: Any = None, true_values: Mapping[str, float] | None = None,
+                           true_inner_rad: ArrayLike | None = None) -> list[ReportFigure]:
+    """The five set-membership figures for one or several methods, names prefixed by ``prefix``.
+
+    The backlash, polygon and inner-signal figures come from the first non-empty result (they are the same
+    for every method: the methods differ only in Section 5); intervals and Bode show every method.
+    """
+    figures: list[ReportFigure] = []
+    non_empty = [result for result in results.values() if not result.backlash.is_empty]
+    first = non_empty[0] if non_empty else next(iter(results.values()))
+    figures.append(backlash_characteristic_figure(first, f"{prefix}backlash", true_backlash=true_backlash))
+    figures.append(feasible_polygons_figure(first, f"{prefix}polygons", true_backlash=true_backlash))
+    if first.inner_signal is not None:
+        figures.append(inner_signal_figure(first, f"{prefix}inner_signal", sample_period_s=sample_period_s,
+                                           true_inner_rad=true_inner_rad))
+    if any(not result.is_empty for result in results.values()):
+        figures.append(parameter_intervals_figure(results, f"{prefix}intervals", true_values=true_values))
+        figures.append(linear_block_bode_figure(results, f"{prefix}bode", sample_period_s=sample_period_s,
+                                                true_linear=true_linear))
+    return figures

@@ -1,0 +1,84 @@
+"""Figures of a Hammerstein model identified by subspace on a short noise-free simulation (Pouliquen 2013)."""
+
+from __future__ import annotations
+
+import json
+import re
+
+import numpy as np
+import pytest
+from plot_checks import unlabelled_axes
+
+from identify.border_lifting import PathNodes
+from identify.cyclic_excitation import cyclic_random_excitation
+from identify.hammerstein_subspace import identify_hammerstein
+from identify.plant_blocks import LinearBlock, PlantModel, pouliquen2013_backlash
+from rig.plots.hammerstein import borders_figure, hammerstein_figures, poles_figure, singular_values_figure
+from rig.report import ReportSection, missing_images, write_report
+
+G = LinearBlock(a=(-1.8858, 0.9048), b=(0.0, 0.1994, -0.1804), sample_period_s=0.01)
+BACKLASH = pouliquen2013_backlash()
+TRUE_POLES = np.roots([1.0, -1.8858, 0.9048])
+U_MIN, U_MAX = -3.0, 3.0
+
+
+def true_ascending(u: float) -> float:
+    """The path travelled from rest at u_min: the output stays at H_d(u_min) until H_a reaches it."""
+    return max(BACKLASH.ascending(u), BACKLASH.descending(U_MIN))
+
+
+def true_descending(u: float) -> float:
+    return min(BACKLASH.descending(u), BACKLASH.ascending(U_MAX))
+
+
+@pytest.fixture(scope="module")
+def model():
+    u = cyclic_random_excitation(1200, U_MIN, U_MAX, hold_samples=50, rng=0)
+    y = PlantModel((BACKLASH, G)).simulate(u)
+    return identify_hammerstein(u, y, PathNodes.uniform(U_MIN, U_MAX, 8), hold_samples=50)
+
+
+def _number(pattern: str, text: str) -> float:
+    match = re.search(pattern, text)
+    assert match, f"{pattern!r} not in {text!r}"
+    return float(match.group(1))
+
+
+def test_poles_figure_reports_stability_and_distance_to_the_true_poles(model):
+    figure = poles_figure(model, "poles", true_poles=TRUE_POLES, sample_period_s=0.01)
+    assert "order 2" in figure.caption and "(stable)" in figure.caption
+    assert _number(r"farthest true pole is ([0-9.eE+-]*[0-9]) from", figure.caption) < 2e-3
+    # The true poles' natural frequency: |ln p| / (2 pi T) = 2.25 Hz.
+    assert "natural frequencies 2.25 Hz" in figure.caption
+
+
+def test_borders_figure_measures_the_error_at_the_nodes(model):
+    figure = borders_figure(model, "borders", true_ascending=true_ascending, true_descending=true_descending)
+    assert "8 ascending and 8 descending nodes on [-3, 3] rad" in figure.caption
+    assert _number(r"ascending ([0-9.eE+-]*[0-9]) rad", figure.caption) < 0.1
+    assert _number(r"descending ([0-9.eE+-]*[0-9]) rad", figure.caption) < 0.1
+    # The play at the output: the true paths are arctan(u + 1) - arctan(u - 1) apart at u = 0, i.e. 1.57 rad.
+    assert _number(r"P_d - P_a = ([0-9.eE+-]*[0-9]) rad", figure.caption) == pytest.approx(np.pi / 2, abs=0.1)
+
+
+def test_singular_values_figure_marks_the_order_at_the_gap(model):
+    figure = singular_values_figure(model, "sv")
+    assert "order n = 2" in figure.caption
+    assert _number(r"σ_2/σ_3 = ([0-9.eE+-]*[0-9])", figure.caption) > 10
+
+
+def test_figures_from_the_json_of_the_command_match_the_model(model):
+    document = json.loads(json.dumps(model.to_dict()))
+    for make in (poles_figure, borders_figure, singular_values_figure):
+        assert make(document, "from_json").caption == make(model, "from_model").caption
+    with pytest.raises(ValueError, match="missing borders, singular_values"):
+        poles_figure({"order": 2, "poles": []}, "bad")
+
+
+def test_every_figure_renders_with_units_and_no_missing_image(model, tmp_path):
+    figures = hammerstein_figures(model, "h_", true_poles=TRUE_POLES, true_ascending=true_ascending,
+                                  true_descending=true_descending, sample_period_s=0.01)
+    assert [f.name for f in figures] == ["h_poles", "h_borders", "h_singular_values"]
+    assert [problem for figure in figures for problem in unlabelled_axes(figure)] == []
+    index = write_report(tmp_path, "Hammerstein", [ReportSection("Hammerstein", figures=tuple(figures))])
+    assert missing_images(index) == []

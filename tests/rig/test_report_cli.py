@@ -1,0 +1,151 @@
+"""``rig report``: a page from an experiment log and the saved JSON of identify/diagnose; foreign files refused.
+
+Also the documented Chromium check script, on the path that needs no browser (Chromium not installed)."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from identify.cyclic_excitation import cyclic_random_excitation
+from identify.excitation_design import filtered_staircase, prbs_sequence, staircase_steady_state_indices
+from identify.experiment_record import ExperimentMetadata, ExperimentRecord
+from identify.plant_blocks import LinearBlock, OutputBacklash, PlantModel, pouliquen2013_backlash
+from rig import exit_codes
+from rig.cli import main
+from rig.commands.report import read_result_file, report_sections
+from rig.log_file import write_log
+from rig.report import missing_images
+
+SM_PLANT = PlantModel((LinearBlock((0.5, 0.7), (0.0, 1.4, 0.8), 0.01), OutputBacklash(0.248, 0.0698, 0.252, 0.0349)))
+NOISE = 1e-3
+DIAGNOSE = {"missing_effects": [{"effect": "backlash", "parameters": {"width_rad": 0.02}, "gap_before": 0.01,
+                                 "gap_after": 0.002}],
+            "gap_initial": 0.01, "gap_final": 0.002, "falsified_fraction_initial": 0.4,
+            "falsified_fraction_final": 0.01}
+REPO = Path(__file__).resolve().parents[2]
+
+
+def _csv(path: Path, header: str, *columns) -> Path:
+    path.write_text(header + "\n" + "".join(",".join(repr(float(v)) for v in row) + "\n" for row in zip(*columns)))
+    return path
+
+
+def _json_of(capsys, argv: list[str], path: Path) -> Path:
+    assert main(argv) == exit_codes.SUCCESS
+    path.write_text(capsys.readouterr().out)
+    return path
+
+
+@pytest.fixture(scope="module")
+def data(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("report_inputs")
+    rng = np.random.default_rng(0)
+    staircase = filtered_staircase(list(np.linspace(0.6, 3.0, 6)), 0.8125, 100)
+    steady = staircase_steady_state_indices(6, 100)
+    _csv(folder / "steady.csv", "u,y", staircase[steady],
+         SM_PLANT.simulate(staircase)[steady] + rng.uniform(-NOISE, NOISE, steady.size))
+    u = prbs_sequence(60, 1.0, rng=1)
+    y = SM_PLANT.simulate(u) + rng.uniform(-NOISE, NOISE, u.size)
+    write_log(folder / "prbs.log", ExperimentRecord(np.arange(u.size) * 0.01, u, y, None, None,
+                                                    ExperimentMetadata(sample_period_s=0.01, excitation="prbs")))
+    cyclic = cyclic_random_excitation(1200, -3.0, 3.0, hold_samples=50, rng=0)
+    G = LinearBlock(a=(-1.8858, 0.9048), b=(0.0, 0.1994, -0.1804), sample_period_s=0.01)
+    _csv(folder / "cyclic.csv", "u,y", cyclic, PlantModel((pouliquen2013_backlash(), G)).simulate(cyclic))
+    (folder / "diagnose.json").write_text(json.dumps(DIAGNOSE))
+    return folder
+
+
+def test_report_from_a_log_and_the_json_of_identify_and_diagnose(data, capsys, tmp_path):
+    common = ["identify", "output-backlash", "--steady", str(data / "steady.csv"), "--dynamic", str(data / "prbs.log"),
+              "--noise-bound", repr(NOISE), "--na", "2", "--nk", "1", "--nb", "2", "--json"]
+    paper = _json_of(capsys, [*common, "--method", "paper"], data / "paper.json")
+    coupled = _json_of(capsys, common, data / "coupled.json")
+    out = tmp_path / "report"
+    code = main(["report", str(data / "prbs.log"), str(paper), str(coupled), str(data / "diagnose.json"),
+                 "--out", str(out), "--json"])
+    assert code == exit_codes.SUCCESS
+    printed = json.loads(capsys.readouterr().out)
+    index = Path(printed["report"])
+    assert index == (out / "index.html").resolve() and index.is_file()
+    # 2 experiment figures (signals, timing), intervals + Bode for both methods together, 1 discrepancy figure.
+    assert printed["figures"] == 5
+    assert missing_images(index) == []
+    page = index.read_text(encoding="utf-8")
+    assert page.count("<img ") == 5
+    for title in ("Experiment: prbs.log", "Set membership", "Model discrepancy: diagnose.json"):
+        assert title in page
+    # The interval table shows each method's bounds as printed by `rig identify output-backlash --json`.
+    coupled_a1 = json.loads(coupled.read_text())["linear"]["a1"]
+    assert f"{coupled_a1['lower']:.6g}" in page and f"{coupled_a1['upper']:.6g}" in page
+    assert "paper lower" in page and "coupled upper" in page
+    # The Bode axis is in Hz, taken from the log's sample period (10 ms: Nyquist 50 Hz).
+    assert "Nyquist frequency 50 Hz" in page
+    assert "went from 0.01 to 0.002 rad (80 % smaller)" in page
+
+
+def test_the_json_of_identify_hammerstein_gives_its_three_figures(data, capsys):
+    hammerstein = _json_of(capsys, ["identify", "hammerstein", str(data / "cyclic.csv"), "--json"],
+                           data / "hammerstein.json")
+    result = read_result_file(hammerstein)
+    assert result.kind == "hammerstein"
+    (section,) = report_sections([result], sample_period_s=0.01)
+    assert [figure.name for figure in section.figures] == [
+        "hammerstein_hammerstein_poles", "hammerstein_hammerstein_borders", "hammerstein_hammerstein_singular_values"]
+    assert ("order", "2") in section.table_rows
+    assert "natural frequencies 2.25 Hz" in section.figures[0].caption
+
+
+def test_report_prints_the_index_path_and_shows_an_empty_set(data, capsys, tmp_path):
+    empty = data / "empty.json"
+    empty.write_text(json.dumps({"empty": True, "method": "paper",
+                                 "explanation": "steady-state data: no right backlash line passes within the bound"}))
+    code = main(["report", str(empty), "--out", str(tmp_path / "r"), "--sample-period", "0.001"])
+    assert code == exit_codes.SUCCESS
+    index = Path(capsys.readouterr().out.strip())
+    assert index == (tmp_path / "r" / "index.html").resolve()
+    page = index.read_text(encoding="utf-8")
+    assert "EMPTY feasible set" in page and "no right backlash line passes" in page
+    assert missing_images(index) == []
+
+
+def test_foreign_files_are_refused_with_the_file_and_what_was_expected(data, capsys, tmp_path):
+    foreign = tmp_path / "foreign.csv"
+    foreign.write_text("hello,world\n1,2\n")
+    code = main(["report", str(data / "prbs.log"), str(foreign), "--out", str(tmp_path / "r")])
+    assert code == exit_codes.BAD_INPUT
+    error = capsys.readouterr().err
+    assert f"{foreign}: not a result file" in error and "missing column(s) t, u, y" in error
+    assert "rig identify output-backlash --json" in error
+    assert not (tmp_path / "r" / "index.html").exists()
+
+    other_json = tmp_path / "settings.json"
+    other_json.write_text(json.dumps({"speed": 3, "name": "x"}))
+    assert main(["report", str(other_json), "--out", str(tmp_path / "r")]) == exit_codes.BAD_INPUT
+    error = capsys.readouterr().err
+    assert f"{other_json}: JSON with keys [name, speed] is not a result" in error
+
+    binary = tmp_path / "figure.png"
+    binary.write_bytes(b"\x89PNG\r\n\x1a\n\x00\x00\xff\xfe")
+    assert main(["report", str(binary), "--out", str(tmp_path / "r")]) == exit_codes.BAD_INPUT
+    assert f"{binary}: not a text file" in capsys.readouterr().err
+
+    assert main(["report", str(tmp_path / "nowhere.json"), "--out", str(tmp_path / "r")]) == exit_codes.BAD_INPUT
+    assert "nowhere.json: no such file" in capsys.readouterr().err
+
+
+def test_chromium_check_script_says_how_to_install_chromium(tmp_path):
+    (tmp_path / "index.html").write_text("<html><body></body></html>")
+    completed = subprocess.run([sys.executable, str(REPO / "scripts" / "check_report_in_chromium"), str(tmp_path),
+                                "--chromium", str(tmp_path / "no-such-chromium")],
+                               capture_output=True, text=True, timeout=60, check=False)
+    assert completed.returncode == 3
+    assert "Chromium is not installed" in completed.stderr and "apt-get install chromium" in completed.stderr
+    missing = subprocess.run([sys.executable, str(REPO / "scripts" / "check_report_in_chromium"),
+                              str(tmp_path / "absent")], capture_output=True, text=True, timeout=60, check=False)
+    assert missing.returncode == 2 and "no such file" in missing.stderr
