@@ -4,8 +4,12 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
+
 from rig.demo import DemoOutcome, summary_rows
 from rig.plots.experiment import signal_figure, timing_figure
+from rig.plots.hammerstein import hammerstein_figures
+from rig.plots.set_membership import default_result_figures
 from rig.report import ReportSection, write_report
 
 
@@ -13,6 +17,16 @@ def demo_report_sections(outcome: DemoOutcome) -> list[ReportSection]:
     """The demo's report, section by section."""
     truth = outcome.truth
     runs = outcome.runs
+    plan = outcome.plan
+    backlash, u_min, u_max = truth.backlash, -plan.cyclic_range_rad, plan.cyclic_range_rad
+
+    # On Table I cycles an output play acts like input borders: ascending from rest at u_min the load holds
+    # until the play is taken up, descending from u_max likewise (unit static gain of the linear part).
+    def ascending(u: float) -> float:
+        return max(backlash.m_l * (u_min + backlash.c_l), backlash.m_r * (u - backlash.c_r))
+
+    def descending(u: float) -> float:
+        return min(backlash.m_r * (u_max - backlash.c_r), backlash.m_l * (u + backlash.c_l))
     sections = [
         ReportSection(
             "Summary",
@@ -32,8 +46,32 @@ def demo_report_sections(outcome: DemoOutcome) -> list[ReportSection]:
                           for figure in (signal_figure(runs[name].record, f"signals_{name}"),
                                          timing_figure(runs[name].record, f"timing_{name}"))),
         ),
+        ReportSection(
+            "Set-membership bounds (Cerone, Piga, Regruto 2009)",
+            text=(f"Backlash from {outcome.steady_input_rad.size} steady-state points of the staircase filtered "
+                  f"with a = {outcome.filter_pole:.4g}; linear block (na = {plan.na}, nk = {plan.nk}, nb = {plan.nb}, "
+                  f"unit static gain) from the PRBS experiment, by the paper's method and by the coupled one."),
+            figures=tuple(default_result_figures(
+                outcome.set_membership, "sm_", sample_period_s=truth.linear.sample_period_s,
+                true_backlash=truth.backlash, true_linear=truth.linear,
+                true_values={**_true_backlash_values(outcome), **truth.theta(plan.na, plan.nk, plan.nb)})),
+        ),
+        ReportSection(
+            "Hammerstein model (Pouliquen et al. 2013)",
+            text=("The gearbox's play sits after the drive loop, so the Hammerstein structure (nonlinearity first) "
+                  "is an approximation here; the true borders drawn are what the play gives on Table I cycles."),
+            figures=tuple(hammerstein_figures(
+                outcome.hammerstein, "hammerstein_", true_poles=np.roots(np.r_[1.0, truth.linear.a]),
+                true_ascending=ascending, true_descending=descending,
+                sample_period_s=truth.linear.sample_period_s)),
+        ),
     ]
     return sections
+
+
+def _true_backlash_values(outcome: DemoOutcome) -> dict[str, float]:
+    backlash = outcome.truth.backlash
+    return {"m_l": backlash.m_l, "c_l": backlash.c_l, "m_r": backlash.m_r, "c_r": backlash.c_r}
 
 
 def write_demo_report(outcome: DemoOutcome, out_dir: str | Path) -> Path:

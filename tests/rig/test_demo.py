@@ -70,11 +70,3 @@ def test_lost_steady_state_samples_take_the_last_usable_one_within_the_tail():
     np.testing.assert_array_equal(last_valid_values(record, np.array([3, 4, 9]), max_age=2), [3.0, 3.0, 8.0])
     with pytest.raises(RuntimeError, match=r"samples 4\.\.4 were all lost"):
         last_valid_values(record, np.array([4]), max_age=0)
-
-
-def test_lost_samples_are_interpolated_for_the_least_squares_fit_only():
-    from rig.demo import interpolate_lost
-
-    filled, count = interpolate_lost(lossy_record())
-    assert count == 2
-    np.testing.assert_array_equal(filled, [0, 1, 2, 3, 4, 5, 6, 7, 8, 8])
