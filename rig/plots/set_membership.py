@@ -20,7 +20,6 @@ Functions that only need intervals also take plain ``{name: ParameterInterval}``
 
 from __future__ import annotations
 
-import itertools
 import re
 from collections.abc import Mapping, Sequence
 from typing import Any, Union
@@ -35,9 +34,9 @@ from identify.output_backlash_identification import OutputBacklashIdentification
 from rig.report import ReportFigure
 
 __all__ = [
-    "BODE_MAX_CORNERS",
     "IntervalSource",
     "backlash_characteristic_figure",
+    "box_magnitude_envelope",
     "default_result_figures",
     "feasible_polygons_figure",
     "inner_signal_figure",
@@ -49,10 +48,6 @@ __all__ = [
 
 IntervalSource = Union[OutputBacklashIdentification, LinearBlockBounds, Mapping[str, ParameterInterval]]
 """What the interval figures accept: a full result, the linear-block bounds, or ``{name: interval}``."""
-
-BODE_MAX_CORNERS = 1024
-"""Above this many box corners (more than 10 parameters) the envelope is taken over a random sample of
-corners (seed 0), and the caption says so."""
 
 _METHOD_COLOURS = ("tab:blue", "tab:orange", "tab:green", "tab:purple", "tab:brown", "tab:pink")
 _BACKLASH_ORDER = ("m_l", "c_l", "m_r", "c_r")
@@ -551,15 +546,81 @@ def _true_polynomials(true_linear: Any) -> tuple[NDArray, NDArray] | None:
     return np.asarray(b_part, dtype=float), np.r_[1.0, np.asarray(a_part, dtype=float)]
 
 
+def _zonotope_modulus_range(centre: NDArray[np.complex128],
+                            generators: NDArray[np.complex128]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Smallest and largest |z| over z = centre + Σ_k t_k g_k, |t_k| <= 1, per row (one row per frequency).
+
+    The set is a zonotope of the complex plane, a convex polygon with at most 2p vertices: with every
+    generator turned into the upper half-plane and sorted by angle, the boundary runs from centre - Σ g_k
+    by steps 2 g_k up to centre + Σ g_k and back by -2 g_k. |z| is convex, so its maximum is at a vertex; its
+    minimum is 0 if the polygon holds the origin, else the distance from the origin to the nearest edge.
+    """
+    flip = (generators.imag < 0) | ((generators.imag == 0) & (generators.real < 0))
+    g = np.where(flip, -generators, generators)
+    g = np.take_along_axis(g, np.argsort(np.angle(g), axis=1, kind="stable"), axis=1)
+    total = g.sum(axis=1)
+    steps = np.concatenate([2.0 * g, -2.0 * g], axis=1)
+    vertices = (centre - total)[:, None] + np.concatenate(
+        [np.zeros((g.shape[0], 1)), np.cumsum(steps, axis=1)[:, :-1]], axis=1)
+    largest = np.max(np.abs(vertices), axis=1)
+    start, edge = vertices, steps
+    to_origin = -start
+    cross = edge.real * to_origin.imag - edge.imag * to_origin.real
+    length2 = np.abs(edge) ** 2
+    inside = np.all(cross >= -1e-15 * np.maximum(length2, 1e-300), axis=1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        along = np.where(length2 > 0, (to_origin.real * edge.real + to_origin.imag * edge.imag) / length2, 0.0)
+    nearest = start + np.clip(along, 0.0, 1.0) * edge
+    # A flat zonotope (collinear generators) has no interior: the origin is in it only if it is on an edge.
+    following = np.roll(vertices, -1, axis=1)
+    area = 0.5 * np.abs(np.sum(vertices.real * following.imag - following.real * vertices.imag, axis=1))
+    perimeter = np.sum(np.sqrt(length2), axis=1)
+    has_interior = area > 1e-12 * perimeter**2
+    smallest = np.where(inside & has_interior, 0.0, np.min(np.abs(nearest), axis=1))
+    return smallest, largest
+
+
+def box_magnitude_envelope(box: Mapping[str, ParameterInterval],
+                           omega_rad_per_sample: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Exact lowest and highest |G(e^{jω})| over a box of θ = (a_1..a_na, b_nk..b_nb), G = B(q^-1)/A(q^-1).
+
+    B(e^{-jω}) depends only on b and A(e^{-jω}) only on a, each linearly, so over the box each ranges over a
+    zonotope of the complex plane (:func:`_zonotope_modulus_range`), independently of the other; hence
+    sup |G| = max|B| / min|A| and inf |G| = min|B| / max|A| exactly (+inf where some A of the box vanishes
+    on the unit circle, i.e. a model of the box has a pole there). The box contains the feasible set of
+    Section 5 of Cerone et al. (2009), so every feasible model's |G| lies in this envelope.
+    """
+    omega = np.atleast_1d(np.asarray(omega_rad_per_sample, dtype=float))
+    a_terms = {int(k[1:]): v for k, v in box.items() if re.fullmatch(r"a\d+", k)}
+    b_terms = {int(k[1:]): v for k, v in box.items() if re.fullmatch(r"b\d+", k)}
+    if not b_terms:
+        raise ValueError(f"box: expected parameters b<k> of B(q^-1), got {', '.join(sorted(box)) or 'none'}")
+
+    def zonotope(terms: Mapping[int, ParameterInterval], constant: float) -> tuple[NDArray, NDArray]:
+        if not terms:
+            return np.full(omega.shape, constant, dtype=complex), np.zeros((omega.size, 1), dtype=complex)
+        powers = np.array(sorted(terms))
+        phasors = np.exp(-1j * np.outer(omega, powers))
+        centre = constant + phasors @ np.array([terms[k].center for k in powers])
+        return centre, phasors * np.array([terms[k].half_width for k in powers])[None, :]
+
+    b_min, b_max = _zonotope_modulus_range(*zonotope(b_terms, 0.0))
+    a_min, a_max = _zonotope_modulus_range(*zonotope(a_terms, 1.0))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        upper = np.where(a_min > 0, b_max / np.where(a_min > 0, a_min, 1.0), np.inf)
+        lower = b_min / a_max
+    return lower, upper
+
+
 def linear_block_bode_figure(results: IntervalSource | Mapping[str, IntervalSource], name: str, *,
                              sample_period_s: float | None = None, true_linear: Any = None,
                              num_frequencies: int = 400) -> ReportFigure:
     """Bode magnitude of the linear block G(q) = B(q^-1)/A(q^-1): central model and the parameter box's envelope.
 
     The central model is θ^c, the centre of the intervals (eq. (19) applied to Section 5). The envelope is
-    the lowest and highest |G(e^{jω})| over the corners of the box of θ (all 2^p corners up to p = 10, else
-    :data:`BODE_MAX_CORNERS` random ones): a picture of the box, which contains the feasible set; corners need
-    not be feasible nor have unit static gain (eq. (8)), so the envelope is wider than the set's own.
+    the exact range of |G(e^{jω})| over the box of θ (:func:`box_magnitude_envelope`); the box contains the
+    feasible set, so the envelope is guaranteed to contain the |G| of every feasible model, but it is wider
+    than the set's own (box models need not be feasible nor have unit static gain, eq. (8)).
 
     Parameters
     ----------
@@ -588,28 +649,17 @@ def linear_block_bode_figure(results: IntervalSource | Mapping[str, IntervalSour
         frequency = omega / (2 * np.pi * float(sample_period_s))
         frequency_label = "frequency [Hz]"
         nyquist_text = f"{0.5 / float(sample_period_s):.4g} Hz"
+    feasible_points = {}
+    for label, source in sources.items():
+        linear = source.linear if isinstance(source, OutputBacklashIdentification) else source
+        if isinstance(linear, LinearBlockBounds) and linear.inner_point:
+            feasible_points[label] = _magnitude_db(*_polynomials(linear.inner_point), omega)
     curves = {}
-    sampled = False
     for label, box in boxes.items():
-        keys = sorted(box, key=parameter_sort_key)
-        centre = _magnitude_db(*_polynomials({k: box[k].center for k in keys}), omega)
-        corner_count = 2 ** len(keys)
-        if corner_count <= BODE_MAX_CORNERS:
-            corners: Any = itertools.product((0, 1), repeat=len(keys))
-        else:
-            sampled = True
-            corners = np.random.default_rng(0).integers(0, 2, size=(BODE_MAX_CORNERS, len(keys)))
-        low = np.full(omega.shape, np.inf)
-        high = np.full(omega.shape, -np.inf)
-        used = 0
-        for corner in corners:
-            theta = {k: (box[k].upper if bit else box[k].lower) for k, bit in zip(keys, corner)}
-            magnitude = _magnitude_db(*_polynomials(theta), omega)
-            finite = np.isfinite(magnitude)
-            low[finite] = np.minimum(low[finite], magnitude[finite])
-            high[finite] = np.maximum(high[finite], magnitude[finite])
-            used += 1
-        curves[label] = (centre, low, high, used)
+        centre = _magnitude_db(*_polynomials({k: v.center for k, v in box.items()}), omega)
+        lower, upper = box_magnitude_envelope(box, omega)
+        with np.errstate(divide="ignore"):
+            curves[label] = (centre, 20.0 * np.log10(lower), 20.0 * np.log10(upper))
     true_db = None
     if true_linear is not None:
         polynomials = _true_polynomials(true_linear)
@@ -617,48 +667,79 @@ def linear_block_bode_figure(results: IntervalSource | Mapping[str, IntervalSour
         true_db = _magnitude_db(*polynomials, omega)
 
     notes = []
-    for label, (centre, low, high, used) in curves.items():
-        spread = float(np.nanmax(high - low)) if np.any(np.isfinite(high - low)) else float("nan")
-        text = (f"{label + ': ' if label else ''}{used} corners, widest envelope {spread:.3g} dB, "
-                f"central |G| at the lowest frequency {centre[0]:.3g} dB")
+    for label, (centre, low, high) in curves.items():
+        width = high - low
+        finite = np.isfinite(width)
+        text = f"{label + ': ' if label else ''}" + (
+            f"median envelope width {float(np.median(width[finite])):.3g} dB"
+            + (f" where it is bounded ({100.0 * np.mean(finite):.0f} % of frequencies)" if not finite.all() else "")
+            if finite.any() else "envelope unbounded at every frequency")
+        if np.any(~np.isfinite(high)):
+            text += (f", no upper bound at {100.0 * np.mean(~np.isfinite(high)):.0f} % of frequencies (some box model "
+                     "has a pole on the unit circle there)")
+        if np.any(~np.isfinite(low)):
+            text += (f", lower bound 0 at {100.0 * np.mean(~np.isfinite(low)):.0f} % of frequencies (some box model "
+                     "has a zero there)")
+        text += f", central |G| at the lowest frequency {centre[0]:.3g} dB"
         if true_db is not None:
             inside = np.mean((low - 1e-9 <= true_db) & (true_db <= high + 1e-9)) * 100.0
             text += f", true |G| inside the envelope at {inside:.0f} % of frequencies"
         notes.append(text)
 
-    reference_db = next(iter(curves.values()))[0]
-    reference_label = next(iter(curves)) or "central model"
+    # The visible range follows the models, not an envelope that may reach +-inf.
+    shown = [centre for centre, _, _ in curves.values()] + ([true_db] if true_db is not None else [])
+    finite_values = np.concatenate([curve[np.isfinite(curve)] for curve in shown])
+    y_low = float(np.percentile(finite_values, 1)) - 30.0
+    y_high = float(np.percentile(finite_values, 99)) + 30.0
+    reference_db = true_db if true_db is not None else list(curves.values())[-1][0]
+    reference_label = "|G_true|" if true_db is not None else f"|G({list(curves)[-1] + ' ' if list(curves)[-1] else ''}θ^c)|"
 
     def draw(figure) -> None:
         axes, deviation_axes = figure.subplots(2, 1, sharex=True, height_ratios=(3, 2))
-        for index, (label, (centre, low, high, _)) in enumerate(curves.items()):
+        deviations = []
+        for index, (label, (centre, low, high)) in enumerate(curves.items()):
             colour = _METHOD_COLOURS[index % len(_METHOD_COLOURS)]
             prefix = f"{label}: " if label else ""
-            axes.fill_between(frequency, low, high, color=colour, alpha=0.25, lw=0, label=f"{prefix}box envelope")
+            axes.fill_between(frequency, np.clip(low, y_low, y_high), np.clip(high, y_low, y_high), color=colour,
+                              alpha=0.25, lw=0, label=f"{prefix}envelope over the box")
             axes.plot(frequency, centre, color=colour, lw=1.2, label=f"{prefix}central model θ^c")
-            deviation_axes.fill_between(frequency, low - reference_db, high - reference_db, color=colour, alpha=0.25,
-                                        lw=0.6, edgecolor=colour)
-            deviation_axes.plot(frequency, centre - reference_db, color=colour, lw=1.0)
+            deviation = (low - reference_db, high - reference_db, centre - reference_db)
+            deviations.append(deviation)
+        for index, (label, point_db) in enumerate(feasible_points.items()):
+            colour = _METHOD_COLOURS[list(curves).index(label) % len(_METHOD_COLOURS)] if label in curves else "k"
+            axes.plot(frequency, point_db, ":", color=colour, lw=1.2,
+                      label=f"{label + ': ' if label else ''}a verified feasible model")
+            deviation_axes.plot(frequency, np.clip(point_db - reference_db, -60.0, 60.0), ":", color=colour, lw=1.2)
         if true_db is not None:
             axes.plot(frequency, true_db, "k--", lw=1.0, label="true G")
-            deviation_axes.plot(frequency, true_db - reference_db, "k--", lw=1.0)
+        axes.set_ylim(y_low, y_high)
         axes.set_xscale("log")
         axes.set_ylabel("magnitude |G| [dB]")
         axes.grid(True, which="both", lw=0.3, alpha=0.5)
-        axes.legend(loc="best", fontsize=7)
+        axes.legend(loc="lower left", fontsize=7)
+        finite_spans = [np.abs(d[np.isfinite(d)]) for triple in deviations for d in triple[:2]]
+        span = float(np.percentile(np.concatenate(finite_spans), 90)) if finite_spans else 1.0
+        limit = min(max(1.5 * span, 0.01), 60.0)
+        for index, (low, high, centre) in enumerate(deviations):
+            colour = _METHOD_COLOURS[index % len(_METHOD_COLOURS)]
+            deviation_axes.fill_between(frequency, np.clip(low, -limit, limit), np.clip(high, -limit, limit),
+                                        color=colour, alpha=0.25, lw=0.6, edgecolor=colour)
+            deviation_axes.plot(frequency, np.clip(centre, -limit, limit), color=colour, lw=1.0)
+        deviation_axes.axhline(0.0, color="k", ls="--" if true_db is not None else "-", lw=1.0)
+        deviation_axes.set_ylim(-limit, limit)
         deviation_axes.set_xlabel(frequency_label)
-        deviation_axes.set_ylabel(f"|G| - {reference_label} θ^c [dB]" if next(iter(curves)) else "|G| - |G(θ^c)| [dB]",
-                                  fontsize=8)
+        deviation_axes.set_ylabel(f"|G| - {reference_label} [dB]", fontsize=8)
         deviation_axes.grid(True, which="both", lw=0.3, alpha=0.5)
 
-    corner_text = (f"a random sample of {BODE_MAX_CORNERS} corners (seed 0)" if sampled else "all corners")
     caption = (f"Bode magnitude of the linear block G = B/A (Cerone et al. 2009, Section 5) up to the Nyquist "
-               f"frequency {nyquist_text}: line, the central model θ^c; shaded, the envelope of |G| over {corner_text} "
-               "of the parameter box (the box's envelope: it contains every model of the feasible set, but box "
-               "corners need not be feasible nor have unit static gain, so it is wider than the set itself)"
-               f"{'; dashed, the true model' if true_db is not None else ''}. {'; '.join(notes)}. Look for the true "
-               "curve inside the envelope and a narrow envelope where the excitation had power. Bottom: the same "
-               "relative to the first central model, where the envelope's width reads.")
+               f"frequency {nyquist_text}: line, the central model θ^c; shaded, the exact range of |G| over the "
+               "parameter box (the box's envelope: it contains the |G| of every model of the feasible set, but box "
+               "models need not be feasible nor have unit static gain, so it is wider than the set's own)"
+               f"{'; dotted, a model verified to satisfy the exact constraints (coupled method)' if feasible_points else ''}"
+               f"{'; dashed, the true model' if true_db is not None else ''}. {'; '.join(notes)}. Bottom: the same "
+               f"relative to {'the true model' if true_db is not None else 'the last central model'}, clipped to "
+               "the plotted range. Look for the true curve inside the envelope and a narrow envelope where the "
+               "excitation had power.")
     return ReportFigure(name, caption, draw, size_in=(7.5, 5.5))
 
 
