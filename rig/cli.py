@@ -21,6 +21,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "rig.commands.simulate",
     "rig.commands.inspect",
     "rig.commands.run",
+    "rig.commands.diagnose",
     "rig.commands.report",
 )
 

@@ -1,0 +1,113 @@
+"""Hidden-effect test records for the model-discrepancy workflow (issue 6): a linear gearbox model plus
+effects with randomised parameters of realistic size, read by an n-bit absolute encoder.
+
+The nominal model is the drive position loop of ``configs/plants/precision_gearbox.toml`` (30 Hz,
+zeta 0.7, zero-order hold at 1 kHz, one sample of latency). Effect sizes (motor-side radians, input range
+about +-1 rad): backlash half-widths 0.01-0.04 rad; dead zone edges 0.03-0.10 rad; saturation at 50-75 %
+of the largest command; delay 3-15 samples; Coulomb friction breakaway twist 0.015-0.04 rad with sliding
+40-75 % of it; resonance 60-200 Hz with damping 0.02-0.08.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from identify.plant_blocks import (
+    Block,
+    CoulombFriction,
+    DeadZone,
+    Delay,
+    LinearBlock,
+    OutputBacklash,
+    OutputOffset,
+    PlantModel,
+    Resonance,
+    Saturation,
+)
+from identify.validation import InvalidInputError
+
+__all__ = ["HiddenEffectRecord", "NOMINAL_LINEAR", "hidden_effect_record", "random_effect", "step_excitation"]
+
+SAMPLE_PERIOD_S = 0.001
+NOMINAL_LINEAR = LinearBlock(a=(-1.73691838, 0.76805512), b=(0.0, 0.01625312, 0.01488362),
+                             sample_period_s=SAMPLE_PERIOD_S)
+"""The drive position loop of the precision gearbox (30 Hz, zeta 0.7, ZOH at 1 kHz, one sample latency)."""
+
+
+@dataclass(frozen=True)
+class HiddenEffectRecord:
+    """A simulated measurement and the truth behind it."""
+
+    command_rad: NDArray[np.float64]
+    angle_rad: NDArray[np.float64]
+    noise_bound_rad: float
+    sample_period_s: float
+    nominal_model: PlantModel
+    true_model: PlantModel
+    effects: tuple[str, ...]
+
+
+def step_excitation(samples: int, rng: np.random.Generator, amplitude_rad: float = 1.0) -> NDArray[np.float64]:
+    """Random steps held 40-250 samples, levels uniform in +-``amplitude_rad``, every third level small
+    (within 15 % of the amplitude) so that behaviour near zero is seen, every other transition a step, the others ramps of 1-400 samples."""
+    out = np.empty(samples)
+    k, level, index = 0, 0.0, 0
+    while k < samples:
+        hold = int(rng.integers(40, 250))
+        target = amplitude_rad * rng.uniform(-1.0, 1.0) * (0.15 if index % 3 == 2 else 1.0)
+        ramp = 1 if index % 2 else int(rng.integers(1, 400))
+        segment = np.concatenate((np.linspace(level, target, ramp + 1)[1:], np.full(hold, target)))
+        out[k: k + segment.size] = segment[: samples - k]
+        k += segment.size
+        level, index = target, index + 1
+    return out
+
+
+def random_effect(name: str, rng: np.random.Generator, command_rad: NDArray[np.float64]) -> tuple[Block, int | None]:
+    """A block of effect ``name`` with random realistic parameters and where it goes in the chain
+    (0: before the linear block, None: after it)."""
+    span = float(np.max(np.abs(command_rad)))
+    if name == "backlash":
+        return OutputBacklash(m_l=1.0, c_l=rng.uniform(0.01, 0.04), m_r=1.0, c_r=rng.uniform(0.01, 0.04)), None
+    if name == "dead_zone":
+        return DeadZone(left_rad=-rng.uniform(0.03, 0.10), right_rad=rng.uniform(0.03, 0.10)), 0
+    if name == "saturation":
+        return Saturation(lower_rad=-rng.uniform(0.5, 0.75) * span, upper_rad=rng.uniform(0.5, 0.75) * span), 0
+    if name == "delay":
+        return Delay(int(rng.integers(3, 16))), 0
+    if name == "coulomb_friction":
+        stick = rng.uniform(0.015, 0.04)
+        return CoulombFriction(breakaway_torque_nm=stick * 2000.0, coulomb_torque_nm=stick * 2000.0 * rng.uniform(0.4, 0.75),
+                               stiffness_nm_per_rad=2000.0), None
+    if name == "resonance":
+        return Resonance(frequency_hz=rng.uniform(60.0, 200.0), damping_ratio=rng.uniform(0.02, 0.08),
+                         sample_period_s=SAMPLE_PERIOD_S), None
+    if name == "offset":
+        return OutputOffset(offset_rad=rng.uniform(-0.05, 0.05), drift_rad_per_s=rng.uniform(-0.01, 0.01),
+                            sample_period_s=SAMPLE_PERIOD_S), None
+    raise InvalidInputError(f"name: unknown effect {name!r}")
+
+
+def hidden_effect_record(effects: tuple[str, ...], seed: int, samples: int = 3000, encoder_bits: int = 12,
+                         noise_rad: float = 2.0e-4) -> HiddenEffectRecord:
+    """Simulate the nominal linear model plus ``effects`` (possibly none) on a random step excitation, and
+    measure the output with an ``encoder_bits`` absolute encoder (one count 2 pi / 2^bits) plus uniform noise
+    of at most ``noise_rad``; the noise bound is half a count plus ``noise_rad``."""
+    rng = np.random.default_rng(seed)
+    u = step_excitation(samples, rng)
+    model = PlantModel((NOMINAL_LINEAR,))
+    for name in effects:
+        block, index = random_effect(name, rng, u)
+        if index is None:
+            model = model.with_block(block)
+        else:
+            model = model.with_block(block, index)
+    x = model.simulate(u) + rng.uniform(-noise_rad, noise_rad, samples)
+    count = 2.0 * math.pi / 2 ** encoder_bits
+    y = np.round(x / count) * count
+    return HiddenEffectRecord(u, y, 0.5 * count + noise_rad, SAMPLE_PERIOD_S, PlantModel((NOMINAL_LINEAR,)),
+                              model, tuple(effects))

@@ -1,0 +1,139 @@
+"""Signatures a missing physical effect leaves in the free-run residual r_t = y_t - y^_t (issue 6, step 3).
+
+Each score is the fraction of the residual's energy sum r_t^2 that a characteristic regressor of the effect
+explains by least squares (0: no sign of the effect, 1: the residual is exactly that signature), computed from
+the measured input u_t, the measured output y_t and the model's simulated output y^_t:
+
+* ``backlash``: r_t ~ c * s_t with s_t = the direction of the last motion of y^ (sign of the last nonzero
+  increment): a residual that changes sign at direction reversals;
+* ``coulomb_friction``: the same direction regressor, and (in the details) stick-slip: samples where the
+  measured output is flat while the model moves, followed by a jump;
+* ``dead_zone``: r_t ~ -clip(y^_t, -w, w) with w a tenth of the range: the output stuck near zero;
+* ``saturation``: r_t ~ -(y^_t - clip(y^_t, -q, q)) with q the 85 % quantile of |y^|: residual growing with
+  |u| at the extremes;
+* ``delay``: r_t ~ -d (y^_t - y^_{t-1}) (first-order expansion of y^_{t-d}); the details give the lag of the
+  largest cross-correlation of r with the model's velocity;
+* ``resonance``: the share of the residual's power (Welch spectrum) within three bins of its peak, and the
+  peak frequency;
+* ``offset``: r_t ~ o + drift * t T.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy import signal as scipy_signal
+
+__all__ = ["EFFECT_NAMES", "SignatureScore", "signature_scores", "direction_signal"]
+
+EFFECT_NAMES: tuple[str, ...] = (
+    "backlash", "dead_zone", "saturation", "delay", "coulomb_friction", "resonance", "offset",
+)
+"""Names of the effects the workflow can name; the first six are fixed by issue 6, ``offset`` (offset and
+drift of the measured angle) is an extra."""
+
+
+@dataclass(frozen=True)
+class SignatureScore:
+    """How strongly the residual shows one effect's signature."""
+
+    effect: str
+    score: float
+    details: dict[str, Any] = field(default_factory=dict)
+
+
+def _explained(residual: NDArray[np.float64], *regressors: NDArray[np.float64]) -> float:
+    """Share of sum r^2 explained by least squares on ``regressors`` (no intercept unless given)."""
+    energy = float(np.dot(residual, residual))
+    if energy == 0.0:
+        return 0.0
+    phi = np.column_stack(regressors)
+    if not np.any(phi):
+        return 0.0
+    theta, *_ = np.linalg.lstsq(phi, residual, rcond=None)
+    left = residual - phi @ theta
+    return float(max(0.0, 1.0 - float(np.dot(left, left)) / energy))
+
+
+def direction_signal(values: NDArray[np.float64], threshold: float) -> NDArray[np.float64]:
+    """s_t = sign of the last increment of ``values`` larger than ``threshold`` (0 before the first)."""
+    steps = np.diff(values, prepend=values[0])
+    sign = np.where(steps > threshold, 1.0, np.where(steps < -threshold, -1.0, np.nan))
+    sign[0] = 0.0 if np.isnan(sign[0]) else sign[0]
+    index = np.where(~np.isnan(sign), np.arange(sign.size), 0)
+    np.maximum.accumulate(index, out=index)
+    return sign[index]
+
+
+def signature_scores(command_rad: NDArray[np.float64], angle_rad: NDArray[np.float64],
+                     simulated_rad: NDArray[np.float64], noise_bound_rad: float,
+                     sample_period_s: float) -> dict[str, SignatureScore]:
+    """Score every effect of :data:`EFFECT_NAMES` on the residual (module docstring gives each regressor).
+
+    Parameters
+    ----------
+    command_rad, angle_rad, simulated_rad
+        u_t, the measured y_t and the model's free-run y^_t, same length.
+    noise_bound_rad
+        delta, the bound on the measurement error.
+    sample_period_s
+        T.
+    """
+    u = np.asarray(command_rad, dtype=float)
+    y = np.asarray(angle_rad, dtype=float)
+    y_hat = np.asarray(simulated_rad, dtype=float)
+    r = y - y_hat
+    delta = float(noise_bound_rad)
+    moving_threshold = max(1e-12, 1e-3 * float(np.ptp(y_hat)) / max(1.0, np.sqrt(y_hat.size)))
+    direction = direction_signal(y_hat, moving_threshold)
+    scores: dict[str, SignatureScore] = {}
+
+    backlash = _explained(r, direction)
+    reversals = int(np.count_nonzero(np.diff(direction) != 0))
+    scores["backlash"] = SignatureScore("backlash", backlash, {"direction_reversals": reversals})
+
+    model_moves = np.abs(np.diff(y_hat)) > 2.0 * delta / 10.0
+    measured_flat = np.abs(np.diff(y)) <= 2.0 * delta
+    stuck = model_moves & measured_flat
+    jumps = np.abs(np.diff(y)) > 4.0 * np.abs(np.diff(y_hat)) + 2.0 * delta
+    stick_slip = int(np.count_nonzero(jumps[1:] & stuck[:-1]))
+    scores["coulomb_friction"] = SignatureScore(
+        "coulomb_friction", backlash * (1.0 if stick_slip else 0.5),
+        {"stuck_while_model_moves_fraction": float(np.mean(stuck)), "stick_slip_jumps": stick_slip},
+    )
+
+    width = 0.1 * float(np.max(np.abs(y_hat))) if y_hat.size else 0.0
+    scores["dead_zone"] = SignatureScore("dead_zone", _explained(r, np.clip(y_hat, -width, width)),
+                                         {"band_rad": width})
+
+    level = float(np.quantile(np.abs(y_hat), 0.85))
+    scores["saturation"] = SignatureScore("saturation", _explained(r, y_hat - np.clip(y_hat, -level, level)),
+                                          {"level_rad": level})
+
+    velocity = np.diff(y_hat, prepend=y_hat[0])
+    lags = np.arange(0, min(60, r.size // 4))
+    centred = r - r.mean()
+    correlation = [float(np.dot(centred[lag:], velocity[: velocity.size - lag])) for lag in lags]
+    scores["delay"] = SignatureScore("delay", _explained(r, velocity),
+                                     {"lag_of_peak_correlation_samples": int(lags[int(np.argmax(np.abs(correlation)))])})
+
+    segment = min(r.size, 512)
+    frequencies, power = scipy_signal.welch(centred, fs=1.0 / sample_period_s, nperseg=segment)
+    if power.size > 8 and float(np.sum(power[1:])) > 0.0:
+        peak = 1 + int(np.argmax(power[1:]))
+        band = power[max(1, peak - 3): peak + 4]
+        share = float(np.sum(band) / np.sum(power[1:]))
+        narrow = float(power[peak] / max(np.median(power[1:]), 1e-300))
+        scores["resonance"] = SignatureScore("resonance", share if narrow > 20.0 else 0.0,
+                                             {"peak_frequency_hz": float(frequencies[peak]),
+                                              "peak_to_median_power": narrow})
+    else:
+        scores["resonance"] = SignatureScore("resonance", 0.0, {})
+
+    time_s = np.arange(r.size) * sample_period_s
+    scores["offset"] = SignatureScore("offset", _explained(r, np.ones_like(r), time_s),
+                                      {"mean_residual_rad": float(np.mean(r))})
+    return scores

@@ -1,0 +1,77 @@
+"""``rig diagnose DATA``: find where a model and a measurement disagree, name the missing physical effect, add
+it with fitted parameters and show the gap shrink (:mod:`identify.model_discrepancy`, issue 6)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+from rig import exit_codes
+
+DESCRIPTION = """\
+Simulate the model on the measured command (free run), mark the samples where the residual exceeds the noise
+bound, score the signatures of backlash, dead zone, saturation, delay, Coulomb friction, resonance and
+offset/drift in the residual, add the effect that lowers the validated gap (RMS free-run error on the last
+40 % of the record, which no fit sees) most beyond a complexity penalty, and repeat until the model is
+consistent with the noise bound or no effect helps.
+
+DATA is a rig-log v1 file or a plain CSV with columns t, u, y (seconds, radians). Without --model the start
+model is the best linear model of order 1 or 2 (chosen by validation error). The noise bound must cover the
+encoder's half count."""
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    parser = subparsers.add_parser(
+        "diagnose",
+        help="name the physical effect a model is missing, add it and show the gap shrink",
+        description=DESCRIPTION,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    parser.add_argument("data", metavar="DATA", help="a rig-log v1 file or a CSV with columns t,u,y")
+    parser.add_argument("--model", metavar="PLANT.toml", default=None,
+                        help="plant config of the user's model (default: fit a linear model)")
+    parser.add_argument("--noise-bound", type=float, required=True, metavar="RAD",
+                        help="bound on the measurement error |e_t| in rad (include the encoder's half count)")
+    parser.add_argument("--report", metavar="DIR", default=None, help="write figures and an HTML page to DIR")
+    parser.add_argument("--json", action="store_true", help="print the result as one JSON object")
+    parser.set_defaults(handler=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from identify.model_discrepancy import diagnose_model
+    from rig.log_file import read_experiment_data
+
+    record = read_experiment_data(args.data)
+    model = None
+    if args.model is not None:
+        from sim_backend.plant_config import load_plant_config
+
+        model = load_plant_config(args.model).plant
+    result = diagnose_model(record.command_rad, record.angle_rad, args.noise_bound,
+                            record.metadata.sample_period_s, model)
+    if args.report is not None:
+        from rig.plots.discrepancy import write_discrepancy_report
+
+        index = write_discrepancy_report(Path(args.report), result, record.command_rad, record.angle_rad,
+                                         record.metadata.sample_period_s, source=str(args.data))
+    if args.json:
+        print(json.dumps(result.to_json_dict()))
+    else:
+        print(f"data          {args.data}  ({record.command_rad.size} samples, validation from sample "
+              f"{result.estimation_samples})")
+        print(f"start model   {args.model or 'linear, order %d (fitted)' % result.linear_fit.order}")
+        print(f"noise bound   {args.noise_bound:.4g} rad")
+        print(f"initial gap   {result.initial.gap_rad:.4g} rad, {100 * result.initial.falsified_fraction:.1f} % "
+              f"of validation samples falsified, {len(result.initial.windows)} disagreement windows")
+        for number, step in enumerate(result.steps, 1):
+            parameters = ", ".join(f"{k} = {v:.4g}" for k, v in step.parameters.items())
+            print(f"step {number}: {step.effect:<17} gap {step.gap_before_rad:.4g} -> {step.gap_after_rad:.4g} rad  "
+                  f"({parameters})")
+        if not result.steps:
+            print("no missing effect found")
+        print(f"final gap     {result.final.gap_rad:.4g} rad, {100 * result.final.falsified_fraction:.1f} % falsified")
+        print(result.unexplained)
+        if args.report is not None:
+            print(f"report        {index}")
+    return exit_codes.SUCCESS

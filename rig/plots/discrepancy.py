@@ -1,0 +1,142 @@
+"""Figures and page of ``rig diagnose --report``: measured against simulated before and after, the residual with
+the disagreement windows marked, and the signature that decided each added effect."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from identify.effect_signatures import direction_signal
+from identify.model_discrepancy import DiscrepancyResult, DiscrepancyStep
+from rig.report import ReportFigure, ReportSection, write_report
+
+
+def comparison_figure(result: DiscrepancyResult, angle_rad: NDArray[np.float64], time_s: NDArray[np.float64],
+                      name: str = "measured_vs_simulated") -> ReportFigure:
+    """Measured angle with the start and final model's free-run simulations, and both residuals."""
+
+    def draw(figure) -> None:
+        top, bottom = figure.subplots(2, 1, sharex=True)
+        top.plot(time_s, angle_rad, lw=1.2, color="black", label="measured")
+        top.plot(time_s, result.initial.simulated_rad, lw=0.8, color="tab:red", label="start model")
+        top.plot(time_s, result.final.simulated_rad, lw=0.8, ls="--", color="tab:green", label="final model")
+        top.set_ylabel("load angle y [rad]")
+        top.legend(loc="best", fontsize=8)
+        bottom.plot(time_s, result.initial.residual_rad, lw=0.7, color="tab:red", label="start model")
+        bottom.plot(time_s, result.final.residual_rad, lw=0.7, color="tab:green", label="final model")
+        for sign in (-1.0, 1.0):
+            bottom.axhline(sign * result.noise_bound_rad, color="gray", lw=0.8, ls=":")
+        bottom.axvline(time_s[result.estimation_samples], color="tab:blue", lw=0.8)
+        bottom.set_ylabel("residual y - y_sim [rad]")
+        bottom.set_xlabel("time [s]")
+        bottom.legend(loc="best", fontsize=8)
+
+    return ReportFigure(
+        name,
+        f"Measured load angle against the free-run simulation of the start model (red) and of the final model "
+        f"(green, dashed); below, the residuals with the noise bound +-{result.noise_bound_rad:.3g} rad (dotted) "
+        f"and the start of the validation segment (blue line). Gap {result.initial.gap_rad:.3g} rad before, "
+        f"{result.final.gap_rad:.3g} rad after: the green residual should stay inside the dotted band.",
+        draw, size_in=(7.5, 5.0))
+
+
+def windows_figure(result: DiscrepancyResult, time_s: NDArray[np.float64], name: str = "disagreement_windows") -> ReportFigure:
+    """The start model's residual with the falsified samples and the windows where they cluster."""
+
+    def draw(figure) -> None:
+        axes = figure.subplots()
+        residual = result.initial.residual_rad
+        axes.plot(time_s, residual, lw=0.7, color="tab:red")
+        falsified = result.initial.falsified
+        axes.plot(time_s[falsified], residual[falsified], ".", ms=2, color="black")
+        for window in result.initial.windows:
+            axes.axvspan(time_s[window.start], time_s[min(window.stop, time_s.size - 1)], color="tab:orange", alpha=0.2)
+        for sign in (-1.0, 1.0):
+            axes.axhline(sign * result.noise_bound_rad, color="gray", lw=0.8, ls=":")
+        axes.set_xlabel("time [s]")
+        axes.set_ylabel("residual of start model [rad]")
+
+    return ReportFigure(
+        name,
+        f"Residual of the start model; black dots are the samples the noise bound cannot explain "
+        f"({100 * result.initial.falsified_fraction:.1f} % of the validation segment), shaded spans are the "
+        f"{len(result.initial.windows)} windows where they cluster.",
+        draw)
+
+
+def signature_figure(step: DiscrepancyStep, number: int, residual_rad: NDArray[np.float64],
+                     simulated_rad: NDArray[np.float64], command_rad: NDArray[np.float64],
+                     time_s: NDArray[np.float64], noise_bound_rad: float) -> ReportFigure:
+    """The signature of the effect added in ``step``: the residual against the quantity that reveals it."""
+    effect = step.effect
+    moving = max(1e-12, 1e-3 * float(np.ptp(simulated_rad)) / max(1.0, np.sqrt(simulated_rad.size)))
+    if effect in ("backlash", "coulomb_friction"):
+        x, x_label = direction_signal(simulated_rad, moving), "direction of motion of the model [-1 / +1]"
+        what = "the residual switches level with the direction of motion"
+    elif effect in ("dead_zone", "saturation"):
+        x, x_label = command_rad, "command u [rad]"
+        what = ("the residual departs from zero near u = 0" if effect == "dead_zone"
+                else "the residual grows with |u| at the extremes")
+    elif effect == "delay":
+        x, x_label = np.diff(simulated_rad, prepend=simulated_rad[0]), "model velocity per sample [rad]"
+        what = "the residual is proportional to the model's velocity"
+    else:
+        x, x_label = time_s, "time [s]"
+        what = ("a narrow peak in the spectrum of the residual" if effect == "resonance"
+                else "the residual follows a constant plus a slow drift")
+    score = step.evidence["signature_scores"][effect]
+
+    def draw(figure) -> None:
+        if effect == "resonance":
+            axes = figure.subplots()
+            period = float(time_s[1] - time_s[0]) if time_s.size > 1 else 1.0
+            spectrum = np.abs(np.fft.rfft(residual_rad - residual_rad.mean())) * 2.0 / residual_rad.size
+            axes.semilogy(np.fft.rfftfreq(residual_rad.size, period), np.maximum(spectrum, 1e-12), lw=0.7)
+            axes.axvline(step.parameters["frequency_hz"], color="tab:green", lw=0.8)
+            axes.set_xlabel("frequency [Hz]")
+            axes.set_ylabel("residual amplitude [rad]")
+            return
+        axes = figure.subplots()
+        axes.plot(x, residual_rad, ".", ms=2, alpha=0.5)
+        for sign in (-1.0, 1.0):
+            axes.axhline(sign * noise_bound_rad, color="gray", lw=0.8, ls=":")
+        axes.set_xlabel(x_label)
+        axes.set_ylabel("residual before this step [rad]")
+
+    return ReportFigure(
+        f"signature_{number}_{effect}",
+        f"Step {number}, {effect.replace('_', ' ')}: {what} (signature score {score:.2f}; the effect was chosen "
+        f"because it lowered the validated gap from {step.gap_before_rad:.3g} to {step.gap_after_rad:.3g} rad).",
+        draw)
+
+
+def write_discrepancy_report(out_dir: Path, result: DiscrepancyResult, command_rad: NDArray[np.float64],
+                             angle_rad: NDArray[np.float64], sample_period_s: float, source: str = "") -> Path:
+    """Write the figures and ``index.html`` of one diagnosis to ``out_dir``; return the page's path."""
+    time_s = np.arange(command_rad.size) * sample_period_s
+    rows = tuple(
+        (str(number), step.effect, ", ".join(f"{k} = {v:.4g}" for k, v in step.parameters.items()),
+         f"{step.gap_before_rad:.4g}", f"{step.gap_after_rad:.4g}", f"{100 * step.falsified_fraction_after:.1f}")
+        for number, step in enumerate(result.steps, 1)
+    )
+    figures = [comparison_figure(result, angle_rad, time_s), windows_figure(result, time_s)]
+    residual = result.initial.residual_rad
+    simulated = result.initial.simulated_rad
+    for number, step in enumerate(result.steps, 1):
+        figures.append(signature_figure(step, number, residual, simulated, command_rad, time_s, result.noise_bound_rad))
+        simulated = step.model.simulate(command_rad)
+        residual = angle_rad - simulated
+    text = (
+        f"Data {source}: {command_rad.size} samples; the fits use the first {result.estimation_samples}, the gaps "
+        f"(RMS free-run error) are measured on the rest. Noise bound {result.noise_bound_rad:.4g} rad. "
+        f"Gap {result.initial.gap_rad:.4g} rad -> {result.final.gap_rad:.4g} rad; falsified samples "
+        f"{100 * result.initial.falsified_fraction:.1f} % -> {100 * result.final.falsified_fraction:.1f} %.\n\n"
+        f"{result.unexplained[0].upper()}{result.unexplained[1:]}."
+    )
+    section = ReportSection(
+        "Missing effects" if result.steps else "No missing effect found", text,
+        ("step", "effect", "parameters", "gap before [rad]", "gap after [rad]", "falsified after [%]"), rows,
+        tuple(figures))
+    return write_report(out_dir, "Model discrepancy diagnosis", [section])

@@ -1,0 +1,133 @@
+"""The model-discrepancy workflow on hidden-effect data: a linear gearbox model plus one (or two) effects with
+random realistic parameters, read by a 12-bit encoder; the workflow sees only the data, the noise bound and
+(in part of the cases) the nominal model without the effect."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from identify.discrepancy_cases import NOMINAL_LINEAR, hidden_effect_record
+from identify.effect_signatures import EFFECT_NAMES, direction_signal, signature_scores
+from identify.model_discrepancy import diagnose_model, disagreement, fit_linear_model
+from identify.plant_blocks import Delay, LinearBlock, PlantModel
+from identify.validation import InvalidInputError
+
+SIX = ("backlash", "dead_zone", "saturation", "delay", "coulomb_friction", "resonance")
+
+
+def run(record, given_model=True):
+    return diagnose_model(record.command_rad, record.angle_rad, record.noise_bound_rad, record.sample_period_s,
+                          record.nominal_model if given_model else None)
+
+
+@pytest.mark.parametrize("effect", SIX)
+@pytest.mark.parametrize("seed", [11, 12])
+def test_names_the_hidden_effect_and_halves_the_gap_given_the_nominal_model(effect, seed):
+    record = hidden_effect_record((effect,), seed)
+    result = run(record)
+    assert result.missing_effects, f"{effect}: nothing named, gap {result.initial.gap_rad:.3g} rad"
+    assert result.missing_effects[0] == effect, f"{effect} named {result.missing_effects}"
+    assert result.final.gap_rad <= 0.5 * result.initial.gap_rad
+    assert result.steps[0].gap_after_rad <= 0.5 * result.steps[0].gap_before_rad
+
+
+@pytest.mark.parametrize("effect", ["dead_zone", "delay"])
+def test_names_the_hidden_effect_from_a_fitted_linear_start_model(effect):
+    record = hidden_effect_record((effect,), 21)
+    result = run(record, given_model=False)
+    assert result.linear_fit is not None
+    assert result.missing_effects[:1] == (effect,)
+    assert result.final.gap_rad <= 0.5 * result.initial.gap_rad
+
+
+@pytest.mark.parametrize("seed", [31, 32])
+@pytest.mark.parametrize("given_model", [True, False])
+def test_names_nothing_when_no_effect_is_missing(seed, given_model):
+    record = hidden_effect_record((), seed)
+    result = run(record, given_model)
+    assert result.missing_effects == ()
+    assert result.consistent
+    assert result.to_json_dict()["missing_effects"] == []
+    # 12-bit quantisation plus 0.2 mrad noise: the RMS error of a right model is below the bound / sqrt(3)
+    assert result.final.gap_rad < record.noise_bound_rad / np.sqrt(3.0) * 1.1
+
+
+def test_finds_backlash_and_delay_together():
+    record = hidden_effect_record(("backlash", "delay"), 41)
+    true_delay = record.true_model.find(Delay)[0].samples
+    result = run(record)
+    assert set(result.missing_effects[:2]) == {"backlash", "delay"}
+    delay_step = next(step for step in result.steps if step.effect == "delay")
+    # the play adds lag of its own, so the delay is found to within a few samples
+    assert abs(delay_step.parameters["samples"] - true_delay) <= 3
+    assert result.final.gap_rad <= 0.1 * result.initial.gap_rad
+
+
+def test_fitted_parameters_are_close_to_the_truth():
+    record = hidden_effect_record(("dead_zone",), 51)
+    truth = record.true_model.blocks[0]
+    step = run(record).steps[0]
+    assert step.parameters["left_rad"] == pytest.approx(truth.left_rad, abs=3e-3)
+    assert step.parameters["right_rad"] == pytest.approx(truth.right_rad, abs=3e-3)
+
+
+def test_json_document_has_exactly_the_issue_keys():
+    record = hidden_effect_record(("dead_zone",), 61)
+    document = run(record).to_json_dict()
+    assert set(document) == {"missing_effects", "gap_initial", "gap_final", "falsified_fraction_initial",
+                             "falsified_fraction_final"}
+    (entry,) = document["missing_effects"]
+    assert set(entry) == {"effect", "parameters", "gap_before", "gap_after"}
+    assert entry["effect"] == "dead_zone"
+    assert entry["gap_before"] == pytest.approx(document["gap_initial"])
+    assert entry["gap_after"] == pytest.approx(document["gap_final"])
+    assert document["falsified_fraction_final"] < document["falsified_fraction_initial"]
+
+
+def test_disagreement_windows_cover_the_falsified_samples():
+    u = np.zeros(400)
+    u[100:] = 1.0
+    model = PlantModel((LinearBlock(a=(-0.9,), b=(0.0, 0.1), sample_period_s=1e-3),))
+    y = model.simulate(u)
+    y[200:230] += 0.05  # a burst the model cannot explain
+    result = disagreement(model, u, y, noise_bound_rad=0.01)
+    assert result.falsified_fraction == pytest.approx(30 / 400)
+    (window,) = result.windows
+    assert (window.start, window.stop, window.falsified_samples) == (200, 230, 30)
+    assert window.peak_residual_rad == pytest.approx(0.05)
+
+
+def test_linear_start_model_recovers_the_nominal_block_and_its_order():
+    record = hidden_effect_record((), 71)
+    fit = fit_linear_model(record.command_rad, record.angle_rad, record.sample_period_s, 1800)
+    assert fit.order == 2
+    assert fit.block.a == pytest.approx(NOMINAL_LINEAR.a, abs=2e-3)
+    assert fit.block.static_gain == pytest.approx(1.0, abs=2e-3)
+
+
+def test_signatures_point_at_the_effect():
+    record = hidden_effect_record(("delay",), 81)
+    simulated = record.nominal_model.simulate(record.command_rad)
+    scores = signature_scores(record.command_rad, record.angle_rad, simulated, record.noise_bound_rad,
+                              record.sample_period_s)
+    assert set(scores) == set(EFFECT_NAMES)
+    true_delay = record.true_model.find(Delay)[0].samples
+    assert max(scores, key=lambda name: scores[name].score) == "delay"
+    assert scores["delay"].score > 0.4
+    assert abs(scores["delay"].details["lag_of_peak_correlation_samples"] - true_delay) <= true_delay
+
+
+def test_direction_signal_holds_the_last_direction():
+    values = np.array([0.0, 1.0, 2.0, 2.0, 2.0, 1.0, 1.0, 3.0])
+    assert direction_signal(values, 0.5).tolist() == [0.0, 1.0, 1.0, 1.0, 1.0, -1.0, -1.0, 1.0]
+
+
+def test_misuse_is_reported_by_argument_name():
+    u = np.zeros(100)
+    with pytest.raises(InvalidInputError, match="noise_bound_rad"):
+        diagnose_model(u, u, 0.0, 1e-3)
+    with pytest.raises(InvalidInputError, match="candidates"):
+        diagnose_model(u, u, 1e-3, 1e-3, candidates=("gremlins",))
+    with pytest.raises(InvalidInputError, match="angle_rad"):
+        diagnose_model(u, u[:50], 1e-3, 1e-3)

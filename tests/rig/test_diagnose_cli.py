@@ -1,0 +1,93 @@
+"""``rig diagnose``: the JSON keys of issue 6 on a hidden-backlash record, the report, and bad input."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from identify.discrepancy_cases import hidden_effect_record
+from identify.model_discrepancy import diagnose_model
+from rig import exit_codes
+from rig.cli import main
+from rig.plots.discrepancy import comparison_figure, signature_figure, windows_figure
+from rig.report import missing_images
+from plot_checks import unlabelled_axes
+
+NOMINAL_TOML = """name = "nominal"
+sample_period_s = 0.001
+[encoder]
+bits = 12
+[noise]
+kind = "uniform"
+bound_rad = 0.0002
+[[blocks]]
+type = "linear"
+a = [-1.73691838, 0.76805512]
+b = [0.0, 0.01625312, 0.01488362]
+"""
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("diagnose")
+    record = hidden_effect_record(("backlash",), 3)
+    time_s = np.arange(record.command_rad.size) * record.sample_period_s
+    data = folder / "data.csv"
+    data.write_text("t,u,y\n" + "".join(f"{t!r},{u!r},{y!r}\n" for t, u, y in
+                                         zip(time_s.tolist(), record.command_rad.tolist(), record.angle_rad.tolist())))
+    model = folder / "nominal.toml"
+    model.write_text(NOMINAL_TOML)
+    return folder, data, model, record
+
+
+def test_json_names_the_hidden_backlash_and_writes_the_report(files, capsys):
+    folder, data, model, record = files
+    report = folder / "report"
+    code = main(["diagnose", str(data), "--model", str(model), "--noise-bound", repr(record.noise_bound_rad),
+                 "--json", "--report", str(report)])
+    assert code == exit_codes.SUCCESS
+    document = json.loads(capsys.readouterr().out)
+    assert set(document) == {"missing_effects", "gap_initial", "gap_final", "falsified_fraction_initial",
+                             "falsified_fraction_final"}
+    assert [entry["effect"] for entry in document["missing_effects"]] == ["backlash"]
+    truth = record.true_model.blocks[1]
+    parameters = document["missing_effects"][0]["parameters"]
+    assert parameters["c_l_rad"] == pytest.approx(truth.c_l, abs=1e-3)
+    assert parameters["c_r_rad"] == pytest.approx(truth.c_r, abs=1e-3)
+    assert document["gap_final"] <= 0.05 * document["gap_initial"]
+    index = report / "index.html"
+    assert index.is_file() and missing_images(index) == []
+    page = index.read_text()
+    assert "backlash" in page and "signature_1_backlash.png" in page
+
+
+def test_text_output_names_the_effect(files, capsys):
+    _, data, model, record = files
+    assert main(["diagnose", str(data), "--model", str(model), "--noise-bound", "0.001"]) == exit_codes.SUCCESS
+    out = capsys.readouterr().out
+    assert "step 1: backlash" in out and "final gap" in out
+
+
+def test_figures_label_their_axes_with_units(files):
+    _, _, _, record = files
+    result = diagnose_model(record.command_rad, record.angle_rad, record.noise_bound_rad, record.sample_period_s,
+                            record.nominal_model)
+    time_s = np.arange(record.command_rad.size) * record.sample_period_s
+    figures = [comparison_figure(result, record.angle_rad, time_s), windows_figure(result, time_s),
+               signature_figure(result.steps[0], 1, result.initial.residual_rad, result.initial.simulated_rad,
+                                record.command_rad, time_s, result.noise_bound_rad)]
+    for figure in figures:
+        assert unlabelled_axes(figure) == []
+        assert figure.caption
+
+
+def test_bad_noise_bound_and_mismatched_period_exit_with_bad_input(files, tmp_path, capsys):
+    _, data, model, _ = files
+    assert main(["diagnose", str(data), "--noise-bound", "-1"]) == exit_codes.BAD_INPUT
+    assert "noise_bound_rad" in capsys.readouterr().err
+    other = tmp_path / "slow.toml"
+    other.write_text(NOMINAL_TOML.replace("sample_period_s = 0.001", "sample_period_s = 0.01"))
+    assert main(["diagnose", str(data), "--model", str(other), "--noise-bound", "0.001"]) == exit_codes.BAD_INPUT
+    assert "sample_period_s" in capsys.readouterr().err
