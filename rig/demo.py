@@ -83,6 +83,13 @@ class TrueGearbox:
         """Total play seen at the load, m_l c_l + m_r c_r: the gap between the two backlash lines."""
         return self.backlash.m_l * self.backlash.c_l + self.backlash.m_r * self.backlash.c_r
 
+    def nominal_without_backlash(self) -> PlantModel:
+        """The plant with its play replaced by the bare gear ratio: the model a user would start from."""
+        blocks = self.plant.blocks
+        index = next(k for k, block in enumerate(blocks) if isinstance(block, OutputBacklash))
+        ratio = LinearBlock((), (0.5 * (self.backlash.m_l + self.backlash.m_r),), self.linear.sample_period_s)
+        return self.plant.without(OutputBacklash).with_block(ratio, index)
+
     def theta(self, na: int, nk: int, nb: int) -> dict[str, float]:
         """θ = (a_1..a_na, b_nk..b_nb) of :attr:`linear`, named as the bounds name them."""
         a = np.zeros(na)
@@ -232,6 +239,7 @@ def run_demo(out_dir: Path | None, transport: str = "canopen", plan: DemoPlan = 
     from identify.excitation_design import (design_filter_pole, filtered_staircase, prbs_sequence,
                                             staircase_steady_state_indices)
     from identify.hammerstein_subspace import identify_hammerstein
+    from identify.model_discrepancy import diagnose_model
     from identify.output_backlash_identification import bound_output_backlash_system
     from sim_backend.plant_config import load_plant_config
 
@@ -295,7 +303,9 @@ def run_demo(out_dir: Path | None, transport: str = "canopen", plan: DemoPlan = 
         hammerstein = identify_hammerstein(
             cyclic, cyclic_output, PathNodes.uniform(-plan.cyclic_range_rad, plan.cyclic_range_rad, plan.num_nodes),
             hold_samples=plan.hold_samples, order=plan.na)  # the order of the drive loop and torsion mode
-    discrepancy = None
+    with timed("discrepancy", "diagnose a nominal model that lacks the backlash"):
+        discrepancy = diagnose_model(cyclic, cyclic_output, noise_bound, truth.linear.sample_period_s,
+                                     model=truth.nominal_without_backlash())
 
     outcome = DemoOutcome(
         transport=transport, truth=truth, plan=plan, noise_bound_rad=noise_bound, filter_design=design,
@@ -340,6 +350,15 @@ def summary_rows(outcome: DemoOutcome) -> list[tuple[str, str, str, str]]:
     estimated = model.poles[np.argmax(np.abs(model.poles))]
     rows.append(("Hammerstein slowest pole |p|", f"{abs(dominant):.4f}", "-",
                  f"{abs(estimated):.4f} (order {model.order}, given)"))
+    diagnosis = outcome.discrepancy
+    found = ", ".join(diagnosis.missing_effects) or "none"
+    rows.append(("discrepancy: missing effect", "backlash", "-", found))
+    backlash_step = next((step for step in diagnosis.steps if step.effect == "backlash"), None)
+    if backlash_step is not None:
+        fitted = sum(value for key, value in backlash_step.parameters.items() if key.startswith("c_"))
+        rows.append(("discrepancy: fitted play [rad]", f"{truth.play_rad:.4g}", "-", f"{fitted:.4g}"))
+    rows.append(("discrepancy: gap [rad]", "-", f"{diagnosis.initial.gap_rad:.3g} (nominal)",
+                 f"{diagnosis.final.gap_rad:.3g} (with {found})"))
     return rows
 
 

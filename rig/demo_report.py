@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
 from rig.demo import DemoOutcome, summary_rows
+from rig.plots.discrepancy import discrepancy_section
 from rig.plots.experiment import signal_figure, timing_figure
 from rig.plots.hammerstein import hammerstein_figures
 from rig.plots.set_membership import default_result_figures
@@ -66,6 +68,10 @@ def demo_report_sections(outcome: DemoOutcome) -> list[ReportSection]:
                 sample_period_s=truth.linear.sample_period_s)),
         ),
     ]
+    cyclic = runs["cyclic"].record
+    section = discrepancy_section(outcome.discrepancy, cyclic.command_rad, cyclic.angle_rad, truth.linear.sample_period_s,
+                                  "the cyclic experiment, against the nominal gearbox model without its play")
+    sections.append(replace(section, title=f"Model discrepancy: {section.title.lower()}"))
     return sections
 
 

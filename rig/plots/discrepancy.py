@@ -112,9 +112,9 @@ def signature_figure(step: DiscrepancyStep, number: int, residual_rad: NDArray[n
         draw)
 
 
-def write_discrepancy_report(out_dir: Path, result: DiscrepancyResult, command_rad: NDArray[np.float64],
-                             angle_rad: NDArray[np.float64], sample_period_s: float, source: str = "") -> Path:
-    """Write the figures and ``index.html`` of one diagnosis to ``out_dir``; return the page's path."""
+def discrepancy_section(result: DiscrepancyResult, command_rad: NDArray[np.float64], angle_rad: NDArray[np.float64],
+                        sample_period_s: float, source: str = "") -> ReportSection:
+    """The report section of one diagnosis: the table of added effects and every figure."""
     time_s = np.arange(command_rad.size) * sample_period_s
     rows = tuple(
         (str(number), step.effect, ", ".join(f"{k} = {v:.4g}" for k, v in step.parameters.items()),
@@ -139,4 +139,11 @@ def write_discrepancy_report(out_dir: Path, result: DiscrepancyResult, command_r
         "Missing effects" if result.steps else "No missing effect found", text,
         ("step", "effect", "parameters", "gap before [rad]", "gap after [rad]", "falsified after [%]"), rows,
         tuple(figures))
+    return section
+
+
+def write_discrepancy_report(out_dir: Path, result: DiscrepancyResult, command_rad: NDArray[np.float64],
+                             angle_rad: NDArray[np.float64], sample_period_s: float, source: str = "") -> Path:
+    """Write the figures and ``index.html`` of one diagnosis to ``out_dir``; return the page's path."""
+    section = discrepancy_section(result, command_rad, angle_rad, sample_period_s, source)
     return write_report(out_dir, "Model discrepancy diagnosis", [section])

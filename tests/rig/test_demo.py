@@ -50,6 +50,13 @@ def test_demo_writes_a_complete_report_and_bounds_contain_the_truth(tmp_path, ca
     play_true = float(rows["Hammerstein play [rad]"][1])
     play_estimate = float(rows["Hammerstein play [rad]"][3].split()[0])
     assert play_estimate == pytest.approx(play_true, abs=0.0015)  # one count of the 12-bit encoder
+    # The diagnosis of the nominal model (gear ratio, no play) must name the backlash and shrink the gap.
+    assert rows["discrepancy: missing effect"][3].split(", ")[0] == "backlash"
+    assert float(rows["discrepancy: fitted play [rad]"][3]) == pytest.approx(play_true, abs=0.0015)
+    gap_before = float(rows["discrepancy: gap [rad]"][2].split()[0])
+    gap_after = float(rows["discrepancy: gap [rad]"][3].split()[0])
+    assert gap_after < 0.5 * gap_before
+    assert "Model discrepancy" in page
 
 
 def lossy_record():
