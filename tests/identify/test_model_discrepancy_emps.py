@@ -1,0 +1,41 @@
+"""Opt-in (RIG_REALDATA=1): the model-discrepancy workflow on the real EMPS record (Janot, Gautier, Brunot 2019).
+
+Reference position qg -> measured position qm of the closed position loop, every 5th sample, no model given.
+The benchmark's inverse model has Coulomb friction Fc = 20.39 N and an offset of -3.16 N. In the loop
+vir = kv (kp (qg - qm) - dqm/dt) with force gtau vir, a friction force F leaves a steady tracking error
+F / (gtau kv kp): 14.9 um for Fc and 2.3 um for the offset. Friction without stiction in a position loop is
+a play (hysteresis) of that half-width, asymmetric by the offset. Without RIG_REALDATA=1 this module defines no
+test (the default run stays off real data).
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+EMPS = Path(__file__).resolve().parents[3] / "shared" / "realdata" / "emps" / "DATA_EMPS.mat"
+
+if os.environ.get("RIG_REALDATA") == "1":
+
+    @pytest.mark.realdata
+    @pytest.mark.slow
+    def test_emps_friction_shows_as_asymmetric_play_of_the_size_the_benchmark_predicts():
+        from scipy.io import loadmat
+
+        from identify.model_discrepancy import diagnose_model
+
+        data = loadmat(EMPS)
+        t, qg, qm = (np.ravel(data[key])[::5] for key in ("t", "qg", "qm"))
+        gain = float(data["gtau"][0, 0] * data["kv"][0, 0] * data["kp"][0, 0])  # N per m of tracking error
+        result = diagnose_model(qg, qm, 1e-6, float(np.median(np.diff(t))), None)
+        assert result.missing_effects[:1] in (("backlash",), ("coulomb_friction",))
+        step = result.steps[0]
+        assert step.gap_after_rad <= 0.5 * step.gap_before_rad
+        if step.effect == "backlash":
+            half_width = (step.parameters["c_l_rad"] + step.parameters["c_r_rad"]) / 2.0
+            offset = (step.parameters["c_l_rad"] - step.parameters["c_r_rad"]) / 2.0
+            assert half_width * gain == pytest.approx(20.39, rel=0.25)  # Fc of the benchmark, N
+            assert abs(offset) * gain == pytest.approx(3.16, rel=0.5)  # |offset| of the benchmark, N
