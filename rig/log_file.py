@@ -35,7 +35,7 @@ from types import TracebackType
 from typing import Any, TextIO
 
 import numpy as np
-from numpy.typing import ArrayLike
+from numpy.typing import ArrayLike, NDArray
 
 from identify.experiment_record import ExperimentMetadata, ExperimentRecord, SampleFlag
 from identify.validation import InvalidInputError
@@ -325,3 +325,14 @@ def read_experiment_data(path: str | Path) -> ExperimentRecord:
         )
     metadata = ExperimentMetadata(sample_period_s=float(np.median(steps)), source=str(path), transport="csv")
     return ExperimentRecord(time_s=t, command_rad=u, angle_rad=y, encoder_counts=None, flags=None, metadata=metadata)
+
+
+def read_input_output(path: str | Path) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """(u, y) for identification from a ``rig-log v1`` file or a CSV with columns ``u`` and ``y`` (a ``t``
+    column is allowed and ignored: the methods need only the sample order)."""
+    path = Path(path)
+    if _is_rig_log(path):
+        record = read_log(path)
+        return record.command_rad, record.angle_rad
+    table = read_signal_table(path, ("u", "y"))
+    return table["u"], table["y"]

@@ -74,21 +74,6 @@ def register(methods: argparse._SubParsersAction) -> None:
     parser.set_defaults(handler=run)
 
 
-def _read(path: Path):
-    """(u, y) from a rig-log v1 file or a CSV with columns u and y."""
-    from rig.signal_files import read_signal_table
-
-    with path.open("rb") as handle:
-        first = handle.readline()
-    if first.startswith(b"# rig-log"):
-        from rig.log_file import read_experiment_data
-
-        record = read_experiment_data(path)
-        return record.command_rad, record.angle_rad
-    table = read_signal_table(path, ("u", "y"))
-    return table["u"], table["y"]
-
-
 def run(args: argparse.Namespace) -> int:
     import numpy as np
 
@@ -103,7 +88,9 @@ def run(args: argparse.Namespace) -> int:
     path = Path(args.data)
     if not path.is_file():
         raise FileNotFoundError(f"{path}: no such file")
-    u, y = _read(path)
+    from rig.log_file import read_input_output
+
+    u, y = read_input_output(path)
     if u.size == 0:
         raise InvalidInputError(f"{path}: no samples")
     if args.nodes is not None:

@@ -47,21 +47,13 @@ def register(methods: argparse._SubParsersAction) -> None:
 
 
 def _read(path_text: str, role: str):
-    """(u, y) from a rig-log v1 file or a CSV with columns u and y."""
-    from rig.signal_files import read_signal_table
+    """(u, y) of the ``role`` experiment, naming the role when the file is missing."""
+    from rig.log_file import read_input_output
 
     path = Path(path_text)
     if not path.is_file():
         raise FileNotFoundError(f"{path}: no such file ({role} data)")
-    with path.open("rb") as handle:
-        first = handle.readline()
-    if first.startswith(b"# rig-log"):
-        from rig.log_file import read_experiment_data
-
-        record = read_experiment_data(path)
-        return record.command_rad, record.angle_rad
-    table = read_signal_table(path, ("u", "y"))
-    return table["u"], table["y"]
+    return read_input_output(path)
 
 
 def _number(value: float) -> float | str:

@@ -164,3 +164,12 @@ def test_metadata_with_numpy_values_is_written_as_plain_json(tmp_path):
     assert read_log(path).metadata.config == {"amplitudes_rad": [0.0, 0.5, 1.0], "bits": 12}
     with pytest.raises(ValueError, match="metadata: .*inf"):
         LogWriter(tmp_path / "nan.csv", ExperimentMetadata(sample_period_s=1e-3, config={"bound": math.inf}))
+
+
+def test_read_input_output_takes_a_log_or_a_plain_u_y_csv(tmp_path):
+    from rig.log_file import read_input_output
+
+    plain = tmp_path / "plain.csv"
+    plain.write_text("u,y\n1.0,0.5\n2.0,0.25\n")
+    u, y = read_input_output(plain)
+    assert u.tolist() == [1.0, 2.0] and y.tolist() == [0.5, 0.25]
