@@ -615,19 +615,26 @@ def _raised_order(block: LinearBlock, order: int) -> LinearBlock:
 
 
 def _refit_last_linear(chain: _Chain, u: NDArray[np.float64], y: NDArray[np.float64]) -> _Chain:
-    """When the chain ends in a free linear component (a fitted start model with input-side effects before
-    it), refit that component by output error from the signal entering it to y (Steiglitz-McBride): the
-    start model's coefficients were fitted with the effect missing and have absorbed part of it."""
-    last = chain.components[-1]
-    if last.kind != "linear":
+    """When the chain has a free linear component followed only by resonances (a fitted start model with
+    input-side effects before it, or a resonance after it), refit that component by output error from the
+    signal entering it to y (Steiglitz-McBride); linear blocks commute, so the resonances are applied to the
+    input. The start model's coefficients were fitted with the effect missing and have absorbed part of it."""
+    kinds = [c.kind for c in chain.components]
+    if "linear" not in kinds:
         return chain
-    inner = PlantModel(tuple(_build(c, c.values) for c in chain.components[:-1])).simulate(u) \
-        if len(chain.components) > 1 else u
+    index = kinds.index("linear")
+    if any(kind != "resonance" for kind in kinds[index + 1:]):
+        return chain
+    linear = chain.components[index]
+    others = chain.components[:index] + chain.components[index + 1:]
+    inner = PlantModel(tuple(_build(c, c.values) for c in others)).simulate(u) if others else u
     try:
-        a, b = _steiglitz_mcbride(inner, y, last.na, last.nk, iterations=10)
+        a, b = _steiglitz_mcbride(inner, y, linear.na, linear.nk, iterations=10)
     except (InvalidInputError, np.linalg.LinAlgError):
         return chain
-    refit = _Chain([*chain.components[:-1], _linear_component(LinearBlock(a=a, b=b, sample_period_s=last.sample_period_s))])
+    components = list(chain.components)
+    components[index] = _linear_component(LinearBlock(a=a, b=b, sample_period_s=linear.sample_period_s))
+    refit = _Chain(components)
     return refit if _rms(_free_run_error(refit, u, y)) <= _rms(_free_run_error(chain, u, y)) else chain
 
 
