@@ -6,13 +6,13 @@ arrives until sample k is answered or ``t_{k+1}`` comes; behind schedule it does
 catches up, sending setpoints no closer than half a period (:data:`CATCH_UP_SPACING`). Each sample is
 written with :class:`~identify.experiment_record.SampleFlag` bits:
 
-LOST       no feedback with sequence number k arrived within PENDING_CYCLES cycles (angle NaN)
+LOST       no feedback with sequence number k arrived within ``pending_cycles`` cycles (angle NaN)
 LATE       the cycle started more than ``late_tolerance_s`` after ``t_k``, or its feedback arrived after
            ``t_{k+1}``
 DUPLICATE  feedback k arrived more than once
 FAULT      the device reported a fault during the sample (the run stops after it)
 
-Rows are written PENDING_CYCLES cycles behind the bus, so late feedback still fills its sample
+Rows are written ``pending_cycles`` cycles behind the bus, so late feedback still fills its sample
 (flagged LATE) and a duplicate still marks it. Safety: the whole command is checked against the software limits before the first setpoint is
 sent; a feedback watchdog stops the run when nothing arrives for ``feedback_timeout_s``; any error,
 device fault or Ctrl-C ends with a controlled stop (quick stop, then disable) and the log closed,
@@ -109,6 +109,7 @@ def check_command(transport: Transport, command_rad: NDArray[np.float64]) -> Non
 
 def run_experiment(transport: Transport, command_rad: ArrayLike, sink: SampleSink, *,
                    feedback_timeout_s: float = 0.1, late_tolerance_s: float | None = None,
+                   pending_cycles: int = PENDING_CYCLES,
                    progress: Callable[[int, int], None] | None = None,
                    clock: Callable[[], float] = time.perf_counter) -> RunSummary:
     """Open ``transport``, stream ``command_rad`` at its sample period into the rig, write every sample to
@@ -127,6 +128,10 @@ def run_experiment(transport: Transport, command_rad: ArrayLike, sink: SampleSin
         Watchdog: stop with :class:`TransportError` when no feedback arrives for this long.
     late_tolerance_s
         A cycle starting later than this after its deadline is LATE (default: half a period).
+    pending_cycles
+        Feedback is still filed under its sample (flagged LATE) up to this many cycles after the sample
+        was sent; later, the sample is LOST. A simulated rig, whose devices share the driver's process and
+        only stall with it, can afford a long window.
     progress
         Called as ``progress(samples_done, late_so_far)`` after each sample.
 
@@ -210,17 +215,17 @@ def run_experiment(transport: Transport, command_rad: ArrayLike, sink: SampleSin
                 row.flags |= SampleFlag.LATE
             # Take what arrives until sample k is answered or the next deadline comes; when behind
             # schedule, only drain what is there, so that the loop catches up (answers of the last
-            # PENDING_CYCLES samples are still filed when they come later).
+            # pending_cycles samples are still filed when they come later).
             next_deadline = deadline + period
             while k not in received:
                 sample = transport.receive(max(next_deadline - clock(), 0.0))
                 if sample is None:
                     break
                 take(sample)
-            write_rows(keep=PENDING_CYCLES)
+            write_rows(keep=pending_cycles)
             if progress is not None:
                 progress(k + 1, counts["late"] + sum(bool(row.flags & SampleFlag.LATE) for row in rows))
-        grace_end = clock() + PENDING_CYCLES * period
+        grace_end = clock() + pending_cycles * period
         while rows and any(row.seq not in received for row in rows) and clock() < grace_end:
             sample = transport.receive(max(grace_end - clock(), 0.0))
             if sample is not None:
