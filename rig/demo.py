@@ -29,6 +29,7 @@ from numpy.typing import NDArray
 
 from identify.experiment_record import ExperimentRecord
 from identify.plant_blocks import Delay, LinearBlock, OutputBacklash, PlantModel, Resonance
+from rig.protocols.errors import TransportError
 
 CONFIG_DIR = Path(__file__).resolve().parents[1] / "configs"
 TRANSPORTS = ("canopen", "can", "serial")
@@ -180,7 +181,7 @@ class SimulatedRigSession:
             if np.count_nonzero(~record.valid_mask) <= max_lost:
                 return record
             self.retries[name] = attempt
-        raise RuntimeError(f"{name}: {np.count_nonzero(~record.valid_mask)} samples were lost or faulted "
+        raise TransportError(f"{name}: {np.count_nonzero(~record.valid_mask)} samples were lost or faulted "
                            f"(at most {max_lost} can be used) in each of {self.max_attempts} attempts; the host "
                            "cannot keep the rig's rate: close other programs and run again")
 
@@ -222,7 +223,7 @@ def last_valid_values(record: ExperimentRecord, indices: NDArray[np.int64], max_
     for position, index in enumerate(indices):
         usable = np.flatnonzero(valid[max(0, index - max_age): index + 1])
         if usable.size == 0:
-            raise RuntimeError(f"{record.metadata.excitation}: samples {index - max_age}..{index} were all lost; "
+            raise TransportError(f"{record.metadata.excitation}: samples {index - max_age}..{index} were all lost; "
                                "no steady-state value can be read there")
         values[position] = record.angle_rad[max(0, index - max_age) + usable[-1]]
     return values

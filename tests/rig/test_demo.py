@@ -9,6 +9,7 @@ import pytest
 from identify.plant_blocks import Delay, LinearBlock, OutputBacklash, PlantModel, Resonance
 from rig.cli import main
 from rig.demo import true_gearbox
+from rig.protocols.errors import TransportError
 from rig.report import missing_images
 
 
@@ -75,5 +76,5 @@ def test_lost_steady_state_samples_take_the_last_usable_one_within_the_tail():
 
     record = lossy_record()
     np.testing.assert_array_equal(last_valid_values(record, np.array([3, 4, 9]), max_age=2), [3.0, 3.0, 8.0])
-    with pytest.raises(RuntimeError, match=r"samples 4\.\.4 were all lost"):
+    with pytest.raises(TransportError, match=r"samples 4\.\.4 were all lost"):
         last_valid_values(record, np.array([4]), max_age=0)
