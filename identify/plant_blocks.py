@@ -881,7 +881,8 @@ class PlantModel:
             _check_block(index, block)
         object.__setattr__(self, "blocks", blocks)
         periods = {(type(b).__name__, b.sample_period_s) for b in blocks if hasattr(b, "sample_period_s")}
-        if len({period for _, period in periods}) > 1:
+        values = [period for _, period in periods]
+        if values and not all(math.isclose(period, values[0], rel_tol=1e-9) for period in values):
             described = ", ".join(f"{name} {period:g} s" for name, period in sorted(periods))
             raise InvalidInputError(f"blocks: the sample periods of the blocks differ ({described})")
 

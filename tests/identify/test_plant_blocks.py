@@ -338,3 +338,12 @@ def test_any_chain_steps_exactly_like_it_simulates(choices, seed):
     u = np.cumsum(rng.normal(0, 0.2, 300))
     stepper = plant.stepper()
     assert np.array_equal([stepper.step(value) for value in u], plant.simulate(u))
+
+
+def test_sample_periods_equal_up_to_rounding_are_one_period():
+    """A CSV's median time step (0.0010000000000000009 s) matches a model's 0.001 s; 1 ms and 2 ms do not."""
+    from identify.plant_blocks import Delay, LinearBlock, OutputOffset, PlantModel
+
+    PlantModel((LinearBlock((-0.5,), (0.5,), 0.001), OutputOffset(0.0, 1e-3, 0.0010000000000000009), Delay(1)))
+    with pytest.raises(InvalidInputError, match="sample periods of the blocks differ"):
+        PlantModel((LinearBlock((-0.5,), (0.5,), 0.001), OutputOffset(0.0, 1e-3, 0.002)))
