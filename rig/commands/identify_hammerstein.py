@@ -47,7 +47,8 @@ def register(methods: argparse._SubParsersAction) -> None:
         description=DESCRIPTION,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    parser.add_argument("data", metavar="DATA.csv", help="CSV with columns u, y, or a rig-log v1 file")
+    parser.add_argument("data", metavar="DATA.csv", nargs="+",
+                        help="CSV with columns u, y, or a rig-log v1 file; several files are identified independently")
     nodes = parser.add_mutually_exclusive_group()
     nodes.add_argument("--num-nodes", type=int, default=8, metavar="K",
                        help="equally spaced nodes on [u_min, u_max], both ends included (default 8: n_p = 7)")
@@ -70,11 +71,50 @@ def register(methods: argparse._SubParsersAction) -> None:
     parser.add_argument("--no-feedthrough", action="store_true", help="fix D = 0 (strictly proper G)")
     parser.add_argument("--refine", action="store_true",
                         help="refine the subspace estimate by minimising the output error of the whole model")
-    parser.add_argument("--json", action="store_true", help="print the model as JSON")
+    parser.add_argument("--jobs", type=int, default=1, metavar="N",
+                        help="identify several files in N processes (0: one per core; default 1)")
+    parser.add_argument("--scheduler", metavar="ADDRESS", default=None,
+                        help="run the files on the Dask cluster at ADDRESS instead (needs dask[distributed])")
+    parser.add_argument("--json", action="store_true",
+                        help='print the model as JSON; with several files {"results": [{"file", "model" | "error"}]}')
     parser.set_defaults(handler=run)
 
 
 def run(args: argparse.Namespace) -> int:
+    from functools import partial
+
+    from rig.batch import map_files
+
+    options = {key: getattr(args, key) for key in (
+        "nodes", "descending_nodes", "num_nodes", "u_min", "u_max", "order", "hold_samples", "mu0",
+        "past_horizon", "future_horizon", "split", "no_feedthrough", "refine")}
+    if len(args.data) == 1 and args.scheduler is None:
+        model, hold = identify_file(args.data[0], options)  # errors go to rig.cli with their exit code
+        if args.json:
+            print(json.dumps(model.to_dict()))
+        else:
+            _print_table(model, Path(args.data[0]), hold)
+        sys.stdout.flush()
+        return exit_codes.SUCCESS
+    outcomes = map_files(partial(identify_file, options=options), args.data, jobs=args.jobs,
+                         scheduler=args.scheduler)
+    if args.json:
+        print(json.dumps({"results": [
+            {"file": outcome.path, "model": outcome.result[0].to_dict()} if outcome.error is None
+            else {"file": outcome.path, "error": outcome.error} for outcome in outcomes]}))
+    else:
+        for outcome in outcomes:
+            if outcome.error is None:
+                _print_table(outcome.result[0], Path(outcome.path), outcome.result[1])
+            else:
+                print(f"data             {outcome.path}\nerror            {outcome.error}")
+            print()
+    sys.stdout.flush()
+    return exit_codes.SUCCESS if all(outcome.error is None for outcome in outcomes) else exit_codes.BAD_INPUT
+
+
+def identify_file(path_text: str, options: dict):
+    """Identify one file with the command's options; return the model and the hold length used."""
     import numpy as np
 
     from identify.border_lifting import PathNodes, uniform_nodes
@@ -84,28 +124,27 @@ def run(args: argparse.Namespace) -> int:
         identify_hammerstein,
     )
     from identify.validation import InvalidInputError
-
-    path = Path(args.data)
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: no such file")
     from rig.log_file import read_input_output
 
+    path = Path(path_text)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no such file")
     u, y = read_input_output(path)
     if u.size == 0:
         raise InvalidInputError(f"{path}: no samples")
-    if args.nodes is not None:
-        if args.u_min is not None or args.u_max is not None:
+    if options["nodes"] is not None:
+        if options["u_min"] is not None or options["u_max"] is not None:
             raise InvalidInputError("--nodes: give either --nodes or --u-min/--u-max with --num-nodes, not both")
-        ascending = args.nodes
+        ascending = options["nodes"]
     else:
-        u_min = float(np.min(u)) if args.u_min is None else args.u_min
-        u_max = float(np.max(u)) if args.u_max is None else args.u_max
-        ascending = tuple(uniform_nodes(u_min, u_max, args.num_nodes).tolist())
-    descending = args.descending_nodes if args.descending_nodes is not None else ascending
+        u_min = float(np.min(u)) if options["u_min"] is None else options["u_min"]
+        u_max = float(np.max(u)) if options["u_max"] is None else options["u_max"]
+        ascending = tuple(uniform_nodes(u_min, u_max, options["num_nodes"]).tolist())
+    descending = options["descending_nodes"] if options["descending_nodes"] is not None else ascending
     nodes = PathNodes(ascending, descending)
 
-    hold = args.hold_samples
-    if args.mu0 is None and hold is None:
+    hold = options["hold_samples"]
+    if options["mu0"] is None and hold is None:
         leading = np.flatnonzero(u != u[0])
         hold = int(leading[0]) if leading.size else int(u.size)
         if abs(u[0] - nodes.u_min) > 1e-9 * (nodes.u_max - nodes.u_min):
@@ -115,17 +154,12 @@ def run(args: argparse.Namespace) -> int:
             )
     model = identify_hammerstein(
         u, y, nodes,
-        hold_samples=hold, mu0=args.mu0, order=args.order,
-        past_horizon=DEFAULT_PAST_HORIZON if args.past_horizon is None else args.past_horizon,
-        future_horizon=DEFAULT_FUTURE_HORIZON if args.future_horizon is None else args.future_horizon,
-        feedthrough=not args.no_feedthrough, split=args.split, refine=args.refine,
+        hold_samples=hold, mu0=options["mu0"], order=options["order"],
+        past_horizon=DEFAULT_PAST_HORIZON if options["past_horizon"] is None else options["past_horizon"],
+        future_horizon=DEFAULT_FUTURE_HORIZON if options["future_horizon"] is None else options["future_horizon"],
+        feedthrough=not options["no_feedthrough"], split=options["split"], refine=options["refine"],
     )
-    if args.json:
-        print(json.dumps(model.to_dict()))
-    else:
-        _print_table(model, path, hold)
-    sys.stdout.flush()
-    return exit_codes.SUCCESS
+    return model, hold
 
 
 def _print_table(model, path: Path, hold: int | None) -> None:

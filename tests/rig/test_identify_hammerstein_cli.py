@@ -92,3 +92,22 @@ def test_bad_input_exits_2_with_a_message_naming_it(tmp_path, capsys, data) -> N
     missing.write_text("u,z\n1,2\n")
     assert main(["identify", "hammerstein", str(missing)]) == 2
     assert "missing column(s) y" in capsys.readouterr().err
+
+
+def test_several_files_in_parallel_processes_match_one_at_a_time(tmp_path, capsys, data) -> None:
+    u, y = data
+    first, second, broken = tmp_path / "a.csv", tmp_path / "b.csv", tmp_path / "broken.csv"
+    write_csv(first, u, y)
+    write_csv(second, u, 2.0 * (y - 0.5) + 0.5)  # a gain of 2 in the borders
+    broken.write_text("u,y\n1,nan\n")
+    common = ["--num-nodes", "8", "--u-min", "-3", "--u-max", "3", "--json"]
+    assert main(["identify", "hammerstein", str(first), *common]) == 0
+    alone = json.loads(capsys.readouterr().out)
+    code = main(["identify", "hammerstein", str(first), str(second), str(broken), "--jobs", "2", *common])
+    results = json.loads(capsys.readouterr().out)["results"]
+    assert code == 2  # one file could not be identified; the others still were
+    assert [result["file"] for result in results] == [str(first), str(second), str(broken)]
+    assert results[0]["model"]["poles"] == alone["poles"]
+    scaled = np.array(results[1]["model"]["borders"]["ascending"]["h"])
+    assert np.allclose(scaled - 0.5, 2.0 * (np.array(alone["borders"]["ascending"]["h"]) - 0.5), atol=1e-6)
+    assert "line 2, column y" in results[2]["error"]

@@ -1,0 +1,67 @@
+"""Run one analysis over many files in parallel: local processes, or a Dask cluster.
+
+Both go through the ``concurrent.futures.Executor`` interface: :class:`~concurrent.futures.ProcessPoolExecutor`
+on the local cores, or the executor of a ``dask.distributed.Client`` (``Client(address).get_executor()``)
+for a fleet of machines, so the same batch runs on either and this module writes no scheduler of its own.
+Dask is optional (``pip install 'dask[distributed]'``); it is imported only when a scheduler is named.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+from collections.abc import Callable, Iterator, Sequence
+from concurrent.futures import Executor, ProcessPoolExecutor
+from dataclasses import dataclass
+from typing import Any
+
+from rig.protocols.errors import ConfigError
+
+
+@dataclass(frozen=True)
+class FileOutcome:
+    """The result of one file, or the message of the error that stopped it (the other files go on)."""
+
+    path: str
+    result: Any = None
+    error: str | None = None
+
+
+def _guarded(function: Callable[[str], Any], path: str) -> FileOutcome:
+    try:
+        return FileOutcome(path, result=function(path))
+    except (ValueError, OSError) as err:  # bad input names itself; a bug still raises
+        return FileOutcome(path, error=str(err))
+
+
+@contextlib.contextmanager
+def executor_for(jobs: int, scheduler: str | None = None) -> Iterator[Executor | None]:
+    """A process pool of ``jobs`` workers (0: one per core), the executor of the Dask scheduler at
+    ``scheduler``, or None for one job in this process."""
+    if scheduler is not None:
+        try:
+            from dask.distributed import Client
+        except ImportError as err:
+            raise ConfigError("--scheduler", "scheduler", "needs Dask: pip install 'dask[distributed]'") from err
+        with Client(scheduler) as client:
+            yield client.get_executor()
+        return
+    workers = (os.cpu_count() or 1) if jobs == 0 else jobs
+    if workers == 1:
+        yield None
+        return
+    with ProcessPoolExecutor(max_workers=workers) as pool:
+        yield pool
+
+
+def map_files(function: Callable[[str], Any], paths: Sequence[str], *, jobs: int = 1,
+              scheduler: str | None = None) -> list[FileOutcome]:
+    """``function(path)`` for every path, in the order given; ``function`` must be picklable (a
+    module-level function or a ``functools.partial`` of one) when it runs in other processes."""
+    if jobs < 0:
+        raise ValueError(f"--jobs: expected 0 (all cores) or a positive number of processes, got {jobs}")
+    with executor_for(jobs, scheduler) as executor:
+        if executor is None:
+            return [_guarded(function, path) for path in paths]
+        futures = [executor.submit(_guarded, function, path) for path in paths]
+        return [future.result() for future in futures]
