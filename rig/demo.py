@@ -229,6 +229,11 @@ def last_valid_values(record: ExperimentRecord, indices: NDArray[np.int64], max_
     return values
 
 
+DEMO_STEPS = 9
+"""Steps that :func:`run_demo` reports through ``steps``: filter pole, staircase, PRBS, cyclic, two
+set-membership methods, Hammerstein, discrepancy and the report."""
+
+
 def run_demo(out_dir: Path | None, transport: str = "canopen", plan: DemoPlan = FULL_PLAN,
              steps: Callable[[str], contextlib.AbstractContextManager[Any]] | None = None,
              progress: Callable[[str, int], Callable[[int, int], None] | None] | None = None) -> DemoOutcome:

@@ -47,16 +47,28 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _progress_bars(per_sample: bool) -> tuple[Callable, Callable | None]:
-    """A line per step, and on a terminal a per-sample bar for each experiment (both on stderr)."""
+    """On a terminal, a bar over the demo's steps and a per-sample bar under it for each experiment;
+    elsewhere a line per step (all on stderr)."""
     from tqdm import tqdm
+
+    from rig.demo import DEMO_STEPS
+
+    steps_bar = tqdm(total=DEMO_STEPS, unit="step", file=sys.stderr, position=0, disable=not per_sample,
+                     bar_format="{desc} |{bar}| {n_fmt}/{total_fmt} steps [{elapsed}]")
 
     @contextlib.contextmanager
     def step(description: str) -> Iterator[None]:
-        print(f"- {description}", file=sys.stderr, flush=True)
+        if per_sample:
+            steps_bar.set_description_str(description)
+        else:
+            print(f"- {description}", file=sys.stderr, flush=True)
         yield
+        steps_bar.update(1)
+        if steps_bar.n >= DEMO_STEPS:
+            steps_bar.close()
 
     def experiment(name: str, samples: int) -> Callable[[int, int], None]:
-        bar = tqdm(total=samples, desc=f"  {name}", unit="sample", file=sys.stderr, leave=False,
+        bar = tqdm(total=samples, desc=f"  {name}", unit="sample", file=sys.stderr, leave=False, position=1,
                    mininterval=0.2)
 
         def update(done: int, late: int) -> None:
