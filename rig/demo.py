@@ -166,7 +166,7 @@ class SimulatedRigSession:
         self.progress = progress
         self.runs: dict[str, DemoRun] = {}
         self.retries: dict[str, int] = {}
-        self.max_attempts = 3
+        self.max_attempts = 5
 
     def run(self, name: str, command_rad: NDArray[np.float64], *, keep_log: bool = True,
             max_lost: int = 0) -> ExperimentRecord:
@@ -183,7 +183,7 @@ class SimulatedRigSession:
             self.retries[name] = attempt
         raise TransportError(f"{name}: {np.count_nonzero(~record.valid_mask)} samples were lost or faulted "
                            f"(at most {max_lost} can be used) in each of {self.max_attempts} attempts; the host "
-                           "cannot keep the rig's rate: close other programs and run again")
+                           "cannot keep the rig's rate: close other programs and run again, or try --transport serial")
 
     def _run_once(self, name: str, command_rad: NDArray[np.float64], *, keep_log: bool) -> ExperimentRecord:
         import tempfile
