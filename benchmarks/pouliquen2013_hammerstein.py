@@ -272,7 +272,7 @@ def main() -> None:
 
     print("\nSpeed on the lifted data (14 inputs, j = 4000, p = f = 15, order 2):")
     ours = [row["ms"] for case, variant, row in table if variant == "separate"]
-    print(f"| method | ms per identification |")
+    print("| method | ms per identification |")
     print("|---|---|")
     print(f"| ours (identify_hammerstein, whole method, median) | {np.median(ours):.1f} |")
     if speed_rows:

@@ -82,7 +82,6 @@ def signature_scores(command_rad: NDArray[np.float64], angle_rad: NDArray[np.flo
     sample_period_s
         T.
     """
-    u = np.asarray(command_rad, dtype=float)
     y = np.asarray(angle_rad, dtype=float)
     y_hat = np.asarray(simulated_rad, dtype=float)
     r = y - y_hat
