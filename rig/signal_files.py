@@ -24,9 +24,14 @@ def read_signal_table(path: str | Path, required_columns: tuple[str, ...]) -> di
     path = Path(path)
     if not path.is_file():
         raise LogFileError(f"{path}: no such file")
-    with path.open(newline="") as handle:
-        rows = [(number, row) for number, row in enumerate(csv.reader(handle), start=1)
-                if row and not row[0].lstrip().startswith("#")]
+    try:
+        with path.open(newline="", encoding="utf-8") as handle:
+            rows = [(number, row) for number, row in enumerate(csv.reader(handle), start=1)
+                    if row and not row[0].lstrip().startswith("#")]
+    except UnicodeDecodeError as err:
+        raise LogFileError(f"{path}: not a text file (byte {err.start} is not UTF-8); expected a CSV") from None
+    except csv.Error as err:
+        raise LogFileError(f"{path}: not a readable CSV: {err}") from None
     if not rows:
         raise LogFileError(f"{path}: the file is empty; expected a header row with columns {', '.join(required_columns)}")
     header_line, header = rows[0]
