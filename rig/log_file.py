@@ -236,7 +236,7 @@ def read_log(path: str | Path) -> ExperimentRecord:
         metadata = ExperimentMetadata.from_dict(json.loads(lines[metadata_line - 1][len(_METADATA_PREFIX):]))
     except json.JSONDecodeError as err:
         raise LogFileError(f"{path}: line {metadata_line}: the metadata is not valid JSON: {err.msg} at column {err.colno}") from None
-    except (InvalidInputError, TypeError) as err:
+    except (ValueError, TypeError) as err:  # InvalidInputError, or a field of the wrong type ("extra": "ab")
         raise LogFileError(f"{path}: line {metadata_line}: bad metadata: {err}") from None
     if header_line is None:
         raise LogFileError(f"{path}: the header has no column line '{','.join(COLUMNS)}'; the file is damaged")

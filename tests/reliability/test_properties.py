@@ -12,6 +12,7 @@
 
 from __future__ import annotations
 
+import itertools
 import math
 import shutil
 import tomllib
@@ -27,14 +28,25 @@ from identify.validation import InvalidInputError
 from rig.log_file import LogWriter, read_experiment_data, read_log
 from rig.protocols.errors import ConfigError, LogFileError
 from rig.protocols.serial_frames import (
-    MAX_PAYLOAD, FrameDecoder, MessageType, SerialMessage, cobs_decode, crc16, decode_frame, encode_frame,
+    MAX_PAYLOAD,
+    FrameDecoder,
+    MessageType,
+    SerialMessage,
+    cobs_decode,
+    crc16,
+    decode_frame,
+    encode_frame,
 )
 from rig.rig_config import load_rig_config
-from sim_backend.plant_config import PlantConfig, load_plant_config, plant_config_from_toml_text
+from sim_backend.plant_config import (
+    PlantConfig,
+    load_plant_config,
+    plant_config_from_toml_text,
+)
 
 CONFIGS = Path(__file__).resolve().parents[2] / "configs"
-FAST = settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
-SLOW = settings(max_examples=80, deadline=None,
+FAST = settings(max_examples=100, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+SLOW = settings(max_examples=50, deadline=None,
                 suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])
 
 # ----------------------------------------------------------------------------------------------------------
@@ -68,7 +80,7 @@ def split_points(draw: st.DrawFn, data: bytes) -> list[bytes]:
     """``data`` cut into consecutive reads at arbitrary points (as a serial port returns it)."""
     cuts = sorted(draw(st.lists(st.integers(0, len(data)), max_size=8)))
     bounds = [0, *cuts, len(data)]
-    return [data[a:b] for a, b in zip(bounds, bounds[1:])]
+    return [data[a:b] for a, b in itertools.pairwise(bounds)]
 
 
 def _feed_all(decoder: FrameDecoder, reads: list[bytes]) -> list[SerialMessage]:
@@ -247,7 +259,7 @@ def _looks_like_a_sample_row(line: str) -> bool:
 
 @SLOW
 @pytest.mark.parametrize("reader", READERS, ids=lambda f: f.__name__)
-@given(junk=st.lists(st.tuples(st.integers(0, 100), st.text(st.characters(exclude_characters="\n"), max_size=30)),
+@given(junk=st.lists(st.tuples(st.integers(0, 100), st.text(st.characters(codec="utf-8", exclude_characters="\n"), max_size=30)),
                      min_size=1, max_size=3))
 def test_log_with_junk_lines_reads_a_prefix_or_names_the_file(tmp_path: Path, reader,
                                                               junk: list[tuple[int, str]]) -> None:
@@ -261,6 +273,36 @@ def test_log_with_junk_lines_reads_a_prefix_or_names_the_file(tmp_path: Path, re
         lines.insert(position % len(lines), text)
     path.write_text("\n".join(lines), encoding="utf-8", newline="\n")
     _check_read(path, original, reader, touched_samples=set())
+
+
+_METADATA_FIELDS = ["sample_period_s", "source", "transport", "encoder_bits", "noise_kind", "noise_bound_rad",
+                    "excitation", "excitation_seed", "seed", "config", "software_version", "extra", "unknown"]
+json_values = st.recursive(
+    st.none() | st.booleans() | st.integers(-10**20, 10**20) | st.floats(allow_nan=False, allow_infinity=False)
+    | st.text(max_size=6),
+    lambda inner: st.lists(inner, max_size=3) | st.dictionaries(st.text(max_size=4), inner, max_size=3),
+    max_leaves=6)
+
+
+@SLOW
+@given(changes=st.dictionaries(st.sampled_from(_METADATA_FIELDS), json_values, min_size=1, max_size=4)
+       | json_values.filter(lambda value: not isinstance(value, dict)))
+def test_log_with_bad_metadata_reads_or_names_the_file(tmp_path: Path, changes) -> None:
+    """Well-formed JSON of the wrong shape on the metadata line (a field of the wrong type, ``"extra": "ab"``,
+    a list instead of an object) is a LogFileError naming the file, never a bare ValueError or TypeError."""
+    import json
+
+    path = tmp_path / "run.log"
+    original = _original_log(path)
+    lines = path.read_text(encoding="utf-8").split("\n")
+    if isinstance(changes, dict):
+        metadata = json.loads(lines[1][len("# metadata "):])
+        metadata.update(changes)
+    else:
+        metadata = changes
+    lines[1] = "# metadata " + json.dumps(metadata)
+    path.write_text("\n".join(lines), encoding="utf-8", newline="\n")
+    _check_read(path, original, read_log, touched_samples=set())
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -360,7 +402,7 @@ def _load_plant_text(text: str, source: str) -> None:
     assert config.sample_period_s > 0 and config.blocks
 
 
-@FAST
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(document=documents)
 def test_arbitrary_toml_gives_a_plant_config_or_a_named_config_error(document: dict) -> None:
     text = dump_toml(document)
