@@ -8,9 +8,15 @@ imports happen inside the handlers, so ``rig --help`` stays fast.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
+import os
+import signal
 import sys
-from collections.abc import Sequence
+import threading
+import time
+from collections.abc import Iterator, Sequence
+from types import FrameType
 
 from rig import __version__, exit_codes
 from rig.protocols.errors import ConfigError, DeviceFault, LogFileError, TransportError
@@ -31,8 +37,74 @@ EPILOG = """exit codes:
   2  bad input: a file, config key, argument or sample that cannot be used (the message names it)
   3  device fault or link failure (the message names the device and its fault code)
   4  empty feasible set: the data contradict the model structure and the noise bound
-  130  interrupted by Ctrl-C (after a controlled stop; the log is complete up to the stop)
+  5  the output could not be written (path not writable, directory missing, disk full); the message
+     names the path, and a run stops the rig in a controlled way and keeps the samples flushed before
+  130  interrupted by Ctrl-C / SIGINT (after a controlled stop; the log is complete up to the stop)
+  143  terminated by SIGTERM (the same controlled stop)
 """
+
+
+class Interrupted(KeyboardInterrupt):
+    """SIGINT or SIGTERM, raised in the main thread so that every ``finally`` runs on the way out: the
+    runner's controlled stop (quick stop, then disable) and the log's flush and close.
+
+    A ``KeyboardInterrupt`` (a ``BaseException``), so no ``except Exception`` on the way swallows it."""
+
+    def __init__(self, signal_number: int) -> None:
+        self.signal_number = signal_number
+        super().__init__(signal.Signals(signal_number).name)
+
+
+@contextlib.contextmanager
+def signals_as_interrupts() -> Iterator[None]:
+    """Turn the first SIGINT or SIGTERM into :class:`Interrupted`; while the stop that follows runs,
+    further signals are reported and ignored, so a second Ctrl-C cannot cut the controlled stop short
+    (SIGKILL still ends the process at once). Handlers are restored on exit; outside the main thread
+    (where Python cannot install handlers) nothing changes."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    stopping = False
+
+    def interrupt(signal_number: int, frame: FrameType | None) -> None:
+        nonlocal stopping
+        if stopping:
+            print(f"rig: {signal.Signals(signal_number).name} again: still stopping in a controlled way "
+                  "(SIGKILL abandons the stop and leaves the drive as it is)", file=sys.stderr, flush=True)
+            return
+        stopping = True
+        raise Interrupted(signal_number)
+
+    previous = {}
+    for number in (signal.SIGINT, signal.SIGTERM):
+        if signal.getsignal(number) is signal.SIG_IGN:
+            continue  # started with the signal ignored (nohup, a background job): keep it so
+        previous[number] = signal.signal(number, interrupt)
+    try:
+        yield
+    finally:
+        for number, handler in previous.items():
+            signal.signal(number, handler)
+
+
+def _interrupted_message(args: argparse.Namespace, err: KeyboardInterrupt, started: float) -> str:
+    """'rig: interrupted by SIGTERM; run.csv keeps 1234 samples, readable up to the stop'."""
+    from rig.log_file import count_samples
+
+    name = signal.Signals(err.signal_number).name if isinstance(err, Interrupted) else "SIGINT"
+    message = f"rig: interrupted by {name}"
+    if getattr(args.handler, "__module__", "") == "rig.commands.run":
+        message += " (the drive got a quick stop, then disable)"
+    out = getattr(args, "out", None)
+    if isinstance(out, str):
+        try:
+            written_now = os.stat(out).st_mtime >= started - 1.0  # not a file left by an earlier run
+        except OSError:
+            written_now = False
+        samples = count_samples(out) if written_now else None
+        message += (f"; {out} keeps {samples} samples, readable up to the stop" if samples is not None
+                    else f"; no log was written to {out}")
+    return message
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -52,14 +124,25 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    started = time.time()
     try:
-        return int(args.handler(args))
-    except KeyboardInterrupt:
-        print("rig: interrupted", file=sys.stderr)
-        return exit_codes.INTERRUPTED
+        with signals_as_interrupts():
+            try:
+                return int(args.handler(args))
+            finally:
+                sys.stdout.flush()
+    except KeyboardInterrupt as err:
+        print(_interrupted_message(args, err, started), file=sys.stderr)
+        is_term = isinstance(err, Interrupted) and err.signal_number == signal.SIGTERM
+        return exit_codes.TERMINATED if is_term else exit_codes.INTERRUPTED
     except (ValueError, ConfigError, LogFileError, FileNotFoundError, IsADirectoryError) as err:
         # identify's InvalidInputError and every config/log error are ValueErrors with a complete message.
         print(f"rig: error: {err}", file=sys.stderr)
+        from rig.log_file import LogWriteError  # here, not at the top: numpy stays out of `rig --help`
+
+        return exit_codes.WRITE_FAILED if isinstance(err, LogWriteError) else exit_codes.BAD_INPUT
+    except (PermissionError, NotADirectoryError) as err:
+        print(f"rig: error: {err.filename}: {err.strerror}", file=sys.stderr)
         return exit_codes.BAD_INPUT
     except (DeviceFault, TransportError) as err:
         print(f"rig: device error: {err}", file=sys.stderr)

@@ -24,6 +24,7 @@ other tools, through :func:`rig.signal_files.read_signal_table`.
 
 from __future__ import annotations
 
+import errno
 import json
 import math
 import os
@@ -42,13 +43,42 @@ from identify.validation import InvalidInputError
 from rig.protocols.errors import LogFileError
 from rig.signal_files import read_signal_table
 
-__all__ = ["COLUMNS", "FORMAT_LINE", "LogWriter", "read_experiment_data", "read_log", "write_log"]
+__all__ = ["COLUMNS", "FORMAT_LINE", "LogWriteError", "LogWriter", "count_samples", "read_experiment_data", "read_log",
+           "write_log"]
 
 FORMAT_LINE = "# rig-log v1"
 COLUMNS = ("time_s", "command_rad", "angle_rad", "encoder_counts", "flags")
 _METADATA_PREFIX = "# metadata "
 _UNITS_LINE = ("# units time_s=s command_rad=rad angle_rad=rad encoder_counts=counts flags=bits("
                + ",".join(f"{int(flag)} {flag.name}" for flag in SampleFlag if flag.value) + ")")
+
+
+class LogWriteError(LogFileError):
+    """The log could not be written (path not writable, directory missing, disk full, file size limit).
+
+    The message names the path, the OS's reason and, during a run, how many samples were flushed and so
+    are kept in the file."""
+
+
+_ADVICE = {
+    errno.ENOSPC: "the disk is full: free space or write the log to another disk",
+    errno.EDQUOT: "the disk quota is used up: free space or write the log to another disk",
+    errno.EFBIG: "the file size limit was reached (ulimit -f): raise it or write shorter logs",
+    errno.EACCES: "no permission to write there: choose another path or change its permissions",
+    errno.EPERM: "no permission to write there: choose another path or change its permissions",
+    errno.EROFS: "the file system is read-only: choose another path",
+    errno.ENOENT: "the directory does not exist: create it or choose another path",
+    errno.EISDIR: "the path is a directory: give a file name",
+    errno.ENOTDIR: "a part of the path is not a directory: choose another path",
+}
+
+
+def _os_reason(err: OSError) -> str:
+    """'No space left on device (ENOSPC); the disk is full: ...' for an OSError from open/write/flush."""
+    name = errno.errorcode.get(err.errno, "") if err.errno is not None else ""
+    reason = err.strerror or str(err)
+    advice = _ADVICE.get(err.errno) if err.errno is not None else None
+    return f"{reason}{f' ({name})' if name else ''}" + (f"; {advice}" if advice else "")
 
 
 def _metadata_dict(metadata: ExperimentMetadata | Mapping[str, Any]) -> dict[str, Any]:
@@ -106,15 +136,24 @@ class LogWriter:
         self.flush_every = flush_every
         self.flush_interval_s = flush_interval_s
         self.fsync = fsync
+        self.samples = 0
+        self.flushed_samples = 0
+        self._pending = 0
+        self._last_time: float | None = None
+        self._failure: str | None = None
         try:
             self._file: TextIO | None = self.path.open("w", encoding="utf-8", newline="\n")
         except OSError as err:
-            raise LogFileError(f"{self.path}: cannot open the log for writing: {err.strerror or err}") from err
-        self._file.write(f"{FORMAT_LINE}\n{_METADATA_PREFIX}{header}\n{_UNITS_LINE}\n{','.join(COLUMNS)}\n")
-        self._flush(sync=True)
-        self.samples = 0
-        self._pending = 0
-        self._last_time: float | None = None
+            if isinstance(err, FileNotFoundError) and not self.path.parent.is_dir():
+                raise LogWriteError(f"{self.path}: cannot open the log for writing: the directory {self.path.parent} "
+                                    "does not exist; create it or choose another path") from None
+            raise LogWriteError(f"{self.path}: cannot open the log for writing: {_os_reason(err)}") from None
+        try:  # written and fsynced at once: a full disk or a device that refuses writes shows up here, before a run
+            self._file.write(f"{FORMAT_LINE}\n{_METADATA_PREFIX}{header}\n{_UNITS_LINE}\n{','.join(COLUMNS)}\n")
+            self._flush(sync=True)
+        except OSError as err:
+            self._abandon()
+            raise LogWriteError(f"{self.path}: cannot write the log's header: {_os_reason(err)}") from None
 
     def __enter__(self) -> LogWriter:
         return self
@@ -127,14 +166,35 @@ class LogWriter:
         assert self._file is not None
         self._file.flush()
         if sync:
-            os.fsync(self._file.fileno())
+            try:
+                os.fsync(self._file.fileno())
+            except OSError as err:
+                if err.errno != errno.EINVAL:  # a pipe or character device cannot be fsynced; nothing to lose
+                    raise
         self._last_flush = time.monotonic()
+        self.flushed_samples = self.samples
+
+    def _abandon(self) -> None:
+        """Close the file after a failed write without flushing again (the OS refused the bytes)."""
+        assert self._file is not None
+        try:
+            self._file.close()
+        except OSError:
+            pass  # the same failure, reported already; the descriptor is closed anyway
+        self._file = None
+
+    def _fail(self, err: OSError, doing: str) -> LogWriteError:
+        """Remember a write failure (every later call reports it) and close the file."""
+        self._failure = (f"{self.path}: cannot write the log ({doing}): {_os_reason(err)}; the "
+                         f"{self.flushed_samples} samples flushed before are kept and readable")
+        self._abandon()
+        return LogWriteError(self._failure)
 
     def append(self, time_s: float, command_rad: float, angle_rad: float, encoder_counts: int | None = None,
                flags: int | SampleFlag = SampleFlag.OK) -> None:
         """Write one sample. A LOST sample may pass ``angle_rad=nan``; times must increase."""
         if self._file is None:
-            raise LogFileError(f"{self.path}: the log is closed")
+            raise LogWriteError(self._failure) if self._failure else LogFileError(f"{self.path}: the log is closed")
         time_value, command, angle, flag = float(time_s), float(command_rad), float(angle_rad), int(flags)
         if not math.isfinite(time_value) or (self._last_time is not None and time_value <= self._last_time):
             raise InvalidInputError(
@@ -150,13 +210,19 @@ class LogWriter:
         elif not math.isfinite(angle):
             raise InvalidInputError(f"angle_rad: sample {self.samples} is {angle_rad!r}; flag it LOST instead")
         counts = "" if encoder_counts is None or lost else str(int(encoder_counts))
-        self._file.write(f"{time_value!r},{command!r},{angle!r},{counts},{flag}\n")
+        try:
+            self._file.write(f"{time_value!r},{command!r},{angle!r},{counts},{flag}\n")
+        except OSError as err:  # a write that filled the buffer went to the OS and was refused
+            raise self._fail(err, f"sample {self.samples}") from None
         self._last_time = time_value
         self.samples += 1
         self._pending += 1
         if self._pending >= self.flush_every or (
                 self.flush_interval_s is not None and time.monotonic() - self._last_flush >= self.flush_interval_s):
-            self._flush(sync=self.fsync)
+            try:
+                self._flush(sync=self.fsync)
+            except OSError as err:
+                raise self._fail(err, f"flushing samples {self.flushed_samples} to {self.samples - 1}") from None
             self._pending = 0
 
     def append_many(self, time_s: ArrayLike, command_rad: ArrayLike, angle_rad: ArrayLike,
@@ -171,14 +237,16 @@ class LogWriter:
             self.append(*row)
 
     def close(self) -> None:
-        """Flush, fsync and close (idempotent)."""
+        """Flush, fsync and close (idempotent). After a write failure it only releases the file: the failure
+        was raised already, and raising it again from a ``finally`` would hide what happened first."""
         if self._file is None:
             return
         try:
             self._flush(sync=True)
-        finally:
-            self._file.close()
-            self._file = None
+        except OSError as err:
+            raise self._fail(err, f"flushing samples {self.flushed_samples} to {self.samples - 1} on close") from None
+        self._file.close()
+        self._file = None
 
 
 def write_log(path: str | Path, record: ExperimentRecord) -> None:
@@ -194,6 +262,22 @@ def _is_rig_log(path: Path) -> bool:
     except OSError:
         return False
     return first.startswith("# rig-log")
+
+
+def count_samples(path: str | Path) -> int | None:
+    """Number of complete sample lines in a ``rig-log v1`` file, without parsing them (fast, for a message
+    after an interrupted run); None when the file is missing or is not a rig log."""
+    path = Path(path)
+    if not _is_rig_log(path):
+        return None
+    lines = 0
+    try:
+        with path.open("rb") as handle:
+            while chunk := handle.read(1 << 20):
+                lines += chunk.count(b"\n")
+    except OSError:
+        return None
+    return max(0, lines - 4)  # format, metadata, units and column lines
 
 
 def read_log(path: str | Path) -> ExperimentRecord:
