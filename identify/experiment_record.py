@@ -12,6 +12,7 @@ File I/O lives in :mod:`rig.log_file`; this module is pure data.
 from __future__ import annotations
 
 import math
+import numbers
 from collections.abc import Mapping
 from dataclasses import dataclass, field, fields
 from enum import IntFlag
@@ -90,18 +91,37 @@ class ExperimentMetadata:
 
     def __post_init__(self) -> None:
         period = self.sample_period_s
-        if isinstance(period, bool) or not isinstance(period, (int, float, np.floating)) or not (
+        if isinstance(period, bool) or not isinstance(period, numbers.Real) or not (
                 math.isfinite(period) and period > 0):
             raise InvalidInputError(f"sample_period_s: expected a finite number > 0, got {period!r}")
         object.__setattr__(self, "sample_period_s", float(period))
-        if self.encoder_bits is not None and (isinstance(self.encoder_bits, bool) or not isinstance(self.encoder_bits, int)
-                                              or not 1 <= self.encoder_bits <= 32):
-            raise InvalidInputError(f"encoder_bits: expected an integer from 1 to 32, got {self.encoder_bits!r}")
+        for name in ("source", "transport", "software_version"):
+            if not isinstance(getattr(self, name), str):
+                raise InvalidInputError(f"{name}: expected a string, got {getattr(self, name)!r}")
+        for name in ("noise_kind", "excitation"):
+            if getattr(self, name) is not None and not isinstance(getattr(self, name), str):
+                raise InvalidInputError(f"{name}: expected a string or None, got {getattr(self, name)!r}")
+        if self.encoder_bits is not None:
+            if isinstance(self.encoder_bits, bool) or not isinstance(self.encoder_bits, numbers.Integral) \
+                    or not 1 <= self.encoder_bits <= 32:
+                raise InvalidInputError(f"encoder_bits: expected an integer from 1 to 32, got {self.encoder_bits!r}")
+            object.__setattr__(self, "encoder_bits", int(self.encoder_bits))
+        for name in ("excitation_seed", "seed"):
+            value = getattr(self, name)
+            if value is not None:
+                if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < 0:
+                    raise InvalidInputError(f"{name}: expected an integer >= 0 (a random generator's seed) or None, "
+                                            f"got {value!r}")
+                object.__setattr__(self, name, int(value))
         if self.noise_bound_rad is not None:
-            bound = float(self.noise_bound_rad)
-            if math.isnan(bound) or bound < 0:
-                raise InvalidInputError(f"noise_bound_rad: expected a number >= 0 (inf allowed), got {self.noise_bound_rad!r}")
-            object.__setattr__(self, "noise_bound_rad", bound)
+            bound = self.noise_bound_rad
+            if isinstance(bound, bool) or not isinstance(bound, numbers.Real) or math.isnan(bound) or bound < 0:
+                raise InvalidInputError(f"noise_bound_rad: expected a number >= 0 (inf allowed: no bound known), "
+                                        f"got {bound!r}")
+            object.__setattr__(self, "noise_bound_rad", float(bound))
+        for name in ("config", "extra"):
+            if not isinstance(getattr(self, name), Mapping):
+                raise InvalidInputError(f"{name}: expected a mapping (a JSON object), got {getattr(self, name)!r}")
         object.__setattr__(self, "config", MappingProxyType(dict(self.config)))
         object.__setattr__(self, "extra", MappingProxyType(dict(self.extra)))
 
@@ -126,7 +146,10 @@ class ExperimentMetadata:
         if "sample_period_s" not in data:
             raise InvalidInputError("metadata: sample_period_s is missing")
         values = {key: value for key, value in data.items() if key in known}
-        extra = dict(values.pop("extra", {}) or {})
+        extra = values.pop("extra", None) or {}
+        if not isinstance(extra, Mapping):
+            raise InvalidInputError(f"extra: expected a mapping (a JSON object), got {extra!r}")
+        extra = dict(extra)
         extra.update({key: value for key, value in data.items() if key not in known})
         if values.get("noise_bound_rad") == "inf":
             values["noise_bound_rad"] = math.inf

@@ -112,27 +112,43 @@ def _encoder(table: ConfigTable) -> EncoderResolution:
     return encoder
 
 
+def _option_defaults(cls: type) -> dict[str, Any]:
+    """Each keyword option of a transport class (and its bases) with its default (or None without one)."""
+    import inspect
+
+    defaults: dict[str, Any] = {}
+    for klass in reversed(cls.__mro__):
+        if "__init__" in vars(klass):
+            for name, parameter in inspect.signature(klass.__init__).parameters.items():
+                if parameter.kind is parameter.KEYWORD_ONLY or parameter.kind is parameter.POSITIONAL_OR_KEYWORD:
+                    defaults[name] = None if parameter.default is parameter.empty else parameter.default
+    return defaults
+
+
 def _transport_options(table: ConfigTable, scheme: str) -> dict[str, Any]:
+    """The ``[transport]`` options, each checked against the type of the transport's own default (a count in
+    ``*_ms``, a rate and a timeout in ``*_s`` must be > 0)."""
     cls = transport_class(scheme)
     from rig.transports import _accepted_options
 
     accepted = _accepted_options(cls) - {"encoder", "sample_period_s", "limits", "drive", "name"}
+    defaults = _option_defaults(cls)
     options: dict[str, Any] = {}
     for key, value in table.data.items():
         if key == "url":
             continue
         if key not in accepted:
             raise table.error(key, f"not an option of the {scheme} transport (accepted: {', '.join(sorted(accepted))})")
-        if isinstance(value, bool):
+        default = defaults.get(key)
+        positive = key.endswith(("_s", "_ms", "rate")) or key in ("bitrate", "baudrate")
+        if isinstance(default, bool):
             options[key] = table.boolean(key)
-        elif isinstance(value, int):
-            options[key] = table.integer(key)
-        elif isinstance(value, float):
-            options[key] = table.number(key)
-        elif isinstance(value, str):
+        elif isinstance(default, int):
+            options[key] = table.integer(key, minimum=1 if positive else None)
+        elif isinstance(default, float):
+            options[key] = table.number(key, minimum=0.0, exclusive_minimum=True) if positive else table.number(key)
+        else:  # a string, or a path given as a string (default None)
             options[key] = table.string(key)
-        else:
-            raise table.error(key, f"expected a number, string or boolean, got {value!r}")
     return options
 
 
