@@ -23,6 +23,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import json
+import os
 import platform
 import sys
 import tempfile
@@ -60,7 +61,7 @@ def _config(kind: str, rate_hz: float, directory: Path):
     return load_rig_config(path)
 
 
-def measure(kind: str, rate_hz: float, duration_s: float, directory: Path) -> dict[str, object]:
+def measure(kind: str, rate_hz: float, duration_s: float, directory: Path, pending_cycles: int) -> dict[str, object]:
     config = _config(kind, rate_hz, directory)
     # the plant's physics stay at its own 1 kHz; only the wall-clock rate of the loop changes here
     gearbox = load_plant_config(config.simulation.plant_path).gearbox(seed=config.simulation.seed)
@@ -70,7 +71,7 @@ def measure(kind: str, rate_hz: float, duration_s: float, directory: Path) -> di
         url, device = start_simulated_devices(config, gearbox, stack)
         transport = open_transport(url, **config.transport_options())
         summary = run_experiment(transport, command, _NullSink(), feedback_timeout_s=config.feedback_timeout_s,
-                                 late_tolerance_s=config.late_tolerance_s)
+                                 late_tolerance_s=config.late_tolerance_s, pending_cycles=pending_cycles)
         measured_load = device.bus_load() if hasattr(device, "bus_load") else None
         if measured_load is None and hasattr(device, "bits"):
             measured_load = device.bits / (summary.wall_s * device.bitrate)
@@ -79,6 +80,7 @@ def measure(kind: str, rate_hz: float, duration_s: float, directory: Path) -> di
     jitter_us = np.abs(np.diff(send_times) - period) * 1e6
     row: dict[str, object] = {
         "transport": kind, "rate_hz": rate_hz, "samples": summary.samples, "lost": summary.lost,
+        "duplicate": summary.duplicate, "load_average": os.getloadavg()[0],
         "late": summary.late, "late_pct": 100.0 * summary.late / summary.samples,
         "jitter_p50_us": float(np.percentile(jitter_us, 50)), "jitter_p99_us": float(np.percentile(jitter_us, 99)),
         "jitter_max_us": float(jitter_us.max()), "cpu": summary.cpu_s / summary.wall_s,
@@ -96,29 +98,32 @@ def main() -> int:
     parser.add_argument("--rates", type=float, nargs="+", default=[1000.0, 2000.0])
     parser.add_argument("--transports", nargs="+", default=["canopen", "serial", "can"],
                         choices=["canopen", "serial", "can"])
+    parser.add_argument("--pending-cycles", type=int, default=4,
+                        help="feedback later than this many cycles is LOST (the runner's default: 4)")
     parser.add_argument("--json", action="store_true", help="print the rows as JSON")
     args = parser.parse_args()
     rows = []
     with tempfile.TemporaryDirectory() as directory:
         for kind in args.transports:
             for rate in args.rates:
-                rows.append(measure(kind, rate, args.duration, Path(directory)))
+                rows.append(measure(kind, rate, args.duration, Path(directory), args.pending_cycles))
     if args.json:
         print(json.dumps(rows, indent=1))
         return 0
     print(f"# transport timing, {args.duration:g} s per case, Python {platform.python_version()}, "
-          f"{platform.machine()}, simulated devices in-process")
-    print("| transport | rate | samples | lost | late (%) | jitter p50 / p99 / max (us) | CPU (1 core) "
-          "| CAN load (worst case / measured) | CAN limit |")
-    print("|---|---|---|---|---|---|---|---|---|")
+          f"{platform.machine()}, simulated devices in-process, pending window {args.pending_cycles} cycles")
+    print("| transport | rate | samples | lost | duplicate | late (%) | jitter p50 / p99 / max (us) | CPU (1 core) "
+          "| load avg | CAN load (worst case / measured) | CAN limit |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
     for row in rows:
         can_columns = "n/a | n/a"
         if "bus_load_pct" in row:
             can_columns = (f"{row['bus_load_pct']:.1f}% / {row['measured_load_pct']:.1f}% | "
                            f"{row['bus_limit_hz']:.0f} Hz")
         print(f"| {row['transport']} | {row['rate_hz']:.0f} Hz | {row['samples']} | {row['lost']} | "
-              f"{row['late']} ({row['late_pct']:.2f}%) | {row['jitter_p50_us']:.0f} / {row['jitter_p99_us']:.0f} / "
-              f"{row['jitter_max_us']:.0f} | {100 * row['cpu']:.0f}% | {can_columns} |")
+              f"{row['duplicate']} | {row['late']} ({row['late_pct']:.2f}%) | {row['jitter_p50_us']:.0f} / "
+              f"{row['jitter_p99_us']:.0f} / {row['jitter_max_us']:.0f} | {100 * row['cpu']:.0f}% | "
+              f"{row['load_average']:.2f} | {can_columns} |")
     return 0
 
 

@@ -3,7 +3,8 @@
 Scheduling uses absolute deadlines ``t_k = t_0 + k T`` (no drift: a late cycle does not shift the ones
 after it). Per cycle k the runner waits for ``t_k``, sends setpoint k, and files the feedback that
 arrives until sample k is answered or ``t_{k+1}`` comes; behind schedule it does not wait, so the loop
-catches up, sending setpoints no closer than half a period (:data:`CATCH_UP_SPACING`). Each sample is
+catches up, sending setpoints no closer than half a period (:data:`CATCH_UP_SPACING`) and never
+closer than the bus time of one cycle (``Transport.min_cycle_s``). Each sample is
 written with :class:`~identify.experiment_record.SampleFlag` bits:
 
 LOST       no feedback with sequence number k arrived within ``pending_cycles`` cycles (angle NaN)
@@ -191,13 +192,14 @@ def run_experiment(transport: Transport, command_rad: ArrayLike, sink: SampleSin
         transport.open()
         check_command(transport, command)
         start = clock() + 2 * period
+        catch_up_spacing = max(CATCH_UP_SPACING * period, transport.min_cycle_s)
         last_feedback = start
         last_send = -math.inf
         for k, value in enumerate(command.tolist()):
             deadline = start + k * period
             # behind schedule, catch up at most twice as fast: devices expect SYNCs/setpoints about a period
             # apart (a CSP drive interpolates between them), not in a burst
-            send_at = max(deadline, last_send + CATCH_UP_SPACING * period)
+            send_at = max(deadline, last_send + catch_up_spacing)
             now = clock()
             if send_at - now > 0:
                 time.sleep(send_at - now)

@@ -177,6 +177,12 @@ class Transport(ABC):
     # -- public behaviour, written once ------------------------------------------------------------------
 
     @property
+    def min_cycle_s(self) -> float:
+        """The shortest time between two setpoints the link carries: on CAN, the bus time of one cycle's
+        frames (a SYNC sent sooner would overtake the previous cycle's answers, since it wins arbitration)."""
+        return 0.0
+
+    @property
     def is_open(self) -> bool:
         return self._state == "open"
 

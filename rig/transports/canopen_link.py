@@ -15,10 +15,14 @@ Start-up (all by SDO, before any PDO flows):
 
 Each sample: RPDO1 with the target, then SYNC, both from the runner's own scheduler (never triggered by
 TPDO arrival). The TPDOs answering that SYNC make one :class:`FeedbackSample`. TPDOs carry no SYNC
-counter, so each TPDO is attributed by its bus timestamp to the last SYNC sent before it: a TPDO that
-reaches Python late (a loaded host) is still filed under the right sample, provided the device put it on
-the bus before the next SYNC. A second answer to one SYNC is reported again and the runner flags the
-sample DUPLICATE (unusable).
+counter, so each TPDO is attributed to the last SYNC on the bus before it, comparing bus timestamps
+only: the master receives its own SYNC frames back (``receive_own_messages``, SocketCAN's echo of a
+transmitted frame), stamped by the same interface clock as the TPDOs, and echoes come back in the order
+the SYNCs were sent, so the k-th echo is SYNC k. The host's own clock never enters: a TPDO that reaches
+Python late, or a SYNC whose transmission the host delayed, is still filed under the right sample,
+provided the device put its answer on the bus before the next SYNC. An interface that does not echo
+transmitted frames is refused at start-up with a message saying so. A second answer to one SYNC is
+reported again and the runner flags the sample DUPLICATE (unusable).
 EMCY from either node, a drive FAULT in the statusword, or a heartbeat older than ``heartbeat_timeout_s``
 stop the run; on a fault the drive's error code 0x603F is read by SDO for the message.
 """
@@ -48,7 +52,8 @@ CYCLE_FRAME_BYTES = (0, 4, 6, 4)
 _DRIVE_TPDO = struct.Struct("<Hi")  # 0x6041 statusword, 0x6064 position actual value
 _ENCODER_TPDO = struct.Struct("<I")  # 0x6004 position value
 _RPDO = struct.Struct("<i")  # 0x607A target position
-CLOCK_MISMATCH_S = 5.0  # bus timestamps further than this from time.time() are on another clock
+SYNC_COB_ID = 0x80  # CiA 301 default (0x1005); the master produces the SYNC
+SYNC_ECHO_TIMEOUT_S = 0.5  # the start-up probe's wait for the echo of a SYNC
 
 
 class CanOpenTransport(Transport):
@@ -120,12 +125,21 @@ class CanOpenTransport(Transport):
         self._drive = None
         self._encoder = None
         self._rpdo_cob_id = 0x200 + self.drive_node_id
-        self._syncs: collections.deque[tuple[float, int]] = collections.deque(maxlen=4096)
+        self._syncs: collections.deque[tuple[float, int]] = collections.deque(maxlen=4096)  # (bus time, seq)
+        self._unechoed: collections.deque[int] = collections.deque()  # SYNCs sent, echo not yet back
+        self._echo_probe = threading.Event()
+        self._sync_sent_at = -float("inf")  # host time just after the last SYNC left (perf_counter)
+        self._held: list[tuple[str, Any, float, float]] = []  # TPDOs waiting for an echo (_file_locked)
         self._lock = threading.Lock()
         self._parts: dict[int, dict[str, Any]] = {}
         self._ready: collections.deque[FeedbackSample] = collections.deque()
         self._arrived = threading.Condition(self._lock)
         self._emcy: tuple[str, int] | None = None
+
+    @property
+    def min_cycle_s(self) -> float:
+        """One cycle's frames on the bus (worst-case bit stuffing): SYNCs/commands are never closer."""
+        return 1.0 / self.load.max_rate_hz
 
     # -- seam ----------------------------------------------------------------------------------------------
 
@@ -137,7 +151,10 @@ class CanOpenTransport(Transport):
         try:
             self.network = canopen.Network()
             self.network.connect(interface=self.interface, channel=self.channel, bitrate=self.bitrate,
-                                 receive_own_messages=self.trace_path is not None)
+                                 receive_own_messages=True,  # SYNC echoes: see the module docstring
+                                 can_filters=None if self.trace_path is not None else self._receive_filters())
+            self.network.sync.cob_id = SYNC_COB_ID
+            self.network.subscribe(SYNC_COB_ID, self._on_sync_echo)
             if self.trace_path is not None:
                 import can
 
@@ -172,6 +189,7 @@ class CanOpenTransport(Transport):
         self._map_pdo(drive.tpdo, 1, [0x6041, 0x6064], 0x180 + self.drive_node_id)
         self._map_pdo(encoder.tpdo, 1, [0x6004], 0x180 + self.encoder_node_id)
         self._check_encoder_resolution(encoder)
+        self._require_sync_echo()
         drive.tpdo[1].add_callback(self._on_drive_tpdo)
         encoder.tpdo[1].add_callback(self._on_encoder_tpdo)
         for node in (drive, encoder):
@@ -188,6 +206,27 @@ class CanOpenTransport(Transport):
         actual = drive.sdo[0x6064].raw
         self._rpdo_cob_id = drive.rpdo[1].cob_id
         return self.drive.rad_from_counts(actual)
+
+    def _receive_filters(self) -> list[dict[str, int]]:
+        """The frames the master listens to (in the kernel on SocketCAN): its SYNC echo, and each node's
+        EMCY, TPDO1, SDO response and heartbeat. The echoes of its own RPDOs and SDO requests and other
+        nodes' traffic never reach Python. A trace records every frame, so it runs without filters."""
+        cob_ids = [SYNC_COB_ID]
+        for node_id in (self.drive_node_id, self.encoder_node_id):
+            cob_ids += [0x80 + node_id, 0x180 + node_id, 0x580 + node_id, 0x700 + node_id]
+        return [{"can_id": cob_id, "can_mask": 0x7FF, "extended": False} for cob_id in cob_ids]
+
+    def _require_sync_echo(self) -> None:
+        """Send one SYNC while the nodes are pre-operational (no PDO answers it) and wait for its echo:
+        without echoes no TPDO could be attributed to its SYNC."""
+        self._echo_probe.clear()
+        self.network.sync.transmit()
+        if not self._echo_probe.wait(SYNC_ECHO_TIMEOUT_S):
+            raise TransportError(
+                f"{self.name}: the CAN interface {self.interface}/{self.channel} did not echo a transmitted SYNC "
+                f"within {SYNC_ECHO_TIMEOUT_S:g} s; the CANopen master needs its own frames back "
+                "(python-can receive_own_messages; on SocketCAN keep the default loopback on) to attribute "
+                "each TPDO to its SYNC")
 
     def _home(self, drive: Any) -> None:
         """Homing mode: start with bit 4, wait for "homing attained", then cyclic synchronous position."""
@@ -235,11 +274,22 @@ class CanOpenTransport(Transport):
         try:
             target = _RPDO.pack(self.drive.counts_from_rad(setpoint.position_rad))  # RPDO1 = 0x607A
             self.network.send_message(self._rpdo_cob_id, target)
-            with self._lock:
-                self._syncs.append((time.time(), setpoint.seq))  # bus timestamps are time.time() based
-            self.network.sync.transmit()
         except Exception as err:
             raise TransportError(f"{self.name}: sending setpoint {setpoint.seq} failed: {err}") from err
+        # SYNC k+1 must reach the bus after the answers to SYNC k (it would win arbitration over them): the
+        # runner spaces its deadlines, this also covers a host that delayed the transmission of SYNC k.
+        wait_s = self._sync_sent_at + self.min_cycle_s - time.perf_counter()
+        if wait_s > 0:
+            time.sleep(wait_s)
+        with self._lock:
+            self._unechoed.append(setpoint.seq)
+        try:
+            self.network.sync.transmit()
+            self._sync_sent_at = time.perf_counter()
+        except Exception as err:
+            with self._lock:
+                self._unechoed.remove(setpoint.seq)  # never on the bus: no echo will come
+            raise TransportError(f"{self.name}: sending SYNC {setpoint.seq} failed: {err}") from err
 
     def _recv_internal(self, timeout_s: float) -> FeedbackSample | None:
         with self._arrived:
@@ -292,39 +342,53 @@ class CanOpenTransport(Transport):
         counts = raw - (1 << 32) if self.encoder.signed and raw >= 1 << 31 else raw
         self._file("encoder", counts, pdo.timestamp)
 
+    def _on_sync_echo(self, can_id: int, data: bytes, timestamp: float) -> None:
+        """Our own SYNC back from the interface with its bus timestamp; echoes come in sending order."""
+        with self._arrived:
+            if not self._unechoed:
+                self._echo_probe.set()  # the start-up probe, or another master's SYNC
+                return
+            self._syncs.append((timestamp, self._unechoed.popleft()))
+            held, self._held = self._held, []
+            for part, value, tpdo_time, received in held:
+                self._file_locked(part, value, tpdo_time, received)
+
     def _sync_before(self, timestamp: float) -> int | None:
-        """The sample number of the last SYNC sent before bus time ``timestamp``. An interface whose
-        timestamps are not on the host's wall clock (some count from the adapter's start) cannot be
-        compared with the SYNC times: its frames are filed by arrival, under the last SYNC sent."""
-        if not self._syncs:
-            return None
-        if abs(timestamp - time.time()) > CLOCK_MISMATCH_S:
-            return self._syncs[-1][1]
-        for sent_at, seq in reversed(self._syncs):
-            if sent_at <= timestamp:
+        """The sample number of the last SYNC on the bus before bus time ``timestamp`` (None: the frame
+        answers no SYNC of ours, e.g. it is left over from start-up)."""
+        for bus_time, seq in reversed(self._syncs):
+            if bus_time <= timestamp:
                 return seq
         return None
 
     def _file(self, part: str, value: Any, timestamp: float) -> None:
-        received = time.perf_counter()
         with self._arrived:
-            seq = self._sync_before(timestamp)
-            if seq is None:
-                return  # an answer to no SYNC of ours (e.g. left over from start-up)
-            parts = self._parts.setdefault(seq, {})
-            if part in parts and "drive" in parts and "encoder" in parts:
-                parts.clear()  # a second answer to the same SYNC: report the sample again, as a duplicate
-            parts[part] = value
-            if "drive" in parts and "encoder" in parts:
-                statusword, actual = parts["drive"]
-                self._ready.append(FeedbackSample(
-                    seq=seq, encoder_counts=parts["encoder"], load_angle_rad=self._decode_encoder(parts["encoder"]),
-                    drive_position_rad=self.drive.rad_from_counts(actual), statusword=statusword,
-                    host_time_s=received))
-                self._arrived.notify_all()
-            if len(self._parts) > 512:
-                for old in sorted(self._parts)[:256]:
-                    del self._parts[old]
+            self._file_locked(part, value, timestamp, time.perf_counter())
+
+    def _file_locked(self, part: str, value: Any, timestamp: float, received: float) -> None:
+        """File one TPDO under its SYNC. While a SYNC we sent has not echoed yet, a TPDO stamped after
+        the last echo may answer that SYNC (a device can answer before the interface hands the master its
+        echo): it is held until the next echo says which SYNC came before it."""
+        if self._unechoed and (not self._syncs or self._syncs[-1][0] <= timestamp):
+            self._held.append((part, value, timestamp, received))
+            return
+        seq = self._sync_before(timestamp)
+        if seq is None:
+            return  # an answer to no SYNC of ours (e.g. left over from start-up)
+        parts = self._parts.setdefault(seq, {})
+        if part in parts and "drive" in parts and "encoder" in parts:
+            parts.clear()  # a second answer to the same SYNC: report the sample again, as a duplicate
+        parts[part] = value
+        if "drive" in parts and "encoder" in parts:
+            statusword, actual = parts["drive"]
+            self._ready.append(FeedbackSample(
+                seq=seq, encoder_counts=parts["encoder"], load_angle_rad=self._decode_encoder(parts["encoder"]),
+                drive_position_rad=self.drive.rad_from_counts(actual), statusword=statusword,
+                host_time_s=received))
+            self._arrived.notify_all()
+        if len(self._parts) > 512:
+            for old in sorted(self._parts)[:256]:
+                del self._parts[old]
 
     def _on_emcy(self, node_id: int, entry: Any) -> None:
         if entry.code & 0xFF00 == 0:

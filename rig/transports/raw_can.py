@@ -67,6 +67,11 @@ class RawCanTransport(Transport):
 
     # -- seam ----------------------------------------------------------------------------------------------
 
+    @property
+    def min_cycle_s(self) -> float:
+        """One cycle's frames on the bus (worst-case bit stuffing): SYNCs/commands are never closer."""
+        return 1.0 / self.load.max_rate_hz
+
     def _open(self) -> float:
         import can
 

@@ -14,6 +14,7 @@ from rig.transports import open_transport
 from sim_backend.plant_config import load_plant_config
 
 from rig.protocols.can_bus_load import bus_load, frame_bits
+from rig.protocols.cia402 import DriveState
 from rig.protocols.errors import ConfigError, DeviceFault
 from rig.rig_config import load_rig_config
 from rig.transports import Setpoint
@@ -110,19 +111,59 @@ def test_homing_runs_before_streaming_when_not_skipped(tmp_path, no_leaks):
         assert transport.receive(timeout_s=1.0).seq == 0
 
 
-def test_tpdos_are_filed_under_the_sync_before_their_bus_timestamp():
-    import time
-
+def _unopened_canopen_transport():
     from rig.transports.canopen_link import CanOpenTransport
 
-    transport = CanOpenTransport("virtual", "unused", encoder=EncoderResolution(bits=12, signed=True),
-                                 sample_period_s=1e-3)
-    now = time.time()
-    transport._syncs.extend([(now - 0.002, 7), (now - 0.001, 8), (now, 9)])
-    # a TPDO put on the bus 1.5 ms ago answers SYNC 7, however late the host reads it
-    transport._file("drive", (0x0637, 100), now - 0.0015)
-    transport._file("encoder", -1, now - 0.0014)
+    return CanOpenTransport("virtual", "unused", encoder=EncoderResolution(bits=12, signed=True),
+                            sample_period_s=1e-3)
+
+
+def test_tpdos_are_filed_under_the_sync_echo_before_their_bus_timestamp():
+    transport = _unopened_canopen_transport()
+    transport._unechoed.extend([7, 8, 9])
+    for bus_time in (10.000, 10.001, 10.002):  # the interface hands back our SYNCs 7, 8, 9
+        transport._on_sync_echo(0x80, b"", bus_time)
+    # the host read the answers to SYNC 7 only after SYNC 9 was on the bus: the bus time files them
+    transport._file("drive", (0x0637, 100), 10.0003)
+    transport._file("encoder", -1, 10.0004)
     sample = transport._ready.popleft()
     assert (sample.seq, sample.encoder_counts, sample.statusword) == (7, -1, 0x0637)
-    assert transport._sync_before(now - 0.01) is None  # before any SYNC of ours: not an answer
-    assert transport._sync_before(12.5) == 9  # an adapter clock (seconds since its start): filed by arrival
+    assert transport._sync_before(9.999) is None  # before any SYNC of ours: not an answer
+
+
+def test_a_tpdo_ahead_of_its_sync_echo_waits_for_the_echo():
+    """The device may answer SYNC 5 before the interface gives the master the echo of SYNC 5 (on the
+    virtual bus the device's queue gets the SYNC first): the answer must not be filed under SYNC 4."""
+    transport = _unopened_canopen_transport()
+    transport._unechoed.extend([4, 5])
+    transport._on_sync_echo(0x80, b"", 20.000)  # SYNC 4
+    transport._file("drive", (0x0637, 100), 20.0013)  # answers SYNC 5, whose echo is not back yet
+    transport._file("encoder", 3, 20.0014)
+    assert not transport._ready
+    transport._on_sync_echo(0x80, b"", 20.0010)  # SYNC 5
+    sample = transport._ready.popleft()
+    assert sample.seq == 5 and sample.encoder_counts == 3
+    assert not transport._ready and not transport._held
+
+
+def test_an_interface_that_does_not_echo_our_frames_is_refused_at_start_up(tmp_path, monkeypatch, no_leaks):
+    import canopen
+
+    from rig.protocols.errors import TransportError
+
+    connect = canopen.Network.connect
+
+    def connect_without_echo(self, *args, **kwargs):
+        kwargs["receive_own_messages"] = False
+        return connect(self, *args, **kwargs)
+
+    monkeypatch.setattr(canopen.Network, "connect", connect_without_echo)
+    monkeypatch.setattr("rig.transports.canopen_link.SYNC_ECHO_TIMEOUT_S", 0.05)
+    config = load_rig_config(write_test_config("canopen", tmp_path))
+    gearbox = load_plant_config(config.simulation.plant_path).gearbox(seed=config.simulation.seed)
+    with contextlib.ExitStack() as stack:
+        url, rig = start_simulated_devices(config, gearbox, stack)
+        transport = stack.enter_context(open_transport(url, **config.transport_options()))
+        with pytest.raises(TransportError, match="did not echo a transmitted SYNC.*receive_own_messages"):
+            transport.open()
+        assert rig.state is not DriveState.OPERATION_ENABLED  # refused before the drive was enabled
