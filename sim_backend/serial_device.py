@@ -8,6 +8,7 @@ one FEEDBACK frame with the same sequence number, so a run is deterministic what
 from __future__ import annotations
 
 import os
+import random
 import select
 import threading
 import tty
@@ -33,10 +34,18 @@ class SimulatedSerialDevice:
         Sample numbers whose FEEDBACK is not sent (the plant still steps): injected frame loss.
     fault_at_seq
         Sample number at which the drive goes to FAULT (error code ``fault_code``) and reports it.
+    garbage_probability, bitflip_probability
+        Injected line noise (:mod:`sim_backend.faults`): random bytes before a reply, or one bit of a reply
+        flipped, each with this probability per reply (drawn from ``seed``).
+    unplug_at_seq
+        At this sample the device closes its end of the port, like a USB adapter pulled out; its own link
+        watchdog disables the drive.
     """
 
     def __init__(self, gearbox: SimulatedGearbox, *, drive_counts_per_revolution: int = 1 << 17,
-                 silent_seqs: Iterable[int] = (), fault_at_seq: int | None = None, fault_code: int = 0x7500) -> None:
+                 silent_seqs: Iterable[int] = (), fault_at_seq: int | None = None, fault_code: int = 0x7500,
+                 garbage_probability: float = 0.0, bitflip_probability: float = 0.0,
+                 unplug_at_seq: int | None = None, seed: int = 0) -> None:
         self.gearbox = gearbox
         self.drive = cia402.DriveScaling(int(drive_counts_per_revolution))
         self.silent_seqs = frozenset(int(seq) & 0xFFFF for seq in silent_seqs)
@@ -49,6 +58,11 @@ class SimulatedSerialDevice:
         self.setpoints = 0
         self.controlwords: list[int] = []
         self.frame_errors = 0
+        self.garbage_probability = float(garbage_probability)
+        self.bitflip_probability = float(bitflip_probability)
+        self.unplug_at_seq = unplug_at_seq
+        self.unplugged = False
+        self._rng = random.Random(seed)
         self._decoder = FrameDecoder()
         self._master_fd, self._slave_fd = os.openpty()
         tty.setraw(self._slave_fd)
@@ -91,10 +105,36 @@ class SimulatedSerialDevice:
             except OSError:
                 return
             for message in self._decoder.feed(data):
+                if self._unplugs_at(message):
+                    self._unplug()
+                    return
                 reply = self.handle(message)
                 if reply:
-                    os.write(self._master_fd, reply)
+                    os.write(self._master_fd, self._line_noise(reply))
             self.frame_errors = self._decoder.errors
+
+    def _unplugs_at(self, message: SerialMessage) -> bool:
+        return (self.unplug_at_seq is not None and message.type is MessageType.SETPOINT
+                and message.seq == self.unplug_at_seq & 0xFFFF)
+
+    def _unplug(self) -> None:
+        """The port disappears; the drive's link watchdog disables it (a real drive's communication
+        watchdog, e.g. CiA 402 0x6007 abort connection option code)."""
+        self.state = cia402.DriveState.SWITCH_ON_DISABLED
+        self.unplugged = True
+        fd, self._master_fd = self._master_fd, None
+        os.close(fd)
+
+    def _line_noise(self, reply: bytes) -> bytes:
+        """The reply as the line delivers it: maybe one bit flipped (not in the 0x00 delimiter, so the
+        frame's CRC fails), maybe preceded by random bytes."""
+        if self.bitflip_probability and self._rng.random() < self.bitflip_probability:
+            noisy = bytearray(reply)
+            noisy[self._rng.randrange(len(reply) - 1)] ^= 1 << self._rng.randrange(8)
+            reply = bytes(noisy)
+        if self.garbage_probability and self._rng.random() < self.garbage_probability:
+            reply = self._rng.randbytes(self._rng.randint(1, 16)) + reply
+        return reply
 
     def handle(self, message: SerialMessage) -> bytes:
         """The bytes the device answers to ``message`` (public so that tests can script exchanges)."""

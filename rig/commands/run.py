@@ -45,15 +45,22 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         help="run for S seconds (the excitation is cut, or repeated cyclically to fill S)")
     parser.add_argument("--can-trace", metavar="FILE.blf", default=None,
                         help="CAN transports: write every frame to FILE (.blf, .asc, .log, .csv or .trc)")
+    parser.add_argument("--sim-faults", metavar="SPEC", default=None,
+                        help="simulated rigs only: inject wire faults, e.g. 'drop=0.001,burst=20@500' or "
+                             "'fault=0x2310@300' (all wires), 'heartbeat@400' (canopen), 'garbage=0.01', "
+                             "'bitflip=0.001', 'unplug@400' (serial); see README, Faults and outcomes")
+    parser.add_argument("--sim-faults-seed", metavar="N", type=int, default=0,
+                        help="seed of the random faults (default 0): the same seed repeats the same faults")
     parser.add_argument("--json", action="store_true",
                         help='print {"log", "samples", "lost", "late", "rate_hz"} as JSON')
     parser.set_defaults(handler=run)
 
 
 @contextlib.contextmanager
-def simulated_rig(config: Any, command_rad: Any = None) -> Iterator[tuple[str, Any]]:
+def simulated_rig(config: Any, command_rad: Any = None, faults: Any = None) -> Iterator[tuple[str, Any]]:
     """Start the simulated devices of a rig config with a ``[simulation]`` table; yield the URL the
-    transport must open and the simulated gearbox. Devices are stopped on exit."""
+    transport must open and the simulated gearbox. ``faults`` (a :class:`sim_backend.faults.FaultPlan`)
+    makes the devices inject wire faults. Devices are stopped on exit."""
     from sim_backend.plant_config import load_plant_config
 
     from rig.protocols.errors import ConfigError
@@ -69,8 +76,11 @@ def simulated_rig(config: Any, command_rad: Any = None) -> Iterator[tuple[str, A
         raise ConfigError(config.source, "encoder", f"differs from the simulated plant's encoder {gearbox.encoder}")
     if command_rad is not None and getattr(gearbox.noise, "needs_reference", False):
         gearbox = gearbox.calibrated_for(command_rad)
+    fault_options = {}
+    if faults is not None:
+        fault_options = faults.device_options(config.scheme, 0 if command_rad is None else len(command_rad))
     with contextlib.ExitStack() as stack:
-        url, _ = start_simulated_devices(config, gearbox, stack)
+        url, _ = start_simulated_devices(config, gearbox, stack, **fault_options)
         yield url, gearbox
 
 
@@ -116,9 +126,10 @@ def start_simulated_devices(config: Any, gearbox: Any, stack: contextlib.ExitSta
     raise ConfigError(config.source, "simulation", f"there is no simulated device for {config.scheme}:// transports")
 
 
-def experiment_log_metadata(config: Any, excitation: Any, gearbox: Any, num_samples: int) -> Any:
+def experiment_log_metadata(config: Any, excitation: Any, gearbox: Any, num_samples: int,
+                            sim_faults: dict[str, Any] | None = None) -> Any:
     """The metadata of a log of ``num_samples`` samples of ``excitation`` on the rig of ``config`` (and the
-    simulated ``gearbox``, if any)."""
+    simulated ``gearbox``, if any, with the ``--sim-faults`` SPEC and seed it injected)."""
     from identify import __version__
     from identify.experiment_record import ExperimentMetadata
 
@@ -138,6 +149,8 @@ def experiment_log_metadata(config: Any, excitation: Any, gearbox: Any, num_samp
                   "noise_bound_rad": gearbox.noise.noise_bound_rad + gearbox.encoder.quantization_bound_rad,
                   "seed": gearbox.seed}
         rig_config["simulation"] = {"plant": str(config.simulation.plant_path), "noise": describe_noise(gearbox.noise)}
+        if sim_faults is not None:
+            rig_config["simulation"]["faults"] = sim_faults
     return ExperimentMetadata(
         sample_period_s=config.sample_period_s, source=config.name, transport=config.url,
         encoder_bits=config.encoder.bits, excitation=excitation.name, excitation_seed=excitation.seed,
@@ -184,19 +197,29 @@ def run(args: argparse.Namespace) -> int:
         if not (math.isfinite(args.duration) and args.duration > 0):
             raise ValueError(f"--duration: expected a number of seconds > 0, got {args.duration}")
         command = np.resize(command, max(1, int(round(args.duration * config.sample_rate_hz))))
+    faults = None
+    if args.sim_faults is not None:
+        from sim_backend.faults import parse_fault_spec
+
+        if config.simulation is None:
+            raise ValueError(f"--sim-faults: {config.source} is a real rig (no [simulation] table); faults are "
+                             "injected only into simulated devices")
+        faults = parse_fault_spec(args.sim_faults, seed=args.sim_faults_seed)
     progress_bar = None
     with contextlib.ExitStack() as stack:
         gearbox = None
         url = config.url
         if config.simulation is not None:
-            url, gearbox = stack.enter_context(simulated_rig(config, command))
+            url, gearbox = stack.enter_context(simulated_rig(config, command, faults))
         options = config.transport_options()
         if args.can_trace is not None:
             if config.scheme not in ("canopen", "can"):
                 raise ValueError(f"--can-trace: the {config.scheme} transport has no CAN frames to trace")
             options["trace_path"] = args.can_trace
         transport = open_transport(url, **options)
-        log = LogWriter(args.out, experiment_log_metadata(config, excitation, gearbox, command.size), flush_every=10, flush_interval_s=0.05)
+        injected = None if faults is None else {"spec": args.sim_faults, "seed": args.sim_faults_seed}
+        log = LogWriter(args.out, experiment_log_metadata(config, excitation, gearbox, command.size, injected),
+                        flush_every=10, flush_interval_s=0.05)
         progress = None
         if not args.json and sys.stderr.isatty():
             from tqdm import tqdm
@@ -220,6 +243,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"lost        {summary.lost}")
         print(f"late        {summary.late}")
         print(f"duplicate   {summary.duplicate}")
+        print(f"frame errors {summary.frame_errors} (CRC failures and malformed frames, resynchronised)")
         print(f"log         {Path(args.out)}")
     sys.stdout.flush()
     return exit_codes.SUCCESS

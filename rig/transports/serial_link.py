@@ -110,7 +110,8 @@ class SerialTransport(Transport):
                 return False
             data = self._serial.read(self._serial.in_waiting or 1)
         except Exception as err:  # serial.SerialException, OSError, ValueError on a closed port
-            raise TransportError(f"{self.name}: read from {self.port} failed: {err}") from err
+            raise TransportError(f"{self.name}: read from {self.port} failed: {err} (the port disappeared: "
+                                 "adapter unplugged or device powered off?)") from err
         received = time.perf_counter()
         errors_before = self._decoder.errors
         for message in self._decoder.feed(data):

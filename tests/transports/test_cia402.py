@@ -54,7 +54,7 @@ def test_quick_stop_then_disable_voltage_is_the_controlled_stop():
 
 def test_a_drive_that_faults_again_after_reset_is_reported_with_its_code():
     drive = ScriptedDrive(DriveState.FAULT, refaults=True)
-    with pytest.raises(DeviceFault, match=r"drive \(code 0x2310\): the drive stays in FAULT"):
+    with pytest.raises(DeviceFault, match=r"drive \(code 0x2310: continuous over-current on the device output side\): the drive stays in FAULT"):
         cia402.bring_to_operation_enabled(drive.write, drive.read, "drive", read_fault_code=lambda: 0x2310)
 
 

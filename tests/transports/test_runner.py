@@ -61,7 +61,7 @@ def test_lost_feedback_is_flagged_per_sample_and_the_run_continues(kind, tmp_pat
 def test_device_fault_stops_the_run_and_the_log_is_complete_up_to_it(kind, tmp_path, no_leaks):
     sink = ListSink()
     with simulated(kind, tmp_path, fault_at_seq=25, fault_code=0x7500) as (config, transport, _, drive):
-        with pytest.raises(DeviceFault, match=r"\(code 0x7500\)"):
+        with pytest.raises(DeviceFault, match=r"\(code 0x7500: communication \(additional modules\)\)"):
             _run(transport, config, excitation(40), sink)
         assert drive.setpoints == 25
     assert sink.closed and len(sink.rows) == 26

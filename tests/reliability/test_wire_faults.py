@@ -1,0 +1,150 @@
+"""Wire faults injected into the simulated devices (issue 8, "Faults to inject"), through ``rig run
+--sim-faults`` as a user would run them, and their defined outcomes (README, "Faults and outcomes"):
+
+* ridden through: lost feedback (random or in bursts) and line noise (garbage bytes, bit flips) end the
+  run normally; every lost sample is flagged LOST in the log and counted, and received + lost = sent;
+* safe stop: a drive fault, a lost heartbeat or a port that disappears end the run with exit code 3, a
+  message naming the device and the fault (the error code with its meaning), the drive not enabled, and
+  the log readable up to the stop.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from identify.experiment_record import SampleFlag
+from rig import exit_codes
+from rig.cli import main
+from rig.log_file import read_log
+from rig.protocols.cia402 import DriveState
+from rig.runner import run_experiment
+from sim_backend.faults import FaultPlan, parse_fault_spec
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "transports"))
+from sim_rigs import ROOT, ListSink, excitation, no_leaks, simulated, write_test_config  # noqa: E402, F401
+
+PRBS = ROOT / "configs" / "experiments" / "prbs.toml"
+TEST_SAMPLES = 300  # 1.5 s at the test rigs' 200 Hz
+
+
+def _rig_run(kind: str, tmp_path: Path, spec: str, capsys) -> tuple[int, dict | None, str, Path]:
+    out = tmp_path / "run.csv"
+    code = main(["run", str(write_test_config(kind, tmp_path)), "--experiment", str(PRBS), "--out", str(out),
+                 "--duration", str(TEST_SAMPLES / 200), "--sim-faults", spec, "--json"])
+    captured = capsys.readouterr()
+    result = json.loads(captured.out) if code == exit_codes.SUCCESS else None
+    return code, result, captured.err, out
+
+
+def _lost_rows(log) -> np.ndarray:
+    return np.flatnonzero(log.flags & SampleFlag.LOST)
+
+
+# -- the SPEC -----------------------------------------------------------------------------------------------
+
+def test_a_spec_parses_into_a_seeded_plan():
+    plan = parse_fault_spec("drop=0.01, burst=20@500, burst=3@10, fault=0x2310@300, heartbeat@40", seed=7)
+    assert plan == FaultPlan(drop_probability=0.01, bursts=((500, 20), (10, 3)), drive_fault=(0x2310, 300),
+                             heartbeat_loss_at=40, seed=7)
+    lost = plan.lost_feedback(1000)
+    assert set(range(500, 520)) | {10, 11, 12} <= lost
+    assert lost == parse_fault_spec("drop=0.01,burst=20@500,burst=3@10", seed=7).lost_feedback(1000)
+    assert lost != parse_fault_spec("drop=0.01,burst=20@500,burst=3@10", seed=8).lost_feedback(1000)
+
+
+@pytest.mark.parametrize("spec, message", [
+    ("drop=0.01,jam=3", r"unknown fault 'jam' in 'jam=3'; valid items: drop=P"),
+    ("burst=20", r"'burst=20' is malformed; expected burst=N@K"),
+    ("drop=1.5", r"'drop=1.5': expected 0 <= value <= 1, got 1.5"),
+    ("fault=overcurrent@3", r"'fault=overcurrent@3': 'overcurrent' is not an integer"),
+    ("heartbeat=1@3", r"'heartbeat=1@3' is malformed; expected heartbeat@K"),
+])
+def test_a_bad_spec_names_the_item_and_what_was_expected(spec, message):
+    with pytest.raises(ValueError, match=message):
+        parse_fault_spec(spec)
+
+
+def test_a_fault_the_wire_cannot_carry_is_refused_before_anything_runs(tmp_path, capsys):
+    code, _, err, out = _rig_run("can", tmp_path, "bitflip=0.01", capsys)
+    assert code == exit_codes.BAD_INPUT
+    assert "'bitflip' cannot be injected on a can:// rig (only on serial)" in err
+    assert not out.exists()
+
+
+def test_faults_on_a_real_rig_config_are_refused(tmp_path, capsys):
+    code = main(["run", str(ROOT / "configs" / "rig_serial.toml"), "--experiment", str(PRBS),
+                 "--out", str(tmp_path / "run.csv"), "--sim-faults", "drop=0.1"])
+    assert code == exit_codes.BAD_INPUT
+    assert "is a real rig (no [simulation] table)" in capsys.readouterr().err
+
+
+# -- ridden through -----------------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("kind", ["serial", "canopen", "can"])
+def test_lost_frames_are_flagged_counted_and_the_run_completes(kind, tmp_path, capsys, no_leaks):
+    spec = "drop=0.02,burst=15@100"
+    code, result, err, out = _rig_run(kind, tmp_path, spec, capsys)
+    assert code == exit_codes.SUCCESS, err
+    log = read_log(out)
+    lost = _lost_rows(log)
+    assert result["samples"] == log.num_samples == TEST_SAMPLES  # every sample sent is in the log
+    assert result["lost"] == lost.size  # and every lost one is flagged and counted
+    assert set(range(100, 115)) <= set(lost.tolist())
+    injected = parse_fault_spec(spec).lost_feedback(TEST_SAMPLES)
+    assert set(lost.tolist()) >= injected  # a loaded host may lose more, never fewer
+    assert np.all(np.isnan(log.angle_rad[lost])) and np.all(np.isfinite(np.delete(log.angle_rad, lost)))
+    assert log.metadata.config["rig"]["simulation"]["faults"] == {"spec": spec, "seed": 0}
+
+
+def test_line_noise_is_resynchronised_and_costs_only_the_damaged_samples(tmp_path, capsys, no_leaks):
+    code, result, err, out = _rig_run("serial", tmp_path, "garbage=0.05,bitflip=0.03", capsys)
+    assert code == exit_codes.SUCCESS, err
+    log = read_log(out)
+    lost = _lost_rows(log)
+    assert log.num_samples == TEST_SAMPLES and result["lost"] == lost.size
+    assert 3 <= lost.size <= 40  # ~3 % flipped + garbage merged into some frames; the rest arrive intact
+    assert np.all(np.isfinite(np.delete(log.angle_rad, lost)))
+
+
+# -- safe stops ---------------------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("kind", ["serial", "canopen", "can"])
+def test_a_drive_fault_stops_the_run_naming_the_code_and_its_meaning(kind, tmp_path, capsys, no_leaks):
+    code, _, err, out = _rig_run(kind, tmp_path, "fault=0x2310@120", capsys)
+    assert code == exit_codes.DEVICE_FAULT
+    assert "(code 0x2310: continuous over-current on the device output side)" in err
+    log = read_log(out)
+    assert log.num_samples == 121 and log.flags[120] & SampleFlag.FAULT
+
+
+def test_a_node_that_falls_off_the_bus_stops_the_run(tmp_path, capsys, no_leaks):
+    code, _, err, out = _rig_run("canopen", tmp_path, "heartbeat@100", capsys)
+    assert code == exit_codes.DEVICE_FAULT
+    assert "heartbeat lost" in err and ("drive 1" in err or "encoder 2" in err)
+    assert 100 <= read_log(out).num_samples < TEST_SAMPLES
+
+
+def test_a_port_that_disappears_stops_the_run_and_the_drive_is_disabled(tmp_path, no_leaks):
+    sink = ListSink()
+    with simulated("serial", tmp_path, unplug_at_seq=80) as (config, transport, _, device):
+        from rig.protocols.errors import TransportError
+
+        with pytest.raises(TransportError, match=r"read from /dev/pts/\d+ failed"):
+            run_experiment(transport, excitation(200), sink, feedback_timeout_s=config.feedback_timeout_s,
+                           late_tolerance_s=config.late_tolerance_s)
+        assert device.unplugged and device.state is not DriveState.OPERATION_ENABLED
+    assert sink.closed and len(sink.rows) >= 80
+    assert all(np.isfinite(row[2]) for row in sink.rows[:80])  # everything received before is kept
+
+
+def test_a_disappearing_port_through_rig_run(tmp_path, capsys, no_leaks):
+    code, _, err, out = _rig_run("serial", tmp_path, "unplug@150", capsys)
+    assert code == exit_codes.DEVICE_FAULT
+    assert "rig: device error:" in err and "/dev/pts/" in err
+    log = read_log(out)
+    assert log.num_samples >= 150 and np.all(np.isfinite(log.angle_rad[:150]))
