@@ -178,8 +178,14 @@ def run_experiment(transport: Transport, command_rad: ArrayLike, sink: SampleSin
         last_feedback = clock()
         row.angle_rad, row.counts = sample.load_angle_rad, sample.encoder_counts
         row.flags &= ~SampleFlag.LOST
-        if state_from_statusword_or_none(sample.statusword) in _FAULT_STATES:
+        state = state_from_statusword_or_none(sample.statusword)
+        if state in _FAULT_STATES:
             row.flags |= SampleFlag.FAULT  # the drive did not follow this setpoint
+        elif state is not None and state is not DriveState.OPERATION_ENABLED:
+            row.flags |= SampleFlag.FAULT
+            raise DeviceFault(f"{transport.name} drive", None, (
+                f"left OPERATION ENABLED without a fault at sample {sample.seq} (now {state.name}: enable input "
+                "or safe torque off lost?); it no longer follows the targets"))
         if last_feedback > start + (sample.seq + 1) * period:
             row.flags |= SampleFlag.LATE  # arrived after the next deadline: the value is real, its time is not
 

@@ -38,6 +38,7 @@ EDS_DIRECTORY = Path(__file__).resolve().parents[1] / "configs" / "eds"
 DRIVE_EDS = EDS_DIRECTORY / "sim_drive_cia402.eds"
 ENCODER_EDS = EDS_DIRECTORY / "sim_encoder_cia406.eds"
 SYNC_COB_ID = 0x80
+SDO_ABORT_VALUE_RANGE = 0x06090030  # CiA 301: value range of parameter exceeded
 
 
 class _FrameCounter(can.Listener):
@@ -111,12 +112,19 @@ class SimulatedCanOpenRig:
         ``fault_code``, FAULT state.
     stop_heartbeat_at_seq
         At that sample both nodes stop their heartbeats (a device that fell off the bus).
+    disable_at_seq
+        At that sample the drive drops out of OPERATION ENABLED without a fault (enable input or safe torque
+        off lost); its TPDOs go on, with the new statusword.
+    refuse_sdo_index
+        The drive aborts every SDO write to this object (abort code 0x06090030, value range exceeded), as a
+        drive that does not support a mode or mapping the master configures.
     """
 
     def __init__(self, gearbox: SimulatedGearbox, *, channel: str,
                  drive_node_id: int = 1, encoder_node_id: int = 2, drive_counts_per_revolution: int = 1 << 17,
                  bitrate: int = 1_000_000, silent_seqs: Iterable[int] = (), fault_at_seq: int | None = None,
-                 fault_code: int = 0x7500, stop_heartbeat_at_seq: int | None = None) -> None:
+                 fault_code: int = 0x7500, stop_heartbeat_at_seq: int | None = None,
+                 disable_at_seq: int | None = None, refuse_sdo_index: int | None = None) -> None:
         self.gearbox = gearbox
         self.channel = channel
         self.drive_scaling = cia402.DriveScaling(int(drive_counts_per_revolution))
@@ -125,6 +133,8 @@ class SimulatedCanOpenRig:
         self.fault_at_seq = fault_at_seq
         self.fault_code = fault_code
         self.stop_heartbeat_at_seq = stop_heartbeat_at_seq
+        self.disable_at_seq = disable_at_seq
+        self.refuse_sdo_index = refuse_sdo_index
         self.network: canopen.Network | None = None
         self.drive = canopen.LocalNode(drive_node_id, str(DRIVE_EDS))
         self.encoder = canopen.LocalNode(encoder_node_id, str(ENCODER_EDS))
@@ -200,6 +210,8 @@ class SimulatedCanOpenRig:
         return None
 
     def _on_drive_write(self, index: int, subindex: int, od: object, data: bytes) -> None:
+        if index == self.refuse_sdo_index:
+            raise canopen.SdoAbortedError(SDO_ABORT_VALUE_RANGE)
         if index == 0x6040:
             controlword = int.from_bytes(data, "little")
             with self._lock:
@@ -265,6 +277,8 @@ class SimulatedCanOpenRig:
                     self.state = cia402.DriveState.FAULT
                     self.drive.data_store.setdefault(0x603F, {})[0] = self.fault_code.to_bytes(2, "little")
                     self.drive.emcy.send(self.fault_code, register=0x01)
+                elif number == self.disable_at_seq:
+                    self.state = cia402.DriveState.SWITCH_ON_DISABLED
                 else:
                     target = self._i32(self.drive, 0x607A)
                     sample = self.gearbox.step(self.drive_scaling.rad_from_counts(target))

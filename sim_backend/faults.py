@@ -10,7 +10,11 @@ item                wires            fault
 ``burst=N@K``       all              the N feedback frames from sample K on are lost
 ``fault=CODE@K``    all              the drive faults at sample K with error code CODE (CANopen: EMCY +
                                      0x603F; serial and raw CAN: their FAULT message)
+``disable@K``       all              the drive drops out of OPERATION ENABLED at sample K without a
+                                     fault (enable input or safe torque off lost)
 ``heartbeat@K``     canopen          both nodes stop their heartbeats at sample K (a node off the bus)
+``sdo_abort=INDEX``  canopen          the drive aborts SDO writes to object INDEX during start-up (abort
+                                     code 0x06090030), e.g. ``sdo_abort=0x6060`` (a mode it lacks)
 ``garbage=P``       serial           random bytes precede a reply with probability P
 ``bitflip=P``       serial           one bit of a reply is flipped with probability P (CRC failure)
 ``unplug@K``        serial           the device closes its port at sample K (a USB adapter pulled out);
@@ -34,7 +38,9 @@ FAULT_ITEMS: dict[str, tuple[str, frozenset[str]]] = {
     "drop": ("drop=P: lose each feedback frame with probability P", frozenset({"canopen", "can", "serial"})),
     "burst": ("burst=N@K: lose N feedback frames from sample K", frozenset({"canopen", "can", "serial"})),
     "fault": ("fault=CODE@K: drive fault with error CODE at sample K", frozenset({"canopen", "can", "serial"})),
+    "disable": ("disable@K: the drive leaves OPERATION ENABLED at sample K", frozenset({"canopen", "can", "serial"})),
     "heartbeat": ("heartbeat@K: both nodes stop their heartbeats at sample K", frozenset({"canopen"})),
+    "sdo_abort": ("sdo_abort=INDEX: the drive aborts SDO writes to INDEX at start-up", frozenset({"canopen"})),
     "garbage": ("garbage=P: random bytes before a reply with probability P", frozenset({"serial"})),
     "bitflip": ("bitflip=P: one bit of a reply flipped with probability P", frozenset({"serial"})),
     "unplug": ("unplug@K: the device closes its port at sample K", frozenset({"serial"})),
@@ -49,6 +55,8 @@ class FaultPlan:
     bursts: tuple[tuple[int, int], ...] = ()  # (first sample, number of frames)
     drive_fault: tuple[int, int] | None = None  # (error code, sample)
     heartbeat_loss_at: int | None = None
+    disable_at: int | None = None
+    refused_sdo_index: int | None = None
     garbage_probability: float = 0.0
     bitflip_probability: float = 0.0
     unplug_at: int | None = None
@@ -58,7 +66,9 @@ class FaultPlan:
     def items(self) -> frozenset[str]:
         """The SPEC item names this plan uses."""
         used = {"drop": self.drop_probability > 0, "burst": bool(self.bursts), "fault": self.drive_fault is not None,
-                "heartbeat": self.heartbeat_loss_at is not None, "garbage": self.garbage_probability > 0,
+                "heartbeat": self.heartbeat_loss_at is not None,
+                "disable": self.disable_at is not None, "sdo_abort": self.refused_sdo_index is not None,
+                "garbage": self.garbage_probability > 0,
                 "bitflip": self.bitflip_probability > 0, "unplug": self.unplug_at is not None}
         return frozenset(name for name, on in used.items() if on)
 
@@ -92,6 +102,10 @@ class FaultPlan:
             options["fault_code"], options["fault_at_seq"] = self.drive_fault
         if self.heartbeat_loss_at is not None:
             options["stop_heartbeat_at_seq"] = self.heartbeat_loss_at
+        if self.disable_at is not None:
+            options["disable_at_seq"] = self.disable_at
+        if self.refused_sdo_index is not None:
+            options["refuse_sdo_index"] = self.refused_sdo_index
         if scheme == "serial" and self.items & {"garbage", "bitflip", "unplug"}:
             options.update(garbage_probability=self.garbage_probability, bitflip_probability=self.bitflip_probability,
                            unplug_at_seq=self.unplug_at, seed=self.seed)
@@ -124,8 +138,8 @@ def parse_fault_spec(spec: str, *, seed: int = 0) -> FaultPlan:
         if name not in FAULT_ITEMS:
             valid = "; ".join(text for text, _ in FAULT_ITEMS.values())
             raise ValueError(f"--sim-faults: unknown fault {name!r} in {item!r}; valid items: {valid}")
-        needs_value = name in ("drop", "burst", "fault", "garbage", "bitflip")
-        needs_sample = name in ("burst", "fault", "heartbeat", "unplug")
+        needs_value = name in ("drop", "burst", "fault", "sdo_abort", "garbage", "bitflip")
+        needs_sample = name in ("burst", "fault", "heartbeat", "disable", "unplug")
         if needs_value != bool(value) or needs_sample != bool(at):
             raise ValueError(f"--sim-faults: {item!r} is malformed; expected {FAULT_ITEMS[name][0]}")
         sample = _number(item, at, int, 0, 2**31) if at else None
@@ -137,6 +151,10 @@ def parse_fault_spec(spec: str, *, seed: int = 0) -> FaultPlan:
             fields["drive_fault"] = (_number(item, value, int, 0x1000, 0xFFFF), sample)
         elif name == "heartbeat":
             fields["heartbeat_loss_at"] = sample
+        elif name == "disable":
+            fields["disable_at"] = sample
+        elif name == "sdo_abort":
+            fields["refused_sdo_index"] = _number(item, value, int, 0x1000, 0xFFFF)
         else:
             fields["unplug_at"] = sample
     return dataclasses.replace(FaultPlan(**fields), bursts=tuple(bursts))

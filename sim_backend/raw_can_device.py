@@ -37,11 +37,15 @@ class SimulatedRawCanDevice(can.Listener):
     silent_seqs, fault_at_seq, fault_code
         Fault injection: samples whose answers are not sent (the plant still steps); the sample at which
         the drive faults (RIG_FAULT with ``fault_code``) instead of moving.
+    disable_at_seq
+        The sample at which the drive drops out of OPERATION ENABLED without a fault (enable input or safe
+        torque off lost): it answers with its new statusword and follows no target after.
     """
 
     def __init__(self, gearbox: SimulatedGearbox, *, channel: str, drive_counts_per_revolution: int = 1 << 17,
                  dbc_path: str = str(DEFAULT_DBC), bitrate: int = 1_000_000, silent_seqs: Iterable[int] = (),
-                 fault_at_seq: int | None = None, fault_code: int = 0x7500) -> None:
+                 fault_at_seq: int | None = None, fault_code: int = 0x7500,
+                 disable_at_seq: int | None = None) -> None:
         self.gearbox = gearbox
         self.channel = channel
         self.drive = cia402.DriveScaling(int(drive_counts_per_revolution))
@@ -50,6 +54,8 @@ class SimulatedRawCanDevice(can.Listener):
         self.silent_seqs = frozenset(int(seq) & 0xFFFF for seq in silent_seqs)
         self.fault_at_seq = fault_at_seq
         self.fault_code = fault_code
+        self.disable_at_seq = disable_at_seq
+        self.encoder_counts = 0
         self.state = cia402.DriveState.SWITCH_ON_DISABLED
         self.controlword = 0
         self.controlwords: list[int] = []
@@ -124,7 +130,14 @@ class SimulatedRawCanDevice(can.Listener):
             self.state = cia402.DriveState.FAULT
             self._send("RIG_FAULT", error_code=self.fault_code)
             return
+        if self.disable_at_seq is not None and seq == self.disable_at_seq & 0xFFFF:
+            self.state = cia402.DriveState.SWITCH_ON_DISABLED
+            self._send("RIG_FEEDBACK", seq=seq, statusword=cia402.statusword_for(self.state),
+                       encoder_counts=self.encoder_counts & 0xFFFFFFFF)
+            self._send("RIG_DRIVE_FEEDBACK", seq=seq, actual_counts=self.actual_counts)
+            return
         sample = self.gearbox.step(self.drive.rad_from_counts(target_counts))
+        self.encoder_counts = sample.encoder_counts
         self.actual_counts = target_counts
         self.setpoints += 1
         if seq in self.silent_seqs:

@@ -37,6 +37,9 @@ class SimulatedSerialDevice:
     garbage_probability, bitflip_probability
         Injected line noise (:mod:`sim_backend.faults`): random bytes before a reply, or one bit of a reply
         flipped, each with this probability per reply (drawn from ``seed``).
+    disable_at_seq
+        At this sample the drive drops out of OPERATION ENABLED without a fault (enable input or safe
+        torque off lost): it answers that setpoint with its new statusword and follows no target after.
     unplug_at_seq
         At this sample the device closes its end of the port, like a USB adapter pulled out; its own link
         watchdog disables the drive.
@@ -45,7 +48,7 @@ class SimulatedSerialDevice:
     def __init__(self, gearbox: SimulatedGearbox, *, drive_counts_per_revolution: int = 1 << 17,
                  silent_seqs: Iterable[int] = (), fault_at_seq: int | None = None, fault_code: int = 0x7500,
                  garbage_probability: float = 0.0, bitflip_probability: float = 0.0,
-                 unplug_at_seq: int | None = None, seed: int = 0) -> None:
+                 unplug_at_seq: int | None = None, disable_at_seq: int | None = None, seed: int = 0) -> None:
         self.gearbox = gearbox
         self.drive = cia402.DriveScaling(int(drive_counts_per_revolution))
         self.silent_seqs = frozenset(int(seq) & 0xFFFF for seq in silent_seqs)
@@ -61,6 +64,8 @@ class SimulatedSerialDevice:
         self.garbage_probability = float(garbage_probability)
         self.bitflip_probability = float(bitflip_probability)
         self.unplug_at_seq = unplug_at_seq
+        self.disable_at_seq = disable_at_seq
+        self.encoder_counts = 0
         self.unplugged = False
         self._rng = random.Random(seed)
         self._decoder = FrameDecoder()
@@ -162,9 +167,14 @@ class SimulatedSerialDevice:
         if self.fault_at_seq is not None and message.seq == self.fault_at_seq & 0xFFFF:
             self.state = cia402.DriveState.FAULT
             return encode_frame(MessageType.FAULT, 0, self.fault_code)
+        if self.disable_at_seq is not None and message.seq == self.disable_at_seq & 0xFFFF:
+            self.state = cia402.DriveState.SWITCH_ON_DISABLED
+            return encode_frame(MessageType.FEEDBACK, message.seq, cia402.statusword_for(self.state),
+                                self.actual_counts, self.encoder_counts & 0xFFFFFFFF)
         (self.target_counts,) = message.fields
         command_rad = self.drive.rad_from_counts(self.target_counts)
         sample = self.gearbox.step(command_rad)
+        self.encoder_counts = sample.encoder_counts
         self.actual_counts = self.target_counts
         self.setpoints += 1
         if message.seq in self.silent_seqs:

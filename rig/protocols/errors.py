@@ -65,5 +65,6 @@ class DeviceFault(RigError):
     def __init__(self, device: str, code: int | None, message: str) -> None:
         self.device = device
         self.code = code
-        code_text = f" (code 0x{code:04X}: {error_code_meaning(code)})" if code is not None else ""
+        digits = 8 if code is not None and code > 0xFFFF else 4  # SDO abort codes have 32 bits
+        code_text = f" (code 0x{code:0{digits}X}: {error_code_meaning(code)})" if code is not None else ""
         super().__init__(f"{device}{code_text}: {message}")

@@ -21,6 +21,7 @@ from identify.experiment_record import SampleFlag
 from rig import exit_codes
 from rig.cli import main
 from rig.log_file import read_log
+from rig.protocols.errors import LogFileError
 from rig.protocols.cia402 import DriveState
 from rig.runner import run_experiment
 from sim_backend.faults import FaultPlan, parse_fault_spec
@@ -148,3 +149,20 @@ def test_a_disappearing_port_through_rig_run(tmp_path, capsys, no_leaks):
     assert "rig: device error:" in err and "/dev/pts/" in err
     log = read_log(out)
     assert log.num_samples >= 150 and np.all(np.isfinite(log.angle_rad[:150]))
+
+
+@pytest.mark.parametrize("kind", ["serial", "canopen", "can"])
+def test_a_drive_that_leaves_operation_enabled_stops_the_run(kind, tmp_path, capsys, no_leaks):
+    code, _, err, out = _rig_run(kind, tmp_path, "disable@120", capsys)
+    assert code == exit_codes.DEVICE_FAULT
+    assert "left OPERATION ENABLED without a fault at sample 120 (now SWITCH_ON_DISABLED" in err
+    log = read_log(out)
+    assert log.flags[120] & SampleFlag.FAULT and not np.any(log.flags[:120] & SampleFlag.FAULT)
+
+
+def test_an_sdo_abort_during_configuration_is_refused_before_the_drive_is_enabled(tmp_path, capsys, no_leaks):
+    code, _, err, out = _rig_run("canopen", tmp_path, "sdo_abort=0x6060", capsys)
+    assert code == exit_codes.DEVICE_FAULT
+    assert "(code 0x06090030: SDO abort code" in err and "refused a start-up SDO" in err
+    with pytest.raises(LogFileError, match="the log has a header but no samples"):
+        read_log(out)  # nothing was streamed
