@@ -26,7 +26,9 @@ steps 0.95, 0.8, 0.5, 0).
 
 For records longer than 400 samples the box of a is first tightened on the first 200 samples (the
 feasible set of a subset of the equations contains the full one, so those bounds are valid and the LPs
-are small), then one relaxation over all the data gives the bounds.
+are small); the box of a is then narrow, and the rounds over all the data use a smaller relaxation that
+is tight for a narrow box (:func:`_interval_lp`: a_i δx_s = a_i^c δx_s + e, |e| <= r_i Δx_s, without
+product columns or envelope rows). Every round's LPs start from the previous round's optimal bases.
 
 Guarantees against solver tolerances: every LP bound is replaced by the Neumaier-Shcherbina bound computed
 from the solver's dual values and the finite variable boxes (a valid bound for any dual vector), and an
@@ -39,6 +41,7 @@ from __future__ import annotations
 
 import itertools
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -506,6 +509,43 @@ def _coupled_lp(data: _Data, theta_low: NDArray[np.float64], theta_high: NDArray
     return lp if data.shared is None else _with_shared_backlash(lp, data, p)
 
 
+def _interval_lp(data: _Data, theta_low: NDArray[np.float64], theta_high: NDArray[np.float64]) -> _LP:
+    """A smaller outer relaxation for a narrow box of a: a_i δx_s = a_i^c δx_s + e_{i,s} with
+    |e_{i,s}| <= r_i Δx_s (a^c, r: centre and radius of the box of a_i), and the e eliminated, so
+
+        |-psi_t θ + δx_t + Σ_i a_i^c δx_{t-i} + x_t^c| <= Σ_i r_i Δx_{t-i}.
+
+    Variables θ (p) and δx (N) only, two rows per equation. Every point of the exact set with a in the box
+    satisfies it (|a_i - a_i^c| |δx_s| <= r_i Δx_s), so its LP bounds are valid. It contains the McCormick
+    relaxation (the set |z - a^c δx| <= r Δx is convex and holds on the graph of a δx, hence on its convex
+    hull) and is looser only for a near a corner of its box, by at most r_i Δx_s per product: negligible once
+    the box of a is narrow (r_i << |a_i|), while the LP has a third of the columns and a quarter of the rows.
+    """
+    orders = data.orders
+    na, p = orders.na, orders.num_parameters
+    N, m = data.u.size, data.times.size
+    width = p + N
+    centre = 0.5 * (theta_low[:na] + theta_high[:na])
+    radius = np.maximum(0.5 * (theta_high[:na] - theta_low[:na]), 0.0)
+    per_row = p + na + 1
+    cols = np.empty((m, per_row), dtype=np.int64)
+    vals = np.ones((m, per_row))
+    cols[:, :p] = np.arange(p)
+    vals[:, :p] = -data.regressors
+    slack = np.zeros(m)
+    for i in range(1, na + 1):
+        cols[:, p + na - i] = p + data.times - i
+        vals[:, p + na - i] = centre[i - 1]
+        slack += radius[i - 1] * data.dx[data.times - i]
+    cols[:, p + na] = p + data.times
+    rows = sp.csr_matrix((vals.ravel(), cols.ravel(), np.arange(m + 1) * per_row), shape=(m, width))
+    xt = data.xc[data.times]
+    gain, gain_rhs = _gain_row(orders, width)
+    lp = _LP(sp.vstack([rows, -rows]).tocsr(), np.concatenate([slack - xt, slack + xt]), gain, gain_rhs,
+             np.concatenate([theta_low, -data.dx]), np.concatenate([theta_high, data.dx]))
+    return lp if data.shared is None else _with_shared_backlash(lp, data, p)
+
+
 def _with_shared_backlash(lp: _LP, data: _Data, p: int) -> _LP:
     """Append the columns [ρ_l, c_l, ρ_r, c_r, ζ_1..ζ_K] and the rows that tie the inverted samples to them:
     δx_t - y_t ρ_r - c_r + ζ_t = -x_t^c (rising), δx_t - y_t ρ_l + c_l + ζ_t = -x_t^c (falling)."""
@@ -532,11 +572,14 @@ def _with_shared_backlash(lp: _LP, data: _Data, p: int) -> _LP:
 
 
 def _tighten(data: _Data, low: NDArray[np.float64], high: NDArray[np.float64], counter: _Counter, max_rounds: int,
-             relative_improvement: float, full_last_round: bool) -> tuple[NDArray[np.float64], NDArray[np.float64], int, list[NDArray[np.float64]], bool]:
+             relative_improvement: float, full_last_round: bool,
+             relaxation: Callable[[_Data, NDArray[np.float64], NDArray[np.float64]], _LP] | None = None) -> tuple[NDArray[np.float64], NDArray[np.float64], int, list[NDArray[np.float64]], bool]:
     """Rounds of the McCormick relaxation: LPs over a only tighten the box of a (which sets the envelopes)
     until no a-interval shrinks by more than ``relative_improvement`` or ``max_rounds`` relaxations were
     solved; with ``full_last_round`` the last round bounds every parameter. Returns the box, the rounds, the
-    extreme points of the last round and whether the relaxation was proven empty."""
+    extreme points of the last round and whether the relaxation was proven empty. ``relaxation`` builds the
+    LP from (data, low, high); McCormick (:func:`_coupled_lp`) by default."""
+    relaxation = _coupled_lp if relaxation is None else relaxation
     p, na = data.orders.num_parameters, data.orders.na
     rounds = 0
     converged = na == 0
@@ -544,7 +587,7 @@ def _tighten(data: _Data, low: NDArray[np.float64], high: NDArray[np.float64], c
     while True:
         rounds += 1
         final = converged or rounds >= max_rounds
-        lp = _coupled_lp(data, low, high)
+        lp = relaxation(data, low, high)
         count = p if (final and full_last_round) else na
         new_low, new_high, points = _bounds_over(lp, count, counter, bases)
         if not np.all(np.isfinite(new_low)):
@@ -566,6 +609,7 @@ def _tighten(data: _Data, low: NDArray[np.float64], high: NDArray[np.float64], c
 _WINDOW = 200
 """Samples used to tighten the box of a before the full-data relaxation (the set from a subset of the
 equations contains the full set, so its bounds are valid; the LPs are much smaller)."""
+_FULL_DATA_RELAXATION = _interval_lp
 
 
 def _coupled_bounds(data: _Data, low: NDArray[np.float64], high: NDArray[np.float64], counter: _Counter,
@@ -579,8 +623,12 @@ def _coupled_bounds(data: _Data, low: NDArray[np.float64], high: NDArray[np.floa
         rounds += used
         if empty:
             return np.full(p, math.nan), np.full(p, math.nan), rounds, []
-        max_rounds = 1  # the window did the tightening: one full-data relaxation
-    low, high, used, points, empty = _tighten(data, low, high, counter, max_rounds, relative_improvement, True)
+        # the window did the wide tightening; the box of a is narrow, so the interval relaxation is tight
+        relaxation = _FULL_DATA_RELAXATION
+    else:
+        relaxation = _coupled_lp
+    low, high, used, points, empty = _tighten(data, low, high, counter, max_rounds, relative_improvement, True,
+                                              relaxation)
     if empty:
         return np.full(p, math.nan), np.full(p, math.nan), rounds + used, []
     return low, high, rounds + used, points

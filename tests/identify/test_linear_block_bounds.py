@@ -121,7 +121,8 @@ def test_validation_names_the_argument() -> None:
 
 
 def test_long_record_tightens_on_a_window_first_and_still_contains_the_truth() -> None:
-    # N = 500 > 2 x 200: the box of a is tightened on the first 200 samples, then one full relaxation
+    # N = 500 > 2 x 200: the box of a is tightened on the first 200 samples, then rounds of the interval
+    # relaxation over all the data
     _, paper = _run(10, 21, "paper", num_samples=500)
     _, coupled = _run(10, 21, "coupled", num_samples=500)
     for name, value in THETA.items():
@@ -139,3 +140,31 @@ def test_skipping_the_inner_verification_leaves_the_outer_bounds_unchanged() -> 
     fast = bound_output_backlash_system(*args, na=2, nk=1, nb=2, verify_inner=False)
     assert fast.linear.inner_lower is None and full.linear.inner_lower is not None
     assert fast.linear_intervals == full.linear_intervals
+
+
+def test_interval_relaxation_holds_at_the_truth_and_contains_the_mccormick_one() -> None:
+    # The full-data relaxation of long records (a δx = a^c δx + e, |e| <= r Δx): the true (θ, δx) must satisfy
+    # it, and its bounds must contain the McCormick relaxation's on the same box (it is an outer set of it).
+    from identify.feasible_parameter_set import bound_backlash_parameters
+    from identify.inner_signal_bounds import bound_inner_signal
+    from identify.linear_block_bounds import (LinearModelOrders, _bounds_over, _Counter, _coupled_lp, _interval_lp,
+                                              _prepare)
+
+    data = experiment(10, 5, num_samples=60)
+    backlash = bound_backlash_parameters(data.steady_input_rad, data.steady_output_rad, data.noise_bound_rad)
+    inner = bound_inner_signal(data.output_rad, data.noise_bound_rad, backlash)
+    problem = _prepare(data.input_rad, inner.lower_rad, inner.upper_rad, LinearModelOrders(2, 1, 2))
+    theta = np.array([THETA["a1"], THETA["a2"], THETA["b1"], THETA["b2"]])
+    low, high = theta - [0.02, 0.01, 0.5, 0.5], theta + [0.01, 0.03, 0.5, 0.5]
+    interval = _interval_lp(problem, low, high)
+    truth = np.concatenate([theta, data.inner_rad - problem.xc])
+    assert np.all(np.abs(truth[4:]) <= problem.dx + 1e-12)
+    assert np.all(interval.A_ub @ truth <= interval.b_ub + 1e-9)
+    assert np.allclose(interval.A_eq @ truth, interval.b_eq)
+    counter = _Counter()
+    outer_low, outer_high, _ = _bounds_over(interval, 4, counter)
+    mccormick_low, mccormick_high, _ = _bounds_over(_coupled_lp(problem, low, high), 4, counter)
+    assert np.all(outer_low <= theta) and np.all(theta <= outer_high)
+    assert np.all(outer_low <= mccormick_low + 1e-9) and np.all(mccormick_high <= outer_high + 1e-9)
+    # and it is not vacuous: it tightens the box it was given
+    assert np.all(outer_high - outer_low < high - low)
