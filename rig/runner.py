@@ -213,8 +213,11 @@ def run_experiment(transport: Transport, command_rad: ArrayLike, sink: SampleSin
             last_send = now
             lateness[k] = now - deadline
             if now - last_feedback > feedback_timeout_s:
+                too_late = (f"; {counts['stale']} answers came more than {pending_cycles} cycles after their "
+                            "setpoint (a device answering that late cannot be used at this rate)"
+                            if counts["stale"] else "")
                 raise TransportError(f"{transport.name}: no feedback for {now - last_feedback:.3g} s "
-                                     f"(watchdog {feedback_timeout_s:g} s), stopping at sample {k}")
+                                     f"(watchdog {feedback_timeout_s:g} s), stopping at sample {k}{too_late}")
             sent = transport.send(Setpoint(k, value))
             row = _Row(k, k * period, sent.position_rad)
             rows.append(row)

@@ -17,6 +17,8 @@ item                wires            fault
                                      code 0x06090030), e.g. ``sdo_abort=0x6060`` (a mode it lacks)
 ``garbage=P``       serial           random bytes precede a reply with probability P
 ``bitflip=P``       serial           one bit of a reply is flipped with probability P (CRC failure)
+``truncate=P``      serial           a reply is cut short with probability P (CRC failure)
+``lag=MS@K``        serial           from sample K on, every reply leaves MS milliseconds late
 ``unplug@K``        serial           the device closes its port at sample K (a USB adapter pulled out);
                                      its own link watchdog then disables the drive
 ==================  ===============  =====================================================================
@@ -43,6 +45,8 @@ FAULT_ITEMS: dict[str, tuple[str, frozenset[str]]] = {
     "sdo_abort": ("sdo_abort=INDEX: the drive aborts SDO writes to INDEX at start-up", frozenset({"canopen"})),
     "garbage": ("garbage=P: random bytes before a reply with probability P", frozenset({"serial"})),
     "bitflip": ("bitflip=P: one bit of a reply flipped with probability P", frozenset({"serial"})),
+    "truncate": ("truncate=P: a reply cut short with probability P", frozenset({"serial"})),
+    "lag": ("lag=MS@K: every reply from sample K on leaves MS ms late", frozenset({"serial"})),
     "unplug": ("unplug@K: the device closes its port at sample K", frozenset({"serial"})),
 }
 
@@ -59,6 +63,8 @@ class FaultPlan:
     refused_sdo_index: int | None = None
     garbage_probability: float = 0.0
     bitflip_probability: float = 0.0
+    truncate_probability: float = 0.0
+    reply_lag: tuple[float, int] | None = None  # (seconds, first sample)
     unplug_at: int | None = None
     seed: int = 0
 
@@ -69,7 +75,8 @@ class FaultPlan:
                 "heartbeat": self.heartbeat_loss_at is not None,
                 "disable": self.disable_at is not None, "sdo_abort": self.refused_sdo_index is not None,
                 "garbage": self.garbage_probability > 0,
-                "bitflip": self.bitflip_probability > 0, "unplug": self.unplug_at is not None}
+                "bitflip": self.bitflip_probability > 0,
+                "truncate": self.truncate_probability > 0, "lag": self.reply_lag is not None, "unplug": self.unplug_at is not None}
         return frozenset(name for name, on in used.items() if on)
 
     def lost_feedback(self, num_samples: int) -> frozenset[int]:
@@ -106,8 +113,9 @@ class FaultPlan:
             options["disable_at_seq"] = self.disable_at
         if self.refused_sdo_index is not None:
             options["refuse_sdo_index"] = self.refused_sdo_index
-        if scheme == "serial" and self.items & {"garbage", "bitflip", "unplug"}:
+        if scheme == "serial" and self.items & {"garbage", "bitflip", "truncate", "lag", "unplug"}:
             options.update(garbage_probability=self.garbage_probability, bitflip_probability=self.bitflip_probability,
+                           truncate_probability=self.truncate_probability, reply_lag=self.reply_lag,
                            unplug_at_seq=self.unplug_at, seed=self.seed)
         return options
 
@@ -138,12 +146,12 @@ def parse_fault_spec(spec: str, *, seed: int = 0) -> FaultPlan:
         if name not in FAULT_ITEMS:
             valid = "; ".join(text for text, _ in FAULT_ITEMS.values())
             raise ValueError(f"--sim-faults: unknown fault {name!r} in {item!r}; valid items: {valid}")
-        needs_value = name in ("drop", "burst", "fault", "sdo_abort", "garbage", "bitflip")
-        needs_sample = name in ("burst", "fault", "heartbeat", "disable", "unplug")
+        needs_value = name in ("drop", "burst", "fault", "sdo_abort", "garbage", "bitflip", "truncate", "lag")
+        needs_sample = name in ("burst", "fault", "heartbeat", "disable", "lag", "unplug")
         if needs_value != bool(value) or needs_sample != bool(at):
             raise ValueError(f"--sim-faults: {item!r} is malformed; expected {FAULT_ITEMS[name][0]}")
         sample = _number(item, at, int, 0, 2**31) if at else None
-        if name in ("drop", "garbage", "bitflip"):
+        if name in ("drop", "garbage", "bitflip", "truncate"):
             fields[f"{name}_probability"] = _number(item, value, float, 0.0, 1.0)
         elif name == "burst":
             bursts.append((sample, _number(item, value, int, 1, 2**31)))
@@ -153,6 +161,8 @@ def parse_fault_spec(spec: str, *, seed: int = 0) -> FaultPlan:
             fields["heartbeat_loss_at"] = sample
         elif name == "disable":
             fields["disable_at"] = sample
+        elif name == "lag":
+            fields["reply_lag"] = (_number(item, value, float, 0.0, 10_000.0) / 1000.0, sample)
         elif name == "sdo_abort":
             fields["refused_sdo_index"] = _number(item, value, int, 0x1000, 0xFFFF)
         else:

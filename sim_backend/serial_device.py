@@ -7,10 +7,12 @@ one FEEDBACK frame with the same sequence number, so a run is deterministic what
 
 from __future__ import annotations
 
+import collections
 import os
 import random
 import select
 import threading
+import time
 import tty
 from collections.abc import Iterable
 
@@ -34,9 +36,12 @@ class SimulatedSerialDevice:
         Sample numbers whose FEEDBACK is not sent (the plant still steps): injected frame loss.
     fault_at_seq
         Sample number at which the drive goes to FAULT (error code ``fault_code``) and reports it.
-    garbage_probability, bitflip_probability
-        Injected line noise (:mod:`sim_backend.faults`): random bytes before a reply, or one bit of a reply
-        flipped, each with this probability per reply (drawn from ``seed``).
+    garbage_probability, bitflip_probability, truncate_probability
+        Injected line noise (:mod:`sim_backend.faults`): random bytes before a reply, one bit of a reply
+        flipped, or a reply cut short, each with this probability per reply (drawn from ``seed``).
+    reply_lag
+        ``(seconds, first sample)``: from that sample on, every reply leaves this much later (a device
+        that answers late).
     disable_at_seq
         At this sample the drive drops out of OPERATION ENABLED without a fault (enable input or safe
         torque off lost): it answers that setpoint with its new statusword and follows no target after.
@@ -48,6 +53,7 @@ class SimulatedSerialDevice:
     def __init__(self, gearbox: SimulatedGearbox, *, drive_counts_per_revolution: int = 1 << 17,
                  silent_seqs: Iterable[int] = (), fault_at_seq: int | None = None, fault_code: int = 0x7500,
                  garbage_probability: float = 0.0, bitflip_probability: float = 0.0,
+                 truncate_probability: float = 0.0, reply_lag: tuple[float, int] | None = None,
                  unplug_at_seq: int | None = None, disable_at_seq: int | None = None, seed: int = 0) -> None:
         self.gearbox = gearbox
         self.drive = cia402.DriveScaling(int(drive_counts_per_revolution))
@@ -63,6 +69,8 @@ class SimulatedSerialDevice:
         self.frame_errors = 0
         self.garbage_probability = float(garbage_probability)
         self.bitflip_probability = float(bitflip_probability)
+        self.truncate_probability = float(truncate_probability)
+        self.reply_lag = reply_lag
         self.unplug_at_seq = unplug_at_seq
         self.disable_at_seq = disable_at_seq
         self.encoder_counts = 0
@@ -101,8 +109,12 @@ class SimulatedSerialDevice:
     # -- device loop ----------------------------------------------------------------------------------------
 
     def _serve(self) -> None:
+        delayed: collections.deque[tuple[float, bytes]] = collections.deque()  # (due time, reply), in order
         while not self._stop.is_set():
-            ready, _, _ = select.select([self._master_fd], [], [], 0.05)
+            timeout_s = 0.05 if not delayed else min(0.05, max(0.0, delayed[0][0] - time.perf_counter()))
+            ready, _, _ = select.select([self._master_fd], [], [], timeout_s)
+            while delayed and delayed[0][0] <= time.perf_counter():
+                os.write(self._master_fd, delayed.popleft()[1])
             if not ready:
                 continue
             try:
@@ -114,8 +126,13 @@ class SimulatedSerialDevice:
                     self._unplug()
                     return
                 reply = self.handle(message)
-                if reply:
-                    os.write(self._master_fd, self._line_noise(reply))
+                if not reply:
+                    continue
+                reply = self._line_noise(reply)
+                if self.reply_lag is not None and self.setpoints > self.reply_lag[1]:
+                    delayed.append((time.perf_counter() + self.reply_lag[0], reply))  # latency, not throughput
+                else:
+                    os.write(self._master_fd, reply)
             self.frame_errors = self._decoder.errors
 
     def _unplugs_at(self, message: SerialMessage) -> bool:
@@ -132,11 +149,13 @@ class SimulatedSerialDevice:
 
     def _line_noise(self, reply: bytes) -> bytes:
         """The reply as the line delivers it: maybe one bit flipped (not in the 0x00 delimiter, so the
-        frame's CRC fails), maybe preceded by random bytes."""
+        frame's CRC fails), maybe cut short (an early delimiter), maybe preceded by random bytes."""
         if self.bitflip_probability and self._rng.random() < self.bitflip_probability:
             noisy = bytearray(reply)
             noisy[self._rng.randrange(len(reply) - 1)] ^= 1 << self._rng.randrange(8)
             reply = bytes(noisy)
+        if self.truncate_probability and self._rng.random() < self.truncate_probability:
+            reply = reply[:self._rng.randrange(1, len(reply) - 1)] + b"\x00"
         if self.garbage_probability and self._rng.random() < self.garbage_probability:
             reply = self._rng.randbytes(self._rng.randint(1, 16)) + reply
         return reply

@@ -166,3 +166,26 @@ def test_an_sdo_abort_during_configuration_is_refused_before_the_drive_is_enable
     assert "(code 0x06090030: SDO abort code" in err and "refused a start-up SDO" in err
     with pytest.raises(LogFileError, match="the log has a header but no samples"):
         read_log(out)  # nothing was streamed
+
+
+def test_truncated_serial_frames_cost_only_their_samples(tmp_path, capsys, no_leaks):
+    code, result, err, out = _rig_run("serial", tmp_path, "truncate=0.05", capsys)
+    assert code == exit_codes.SUCCESS, err
+    lost = _lost_rows(read_log(out))
+    assert result["lost"] == lost.size and 3 <= lost.size <= 40
+
+
+def test_a_device_that_answers_late_gives_late_samples_with_real_values(tmp_path, capsys, no_leaks):
+    code, result, err, out = _rig_run("serial", tmp_path, "lag=8@100", capsys)  # 8 ms > the 5 ms period
+    assert code == exit_codes.SUCCESS, err
+    log = read_log(out)
+    kept = np.flatnonzero(~(log.flags & SampleFlag.LOST).astype(bool))
+    late_kept = kept[kept > 101]
+    assert np.all(log.flags[late_kept] & SampleFlag.LATE)  # the value is real, its time is not
+    assert late_kept.size >= 0.9 * (TEST_SAMPLES - 102)
+
+
+def test_a_device_answering_later_than_the_pending_window_is_stopped_by_the_watchdog(tmp_path, capsys, no_leaks):
+    code, _, err, _ = _rig_run("serial", tmp_path, "lag=60@100", capsys)  # 12 cycles late
+    assert code == exit_codes.DEVICE_FAULT
+    assert "answers came more than 4 cycles after their setpoint" in err
