@@ -28,50 +28,95 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         description=DESCRIPTION,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    parser.add_argument("data", metavar="DATA", help="a rig-log v1 file or a CSV with columns t,u,y")
+    parser.add_argument("data", metavar="DATA", nargs="+",
+                        help="a rig-log v1 file or a CSV with columns t,u,y; several are diagnosed independently")
     parser.add_argument("--model", metavar="PLANT.toml", default=None,
                         help="plant config of the user's model (default: fit a linear model)")
     parser.add_argument("--noise-bound", type=float, required=True, metavar="RAD",
                         help="bound on the measurement error |e_t| in rad (include the encoder's half count)")
-    parser.add_argument("--report", metavar="DIR", default=None, help="write figures and an HTML page to DIR")
-    parser.add_argument("--json", action="store_true", help="print the result as one JSON object")
+    parser.add_argument("--report", metavar="DIR", default=None,
+                        help="write figures and an HTML page to DIR (with several files: DIR/<file name>/)")
+    parser.add_argument("--jobs", type=int, default=1, metavar="N",
+                        help="diagnose several files in N processes (0: one per core; default 1)")
+    parser.add_argument("--scheduler", metavar="ADDRESS", default=None,
+                        help="run the files on the Dask cluster at ADDRESS instead (needs dask[distributed])")
+    parser.add_argument("--json", action="store_true",
+                        help='print the result as one JSON object; with several files '
+                             '{"results": [{"file", "diagnosis" | "error"}]}')
     parser.set_defaults(handler=run)
 
 
 def run(args: argparse.Namespace) -> int:
+    from functools import partial
+
+    from rig.batch import map_files
+
+    options = {"model": args.model, "noise_bound": args.noise_bound, "report": args.report,
+               "report_per_file": len(args.data) > 1}
+    if len(args.data) == 1 and args.scheduler is None:
+        result, num_samples, index = diagnose_file(args.data[0], options)  # errors go to rig.cli with their code
+        if args.json:
+            print(json.dumps(result.to_json_dict()))
+        else:
+            _print_summary(args.data[0], args.model, args.noise_bound, result, num_samples, index)
+        return exit_codes.SUCCESS
+    outcomes = map_files(partial(diagnose_file, options=options), args.data, jobs=args.jobs,
+                         scheduler=args.scheduler)
+    if args.json:
+        print(json.dumps({"results": [
+            {"file": outcome.path, "diagnosis": outcome.result[0].to_json_dict()} if outcome.error is None
+            else {"file": outcome.path, "error": outcome.error} for outcome in outcomes]}))
+    else:
+        for outcome in outcomes:
+            if outcome.error is None:
+                _print_summary(outcome.path, args.model, args.noise_bound, *outcome.result)
+            else:
+                print(f"data          {outcome.path}\nerror         {outcome.error}")
+            print()
+    return exit_codes.SUCCESS if all(outcome.error is None for outcome in outcomes) else exit_codes.BAD_INPUT
+
+
+def diagnose_file(path_text: str, options: dict):
+    """Diagnose one file with the command's options; return the result, the number of samples and the
+    report's index page (None without --report). A module-level function returning picklable values, so
+    that it runs in other processes."""
     from identify.model_discrepancy import diagnose_model
     from rig.log_file import read_experiment_data
 
-    record = read_experiment_data(args.data)
+    record = read_experiment_data(path_text)
     model = None
-    if args.model is not None:
+    if options["model"] is not None:
         from sim_backend.plant_config import load_plant_config
 
-        model = load_plant_config(args.model).plant
-    result = diagnose_model(record.command_rad, record.angle_rad, args.noise_bound,
+        model = load_plant_config(options["model"]).plant
+    result = diagnose_model(record.command_rad, record.angle_rad, options["noise_bound"],
                             record.metadata.sample_period_s, model)
-    if args.report is not None:
+    index = None
+    if options["report"] is not None:
         from rig.plots.discrepancy import write_discrepancy_report
 
-        index = write_discrepancy_report(Path(args.report), result, record.command_rad, record.angle_rad,
-                                         record.metadata.sample_period_s, source=str(args.data))
-    if args.json:
-        print(json.dumps(result.to_json_dict()))
-    else:
-        print(f"data          {args.data}  ({record.command_rad.size} samples, validation from sample "
-              f"{result.estimation_samples})")
-        print(f"start model   {args.model or 'linear, order %d (fitted)' % result.linear_fit.order}")
-        print(f"noise bound   {args.noise_bound:.4g} rad")
-        print(f"initial gap   {result.initial.gap_rad:.4g} rad, {100 * result.initial.falsified_fraction:.1f} % "
-              f"of validation samples falsified, {len(result.initial.windows)} disagreement windows")
-        for number, step in enumerate(result.steps, 1):
-            parameters = ", ".join(f"{k} = {v:.4g}" for k, v in step.parameters.items())
-            print(f"step {number}: {step.effect:<17} gap {step.gap_before_rad:.4g} -> {step.gap_after_rad:.4g} rad  "
-                  f"({parameters})")
-        if not result.steps:
-            print("no missing effect found")
-        print(f"final gap     {result.final.gap_rad:.4g} rad, {100 * result.final.falsified_fraction:.1f} % falsified")
-        print(result.unexplained)
-        if args.report is not None:
-            print(f"report        {index}")
-    return exit_codes.SUCCESS
+        directory = Path(options["report"])
+        if options["report_per_file"]:
+            directory = directory / Path(path_text).stem
+        index = write_discrepancy_report(directory, result, record.command_rad, record.angle_rad,
+                                         record.metadata.sample_period_s, source=str(path_text))
+    return result, int(record.command_rad.size), index
+
+
+def _print_summary(data: str, model: str | None, noise_bound: float, result, num_samples: int, index) -> None:
+    print(f"data          {data}  ({num_samples} samples, validation from sample "
+          f"{result.estimation_samples})")
+    print(f"start model   {model or 'linear, order %d (fitted)' % result.linear_fit.order}")
+    print(f"noise bound   {noise_bound:.4g} rad")
+    print(f"initial gap   {result.initial.gap_rad:.4g} rad, {100 * result.initial.falsified_fraction:.1f} % "
+          f"of validation samples falsified, {len(result.initial.windows)} disagreement windows")
+    for number, step in enumerate(result.steps, 1):
+        parameters = ", ".join(f"{k} = {v:.4g}" for k, v in step.parameters.items())
+        print(f"step {number}: {step.effect:<17} gap {step.gap_before_rad:.4g} -> {step.gap_after_rad:.4g} rad  "
+              f"({parameters})")
+    if not result.steps:
+        print("no missing effect found")
+    print(f"final gap     {result.final.gap_rad:.4g} rad, {100 * result.final.falsified_fraction:.1f} % falsified")
+    print(result.unexplained)
+    if index is not None:
+        print(f"report        {index}")

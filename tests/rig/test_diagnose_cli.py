@@ -91,3 +91,20 @@ def test_bad_noise_bound_and_mismatched_period_exit_with_bad_input(files, tmp_pa
     other.write_text(NOMINAL_TOML.replace("sample_period_s = 0.001", "sample_period_s = 0.01"))
     assert main(["diagnose", str(data), "--model", str(other), "--noise-bound", "0.001"]) == exit_codes.BAD_INPUT
     assert "sample_period_s" in capsys.readouterr().err
+
+
+def test_several_files_are_diagnosed_in_parallel_and_a_bad_one_is_reported(files, tmp_path, capsys):
+    folder, data, model, record = files
+    broken = tmp_path / "broken.csv"
+    broken.write_text("t,u,y\n0,1,x\n")
+    report = tmp_path / "reports"
+    code = main(["diagnose", str(data), str(broken), str(data), "--model", str(model), "--noise-bound",
+                 repr(record.noise_bound_rad), "--jobs", "2", "--json", "--report", str(report)])
+    assert code == exit_codes.BAD_INPUT  # one file failed; the others still came out
+    results = json.loads(capsys.readouterr().out)["results"]
+    assert [entry["file"] for entry in results] == [str(data), str(broken), str(data)]
+    for entry in (results[0], results[2]):
+        assert [effect["effect"] for effect in entry["diagnosis"]["missing_effects"]] == ["backlash"]
+    assert results[0]["diagnosis"] == results[2]["diagnosis"]  # the same file gives the same answer in any process
+    assert "broken.csv" in results[1]["error"] and "line 2" in results[1]["error"]
+    assert missing_images(report / "data" / "index.html") == []
