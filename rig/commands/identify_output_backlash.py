@@ -43,7 +43,15 @@ def register(methods: argparse._SubParsersAction) -> None:
     parser.add_argument("--filter-step", type=float, default=None, metavar="RAD",
                         help="amplitude of the step used to tune the filter pole, if known (alpha terms of eq. (14)-(15))")
     parser.add_argument("--json", action="store_true", help="print the bounds as one JSON object")
+    parser.add_argument("--save", metavar="RESULT.json", default=None,
+                        help="also write the bounds with the data they came from (steady points, dynamic record, "
+                             "noise bound, orders), so that `rig report RESULT.json` draws the feasible polygons, "
+                             "the backlash band and the inner-signal bounds")
     parser.set_defaults(handler=run)
+
+
+SAVED_FORMAT = "rig output-backlash result v1"
+"""The ``format`` of a ``--save`` file: the ``--json`` object plus ``data`` (the inputs)."""
 
 
 def _read(path_text: str, role: str):
@@ -81,14 +89,16 @@ def run(args: argparse.Namespace) -> int:
     linear = result.linear_intervals
     inner = result.inner_signal
     assert inner is not None and result.linear is not None
+    document = {
+        "backlash": {name: {k: _number(v) for k, v in interval.as_dict().items()} for name, interval in backlash.items()},
+        "linear": {name: {k: _number(v) for k, v in interval.as_dict().items()} for name, interval in linear.items()},
+        "method": args.method,
+        "invertible_samples": inner.num_invertible,
+        "samples": int(inner.lower_rad.size),
+    }
+    if args.save is not None:
+        _save(args.save, document, args, steady_u, steady_y, u, y)
     if args.json:
-        document = {
-            "backlash": {name: {k: _number(v) for k, v in interval.as_dict().items()} for name, interval in backlash.items()},
-            "linear": {name: {k: _number(v) for k, v in interval.as_dict().items()} for name, interval in linear.items()},
-            "method": args.method,
-            "invertible_samples": inner.num_invertible,
-            "samples": int(inner.lower_rad.size),
-        }
         print(json.dumps(document))
     else:
         print(f"steady-state data  {args.steady}  ({len(steady_u)} points)")
@@ -106,3 +116,13 @@ def run(args: argparse.Namespace) -> int:
                 print(f"{name:<10} {result.linear.inner_lower[name]:>14.8g} {result.linear.inner_upper[name]:>14.8g}")
     sys.stdout.flush()
     return exit_codes.SUCCESS
+
+
+def _save(path_text: str, document: dict, args: argparse.Namespace, steady_u, steady_y, u, y) -> None:
+    """Write the ``--save`` file (:data:`SAVED_FORMAT`); an unwritable path is an OSError naming it."""
+    saved = {"format": SAVED_FORMAT, **document, "data": {
+        "steady": {"u": steady_u.tolist(), "y": steady_y.tolist(), "file": str(args.steady)},
+        "dynamic": {"u": u.tolist(), "y": y.tolist(), "file": str(args.dynamic)},
+        "noise_bound_rad": args.noise_bound, "filter_step_rad": args.filter_step,
+        "na": args.na, "nk": args.nk, "nb": args.nb}}
+    Path(path_text).write_text(json.dumps(saved))

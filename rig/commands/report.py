@@ -4,7 +4,8 @@ RESULTS may be, in any order and mixed:
 
 * experiment logs (``rig-log v1``) or plain CSV files with columns ``t,u,y``: signals and loop timing;
 * the JSON printed by ``rig identify output-backlash --json`` (one file per method; several are shown side by
-  side): interval table, interval figure and the Bode magnitude of the linear-block box;
+  side): interval table, interval figure and the Bode magnitude of the linear-block box; the file written by
+  its ``--save`` adds the backlash band, the feasible polygons and the inner-signal bounds;
 * the JSON printed by ``rig identify hammerstein --json``: poles, borders and singular values;
 * the JSON printed by ``rig diagnose --json``: the missing effects and how much each closed the gap.
 
@@ -31,6 +32,7 @@ Write a static HTML report (index.html and PNG figures) from result files:
 
   experiment logs (rig-log v1) or CSV files with columns t,u,y     signals and sample-period jitter
   JSON of `rig identify output-backlash --json` (one per method)  intervals side by side, Bode of the box
+  file of `rig identify output-backlash --save FILE`             the same, plus polygons, band, inner bounds
   JSON of `rig identify hammerstein --json`                      poles, borders, singular values
   JSON of `rig diagnose --json`                                  missing effects and the gap they closed
 
@@ -192,8 +194,36 @@ def _set_membership_section(results: list[ResultFile], sample_period_s: float | 
         figures.append(parameter_intervals_figure(methods, f"{base}_intervals"))
         if any(re.fullmatch(r"b\d+", name) for per in methods.values() for name in per):
             figures.append(linear_block_bode_figure(methods, f"{base}_bode", sample_period_s=sample_period_s))
+    for result in results:
+        if "data" in result.content and not result.content.get("empty"):
+            figures += _saved_set_figures(result, sample_period_s, used)
     return ReportSection("Set membership: output backlash and linear block", text="\n\n".join(paragraphs),
                          table_header=header, table_rows=rows, figures=tuple(figures))
+
+
+def _saved_set_figures(result: ResultFile, sample_period_s: float | None, used: set[str]) -> list:
+    """The backlash band, the feasible polygons and the inner-signal bounds of a ``--save`` file,
+    recomputed exactly from the data it holds (D_γ and the inner bounds are closed-form, eqs. (11)-(28);
+    the costly linear-block bounds are read from the file)."""
+    from identify.feasible_parameter_set import bound_backlash_parameters
+    from identify.inner_signal_bounds import bound_inner_signal
+    from rig.plots.set_membership import backlash_characteristic_figure, feasible_polygons_figure, inner_signal_figure
+
+    data = result.content["data"]
+    try:
+        noise = float(data["noise_bound_rad"])
+        backlash = bound_backlash_parameters(data["steady"]["u"], data["steady"]["y"], noise,
+                                             filter_step_amplitude_rad=data.get("filter_step_rad"))
+        inner = None if backlash.is_empty else bound_inner_signal(data["dynamic"]["y"], noise, backlash)
+    except (KeyError, TypeError, ValueError) as err:
+        raise ValueError(f"{result.path}: data: expected steady.u, steady.y, dynamic.y and noise_bound_rad as "
+                         f"written by `rig identify output-backlash --save` ({err})") from None
+    slug = _unique(f"set_membership_{result.slug}", used)
+    figures = [backlash_characteristic_figure(backlash, f"{slug}_backlash"),
+               feasible_polygons_figure(backlash, f"{slug}_polygons")]
+    if inner is not None:
+        figures.append(inner_signal_figure(inner, f"{slug}_inner", sample_period_s=sample_period_s))
+    return figures
 
 
 def _hammerstein_section(result: ResultFile, sample_period_s: float | None, used: set[str]):

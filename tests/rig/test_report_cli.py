@@ -149,3 +149,33 @@ def test_chromium_check_script_says_how_to_install_chromium(tmp_path):
     missing = subprocess.run([sys.executable, str(REPO / "scripts" / "check_report_in_chromium"),
                               str(tmp_path / "absent")], capture_output=True, text=True, timeout=60, check=False)
     assert missing.returncode == 2 and "no such file" in missing.stderr
+
+
+def test_a_saved_output_backlash_result_reopens_and_draws_polygons_band_and_inner_bounds(data, capsys, tmp_path):
+    saved = tmp_path / "coupled_saved.json"
+    printed = _json_of(capsys, ["identify", "output-backlash", "--steady", str(data / "steady.csv"), "--dynamic",
+                                str(data / "prbs.log"), "--noise-bound", repr(NOISE), "--na", "2", "--nk", "1",
+                                "--nb", "2", "--json", "--save", str(saved)], tmp_path / "printed.json")
+    document = json.loads(saved.read_text())
+    assert document["format"] == "rig output-backlash result v1"
+    assert {key: document[key] for key in json.loads(printed.read_text())} == json.loads(printed.read_text())
+    assert len(document["data"]["dynamic"]["y"]) == document["samples"] == 60
+    out = tmp_path / "report"
+    assert main(["report", str(data / "prbs.log"), str(saved), "--out", str(out), "--json"]) == exit_codes.SUCCESS
+    printed_report = json.loads(capsys.readouterr().out)
+    # signals + timing, intervals + Bode, and from the saved data: backlash band, polygons, inner-signal bounds
+    assert printed_report["figures"] == 7
+    index = Path(printed_report["report"])
+    page = index.read_text(encoding="utf-8")
+    assert missing_images(index) == [] and page.count("<img ") == 7
+    for name in ("_backlash.png", "_polygons.png", "_inner.png"):
+        assert f"set_membership_coupled_saved{name}" in page
+
+
+def test_a_saved_result_with_damaged_data_names_the_file(data, capsys, tmp_path):
+    damaged = tmp_path / "damaged.json"
+    damaged.write_text(json.dumps({"backlash": {"m_l": {"lower": 0.2, "upper": 0.3}},
+                                   "linear": {"a1": {"lower": 0.4, "upper": 0.6}}, "method": "coupled",
+                                   "data": {"steady": {"u": [1.0]}, "noise_bound_rad": 0.001}}))
+    assert main(["report", str(damaged), "--out", str(tmp_path / "out")]) == exit_codes.BAD_INPUT
+    assert f"{damaged}: data: expected steady.u, steady.y" in capsys.readouterr().err
