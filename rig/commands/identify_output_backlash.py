@@ -30,8 +30,10 @@ def register(methods: argparse._SubParsersAction) -> None:
         description=DESCRIPTION,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    parser.add_argument("--steady", required=True, metavar="STEADY.csv", help="steady-state points, columns u, y")
-    parser.add_argument("--dynamic", required=True, metavar="DYNAMIC.csv", help="dynamic experiment, columns u, y")
+    parser.add_argument("--steady", required=True, action="append", metavar="STEADY.csv",
+                        help="steady-state points, columns u, y (repeat --steady/--dynamic for several experiments)")
+    parser.add_argument("--dynamic", required=True, action="append", metavar="DYNAMIC.csv",
+                        help="dynamic experiment, columns u, y (the k-th --dynamic goes with the k-th --steady)")
     parser.add_argument("--noise-bound", required=True, type=float, metavar="RAD",
                         help="bound on the output measurement error (rad), > 0")
     parser.add_argument("--na", required=True, type=int, help="order of A(q^-1) = 1 + a1 q^-1 + ... + a_na q^-na")
@@ -43,6 +45,10 @@ def register(methods: argparse._SubParsersAction) -> None:
     parser.add_argument("--filter-step", type=float, default=None, metavar="RAD",
                         help="amplitude of the step used to tune the filter pole, if known (alpha terms of eq. (14)-(15))")
     parser.add_argument("--json", action="store_true", help="print the bounds as one JSON object")
+    parser.add_argument("--jobs", type=int, default=1, metavar="N",
+                        help="bound several --steady/--dynamic pairs in N processes (0: one per core; default 1)")
+    parser.add_argument("--scheduler", metavar="ADDRESS", default=None,
+                        help="run the pairs on the Dask cluster at ADDRESS instead (needs dask[distributed])")
     parser.add_argument("--save", metavar="RESULT.json", default=None,
                         help="also write the bounds with the data they came from (steady points, dynamic record, "
                              "noise bound, orders), so that `rig report RESULT.json` draws the feasible polygons, "
@@ -69,40 +75,113 @@ def _number(value: float) -> float | str:
 
 
 def run(args: argparse.Namespace) -> int:
+    if len(args.steady) != len(args.dynamic):
+        raise ValueError(f"--steady/--dynamic: give them in pairs (got {len(args.steady)} --steady and "
+                         f"{len(args.dynamic)} --dynamic); the k-th --steady goes with the k-th --dynamic")
+    if len(args.steady) == 1 and args.scheduler is None:
+        return _run_one(args, args.steady[0], args.dynamic[0])
+    return _run_batch(args)
+
+
+def _run_batch(args: argparse.Namespace) -> int:
+    """Several experiments, bounded independently in parallel (rig/batch.py); one bad pair is reported
+    with its error while the others come out."""
+    from functools import partial
+
+    from rig.batch import map_files
+
+    if len(set(args.dynamic)) != len(args.dynamic):
+        raise ValueError("--dynamic: each dynamic file once when several pairs are given")
+    if args.save is not None:
+        raise ValueError("--save: one --steady/--dynamic pair at a time")
+    options = {key: getattr(args, key) for key in ("noise_bound", "na", "nk", "nb", "method", "filter_step")}
+    outcomes = map_files(partial(bound_pair, steady_of=dict(zip(args.dynamic, args.steady)), options=options),
+                         args.dynamic, jobs=args.jobs, scheduler=args.scheduler)
+    entries = []
+    for steady, outcome in zip(args.steady, outcomes):
+        entry = {"steady": steady, "dynamic": outcome.path}
+        entry.update({"error": outcome.error} if outcome.error is not None else {"bounds": outcome.result})
+        entries.append(entry)
+    if args.json:
+        print(json.dumps({"results": entries}))
+    else:
+        for entry in entries:
+            print(f"steady-state data  {entry['steady']}\ndynamic data       {entry['dynamic']}")
+            bounds = entry.get("bounds")
+            if bounds is None:
+                print(f"error              {entry['error']}")
+            elif bounds.get("empty"):
+                print(f"empty feasible set: {bounds['explanation']}")
+            else:
+                for group in ("backlash", "linear"):
+                    for name, interval in bounds[group].items():
+                        print(f"{name:<10} {float(interval['lower']):>14.8g} {float(interval['upper']):>14.8g}")
+            print()
+    sys.stdout.flush()
+    if any("error" in entry for entry in entries):
+        return exit_codes.BAD_INPUT
+    if any(entry["bounds"].get("empty") for entry in entries):
+        return exit_codes.EMPTY_FEASIBLE_SET
+    return exit_codes.SUCCESS
+
+
+def bound_pair(dynamic: str, steady_of: dict[str, str], options: dict) -> dict:
+    """The ``--json`` document of one experiment (``{"empty": true, ...}`` for an empty feasible set); a
+    module-level function returning plain data, so that it runs in other processes."""
+    result, *_ = _bound(steady_of[dynamic], dynamic, options)
+    return _document(result, options["method"])
+
+
+def _bound(steady: str, dynamic: str, options: dict):
     from identify.output_backlash_identification import bound_output_backlash_system
     from identify.validation import InvalidInputError
 
-    steady_u, steady_y = _read(args.steady, "steady-state")
-    u, y = _read(args.dynamic, "dynamic")
+    steady_u, steady_y = _read(steady, "steady-state")
+    u, y = _read(dynamic, "dynamic")
     try:
-        result = bound_output_backlash_system(steady_u, steady_y, u, y, args.noise_bound, na=args.na, nk=args.nk,
-                                              nb=args.nb, method=args.method,
-                                              filter_step_amplitude_rad=args.filter_step)
+        result = bound_output_backlash_system(steady_u, steady_y, u, y, options["noise_bound"], na=options["na"],
+                                              nk=options["nk"], nb=options["nb"], method=options["method"],
+                                              filter_step_amplitude_rad=options["filter_step"])
     except InvalidInputError as err:
-        raise InvalidInputError(f"{err} (--steady {args.steady}, --dynamic {args.dynamic})") from err
+        raise InvalidInputError(f"{err} (--steady {steady}, --dynamic {dynamic})") from err
+    return result, steady_u, steady_y, u, y
+
+
+def _document(result, method: str) -> dict:
+    """The ``--json`` object of issue 2 (keys fixed there)."""
+    if result.is_empty:
+        return {"empty": True, "explanation": result.explanation, "method": method}
+    inner = result.inner_signal
+    return {
+        "backlash": {name: {k: _number(v) for k, v in interval.as_dict().items()}
+                     for name, interval in result.backlash_intervals.items()},
+        "linear": {name: {k: _number(v) for k, v in interval.as_dict().items()}
+                   for name, interval in result.linear_intervals.items()},
+        "method": method,
+        "invertible_samples": inner.num_invertible,
+        "samples": int(inner.lower_rad.size),
+    }
+
+
+def _run_one(args: argparse.Namespace, steady: str, dynamic: str) -> int:
+    options = {key: getattr(args, key) for key in ("noise_bound", "na", "nk", "nb", "method", "filter_step")}
+    result, steady_u, steady_y, u, y = _bound(steady, dynamic, options)
+    document = _document(result, args.method)
     if result.is_empty:
         if args.json:
-            print(json.dumps({"empty": True, "explanation": result.explanation, "method": args.method}))
+            print(json.dumps(document))
         print(f"empty feasible set: {result.explanation}", file=sys.stderr)
         return exit_codes.EMPTY_FEASIBLE_SET
     backlash = result.backlash_intervals
     linear = result.linear_intervals
     inner = result.inner_signal
-    assert inner is not None and result.linear is not None
-    document = {
-        "backlash": {name: {k: _number(v) for k, v in interval.as_dict().items()} for name, interval in backlash.items()},
-        "linear": {name: {k: _number(v) for k, v in interval.as_dict().items()} for name, interval in linear.items()},
-        "method": args.method,
-        "invertible_samples": inner.num_invertible,
-        "samples": int(inner.lower_rad.size),
-    }
     if args.save is not None:
-        _save(args.save, document, args, steady_u, steady_y, u, y)
+        _save(args.save, document, args, steady, dynamic, steady_u, steady_y, u, y)
     if args.json:
         print(json.dumps(document))
     else:
-        print(f"steady-state data  {args.steady}  ({len(steady_u)} points)")
-        print(f"dynamic data       {args.dynamic}  ({inner.lower_rad.size} samples, {inner.num_invertible} invertible)")
+        print(f"steady-state data  {steady}  ({len(steady_u)} points)")
+        print(f"dynamic data       {dynamic}  ({inner.lower_rad.size} samples, {inner.num_invertible} invertible)")
         print(f"noise bound        {args.noise_bound:.6g} rad     method {args.method}")
         print()
         print(f"{'parameter':<10} {'lower':>14} {'upper':>14} {'center':>14} {'half-width':>11}")
@@ -118,11 +197,12 @@ def run(args: argparse.Namespace) -> int:
     return exit_codes.SUCCESS
 
 
-def _save(path_text: str, document: dict, args: argparse.Namespace, steady_u, steady_y, u, y) -> None:
+def _save(path_text: str, document: dict, args: argparse.Namespace, steady: str, dynamic: str, steady_u, steady_y,
+          u, y) -> None:
     """Write the ``--save`` file (:data:`SAVED_FORMAT`); an unwritable path is an OSError naming it."""
     saved = {"format": SAVED_FORMAT, **document, "data": {
-        "steady": {"u": steady_u.tolist(), "y": steady_y.tolist(), "file": str(args.steady)},
-        "dynamic": {"u": u.tolist(), "y": y.tolist(), "file": str(args.dynamic)},
+        "steady": {"u": steady_u.tolist(), "y": steady_y.tolist(), "file": str(steady)},
+        "dynamic": {"u": u.tolist(), "y": y.tolist(), "file": str(dynamic)},
         "noise_bound_rad": args.noise_bound, "filter_step_rad": args.filter_step,
         "na": args.na, "nk": args.nk, "nb": args.nb}}
     Path(path_text).write_text(json.dumps(saved))

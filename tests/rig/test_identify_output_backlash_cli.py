@@ -80,3 +80,28 @@ def test_bad_input_exits_2_naming_the_problem(files, tmp_path, capsys) -> None:
     assert "missing column(s) y" in capsys.readouterr().err
     assert main(_args(files)[:-6] + ["--na", "2", "--nk", "3", "--nb", "2"]) == exit_codes.BAD_INPUT
     assert "nb: expected nb >= nk" in capsys.readouterr().err
+
+
+def test_several_pairs_are_bounded_in_parallel_and_a_bad_one_is_reported(files, tmp_path, capsys) -> None:
+    steady, dynamic = files
+    assert main(_args(files, "--json")) == exit_codes.SUCCESS
+    single = json.loads(capsys.readouterr().out)
+    copy = tmp_path / "dynamic_copy.csv"
+    copy.write_text(dynamic.read_text())
+    missing = tmp_path / "missing.csv"
+    code = main(["identify", "output-backlash", "--steady", str(steady), "--dynamic", str(dynamic),
+                 "--steady", str(steady), "--dynamic", str(missing), "--steady", str(steady), "--dynamic", str(copy),
+                 "--noise-bound", repr(NOISE), "--na", "2", "--nk", "1", "--nb", "2", "--jobs", "2", "--json"])
+    assert code == exit_codes.BAD_INPUT  # one pair failed; the others still came out
+    results = json.loads(capsys.readouterr().out)["results"]
+    assert [entry["dynamic"] for entry in results] == [str(dynamic), str(missing), str(copy)]
+    assert results[0]["bounds"] == single and results[2]["bounds"] == single  # same as one at a time
+    assert "missing.csv: no such file (dynamic data)" in results[1]["error"]
+
+
+def test_unpaired_steady_and_dynamic_files_are_refused(files, capsys) -> None:
+    steady, dynamic = files
+    code = main(["identify", "output-backlash", "--steady", str(steady), "--steady", str(steady), "--dynamic",
+                 str(dynamic), "--noise-bound", repr(NOISE), "--na", "2", "--nk", "1", "--nb", "2"])
+    assert code == exit_codes.BAD_INPUT
+    assert "give them in pairs (got 2 --steady and 1 --dynamic)" in capsys.readouterr().err
