@@ -4,7 +4,7 @@ effects with randomised parameters of realistic size, read by an n-bit absolute 
 The nominal model is the drive position loop of ``configs/plants/precision_gearbox.toml`` (30 Hz,
 zeta 0.7, zero-order hold at 1 kHz, one sample of latency). Effect sizes (motor-side radians, input range
 about +-1 rad): backlash half-widths 0.01-0.04 rad; dead zone edges 0.03-0.10 rad; saturation at 50-75 %
-of the largest command; delay 3-15 samples; Coulomb friction breakaway twist 0.015-0.04 rad with sliding
+of the largest command that both the estimation and the validation segment reach; delay 3-15 samples; Coulomb friction breakaway twist 0.015-0.04 rad with sliding
 40-75 % of it; resonance 60-200 Hz with damping 0.02-0.08.
 """
 
@@ -28,6 +28,7 @@ from identify.plant_blocks import (
     Resonance,
     Saturation,
 )
+from identify.model_discrepancy import ESTIMATION_FRACTION
 from identify.validation import InvalidInputError
 
 __all__ = ["HiddenEffectRecord", "NOMINAL_LINEAR", "hidden_effect_record", "random_effect", "step_excitation"]
@@ -71,6 +72,11 @@ def random_effect(name: str, rng: np.random.Generator, command_rad: NDArray[np.f
     """A block of effect ``name`` with random realistic parameters and where it goes in the chain
     (0: before the linear block, None: after it)."""
     span = float(np.max(np.abs(command_rad)))
+    if name == "saturation":
+        # the limit lies within what both segments of the workflow's default split (first 60 % to fit,
+        # last 40 % to validate) reach: a limit the validation data never cross cannot be seen by any method
+        split = int(round(ESTIMATION_FRACTION * command_rad.size))
+        span = min(float(np.max(np.abs(command_rad[:split]))), float(np.max(np.abs(command_rad[split:]))))
     if name == "backlash":
         return OutputBacklash(m_l=1.0, c_l=rng.uniform(0.01, 0.04), m_r=1.0, c_r=rng.uniform(0.01, 0.04)), None
     if name == "dead_zone":

@@ -50,6 +50,9 @@ from identify.plant_blocks import (
 )
 from identify.validation import InvalidInputError, as_signal, positive, same_length
 
+ESTIMATION_FRACTION = 0.6
+"""Default share of the record the effects are fitted on; the rest is the validation segment."""
+
 __all__ = [
     "DisagreementWindow",
     "Disagreement",
@@ -664,7 +667,7 @@ def _start_chain(model: PlantModel | None, linear: LinearBlock | None, order: in
 
 def diagnose_model(command_rad: ArrayLike, angle_rad: ArrayLike, noise_bound_rad: float,
                    sample_period_s: float, model: PlantModel | None = None, *,
-                   estimation_fraction: float = 0.6, candidates: Sequence[str] = EFFECT_NAMES,
+                   estimation_fraction: float = ESTIMATION_FRACTION, candidates: Sequence[str] = EFFECT_NAMES,
                    max_effects: int = 3, complexity_penalty: float = 0.03, min_reduction: float = 0.15,
                    consistent_fraction: float = 0.01, max_delay_samples: int = 40,
                    max_evaluations: int = 40,
