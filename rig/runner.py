@@ -10,7 +10,7 @@ written with :class:`~identify.experiment_record.SampleFlag` bits:
 LOST       no feedback with sequence number k arrived within ``pending_cycles`` cycles (angle NaN)
 LATE       the cycle started more than ``late_tolerance_s`` after ``t_k``, or its feedback arrived after
            ``t_{k+1}``
-DUPLICATE  feedback k arrived more than once
+DUPLICATE  feedback k arrived more than once while sample k was pending (later copies count as stale)
 FAULT      the device reported a fault during the sample (the run stops after it)
 
 Rows are written ``pending_cycles`` cycles behind the bus, so late feedback still fills its sample
@@ -149,7 +149,7 @@ def run_experiment(transport: Transport, command_rad: ArrayLike, sink: SampleSin
     rows: list[_Row] = []
     lateness = np.zeros(command.size)
     counts = {"late": 0, "lost": 0, "duplicate": 0, "stale": 0}
-    received: set[int] = set()
+    received: set[int] = set()  # answered samples among the pending rows
     cpu_start, wall_start = time.process_time(), clock()
     sent_count = 0
     last_feedback = math.inf
@@ -157,6 +157,7 @@ def run_experiment(transport: Transport, command_rad: ArrayLike, sink: SampleSin
     def write_rows(keep: int) -> None:
         while len(rows) > keep:
             row = rows.pop(0)
+            received.discard(row.seq)  # final now: memory stays bounded however long the run
             counts["lost"] += bool(row.flags & SampleFlag.LOST)
             counts["late"] += bool(row.flags & SampleFlag.LATE)
             sink.append(row.time_s, row.command_rad, row.angle_rad, row.counts, row.flags)
