@@ -115,6 +115,9 @@ class SimulatedCanOpenRig:
     disable_at_seq
         At that sample the drive drops out of OPERATION ENABLED without a fault (enable input or safe torque
         off lost); its TPDOs go on, with the new statusword.
+    delayed_tpdo
+        ``(seconds, sample)``: the encoder's TPDO answering that sample goes on the bus this much later,
+        after later SYNCs (a device that misses its synchronous window; frames out of order).
     refuse_sdo_index
         The drive aborts every SDO write to this object (abort code 0x06090030, value range exceeded), as a
         drive that does not support a mode or mapping the master configures.
@@ -124,7 +127,8 @@ class SimulatedCanOpenRig:
                  drive_node_id: int = 1, encoder_node_id: int = 2, drive_counts_per_revolution: int = 1 << 17,
                  bitrate: int = 1_000_000, silent_seqs: Iterable[int] = (), fault_at_seq: int | None = None,
                  fault_code: int = 0x7500, stop_heartbeat_at_seq: int | None = None,
-                 disable_at_seq: int | None = None, refuse_sdo_index: int | None = None) -> None:
+                 disable_at_seq: int | None = None, refuse_sdo_index: int | None = None,
+                 delayed_tpdo: tuple[float, int] | None = None) -> None:
         self.gearbox = gearbox
         self.channel = channel
         self.drive_scaling = cia402.DriveScaling(int(drive_counts_per_revolution))
@@ -135,6 +139,7 @@ class SimulatedCanOpenRig:
         self.stop_heartbeat_at_seq = stop_heartbeat_at_seq
         self.disable_at_seq = disable_at_seq
         self.refuse_sdo_index = refuse_sdo_index
+        self.delayed_tpdo = delayed_tpdo
         self.network: canopen.Network | None = None
         self.drive = canopen.LocalNode(drive_node_id, str(DRIVE_EDS))
         self.encoder = canopen.LocalNode(encoder_node_id, str(ENCODER_EDS))
@@ -290,8 +295,9 @@ class SimulatedCanOpenRig:
                     for node in (self.drive, self.encoder):
                         node.nmt.stop_heartbeat()
                 silent = number in self.silent_seqs
+                delay_s = self.delayed_tpdo[0] if self.delayed_tpdo and number == self.delayed_tpdo[1] else None
             else:
-                silent = False
+                silent, delay_s = False, None
             self.syncs += 1
         wire_time = timestamp + frame_bits(len(data)) / self.bitrate
         for node in (self.drive, self.encoder):
@@ -301,4 +307,9 @@ class SimulatedCanOpenRig:
                 payload = b"".join(node.get_data(index, subindex)[:size] for index, subindex, size in entries)
                 frame = can.Message(arbitration_id=cob_id, data=payload, is_extended_id=False)
                 wire_time += frame_bits(len(payload)) / self.bitrate
+                if delay_s is not None and node is self.encoder:
+                    late = threading.Timer(delay_s, lambda frame=frame: self.network.bus.send_at(frame, time.time()))
+                    late.daemon = True
+                    late.start()
+                    continue
                 self.network.bus.send_at(frame, wire_time)

@@ -13,6 +13,8 @@ item                wires            fault
 ``disable@K``       all              the drive drops out of OPERATION ENABLED at sample K without a
                                      fault (enable input or safe torque off lost)
 ``heartbeat@K``     canopen          both nodes stop their heartbeats at sample K (a node off the bus)
+``delay=MS@K``      canopen          the encoder's answer to SYNC K goes on the bus MS ms late, after
+                                     later SYNCs (out of order)
 ``sdo_abort=INDEX``  canopen          the drive aborts SDO writes to object INDEX during start-up (abort
                                      code 0x06090030), e.g. ``sdo_abort=0x6060`` (a mode it lacks)
 ``garbage=P``       serial           random bytes precede a reply with probability P
@@ -42,6 +44,7 @@ FAULT_ITEMS: dict[str, tuple[str, frozenset[str]]] = {
     "fault": ("fault=CODE@K: drive fault with error CODE at sample K", frozenset({"canopen", "can", "serial"})),
     "disable": ("disable@K: the drive leaves OPERATION ENABLED at sample K", frozenset({"canopen", "can", "serial"})),
     "heartbeat": ("heartbeat@K: both nodes stop their heartbeats at sample K", frozenset({"canopen"})),
+    "delay": ("delay=MS@K: the encoder's TPDO for sample K sent MS ms late", frozenset({"canopen"})),
     "sdo_abort": ("sdo_abort=INDEX: the drive aborts SDO writes to INDEX at start-up", frozenset({"canopen"})),
     "garbage": ("garbage=P: random bytes before a reply with probability P", frozenset({"serial"})),
     "bitflip": ("bitflip=P: one bit of a reply flipped with probability P", frozenset({"serial"})),
@@ -61,6 +64,7 @@ class FaultPlan:
     heartbeat_loss_at: int | None = None
     disable_at: int | None = None
     refused_sdo_index: int | None = None
+    delayed_tpdo: tuple[float, int] | None = None  # (seconds, sample)
     garbage_probability: float = 0.0
     bitflip_probability: float = 0.0
     truncate_probability: float = 0.0
@@ -74,6 +78,7 @@ class FaultPlan:
         used = {"drop": self.drop_probability > 0, "burst": bool(self.bursts), "fault": self.drive_fault is not None,
                 "heartbeat": self.heartbeat_loss_at is not None,
                 "disable": self.disable_at is not None, "sdo_abort": self.refused_sdo_index is not None,
+                "delay": self.delayed_tpdo is not None,
                 "garbage": self.garbage_probability > 0,
                 "bitflip": self.bitflip_probability > 0,
                 "truncate": self.truncate_probability > 0, "lag": self.reply_lag is not None, "unplug": self.unplug_at is not None}
@@ -113,6 +118,8 @@ class FaultPlan:
             options["disable_at_seq"] = self.disable_at
         if self.refused_sdo_index is not None:
             options["refuse_sdo_index"] = self.refused_sdo_index
+        if self.delayed_tpdo is not None:
+            options["delayed_tpdo"] = self.delayed_tpdo
         if scheme == "serial" and self.items & {"garbage", "bitflip", "truncate", "lag", "unplug"}:
             options.update(garbage_probability=self.garbage_probability, bitflip_probability=self.bitflip_probability,
                            truncate_probability=self.truncate_probability, reply_lag=self.reply_lag,
@@ -146,8 +153,8 @@ def parse_fault_spec(spec: str, *, seed: int = 0) -> FaultPlan:
         if name not in FAULT_ITEMS:
             valid = "; ".join(text for text, _ in FAULT_ITEMS.values())
             raise ValueError(f"--sim-faults: unknown fault {name!r} in {item!r}; valid items: {valid}")
-        needs_value = name in ("drop", "burst", "fault", "sdo_abort", "garbage", "bitflip", "truncate", "lag")
-        needs_sample = name in ("burst", "fault", "heartbeat", "disable", "lag", "unplug")
+        needs_value = name in ("drop", "burst", "fault", "delay", "sdo_abort", "garbage", "bitflip", "truncate", "lag")
+        needs_sample = name in ("burst", "fault", "heartbeat", "disable", "delay", "lag", "unplug")
         if needs_value != bool(value) or needs_sample != bool(at):
             raise ValueError(f"--sim-faults: {item!r} is malformed; expected {FAULT_ITEMS[name][0]}")
         sample = _number(item, at, int, 0, 2**31) if at else None
@@ -161,6 +168,8 @@ def parse_fault_spec(spec: str, *, seed: int = 0) -> FaultPlan:
             fields["heartbeat_loss_at"] = sample
         elif name == "disable":
             fields["disable_at"] = sample
+        elif name == "delay":
+            fields["delayed_tpdo"] = (_number(item, value, float, 0.0, 10_000.0) / 1000.0, sample)
         elif name == "lag":
             fields["reply_lag"] = (_number(item, value, float, 0.0, 10_000.0) / 1000.0, sample)
         elif name == "sdo_abort":

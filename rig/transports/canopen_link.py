@@ -376,9 +376,9 @@ class CanOpenTransport(Transport):
         if seq is None:
             return  # an answer to no SYNC of ours (e.g. left over from start-up)
         parts = self._parts.setdefault(seq, {})
-        if part in parts and "drive" in parts and "encoder" in parts:
-            parts.clear()  # a second answer to the same SYNC: report the sample again, as a duplicate
         parts[part] = value
+        # complete: report the sample; a node answering the same SYNC again (a repeated frame, or a frame
+        # delayed past the next SYNC and filed there) reports it again, and the runner flags it DUPLICATE
         if "drive" in parts and "encoder" in parts:
             statusword, actual = parts["drive"]
             self._ready.append(FeedbackSample(

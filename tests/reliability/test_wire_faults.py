@@ -189,3 +189,14 @@ def test_a_device_answering_later_than_the_pending_window_is_stopped_by_the_watc
     code, _, err, _ = _rig_run("serial", tmp_path, "lag=60@100", capsys)  # 12 cycles late
     assert code == exit_codes.DEVICE_FAULT
     assert "answers came more than 4 cycles after their setpoint" in err
+
+
+def test_a_can_frame_delayed_past_later_syncs_costs_two_flagged_samples_never_a_silent_wrong_one(tmp_path, capsys,
+                                                                                                 no_leaks):
+    code, result, err, out = _rig_run("canopen", tmp_path, "delay=12@100", capsys)  # 12 ms: after ~2 later SYNCs
+    assert code == exit_codes.SUCCESS, err
+    log = read_log(out)
+    assert log.flags[100] & SampleFlag.LOST  # its answer never came in its window
+    landed = np.flatnonzero(log.flags & SampleFlag.DUPLICATE)
+    assert landed.size == 1 and 101 <= landed[0] <= 106  # the sample the late frame was filed under is unusable
+    assert result["lost"] == np.count_nonzero(log.flags & SampleFlag.LOST)
