@@ -58,7 +58,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from identify.border_lifting import PathNodes, check_cyclic_input, lifted_input
 from identify.plant_blocks import InputBacklash, PiecewiseLinearBorder
-from identify.validation import InvalidInputError, as_signal, same_length
+from identify.validation import InvalidInputError, as_signal, same_length, varying
 
 __all__ = [
     "HammersteinModel",
@@ -697,7 +697,8 @@ def identify_hammerstein(
         sample, path or segment), too little data for the horizons, an input that is not persistently
         exciting, an order the data do not support, or a linear part with no finite non-zero static gain.
     """
-    u_signal = as_signal("u", u)
+    u_signal = varying("u", as_signal("u", u), "use the cyclic random excitation of "
+                       "identify.cyclic_excitation (configs/experiments/hammerstein_cyclic.toml)")
     y_signal = as_signal("y", y)
     N = same_length(u=u_signal, y=y_signal)
     if not isinstance(nodes, PathNodes):

@@ -353,9 +353,14 @@ def _prepare(input_rad: ArrayLike, inner_lower_rad: ArrayLike, inner_upper_rad: 
         raise InvalidInputError(f"inner_lower_rad: sample {bad[0]} is above inner_upper_rad ({lower[bad[0]]} > {upper[bad[0]]})")
     n = orders.first_equation
     p = orders.num_parameters
-    if u.size - n < p:
-        raise InvalidInputError(f"input_rad: {u.size} samples give {u.size - n} equations, fewer than the "
-                                f"{p} parameters of na={orders.na}, nk={orders.nk}, nb={orders.nb}")
+    if u.size - n < 2 * p:
+        raise InvalidInputError(f"input_rad: {u.size} samples give {u.size - n} equations for the {p} parameters of "
+                                f"na={orders.na}, nk={orders.nk}, nb={orders.nb}; the orders are too high for the "
+                                f"data (at least {2 * p} equations are needed): use lower orders or a longer record")
+    if np.ptp(u) == 0.0:
+        raise InvalidInputError(f"input_rad: the input is constant ({u[0]:g} rad in all {u.size} samples), so it "
+                                "excites nothing and the linear block cannot be bounded; use a persistently exciting "
+                                "dynamic experiment such as the PRBS (configs/experiments/prbs.toml)")
     times = np.arange(n, u.size)
     xc, dx = 0.5 * (lower + upper), 0.5 * (upper - lower)
     columns = [-xc[times - i] for i in range(1, orders.na + 1)] + [u[times - j] for j in range(orders.nk, orders.nb + 1)]

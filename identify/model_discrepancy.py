@@ -48,7 +48,7 @@ from identify.plant_blocks import (
     Resonance,
     Saturation,
 )
-from identify.validation import InvalidInputError, as_signal, positive, same_length
+from identify.validation import InvalidInputError, as_signal, positive, same_length, varying
 
 ESTIMATION_FRACTION = 0.6
 """Default share of the record the effects are fitted on; the rest is the validation segment."""
@@ -720,6 +720,8 @@ def diagnose_model(command_rad: ArrayLike, angle_rad: ArrayLike, noise_bound_rad
             raise InvalidInputError(
                 f"sample_period_s: the data are sampled every {period:g} s, the model every {model.sample_period_s:g} s")
         period = model.sample_period_s  # the blocks added must carry exactly the model's period
+    varying("command_rad", u, "record a step or PRBS experiment (configs/experiments/prbs.toml) to compare a "
+                              "model with")
     n_est = int(round(estimation_fraction * u.size))
     say = progress or (lambda _message: None)
 

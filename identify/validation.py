@@ -59,3 +59,12 @@ def positive(name: str, value: float) -> float:
     if not np.isfinite(number) or number <= 0.0:
         raise InvalidInputError(f"{name}: expected a finite number > 0, got {value!r}")
     return number
+
+
+def varying(name: str, signal: NDArray[np.float64], what_to_do: str) -> NDArray[np.float64]:
+    """Return ``signal`` if it takes more than one value; a constant input excites nothing, so no method can
+    identify from it (the error names the signal, its value and ``what_to_do``)."""
+    if signal.size and np.ptp(signal) == 0.0:
+        raise InvalidInputError(f"{name}: the input is constant ({float(signal[0]):g} in all {signal.size} samples), "
+                                f"so it excites nothing; {what_to_do}")
+    return signal

@@ -404,7 +404,7 @@ def read_experiment_data(path: str | Path) -> ExperimentRecord:
     if t.size < 2 or np.any(steps <= 0):
         bad = int(np.flatnonzero(steps <= 0)[0]) + 1 if t.size >= 2 else 0
         raise LogFileError(
-            f"{path}: column t must increase strictly (seconds); data row {bad + 1} has t = {t[bad]!r}"
+            f"{path}: column t must increase strictly (seconds); data row {bad + 1} has t = {float(t[bad])!r}"
             if t.size >= 2 else f"{path}: expected at least two samples, got {t.size}"
         )
     metadata = ExperimentMetadata(sample_period_s=float(np.median(steps)), source=str(path), transport="csv")

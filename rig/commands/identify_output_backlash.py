@@ -190,9 +190,12 @@ def _run_one(args: argparse.Namespace, steady: str, dynamic: str) -> int:
                   f"{interval.half_width:>11.3g}")
         if result.linear.inner_lower is not None and result.linear.inner_upper is not None:
             print()
-            print("verified inner values (points of the exact feasible set reach at least these):")
+            print("verified inner values (points of the exact feasible set reach at least these; '-': no verified "
+                  "point found, the outer bound still holds):")
             for name in linear:
-                print(f"{name:<10} {result.linear.inner_lower[name]:>14.8g} {result.linear.inner_upper[name]:>14.8g}")
+                low, high = (f"{value:>14.8g}" if math.isfinite(value) else f"{'-':>14}"
+                             for value in (result.linear.inner_lower[name], result.linear.inner_upper[name]))
+                print(f"{name:<10} {low} {high}")
     sys.stdout.flush()
     return exit_codes.SUCCESS
 

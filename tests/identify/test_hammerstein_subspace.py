@@ -217,3 +217,10 @@ def test_errors_name_the_problem(excitation) -> None:
     dense = PathNodes(tuple(np.linspace(-3.0, 3.0, 8)), (-3.0, -2.9999, 3.0))
     with pytest.raises(InvalidInputError, match=r"segment 1 \]-3; -2.9999\[ of the descending path"):
         identify_hammerstein(excitation, y, dense, hold_samples=HOLD, min_visits=5)
+
+
+def test_a_constant_input_is_refused_with_what_to_do():
+    with pytest.raises(InvalidInputError, match=r"u: the input is constant \(-3 in all 400 samples\), so it "
+                                                r"excites nothing; use the cyclic random excitation"):
+        identify_hammerstein(np.full(400, -3.0), np.zeros(400), PathNodes((-3.0, 0.0, 3.0), (-3.0, 0.0, 3.0)),
+                             hold_samples=50)

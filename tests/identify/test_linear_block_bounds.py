@@ -104,8 +104,13 @@ def test_validation_names_the_argument() -> None:
         bound_linear_block(data.input_rad, lower, upper, na=2, nk=3, nb=2)
     with pytest.raises(InvalidInputError, match="na: expected an integer >= 0"):
         bound_linear_block(data.input_rad, lower, upper, na=-1, nk=1, nb=2)
-    with pytest.raises(InvalidInputError, match="fewer than the 4 parameters"):
+    with pytest.raises(InvalidInputError, match=r"3 equations for the 4 parameters .* too high for the data "
+                                                r"\(at least 8 equations are needed\)"):
         bound_linear_block(data.input_rad[:5], lower[:5], upper[:5], na=2, nk=1, nb=2)
+    with pytest.raises(InvalidInputError, match=r"7 equations for the 4 parameters"):  # determined, still too few
+        bound_linear_block(data.input_rad[:9], lower[:9], upper[:9], na=2, nk=1, nb=2)
+    with pytest.raises(InvalidInputError, match=r"input_rad: the input is constant .* use a persistently exciting"):
+        bound_linear_block(np.ones(data.input_rad.size), lower, upper, na=2, nk=1, nb=2)
     with pytest.raises(InvalidInputError, match="inner_lower_rad: sample 0 is above"):
         bound_linear_block(data.input_rad, upper, lower, na=2, nk=1, nb=2)
     with pytest.raises(InvalidInputError, match="same number of samples"):

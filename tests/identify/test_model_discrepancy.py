@@ -131,3 +131,5 @@ def test_misuse_is_reported_by_argument_name():
         diagnose_model(u, u, 1e-3, 1e-3, candidates=("gremlins",))
     with pytest.raises(InvalidInputError, match="angle_rad"):
         diagnose_model(u, u[:50], 1e-3, 1e-3)
+    with pytest.raises(InvalidInputError, match=r"command_rad: the input is constant \(0 in all 100 samples\)"):
+        diagnose_model(u, u, 1e-3, 1e-3)
