@@ -26,6 +26,12 @@ class FileOutcome:
     result: Any = None
     error: str | None = None
 
+    def to_json(self, key: str, result_to_json: Callable[[Any], Any]) -> dict[str, Any]:
+        """``{"file": path, key: result_to_json(result)}``, or ``{"file": path, "error": message}``."""
+        if self.error is not None:
+            return {"file": self.path, "error": self.error}
+        return {"file": self.path, key: result_to_json(self.result)}
+
 
 def _guarded(function: Callable[[str], Any], path: str) -> FileOutcome:
     try:

@@ -63,9 +63,8 @@ def run(args: argparse.Namespace) -> int:
     outcomes = map_files(partial(diagnose_file, options=options), args.data, jobs=args.jobs,
                          scheduler=args.scheduler)
     if args.json:
-        print(json.dumps({"results": [
-            {"file": outcome.path, "diagnosis": outcome.result[0].to_json_dict()} if outcome.error is None
-            else {"file": outcome.path, "error": outcome.error} for outcome in outcomes]}))
+        print(json.dumps({"results": [outcome.to_json("diagnosis", lambda result: result[0].to_json_dict())
+                                      for outcome in outcomes]}))
     else:
         for outcome in outcomes:
             if outcome.error is None:

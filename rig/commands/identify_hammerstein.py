@@ -99,9 +99,8 @@ def run(args: argparse.Namespace) -> int:
     outcomes = map_files(partial(identify_file, options=options), args.data, jobs=args.jobs,
                          scheduler=args.scheduler)
     if args.json:
-        print(json.dumps({"results": [
-            {"file": outcome.path, "model": outcome.result[0].to_dict()} if outcome.error is None
-            else {"file": outcome.path, "error": outcome.error} for outcome in outcomes]}))
+        print(json.dumps({"results": [outcome.to_json("model", lambda result: result[0].to_dict())
+                                      for outcome in outcomes]}))
     else:
         for outcome in outcomes:
             if outcome.error is None:
