@@ -170,7 +170,9 @@ def _array(name: str, values: ArrayLike, dtype: Any) -> NDArray[Any]:
 def _first_bad(name: str, mask: NDArray[np.bool_], values: NDArray[Any], problem: str) -> None:
     bad = np.flatnonzero(mask)
     if bad.size:
-        raise InvalidInputError(f"{name}: sample {bad[0]} is {values[bad[0]]!r}: {problem} ({bad.size} such samples)")
+        value = values[bad[0]]
+        shown = value.item() if isinstance(value, np.generic) else value  # 0.1, not np.float64(0.1)
+        raise InvalidInputError(f"{name}: sample {bad[0]} is {shown!r}: {problem} ({bad.size} such samples)")
 
 
 @dataclass(frozen=True)
