@@ -26,10 +26,12 @@ from rig.log_file import read_log  # noqa: E402
 
 CASES = [  # (wire, --sim-faults SPEC)
     ("canopen", "drop=0.001"), ("canopen", "burst=50@500"), ("canopen", "fault=0x2310@1000"),
-    ("canopen", "heartbeat@1000"),
-    ("can", "drop=0.001"), ("can", "burst=50@500"), ("can", "fault=0x3210@1000"),
+    ("canopen", "heartbeat@1000"), ("canopen", "disable@1000"), ("canopen", "sdo_abort=0x6060"),
+    ("canopen", "delay=12@1000"), ("canopen", "bus_error@1000"), ("canopen", "bus_off@1000"),
+    ("can", "drop=0.001"), ("can", "burst=50@500"), ("can", "fault=0x3210@1000"), ("can", "bus_off@1000"),
     ("serial", "drop=0.001"), ("serial", "burst=50@500"), ("serial", "fault=0x7121@1000"),
-    ("serial", "garbage=0.01"), ("serial", "bitflip=0.01"), ("serial", "unplug@1000"),
+    ("serial", "garbage=0.01"), ("serial", "bitflip=0.01"), ("serial", "truncate=0.01"), ("serial", "lag=2@1000"),
+    ("serial", "lag=60@1000"), ("serial", "unplug@1000"),
 ]
 
 

@@ -115,6 +115,9 @@ class SimulatedCanOpenRig:
     disable_at_seq
         At that sample the drive drops out of OPERATION ENABLED without a fault (enable input or safe torque
         off lost); its TPDOs go on, with the new statusword.
+    error_frame_at
+        ``(error class bits, sample)``: an error frame (:mod:`rig.protocols.can_error_frames`) goes on the
+        bus before that sample's TPDOs, e.g. a protocol violation or bus-off.
     delayed_tpdo
         ``(seconds, sample)``: the encoder's TPDO answering that sample goes on the bus this much later,
         after later SYNCs (a device that misses its synchronous window; frames out of order).
@@ -128,7 +131,8 @@ class SimulatedCanOpenRig:
                  bitrate: int = 1_000_000, silent_seqs: Iterable[int] = (), fault_at_seq: int | None = None,
                  fault_code: int = 0x7500, stop_heartbeat_at_seq: int | None = None,
                  disable_at_seq: int | None = None, refuse_sdo_index: int | None = None,
-                 delayed_tpdo: tuple[float, int] | None = None) -> None:
+                 delayed_tpdo: tuple[float, int] | None = None,
+                 error_frame_at: tuple[int, int] | None = None) -> None:
         self.gearbox = gearbox
         self.channel = channel
         self.drive_scaling = cia402.DriveScaling(int(drive_counts_per_revolution))
@@ -140,6 +144,7 @@ class SimulatedCanOpenRig:
         self.disable_at_seq = disable_at_seq
         self.refuse_sdo_index = refuse_sdo_index
         self.delayed_tpdo = delayed_tpdo
+        self.error_frame_at = error_frame_at
         self.network: canopen.Network | None = None
         self.drive = canopen.LocalNode(drive_node_id, str(DRIVE_EDS))
         self.encoder = canopen.LocalNode(encoder_node_id, str(ENCODER_EDS))
@@ -296,6 +301,9 @@ class SimulatedCanOpenRig:
                         node.nmt.stop_heartbeat()
                 silent = number in self.silent_seqs
                 delay_s = self.delayed_tpdo[0] if self.delayed_tpdo and number == self.delayed_tpdo[1] else None
+                if self.error_frame_at is not None and number == self.error_frame_at[1]:
+                    self.network.bus.send(can.Message(arbitration_id=self.error_frame_at[0], is_error_frame=True,
+                                                      dlc=8, data=bytes(8), is_extended_id=False))
             else:
                 silent, delay_s = False, None
             self.syncs += 1

@@ -13,6 +13,8 @@ item                wires            fault
 ``disable@K``       all              the drive drops out of OPERATION ENABLED at sample K without a
                                      fault (enable input or safe torque off lost)
 ``heartbeat@K``     canopen          both nodes stop their heartbeats at sample K (a node off the bus)
+``bus_error@K``     canopen, can     an error frame (protocol violation) on the bus at sample K
+``bus_off@K``       canopen, can     the controller reports bus-off at sample K
 ``delay=MS@K``      canopen          the encoder's answer to SYNC K goes on the bus MS ms late, after
                                      later SYNCs (out of order)
 ``sdo_abort=INDEX``  canopen          the drive aborts SDO writes to object INDEX during start-up (abort
@@ -36,6 +38,8 @@ from typing import Any
 
 import numpy as np
 
+from rig.protocols.can_error_frames import CAN_ERR_BUSOFF, CAN_ERR_PROT
+
 __all__ = ["FaultPlan", "FAULT_ITEMS", "parse_fault_spec"]
 
 FAULT_ITEMS: dict[str, tuple[str, frozenset[str]]] = {
@@ -44,6 +48,8 @@ FAULT_ITEMS: dict[str, tuple[str, frozenset[str]]] = {
     "fault": ("fault=CODE@K: drive fault with error CODE at sample K", frozenset({"canopen", "can", "serial"})),
     "disable": ("disable@K: the drive leaves OPERATION ENABLED at sample K", frozenset({"canopen", "can", "serial"})),
     "heartbeat": ("heartbeat@K: both nodes stop their heartbeats at sample K", frozenset({"canopen"})),
+    "bus_error": ("bus_error@K: an error frame at sample K", frozenset({"canopen", "can"})),
+    "bus_off": ("bus_off@K: the controller goes bus off at sample K", frozenset({"canopen", "can"})),
     "delay": ("delay=MS@K: the encoder's TPDO for sample K sent MS ms late", frozenset({"canopen"})),
     "sdo_abort": ("sdo_abort=INDEX: the drive aborts SDO writes to INDEX at start-up", frozenset({"canopen"})),
     "garbage": ("garbage=P: random bytes before a reply with probability P", frozenset({"serial"})),
@@ -65,6 +71,7 @@ class FaultPlan:
     disable_at: int | None = None
     refused_sdo_index: int | None = None
     delayed_tpdo: tuple[float, int] | None = None  # (seconds, sample)
+    error_frame_at: tuple[int, int] | None = None  # (SocketCAN error class bits, sample)
     garbage_probability: float = 0.0
     bitflip_probability: float = 0.0
     truncate_probability: float = 0.0
@@ -79,6 +86,8 @@ class FaultPlan:
                 "heartbeat": self.heartbeat_loss_at is not None,
                 "disable": self.disable_at is not None, "sdo_abort": self.refused_sdo_index is not None,
                 "delay": self.delayed_tpdo is not None,
+                "bus_error": self.error_frame_at is not None and self.error_frame_at[0] != CAN_ERR_BUSOFF,
+                "bus_off": self.error_frame_at is not None and self.error_frame_at[0] == CAN_ERR_BUSOFF,
                 "garbage": self.garbage_probability > 0,
                 "bitflip": self.bitflip_probability > 0,
                 "truncate": self.truncate_probability > 0, "lag": self.reply_lag is not None, "unplug": self.unplug_at is not None}
@@ -120,6 +129,8 @@ class FaultPlan:
             options["refuse_sdo_index"] = self.refused_sdo_index
         if self.delayed_tpdo is not None:
             options["delayed_tpdo"] = self.delayed_tpdo
+        if self.error_frame_at is not None:
+            options["error_frame_at"] = self.error_frame_at
         if scheme == "serial" and self.items & {"garbage", "bitflip", "truncate", "lag", "unplug"}:
             options.update(garbage_probability=self.garbage_probability, bitflip_probability=self.bitflip_probability,
                            truncate_probability=self.truncate_probability, reply_lag=self.reply_lag,
@@ -154,7 +165,8 @@ def parse_fault_spec(spec: str, *, seed: int = 0) -> FaultPlan:
             valid = "; ".join(text for text, _ in FAULT_ITEMS.values())
             raise ValueError(f"--sim-faults: unknown fault {name!r} in {item!r}; valid items: {valid}")
         needs_value = name in ("drop", "burst", "fault", "delay", "sdo_abort", "garbage", "bitflip", "truncate", "lag")
-        needs_sample = name in ("burst", "fault", "heartbeat", "disable", "delay", "lag", "unplug")
+        needs_sample = name in ("burst", "fault", "heartbeat", "disable", "bus_error", "bus_off", "delay", "lag",
+                                "unplug")
         if needs_value != bool(value) or needs_sample != bool(at):
             raise ValueError(f"--sim-faults: {item!r} is malformed; expected {FAULT_ITEMS[name][0]}")
         sample = _number(item, at, int, 0, 2**31) if at else None
@@ -168,6 +180,8 @@ def parse_fault_spec(spec: str, *, seed: int = 0) -> FaultPlan:
             fields["heartbeat_loss_at"] = sample
         elif name == "disable":
             fields["disable_at"] = sample
+        elif name in ("bus_error", "bus_off"):
+            fields["error_frame_at"] = (CAN_ERR_BUSOFF if name == "bus_off" else CAN_ERR_PROT, sample)
         elif name == "delay":
             fields["delayed_tpdo"] = (_number(item, value, float, 0.0, 10_000.0) / 1000.0, sample)
         elif name == "lag":

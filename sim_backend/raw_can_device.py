@@ -37,6 +37,9 @@ class SimulatedRawCanDevice(can.Listener):
     silent_seqs, fault_at_seq, fault_code
         Fault injection: samples whose answers are not sent (the plant still steps); the sample at which
         the drive faults (RIG_FAULT with ``fault_code``) instead of moving.
+    error_frame_at
+        ``(error class bits, sample)``: an error frame (:mod:`rig.protocols.can_error_frames`) goes on the
+        bus before that sample's answers, e.g. a protocol violation or bus-off.
     disable_at_seq
         The sample at which the drive drops out of OPERATION ENABLED without a fault (enable input or safe
         torque off lost): it answers with its new statusword and follows no target after.
@@ -45,7 +48,7 @@ class SimulatedRawCanDevice(can.Listener):
     def __init__(self, gearbox: SimulatedGearbox, *, channel: str, drive_counts_per_revolution: int = 1 << 17,
                  dbc_path: str = str(DEFAULT_DBC), bitrate: int = 1_000_000, silent_seqs: Iterable[int] = (),
                  fault_at_seq: int | None = None, fault_code: int = 0x7500,
-                 disable_at_seq: int | None = None) -> None:
+                 disable_at_seq: int | None = None, error_frame_at: tuple[int, int] | None = None) -> None:
         self.gearbox = gearbox
         self.channel = channel
         self.drive = cia402.DriveScaling(int(drive_counts_per_revolution))
@@ -55,6 +58,7 @@ class SimulatedRawCanDevice(can.Listener):
         self.fault_at_seq = fault_at_seq
         self.fault_code = fault_code
         self.disable_at_seq = disable_at_seq
+        self.error_frame_at = error_frame_at
         self.encoder_counts = 0
         self.state = cia402.DriveState.SWITCH_ON_DISABLED
         self.controlword = 0
@@ -126,6 +130,9 @@ class SimulatedRawCanDevice(can.Listener):
     def _setpoint(self, seq: int, target_counts: int) -> None:
         if self.state is not cia402.DriveState.OPERATION_ENABLED:
             return
+        if self.error_frame_at is not None and seq == self.error_frame_at[1] & 0xFFFF:
+            self._bus.send(can.Message(arbitration_id=self.error_frame_at[0], is_error_frame=True, dlc=8,
+                                       data=bytes(8), is_extended_id=False))
         if self.fault_at_seq is not None and seq == self.fault_at_seq & 0xFFFF:
             self.state = cia402.DriveState.FAULT
             self._send("RIG_FAULT", error_code=self.fault_code)

@@ -243,7 +243,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"lost        {summary.lost}")
         print(f"late        {summary.late}")
         print(f"duplicate   {summary.duplicate}")
-        print(f"frame errors {summary.frame_errors} (CRC failures and malformed frames, resynchronised)")
+        print(f"frame errors {summary.frame_errors} (CRC failures, malformed or CAN error frames; ridden through)")
         print(f"log         {Path(args.out)}")
     sys.stdout.flush()
     return exit_codes.SUCCESS

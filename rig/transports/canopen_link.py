@@ -38,6 +38,7 @@ from typing import Any
 
 from rig.protocols import cia402
 from rig.protocols.can_bus_load import bus_load
+from rig.protocols.can_error_frames import ERROR_FRAME_FILTERS, describe_error_frame, is_bus_off
 from rig.protocols.errors import ConfigError, DeviceFault, TransportError
 from rig.transports.base import FeedbackSample, Setpoint, Transport, check_trace_path
 
@@ -155,6 +156,7 @@ class CanOpenTransport(Transport):
                                  can_filters=None if self.trace_path is not None else self._receive_filters())
             self.network.sync.cob_id = SYNC_COB_ID
             self.network.subscribe(SYNC_COB_ID, self._on_sync_echo)
+            self.network.notifier.add_listener(_ErrorFrameListener(self._on_error_frame))
             if self.trace_path is not None:
                 import can
 
@@ -214,7 +216,7 @@ class CanOpenTransport(Transport):
         cob_ids = [SYNC_COB_ID]
         for node_id in (self.drive_node_id, self.encoder_node_id):
             cob_ids += [0x80 + node_id, 0x180 + node_id, 0x580 + node_id, 0x700 + node_id]
-        return [{"can_id": cob_id, "can_mask": 0x7FF, "extended": False} for cob_id in cob_ids]
+        return [{"can_id": cob_id, "can_mask": 0x7FF, "extended": False} for cob_id in cob_ids] + ERROR_FRAME_FILTERS
 
     def _require_sync_echo(self) -> None:
         """Send one SYNC while the nodes are pre-operational (no PDO answers it) and wait for its echo:
@@ -390,6 +392,16 @@ class CanOpenTransport(Transport):
             for old in sorted(self._parts)[:256]:
                 del self._parts[old]
 
+    def _on_error_frame(self, message: Any) -> None:
+        """An error frame (canopen's own listener ignores them): bus-off stops the run, others are counted."""
+        self.frame_errors += 1
+        if is_bus_off(message):
+            self._report_fault(TransportError(
+                f"{self.name}: the CAN controller went bus off ({describe_error_frame(message)}): nothing can be "
+                "sent or received; check wiring, termination and the bit rate of every node"))
+            with self._arrived:
+                self._arrived.notify_all()
+
     def _on_emcy(self, node_id: int, entry: Any) -> None:
         if entry.code & 0xFF00 == 0:
             return  # error reset / no error
@@ -423,3 +435,22 @@ class CanOpenTransport(Transport):
                                     f"heartbeat lost (none for {now - last:.3g} s, timeout {self.heartbeat_timeout_s:g} s)")
                 self._report_fault(fault)
                 self.raise_fault()
+
+
+class _ErrorFrameListener:
+    """python-can listener passing error frames to ``callback`` (notifier thread)."""
+
+    def __init__(self, callback: Any) -> None:
+        self.callback = callback
+
+    def on_message_received(self, message: Any) -> None:
+        if message.is_error_frame:
+            self.callback(message)
+
+    __call__ = on_message_received  # python-can's notifier calls its listeners
+
+    def on_error(self, exc: Exception) -> None:  # the notifier's own receive errors: nothing to add
+        pass
+
+    def stop(self) -> None:
+        pass

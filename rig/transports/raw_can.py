@@ -14,6 +14,7 @@ from typing import Any
 
 from rig.protocols import cia402
 from rig.protocols.can_bus_load import bus_load
+from rig.protocols.can_error_frames import describe_error_frame, is_bus_off
 from rig.protocols.errors import ConfigError, DeviceFault, TransportError
 from rig.protocols.raw_can_frames import DEFAULT_DBC, RawCanCodec
 from rig.protocols.serial_frames import unwrap_seq
@@ -146,6 +147,13 @@ class RawCanTransport(Transport):
             return None
         if self._trace is not None:
             self._trace.on_message_received(msg)
+        if msg.is_error_frame:
+            self.frame_errors += 1
+            if is_bus_off(msg):
+                self._report_fault(TransportError(
+                    f"{self.name}: the CAN controller went bus off ({describe_error_frame(msg)}): nothing can be "
+                    "sent or received; check wiring, termination and the bit rate of every node"))
+            return True
         try:
             decoded = self.codec.decode(msg)
         except ValueError:

@@ -200,3 +200,25 @@ def test_a_can_frame_delayed_past_later_syncs_costs_two_flagged_samples_never_a_
     landed = np.flatnonzero(log.flags & SampleFlag.DUPLICATE)
     assert landed.size == 1 and 101 <= landed[0] <= 106  # the sample the late frame was filed under is unusable
     assert result["lost"] == np.count_nonzero(log.flags & SampleFlag.LOST)
+
+
+@pytest.mark.parametrize("kind", ["canopen", "can"])
+def test_an_error_frame_is_counted_and_ridden_through(kind, tmp_path, capsys, no_leaks):
+    code, result, err, out = _rig_run(kind, tmp_path, "bus_error@100", capsys)
+    assert code == exit_codes.SUCCESS, err
+    assert read_log(out).num_samples == TEST_SAMPLES
+
+
+@pytest.mark.parametrize("kind", ["canopen", "can"])
+def test_bus_off_stops_the_run_and_says_what_to_check(kind, tmp_path, capsys, no_leaks):
+    code, _, err, out = _rig_run(kind, tmp_path, "bus_off@100", capsys)
+    assert code == exit_codes.DEVICE_FAULT
+    assert "the CAN controller went bus off" in err and "check wiring, termination and the bit rate" in err
+    assert 100 <= read_log(out).num_samples < TEST_SAMPLES
+
+
+def test_error_frames_are_counted_in_the_summary(tmp_path, no_leaks):
+    with simulated("can", tmp_path, error_frame_at=(0x008, 20)) as (config, transport, _, device):
+        summary = run_experiment(transport, excitation(60), ListSink(), feedback_timeout_s=config.feedback_timeout_s,
+                                 late_tolerance_s=config.late_tolerance_s)
+    assert summary.frame_errors == 1 and summary.lost == 0
