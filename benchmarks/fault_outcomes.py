@@ -23,6 +23,7 @@ sys.path.insert(0, str(ROOT))
 from identify.experiment_record import SampleFlag  # noqa: E402
 from rig.cli import main as rig  # noqa: E402
 from rig.log_file import read_log  # noqa: E402
+from rig.protocols.errors import LogFileError  # noqa: E402
 
 CASES = [  # (wire, --sim-faults SPEC)
     ("canopen", "drop=0.001"), ("canopen", "burst=50@500"), ("canopen", "fault=0x2310@1000"),
@@ -42,12 +43,15 @@ def run_case(wire: str, spec: str, duration_s: float, directory: Path) -> dict[s
         code = rig(["run", str(ROOT / "configs" / f"sim_{wire}.toml"), "--experiment",
                     str(ROOT / "configs" / "experiments" / "prbs.toml"), "--out", str(out),
                     "--duration", str(duration_s), "--sim-faults", spec, "--json"])
-    log = read_log(out)
-    lost = int(np.count_nonzero(log.flags & SampleFlag.LOST))
-    sent = json.loads(stdout.getvalue())["samples"] if code == 0 else log.num_samples
+    try:
+        log = read_log(out)
+        in_log, lost = log.num_samples, int(np.count_nonzero(log.flags & SampleFlag.LOST))
+    except LogFileError:  # refused before anything streamed: a header and no samples
+        in_log, lost = 0, 0
+    sent = json.loads(stdout.getvalue())["samples"] if code == 0 else in_log
     message = stderr.getvalue().strip().splitlines()[-1] if code else ""
     return {"wire": wire, "fault": spec, "exit": code, "outcome": "ridden through" if code == 0 else "safe stop",
-            "kept": log.num_samples - lost, "lost": lost, "sent": sent, "planned": int(round(duration_s * 1000)),
+            "kept": in_log - lost, "lost": lost, "sent": sent, "planned": int(round(duration_s * 1000)),
             "message": message}
 
 
