@@ -28,6 +28,7 @@ import errno
 import json
 import math
 import os
+import re
 import time
 import warnings
 from collections.abc import Mapping
@@ -311,6 +312,8 @@ def read_log(path: str | Path) -> ExperimentRecord:
     for number, line in enumerate(lines[1:], start=2):
         if line.startswith(_METADATA_PREFIX):
             metadata_line = number
+        elif line.startswith("# units "):
+            _check_units(path, number, line)
         elif not line.startswith("#"):
             header_line = number
             break
@@ -354,10 +357,29 @@ def read_log(path: str | Path) -> ExperimentRecord:
     if n == 0:
         raise LogFileError(f"{path}: the log has a header but no samples")
     try:
-        return ExperimentRecord(time_s=time_s, command_rad=command, angle_rad=angle,
-                                encoder_counts=counts if has_counts else None, flags=flags, metadata=metadata)
+        record = ExperimentRecord(time_s=time_s, command_rad=command, angle_rad=angle,
+                                  encoder_counts=counts if has_counts else None, flags=flags, metadata=metadata)
     except InvalidInputError as err:
         raise LogFileError(f"{path}: {_with_line(str(err), header_line)}") from None
+    if n > 2:
+        step = float(np.median(np.diff(time_s)))
+        if abs(step - metadata.sample_period_s) > 0.01 * metadata.sample_period_s:
+            raise LogFileError(f"{path}: line {metadata_line}: the metadata says sample_period_s = "
+                               f"{metadata.sample_period_s:g} s, but time_s steps by {step:g} s (median); one of "
+                               "them is wrong, so the log cannot be trusted")
+    return record
+
+
+_EXPECTED_UNITS = {"time_s": "s", "command_rad": "rad", "angle_rad": "rad", "encoder_counts": "counts"}
+
+
+def _check_units(path: Path, number: int, line: str) -> None:
+    """The ``# units`` line must give the units this reader assumes; it converts nothing."""
+    for name, unit in re.findall(r"(\w+)=([^\s(]+)", line):
+        expected = _EXPECTED_UNITS.get(name)
+        if expected is not None and unit != expected:
+            raise LogFileError(f"{path}: line {number}: {name} is in {unit!r}, expected {expected!r}; convert the "
+                               f"column to {expected} (logs are read as written, without unit conversion)")
 
 
 def _is_float(text: str) -> bool:

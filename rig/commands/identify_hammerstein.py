@@ -148,8 +148,9 @@ def identify_file(path_text: str, options: dict):
         hold = int(leading[0]) if leading.size else int(u.size)
         if abs(u[0] - nodes.u_min) > 1e-9 * (nodes.u_max - nodes.u_min):
             raise InvalidInputError(
-                f"{path}: the data start at u = {float(u[0])}, not at u_min = {nodes.u_min}; start with the hold "
-                "at u_min or give --mu0"
+                f"{path}: the data start at u = {float(u[0])}, not at u_min = {nodes.u_min}; the method needs the "
+                "cyclic random excitation that starts with a hold at u_min (configs/experiments/hammerstein_cyclic.toml): "
+                "start with the hold at u_min or give --mu0"
             )
     model = identify_hammerstein(
         u, y, nodes,

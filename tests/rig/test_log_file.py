@@ -172,3 +172,22 @@ def test_read_input_output_takes_a_log_or_a_plain_u_y_csv(tmp_path):
     plain.write_text("u,y\n1.0,0.5\n2.0,0.25\n")
     u, y = read_input_output(plain)
     assert u.tolist() == [1.0, 2.0] and y.tolist() == [0.5, 0.25]
+
+
+def test_a_log_in_other_units_is_refused_naming_the_column(tmp_path):
+    path = tmp_path / "run.csv"
+    write_log(path, sample_record())
+    text = path.read_text()
+    path.write_text(text.replace("angle_rad=rad", "angle_rad=deg", 1))
+    with pytest.raises(LogFileError, match=r"run.csv: line 3: angle_rad is in 'deg', expected 'rad'; convert the "
+                                           r"column to rad"):
+        read_log(path)
+
+
+def test_a_sample_period_that_contradicts_the_time_column_is_refused(tmp_path):
+    path = tmp_path / "run.csv"
+    write_log(path, sample_record())
+    path.write_text(path.read_text().replace('"sample_period_s": 0.001', '"sample_period_s": 0.01', 1))
+    with pytest.raises(LogFileError, match=r"line 2: the metadata says sample_period_s = 0.01 s, but time_s steps "
+                                           r"by 0.001 s \(median\)"):
+        read_log(path)
