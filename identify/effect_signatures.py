@@ -12,7 +12,7 @@ the measured input u_t, the measured output y_t and the model's simulated output
 * ``saturation``: r_t ~ -(y^_t - clip(y^_t, -q, q)) with q the 85 % quantile of |y^|: residual growing with
   |u| at the extremes;
 * ``delay``: r_t ~ -d (y^_t - y^_{t-1}) (first-order expansion of y^_{t-d}); the details give the lag of the
-  largest cross-correlation of r with the model's velocity;
+  largest cross-correlation of r with the model's velocity and with the input's increments u_t - u_{t-1};
 * ``resonance``: the share of the residual's power (Welch spectrum) within three bins of its peak, and the
   peak frequency;
 * ``offset``: r_t ~ o + drift * t T.
@@ -116,8 +116,12 @@ def signature_scores(command_rad: NDArray[np.float64], angle_rad: NDArray[np.flo
     lags = np.arange(0, min(60, r.size // 4))
     centred = r - r.mean()
     correlation = [float(np.dot(centred[lag:], velocity[: velocity.size - lag])) for lag in lags]
-    scores["delay"] = SignatureScore("delay", _explained(r, velocity),
-                                     {"lag_of_peak_correlation_samples": int(lags[int(np.argmax(np.abs(correlation)))])})
+    input_steps = np.diff(np.asarray(command_rad, dtype=float), prepend=float(command_rad[0]))
+    input_correlation = [float(np.dot(centred[lag:], input_steps[: input_steps.size - lag])) for lag in lags]
+    scores["delay"] = SignatureScore("delay", _explained(r, velocity), {
+        "lag_of_peak_correlation_samples": int(lags[int(np.argmax(np.abs(correlation)))]),
+        "lag_of_peak_residual_input_correlation_samples": int(lags[int(np.argmax(np.abs(input_correlation)))]),
+    })
 
     segment = min(r.size, 512)
     frequencies, power = scipy_signal.welch(centred, fs=1.0 / sample_period_s, nperseg=segment)

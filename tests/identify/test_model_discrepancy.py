@@ -133,3 +133,15 @@ def test_misuse_is_reported_by_argument_name():
         diagnose_model(u, u[:50], 1e-3, 1e-3)
     with pytest.raises(InvalidInputError, match=r"command_rad: the input is constant \(0 in all 100 samples\)"):
         diagnose_model(u, u, 1e-3, 1e-3)
+
+
+@pytest.mark.parametrize("seed", [0, 2, 4])
+def test_the_residual_input_correlation_peaks_after_the_hidden_delay(seed):
+    record = hidden_effect_record(("delay",), seed)
+    (delay,) = [block for block in record.true_model.blocks if isinstance(block, Delay)]
+    simulated = record.nominal_model.simulate(record.command_rad)
+    details = signature_scores(record.command_rad, record.angle_rad, simulated, record.noise_bound_rad,
+                               record.sample_period_s)["delay"].details
+    # r_t = y^_{t-d} - y^_t answers an input step d samples after the model does, and the model's own
+    # response peaks a few samples after the step
+    assert delay.samples <= details["lag_of_peak_residual_input_correlation_samples"] <= delay.samples + 10
