@@ -3,29 +3,29 @@
 A SPEC is a comma-separated list of items, each ``NAME``, ``NAME=VALUE``, ``NAME@SAMPLE`` or
 ``NAME=VALUE@SAMPLE``:
 
-==================  ===============  =====================================================================
-item                wires            fault
-==================  ===============  =====================================================================
-``drop=P``          all              each feedback frame is lost with probability P (seeded)
-``burst=N@K``       all              the N feedback frames from sample K on are lost
-``fault=CODE@K``    all              the drive faults at sample K with error code CODE (CANopen: EMCY +
-                                     0x603F; serial and raw CAN: their FAULT message)
-``disable@K``       all              the drive drops out of OPERATION ENABLED at sample K without a
-                                     fault (enable input or safe torque off lost)
-``heartbeat@K``     canopen          both nodes stop their heartbeats at sample K (a node off the bus)
-``bus_error@K``     canopen, can     an error frame (protocol violation) on the bus at sample K
-``bus_off@K``       canopen, can     the controller reports bus-off at sample K
-``delay=MS@K``      canopen          the encoder's answer to SYNC K goes on the bus MS ms late, after
-                                     later SYNCs (out of order)
-``sdo_abort=INDEX``  canopen          the drive aborts SDO writes to object INDEX during start-up (abort
-                                     code 0x06090030), e.g. ``sdo_abort=0x6060`` (a mode it lacks)
-``garbage=P``       serial           random bytes precede a reply with probability P
-``bitflip=P``       serial           one bit of a reply is flipped with probability P (CRC failure)
-``truncate=P``      serial           a reply is cut short with probability P (CRC failure)
-``lag=MS@K``        serial           from sample K on, every reply leaves MS milliseconds late
-``unplug@K``        serial           the device closes its port at sample K (a USB adapter pulled out);
-                                     its own link watchdog then disables the drive
-==================  ===============  =====================================================================
+====================  ===============  =====================================================================
+item                  wires            fault
+====================  ===============  =====================================================================
+``drop=P``            all              each feedback frame is lost with probability P (seeded)
+``burst=N@K``         all              the N feedback frames from sample K on are lost
+``fault=CODE@K``      all              the drive faults at sample K with error code CODE (CANopen: EMCY +
+                                       0x603F; serial and raw CAN: their FAULT message)
+``disable@K``         all              the drive drops out of OPERATION ENABLED at sample K without a
+                                       fault (enable input or safe torque off lost)
+``heartbeat@K``       canopen          both nodes stop their heartbeats at sample K (a node off the bus)
+``bus_error@K``       canopen, can     an error frame (protocol violation) on the bus at sample K
+``bus_off@K``         canopen, can     the controller reports bus-off at sample K
+``delay=MS@K``        canopen          the encoder's answer to SYNC K goes on the bus MS ms late, after
+                                       later SYNCs (out of order)
+``sdo_abort=INDEX``   canopen          the drive aborts SDO writes to object INDEX during start-up (abort
+                                       code 0x06090030), e.g. ``sdo_abort=0x6060`` (a mode it lacks)
+``garbage=P``         serial           random bytes precede a reply with probability P
+``bitflip=P``         serial           one bit of a reply is flipped with probability P (CRC failure)
+``truncate=P``        serial           a reply is cut short with probability P (CRC failure)
+``lag=MS@K``          serial           from sample K on, every reply leaves MS milliseconds late
+``unplug@K``          serial           the device closes its port at sample K (a USB adapter pulled out);
+                                       its own link watchdog then disables the drive
+====================  ===============  =====================================================================
 
 The plan is deterministic for a given ``seed``, so a faulty run can be repeated exactly.
 """
