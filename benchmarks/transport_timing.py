@@ -4,7 +4,8 @@
 For each transport and rate, ``rig.runner.run_experiment`` streams a slow sine (well inside the limits)
 into the simulated rig for ``--duration`` seconds and the table reports:
 
-* lost samples (goal 0) and late cycles (goal at most 0.1 % at 1 kHz);
+* lost samples (goal 0) and late cycles (goal at most 0.1 % at 1 kHz), next to the host's floor: the
+  late cycles of the runner's wait loop alone, with no transport, which no driver on this host can beat;
 * period jitter |t_k - t_{k-1} - T| of the setpoint sends, p50 / p99 / max, in microseconds;
 * CPU use of the whole process (driver + simulated devices, which share it) as a fraction of one core;
 * for CAN: the bus load of one cycle at the configured bit rate (worst-case bit stuffing), the load the
@@ -27,6 +28,7 @@ import os
 import platform
 import sys
 import tempfile
+import time
 from pathlib import Path
 
 import numpy as np
@@ -36,7 +38,7 @@ sys.path.insert(0, str(ROOT))
 
 from rig.commands.run import start_simulated_devices  # noqa: E402
 from rig.rig_config import load_rig_config  # noqa: E402
-from rig.runner import run_experiment  # noqa: E402
+from rig.runner import run_experiment, wait_until  # noqa: E402
 from rig.transports import open_transport  # noqa: E402
 from sim_backend.plant_config import load_plant_config  # noqa: E402
 
@@ -92,6 +94,27 @@ def measure(kind: str, rate_hz: float, duration_s: float, directory: Path, pendi
     return row
 
 
+def host_floor(rate_hz: float, duration_s: float) -> dict[str, object]:
+    """The same absolute-deadline wait as the runner with nothing else to do: the late cycles this host
+    makes whatever the driver does (a virtual machine's scheduler or timer slack waking the loop late)."""
+    period = 1.0 / rate_hz
+    num_cycles = int(round(duration_s * rate_hz))
+    lateness = np.empty(num_cycles)
+    cpu_start = time.process_time()
+    start = time.perf_counter() + period
+    for k in range(num_cycles):
+        wait_until(start + k * period)
+        lateness[k] = time.perf_counter() - (start + k * period)
+    wall = time.perf_counter() - start
+    late = int(np.count_nonzero(lateness > 0.5 * period))
+    jitter_us = np.abs(np.diff(lateness)) * 1e6
+    return {"transport": "host floor (bare wait loop)", "rate_hz": rate_hz, "samples": num_cycles, "lost": 0,
+            "duplicate": 0, "load_average": os.getloadavg()[0], "late": late, "late_pct": 100.0 * late / num_cycles,
+            "jitter_p50_us": float(np.percentile(jitter_us, 50)), "jitter_p99_us": float(np.percentile(jitter_us, 99)),
+            "jitter_max_us": float(jitter_us.max()), "cpu": (time.process_time() - cpu_start) / wall,
+            "achieved_hz": (num_cycles - 1) / wall}
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--duration", type=float, default=5.0, help="seconds per case (default 5)")
@@ -102,7 +125,7 @@ def main() -> int:
                         help="feedback later than this many cycles is LOST (the runner's default: 4)")
     parser.add_argument("--json", action="store_true", help="print the rows as JSON")
     args = parser.parse_args()
-    rows = []
+    rows = [host_floor(rate, args.duration) for rate in args.rates]
     with tempfile.TemporaryDirectory() as directory:
         for kind in args.transports:
             for rate in args.rates:

@@ -62,23 +62,32 @@ class DriveState(Enum):
     FAULT = (0x004F, 0x0008)
 
 
+def _decode_state_bits(bits: int) -> DriveState | None:
+    for state in DriveState:
+        mask, value = state.value
+        if bits & mask == value:
+            return state
+    return None
+
+
+_STATE_BITS = 0x007F
+"""Every state mask of CiA 402 table 30 lies within the statusword's bits 0-6."""
+_STATE_BY_BITS = tuple(_decode_state_bits(bits) for bits in range(_STATE_BITS + 1))
+"""The state for each value of bits 0-6: decoding runs once per sample, so it is a table lookup."""
+
+
 def state_from_statusword(statusword: int) -> DriveState:
     """Decode the state from a statusword (0x6041); raises :class:`TransportError` on a pattern that is no
     state (a corrupted frame or a device that does not follow CiA 402)."""
-    for state in DriveState:
-        mask, value = state.value
-        if statusword & mask == value:
-            return state
-    raise TransportError(f"statusword 0x{statusword:04X} encodes no CiA 402 state")
+    state = _STATE_BY_BITS[statusword & _STATE_BITS]
+    if state is None:
+        raise TransportError(f"statusword 0x{statusword:04X} encodes no CiA 402 state")
+    return state
 
 
 def state_from_statusword_or_none(statusword: int) -> DriveState | None:
     """Like :func:`state_from_statusword`, but None for a pattern that is no state."""
-    for state in DriveState:
-        mask, value = state.value
-        if statusword & mask == value:
-            return state
-    return None
+    return _STATE_BY_BITS[statusword & _STATE_BITS]
 
 
 def statusword_for(state: DriveState, *, voltage: bool = True, remote: bool = True,
