@@ -23,7 +23,8 @@ import numpy as np
 from identify.discrepancy_cases import hidden_effect_record
 from identify.model_discrepancy import diagnose_model
 
-TRUE_EFFECTS = ("none", "backlash", "dead_zone", "saturation", "delay", "coulomb_friction", "resonance", "offset")
+TRUE_EFFECTS = ("none", "backlash", "dead_zone", "saturation", "delay", "coulomb_friction", "resonance", "offset",
+                "gain_error")
 EMPS = Path(__file__).resolve().parents[2] / "shared" / "realdata" / "emps" / "DATA_EMPS.mat"
 
 
@@ -45,7 +46,8 @@ def confusion(cases: int, start: str, effects: tuple[str, ...], first_seed: int)
                 reductions[row].append(1.0 - result.final.gap_rad / result.initial.gap_rad)
     elapsed = time.perf_counter() - started
     short = {"none": "none", "backlash": "backl", "dead_zone": "deadz", "saturation": "satur", "delay": "delay",
-             "coulomb_friction": "fric", "resonance": "reson", "offset": "offs", "other": "other"}
+             "coulomb_friction": "fric", "resonance": "reson", "offset": "offs", "gain_error": "gain",
+             "other": "other"}
     print(f"\nstart model: {start}; {cases} cases per row (seeds {first_seed}..{first_seed + cases - 1}); "
           f"{elapsed:.0f} s in all")
     print("| true \\ named | " + " | ".join(short[c] for c in columns) + " | correct | more named | median gap reduction |")

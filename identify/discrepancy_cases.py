@@ -5,7 +5,8 @@ The nominal model is the drive position loop of ``configs/plants/precision_gearb
 zeta 0.7, zero-order hold at 1 kHz, one sample of latency). Effect sizes (motor-side radians, input range
 about +-1 rad): backlash half-widths 0.01-0.04 rad; dead zone edges 0.03-0.10 rad; saturation at 50-75 %
 of the largest command that both the estimation and the validation segment reach; delay 3-15 samples; Coulomb friction breakaway twist 0.015-0.04 rad with sliding
-40-75 % of it; resonance 60-200 Hz with damping 0.02-0.08.
+40-75 % of it; resonance 60-200 Hz with damping 0.02-0.08; gain error 3-15 % either way (a wrong gear ratio
+or encoder resolution).
 """
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ from identify.plant_blocks import (
     Delay,
     LinearBlock,
     OutputBacklash,
+    OutputGain,
     OutputOffset,
     PlantModel,
     Resonance,
@@ -95,6 +97,8 @@ def random_effect(name: str, rng: np.random.Generator, command_rad: NDArray[np.f
     if name == "offset":
         return OutputOffset(offset_rad=rng.uniform(-0.05, 0.05), drift_rad_per_s=rng.uniform(-0.01, 0.01),
                             sample_period_s=SAMPLE_PERIOD_S), None
+    if name == "gain_error":
+        return OutputGain(gain=1.0 + rng.choice((-1.0, 1.0)) * rng.uniform(0.03, 0.15)), None
     raise InvalidInputError(f"name: unknown effect {name!r}")
 
 

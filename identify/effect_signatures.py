@@ -15,7 +15,8 @@ the measured input u_t, the measured output y_t and the model's simulated output
   largest cross-correlation of r with the model's velocity and with the input's increments u_t - u_{t-1};
 * ``resonance``: the share of the residual's power (Welch spectrum) within three bins of its peak, and the
   peak frequency;
-* ``offset``: r_t ~ o + drift * t T.
+* ``offset``: r_t ~ o + drift * t T;
+* ``gain_error``: r_t ~ e y^_t (the measured output is (1 + e) times the model's); the details give e.
 """
 
 from __future__ import annotations
@@ -30,10 +31,10 @@ from scipy import signal as scipy_signal
 __all__ = ["EFFECT_NAMES", "SignatureScore", "signature_scores", "direction_signal"]
 
 EFFECT_NAMES: tuple[str, ...] = (
-    "backlash", "dead_zone", "saturation", "delay", "coulomb_friction", "resonance", "offset",
+    "backlash", "dead_zone", "saturation", "delay", "coulomb_friction", "resonance", "offset", "gain_error",
 )
 """Names of the effects the workflow can name; the first six are fixed by issue 6, ``offset`` (offset and
-drift of the measured angle) is an extra."""
+drift of the measured angle) and ``gain_error`` (a scale the model has wrong) are extras."""
 
 
 @dataclass(frozen=True)
@@ -139,4 +140,8 @@ def signature_scores(command_rad: NDArray[np.float64], angle_rad: NDArray[np.flo
     time_s = np.arange(r.size) * sample_period_s
     scores["offset"] = SignatureScore("offset", _explained(r, np.ones_like(r), time_s),
                                       {"mean_residual_rad": float(np.mean(r))})
+
+    energy = float(np.dot(y_hat, y_hat))
+    relative_error = float(np.dot(r, y_hat)) / energy if energy > 0.0 else 0.0
+    scores["gain_error"] = SignatureScore("gain_error", _explained(r, y_hat), {"relative_error": relative_error})
     return scores

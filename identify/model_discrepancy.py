@@ -43,6 +43,7 @@ from identify.plant_blocks import (
     Delay,
     LinearBlock,
     OutputBacklash,
+    OutputGain,
     OutputOffset,
     PlantModel,
     Resonance,
@@ -66,6 +67,8 @@ __all__ = [
 ]
 
 _BIG = 1.0e6
+_NEGLIGIBLE_GAIN_ERROR = 1.0e-3
+"""A fitted gain within this of 1 is no gain error (a 0.1 % scale error is below what the workflow resolves)."""
 _MAX_RESONANCE_DAMPING = 0.3
 """A resonance is a narrow peak: a fitted damping ratio is kept below this (a heavily damped second-order
 section would otherwise stand in for a delay)."""
@@ -333,6 +336,8 @@ def _build(component: _Component, values: Sequence[float]) -> Block:
         return Resonance(frequency_hz=frequency, damping_ratio=damping, sample_period_s=component.sample_period_s)
     if kind == "offset":
         return OutputOffset(offset_rad=v[0], drift_rad_per_s=v[1], sample_period_s=component.sample_period_s)
+    if kind == "gain_error":
+        return OutputGain(gain=1.0 + v[0])
     raise InvalidInputError(f"effect: unknown effect {kind!r}")
 
 
@@ -353,6 +358,8 @@ def _parameters(kind: str, block: Block) -> dict[str, float]:
         return {"frequency_hz": block.frequency_hz, "damping_ratio": block.damping_ratio}
     if isinstance(block, OutputOffset):
         return {"offset_rad": block.offset_rad, "drift_rad_per_s": block.drift_rad_per_s}
+    if isinstance(block, OutputGain):
+        return {"gain": block.gain, "relative_error": block.gain - 1.0}
     raise InvalidInputError(f"effect: no parameters known for {kind!r}")
 
 
@@ -536,7 +543,7 @@ def _insert_index(chain: _Chain, kind: str) -> int:
               if c.kind in ("linear", "resonance") or isinstance(c.block, (LinearBlock, Resonance))]
     if kind in ("dead_zone", "saturation", "delay"):
         return linear[0] if linear else 0
-    if kind == "offset":
+    if kind in ("offset", "gain_error"):
         return len(chain.components)
     after = linear[-1] + 1 if linear else len(chain.components)
     return after
@@ -563,11 +570,14 @@ def _initial_guesses(kind: str, u: NDArray[np.float64], residual: NDArray[np.flo
         return [(f, z) for f in frequencies for z in (0.02, 0.05, 0.1)]
     if kind == "offset":
         return [(float(np.mean(residual)), 0.0)]
+    if kind == "gain_error":
+        relative_error = scores["gain_error"].details.get("relative_error", 0.0)
+        return [(relative_error,), *((e,) for e in (-0.2, -0.05, 0.05, 0.2))]
     raise InvalidInputError(f"effect: unknown effect {kind!r}")
 
 
 _PARAMETER_COUNT = {"backlash": 2, "dead_zone": 2, "saturation": 2, "delay": 1, "coulomb_friction": 2,
-                    "resonance": 2, "offset": 2}
+                    "resonance": 2, "offset": 2, "gain_error": 1}
 
 
 @dataclass(frozen=True)
@@ -807,6 +817,8 @@ def _vanished(block: Block, delta: float) -> bool:
         return block.samples == 0
     if isinstance(block, CoulombFriction):
         return block.breakaway_deflection_rad < delta / 2.0
+    if isinstance(block, OutputGain):
+        return abs(block.gain - 1.0) < _NEGLIGIBLE_GAIN_ERROR
     return False
 
 

@@ -44,6 +44,7 @@ __all__ = [
     "InputSwitch",
     "LinearBlock",
     "OutputBacklash",
+    "OutputGain",
     "OutputOffset",
     "PiecewiseLinearBorder",
     "PlantModel",
@@ -745,6 +746,26 @@ class _OffsetStepper:
         time = float(self.k) * self.period
         self.k += 1
         return float(x) + (self.offset + self.drift * time)
+
+
+@dataclass(frozen=True)
+class OutputGain:
+    """Static gain on the measured angle: y_t = g x_t.
+
+    Models a scale the model has wrong: a gear ratio, an encoder resolution, a stiffness ratio
+    (g = 1: none)."""
+
+    gain: float
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "gain", _finite("gain", self.gain))
+
+    def apply(self, signal: ArrayLike) -> NDArray[np.float64]:
+        return self.gain * as_signal("signal", signal)
+
+    def stepper(self) -> _StaticStepper:
+        gain = self.gain
+        return _StaticStepper(lambda x: gain * float(x))
 
 
 # ----------------------------------------------------------------------------------------------------------

@@ -52,6 +52,7 @@ from identify.plant_blocks import (
     InputSwitch,
     LinearBlock,
     OutputBacklash,
+    OutputGain,
     OutputOffset,
     PiecewiseLinearBorder,
     PlantModel,
@@ -279,6 +280,10 @@ def _read_offset(t: ConfigTable, period: float) -> OutputOffset:
                   sample_period_s=period)
 
 
+def _read_gain(t: ConfigTable, period: float) -> OutputGain:
+    return _build(t, OutputGain, gain=t.number("gain"))
+
+
 def _read_friction(t: ConfigTable, period: float) -> CoulombFriction:
     return _build(t, CoulombFriction, breakaway_torque_nm=t.number("breakaway_torque_nm"),
                   coulomb_torque_nm=t.number("coulomb_torque_nm"), stiffness_nm_per_rad=t.number("stiffness_nm_per_rad"),
@@ -296,6 +301,7 @@ BLOCK_TYPES: dict[str, tuple[type, Callable[[ConfigTable, float], Block]]] = {
     "delay": (Delay, _read_delay),
     "resonance": (Resonance, _read_resonance),
     "offset": (OutputOffset, _read_offset),
+    "gain": (OutputGain, _read_gain),
     "coulomb_friction": (CoulombFriction, _read_friction),
 }
 """``type`` in a ``[[blocks]]`` table -> (block class, reader)."""
@@ -363,6 +369,8 @@ def _block_fields(block: Block) -> dict[str, Any]:
         return {"type": "resonance", "frequency_hz": block.frequency_hz, "damping_ratio": block.damping_ratio}
     if isinstance(block, OutputOffset):
         return {"type": "offset", "offset_rad": block.offset_rad, "drift_rad_per_s": block.drift_rad_per_s}
+    if isinstance(block, OutputGain):
+        return {"type": "gain", "gain": block.gain}
     if isinstance(block, CoulombFriction):
         return {"type": "coulomb_friction", "breakaway_torque_nm": block.breakaway_torque_nm,
                 "coulomb_torque_nm": block.coulomb_torque_nm, "stiffness_nm_per_rad": block.stiffness_nm_per_rad,

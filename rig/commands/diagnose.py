@@ -11,8 +11,8 @@ from rig import exit_codes
 
 DESCRIPTION = """\
 Simulate the model on the measured command (free run), mark the samples where the residual exceeds the noise
-bound, score the signatures of backlash, dead zone, saturation, delay, Coulomb friction, resonance and
-offset/drift in the residual, add the effect that lowers the validated gap (RMS free-run error on the last
+bound, score the signatures of backlash, dead zone, saturation, delay, Coulomb friction, resonance,
+offset/drift and gain error in the residual, add the effect that lowers the validated gap (RMS free-run error on the last
 40 % of the record, which no fit sees) most beyond a complexity penalty, and repeat until the model is
 consistent with the noise bound or no effect helps.
 

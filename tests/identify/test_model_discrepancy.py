@@ -10,7 +10,7 @@ import pytest
 from identify.discrepancy_cases import NOMINAL_LINEAR, hidden_effect_record
 from identify.effect_signatures import EFFECT_NAMES, direction_signal, signature_scores
 from identify.model_discrepancy import diagnose_model, disagreement, fit_linear_model
-from identify.plant_blocks import Delay, LinearBlock, PlantModel
+from identify.plant_blocks import Delay, LinearBlock, OutputGain, PlantModel
 from identify.validation import InvalidInputError
 
 SIX = ("backlash", "dead_zone", "saturation", "delay", "coulomb_friction", "resonance")
@@ -62,6 +62,17 @@ def test_finds_backlash_and_delay_together():
     # the play adds lag of its own, so the delay is found to within a few samples
     assert abs(delay_step.parameters["samples"] - true_delay) <= 3
     assert result.final.gap_rad <= 0.1 * result.initial.gap_rad
+
+
+@pytest.mark.parametrize("seed", [91, 92])
+def test_names_a_wrong_scale_gain_error_and_fits_it(seed):
+    record = hidden_effect_record(("gain_error",), seed)
+    true_gain = record.true_model.find(OutputGain)[0].gain
+    result = run(record)
+    assert result.missing_effects == ("gain_error",)
+    assert result.steps[0].parameters["gain"] == pytest.approx(true_gain, abs=2e-3)
+    assert result.final.gap_rad <= 0.5 * result.initial.gap_rad
+    assert result.consistent
 
 
 def test_fitted_parameters_are_close_to_the_truth():

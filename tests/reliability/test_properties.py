@@ -359,11 +359,11 @@ _KEYS = ["name", "description", "sample_period_s", "sample_rate_hz", "seed", "en
          "signed", "direction", "offset_counts", "noise", "kind", "bound_rad", "std_rad", "snr_db", "numerator",
          "denominator", "blocks", "type", "enabled", "a", "b", "A", "B", "C", "D", "samples", "lower_rad",
          "upper_rad", "left_rad", "right_rad", "m_l", "c_l", "m_r", "c_r", "ascending", "descending", "nodes_u",
-         "values", "input_shift", "frequency_hz", "damping_ratio", "offset_rad", "breakaway_torque_nm",
+         "values", "input_shift", "frequency_hz", "damping_ratio", "offset_rad", "gain", "breakaway_torque_nm",
          "coulomb_torque_nm", "stiffness_nm_per_rad", "transport", "url", "drive", "counts_per_revolution",
          "limits", "position_min_rad", "position_max_rad", "rate_max_rad_per_s", "watchdog", "feedback_timeout_s",
          "late_tolerance_s", "simulation", "plant", "baudrate", "reply_timeout_s"]
-_WORDS = ["linear", "delay", "saturation", "dead_zone", "resonance", "offset", "output_backlash", "input_backlash",
+_WORDS = ["linear", "delay", "saturation", "dead_zone", "resonance", "offset", "gain", "output_backlash", "input_backlash",
           "input_switch", "state_space", "coulomb_friction", "table", "arctan", "uniform", "gaussian", "coloured",
           "quantization", "serial://pty", "can://virtual/x", "canopen://virtual/x", "plants/cerone2009.toml"]
 keys = st.sampled_from(_KEYS) | st.text(st.characters(codec="utf-8"), min_size=1, max_size=8)

@@ -5,9 +5,18 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
+import numpy as np
 import pytest
 
-from identify.plant_blocks import InputSwitch, LinearBlock, OutputBacklash, PiecewiseLinearBorder, pouliquen2013_switch
+from identify.plant_blocks import (
+    InputSwitch,
+    LinearBlock,
+    OutputBacklash,
+    OutputGain,
+    PiecewiseLinearBorder,
+    PlantModel,
+    pouliquen2013_switch,
+)
 from rig.protocols.errors import ConfigError
 from sim_backend.noise import BoundedUniformNoise, ColouredNoise
 from sim_backend.plant_config import load_plant_config, plant_config_from_toml_text, plant_config_to_toml
@@ -66,6 +75,14 @@ descending = { kind = "table", nodes_u = [-1.0, 0.0, 1.0], values = [-1.0, 0.2, 
     assert isinstance(config.blocks[1], InputSwitch)
     assert config.blocks[1].ascending == PiecewiseLinearBorder((-1.0, 0.0, 1.0), (-1.0, -0.2, 1.0))
     assert plant_config_from_toml_text(plant_config_to_toml(config)).blocks == config.blocks
+
+
+def test_a_fitted_gain_error_block_round_trips_and_scales_the_output():
+    config = plant_config_from_toml_text(MINIMAL + '[[blocks]]\ntype = "gain"\ngain = 1.08\n')
+    assert config.blocks[1] == OutputGain(1.08)
+    assert plant_config_from_toml_text(plant_config_to_toml(config)).blocks == config.blocks
+    u = np.linspace(0.0, 1.0, 50)
+    assert config.plant.simulate(u) == pytest.approx(1.08 * PlantModel(config.blocks[:1]).simulate(u))
 
 
 @pytest.mark.parametrize(("extra", "replace", "key", "problem"), [
