@@ -35,7 +35,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy import optimize
 from scipy.signal import lfilter
 
-from identify.effect_signatures import EFFECT_NAMES, SignatureScore, signature_scores
+from identify.effect_signatures import EFFECT_NAMES, SignatureScore, direction_signal, signature_scores
 from identify.plant_blocks import (
     Block,
     CoulombFriction,
@@ -433,7 +433,7 @@ def _polish(chain: _Chain, u: NDArray[np.float64], y: NDArray[np.float64], max_e
         return chain.with_vector(theta)
 
     with np.errstate(all="ignore"):
-        fit = optimize.least_squares(lambda z: _free_run_error(expand(z), u, y), np.ones_like(theta0),
+        fit = optimize.least_squares(lambda z: _free_run_error(expand(z), u, y), theta0 / scale,
                                      method="trf", diff_step=1e-3, max_nfev=max_evaluations)
     candidate = expand(fit.x)
     if _rms(_free_run_error(candidate, u, y)) <= _rms(_free_run_error(chain, u, y)):
@@ -596,8 +596,8 @@ def _try_effect(kind: str, chain: _Chain, u: NDArray[np.float64], y: NDArray[np.
     index = _insert_index(chain, kind)
     u_est, y_est = u[:n_est], y[:n_est]
 
-    def with_effect(values: tuple[float, ...]) -> _Chain:
-        components = list(chain.components)
+    def with_effect(values: tuple[float, ...], base: _Chain = chain) -> _Chain:
+        components = list(base.components)
         components.insert(index, _Component(kind, tuple(float(v) for v in values), sample_period_s=period))
         return _Chain(components)
 
@@ -606,6 +606,15 @@ def _try_effect(kind: str, chain: _Chain, u: NDArray[np.float64], y: NDArray[np.
     else:
         options = [with_effect(g) for g in _initial_guesses(kind, u, residual, delta, period, scores)]
     options = [_refit_last_linear(option, u_est, y_est) for option in options]
+    if kind in ("backlash", "coulomb_friction"):
+        plays = np.geomspace(delta, max(float(np.max(np.abs(residual))), 4.0 * delta), 4)
+        for contact in filter(None, (_contact_branch_start(chain, u_est, y_est, play) for play in plays)):
+            refit, c_l, c_r = contact
+            if kind == "backlash":
+                options.append(with_effect((c_l, c_r), refit))
+            else:
+                slide = 0.5 * (c_l + c_r)
+                options += [with_effect((ratio * slide, slide), refit) for ratio in (1.0, 1.5, 2.0)]
     costs = [_rms(_free_run_error(option, u_est, y_est)) for option in options]
     best = options[int(np.argmin(costs))]
     best = _refine_delays(best, u_est, y_est)
@@ -649,6 +658,76 @@ def _refit_last_linear(chain: _Chain, u: NDArray[np.float64], y: NDArray[np.floa
     components[index] = _linear_component(LinearBlock(a=a, b=b, sample_period_s=linear.sample_period_s))
     refit = _Chain(components)
     return refit if _rms(_free_run_error(refit, u, y)) <= _rms(_free_run_error(chain, u, y)) else chain
+
+
+def _contact_branch_start(chain: _Chain, u: NDArray[np.float64], y: NDArray[np.float64], play_rad: float,
+                          rounds: int = 5) -> tuple[_Chain, float, float] | None:
+    """A start for a play after the chain's free linear block, which was fitted with the play missing and
+    has absorbed part of it.
+
+    On a contact branch of eq. (2) of Cerone et al. (2009) (unit slopes) the play's input is known from its
+    output: x_t = y_t + c_r on the right branch, y_t - c_l on the left one; inside the play it is not.
+    Alternate ``rounds`` times, from half-widths ``play_rad``: simulate the play on the linear block's
+    output x^ to find which samples are on a branch; set c_r, c_l to the mean of x^ - y and y - x^ over
+    those samples; refit the linear block by output error (:func:`_output_error_with`) to the input so
+    recovered, with x^ itself inside the play. Returns the chain with the refitted linear block and
+    (c_l, c_r), or None when the chain does not end in its free linear block.
+    """
+    kinds = [c.kind for c in chain.components]
+    if not kinds or kinds[-1] != "linear":
+        return None
+    linear = chain.components[-1]
+    before = chain.components[:-1]
+    inner = PlantModel(tuple(_build(c, c.values) for c in before)).simulate(u) if before else u
+    block = _build(linear, linear.values)
+    assert isinstance(block, LinearBlock)
+    c_l = c_r = play_rad
+    no_extra = np.empty((u.size, 0))
+    for _ in range(rounds):
+        x = block.apply(inner)
+        w = OutputBacklash(m_l=1.0, c_l=max(c_l, 1e-9), m_r=1.0, c_r=max(c_r, 1e-9)).apply(x)
+        right = np.abs(w - (x - c_r)) < 1e-12
+        left = np.abs(w - (x + c_l)) < 1e-12
+        if np.any(right):
+            c_r = max(float(np.mean(x[right] - y[right])), 0.0)
+        if np.any(left):
+            c_l = max(float(np.mean(y[left] - x[left])), 0.0)
+        recovered = np.where(right, y + c_r, np.where(left, y - c_l, x))
+        try:
+            a, b, _ = _output_error_with(inner, recovered, block.a, linear.nk, len(linear.values) - linear.na,
+                                         no_extra)
+        except np.linalg.LinAlgError:
+            return None
+        block = LinearBlock(a=a, b=b, sample_period_s=linear.sample_period_s)
+    return _Chain([*before, _linear_component(block)]), c_l, c_r
+
+
+def _output_error_with(u: NDArray[np.float64], y: NDArray[np.float64], a: tuple[float, ...], delay: int,
+                       numerator_terms: int, extra: NDArray[np.float64], max_evaluations: int = 60
+                       ) -> tuple[tuple[float, ...], tuple[float, ...], tuple[float, ...]]:
+    """Output-error fit of y_t = B(q^-1)/A(q^-1) u_t + sum_j d_j extra_{t,j} (eq. (1) plus known regressors),
+    from the denominator ``a``, by variable projection: for a given A the fit is linear in B and d (least
+    squares on u filtered by q^-k / A), so only A is searched. Returns a, b (with ``delay`` leading zeros)
+    and d."""
+
+    def solve(a_values: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        denominator = (1.0, *a_values)
+        columns = [lfilter([0.0] * (delay + j) + [1.0], denominator, u) for j in range(numerator_terms)]
+        phi = np.column_stack(columns + [extra[:, j] for j in range(extra.shape[1])])
+        theta, *_ = np.linalg.lstsq(phi, y, rcond=None)
+        return theta, y - phi @ theta
+
+    def residual(a_values: NDArray[np.float64]) -> NDArray[np.float64]:
+        if np.any(np.abs(np.roots((1.0, *a_values))) >= 0.9999):
+            return np.full(y.size, _BIG / math.sqrt(y.size))
+        return solve(a_values)[1]
+
+    with np.errstate(all="ignore"):
+        fit = optimize.least_squares(residual, np.array(a, dtype=float), method="trf", diff_step=1e-6,
+                                     max_nfev=max_evaluations)
+    theta, _ = solve(fit.x)
+    return (tuple(float(v) for v in fit.x), (0.0,) * delay + tuple(float(v) for v in theta[:numerator_terms]),
+            tuple(float(v) for v in theta[numerator_terms:]))
 
 
 def _refine_delays(chain: _Chain, u: NDArray[np.float64], y: NDArray[np.float64], reach: int = 5) -> _Chain:
