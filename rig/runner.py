@@ -172,13 +172,21 @@ def run_experiment(transport: Transport, command_rad: ArrayLike, sink: SampleSin
     sent_count = 0
     last_feedback = math.inf
 
+    written = 0  # samples below this number are in the sink
+
     def write_rows(keep: int) -> None:
+        nonlocal written
         while len(rows) > keep:
-            row = rows.pop(0)
+            row = rows[0]
+            # a row leaves the list only once written, and is written once: a signal (Ctrl-C) landing
+            # anywhere in here leaves the last write_rows in the finally block to write what is left
+            if row.seq >= written:
+                sink.append(row.time_s, row.command_rad, row.angle_rad, row.counts, row.flags)
+                written = row.seq + 1
+            rows.pop(0)
             received.discard(row.seq)  # final now: memory stays bounded however long the run
             counts["lost"] += bool(row.flags & _LOST)
             counts["late"] += bool(row.flags & _LATE)
-            sink.append(row.time_s, row.command_rad, row.angle_rad, row.counts, row.flags)
 
     def take(sample) -> None:
         """File a feedback sample under its sample number."""

@@ -94,3 +94,23 @@ def test_ctrl_c_ends_with_a_controlled_stop_and_a_closed_log(kind, tmp_path, no_
         assert drive.controlwords[-2:] == [0x02, 0x00]
         assert not transport.is_open
     assert sink.closed and len(sink.rows) == 15
+
+
+def test_ctrl_c_while_a_sample_is_being_written_loses_no_sample(tmp_path, no_leaks):
+    class InterruptedOnce(ListSink):
+        """Ctrl-C lands as the 11th row is handed over, before it is stored."""
+
+        def append(self, *row) -> None:
+            if len(self.rows) == 10 and not getattr(self, "interrupted", False):
+                self.interrupted = True
+                raise KeyboardInterrupt
+            super().append(*row)
+
+    sink = InterruptedOnce()
+    with simulated("serial", tmp_path) as (config, transport, _, _drive):
+        with pytest.raises(KeyboardInterrupt):
+            _run(transport, config, excitation(40), sink)
+    times = [row[0] for row in sink.rows]
+    assert sink.closed and len(times) > 10
+    assert times == sorted(set(times))  # every sample once, in order
+    assert np.allclose(np.diff(times), times[1] - times[0])  # none skipped
