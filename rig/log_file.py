@@ -434,11 +434,19 @@ def read_experiment_data(path: str | Path) -> ExperimentRecord:
 
 
 def read_input_output(path: str | Path) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """(u, y) for identification from a ``rig-log v1`` file or a CSV with columns ``u`` and ``y`` (a ``t``
-    column is allowed and ignored: the methods need only the sample order)."""
+    """(u, y) for identification from a ``rig-log v1`` file or a CSV with columns ``u`` and ``y``. The
+    methods need only the sample order, so a ``t`` column is optional; when present it must increase (rows
+    out of order, e.g. two files pasted together, would be identified as one record)."""
     path = Path(path)
     if _is_rig_log(path):
         record = read_log(path)
         return record.command_rad, record.angle_rad
     table = read_signal_table(path, ("u", "y"))
+    if "t" in table:
+        backwards = np.flatnonzero(np.diff(table["t"]) <= 0)
+        if backwards.size:
+            row = int(backwards[0]) + 1
+            raise LogFileError(f"{path}: column t must increase strictly (seconds); data row {row + 1} has "
+                               f"t = {float(table['t'][row])!r} after {float(table['t'][row - 1])!r}: are two "
+                               "records pasted together? Give each as its own file")
     return table["u"], table["y"]

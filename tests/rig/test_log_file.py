@@ -174,6 +174,16 @@ def test_read_input_output_takes_a_log_or_a_plain_u_y_csv(tmp_path):
     assert u.tolist() == [1.0, 2.0] and y.tolist() == [0.5, 0.25]
 
 
+def test_read_input_output_refuses_a_t_column_that_goes_back(tmp_path):
+    from rig.log_file import read_input_output
+
+    pasted = tmp_path / "pasted.csv"
+    pasted.write_text("t,u,y\n0.0,1.0,0.5\n0.001,2.0,0.25\n0.0,1.0,0.5\n")
+    with pytest.raises(LogFileError, match=r"pasted.csv: column t must increase .* data row 3 has t = 0.0 after "
+                                           r"0.001: are two records pasted together"):
+        read_input_output(pasted)
+
+
 def test_a_log_in_other_units_is_refused_naming_the_column(tmp_path):
     path = tmp_path / "run.csv"
     write_log(path, sample_record())
