@@ -44,8 +44,8 @@ from identify.validation import InvalidInputError
 from rig.protocols.errors import LogFileError
 from rig.signal_files import read_signal_table
 
-__all__ = ["COLUMNS", "FORMAT_LINE", "LogWriteError", "LogWriter", "count_samples", "read_experiment_data", "read_log",
-           "write_log"]
+__all__ = ["COLUMNS", "FORMAT_LINE", "LogWriteError", "LogWriter", "count_samples", "is_rig_log", "read_experiment_data",
+           "read_log", "write_log"]
 
 FORMAT_LINE = "# rig-log v1"
 COLUMNS = ("time_s", "command_rad", "angle_rad", "encoder_counts", "flags")
@@ -256,7 +256,8 @@ def write_log(path: str | Path, record: ExperimentRecord) -> None:
         log.append_many(record.time_s, record.command_rad, record.angle_rad, record.encoder_counts, record.flags)
 
 
-def _is_rig_log(path: Path) -> bool:
+def is_rig_log(path: Path) -> bool:
+    """Whether ``path`` starts with the ``# rig-log`` format line (False if it cannot be read)."""
     try:
         with path.open("r", encoding="utf-8", errors="replace") as handle:
             first = handle.readline()
@@ -269,7 +270,7 @@ def count_samples(path: str | Path) -> int | None:
     """Number of complete sample lines in a ``rig-log v1`` file, without parsing them (fast, for a message
     after an interrupted run); None when the file is missing or is not a rig log."""
     path = Path(path)
-    if not _is_rig_log(path):
+    if not is_rig_log(path):
         return None
     lines = 0
     try:
@@ -418,7 +419,7 @@ def read_experiment_data(path: str | Path) -> ExperimentRecord:
     tool (``#`` comment lines allowed, other columns ignored). The sample period of a plain CSV is the
     median time step."""
     path = Path(path)
-    if _is_rig_log(path):
+    if is_rig_log(path):
         return read_log(path)
     table = read_signal_table(path, ("t", "u", "y"))
     t, u, y = table["t"], table["u"], table["y"]
@@ -438,7 +439,7 @@ def read_input_output(path: str | Path) -> tuple[NDArray[np.float64], NDArray[np
     methods need only the sample order, so a ``t`` column is optional; when present it must increase (rows
     out of order, e.g. two files pasted together, would be identified as one record)."""
     path = Path(path)
-    if _is_rig_log(path):
+    if is_rig_log(path):
         record = read_log(path)
         return record.command_rad, record.angle_rad
     table = read_signal_table(path, ("u", "y"))

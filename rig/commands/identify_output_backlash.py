@@ -67,7 +67,19 @@ def _read(path_text: str, role: str):
     path = Path(path_text)
     if not path.is_file():
         raise FileNotFoundError(f"{path}: no such file ({role} data)")
+    if role == "steady-state" and _is_per_sample_record(path):
+        raise ValueError(
+            f"{path}: --steady takes one row per steady-state point (columns u, y: the last sample of each "
+            "half-wave of the steady_staircase experiment), but this is a per-sample record (a rig log or a "
+            "CSV with a t column); pass a record of every sample as --dynamic")
     return read_input_output(path)
+
+
+def _is_per_sample_record(path: Path) -> bool:
+    from rig.log_file import is_rig_log
+    from rig.signal_files import read_signal_table
+
+    return is_rig_log(path) or "t" in read_signal_table(path, ("u", "y"))
 
 
 def _number(value: float) -> float | str:

@@ -82,6 +82,15 @@ def test_bad_input_exits_2_naming_the_problem(files, tmp_path, capsys) -> None:
     assert "nb: expected nb >= nk" in capsys.readouterr().err
 
 
+def test_a_per_sample_record_given_as_steady_says_which_option_it_belongs_to(files, capsys) -> None:
+    _, dynamic = files
+    assert main(["identify", "output-backlash", "--steady", str(dynamic), "--dynamic", str(dynamic),
+                 "--noise-bound", repr(NOISE), "--na", "2", "--nk", "1", "--nb", "2"]) == exit_codes.BAD_INPUT
+    err = capsys.readouterr().err
+    assert "dynamic.csv: --steady takes one row per steady-state point" in err
+    assert "this is a per-sample record" in err and "pass a record of every sample as --dynamic" in err
+
+
 def test_several_pairs_are_bounded_in_parallel_and_a_bad_one_is_reported(files, tmp_path, capsys) -> None:
     steady, dynamic = files
     assert main(_args(files, "--json")) == exit_codes.SUCCESS
