@@ -11,8 +11,9 @@ the measured input u_t, the measured output y_t and the model's simulated output
 * ``dead_zone``: r_t ~ -clip(y^_t, -w, w) with w a tenth of the range: the output stuck near zero;
 * ``saturation``: r_t ~ -(y^_t - clip(y^_t, -q, q)) with q the 85 % quantile of |y^|: residual growing with
   |u| at the extremes;
-* ``delay``: r_t ~ -d (y^_t - y^_{t-1}) (first-order expansion of y^_{t-d}); the details give the lag of the
-  largest cross-correlation of r with the model's velocity and with the input's increments u_t - u_{t-1};
+* ``delay``: r_t ~ y^_{t-d} - y^_t, the residual a model d samples early leaves, for the lag d = 1..59
+  that explains most (``delay_samples`` in the details, with the lags of the largest cross-correlation of r
+  with the model's velocity and with the input's increments u_t - u_{t-1});
 * ``resonance``: the share of the residual's power (Welch spectrum) within three bins of its peak, and the
   peak frequency;
 * ``offset``: r_t ~ o + drift * t T;
@@ -119,7 +120,12 @@ def signature_scores(command_rad: NDArray[np.float64], angle_rad: NDArray[np.flo
     correlation = [float(np.dot(centred[lag:], velocity[: velocity.size - lag])) for lag in lags]
     input_steps = np.diff(np.asarray(command_rad, dtype=float), prepend=float(command_rad[0]))
     input_correlation = [float(np.dot(centred[lag:], input_steps[: input_steps.size - lag])) for lag in lags]
-    scores["delay"] = SignatureScore("delay", _explained(r, velocity), {
+    # a model late by d samples leaves exactly r_t = y^_{t-d} - y^_t: the lag whose regressor explains most
+    lagged = [_explained(r, np.concatenate((np.full(lag, y_hat[0]), y_hat[: y_hat.size - lag])) - y_hat)
+              for lag in lags[1:]]
+    best_lag = 1 + int(np.argmax(lagged)) if lagged else 0
+    scores["delay"] = SignatureScore("delay", max(lagged, default=0.0), {
+        "delay_samples": best_lag,
         "lag_of_peak_correlation_samples": int(lags[int(np.argmax(np.abs(correlation)))]),
         "lag_of_peak_residual_input_correlation_samples": int(lags[int(np.argmax(np.abs(input_correlation)))]),
     })

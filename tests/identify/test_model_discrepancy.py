@@ -117,15 +117,17 @@ def test_linear_start_model_recovers_the_nominal_block_and_its_order():
     assert fit.block.static_gain == pytest.approx(1.0, abs=2e-3)
 
 
-def test_signatures_point_at_the_effect():
-    record = hidden_effect_record(("delay",), 81)
+@pytest.mark.parametrize("seed", [81, 82, 83])
+def test_signatures_point_at_the_effect(seed):
+    record = hidden_effect_record(("delay",), seed)
     simulated = record.nominal_model.simulate(record.command_rad)
     scores = signature_scores(record.command_rad, record.angle_rad, simulated, record.noise_bound_rad,
                               record.sample_period_s)
     assert set(scores) == set(EFFECT_NAMES)
     true_delay = record.true_model.find(Delay)[0].samples
     assert max(scores, key=lambda name: scores[name].score) == "delay"
-    assert scores["delay"].score > 0.4
+    assert scores["delay"].score > 0.9
+    assert scores["delay"].details["delay_samples"] == true_delay
     assert abs(scores["delay"].details["lag_of_peak_correlation_samples"] - true_delay) <= true_delay
 
 
