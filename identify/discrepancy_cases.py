@@ -3,10 +3,10 @@ effects with randomised parameters of realistic size, read by an n-bit absolute 
 
 The nominal model is the drive position loop of ``configs/plants/precision_gearbox.toml`` (30 Hz,
 zeta 0.7, zero-order hold at 1 kHz, one sample of latency). Effect sizes (motor-side radians, input range
-about +-1 rad): backlash half-widths 0.01-0.04 rad; dead zone edges 0.03-0.10 rad; saturation at 50-75 %
-of the largest command that both the estimation and the validation segment reach; delay 3-15 samples; Coulomb friction breakaway twist 0.015-0.04 rad with sliding
-40-75 % of it; resonance 60-200 Hz with damping 0.02-0.08; gain error 3-15 % either way (a wrong gear ratio
-or encoder resolution).
+about +-1 rad): backlash half-widths 0.01-0.04 rad; dead zone edges 0.03-0.10 rad; each saturation limit
+at 50-75 % of the largest command on its side that both the estimation and the validation segment reach;
+delay 3-15 samples; Coulomb friction breakaway twist 0.015-0.04 rad with sliding 40-75 % of it; resonance
+60-200 Hz with damping 0.02-0.08; gain error 3-15 % either way (a wrong gear ratio or encoder resolution).
 """
 
 from __future__ import annotations
@@ -73,18 +73,20 @@ def step_excitation(samples: int, rng: np.random.Generator, amplitude_rad: float
 def random_effect(name: str, rng: np.random.Generator, command_rad: NDArray[np.float64]) -> tuple[Block, int | None]:
     """A block of effect ``name`` with random realistic parameters and where it goes in the chain
     (0: before the linear block, None: after it)."""
-    span = float(np.max(np.abs(command_rad)))
     if name == "saturation":
-        # the limit lies within what both segments of the workflow's default split (first 60 % to fit,
-        # last 40 % to validate) reach: a limit the validation data never cross cannot be seen by any method
+        # each limit lies within what both segments of the workflow's default split (first 60 % to fit,
+        # last 40 % to validate) reach on its side: a limit one segment never crosses cannot be fitted, or
+        # seen, by any method
         split = int(round(ESTIMATION_FRACTION * command_rad.size))
-        span = min(float(np.max(np.abs(command_rad[:split]))), float(np.max(np.abs(command_rad[split:]))))
+        segments = (command_rad[:split], command_rad[split:])
+        reach_down = min(float(-np.min(segment)) for segment in segments)
+        reach_up = min(float(np.max(segment)) for segment in segments)
+        return Saturation(lower_rad=-rng.uniform(0.5, 0.75) * reach_down,
+                          upper_rad=rng.uniform(0.5, 0.75) * reach_up), 0
     if name == "backlash":
         return OutputBacklash(m_l=1.0, c_l=rng.uniform(0.01, 0.04), m_r=1.0, c_r=rng.uniform(0.01, 0.04)), None
     if name == "dead_zone":
         return DeadZone(left_rad=-rng.uniform(0.03, 0.10), right_rad=rng.uniform(0.03, 0.10)), 0
-    if name == "saturation":
-        return Saturation(lower_rad=-rng.uniform(0.5, 0.75) * span, upper_rad=rng.uniform(0.5, 0.75) * span), 0
     if name == "delay":
         return Delay(int(rng.integers(3, 16))), 0
     if name == "coulomb_friction":

@@ -67,6 +67,14 @@ __all__ = [
 ]
 
 _BIG = 1.0e6
+_LINEAR_DIFF_STEP = 1e-6
+"""Relative finite-difference step of the polish for polynomial coefficients: with poles near z = 1 a
+0.1 % change of a_1 is a different system, and the fit stalls."""
+_EFFECT_DIFF_STEP = 1e-3
+"""... and for effect parameters, whose free-run response has kinks (a play taken up, a limit reached)."""
+_BASELINE_EFFORT = 5
+"""Before another effect is tried, the model so far is polished with this many times the evaluations of one
+candidate fit."""
 _NEGLIGIBLE_GAIN_ERROR = 1.0e-3
 """A fitted gain within this of 1 is no gain error (a 0.1 % scale error is below what the workflow resolves)."""
 _MAX_RESONANCE_DAMPING = 0.3
@@ -426,6 +434,8 @@ def _polish(chain: _Chain, u: NDArray[np.float64], y: NDArray[np.float64], max_e
         return chain
     theta0 = theta_all[mask]
     scale = np.maximum(np.abs(theta0), 1e-6)
+    steps = np.concatenate([np.full(len(c.values), _LINEAR_DIFF_STEP if c.kind == "linear" else _EFFECT_DIFF_STEP)
+                            for c in chain.components if c.free])[mask]
 
     def expand(z: NDArray[np.float64]) -> _Chain:
         theta = theta_all.copy()
@@ -434,7 +444,7 @@ def _polish(chain: _Chain, u: NDArray[np.float64], y: NDArray[np.float64], max_e
 
     with np.errstate(all="ignore"):
         fit = optimize.least_squares(lambda z: _free_run_error(expand(z), u, y), theta0 / scale,
-                                     method="trf", diff_step=1e-3, max_nfev=max_evaluations)
+                                     method="trf", diff_step=steps, max_nfev=max_evaluations)
     candidate = expand(fit.x)
     if _rms(_free_run_error(candidate, u, y)) <= _rms(_free_run_error(chain, u, y)):
         return candidate
@@ -561,8 +571,11 @@ def _initial_guesses(kind: str, u: NDArray[np.float64], residual: NDArray[np.flo
     if kind == "dead_zone":
         return [(w, w) for w in np.geomspace(max(delta, 1e-3 * span), 0.3 * span, 7)]
     if kind == "saturation":
-        return [(-q, q) for q in np.quantile(np.abs(u), (0.6, 0.75, 0.85, 0.93, 0.98))] + [
-            (float(-np.quantile(u, 0.02)), float(np.quantile(u, 0.98)))]
+        # each limit from the commands on its side: travel limits need not be symmetric
+        levels = (0.3, 0.5, 0.7, 0.85, 0.95)
+        below = np.quantile(-u[u < 0], levels) if np.any(u < 0) else np.zeros(1)
+        above = np.quantile(u[u > 0], levels) if np.any(u > 0) else np.zeros(1)
+        return [(float(low), float(high)) for low in below for high in above]
     if kind == "resonance":
         nyquist = 0.5 / period
         peak = scores["resonance"].details.get("peak_frequency_hz", 0.1 * nyquist)
@@ -651,8 +664,9 @@ def _refit_last_linear(chain: _Chain, u: NDArray[np.float64], y: NDArray[np.floa
     others = chain.components[:index] + chain.components[index + 1:]
     inner = PlantModel(tuple(_build(c, c.values) for c in others)).simulate(u) if others else u
     try:
-        a, b = _steiglitz_mcbride(inner, y, linear.na, linear.nk, iterations=10)
-    except (InvalidInputError, np.linalg.LinAlgError):
+        a, b, _ = _output_error_with(inner, y, tuple(linear.values[: linear.na]), linear.nk,
+                                     len(linear.values) - linear.na, np.empty((u.size, 0)))
+    except np.linalg.LinAlgError:
         return chain
     components = list(chain.components)
     components[index] = _linear_component(LinearBlock(a=a, b=b, sample_period_s=linear.sample_period_s))
@@ -828,8 +842,10 @@ def diagnose_model(command_rad: ArrayLike, angle_rad: ArrayLike, noise_bound_rad
     remaining = [name for name in candidates]
     while len(steps) < max_effects and current.falsified_fraction > consistent_fraction and remaining:
         if steps and chain.vector().size:
-            # the same structure refitted as long as the candidates will be: the baseline they must beat
-            baseline = _polish(_refine_delays(chain, u[:n_est], y[:n_est]), u[:n_est], y[:n_est], max_evaluations)
+            # the same structure refitted at least as long as the candidates will be: the baseline they must
+            # beat (a further effect must earn its place by its physics, not by the extra polishing it brings)
+            baseline = _polish(_refine_delays(chain, u[:n_est], y[:n_est]), u[:n_est], y[:n_est],
+                               _BASELINE_EFFORT * max_evaluations)
             refitted = disagreement(baseline.model(), u, y, delta, n_est)
             if refitted.gap_rad < current.gap_rad:
                 chain, current = baseline, refitted
