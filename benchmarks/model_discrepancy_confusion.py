@@ -92,15 +92,21 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--cases", type=int, default=20, help="random cases per true effect (default 20)")
     parser.add_argument("--start", choices=("given", "fitted"), default="given")
-    parser.add_argument("--effects", default=",".join(TRUE_EFFECTS), help="rows, comma-separated")
+    parser.add_argument("--effects", default=None,
+                        help="rows, comma-separated (default: all; with --start fitted all but gain_error, which a "
+                             "fitted linear start model absorbs: no method can name it there)")
     parser.add_argument("--first-seed", type=int, default=1000)
     parser.add_argument("--emps-only", action="store_true")
     parser.add_argument("--no-emps", action="store_true")
     parser.add_argument("--emps-decimate", type=int, default=5)
     parser.add_argument("--emps-noise-bound", type=float, default=1e-6, metavar="M")
     args = parser.parse_args()
+    if args.effects is not None:
+        effects = tuple(args.effects.split(","))
+    else:
+        effects = tuple(e for e in TRUE_EFFECTS if args.start == "given" or e != "gain_error")
     if not args.emps_only:
-        confusion(args.cases, args.start, tuple(args.effects.split(",")), args.first_seed)
+        confusion(args.cases, args.start, effects, args.first_seed)
     if not args.no_emps:
         emps(args.emps_decimate, args.emps_noise_bound)
 

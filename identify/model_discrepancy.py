@@ -634,10 +634,29 @@ def _try_effect(kind: str, chain: _Chain, u: NDArray[np.float64], y: NDArray[np.
     if any(c.kind == "linear" for c in best.components):
         best = _polish(best, u_est, y_est, max_evaluations, frozenset({"linear"}))
     best = _polish(best, u_est, y_est, max_evaluations)
+    if kind == "coulomb_friction":
+        best = _scan_breakaway(best, index, u_est, y_est)
     gap = _rms((y - best.model().simulate(u))[n_est:]) if best.linear_stable() else _BIG
     block = _build(best.components[index], best.components[index].values)
     return _Candidate(kind, best, gap if math.isfinite(gap) else _BIG, block, index,
                       _rms(_free_run_error(best, u_est, y_est)))
+
+
+def _scan_breakaway(chain: _Chain, index: int, u: NDArray[np.float64], y: NDArray[np.float64]) -> _Chain:
+    """Where a stick-slip load sticks depends on the breakaway twist through the whole history, so the
+    free-run error is discontinuous in it and a gradient polish leaves it where it started: scan the
+    breakaway/sliding ratio 1..3 in steps of 0.05 at the fitted sliding twist and keep the best fit."""
+    component = chain.components[index]
+    slide = abs(component.values[1])
+
+    def with_ratio(ratio: float) -> _Chain:
+        components = list(chain.components)
+        components[index] = _Component(component.kind, (ratio * slide, slide), sample_period_s=component.sample_period_s)
+        return _Chain(components)
+
+    options = [chain, *(with_ratio(ratio) for ratio in np.linspace(1.0, 3.0, 41))]
+    costs = [_rms(_free_run_error(option, u, y)) for option in options]
+    return options[int(np.argmin(costs))]
 
 
 def _raised_order(block: LinearBlock, order: int) -> LinearBlock:
