@@ -569,7 +569,9 @@ def _initial_guesses(kind: str, u: NDArray[np.float64], residual: NDArray[np.flo
     if kind == "coulomb_friction":
         return [(r * c, c) for c in np.geomspace(delta, 2.0 * amplitude, 14) for r in (1.0, 1.25, 1.5, 1.8, 2.2, 2.8)]
     if kind == "dead_zone":
-        return [(w, w) for w in np.geomspace(max(delta, 1e-3 * span), 0.3 * span, 7)]
+        # each edge on its own: a record may barely reach one side's edge, and a symmetric guess misses it
+        edges = np.geomspace(max(delta, 1e-3 * span), 0.3 * span, 6)
+        return [(left, right) for left in edges for right in edges]
     if kind == "saturation":
         # each limit from the commands on its side: travel limits need not be symmetric
         levels = (0.3, 0.5, 0.7, 0.85, 0.95)
