@@ -324,7 +324,7 @@ def _build(component: _Component, values: Sequence[float]) -> Block:
         return LinearBlock(a=tuple(v[: component.na]), b=(0.0,) * component.nk + tuple(v[component.na:]),
                            sample_period_s=component.sample_period_s)
     if kind == "backlash":
-        return OutputBacklash(m_l=1.0, c_l=max(v[0], 1e-12), m_r=1.0, c_r=max(v[1], 1e-12))
+        return OutputBacklash(m_l=1.0, c_l=max(abs(v[0]), 1e-12), m_r=1.0, c_r=max(abs(v[1]), 1e-12))
     if kind == "dead_zone":
         left, right = -abs(v[0]), abs(v[1])
         return DeadZone(left_rad=left, right_rad=right)
@@ -704,8 +704,8 @@ def _contact_branch_start(chain: _Chain, u: NDArray[np.float64], y: NDArray[np.f
     output: x_t = y_t + c_r on the right branch, y_t - c_l on the left one; inside the play it is not.
     Alternate ``rounds`` times, from half-widths ``play_rad``: simulate the play on the linear block's
     output x^ to find which samples are on a branch; set c_r, c_l to the mean of x^ - y and y - x^ over
-    those samples; refit the linear block by output error (:func:`_output_error_with`) to the input so
-    recovered, with x^ itself inside the play. Returns the chain with the refitted linear block and
+    those samples; refit the linear block by output error (:func:`_output_error_with`) to x^ moved into
+    [y_t - c_l, y_t + c_r], where the play's input must lie. Returns the chain with the refitted linear block and
     (c_l, c_r), or None when the chain does not end in its free linear block.
     """
     kinds = [c.kind for c in chain.components]
@@ -718,16 +718,21 @@ def _contact_branch_start(chain: _Chain, u: NDArray[np.float64], y: NDArray[np.f
     assert isinstance(block, LinearBlock)
     c_l = c_r = play_rad
     no_extra = np.empty((u.size, 0))
-    for _ in range(rounds):
+    for round_index in range(rounds):
         x = block.apply(inner)
         w = OutputBacklash(m_l=1.0, c_l=max(c_l, 1e-9), m_r=1.0, c_r=max(c_r, 1e-9)).apply(x)
         right = np.abs(w - (x - c_r)) < 1e-12
         left = np.abs(w - (x + c_l)) < 1e-12
         if np.any(right):
-            c_r = max(float(np.mean(x[right] - y[right])), 0.0)
+            c_r = float(np.mean(x[right] - y[right]))
         if np.any(left):
-            c_l = max(float(np.mean(y[left] - x[left])), 0.0)
-        recovered = np.where(right, y + c_r, np.where(left, y - c_l, x))
+            c_l = float(np.mean(y[left] - x[left]))
+        if round_index == 0:
+            # the start model's bias shifts both means by the same amount in opposite directions: only the
+            # width c_l + c_r is known yet, so begin centred and let the refits find the asymmetry
+            c_l = c_r = max(0.5 * (c_l + c_r), 0.0)
+        c_l, c_r = max(c_l, 0.0), max(c_r, 0.0)
+        recovered = np.clip(x, y - c_l, y + c_r)  # x within the play around the measured output
         try:
             a, b, _ = _output_error_with(inner, recovered, block.a, linear.nk, len(linear.values) - linear.na,
                                          no_extra)
