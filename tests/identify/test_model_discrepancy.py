@@ -32,13 +32,15 @@ def test_names_the_hidden_effect_and_halves_the_gap_given_the_nominal_model(effe
     assert result.steps[0].gap_after_rad <= 0.5 * result.steps[0].gap_before_rad
 
 
-@pytest.mark.parametrize("effect", ["dead_zone", "delay"])
+@pytest.mark.parametrize("effect", ["backlash", "dead_zone", "saturation", "delay", "coulomb_friction"])
 def test_names_the_hidden_effect_from_a_fitted_linear_start_model(effect):
     record = hidden_effect_record((effect,), 21)
     result = run(record, given_model=False)
     assert result.linear_fit is not None
     assert result.missing_effects[:1] == (effect,)
     assert result.final.gap_rad <= 0.5 * result.initial.gap_rad
+    # the fitted linear block is refitted with the effect: what is left is the 12-bit encoder's noise
+    assert result.final.gap_rad < 1.5 * record.noise_bound_rad
 
 
 @pytest.mark.parametrize("seed", [31, 32])
