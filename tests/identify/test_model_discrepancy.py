@@ -32,7 +32,7 @@ def test_names_the_hidden_effect_and_halves_the_gap_given_the_nominal_model(effe
     assert result.steps[0].gap_after_rad <= 0.5 * result.steps[0].gap_before_rad
 
 
-@pytest.mark.parametrize("effect", ["backlash", "dead_zone", "saturation", "delay", "coulomb_friction"])
+@pytest.mark.parametrize("effect", SIX)
 def test_names_the_hidden_effect_from_a_fitted_linear_start_model(effect):
     record = hidden_effect_record((effect,), 21)
     result = run(record, given_model=False)
