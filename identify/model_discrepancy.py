@@ -35,7 +35,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy import optimize
 from scipy.signal import lfilter
 
-from identify.effect_signatures import EFFECT_NAMES, SignatureScore, direction_signal, signature_scores
+from identify.effect_signatures import EFFECT_NAMES, SignatureScore, signature_scores
 from identify.plant_blocks import (
     Block,
     CoulombFriction,
@@ -685,8 +685,8 @@ def _refit_last_linear(chain: _Chain, u: NDArray[np.float64], y: NDArray[np.floa
     others = chain.components[:index] + chain.components[index + 1:]
     inner = PlantModel(tuple(_build(c, c.values) for c in others)).simulate(u) if others else u
     try:
-        a, b, _ = _output_error_with(inner, y, tuple(linear.values[: linear.na]), linear.nk,
-                                     len(linear.values) - linear.na, np.empty((u.size, 0)))
+        a, b = _output_error_fit(inner, y, tuple(linear.values[: linear.na]), linear.nk,
+                                 len(linear.values) - linear.na)
     except np.linalg.LinAlgError:
         return chain
     components = list(chain.components)
@@ -704,9 +704,10 @@ def _contact_branch_start(chain: _Chain, u: NDArray[np.float64], y: NDArray[np.f
     output: x_t = y_t + c_r on the right branch, y_t - c_l on the left one; inside the play it is not.
     Alternate ``rounds`` times, from half-widths ``play_rad``: simulate the play on the linear block's
     output x^ to find which samples are on a branch; set c_r, c_l to the mean of x^ - y and y - x^ over
-    those samples; refit the linear block by output error (:func:`_output_error_with`) to x^ moved into
-    [y_t - c_l, y_t + c_r], where the play's input must lie. Returns the chain with the refitted linear block and
-    (c_l, c_r), or None when the chain does not end in its free linear block.
+    those samples (in the first round only their sum, split evenly); refit the linear block by output
+    error (:func:`_output_error_fit`) to x^ moved into [y_t - c_l, y_t + c_r], where the play's input must
+    lie. Returns the chain with the refitted linear block and (c_l, c_r), or None when the chain does not
+    end in its free linear block.
     """
     kinds = [c.kind for c in chain.components]
     if not kinds or kinds[-1] != "linear":
@@ -717,7 +718,6 @@ def _contact_branch_start(chain: _Chain, u: NDArray[np.float64], y: NDArray[np.f
     block = _build(linear, linear.values)
     assert isinstance(block, LinearBlock)
     c_l = c_r = play_rad
-    no_extra = np.empty((u.size, 0))
     for round_index in range(rounds):
         x = block.apply(inner)
         w = OutputBacklash(m_l=1.0, c_l=max(c_l, 1e-9), m_r=1.0, c_r=max(c_r, 1e-9)).apply(x)
@@ -734,26 +734,23 @@ def _contact_branch_start(chain: _Chain, u: NDArray[np.float64], y: NDArray[np.f
         c_l, c_r = max(c_l, 0.0), max(c_r, 0.0)
         recovered = np.clip(x, y - c_l, y + c_r)  # x within the play around the measured output
         try:
-            a, b, _ = _output_error_with(inner, recovered, block.a, linear.nk, len(linear.values) - linear.na,
-                                         no_extra)
+            a, b = _output_error_fit(inner, recovered, block.a, linear.nk, len(linear.values) - linear.na)
         except np.linalg.LinAlgError:
             return None
         block = LinearBlock(a=a, b=b, sample_period_s=linear.sample_period_s)
     return _Chain([*before, _linear_component(block)]), c_l, c_r
 
 
-def _output_error_with(u: NDArray[np.float64], y: NDArray[np.float64], a: tuple[float, ...], delay: int,
-                       numerator_terms: int, extra: NDArray[np.float64], max_evaluations: int = 60
-                       ) -> tuple[tuple[float, ...], tuple[float, ...], tuple[float, ...]]:
-    """Output-error fit of y_t = B(q^-1)/A(q^-1) u_t + sum_j d_j extra_{t,j} (eq. (1) plus known regressors),
-    from the denominator ``a``, by variable projection: for a given A the fit is linear in B and d (least
-    squares on u filtered by q^-k / A), so only A is searched. Returns a, b (with ``delay`` leading zeros)
-    and d."""
+def _output_error_fit(u: NDArray[np.float64], y: NDArray[np.float64], a: tuple[float, ...], delay: int,
+                      numerator_terms: int, max_evaluations: int = 60) -> tuple[tuple[float, ...], tuple[float, ...]]:
+    """Output-error fit of y_t = B(q^-1)/A(q^-1) u_t (eq. (1) of Cerone et al. 2009) from the denominator
+    ``a``, by variable projection: for a given A the error is linear in B (least squares on u filtered by
+    q^-k / A, k = ``delay`` .. ``delay + numerator_terms - 1``), so only A is searched. Returns a and b (with
+    ``delay`` leading zeros)."""
 
     def solve(a_values: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         denominator = (1.0, *a_values)
-        columns = [lfilter([0.0] * (delay + j) + [1.0], denominator, u) for j in range(numerator_terms)]
-        phi = np.column_stack(columns + [extra[:, j] for j in range(extra.shape[1])])
+        phi = np.column_stack([lfilter([0.0] * (delay + j) + [1.0], denominator, u) for j in range(numerator_terms)])
         theta, *_ = np.linalg.lstsq(phi, y, rcond=None)
         return theta, y - phi @ theta
 
@@ -763,11 +760,10 @@ def _output_error_with(u: NDArray[np.float64], y: NDArray[np.float64], a: tuple[
         return solve(a_values)[1]
 
     with np.errstate(all="ignore"):
-        fit = optimize.least_squares(residual, np.array(a, dtype=float), method="trf", diff_step=1e-6,
+        fit = optimize.least_squares(residual, np.array(a, dtype=float), method="trf", diff_step=_LINEAR_DIFF_STEP,
                                      max_nfev=max_evaluations)
     theta, _ = solve(fit.x)
-    return (tuple(float(v) for v in fit.x), (0.0,) * delay + tuple(float(v) for v in theta[:numerator_terms]),
-            tuple(float(v) for v in theta[numerator_terms:]))
+    return tuple(float(v) for v in fit.x), (0.0,) * delay + tuple(float(v) for v in theta)
 
 
 def _refine_delays(chain: _Chain, u: NDArray[np.float64], y: NDArray[np.float64], reach: int = 5) -> _Chain:
