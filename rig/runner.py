@@ -1,11 +1,10 @@
 """The experiment runner: stream an excitation at a fixed rate and account for every sample.
 
 Scheduling uses absolute deadlines ``t_k = t_0 + k T`` (no drift: a late cycle does not shift the ones
-after it). Per cycle k the runner waits for ``t_k`` (:func:`wait_until`), sends setpoint k, and files the feedback that
-arrives until sample k is answered or ``t_{k+1}`` comes; behind schedule it does not wait, so the loop
-catches up, sending setpoints no closer than half a period (:data:`CATCH_UP_SPACING`) and never
-closer than the bus time of one cycle (``Transport.min_cycle_s``). Each sample is
-written with :class:`~identify.experiment_record.SampleFlag` bits:
+after it). Per cycle k the runner waits for ``t_k`` (:func:`wait_until`), sends setpoint k, and files
+the feedback that arrives until sample k is answered or ``t_{k+1}`` comes; behind schedule it does not
+wait, so the loop catches up, sending setpoints no closer than half a period (:data:`CATCH_UP_SPACING`)
+and never closer than the bus time of one cycle (``Transport.min_cycle_s``). Each sample is written with :class:`~identify.experiment_record.SampleFlag` bits:
 
 LOST       no feedback with sequence number k arrived within ``pending_cycles`` cycles (angle NaN)
 LATE       the cycle started more than ``late_tolerance_s`` after ``t_k``, or its feedback arrived after
@@ -38,7 +37,7 @@ from rig.protocols.cia402 import DriveState, state_from_statusword_or_none
 from rig.protocols.errors import DeviceFault, TransportError
 from rig.transports.base import Setpoint, Transport
 
-__all__ = ["RunSummary", "SampleSink", "run_experiment"]
+__all__ = ["RunSummary", "SampleSink", "run_experiment", "wait_until"]
 
 
 _FAULT_STATES = (DriveState.FAULT, DriveState.FAULT_REACTION_ACTIVE)
@@ -49,8 +48,6 @@ _LOST, _LATE, _DUPLICATE, _FAULT = (int(flag) for flag in (SampleFlag.LOST, Samp
                                                           SampleFlag.FAULT))
 CATCH_UP_SPACING = 0.5
 """Behind schedule, consecutive setpoints are still sent at least this many periods apart."""
-
-
 WAKE_MARGIN_S = 300e-6
 """The loop sleeps until this long before a deadline, then polls: a sleeping thread wakes up to a few
 hundred microseconds late (timer slack, a virtual machine's scheduler), a polling one within microseconds
