@@ -4,7 +4,8 @@ Scheduling uses absolute deadlines ``t_k = t_0 + k T`` (no drift: a late cycle d
 after it). Per cycle k the runner waits for ``t_k`` (:func:`wait_until`), sends setpoint k, and files
 the feedback that arrives until sample k is answered or ``t_{k+1}`` comes; behind schedule it does not
 wait, so the loop catches up, sending setpoints no closer than half a period (:data:`CATCH_UP_SPACING`)
-and never closer than the bus time of one cycle (``Transport.min_cycle_s``). Each sample is written with :class:`~identify.experiment_record.SampleFlag` bits:
+and never closer than the bus time of one cycle (``Transport.min_cycle_s``). Each sample is written
+with :class:`~identify.experiment_record.SampleFlag` bits:
 
 LOST       no feedback with sequence number k arrived within ``pending_cycles`` cycles (angle NaN)
 LATE       the cycle started more than ``late_tolerance_s`` after ``t_k``, or its feedback arrived after
