@@ -24,6 +24,7 @@ import sys
 import threading
 import time
 import warnings
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -46,10 +47,23 @@ def _rig_command() -> list[str]:
     return [str(RIG)] if RIG.exists() else [sys.executable, "-m", "rig.cli"]
 
 
-def _start_run(out: Path, config: Path, **popen) -> subprocess.Popen:
+def default_sigint() -> None:
+    """In the child: take SIGINT as a terminal does, also when the suite itself runs as a background job
+    (which starts with SIGINT ignored, and ``rig`` keeps an ignored signal ignored)."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
+def _start_run(out: Path, config: Path, in_child: Callable[[], None] | None = None) -> subprocess.Popen:
+    """Start ``rig run`` on ``config`` for 60 s; ``in_child`` runs in the child before it starts."""
+
+    def prepare() -> None:
+        default_sigint()
+        if in_child is not None:
+            in_child()
+
     return subprocess.Popen([*_rig_command(), "run", str(config), "--experiment", str(PRBS), "--out", str(out),
                              "--duration", "60"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            cwd=ROOT, **popen)
+                            cwd=ROOT, preexec_fn=prepare)
 
 
 def _wait_for_rows(out: Path, rows: int, process: subprocess.Popen | None = None, timeout_s: float = 30.0) -> int:
@@ -158,7 +172,7 @@ def test_file_size_limit_during_rig_run_stops_safely_and_keeps_what_was_flushed(
         signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # write() fails with EFBIG instead of killing the process
         resource.setrlimit(resource.RLIMIT_FSIZE, (20_000, 20_000))
 
-    process = _start_run(out, ROOT / "configs" / "sim_serial.toml", preexec_fn=limit_file_size)
+    process = _start_run(out, ROOT / "configs" / "sim_serial.toml", in_child=limit_file_size)
     _, stderr = process.communicate(timeout=60)
     assert process.returncode == exit_codes.WRITE_FAILED, stderr
     assert stderr.count("\n") == 1 and "Traceback" not in stderr

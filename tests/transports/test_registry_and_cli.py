@@ -145,7 +145,8 @@ def test_ctrl_c_on_rig_run_stops_the_rig_and_leaves_a_complete_log(kind, tmp_pat
     process = subprocess.Popen(
         [sys.executable, "-m", "rig.cli", "run", str(write_test_config(kind, tmp_path)), "--experiment",
          str(CONFIGS / "experiments" / "prbs.toml"), "--out", str(out), "--duration", "60", "--json"],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=CONFIGS.parent)
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=CONFIGS.parent,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))  # also when the suite runs in the background
     try:
         deadline = time.monotonic() + 30
         while (not out.exists() or out.read_text().count("\n") < 20) and time.monotonic() < deadline:
