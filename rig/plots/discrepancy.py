@@ -80,8 +80,13 @@ def signature_figure(step: DiscrepancyStep, number: int, residual_rad: NDArray[n
         what = ("the residual departs from zero near u = 0" if effect == "dead_zone"
                 else "the residual grows with |u| at the extremes")
     elif effect == "delay":
-        x, x_label = np.diff(simulated_rad, prepend=simulated_rad[0]), "model velocity per sample [rad]"
-        what = "the residual is proportional to the model's velocity"
+        lag = min(int(round(step.parameters["samples"])), simulated_rad.size)
+        x = np.concatenate((np.full(lag, simulated_rad[0]), simulated_rad[: simulated_rad.size - lag])) - simulated_rad
+        x_label = f"model delayed by {lag} samples minus model, y^(t-{lag}) - y^(t) [rad]"
+        what = f"the residual is what a model {lag} samples early leaves"
+    elif effect == "gain_error":
+        x, x_label = simulated_rad, "model output y^ [rad]"
+        what = "the residual is proportional to the model's output"
     else:
         x, x_label = time_s, "time [s]"
         what = ("a narrow peak in the spectrum of the residual" if effect == "resonance"

@@ -83,6 +83,20 @@ def test_figures_label_their_axes_with_units(files):
         assert figure.caption
 
 
+@pytest.mark.parametrize(("effect", "caption"), [("delay", "samples early leaves"),
+                                                 ("gain_error", "proportional to the model's output")])
+def test_delay_and_gain_signature_figures_show_their_own_regressor(effect, caption):
+    record = hidden_effect_record((effect,), 5)
+    result = diagnose_model(record.command_rad, record.angle_rad, record.noise_bound_rad, record.sample_period_s,
+                            record.nominal_model)
+    assert result.missing_effects[:1] == (effect,)
+    time_s = np.arange(record.command_rad.size) * record.sample_period_s
+    figure = signature_figure(result.steps[0], 1, result.initial.residual_rad, result.initial.simulated_rad,
+                              record.command_rad, time_s, result.noise_bound_rad)
+    assert unlabelled_axes(figure) == []
+    assert caption in figure.caption
+
+
 def test_bad_noise_bound_and_mismatched_period_exit_with_bad_input(files, tmp_path, capsys):
     _, data, model, _ = files
     assert main(["diagnose", str(data), "--noise-bound", "-1"]) == exit_codes.BAD_INPUT
