@@ -29,7 +29,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy import signal as scipy_signal
 
-__all__ = ["EFFECT_NAMES", "SignatureScore", "signature_scores", "direction_signal"]
+__all__ = ["EFFECT_NAMES", "SignatureScore", "delay_regressor", "direction_signal", "signature_scores"]
 
 EFFECT_NAMES: tuple[str, ...] = (
     "backlash", "dead_zone", "saturation", "delay", "coulomb_friction", "resonance", "offset", "gain_error",
@@ -68,6 +68,14 @@ def direction_signal(values: NDArray[np.float64], threshold: float) -> NDArray[n
     index = np.where(~np.isnan(sign), np.arange(sign.size), 0)
     np.maximum.accumulate(index, out=index)
     return sign[index]
+
+
+def delay_regressor(simulated_rad: NDArray[np.float64], lag: int) -> NDArray[np.float64]:
+    """y^_{t-d} - y^_t (held at y^_0 before the record): exactly the residual a model d = ``lag`` samples
+    early leaves."""
+    y_hat = np.asarray(simulated_rad, dtype=float)
+    lag = min(max(int(lag), 0), y_hat.size)
+    return np.concatenate((np.full(lag, y_hat[0]), y_hat[: y_hat.size - lag])) - y_hat
 
 
 def signature_scores(command_rad: NDArray[np.float64], angle_rad: NDArray[np.float64],
@@ -120,9 +128,7 @@ def signature_scores(command_rad: NDArray[np.float64], angle_rad: NDArray[np.flo
     correlation = [float(np.dot(centred[lag:], velocity[: velocity.size - lag])) for lag in lags]
     input_steps = np.diff(np.asarray(command_rad, dtype=float), prepend=float(command_rad[0]))
     input_correlation = [float(np.dot(centred[lag:], input_steps[: input_steps.size - lag])) for lag in lags]
-    # a model late by d samples leaves exactly r_t = y^_{t-d} - y^_t: the lag whose regressor explains most
-    lagged = [_explained(r, np.concatenate((np.full(lag, y_hat[0]), y_hat[: y_hat.size - lag])) - y_hat)
-              for lag in lags[1:]]
+    lagged = [_explained(r, delay_regressor(y_hat, int(lag))) for lag in lags[1:]]
     best_lag = 1 + int(np.argmax(lagged)) if lagged else 0
     scores["delay"] = SignatureScore("delay", max(lagged, default=0.0), {
         "delay_samples": best_lag,

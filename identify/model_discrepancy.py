@@ -673,8 +673,9 @@ def _raised_order(block: LinearBlock, order: int) -> LinearBlock:
 def _refit_last_linear(chain: _Chain, u: NDArray[np.float64], y: NDArray[np.float64]) -> _Chain:
     """When the chain has a free linear component followed only by resonances (a fitted start model with
     input-side effects before it, or a resonance after it), refit that component by output error from the
-    signal entering it to y (Steiglitz-McBride); linear blocks commute, so the resonances are applied to the
-    input. The start model's coefficients were fitted with the effect missing and have absorbed part of it."""
+    signal entering it to y (:func:`_output_error_fit`); linear blocks commute, so the resonances are applied
+    to the input. The start model's coefficients were fitted with the effect missing and have absorbed part
+    of it."""
     kinds = [c.kind for c in chain.components]
     if "linear" not in kinds:
         return chain

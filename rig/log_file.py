@@ -423,14 +423,10 @@ def read_experiment_data(path: str | Path) -> ExperimentRecord:
         return read_log(path)
     table = read_signal_table(path, ("t", "u", "y"))
     t, u, y = table["t"], table["u"], table["y"]
-    steps = np.diff(t)
-    if t.size < 2 or np.any(steps <= 0):
-        bad = int(np.flatnonzero(steps <= 0)[0]) + 1 if t.size >= 2 else 0
-        raise LogFileError(
-            f"{path}: column t must increase strictly (seconds); data row {bad + 1} has t = {float(t[bad])!r}"
-            if t.size >= 2 else f"{path}: expected at least two samples, got {t.size}"
-        )
-    metadata = ExperimentMetadata(sample_period_s=float(np.median(steps)), source=str(path), transport="csv")
+    if t.size < 2:
+        raise LogFileError(f"{path}: expected at least two samples, got {t.size}")
+    _check_increasing_time(path, t)
+    metadata = ExperimentMetadata(sample_period_s=float(np.median(np.diff(t))), source=str(path), transport="csv")
     return ExperimentRecord(time_s=t, command_rad=u, angle_rad=y, encoder_counts=None, flags=None, metadata=metadata)
 
 
@@ -444,10 +440,15 @@ def read_input_output(path: str | Path) -> tuple[NDArray[np.float64], NDArray[np
         return record.command_rad, record.angle_rad
     table = read_signal_table(path, ("u", "y"))
     if "t" in table:
-        backwards = np.flatnonzero(np.diff(table["t"]) <= 0)
-        if backwards.size:
-            row = int(backwards[0]) + 1
-            raise LogFileError(f"{path}: column t must increase strictly (seconds); data row {row + 1} has "
-                               f"t = {float(table['t'][row])!r} after {float(table['t'][row - 1])!r}: are two "
-                               "records pasted together? Give each as its own file")
+        _check_increasing_time(path, table["t"])
     return table["u"], table["y"]
+
+
+def _check_increasing_time(path: Path, t: NDArray[np.float64]) -> None:
+    """Refuse a ``t`` column that does not increase strictly, naming the first data row that breaks it."""
+    backwards = np.flatnonzero(np.diff(t) <= 0)
+    if backwards.size:
+        row = int(backwards[0]) + 1
+        raise LogFileError(f"{path}: column t must increase strictly (seconds); data row {row + 1} has "
+                           f"t = {float(t[row])!r} after {float(t[row - 1])!r}: are two records pasted together? "
+                           "Give each as its own file")

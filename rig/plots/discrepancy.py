@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from identify.effect_signatures import direction_signal
+from identify.effect_signatures import delay_regressor, direction_signal
 from identify.model_discrepancy import DiscrepancyResult, DiscrepancyStep
 from rig.report import ReportFigure, ReportSection, write_report
 
@@ -80,8 +80,8 @@ def signature_figure(step: DiscrepancyStep, number: int, residual_rad: NDArray[n
         what = ("the residual departs from zero near u = 0" if effect == "dead_zone"
                 else "the residual grows with |u| at the extremes")
     elif effect == "delay":
-        lag = min(int(round(step.parameters["samples"])), simulated_rad.size)
-        x = np.concatenate((np.full(lag, simulated_rad[0]), simulated_rad[: simulated_rad.size - lag])) - simulated_rad
+        lag = int(round(step.parameters["samples"]))
+        x = delay_regressor(simulated_rad, lag)
         x_label = f"model delayed by {lag} samples minus model, y^(t-{lag}) - y^(t) [rad]"
         what = f"the residual is what a model {lag} samples early leaves"
     elif effect == "gain_error":
