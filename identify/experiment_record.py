@@ -36,14 +36,16 @@ class SampleFlag(IntFlag):
     DUPLICATE = 4  #: the device repeated its previous reading (no fresh measurement)
     LIMITED = 8  #: the command was clipped by a configured limit before it was sent
     FAULT = 16  #: the device reported a fault during this sample
+    NOT_FOLLOWED = 32  #: the drive said it ignored the target in this sample (CiA 402 CSP statusword bit 12 clear)
 
     @classmethod
     def unusable(cls) -> SampleFlag:
         """Flags that make a sample unusable for identification."""
-        return cls.LOST | cls.DUPLICATE | cls.FAULT
+        return cls.LOST | cls.DUPLICATE | cls.FAULT | cls.NOT_FOLLOWED
 
 
-_ALL_FLAGS = int(SampleFlag.LOST | SampleFlag.LATE | SampleFlag.DUPLICATE | SampleFlag.LIMITED | SampleFlag.FAULT)
+_ALL_FLAGS = int(SampleFlag.LOST | SampleFlag.LATE | SampleFlag.DUPLICATE | SampleFlag.LIMITED | SampleFlag.FAULT
+                 | SampleFlag.NOT_FOLLOWED)
 
 
 @dataclass(frozen=True)

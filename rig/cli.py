@@ -93,8 +93,9 @@ def _interrupted_message(args: argparse.Namespace, err: KeyboardInterrupt, start
 
     name = signal.Signals(err.signal_number).name if isinstance(err, Interrupted) else "SIGINT"
     message = f"rig: interrupted by {name}"
-    if getattr(args.handler, "__module__", "") == "rig.commands.run":
-        message += " (the drive got a quick stop, then disable)"
+    notes = getattr(err, "__notes__", ())
+    if notes:
+        message += f" ({'; '.join(notes)})"
     out = getattr(args, "out", None)
     if isinstance(out, str):
         try:
@@ -105,6 +106,11 @@ def _interrupted_message(args: argparse.Namespace, err: KeyboardInterrupt, start
         message += (f"; {out} keeps {samples} samples, readable up to the stop" if samples is not None
                     else f"; no log was written to {out}")
     return message
+
+
+def _with_notes(err: BaseException) -> str:
+    """The error's message and its notes on one line (a transport notes what its controlled stop did)."""
+    return "; ".join([str(err), *getattr(err, "__notes__", ())])
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -137,7 +143,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return exit_codes.TERMINATED if is_term else exit_codes.INTERRUPTED
     except (ValueError, ConfigError, LogFileError, FileNotFoundError, IsADirectoryError) as err:
         # identify's InvalidInputError and every config/log error are ValueErrors with a complete message.
-        print(f"rig: error: {err}", file=sys.stderr)
+        print(f"rig: error: {_with_notes(err)}", file=sys.stderr)
         from rig.log_file import LogWriteError  # here, not at the top: numpy stays out of `rig --help`
 
         return exit_codes.WRITE_FAILED if isinstance(err, LogWriteError) else exit_codes.BAD_INPUT
@@ -145,7 +151,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"rig: error: {err.filename}: {err.strerror}", file=sys.stderr)
         return exit_codes.BAD_INPUT
     except (DeviceFault, TransportError) as err:
-        print(f"rig: device error: {err}", file=sys.stderr)
+        print(f"rig: device error: {_with_notes(err)}", file=sys.stderr)
         return exit_codes.DEVICE_FAULT
 
 

@@ -30,6 +30,12 @@ The format::
     feedback_timeout_s = 0.1             # no feedback for this long: controlled stop
     late_tolerance_s = 0.0005            # a cycle that starts later than this after its deadline is LATE
 
+    [bring_up]                           # optional: the CiA 402 state machine's deadlines and pacing
+    enable_timeout_s = 5.0               # the walk to OPERATION ENABLED
+    fault_reset_timeout_s = 1.0          # how long FAULT may last after the reset's rising edge
+    quick_stop_timeout_s = 0.5           # the stop waits this long for the motor to halt, then disables
+    poll_interval_s = 0.002              # statusword polling pace while waiting for a transition
+
     [simulation]                         # only for a simulated rig: the plant behind the wire
     plant = "plants/precision_gearbox.toml"   # relative to this file
     seed = 4                             # optional: seed of the simulated noise
@@ -45,7 +51,7 @@ from pathlib import Path
 from typing import Any
 
 from identify.validation import InvalidInputError
-from rig.protocols.cia402 import DriveScaling
+from rig.protocols.cia402 import BringUpTiming, DriveScaling
 from rig.protocols.config_schema import ConfigTable, load_toml
 from rig.protocols.encoder_counts import EncoderResolution
 from rig.protocols.errors import ConfigError
@@ -83,6 +89,7 @@ class RigConfig:
     simulation: SimulationConfig | None = None
     description: str = ""
     raw: dict[str, Any] = field(default_factory=dict)
+    timing: BringUpTiming = field(default_factory=BringUpTiming)
 
     @property
     def sample_period_s(self) -> float:
@@ -91,7 +98,7 @@ class RigConfig:
     def transport_options(self) -> dict[str, Any]:
         """Everything the transport's constructor takes besides the URL."""
         return {**self.options, "encoder": self.encoder, "sample_period_s": self.sample_period_s,
-                "limits": self.limits, "drive": self.drive}
+                "limits": self.limits, "drive": self.drive, "timing": self.timing}
 
 
 def _encoder(table: ConfigTable) -> EncoderResolution:
@@ -131,7 +138,7 @@ def _transport_options(table: ConfigTable, scheme: str) -> dict[str, Any]:
     cls = transport_class(scheme)
     from rig.transports import _accepted_options
 
-    accepted = _accepted_options(cls) - {"encoder", "sample_period_s", "limits", "drive", "name"}
+    accepted = _accepted_options(cls) - {"encoder", "sample_period_s", "limits", "drive", "timing", "name"}
     defaults = _option_defaults(cls)
     options: dict[str, Any] = {}
     for key, value in table.data.items():
@@ -188,6 +195,13 @@ def load_rig_config(path: str | Path) -> RigConfig:
     late_tolerance = watchdog.number("late_tolerance_s", 0.5 * period, minimum=0.0, maximum=period)
     watchdog.finish()
 
+    bring_up = root.table("bring_up", None)
+    defaults = BringUpTiming()
+    timing = BringUpTiming(**{
+        name: bring_up.number(name, getattr(defaults, name), minimum=0.0, maximum=600.0)
+        for name in ("enable_timeout_s", "fault_reset_timeout_s", "quick_stop_timeout_s", "poll_interval_s")})
+    bring_up.finish()
+
     simulation = None
     if root.has("simulation"):
         sim = root.table("simulation")
@@ -203,7 +217,7 @@ def load_rig_config(path: str | Path) -> RigConfig:
     config = RigConfig(name=name, source=str(path), sample_rate_hz=rate, url=url, scheme=scheme, options=options,
                      drive=drive, encoder=encoder, limits=CommandLimits(low, high, rate_limit),
                      feedback_timeout_s=feedback_timeout, late_tolerance_s=late_tolerance, simulation=simulation,
-                     description=description, raw=dict(root.data))
+                     description=description, raw=dict(root.data), timing=timing)
     try:  # the transport checks its options (bus load at this rate, EDS files, node-IDs) without I/O
         transport_class(scheme)(**parse_transport_url(url)[1], **config.transport_options())
     except ConfigError as err:

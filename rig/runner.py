@@ -12,10 +12,12 @@ LATE       the cycle started more than ``late_tolerance_s`` after ``t_k``, or it
            ``t_{k+1}``
 DUPLICATE  feedback k arrived more than once while sample k was pending (later copies count as stale)
 FAULT      the device reported a fault during the sample (the run stops after it)
+NOT_FOLLOWED  the drive said it ignored the target in this sample (CiA 402 CSP statusword bit 12 clear)
 
 Rows are written ``pending_cycles`` cycles behind the bus, so late feedback still fills its sample
-(flagged LATE) and a duplicate still marks it. Safety: the whole command is checked against the software limits before the first setpoint is
-sent; a feedback watchdog stops the run when nothing arrives for ``feedback_timeout_s``; any error,
+(flagged LATE) and a duplicate still marks it. Safety: the transport is prepared (devices configured, the
+drive's actual position read, nothing enabled), the whole command is checked against the software limits
+starting from that actual position, and only then is the drive enabled; a feedback watchdog stops the run when nothing arrives for ``feedback_timeout_s``; any error,
 device fault or Ctrl-C ends with a controlled stop (quick stop, then disable) and the log closed,
 complete up to the stop.
 """
@@ -36,7 +38,7 @@ from identify.experiment_record import SampleFlag
 from identify.validation import as_signal
 from rig.protocols.cia402 import DriveState, state_from_statusword_or_none
 from rig.protocols.errors import DeviceFault, TransportError
-from rig.transports.base import Setpoint, Transport
+from rig.transports.base import CommandRefused, Setpoint, Transport
 
 __all__ = ["RunSummary", "SampleSink", "run_experiment", "wait_until"]
 
@@ -45,8 +47,8 @@ _FAULT_STATES = (DriveState.FAULT, DriveState.FAULT_REACTION_ACTIVE)
 PENDING_CYCLES = 4
 """Feedback is still filed under its sample this many cycles after the sample was sent."""
 # plain ints: IntFlag arithmetic costs microseconds per sample, which a 1 kHz loop notices
-_LOST, _LATE, _DUPLICATE, _FAULT = (int(flag) for flag in (SampleFlag.LOST, SampleFlag.LATE, SampleFlag.DUPLICATE,
-                                                          SampleFlag.FAULT))
+_LOST, _LATE, _DUPLICATE, _FAULT, _NOT_FOLLOWED = (int(flag) for flag in (
+    SampleFlag.LOST, SampleFlag.LATE, SampleFlag.DUPLICATE, SampleFlag.FAULT, SampleFlag.NOT_FOLLOWED))
 CATCH_UP_SPACING = 0.5
 """Behind schedule, consecutive setpoints are still sent at least this many periods apart."""
 WAKE_MARGIN_S = 300e-6
@@ -81,8 +83,8 @@ class RunSummary:
     ----------
     samples
         Samples written (sent setpoints).
-    lost, late, duplicate
-        Samples with the LOST, LATE, DUPLICATE flag.
+    lost, late, duplicate, not_followed
+        Samples with the LOST, LATE, DUPLICATE, NOT_FOLLOWED flag.
     stale
         Feedback frames that arrived after their sample was declared lost (dropped).
     frame_errors
@@ -93,6 +95,12 @@ class RunSummary:
         Per sample, actual send time minus its deadline t_k (the loop's timing jitter).
     cpu_s, wall_s
         Process CPU time and wall time of the streaming loop.
+    not_followed
+        Samples with the NOT_FOLLOWED flag.
+    stop
+        What the controlled stop did (:class:`~rig.protocols.cia402.StopReport`, as text).
+    warnings
+        Device warnings ridden through (e.g. an encoder's temperature EMCY).
     """
 
     samples: int
@@ -105,6 +113,9 @@ class RunSummary:
     send_lateness_s: NDArray[np.float64]
     cpu_s: float
     wall_s: float
+    not_followed: int = 0
+    stop: str = ""
+    warnings: tuple[str, ...] = ()
 
 
 class _Row:
@@ -116,10 +127,22 @@ class _Row:
 
 
 def check_command(transport: Transport, command_rad: NDArray[np.float64]) -> None:
-    """Refuse the whole command before anything is sent if any sample breaks the software limits."""
+    """Refuse the whole command before the drive is enabled if any sample breaks the software limits; the
+    first setpoint is checked against the drive's actual position (:attr:`Transport.initial_position_rad`,
+    read by :meth:`Transport.prepare`), so a first command the rate limit does not allow from there is
+    refused with the distance, instead of making the drive jump."""
     previous = transport.initial_position_rad
     for k, value in enumerate(command_rad.tolist()):
         quantized = transport.drive.quantize_rad(value)
+        if k == 0 and not math.isclose(quantized, previous, abs_tol=1e-12):
+            step_s = transport.sample_period_s
+            rate = abs(quantized - previous) / step_s
+            if rate > transport.limits.rate_max_rad_per_s * (1 + 1e-12):
+                raise CommandRefused(
+                    f"setpoint 0: the first command {quantized:.6g} rad is {abs(quantized - previous):.6g} rad from the "
+                    f"drive's actual position {previous:.6g} rad: reaching it in one sample needs {rate:.6g} rad/s, "
+                    f"above the rate limit {transport.limits.rate_max_rad_per_s:.6g} rad/s; start the experiment at "
+                    "the actual position (or move the drive there first)")
         transport.limits.check(quantized, previous, transport.sample_period_s, k)
         previous = quantized
 
@@ -155,7 +178,7 @@ def run_experiment(transport: Transport, command_rad: ArrayLike, sink: SampleSin
     Raises
     ------
     CommandRefused
-        A command beyond the software limits (nothing was sent).
+        A command beyond the software limits (the drive was never enabled).
     DeviceFault, TransportError
         The device faulted or the link failed; the log holds every sample up to the stop.
     """
@@ -164,7 +187,7 @@ def run_experiment(transport: Transport, command_rad: ArrayLike, sink: SampleSin
     tolerance = 0.5 * period if late_tolerance_s is None else float(late_tolerance_s)
     rows: list[_Row] = []
     lateness = np.zeros(command.size)
-    counts = {"late": 0, "lost": 0, "duplicate": 0, "stale": 0}
+    counts = {"late": 0, "lost": 0, "duplicate": 0, "stale": 0, "not_followed": 0}
     received: set[int] = set()  # answered samples among the pending rows
     cpu_start, wall_start = time.process_time(), clock()
     sent_count = 0
@@ -185,6 +208,7 @@ def run_experiment(transport: Transport, command_rad: ArrayLike, sink: SampleSin
             received.discard(row.seq)  # final now: memory stays bounded however long the run
             counts["lost"] += bool(row.flags & _LOST)
             counts["late"] += bool(row.flags & _LATE)
+            counts["not_followed"] += bool(row.flags & _NOT_FOLLOWED)
 
     def take(sample) -> None:
         """File a feedback sample under its sample number."""
@@ -203,6 +227,8 @@ def run_experiment(transport: Transport, command_rad: ArrayLike, sink: SampleSin
         last_feedback = clock()
         row.angle_rad, row.counts = sample.load_angle_rad, sample.encoder_counts
         row.flags &= ~_LOST
+        if sample.target_ignored:
+            row.flags |= _NOT_FOLLOWED
         state = state_from_statusword_or_none(sample.statusword)
         if state in _FAULT_STATES:
             row.flags |= _FAULT  # the drive did not follow this setpoint
@@ -219,9 +245,11 @@ def run_experiment(transport: Transport, command_rad: ArrayLike, sink: SampleSin
     # fraction of a period, not after the default 5 ms.
     sys.setswitchinterval(min(switch_interval, period / 4))
     start = math.inf
+    failure: BaseException | None = None
     try:
-        transport.open()
+        transport.prepare()
         check_command(transport, command)
+        transport.enable()
         start = clock() + 2 * period
         catch_up_spacing = max(CATCH_UP_SPACING * period, transport.min_cycle_s)
         last_feedback = start
@@ -266,14 +294,17 @@ def run_experiment(transport: Transport, command_rad: ArrayLike, sink: SampleSin
             sample = transport.receive(max(grace_end - clock(), 0.0))
             if sample is not None:
                 take(sample)
-    except DeviceFault:
-        if rows:
+    except BaseException as err:
+        if isinstance(err, DeviceFault) and rows:
             rows[-1].flags |= _FAULT
+        failure = err
         raise
     finally:
         sys.setswitchinterval(switch_interval)
         try:
             transport.close()
+            if failure is not None:
+                transport.note_stop(failure)
         finally:
             try:
                 write_rows(keep=0)
@@ -285,4 +316,6 @@ def run_experiment(transport: Transport, command_rad: ArrayLike, sink: SampleSin
         rate = (sent_count - 1) / ((sent_count - 1) * period + lateness[sent_count - 1] - lateness[0])
     return RunSummary(samples=sent_count, lost=counts["lost"], late=counts["late"], duplicate=counts["duplicate"],
                       stale=counts["stale"], frame_errors=transport.frame_errors, rate_hz=rate,
-                      send_lateness_s=lateness[:sent_count], cpu_s=time.process_time() - cpu_start, wall_s=wall)
+                      send_lateness_s=lateness[:sent_count], cpu_s=time.process_time() - cpu_start, wall_s=wall,
+                      not_followed=counts["not_followed"], stop=str(transport.stop_report or ""),
+                      warnings=tuple(transport.warnings))

@@ -214,6 +214,9 @@ class SimulatedCanOpenRig:
             word = cia402.statusword_for(self.state, target_reached=True)
             if self.homed and self._i8(self.drive, 0x6060) == cia402.HOMING_MODE:
                 word |= cia402.STATUSWORD_HOMING_ATTAINED
+            if (self.state is cia402.DriveState.OPERATION_ENABLED
+                    and self._i8(self.drive, 0x6060) == cia402.CYCLIC_SYNCHRONOUS_POSITION_MODE):
+                word |= cia402.STATUSWORD_FOLLOWS_TARGET
             return word
         if index == 0x6061:
             return self._i8(self.drive, 0x6060)  # the mode is taken over at once

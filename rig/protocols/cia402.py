@@ -30,7 +30,8 @@ from rig.protocols.errors import DeviceFault, TransportError
 __all__ = [
     "CONTROLWORD_DISABLE_VOLTAGE", "CONTROLWORD_ENABLE_OPERATION", "CONTROLWORD_FAULT_RESET",
     "CONTROLWORD_QUICK_STOP", "CONTROLWORD_SHUTDOWN", "CONTROLWORD_SWITCH_ON", "DriveScaling", "DriveState",
-    "bring_to_operation_enabled", "next_controlword", "next_state", "state_from_statusword", "state_from_statusword_or_none", "statusword_for",
+    "BringUpTiming", "StopReport", "bring_to_operation_enabled", "fault_code_or_none", "next_controlword",
+    "quick_stop_then_disable", "next_state", "state_from_statusword", "state_from_statusword_or_none", "statusword_for",
 ]
 
 CONTROLWORD_SHUTDOWN = 0x0006
@@ -43,6 +44,7 @@ CONTROLWORD_FAULT_RESET = 0x0080  # acts on the rising edge of bit 7
 STATUSWORD_WARNING = 0x0080
 STATUSWORD_TARGET_REACHED = 0x0400
 STATUSWORD_HOMING_ATTAINED = 0x1000  # bit 12 in homing mode
+STATUSWORD_FOLLOWS_TARGET = 0x1000  # bit 12 in cyclic synchronous position mode: the drive follows 0x607A
 STATUSWORD_HOMING_ERROR = 0x2000  # bit 13 in homing mode
 CONTROLWORD_START_HOMING = 0x001F  # enable operation + bit 4 (operation mode specific: start homing)
 HOMING_MODE = 6
@@ -156,37 +158,202 @@ def next_controlword(state: DriveState, previous_controlword: int) -> int | None
     return CONTROLWORD_ENABLE_OPERATION  # SWITCHED_ON
 
 
+@dataclass(frozen=True)
+class BringUpTiming:
+    """Deadlines and pacing of the host side of the state machine (every value in seconds).
+
+    Attributes
+    ----------
+    enable_timeout_s
+        The whole walk to OPERATION ENABLED (transitions 2, 3, 4 of CiA 402) may take this long.
+    fault_reset_timeout_s
+        After the rising edge of controlword bit 7 (transition 15) the drive may stay in FAULT this long
+        (drives take from microseconds to a few hundred milliseconds to clear a fault).
+    quick_stop_timeout_s
+        How long the stop waits for a quick stop to bring the motor to rest (QUICK STOP ACTIVE with
+        statusword bit 10, or SWITCH ON DISABLED for 0x605A options 1-3) before it disables the voltage anyway.
+    poll_interval_s
+        Pause between two statusword reads while waiting for a transition: a controlword is written once
+        per transition, and the statusword is polled at this pace, not in a busy loop.
+    """
+
+    enable_timeout_s: float = 5.0
+    fault_reset_timeout_s: float = 1.0
+    quick_stop_timeout_s: float = 0.5
+    poll_interval_s: float = 0.002
+
+    def __post_init__(self) -> None:
+        for name in ("enable_timeout_s", "fault_reset_timeout_s", "quick_stop_timeout_s", "poll_interval_s"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
+                raise ValueError(f"{name}: expected a number of seconds >= 0, got {value!r}")
+
+
+_FAULT_STATES = (DriveState.FAULT, DriveState.FAULT_REACTION_ACTIVE)
+
+
+def fault_code_or_none(read_fault_code: Callable[[], int | None] | None) -> int | None:
+    """The drive's error code (0x603F) for a message; None when there is no way to read it, the read
+    fails, or the drive reports 0 (CiA 402: 0x0000 is "no error", not a code to explain)."""
+    if read_fault_code is None:
+        return None
+    try:
+        code = read_fault_code()
+    except Exception:  # noqa: BLE001 - the code only decorates a message about a fault already found
+        return None
+    return int(code) if code else None
+
+
+def _wait_for_state(read_statusword: Callable[[], int], done: Callable[[DriveState, int], bool], deadline: float,
+                    timing: BringUpTiming, clock: Callable[[], float], sleep: Callable[[float], None]) -> DriveState:
+    """Poll the statusword at ``timing.poll_interval_s`` until ``done(state, statusword)`` or ``deadline``;
+    return the last state read."""
+    while True:
+        word = read_statusword()
+        state = state_from_statusword(word)
+        if done(state, word) or clock() >= deadline:
+            return state
+        sleep(timing.poll_interval_s)
+
+
 def bring_to_operation_enabled(write_controlword: Callable[[int], None], read_statusword: Callable[[], int],
-                               device: str, *, timeout_s: float = 2.0,
-                               read_fault_code: Callable[[], int | None] | None = None) -> list[int]:
+                               device: str, *, timing: BringUpTiming = BringUpTiming(),
+                               read_fault_code: Callable[[], int | None] | None = None,
+                               clock: Callable[[], float] = time.monotonic,
+                               sleep: Callable[[float], None] = time.sleep) -> list[int]:
     """Walk a drive through the state machine to OPERATION_ENABLED; returns the controlwords sent.
 
-    ``read_statusword`` must return the statusword as it is after the last written controlword. A drive
-    found in FAULT is reset once (its error code, e.g. 0x603F, is read through ``read_fault_code`` for the
-    message if the reset does not clear it). Raises :class:`DeviceFault` if the drive does not reach the
-    state within ``timeout_s`` or falls back into FAULT after a reset.
+    Each controlword of :func:`next_controlword` is written once; the statusword is then polled
+    (paced by ``timing.poll_interval_s``) until the state changes. A drive found in FAULT gets one fault
+    reset, on a rising edge of bit 7 (a word with bit 7 clear first if the last one had it set,
+    transition 15), and may take ``timing.fault_reset_timeout_s`` to leave FAULT. The error code
+    (0x603F through ``read_fault_code``) is read when the fault is first seen, so every message names it.
+
+    Raises
+    ------
+    DeviceFault
+        The drive stays in FAULT after the reset, or does not reach OPERATION ENABLED within
+        ``timing.enable_timeout_s`` (the message names the state it is stuck in).
     """
-    deadline = time.monotonic() + timeout_s
+    deadline = clock() + timing.enable_timeout_s
     sent: list[int] = []
     previous = CONTROLWORD_DISABLE_VOLTAGE
-    resets = 0
-    while True:
-        state = state_from_statusword(read_statusword())
-        controlword = next_controlword(state, previous)
-        if controlword is None:
-            return sent
-        if controlword == CONTROLWORD_FAULT_RESET:
-            resets += 1
-            if resets > 1:
-                code = read_fault_code() if read_fault_code is not None else None
-                raise DeviceFault(device, code, "the drive stays in FAULT after a fault reset")
-        if time.monotonic() > deadline:
-            code = read_fault_code() if read_fault_code is not None else None
-            raise DeviceFault(device, code, f"the drive did not reach OPERATION ENABLED within {timeout_s:g} s "
-                                            f"(stuck in {state.name})")
+    fault_code: int | None = None
+    reset_done = False
+
+    def write(controlword: int) -> None:
+        nonlocal previous
         write_controlword(controlword)
         sent.append(controlword)
         previous = controlword
+
+    state = state_from_statusword(read_statusword())
+    while state is not DriveState.OPERATION_ENABLED:
+        if state in _FAULT_STATES:
+            if fault_code is None:
+                fault_code = fault_code_or_none(read_fault_code)
+            if reset_done:
+                raise DeviceFault(device, fault_code, (
+                    f"the drive stays in FAULT {timing.fault_reset_timeout_s:g} s after a fault reset "
+                    "(clear the cause named by the code, then run again)"))
+            reset_until = clock() + timing.fault_reset_timeout_s
+            if state is DriveState.FAULT_REACTION_ACTIVE:  # the reset acts only in FAULT
+                state = _wait_for_state(read_statusword, lambda s, _: s is not DriveState.FAULT_REACTION_ACTIVE,
+                                        reset_until, timing, clock, sleep)
+            if previous & CONTROLWORD_FAULT_RESET:
+                write(CONTROLWORD_DISABLE_VOLTAGE)
+            write(CONTROLWORD_FAULT_RESET)
+            reset_done = True
+            state = _wait_for_state(read_statusword, lambda s, _: s not in _FAULT_STATES, reset_until, timing,
+                                    clock, sleep)
+            deadline = max(deadline, clock() + timing.enable_timeout_s)  # the reset's wait is its own budget
+            continue
+        if clock() >= deadline:
+            raise DeviceFault(device, fault_code_or_none(read_fault_code), (
+                f"the drive did not reach OPERATION ENABLED within {timing.enable_timeout_s:g} s (stuck in "
+                f"{state.name}{_STUCK_HINTS.get(state, '')})"))
+        controlword = next_controlword(state, previous)
+        assert controlword is not None  # only None in OPERATION_ENABLED
+        write(controlword)
+        before = state
+        state = _wait_for_state(read_statusword, lambda s, _, before=before: s is not before, deadline, timing,
+                                clock, sleep)
+    return sent
+
+
+_STUCK_HINTS = {
+    DriveState.SWITCH_ON_DISABLED: ": is the enable input or safe torque off active?",
+    DriveState.READY_TO_SWITCH_ON: ": is the main voltage on?",
+    DriveState.SWITCHED_ON: ": does the drive wait for SYNC, or refuse the mode of operation?",
+}
+
+
+@dataclass(frozen=True)
+class StopReport:
+    """What :func:`quick_stop_then_disable` did, for the message of whatever ended the run.
+
+    Attributes
+    ----------
+    steps
+        One phrase per step, in order ("quick stop sent", "disable failed: ...").
+    final_state
+        The drive state read after the last step (None if it could not be read).
+    """
+
+    steps: tuple[str, ...]
+    final_state: DriveState | None
+
+    @property
+    def disabled(self) -> bool:
+        """True when the drive was read back with its power stage off (not OPERATION ENABLED or QUICK STOP)."""
+        return self.final_state is not None and self.final_state not in (DriveState.OPERATION_ENABLED,
+                                                                          DriveState.QUICK_STOP_ACTIVE)
+
+    def __str__(self) -> str:
+        end = ("state unknown (the drive did not answer)" if self.final_state is None
+               else f"ends {self.final_state.name.replace('_', ' ')}")
+        return f"{', then '.join(self.steps)}; {end}"
+
+
+def quick_stop_then_disable(write_controlword: Callable[[int], None], read_statusword: Callable[[], int], *,
+                            timing: BringUpTiming = BringUpTiming(), clock: Callable[[], float] = time.monotonic,
+                            sleep: Callable[[float], None] = time.sleep) -> StopReport:
+    """The controlled stop: quick stop (controlword 0x0002, transition 11), wait until the motor is at rest
+    (QUICK STOP ACTIVE with statusword bit 10, or the drive went on to SWITCH ON DISABLED by its 0x605A
+    option) at most ``timing.quick_stop_timeout_s``, then disable voltage (0x0000, transition 12/9/7).
+
+    Every step is attempted even when an earlier one failed (a lost answer must not leave the power stage
+    on), and nothing raises: a step's failure is reported in the returned :class:`StopReport`.
+    """
+    steps: list[str] = []
+    try:
+        write_controlword(CONTROLWORD_QUICK_STOP)
+        steps.append("quick stop sent")
+    except Exception as err:  # noqa: BLE001 - report it and go on to disable
+        steps.append(f"quick stop failed ({err})")
+    try:
+        _wait_for_state(read_statusword, _at_rest_after_quick_stop, clock() + timing.quick_stop_timeout_s,
+                        timing, clock, sleep)
+    except Exception:  # noqa: BLE001 - no answer: disable anyway
+        pass
+    try:
+        write_controlword(CONTROLWORD_DISABLE_VOLTAGE)
+        steps.append("disable sent")
+    except Exception as err:  # noqa: BLE001
+        steps.append(f"disable failed ({err})")
+    try:
+        final: DriveState | None = state_from_statusword(read_statusword())
+    except Exception:  # noqa: BLE001
+        final = None
+    return StopReport(tuple(steps), final)
+
+
+def _at_rest_after_quick_stop(state: DriveState, statusword: int) -> bool:
+    """Quick stop done: halted in QUICK STOP ACTIVE (bit 10 "target reached" means at rest there), or the
+    drive left it on its own (0x605A options 1-3 end in SWITCH ON DISABLED; a fault ends the same way)."""
+    if state is DriveState.QUICK_STOP_ACTIVE:
+        return bool(statusword & STATUSWORD_TARGET_REACHED)
+    return state is not DriveState.OPERATION_ENABLED
 
 
 @dataclass(frozen=True)

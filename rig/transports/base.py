@@ -1,20 +1,38 @@
 """The rig-level transport interface: a setpoint out, a timestamped feedback sample back.
 
 After python-can's ``can/bus.py``: the public behaviour (state checks, software limits, sequence
-bookkeeping, timeouts, fault propagation, idempotent stop and close, context manager) is written once
-here; a backend implements a small seam:
+bookkeeping, timeouts, fault propagation, the one bring-up and the one teardown, idempotent stop and
+close, context manager) is written once here; a backend implements a small seam:
 
-``_open()``
-    Bring the link and devices up and the drive to OPERATION ENABLED with its target at the actual
-    position; return the drive's actual position in radians.
+``_connect()``
+    Open the bus or port. Nothing is sent to the drive that could enable it.
+``_prepare()``
+    Configure the devices (PDOs, mode of operation, watchdogs) and make the drive's target equal to its
+    actual position; return that actual position in radians. Still nothing that enables the drive.
+``_write_controlword(controlword)``, ``_read_statusword()``
+    One CiA 402 controlword to the drive (confirmed by the device), one statusword read. The base class
+    walks the state machine with them (:func:`rig.protocols.cia402.bring_to_operation_enabled`) and
+    stops with them (:func:`rig.protocols.cia402.quick_stop_then_disable`).
+``_read_error_code()``
+    The drive's error code (CiA 402 0x603F) for a message, or None where the link cannot read it.
+``_after_enabled()``
+    Anything that needs the drive enabled before streaming (homing); may return a new actual position.
+``_release_devices()``
+    After the stop: take the devices off the cyclic traffic (CANopen: NMT pre-operational). Best effort.
 ``_send(setpoint)``
     Put one setpoint on the wire (and, on CANopen, the SYNC that makes the devices sample).
 ``_recv_internal(timeout_s)``
     Return the next :class:`FeedbackSample` that arrived, or None after ``timeout_s``.
-``_stop()``
-    Controlled stop: quick stop, then disable. Must not raise for a link that is already gone.
 ``_close()``
     Release the bus/port and every thread. Must be idempotent.
+
+Bring-up is :meth:`Transport.prepare` (link up, devices configured, actual position read) then
+:meth:`Transport.enable`; a caller checks its whole command against the actual position between the two,
+so a refused experiment never enables the drive. Once the first enabling controlword has gone out, every
+exit (an exception in the bring-up, in streaming, in the stop itself, a signal) runs the same teardown:
+quick stop, then disable, then :meth:`_release_devices`, each step attempted even when an earlier one
+failed; what it did (:class:`~rig.protocols.cia402.StopReport`) is attached to the exception that ended
+the run as a note and kept in :attr:`Transport.stop_report`.
 
 Backends report asynchronous device faults (EMCY, heartbeat loss, a FAULT frame) from their receive
 threads with :meth:`Transport._report_fault`; the next :meth:`send`/:meth:`receive` raises them.
@@ -30,12 +48,13 @@ from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
 
-from rig.protocols.cia402 import DriveScaling
+from rig.protocols import cia402
+from rig.protocols.cia402 import BringUpTiming, DriveScaling, StopReport
 from rig.protocols.encoder_counts import EncoderResolution
 from rig.protocols.errors import ConfigError, RigError, TransportError
 
-__all__ = ["CommandLimits", "CommandRefused", "DriveScaling", "FeedbackSample", "Setpoint", "Transport",
-           "check_trace_path"]
+__all__ = ["BringUpTiming", "CommandLimits", "CommandRefused", "DriveScaling", "FeedbackSample", "Setpoint",
+           "Transport", "check_trace_path"]
 
 TRACE_SUFFIXES = (".blf", ".asc", ".log", ".csv", ".trc")
 
@@ -90,6 +109,9 @@ class FeedbackSample:
         The drive's CiA 402 statusword (0x6041).
     host_time_s
         ``time.perf_counter()`` when the host received the sample.
+    target_ignored
+        The drive said it did not follow the target in this sample (CiA 402 cyclic synchronous position
+        mode: statusword bit 12 clear in OPERATION ENABLED); the runner flags the sample NOT_FOLLOWED.
     """
 
     seq: int
@@ -98,6 +120,7 @@ class FeedbackSample:
     drive_position_rad: float
     statusword: int
     host_time_s: float
+    target_ignored: bool = False
 
 
 @dataclass(frozen=True)
@@ -144,19 +167,22 @@ class Transport(ABC):
         Software command limits; setpoints beyond them raise :class:`CommandRefused` and are not sent.
     drive
         Drive position scaling.
+    timing
+        Deadlines and pacing of the CiA 402 bring-up and stop (:class:`~rig.protocols.cia402.BringUpTiming`).
     name
         Label in messages and logs (e.g. the URL).
 
     Examples
     --------
     >>> with open_transport("serial:///dev/ttyUSB0", encoder=..., sample_period_s=1e-3) as link:  # doctest: +SKIP
-    ...     link.open()
+    ...     link.prepare()                     # configured, actual position read, not enabled
+    ...     link.enable()                      # OPERATION ENABLED at that position
     ...     sent = link.send(Setpoint(0, link.initial_position_rad))
     ...     sample = link.receive(timeout_s=0.01)
     """
 
     def __init__(self, *, encoder: EncoderResolution, sample_period_s: float, limits: CommandLimits | None = None,
-                 drive: DriveScaling | None = None, name: str = "") -> None:
+                 drive: DriveScaling | None = None, timing: BringUpTiming | None = None, name: str = "") -> None:
         if not isinstance(encoder, EncoderResolution):
             raise TypeError(f"encoder: expected an EncoderResolution, got {type(encoder).__name__}")
         if not (math.isfinite(sample_period_s) and sample_period_s > 0):
@@ -165,10 +191,14 @@ class Transport(ABC):
         self.sample_period_s = float(sample_period_s)
         self.limits = limits or CommandLimits()
         self.drive = drive or DriveScaling()
+        self.timing = timing or BringUpTiming()
         self.name = name or type(self).__name__
         self.initial_position_rad = 0.0
         self.frame_errors = 0
+        self.stop_report: StopReport | None = None
+        self.warnings: list[str] = []  # device warnings ridden through (e.g. an encoder's EMCY 0x4210)
         self._state = "closed"
+        self._enabling_sent = False
         self._previous_rad = 0.0
         self._fault: RigError | None = None
         self._fault_lock = threading.Lock()
@@ -186,17 +216,54 @@ class Transport(ABC):
     def is_open(self) -> bool:
         return self._state == "open"
 
+    @property
+    def drive_label(self) -> str:
+        """How messages name the drive (e.g. ``"canopen://socketcan/can0 drive 1"``)."""
+        return f"{self.name} drive"
+
     def open(self) -> None:
-        """Bring the rig up (drive in OPERATION ENABLED at its actual position). On failure everything
-        already started is closed again before the error propagates."""
+        """Bring the rig up: :meth:`prepare`, then :meth:`enable`."""
         if self._state == "open":
             return
+        if self._state == "closed":
+            self.prepare()
+        self.enable()
+
+    def prepare(self) -> float:
+        """Open the link, configure the devices and read the drive's actual position (also kept in
+        :attr:`initial_position_rad`), with the drive's target set to it; the drive is not enabled yet.
+        On failure everything started is closed again before the error propagates."""
+        if self._state != "closed":
+            raise TransportError(f"{self.name}: the transport is {self._state}; prepare() comes first, once")
+        self._state = "preparing"
+        self._enabling_sent, self.stop_report = False, None
         try:
-            self.initial_position_rad = float(self._open())
-        except BaseException:
-            self._safe_close()
+            self._connect()
+            self.initial_position_rad = float(self._prepare())
+        except BaseException as err:
+            self._teardown(err)
             raise
         self._previous_rad = self.initial_position_rad
+        self._state = "prepared"
+        return self.initial_position_rad
+
+    def enable(self) -> None:
+        """Bring the drive to OPERATION ENABLED (at the position :meth:`prepare` read). From the first
+        enabling controlword on, any failure ends in the teardown (quick stop, then disable) before the
+        error propagates."""
+        if self._state != "prepared":
+            raise TransportError(f"{self.name}: the transport is {self._state}; call prepare() first")
+        self._enabling_sent = True
+        try:
+            cia402.bring_to_operation_enabled(self._write_controlword, self._read_statusword, self.drive_label,
+                                              timing=self.timing, read_fault_code=self._read_error_code)
+            moved_to = self._after_enabled()
+            if moved_to is not None:
+                self.initial_position_rad = float(moved_to)
+                self._previous_rad = self.initial_position_rad
+        except BaseException as err:
+            self._teardown(err)
+            raise
         self._state = "open"
 
     def send(self, setpoint: Setpoint) -> Setpoint:
@@ -224,21 +291,50 @@ class Transport(ABC):
                 self.raise_fault()
                 return None
 
-    def stop(self) -> None:
-        """Controlled stop (quick stop, then disable); safe to call at any time, any number of times."""
-        if self._state == "open":
+    def stop(self) -> StopReport | None:
+        """Controlled stop: quick stop, then disable (if the drive was ever sent an enabling controlword),
+        then the devices released (:meth:`_release_devices`). Safe to call at any time, any number of
+        times: it runs once per bring-up."""
+        if self._enabling_sent and self.stop_report is None:
             self._state = "stopping"
-            try:
-                self._stop()
-            finally:
-                self._state = "stopped"
+            self.stop_report = cia402.quick_stop_then_disable(self._write_controlword, self._read_statusword,
+                                                              timing=self.timing)
+            self._release()
+            self._state = "stopped"
+        elif self._state in ("preparing", "prepared"):
+            self._release()
+        return self.stop_report
 
     def close(self) -> None:
-        """Stop if running, then release the link (idempotent)."""
+        """Stop if the drive was enabled, then release the link (idempotent)."""
         try:
             self.stop()
         finally:
             self._safe_close()
+
+    def _release(self) -> None:
+        try:
+            self._release_devices()
+        except Exception:  # noqa: BLE001 - best effort: the drive is already disabled or unreachable
+            pass
+
+    def _teardown(self, err: BaseException) -> None:
+        """The one exit path after a failure in the bring-up: stop (quick stop and disable if an enabling
+        command went out), release the devices, close the link, and say on ``err`` what the stop did."""
+        try:
+            self.stop()
+        finally:
+            self._safe_close()
+        self.note_stop(err)
+
+    def note_stop(self, err: BaseException) -> None:
+        """Attach what the controlled stop did to ``err`` (once), so that the message of whatever ended
+        the run says it: ``"... drive 1: quick stop sent, then disable sent; ends SWITCH ON DISABLED"``."""
+        if self.stop_report is None:
+            return
+        note = f"{self.drive_label}: {self.stop_report}"
+        if note not in getattr(err, "__notes__", ()):
+            err.add_note(note)
 
     def raise_fault(self) -> None:
         """Raise the fault a device reported asynchronously, if any."""
@@ -273,14 +369,31 @@ class Transport(ABC):
             raise TransportError(f"{self.name}: the transport is {self._state}; call open() first")
 
     def _safe_close(self) -> None:
-        if self._state != "closed":
-            self._state = "closed"
+        self._state = "closed"
         self._close()
 
     # -- the seam ----------------------------------------------------------------------------------------
 
     @abstractmethod
-    def _open(self) -> float: ...
+    def _connect(self) -> None: ...
+
+    @abstractmethod
+    def _prepare(self) -> float: ...
+
+    @abstractmethod
+    def _write_controlword(self, controlword: int) -> None: ...
+
+    @abstractmethod
+    def _read_statusword(self) -> int: ...
+
+    def _read_error_code(self) -> int | None:
+        return None
+
+    def _after_enabled(self) -> float | None:
+        return None
+
+    def _release_devices(self) -> None:
+        return None
 
     @abstractmethod
     def _send(self, setpoint: Setpoint) -> None: ...
@@ -289,8 +402,4 @@ class Transport(ABC):
     def _recv_internal(self, timeout_s: float) -> FeedbackSample | None: ...
 
     @abstractmethod
-    def _stop(self) -> None: ...
-
-    @abstractmethod
     def _close(self) -> None: ...
-

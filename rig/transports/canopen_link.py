@@ -1,17 +1,31 @@
 """CANopen transport: a CiA 402 drive in cyclic synchronous position mode and a CiA 406 load encoder.
 
-Start-up (all by SDO, before any PDO flows):
+Before anything is sent, the EDS files are checked for every object the master needs (a missing one is a
+:class:`ConfigError` naming it and what it is for). Start-up, all by SDO, in :meth:`_prepare` (nothing in
+it can enable the drive):
 
-1. NMT pre-operational for both nodes; producer heartbeat (0x1017) set on both, communication cycle
-   period (0x1006) on the drive; mode of operation 0x6060 = 8 (cyclic synchronous position), or 6
-   (homing) first if ``skip_homing`` is false.
+1. NMT pre-operational for both nodes; producer heartbeat (0x1017) on both; the SYNC period in the
+   drive's 0x1006 (communication cycle period) or else 0x60C2 (interpolation time period); 0x6502
+   (supported drive modes), where present, must offer cyclic synchronous position; mode of operation
+   0x6060 = 8 (cyclic synchronous position), or 6 (homing) first if ``skip_homing`` is false.
 2. PDO mapping: drive RPDO1 = target position 0x607A; drive TPDO1 = statusword 0x6041 + position actual
-   value 0x6064; encoder TPDO1 = position value 0x6004; TPDOs synchronous (transmission type 1: every SYNC).
-3. Encoder resolution read from 0x6501 (single-turn) and 0x6002 (total range) and checked against the
-   config (whose ``signed`` says how to read 0x6004, since vendors differ).
-4. NMT operational; the drive walked to OPERATION ENABLED through the CiA 402 state machine (fault reset
-   on a rising edge; the drive's target starts at its actual position, so enabling does not jump);
-   optional homing (mode 6, method 0x6098), then mode 8.
+   value 0x6064; encoder TPDO1 = position value 0x6004; TPDOs synchronous (transmission type 1: every
+   SYNC). Every PDO's communication and mapping parameters are then read back: a device with static PDOs
+   refuses the writes (or canopen skips what the EDS marks read-only), so the master decodes the layout
+   the device really sends, and refuses one that lacks an object or answers other than every SYNC,
+   naming the object.
+3. The encoder's scaling, 0x6001 (measuring units per revolution) and 0x6002 (total measuring range; 0 on
+   a 32-bit encoder, read as 2**32), or 0x6501/0x6502 where the EDS has no scaling objects, and its code
+   sequence 0x6000 bit 0 are checked against ``[encoder]``. 0x6004 is UNSIGNED32; ``signed`` says
+   whether the counts are to be read as two's complement.
+4. NMT operational; the mode handshake: 0x6061 must show the mode within ``mode_switch_timeout_s``; the
+   actual position 0x6064 is read and written into the target 0x607A, so that enabling cannot move the
+   motor (a standard drive servoes to whatever 0x607A holds).
+
+The base class then walks the drive to OPERATION ENABLED by SDO on 0x6040/0x6041 (paced polling, fault
+reset on a rising edge; :mod:`rig.protocols.cia402`), and after optional homing (mode 6, method 0x6098)
+the target is set to the actual position again before mode 8 is taken. Every exit after that ends in
+quick stop, then disable, then NMT pre-operational (:class:`~rig.transports.base.Transport`).
 
 Each sample: RPDO1 with the target, then SYNC, both from the runner's own scheduler (never triggered by
 TPDO arrival). The TPDOs answering that SYNC make one :class:`FeedbackSample`. TPDOs carry no SYNC
@@ -23,23 +37,29 @@ Python late, or a SYNC whose transmission the host delayed, is still filed under
 provided the device put its answer on the bus before the next SYNC. An interface that does not echo
 transmitted frames is refused at start-up with a message saying so. A second answer to one SYNC is
 reported again and the runner flags the sample DUPLICATE (unusable).
-EMCY from either node, a drive FAULT in the statusword, or a heartbeat older than ``heartbeat_timeout_s``
-stop the run; on a fault the drive's error code 0x603F is read by SDO for the message.
+In OPERATION ENABLED, a sample whose statusword has bit 12 clear ("target ignored" in cyclic synchronous
+position) is marked ``target_ignored`` (the runner flags it NOT_FOLLOWED). A drive FAULT in the statusword,
+an EMCY that is not a warning (``emcy_warning_codes``; warnings are collected in ``warnings``), a heartbeat
+older than ``heartbeat_timeout_s`` on the host's receive clock, or a heartbeat that reports an NMT state
+other than OPERATIONAL stop the run, naming the node; on a drive fault 0x603F is read by SDO for the
+message.
 """
 
 from __future__ import annotations
 
 import collections
-import struct
+import contextlib
 import threading
 import time
+from collections.abc import Iterator
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from rig.protocols import cia402
 from rig.protocols.can_bus_load import bus_load
 from rig.protocols.can_error_frames import ERROR_FRAME_FILTERS, describe_error_frame, is_bus_off
-from rig.protocols.errors import ConfigError, DeviceFault, TransportError
+from rig.protocols.errors import ConfigError, DeviceFault, TransportError, error_code_meaning
 from rig.transports.base import FeedbackSample, Setpoint, Transport, check_trace_path
 
 __all__ = ["CanOpenTransport", "DEFAULT_DRIVE_EDS", "DEFAULT_ENCODER_EDS"]
@@ -50,9 +70,9 @@ DEFAULT_ENCODER_EDS = _CONFIGS / "sim_encoder_cia406.eds"
 # data bytes of the frames of one cycle: SYNC, drive RPDO1 (0x607A), drive TPDO1 (0x6041 + 0x6064),
 # encoder TPDO1 (0x6004)
 CYCLE_FRAME_BYTES = (0, 4, 6, 4)
-_DRIVE_TPDO = struct.Struct("<Hi")  # 0x6041 statusword, 0x6064 position actual value
-_ENCODER_TPDO = struct.Struct("<I")  # 0x6004 position value
-_RPDO = struct.Struct("<i")  # 0x607A target position
+_MODE_NAMES = {cia402.CYCLIC_SYNCHRONOUS_POSITION_MODE: "cyclic synchronous position", cia402.HOMING_MODE: "homing"}
+_NMT_STATES = {0x00: "INITIALISING", 0x04: "STOPPED", 0x05: "OPERATIONAL", 0x7F: "PRE-OPERATIONAL"}
+_NMT_OPERATIONAL = 0x05
 SYNC_COB_ID = 0x80  # CiA 301 default (0x1005); the master produces the SYNC
 SYNC_ECHO_TIMEOUT_S = 0.5  # the start-up probe's wait for the echo of a SYNC
 
@@ -85,6 +105,13 @@ class CanOpenTransport(Transport):
         CiA 402 homing method (0x6098); 37 = home on the current position (no motion).
     homing_timeout_s
         How long homing may take.
+    mode_switch_timeout_s
+        How long the drive may take to show a new mode of operation in 0x6061 after 0x6060 was written.
+    emcy_warning_codes
+        EMCY codes that are warnings, logged and ridden through: comma-separated hex prefixes of the code
+        (``"0x4"``, the default, is every temperature code 0x4xxx of CiA 301 Table 21; ``"0x4210,0xFF"``
+        names one code and one class; ``""`` stops on every EMCY). Any other EMCY, from either node, stops
+        the run; a drive FAULT in the statusword always does.
     trace_path
         Write every frame on the bus (sent and received) to this file with python-can's writers
         (``.blf``, ``.asc``, ``.log``, ``.csv``, ``.trc``; not ``.db``: SqliteWriter drops frames under load).
@@ -94,8 +121,8 @@ class CanOpenTransport(Transport):
                  encoder_node_id: int = 2, drive_eds: str = str(DEFAULT_DRIVE_EDS),
                  encoder_eds: str = str(DEFAULT_ENCODER_EDS), heartbeat_ms: int = 100,
                  heartbeat_timeout_s: float = 0.5, sdo_timeout_s: float = 0.5, skip_homing: bool = True,
-                 homing_method: int = 37, homing_timeout_s: float = 30.0, trace_path: str | None = None,
-                 **kwargs: Any) -> None:
+                 homing_method: int = 37, homing_timeout_s: float = 30.0, mode_switch_timeout_s: float = 1.0,
+                 emcy_warning_codes: str = "0x4", trace_path: str | None = None, **kwargs: Any) -> None:
         super().__init__(**kwargs)
         self.interface, self.channel, self.bitrate = interface, channel, int(bitrate)
         self.drive_node_id, self.encoder_node_id = int(drive_node_id), int(encoder_node_id)
@@ -111,9 +138,23 @@ class CanOpenTransport(Transport):
         if self.drive_node_id == self.encoder_node_id or not all(
                 1 <= node <= 127 for node in (self.drive_node_id, self.encoder_node_id)):
             raise ConfigError("<transport>", "drive_node_id", "node-IDs must differ and lie in 1..127")
-        for key, path in (("drive_eds", self.drive_eds), ("encoder_eds", self.encoder_eds)):
-            if not Path(path).is_file():
-                raise ConfigError("<transport>", key, f"no such EDS file {path}")
+        self.mode_switch_timeout_s = float(mode_switch_timeout_s)
+        self.emcy_warning_prefixes = _emcy_prefixes(emcy_warning_codes)
+        self._drive_od = _load_object_dictionary("drive_eds", self.drive_eds, self.drive_node_id)
+        self._encoder_od = _load_object_dictionary("encoder_eds", self.encoder_eds, self.encoder_node_id)
+        _require_objects("drive_eds", self.drive_eds, self._drive_od, _DRIVE_OBJECTS + (
+            () if self.skip_homing else ((0x6098, "the homing method (skip_homing = false)"),)))
+        if 0x1006 not in self._drive_od and 0x60C2 not in self._drive_od:
+            raise ConfigError("<transport>", "drive_eds", (
+                f"{self.drive_eds} has neither 0x1006 (communication cycle period) nor 0x60C2 (interpolation time "
+                "period): the master must tell the drive the SYNC period it interpolates over; use the vendor's "
+                "EDS with one of them"))
+        _require_objects("encoder_eds", self.encoder_eds, self._encoder_od, _ENCODER_OBJECTS)
+        if not (0x6001 in self._encoder_od or 0x6501 in self._encoder_od):
+            raise ConfigError("<transport>", "encoder_eds", (
+                f"{self.encoder_eds} has neither 0x6001/0x6002 (measuring units per revolution, total measuring "
+                "range) nor 0x6501 (single-turn resolution): the master checks the encoder's resolution against "
+                "[encoder]; use the vendor's EDS"))
         self.trace_path = check_trace_path(trace_path)
         self._trace = None
         self.load = bus_load(CYCLE_FRAME_BYTES, 1.0 / self.sample_period_s, self.bitrate)
@@ -125,7 +166,13 @@ class CanOpenTransport(Transport):
         self.network = None
         self._drive = None
         self._encoder = None
-        self._rpdo_cob_id = 0x200 + self.drive_node_id
+        self._rpdo: PdoLayout | None = None
+        self._drive_tpdo: PdoLayout | None = None
+        self._encoder_tpdo: PdoLayout | None = None
+        self._mode = cia402.CYCLIC_SYNCHRONOUS_POSITION_MODE
+        self._last_target_counts = 0
+        self._watch_nmt = False  # from OPERATION ENABLED on, a heartbeat not OPERATIONAL stops the run
+        self._heartbeats: dict[int, tuple[float, int]] = {}  # node-ID -> (host receive time, NMT state)
         self._syncs: collections.deque[tuple[float, int]] = collections.deque(maxlen=4096)  # (bus time, seq)
         self._unechoed: collections.deque[int] = collections.deque()  # SYNCs sent, echo not yet back
         self._echo_probe = threading.Event()
@@ -135,7 +182,7 @@ class CanOpenTransport(Transport):
         self._parts: dict[int, dict[str, Any]] = {}
         self._ready: collections.deque[FeedbackSample] = collections.deque()
         self._arrived = threading.Condition(self._lock)
-        self._emcy: tuple[str, int] | None = None
+        self._emcy: tuple[str, int, int] | None = None  # (role, node-ID, EMCY code; 0: FAULT in the statusword)
 
     @property
     def min_cycle_s(self) -> float:
@@ -144,12 +191,16 @@ class CanOpenTransport(Transport):
 
     # -- seam ----------------------------------------------------------------------------------------------
 
-    def _open(self) -> float:
+    @property
+    def drive_label(self) -> str:
+        return f"{self.name} drive {self.drive_node_id}"
+
+    def _connect(self) -> None:
         try:
             import canopen
         except ImportError as err:  # pragma: no cover - canopen is a dependency
             raise TransportError("the canopen transport needs the canopen package: pip install canopen") from err
-        try:
+        with self._translated_errors("start-up"):
             self.network = canopen.Network()
             self.network.connect(interface=self.interface, channel=self.channel, bitrate=self.bitrate,
                                  receive_own_messages=True,  # SYNC echoes: see the module docstring
@@ -162,61 +213,157 @@ class CanOpenTransport(Transport):
 
                 self._trace = can.Logger(self.trace_path)
                 self.network.notifier.add_listener(self._trace)
-            self._drive = self.network.add_node(self.drive_node_id, self.drive_eds)
-            self._encoder = self.network.add_node(self.encoder_node_id, self.encoder_eds)
+            self._drive = self.network.add_node(self.drive_node_id, self._drive_od)
+            self._encoder = self.network.add_node(self.encoder_node_id, self._encoder_od)
             for node in (self._drive, self._encoder):
                 node.sdo.RESPONSE_TIMEOUT = self.sdo_timeout_s
+                self.network.subscribe(0x700 + node.id, self._on_heartbeat)
+
+    def _prepare(self) -> float:
+        """Steps 1-4 of the module docstring up to, not including, the first enabling controlword."""
+        with self._translated_errors("start-up"):
+            drive, encoder = self._drive, self._encoder
+            for node in (drive, encoder):
                 node.nmt.state = "PRE-OPERATIONAL"
-            return self._configure(canopen)
-        except (canopen.SdoAbortedError,) as err:
-            raise DeviceFault(self.name, err.code, f"refused a start-up SDO: {err}") from err
-        except (canopen.SdoCommunicationError, canopen.nmt.NmtError) as err:
-            raise TransportError(f"{self.name}: no answer during start-up: {err}") from err
-        except OSError as err:
-            raise TransportError(f"{self.name}: cannot open CAN {self.interface}/{self.channel}: {err}") from err
-        except Exception as err:
-            import can
+                node.sdo[0x1017].raw = self.heartbeat_ms
+            self._write_cycle_period(drive)
+            self._check_supported_mode(drive)
+            self._set_mode(drive, cia402.CYCLIC_SYNCHRONOUS_POSITION_MODE if self.skip_homing else cia402.HOMING_MODE)
+            self._rpdo = self._map_pdo(drive.rpdo, "drive", [(0x607A, 32)], 0x200 + self.drive_node_id)
+            self._drive_tpdo = self._map_pdo(drive.tpdo, "drive", [(0x6041, 16), (0x6064, 32)],
+                                             0x180 + self.drive_node_id)
+            self._encoder_tpdo = self._map_pdo(encoder.tpdo, "encoder", [(0x6004, self._encoder_value_bits())],
+                                               0x180 + self.encoder_node_id)
+            if self.trace_path is None:  # the TPDOs' COB-IDs as read back (a static PDO keeps its own)
+                self.network.bus.set_filters(self._receive_filters())
+            self._check_encoder(encoder)
+            self._require_sync_echo()
+            drive.tpdo[1].add_callback(self._on_drive_tpdo)
+            encoder.tpdo[1].add_callback(self._on_encoder_tpdo)
+            for role, node in (("drive", drive), ("encoder", encoder)):
+                node.emcy.add_callback(lambda entry, role=role, node_id=node.id: self._on_emcy(role, node_id, entry))
+                node.nmt.state = "OPERATIONAL"
+            for node in (drive, encoder):
+                node.nmt.wait_for_heartbeat(timeout=max(3 * self.heartbeat_ms / 1000, 0.5))
+            self._wait_for_mode(drive)
+            return self._hold_at_actual_position(drive)
 
-            if isinstance(err, can.CanError):
-                raise TransportError(f"{self.name}: CAN {self.interface}/{self.channel} failed: {err}") from err
-            raise
+    def _write_controlword(self, controlword: int) -> None:
+        with self._translated_errors(f"controlword 0x{controlword:04X}"):
+            self._drive.sdo[0x6040].raw = controlword
 
-    def _configure(self, canopen: Any) -> float:
-        drive, encoder = self._drive, self._encoder
-        for node in (drive, encoder):
-            node.sdo[0x1017].raw = self.heartbeat_ms
-        drive.sdo[0x1006].raw = int(round(self.sample_period_s * 1e6))
-        drive.sdo[0x6060].raw = cia402.CYCLIC_SYNCHRONOUS_POSITION_MODE if self.skip_homing else cia402.HOMING_MODE
-        self._map_pdo(drive.rpdo, 1, [0x607A], 0x200 + self.drive_node_id)
-        self._map_pdo(drive.tpdo, 1, [0x6041, 0x6064], 0x180 + self.drive_node_id)
-        self._map_pdo(encoder.tpdo, 1, [0x6004], 0x180 + self.encoder_node_id)
-        self._check_encoder_resolution(encoder)
-        self._require_sync_echo()
-        drive.tpdo[1].add_callback(self._on_drive_tpdo)
-        encoder.tpdo[1].add_callback(self._on_encoder_tpdo)
-        for node in (drive, encoder):
-            node.emcy.add_callback(lambda entry, node_id=node.id: self._on_emcy(node_id, entry))
-            node.nmt.state = "OPERATIONAL"
-        for node in (drive, encoder):
-            node.nmt.wait_for_heartbeat(timeout=max(3 * self.heartbeat_ms / 1000, 0.5))
-        cia402.bring_to_operation_enabled(
-            lambda word: drive.sdo[0x6040].__setattr__("raw", word), lambda: drive.sdo[0x6041].raw,
-            f"{self.name} drive {self.drive_node_id}", timeout_s=10 * self.sdo_timeout_s,
-            read_fault_code=lambda: drive.sdo[0x603F].raw)
+    def _read_statusword(self) -> int:
+        with self._translated_errors("statusword"):
+            return self._drive.sdo[0x6041].raw
+
+    def _read_error_code(self) -> int | None:
+        if self._drive is None or 0x603F not in self._drive.object_dictionary:
+            return None
+        return self._drive.sdo[0x603F].raw
+
+    def _after_enabled(self) -> float | None:
+        """Homing (``skip_homing = false``), then cyclic synchronous position from where homing left the
+        drive, its target again at the actual position; the NMT states are watched from here on."""
+        moved_to = None
         if not self.skip_homing:
-            self._home(drive)
+            with self._translated_errors("homing"):
+                self._home(self._drive)
+                self._set_mode(self._drive, cia402.CYCLIC_SYNCHRONOUS_POSITION_MODE)
+                self._wait_for_mode(self._drive)
+                moved_to = self._hold_at_actual_position(self._drive)
+        self._watch_nmt = True
+        return moved_to
+
+    def _release_devices(self) -> None:
+        """NMT pre-operational for both nodes: no more PDOs, SDO still answers."""
+        self._watch_nmt = False
+        for node in (self._drive, self._encoder):
+            if node is not None and self.network is not None:
+                try:
+                    node.nmt.state = "PRE-OPERATIONAL"
+                except Exception:  # noqa: BLE001 - best effort: a node off the bus
+                    pass
+
+    @contextlib.contextmanager
+    def _translated_errors(self, doing: str) -> Iterator[None]:
+        """canopen's and python-can's errors as the driver's (:class:`DeviceFault`, :class:`TransportError`);
+        ``doing`` names the step in the message ("start-up", "homing", "controlword 0x000F")."""
+        import can
+        import canopen
+
+        try:
+            yield
+        except canopen.SdoAbortedError as err:
+            raise DeviceFault(self.name, err.code, f"refused a {doing} SDO: {err}") from err
+        except (canopen.SdoCommunicationError, canopen.nmt.NmtError) as err:
+            raise TransportError(f"{self.name}: no answer to a {doing} SDO: {err}") from err
+        except (OSError, can.CanError) as err:
+            raise TransportError(f"{self.name}: CAN {self.interface}/{self.channel} failed ({doing}): {err}") from err
+
+    # -- start-up steps ------------------------------------------------------------------------------------
+
+    def _write_cycle_period(self, drive: Any) -> None:
+        """The SYNC period the drive interpolates over: 0x1006 (CiA 301, microseconds), else 0x60C2
+        (CiA 402 interpolation time period: sub 1 the value, sub 2 its power of ten)."""
+        period_us = int(round(self.sample_period_s * 1e6))
+        if 0x1006 in drive.object_dictionary:
+            drive.sdo[0x1006].raw = period_us
+        else:
+            drive.sdo[0x60C2][1].raw = period_us
+            drive.sdo[0x60C2][2].raw = -6
+
+    def _check_supported_mode(self, drive: Any) -> None:
+        """0x6502 (supported drive modes, where the EDS has it): bit 7 is cyclic synchronous position,
+        bit 5 homing."""
+        if 0x6502 not in drive.object_dictionary:
+            return
+        supported = drive.sdo[0x6502].raw
+        needed = [(7, "cyclic synchronous position")] + ([] if self.skip_homing else [(5, "homing")])
+        for bit, name in needed:
+            if not supported >> bit & 1:
+                raise DeviceFault(self.drive_label, None, (
+                    f"does not support {name} mode (0x6502 supported drive modes = 0x{supported:08X}, bit {bit} "
+                    "clear); the master streams in cyclic synchronous position mode"))
+
+    def _set_mode(self, drive: Any, mode: int) -> None:
+        drive.sdo[0x6060].raw = mode
+        self._mode = mode
+
+    def _wait_for_mode(self, drive: Any) -> None:
+        """The mode handshake: 0x6061 (modes of operation display) must show the mode written to 0x6060
+        within ``mode_switch_timeout_s``; until then the drive still runs the old mode."""
+        deadline = time.monotonic() + self.mode_switch_timeout_s
+        while True:
+            shown = drive.sdo[0x6061].raw
+            shown = shown - 256 if shown > 127 else shown  # INTEGER8
+            if shown == self._mode:
+                return
+            if time.monotonic() > deadline:
+                raise DeviceFault(self.drive_label, None, (
+                    f"did not take mode {self._mode} ({_MODE_NAMES.get(self._mode, 'unknown')}) within "
+                    f"{self.mode_switch_timeout_s:g} s: 0x6061 (modes of operation display) still shows {shown}; "
+                    "a drive that switches slowly needs a larger mode_switch_timeout_s"))
+            time.sleep(self.timing.poll_interval_s)
+
+    def _hold_at_actual_position(self, drive: Any) -> float:
+        """Write the actual position (0x6064) into the target (0x607A), so that enabling, or switching to
+        cyclic synchronous position, does not move the motor (a standard drive servoes to whatever 0x607A
+        holds); return that position in radians."""
         actual = drive.sdo[0x6064].raw
-        self._rpdo_cob_id = drive.rpdo[1].cob_id
+        drive.sdo[0x607A].raw = actual
+        self._last_target_counts = actual
         return self.drive.rad_from_counts(actual)
 
     def _receive_filters(self) -> list[dict[str, int]]:
         """The frames the master listens to (in the kernel on SocketCAN): its SYNC echo, and each node's
-        EMCY, TPDO1, SDO response and heartbeat. The echoes of its own RPDOs and SDO requests and other
+        EMCY, TPDO, SDO response and heartbeat. The echoes of its own RPDOs and SDO requests and other
         nodes' traffic never reach Python. A trace records every frame, so it runs without filters."""
         cob_ids = [SYNC_COB_ID]
         for node_id in (self.drive_node_id, self.encoder_node_id):
             cob_ids += [0x80 + node_id, 0x180 + node_id, 0x580 + node_id, 0x700 + node_id]
-        return [{"can_id": cob_id, "can_mask": 0x7FF, "extended": False} for cob_id in cob_ids] + ERROR_FRAME_FILTERS
+        cob_ids += [layout.cob_id for layout in (self._drive_tpdo, self._encoder_tpdo) if layout is not None]
+        return [{"can_id": cob_id, "can_mask": 0x7FF, "extended": False}
+                for cob_id in sorted(set(cob_ids))] + ERROR_FRAME_FILTERS
 
     def _require_sync_echo(self) -> None:
         """Send one SYNC while the nodes are pre-operational (no PDO answers it) and wait for its echo:
@@ -231,51 +378,114 @@ class CanOpenTransport(Transport):
                 "each TPDO to its SYNC")
 
     def _home(self, drive: Any) -> None:
-        """Homing mode: start with bit 4, wait for "homing attained", then cyclic synchronous position."""
+        """Homing mode: start with bit 4, wait for "homing attained" (statusword bit 12; bit 13 is a homing
+        error), at most ``homing_timeout_s``."""
         drive.sdo[0x6098].raw = self.homing_method
         drive.sdo[0x6040].raw = cia402.CONTROLWORD_START_HOMING
         deadline = time.monotonic() + self.homing_timeout_s
         while True:
             statusword = drive.sdo[0x6041].raw
             if statusword & cia402.STATUSWORD_HOMING_ERROR:
-                raise DeviceFault(f"{self.name} drive {self.drive_node_id}", drive.sdo[0x603F].raw or None,
+                raise DeviceFault(self.drive_label, cia402.fault_code_or_none(self._read_error_code),
                                   f"homing (method {self.homing_method}) failed: statusword 0x{statusword:04X}")
             if statusword & cia402.STATUSWORD_HOMING_ATTAINED:
                 break
             if time.monotonic() > deadline:
-                raise DeviceFault(f"{self.name} drive {self.drive_node_id}", None,
-                                  f"homing did not finish within {self.homing_timeout_s:g} s")
-            time.sleep(0.01)
+                raise DeviceFault(self.drive_label, None,
+                                  f"homing did not finish within {self.homing_timeout_s:g} s (homing_timeout_s)")
+            time.sleep(max(self.timing.poll_interval_s, 0.01))
         drive.sdo[0x6040].raw = cia402.CONTROLWORD_ENABLE_OPERATION
-        drive.sdo[0x6060].raw = cia402.CYCLIC_SYNCHRONOUS_POSITION_MODE
 
-    @staticmethod
-    def _map_pdo(pdos: Any, number: int, indices: list[int], cob_id: int) -> None:
+    def _map_pdo(self, pdos: Any, role: str, needed: list[tuple[int, int]], cob_id: int) -> PdoLayout:
+        """Map PDO 1 of ``pdos`` to the ``needed`` objects ``(index, bits)``, synchronous (transmission type
+        1), then read its communication and mapping parameters back from the device: a device with static
+        PDOs refuses the writes (or canopen skips entries its EDS marks read-only), and what the master
+        decodes must be what the device sends. A layout that carries the needed objects is used as it is;
+        one that does not is refused naming the object."""
+        import canopen
+
+        pdo = pdos[1]
+        kind = "RPDO1" if pdo.com_record.od.index < 0x1800 else "TPDO1"
+        node_id = pdos.node.id
+        where = f"{kind} of {role} {node_id} (0x{pdo.com_record.od.index:04X}/0x{pdo.map_array.od.index:04X})"
         pdos.read()
-        pdo = pdos[number]
         pdo.clear()
-        for index in indices:
+        for index, _ in needed:
             pdo.add_variable(index)
         pdo.cob_id = cob_id
         pdo.trans_type = 1
         pdo.enabled = True
-        pdo.save()
+        try:
+            pdo.save()
+        except canopen.SdoAbortedError:
+            pass  # a static PDO: the read-back below says whether its layout serves
+        pdo.read()
+        layout = PdoLayout.from_pdo(pdo, where)
+        device = f"{self.name} {role} {node_id}"
+        if not pdo.enabled:
+            raise DeviceFault(device, None, f"{where} stays disabled after configuration (COB-ID bit 31 set)")
+        if kind == "TPDO1" and pdo.trans_type != 1:
+            raise DeviceFault(device, None, (
+                f"{where} is sent with transmission type {pdo.trans_type} (0x{pdo.com_record.od.index:04X}:02, "
+                "not writable on this device); the master needs 1, an answer to every SYNC: set it with the "
+                "vendor's tool"))
+        for index, bits in needed:
+            if index not in layout.fields:
+                raise DeviceFault(device, None, (
+                    f"{where} does not map 0x{index:04X} (it maps {layout.describe()}, not writable on this "
+                    "device); the master needs it there"))
+            if layout.fields[index][1] * 8 < bits:
+                raise DeviceFault(device, None, (
+                    f"{where} maps only {layout.fields[index][1] * 8} bits of 0x{index:04X}; the master needs {bits}"))
+        if kind == "RPDO1" and set(layout.fields) - {0x607A}:
+            extra = ", ".join(f"0x{index:04X}" for index in sorted(set(layout.fields) - {0x607A}))
+            raise DeviceFault(device, None, (
+                f"{where} maps {extra} besides the target 0x607A (not writable on this device); the master sends "
+                "only the target"))
+        return layout
 
-    def _check_encoder_resolution(self, encoder: Any) -> None:
-        per_revolution = encoder.sdo[0x6501].raw
-        total = encoder.sdo[0x6002].raw
+    def _encoder_value_bits(self) -> int:
+        """Bits of 0x6004 the configured encoder needs in its TPDO."""
+        return min(32, max(8, self.encoder.bits + self.encoder.multi_turn_bits))
+
+    def _check_encoder(self, encoder: Any) -> None:
+        """CiA 406: the position value's scaling is 0x6001 (measuring units per revolution) and 0x6002
+        (total measuring range); where the EDS lacks them, 0x6501 (physical single-turn resolution) and
+        0x6502 (number of distinguishable revolutions) stand in. A total range of 2**32 does not fit the
+        UNSIGNED32 of 0x6002: a 32-bit encoder reports 0 there, read as 2**32. 0x6000 bit 0 (code
+        sequence) must agree with ``[encoder] direction``."""
+        od = encoder.object_dictionary
         expected = (self.encoder.counts_per_revolution, self.encoder.modulus)
+        per_revolution_index = 0x6001 if 0x6001 in od else 0x6501
+        per_revolution = encoder.sdo[per_revolution_index].raw
+        if 0x6002 in od:
+            objects = f"0x{per_revolution_index:04X}, 0x6002"
+            total = encoder.sdo[0x6002].raw
+        else:
+            objects = f"0x{per_revolution_index:04X}, 0x6502"
+            total = per_revolution * max(encoder.sdo[0x6502].raw, 1)
+        if total == 0:
+            total = 1 << 32
+        device = f"{self.name} encoder {self.encoder_node_id}"
         if (per_revolution, total) != expected:
-            raise DeviceFault(f"{self.name} encoder {self.encoder_node_id}", None, (
-                f"reports {per_revolution} counts per revolution and a range of {total} counts (0x6501, 0x6002), "
+            raise DeviceFault(device, None, (
+                f"reports {per_revolution} counts per revolution and a range of {total} counts ({objects}), "
                 f"but the config says {expected[0]} and {expected[1]} ([encoder] bits, multi_turn_bits)"))
+        if 0x6000 in od:
+            counts_down = bool(encoder.sdo[0x6000].raw & 0x0001)
+            if counts_down != (self.encoder.direction < 0):
+                raise DeviceFault(device, None, (
+                    f"counts {'down' if counts_down else 'up'} with the angle (0x6000 bit 0, code sequence = "
+                    f"{int(counts_down)}), but the config says direction = {self.encoder.direction}; set [encoder] "
+                    f"direction = {-1 if counts_down else 1}"))
 
     def _send(self, setpoint: Setpoint) -> None:
         self._raise_device_fault()
         self._check_heartbeats()
         try:
-            target = _RPDO.pack(self.drive.counts_from_rad(setpoint.position_rad))  # RPDO1 = 0x607A
-            self.network.send_message(self._rpdo_cob_id, target)
+            counts = self.drive.counts_from_rad(setpoint.position_rad)
+            self.network.send_message(self._rpdo.cob_id, self._rpdo.pack({0x607A: counts}))
+            self._last_target_counts = counts
         except Exception as err:
             raise TransportError(f"{self.name}: sending setpoint {setpoint.seq} failed: {err}") from err
         # SYNC k+1 must reach the bus after the answers to SYNC k (it would win arbitration over them): the
@@ -303,21 +513,6 @@ class CanOpenTransport(Transport):
         self._check_heartbeats()
         return None
 
-    def _stop(self) -> None:
-        drive = self._drive
-        if drive is None:
-            return
-        for controlword in (cia402.CONTROLWORD_QUICK_STOP, cia402.CONTROLWORD_DISABLE_VOLTAGE):
-            try:
-                drive.sdo[0x6040].raw = controlword
-            except Exception:  # noqa: BLE001 - the link or drive is gone: nothing more to do from here
-                break
-        try:
-            for node in (self._drive, self._encoder):
-                node.nmt.state = "PRE-OPERATIONAL"  # no more PDOs
-        except Exception:  # noqa: BLE001
-            pass
-
     def _close(self) -> None:
         network, self.network = self.network, None
         if network is not None:
@@ -330,19 +525,45 @@ class CanOpenTransport(Transport):
     # -- receive side (python-can notifier thread) -----------------------------------------------------------
 
     def _on_drive_tpdo(self, pdo: Any) -> None:
-        statusword, actual = _DRIVE_TPDO.unpack_from(pdo.data)  # the mapping written at start-up
+        try:
+            statusword = self._drive_tpdo.value(pdo.data, 0x6041)
+            actual = self._drive_tpdo.value(pdo.data, 0x6064, signed=True)
+        except ValueError:
+            self.frame_errors += 1  # a TPDO shorter than its mapping (CiA 301: a PDO length error)
+            return
         self._file("drive", (statusword, actual), pdo.timestamp)
         if cia402.state_from_statusword_or_none(statusword) in (cia402.DriveState.FAULT,
                                                                  cia402.DriveState.FAULT_REACTION_ACTIVE):
             with self._arrived:
                 if self._emcy is None:
-                    self._emcy = ("drive", 0)
+                    self._emcy = ("drive", self.drive_node_id, 0)
                 self._arrived.notify_all()
 
     def _on_encoder_tpdo(self, pdo: Any) -> None:
-        (raw,) = _ENCODER_TPDO.unpack_from(pdo.data)
-        counts = raw - (1 << 32) if self.encoder.signed and raw >= 1 << 31 else raw
+        try:
+            raw = self._encoder_tpdo.value(pdo.data, 0x6004)  # UNSIGNED32 (CiA 406)
+        except ValueError:
+            self.frame_errors += 1
+            return
+        bits = 8 * self._encoder_tpdo.fields[0x6004][1]
+        counts = raw - (1 << bits) if self.encoder.signed and raw >= 1 << (bits - 1) else raw
         self._file("encoder", counts, pdo.timestamp)
+
+    def _on_heartbeat(self, can_id: int, data: bytes, timestamp: float) -> None:
+        """A heartbeat (CiA 301 0x700 + node-ID): its age is measured on the host's own receive clock
+        (interfaces stamp frames with clocks that need not be Unix time), and from OPERATION ENABLED on a
+        node that reports any NMT state but OPERATIONAL stops the run."""
+        if not data:
+            return
+        node_id, state = can_id - 0x700, data[0] & 0x7F
+        self._heartbeats[node_id] = (time.monotonic(), state)
+        if self._watch_nmt and state != _NMT_OPERATIONAL:
+            role = "drive" if node_id == self.drive_node_id else "encoder"
+            self._report_fault(DeviceFault(f"{self.name} {role} {node_id}", None, (
+                f"left OPERATIONAL: its heartbeat says {_NMT_STATES.get(state, f'NMT state 0x{state:02X}')} "
+                "(a node that stops its PDOs on an error, CiA 301 0x1029); the samples stop here")))
+            with self._arrived:
+                self._arrived.notify_all()
 
     def _on_sync_echo(self, can_id: int, data: bytes, timestamp: float) -> None:
         """Our own SYNC back from the interface with its bus timestamp; echoes come in sending order."""
@@ -386,11 +607,18 @@ class CanOpenTransport(Transport):
             self._ready.append(FeedbackSample(
                 seq=seq, encoder_counts=parts["encoder"], load_angle_rad=self._decode_encoder(parts["encoder"]),
                 drive_position_rad=self.drive.rad_from_counts(actual), statusword=statusword,
-                host_time_s=received))
+                host_time_s=received, target_ignored=self._target_ignored(statusword)))
             self._arrived.notify_all()
         if len(self._parts) > 512:
             for old in sorted(self._parts)[:256]:
                 del self._parts[old]
+
+    def _target_ignored(self, statusword: int) -> bool:
+        """CiA 402 cyclic synchronous position: statusword bit 12 clear in OPERATION ENABLED means the
+        drive does not follow 0x607A (still switching mode, or a drive-internal reason)."""
+        return (self._mode == cia402.CYCLIC_SYNCHRONOUS_POSITION_MODE
+                and cia402.state_from_statusword_or_none(statusword) is cia402.DriveState.OPERATION_ENABLED
+                and not statusword & cia402.STATUSWORD_FOLLOWS_TARGET)
 
     def _on_error_frame(self, message: Any) -> None:
         """An error frame (canopen's own listener ignores them): bus-off stops the run, others are counted."""
@@ -402,12 +630,19 @@ class CanOpenTransport(Transport):
             with self._arrived:
                 self._arrived.notify_all()
 
-    def _on_emcy(self, node_id: int, entry: Any) -> None:
-        if entry.code & 0xFF00 == 0:
-            return  # error reset / no error
+    def _on_emcy(self, role: str, node_id: int, entry: Any) -> None:
+        """EMCY by error class: 0x00xx (error reset) is nothing, a code in ``emcy_warning_codes`` is logged
+        in :attr:`warnings` and ridden through, any other code stops the run naming the node that sent it."""
+        code = entry.code
+        if code & 0xFF00 == 0:
+            return
+        if _is_warning(code, self.emcy_warning_prefixes):
+            self.warnings.append(f"{role} {node_id}: EMCY 0x{code:04X} ({error_code_meaning(code)}), ridden "
+                                 "through (emcy_warning_codes)")
+            return
         with self._arrived:
             if self._emcy is None:
-                self._emcy = (f"node {node_id}", entry.code)
+                self._emcy = (role, node_id, code)
             self._arrived.notify_all()
 
     def _raise_device_fault(self) -> None:
@@ -415,26 +650,134 @@ class CanOpenTransport(Transport):
             emcy = self._emcy
         if emcy is None or self._fault is not None:
             return
-        source, emcy_code = emcy
-        try:
-            error_code = self._drive.sdo[0x603F].raw
-        except Exception:  # noqa: BLE001 - the fault may have taken the SDO server down too
-            error_code = None
-        code = error_code if error_code else emcy_code
-        self._report_fault(DeviceFault(f"{self.name} drive {self.drive_node_id}", code,
-                                       f"fault (EMCY 0x{emcy_code:04X} from {source}; 0x603F = "
-                                       f"{'unreadable' if error_code is None else f'0x{error_code:04X}'})"))
+        role, node_id, emcy_code = emcy
+        if role == "drive":
+            try:
+                error_code = self._read_error_code()
+            except Exception:  # noqa: BLE001 - the fault may have taken the SDO server down too
+                error_code = None
+            where = "0x603F = " + ("unreadable" if error_code is None else f"0x{error_code:04X}")
+            source = f"EMCY 0x{emcy_code:04X} from node {node_id}" if emcy_code else "FAULT in the statusword"
+            code = error_code or emcy_code or None
+            self._report_fault(DeviceFault(self.drive_label, code, f"fault ({source}; {where})"))
+        else:
+            self._report_fault(DeviceFault(f"{self.name} encoder {node_id}", emcy_code,
+                                           f"fault (EMCY 0x{emcy_code:04X} from node {node_id})"))
         self.raise_fault()
 
     def _check_heartbeats(self) -> None:
-        now = time.time()
-        for role, node in (("drive", self._drive), ("encoder", self._encoder)):
-            last = node.nmt.timestamp
-            if last is not None and now - last > self.heartbeat_timeout_s:
-                fault = DeviceFault(f"{self.name} {role} {node.id}", None,
-                                    f"heartbeat lost (none for {now - last:.3g} s, timeout {self.heartbeat_timeout_s:g} s)")
-                self._report_fault(fault)
+        now = time.monotonic()
+        for role, node_id in (("drive", self.drive_node_id), ("encoder", self.encoder_node_id)):
+            last = self._heartbeats.get(node_id)
+            if last is not None and now - last[0] > self.heartbeat_timeout_s:
+                self._report_fault(DeviceFault(f"{self.name} {role} {node_id}", None, (
+                    f"heartbeat lost (none for {now - last[0]:.3g} s, timeout {self.heartbeat_timeout_s:g} s)")))
                 self.raise_fault()
+
+
+@dataclass(frozen=True)
+class PdoLayout:
+    """Where each mapped object sits in one PDO's data, as the device's mapping parameter says
+    (CiA 301 0x1600/0x1A00: entries of index, sub-index and length in bits, packed in order).
+
+    Attributes
+    ----------
+    where
+        The PDO in messages ("TPDO1 of drive 1 (0x1800/0x1A00)").
+    cob_id
+        Its COB-ID as read back.
+    fields
+        Object index -> (byte offset, byte length).
+    length
+        Data bytes of the PDO.
+    """
+
+    where: str
+    cob_id: int
+    fields: dict[int, tuple[int, int]]
+    length: int
+
+    @classmethod
+    def from_pdo(cls, pdo: Any, where: str) -> PdoLayout:
+        fields: dict[int, tuple[int, int]] = {}
+        offset = 0
+        for variable in pdo:
+            size = variable.length // 8
+            fields.setdefault(variable.index, (offset, size))
+            offset += size
+        return cls(where, int(pdo.cob_id), fields, offset)
+
+    def describe(self) -> str:
+        return ", ".join(f"0x{index:04X} ({8 * size} bit)" for index, (_, size) in self.fields.items()) or "nothing"
+
+    def value(self, data: bytes, index: int, signed: bool = False) -> int:
+        """The value of object ``index`` in ``data``; ValueError if the frame is shorter than the mapping."""
+        offset, size = self.fields[index]
+        if len(data) < offset + size:
+            raise ValueError(f"{self.where}: {len(data)} bytes, the mapping needs {offset + size}")
+        return int.from_bytes(data[offset:offset + size], "little", signed=signed)
+
+    def pack(self, values: dict[int, int]) -> bytes:
+        """The PDO's data with ``values`` (index -> integer, two's complement where negative)."""
+        data = bytearray(self.length)
+        for index, (offset, size) in self.fields.items():
+            data[offset:offset + size] = (values[index] & ((1 << 8 * size) - 1)).to_bytes(size, "little")
+        return bytes(data)
+
+
+_DRIVE_OBJECTS = (
+    (0x1017, "the producer heartbeat time the master sets and watches"),
+    (0x1400, "RPDO1 communication parameter (the target's PDO)"), (0x1600, "RPDO1 mapping"),
+    (0x1800, "TPDO1 communication parameter (statusword and actual position)"), (0x1A00, "TPDO1 mapping"),
+    (0x6040, "the controlword"), (0x6041, "the statusword"), (0x6060, "modes of operation"),
+    (0x6061, "modes of operation display (the mode handshake)"), (0x6064, "position actual value"),
+    (0x607A, "target position"),
+)
+_ENCODER_OBJECTS = (
+    (0x1017, "the producer heartbeat time the master sets and watches"),
+    (0x1800, "TPDO1 communication parameter (the position value's PDO)"), (0x1A00, "TPDO1 mapping"),
+    (0x6004, "position value"),
+)
+
+
+def _load_object_dictionary(key: str, path: str, node_id: int) -> Any:
+    import canopen
+
+    if not Path(path).is_file():
+        raise ConfigError("<transport>", key, f"no such EDS file {path}")
+    try:
+        return canopen.import_od(path, node_id)
+    except Exception as err:  # noqa: BLE001 - canopen raises whatever its parsers raise
+        raise ConfigError("<transport>", key, f"{path} is not a readable EDS/DCF file: {err}") from err
+
+
+def _require_objects(key: str, path: str, od: Any, objects: tuple[tuple[int, str], ...]) -> None:
+    """Refuse an EDS that lacks an object the master needs, naming it and what it is needed for."""
+    for index, purpose in objects:
+        if index not in od:
+            raise ConfigError("<transport>", key, (
+                f"{path} has no object 0x{index:04X}; the master needs it for {purpose}; use the vendor's EDS "
+                "of this device (a device without it cannot be driven by this master)"))
+
+
+def _emcy_prefixes(text: str) -> tuple[str, ...]:
+    """``"0x4, 0x8130"`` -> ("4", "8130"): hex prefixes an EMCY code's four hex digits are matched against."""
+    prefixes = []
+    for item in str(text).split(","):
+        item = item.strip().lower()
+        if not item:
+            continue
+        digits = item[2:] if item.startswith("0x") else item
+        if not (1 <= len(digits) <= 4 and all(char in "0123456789abcdef" for char in digits)):
+            raise ConfigError("<transport>", "emcy_warning_codes", (
+                f"{item!r} is not a hex EMCY code or prefix (expected e.g. \"0x4\" or \"0x4210, 0xFF\")"))
+        prefixes.append(digits)
+    return tuple(prefixes)
+
+
+def _is_warning(code: int, prefixes: tuple[str, ...]) -> bool:
+    digits = f"{code:04x}"
+    return any(digits.startswith(prefix) for prefix in prefixes)
 
 
 class _ErrorFrameListener:

@@ -12,7 +12,6 @@ from __future__ import annotations
 import time
 from typing import Any
 
-from rig.protocols import cia402
 from rig.protocols.can_bus_load import bus_load
 from rig.protocols.can_error_frames import describe_error_frame, is_bus_off
 from rig.protocols.errors import ConfigError, DeviceFault, TransportError
@@ -73,7 +72,7 @@ class RawCanTransport(Transport):
         """One cycle's frames on the bus (worst-case bit stuffing): SYNCs/commands are never closer."""
         return 1.0 / self.load.max_rate_hz
 
-    def _open(self) -> float:
+    def _connect(self) -> None:
         import can
 
         try:
@@ -82,11 +81,15 @@ class RawCanTransport(Transport):
             raise TransportError(f"{self.name}: cannot open CAN {self.interface}/{self.channel}: {err}") from err
         if self.trace_path is not None:
             self._trace = can.Logger(self.trace_path)
-        cia402.bring_to_operation_enabled(
-            lambda word: self._request_reply("RIG_CONTROL", controlword=word),
-            lambda: self._request_reply("RIG_STATUS_REQUEST")["statusword"], self.name,
-            timeout_s=4 * self.reply_timeout_s)
+
+    def _prepare(self) -> float:
         return self.drive.rad_from_counts(self._request_reply("RIG_STATUS_REQUEST")["actual_counts"])
+
+    def _write_controlword(self, controlword: int) -> None:
+        self._request_reply("RIG_CONTROL", controlword=controlword)
+
+    def _read_statusword(self) -> int:
+        return self._request_reply("RIG_STATUS_REQUEST")["statusword"]
 
     def _send(self, setpoint: Setpoint) -> None:
         self._transmit(self.codec.encode("RIG_SETPOINT", seq=setpoint.seq,
@@ -103,13 +106,6 @@ class RawCanTransport(Transport):
                 return None
             if self._fault is not None:
                 return None
-
-    def _stop(self) -> None:
-        for controlword in (cia402.CONTROLWORD_QUICK_STOP, cia402.CONTROLWORD_DISABLE_VOLTAGE):
-            try:
-                self._request_reply("RIG_CONTROL", controlword=controlword)
-            except (TransportError, DeviceFault):
-                break
 
     def _close(self) -> None:
         bus, self._bus = self._bus, None

@@ -49,7 +49,7 @@ class SerialTransport(Transport):
 
     # -- seam ----------------------------------------------------------------------------------------------
 
-    def _open(self) -> float:
+    def _connect(self) -> None:
         try:
             import serial
         except ImportError as err:  # pragma: no cover - pyserial is a dependency
@@ -59,8 +59,8 @@ class SerialTransport(Transport):
         except (serial.SerialException, OSError, ValueError) as err:
             raise TransportError(f"{self.name}: cannot open serial port {self.port}: {err}") from err
         self._serial.reset_input_buffer()
-        cia402.bring_to_operation_enabled(self._write_controlword, self._read_statusword, self.name,
-                                          timeout_s=4 * self.reply_timeout_s)
+
+    def _prepare(self) -> float:
         status = self._request_reply(MessageType.STATUS_REQUEST)
         return self.drive.rad_from_counts(status.fields[1])
 
@@ -77,13 +77,6 @@ class SerialTransport(Transport):
             if self._fault is not None:
                 return None
         return self._feedback.popleft()
-
-    def _stop(self) -> None:
-        for controlword in (cia402.CONTROLWORD_QUICK_STOP, cia402.CONTROLWORD_DISABLE_VOLTAGE):
-            try:
-                self._request_reply(MessageType.CONTROL, controlword)
-            except (TransportError, DeviceFault, OSError):
-                pass  # the link is gone or the drive faulted: nothing more we can do from here
 
     def _close(self) -> None:
         if self._serial is not None:

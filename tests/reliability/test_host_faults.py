@@ -17,6 +17,7 @@ from __future__ import annotations
 import errno
 import json
 import os
+import re
 import resource
 import signal
 import subprocess
@@ -88,6 +89,7 @@ def _read_cleanly(path: Path):
 
 @pytest.mark.parametrize("signal_number, code", [(signal.SIGINT, exit_codes.INTERRUPTED),
                                                  (signal.SIGTERM, exit_codes.TERMINATED)])
+
 def test_sigint_and_sigterm_end_rig_run_with_a_controlled_stop(signal_number, code, tmp_path):
     out = tmp_path / "run.csv"
     process = _start_run(out, ROOT / "configs" / "sim_serial.toml")
@@ -100,8 +102,9 @@ def test_sigint_and_sigterm_end_rig_run_with_a_controlled_stop(signal_number, co
     assert process.returncode == code, stderr
     record = _read_cleanly(out)
     name = signal.Signals(signal_number).name
-    assert (f"rig: interrupted by {name} (the drive got a quick stop, then disable); {out} keeps "
-            f"{record.num_samples} samples, readable up to the stop") in stderr
+    assert re.search(rf"rig: interrupted by {name} \(serial://\S+ drive: quick stop sent, then disable sent; ends "
+                     rf"SWITCH ON DISABLED\); {re.escape(str(out))} keeps {record.num_samples} samples, readable up to "
+                     r"the stop", stderr), stderr
     assert "Traceback" not in stderr
     assert record.num_samples >= 50 and np.all(np.diff(record.time_s) > 0)
 

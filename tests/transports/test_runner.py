@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import numpy as np
+
+from rig.protocols.cia402 import DriveState
 import pytest
 
 from identify.experiment_record import SampleFlag
@@ -21,7 +23,7 @@ TRANSPORTS = ["serial", "canopen", "can"]
 
 
 @pytest.mark.parametrize("kind", TRANSPORTS)
-def test_commands_beyond_the_limits_are_refused_before_anything_is_sent(kind, tmp_path, no_leaks):
+def test_commands_beyond_the_limits_are_refused_before_the_drive_is_enabled(kind, tmp_path, no_leaks):
     command = excitation(40)
     command[30] = 12.5  # position limit is 12 rad
     sink = ListSink()
@@ -29,7 +31,8 @@ def test_commands_beyond_the_limits_are_refused_before_anything_is_sent(kind, tm
         with pytest.raises(CommandRefused, match=r"setpoint 30: position 12.5 rad is outside the limits \[-12, 12\]"):
             _run(transport, config, command, sink)
         assert drive.setpoints == 0
-        assert drive.controlwords[-2:] == [0x02, 0x00]  # brought up, then stopped in a controlled way
+        assert drive.controlwords == []  # checked against the actual position read before enabling
+        assert drive.state is DriveState.SWITCH_ON_DISABLED
     assert sink.closed and sink.rows == []
 
 
