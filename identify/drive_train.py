@@ -561,9 +561,10 @@ class DriveTrainStepper:
                 # the load: implicit Coulomb/viscous step with Karnopp's stick test
                 external = shaft - gravity * sin(theta - hanging)
                 momentum = load_inertia * omega + kick * external
-                if -kick * coulomb <= momentum <= kick * coulomb or (
-                        stuck and -static <= external <= static):
-                    friction = momentum / kick
+                if stuck and -static <= external <= static:
+                    friction = external  # sticks: friction balances the load (omega is 0)
+                elif -kick * coulomb <= momentum <= kick * coulomb:
+                    friction = momentum / kick  # sliding friction stops the load within this half kick
                     omega = 0.0
                     stuck = True
                 else:
