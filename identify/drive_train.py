@@ -16,8 +16,8 @@ phi = motor angle / N, J_m' = N^2 J_m, tau_drive = N tau_motor):
     J_m' \\ddot\\phi &= \\tau_{drive} - \\tau_{shaft} - N^2 d_m \\dot\\phi \\\\
     J_l \\ddot\\theta &= \\tau_{shaft} - \\tau_{friction} - m g l \\sin(\\theta - \\theta_0)
 
-* **Shaft with play** (the dead-zone model of Nordin and Gutman 2002, Sect. 2, "Controlling mechanical
-  systems with backlash - a survey", Automatica 38:1633-1649): with the twist Delta = phi - theta and the
+* **Shaft with play** (the "dead-zone model" of the modelling part of Nordin and Gutman 2002, "Controlling
+  mechanical systems with backlash - a survey", Automatica 38:1633-1649): with the twist Delta = phi - theta and the
   play of total width b, tau_shaft = k dz(Delta) + d dDelta/dt, dz(Delta) = Delta - b/2 for Delta > b/2,
   Delta + b/2 for Delta < -b/2, 0 inside. The damping term is handled as in Modelica's
   ``Modelica.Mechanics.Rotational.Components.ElastoBacklash``: inside the play the torque is 0 (no damping
