@@ -17,8 +17,8 @@ phi = motor angle / N, J_m' = N^2 J_m, tau_drive = N tau_motor):
     J_l \\ddot\\theta &= \\tau_{shaft} - \\tau_{friction} - m g l \\sin(\\theta - \\theta_0)
 
 * **Shaft with play** (the "dead-zone model" of the modelling part of Nordin and Gutman 2002, "Controlling
-  mechanical systems with backlash - a survey", Automatica 38:1633-1649): with the twist Delta = phi - theta and the
-  play of total width b, tau_shaft = k dz(Delta) + d dDelta/dt, dz(Delta) = Delta - b/2 for Delta > b/2,
+  mechanical systems with backlash - a survey", Automatica 38:1633-1649): with the twist
+  Delta = phi - theta and the play of total width b, tau_shaft = k dz(Delta) + d dDelta/dt, dz(Delta) = Delta - b/2 for Delta > b/2,
   Delta + b/2 for Delta < -b/2, 0 inside. The damping term is handled as in Modelica's
   ``Modelica.Mechanics.Rotational.Components.ElastoBacklash``: inside the play the torque is 0 (no damping
   across an open gap); in contact, tau_c = k dz(Delta), tau_d = d dDelta/dt and
@@ -30,8 +30,8 @@ phi = motor angle / N, J_m' = N^2 J_m, tau_drive = N tau_motor):
   Meas. Control 107:100-103: a load at rest stays at rest while the net torque on it,
   |tau_shaft - tau_gravity| <= T_s (the friction balances it); otherwise it slides with
   tau_friction = T_c sign(omega) + d_v omega. Karnopp's zero-velocity band is the set of velocities that
-  the friction of one half sub-step can bring to zero (implicit Coulomb step, see :class:`DriveTrain`), so
-  a stuck load has omega exactly 0 and never drifts.
+  the sliding friction T_c brings to zero within one half sub-step (an implicit Coulomb step), so a stuck
+  load has omega exactly 0 and never drifts, and no band width has to be tuned.
 * **Gravity**: m g l sin(theta - theta_0) with theta_0 the angle at which the arm hangs straight down.
 * **Drive**: a cascaded position loop (P or PI position controller giving a velocity reference, with
   velocity feedforward, then a P velocity loop giving the torque), tuned as a second-order servo with
@@ -62,7 +62,8 @@ and second order, so the energy of an undamped, undriven train stays bounded wit
 of each half kick, the load friction implicitly inside each half kick. The sub-step rule: h omega_max <=
 :data:`SUBSTEP_PHASE_RAD` where omega_max is the fastest rate of the linearised train (the shaft's
 two-mass mode, the velocity loop acting on the motor alone while the play is open, the position loop, the
-pendulum, and the damping rates), i.e. ``ceil(T omega_max / SUBSTEP_PHASE_RAD)`` sub-steps per sample.
+pendulum, and the damping rates), i.e. ``ceil(T omega_max / SUBSTEP_PHASE_RAD)`` sub-steps per sample, with
+SUBSTEP_PHASE_RAD = 0.04 (its docstring says why).
 """
 
 from __future__ import annotations
