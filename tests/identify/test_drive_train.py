@@ -287,3 +287,25 @@ def test_every_parameter_is_validated_with_an_error_naming_it(name):
 def test_a_train_too_stiff_for_its_sample_period_is_refused():
     with pytest.raises(InvalidInputError, match="^shaft_stiffness_nm_per_rad: .* sub-steps per sample"):
         DriveTrain(**{**STIFF, "shaft_stiffness_nm_per_rad": 1e9})
+
+
+def test_angles_see_only_torques_per_inertia_and_load_side_quantities():
+    # what identification from (command, angle) can name: scaling every inertia, stiffness, damping, friction,
+    # gravity and torque limit by one factor, or the gear ratio with J_m / N^2 and the motor-side limits,
+    # leaves the angle unchanged (so a fitted candidate states friction / J in rad/s^2, not N m)
+    train = _everything()
+    command = np.concatenate([np.zeros(20), np.full(400, 0.8), np.linspace(0.8, -0.6, 600)])
+    y = train.apply(command)
+    scale = 3.0
+    torque_like = ("motor_inertia_kg_m2", "load_inertia_kg_m2", "shaft_stiffness_nm_per_rad", "shaft_damping_nm_s_per_rad",
+                   "motor_torque_limit_nm", "motor_viscous_damping_nm_s_per_rad", "coulomb_friction_nm",
+                   "static_friction_nm", "viscous_friction_nm_s_per_rad", "pendulum_mass_kg")
+    heavier = dataclasses.replace(train, **{name: scale * getattr(train, name) for name in torque_like})
+    np.testing.assert_allclose(heavier.apply(command), y, rtol=0, atol=1e-12)
+    ratio = 4.0
+    geared = dataclasses.replace(train, gear_ratio=ratio * train.gear_ratio,
+                                 motor_inertia_kg_m2=train.motor_inertia_kg_m2 / ratio**2,
+                                 motor_viscous_damping_nm_s_per_rad=train.motor_viscous_damping_nm_s_per_rad / ratio**2,
+                                 motor_speed_limit_rad_per_s=ratio * train.motor_speed_limit_rad_per_s,
+                                 motor_torque_limit_nm=train.motor_torque_limit_nm / ratio)
+    np.testing.assert_allclose(geared.apply(command), y, rtol=0, atol=1e-12)
