@@ -29,6 +29,12 @@ what was expected, and unknown keys are rejected. The format::
     b = [0.0, 1.4, 0.8]
     # enabled = false                    # any block: keep it in the file but switch it off
 
+A ``drive_train`` block (:class:`identify.drive_train.DriveTrain`, the physical train with position loop,
+play, shaft, friction and gravity) takes the constructor's keyword arguments as keys, each with its unit in
+its name (see ``DRIVE_TRAIN_KEYS``); the sample period is the file's. Only ``gear_ratio``,
+``motor_inertia_kg_m2``, ``load_inertia_kg_m2`` and ``shaft_stiffness_nm_per_rad`` are required; a limit
+that is left out is no limit.
+
 Input backlash and switch borders are inline tables: ``{ kind = "table", nodes_u = [...], values = [...] }``
 or ``{ kind = "arctan", input_shift = -1.0, output_shift = 0.0, lower_input = -2.0, upper_input = 2.0,
 lower_value = -1.0, upper_value = 1.0 }`` (the limits are optional).
@@ -42,6 +48,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from identify.drive_train import POSITION_FEEDBACK, DriveTrain
 from identify.plant_blocks import (
     ArctanBorder,
     Block,
@@ -290,6 +297,30 @@ def _read_friction(t: ConfigTable, period: float) -> CoulombFriction:
                   initial_output_rad=t.number("initial_output_rad", 0.0))
 
 
+DRIVE_TRAIN_REQUIRED = ("gear_ratio", "motor_inertia_kg_m2", "load_inertia_kg_m2", "shaft_stiffness_nm_per_rad")
+DRIVE_TRAIN_NUMBERS = ("shaft_damping_nm_s_per_rad", "play_rad", "position_loop_bandwidth_hz",
+                       "position_loop_damping_ratio", "velocity_feedforward", "position_integral_gain_per_s",
+                       "motor_viscous_damping_nm_s_per_rad", "coulomb_friction_nm", "static_friction_nm",
+                       "viscous_friction_nm_s_per_rad", "pendulum_mass_kg", "pendulum_length_m", "gravity_m_per_s2",
+                       "hanging_angle_rad", "initial_angle_rad")
+DRIVE_TRAIN_LIMITS = ("motor_speed_limit_rad_per_s", "motor_torque_limit_nm")
+DRIVE_TRAIN_KEYS = (*DRIVE_TRAIN_REQUIRED, *DRIVE_TRAIN_NUMBERS, *DRIVE_TRAIN_LIMITS, "position_feedback",
+                    "drive_enabled")
+"""The keys of a ``drive_train`` block: required, optional numbers (default: the constructor's), limits
+(left out: none; TOML has no way to write a missing limit other than leaving it out), and the two switches."""
+
+
+def _read_drive_train(t: ConfigTable, period: float) -> DriveTrain:
+    defaults = DriveTrain.__dataclass_fields__
+    kwargs: dict[str, Any] = {key: t.number(key) for key in DRIVE_TRAIN_REQUIRED}
+    kwargs.update({key: t.number(key, defaults[key].default) for key in DRIVE_TRAIN_NUMBERS})
+    kwargs.update({key: t.number(key) for key in DRIVE_TRAIN_LIMITS if t.has(key)})
+    kwargs["position_feedback"] = t.string("position_feedback", defaults["position_feedback"].default,
+                                           choices=POSITION_FEEDBACK)
+    kwargs["drive_enabled"] = t.boolean("drive_enabled", defaults["drive_enabled"].default)
+    return _build(t, DriveTrain, sample_period_s=period, **kwargs)
+
+
 BLOCK_TYPES: dict[str, tuple[type, Callable[[ConfigTable, float], Block]]] = {
     "linear": (LinearBlock, _read_linear),
     "state_space": (LinearBlock, _read_state_space),
@@ -303,6 +334,7 @@ BLOCK_TYPES: dict[str, tuple[type, Callable[[ConfigTable, float], Block]]] = {
     "offset": (OutputOffset, _read_offset),
     "gain": (OutputGain, _read_gain),
     "coulomb_friction": (CoulombFriction, _read_friction),
+    "drive_train": (DriveTrain, _read_drive_train),
 }
 """``type`` in a ``[[blocks]]`` table -> (block class, reader)."""
 
@@ -375,6 +407,12 @@ def _block_fields(block: Block) -> dict[str, Any]:
         return {"type": "coulomb_friction", "breakaway_torque_nm": block.breakaway_torque_nm,
                 "coulomb_torque_nm": block.coulomb_torque_nm, "stiffness_nm_per_rad": block.stiffness_nm_per_rad,
                 "initial_output_rad": block.initial_output_rad}
+    if isinstance(block, DriveTrain):
+        fields = {"type": "drive_train"}
+        fields.update({key: getattr(block, key) for key in (*DRIVE_TRAIN_REQUIRED, *DRIVE_TRAIN_NUMBERS)})
+        fields.update({key: getattr(block, key) for key in DRIVE_TRAIN_LIMITS if math.isfinite(getattr(block, key))})
+        fields.update(position_feedback=block.position_feedback, drive_enabled=block.drive_enabled)
+        return fields
     raise InvalidInputError(f"blocks: a {type(block).__name__} block has no TOML form")
 
 

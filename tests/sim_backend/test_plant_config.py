@@ -53,7 +53,8 @@ def test_pouliquen_configs_hold_the_paper_borders_and_noise():
     assert switch.plant.blocks[1].static_gain == pytest.approx(1.0)
 
 
-@pytest.mark.parametrize("name", ("cerone2009", "pouliquen2013_backlash", "pouliquen2013_switch", "precision_gearbox"))
+@pytest.mark.parametrize("name", ("cerone2009", "pouliquen2013_backlash", "pouliquen2013_switch", "precision_gearbox",
+                                  "pendulum_servo"))
 def test_shipped_configs_round_trip_through_toml(name):
     config = load_plant_config(PLANTS / f"{name}.toml")
     again = plant_config_from_toml_text(plant_config_to_toml(config))

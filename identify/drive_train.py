@@ -1,0 +1,589 @@
+"""A physical drive train: position-controlled motor, gear with play, compliant shaft, load with friction and
+gravity, integrated with fixed sub-steps per sample.
+
+The series blocks of :mod:`identify.plant_blocks` apply one effect after another to a signal; here the
+effects act on each other inside the dynamics (the friction opposes the load's own velocity, the play opens
+and closes with the motion of two inertias, the drive's limits act on the torque that moves them). The block
+has the same interface as every plant block (:meth:`DriveTrain.apply`, :meth:`DriveTrain.stepper`), so it
+sits in a :class:`~identify.plant_blocks.PlantModel` chain: its input is the commanded load angle (rad), its
+output the load angle (rad).
+
+Model (all quantities referred to the load side of the gear, ratio N = ``gear_ratio`` motor rad per load rad;
+phi = motor angle / N, J_m' = N^2 J_m, tau_drive = N tau_motor):
+
+.. math::
+
+    J_m' \\ddot\\phi &= \\tau_{drive} - \\tau_{shaft} - N^2 d_m \\dot\\phi \\\\
+    J_l \\ddot\\theta &= \\tau_{shaft} - \\tau_{friction} - m g l \\sin(\\theta - \\theta_0)
+
+* **Shaft with play** (the "dead-zone model" of the modelling part of Nordin and Gutman 2002, "Controlling
+  mechanical systems with backlash - a survey", Automatica 38:1633-1649): with the twist
+  Delta = phi - theta and the play of total width b, tau_shaft = k dz(Delta) + d dDelta/dt, dz(Delta) = Delta - b/2 for Delta > b/2,
+  Delta + b/2 for Delta < -b/2, 0 inside. The damping term is handled as in Modelica's
+  ``Modelica.Mechanics.Rotational.Components.ElastoBacklash``: inside the play the torque is 0 (no damping
+  across an open gap); in contact, tau_c = k dz(Delta), tau_d = d dDelta/dt and
+  tau_shaft = 0 if tau_c + tau_d <= 0 else tau_c + min(tau_c, tau_d) (for Delta > b/2; mirrored for
+  Delta < -b/2), so the contact never pulls and the torque is continuous at the start of contact
+  (|tau_d| <= |tau_c|). With b = 0 it is the plain spring-damper k Delta + d dDelta/dt.
+* **Load friction**: Coulomb T_c, viscous d_v and static (breakaway) T_s >= T_c, with the stick model of
+  Karnopp (1985), "Computer simulation of stick-slip friction in mechanical dynamic systems", J. Dyn. Sys.
+  Meas. Control 107:100-103: a load at rest stays at rest while the net torque on it,
+  |tau_shaft - tau_gravity| <= T_s (the friction balances it); otherwise it slides with
+  tau_friction = T_c sign(omega) + d_v omega. Karnopp's zero-velocity band is the set of velocities that
+  the sliding friction T_c brings to zero within one half sub-step (an implicit Coulomb step), so a stuck
+  load has omega exactly 0 and never drifts, and no band width has to be tuned.
+* **Gravity**: m g l sin(theta - theta_0) with theta_0 the angle at which the arm hangs straight down.
+* **Drive**: a cascaded position loop (P or PI position controller giving a velocity reference, with
+  velocity feedforward, then a P velocity loop giving the torque), tuned as a second-order servo with
+  bandwidth f_n and damping ratio zeta on the nominal rigid inertia J = J_m' + J_l:
+
+  .. math::
+
+      v_{ref} &= \\mathrm{clip}(K_p (e + K_i \\textstyle\\int e\\,dt) + f \\dot r,\\ \\pm\\Omega/N), \\quad
+      e = r - \\theta_{fb} \\\\
+      \\tau_{drive} &= \\mathrm{clip}(K_v (v_{ref} - \\dot\\phi),\\ \\pm N \\tau_{max}), \\quad
+      K_v = 2 \\zeta \\omega_n J,\\ K_p = \\omega_n / (2 \\zeta),
+
+  so that a rigid load without friction follows r with the second-order response
+  omega_n^2 / (s^2 + 2 zeta omega_n s + omega_n^2) (for f = 0 and K_i = 0; with f = 1 a ramp is followed
+  without velocity lag). theta_fb is the motor angle (the drive's own encoder, ``position_feedback =
+  "motor"``) or the load angle (an output-shaft encoder, as in hobby servos, ``"load"``). Omega is the
+  motor speed limit (rad/s at the motor) and tau_max the motor torque limit (N m at the motor).
+
+Sampling: the command r_t is held over the sample (zero-order hold) and its feedforward rate is the
+backward difference (r_t - r_{t-1}) / T. ``step(r_t)`` returns the load angle at the start of the sample,
+before r_t acts (strictly proper, like a ZOH-discretised linear block with b0 = 0), then integrates the
+sample.
+
+Integration: Störmer-Verlet (kick-drift-kick leapfrog) with a fixed number of sub-steps per sample,
+:attr:`DriveTrain.substeps_per_sample`. For conservative forces (springs, play, gravity) it is symplectic
+and second order, so the energy of an undamped, undriven train stays bounded with an error of order
+(h omega)^2; the velocity-dependent torques (dampers, velocity loop) are evaluated explicitly at the start
+of each half kick, the load friction implicitly inside each half kick. The sub-step rule: h omega_max <=
+:data:`SUBSTEP_PHASE_RAD` where omega_max is the fastest rate of the linearised train (the shaft's
+two-mass mode, the velocity loop acting on the motor alone while the play is open, the position loop, the
+pendulum, and the damping rates), i.e. ``ceil(T omega_max / SUBSTEP_PHASE_RAD)`` sub-steps per sample, with
+SUBSTEP_PHASE_RAD = 0.04 (its docstring says why).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from identify.validation import InvalidInputError, as_signal
+
+__all__ = [
+    "MAX_SUBSTEPS_PER_SAMPLE",
+    "POSITION_FEEDBACK",
+    "SUBSTEP_PHASE_RAD",
+    "DriveTrain",
+    "DriveTrainStepper",
+    "DriveTrainTrajectory",
+]
+
+SUBSTEP_PHASE_RAD = 0.04
+"""Largest h omega_max per sub-step. Störmer-Verlet on a linear mode of frequency omega keeps a modified
+energy exactly; the true energy then oscillates with a relative amplitude of about (h omega)^2 / 4, here
+4e-4. The kinks of the play (contact opens and closes inside a sub-step) add to it: a shaft pre-twisted
+into contact and ringing through the play for 3 s stayed within 4.1e-4 (8.7e-4 at 0.05), inside the 1e-3 the
+energy test asks for. The explicit damping and velocity-loop terms are stable for h rate < 2 and accurate
+to a few parts in a thousand here."""
+
+MAX_SUBSTEPS_PER_SAMPLE = 20000
+"""More sub-steps than this per sample is refused: the train is so stiff against the sample period that a
+run would take minutes; lower the stiffness or the gains, or sample faster."""
+
+POSITION_FEEDBACK = ("motor", "load")
+"""Where the drive's position loop measures: the motor encoder (angle / N) or the load (output) encoder."""
+
+STANDARD_GRAVITY_M_PER_S2 = 9.80665
+
+
+def _finite(name: str, value: float) -> float:
+    try:
+        number = float(value)
+    except (TypeError, ValueError) as err:
+        raise InvalidInputError(f"{name}: expected a number, got {value!r}") from err
+    if not math.isfinite(number):
+        raise InvalidInputError(f"{name}: expected a finite number, got {value!r}")
+    return number
+
+
+def _positive(name: str, value: float) -> float:
+    number = _finite(name, value)
+    if number <= 0.0:
+        raise InvalidInputError(f"{name}: expected a finite number > 0, got {value!r}")
+    return number
+
+
+def _non_negative(name: str, value: float) -> float:
+    number = _finite(name, value)
+    if number < 0.0:
+        raise InvalidInputError(f"{name}: expected a finite number >= 0, got {value!r}")
+    return number
+
+
+def _limit(name: str, value: float) -> float:
+    """A limit: > 0, and math.inf for none."""
+    try:
+        number = float(value)
+    except (TypeError, ValueError) as err:
+        raise InvalidInputError(f"{name}: expected a number > 0 or inf (no limit), got {value!r}") from err
+    if math.isnan(number) or number <= 0.0:
+        raise InvalidInputError(f"{name}: expected a number > 0 or inf (no limit), got {value!r}")
+    return number
+
+
+@dataclass(frozen=True)
+class DriveTrain:
+    """Position-controlled motor, gear with play between the two inertias, compliant shaft, load with
+    Coulomb, viscous and static friction and an optional gravity torque; the model of the module docstring.
+
+    Parameters
+    ----------
+    sample_period_s
+        Sample period T of the command and the output.
+    gear_ratio
+        N > 0: motor radians per load radian (a reducer has N > 1).
+    motor_inertia_kg_m2
+        J_m > 0, the rotor's inertia at the motor shaft (plus anything rigidly on it before the play).
+    load_inertia_kg_m2
+        J_l > 0, the load's inertia about its axis (for a pendulum arm at least m l^2).
+    shaft_stiffness_nm_per_rad
+        k > 0, the torsional stiffness between the gear and the load, at the load side (N m per load rad).
+    shaft_damping_nm_s_per_rad
+        d >= 0, the shaft's damping at the load side; it acts only in contact (Modelica ElastoBacklash).
+    play_rad
+        b >= 0, total width of the play between the two inertias, in load radians (no contact while
+        |phi - theta| < b/2).
+    position_loop_bandwidth_hz
+        f_n > 0, natural frequency of the closed position loop on the nominal rigid train.
+    position_loop_damping_ratio
+        zeta > 0 of the closed position loop.
+    velocity_feedforward
+        f in [0, 1]: the fraction of the command's rate added to the velocity reference (1: ramps are
+        followed without velocity lag).
+    position_integral_gain_per_s
+        K_i >= 0 of the PI position controller K_p (1 + K_i / s) (0: P only). Integration stops while the
+        velocity reference or the torque is at its limit (anti-windup by conditional integration).
+    position_feedback
+        ``"motor"`` (the drive's motor encoder, angle / N) or ``"load"`` (an encoder on the output).
+    motor_speed_limit_rad_per_s
+        Omega > 0, the largest velocity reference, in rad/s at the motor (``math.inf``: none).
+    motor_torque_limit_nm
+        tau_max > 0, the largest torque the drive gives, in N m at the motor (``math.inf``: none).
+    motor_viscous_damping_nm_s_per_rad
+        d_m >= 0, viscous damping at the motor shaft (bearings, back-EMF of an open winding).
+    coulomb_friction_nm
+        T_c >= 0, the load's sliding friction torque.
+    static_friction_nm
+        T_s >= T_c, the breakaway torque of a load at rest (T_s = T_c: no stiction beyond Coulomb).
+    viscous_friction_nm_s_per_rad
+        d_v >= 0, the load's viscous friction.
+    pendulum_mass_kg, pendulum_length_m
+        m >= 0 and l >= 0 of the gravity torque m g l sin(theta - theta_0) (0: no gravity).
+    gravity_m_per_s2
+        g > 0.
+    hanging_angle_rad
+        theta_0, the load angle at which the arm hangs straight down.
+    initial_angle_rad
+        Load and motor (referred) angle at rest before the first sample; the play starts centred.
+    drive_enabled
+        False: the drive gives no torque (torque off); the load moves the motor back through the gear.
+
+    Examples
+    --------
+    A rigid 1:10 train following a unit step with the second-order response of its position loop:
+
+    >>> train = DriveTrain(sample_period_s=1e-3, gear_ratio=10.0, motor_inertia_kg_m2=1e-5,
+    ...                    load_inertia_kg_m2=1e-2, shaft_stiffness_nm_per_rad=1e3,
+    ...                    shaft_damping_nm_s_per_rad=0.5, position_loop_bandwidth_hz=5.0,
+    ...                    position_loop_damping_ratio=1.0)
+    >>> y = train.apply(np.ones(2000))
+    >>> round(float(y[-1]), 3)
+    1.0
+    """
+
+    sample_period_s: float
+    gear_ratio: float
+    motor_inertia_kg_m2: float
+    load_inertia_kg_m2: float
+    shaft_stiffness_nm_per_rad: float
+    shaft_damping_nm_s_per_rad: float = 0.0
+    play_rad: float = 0.0
+    position_loop_bandwidth_hz: float = 5.0
+    position_loop_damping_ratio: float = 0.7
+    velocity_feedforward: float = 0.0
+    position_integral_gain_per_s: float = 0.0
+    position_feedback: str = "motor"
+    motor_speed_limit_rad_per_s: float = math.inf
+    motor_torque_limit_nm: float = math.inf
+    motor_viscous_damping_nm_s_per_rad: float = 0.0
+    coulomb_friction_nm: float = 0.0
+    static_friction_nm: float = 0.0
+    viscous_friction_nm_s_per_rad: float = 0.0
+    pendulum_mass_kg: float = 0.0
+    pendulum_length_m: float = 0.0
+    gravity_m_per_s2: float = STANDARD_GRAVITY_M_PER_S2
+    hanging_angle_rad: float = 0.0
+    initial_angle_rad: float = 0.0
+    drive_enabled: bool = True
+
+    def __post_init__(self) -> None:
+        positive_fields = ("sample_period_s", "gear_ratio", "motor_inertia_kg_m2", "load_inertia_kg_m2",
+                           "shaft_stiffness_nm_per_rad", "position_loop_bandwidth_hz",
+                           "position_loop_damping_ratio", "gravity_m_per_s2")
+        for name in positive_fields:
+            object.__setattr__(self, name, _positive(name, getattr(self, name)))
+        non_negative_fields = ("shaft_damping_nm_s_per_rad", "play_rad", "position_integral_gain_per_s",
+                               "motor_viscous_damping_nm_s_per_rad", "coulomb_friction_nm", "static_friction_nm",
+                               "viscous_friction_nm_s_per_rad", "pendulum_mass_kg", "pendulum_length_m")
+        for name in non_negative_fields:
+            object.__setattr__(self, name, _non_negative(name, getattr(self, name)))
+        for name in ("hanging_angle_rad", "initial_angle_rad"):
+            object.__setattr__(self, name, _finite(name, getattr(self, name)))
+        for name in ("motor_speed_limit_rad_per_s", "motor_torque_limit_nm"):
+            object.__setattr__(self, name, _limit(name, getattr(self, name)))
+        feedforward = _finite("velocity_feedforward", self.velocity_feedforward)
+        if not 0.0 <= feedforward <= 1.0:
+            raise InvalidInputError(f"velocity_feedforward: expected a fraction from 0 to 1, got {feedforward:g}")
+        object.__setattr__(self, "velocity_feedforward", feedforward)
+        if self.position_feedback not in POSITION_FEEDBACK:
+            raise InvalidInputError(
+                f"position_feedback: expected one of {', '.join(POSITION_FEEDBACK)}, got {self.position_feedback!r}"
+            )
+        if not isinstance(self.drive_enabled, (bool, np.bool_)):
+            raise InvalidInputError(f"drive_enabled: expected True or False, got {self.drive_enabled!r}")
+        object.__setattr__(self, "drive_enabled", bool(self.drive_enabled))
+        if self.static_friction_nm < self.coulomb_friction_nm:
+            raise InvalidInputError(
+                f"static_friction_nm: expected static_friction_nm >= coulomb_friction_nm "
+                f"({self.coulomb_friction_nm:g}), got {self.static_friction_nm:g}"
+            )
+        point_mass_inertia = self.pendulum_mass_kg * self.pendulum_length_m**2
+        if self.load_inertia_kg_m2 < point_mass_inertia * (1.0 - 1e-12):
+            raise InvalidInputError(
+                f"load_inertia_kg_m2: expected at least the pendulum's point-mass inertia m l^2 = "
+                f"{point_mass_inertia:g} kg m^2, got {self.load_inertia_kg_m2:g}"
+            )
+        substeps = self.substeps_per_sample
+        if substeps > MAX_SUBSTEPS_PER_SAMPLE:
+            raise InvalidInputError(
+                f"shaft_stiffness_nm_per_rad: the train's fastest rate {self.fastest_rate_rad_per_s:g} rad/s needs "
+                f"{substeps} sub-steps per sample of {self.sample_period_s:g} s (at most {MAX_SUBSTEPS_PER_SAMPLE}); "
+                "lower the stiffness, the loop bandwidth or the inertia ratio, or sample faster"
+            )
+
+    # -- derived quantities ------------------------------------------------------------------------------
+
+    @property
+    def reflected_motor_inertia_kg_m2(self) -> float:
+        """N^2 J_m: the motor's inertia seen from the load side."""
+        return self.gear_ratio**2 * self.motor_inertia_kg_m2
+
+    @property
+    def total_inertia_kg_m2(self) -> float:
+        """N^2 J_m + J_l: the rigid train's inertia at the load side (the position loop is tuned on it)."""
+        return self.reflected_motor_inertia_kg_m2 + self.load_inertia_kg_m2
+
+    @property
+    def natural_frequency_rad_per_s(self) -> float:
+        """omega_n = 2 pi f_n of the position loop."""
+        return 2.0 * math.pi * self.position_loop_bandwidth_hz
+
+    @property
+    def position_gain_per_s(self) -> float:
+        """K_p = omega_n / (2 zeta): velocity reference (load rad/s) per rad of position error."""
+        return self.natural_frequency_rad_per_s / (2.0 * self.position_loop_damping_ratio)
+
+    @property
+    def velocity_gain_nm_s_per_rad(self) -> float:
+        """K_v = 2 zeta omega_n (N^2 J_m + J_l), at the load side: torque per load rad/s of velocity error."""
+        return 2.0 * self.position_loop_damping_ratio * self.natural_frequency_rad_per_s * self.total_inertia_kg_m2
+
+    @property
+    def servo_stiffness_nm_per_rad(self) -> float:
+        """K_v K_p = omega_n^2 (N^2 J_m + J_l): the static stiffness of the P position loop at the load side."""
+        return self.velocity_gain_nm_s_per_rad * self.position_gain_per_s
+
+    @property
+    def gravity_torque_nm(self) -> float:
+        """m g l: the largest gravity torque (arm horizontal)."""
+        return self.pendulum_mass_kg * self.gravity_m_per_s2 * self.pendulum_length_m
+
+    @property
+    def fastest_rate_rad_per_s(self) -> float:
+        """omega_max of the sub-step rule: the largest of the shaft's two-mass frequency
+        sqrt(k (1/J_m' + 1/J_l)), its damping rate d (1/J_m' + 1/J_l), the pendulum's sqrt(m g l / J_l), the
+        motor damping rate d_m N^2 / J_m' and, with the drive on, the velocity loop acting on the motor alone
+        K_v / J_m' (the play open), omega_n, K_p and K_i."""
+        motor = self.reflected_motor_inertia_kg_m2
+        load = self.load_inertia_kg_m2
+        compliance = 1.0 / motor + 1.0 / load
+        rates = [
+            math.sqrt(self.shaft_stiffness_nm_per_rad * compliance),
+            self.shaft_damping_nm_s_per_rad * compliance,
+            math.sqrt(self.gravity_torque_nm / load),
+            self.motor_viscous_damping_nm_s_per_rad / self.motor_inertia_kg_m2,
+        ]
+        if self.drive_enabled:
+            rates += [self.velocity_gain_nm_s_per_rad / motor, self.natural_frequency_rad_per_s,
+                      self.position_gain_per_s, self.position_integral_gain_per_s]
+        return max(rates)
+
+    @property
+    def substeps_per_sample(self) -> int:
+        """ceil(T omega_max / SUBSTEP_PHASE_RAD), at least 1 (module docstring)."""
+        return max(1, math.ceil(self.sample_period_s * self.fastest_rate_rad_per_s / SUBSTEP_PHASE_RAD))
+
+    # -- the block interface -------------------------------------------------------------------------------
+
+    def apply(self, signal: ArrayLike) -> NDArray[np.float64]:
+        """Run a whole command (load rad) from rest; the same numbers as stepping :meth:`stepper`."""
+        command = as_signal("signal", signal)
+        step = self.stepper().step
+        return np.array([step(r) for r in command.tolist()], dtype=float)
+
+    def stepper(self) -> DriveTrainStepper:
+        """A fresh stepper at rest at ``initial_angle_rad``."""
+        return DriveTrainStepper(self)
+
+    def simulate(self, command_rad: ArrayLike) -> DriveTrainTrajectory:
+        """Run a whole command from rest and return every state and torque at the sample instants."""
+        command = as_signal("command_rad", command_rad)
+        stepper = self.stepper()
+        count = command.size
+        columns = {name: np.empty(count) for name in DriveTrainTrajectory.COLUMNS}
+        stuck = np.empty(count, dtype=bool)
+        for index, r in enumerate(command.tolist()):
+            columns["load_velocity_rad_per_s"][index] = stepper.load_velocity_rad_per_s
+            columns["motor_angle_rad"][index] = stepper.motor_angle_rad
+            columns["motor_velocity_rad_per_s"][index] = stepper.motor_velocity_rad_per_s
+            stuck[index] = stepper.stuck
+            columns["load_angle_rad"][index] = stepper.step(r)
+            columns["motor_torque_nm"][index] = stepper.motor_torque_nm
+            columns["shaft_torque_nm"][index] = stepper.shaft_torque_nm
+            columns["friction_torque_nm"][index] = stepper.friction_torque_nm
+        return DriveTrainTrajectory(time_s=np.arange(count) * self.sample_period_s, command_rad=command,
+                                    stuck=stuck, **columns)
+
+    def energy_j(self, trajectory: DriveTrainTrajectory) -> NDArray[np.float64]:
+        """Kinetic + shaft + gravity energy at each sample: 1/2 J_m w_m^2 + 1/2 J_l w^2 + 1/2 k dz(Delta)^2
+        + m g l (1 - cos(theta - theta_0)) (what an undamped, undriven train conserves)."""
+        half = 0.5 * self.play_rad
+        twist = trajectory.motor_angle_rad / self.gear_ratio - trajectory.load_angle_rad
+        dead = np.where(twist > half, twist - half, np.where(twist < -half, twist + half, 0.0))
+        return (0.5 * self.motor_inertia_kg_m2 * trajectory.motor_velocity_rad_per_s**2
+                + 0.5 * self.load_inertia_kg_m2 * trajectory.load_velocity_rad_per_s**2
+                + 0.5 * self.shaft_stiffness_nm_per_rad * dead**2
+                + self.gravity_torque_nm * (1.0 - np.cos(trajectory.load_angle_rad - self.hanging_angle_rad)))
+
+
+@dataclass(frozen=True)
+class DriveTrainTrajectory:
+    """A run of :class:`DriveTrain` at the sample instants t = k T (the states before command k acts; the
+    torques are those acting at that instant, with command k).
+
+    Attributes
+    ----------
+    time_s, command_rad
+        Sample instants and the command (load rad).
+    load_angle_rad, load_velocity_rad_per_s
+        theta and its rate (the output of :meth:`DriveTrain.apply` is ``load_angle_rad``).
+    motor_angle_rad, motor_velocity_rad_per_s
+        At the motor shaft (N phi and N dphi/dt).
+    motor_torque_nm
+        The drive's torque at the motor shaft (within +-``motor_torque_limit_nm``).
+    shaft_torque_nm
+        The torque the shaft transmits to the load (0 while the play is open).
+    friction_torque_nm
+        The load's friction torque (opposing its motion, or balancing the load while stuck).
+    stuck
+        True while the load sticks (Karnopp).
+    """
+
+    COLUMNS = ("load_angle_rad", "load_velocity_rad_per_s", "motor_angle_rad", "motor_velocity_rad_per_s",
+               "motor_torque_nm", "shaft_torque_nm", "friction_torque_nm")
+
+    time_s: NDArray[np.float64]
+    command_rad: NDArray[np.float64]
+    load_angle_rad: NDArray[np.float64]
+    load_velocity_rad_per_s: NDArray[np.float64]
+    motor_angle_rad: NDArray[np.float64]
+    motor_velocity_rad_per_s: NDArray[np.float64]
+    motor_torque_nm: NDArray[np.float64]
+    shaft_torque_nm: NDArray[np.float64]
+    friction_torque_nm: NDArray[np.float64]
+    stuck: NDArray[np.bool_]
+
+    def __post_init__(self) -> None:
+        count = len(self.time_s)
+        for name in ("command_rad", *self.COLUMNS, "stuck"):
+            if len(getattr(self, name)) != count:
+                raise InvalidInputError(f"{name}: expected {count} samples, got {len(getattr(self, name))}")
+
+
+class DriveTrainStepper:
+    """Advances a :class:`DriveTrain` one sample per :meth:`step` (Störmer-Verlet sub-steps)."""
+
+    __slots__ = ("_constants", "_substeps", "_h", "phi", "omega_phi", "theta", "omega", "integral",
+                 "previous_command", "stuck", "_drive_torque", "_shaft_torque", "_friction_torque", "_ratio",
+                 "samples")
+
+    def __init__(self, train: DriveTrain) -> None:
+        self._ratio = train.gear_ratio
+        self._substeps = train.substeps_per_sample
+        self._h = train.sample_period_s / self._substeps
+        ratio = train.gear_ratio
+        self._constants = (
+            train.reflected_motor_inertia_kg_m2,
+            train.load_inertia_kg_m2,
+            train.shaft_stiffness_nm_per_rad,
+            train.shaft_damping_nm_s_per_rad,
+            0.5 * train.play_rad,
+            train.motor_viscous_damping_nm_s_per_rad * ratio * ratio,
+            train.coulomb_friction_nm,
+            train.static_friction_nm,
+            train.viscous_friction_nm_s_per_rad,
+            train.gravity_torque_nm,
+            train.hanging_angle_rad,
+            train.drive_enabled,
+            train.position_feedback == "load",
+            train.position_gain_per_s,
+            train.position_integral_gain_per_s,
+            train.velocity_feedforward,
+            train.velocity_gain_nm_s_per_rad,
+            train.motor_speed_limit_rad_per_s / ratio,
+            train.motor_torque_limit_nm * ratio,
+            train.sample_period_s,
+        )
+        self.reset(train.initial_angle_rad)
+
+    def reset(self, angle_rad: float) -> None:
+        """Back to rest at ``angle_rad`` (load and referred motor angle), play centred, integrator empty."""
+        angle = _finite("angle_rad", angle_rad)
+        self.phi = angle
+        self.omega_phi = 0.0
+        self.theta = angle
+        self.omega = 0.0
+        self.integral = 0.0
+        self.previous_command = angle
+        self.stuck = True
+        self._drive_torque = 0.0
+        self._shaft_torque = 0.0
+        self._friction_torque = 0.0
+        self.samples = 0
+
+    # states and torques in the units of the motor shaft / load
+    @property
+    def load_angle_rad(self) -> float:
+        return self.theta
+
+    @property
+    def load_velocity_rad_per_s(self) -> float:
+        return self.omega
+
+    @property
+    def motor_angle_rad(self) -> float:
+        return self.phi * self._ratio
+
+    @property
+    def motor_velocity_rad_per_s(self) -> float:
+        return self.omega_phi * self._ratio
+
+    @property
+    def motor_torque_nm(self) -> float:
+        """The drive's torque at the motor shaft at the start of the last sample."""
+        return self._drive_torque / self._ratio
+
+    @property
+    def shaft_torque_nm(self) -> float:
+        """The shaft's torque on the load at the start of the last sample."""
+        return self._shaft_torque
+
+    @property
+    def friction_torque_nm(self) -> float:
+        """The load's friction torque over the first half sub-step of the last sample."""
+        return self._friction_torque
+
+    def step(self, x: float) -> float:
+        """Hold command ``x`` (load rad) over one sample; return the load angle at the sample's start."""
+        r = float(x)
+        if not math.isfinite(r):
+            raise InvalidInputError(f"x: sample {self.samples} is {x!r}; expected a finite angle in rad")
+        (motor_inertia, load_inertia, stiffness, damping, half_play, motor_damping, coulomb, static, viscous,
+         gravity, hanging, drive_on, load_feedback, kp, ki, feedforward, kv, speed_limit, torque_limit,
+         period) = self._constants
+        h = self._h
+        kick = 0.5 * h
+        phi, omega_phi, theta, omega = self.phi, self.omega_phi, self.theta, self.omega
+        integral, stuck = self.integral, self.stuck
+        start = theta
+        rate = feedforward * (r - self.previous_command) / period
+        self.previous_command = r
+        sin = math.sin
+
+        for substep in range(self._substeps):
+            integrating = True
+            for half in (0, 1):
+                # shaft torque: dead zone with Modelica ElastoBacklash's damping rule
+                twist = phi - theta
+                twist_rate = omega_phi - omega
+                if half_play == 0.0:
+                    shaft = stiffness * twist + damping * twist_rate
+                elif twist > half_play:
+                    spring = stiffness * (twist - half_play)
+                    damper = damping * twist_rate
+                    shaft = 0.0 if spring + damper <= 0.0 else spring + (spring if spring < damper else damper)
+                elif twist < -half_play:
+                    spring = stiffness * (twist + half_play)
+                    damper = damping * twist_rate
+                    shaft = 0.0 if spring + damper >= 0.0 else spring + (spring if spring > damper else damper)
+                else:
+                    shaft = 0.0
+                # the drive: P(I) position loop -> velocity reference -> P velocity loop -> torque
+                if drive_on:
+                    error = r - (theta if load_feedback else phi)
+                    reference = kp * (error + ki * integral) + rate
+                    if reference > speed_limit:
+                        reference, integrating = speed_limit, False
+                    elif reference < -speed_limit:
+                        reference, integrating = -speed_limit, False
+                    drive = kv * (reference - omega_phi)
+                    if drive > torque_limit:
+                        drive, integrating = torque_limit, False
+                    elif drive < -torque_limit:
+                        drive, integrating = -torque_limit, False
+                else:
+                    drive = 0.0
+                omega_phi += kick * (drive - shaft - motor_damping * omega_phi) / motor_inertia
+                # the load: implicit Coulomb/viscous step with Karnopp's stick test
+                external = shaft - gravity * sin(theta - hanging)
+                momentum = load_inertia * omega + kick * external
+                if stuck and -static <= external <= static:
+                    friction = external  # sticks: friction balances the load (omega is 0)
+                elif -kick * coulomb <= momentum <= kick * coulomb:
+                    friction = momentum / kick  # sliding friction stops the load within this half kick
+                    omega = 0.0
+                    stuck = True
+                else:
+                    sliding = coulomb if momentum > 0.0 else -coulomb
+                    omega = (momentum - kick * sliding) / (load_inertia + kick * viscous)
+                    friction = sliding + viscous * omega
+                    stuck = False
+                if substep == 0 and half == 0:
+                    self._drive_torque, self._shaft_torque, self._friction_torque = drive, shaft, friction
+                if half == 0:
+                    phi += h * omega_phi
+                    theta += h * omega
+            if drive_on and integrating and ki != 0.0:
+                integral += h * (r - (theta if load_feedback else phi))
+
+        self.phi, self.omega_phi, self.theta, self.omega = phi, omega_phi, theta, omega
+        self.integral, self.stuck = integral, stuck
+        self.samples += 1
+        return start
