@@ -37,6 +37,7 @@ class SampleFlag(IntFlag):
     LIMITED = 8  #: the command was clipped by a configured limit before it was sent
     FAULT = 16  #: the device reported a fault during this sample
     NOT_FOLLOWED = 32  #: the drive said it ignored the target in this sample (CiA 402 CSP statusword bit 12 clear)
+    HELD = 64  #: the setpoint missed its sample instant; the device held the previous one (the logged command)
 
     @classmethod
     def unusable(cls) -> SampleFlag:
@@ -45,7 +46,7 @@ class SampleFlag(IntFlag):
 
 
 _ALL_FLAGS = int(SampleFlag.LOST | SampleFlag.LATE | SampleFlag.DUPLICATE | SampleFlag.LIMITED | SampleFlag.FAULT
-                 | SampleFlag.NOT_FOLLOWED)
+                 | SampleFlag.NOT_FOLLOWED | SampleFlag.HELD)
 
 
 @dataclass(frozen=True)

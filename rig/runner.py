@@ -38,6 +38,7 @@ from identify.experiment_record import SampleFlag
 from identify.validation import as_signal
 from rig.protocols.cia402 import DriveState, state_from_statusword_or_none
 from rig.protocols.errors import DeviceFault, TransportError
+from rig.sample_ledger import SampleLedger
 from rig.transports.base import CommandRefused, Setpoint, Transport
 
 __all__ = ["RunSummary", "SampleSink", "run_experiment", "wait_until"]
@@ -97,6 +98,10 @@ class RunSummary:
         Process CPU time and wall time of the streaming loop.
     not_followed
         Samples with the NOT_FOLLOWED flag.
+    held
+        Device-clocked links: samples whose setpoint missed its instant (HELD; ``late`` counts them too).
+    min_lead_s
+        Device-clocked links: the smallest lead of a setpoint over its sample instant (nan otherwise).
     stop
         What the controlled stop did (:class:`~rig.protocols.cia402.StopReport`, as text).
     warnings
@@ -114,6 +119,8 @@ class RunSummary:
     cpu_s: float
     wall_s: float
     not_followed: int = 0
+    held: int = 0
+    min_lead_s: float = math.nan
     stop: str = ""
     warnings: tuple[str, ...] = ()
 
@@ -183,6 +190,9 @@ def run_experiment(transport: Transport, command_rad: ArrayLike, sink: SampleSin
         The device faulted or the link failed; the log holds every sample up to the stop.
     """
     command = as_signal("command_rad", command_rad)
+    if transport.lead_samples > 0:
+        return _run_device_clocked(transport, command, sink, feedback_timeout_s=feedback_timeout_s,
+                                   pending_cycles=pending_cycles, progress=progress, clock=clock)
     period = transport.sample_period_s
     tolerance = 0.5 * period if late_tolerance_s is None else float(late_tolerance_s)
     rows: list[_Row] = []
@@ -319,3 +329,99 @@ def run_experiment(transport: Transport, command_rad: ArrayLike, sink: SampleSin
                       send_lateness_s=lateness[:sent_count], cpu_s=time.process_time() - cpu_start, wall_s=wall,
                       not_followed=counts["not_followed"], stop=str(transport.stop_report or ""),
                       warnings=tuple(transport.warnings))
+
+
+def _run_device_clocked(transport: Transport, command: NDArray[np.float64], sink: SampleSink, *,
+                        feedback_timeout_s: float, pending_cycles: int,
+                        progress: Callable[[int, int], None] | None, clock: Callable[[], float]) -> RunSummary:
+    """:func:`run_experiment` on a link whose device owns the sample clock (``lead_samples`` > 0).
+
+    A producer and a consumer in one loop, neither of them timed by the host: setpoints are queued as far
+    as ``transport.lead_samples`` ahead of the last sample instant the device passed
+    (``transport.device_sample``), feedback is filed by its sample number (:class:`SampleLedger`), and
+    rows go to the sink once final. Row k's time is the device's instant k T; a setpoint that missed its
+    instant is logged HELD with the command really in force. A host stall shorter than the lead costs
+    nothing; a longer one costs HELD samples, never lost ones. After a failure, the rows of every instant
+    the device passed are written (up to the faulted sample for a device fault); setpoints queued for
+    instants that never came are not samples and are not written.
+    """
+    period = transport.sample_period_s
+    ledger = SampleLedger(period, pending_cycles)
+    values = command.tolist()
+    total = len(values)
+    cpu_start, wall_start = time.process_time(), clock()
+    first_answer = last_answer = math.nan
+    written = 0  # rows below this sample number are in the sink
+    failure: BaseException | None = None
+
+    def write_final(device_sample: int) -> None:
+        nonlocal written
+        while (row := ledger.next_final(device_sample)) is not None:
+            if row.seq >= written:  # written once, even if Ctrl-C lands between append and release
+                sink.append(row.time_s, row.command_rad, row.angle_rad, row.counts, row.flags)
+                written = row.seq + 1
+            ledger.release()
+
+    switch_interval = sys.getswitchinterval()
+    sys.setswitchinterval(min(switch_interval, period / 4))  # receive threads need the GIL within a period
+    try:
+        transport.prepare()
+        check_command(transport, command)
+        transport.enable()
+        lead = transport.lead_samples
+        next_seq = 0
+        last_feedback = clock()
+        while written < total:
+            device = transport.device_sample
+            while next_seq < total and next_seq <= device + lead:
+                sent = transport.send(Setpoint(next_seq, values[next_seq]))
+                ledger.open_row(next_seq, sent.position_rad)
+                next_seq += 1
+            sample = transport.receive(period)
+            now = clock()
+            if sample is not None:
+                state = ledger.file(sample)
+                last_feedback = last_answer = now
+                if math.isnan(first_answer):
+                    first_answer = now
+                if state is not None and state is not DriveState.OPERATION_ENABLED and state not in _FAULT_STATES:
+                    raise DeviceFault(f"{transport.name} drive", None, (
+                        f"left OPERATION ENABLED without a fault at sample {sample.seq} (now {state.name}: enable "
+                        "input or safe torque off lost?); it no longer follows the targets"))
+            elif now - last_feedback > feedback_timeout_s:
+                raise TransportError(f"{transport.name}: no feedback for {now - last_feedback:.3g} s "
+                                     f"(watchdog {feedback_timeout_s:g} s), stopping at sample "
+                                     f"{max(transport.device_sample, 0)}")
+            write_final(transport.device_sample)  # the device goes on sampling (holding) after the last setpoint
+            if progress is not None:
+                progress(written, ledger.counts["held"])
+    except BaseException as err:
+        failure = err
+        raise
+    finally:
+        sys.setswitchinterval(switch_interval)
+        stop_at = transport.device_sample  # the last instant the device passed before the stop
+        try:
+            transport.close()
+            if failure is not None:
+                transport.note_stop(failure)
+        finally:
+            try:
+                if failure is not None:
+                    last = stop_at
+                    if isinstance(failure, DeviceFault):  # the instant the fault was seen is the last sample
+                        last = ledger.first_fault if ledger.first_fault is not None else max(stop_at, 0)
+                        ledger.mark_fault(last)
+                    write_final(last + pending_cycles)
+                else:
+                    write_final(total + pending_cycles)
+            finally:
+                sink.close()
+    answered = written - ledger.counts["lost"]
+    rate = (answered - 1) / (last_answer - first_answer) if answered > 1 and last_answer > first_answer else 0.0
+    held = ledger.counts["held"]
+    return RunSummary(samples=written, lost=ledger.counts["lost"], late=held, duplicate=ledger.counts["duplicate"],
+                      stale=ledger.counts["stale"], frame_errors=transport.frame_errors, rate_hz=rate,
+                      send_lateness_s=np.zeros(0), cpu_s=time.process_time() - cpu_start, wall_s=clock() - wall_start,
+                      not_followed=ledger.counts["not_followed"], held=held, min_lead_s=transport.min_lead_s,
+                      stop=str(transport.stop_report or ""), warnings=tuple(transport.warnings))

@@ -151,7 +151,8 @@ class SimulatedCanOpenRig:
         self.state = cia402.DriveState.SWITCH_ON_DISABLED
         self.controlword = 0
         self.controlwords: list[int] = []
-        self.setpoints = 0
+        self.setpoints = 0  # SYNCs sampled since the first target (RPDO) in OPERATION ENABLED
+        self.streaming = False  # the plant holds exactly at rest until the first target arrives
         self.syncs = 0
         self.homed = False
         self._counter = _FrameCounter()
@@ -237,6 +238,8 @@ class SimulatedCanOpenRig:
                         and self._i8(self.drive, 0x6060) == cia402.HOMING_MODE):
                     # homing method 37 (CiA 402: home on the current position): nothing moves
                     self.homed = True
+                if previous_state is cia402.DriveState.OPERATION_ENABLED and self.state is not previous_state:
+                    self.streaming = False
                 if self.state is cia402.DriveState.OPERATION_ENABLED and previous_state is not self.state:
                     actual = self.drive.get_data(0x6064, 0)
                     self.drive.data_store.setdefault(0x607A, {})[0] = actual  # no jump on enable
@@ -271,6 +274,8 @@ class SimulatedCanOpenRig:
         for variable in pdo_map:  # type: ignore[attr-defined]
             if variable.length:
                 self.drive.set_data(variable.index, variable.subindex, variable.get_data())
+        with self._lock:
+            self.streaming = self.streaming or self.state is cia402.DriveState.OPERATION_ENABLED
 
     @staticmethod
     def _i32(node: canopen.LocalNode, index: int) -> int:
@@ -284,7 +289,8 @@ class SimulatedCanOpenRig:
 
     def _on_sync(self, can_id: int, data: bytes, timestamp: float) -> None:
         with self._lock:
-            if self.state is cia402.DriveState.OPERATION_ENABLED and self.drive.id in self._operational:
+            if (self.state is cia402.DriveState.OPERATION_ENABLED and self.drive.id in self._operational
+                    and self.streaming):
                 number = self.setpoints
                 if self.fault_at_seq is not None and number == self.fault_at_seq:
                     self.state = cia402.DriveState.FAULT

@@ -112,6 +112,12 @@ class FeedbackSample:
     target_ignored
         The drive said it did not follow the target in this sample (CiA 402 cyclic synchronous position
         mode: statusword bit 12 clear in OPERATION ENABLED); the runner flags the sample NOT_FOLLOWED.
+    held
+        On a device-clocked link (:attr:`Transport.lead_samples` > 0): setpoint ``seq`` missed this
+        sample's instant, and the device held an earlier one; the runner flags the sample HELD.
+    applied_position_rad
+        On a device-clocked link: the drive target actually in force at this sample's instant (equal to
+        setpoint ``seq`` unless ``held``).
     """
 
     seq: int
@@ -121,6 +127,8 @@ class FeedbackSample:
     statusword: int
     host_time_s: float
     target_ignored: bool = False
+    held: bool = False
+    applied_position_rad: float | None = None
 
 
 @dataclass(frozen=True)
@@ -211,6 +219,26 @@ class Transport(ABC):
         """The shortest time between two setpoints the link carries: on CAN, the bus time of one cycle's
         frames (a SYNC sent sooner would overtake the previous cycle's answers, since it wins arbitration)."""
         return 0.0
+
+    @property
+    def lead_samples(self) -> int:
+        """How many setpoints may be queued ahead of the device's own sample clock. 0 (the default): the
+        link has no device clock, and the runner paces the samples from the host (one setpoint, one answer).
+        A device-clocked link (CANopen with a cyclic SYNC) takes setpoints ahead and files each answer under
+        the sample instant the device really used."""
+        return 0
+
+    @property
+    def device_sample(self) -> int:
+        """On a device-clocked link: the number of the last sample instant the device has passed (-1
+        before the first)."""
+        return -1
+
+    @property
+    def min_lead_s(self) -> float:
+        """On a device-clocked link: the smallest time seen between a setpoint being queued and its sample
+        instant (negative: a setpoint that came too late and was HELD)."""
+        return math.nan
 
     @property
     def is_open(self) -> bool:

@@ -49,6 +49,7 @@ from __future__ import annotations
 
 import collections
 import contextlib
+import math
 import threading
 import time
 from collections.abc import Iterator
@@ -107,6 +108,18 @@ class CanOpenTransport(Transport):
         How long homing may take.
     mode_switch_timeout_s
         How long the drive may take to show a new mode of operation in 0x6061 after 0x6060 was written.
+    sync_producer
+        ``"master"`` (default): this master produces SYNC from a cyclic task (python-can ``send_periodic``:
+        the kernel's broadcast manager on SocketCAN, the interface's own periodic sending where it has one,
+        a thread elsewhere), started once the PDOs are configured, before the drive is enabled, and stopped
+        after the controlled stop. ``"external"``: another node (a drive or PLC) produces SYNC at the
+        sample rate; the master only listens.
+    lead_s
+        How far ahead of the device's sample instants the runner queues setpoints (default 50 ms); the
+        target for sample k goes on the bus right after SYNC k-1, from the receive thread.
+    tpdo_latency_cycles
+        The devices answer SYNC k after SYNC k + this many (0: before the next SYNC; 1: a device that sends
+        the values latched at the previous SYNC, or whose answer takes longer than a period).
     emcy_warning_codes
         EMCY codes that are warnings, logged and ridden through: comma-separated hex prefixes of the code
         (``"0x4"``, the default, is every temperature code 0x4xxx of CiA 301 Table 21; ``"0x4210,0xFF"``
@@ -122,6 +135,7 @@ class CanOpenTransport(Transport):
                  encoder_eds: str = str(DEFAULT_ENCODER_EDS), heartbeat_ms: int = 100,
                  heartbeat_timeout_s: float = 0.5, sdo_timeout_s: float = 0.5, skip_homing: bool = True,
                  homing_method: int = 37, homing_timeout_s: float = 30.0, mode_switch_timeout_s: float = 1.0,
+                 sync_producer: str = "master", lead_s: float = 0.05, tpdo_latency_cycles: int = 0,
                  emcy_warning_codes: str = "0x4", trace_path: str | None = None, **kwargs: Any) -> None:
         super().__init__(**kwargs)
         self.interface, self.channel, self.bitrate = interface, channel, int(bitrate)
@@ -139,6 +153,15 @@ class CanOpenTransport(Transport):
                 1 <= node <= 127 for node in (self.drive_node_id, self.encoder_node_id)):
             raise ConfigError("<transport>", "drive_node_id", "node-IDs must differ and lie in 1..127")
         self.mode_switch_timeout_s = float(mode_switch_timeout_s)
+        if sync_producer not in ("master", "external"):
+            raise ConfigError("<transport>", "sync_producer", f"expected \"master\" or \"external\", got {sync_producer!r}")
+        self.sync_producer = sync_producer
+        if not lead_s > 0:
+            raise ConfigError("<transport>", "lead_s", f"expected a lead > 0 s, got {lead_s!r}")
+        self.lead_s = float(lead_s)
+        if not 0 <= int(tpdo_latency_cycles) <= 8:
+            raise ConfigError("<transport>", "tpdo_latency_cycles", f"expected 0..8 SYNC periods, got {tpdo_latency_cycles}")
+        self.tpdo_latency_cycles = int(tpdo_latency_cycles)
         self.emcy_warning_prefixes = _emcy_prefixes(emcy_warning_codes)
         self._drive_od = _load_object_dictionary("drive_eds", self.drive_eds, self.drive_node_id)
         self._encoder_od = _load_object_dictionary("encoder_eds", self.encoder_eds, self.encoder_node_id)
@@ -173,11 +196,19 @@ class CanOpenTransport(Transport):
         self._last_target_counts = 0
         self._watch_nmt = False  # from OPERATION ENABLED on, a heartbeat not OPERATIONAL stops the run
         self._heartbeats: dict[int, tuple[float, int]] = {}  # node-ID -> (host receive time, NMT state)
-        self._syncs: collections.deque[tuple[float, int]] = collections.deque(maxlen=4096)  # (bus time, seq)
-        self._unechoed: collections.deque[int] = collections.deque()  # SYNCs sent, echo not yet back
+        # the bus order of SYNCs and RPDOs, as the interface echoes them (see "Streaming" in the docstring)
         self._echo_probe = threading.Event()
-        self._sync_sent_at = -float("inf")  # host time just after the last SYNC left (perf_counter)
-        self._held: list[tuple[str, Any, float, float]] = []  # TPDOs waiting for an echo (_file_locked)
+        self._sync_count = 0  # SYNCs seen on the bus since the producer started
+        self._syncs: collections.deque[tuple[float, int]] = collections.deque(maxlen=4096)  # (bus time, count)
+        self._unfiled: list[tuple[str, Any, float, float]] = []  # TPDOs after the last SYNC: filed at the next
+        self._origin: int | None = None  # the SYNC count of sample 0
+        self._queue: dict[int, int] = {}  # sample -> target counts, queued by the runner, not yet on the bus
+        self._queued_at: dict[int, float] = {}  # sample -> host time it was queued (for the lead)
+        self._rpdo_sent: collections.deque[tuple[int, int]] = collections.deque()  # (sample, counts), echo due
+        self._in_force: tuple[int, int] = (-1, 0)  # (sample, counts) of the last RPDO on the bus
+        self._applied: dict[int, tuple[int, bool]] = {}  # sample -> (target counts in force, held)
+        self._device_sample = -1
+        self._min_lead_s = float("inf")
         self._lock = threading.Lock()
         self._parts: dict[int, dict[str, Any]] = {}
         self._ready: collections.deque[FeedbackSample] = collections.deque()
@@ -185,9 +216,16 @@ class CanOpenTransport(Transport):
         self._emcy: tuple[str, int, int] | None = None  # (role, node-ID, EMCY code; 0: FAULT in the statusword)
 
     @property
-    def min_cycle_s(self) -> float:
-        """One cycle's frames on the bus (worst-case bit stuffing): SYNCs/commands are never closer."""
-        return 1.0 / self.load.max_rate_hz
+    def lead_samples(self) -> int:
+        return max(1, math.ceil(self.lead_s / self.sample_period_s - 1e-9))
+
+    @property
+    def device_sample(self) -> int:
+        return self._device_sample
+
+    @property
+    def min_lead_s(self) -> float:
+        return self._min_lead_s if math.isfinite(self._min_lead_s) else math.nan
 
     # -- seam ----------------------------------------------------------------------------------------------
 
@@ -234,10 +272,11 @@ class CanOpenTransport(Transport):
                                              0x180 + self.drive_node_id)
             self._encoder_tpdo = self._map_pdo(encoder.tpdo, "encoder", [(0x6004, self._encoder_value_bits())],
                                                0x180 + self.encoder_node_id)
-            if self.trace_path is None:  # the TPDOs' COB-IDs as read back (a static PDO keeps its own)
+            if self.trace_path is None:  # the PDOs' COB-IDs as read back (a static PDO keeps its own)
                 self.network.bus.set_filters(self._receive_filters())
             self._check_encoder(encoder)
-            self._require_sync_echo()
+            self.network.subscribe(self._rpdo.cob_id, self._on_rpdo_echo)
+            self._start_sync()
             drive.tpdo[1].add_callback(self._on_drive_tpdo)
             encoder.tpdo[1].add_callback(self._on_encoder_tpdo)
             for role, node in (("drive", drive), ("encoder", encoder)):
@@ -283,6 +322,7 @@ class CanOpenTransport(Transport):
                     node.nmt.state = "PRE-OPERATIONAL"
                 except Exception:  # noqa: BLE001 - best effort: a node off the bus
                     pass
+        self._stop_sync()  # the SYNC ran from configuration to the end of the stop (CiA 301)
 
     @contextlib.contextmanager
     def _translated_errors(self, doing: str) -> Iterator[None]:
@@ -351,31 +391,44 @@ class CanOpenTransport(Transport):
         holds); return that position in radians."""
         actual = drive.sdo[0x6064].raw
         drive.sdo[0x607A].raw = actual
-        self._last_target_counts = actual
+        with self._lock:
+            self._in_force = (-1, actual)  # the drive holds this target until the first RPDO
         return self.drive.rad_from_counts(actual)
 
     def _receive_filters(self) -> list[dict[str, int]]:
-        """The frames the master listens to (in the kernel on SocketCAN): its SYNC echo, and each node's
-        EMCY, TPDO, SDO response and heartbeat. The echoes of its own RPDOs and SDO requests and other
-        nodes' traffic never reach Python. A trace records every frame, so it runs without filters."""
+        """The frames the master listens to (in the kernel on SocketCAN): its SYNC and RPDO echoes, and
+        each node's EMCY, TPDO, SDO response and heartbeat. The echoes of its SDO requests and other nodes'
+        traffic never reach Python. A trace records every frame, so it runs without filters."""
         cob_ids = [SYNC_COB_ID]
         for node_id in (self.drive_node_id, self.encoder_node_id):
             cob_ids += [0x80 + node_id, 0x180 + node_id, 0x580 + node_id, 0x700 + node_id]
-        cob_ids += [layout.cob_id for layout in (self._drive_tpdo, self._encoder_tpdo) if layout is not None]
+        cob_ids += [layout.cob_id for layout in (self._rpdo, self._drive_tpdo, self._encoder_tpdo) if layout is not None]
         return [{"can_id": cob_id, "can_mask": 0x7FF, "extended": False}
                 for cob_id in sorted(set(cob_ids))] + ERROR_FRAME_FILTERS
 
-    def _require_sync_echo(self) -> None:
-        """Send one SYNC while the nodes are pre-operational (no PDO answers it) and wait for its echo:
-        without echoes no TPDO could be attributed to its SYNC."""
+    def _start_sync(self) -> None:
+        """Start the SYNC producer (``sync_producer = "master"``: a cyclic task at the sample period, from
+        now until after the stop) and wait for the first SYNC on the bus: the master numbers the samples by
+        the SYNCs it sees, and files each TPDO by its bus timestamp between two of them, so it needs its
+        own frames echoed back (or the external producer's SYNC)."""
         self._echo_probe.clear()
-        self.network.sync.transmit()
-        if not self._echo_probe.wait(SYNC_ECHO_TIMEOUT_S):
+        if self.sync_producer == "master":
+            self.network.sync.start(self.sample_period_s)
+        if not self._echo_probe.wait(SYNC_ECHO_TIMEOUT_S + 10 * self.sample_period_s):
+            if self.sync_producer == "external":
+                raise TransportError(
+                    f"{self.name}: no SYNC (COB-ID 0x{SYNC_COB_ID:02X}) from the external producer within "
+                    f"{SYNC_ECHO_TIMEOUT_S:g} s (sync_producer = \"external\"): start the node that produces it, "
+                    "or let this master produce SYNC (sync_producer = \"master\")")
             raise TransportError(
                 f"{self.name}: the CAN interface {self.interface}/{self.channel} did not echo a transmitted SYNC "
                 f"within {SYNC_ECHO_TIMEOUT_S:g} s; the CANopen master needs its own frames back "
                 "(python-can receive_own_messages; on SocketCAN keep the default loopback on) to attribute "
                 "each TPDO to its SYNC")
+
+    def _stop_sync(self) -> None:
+        if self.network is not None and self.sync_producer == "master":
+            self.network.sync.stop()
 
     def _home(self, drive: Any) -> None:
         """Homing mode: start with bit 4, wait for "homing attained" (statusword bit 12; bit 13 is a homing
@@ -480,28 +533,23 @@ class CanOpenTransport(Transport):
                     f"direction = {-1 if counts_down else 1}"))
 
     def _send(self, setpoint: Setpoint) -> None:
+        """Queue setpoint ``seq``: the receive thread puts it on the bus right after SYNC ``seq - 1`` (the
+        first one after the next SYNC), so that it is in force at SYNC ``seq`` whatever the host does."""
         self._raise_device_fault()
         self._check_heartbeats()
-        try:
-            counts = self.drive.counts_from_rad(setpoint.position_rad)
-            self.network.send_message(self._rpdo.cob_id, self._rpdo.pack({0x607A: counts}))
-            self._last_target_counts = counts
-        except Exception as err:
-            raise TransportError(f"{self.name}: sending setpoint {setpoint.seq} failed: {err}") from err
-        # SYNC k+1 must reach the bus after the answers to SYNC k (it would win arbitration over them): the
-        # runner spaces its deadlines, this also covers a host that delayed the transmission of SYNC k.
-        wait_s = self._sync_sent_at + self.min_cycle_s - time.perf_counter()
-        if wait_s > 0:
-            time.sleep(wait_s)
         with self._lock:
-            self._unechoed.append(setpoint.seq)
-        try:
-            self.network.sync.transmit()
-            self._sync_sent_at = time.perf_counter()
-        except Exception as err:
-            with self._lock:
-                self._unechoed.remove(setpoint.seq)  # never on the bus: no echo will come
-            raise TransportError(f"{self.name}: sending SYNC {setpoint.seq} failed: {err}") from err
+            self._queue[setpoint.seq] = self.drive.counts_from_rad(setpoint.position_rad)
+            self._queued_at[setpoint.seq] = time.perf_counter()
+            if self._origin is None:
+                return
+            behind = self._device_sample - setpoint.seq  # >= -1: its slot right after SYNC seq - 1 has passed
+            if behind >= 0:  # its SYNC is past: the device held the previous target (the sample is HELD)
+                del self._queue[setpoint.seq], self._queued_at[setpoint.seq]
+                self._min_lead_s = min(self._min_lead_s, -(behind + 1) * self.sample_period_s)
+            elif behind == -1:  # late, but its SYNC may still be ahead: the RPDO echoes will tell
+                self._min_lead_s = min(self._min_lead_s, 0.0)
+                self._put_target_on_bus(setpoint.seq)
+                self._queued_at.pop(setpoint.seq, None)
 
     def _recv_internal(self, timeout_s: float) -> FeedbackSample | None:
         with self._arrived:
@@ -514,6 +562,10 @@ class CanOpenTransport(Transport):
         return None
 
     def _close(self) -> None:
+        try:
+            self._stop_sync()
+        except Exception:  # noqa: BLE001 - the bus is gone already
+            pass
         network, self.network = self.network, None
         if network is not None:
             try:
@@ -566,48 +618,95 @@ class CanOpenTransport(Transport):
                 self._arrived.notify_all()
 
     def _on_sync_echo(self, can_id: int, data: bytes, timestamp: float) -> None:
-        """Our own SYNC back from the interface with its bus timestamp; echoes come in sending order."""
+        """A SYNC on the bus (our own, echoed by the interface with its bus timestamp, or the external
+        producer's): it is a sample instant. Here, in bus order:
+
+        1. TPDOs stamped before it are filed under the last SYNC before them (minus ``tpdo_latency_cycles``);
+        2. if it is sample s's SYNC, the target in force (the last RPDO the bus carried before it) is
+           recorded: setpoint s, or an earlier one if s came too late (HELD);
+        3. the target for the next SYNC goes on the bus now (if the runner has queued it)."""
         with self._arrived:
-            if not self._unechoed:
-                self._echo_probe.set()  # the start-up probe, or another master's SYNC
-                return
-            self._syncs.append((timestamp, self._unechoed.popleft()))
-            held, self._held = self._held, []
-            for part, value, tpdo_time, received in held:
-                self._file_locked(part, value, tpdo_time, received)
+            self._echo_probe.set()
+            self._sync_count += 1
+            count = self._sync_count
+            self._syncs.append((timestamp, count))
+            unfiled, self._unfiled = self._unfiled, []
+            for item in unfiled:
+                if item[2] < timestamp:
+                    self._file_locked(*item)
+                else:
+                    self._unfiled.append(item)
+            if self._origin is not None and count >= self._origin:
+                sample = count - self._origin
+                in_force_sample, counts = self._in_force
+                self._applied[sample] = (counts, in_force_sample != sample)
+                queued = self._queued_at.pop(sample, None)
+                if queued is not None:
+                    self._min_lead_s = min(self._min_lead_s, time.perf_counter() - queued)
+                self._device_sample = sample
+                self._arrived.notify_all()
+            if self._origin is None:
+                if 0 in self._queue:
+                    self._origin = count + 1
+                    self._put_target_on_bus(0)
+            else:
+                upcoming = count + 1 - self._origin
+                for stale in [seq for seq in self._queue if seq < upcoming]:  # came after their SYNC: HELD
+                    del self._queue[stale]
+                if upcoming in self._queue:
+                    self._put_target_on_bus(upcoming)
+            if len(self._applied) > 4096:
+                for old in sorted(self._applied)[:2048]:
+                    del self._applied[old]
+
+    def _put_target_on_bus(self, sample: int) -> None:
+        counts = self._queue.pop(sample)
+        self._rpdo_sent.append((sample, counts))
+        try:
+            self.network.send_message(self._rpdo.cob_id, self._rpdo.pack({0x607A: counts}))
+        except Exception as err:  # noqa: BLE001 - in the notifier thread: report, the runner raises it
+            self._rpdo_sent.pop()
+            self._report_fault(TransportError(f"{self.name}: sending the target of sample {sample} failed: {err}"))
+
+    def _on_rpdo_echo(self, can_id: int, data: bytes, timestamp: float) -> None:
+        """Our own RPDO back from the interface: from here on, until the next one, this target is in force."""
+        with self._arrived:
+            if self._rpdo_sent:
+                self._in_force = self._rpdo_sent.popleft()
 
     def _sync_before(self, timestamp: float) -> int | None:
-        """The sample number of the last SYNC on the bus before bus time ``timestamp`` (None: the frame
-        answers no SYNC of ours, e.g. it is left over from start-up)."""
-        for bus_time, seq in reversed(self._syncs):
+        """The count of the last SYNC on the bus before bus time ``timestamp`` (None: before the first)."""
+        for bus_time, count in reversed(self._syncs):
             if bus_time <= timestamp:
-                return seq
+                return count
         return None
 
     def _file(self, part: str, value: Any, timestamp: float) -> None:
+        """A TPDO waits until the SYNC after it has been seen: only then is the bus order around it known
+        (a device can answer before the interface hands the master the echo of the SYNC it answers)."""
         with self._arrived:
-            self._file_locked(part, value, timestamp, time.perf_counter())
+            self._unfiled.append((part, value, timestamp, time.perf_counter()))
 
     def _file_locked(self, part: str, value: Any, timestamp: float, received: float) -> None:
-        """File one TPDO under its SYNC. While a SYNC we sent has not echoed yet, a TPDO stamped after
-        the last echo may answer that SYNC (a device can answer before the interface hands the master its
-        echo): it is held until the next echo says which SYNC came before it."""
-        if self._unechoed and (not self._syncs or self._syncs[-1][0] <= timestamp):
-            self._held.append((part, value, timestamp, received))
+        """File one TPDO under the sample of the SYNC it answers."""
+        count = self._sync_before(timestamp)
+        if count is None or self._origin is None:
+            return  # before streaming (the drive's TPDOs run from NMT operational on)
+        seq = count - self.tpdo_latency_cycles - self._origin
+        if seq < 0:
             return
-        seq = self._sync_before(timestamp)
-        if seq is None:
-            return  # an answer to no SYNC of ours (e.g. left over from start-up)
         parts = self._parts.setdefault(seq, {})
         parts[part] = value
         # complete: report the sample; a node answering the same SYNC again (a repeated frame, or a frame
         # delayed past the next SYNC and filed there) reports it again, and the runner flags it DUPLICATE
         if "drive" in parts and "encoder" in parts:
             statusword, actual = parts["drive"]
+            counts, held = self._applied.get(seq, (None, False))
             self._ready.append(FeedbackSample(
                 seq=seq, encoder_counts=parts["encoder"], load_angle_rad=self._decode_encoder(parts["encoder"]),
                 drive_position_rad=self.drive.rad_from_counts(actual), statusword=statusword,
-                host_time_s=received, target_ignored=self._target_ignored(statusword)))
+                host_time_s=received, target_ignored=self._target_ignored(statusword), held=held,
+                applied_position_rad=None if counts is None else self.drive.rad_from_counts(counts)))
             self._arrived.notify_all()
         if len(self._parts) > 512:
             for old in sorted(self._parts)[:256]:

@@ -111,39 +111,106 @@ def test_homing_runs_before_streaming_when_not_skipped(tmp_path, no_leaks):
         assert transport.receive(timeout_s=1.0).seq == 0
 
 
-def _unopened_canopen_transport():
+def _unopened_canopen_transport(**options):
     from rig.transports.canopen_link import CanOpenTransport
 
     return CanOpenTransport("virtual", "unused", encoder=EncoderResolution(bits=12, signed=True),
-                            sample_period_s=1e-3)
+                            sample_period_s=1e-3, **options)
 
 
-def test_tpdos_are_filed_under_the_sync_echo_before_their_bus_timestamp():
-    transport = _unopened_canopen_transport()
-    transport._unechoed.extend([7, 8, 9])
-    for bus_time in (10.000, 10.001, 10.002):  # the interface hands back our SYNCs 7, 8, 9
-        transport._on_sync_echo(0x80, b"", bus_time)
-    # the host read the answers to SYNC 7 only after SYNC 9 was on the bus: the bus time files them
-    transport._file("drive", (0x0637, 100), 10.0003)
+class _RecordingNetwork:
+    """Stands in for canopen.Network in scripted exchanges: records the frames the master sends."""
+
+    def __init__(self) -> None:
+        self.sent: list[tuple[int, bytes]] = []
+
+    def send_message(self, can_id: int, data: bytes) -> None:
+        self.sent.append((can_id, bytes(data)))
+
+
+def _streaming_canopen_transport(**options):
+    """A transport in the state streaming leaves it in, driven by scripted bus events (canopen
+    test_sdo.py style): SYNC echoes, RPDO echoes and TPDOs with their bus timestamps, no threads."""
+    from rig.transports.canopen_link import PdoLayout
+
+    transport = _unopened_canopen_transport(**options)
+    transport.network = _RecordingNetwork()
+    transport._rpdo = PdoLayout("RPDO1 of drive 1", 0x201, {0x607A: (0, 4)}, 4)
+    transport._in_force = (-1, 0)
+    return transport
+
+
+def test_a_tpdo_is_filed_under_the_last_sync_before_its_bus_timestamp_once_the_next_sync_is_seen():
+    transport = _streaming_canopen_transport()
+    transport._origin = 1  # the first SYNC seen is sample 0
+    transport._on_sync_echo(0x80, b"", 10.000)  # sample 0
+    transport._file("drive", (0x1637, 100), 10.0003)
     transport._file("encoder", -1, 10.0004)
+    assert not transport._ready  # the bus order around it is known only at the next SYNC
+    transport._on_sync_echo(0x80, b"", 10.001)  # sample 1
     sample = transport._ready.popleft()
-    assert (sample.seq, sample.encoder_counts, sample.statusword) == (7, -1, 0x0637)
-    assert transport._sync_before(9.999) is None  # before any SYNC of ours: not an answer
+    assert (sample.seq, sample.encoder_counts, sample.statusword) == (0, -1, 0x1637)
+    assert transport._sync_before(9.999) is None  # before any SYNC: answers nothing of ours
 
 
-def test_a_tpdo_ahead_of_its_sync_echo_waits_for_the_echo():
-    """The device may answer SYNC 5 before the interface gives the master the echo of SYNC 5 (on the
-    virtual bus the device's queue gets the SYNC first): the answer must not be filed under SYNC 4."""
-    transport = _unopened_canopen_transport()
-    transport._unechoed.extend([4, 5])
-    transport._on_sync_echo(0x80, b"", 20.000)  # SYNC 4
-    transport._file("drive", (0x0637, 100), 20.0013)  # answers SYNC 5, whose echo is not back yet
+def test_a_tpdo_that_reaches_the_host_before_the_echo_of_its_sync_is_filed_under_that_sync():
+    """The device may answer SYNC 1 before the interface gives the master the echo of SYNC 1 (on the
+    virtual bus the device's queue gets the SYNC first): the answer must not be filed under SYNC 0."""
+    transport = _streaming_canopen_transport()
+    transport._origin = 1
+    transport._on_sync_echo(0x80, b"", 20.000)  # sample 0
+    transport._file("drive", (0x1637, 100), 20.0013)  # answers sample 1, whose echo is not back yet
     transport._file("encoder", 3, 20.0014)
+    transport._on_sync_echo(0x80, b"", 20.0010)  # sample 1
     assert not transport._ready
-    transport._on_sync_echo(0x80, b"", 20.0010)  # SYNC 5
+    transport._on_sync_echo(0x80, b"", 20.0020)  # sample 2: now the order is known
     sample = transport._ready.popleft()
-    assert sample.seq == 5 and sample.encoder_counts == 3
-    assert not transport._ready and not transport._held
+    assert sample.seq == 1 and sample.encoder_counts == 3 and not transport._ready
+
+
+def test_targets_go_on_the_bus_right_after_the_previous_sync_and_a_late_one_is_held():
+    transport = _streaming_canopen_transport()
+    for seq, counts in ((0, 10), (1, 20)):
+        transport._send(Setpoint(seq, transport.drive.rad_from_counts(counts)))
+    assert transport.network.sent == []  # queued: nothing goes out before a SYNC
+    transport._on_sync_echo(0x80, b"", 1.000)  # SYNC count 1: target 0 goes out, for the next SYNC
+    assert transport.network.sent == [(0x201, (10).to_bytes(4, "little"))]
+    transport._on_rpdo_echo(0x201, b"", 1.0002)
+    transport._on_sync_echo(0x80, b"", 1.001)  # sample 0 (target 0 in force); target 1 goes out
+    transport._on_rpdo_echo(0x201, b"", 1.0012)
+    transport._on_sync_echo(0x80, b"", 1.002)  # sample 1: target 1 in force; nothing queued for sample 2
+    transport._on_sync_echo(0x80, b"", 1.003)  # sample 2: held at target 1
+    transport._send(Setpoint(2, transport.drive.rad_from_counts(30)))  # came after its SYNC: dropped
+    assert [sent[1] for sent in transport.network.sent] == [(10).to_bytes(4, "little"), (20).to_bytes(4, "little")]
+    assert transport._applied[0] == (10, False) and transport._applied[1] == (20, False)
+    assert transport._applied[2] == (20, True)  # HELD: the command really applied is logged
+    assert transport.device_sample == 2 and transport.min_lead_s < 0
+
+
+def test_a_target_whose_rpdo_reaches_the_bus_after_its_sync_is_held():
+    """The receive thread put target 1 on the bus, but the bus carried it after SYNC 1: the echoes' order
+    says sample 1 ran with target 0."""
+    transport = _streaming_canopen_transport()
+    transport._send(Setpoint(0, transport.drive.rad_from_counts(10)))
+    transport._send(Setpoint(1, transport.drive.rad_from_counts(20)))
+    transport._on_sync_echo(0x80, b"", 1.000)
+    transport._on_rpdo_echo(0x201, b"", 1.0002)
+    transport._on_sync_echo(0x80, b"", 1.001)  # sample 0; target 1 sent ...
+    transport._on_sync_echo(0x80, b"", 1.002)  # ... but SYNC 1 came first on the bus
+    transport._on_rpdo_echo(0x201, b"", 1.0021)
+    assert transport._applied[1] == (10, True)
+
+
+def test_a_configured_tpdo_latency_files_each_answer_under_the_sync_it_answers():
+    """A device that answers SYNC k after SYNC k + 1 (tpdo_latency_cycles = 1)."""
+    transport = _streaming_canopen_transport(tpdo_latency_cycles=1)
+    transport._origin = 1
+    for bus_time in (5.000, 5.001):  # samples 0, 1
+        transport._on_sync_echo(0x80, b"", bus_time)
+    transport._file("drive", (0x1637, 7), 5.0013)  # between SYNC 1 and 2: the answer to SYNC 0
+    transport._file("encoder", 42, 5.0014)
+    transport._on_sync_echo(0x80, b"", 5.002)
+    assert transport._ready.popleft().seq == 0
 
 
 def test_an_interface_that_does_not_echo_our_frames_is_refused_at_start_up(tmp_path, monkeypatch, no_leaks):

@@ -59,7 +59,9 @@ def test_can_trace_records_every_setpoint_frame(kind, tmp_path, capsys, no_leaks
     frames = list(can.BLFReader(str(trace)))
     setpoint_id = 0x110 if kind == "can" else 0x201  # RIG_SETPOINT, or the drive's RPDO1
     assert sum(frame.arbitration_id == setpoint_id for frame in frames) == 20
-    assert sum(frame.arbitration_id == (0x190 if kind == "can" else 0x182) for frame in frames) == 20
+    answers = sum(frame.arbitration_id == (0x190 if kind == "can" else 0x182) for frame in frames)
+    # CANopen: the devices answer every SYNC, which runs from configuration to the end of the stop
+    assert answers == 20 if kind == "can" else answers > 20
 
 
 def test_sqlite_traces_and_serial_traces_are_refused(tmp_path, capsys):

@@ -1,0 +1,132 @@
+"""The runner's book of samples: one row per sample number, feedback filed by its number, rows handed to
+the log in order once they can no longer change.
+
+A device-clocked run (:attr:`rig.transports.base.Transport.lead_samples` > 0) queues setpoints ahead of
+the device; the device samples at its own instants and the transport reports, per sample, what the device
+measured and which target was really in force. The ledger turns that into log rows:
+
+* a row is opened when its setpoint is queued (``command_rad`` = the setpoint, flags = LOST);
+* :meth:`SampleLedger.file` fills it from the feedback: LOST cleared, HELD and the command actually
+  applied when the setpoint missed its instant, NOT_FOLLOWED when the drive ignored it, FAULT in a fault
+  state, DUPLICATE when a second answer comes for the same sample;
+* :meth:`SampleLedger.next_final` / :meth:`SampleLedger.release` hand rows to the log oldest first, once
+  their instant lies ``pending_cycles`` instants behind the device (a later answer could still come until
+  then); a row leaves the ledger only after the sink took it.
+
+Per sample everything is a dictionary lookup or a deque operation: no linear scans.
+"""
+
+from __future__ import annotations
+
+import collections
+from dataclasses import dataclass, field
+
+from identify.experiment_record import SampleFlag
+from rig.protocols.cia402 import DriveState, state_from_statusword_or_none
+from rig.transports.base import FeedbackSample
+
+__all__ = ["LedgerRow", "SampleLedger"]
+
+_LOST, _DUPLICATE, _FAULT, _NOT_FOLLOWED, _HELD = (int(flag) for flag in (
+    SampleFlag.LOST, SampleFlag.DUPLICATE, SampleFlag.FAULT, SampleFlag.NOT_FOLLOWED, SampleFlag.HELD))
+_FAULT_STATES = (DriveState.FAULT, DriveState.FAULT_REACTION_ACTIVE)
+
+
+@dataclass
+class LedgerRow:
+    """One sample as it goes to the log."""
+
+    seq: int
+    time_s: float
+    command_rad: float
+    angle_rad: float = float("nan")
+    counts: int | None = None
+    flags: int = _LOST
+
+
+@dataclass
+class SampleLedger:
+    """Rows by sample number (see the module docstring).
+
+    Parameters
+    ----------
+    sample_period_s
+        The device's sample period: row k is at time k T.
+    pending_cycles
+        A row is final this many sample instants after its own.
+    """
+
+    sample_period_s: float
+    pending_cycles: int
+    counts: dict[str, int] = field(default_factory=lambda: dict.fromkeys(
+        ("lost", "held", "duplicate", "stale", "not_followed"), 0))
+    _rows: dict[int, LedgerRow] = field(default_factory=dict)
+    _order: collections.deque[int] = field(default_factory=collections.deque)
+    _answered: set[int] = field(default_factory=set)
+
+    def open_row(self, seq: int, command_rad: float) -> LedgerRow:
+        """The row of setpoint ``seq`` (queued with ``command_rad``), LOST until its feedback is filed."""
+        row = LedgerRow(seq, seq * self.sample_period_s, command_rad)
+        self._rows[seq] = row
+        self._order.append(seq)
+        return row
+
+    def file(self, sample: FeedbackSample) -> DriveState | None:
+        """File one feedback sample under its number; returns the drive state its statusword shows (the
+        runner stops when that is not OPERATION ENABLED)."""
+        row = self._rows.get(sample.seq)
+        if row is None:
+            self.counts["stale"] += 1  # final already (LOST), or an answer to no setpoint of this run
+            return None
+        if sample.seq in self._answered:
+            self.counts["duplicate"] += 1
+            row.flags |= _DUPLICATE
+            return None
+        self._answered.add(sample.seq)
+        row.angle_rad, row.counts = sample.load_angle_rad, sample.encoder_counts
+        row.flags &= ~_LOST
+        if sample.held:
+            row.flags |= _HELD
+        if sample.applied_position_rad is not None:
+            row.command_rad = sample.applied_position_rad  # the data stay true: the command really applied
+        if sample.target_ignored:
+            row.flags |= _NOT_FOLLOWED
+        state = state_from_statusword_or_none(sample.statusword)
+        if state in _FAULT_STATES or (state is not None and state is not DriveState.OPERATION_ENABLED):
+            row.flags |= _FAULT
+        return state
+
+    def mark_fault(self, seq: int) -> None:
+        """The device faulted during sample ``seq`` (the last one opened when the fault was raised)."""
+        if seq in self._rows:
+            self._rows[seq].flags |= _FAULT
+
+    @property
+    def last_opened(self) -> int:
+        return self._order[-1] if self._order else -1
+
+    def next_final(self, device_sample: int) -> LedgerRow | None:
+        """The oldest row if it can no longer change (its instant lies ``pending_cycles`` instants behind
+        ``device_sample``), else None. It stays in the ledger until :meth:`release`: a row leaves only after
+        the sink took it, so Ctrl-C landing in between loses nothing."""
+        if self._order and self._order[0] <= device_sample - self.pending_cycles:
+            return self._rows[self._order[0]]
+        return None
+
+    def release(self) -> None:
+        """Drop the oldest row (the sink has it) and count its flags."""
+        seq = self._order.popleft()
+        row = self._rows.pop(seq)
+        self._answered.discard(seq)
+        self.counts["lost"] += bool(row.flags & _LOST)
+        self.counts["held"] += bool(row.flags & _HELD)
+        self.counts["not_followed"] += bool(row.flags & _NOT_FOLLOWED)
+
+    @property
+    def first_fault(self) -> int | None:
+        """The first sample flagged FAULT still in the ledger."""
+        faulted = [seq for seq in self._order if self._rows[seq].flags & _FAULT]
+        return faulted[0] if faulted else None
+
+    def __len__(self) -> int:
+        return len(self._order)
