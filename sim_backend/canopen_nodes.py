@@ -60,7 +60,8 @@ STATUSWORD_FOLLOWS_COMMAND = 0x1000  # bit 12 in CSP: drive follows the command 
 STATUSWORD_FOLLOWING_ERROR = 0x2000  # bit 13 in CSP
 SYNC_RUNNING_MIN_WINDOW_S = 0.05  # "SYNC running" tolerates this much host jitter whatever 0x1006 says
 SYNC_RUNNING_DEFAULT_WINDOW_S = 0.3  # without a communication cycle period (0x1006 = 0 or absent)
-CLOCK_TICK_S = 0.002  # the drive's own clock, for timed transitions that no frame triggers
+CLOCK_TICK_S = 0.002
+NOTIFIER_CYCLE_S = 0.05  # how often the notifier thread looks up from an idle bus: close() waits that long  # the drive's own clock, for timed transitions that no frame triggers
 _ENCODER_FIXED_OBJECTS = (0x6000, 0x6001, 0x6002, 0x6003)  # set from the plant's encoder: not changeable
 
 
@@ -262,6 +263,7 @@ class SimulatedCanOpenRig:
 
     def start(self) -> SimulatedCanOpenRig:
         self.network = canopen.Network(_WireTimeBus(self.channel, self._counter))
+        self.network.NOTIFIER_CYCLE = NOTIFIER_CYCLE_S
         self.network.connect()
         self.network.notifier.add_listener(self._counter)
         for node in (self.drive, self.encoder):
