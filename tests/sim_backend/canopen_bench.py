@@ -86,7 +86,11 @@ class Bench:
         return self.drive.sdo[0x6041].raw
 
     def wait_state(self, state: tuple[int, int], what: str, timeout_s: float = DEADLINE_S) -> int:
-        return wait_until(lambda: (word := self.statusword()) if is_state(word, state) else None, what, timeout_s)
+        def reached() -> int | None:
+            word = self.statusword()
+            return word if is_state(word, state) else None
+
+        return wait_until(reached, what, timeout_s)
 
     def controlwords(self, *words: int) -> None:
         for word in words:
