@@ -341,7 +341,7 @@ def test_a_32_bit_encoder_writes_its_range_as_0_and_streams_counts_above_2_to_th
 
 def test_an_encoder_temperature_warning_does_not_stop_the_encoder(no_leaks):
     behaviour = EncoderBehaviour(emcy_warning_at_seq=3, emcy_warning_cleared_at_seq=8)
-    with bench(encoder_behaviour=behaviour) as b:
+    with bench(encoder_behaviour=behaviour, drive_behaviour=DriveBehaviour(emcy_warning_at_seq=4)) as b:
         b.encoder.tpdo.read()
         answers = collect(b.encoder.tpdo[1])
         _csp_enabled(b, sync_period_s=None)
@@ -349,7 +349,10 @@ def test_an_encoder_temperature_warning_does_not_stop_the_encoder(no_leaks):
         wait_until(lambda: 0x4210 in b.emcy_codes(b.encoder), "encoder EMCY 0x4210")
         warning = b.encoder.emcy.log[0]
         assert warning.register == 0x09  # generic + temperature (CiA 301: bit 0 with every error)
-        assert b.encoder.sdo[0x1001].raw == 0x09 and not b.emcy_codes(b.drive)
+        wait_until(lambda: b.emcy_codes(b.drive) == [0x4210], "the drive's own warning, at sample 4")
+        assert b.encoder.sdo[0x1001].raw == 0x09
+        word = b.statusword()
+        assert word & 0x0080 and is_state(word, OPERATION_ENABLED)  # CiA 402 bit 7: warning, still enabled
         b.syncs(5)
         wait_until(lambda: answers.qsize() >= 10, "the encoder keeps answering")
         wait_until(lambda: b.emcy_codes(b.encoder)[-1] == 0x0000, "warning cleared: EMCY 0x0000")
