@@ -27,7 +27,7 @@ NMT_ON_FAULT = (None, "pre-operational", "stopped")
 
 
 def error_register_for(code: int) -> int:
-    """The error register (0x1001, CiA 301 7.5.2.2) that goes with an EMCY error code: bit 0 (generic) for
+    """The error register (0x1001, CiA 301) that goes with an EMCY error code: bit 0 (generic) for
     every error, plus bit 1 current (0x2xxx), bit 2 voltage (0x3xxx), bit 3 temperature (0x4xxx), bit 4
     communication (0x81xx, 0x82xx and 0x87xx, SYNC loss), bit 5 device profile specific (0x86xx, e.g. the
     CiA 402 following error 0x8611), bit 7 manufacturer specific (0xFFxx). 0 for 0x0000 (no error)."""
@@ -67,14 +67,15 @@ class NodeBehaviour:
 
     static_pdos: bool = False
     """PDO communication and mapping parameters (0x1400-0x15FF, 0x1600-0x17FF, 0x1800-0x19FF,
-    0x1A00-0x1BFF, CiA 301 7.5.2.35-38) are read-only: every SDO write to them aborts with 0x06010002
-    (attempt to write a read only object) and the EDS default layout stays. :meth:`SimulatedCanOpenRig.\
-write_eds` writes the matching vendor EDS (those entries ``AccessType=ro``). Note that canopen's
-    ``PdoMap.save()`` silently skips entries its EDS marks read-only: a master must read the layout back."""
+    0x1A00-0x1BFF, CiA 301) are read-only: every SDO write to them aborts with 0x06010002
+    (attempt to write a read only object) and the EDS default layout stays.
+    ``SimulatedCanOpenRig.write_eds`` writes the matching vendor EDS (those entries ``AccessType=ro``).
+    Note that canopen's ``PdoMap.save()`` silently skips entries its EDS marks read-only: a master must
+    read the layout back."""
 
     static_tpdo_transmission_type: int | None = None
     """With ``static_pdos``: TPDO1's transmission type (0x1800 sub 2), e.g. 2 = sent after every 2nd SYNC
-    (CiA 301 7.4.8.3.2: type n in 1..240 is sent after every n-th SYNC). None keeps the EDS's (1)."""
+    (CiA 301: type n in 1..240 is sent after every n-th SYNC). None keeps the EDS's (1)."""
 
     static_tpdo_mapping: tuple[int, ...] | None = None
     """With ``static_pdos``: TPDO1's mapping entries (0x1A00 sub 1..n, each index << 16 | subindex << 8 |
@@ -83,7 +84,7 @@ write_eds` writes the matching vendor EDS (those entries ``AccessType=ro``). Not
     emcy_warning_at_seq: int | None = None
     """At this sample (SYNCs counted from 0 in OPERATION ENABLED) the node sends an EMCY warning
     (``emcy_warning_code``; error register 0x1001 with bit 0 and its class bit, e.g. bit 3 temperature) and
-    goes on working: a warning, not a fault (CiA 301 7.2.7). A drive also sets statusword bit 7 (warning)."""
+    goes on working: a warning, not a fault (CiA 301). A drive also sets statusword bit 7 (warning)."""
 
     emcy_warning_code: int = EMCY_TEMPERATURE_WARNING
     """The EMCY error code of the injected warning (default 0x4210, temperature)."""
@@ -122,7 +123,8 @@ write_eds` writes the matching vendor EDS (those entries ``AccessType=ro``). Not
     def non_default(self) -> dict[str, object]:
         """The fields that differ from the defaults (for messages and benchmark tables)."""
         default = type(self)()
-        return {f.name: getattr(self, f.name) for f in fields(self) if getattr(self, f.name) != getattr(default, f.name)}
+        return {f.name: getattr(self, f.name) for f in fields(self)
+                if getattr(self, f.name) != getattr(default, f.name)}
 
 
 @dataclass(frozen=True)
@@ -135,7 +137,7 @@ class DriveBehaviour(NodeBehaviour):
     the following error: at a SYNC in OPERATION ENABLED (CSP) with |0x607A - 0x6064| above the following
     error window 0x6065 it faults with 0x8611 (EMCY, 0x603F, statusword bit 13 "following error") instead of
     moving. That covers a stale target at enable and consecutive targets that jump by more than the window.
-    0x6065 = 0xFFFFFFFF switches the supervision off (CiA 402 6.2.1.4)."""
+    0x6065 = 0xFFFFFFFF switches the supervision off (CiA 402)."""
 
     following_error_window_counts: int | None = None
     """Initial value of 0x6065 (following error window, drive position units); None keeps the EDS's
@@ -151,14 +153,14 @@ class DriveBehaviour(NodeBehaviour):
     meanwhile the statusword stays FAULT (CiA 402 transition 15 takes the drive's own time)."""
 
     mode_switch_delay_s: float = 0.0
-    """0x6061 (modes of operation display) takes the value written to 0x6060 only after this delay (CiA 402
-    6.3.1: the master must wait for 0x6061). In CSP statusword bit 12 = "drive follows the command value":
+    """0x6061 (modes of operation display) takes the value written to 0x6060 only after this delay (CiA 402:
+    the master must wait for 0x6061). In CSP statusword bit 12 = "drive follows the command value":
     it is 0 unless 0x6061 = 8 and OPERATION ENABLED, and while it is 0 the drive ignores 0x607A and holds
     its position."""
 
     enable_requires_sync: bool = False
     """The drive does not go from SWITCHED ON to OPERATION ENABLED (transition 4) unless SYNC is running:
-    at least 3 SYNCs within the last 3 x 0x1006 (communication cycle period, CiA 301 7.5.2.6), at least
+    at least 3 SYNCs within the last 3 x 0x1006 (communication cycle period, CiA 301), at least
     50 ms to allow for host jitter, 0.3 s if 0x1006 is 0 or absent. The controlword is a level: with
     "enable operation" written, the transition happens once SYNC runs."""
 
@@ -167,7 +169,7 @@ class DriveBehaviour(NodeBehaviour):
     SYNC loss) and 0x603F = 0x8700. None: no SYNC watchdog."""
 
     quick_stop_option: int | None = None
-    """Quick stop option code 0x605A (CiA 402 6.4.1), written at start; the drive then follows 0x605A as
+    """Quick stop option code 0x605A (CiA 402), written at start; the drive then follows 0x605A as
     the master may rewrite it: 0 disable the drive function (to SWITCH ON DISABLED at once), 1-4 slow down
     (``quick_stop_ramp_s``, holding the position) then SWITCH ON DISABLED by itself, 5-8 slow down and stay
     in QUICK STOP ACTIVE (transition 16 back to OPERATION ENABLED allowed). None: as before, the drive stays
@@ -182,13 +184,14 @@ class DriveBehaviour(NodeBehaviour):
     heartbeat (0x1017) shows the new state; the master must restart the node after the fault reset."""
 
     emcy_error_reset: bool = False
-    """When a fault reset completes, the drive sends EMCY 0x0000 ("error reset", CiA 301 7.2.7.2) with the
+    """When a fault reset completes, the drive sends EMCY 0x0000 ("error reset", CiA 301) with the
     error register 0x1001 it now holds."""
 
     def __post_init__(self) -> None:
         super().__post_init__()
         for field in ("copy_target_on_enable", "enable_requires_sync", "emcy_error_reset"):
-            _check(f"DriveBehaviour.{field}", isinstance(getattr(self, field), bool), "true or false", getattr(self, field))
+            value = getattr(self, field)
+            _check(f"DriveBehaviour.{field}", isinstance(value, bool), "true or false", value)
         if self.following_error_window_counts is not None:
             _check("DriveBehaviour.following_error_window_counts",
                    _is_int(self.following_error_window_counts) and 0 <= self.following_error_window_counts < 1 << 32,
@@ -204,7 +207,8 @@ class DriveBehaviour(NodeBehaviour):
             _check("DriveBehaviour.sync_loss_timeout_s", isinstance(self.sync_loss_timeout_s, (int, float))
                    and 0 < self.sync_loss_timeout_s <= 60, "None or seconds above 0", self.sync_loss_timeout_s)
         if self.quick_stop_option is not None:
-            _check("DriveBehaviour.quick_stop_option", _is_int(self.quick_stop_option) and 0 <= self.quick_stop_option <= 8,
+            _check("DriveBehaviour.quick_stop_option",
+                   _is_int(self.quick_stop_option) and 0 <= self.quick_stop_option <= 8,
                    "None or a quick stop option code from 0 to 8", self.quick_stop_option)
         _check("DriveBehaviour.nmt_on_fault", self.nmt_on_fault in NMT_ON_FAULT,
                "None, 'pre-operational' or 'stopped'", self.nmt_on_fault)

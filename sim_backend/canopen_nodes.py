@@ -60,8 +60,8 @@ STATUSWORD_FOLLOWS_COMMAND = 0x1000  # bit 12 in CSP: drive follows the command 
 STATUSWORD_FOLLOWING_ERROR = 0x2000  # bit 13 in CSP
 SYNC_RUNNING_MIN_WINDOW_S = 0.05  # "SYNC running" tolerates this much host jitter whatever 0x1006 says
 SYNC_RUNNING_DEFAULT_WINDOW_S = 0.3  # without a communication cycle period (0x1006 = 0 or absent)
-CLOCK_TICK_S = 0.002
-NOTIFIER_CYCLE_S = 0.05  # how often the notifier thread looks up from an idle bus: close() waits that long  # the drive's own clock, for timed transitions that no frame triggers
+CLOCK_TICK_S = 0.002  # the drive's own clock, for timed transitions that no frame triggers
+NOTIFIER_CYCLE_S = 0.05  # how often the notifier thread looks up from an idle bus: close() waits that long
 _ENCODER_FIXED_OBJECTS = (0x6000, 0x6001, 0x6002, 0x6003)  # set from the plant's encoder: not changeable
 
 
@@ -599,15 +599,15 @@ class SimulatedCanOpenRig:
 
     def _warnings_locked(self, number: int) -> None:
         for node, behaviour in ((self.drive, self.drive_behaviour), (self.encoder, self.encoder_behaviour)):
+            faulted = node is self.drive and self.state is cia402.DriveState.FAULT
+            fault = error_register_for(self.faults[-1]) if faulted else 0
             if self._once(f"warning {node.id}", number == behaviour.emcy_warning_at_seq):
                 register = error_register_for(behaviour.emcy_warning_code)
                 self._warning_registers[node.id] = register
-                fault = error_register_for(self.faults[-1]) if node is self.drive and self.state is cia402.DriveState.FAULT else 0
                 self._store(node, 0x1001, register | fault, 1)
                 node.emcy.send(behaviour.emcy_warning_code, register=register | fault)
             if self._once(f"warning cleared {node.id}", number == behaviour.emcy_warning_cleared_at_seq):
                 self._warning_registers.pop(node.id, None)
-                fault = error_register_for(self.faults[-1]) if node is self.drive and self.state is cia402.DriveState.FAULT else 0
                 self._store(node, 0x1001, fault, 1)
                 node.emcy.send(EMCY_ERROR_RESET, register=fault)
 

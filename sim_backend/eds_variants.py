@@ -25,7 +25,7 @@ __all__ = [
 ]
 
 PDO_PARAMETER_RANGES = ((0x1400, 0x15FF), (0x1600, 0x17FF), (0x1800, 0x19FF), (0x1A00, 0x1BFF))
-"""RPDO communication, RPDO mapping, TPDO communication, TPDO mapping parameters (CiA 301 7.5.2.35-38)."""
+"""RPDO communication, RPDO mapping, TPDO communication, TPDO mapping parameters (CiA 301)."""
 
 _OBJECT_LISTS = ("MandatoryObjects", "OptionalObjects", "ManufacturerObjects")
 _SECTION = re.compile(r"^([0-9A-Fa-f]{4})(?:sub([0-9A-Fa-f]+)|Value|Name)?$")
@@ -89,7 +89,8 @@ def without_objects(text: str, indices: Iterable[int]) -> str:
         if not parser.has_section(listing):
             continue
         count = int(parser.get(listing, "SupportedObjects", fallback="0"), 0)
-        kept = [parser.get(listing, str(number)) for number in range(1, count + 1) if parser.has_option(listing, str(number))]
+        kept = [parser.get(listing, str(number)) for number in range(1, count + 1)
+                if parser.has_option(listing, str(number))]
         kept = [entry for entry in kept if int(entry, 0) not in drop]
         for option in list(parser.options(listing)):
             parser.remove_option(listing, option)

@@ -44,7 +44,8 @@ def is_state(statusword: int, state: tuple[int, int]) -> bool:
     return statusword & state[0] == state[1]
 
 
-def wait_until(predicate: Callable[[], Any], what: str, timeout_s: float = DEADLINE_S, interval_s: float = 0.005) -> Any:
+def wait_until(predicate: Callable[[], Any], what: str, timeout_s: float = DEADLINE_S,
+               interval_s: float = 0.005) -> Any:
     deadline = time.monotonic() + timeout_s
     while True:
         value = predicate()
@@ -74,10 +75,10 @@ class Bench:
             self.network.sync.transmit()
 
     def operational(self, *nodes: canopen.RemoteNode) -> None:
-        for node in nodes or (self.drive, self.encoder):
+        nodes = nodes or (self.drive, self.encoder)
+        for node in nodes:
             node.nmt.state = "OPERATIONAL"
-        wait_until(lambda: all(self.rig_node(node).nmt.state == "OPERATIONAL" for node in nodes or (self.drive, self.encoder)),
-                   "nodes OPERATIONAL")
+        wait_until(lambda: all(self.rig_node(node).nmt.state == "OPERATIONAL" for node in nodes), "nodes OPERATIONAL")
 
     def rig_node(self, node: canopen.RemoteNode) -> canopen.LocalNode:
         return self.rig.drive if node is self.drive else self.rig.encoder
@@ -120,7 +121,8 @@ def gearbox(encoder: Any = None) -> SimulatedGearbox:
 
 
 @contextlib.contextmanager
-def bench(*, drive_eds: str | Path | None = None, encoder_eds: str | Path | None = None, plant: SimulatedGearbox | None = None,
+def bench(*, drive_eds: str | Path | None = None, encoder_eds: str | Path | None = None,
+          plant: SimulatedGearbox | None = None,
           master_drive_eds: str | Path | None = None, master_encoder_eds: str | Path | None = None,
           sdo_timeout_s: float = 1.0, **rig_options: Any) -> Iterator[Bench]:
     """The simulated rig and canopen's master on a fresh virtual channel; everything closed on exit."""

@@ -285,8 +285,8 @@ def test_the_quick_stop_option_is_an_object_the_master_may_rewrite(no_leaks):
 
 # -- 8. fault side effects: 0x1001, NMT state ----------------------------------------------------------------
 
-@pytest.mark.parametrize("nmt_on_fault, heartbeat_state", [(None, "OPERATIONAL"), ("pre-operational", "PRE-OPERATIONAL"),
-                                                           ("stopped", "STOPPED")])
+@pytest.mark.parametrize("nmt_on_fault, heartbeat_state", [
+    (None, "OPERATIONAL"), ("pre-operational", "PRE-OPERATIONAL"), ("stopped", "STOPPED")])
 def test_a_fault_sets_the_error_register_and_may_change_the_nmt_state(nmt_on_fault, heartbeat_state, no_leaks):
     behaviour = DriveBehaviour(nmt_on_fault=nmt_on_fault, emcy_error_reset=True)
     with bench(drive_behaviour=behaviour, sdo_timeout_s=0.3) as b:
