@@ -15,7 +15,7 @@ from identify.validation import InvalidInputError
 
 __all__ = [
     "DriveBehaviour", "EMCY_ERROR_RESET", "EMCY_FOLLOWING_ERROR", "EMCY_SYNC_LOSS", "EMCY_TEMPERATURE_WARNING",
-    "EncoderBehaviour", "NodeBehaviour", "error_register_for",
+    "EncoderBehaviour", "NodeBehaviour", "OPTIONAL_OBJECTS_MISSING", "error_register_for", "real_variety",
 ]
 
 EMCY_ERROR_RESET = 0x0000  # CiA 301: "error reset or no error"
@@ -224,3 +224,46 @@ class DriveBehaviour(NodeBehaviour):
 class EncoderBehaviour(NodeBehaviour):
     """Legal behaviours of a CiA 406 absolute encoder (besides its resolution, which is the plant's
     :class:`~rig.protocols.encoder_counts.EncoderResolution`)."""
+
+
+def real_variety() -> dict[str, tuple[DriveBehaviour, EncoderBehaviour]]:
+    """Named devices of the real variety, ``name -> (drive behaviour, encoder behaviour)``, for a contract
+    test matrix and the benchmark table (pass them as ``SimulatedCanOpenRig(drive_behaviour=...,
+    encoder_behaviour=...)``). Parameters are chosen to stay legal for the test excitations (target steps
+    below the default following error window of 65536 counts). For the static ones the master must load
+    the devices' own EDS (:meth:`SimulatedCanOpenRig.write_eds`), as it would a vendor's; the fault side
+    effects only show when a fault is injected."""
+    drive, encoder = DriveBehaviour, EncoderBehaviour
+    return {
+        "forgiving (default)": (drive(), encoder()),
+        "target not copied at enable": (drive(copy_target_on_enable=False), encoder()),
+        "stale target within the window (moves at enable)": (
+            drive(copy_target_on_enable=False, initial_target_counts=20_000), encoder()),
+        "stale target beyond the window (0x8611 at enable)": (
+            drive(copy_target_on_enable=False, initial_target_counts=100_000), encoder()),
+        "fault reset takes 20 ms": (drive(fault_reset_delay_s=0.02), encoder()),
+        "mode switch takes 0.5 s": (drive(mode_switch_delay_s=0.5), encoder()),
+        "enable only with SYNC running": (drive(enable_requires_sync=True), encoder()),
+        "SYNC watchdog 50 ms (0x8700)": (drive(sync_loss_timeout_s=0.05), encoder()),
+        "TPDOs one SYNC late": (drive(tpdo_latency_cycles=1), encoder(tpdo_latency_cycles=1)),
+        "encoder TPDO one SYNC late": (drive(), encoder(tpdo_latency_cycles=1)),
+        "static PDOs": (drive(static_pdos=True), encoder(static_pdos=True)),
+        "static encoder TPDO every 2nd SYNC": (drive(), encoder(static_pdos=True, static_tpdo_transmission_type=2)),
+        "static 2-byte encoder TPDO": (drive(), encoder(static_pdos=True, static_tpdo_mapping=(0x60040010,))),
+        "quick stop option 2 (to SWITCH ON DISABLED)": (drive(quick_stop_option=2), encoder()),
+        "quick stop option 6 (stays in QUICK STOP ACTIVE)": (drive(quick_stop_option=6), encoder()),
+        "pre-operational on fault": (drive(nmt_on_fault="pre-operational", emcy_error_reset=True), encoder()),
+        "stopped on fault": (drive(nmt_on_fault="stopped"), encoder()),
+        "encoder temperature warning at sample 20": (drive(), encoder(emcy_warning_at_seq=20)),
+    }
+
+
+OPTIONAL_OBJECTS_MISSING = {
+    "drive EDS without 0x1006": ("drive", (0x1006,)),
+    "drive EDS without 0x603F": ("drive", (0x603F,)),
+    "drive EDS without 0x6098": ("drive", (0x6098,)),
+    "drive EDS without 0x6502": ("drive", (0x6502,)),
+    "encoder EDS without 0x6501/0x6002": ("encoder", (0x6501, 0x6002)),
+}
+"""Vendor EDS files that lack an optional object: ``name -> (device, indices)`` for
+:func:`sim_backend.eds_variants.eds_without` (the simulated device then lacks them too)."""

@@ -402,3 +402,21 @@ def test_behaviours_are_validated_and_default_to_the_old_devices():
             DriveBehaviour(**bad)
     assert [error_register_for(code) for code in (0x0000, 0x7500, 0x2310, 0x4210, 0x8130, 0x8611, 0x8700, 0xFF01)] == [
         0x00, 0x01, 0x03, 0x09, 0x11, 0x21, 0x11, 0x81]
+
+
+def test_every_named_device_of_the_variety_starts_and_closes(tmp_path, no_leaks):
+    from sim_backend.canopen_behaviour import OPTIONAL_OBJECTS_MISSING, real_variety
+
+    variety = real_variety()
+    assert variety["forgiving (default)"] == (DriveBehaviour(), EncoderBehaviour())
+    for name, (drive_behaviour, encoder_behaviour) in variety.items():
+        rig = SimulatedCanOpenRig(gearbox(), channel=f"variety_{abs(hash(name))}", drive_behaviour=drive_behaviour,
+                                  encoder_behaviour=encoder_behaviour)
+        with rig:
+            assert rig.drive.nmt.state == "PRE-OPERATIONAL", name
+    for name, (device, indices) in OPTIONAL_OBJECTS_MISSING.items():
+        source = DRIVE_EDS if device == "drive" else ENCODER_EDS
+        path = eds_without(source, indices, tmp_path / f"{device}_{'_'.join(f'{i:04X}' for i in indices)}.eds")
+        with SimulatedCanOpenRig(gearbox(), channel=f"variety_eds_{abs(hash(name))}", **{f"{device}_eds": path}) as rig:
+            node = rig.drive if device == "drive" else rig.encoder
+            assert not set(indices) & set(node.object_dictionary.indices), name
