@@ -103,6 +103,13 @@ def test_a_fault_with_the_drive_enabled_is_visible_to_base_node_402_by_tpdo(no_l
         assert is_state(b.drive.statusword, FAULT)
         wait_until(lambda: 0x2310 in b.emcy_codes(), "EMCY 0x2310 (current)")
         assert b.drive.emcy.log[-1].register == 0x03  # generic + current
+        drive_samples = b.rig.setpoints
+        b.drive.reset_from_fault()
+        assert b.drive.state == "OPERATION ENABLED"
+        # an injected fault happens once: the drive re-enabled by BaseNode402 streams on (it used to fault
+        # again at once, since the sample count does not advance in FAULT)
+        wait_until(lambda: b.rig.setpoints > drive_samples + 10, "streams after the reset")
+        assert b.rig.faults == [0x2310] and b.drive.state == "OPERATION ENABLED"
 
 
 def test_base_node_402_with_controlword_and_mode_display_in_pdos(no_leaks):
