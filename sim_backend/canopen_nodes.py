@@ -657,11 +657,13 @@ class SimulatedCanOpenRig:
                         continue
                     frames.append((node, can.Message(arbitration_id=tpdo.cob_id, data=payload, is_extended_id=False)))
         wire_time = timestamp + frame_bits(len(data)) / self.bitrate
+        bus = self.network.bus
         for node, frame in frames:
             wire_time += frame_bits(len(frame.data)) / self.bitrate
             if delay_s is not None and node is self.encoder:
-                late = threading.Timer(delay_s, lambda frame=frame: self.network.bus.send_at(frame, time.time()))
+                # the bus, not self.network: a late frame after close() finds the bus shut down and is dropped
+                late = threading.Timer(delay_s, lambda frame=frame: bus.send_at(frame, time.time()))
                 late.daemon = True
                 late.start()
                 continue
-            self.network.bus.send_at(frame, wire_time)
+            bus.send_at(frame, wire_time)
