@@ -410,7 +410,8 @@ def _run_device_clocked(transport: Transport, command: NDArray[np.float64], sink
                 if failure is not None:
                     last = stop_at
                     if isinstance(failure, DeviceFault):  # the instant the fault was seen is the last sample
-                        last = ledger.first_fault if ledger.first_fault is not None else max(stop_at, 0)
+                        faulted = [seq for seq in (ledger.first_fault, transport.fault_sample) if seq is not None]
+                        last = min(faulted) if faulted else max(stop_at, 0)
                         ledger.mark_fault(last)
                     write_final(last + pending_cycles)
                 else:

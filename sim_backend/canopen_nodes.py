@@ -6,19 +6,29 @@ gearbox.
 NMT commands. This module adds what it lacks for a cyclic synchronous position (CSP) rig:
 
 * PDO mapping taken from the object dictionary when the node enters OPERATIONAL (after the master has
-  configured 0x1400/0x1600/0x1800/0x1A00 by SDO), RPDOs written into the dictionary, TPDOs sent on SYNC,
-  and no PDO traffic outside OPERATIONAL (NMT gating);
-* the CiA 402 state machine on 0x6040/0x6041 (:mod:`rig.protocols.cia402`), with the target set to the
-  actual position on enable (no jump);
-* the plant: on each SYNC in OPERATION ENABLED the drive applies its target (0x607A) and the gearbox
-  advances exactly one sample; the encoder's position value (0x6004) is the gearbox's encoder reading;
-* EMCY and 0x603F on an injected fault, heartbeats (0x1017) from both nodes;
-* the encoder's resolution objects (0x6501, 0x6502, 0x6002) from the gearbox's EncoderResolution;
+  configured 0x1400/0x1600/0x1800/0x1A00 by SDO), RPDOs written into the dictionary, TPDOs sent on SYNC
+  (transmission type n: after every n-th SYNC), and no PDO traffic outside OPERATIONAL (NMT gating; no SDO
+  in STOPPED either);
+* the CiA 402 state machine on 0x6040/0x6041 (:mod:`rig.protocols.cia402`), by default with the target
+  set to the actual position on enable (no jump); statusword bit 12 in CSP = "drive follows the command
+  value";
+* the plant: on each SYNC in OPERATION ENABLED, from the first target (RPDO) on, the drive applies its
+  target (0x607A) and the gearbox
+  advances exactly one sample; the position demand value 0x6062 is the target it applied, the actual
+  position 0x6064 follows it (an ideal drive); the encoder's position value (0x6004) is the gearbox's
+  encoder reading;
+* EMCY, 0x603F and the error register 0x1001 on a fault, heartbeats (0x1017) from both nodes;
+* the encoder's resolution objects (0x6001, 0x6002, 0x6501, 0x6502) and code sequence (0x6000) from the
+  gearbox's EncoderResolution;
+* the legal behaviours of real devices, switched on by :class:`~sim_backend.canopen_behaviour.DriveBehaviour`
+  and :class:`~sim_backend.canopen_behaviour.EncoderBehaviour` (slow fault reset, slow mode switch, enable
+  only with SYNC, SYNC watchdog, TPDO latency, static PDOs, quick stop options, NMT state on fault, ...);
 * a count of every frame on the bus, for the bus load against the configured bit rate.
 """
 
 from __future__ import annotations
 
+import collections
 import threading
 import time
 from collections.abc import Iterable
@@ -28,17 +38,43 @@ import can
 import canopen
 from can.interfaces.virtual import VirtualBus
 
+from identify.validation import InvalidInputError
 from rig.protocols import cia402
 from rig.protocols.can_bus_load import frame_bits
+from sim_backend.canopen_behaviour import (
+    EMCY_ERROR_RESET, EMCY_FOLLOWING_ERROR, EMCY_SYNC_LOSS, DriveBehaviour, EncoderBehaviour, NodeBehaviour,
+    error_register_for,
+)
+from sim_backend.eds_variants import eds_text, is_pdo_parameter, load_eds_text, static_pdo_access, with_entries
 from sim_backend.plant import SimulatedGearbox
 
-__all__ = ["EDS_DIRECTORY", "SimulatedCanOpenRig"]
+__all__ = ["DRIVE_EDS", "EDS_DIRECTORY", "ENCODER_EDS", "SimulatedCanOpenRig", "u32_range"]
 
 EDS_DIRECTORY = Path(__file__).resolve().parents[1] / "configs" / "eds"
 DRIVE_EDS = EDS_DIRECTORY / "sim_drive_cia402.eds"
 ENCODER_EDS = EDS_DIRECTORY / "sim_encoder_cia406.eds"
 SYNC_COB_ID = 0x80
 SDO_ABORT_VALUE_RANGE = 0x06090030  # CiA 301: value range of parameter exceeded
+SDO_ABORT_READ_ONLY = 0x06010002  # CiA 301: attempt to write a read only object
+FOLLOWING_ERROR_OFF = 0xFFFFFFFF  # CiA 402 0x6065: the following error is not supervised
+STATUSWORD_FOLLOWS_COMMAND = 0x1000  # bit 12 in CSP: drive follows the command value
+STATUSWORD_FOLLOWING_ERROR = 0x2000  # bit 13 in CSP
+SYNC_RUNNING_MIN_WINDOW_S = 0.05  # "SYNC running" tolerates this much host jitter whatever 0x1006 says
+SYNC_RUNNING_DEFAULT_WINDOW_S = 0.3  # without a communication cycle period (0x1006 = 0 or absent)
+CLOCK_TICK_S = 0.002  # the drive's own clock, for timed transitions that no frame triggers
+NOTIFIER_CYCLE_S = 0.05  # how often the notifier thread looks up from an idle bus: close() waits that long
+_ENCODER_FIXED_OBJECTS = (0x6000, 0x6001, 0x6002, 0x6003)  # set from the plant's encoder: not changeable
+
+
+def u32_range(value: int) -> int:
+    """An UNSIGNED32 range object (CiA 406 0x6001, 0x6002, 0x6501) for a range of ``value`` counts: 2**32
+    is written as 0, the convention of CiA 406 encoders with a full 32-bit range (TR-Electronic's CiA 406
+    manuals: "it can be set 0 to display the value 0x100000000"); CiA 406 has no other encoding for it."""
+    if value == 1 << 32:
+        return 0
+    if not 0 < value < 1 << 32:
+        raise InvalidInputError(f"a CiA 406 range must lie in 1..2**32 counts, got {value}")
+    return value
 
 
 class _FrameCounter(can.Listener):
@@ -80,6 +116,8 @@ class _WireTimeBus(VirtualBus):
 
     def send_at(self, msg: can.Message, wire_time: float) -> None:
         with self._stamp_lock:
+            if self._is_shutdown:
+                return
             self.counter.on_message_received(msg)
             msg.timestamp = wire_time
             self.preserve_timestamps = True
@@ -87,6 +125,35 @@ class _WireTimeBus(VirtualBus):
                 super().send(msg)
             finally:
                 self.preserve_timestamps = False
+
+
+class _Tpdo:
+    """One synchronous TPDO of a node: what it carries, how often it goes, and what it latched."""
+
+    __slots__ = ("cob_id", "entries", "every", "count", "history", "primed")
+
+    def __init__(self, cob_id: int, entries: list[tuple[int, int, int]], every: int) -> None:
+        self.cob_id = cob_id
+        self.entries = entries  # (index, subindex, bytes)
+        self.every = every  # transmission type n: after every n-th SYNC
+        self.count = 0  # SYNCs since the node became OPERATIONAL
+        self.history: collections.deque[bytes] = collections.deque()
+        self.primed = False
+
+
+def _static_eds_text(text: str, behaviour: NodeBehaviour) -> str:
+    """The EDS of a device with ``behaviour``: PDO parameters read-only and the static TPDO1 layout."""
+    if not behaviour.static_pdos:
+        return text
+    defaults: dict[tuple[int, int], int] = {}
+    if behaviour.static_tpdo_transmission_type is not None:
+        defaults[(0x1800, 2)] = behaviour.static_tpdo_transmission_type
+    if behaviour.static_tpdo_mapping is not None:
+        defaults[(0x1A00, 0)] = len(behaviour.static_tpdo_mapping)
+        for subindex in range(1, 9):
+            mapping = behaviour.static_tpdo_mapping
+            defaults[(0x1A00, subindex)] = mapping[subindex - 1] if subindex <= len(mapping) else 0
+    return with_entries(text, access=static_pdo_access(text), defaults=defaults)
 
 
 class SimulatedCanOpenRig:
@@ -104,17 +171,23 @@ class SimulatedCanOpenRig:
         Drive position units per motor revolution.
     bitrate
         The bus's bit rate, for :meth:`bus_load`.
+    drive_behaviour, encoder_behaviour
+        Legal behaviours of real devices (:mod:`sim_backend.canopen_behaviour`); the defaults are the
+        forgiving devices this simulator always had.
+    drive_eds, encoder_eds
+        The devices' object dictionaries (default ``configs/eds``); e.g. a variant without optional objects
+        (:func:`sim_backend.eds_variants.eds_without`). The device then lacks those objects too.
     silent_seqs
         Sample numbers (SYNCs counted from 0 in OPERATION ENABLED) after which the encoder sends no TPDO
         (the plant still steps): injected frame loss.
     fault_at_seq, fault_code
-        At that sample the drive faults instead of moving: EMCY with ``fault_code``, 0x603F =
-        ``fault_code``, FAULT state.
+        At that sample the drive faults instead of moving (once): EMCY with ``fault_code``, 0x603F =
+        ``fault_code``, 0x1001, FAULT state.
     stop_heartbeat_at_seq
         At that sample both nodes stop their heartbeats (a device that fell off the bus).
     disable_at_seq
         At that sample the drive drops out of OPERATION ENABLED without a fault (enable input or safe torque
-        off lost); its TPDOs go on, with the new statusword.
+        off lost; once); its TPDOs go on, with the new statusword.
     error_frame_at
         ``(error class bits, sample)``: an error frame (:mod:`rig.protocols.can_error_frames`) goes on the
         bus before that sample's TPDOs, e.g. a protocol violation or bus-off.
@@ -124,19 +197,40 @@ class SimulatedCanOpenRig:
     refuse_sdo_index
         The drive aborts every SDO write to this object (abort code 0x06090030, value range exceeded), as a
         drive that does not support a mode or mapping the master configures.
+    hold_plant_until_first_target
+        True (for the driver's tests and the simulated rigs of ``rig run``): the gearbox stays exactly at
+        rest from enabling until the first target (RPDO) arrives, so that a run's samples do not depend on
+        how many SYNCs the host let pass between enabling and its first setpoint (a real gearbox at rest
+        with its target at the actual position does not move either; only the simulated noise would be
+        drawn). False: the drive acts on every SYNC in OPERATION ENABLED, as a device-level test of a stale
+        target at enable needs.
     """
 
     def __init__(self, gearbox: SimulatedGearbox, *, channel: str,
                  drive_node_id: int = 1, encoder_node_id: int = 2, drive_counts_per_revolution: int = 1 << 17,
-                 bitrate: int = 1_000_000, silent_seqs: Iterable[int] = (), fault_at_seq: int | None = None,
-                 fault_code: int = 0x7500, stop_heartbeat_at_seq: int | None = None,
+                 bitrate: int = 1_000_000, drive_behaviour: DriveBehaviour | None = None,
+                 encoder_behaviour: EncoderBehaviour | None = None, drive_eds: str | Path = DRIVE_EDS,
+                 encoder_eds: str | Path = ENCODER_EDS, silent_seqs: Iterable[int] = (),
+                 fault_at_seq: int | None = None, fault_code: int = 0x7500, stop_heartbeat_at_seq: int | None = None,
                  disable_at_seq: int | None = None, refuse_sdo_index: int | None = None,
                  delayed_tpdo: tuple[float, int] | None = None,
-                 error_frame_at: tuple[int, int] | None = None) -> None:
+                 error_frame_at: tuple[int, int] | None = None, hold_plant_until_first_target: bool = True) -> None:
         self.gearbox = gearbox
+        self.hold_plant_until_first_target = bool(hold_plant_until_first_target)
         self.channel = channel
         self.drive_scaling = cia402.DriveScaling(int(drive_counts_per_revolution))
         self.bitrate = int(bitrate)
+        self.drive_behaviour = DriveBehaviour() if drive_behaviour is None else drive_behaviour
+        self.encoder_behaviour = EncoderBehaviour() if encoder_behaviour is None else encoder_behaviour
+        if not isinstance(self.drive_behaviour, DriveBehaviour):
+            raise InvalidInputError(f"drive_behaviour: expected a DriveBehaviour, got {drive_behaviour!r}")
+        if not isinstance(self.encoder_behaviour, EncoderBehaviour):
+            raise InvalidInputError(f"encoder_behaviour: expected an EncoderBehaviour, got {encoder_behaviour!r}")
+        encoder = gearbox.encoder
+        if encoder.bits + encoder.multi_turn_bits > 32:
+            raise InvalidInputError(
+                f"encoder: a CiA 406 position value (0x6004) is UNSIGNED32; {encoder.bits}+{encoder.multi_turn_bits} "
+                "bits do not fit")
         self.silent_seqs = frozenset(silent_seqs)
         self.fault_at_seq = fault_at_seq
         self.fault_code = fault_code
@@ -146,8 +240,10 @@ class SimulatedCanOpenRig:
         self.delayed_tpdo = delayed_tpdo
         self.error_frame_at = error_frame_at
         self.network: canopen.Network | None = None
-        self.drive = canopen.LocalNode(drive_node_id, str(DRIVE_EDS))
-        self.encoder = canopen.LocalNode(encoder_node_id, str(ENCODER_EDS))
+        self.drive_eds_text = _static_eds_text(eds_text(drive_eds), self.drive_behaviour)
+        self.encoder_eds_text = _static_eds_text(eds_text(encoder_eds), self.encoder_behaviour)
+        self.drive = canopen.LocalNode(drive_node_id, load_eds_text(self.drive_eds_text, Path(drive_eds).name))
+        self.encoder = canopen.LocalNode(encoder_node_id, load_eds_text(self.encoder_eds_text, Path(encoder_eds).name))
         self.state = cia402.DriveState.SWITCH_ON_DISABLED
         self.controlword = 0
         self.controlwords: list[int] = []
@@ -155,39 +251,72 @@ class SimulatedCanOpenRig:
         self.streaming = False  # the plant holds exactly at rest until the first target arrives
         self.syncs = 0
         self.homed = False
+        self.faults: list[int] = []  # error codes of every fault the drive entered, in order
         self._counter = _FrameCounter()
-        self._lock = threading.Lock()
+        self._lock = threading.RLock()
         self._operational: set[int] = set()
-        self._sync_tpdos: dict[int, list[tuple[int, list[tuple[int, int, int]]]]] = {}
+        self._tpdos: dict[int, list[_Tpdo]] = {}
         self._started = False
+        self._mode_display = self._i8(self.drive, 0x6060) if 0x6060 in self.drive.object_dictionary else 0
+        self._mode_pending: tuple[int, float] | None = None
+        self._reset_due: float | None = None
+        self._quick_stop_since: float | None = None
+        self._enabled_at = 0.0
+        self._sync_times: collections.deque[float] = collections.deque(maxlen=3)
+        self._following_error = False
+        self._warning_registers: dict[int, int] = {}  # node-ID -> error register bits of an active warning
+        self._one_shots: set[str] = set()
+        self._clock: threading.Thread | None = None
+        self._clock_stop = threading.Event()
 
     # -- lifecycle ------------------------------------------------------------------------------------------
 
     def start(self) -> SimulatedCanOpenRig:
         self.network = canopen.Network(_WireTimeBus(self.channel, self._counter))
+        self.network.NOTIFIER_CYCLE = NOTIFIER_CYCLE_S
         self.network.connect()
         self.network.notifier.add_listener(self._counter)
         for node in (self.drive, self.encoder):
             self.network.add_node(node)
+            self._gate_sdo_when_stopped(node)
         self.drive.add_write_callback(self._on_drive_write)
         self.drive.add_read_callback(self._on_drive_read)
+        self.encoder.add_write_callback(self._on_encoder_write)
         self.network.subscribe(0, self._on_nmt)  # after the nodes' own NMT handlers
         self.network.subscribe(SYNC_COB_ID, self._on_sync)
         encoder = self.gearbox.encoder
-        self.encoder.set_data(0x6501, 0, encoder.counts_per_revolution.to_bytes(4, "little"))
-        self.encoder.set_data(0x6502, 0, (1 << encoder.multi_turn_bits).to_bytes(2, "little"))
-        self.encoder.set_data(0x6002, 0, encoder.modulus.to_bytes(4, "little"))
-        self.encoder.set_data(0x6000, 0, (0 if encoder.direction > 0 else 1).to_bytes(2, "little"))
+        self._store(self.encoder, 0x6501, u32_range(encoder.counts_per_revolution), 4)
+        self._store(self.encoder, 0x6001, u32_range(encoder.counts_per_revolution), 4)
+        # CiA 406 0x6502 is UNSIGNED16: 2**16 revolutions and more keep only the low 16 bits (0 for 2**16),
+        # so a master takes the number of revolutions from 0x6002 / 0x6001
+        self._store(self.encoder, 0x6502, (1 << encoder.multi_turn_bits) & 0xFFFF, 2)
+        self._store(self.encoder, 0x6002, u32_range(encoder.modulus), 4)
+        self._store(self.encoder, 0x6000, 0 if encoder.direction > 0 else 1, 2)
+        behaviour = self.drive_behaviour
+        self._store(self.drive, 0x607A, behaviour.initial_target_counts, 4, signed=True)
+        if behaviour.following_error_window_counts is not None:
+            self._store(self.drive, 0x6065, behaviour.following_error_window_counts, 4)
+        if behaviour.quick_stop_option is not None:
+            self._store(self.drive, 0x605A, behaviour.quick_stop_option, 2, signed=True)
         for node in (self.drive, self.encoder):
             node.nmt.state = "PRE-OPERATIONAL"  # boot-up message, heartbeat per 0x1017
         self._started = True
+        if behaviour.needs_clock:
+            self._clock_stop.clear()
+            self._clock = threading.Thread(target=self._run_clock, name="sim-canopen-drive-clock", daemon=True)
+            self._clock.start()
         return self
 
     def close(self) -> None:
-        """Stop heartbeats, leave the bus and stop the notifier thread (idempotent)."""
+        """Stop the drive's clock and the heartbeats, leave the bus and stop the notifier thread
+        (idempotent)."""
         if not self._started:
             return
         self._started = False
+        if self._clock is not None:
+            self._clock_stop.set()
+            self._clock.join()
+            self._clock = None
         for node in (self.drive, self.encoder):
             node.nmt.stop_heartbeat()
         self.network.disconnect()
@@ -208,43 +337,74 @@ class SimulatedCanOpenRig:
     def frames(self) -> int:
         return self._counter.frames
 
+    def write_eds(self, directory: str | Path) -> tuple[Path, Path]:
+        """Write the EDS files that describe these devices as they behave (what their vendor would ship,
+        e.g. with read-only PDO parameters for ``static_pdos``) into ``directory``; returns (drive,
+        encoder) paths, for a master's ``drive_eds``/``encoder_eds``."""
+        directory = Path(directory)
+        paths = (directory / f"sim_drive_{self.drive.id}.eds", directory / f"sim_encoder_{self.encoder.id}.eds")
+        for path, text in zip(paths, (self.drive_eds_text, self.encoder_eds_text)):
+            path.write_text(text)
+        return paths
+
+    def inject_fault(self, code: int) -> None:
+        """Fault the drive now with EMCY ``code`` (tests)."""
+        with self._lock:
+            self._fault_locked(code)
+
     # -- object dictionary hooks -------------------------------------------------------------------------
 
     def _on_drive_read(self, index: int, subindex: int, od: object) -> int | None:
         if index == 0x6041:
-            word = cia402.statusword_for(self.state, target_reached=True)
-            if self.homed and self._i8(self.drive, 0x6060) == cia402.HOMING_MODE:
-                word |= cia402.STATUSWORD_HOMING_ATTAINED
-            if (self.state is cia402.DriveState.OPERATION_ENABLED
-                    and self._i8(self.drive, 0x6060) == cia402.CYCLIC_SYNCHRONOUS_POSITION_MODE):
-                word |= cia402.STATUSWORD_FOLLOWS_TARGET
-            return word
+            with self._lock:
+                self._advance_locked(time.monotonic())
+                return self._statusword_locked()
         if index == 0x6061:
-            return self._i8(self.drive, 0x6060)  # the mode is taken over at once
+            with self._lock:
+                self._advance_locked(time.monotonic())
+                return self._mode_display
         return None
 
     def _on_drive_write(self, index: int, subindex: int, od: object, data: bytes) -> None:
         if index == self.refuse_sdo_index:
             raise canopen.SdoAbortedError(SDO_ABORT_VALUE_RANGE)
-        if index == 0x6040:
-            controlword = int.from_bytes(data, "little")
+        if self.drive_behaviour.static_pdos and is_pdo_parameter(index):
+            raise canopen.SdoAbortedError(SDO_ABORT_READ_ONLY)
+        if index == 0x6060:
+            mode = int.from_bytes(data, "little", signed=True)
             with self._lock:
-                self.controlwords.append(controlword)
-                previous_state = self.state
-                self.state = cia402.next_state(self.state, controlword, self.controlword)
-                starts_homing = controlword & 0x0010 and not self.controlword & 0x0010
-                self.controlword = controlword
-                if (starts_homing and self.state is cia402.DriveState.OPERATION_ENABLED
-                        and self._i8(self.drive, 0x6060) == cia402.HOMING_MODE):
-                    # homing method 37 (CiA 402: home on the current position): nothing moves
-                    self.homed = True
-                if previous_state is cia402.DriveState.OPERATION_ENABLED and self.state is not previous_state:
-                    self.streaming = False
-                if self.state is cia402.DriveState.OPERATION_ENABLED and previous_state is not self.state:
-                    actual = self.drive.get_data(0x6064, 0)
-                    self.drive.data_store.setdefault(0x607A, {})[0] = actual  # no jump on enable
+                delay_s = self.drive_behaviour.mode_switch_delay_s
+                if delay_s > 0:
+                    self._mode_pending = (mode, time.monotonic() + delay_s)
+                else:
+                    self._mode_display, self._mode_pending = mode, None
+        elif index == 0x6040:
+            with self._lock:
+                self._on_controlword(int.from_bytes(data, "little"), time.monotonic())
+
+    def _on_encoder_write(self, index: int, subindex: int, od: object, data: bytes) -> None:
+        if self.encoder_behaviour.static_pdos and is_pdo_parameter(index):
+            raise canopen.SdoAbortedError(SDO_ABORT_READ_ONLY)
+        if index in _ENCODER_FIXED_OBJECTS and bytes(data) != self.encoder.get_data(index, subindex):
+            # the simulated encoder has no scaling function (0x6000 bit 2), no preset and a fixed code sequence
+            raise canopen.SdoAbortedError(SDO_ABORT_VALUE_RANGE)
+
+    def _gate_sdo_when_stopped(self, node: canopen.LocalNode) -> None:
+        """CiA 301: a node in STOPPED answers no SDO (only NMT and heartbeat)."""
+        handler = node.sdo.on_request
+        self.network.unsubscribe(node.sdo.rx_cobid, handler)
+
+        def gated(can_id: int, data: bytes, timestamp: float) -> None:
+            if node.nmt.state != "STOPPED":
+                handler(can_id, data, timestamp)
+
+        self.network.subscribe(node.sdo.rx_cobid, gated)
 
     def _on_nmt(self, can_id: int, data: bytes, timestamp: float) -> None:
+        with self._lock:
+            self._follow_nmt_states()
+
+    def _follow_nmt_states(self) -> None:
         for node in (self.drive, self.encoder):
             if node.nmt.state == "OPERATIONAL" and node.id not in self._operational:
                 self._operational.add(node.id)
@@ -252,16 +412,15 @@ class SimulatedCanOpenRig:
             elif node.nmt.state != "OPERATIONAL" and node.id in self._operational:
                 self._operational.discard(node.id)
                 for pdo_map in list(node.rpdo.map.values()):
-                    if pdo_map.cob_id:
+                    if pdo_map.cob_id and pdo_map.on_message in self.network.subscribers.get(pdo_map.cob_id, ()):
                         self.network.unsubscribe(pdo_map.cob_id, pdo_map.on_message)
 
     def _configure_pdos(self, node: canopen.LocalNode) -> None:
         """Take the PDO mapping the master wrote by SDO (or the EDS default) from the dictionary."""
         node.tpdo.read(from_od=False)
-        # synchronous TPDOs as (COB-ID, [(index, subindex, bytes)]), packed directly on each SYNC
-        self._sync_tpdos[node.id] = [
-            (pdo_map.cob_id, [(variable.index, variable.subindex, variable.length // 8) for variable in pdo_map
-                              if variable.length])
+        self._tpdos[node.id] = [
+            _Tpdo(pdo_map.cob_id, [(variable.index, variable.subindex, variable.length // 8) for variable in pdo_map
+                                   if variable.length], pdo_map.trans_type)
             for pdo_map in node.tpdo.map.values()
             if pdo_map.enabled and pdo_map.trans_type is not None and 1 <= pdo_map.trans_type <= 240]
         if node is self.drive:
@@ -278,6 +437,12 @@ class SimulatedCanOpenRig:
             self.streaming = self.streaming or self.state is cia402.DriveState.OPERATION_ENABLED
 
     @staticmethod
+    def _store(node: canopen.LocalNode, index: int, value: int, size: int, *, signed: bool = False) -> None:
+        """Set an object the device owns, if its dictionary has it (a variant EDS may lack it)."""
+        if index in node.object_dictionary:
+            node.data_store.setdefault(index, {})[0] = value.to_bytes(size, "little", signed=signed)
+
+    @staticmethod
     def _i32(node: canopen.LocalNode, index: int) -> int:
         return int.from_bytes(node.get_data(index, 0), "little", signed=True)
 
@@ -285,26 +450,208 @@ class SimulatedCanOpenRig:
     def _i8(node: canopen.LocalNode, index: int) -> int:
         return int.from_bytes(node.get_data(index, 0), "little", signed=True)
 
+    @staticmethod
+    def _u(node: canopen.LocalNode, index: int) -> int | None:
+        if index not in node.object_dictionary:
+            return None
+        return int.from_bytes(node.get_data(index, 0), "little")
+
+    # -- the CiA 402 state machine -------------------------------------------------------------------------
+
+    def _quick_stop_option(self) -> int | None:
+        if self.drive_behaviour.quick_stop_option is None:
+            return None
+        value = self._u(self.drive, 0x605A)
+        return None if value is None else int.from_bytes(value.to_bytes(2, "little"), "little", signed=True)
+
+    def _on_controlword(self, controlword: int, now: float) -> None:
+        DS = cia402.DriveState
+        previous_word, self.controlword = self.controlword, controlword
+        self.controlwords.append(controlword)
+        self._advance_locked(now)
+        state = self.state
+        if state in (DS.FAULT, DS.FAULT_REACTION_ACTIVE):
+            rising = controlword & 0x0080 and not previous_word & 0x0080
+            if state is DS.FAULT and rising and self._reset_due is None:
+                self._reset_due = now + self.drive_behaviour.fault_reset_delay_s
+                self._advance_locked(now)
+            return
+        option = self._quick_stop_option()
+        if state is DS.QUICK_STOP_ACTIVE and option is not None:
+            if controlword & 0x0002 == 0 or controlword & 0x0080:
+                self.state = DS.SWITCH_ON_DISABLED  # transition 12 (disable voltage)
+            elif (5 <= option <= 8 and controlword & 0x000F == 0x000F and self._quick_stop_since is not None
+                  and now - self._quick_stop_since >= self.drive_behaviour.quick_stop_ramp_s):
+                self._enter_operation_enabled(now)  # transition 16
+            return
+        new = cia402.next_state(state, controlword, previous_word)
+        if new is DS.QUICK_STOP_ACTIVE and option is not None:
+            if option == 0:
+                new = DS.SWITCH_ON_DISABLED  # disable drive function: the motor coasts
+            else:
+                self._quick_stop_since = now
+        if new is DS.OPERATION_ENABLED and state is not DS.OPERATION_ENABLED:
+            if self.drive_behaviour.enable_requires_sync and not self._sync_running(now):
+                self.state = DS.SWITCHED_ON  # transition 4 waits for SYNC (see _advance_locked)
+            else:
+                self._enter_operation_enabled(now)
+        else:
+            self.state = new
+        starts_homing = controlword & 0x0010 and not previous_word & 0x0010
+        if (starts_homing and self.state is DS.OPERATION_ENABLED
+                and self._mode_display == cia402.HOMING_MODE):
+            # homing method 37 (CiA 402: home on the current position): nothing moves
+            self.homed = True
+
+    def _enter_operation_enabled(self, now: float) -> None:
+        self.state = cia402.DriveState.OPERATION_ENABLED
+        self._enabled_at = now
+        self._quick_stop_since = None
+        if self.drive_behaviour.copy_target_on_enable:
+            self.drive.data_store.setdefault(0x607A, {})[0] = self.drive.get_data(0x6064, 0)  # no jump on enable
+
+    def _sync_running(self, now: float) -> bool:
+        period_us = self._u(self.drive, 0x1006)
+        window_s = max(3e-6 * period_us, SYNC_RUNNING_MIN_WINDOW_S) if period_us else SYNC_RUNNING_DEFAULT_WINDOW_S
+        return len(self._sync_times) == 3 and now - self._sync_times[0] <= window_s
+
+    def _advance_locked(self, now: float) -> None:
+        """The transitions that take the drive's own time (called on every SYNC, statusword read,
+        controlword write and by the drive's clock)."""
+        DS = cia402.DriveState
+        behaviour = self.drive_behaviour
+        if self._reset_due is not None and now >= self._reset_due:
+            self._complete_fault_reset()
+        if self._mode_pending is not None and now >= self._mode_pending[1]:
+            self._mode_display, self._mode_pending = self._mode_pending[0], None
+        if self.state is DS.QUICK_STOP_ACTIVE and self._quick_stop_since is not None:
+            option = self._quick_stop_option()
+            if option is not None and 1 <= option <= 4 and now - self._quick_stop_since >= behaviour.quick_stop_ramp_s:
+                self.state, self._quick_stop_since = DS.SWITCH_ON_DISABLED, None
+        if (behaviour.enable_requires_sync and self.state is DS.SWITCHED_ON
+                and self.controlword & 0x008F == 0x000F and self._sync_running(now)):
+            self._enter_operation_enabled(now)
+        if self.state is DS.OPERATION_ENABLED and behaviour.sync_loss_timeout_s is not None:
+            last_sync = self._sync_times[-1] if self._sync_times else -float("inf")
+            if now - max(last_sync, self._enabled_at) > behaviour.sync_loss_timeout_s:
+                self._fault_locked(EMCY_SYNC_LOSS)
+
+    def _fault_locked(self, code: int) -> None:
+        if self.state is cia402.DriveState.FAULT:
+            return
+        self.state = cia402.DriveState.FAULT
+        self.faults.append(code)
+        self._reset_due = None
+        self._quick_stop_since = None
+        self._following_error = code == EMCY_FOLLOWING_ERROR
+        register = error_register_for(code) | self._warning_registers.get(self.drive.id, 0)
+        self._store(self.drive, 0x603F, code, 2)
+        self._store(self.drive, 0x1001, register, 1)
+        if self.drive.nmt.state != "STOPPED":
+            self.drive.emcy.send(code, register=register)
+        nmt = self.drive_behaviour.nmt_on_fault
+        if nmt is not None and self.drive.nmt.state != nmt.upper():
+            self.drive.nmt.state = nmt.upper()  # heartbeat shows it (CiA 301 0x1029 error behaviour)
+            self._follow_nmt_states()
+
+    def _complete_fault_reset(self) -> None:
+        self._reset_due = None
+        self.state = cia402.DriveState.SWITCH_ON_DISABLED
+        self._following_error = False
+        register = self._warning_registers.get(self.drive.id, 0)
+        self._store(self.drive, 0x1001, register, 1)
+        if self.drive_behaviour.emcy_error_reset and self.drive.nmt.state != "STOPPED":
+            self.drive.emcy.send(EMCY_ERROR_RESET, register=register)
+
+    def _statusword_locked(self) -> int:
+        DS = cia402.DriveState
+        word = cia402.statusword_for(self.state, target_reached=True)
+        if self._mode_display == cia402.HOMING_MODE:
+            if self.homed:
+                word |= cia402.STATUSWORD_HOMING_ATTAINED
+        elif self._mode_display == cia402.CYCLIC_SYNCHRONOUS_POSITION_MODE:
+            if self.state is DS.OPERATION_ENABLED:
+                word |= STATUSWORD_FOLLOWS_COMMAND
+            if self._following_error:
+                word |= STATUSWORD_FOLLOWING_ERROR
+        if self.drive.id in self._warning_registers:
+            word |= cia402.STATUSWORD_WARNING
+        return word
+
+    def _run_clock(self) -> None:
+        while not self._clock_stop.wait(CLOCK_TICK_S):
+            with self._lock:
+                self._advance_locked(time.monotonic())
+
     # -- the cycle -------------------------------------------------------------------------------------------
 
+    def _once(self, name: str, happens: bool) -> bool:
+        if happens and name not in self._one_shots:
+            self._one_shots.add(name)
+            return True
+        return False
+
+    def _step_locked(self) -> None:
+        """One SYNC in OPERATION ENABLED: apply the target (or hold), step the plant, latch the values."""
+        target = self._i32(self.drive, 0x607A)
+        actual = self._i32(self.drive, 0x6064)
+        follows = self._mode_display == cia402.CYCLIC_SYNCHRONOUS_POSITION_MODE
+        if follows and not self.drive_behaviour.copy_target_on_enable:
+            window = self._u(self.drive, 0x6065)
+            if window is not None and window != FOLLOWING_ERROR_OFF and abs(target - actual) > window:
+                self._fault_locked(EMCY_FOLLOWING_ERROR)
+                return
+        applied = target if follows else actual  # statusword bit 12 clear: the drive holds its position
+        sample = self.gearbox.step(self.drive_scaling.rad_from_counts(applied))
+        applied_bytes = applied.to_bytes(4, "little", signed=True)
+        self.drive.data_store.setdefault(0x6064, {})[0] = applied_bytes
+        self._store(self.drive, 0x6062, applied, 4, signed=True)
+        self.encoder.data_store.setdefault(0x6004, {})[0] = (sample.encoder_counts & 0xFFFFFFFF).to_bytes(4, "little")
+        self.setpoints += 1
+
+    def _warnings_locked(self, number: int) -> None:
+        for node, behaviour in ((self.drive, self.drive_behaviour), (self.encoder, self.encoder_behaviour)):
+            faulted = node is self.drive and self.state is cia402.DriveState.FAULT
+            fault = error_register_for(self.faults[-1]) if faulted else 0
+            if self._once(f"warning {node.id}", number == behaviour.emcy_warning_at_seq):
+                register = error_register_for(behaviour.emcy_warning_code)
+                self._warning_registers[node.id] = register
+                self._store(node, 0x1001, register | fault, 1)
+                node.emcy.send(behaviour.emcy_warning_code, register=register | fault)
+            if self._once(f"warning cleared {node.id}", number == behaviour.emcy_warning_cleared_at_seq):
+                self._warning_registers.pop(node.id, None)
+                self._store(node, 0x1001, fault, 1)
+                node.emcy.send(EMCY_ERROR_RESET, register=fault)
+
+    def _latch_locked(self, node: canopen.LocalNode, tpdo: _Tpdo) -> bytes:
+        return b"".join(node.get_data(index, subindex)[:size] for index, subindex, size in tpdo.entries)
+
     def _on_sync(self, can_id: int, data: bytes, timestamp: float) -> None:
+        now = time.monotonic()
+        frames: list[tuple[canopen.LocalNode, can.Message]] = []
         with self._lock:
+            self._sync_times.append(now)
+            self._advance_locked(now)
+            behaviours = {self.drive.id: self.drive_behaviour, self.encoder.id: self.encoder_behaviour}
+            for node in (self.drive, self.encoder):  # what a late-answering device sends first
+                latency = behaviours[node.id].tpdo_latency_cycles
+                for tpdo in self._tpdos.get(node.id, ()) if node.id in self._operational else ():
+                    if not tpdo.primed:
+                        tpdo.history.extend([self._latch_locked(node, tpdo)] * latency)
+                        tpdo.primed = True
+            silent, delay_s = False, None
+            if self.state is not cia402.DriveState.OPERATION_ENABLED:
+                self.streaming = False
             if (self.state is cia402.DriveState.OPERATION_ENABLED and self.drive.id in self._operational
-                    and self.streaming):
+                    and (self.streaming or not self.hold_plant_until_first_target)):
                 number = self.setpoints
-                if self.fault_at_seq is not None and number == self.fault_at_seq:
-                    self.state = cia402.DriveState.FAULT
-                    self.drive.data_store.setdefault(0x603F, {})[0] = self.fault_code.to_bytes(2, "little")
-                    self.drive.emcy.send(self.fault_code, register=0x01)
-                elif number == self.disable_at_seq:
+                if self._once("fault", self.fault_at_seq is not None and number == self.fault_at_seq):
+                    self._fault_locked(self.fault_code)
+                elif self._once("disable", number == self.disable_at_seq):
                     self.state = cia402.DriveState.SWITCH_ON_DISABLED
                 else:
-                    target = self._i32(self.drive, 0x607A)
-                    sample = self.gearbox.step(self.drive_scaling.rad_from_counts(target))
-                    self.drive.data_store.setdefault(0x6064, {})[0] = target.to_bytes(4, "little", signed=True)
-                    self.encoder.data_store.setdefault(0x6004, {})[0] = (
-                        (sample.encoder_counts & 0xFFFFFFFF).to_bytes(4, "little"))
-                    self.setpoints += 1
+                    self._step_locked()
+                self._warnings_locked(number)
                 if self.stop_heartbeat_at_seq is not None and number == self.stop_heartbeat_at_seq:
                     for node in (self.drive, self.encoder):
                         node.nmt.stop_heartbeat()
@@ -313,20 +660,25 @@ class SimulatedCanOpenRig:
                 if self.error_frame_at is not None and number == self.error_frame_at[1]:
                     self.network.bus.send(can.Message(arbitration_id=self.error_frame_at[0], is_error_frame=True,
                                                       dlc=8, data=bytes(8), is_extended_id=False))
-            else:
-                silent, delay_s = False, None
             self.syncs += 1
-        wire_time = timestamp + frame_bits(len(data)) / self.bitrate
-        for node in (self.drive, self.encoder):
-            if node.id not in self._operational or (silent and node is self.encoder):
-                continue
-            for cob_id, entries in self._sync_tpdos.get(node.id, ()):
-                payload = b"".join(node.get_data(index, subindex)[:size] for index, subindex, size in entries)
-                frame = can.Message(arbitration_id=cob_id, data=payload, is_extended_id=False)
-                wire_time += frame_bits(len(payload)) / self.bitrate
-                if delay_s is not None and node is self.encoder:
-                    late = threading.Timer(delay_s, lambda frame=frame: self.network.bus.send_at(frame, time.time()))
-                    late.daemon = True
-                    late.start()
+            for node in (self.drive, self.encoder):
+                if node.id not in self._operational:
                     continue
-                self.network.bus.send_at(frame, wire_time)
+                for tpdo in self._tpdos.get(node.id, ()):
+                    tpdo.history.append(self._latch_locked(node, tpdo))
+                    payload = tpdo.history.popleft()
+                    tpdo.count += 1
+                    if tpdo.count % tpdo.every or (silent and node is self.encoder):
+                        continue
+                    frames.append((node, can.Message(arbitration_id=tpdo.cob_id, data=payload, is_extended_id=False)))
+        wire_time = timestamp + frame_bits(len(data)) / self.bitrate
+        bus = self.network.bus
+        for node, frame in frames:
+            wire_time += frame_bits(len(frame.data)) / self.bitrate
+            if delay_s is not None and node is self.encoder:
+                # the bus, not self.network: a late frame after close() finds the bus shut down and is dropped
+                late = threading.Timer(delay_s, lambda frame=frame: bus.send_at(frame, time.time()))
+                late.daemon = True
+                late.start()
+                continue
+            bus.send_at(frame, wire_time)

@@ -241,6 +241,12 @@ class Transport(ABC):
         return math.nan
 
     @property
+    def fault_sample(self) -> int | None:
+        """On a device-clocked link: the sample instant at which the device reported its fault (None: no
+        fault, or not known)."""
+        return None
+
+    @property
     def is_open(self) -> bool:
         return self._state == "open"
 

@@ -208,6 +208,7 @@ class CanOpenTransport(Transport):
         self._in_force: tuple[int, int] = (-1, 0)  # (sample, counts) of the last RPDO on the bus
         self._applied: dict[int, tuple[int, bool]] = {}  # sample -> (target counts in force, held)
         self._device_sample = -1
+        self._fault_sample: int | None = None  # the last sample instant passed when a fault was reported
         self._min_lead_s = float("inf")
         self._lock = threading.Lock()
         self._parts: dict[int, dict[str, Any]] = {}
@@ -226,6 +227,10 @@ class CanOpenTransport(Transport):
     @property
     def min_lead_s(self) -> float:
         return self._min_lead_s if math.isfinite(self._min_lead_s) else math.nan
+
+    @property
+    def fault_sample(self) -> int | None:
+        return self._fault_sample if self._fault_sample is None or self._fault_sample >= 0 else None
 
     # -- seam ----------------------------------------------------------------------------------------------
 
@@ -589,6 +594,7 @@ class CanOpenTransport(Transport):
             with self._arrived:
                 if self._emcy is None:
                     self._emcy = ("drive", self.drive_node_id, 0)
+                    self._fault_sample = self._device_sample
                 self._arrived.notify_all()
 
     def _on_encoder_tpdo(self, pdo: Any) -> None:
@@ -742,6 +748,7 @@ class CanOpenTransport(Transport):
         with self._arrived:
             if self._emcy is None:
                 self._emcy = (role, node_id, code)
+                self._fault_sample = self._device_sample
             self._arrived.notify_all()
 
     def _raise_device_fault(self) -> None:

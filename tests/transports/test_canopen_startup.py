@@ -54,7 +54,7 @@ def test_an_encoder_whose_resolution_differs_from_the_config_is_refused(tmp_path
         options = dict(config.transport_options(), encoder=EncoderResolution(bits=13, signed=True))
         transport = open_transport(url, **options)
         with pytest.raises(DeviceFault, match=r"reports 4096 counts per revolution and a range of 4096 counts "
-                                              r"\(0x6501, 0x6002\), but the config says 8192 and 8192"):
+                                              r"\(0x6001, 0x6002\), but the config says 8192 and 8192"):
             transport.open()
         assert not transport.is_open
 
