@@ -241,10 +241,11 @@ def _explain_empty(side: str, indices: NDArray[np.int64], u: NDArray[np.float64]
         )
     else:
         message = (
-            f"no {side} backlash line ({parameter}) with a slope >= 0 and an offset of the right sign fits the "
-            f"{count} steady-state points of the {halves} half-waves, whatever the noise bound (points [{shown}]): "
-            "the output does not grow with the input. Check: the sign of the encoder's direction, the steady-state "
-            "points given as u, y in the right columns, or the model is not an output backlash."
+            f"no {side} backlash line ({parameter}) fits the {count} steady-state points of the {halves} "
+            f"half-waves (points [{shown}]), and no finite enlargement of the noise bound "
+            f"({float(np.max(np.maximum(above, below))):.3g} rad at most) that the solver could compute reconciles "
+            "them. Check: the noise bound is in radians and not far too small, the output grows with the input "
+            "(the encoder's direction sign), u and y are the right columns, or the model is not an output backlash."
         )
     return EmptyFeasibleSetExplanation(side, conflicting, scale, message)
 

@@ -62,8 +62,9 @@ def executor_for(jobs: int, scheduler: str | None = None) -> Iterator[Executor |
     except BaseException:
         # Ctrl-C or an error: do not wait minutes for the files in progress; the workers ignore SIGINT (the
         # main process alone reports it) and end at SIGTERM without a word
+        workers = list((getattr(pool, "_processes", None) or {}).values())  # shutdown() forgets them
         pool.shutdown(wait=False, cancel_futures=True)
-        for process in list((getattr(pool, "_processes", None) or {}).values()):
+        for process in workers:
             with contextlib.suppress(Exception):
                 process.terminate()
         raise
@@ -89,7 +90,26 @@ def _worker_start() -> None:
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    if hasattr(signal, "pthread_sigmask"):
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})  # blocked by _sigint_held at the fork
     warnings.showwarning = show_warning_as_note
+
+
+@contextlib.contextmanager
+def _sigint_held() -> Iterator[None]:
+    """Hold SIGINT back while the workers are forked, so that none is born with the command's handler
+    (which would report the Ctrl-C a second time); it is delivered to this process right after."""
+    import signal
+    import threading
+
+    if not hasattr(signal, "pthread_sigmask") or threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, previous)
 
 
 def map_files(function: Callable[[str], Any], paths: Sequence[str], *, jobs: int = 1,
@@ -105,5 +125,6 @@ def map_files(function: Callable[[str], Any], paths: Sequence[str], *, jobs: int
     with executor_for(jobs, scheduler) as executor:
         if executor is None:
             return [_guarded(function, path) for path in paths]
-        futures = [executor.submit(_guarded, function, path) for path in paths]
+        with _sigint_held():
+            futures = [executor.submit(_guarded, function, path) for path in paths]
         return [future.result() for future in futures]

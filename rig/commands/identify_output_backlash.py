@@ -106,11 +106,13 @@ def staircase_steady_points(path: Path):
     from identify.excitation_design import staircase_steady_state_indices
     from rig.log_file import read_log
 
+    from collections.abc import Mapping
+
     record = read_log(path)
-    config = record.metadata.config if isinstance(record.metadata.config, dict) else {}
-    excitation = config.get("excitation") if isinstance(config.get("excitation"), dict) else {}
+    config = record.metadata.config if isinstance(record.metadata.config, Mapping) else {}
+    excitation = config.get("excitation") if isinstance(config.get("excitation"), Mapping) else {}
     kind = excitation.get("kind")
-    parameters = excitation.get("parameters") if isinstance(excitation.get("parameters"), dict) else {}
+    parameters = excitation.get("parameters") if isinstance(excitation.get("parameters"), Mapping) else {}
     if kind != "filtered_staircase":
         raise ValueError(
             f"{path}: --steady takes the log of the steady_staircase experiment (excitation kind "
