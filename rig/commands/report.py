@@ -89,19 +89,27 @@ def _check_hammerstein(document: dict[str, Any], path: Path) -> None:
     """Refuse a malformed `rig identify hammerstein --json` document before anything is drawn from it."""
     import numpy as np
 
+    from rig.protocols.errors import LogFileError
+
     try:
         order = document["order"]
         if isinstance(order, bool) or not isinstance(order, int) or order < 1:
-            raise ValueError(f"order is {_short(order)}, expected an integer >= 1")
-        poles = np.asarray(document["poles"], dtype=float)
+            raise ValueError(f"order is {_short(repr(order))}, expected an integer >= 1")
+        def numbers(key: str, value: Any) -> Any:
+            try:
+                return np.asarray(value, dtype=float)
+            except (TypeError, ValueError):
+                raise ValueError(f"{key}: expected numbers, got {_short(value, 40)}") from None
+
+        poles = numbers("poles", document["poles"])
         if poles.ndim != 2 or poles.shape[1] != 2 or not np.all(np.isfinite(poles)):
             raise ValueError("poles: expected a list of [real, imaginary] pairs of finite numbers")
         for side in ("ascending", "descending"):
             border = document["borders"][side]
-            u, h = np.asarray(border["u"], dtype=float), np.asarray(border["h"], dtype=float)
+            u, h = numbers(f"borders.{side}.u", border["u"]), numbers(f"borders.{side}.h", border["h"])
             if u.ndim != 1 or u.shape != h.shape or u.size < 2 or not np.all(np.isfinite(u) & np.isfinite(h)):
                 raise ValueError(f"borders.{side}: expected lists u and h of the same length >= 2, finite numbers")
-        singular = np.asarray(document["singular_values"], dtype=float)
+        singular = numbers("singular_values", document["singular_values"])
         if singular.ndim != 1 or singular.size < 1 or not np.all(np.isfinite(singular)):
             raise ValueError("singular_values: expected a list of finite numbers")
     except KeyError as err:
