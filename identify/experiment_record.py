@@ -229,8 +229,8 @@ class ExperimentRecord:
                                  | (np.asarray(raw_flags, dtype=np.int64) & ~_ALL_FLAGS))
             if bad.size:  # one sample named, never the whole array
                 known = ", ".join(f"{int(flag)} {flag.name}" for flag in SampleFlag if flag.value)
-                raise InvalidInputError(f"flags: sample {int(bad[0])} is {int(raw_flags.flat[bad[0]])}, not a "
-                                        f"combination of the SampleFlag bits ({known}); {bad.size} such samples")
+                raise InvalidInputError(f"flags: sample {int(bad[0])} is {int(raw_flags.flat[bad[0]])}; expected "
+                                        f"SampleFlag bits ({known}) or their sums ({bad.size} such samples)")
             flags = _array("flags", raw_flags, np.uint8)
             lengths["flags"] = flags.size
         if len(set(lengths.values())) > 1:
