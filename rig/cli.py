@@ -45,6 +45,7 @@ EPILOG = """exit codes:
      names the path, and a run stops the rig in a controlled way and keeps the samples flushed before
   130  interrupted by Ctrl-C / SIGINT (after a controlled stop; the log is complete up to the stop)
   143  terminated by SIGTERM (the same controlled stop)
+A closed pipe (rig inspect LOG | head -1) ends the output quietly with exit code 0.
 """
 
 
