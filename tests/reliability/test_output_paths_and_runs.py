@@ -4,7 +4,6 @@ beyond what the runner can start refused up front, --jobs capped, and one messag
 
 from __future__ import annotations
 
-import json
 import os
 import signal
 import subprocess
