@@ -57,6 +57,9 @@ def read_text_lines(path: Path, expected: str = "a CSV file") -> list[tuple[int,
             if not raw:
                 break
             number += 1
+            if number == 1 and raw.startswith((b"\xff\xfe", b"\xfe\xff")):
+                raise LogFileError(f"{path}: the file is UTF-16 encoded (it starts with a UTF-16 byte-order mark); "
+                                   f"save it as UTF-8 (in Excel: CSV UTF-8; pandas: to_csv(..., encoding='utf-8'))")
             nul = raw.find(b"\0")
             if nul >= 0:
                 raise LogFileError(f"{path}: not a CSV file (NUL bytes at byte {offset + nul}); expected {expected}"

@@ -116,6 +116,24 @@ def test_a_column_given_twice_is_refused(tmp_path, columns):
         read_signal_table(path, ("u", "y"))
 
 
+@FAST
+@given(encoding=st.sampled_from(["utf-8", "utf-8-sig", "utf-16", "latin-1", "cp1252"]),
+       note=st.sampled_from(["plain", "température", "Drehmoment µ"]))
+def test_utf8_with_or_without_bom_is_read_and_other_encodings_are_named(tmp_path, encoding, note):
+    t, u, y = _signals(20)
+    text = f"# {note}\nt,u,y\n" + "".join(f"{a!r},{b!r},{c!r}\n" for a, b, c in zip(t.tolist(), u.tolist(), y.tolist()))
+    path = tmp_path / "encoded.csv"
+    path.write_bytes(text.encode(encoding))
+    if encoding.startswith("utf-8") or (note == "plain" and encoding != "utf-16"):
+        np.testing.assert_array_equal(read_experiment_data(path).angle_rad, y)
+        return
+    first = 2 + next((k for k, character in enumerate(note) if ord(character) > 127), 0)  # after "# "
+    expected = ("the file is UTF-16 encoded" if encoding == "utf-16"
+                else f"not a text file \\(byte {first} is not UTF-8\\); expected a CSV file \\(save it as UTF-8\\)")
+    with pytest.raises(LogFileError, match=expected):
+        read_experiment_data(path)
+
+
 @pytest.mark.parametrize("separator, decimal, expected", [
     (";", ".", "looks like ';'-separated: write it with ','"),
     (";", ",", "looks like ';'-separated with decimal commas"),
