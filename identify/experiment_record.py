@@ -226,9 +226,14 @@ class ExperimentRecord:
             flags = _array("flags", np.zeros(time.size, dtype=np.uint8), np.uint8)
         else:
             raw_flags = np.asarray(self.flags)
-            if raw_flags.dtype.kind not in "iub" or np.any(raw_flags < 0) or np.any(raw_flags > _ALL_FLAGS) \
-                    or np.any(np.asarray(raw_flags, dtype=np.int64) & ~_ALL_FLAGS):
-                raise InvalidInputError(f"flags: expected SampleFlag bits (0 to {_ALL_FLAGS}), got {raw_flags!r}")
+            if raw_flags.dtype.kind not in "iub":
+                raise InvalidInputError(f"flags: expected SampleFlag bits (integers), got {raw_flags.dtype} values")
+            bad = np.flatnonzero((raw_flags < 0) | (raw_flags > _ALL_FLAGS)
+                                 | (np.asarray(raw_flags, dtype=np.int64) & ~_ALL_FLAGS))
+            if bad.size:  # one sample named, never the whole array
+                known = ", ".join(f"{int(flag)} {flag.name}" for flag in SampleFlag if flag.value)
+                raise InvalidInputError(f"flags: sample {int(bad[0])} is {int(raw_flags.flat[bad[0]])}; expected "
+                                        f"SampleFlag bits ({known}) or their sums ({bad.size} such samples)")
             flags = _array("flags", raw_flags, np.uint8)
             lengths["flags"] = flags.size
         if len(set(lengths.values())) > 1:

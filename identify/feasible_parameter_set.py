@@ -22,6 +22,8 @@ would need and the steady-state points that conflict.
 
 from __future__ import annotations
 
+import math
+
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -225,14 +227,26 @@ def _explain_empty(side: str, indices: NDArray[np.int64], u: NDArray[np.float64]
     else:
         conflicting = tuple(int(k) for k in indices)
     parameter = "m_r, c_r" if side == "right" else "m_l, c_l"
-    message = (
-        f"no {side} backlash line ({parameter}) passes within the noise bound of all "
-        f"{count} steady-state points of the {'positive' if side == 'right' else 'negative'} half-waves; "
-        f"the points {list(conflicting)} conflict, and the noise bound would have to be {scale:.3g} times "
-        "larger to reconcile them. Check: the noise bound is too small (quantisation, drift), the points are "
-        "not at steady state (half-waves too short, or x_t overshoots: redesign the filter pole), or the "
-        "model is not an output backlash (slopes not constant, other nonlinearity)."
-    )
+    shown = ", ".join(str(k) for k in conflicting[:10]) + (f" and {len(conflicting) - 10} more"
+                                                           if len(conflicting) > 10 else "")
+    halves = "positive" if side == "right" else "negative"
+    if math.isfinite(scale):
+        message = (
+            f"no {side} backlash line ({parameter}) passes within the noise bound of all "
+            f"{count} steady-state points of the {halves} half-waves; "
+            f"the points [{shown}] conflict, and the noise bound would have to be {scale:.3g} times "
+            "larger to reconcile them. Check: the noise bound is too small (quantisation, drift), the points are "
+            "not at steady state (half-waves too short, or x_t overshoots: redesign the filter pole), or the "
+            "model is not an output backlash (slopes not constant, other nonlinearity)."
+        )
+    else:
+        message = (
+            f"no {side} backlash line ({parameter}) fits the {count} steady-state points of the {halves} "
+            f"half-waves (points [{shown}]), and no finite enlargement of the noise bound "
+            f"({float(np.max(np.maximum(above, below))):.3g} rad at most) that the solver could compute reconciles "
+            "them. Check: the noise bound is in radians and not far too small, the output grows with the input "
+            "(the encoder's direction sign), u and y are the right columns, or the model is not an output backlash."
+        )
     return EmptyFeasibleSetExplanation(side, conflicting, scale, message)
 
 

@@ -353,6 +353,11 @@ def _prepare(input_rad: ArrayLike, inner_lower_rad: ArrayLike, inner_upper_rad: 
         raise InvalidInputError(f"inner_lower_rad: sample {bad[0]} is above inner_upper_rad ({lower[bad[0]]} > {upper[bad[0]]})")
     n = orders.first_equation
     p = orders.num_parameters
+    if u.size <= n:
+        raise InvalidInputError(f"input_rad: na={orders.na}, nk={orders.nk}, nb={orders.nb} need {n} past samples "
+                                f"before the first equation, but the record has {u.size} samples; the orders are "
+                                f"too high for the data (at least {n + 2 * p} samples are needed): use lower orders "
+                                "or a longer record")
     if u.size - n < 2 * p:
         raise InvalidInputError(f"input_rad: {u.size} samples give {u.size - n} equations for the {p} parameters of "
                                 f"na={orders.na}, nk={orders.nk}, nb={orders.nb}; the orders are too high for the "

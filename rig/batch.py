@@ -52,22 +52,79 @@ def executor_for(jobs: int, scheduler: str | None = None) -> Iterator[Executor |
         with Client(scheduler) as client:
             yield client.get_executor()
         return
-    workers = (os.cpu_count() or 1) if jobs == 0 else jobs
+    workers = usable_cores() if jobs == 0 else jobs
     if workers == 1:
         yield None
         return
-    with ProcessPoolExecutor(max_workers=workers) as pool:
+    pool = ProcessPoolExecutor(max_workers=workers, initializer=_worker_start)
+    try:
         yield pool
+    except BaseException:
+        # Ctrl-C or an error: do not wait minutes for the files in progress; the workers ignore SIGINT (the
+        # main process alone reports it) and end at SIGTERM without a word
+        workers = list((getattr(pool, "_processes", None) or {}).values())  # shutdown() forgets them
+        pool.shutdown(wait=False, cancel_futures=True)
+        for process in workers:
+            with contextlib.suppress(Exception):
+                process.terminate()
+        raise
+    else:
+        pool.shutdown(wait=True)
+
+
+def usable_cores() -> int:
+    """The cores this process may run on (the affinity mask, which a container or taskset narrows)."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except (AttributeError, OSError):
+        return os.cpu_count() or 1
+
+
+def _worker_start() -> None:
+    """In each worker process: SIGINT ignored and SIGTERM at its default, so that a Ctrl-C is reported once,
+    by the main process (which stops the workers), and warnings as the command's one-line notes."""
+    import signal
+    import warnings
+
+    from rig.cli import show_warning_as_note
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    if hasattr(signal, "pthread_sigmask"):
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})  # blocked by _sigint_held at the fork
+    warnings.showwarning = show_warning_as_note
+
+
+@contextlib.contextmanager
+def _sigint_held() -> Iterator[None]:
+    """Hold SIGINT back while the workers are forked, so that none is born with the command's handler
+    (which would report the Ctrl-C a second time); it is delivered to this process right after."""
+    import signal
+    import threading
+
+    if not hasattr(signal, "pthread_sigmask") or threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, previous)
 
 
 def map_files(function: Callable[[str], Any], paths: Sequence[str], *, jobs: int = 1,
               scheduler: str | None = None) -> list[FileOutcome]:
     """``function(path)`` for every path, in the order given; ``function`` must be picklable (a
-    module-level function or a ``functools.partial`` of one) when it runs in other processes."""
+    module-level function or a ``functools.partial`` of one) when it runs in other processes. Local
+    processes are capped at the number of files and of usable cores (``--jobs 1000`` on three files
+    starts three)."""
     if jobs < 0:
         raise ValueError(f"--jobs: expected 0 (all cores) or a positive number of processes, got {jobs}")
+    if scheduler is None:
+        jobs = min(usable_cores() if jobs == 0 else jobs, usable_cores(), max(1, len(paths)))
     with executor_for(jobs, scheduler) as executor:
         if executor is None:
             return [_guarded(function, path) for path in paths]
-        futures = [executor.submit(_guarded, function, path) for path in paths]
+        with _sigint_held():
+            futures = [executor.submit(_guarded, function, path) for path in paths]
         return [future.result() for future in futures]

@@ -9,14 +9,18 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import errno
 import importlib
 import os
 import signal
 import sys
 import threading
 import time
+import warnings
 from collections.abc import Iterator, Sequence
+from pathlib import Path
 from types import FrameType
+from typing import TextIO
 
 from rig import __version__, exit_codes
 from rig.protocols.errors import ConfigError, DeviceFault, LogFileError, TransportError
@@ -41,6 +45,7 @@ EPILOG = """exit codes:
      names the path, and a run stops the rig in a controlled way and keeps the samples flushed before
   130  interrupted by Ctrl-C / SIGINT (after a controlled stop; the log is complete up to the stop)
   143  terminated by SIGTERM (the same controlled stop)
+A closed pipe (rig inspect LOG | head -1) ends the output quietly with exit code 0.
 """
 
 
@@ -55,12 +60,17 @@ class Interrupted(KeyboardInterrupt):
         super().__init__(signal.Signals(signal_number).name)
 
 
+DRIVE_COMMANDS = ("rig.commands.run", "rig.commands.demo")
+"""Commands that enable a drive: only their messages speak of a controlled stop of it."""
+
+
 @contextlib.contextmanager
-def signals_as_interrupts() -> Iterator[None]:
+def signals_as_interrupts(drives: bool = True) -> Iterator[None]:
     """Turn the first SIGINT or SIGTERM into :class:`Interrupted`; while the stop that follows runs,
     further signals are reported and ignored, so a second Ctrl-C cannot cut the controlled stop short
     (SIGKILL still ends the process at once). Handlers are restored on exit; outside the main thread
-    (where Python cannot install handlers) nothing changes."""
+    (where Python cannot install handlers) nothing changes. ``drives``: the command enables a drive (the
+    message about a second signal says what SIGKILL would leave)."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
@@ -69,8 +79,9 @@ def signals_as_interrupts() -> Iterator[None]:
     def interrupt(signal_number: int, frame: FrameType | None) -> None:
         nonlocal stopping
         if stopping:
-            print(f"rig: {signal.Signals(signal_number).name} again: still stopping in a controlled way "
-                  "(SIGKILL abandons the stop and leaves the drive as it is)", file=sys.stderr, flush=True)
+            if drives:
+                print(f"rig: {signal.Signals(signal_number).name} again: still stopping in a controlled way "
+                      "(SIGKILL abandons the stop and leaves the drive as it is)", file=sys.stderr, flush=True)
             return
         stopping = True
         raise Interrupted(signal_number)
@@ -127,16 +138,54 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def show_warning_as_note(message: Warning | str, category: type[Warning], filename: str, lineno: int,
+                         file: TextIO | None = None, line: str | None = None) -> None:
+    """``warnings.showwarning`` of the command: one line ``rig: note: MESSAGE`` on stderr, without the
+    source line Python prints (a user cannot act on a line of numpy)."""
+    text = " ".join(str(message).split())
+    if category is not UserWarning and not issubclass(category, UserWarning):
+        text += f" ({category.__name__} in {Path(filename).name})"  # numpy's "invalid value encountered in ..."
+    try:
+        print(f"rig: note: {text}", file=sys.stderr if file is None else file)
+    except OSError:
+        pass  # stderr closed: nothing to tell
+
+
+def _quiet_closed_pipe() -> None:
+    """stdout's reader went away (``rig inspect log | head -1``): drop what is left of the output, so that
+    neither this exit nor the interpreter's last flush prints a traceback."""
+    with contextlib.suppress(OSError, ValueError):
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        os.close(devnull)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     started = time.time()
+    drives = getattr(args.handler, "__module__", "") in DRIVE_COMMANDS
     try:
-        with signals_as_interrupts():
+        with signals_as_interrupts(drives), warnings.catch_warnings():
+            warnings.showwarning = show_warning_as_note
             try:
                 return int(args.handler(args))
             finally:
                 sys.stdout.flush()
+    except BrokenPipeError:
+        _quiet_closed_pipe()
+        return exit_codes.SUCCESS
+    except OSError as err:
+        if err.errno in (errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EIO) and not err.filename:
+            # a write to stdout (`--json > /dev/full`); file outputs raise OutputPathError, a ValueError
+            reason = os.strerror(err.errno) + f" ({errno.errorcode.get(err.errno, err.errno)})"
+            print(f"rig: error: standard output: cannot write: {reason}; redirect the output to a file on a disk "
+                  "with free space", file=sys.stderr)
+            _quiet_closed_pipe()  # what is still buffered would fail again at exit
+            return exit_codes.WRITE_FAILED
+        if isinstance(err, (FileNotFoundError, IsADirectoryError, PermissionError, NotADirectoryError)):
+            return _report_input_os_error(err)
+        raise
     except KeyboardInterrupt as err:
         print(_interrupted_message(args, err, started), file=sys.stderr)
         is_term = isinstance(err, Interrupted) and err.signal_number == signal.SIGTERM
@@ -147,12 +196,18 @@ def main(argv: Sequence[str] | None = None) -> int:
         from rig.log_file import LogWriteError  # here, not at the top: numpy stays out of `rig --help`
 
         return exit_codes.WRITE_FAILED if isinstance(err, LogWriteError) else exit_codes.BAD_INPUT
-    except (PermissionError, NotADirectoryError) as err:
-        print(f"rig: error: {err.filename}: {err.strerror}", file=sys.stderr)
-        return exit_codes.BAD_INPUT
     except (DeviceFault, TransportError) as err:
         print(f"rig: device error: {_with_notes(err)}", file=sys.stderr)
         return exit_codes.DEVICE_FAULT
+
+
+def _report_input_os_error(err: OSError) -> int:
+    """An input that cannot be read (an output's error is an OutputPathError, reported with exit 5)."""
+    if err.filename is None:
+        print(f"rig: error: {err}", file=sys.stderr)
+    else:
+        print(f"rig: error: {err.filename}: {err.strerror}", file=sys.stderr)
+    return exit_codes.BAD_INPUT
 
 
 if __name__ == "__main__":

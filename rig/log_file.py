@@ -29,6 +29,7 @@ import json
 import math
 import os
 import re
+import stat
 import time
 import warnings
 from collections.abc import Mapping
@@ -42,10 +43,10 @@ from numpy.typing import ArrayLike, NDArray
 from identify.experiment_record import ExperimentMetadata, ExperimentRecord, SampleFlag
 from identify.validation import InvalidInputError
 from rig.protocols.errors import LogFileError
-from rig.signal_files import read_signal_table
+from rig.signal_files import check_input_file, read_signal_table
 
-__all__ = ["COLUMNS", "FORMAT_LINE", "LogWriteError", "LogWriter", "count_samples", "is_rig_log", "read_experiment_data",
-           "read_log", "write_log"]
+__all__ = ["COLUMNS", "FORMAT_LINE", "LogWriteError", "LogWriter", "check_output_varies", "count_samples", "is_rig_log",
+           "read_experiment_data", "read_log", "write_log"]
 
 FORMAT_LINE = "# rig-log v1"
 COLUMNS = ("time_s", "command_rad", "angle_rad", "encoder_counts", "flags")
@@ -257,13 +258,16 @@ def write_log(path: str | Path, record: ExperimentRecord) -> None:
 
 
 def is_rig_log(path: Path) -> bool:
-    """Whether ``path`` starts with the ``# rig-log`` format line (False if it cannot be read)."""
+    """Whether ``path`` is a regular file starting with the ``# rig-log`` format line (after a UTF-8 BOM, if
+    any); False if it cannot be read. Reads 16 bytes at most (``/dev/zero`` has no first line)."""
     try:
-        with path.open("r", encoding="utf-8", errors="replace") as handle:
-            first = handle.readline()
+        if not stat.S_ISREG(os.stat(path).st_mode):
+            return False
+        with open(path, "rb") as handle:
+            first = handle.read(16)
     except OSError:
         return False
-    return first.startswith("# rig-log")
+    return first.removeprefix(b"\xef\xbb\xbf").startswith(b"# rig-log")
 
 
 def count_samples(path: str | Path) -> int | None:
@@ -284,13 +288,17 @@ def count_samples(path: str | Path) -> int | None:
 
 def read_log(path: str | Path) -> ExperimentRecord:
     """Read a ``rig-log v1`` file; raises :class:`LogFileError` naming the file, line and problem."""
-    path = Path(path)
-    if not path.is_file():
-        raise LogFileError(f"{path}: no such file")
+    path = check_input_file(path, "a rig-log v1 file")
+    raw = path.read_bytes()
+    nul = raw.find(b"\0")
+    if nul >= 0:
+        raise LogFileError(f"{path}: not a CSV file (NUL bytes at byte {nul}); a crash can leave zeros at the end "
+                           f"of a file: keep the bytes before {nul} (e.g. head -c {nul} {path.name} > fixed.csv)")
     try:
-        text = path.read_text(encoding="utf-8")
+        text = raw.decode("utf-8").removeprefix("\ufeff")
     except UnicodeDecodeError as err:
         raise LogFileError(f"{path}: not a text file (byte {err.start} is not UTF-8); expected a rig-log v1 CSV") from None
+    del raw
     lines = text.split("\n")
     if not text:
         raise LogFileError(f"{path}: the file is empty; expected a '{FORMAT_LINE}' log")
@@ -351,10 +359,15 @@ def read_log(path: str | Path) -> ExperimentRecord:
             if fields[3].strip():
                 counts[index] = int(fields[3])
                 has_counts = True
-            flags[index] = int(fields[4])
+            flag_value = int(fields[4])
         except (ValueError, OverflowError):
             column = "encoder_counts" if not _is_int(fields[3]) else "flags"
-            raise LogFileError(f"{path}: line {number}, column {column}: {fields[COLUMNS.index(column)]!r} is not an integer") from None
+            raise LogFileError(f"{path}: line {number}, column {column}: {fields[COLUMNS.index(column)][:40]!r} is "
+                               "not an integer") from None
+        if not 0 <= flag_value <= 255:
+            raise LogFileError(f"{path}: line {number}, column flags: {flag_value} is not a combination of the "
+                               f"SampleFlag bits ({_FLAG_NAMES})")
+        flags[index] = flag_value
     if n == 0:
         raise LogFileError(f"{path}: the log has a header but no samples")
     try:
@@ -368,7 +381,20 @@ def read_log(path: str | Path) -> ExperimentRecord:
             raise LogFileError(f"{path}: line {metadata_line}: the metadata says sample_period_s = "
                                f"{metadata.sample_period_s:g} s, but time_s steps by {step:g} s (median); one of "
                                "them is wrong, so the log cannot be trusted")
+    if n > 1:  # the runner writes every sample, LOST ones too, at k * period: a hole means the file was edited
+        steps = np.diff(time_s)
+        off = np.flatnonzero(np.abs(steps - metadata.sample_period_s) > 0.5 * metadata.sample_period_s)
+        if off.size:
+            row = int(off[0])
+            raise LogFileError(
+                f"{path}: line {header_line + 2 + row}: time_s steps by {float(steps[row]):g} s after "
+                f"{float(time_s[row])!r} s, but the metadata (line {metadata_line}) says the period is "
+                f"{metadata.sample_period_s:g} s ({off.size} such steps; a rig log has a line for every sample, "
+                "LOST ones too): the file was cut or pasted together; give each piece as its own file")
     return record
+
+
+_FLAG_NAMES = ", ".join(f"{int(flag)} {flag.name}" for flag in SampleFlag if flag.value)
 
 
 _EXPECTED_UNITS = {"time_s": "s", "command_rad": "rad", "angle_rad": "rad", "encoder_counts": "counts"}
@@ -418,15 +444,15 @@ def read_experiment_data(path: str | Path) -> ExperimentRecord:
     """Read a ``rig-log v1`` file, or a plain CSV with columns ``t,u,y`` (seconds, radians) from another
     tool (``#`` comment lines allowed, other columns ignored). The sample period of a plain CSV is the
     median time step."""
-    path = Path(path)
+    path = check_input_file(path, "a rig-log v1 file or a CSV with columns t,u,y")
     if is_rig_log(path):
         return read_log(path)
     table = read_signal_table(path, ("t", "u", "y"))
     t, u, y = table["t"], table["u"], table["y"]
     if t.size < 2:
         raise LogFileError(f"{path}: expected at least two samples, got {t.size}")
-    _check_increasing_time(path, t)
-    metadata = ExperimentMetadata(sample_period_s=float(np.median(np.diff(t))), source=str(path), transport="csv")
+    period = _check_time_column(path, t)
+    metadata = ExperimentMetadata(sample_period_s=period, source=str(path), transport="csv")
     return ExperimentRecord(time_s=t, command_rad=u, angle_rad=y, encoder_counts=None, flags=None, metadata=metadata)
 
 
@@ -434,14 +460,55 @@ def read_input_output(path: str | Path) -> tuple[NDArray[np.float64], NDArray[np
     """(u, y) for identification from a ``rig-log v1`` file or a CSV with columns ``u`` and ``y``. The
     methods need only the sample order, so a ``t`` column is optional; when present it must increase (rows
     out of order, e.g. two files pasted together, would be identified as one record)."""
-    path = Path(path)
+    path = check_input_file(path, "a rig-log v1 file or a CSV with columns u,y")
     if is_rig_log(path):
         record = read_log(path)
         return record.command_rad, record.angle_rad
-    table = read_signal_table(path, ("u", "y"))
-    if "t" in table:
-        _check_increasing_time(path, table["t"])
+    table = read_signal_table(path, ("u", "y"), optional_columns=("t",))
+    if "t" in table and table["t"].size > 1:
+        _check_time_column(path, table["t"])
     return table["u"], table["y"]
+
+
+JITTER_NOTE = 0.01
+"""A plain CSV's ``t`` whose steps spread more than this fraction of the median step gets a warning."""
+JITTER_LIMIT = 0.5
+"""A step farther than this fraction from the median (a hole, or two samples at nearly one time) is refused."""
+SLOWEST_PERIOD_S = 1.0
+"""A median step of this many seconds or more is taken for ``t`` in milliseconds or a sample index."""
+
+
+def _check_time_column(path: Path, t: NDArray[np.float64]) -> float:
+    """Check a plain CSV's ``t`` (seconds, increasing, evenly spaced) and return its median step.
+
+    Refused: ``t`` not increasing, a median step of a second or more (milliseconds or a sample index, not
+    seconds), a step off the median by more than half of it (a hole of missing samples, or a burst); a
+    spread beyond 1 % gives a warning with the spread (the methods assume the median period)."""
+    _check_increasing_time(path, t)
+    steps = np.diff(t)
+    period = float(np.median(steps))
+    if period >= SLOWEST_PERIOD_S:
+        raise LogFileError(
+            f"{path}: column t steps by {period:g} (median), a sample every {period:g} s: t must be in seconds; if it "
+            f"is in milliseconds, divide it by 1000 (then {period / 1000:g} s); if it is a sample number, multiply it "
+            "by the sample period")
+    deviation = np.abs(steps - period)
+    off = np.flatnonzero(deviation > JITTER_LIMIT * period)
+    spread = (f"steps from {float(steps.min()):.6g} to {float(steps.max()):.6g} s, median {period:.6g} s, "
+              f"spread {100 * float(deviation.max()) / period:.3g} %")
+    if off.size:
+        row = int(off[0]) + 1  # the data row after which the step is
+        hole = steps[row - 1] > period
+        what = (f"a hole: t jumps by {float(steps[row - 1]):.6g} s, about {round(float(steps[row - 1]) / period) - 1} "
+                "samples missing" if hole else f"t steps by only {float(steps[row - 1]):.6g} s")
+        raise LogFileError(
+            f"{path}: column t, data row {row + 1}: {what} ({spread}; {off.size} steps off by more than "
+            f"{100 * JITTER_LIMIT:g} %): the methods need a fixed sample period; cut the record at the hole "
+            "(give each part as its own file) or resample it onto an even grid")
+    if float(deviation.max()) > JITTER_NOTE * period:
+        warnings.warn(f"{path}: column t is uneven ({spread}); the record is used as if sampled every {period:.6g} s",
+                      stacklevel=3)
+    return period
 
 
 def _check_increasing_time(path: Path, t: NDArray[np.float64]) -> None:
@@ -452,3 +519,15 @@ def _check_increasing_time(path: Path, t: NDArray[np.float64]) -> None:
         raise LogFileError(f"{path}: column t must increase strictly (seconds); data row {row + 1} has "
                            f"t = {float(t[row])!r} after {float(t[row - 1])!r}: are two records pasted together? "
                            "Give each as its own file")
+
+
+def check_output_varies(path: str | Path, angle_rad: NDArray[np.float64]) -> None:
+    """Refuse a record whose measured output never changes (an unplugged or unpowered encoder reads a
+    constant): no method can identify anything from it, and some would report a perfect fit."""
+    valid = angle_rad[np.isfinite(angle_rad)]
+    if valid.size == 0:
+        raise LogFileError(f"{path}: no valid output sample (every sample is LOST or not a number): is the "
+                           "encoder connected? Check its cable, power and node id, then record again")
+    if valid.size > 1 and float(np.ptp(valid)) == 0.0:
+        raise LogFileError(f"{path}: the output is constant ({float(valid[0]):g} rad in all {valid.size} valid "
+                           "samples): is the encoder connected? Check its cable, power and node id, then record again")

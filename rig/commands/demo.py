@@ -35,9 +35,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from rig.demo import FULL_PLAN, QUICK_PLAN, format_summary, run_demo, summary_rows
+    from rig.output_paths import check_output_dir, writing
 
+    check_output_dir(args.out, "--out")  # before minutes of experiments
     steps, progress = _progress_bars(per_sample=sys.stderr.isatty()) if not args.json else (None, None)
-    outcome = run_demo(args.out, args.transport, QUICK_PLAN if args.quick else FULL_PLAN, steps, progress)
+    with writing(args.out, "--out"):
+        outcome = run_demo(args.out, args.transport, QUICK_PLAN if args.quick else FULL_PLAN, steps, progress)
     if args.json:
         print(json.dumps({"report": str(outcome.report_index), "rows": [list(row) for row in summary_rows(outcome)]}))
     else:

@@ -49,10 +49,18 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from functools import partial
 
+    import sys
+
     from rig.batch import map_files
 
+    if args.report is not None:  # before the work: a diagnosis can take minutes
+        from rig.output_paths import check_output_dir
+
+        check_output_dir(args.report, "--report", inputs=args.data)
     options = {"model": args.model, "noise_bound": args.noise_bound, "report": args.report,
-               "report_per_file": len(args.data) > 1}
+               "report_per_file": len(args.data) > 1,
+               "progress": not args.json and sys.stderr.isatty() and (args.jobs == 1 or len(args.data) == 1)
+               and args.scheduler is None}
     if len(args.data) == 1 and args.scheduler is None:
         result, num_samples, index = diagnose_file(args.data[0], options)  # errors go to rig.cli with their code
         if args.json:
@@ -80,26 +88,46 @@ def diagnose_file(path_text: str, options: dict):
     report's index page (None without --report). A module-level function returning picklable values, so
     that it runs in other processes."""
     from identify.model_discrepancy import diagnose_model
-    from rig.log_file import read_experiment_data
+    from rig.log_file import check_output_varies, read_experiment_data
 
     record = read_experiment_data(path_text)
+    check_output_varies(path_text, record.angle_rad)
     model = None
     if options["model"] is not None:
         from sim_backend.plant_config import load_plant_config
 
         model = load_plant_config(options["model"]).plant
+    progress = _progress_lines(path_text, record.command_rad.size) if options.get("progress") else None
     result = diagnose_model(record.command_rad, record.angle_rad, options["noise_bound"],
-                            record.metadata.sample_period_s, model)
+                            record.metadata.sample_period_s, model, progress=progress)
     index = None
     if options["report"] is not None:
+        from rig.output_paths import writing
         from rig.plots.discrepancy import write_discrepancy_report
 
         directory = Path(options["report"])
         if options["report_per_file"]:
             directory = directory / Path(path_text).stem
-        index = write_discrepancy_report(directory, result, record.command_rad, record.angle_rad,
-                                         record.metadata.sample_period_s, source=str(path_text))
+        with writing(directory, "--report"):
+            index = write_discrepancy_report(directory, result, record.command_rad, record.angle_rad,
+                                             record.metadata.sample_period_s, source=str(path_text))
     return result, int(record.command_rad.size), index
+
+
+def _progress_lines(path_text: str, num_samples: int):
+    """On a terminal: a line on stderr for each step of the diagnosis, with the time since it began (a
+    record of 20 000 samples takes about two minutes; the time grows about linearly with the samples)."""
+    import sys
+    import time
+
+    started = time.monotonic()
+    print(f"rig: diagnosing {path_text} ({num_samples} samples; each step below is one fit)", file=sys.stderr,
+          flush=True)
+
+    def say(message: str) -> None:
+        print(f"  [{time.monotonic() - started:5.0f} s] {message.strip()}", file=sys.stderr, flush=True)
+
+    return say
 
 
 def _print_summary(data: str, model: str | None, noise_bound: float, result, num_samples: int, index) -> None:

@@ -123,14 +123,13 @@ def identify_file(path_text: str, options: dict):
         identify_hammerstein,
     )
     from identify.validation import InvalidInputError
-    from rig.log_file import read_input_output
+    from rig.log_file import check_output_varies, read_input_output
 
     path = Path(path_text)
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: no such file")
     u, y = read_input_output(path)
     if u.size == 0:
         raise InvalidInputError(f"{path}: no samples")
+    check_output_varies(path, y)
     if options["nodes"] is not None:
         if options["u_min"] is not None or options["u_max"] is not None:
             raise InvalidInputError("--nodes: give either --nodes or --u-min/--u-max with --num-nodes, not both")

@@ -17,7 +17,9 @@ and a dynamic (PRBS) experiment with bounded output noise (Cerone, Piga, Regruto
 
 STEADY.csv has one row per steady-state point with columns u and y (radians): the input and output at
 the end of every half-wave of the filtered square-wave staircase, positive and negative half-waves in
-any order. DYNAMIC.csv has columns u and y per sample (a column t is ignored). Both may also be rig-log
+any order. STEADY may also be the rig log of the steady_staircase experiment as `rig run` or `rig simulate`
+wrote it: its metadata say where each half-wave ends, and the last valid sample of each half-wave's
+settled tail (its last 10 %) is taken, as `rig demo` does. DYNAMIC.csv has columns u and y per sample (a column t is ignored). Both may also be rig-log
 v1 files (command_rad is u, angle_rad is y). --noise-bound is the bound on the output error, e.g.
 2*pi/2**n for an n-bit encoder. All bounds are guaranteed to contain every parameter consistent with the
 data, the noise bound and the model structure; an empty feasible set exits with code 4 and says why."""
@@ -62,24 +64,93 @@ SAVED_FORMAT = "rig output-backlash result v1"
 
 def _read(path_text: str, role: str):
     """(u, y) of the ``role`` experiment, naming the role when the file is missing."""
-    from rig.log_file import read_input_output
+    from rig.log_file import check_output_varies, is_rig_log, read_input_output
+    from rig.signal_files import check_input_file
 
-    path = Path(path_text)
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: no such file ({role} data)")
-    if role == "steady-state" and _is_per_sample_record(path):
-        raise ValueError(
-            f"{path}: --steady takes one row per steady-state point (columns u, y: the last sample of each "
-            "half-wave of the steady_staircase experiment), but this is a per-sample record (a rig log or a "
-            "CSV with a t column); pass a record of every sample as --dynamic")
-    return read_input_output(path)
+    if not Path(path_text).exists():
+        raise FileNotFoundError(f"{path_text}: no such file ({role} data)")
+    path = check_input_file(path_text, f"the {role} data (a CSV with columns u, y, or a rig log)")
+    if role == "steady-state":
+        if is_rig_log(path):
+            return staircase_steady_points(path)[:2]
+        if _has_time_column(path):
+            raise ValueError(
+                f"{path}: --steady takes one row per steady-state point (columns u, y: the last sample of each "
+                "half-wave of the steady_staircase experiment), but this is a per-sample record (a CSV with a t "
+                "column) that does not say where the half-waves end: give the staircase experiment's rig log (its "
+                "metadata say it), or pass a record of every sample as --dynamic")
+    u, y = read_input_output(path)
+    if role == "dynamic":
+        check_output_varies(path, y)
+    return u, y
 
 
-def _is_per_sample_record(path: Path) -> bool:
-    from rig.log_file import is_rig_log
+def _has_time_column(path: Path) -> bool:
     from rig.signal_files import read_signal_table
 
-    return is_rig_log(path) or "t" in read_signal_table(path, ("u", "y"))
+    return "t" in read_signal_table(path, ("u", "y"), optional_columns=("t",))
+
+
+STEADY_TAIL_FRACTION = 0.1
+"""The last 10 % of a half-wave is at steady state (as in rig.demo): a LOST end sample is replaced by the last
+valid sample in that tail."""
+
+
+def staircase_steady_points(path: Path):
+    """(u, y, description) of the steady-state points of a steady_staircase rig log: at the last sample of
+    every half-wave (from the excitation's ``samples_per_half_wave`` and amplitudes in the metadata; a log
+    cut or repeated by ``rig run --duration`` has the ends it holds), u is the command there and y the last
+    valid angle in the half-wave's settled tail."""
+    import numpy as np
+
+    from identify.excitation_design import staircase_steady_state_indices
+    from rig.log_file import read_log
+
+    from collections.abc import Mapping
+
+    record = read_log(path)
+    config = record.metadata.config if isinstance(record.metadata.config, Mapping) else {}
+    excitation = config.get("excitation") if isinstance(config.get("excitation"), Mapping) else {}
+    kind = excitation.get("kind")
+    parameters = excitation.get("parameters") if isinstance(excitation.get("parameters"), Mapping) else {}
+    if kind != "filtered_staircase":
+        raise ValueError(
+            f"{path}: --steady takes the log of the steady_staircase experiment (excitation kind "
+            f"filtered_staircase), but this log's excitation is {kind or 'not recorded'} (metadata config.excitation"
+            "): record it with `rig run --experiment configs/experiments/steady_staircase.toml`, or give a CSV "
+            "with one u, y row per steady-state point")
+    try:
+        half = int(parameters["samples_per_half_wave"])
+        count = len(parameters["amplitudes_rad"])
+        ends = staircase_steady_state_indices(count, half)
+    except (KeyError, TypeError, ValueError) as err:
+        raise ValueError(f"{path}: the metadata's config.excitation.parameters lack samples_per_half_wave or "
+                         f"amplitudes_rad ({type(err).__name__}: {str(err)[:80]}); the log was not written by "
+                         "`rig run` or `rig simulate`") from None
+    cycle = int(config.get("excitation_samples") or (ends[-1] + 1))
+    n = len(record)
+    indices = np.concatenate([ends + start for start in range(0, n, cycle)])
+    indices = indices[indices < n]
+    if indices.size < 2:
+        raise ValueError(f"{path}: the log holds {n} samples, fewer than two half-waves of {half} samples: run "
+                         "the whole staircase")
+    tail = max(1, int(STEADY_TAIL_FRACTION * half))
+    valid = record.valid_mask
+    u = record.command_rad[indices]
+    y = np.empty(indices.size)
+    moved = 0
+    for position, index in enumerate(indices.tolist()):
+        usable = np.flatnonzero(valid[index - tail + 1: index + 1])
+        if usable.size == 0:
+            raise ValueError(f"{path}: line {index + 5} and the {tail - 1} samples before it (the settled tail of "
+                             f"half-wave {position + 1}) are all LOST or unusable: no steady-state value there; "
+                             "record the staircase again")
+        moved += usable[-1] != tail - 1
+        y[position] = record.angle_rad[index - tail + 1 + usable[-1]]
+    description = (f"{indices.size} points: the end of each half-wave of {half} samples of the staircase log"
+                   + (f", {moved} of them taken up to {tail - 1} samples early (the end sample was lost)" if moved
+                      else ""))
+    return u, y, description
 
 
 def _number(value: float) -> float | str:
@@ -90,6 +161,10 @@ def run(args: argparse.Namespace) -> int:
     if len(args.steady) != len(args.dynamic):
         raise ValueError(f"--steady/--dynamic: give them in pairs (got {len(args.steady)} --steady and "
                          f"{len(args.dynamic)} --dynamic); the k-th --steady goes with the k-th --dynamic")
+    if args.save is not None:  # before the work: a coupled bound can take a while
+        from rig.output_paths import check_output_file
+
+        check_output_file(args.save, "--save", inputs=[*args.steady, *args.dynamic])
     if len(args.steady) == 1 and args.scheduler is None:
         return _run_one(args, args.steady[0], args.dynamic[0])
     return _run_batch(args)
@@ -175,6 +250,14 @@ def _document(result, method: str) -> dict:
     }
 
 
+def _steady_description(steady: str, count: int) -> str:
+    from rig.log_file import is_rig_log
+
+    if is_rig_log(Path(steady)):
+        return staircase_steady_points(Path(steady))[2]
+    return f"{count} points"
+
+
 def _run_one(args: argparse.Namespace, steady: str, dynamic: str) -> int:
     options = {key: getattr(args, key) for key in ("noise_bound", "na", "nk", "nb", "method", "filter_step")}
     result, steady_u, steady_y, u, y = _bound(steady, dynamic, options)
@@ -192,7 +275,7 @@ def _run_one(args: argparse.Namespace, steady: str, dynamic: str) -> int:
     if args.json:
         print(json.dumps(document))
     else:
-        print(f"steady-state data  {steady}  ({len(steady_u)} points)")
+        print(f"steady-state data  {steady}  ({_steady_description(steady, len(steady_u))})")
         print(f"dynamic data       {dynamic}  ({inner.lower_rad.size} samples, {inner.num_invertible} invertible)")
         print(f"noise bound        {args.noise_bound:.6g} rad     method {args.method}")
         print()
@@ -220,4 +303,7 @@ def _save(path_text: str, document: dict, args: argparse.Namespace, steady: str,
         "dynamic": {"u": u.tolist(), "y": y.tolist(), "file": str(dynamic)},
         "noise_bound_rad": args.noise_bound, "filter_step_rad": args.filter_step,
         "na": args.na, "nk": args.nk, "nb": args.nb}}
-    Path(path_text).write_text(json.dumps(saved))
+    from rig.output_paths import writing
+
+    with writing(path_text, "--save"):
+        Path(path_text).write_text(json.dumps(saved))

@@ -75,6 +75,51 @@ def _json_kind(document: Any) -> str | None:
     return None
 
 
+MAX_JSON_BYTES = 256 << 20
+"""Largest result JSON read (a --save file of a million samples is about 40 MB)."""
+
+
+def _short(value: Any, limit: int = 80) -> str:
+    """At most ``limit`` characters of ``value`` for a message (never a whole array or file)."""
+    text = value if isinstance(value, str) else repr(value)
+    return text if len(text) <= limit else f"{text[:limit]}... ({len(text)} characters)"
+
+
+def _check_hammerstein(document: dict[str, Any], path: Path) -> None:
+    """Refuse a malformed `rig identify hammerstein --json` document before anything is drawn from it."""
+    import numpy as np
+
+    from rig.protocols.errors import LogFileError
+
+    try:
+        order = document["order"]
+        if isinstance(order, bool) or not isinstance(order, int) or order < 1:
+            raise ValueError(f"order is {_short(repr(order))}, expected an integer >= 1")
+        def numbers(key: str, value: Any) -> Any:
+            try:
+                return np.asarray(value, dtype=float)
+            except (TypeError, ValueError):
+                raise ValueError(f"{key}: expected numbers, got {_short(value, 40)}") from None
+
+        poles = numbers("poles", document["poles"])
+        if poles.ndim != 2 or poles.shape[1] != 2 or not np.all(np.isfinite(poles)):
+            raise ValueError("poles: expected a list of [real, imaginary] pairs of finite numbers")
+        for side in ("ascending", "descending"):
+            border = document["borders"][side]
+            u, h = numbers(f"borders.{side}.u", border["u"]), numbers(f"borders.{side}.h", border["h"])
+            if u.ndim != 1 or u.shape != h.shape or u.size < 2 or not np.all(np.isfinite(u) & np.isfinite(h)):
+                raise ValueError(f"borders.{side}: expected lists u and h of the same length >= 2, finite numbers")
+        singular = numbers("singular_values", document["singular_values"])
+        if singular.ndim != 1 or singular.size < 1 or not np.all(np.isfinite(singular)):
+            raise ValueError("singular_values: expected a list of finite numbers")
+    except KeyError as err:
+        raise LogFileError(f"{path}: key {err} is missing; expected the JSON of `rig identify hammerstein --json` "
+                           "unchanged (write it again with that command)") from None
+    except (TypeError, ValueError) as err:
+        raise LogFileError(f"{path}: not the JSON of `rig identify hammerstein --json`: {_short(str(err), 160)}; "
+                           "write it again with that command") from None
+
+
 def read_result_file(path: str | Path) -> ResultFile:
     """Recognise and read one result file.
 
@@ -89,25 +134,37 @@ def read_result_file(path: str | Path) -> ResultFile:
     from rig.log_file import read_experiment_data
     from rig.protocols.errors import LogFileError
 
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: no such file (expected {EXPECTED})")
-    raw = path.read_bytes()
-    if raw.startswith(b"# rig-log"):
+    from rig.signal_files import check_input_file
+
+    path = check_input_file(path, EXPECTED)
+    with path.open("rb") as handle:
+        head = handle.read(4096)
+    nul = head.find(b"\0")
+    if nul >= 0:
+        raise LogFileError(f"{path}: not a text file (NUL bytes at byte {nul}); expected {EXPECTED}")
+    if head.removeprefix(b"\xef\xbb\xbf").startswith(b"# rig-log"):
         return ResultFile(path, "experiment", read_experiment_data(path))
-    try:
-        text = raw.decode("utf-8")
-    except UnicodeDecodeError:
-        raise LogFileError(f"{path}: not a text file; expected {EXPECTED}") from None
-    stripped = text.lstrip()
-    if stripped.startswith(("{", "[")):
+    if head.removeprefix(b"\xef\xbb\xbf").lstrip().startswith((b"{", b"[")):
+        if path.stat().st_size > MAX_JSON_BYTES:
+            raise LogFileError(f"{path}: {path.stat().st_size} bytes is too large for a result JSON (at most "
+                               f"{MAX_JSON_BYTES}); expected {EXPECTED}")
+        try:
+            text = path.read_bytes().decode("utf-8").removeprefix("\ufeff")
+        except UnicodeDecodeError as err:
+            raise LogFileError(f"{path}: not a text file (byte {err.start} is not UTF-8); expected {EXPECTED}") from None
         try:
             document = json.loads(text)
         except json.JSONDecodeError as err:
-            raise LogFileError(f"{path}: invalid JSON ({err}); expected {EXPECTED}") from None
+            raise LogFileError(f"{path}: line {err.lineno}, column {err.colno}: invalid JSON ({err.msg}); save the "
+                               "output of the --json option unchanged, e.g. `rig diagnose run.csv --json > "
+                               "diagnosis.json`") from None
+        except RecursionError:
+            raise LogFileError(f"{path}: the JSON is nested too deeply; expected {EXPECTED}") from None
         kind = _json_kind(document)
+        if kind == "hammerstein":
+            _check_hammerstein(document, path)
         if kind is None:
-            keys = ", ".join(sorted(document)) if isinstance(document, dict) else type(document).__name__
+            keys = _short(", ".join(sorted(document))) if isinstance(document, dict) else type(document).__name__
             raise LogFileError(
                 f"{path}: JSON with keys [{keys}] is not a result this command knows; expected the JSON of "
                 "`rig identify output-backlash --json` (keys backlash, linear, method), `rig identify hammerstein "
@@ -138,7 +195,7 @@ def _intervals(document: dict[str, Any], group: str, path: Path) -> dict[str, An
             out[name] = ParameterInterval(number(values["lower"]), number(values["upper"]))
         except (KeyError, TypeError, ValueError):
             raise ValueError(f"{path}: {group}.{name}: expected an object with numbers lower and upper, got "
-                             f"{values!r}") from None
+                             f"{_short(values)}") from None
     return out
 
 
@@ -217,7 +274,7 @@ def _saved_set_figures(result: ResultFile, sample_period_s: float | None, used: 
         inner = None if backlash.is_empty else bound_inner_signal(data["dynamic"]["y"], noise, backlash)
     except (KeyError, TypeError, ValueError) as err:
         raise ValueError(f"{result.path}: data: expected steady.u, steady.y, dynamic.y and noise_bound_rad as "
-                         f"written by `rig identify output-backlash --save` ({err})") from None
+                         f"written by `rig identify output-backlash --save` ({_short(str(err), 160)})") from None
     slug = _unique(f"set_membership_{result.slug}", used)
     figures = [backlash_characteristic_figure(backlash, f"{slug}_backlash"),
                feasible_polygons_figure(backlash, f"{slug}_polygons")]
@@ -261,7 +318,7 @@ def _diagnose_section(result: ResultFile, used: set[str]):
                  for e in effects]
     except (KeyError, TypeError, ValueError) as err:
         raise ValueError(f"{result.path}: expected the JSON of `rig diagnose --json` (missing_effects with effect, "
-                         f"parameters, gap_before, gap_after; gap_initial; gap_final): {err!r}") from None
+                         f"parameters, gap_before, gap_after; gap_initial; gap_final): {_short(err)}") from None
     rows = tuple((name, ", ".join(f"{key} = {value:.4g}" if isinstance(value, (int, float)) else f"{key} = {value}"
                                   for key, value in parameters.items()) or "-",
                   f"{before:.4g}", f"{after:.4g}") for name, before, after, parameters in steps)
@@ -314,13 +371,46 @@ def report_sections(results: list[ResultFile], *, sample_period_s: float | None 
     if sample_period_s is None and experiments:
         sample_period_s = float(experiments[0].content.sample_period_s)
     used: set[str] = set()
-    sections = [_experiment_section(result, used) for result in experiments]
+    sections = [_named(result, _experiment_section, result, used) for result in experiments]
     backlash_results = [result for result in results if result.kind == "output_backlash"]
     if backlash_results:
-        sections.append(_set_membership_section(backlash_results, sample_period_s, used))
-    sections += [_hammerstein_section(result, sample_period_s, used) for result in results if result.kind == "hammerstein"]
-    sections += [_diagnose_section(result, used) for result in results if result.kind == "diagnose"]
+        sections.append(_named(backlash_results, _set_membership_section, backlash_results, sample_period_s, used))
+    sections += [_named(result, _hammerstein_section, result, sample_period_s, used) for result in results
+                 if result.kind == "hammerstein"]
+    sections += [_named(result, _diagnose_section, result, used) for result in results if result.kind == "diagnose"]
     return sections
+
+
+def _named(results: ResultFile | list[ResultFile], build: Any, *arguments: Any):
+    """``build(*arguments)``, with any error of a malformed document (while building the section or later,
+    while drawing its figures) turned into one line naming the file(s)."""
+    import dataclasses
+
+    names = ", ".join(str(result.path) for result in (results if isinstance(results, list) else [results]))
+
+    def failed(err: Exception) -> ValueError:
+        return ValueError(f"{names}: cannot use this file for the report ({type(err).__name__}: "
+                          f"{_short(str(err), 120)}); expected {EXPECTED}, written unchanged")
+
+    try:
+        section = build(*arguments)
+    except (KeyError, TypeError, IndexError, AttributeError) as err:
+        raise failed(err) from None
+    except ValueError as err:
+        if str(err).startswith(names.split(", ")[0]):
+            raise
+        raise failed(err) from None
+
+    def guarded(draw: Any) -> Any:
+        def draw_named(figure: Any) -> None:
+            try:
+                draw(figure)
+            except (KeyError, TypeError, IndexError, AttributeError, ValueError) as err:
+                raise failed(err) from None
+        return draw_named
+
+    return dataclasses.replace(section, figures=tuple(dataclasses.replace(figure, draw=guarded(figure.draw))
+                                                      for figure in section.figures))
 
 
 def write_result_report(paths: list[str | Path], out_dir: str | Path, *, title: str = "rig report",
@@ -362,7 +452,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    index, count = write_result_report(args.results, args.out, title=args.title, sample_period_s=args.sample_period)
+    from rig.output_paths import check_output_dir, writing
+
+    check_output_dir(args.out, "--out", inputs=args.results)  # before the files are read and drawn
+    with writing(args.out, "--out"):
+        index, count = write_result_report(args.results, args.out, title=args.title,
+                                           sample_period_s=args.sample_period)
     index = index.resolve()
     if args.json:
         print(json.dumps({"report": str(index), "figures": count}))

@@ -178,25 +178,74 @@ def load_command_file(path: str | Path, sample_period_s: float) -> Any:
                       source=str(path))
 
 
+SETUP_SECONDS_PER_SAMPLE = 50e-9
+"""What the runner's set-up costs per sample of the command, at most (about 26-38 ns measured on the 2-core
+CI host and on the issue's machine, doubled for a loaded host): ``run_experiment`` turns the whole command
+into a Python list after it has armed its feedback watchdog and before the first setpoint."""
+MAX_RUN_SAMPLES = 1 << 24
+"""Samples of one run at most whatever the watchdog: the runner holds the whole command and a per-sample
+timing array in memory (about 60 bytes a sample)."""
+
+
+def max_run_samples(config: Any) -> int:
+    """The longest command the current runner can start on the rig of ``config``: its set-up before the first
+    sample (:data:`SETUP_SECONDS_PER_SAMPLE` a sample) must fit in half of what the feedback watchdog leaves
+    after the two periods of lead, or the watchdog stops the run at sample 0; and :data:`MAX_RUN_SAMPLES`."""
+    budget_s = 0.5 * (config.feedback_timeout_s - 2 * config.sample_period_s)
+    return max(1, min(MAX_RUN_SAMPLES, int(budget_s / SETUP_SECONDS_PER_SAMPLE)))
+
+
+def _check_run_length(config: Any, num_samples: int, what: str) -> None:
+    """Refuse, before anything is generated or opened, a command longer than :func:`max_run_samples`."""
+    limit = max_run_samples(config)
+    if num_samples <= limit:
+        return
+    seconds = limit * config.sample_period_s
+    raise ValueError(
+        f"{what}: {num_samples} samples at {config.sample_rate_hz:g} Hz is longer than one run can be on this rig: "
+        f"at most {limit} samples ({seconds:g} s), because the runner prepares the whole command before its first "
+        f"sample and that must fit in half of the feedback watchdog (feedback_timeout_s = "
+        f"{config.feedback_timeout_s:g} s in {config.source}); record in runs of at most {seconds:g} s (or raise "
+        "feedback_timeout_s, which also lets a stalled link go unnoticed for longer)")
+
+
 def run(args: argparse.Namespace) -> int:
     import numpy as np
 
     from rig.experiment_config import load_experiment_config
     from rig.log_file import LogWriter
+    from rig.output_paths import check_output_file
     from rig.rig_config import load_rig_config
     from rig.runner import run_experiment
     from rig.transports import open_transport
 
     config = load_rig_config(args.config)
+    inputs = [args.config, args.experiment]
+    check_output_file(args.out, "--out", inputs=inputs)  # before the devices start and the drive is enabled
+    if args.can_trace is not None:
+        if config.scheme not in ("canopen", "can"):
+            raise ValueError(f"--can-trace: the {config.scheme} transport has no CAN frames to trace")
+        from rig.transports.base import check_trace_path
+
+        check_trace_path(args.can_trace)
+        check_output_file(args.can_trace, "--can-trace", inputs=[*inputs, args.out])
+        if Path(args.can_trace).resolve() == Path(args.out).resolve():
+            raise ValueError(f"--can-trace {args.can_trace}: is the --out log too: give the trace its own file")
+    num_samples = None
+    if args.duration is not None:
+        if not (math.isfinite(args.duration) and args.duration > 0):
+            raise ValueError(f"--duration: expected a number of seconds > 0, got {args.duration}")
+        num_samples = max(1, int(round(args.duration * config.sample_rate_hz)))
+        _check_run_length(config, num_samples, f"--duration {args.duration:g}")
     if Path(args.experiment).suffix.lower() == ".csv":
         excitation = load_command_file(args.experiment, config.sample_period_s)
     else:
         excitation = load_experiment_config(args.experiment)
     command = excitation.command_rad
-    if args.duration is not None:
-        if not (math.isfinite(args.duration) and args.duration > 0):
-            raise ValueError(f"--duration: expected a number of seconds > 0, got {args.duration}")
-        command = np.resize(command, max(1, int(round(args.duration * config.sample_rate_hz))))
+    if num_samples is None:
+        _check_run_length(config, command.size, f"{args.experiment}")
+    else:
+        command = np.resize(command, num_samples)
     faults = None
     if args.sim_faults is not None:
         from sim_backend.faults import parse_fault_spec
@@ -213,8 +262,6 @@ def run(args: argparse.Namespace) -> int:
             url, gearbox = stack.enter_context(simulated_rig(config, command, faults))
         options = config.transport_options()
         if args.can_trace is not None:
-            if config.scheme not in ("canopen", "can"):
-                raise ValueError(f"--can-trace: the {config.scheme} transport has no CAN frames to trace")
             options["trace_path"] = args.can_trace
         transport = open_transport(url, **options)
         injected = None if faults is None else {"spec": args.sim_faults, "seed": args.sim_faults_seed}

@@ -41,8 +41,11 @@ def run(args: argparse.Namespace) -> int:
     from rig.log_file import LogWriter
     from sim_backend.plant_config import describe_noise, load_plant_config, plant_config_to_toml
 
+    from rig.output_paths import check_output_file
+
     if args.seed is not None and args.seed < 0:
         raise ValueError(f"--seed: expected an integer >= 0, got {args.seed}")
+    check_output_file(args.out, "--out", inputs=[args.plant, args.excitation])
     plant_config = load_plant_config(args.plant)
     excitation = load_experiment_config(args.excitation, seed=args.seed)
     gearbox = plant_config.gearbox(seed=None if args.seed is None else args.seed + 1)

@@ -14,6 +14,7 @@ Usage::
 from __future__ import annotations
 
 import math
+import stat
 import tomllib
 from pathlib import Path
 from typing import Any
@@ -27,10 +28,25 @@ def load_toml(path: str | Path) -> ConfigTable:
     """Parse ``path`` as TOML and return its root table, translating parse errors to :class:`ConfigError`."""
     path = Path(path)
     try:
+        mode = path.stat().st_mode
+    except FileNotFoundError:
+        raise ConfigError(str(path), "<file>", "no such file") from None
+    except OSError as err:
+        raise ConfigError(str(path), "<file>", f"cannot be read: {err.strerror}") from None
+    if stat.S_ISDIR(mode):
+        raise ConfigError(str(path), "<file>", "is a directory; give a .toml file")
+    if not stat.S_ISREG(mode):  # /dev/zero would be read forever
+        raise ConfigError(str(path), "<file>", "is not a regular file; give a .toml file")
+    try:
         with path.open("rb") as handle:
             data = tomllib.load(handle)
     except FileNotFoundError:
         raise ConfigError(str(path), "<file>", "no such file") from None
+    except PermissionError as err:
+        raise ConfigError(str(path), "<file>", f"cannot be read: {err.strerror}") from None
+    except UnicodeDecodeError as err:
+        raise ConfigError(str(path), "<file>", f"not a text file (byte {err.start} is not UTF-8); save it as "
+                                               "UTF-8 (TOML files are UTF-8)") from None
     except tomllib.TOMLDecodeError as err:
         raise ConfigError(str(path), "<file>", f"not valid TOML: {err}") from err
     return ConfigTable(str(path), "", data)

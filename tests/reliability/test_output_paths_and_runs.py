@@ -1,0 +1,286 @@
+"""Issue 18, outputs and processes: every output path checked before the work starts (exit 5 naming the path,
+the OS's reason and what to do), inputs never overwritten, a closed pipe and a full stdout, --duration
+beyond what the runner can start refused up front, --jobs capped, and one message on Ctrl-C of a batch."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from rig import exit_codes
+from rig.cli import main, signals_as_interrupts
+
+ROOT = Path(__file__).resolve().parents[2]
+CONFIGS = ROOT / "configs"
+PRBS = CONFIGS / "experiments" / "prbs.toml"
+RIG = ROOT / ".venv" / "bin" / "rig"
+
+
+def _rig() -> list[str]:
+    return [str(RIG)] if RIG.exists() else [sys.executable, "-m", "rig.cli"]
+
+
+@pytest.fixture
+def read_only_dir(tmp_path) -> Path:
+    """A directory in which no file can be created: chmod 555 for a normal user; as root (who ignores the
+    mode bits) sysfs, whose root refuses new files."""
+    if os.geteuid() != 0:
+        folder = tmp_path / "read-only"
+        folder.mkdir()
+        folder.chmod(0o555)
+        yield folder
+        folder.chmod(0o755)
+        return
+    if not Path("/sys").is_dir():
+        pytest.skip("no read-only directory available as root")
+    yield Path("/sys")
+
+
+@pytest.fixture
+def log(tmp_path) -> Path:
+    path = tmp_path / "run.csv"
+    t = np.arange(200) * 1e-3
+    u = np.sign(np.sin(40 * t))
+    path.write_text("t,u,y\n" + "".join(f"{a!r},{b!r},{0.5 * b + 0.01 * a!r}\n" for a, b in zip(t.tolist(), u.tolist())))
+    return path
+
+
+def _one_line_error(capsys, code: int, expected_code: int, *parts: str) -> str:
+    err = capsys.readouterr().err
+    assert code == expected_code, err
+    assert err.startswith("rig: error: ") and err.count("\n") == 1, err
+    for part in parts:
+        assert part in err, err
+    return err
+
+
+# --- --duration -----------------------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("duration", ["3600", "43200", "1e6", "1e9"])
+def test_a_duration_the_runner_cannot_start_is_refused_up_front(duration, tmp_path, capsys, monkeypatch):
+    from rig.transports.serial_link import SerialTransport
+
+    monkeypatch.setattr(SerialTransport, "open", lambda self: pytest.fail("the transport was opened"))
+    out = tmp_path / "long.csv"
+    started = time.perf_counter()
+    code = main(["run", str(CONFIGS / "sim_serial.toml"), "--experiment", str(PRBS), "--out", str(out),
+                 "--duration", duration])
+    _one_line_error(capsys, code, exit_codes.BAD_INPUT, f"--duration {float(duration):g}", "at most 980000 samples",
+                    "(980 s)", "feedback_timeout_s = 0.1 s", "record in runs of at most 980 s")
+    assert time.perf_counter() - started < 5  # nothing generated: 1e9 s used to be a MemoryError
+    assert not out.exists()
+
+
+def test_the_run_length_limit_follows_the_watchdog():
+    from rig.commands.run import MAX_RUN_SAMPLES, max_run_samples
+    from rig.rig_config import load_rig_config
+
+    sim = load_rig_config(CONFIGS / "sim_serial.toml")
+    real = SimpleNamespace(feedback_timeout_s=0.05, sample_period_s=1e-3)  # configs/rig_canopen.toml's watchdog
+    assert max_run_samples(sim) == 980_000 and max_run_samples(real) == 480_000
+    assert max_run_samples(sim) * 50e-9 <= 0.5 * sim.feedback_timeout_s  # the set-up fits in half the watchdog
+    assert max_run_samples(sim) <= MAX_RUN_SAMPLES
+
+
+# --- output paths before the work -----------------------------------------------------------------------------
+
+def test_report_out_unwritable_or_a_file_is_exit_5_before_anything_is_read(log, read_only_dir, tmp_path, capsys,
+                                                                           monkeypatch):
+    import rig.commands.report as report
+
+    monkeypatch.setattr(report, "read_result_file", lambda path: pytest.fail("read before the --out check"))
+    code = main(["report", str(log), "--out", str(read_only_dir / "report")])
+    _one_line_error(capsys, code, exit_codes.WRITE_FAILED, f"{read_only_dir / 'report'}: cannot write it (--out)",
+                    "choose another path")
+    existing = tmp_path / "notes.txt"
+    existing.write_text("mine\n")
+    code = main(["report", str(log), "--out", str(existing)])
+    _one_line_error(capsys, code, exit_codes.WRITE_FAILED, "it is an existing file, not a directory")
+    assert existing.read_text() == "mine\n"
+    if Path("/proc/self").is_dir():
+        code = main(["report", str(log), "--out", "/proc/self"])
+        _one_line_error(capsys, code, exit_codes.WRITE_FAILED, "/proc/self: cannot write it (--out): no file can be "
+                        "created in /proc/self")
+
+
+def test_diagnose_report_and_demo_out_are_checked_before_the_work(log, read_only_dir, capsys, monkeypatch):
+    import identify.model_discrepancy
+    import rig.demo
+
+    monkeypatch.setattr(identify.model_discrepancy, "diagnose_model", lambda *a, **k: pytest.fail("diagnosed first"))
+    monkeypatch.setattr(rig.demo, "run_demo", lambda *a, **k: pytest.fail("demo ran first"))
+    code = main(["diagnose", str(log), "--noise-bound", "0.01", "--report", str(read_only_dir / "r")])
+    _one_line_error(capsys, code, exit_codes.WRITE_FAILED, "(--report)", "Permission denied" if os.geteuid() == 0
+                    else "")
+    code = main(["demo", "--quick", "--out", str(read_only_dir / "demo")])
+    _one_line_error(capsys, code, exit_codes.WRITE_FAILED, f"{read_only_dir / 'demo'}: cannot write it (--out)")
+
+
+@pytest.fixture(scope="module")
+def backlash_files(tmp_path_factory):
+    """A staircase log and a PRBS log of the Cerone et al. plant, as `rig simulate` writes them."""
+    folder = tmp_path_factory.mktemp("backlash")
+    plant = CONFIGS / "plants" / "cerone2009.toml"
+    for name, experiment in (("stair", "steady_staircase"), ("prbs", "prbs")):
+        assert main(["simulate", str(plant), "--excitation", str(CONFIGS / "experiments" / f"{experiment}.toml"),
+                     "--out", str(folder / f"{name}.csv"), "--json"]) == 0
+    return folder / "stair.csv", folder / "prbs.csv"
+
+
+def _backlash_args(files, *extra: str) -> list[str]:
+    stair, prbs = files
+    return ["identify", "output-backlash", "--steady", str(stair), "--dynamic", str(prbs), "--noise-bound",
+            "0.0015339815193446808", "--na", "2", "--nk", "1", "--nb", "2", "--method", "paper", *extra]
+
+
+def test_save_into_a_missing_or_read_only_directory_or_over_an_input_is_exit_5(backlash_files, read_only_dir,
+                                                                               tmp_path, capsys, monkeypatch):
+    import identify.output_backlash_identification as method
+
+    capsys.readouterr()
+    real = method.bound_output_backlash_system
+    monkeypatch.setattr(method, "bound_output_backlash_system", lambda *a, **k: pytest.fail("bounded first"))
+    missing = tmp_path / "nodir" / "x.json"
+    code = main(_backlash_args(backlash_files, "--save", str(missing)))
+    _one_line_error(capsys, code, exit_codes.WRITE_FAILED, f"{missing}: cannot write it (--save): the directory "
+                    f"{missing.parent} does not exist; create it (mkdir -p {missing.parent})")
+    code = main(_backlash_args(backlash_files, "--save", str(read_only_dir / "x.json")))
+    _one_line_error(capsys, code, exit_codes.WRITE_FAILED, "(--save)")
+    before = backlash_files[1].read_bytes()
+    code = main(_backlash_args(backlash_files, "--save", str(backlash_files[1])))
+    _one_line_error(capsys, code, exit_codes.WRITE_FAILED, "it is the input file")
+    assert backlash_files[1].read_bytes() == before
+    monkeypatch.setattr(method, "bound_output_backlash_system", real)
+    if Path("/dev/full").exists():  # the disk fills up while the result is written
+        code = main(_backlash_args(backlash_files, "--save", "/dev/full"))
+        _one_line_error(capsys, code, exit_codes.WRITE_FAILED, "/dev/full: cannot write it (--save): No space left "
+                        "on device (ENOSPC)")
+
+
+def test_run_refuses_to_overwrite_its_config_and_checks_the_can_trace_before_the_drive(tmp_path, read_only_dir,
+                                                                                       capsys, monkeypatch):
+    import shutil
+
+    import rig.commands.run as run_command
+    from rig.transports.canopen_link import CanOpenTransport
+
+    monkeypatch.setattr(CanOpenTransport, "open", lambda self: pytest.fail("the drive was enabled"))
+    monkeypatch.setattr(run_command, "simulated_rig", lambda *a, **k: pytest.fail("the devices were started"))
+    configs = tmp_path / "configs"
+    shutil.copytree(CONFIGS, configs, ignore=shutil.ignore_patterns("*.eds", "*.dbc"))
+    config = configs / "sim_canopen.toml"
+    before = config.read_bytes()
+    code = main(["run", str(config), "--experiment", str(PRBS), "--out", str(config)])
+    _one_line_error(capsys, code, exit_codes.WRITE_FAILED, f"{config}: cannot write it (--out): it is the input file")
+    assert config.read_bytes() == before
+    trace = read_only_dir / "t.blf"
+    code = main(["run", str(config), "--experiment", str(PRBS), "--out", str(tmp_path / "run.csv"),
+                 "--can-trace", str(trace)])
+    _one_line_error(capsys, code, exit_codes.WRITE_FAILED, f"{trace}: cannot write it (--can-trace)")
+    code = main(["simulate", str(configs / "plants" / "cerone2009.toml"), "--excitation", str(PRBS), "--out",
+                 str(PRBS)])
+    _one_line_error(capsys, code, exit_codes.WRITE_FAILED, "it is the input file")
+
+
+# --- stdout ---------------------------------------------------------------------------------------------------
+
+def test_json_to_a_full_disk_is_exit_5_and_a_closed_pipe_a_quiet_exit(log):
+    if not Path("/dev/full").exists():
+        pytest.skip("no /dev/full")
+    with open("/dev/full", "w") as full:
+        done = subprocess.run([*_rig(), "inspect", str(log), "--json"], stdout=full, stderr=subprocess.PIPE,
+                              text=True, timeout=60)
+    assert done.returncode == exit_codes.WRITE_FAILED
+    assert done.stderr == ("rig: error: standard output: cannot write: No space left on device (ENOSPC); redirect "
+                           "the output to a file on a disk with free space\n")
+    read_end, write_end = os.pipe()
+    os.close(read_end)  # `| head -1` that has already gone
+    try:
+        done = subprocess.run([*_rig(), "inspect", str(log)], stdout=write_end, stderr=subprocess.PIPE, text=True,
+                              timeout=60)
+    finally:
+        os.close(write_end)
+    assert done.returncode == exit_codes.SUCCESS and done.stderr == ""
+
+
+# --- processes ------------------------------------------------------------------------------------------------
+
+def _pid(path: str) -> int:
+    time.sleep(0.2)  # long enough that one worker cannot take every file
+    return os.getpid()
+
+
+def test_jobs_are_capped_at_the_files_and_the_cores(monkeypatch):
+    import rig.batch as batch
+
+    started = []
+    real_pool = batch.ProcessPoolExecutor
+
+    def counting_pool(max_workers, **options):
+        started.append(max_workers)
+        return real_pool(max_workers=max_workers, **options)
+
+    monkeypatch.setattr(batch, "ProcessPoolExecutor", counting_pool)
+    monkeypatch.setattr(batch, "usable_cores", lambda: 2)
+    outcomes = batch.map_files(_pid, ["a", "b", "c"], jobs=1000)
+    assert started == [2] and all(outcome.error is None for outcome in outcomes)
+    assert len({outcome.result for outcome in outcomes}) <= 2
+    monkeypatch.setattr(batch, "usable_cores", lambda: 64)
+    started.clear()
+    batch.map_files(_pid, ["a", "b"], jobs=0)
+    assert started == [2]  # two files: two processes, not 64
+
+
+def test_a_second_signal_speaks_of_a_drive_only_where_there_is_one(capsys):
+    if sys.platform == "win32":
+        pytest.skip("POSIX signals")
+    for drives, expected in ((False, ""), (True, "leaves the drive as it is")):
+        with pytest.raises(KeyboardInterrupt):
+            with signals_as_interrupts(drives):
+                try:
+                    os.kill(os.getpid(), signal.SIGINT)
+                    time.sleep(1)
+                finally:
+                    os.kill(os.getpid(), signal.SIGTERM)  # while "stopping"
+                    time.sleep(0.05)
+        err = capsys.readouterr().err
+        assert (expected in err) if expected else err == ""
+
+
+def test_ctrl_c_on_diagnose_jobs_2_gives_one_message_and_no_drive_text(tmp_path):
+    files = []
+    rng = np.random.default_rng(1)
+    for name in ("a", "b"):  # 20 000 samples: minutes of work, so the signal surely comes during it
+        t = np.arange(20_000) * 1e-3
+        u = np.repeat(rng.uniform(-1, 1, 200), 100)
+        path = tmp_path / f"{name}.csv"
+        np.savetxt(path, np.column_stack([t, u, 0.8 * u + rng.uniform(-1e-3, 1e-3, t.size)]), delimiter=",",
+                   header="t,u,y", comments="", fmt="%.9g")
+        files.append(str(path))
+    process = subprocess.Popen([*_rig(), "diagnose", *files, "--noise-bound", "0.002", "--jobs", "2"],
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True,
+                               preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    try:
+        deadline = time.monotonic() + 60
+        children: list[str] = []
+        while time.monotonic() < deadline and len(children) < 2:  # both workers started
+            children = Path(f"/proc/{process.pid}/task/{process.pid}/children").read_text().split()
+            time.sleep(0.1)
+        assert len(children) >= 2, "the workers did not start"
+        time.sleep(0.3)
+        os.killpg(process.pid, signal.SIGINT)  # Ctrl-C reaches the whole foreground group
+        _, err = process.communicate(timeout=30)
+    finally:
+        if process.poll() is None:
+            os.killpg(process.pid, signal.SIGKILL)
+            process.wait()
+    assert process.returncode == exit_codes.INTERRUPTED, err
+    assert err == "rig: interrupted by SIGINT\n"
