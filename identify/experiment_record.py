@@ -38,15 +38,16 @@ class SampleFlag(IntFlag):
     FAULT = 16  #: the device reported a fault during this sample
     NOT_FOLLOWED = 32  #: the drive said it ignored the target in this sample (CiA 402 CSP statusword bit 12 clear)
     HELD = 64  #: the setpoint missed its sample instant; the device held the previous one (the logged command)
+    AMBIGUOUS = 128  #: which sample instant the reading answers is not certain (two SYNCs closer than one cycle)
 
     @classmethod
     def unusable(cls) -> SampleFlag:
         """Flags that make a sample unusable for identification."""
-        return cls.LOST | cls.DUPLICATE | cls.FAULT | cls.NOT_FOLLOWED
+        return cls.LOST | cls.DUPLICATE | cls.FAULT | cls.NOT_FOLLOWED | cls.AMBIGUOUS
 
 
 _ALL_FLAGS = int(SampleFlag.LOST | SampleFlag.LATE | SampleFlag.DUPLICATE | SampleFlag.LIMITED | SampleFlag.FAULT
-                 | SampleFlag.NOT_FOLLOWED | SampleFlag.HELD)
+                 | SampleFlag.NOT_FOLLOWED | SampleFlag.HELD | SampleFlag.AMBIGUOUS)
 
 
 @dataclass(frozen=True)

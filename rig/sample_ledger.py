@@ -7,8 +7,9 @@ measured and which target was really in force. The ledger turns that into log ro
 
 * a row is opened when its setpoint is queued (``command_rad`` = the setpoint, flags = LOST);
 * :meth:`SampleLedger.file` fills it from the feedback: LOST cleared, HELD and the command actually
-  applied when the setpoint missed its instant, NOT_FOLLOWED when the drive ignored it, FAULT in a fault
-  state, DUPLICATE when a second answer comes for the same sample;
+  applied when the setpoint missed its instant, NOT_FOLLOWED when the drive ignored it, AMBIGUOUS when
+  the instant it answers is uncertain, FAULT in a fault state, DUPLICATE when a second answer comes for
+  the same sample;
 * :meth:`SampleLedger.next_final` / :meth:`SampleLedger.release` hand rows to the log oldest first, once
   their instant lies ``pending_cycles`` instants behind the device (a later answer could still come until
   then); a row leaves the ledger only after the sink took it.
@@ -27,8 +28,9 @@ from rig.transports.base import FeedbackSample
 
 __all__ = ["LedgerRow", "SampleLedger"]
 
-_LOST, _DUPLICATE, _FAULT, _NOT_FOLLOWED, _HELD = (int(flag) for flag in (
-    SampleFlag.LOST, SampleFlag.DUPLICATE, SampleFlag.FAULT, SampleFlag.NOT_FOLLOWED, SampleFlag.HELD))
+_LOST, _DUPLICATE, _FAULT, _NOT_FOLLOWED, _HELD, _AMBIGUOUS = (int(flag) for flag in (
+    SampleFlag.LOST, SampleFlag.DUPLICATE, SampleFlag.FAULT, SampleFlag.NOT_FOLLOWED, SampleFlag.HELD,
+    SampleFlag.AMBIGUOUS))
 _FAULT_STATES = (DriveState.FAULT, DriveState.FAULT_REACTION_ACTIVE)
 
 
@@ -91,6 +93,8 @@ class SampleLedger:
             row.command_rad = sample.applied_position_rad  # the data stay true: the command really applied
         if sample.target_ignored:
             row.flags |= _NOT_FOLLOWED
+        if sample.ambiguous:
+            row.flags |= _AMBIGUOUS
         state = state_from_statusword_or_none(sample.statusword)
         if state in _FAULT_STATES or (state is not None and state is not DriveState.OPERATION_ENABLED):
             row.flags |= _FAULT

@@ -118,6 +118,10 @@ class FeedbackSample:
     applied_position_rad
         On a device-clocked link: the drive target actually in force at this sample's instant (equal to
         setpoint ``seq`` unless ``held``).
+    ambiguous
+        Which instant this reading answers is not certain (CANopen: its SYNC and the next came closer than
+        the bus time of one cycle, so the answers may have been pushed behind the next SYNC); the runner
+        flags the sample AMBIGUOUS (unusable) instead of filing it silently under a guess.
     """
 
     seq: int
@@ -129,6 +133,7 @@ class FeedbackSample:
     target_ignored: bool = False
     held: bool = False
     applied_position_rad: float | None = None
+    ambiguous: bool = False
 
 
 @dataclass(frozen=True)

@@ -207,6 +207,7 @@ class CanOpenTransport(Transport):
         self._rpdo_sent: collections.deque[tuple[int, int]] = collections.deque()  # (sample, counts), echo due
         self._in_force: tuple[int, int] = (-1, 0)  # (sample, counts) of the last RPDO on the bus
         self._applied: dict[int, tuple[int, bool]] = {}  # sample -> (target counts in force, held)
+        self._ambiguous: set[int] = set()  # SYNC counts whose answers cannot be filed for certain
         self._device_sample = -1
         self._fault_sample: int | None = None  # the last sample instant passed when a fault was reported
         self._min_lead_s = float("inf")
@@ -215,6 +216,11 @@ class CanOpenTransport(Transport):
         self._ready: collections.deque[FeedbackSample] = collections.deque()
         self._arrived = threading.Condition(self._lock)
         self._emcy: tuple[str, int, int] | None = None  # (role, node-ID, EMCY code; 0: FAULT in the statusword)
+
+    @property
+    def min_cycle_s(self) -> float:
+        """One cycle's frames on the bus (worst-case bit stuffing): two SYNCs closer than this are bunched."""
+        return 1.0 / self.load.max_rate_hz
 
     @property
     def lead_samples(self) -> int:
@@ -635,6 +641,10 @@ class CanOpenTransport(Transport):
             self._echo_probe.set()
             self._sync_count += 1
             count = self._sync_count
+            if self._syncs and timestamp - self._syncs[-1][0] < self.min_cycle_s:
+                # SYNCs bunched (a thread-based producer catching up): the higher-priority SYNC may have
+                # overtaken the answers to the one before it, so neither sample can be filed for certain
+                self._ambiguous.update((count - 1, count))
             self._syncs.append((timestamp, count))
             unfiled, self._unfiled = self._unfiled, []
             for item in unfiled:
@@ -708,11 +718,13 @@ class CanOpenTransport(Transport):
         if "drive" in parts and "encoder" in parts:
             statusword, actual = parts["drive"]
             counts, held = self._applied.get(seq, (None, False))
+            ambiguous = bool(self._ambiguous) and (seq + self._origin + self.tpdo_latency_cycles) in self._ambiguous
             self._ready.append(FeedbackSample(
                 seq=seq, encoder_counts=parts["encoder"], load_angle_rad=self._decode_encoder(parts["encoder"]),
                 drive_position_rad=self.drive.rad_from_counts(actual), statusword=statusword,
                 host_time_s=received, target_ignored=self._target_ignored(statusword), held=held,
-                applied_position_rad=None if counts is None else self.drive.rad_from_counts(counts)))
+                applied_position_rad=None if counts is None else self.drive.rad_from_counts(counts),
+                ambiguous=ambiguous))
             self._arrived.notify_all()
         if len(self._parts) > 512:
             for old in sorted(self._parts)[:256]:

@@ -37,7 +37,7 @@ def test_flags_give_the_valid_mask_and_lost_count():
     ({"angle_rad": [0.0, math.nan, 0.0, 0.0, 0.0]}, "angle_rad: sample 1 .* LOST flag"),
     ({"flags": [SampleFlag.LOST, 0, 0, 0, 0]}, "a LOST sample must have angle NaN"),
     ({"command_rad": [0.0, 0.0, math.inf, 0.0, 0.0]}, "command_rad: sample 2"),
-    ({"flags": [64, 0, 0, 0, 0]}, "flags: sample 0 is 64; expected SampleFlag bits"),
+    ({"flags": [256, 0, 0, 0, 0]}, "flags: sample 0 is 256; expected SampleFlag bits"),
     ({"metadata": {"sample_period_s": 1e-3}}, "metadata: expected ExperimentMetadata"),
     ({"encoder_counts": [0.5, 1, 2, 3, 4]}, "encoder_counts: expected integer"),
 ])

@@ -198,7 +198,12 @@ def test_a_can_frame_delayed_past_later_syncs_costs_two_flagged_samples_never_a_
     log = read_log(out)
     assert log.flags[100] & SampleFlag.LOST  # its answer never came in its window
     landed = np.flatnonzero(log.flags & SampleFlag.DUPLICATE)
-    assert landed.size == 1 and 101 <= landed[0] <= 106  # the sample the late frame was filed under is unusable
+    in_window = landed[(landed >= 101) & (landed <= 106)]
+    assert in_window.size == 1  # the sample the late frame was filed under is unusable
+    # a busy host can bunch the thread-driven SYNCs of the virtual bus: the samples around two SYNCs closer
+    # than one cycle are flagged AMBIGUOUS, and any answer filed twice there is unusable too, never silent
+    others = np.setdiff1d(landed, in_window)
+    assert np.all(log.flags[others] & SampleFlag.AMBIGUOUS)
     assert result["lost"] == np.count_nonzero(log.flags & SampleFlag.LOST)
 
 
