@@ -71,6 +71,7 @@ DEFAULT_ENCODER_EDS = _CONFIGS / "sim_encoder_cia406.eds"
 # data bytes of the frames of one cycle: SYNC, drive RPDO1 (0x607A), drive TPDO1 (0x6041 + 0x6064),
 # encoder TPDO1 (0x6004)
 CYCLE_FRAME_BYTES = (0, 4, 6, 4)
+DEMAND_TPDO_BYTES = 4  # drive TPDO2 = 0x6062 position demand value, where the drive has it (latency check)
 _MODE_NAMES = {cia402.CYCLIC_SYNCHRONOUS_POSITION_MODE: "cyclic synchronous position", cia402.HOMING_MODE: "homing"}
 _NMT_STATES = {0x00: "INITIALISING", 0x04: "STOPPED", 0x05: "OPERATIONAL", 0x7F: "PRE-OPERATIONAL"}
 _NMT_OPERATIONAL = 0x05
@@ -117,9 +118,12 @@ class CanOpenTransport(Transport):
     lead_s
         How far ahead of the device's sample instants the runner queues setpoints (default 50 ms); the
         target for sample k goes on the bus right after SYNC k-1, from the receive thread.
-    tpdo_latency_cycles
-        The devices answer SYNC k after SYNC k + this many (0: before the next SYNC; 1: a device that sends
-        the values latched at the previous SYNC, or whose answer takes longer than a period).
+    drive_tpdo_latency_cycles, encoder_tpdo_latency_cycles
+        The node answers SYNC k after SYNC k + this many (0: before the next SYNC; 1: a device that sends
+        the values latched at the previous SYNC, or whose answer takes longer than a period). The drive's is
+        checked while streaming where its EDS has 0x6062 (position demand value) and a second TPDO: the
+        master maps 0x6062 there, and a demand value that is the previous sample's target stops the run
+        saying what to set; an encoder has no such object, so its latency can only be configured.
     emcy_warning_codes
         EMCY codes that are warnings, logged and ridden through: comma-separated hex prefixes of the code
         (``"0x4"``, the default, is every temperature code 0x4xxx of CiA 301 Table 21; ``"0x4210,0xFF"``
@@ -135,7 +139,8 @@ class CanOpenTransport(Transport):
                  encoder_eds: str = str(DEFAULT_ENCODER_EDS), heartbeat_ms: int = 100,
                  heartbeat_timeout_s: float = 0.5, sdo_timeout_s: float = 0.5, skip_homing: bool = True,
                  homing_method: int = 37, homing_timeout_s: float = 30.0, mode_switch_timeout_s: float = 1.0,
-                 sync_producer: str = "master", lead_s: float = 0.05, tpdo_latency_cycles: int = 0,
+                 sync_producer: str = "master", lead_s: float = 0.05, drive_tpdo_latency_cycles: int = 0,
+                 encoder_tpdo_latency_cycles: int = 0,
                  emcy_warning_codes: str = "0x4", trace_path: str | None = None, **kwargs: Any) -> None:
         super().__init__(**kwargs)
         self.interface, self.channel, self.bitrate = interface, channel, int(bitrate)
@@ -159,9 +164,12 @@ class CanOpenTransport(Transport):
         if not lead_s > 0:
             raise ConfigError("<transport>", "lead_s", f"expected a lead > 0 s, got {lead_s!r}")
         self.lead_s = float(lead_s)
-        if not 0 <= int(tpdo_latency_cycles) <= 8:
-            raise ConfigError("<transport>", "tpdo_latency_cycles", f"expected 0..8 SYNC periods, got {tpdo_latency_cycles}")
-        self.tpdo_latency_cycles = int(tpdo_latency_cycles)
+        self.latency_cycles = {}
+        for part, value in (("drive", drive_tpdo_latency_cycles), ("encoder", encoder_tpdo_latency_cycles)):
+            if not 0 <= int(value) <= 8:
+                raise ConfigError("<transport>", f"{part}_tpdo_latency_cycles", f"expected 0..8 SYNC periods, got {value}")
+            self.latency_cycles[part] = int(value)
+        self.latency_cycles["demand"] = self.latency_cycles["drive"]
         self.emcy_warning_prefixes = _emcy_prefixes(emcy_warning_codes)
         self._drive_od = _load_object_dictionary("drive_eds", self.drive_eds, self.drive_node_id)
         self._encoder_od = _load_object_dictionary("encoder_eds", self.encoder_eds, self.encoder_node_id)
@@ -180,7 +188,9 @@ class CanOpenTransport(Transport):
                 "[encoder]; use the vendor's EDS"))
         self.trace_path = check_trace_path(trace_path)
         self._trace = None
-        self.load = bus_load(CYCLE_FRAME_BYTES, 1.0 / self.sample_period_s, self.bitrate)
+        self._checks_latency = {0x6062, 0x1801, 0x1A01} <= set(self._drive_od)
+        frames = CYCLE_FRAME_BYTES + ((DEMAND_TPDO_BYTES,) if self._checks_latency else ())
+        self.load = bus_load(frames, 1.0 / self.sample_period_s, self.bitrate)
         if self.load.load > 1.0:
             raise ConfigError("<transport>", "bitrate", (
                 f"{self.bitrate} bit/s cannot carry {1 / self.sample_period_s:g} Hz: one cycle takes "
@@ -191,6 +201,7 @@ class CanOpenTransport(Transport):
         self._encoder = None
         self._rpdo: PdoLayout | None = None
         self._drive_tpdo: PdoLayout | None = None
+        self._demand_tpdo: PdoLayout | None = None
         self._encoder_tpdo: PdoLayout | None = None
         self._mode = cia402.CYCLIC_SYNCHRONOUS_POSITION_MODE
         self._last_target_counts = 0
@@ -283,6 +294,7 @@ class CanOpenTransport(Transport):
                                              0x180 + self.drive_node_id)
             self._encoder_tpdo = self._map_pdo(encoder.tpdo, "encoder", [(0x6004, self._encoder_value_bits())],
                                                0x180 + self.encoder_node_id)
+            self._demand_tpdo = self._map_demand_tpdo(drive)
             if self.trace_path is None:  # the PDOs' COB-IDs as read back (a static PDO keeps its own)
                 self.network.bus.set_filters(self._receive_filters())
             self._check_encoder(encoder)
@@ -290,6 +302,8 @@ class CanOpenTransport(Transport):
             self._start_sync()
             drive.tpdo[1].add_callback(self._on_drive_tpdo)
             encoder.tpdo[1].add_callback(self._on_encoder_tpdo)
+            if self._demand_tpdo is not None:
+                drive.tpdo[2].add_callback(self._on_demand_tpdo)
             for role, node in (("drive", drive), ("encoder", encoder)):
                 node.emcy.add_callback(lambda entry, role=role, node_id=node.id: self._on_emcy(role, node_id, entry))
                 node.nmt.state = "OPERATIONAL"
@@ -413,7 +427,8 @@ class CanOpenTransport(Transport):
         cob_ids = [SYNC_COB_ID]
         for node_id in (self.drive_node_id, self.encoder_node_id):
             cob_ids += [0x80 + node_id, 0x180 + node_id, 0x580 + node_id, 0x700 + node_id]
-        cob_ids += [layout.cob_id for layout in (self._rpdo, self._drive_tpdo, self._encoder_tpdo) if layout is not None]
+        cob_ids += [layout.cob_id for layout in (self._rpdo, self._drive_tpdo, self._demand_tpdo, self._encoder_tpdo)
+                    if layout is not None]
         return [{"can_id": cob_id, "can_mask": 0x7FF, "extended": False}
                 for cob_id in sorted(set(cob_ids))] + ERROR_FRAME_FILTERS
 
@@ -460,16 +475,16 @@ class CanOpenTransport(Transport):
             time.sleep(max(self.timing.poll_interval_s, 0.01))
         drive.sdo[0x6040].raw = cia402.CONTROLWORD_ENABLE_OPERATION
 
-    def _map_pdo(self, pdos: Any, role: str, needed: list[tuple[int, int]], cob_id: int) -> PdoLayout:
-        """Map PDO 1 of ``pdos`` to the ``needed`` objects ``(index, bits)``, synchronous (transmission type
+    def _map_pdo(self, pdos: Any, role: str, needed: list[tuple[int, int]], cob_id: int, number: int = 1) -> PdoLayout:
+        """Map PDO ``number`` of ``pdos`` to the ``needed`` objects ``(index, bits)``, synchronous (transmission type
         1), then read its communication and mapping parameters back from the device: a device with static
         PDOs refuses the writes (or canopen skips entries its EDS marks read-only), and what the master
         decodes must be what the device sends. A layout that carries the needed objects is used as it is;
         one that does not is refused naming the object."""
         import canopen
 
-        pdo = pdos[1]
-        kind = "RPDO1" if pdo.com_record.od.index < 0x1800 else "TPDO1"
+        pdo = pdos[number]
+        kind = f"{'RPDO' if pdo.com_record.od.index < 0x1800 else 'TPDO'}{number}"
         node_id = pdos.node.id
         where = f"{kind} of {role} {node_id} (0x{pdo.com_record.od.index:04X}/0x{pdo.map_array.od.index:04X})"
         pdos.read()
@@ -488,7 +503,7 @@ class CanOpenTransport(Transport):
         device = f"{self.name} {role} {node_id}"
         if not pdo.enabled:
             raise DeviceFault(device, None, f"{where} stays disabled after configuration (COB-ID bit 31 set)")
-        if kind == "TPDO1" and pdo.trans_type != 1:
+        if kind.startswith("TPDO") and pdo.trans_type != 1:
             raise DeviceFault(device, None, (
                 f"{where} is sent with transmission type {pdo.trans_type} (0x{pdo.com_record.od.index:04X}:02, "
                 "not writable on this device); the master needs 1, an answer to every SYNC: set it with the "
@@ -501,12 +516,23 @@ class CanOpenTransport(Transport):
             if layout.fields[index][1] * 8 < bits:
                 raise DeviceFault(device, None, (
                     f"{where} maps only {layout.fields[index][1] * 8} bits of 0x{index:04X}; the master needs {bits}"))
-        if kind == "RPDO1" and set(layout.fields) - {0x607A}:
+        if kind.startswith("RPDO") and set(layout.fields) - {0x607A}:
             extra = ", ".join(f"0x{index:04X}" for index in sorted(set(layout.fields) - {0x607A}))
             raise DeviceFault(device, None, (
                 f"{where} maps {extra} besides the target 0x607A (not writable on this device); the master sends "
                 "only the target"))
         return layout
+
+    def _map_demand_tpdo(self, drive: Any) -> PdoLayout | None:
+        """Drive TPDO2 = 0x6062 (position demand value: the target the drive applied at that SYNC), for the
+        latency check; a drive that cannot map it is streamed without the check (noted in ``warnings``)."""
+        if not self._checks_latency:
+            return None
+        try:
+            return self._map_pdo(drive.tpdo, "drive", [(0x6062, 32)], 0x280 + self.drive_node_id, number=2)
+        except DeviceFault as err:
+            self.warnings.append(f"drive {self.drive_node_id}: the TPDO latency is not checked ({err})")
+            return None
 
     def _encoder_value_bits(self) -> int:
         """Bits of 0x6004 the configured encoder needs in its TPDO."""
@@ -602,6 +628,14 @@ class CanOpenTransport(Transport):
                     self._emcy = ("drive", self.drive_node_id, 0)
                     self._fault_sample = self._device_sample
                 self._arrived.notify_all()
+
+    def _on_demand_tpdo(self, pdo: Any) -> None:
+        try:
+            demand = self._demand_tpdo.value(pdo.data, 0x6062, signed=True)
+        except ValueError:
+            self.frame_errors += 1
+            return
+        self._file("demand", demand, pdo.timestamp)
 
     def _on_encoder_tpdo(self, pdo: Any) -> None:
         try:
@@ -708,17 +742,21 @@ class CanOpenTransport(Transport):
         count = self._sync_before(timestamp)
         if count is None or self._origin is None:
             return  # before streaming (the drive's TPDOs run from NMT operational on)
-        seq = count - self.tpdo_latency_cycles - self._origin
+        seq = count - self.latency_cycles[part] - self._origin
         if seq < 0:
             return
         parts = self._parts.setdefault(seq, {})
         parts[part] = value
         # complete: report the sample; a node answering the same SYNC again (a repeated frame, or a frame
         # delayed past the next SYNC and filed there) reports it again, and the runner flags it DUPLICATE
-        if "drive" in parts and "encoder" in parts:
+        if "drive" in parts and "encoder" in parts and ("demand" in parts or self._demand_tpdo is None):
             statusword, actual = parts["drive"]
             counts, held = self._applied.get(seq, (None, False))
-            ambiguous = bool(self._ambiguous) and (seq + self._origin + self.tpdo_latency_cycles) in self._ambiguous
+            ambiguous = (bool(self._ambiguous)
+                         and any(seq + self._origin + latency in self._ambiguous for latency in self.latency_cycles.values()))
+            if "demand" in parts and counts is not None and parts["demand"] != counts:
+                ambiguous = True
+                self._check_latency(seq, parts["demand"])
             self._ready.append(FeedbackSample(
                 seq=seq, encoder_counts=parts["encoder"], load_angle_rad=self._decode_encoder(parts["encoder"]),
                 drive_position_rad=self.drive.rad_from_counts(actual), statusword=statusword,
@@ -729,6 +767,20 @@ class CanOpenTransport(Transport):
         if len(self._parts) > 512:
             for old in sorted(self._parts)[:256]:
                 del self._parts[old]
+
+    def _check_latency(self, seq: int, demand: int) -> None:
+        """The drive's 0x6062 for sample ``seq`` is not the target in force at its SYNC: if it is an earlier
+        sample's, the drive answers later than ``drive_tpdo_latency_cycles`` says, and every sample would be
+        filed too early: stop, saying what to set."""
+        for late in range(1, 4):
+            earlier = self._applied.get(seq - late)
+            if earlier is not None and earlier[0] == demand and earlier[0] != self._applied[seq][0]:
+                configured = self.latency_cycles["drive"]
+                self._report_fault(DeviceFault(self.drive_label, None, (
+                    f"answers SYNC k after SYNC k + {configured + late}: its position demand value 0x6062 at sample "
+                    f"{seq} is the target of sample {seq - late}; set drive_tpdo_latency_cycles = {configured + late} "
+                    "(and check encoder_tpdo_latency_cycles)")))
+                return
 
     def _target_ignored(self, statusword: int) -> bool:
         """CiA 402 cyclic synchronous position: statusword bit 12 clear in OPERATION ENABLED means the

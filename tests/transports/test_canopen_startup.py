@@ -78,12 +78,13 @@ def test_the_cycle_fits_the_bus_and_a_rate_it_cannot_carry_is_rejected(tmp_path)
     text = (CONFIGS / "sim_canopen.toml").read_text().replace("late_tolerance_s = 0.0005", "late_tolerance_s = 0.0001")
     text = text.replace('plant = "plants/', f'plant = "{CONFIGS}/plants/')
     path.write_text(text.replace("sample_rate_hz = 1000.0", "sample_rate_hz = 3000.0"))
-    with pytest.raises(ConfigError, match=r"\[transport.bitrate\] 1000000 bit/s cannot carry 3000 Hz: one cycle takes 372 bit \(112% load\); "
-                                          r"the limit is 2688 Hz"):
+    # with the drive's TPDO2 (0x6062 position demand value, 4 bytes: 98 bit) for the latency check: 470 bit
+    with pytest.raises(ConfigError, match=r"\[transport.bitrate\] 1000000 bit/s cannot carry 3000 Hz: one cycle takes 470 bit \(141% load\); "
+                                          r"the limit is 2128 Hz"):
         load_rig_config(path)
     path.write_text(path.read_text().replace("bitrate = 1000000", "bitrate = 500000").replace(
         "sample_rate_hz = 3000.0", "sample_rate_hz = 1000.0"))
-    assert load_rig_config(path).sample_rate_hz == 1000.0  # 74% of 500 kbit/s
+    assert load_rig_config(path).sample_rate_hz == 1000.0  # 94% of 500 kbit/s
 
 
 def test_the_simulated_bus_reports_its_load(tmp_path, no_leaks):
@@ -203,7 +204,7 @@ def test_a_target_whose_rpdo_reaches_the_bus_after_its_sync_is_held():
 
 def test_a_configured_tpdo_latency_files_each_answer_under_the_sync_it_answers():
     """A device that answers SYNC k after SYNC k + 1 (tpdo_latency_cycles = 1)."""
-    transport = _streaming_canopen_transport(tpdo_latency_cycles=1)
+    transport = _streaming_canopen_transport(drive_tpdo_latency_cycles=1, encoder_tpdo_latency_cycles=1)
     transport._origin = 1
     for bus_time in (5.000, 5.001):  # samples 0, 1
         transport._on_sync_echo(0x80, b"", bus_time)
