@@ -17,6 +17,9 @@ close, context manager) is written once here; a backend implements a small seam:
     The drive's error code (CiA 402 0x603F) for a message, or None where the link cannot read it.
 ``_after_enabled()``
     Anything that needs the drive enabled before streaming (homing); may return a new actual position.
+``_before_stop()``
+    Make the drive reachable for the stop's controlwords (CANopen: a node that went to NMT STOPPED on a
+    fault answers no SDO until it is pre-operational again). Best effort.
 ``_release_devices()``
     After the stop: take the devices off the cyclic traffic (CANopen: NMT pre-operational). Best effort.
 ``_send(setpoint)``
@@ -336,6 +339,10 @@ class Transport(ABC):
         times: it runs once per bring-up."""
         if self._enabling_sent and self.stop_report is None:
             self._state = "stopping"
+            try:
+                self._before_stop()
+            except Exception:  # noqa: BLE001 - the stop is attempted anyway
+                pass
             self.stop_report = cia402.quick_stop_then_disable(self._write_controlword, self._read_statusword,
                                                               timing=self.timing)
             self._release()
@@ -429,6 +436,9 @@ class Transport(ABC):
         return None
 
     def _after_enabled(self) -> float | None:
+        return None
+
+    def _before_stop(self) -> None:
         return None
 
     def _release_devices(self) -> None:

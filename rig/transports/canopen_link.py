@@ -205,7 +205,7 @@ class CanOpenTransport(Transport):
         self._encoder_tpdo: PdoLayout | None = None
         self._mode = cia402.CYCLIC_SYNCHRONOUS_POSITION_MODE
         self._last_target_counts = 0
-        self._watch_nmt = False  # from OPERATION ENABLED on, a heartbeat not OPERATIONAL stops the run
+        self._watching = False  # from OPERATION ENABLED on: a FAULT statusword or a heartbeat not OPERATIONAL stops the run
         self._heartbeats: dict[int, tuple[float, int]] = {}  # node-ID -> (host receive time, NMT state)
         # the bus order of SYNCs and RPDOs, as the interface echoes them (see "Streaming" in the docstring)
         self._echo_probe = threading.Event()
@@ -335,12 +335,19 @@ class CanOpenTransport(Transport):
                 self._set_mode(self._drive, cia402.CYCLIC_SYNCHRONOUS_POSITION_MODE)
                 self._wait_for_mode(self._drive)
                 moved_to = self._hold_at_actual_position(self._drive)
-        self._watch_nmt = True
+        self._watching = True
         return moved_to
+
+    def _before_stop(self) -> None:
+        """A drive whose heartbeat says STOPPED (CiA 301 0x1029 error behaviour) answers no SDO: bring it to
+        pre-operational first, so that the quick stop and disable reach it."""
+        last = self._heartbeats.get(self.drive_node_id)
+        if last is not None and last[1] == 0x04 and self._drive is not None:
+            self._drive.nmt.state = "PRE-OPERATIONAL"
 
     def _release_devices(self) -> None:
         """NMT pre-operational for both nodes: no more PDOs, SDO still answers."""
-        self._watch_nmt = False
+        self._watching = False
         for node in (self._drive, self._encoder):
             if node is not None and self.network is not None:
                 try:
@@ -621,8 +628,8 @@ class CanOpenTransport(Transport):
             self.frame_errors += 1  # a TPDO shorter than its mapping (CiA 301: a PDO length error)
             return
         self._file("drive", (statusword, actual), pdo.timestamp)
-        if cia402.state_from_statusword_or_none(statusword) in (cia402.DriveState.FAULT,
-                                                                 cia402.DriveState.FAULT_REACTION_ACTIVE):
+        if self._watching and cia402.state_from_statusword_or_none(statusword) in (
+                cia402.DriveState.FAULT, cia402.DriveState.FAULT_REACTION_ACTIVE):  # before: the bring-up's
             with self._arrived:
                 if self._emcy is None:
                     self._emcy = ("drive", self.drive_node_id, 0)
@@ -655,7 +662,7 @@ class CanOpenTransport(Transport):
             return
         node_id, state = can_id - 0x700, data[0] & 0x7F
         self._heartbeats[node_id] = (time.monotonic(), state)
-        if self._watch_nmt and state != _NMT_OPERATIONAL:
+        if self._watching and state != _NMT_OPERATIONAL and self._emcy is None:  # an EMCY names the cause better
             role = "drive" if node_id == self.drive_node_id else "encoder"
             self._report_fault(DeviceFault(f"{self.name} {role} {node_id}", None, (
                 f"left OPERATIONAL: its heartbeat says {_NMT_STATES.get(state, f'NMT state 0x{state:02X}')} "
