@@ -192,6 +192,8 @@ def run_experiment(transport: Transport, command_rad: ArrayLike, sink: SampleSin
     command = as_signal("command_rad", command_rad)
     if transport.lead_samples > 0:
         return _run_device_clocked(transport, command, sink, feedback_timeout_s=feedback_timeout_s,
+                                   late_tolerance_s=0.5 * transport.sample_period_s if late_tolerance_s is None
+                                   else float(late_tolerance_s),
                                    pending_cycles=pending_cycles, progress=progress, clock=clock)
     period = transport.sample_period_s
     tolerance = 0.5 * period if late_tolerance_s is None else float(late_tolerance_s)
@@ -332,21 +334,22 @@ def run_experiment(transport: Transport, command_rad: ArrayLike, sink: SampleSin
 
 
 def _run_device_clocked(transport: Transport, command: NDArray[np.float64], sink: SampleSink, *,
-                        feedback_timeout_s: float, pending_cycles: int,
+                        feedback_timeout_s: float, late_tolerance_s: float, pending_cycles: int,
                         progress: Callable[[int, int], None] | None, clock: Callable[[], float]) -> RunSummary:
     """:func:`run_experiment` on a link whose device owns the sample clock (``lead_samples`` > 0).
 
     A producer and a consumer in one loop, neither of them timed by the host: setpoints are queued as far
     as ``transport.lead_samples`` ahead of the last sample instant the device passed
     (``transport.device_sample``), feedback is filed by its sample number (:class:`SampleLedger`), and
-    rows go to the sink once final. Row k's time is the device's instant k T; a setpoint that missed its
-    instant is logged HELD with the command really in force. A host stall shorter than the lead costs
+    rows go to the sink once final. Row k's time is the device's instant k T (a sample whose instant was
+    off the period by more than ``late_tolerance_s`` is flagged LATE); a setpoint that missed its instant
+    is logged HELD with the command really in force. A host stall shorter than the lead costs
     nothing; a longer one costs HELD samples, never lost ones. After a failure, the rows of every instant
     the device passed are written (up to the faulted sample for a device fault); setpoints queued for
     instants that never came are not samples and are not written.
     """
     period = transport.sample_period_s
-    ledger = SampleLedger(period, pending_cycles)
+    ledger = SampleLedger(period, pending_cycles, late_tolerance_s)
     values = command.tolist()
     total = len(values)
     cpu_start, wall_start = time.process_time(), clock()
@@ -379,7 +382,7 @@ def _run_device_clocked(transport: Transport, command: NDArray[np.float64], sink
                 next_seq += 1
             sample = transport.receive(period)
             now = clock()
-            if sample is not None:
+            while sample is not None:  # everything that has arrived is filed before any row is final
                 state = ledger.file(sample)
                 last_feedback = last_answer = now
                 if math.isnan(first_answer):
@@ -388,7 +391,8 @@ def _run_device_clocked(transport: Transport, command: NDArray[np.float64], sink
                     raise DeviceFault(f"{transport.name} drive", None, (
                         f"left OPERATION ENABLED without a fault at sample {sample.seq} (now {state.name}: enable "
                         "input or safe torque off lost?); it no longer follows the targets"))
-            elif now - last_feedback > feedback_timeout_s:
+                sample = transport.receive(0.0)
+            if now - last_feedback > feedback_timeout_s:
                 raise TransportError(f"{transport.name}: no feedback for {now - last_feedback:.3g} s "
                                      f"(watchdog {feedback_timeout_s:g} s), stopping at sample "
                                      f"{max(transport.device_sample, 0)}")
@@ -421,7 +425,7 @@ def _run_device_clocked(transport: Transport, command: NDArray[np.float64], sink
     answered = written - ledger.counts["lost"]
     rate = (answered - 1) / (last_answer - first_answer) if answered > 1 and last_answer > first_answer else 0.0
     held = ledger.counts["held"]
-    return RunSummary(samples=written, lost=ledger.counts["lost"], late=held, duplicate=ledger.counts["duplicate"],
+    return RunSummary(samples=written, lost=ledger.counts["lost"], late=ledger.counts["late"], duplicate=ledger.counts["duplicate"],
                       stale=ledger.counts["stale"], frame_errors=transport.frame_errors, rate_hz=rate,
                       send_lateness_s=np.zeros(0), cpu_s=time.process_time() - cpu_start, wall_s=clock() - wall_start,
                       not_followed=ledger.counts["not_followed"], held=held, min_lead_s=transport.min_lead_s,

@@ -7,7 +7,7 @@ measured and which target was really in force. The ledger turns that into log ro
 
 * a row is opened when its setpoint is queued (``command_rad`` = the setpoint, flags = LOST);
 * :meth:`SampleLedger.file` fills it from the feedback: LOST cleared, HELD and the command actually
-  applied when the setpoint missed its instant, NOT_FOLLOWED when the drive ignored it, AMBIGUOUS when
+  applied when the setpoint missed its instant, LATE when the instant itself was off the period, NOT_FOLLOWED when the drive ignored it, AMBIGUOUS when
   the instant it answers is uncertain, FAULT in a fault state, DUPLICATE when a second answer comes for
   the same sample;
 * :meth:`SampleLedger.next_final` / :meth:`SampleLedger.release` hand rows to the log oldest first, once
@@ -28,9 +28,9 @@ from rig.transports.base import FeedbackSample
 
 __all__ = ["LedgerRow", "SampleLedger"]
 
-_LOST, _DUPLICATE, _FAULT, _NOT_FOLLOWED, _HELD, _AMBIGUOUS = (int(flag) for flag in (
-    SampleFlag.LOST, SampleFlag.DUPLICATE, SampleFlag.FAULT, SampleFlag.NOT_FOLLOWED, SampleFlag.HELD,
-    SampleFlag.AMBIGUOUS))
+_LOST, _LATE, _DUPLICATE, _FAULT, _NOT_FOLLOWED, _HELD, _AMBIGUOUS = (int(flag) for flag in (
+    SampleFlag.LOST, SampleFlag.LATE, SampleFlag.DUPLICATE, SampleFlag.FAULT, SampleFlag.NOT_FOLLOWED,
+    SampleFlag.HELD, SampleFlag.AMBIGUOUS))
 _FAULT_STATES = (DriveState.FAULT, DriveState.FAULT_REACTION_ACTIVE)
 
 
@@ -56,12 +56,16 @@ class SampleLedger:
         The device's sample period: row k is at time k T.
     pending_cycles
         A row is final this many sample instants after its own.
+    late_tolerance_s
+        A sample whose instant was further than this off the period is flagged LATE (its value is real,
+        its time not exactly k T).
     """
 
     sample_period_s: float
     pending_cycles: int
+    late_tolerance_s: float = float("inf")
     counts: dict[str, int] = field(default_factory=lambda: dict.fromkeys(
-        ("lost", "held", "duplicate", "stale", "not_followed"), 0))
+        ("lost", "held", "late", "duplicate", "stale", "not_followed"), 0))
     _rows: dict[int, LedgerRow] = field(default_factory=dict)
     _order: collections.deque[int] = field(default_factory=collections.deque)
     _answered: set[int] = field(default_factory=set)
@@ -89,6 +93,8 @@ class SampleLedger:
         row.flags &= ~_LOST
         if sample.held:
             row.flags |= _HELD
+        if abs(sample.instant_error_s) > self.late_tolerance_s:
+            row.flags |= _LATE
         if sample.applied_position_rad is not None:
             row.command_rad = sample.applied_position_rad  # the data stay true: the command really applied
         if sample.target_ignored:
@@ -124,6 +130,7 @@ class SampleLedger:
         self._answered.discard(seq)
         self.counts["lost"] += bool(row.flags & _LOST)
         self.counts["held"] += bool(row.flags & _HELD)
+        self.counts["late"] += bool(row.flags & (_HELD | _LATE))
         self.counts["not_followed"] += bool(row.flags & _NOT_FOLLOWED)
 
     @property

@@ -25,6 +25,8 @@ item                  wires            fault
 ``lag=MS@K``          serial           from sample K on, every reply leaves MS milliseconds late
 ``unplug@K``          serial           the device closes its port at sample K (a USB adapter pulled out);
                                        its own link watchdog then disables the drive
+``stall=MS@K``        all (host)       the driver's own thread pauses MS ms once sample K is logged (a
+                                       garbage-collector pause, a busy desktop); may be given several times
 ====================  ===============  =====================================================================
 
 The plan is deterministic for a given ``seed``, so a faulty run can be repeated exactly.
@@ -57,6 +59,7 @@ FAULT_ITEMS: dict[str, tuple[str, frozenset[str]]] = {
     "truncate": ("truncate=P: a reply cut short with probability P", frozenset({"serial"})),
     "lag": ("lag=MS@K: every reply from sample K on leaves MS ms late", frozenset({"serial"})),
     "unplug": ("unplug@K: the device closes its port at sample K", frozenset({"serial"})),
+    "stall": ("stall=MS@K: the driver's thread pauses MS ms at sample K", frozenset({"canopen", "can", "serial"})),
 }
 
 
@@ -77,6 +80,7 @@ class FaultPlan:
     truncate_probability: float = 0.0
     reply_lag: tuple[float, int] | None = None  # (seconds, first sample)
     unplug_at: int | None = None
+    host_stalls: tuple[tuple[int, float], ...] = ()  # (sample, seconds): the driver's thread pauses (not a device fault)
     seed: int = 0
 
     @property
@@ -90,7 +94,8 @@ class FaultPlan:
                 "bus_off": self.error_frame_at is not None and self.error_frame_at[0] == CAN_ERR_BUSOFF,
                 "garbage": self.garbage_probability > 0,
                 "bitflip": self.bitflip_probability > 0,
-                "truncate": self.truncate_probability > 0, "lag": self.reply_lag is not None, "unplug": self.unplug_at is not None}
+                "truncate": self.truncate_probability > 0, "lag": self.reply_lag is not None, "unplug": self.unplug_at is not None,
+                "stall": bool(self.host_stalls)}
         return frozenset(name for name, on in used.items() if on)
 
     def lost_feedback(self, num_samples: int) -> frozenset[int]:
@@ -156,6 +161,7 @@ def parse_fault_spec(spec: str, *, seed: int = 0) -> FaultPlan:
     """
     fields: dict[str, Any] = {"seed": int(seed)}
     bursts: list[tuple[int, int]] = []
+    stalls: list[tuple[int, float]] = []
     for item in (part.strip() for part in spec.split(",")):
         if not item:
             continue
@@ -164,9 +170,10 @@ def parse_fault_spec(spec: str, *, seed: int = 0) -> FaultPlan:
         if name not in FAULT_ITEMS:
             valid = "; ".join(text for text, _ in FAULT_ITEMS.values())
             raise ValueError(f"--sim-faults: unknown fault {name!r} in {item!r}; valid items: {valid}")
-        needs_value = name in ("drop", "burst", "fault", "delay", "sdo_abort", "garbage", "bitflip", "truncate", "lag")
+        needs_value = name in ("drop", "burst", "fault", "delay", "sdo_abort", "garbage", "bitflip", "truncate", "lag",
+                               "stall")
         needs_sample = name in ("burst", "fault", "heartbeat", "disable", "bus_error", "bus_off", "delay", "lag",
-                                "unplug")
+                                "unplug", "stall")
         if needs_value != bool(value) or needs_sample != bool(at):
             raise ValueError(f"--sim-faults: {item!r} is malformed; expected {FAULT_ITEMS[name][0]}")
         sample = _number(item, at, int, 0, 2**31) if at else None
@@ -188,6 +195,8 @@ def parse_fault_spec(spec: str, *, seed: int = 0) -> FaultPlan:
             fields["reply_lag"] = (_number(item, value, float, 0.0, 10_000.0) / 1000.0, sample)
         elif name == "sdo_abort":
             fields["refused_sdo_index"] = _number(item, value, int, 0x1000, 0xFFFF)
+        elif name == "stall":
+            stalls.append((sample, _number(item, value, float, 0.0, 60_000.0) / 1000.0))
         else:
             fields["unplug_at"] = sample
-    return dataclasses.replace(FaultPlan(**fields), bursts=tuple(bursts))
+    return dataclasses.replace(FaultPlan(**fields), bursts=tuple(bursts), host_stalls=tuple(sorted(stalls)))

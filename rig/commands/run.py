@@ -12,6 +12,7 @@ import contextlib
 import json
 import math
 import sys
+import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -52,7 +53,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--sim-faults-seed", metavar="N", type=int, default=0,
                         help="seed of the random faults (default 0): the same seed repeats the same faults")
     parser.add_argument("--json", action="store_true",
-                        help='print {"log", "samples", "lost", "late", "rate_hz"} as JSON')
+                        help='print {"log", "samples", "lost", "late", "rate_hz", "held", "min_lead_s", '
+                             '"not_followed", "duplicate", "frame_errors", "warnings", "stop"} as JSON')
     parser.set_defaults(handler=run)
 
 
@@ -254,7 +256,6 @@ def run(args: argparse.Namespace) -> int:
             raise ValueError(f"--sim-faults: {config.source} is a real rig (no [simulation] table); faults are "
                              "injected only into simulated devices")
         faults = parse_fault_spec(args.sim_faults, seed=args.sim_faults_seed)
-    progress_bar = None
     with contextlib.ExitStack() as stack:
         gearbox = None
         url = config.url
@@ -267,20 +268,27 @@ def run(args: argparse.Namespace) -> int:
         injected = None if faults is None else {"spec": args.sim_faults, "seed": args.sim_faults_seed}
         log = LogWriter(args.out, experiment_log_metadata(config, excitation, gearbox, command.size, injected),
                         flush_every=10, flush_interval_s=0.05)
-        progress = None
+        bar = None
         if not args.json and sys.stderr.isatty():
             from tqdm import tqdm
 
-            progress_bar = stack.enter_context(tqdm(total=command.size, unit="sample", file=sys.stderr))
+            bar = stack.enter_context(tqdm(total=command.size, unit="sample", file=sys.stderr))
+        stalls = list(faults.host_stalls) if faults is not None else []
 
-            def progress(done: int, late: int) -> None:
-                if done % 50 == 0 or done == command.size:
-                    progress_bar.n = done
-                    progress_bar.set_postfix(late=late, refresh=True)
+        def progress(done: int, late: int) -> None:
+            while stalls and done >= stalls[0][0]:  # --sim-faults stall=MS@K: the driver's own thread pauses
+                time.sleep(stalls.pop(0)[1])
+            if bar is not None and (done % 50 == 0 or done == command.size):
+                bar.n = done
+                bar.set_postfix(late=late, refresh=True)
         summary = run_experiment(transport, command, log, feedback_timeout_s=config.feedback_timeout_s,
-                                 late_tolerance_s=config.late_tolerance_s, progress=progress)
+                                 late_tolerance_s=config.late_tolerance_s,
+                                 progress=progress if bar is not None or stalls else None)
     result = {"log": str(args.out), "samples": summary.samples, "lost": summary.lost, "late": summary.late,
-              "rate_hz": summary.rate_hz}
+              "rate_hz": summary.rate_hz, "held": summary.held,
+              "min_lead_s": None if math.isnan(summary.min_lead_s) else summary.min_lead_s,
+              "not_followed": summary.not_followed, "duplicate": summary.duplicate,
+              "frame_errors": summary.frame_errors, "warnings": list(summary.warnings), "stop": summary.stop}
     if args.json:
         print(json.dumps(result))
     else:
@@ -288,9 +296,18 @@ def run(args: argparse.Namespace) -> int:
         print(f"experiment  {excitation.name} ({excitation.kind}, seed {excitation.seed})")
         print(f"samples     {summary.samples} at {config.sample_rate_hz:g} Hz (achieved {summary.rate_hz:.6g} Hz)")
         print(f"lost        {summary.lost}")
-        print(f"late        {summary.late}")
+        if math.isnan(summary.min_lead_s):
+            print(f"late        {summary.late}")
+        else:  # the device owns the clock: a late setpoint is a HELD sample, logged with the command applied
+            print(f"held        {summary.held} (setpoints that missed their instant; smallest lead "
+                  f"{1e3 * summary.min_lead_s:.3g} ms)")
         print(f"duplicate   {summary.duplicate}")
+        if summary.not_followed:
+            print(f"not followed {summary.not_followed} (the drive ignored the target: statusword bit 12 clear)")
         print(f"frame errors {summary.frame_errors} (CRC failures, malformed or CAN error frames; ridden through)")
+        for warning in summary.warnings:
+            print(f"warning     {warning}")
+        print(f"stop        {summary.stop}")
         print(f"log         {Path(args.out)}")
     sys.stdout.flush()
     return exit_codes.SUCCESS

@@ -125,6 +125,9 @@ class FeedbackSample:
         Which instant this reading answers is not certain (CANopen: its SYNC and the next came closer than
         the bus time of one cycle, so the answers may have been pushed behind the next SYNC); the runner
         flags the sample AMBIGUOUS (unusable) instead of filing it silently under a guess.
+    instant_error_s
+        On a device-clocked link: how far this sample's instant was off the period (its SYNC's spacing
+        from the one before minus the period); the runner flags the sample LATE beyond its tolerance.
     """
 
     seq: int
@@ -137,6 +140,7 @@ class FeedbackSample:
     held: bool = False
     applied_position_rad: float | None = None
     ambiguous: bool = False
+    instant_error_s: float = 0.0
 
 
 @dataclass(frozen=True)

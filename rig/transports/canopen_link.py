@@ -209,6 +209,7 @@ class CanOpenTransport(Transport):
         self._heartbeats: dict[int, tuple[float, int]] = {}  # node-ID -> (host receive time, NMT state)
         # the bus order of SYNCs and RPDOs, as the interface echoes them (see "Streaming" in the docstring)
         self._echo_probe = threading.Event()
+        self._sync_task: Any = None
         self._sync_count = 0  # SYNCs seen on the bus since the producer started
         self._syncs: collections.deque[tuple[float, int]] = collections.deque(maxlen=4096)  # (bus time, count)
         self._unfiled: list[tuple[str, Any, float, float]] = []  # TPDOs after the last SYNC: filed at the next
@@ -218,6 +219,7 @@ class CanOpenTransport(Transport):
         self._rpdo_sent: collections.deque[tuple[int, int]] = collections.deque()  # (sample, counts), echo due
         self._in_force: tuple[int, int] = (-1, 0)  # (sample, counts) of the last RPDO on the bus
         self._applied: dict[int, tuple[int, bool]] = {}  # sample -> (target counts in force, held)
+        self._instant_errors: dict[int, float] = {}  # sample -> SYNC spacing minus the period (s)
         self._ambiguous: set[int] = set()  # SYNC counts whose answers cannot be filed for certain
         self._device_sample = -1
         self._fault_sample: int | None = None  # the last sample instant passed when a fault was reported
@@ -440,13 +442,29 @@ class CanOpenTransport(Transport):
                 for cob_id in sorted(set(cob_ids))] + ERROR_FRAME_FILTERS
 
     def _start_sync(self) -> None:
+        """See :meth:`_start_sync_producer`; waits for the first SYNC on the bus."""
+        self._echo_probe.clear()
+        if self.sync_producer == "master":
+            self._start_sync_producer()
+        self._await_first_sync()
+
+    def _start_sync_producer(self) -> None:
+        """SYNC from a cyclic task at the sample period: python-can's ``send_periodic`` where the interface
+        or the kernel does it (SocketCAN's broadcast manager: hrtimer precision, no Python in the timing),
+        else our own :class:`_SyncThread`, which, unlike python-can's thread fallback, never sends two SYNCs
+        closer than one cycle's bus time when it catches up after a stall (a SYNC wins arbitration over the
+        answers to the one before it, which would then be filed under the wrong sample)."""
+        task = self.network.bus.send_periodic(_sync_message(), self.sample_period_s)
+        if type(task).__name__ == "ThreadBasedCyclicSendTask":
+            task.stop()
+            task = _SyncThread(self.network.bus, self.sample_period_s, self.min_cycle_s)
+        self._sync_task = task
+
+    def _await_first_sync(self) -> None:
         """Start the SYNC producer (``sync_producer = "master"``: a cyclic task at the sample period, from
         now until after the stop) and wait for the first SYNC on the bus: the master numbers the samples by
         the SYNCs it sees, and files each TPDO by its bus timestamp between two of them, so it needs its
         own frames echoed back (or the external producer's SYNC)."""
-        self._echo_probe.clear()
-        if self.sync_producer == "master":
-            self.network.sync.start(self.sample_period_s)
         if not self._echo_probe.wait(SYNC_ECHO_TIMEOUT_S + 10 * self.sample_period_s):
             if self.sync_producer == "external":
                 raise TransportError(
@@ -460,8 +478,9 @@ class CanOpenTransport(Transport):
                 "each TPDO to its SYNC")
 
     def _stop_sync(self) -> None:
-        if self.network is not None and self.sync_producer == "master":
-            self.network.sync.stop()
+        task, self._sync_task = self._sync_task, None
+        if task is not None:
+            task.stop()
 
     def _home(self, drive: Any) -> None:
         """Homing mode: start with bit 4, wait for "homing attained" (statusword bit 12; bit 13 is a homing
@@ -697,6 +716,8 @@ class CanOpenTransport(Transport):
                 sample = count - self._origin
                 in_force_sample, counts = self._in_force
                 self._applied[sample] = (counts, in_force_sample != sample)
+                if len(self._syncs) > 1:  # how far this instant is off the period (a thread-driven SYNC's jitter)
+                    self._instant_errors[sample] = timestamp - self._syncs[-2][0] - self.sample_period_s
                 queued = self._queued_at.pop(sample, None)
                 if queued is not None:
                     self._min_lead_s = min(self._min_lead_s, time.perf_counter() - queued)
@@ -715,6 +736,7 @@ class CanOpenTransport(Transport):
             if len(self._applied) > 4096:
                 for old in sorted(self._applied)[:2048]:
                     del self._applied[old]
+                    self._instant_errors.pop(old, None)
 
     def _put_target_on_bus(self, sample: int) -> None:
         counts = self._queue.pop(sample)
@@ -769,7 +791,7 @@ class CanOpenTransport(Transport):
                 drive_position_rad=self.drive.rad_from_counts(actual), statusword=statusword,
                 host_time_s=received, target_ignored=self._target_ignored(statusword), held=held,
                 applied_position_rad=None if counts is None else self.drive.rad_from_counts(counts),
-                ambiguous=ambiguous))
+                ambiguous=ambiguous, instant_error_s=self._instant_errors.get(seq, 0.0)))
             self._arrived.notify_all()
         if len(self._parts) > 512:
             for old in sorted(self._parts)[:256]:
@@ -955,6 +977,46 @@ def _emcy_prefixes(text: str) -> tuple[str, ...]:
 def _is_warning(code: int, prefixes: tuple[str, ...]) -> bool:
     digits = f"{code:04x}"
     return any(digits.startswith(prefix) for prefix in prefixes)
+
+
+def _sync_message() -> Any:
+    import can
+
+    return can.Message(arbitration_id=SYNC_COB_ID, data=b"", is_extended_id=False)
+
+
+class _SyncThread:
+    """A SYNC producer thread for interfaces without periodic sending of their own: SYNC k is due at
+    t_0 + k T; one that comes late goes out as soon as possible, but never closer than ``min_spacing_s``
+    (one cycle's bus time) to the one before, and the following ones return to the grid. The master sees
+    each SYNC's real instant in its echo's timestamp and flags samples that are off the period (LATE)."""
+
+    def __init__(self, bus: Any, period_s: float, min_spacing_s: float) -> None:
+        self.bus, self.period_s, self.min_spacing_s = bus, period_s, min_spacing_s
+        self._stopped = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="canopen-sync", daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        message = _sync_message()
+        start = last = time.perf_counter()
+        k = 0
+        while not self._stopped.is_set():
+            due = max(start + k * self.period_s, last + self.min_spacing_s)
+            remaining = due - time.perf_counter()
+            if remaining > 0 and self._stopped.wait(remaining):
+                return
+            try:
+                self.bus.send(message)
+            except Exception:  # noqa: BLE001 - the bus is going down; the master sees SYNCs stop
+                return
+            last = time.perf_counter()
+            k += 1
+
+    def stop(self) -> None:
+        self._stopped.set()
+        if self._thread is not threading.current_thread():
+            self._thread.join(timeout=1.0)
 
 
 class _ErrorFrameListener:

@@ -227,3 +227,23 @@ def test_error_frames_are_counted_in_the_summary(tmp_path, no_leaks):
         summary = run_experiment(transport, excitation(60), ListSink(), feedback_timeout_s=config.feedback_timeout_s,
                                  late_tolerance_s=config.late_tolerance_s)
     assert summary.frame_errors == 1 and summary.lost == 0
+
+
+# -- the host stalls (issue 14: the device owns the clock) ------------------------------------------------
+
+def test_a_host_stall_longer_than_the_lead_costs_held_samples_never_lost_ones(tmp_path, capsys, no_leaks):
+    """The driver's own thread pauses 300 ms at sample 100 (the lead is 50 ms = 10 samples at the test
+    rate): the device goes on sampling at its own instants, holding the last target, and every sample of
+    the stall is in the log, flagged HELD, with the command the drive really had."""
+    code, result, err, out = _rig_run("canopen", tmp_path, "stall=300@100", capsys)
+    assert code == exit_codes.SUCCESS, err
+    log = read_log(out)
+    held = np.flatnonzero(log.flags & SampleFlag.HELD)
+    assert result["lost"] == 0 and not np.any(log.flags & SampleFlag.LOST)
+    assert log.num_samples == TEST_SAMPLES and result["held"] == held.size >= 300 * 200 // 1000 - 10 - 5
+    assert np.all(log.command_rad[held] == log.command_rad[held - 1])  # the drive held its previous target
+    assert result["late"] >= result["held"] and result["min_lead_s"] < 0
+
+
+def test_stall_specs_parse_in_sample_order():
+    assert parse_fault_spec("stall=50@5000,stall=20@100").host_stalls == ((100, 0.02), (5000, 0.05))

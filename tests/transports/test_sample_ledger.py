@@ -1,0 +1,85 @@
+"""The runner's sample ledger, scripted: feedback filed by sample number, rows final in order."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from identify.experiment_record import SampleFlag
+from rig.protocols.cia402 import DriveState, statusword_for
+from rig.sample_ledger import SampleLedger
+from rig.transports.base import FeedbackSample
+
+ENABLED = statusword_for(DriveState.OPERATION_ENABLED) | 0x1000
+
+
+def _feedback(seq: int, angle: float = 0.5, **fields) -> FeedbackSample:
+    values = dict(seq=seq, encoder_counts=seq, load_angle_rad=angle, drive_position_rad=0.0, statusword=ENABLED,
+                  host_time_s=0.0)
+    values.update(fields)
+    return FeedbackSample(**values)
+
+
+def _release_all(ledger: SampleLedger, device_sample: int) -> list:
+    rows = []
+    while (row := ledger.next_final(device_sample)) is not None:
+        rows.append((row.seq, row.time_s, row.command_rad, row.angle_rad, row.flags))
+        ledger.release()
+    return rows
+
+
+def test_feedback_out_of_order_fills_its_own_rows_and_rows_leave_in_order_once_final():
+    ledger = SampleLedger(sample_period_s=0.01, pending_cycles=2)
+    for seq in range(4):
+        ledger.open_row(seq, command_rad=0.1 * seq)
+    ledger.file(_feedback(2, angle=2.0))
+    ledger.file(_feedback(0, angle=0.0))
+    assert _release_all(ledger, device_sample=1) == []  # row 0 could still change until instant 2
+    rows = _release_all(ledger, device_sample=3)
+    assert [(row[0], row[1], row[4]) for row in rows] == [(0, 0.0, 0), (1, 0.01, int(SampleFlag.LOST))]
+    assert rows[0][3] == 0.0 and math.isnan(rows[1][3]) and len(ledger) == 2  # rows 2, 3 still open
+    assert ledger.counts["lost"] == 1
+
+
+def test_a_held_sample_logs_the_command_really_applied_and_counts_as_late():
+    ledger = SampleLedger(sample_period_s=0.001, pending_cycles=1)
+    ledger.open_row(0, 1.0)
+    ledger.open_row(1, 2.0)
+    ledger.file(_feedback(0, applied_position_rad=1.0))
+    ledger.file(_feedback(1, held=True, applied_position_rad=1.0))  # setpoint 1 came after its SYNC
+    rows = _release_all(ledger, device_sample=5)
+    assert [(row[2], row[4]) for row in rows] == [(1.0, 0), (1.0, int(SampleFlag.HELD))]
+    assert ledger.counts["held"] == ledger.counts["late"] == 1
+
+
+def test_a_second_answer_marks_the_sample_duplicate_and_an_answer_to_no_open_row_is_stale():
+    ledger = SampleLedger(sample_period_s=0.001, pending_cycles=1)
+    ledger.open_row(0, 0.0)
+    ledger.file(_feedback(0))
+    ledger.file(_feedback(0))
+    ledger.file(_feedback(7))
+    assert ledger.counts["duplicate"] == 1 and ledger.counts["stale"] == 1
+    (row,) = _release_all(ledger, device_sample=3)
+    assert row[4] == int(SampleFlag.DUPLICATE)
+
+
+@pytest.mark.parametrize(("fields", "flag"), [
+    ({"target_ignored": True}, SampleFlag.NOT_FOLLOWED),
+    ({"ambiguous": True}, SampleFlag.AMBIGUOUS),
+    ({"instant_error_s": 0.0007}, SampleFlag.LATE),
+    ({"statusword": statusword_for(DriveState.FAULT)}, SampleFlag.FAULT),
+])
+def test_what_the_device_said_about_a_sample_becomes_its_flag(fields, flag):
+    ledger = SampleLedger(sample_period_s=0.001, pending_cycles=0, late_tolerance_s=0.0005)
+    ledger.open_row(0, 0.0)
+    ledger.file(_feedback(0, **fields))
+    (row,) = _release_all(ledger, device_sample=0)
+    assert row[4] == int(flag)
+
+
+def test_a_sample_within_the_late_tolerance_is_not_late():
+    ledger = SampleLedger(sample_period_s=0.001, pending_cycles=0, late_tolerance_s=0.0005)
+    ledger.open_row(0, 0.0)
+    ledger.file(_feedback(0, instant_error_s=-0.0004))
+    assert _release_all(ledger, device_sample=0)[0][4] == 0
