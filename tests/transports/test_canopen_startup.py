@@ -235,3 +235,33 @@ def test_an_interface_that_does_not_echo_our_frames_is_refused_at_start_up(tmp_p
         with pytest.raises(TransportError, match="did not echo a transmitted SYNC.*receive_own_messages"):
             transport.open()
         assert rig.state is not DriveState.OPERATION_ENABLED  # refused before the drive was enabled
+
+
+class _EncoderObjects:
+    """An encoder node's object dictionary and SDO answers, for the resolution check alone."""
+
+    def __init__(self, values: dict[int, int]) -> None:
+        self.object_dictionary = set(values)
+        self.sdo = {index: type("Entry", (), {"raw": value})() for index, value in values.items()}
+
+
+@pytest.mark.parametrize(("bits", "multi_turn_bits", "values"), [
+    (12, 0, {0x6001: 4096, 0x6002: 4096, 0x6000: 0}),
+    (16, 16, {0x6001: 65536, 0x6002: 0, 0x6000: 0}),  # 2**32 does not fit UNSIGNED32: a 32-bit encoder says 0
+    (12, 4, {0x6501: 4096, 0x6502: 16}),  # an EDS without the scaling objects: the physical resolution
+])
+def test_the_encoder_resolution_is_read_from_the_cia_406_scaling_objects(bits, multi_turn_bits, values):
+    from rig.transports.canopen_link import CanOpenTransport
+
+    transport = CanOpenTransport("virtual", "unused", encoder=EncoderResolution(bits=bits, multi_turn_bits=multi_turn_bits),
+                                 sample_period_s=1e-3)
+    transport._check_encoder(_EncoderObjects(values))  # accepted: no exception
+
+
+def test_an_encoder_counting_the_other_way_is_refused_naming_the_code_sequence():
+    from rig.transports.canopen_link import CanOpenTransport
+
+    transport = CanOpenTransport("virtual", "unused", encoder=EncoderResolution(bits=12), sample_period_s=1e-3)
+    with pytest.raises(DeviceFault, match=r"counts down with the angle \(0x6000 bit 0, code sequence = 1\).*"
+                                          r"set \[encoder\] direction = -1"):
+        transport._check_encoder(_EncoderObjects({0x6001: 4096, 0x6002: 4096, 0x6000: 1}))
