@@ -65,10 +65,13 @@ class SimulatedSerialDevice:
         Bytes the device writes before its first answer (a boot message, a leading 0x00).
     copy_target_at_enable
         False: the drive keeps its old target at the transition to OPERATION ENABLED instead of taking its
-        actual position (the spec requires the copy; a drive without it servoes to the stale target).
+        actual position (the spec requires the copy); it holds still until the first SETPOINT, which it
+        then servoes to from wherever it stands (with ``following_error_counts``: faults if that is far).
+        (A drive that servoed to its stale target at once could not be helped by the host on this
+        protocol, which has no way to write the target before enabling: the spec's rule prevents that.)
     following_error_counts
-        A target (a SETPOINT, or the stale target at enable) farther than this from the actual position
-        faults the drive with 0x8611 (position following error), as a real drive does instead of jumping.
+        A SETPOINT target farther than this from the actual position faults the drive with 0x8611
+        (position following error), as a real drive does instead of jumping.
     initial_actual_counts
         The drive's actual position at power-up.
     fault_frame_lost
@@ -253,8 +256,6 @@ class SimulatedSerialDevice:
             self._to_lose = self.lost_status_after_enable
             if self.copy_target_at_enable:
                 self.target_counts = self.actual_counts  # no jump on enable
-            else:
-                return self._servo_to(self.target_counts)  # a drive that keeps its old target moves to it
         return b""
 
     def _finish_fault_reset(self) -> None:

@@ -185,7 +185,11 @@ class SerialTransport(Transport):
         if message.type is MessageType.FEEDBACK:
             statusword, actual, encoder_raw = message.fields
             seq = unwrap_seq(message.seq, self._last_seq)
-            counts = self._encoder_value(encoder_raw, seq)
+            try:
+                counts = self._encoder_value(encoder_raw, seq)
+            except TransportError as err:  # reported like a device fault: a request/answer in progress goes on
+                self._report_fault(err)
+                return
             state = cia402.state_from_statusword_or_none(statusword)
             self._feedback.append(FeedbackSample(
                 seq=seq, encoder_counts=counts, load_angle_rad=self._decode_encoder(counts),
