@@ -52,7 +52,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--sim-faults-seed", metavar="N", type=int, default=0,
                         help="seed of the random faults (default 0): the same seed repeats the same faults")
     parser.add_argument("--json", action="store_true",
-                        help='print {"log", "samples", "lost", "late", "rate_hz", "frame_errors"} as JSON')
+                        help='print {"log", "samples", "lost", "late", "rate_hz", "frame_errors", "not_followed"} '
+                             'as JSON')
     parser.set_defaults(handler=run)
 
 
@@ -233,7 +234,7 @@ def run(args: argparse.Namespace) -> int:
         summary = run_experiment(transport, command, log, feedback_timeout_s=config.feedback_timeout_s,
                                  late_tolerance_s=config.late_tolerance_s, progress=progress)
     result = {"log": str(args.out), "samples": summary.samples, "lost": summary.lost, "late": summary.late,
-              "rate_hz": summary.rate_hz, "frame_errors": summary.frame_errors}
+              "rate_hz": summary.rate_hz, "frame_errors": summary.frame_errors, "not_followed": summary.not_followed}
     if args.json:
         print(json.dumps(result))
     else:

@@ -83,7 +83,7 @@ def test_the_driver_runs_a_device_written_from_the_spec(tmp_path, capsys, no_lea
     assert code == exit_codes.SUCCESS, err
     result = json.loads(out)
     assert result["samples"] == SAMPLES and result["lost"] == 0
-    assert result["frame_errors"] == 0  # the boot output is not line noise
+    assert result["frame_errors"] == 0 and result["not_followed"] == 0  # the boot output is not line noise
     log = read_log(tmp_path / "run.csv")
     assert log.metadata.extra["summary"]["frame_errors"] == 0
     assert "ends SWITCH ON DISABLED" in log.metadata.extra["summary"]["stop"]
