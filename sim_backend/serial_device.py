@@ -266,7 +266,8 @@ class SimulatedSerialDevice:
 
     def _servo_to(self, target_counts: int) -> bytes:
         """Move to ``target_counts`` at once, or fault with a following error if it is too far."""
-        if self.following_error_counts is not None and abs(target_counts - self.actual_counts) > self.following_error_counts:
+        window = self.following_error_counts
+        if window is not None and abs(target_counts - self.actual_counts) > window:
             return self._fault(0x8611)
         self.actual_counts = target_counts
         return b""

@@ -69,7 +69,8 @@ class SerialTransport(Transport):
                 f"expected a number of seconds in (0, {MAX_REPLY_TIMEOUT_S:g}], got {reply_timeout_s!r} (the device's "
                 "link watchdog may expect a frame at least every second; a slow device is served by reply_retries)"))
         if not 0 <= self.reply_retries <= 10:
-            raise ConfigError("<transport>", "reply_retries", f"expected an integer from 0 to 10, got {reply_retries!r}")
+            raise ConfigError("<transport>", "reply_retries",
+                              f"expected an integer from 0 to 10, got {reply_retries!r}")
         rate_hz = 1.0 / self.sample_period_s
         self.load = link_load(rate_hz, self.baudrate)
         if self.load.load > 1.0:

@@ -120,7 +120,8 @@ def test_a_baud_rate_that_cannot_carry_the_sample_rate_is_refused_at_config_load
     from rig.rig_config import load_rig_config
 
     config = tmp_path / "slow_serial.toml"
-    config.write_text((ROOT / "configs" / "rig_serial.toml").read_text().replace("baudrate = 2000000", "baudrate = 115200"))
+    template = (ROOT / "configs" / "rig_serial.toml").read_text()
+    config.write_text(template.replace("baudrate = 2000000", "baudrate = 115200"))
     message = (r"\[transport.baudrate\] 115200 baud cannot carry 1000 Hz: one sample's SETPOINT and FEEDBACK take "
                r"280 bit on an 8N1 UART \(10 bit per byte\), 243% of the line; the highest sample rate it carries is "
                r"411 Hz \(or raise the baud rate to at least 280000\)")

@@ -86,7 +86,8 @@ def test_slow_answers_during_bring_up_are_waited_for(tmp_path, no_leaks):
 
 
 def test_a_slow_fault_reset_is_waited_for_and_the_code_is_read_first(tmp_path, no_leaks):
-    with simulated("serial", tmp_path, boot_fault_code=0x3220, fault_reset_delay_s=0.2) as (config, transport, _, device):
+    with simulated("serial", tmp_path, boot_fault_code=0x3220, fault_reset_delay_s=0.2) as (
+            config, transport, _, device):
         summary = _run(config, transport, excitation(20))
         assert summary.samples == 20 and summary.lost == 0
         kinds = [kind for kind, _ in device.requests]
