@@ -8,6 +8,7 @@ Format ``rig-log v1`` (a CSV file with a commented header)::
     time_s,command_rad,angle_rad,encoder_counts,flags
     0.0,0.0,0.0,0,0
     0.001,0.25,nan,,1                                                        <- a LOST sample
+    # summary {"frame_errors": 0, "stop": "quick stop sent, ..."}              <- at the end, if the run ended
 
 * pandas: ``pandas.read_csv(path, comment="#")``; numpy:
   ``numpy.genfromtxt(path, delimiter=",", names=True, skip_header=3)`` (the header is always 3 comment
@@ -17,6 +18,10 @@ Format ``rig-log v1`` (a CSV file with a commented header)::
   after ``flush_interval_s``; a process killed at any instant leaves every flushed line readable, and a
   torn last line is dropped on reading with a warning. ``close()`` flushes and fsyncs.
 * Floats are written with ``repr`` (shortest exact round trip).
+* What is only known at the end of a run (the damaged frames the transport discarded, what the controlled
+  stop did) follows the last sample as one comment line ``# summary {JSON}``
+  (:meth:`LogWriter.write_summary`); :func:`read_log` puts it in the metadata's ``extra["summary"]``. A
+  log of a killed run has no summary line; comment-aware readers (pandas, numpy, MATLAB above) skip it.
 
 :func:`read_experiment_data` also accepts plain CSV files with columns ``t,u,y`` (seconds, radians) made by
 other tools, through :func:`rig.signal_files.read_signal_table`.
@@ -51,6 +56,7 @@ __all__ = ["COLUMNS", "FORMAT_LINE", "LogWriteError", "LogWriter", "check_output
 FORMAT_LINE = "# rig-log v1"
 COLUMNS = ("time_s", "command_rad", "angle_rad", "encoder_counts", "flags")
 _METADATA_PREFIX = "# metadata "
+_SUMMARY_PREFIX = "# summary "
 _UNITS_LINE = ("# units time_s=s command_rad=rad angle_rad=rad encoder_counts=counts flags=bits("
                + ",".join(f"{int(flag)} {flag.name}" for flag in SampleFlag if flag.value) + ")")
 
@@ -143,6 +149,7 @@ class LogWriter:
         self._pending = 0
         self._last_time: float | None = None
         self._failure: str | None = None
+        self._summary_written = False
         try:
             self._file: TextIO | None = self.path.open("w", encoding="utf-8", newline="\n")
         except OSError as err:
@@ -197,6 +204,8 @@ class LogWriter:
         """Write one sample. A LOST sample may pass ``angle_rad=nan``; times must increase."""
         if self._file is None:
             raise LogWriteError(self._failure) if self._failure else LogFileError(f"{self.path}: the log is closed")
+        if self._summary_written:
+            raise LogFileError(f"{self.path}: the summary is written; no sample may follow it")
         time_value, command, angle, flag = float(time_s), float(command_rad), float(angle_rad), int(flags)
         if not math.isfinite(time_value) or (self._last_time is not None and time_value <= self._last_time):
             raise InvalidInputError(
@@ -237,6 +246,21 @@ class LogWriter:
         flag_values = [0] * times.size if flags is None else np.asarray(flags).tolist()
         for row in zip(times.tolist(), commands.tolist(), angles.tolist(), counts, flag_values):
             self.append(*row)
+
+    def write_summary(self, summary: Mapping[str, Any]) -> None:
+        """Write the run's summary (JSON-able values, e.g. ``{"frame_errors": 3}``) after the last sample;
+        no sample may follow. Read back into ``metadata.extra["summary"]`` by :func:`read_log`. After a
+        write failure it does nothing (the failure was raised already)."""
+        if self._file is None and self._failure:
+            return
+        if self._file is None:
+            raise LogWriteError(self._failure) if self._failure else LogFileError(f"{self.path}: the log is closed")
+        line = json.dumps(dict(summary), allow_nan=False, default=_json_default)
+        try:
+            self._file.write(f"{_SUMMARY_PREFIX}{line}\n")
+        except OSError as err:
+            raise self._fail(err, "writing the summary") from None
+        self._summary_written = True
 
     def close(self) -> None:
         """Flush, fsync and close (idempotent). After a write failure it only releases the file: the failure
@@ -279,10 +303,14 @@ def count_samples(path: str | Path) -> int | None:
     lines = 0
     try:
         with path.open("rb") as handle:
+            tail = b""
             while chunk := handle.read(1 << 20):
                 lines += chunk.count(b"\n")
+                tail = (tail + chunk)[-4096:]
     except OSError:
         return None
+    if tail.endswith(b"\n") and tail[:-1].rsplit(b"\n", 1)[-1].startswith(_SUMMARY_PREFIX.encode()):
+        lines -= 1
     return max(0, lines - 4)  # format, metadata, units and column lines
 
 
@@ -340,6 +368,15 @@ def read_log(path: str | Path) -> ExperimentRecord:
     if columns != COLUMNS:
         raise LogFileError(f"{path}: line {header_line}: expected columns {','.join(COLUMNS)}, got {','.join(columns)}")
     rows = lines[header_line:]
+    if rows and rows[-1].startswith(_SUMMARY_PREFIX):
+        number = header_line + len(rows)
+        try:
+            summary = json.loads(rows.pop()[len(_SUMMARY_PREFIX):])
+        except json.JSONDecodeError as err:
+            raise LogFileError(f"{path}: line {number}: the summary is not valid JSON: {err.msg} at column {err.colno}") from None
+        if not isinstance(summary, dict):
+            raise LogFileError(f"{path}: line {number}: the summary is not a JSON object")
+        metadata = ExperimentMetadata.from_dict({**metadata.to_dict(), "extra": {**metadata.extra, "summary": summary}})
     n = len(rows)
     time_s, command, angle = np.empty(n), np.empty(n), np.empty(n)
     counts = np.zeros(n, dtype=np.int64)

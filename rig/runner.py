@@ -75,6 +75,9 @@ class SampleSink(Protocol):
 
     def close(self) -> None: ...
 
+    # optional: ``write_summary(mapping)`` is called once before ``close`` with what is known only at the end
+    # (``frame_errors``, ``stop``); :class:`rig.log_file.LogWriter` writes it after the last sample.
+
 
 @dataclass(frozen=True)
 class RunSummary:
@@ -320,6 +323,14 @@ def run_experiment(transport: Transport, command_rad: ArrayLike, sink: SampleSin
         finally:
             try:
                 write_rows(keep=0)
+                write_summary = getattr(sink, "write_summary", None)
+                if write_summary is not None:
+                    try:
+                        write_summary({"frame_errors": transport.frame_errors,
+                                       "stop": str(transport.stop_report or "")})
+                    except Exception:
+                        if failure is None:
+                            raise  # otherwise what ended the run is the error to report, not this one
             finally:
                 sink.close()
     wall = clock() - wall_start

@@ -43,12 +43,16 @@ class SimulatedRawCanDevice(can.Listener):
     disable_at_seq
         The sample at which the drive drops out of OPERATION ENABLED without a fault (enable input or safe
         torque off lost): it answers with its new statusword and follows no target after.
+    lost_status_after_enable
+        This many RIG_STATUS answers from the transition to OPERATION ENABLED on are lost; the host sends
+        the request again with the same ``seq``, which the device answers without applying it twice.
     """
 
     def __init__(self, gearbox: SimulatedGearbox, *, channel: str, drive_counts_per_revolution: int = 1 << 17,
                  dbc_path: str = str(DEFAULT_DBC), bitrate: int = 1_000_000, silent_seqs: Iterable[int] = (),
                  fault_at_seq: int | None = None, fault_code: int = 0x7500,
-                 disable_at_seq: int | None = None, error_frame_at: tuple[int, int] | None = None) -> None:
+                 disable_at_seq: int | None = None, error_frame_at: tuple[int, int] | None = None,
+                 lost_status_after_enable: int = 0) -> None:
         self.gearbox = gearbox
         self.channel = channel
         self.drive = cia402.DriveScaling(int(drive_counts_per_revolution))
@@ -63,6 +67,11 @@ class SimulatedRawCanDevice(can.Listener):
         self.state = cia402.DriveState.SWITCH_ON_DISABLED
         self.controlword = 0
         self.controlwords: list[int] = []
+        self.requests: list[tuple[str, int]] = []  # every request received, repeats included
+        self.lost_status_after_enable = int(lost_status_after_enable)
+        self.lost_answers = 0
+        self._to_lose = 0
+        self._last_control_seq: int | None = None
         self.actual_counts = 0
         self.setpoints = 0
         self.frames = 0
@@ -111,20 +120,28 @@ class SimulatedRawCanDevice(can.Listener):
             return
         name, signals = decoded
         if name == "RIG_CONTROL":
-            controlword = signals["controlword"]
-            self.controlwords.append(controlword)
-            previous_state = self.state
-            self.state = cia402.next_state(self.state, controlword, self.controlword)
-            self.controlword = controlword
-            if self.state is cia402.DriveState.OPERATION_ENABLED and previous_state is not self.state:
-                pass  # the target starts at the actual position: nothing moves until the next setpoint
+            self.requests.append((name, signals["seq"]))
+            if signals["seq"] != self._last_control_seq:  # a repeated seq is answered, not applied again
+                self._last_control_seq = signals["seq"]
+                controlword = signals["controlword"]
+                self.controlwords.append(controlword)
+                previous_state = self.state
+                self.state = cia402.next_state(self.state, controlword, self.controlword)
+                self.controlword = controlword
+                if self.state is cia402.DriveState.OPERATION_ENABLED and previous_state is not self.state:
+                    self._to_lose = self.lost_status_after_enable  # the target starts at the actual position
             self._status(signals["seq"])
         elif name == "RIG_STATUS_REQUEST":
+            self.requests.append((name, signals["seq"]))
             self._status(signals["seq"])
         elif name == "RIG_SETPOINT":
             self._setpoint(signals["seq"], signals["target_counts"])
 
     def _status(self, seq: int) -> None:
+        if self._to_lose > 0:
+            self._to_lose -= 1
+            self.lost_answers += 1
+            return
         self._send("RIG_STATUS", seq=seq, statusword=cia402.statusword_for(self.state), actual_counts=self.actual_counts)
 
     def _setpoint(self, seq: int, target_counts: int) -> None:

@@ -48,24 +48,73 @@ class SimulatedSerialDevice:
     unplug_at_seq
         At this sample the device closes its end of the port, like a USB adapter pulled out; its own link
         watchdog disables the drive.
+
+    The legal behaviours of the real variety (defaults: today's quick, well-behaved device):
+
+    status_delay_s
+        Every answer to a request (STATUS, ERROR) leaves this much later (a slow bring-up).
+    fault_reset_delay_s
+        After the rising edge of controlword bit 7 the drive stays in FAULT this long (``math.inf``: the
+        fault cannot be reset).
+    boot_fault_code
+        The device starts in FAULT with this error code (readable with ERROR_REQUEST).
+    lost_status_after_enable
+        This many STATUS answers from the transition to OPERATION ENABLED on are lost (the host must send
+        the request again; a repeated request number is answered without being applied twice).
+    boot_banner
+        Bytes the device writes before its first answer (a boot message, a leading 0x00).
+    copy_target_at_enable
+        False: the drive keeps its old target at the transition to OPERATION ENABLED instead of taking its
+        actual position (the spec requires the copy); it holds still until the first SETPOINT, which it
+        then servoes to from wherever it stands (with ``following_error_counts``: faults if that is far).
+        (A drive that servoed to its stale target at once could not be helped by the host on this
+        protocol, which has no way to write the target before enabling: the spec's rule prevents that.)
+    following_error_counts
+        A SETPOINT target farther than this from the actual position faults the drive with 0x8611
+        (position following error), as a real drive does instead of jumping.
+    initial_actual_counts
+        The drive's actual position at power-up.
+    fault_frame_lost
+        The FAULT frame of ``fault_at_seq`` is lost on the line; the host sees only the faulted
+        statusword (in that sample's FEEDBACK) and must read the code with ERROR_REQUEST.
     """
 
     def __init__(self, gearbox: SimulatedGearbox, *, drive_counts_per_revolution: int = 1 << 17,
                  silent_seqs: Iterable[int] = (), fault_at_seq: int | None = None, fault_code: int = 0x7500,
                  garbage_probability: float = 0.0, bitflip_probability: float = 0.0,
                  truncate_probability: float = 0.0, reply_lag: tuple[float, int] | None = None,
-                 unplug_at_seq: int | None = None, disable_at_seq: int | None = None, seed: int = 0) -> None:
+                 unplug_at_seq: int | None = None, disable_at_seq: int | None = None, seed: int = 0,
+                 status_delay_s: float = 0.0, fault_reset_delay_s: float = 0.0, boot_fault_code: int | None = None,
+                 lost_status_after_enable: int = 0, boot_banner: bytes = b"", copy_target_at_enable: bool = True,
+                 following_error_counts: int | None = None, initial_actual_counts: int = 0,
+                 fault_frame_lost: bool = False) -> None:
         self.gearbox = gearbox
         self.drive = cia402.DriveScaling(int(drive_counts_per_revolution))
         self.silent_seqs = frozenset(int(seq) & 0xFFFF for seq in silent_seqs)
         self.fault_at_seq = fault_at_seq
         self.fault_code = fault_code
         self.state = cia402.DriveState.SWITCH_ON_DISABLED
+        self.error_code = 0
+        if boot_fault_code is not None:
+            self.state, self.error_code = cia402.DriveState.FAULT, int(boot_fault_code)
         self.controlword = 0
         self.target_counts = 0
-        self.actual_counts = 0
+        self.actual_counts = int(initial_actual_counts)
         self.setpoints = 0
         self.controlwords: list[int] = []
+        self.requests: list[tuple[MessageType, int]] = []  # every request received, repeats included
+        self.status_delay_s = float(status_delay_s)
+        self.fault_reset_delay_s = float(fault_reset_delay_s)
+        self.lost_status_after_enable = int(lost_status_after_enable)
+        self.boot_banner = bytes(boot_banner)
+        self.copy_target_at_enable = bool(copy_target_at_enable)
+        self.following_error_counts = following_error_counts
+        self.fault_frame_lost = bool(fault_frame_lost)
+        self.lost_answers = 0
+        self._to_lose = 0
+        self._last_control_seq: int | None = None
+        self._reset_due: float | None = None
+        self._answered = False
         self.frame_errors = 0
         self.garbage_probability = float(garbage_probability)
         self.bitflip_probability = float(bitflip_probability)
@@ -129,8 +178,16 @@ class SimulatedSerialDevice:
                 if not reply:
                     continue
                 reply = self._line_noise(reply)
+                if not self._answered:
+                    self._answered = True
+                    reply = self.boot_banner + reply  # boot output comes before the first frame
+                lag = 0.0
                 if self.reply_lag is not None and self.setpoints > self.reply_lag[1]:
-                    delayed.append((time.perf_counter() + self.reply_lag[0], reply))  # latency, not throughput
+                    lag = self.reply_lag[0]
+                if message.type is not MessageType.SETPOINT:
+                    lag = max(lag, self.status_delay_s)
+                if lag:
+                    delayed.append((time.perf_counter() + lag, reply))  # latency, not throughput
                 else:
                     os.write(self._master_fd, reply)
             self.frame_errors = self._decoder.errors
@@ -162,41 +219,100 @@ class SimulatedSerialDevice:
 
     def handle(self, message: SerialMessage) -> bytes:
         """The bytes the device answers to ``message`` (public so that tests can script exchanges)."""
+        self._finish_fault_reset()
         if message.type is MessageType.CONTROL:
-            (controlword,) = message.fields
-            self.controlwords.append(controlword)
-            previous_state = self.state
-            self.state = cia402.next_state(self.state, controlword, self.controlword)
-            self.controlword = controlword
-            if self.state is cia402.DriveState.OPERATION_ENABLED and previous_state is not self.state:
-                self.target_counts = self.actual_counts  # no jump on enable
+            self.requests.append((message.type, message.seq))
+            if message.seq != self._last_control_seq:  # a repeated request number is answered, not applied again
+                self._last_control_seq = message.seq
+                reply = self._control(message.fields[0])
+                if reply:
+                    return reply
             return self._status(message.seq)
         if message.type is MessageType.STATUS_REQUEST:
+            self.requests.append((message.type, message.seq))
             return self._status(message.seq)
+        if message.type is MessageType.ERROR_REQUEST:
+            self.requests.append((message.type, message.seq))
+            return encode_frame(MessageType.ERROR, message.seq, self.error_code)
         if message.type is MessageType.SETPOINT:
             return self._setpoint(message)
         return b""
 
+    def _control(self, controlword: int) -> bytes:
+        """Apply a controlword; returns a FAULT frame if the transition faulted the drive."""
+        self.controlwords.append(controlword)
+        previous_state = self.state
+        rising = controlword & 0x0080 and not self.controlword & 0x0080
+        self.state = cia402.next_state(self.state, controlword, self.controlword)
+        self.controlword = controlword
+        if previous_state is cia402.DriveState.FAULT and self.state is not previous_state:
+            if self.fault_reset_delay_s > 0:  # the reset takes time: still FAULT until then
+                self.state = previous_state
+                if rising:
+                    self._reset_due = time.perf_counter() + self.fault_reset_delay_s
+            else:
+                self.error_code = 0
+        if self.state is cia402.DriveState.OPERATION_ENABLED and previous_state is not self.state:
+            self._to_lose = self.lost_status_after_enable
+            if self.copy_target_at_enable:
+                self.target_counts = self.actual_counts  # no jump on enable
+        return b""
+
+    def _finish_fault_reset(self) -> None:
+        if self._reset_due is not None and time.perf_counter() >= self._reset_due:
+            self._reset_due = None
+            if self.state is cia402.DriveState.FAULT:
+                self.state, self.error_code = cia402.DriveState.SWITCH_ON_DISABLED, 0
+
+    def _servo_to(self, target_counts: int) -> bytes:
+        """Move to ``target_counts`` at once, or fault with a following error if it is too far."""
+        window = self.following_error_counts
+        if window is not None and abs(target_counts - self.actual_counts) > window:
+            return self._fault(0x8611)
+        self.actual_counts = target_counts
+        return b""
+
+    def _fault(self, code: int) -> bytes:
+        """Enter FAULT: the FAULT frame goes out before any statusword that says FAULT."""
+        self.state, self.error_code = cia402.DriveState.FAULT, code
+        return encode_frame(MessageType.FAULT, 0, code)
+
+    def _statusword(self) -> int:
+        word = cia402.statusword_for(self.state, target_reached=self.state is cia402.DriveState.QUICK_STOP_ACTIVE)
+        if self.state is cia402.DriveState.OPERATION_ENABLED:
+            word |= cia402.STATUSWORD_FOLLOWS_TARGET  # bit 12: the drive follows the SETPOINT targets
+        return word
+
     def _status(self, seq: int) -> bytes:
-        return encode_frame(MessageType.STATUS, seq, cia402.statusword_for(self.state), self.actual_counts)
+        if self._to_lose > 0:
+            self._to_lose -= 1
+            self.lost_answers += 1
+            return b""
+        return encode_frame(MessageType.STATUS, seq, self._statusword(), self.actual_counts)
 
     def _setpoint(self, message: SerialMessage) -> bytes:
         if self.state is not cia402.DriveState.OPERATION_ENABLED:
             return b""  # a drive not enabled ignores targets; the host sees the sample as lost
         if self.fault_at_seq is not None and message.seq == self.fault_at_seq & 0xFFFF:
-            self.state = cia402.DriveState.FAULT
-            return encode_frame(MessageType.FAULT, 0, self.fault_code)
+            fault = self._fault(self.fault_code)
+            if self.fault_frame_lost:
+                return encode_frame(MessageType.FEEDBACK, message.seq, self._statusword(), self.actual_counts,
+                                    self.encoder_counts & 0xFFFFFFFF)
+            return fault
         if self.disable_at_seq is not None and message.seq == self.disable_at_seq & 0xFFFF:
             self.state = cia402.DriveState.SWITCH_ON_DISABLED
             return encode_frame(MessageType.FEEDBACK, message.seq, cia402.statusword_for(self.state),
                                 self.actual_counts, self.encoder_counts & 0xFFFFFFFF)
-        (self.target_counts,) = message.fields
+        (target,) = message.fields
+        fault = self._servo_to(target)
+        if fault:
+            return fault
+        self.target_counts = target
         command_rad = self.drive.rad_from_counts(self.target_counts)
         sample = self.gearbox.step(command_rad)
         self.encoder_counts = sample.encoder_counts
-        self.actual_counts = self.target_counts
         self.setpoints += 1
         if message.seq in self.silent_seqs:
             return b""
-        return encode_frame(MessageType.FEEDBACK, message.seq, cia402.statusword_for(self.state, target_reached=True),
+        return encode_frame(MessageType.FEEDBACK, message.seq, self._statusword() | cia402.STATUSWORD_TARGET_REACHED,
                             self.actual_counts, sample.encoder_counts & 0xFFFFFFFF)

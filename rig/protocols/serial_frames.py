@@ -15,12 +15,17 @@ Message types (host -> device below 0x80, device -> host from 0x80)::
     0x01 SETPOINT    seq = sample number   body: target_counts:i32 (drive position, drive counts)
     0x02 CONTROL     seq = request number  body: controlword:u16 (CiA 402)
     0x03 STATUS_REQUEST seq = request number  (no body)
+    0x04 ERROR_REQUEST  seq = request number  (no body)
     0x81 FEEDBACK    seq = sample number   body: statusword:u16, actual_counts:i32, encoder_counts:u32
-    0x82 STATUS      seq = request number  body: statusword:u16, actual_counts:i32
+    0x82 STATUS      seq = request number  body: statusword:u16, actual_counts:i32   (seq 0: unprompted)
     0x83 FAULT       seq = 0               body: error_code:u16 (CiA 402 0x603F codes)
+    0x84 ERROR       seq = request number  body: error_code:u16 (0x0000: no error)
 
-The encoder value is sent as the 32 raw bits the encoder reports; a signed encoder's value is its
-two's complement (decode with ``signed=True``).
+The encoder value is the position value in its low n+m bits: zero-extended to 32 bits for an unsigned
+encoder, sign-extended (a 32-bit two's complement) for a signed one (decode with ``signed=True``).
+Request numbers run 1..65535 (0 is never a request: it marks unprompted STATUS); a request whose answer
+is lost is sent again with the same number, and the device answers a repeated number without applying
+the request twice.
 """
 
 from __future__ import annotations
@@ -30,12 +35,16 @@ import struct
 from dataclasses import dataclass
 from enum import IntEnum
 
+from rig.protocols.can_bus_load import BusLoad
+
 __all__ = [
-    "FrameDecoder", "FrameError", "MessageType", "SerialMessage", "cobs_decode", "cobs_encode", "crc16",
-    "decode_frame", "encode_frame", "unwrap_seq",
+    "FrameDecoder", "FrameError", "MessageType", "SerialMessage", "UART_BITS_PER_BYTE", "cobs_decode", "cobs_encode",
+    "crc16", "decode_frame", "encode_frame", "frame_bytes_on_wire", "link_load", "unwrap_seq",
 ]
 
 MAX_PAYLOAD = 64
+UART_BITS_PER_BYTE = 10
+"""8N1: a start bit, 8 data bits, a stop bit."""
 
 
 class FrameError(ValueError):
@@ -46,18 +55,22 @@ class MessageType(IntEnum):
     SETPOINT = 0x01
     CONTROL = 0x02
     STATUS_REQUEST = 0x03
+    ERROR_REQUEST = 0x04
     FEEDBACK = 0x81
     STATUS = 0x82
     FAULT = 0x83
+    ERROR = 0x84
 
 
 _BODY_FORMATS: dict[MessageType, struct.Struct] = {
     MessageType.SETPOINT: struct.Struct("<i"),
     MessageType.CONTROL: struct.Struct("<H"),
     MessageType.STATUS_REQUEST: struct.Struct("<"),
+    MessageType.ERROR_REQUEST: struct.Struct("<"),
     MessageType.FEEDBACK: struct.Struct("<HiI"),
     MessageType.STATUS: struct.Struct("<Hi"),
     MessageType.FAULT: struct.Struct("<H"),
+    MessageType.ERROR: struct.Struct("<H"),
 }
 _HEADER = struct.Struct("<BH")
 _CRC = struct.Struct("<H")
@@ -171,6 +184,27 @@ class FrameDecoder:
                 self.errors += 1
                 self.last_error = str(err)
         return messages
+
+
+def frame_bytes_on_wire(kind: MessageType) -> int:
+    """Bytes one ``kind`` frame takes on the wire: COBS of header, body and CRC, plus the delimiter (COBS adds
+    one code byte per 254 bytes of payload, so exactly one for every frame of this protocol)."""
+    payload = _HEADER.size + _BODY_FORMATS[kind].size + _CRC.size
+    return payload + 1 + payload // 254 + 1
+
+
+def link_load(rate_hz: float, baudrate: int, bits_per_byte: int = UART_BITS_PER_BYTE) -> BusLoad:
+    """Load of the per-sample exchange (one SETPOINT down, its FEEDBACK back) on a UART at ``baudrate``.
+
+    Both frames of a sample cross the line one after the other within one sample period (the device
+    answers a SETPOINT after its last byte arrived, and the FEEDBACK must be back before the next
+    deadline), so their bits add up even though the line is full duplex: 11 + 17 bytes, 280 bit on 8N1.
+    Returns a :class:`rig.protocols.can_bus_load.BusLoad` (``load`` > 1: the link cannot carry the rate).
+    """
+    if baudrate <= 0 or rate_hz <= 0:
+        raise ValueError(f"baudrate and rate_hz must be > 0, got {baudrate} and {rate_hz}")
+    bits = bits_per_byte * (frame_bytes_on_wire(MessageType.SETPOINT) + frame_bytes_on_wire(MessageType.FEEDBACK))
+    return BusLoad(bits, int(baudrate), float(rate_hz), bits * rate_hz / baudrate, baudrate / bits)
 
 
 def unwrap_seq(seq16: int, reference: int) -> int:

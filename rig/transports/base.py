@@ -283,6 +283,7 @@ class Transport(ABC):
             raise TransportError(f"{self.name}: the transport is {self._state}; prepare() comes first, once")
         self._state = "preparing"
         self._enabling_sent, self.stop_report = False, None
+        self._last_angle_rad = None  # the first reading of this run unwraps near 0 (_decode_encoder)
         try:
             self._connect()
             self.initial_position_rad = float(self._prepare())
@@ -409,8 +410,13 @@ class Transport(ABC):
                 self._fault = fault
 
     def _decode_encoder(self, counts: int) -> float:
-        """Counts -> radians, continuous with the previous reading (the one conversion, in the codec)."""
-        angle = self.encoder.rad_from_counts(counts, near_rad=self._last_angle_rad)
+        """Counts -> radians, continuous with the previous reading (the one conversion, in the codec).
+
+        The first reading of a run has no previous one: it is taken as the equivalent angle nearest 0 rad
+        (within R/2 of it, R the encoder's range :attr:`EncoderResolution.range_rad`), signed encoder or not,
+        so a load standing just below zero reads a small negative angle, never one near R = 2 pi."""
+        near = 0.0 if self._last_angle_rad is None else self._last_angle_rad
+        angle = self.encoder.rad_from_counts(counts, near_rad=near)
         self._last_angle_rad = angle
         return angle
 

@@ -34,17 +34,25 @@ class RawCanTransport(Transport):
     dbc
         The DBC file with the frame layout (``configs/raw_can.dbc`` by default).
     reply_timeout_s
-        How long a RIG_CONTROL/RIG_STATUS_REQUEST may wait for its RIG_STATUS.
+        How long a RIG_CONTROL/RIG_STATUS_REQUEST waits for its RIG_STATUS before it is sent again.
+    reply_retries
+        How many times a request whose RIG_STATUS was lost is sent again, unchanged (same ``seq``; the
+        device answers a repeated ``seq`` without applying the controlword twice, see the DBC comments).
     trace_path
         Write every frame sent and received to this file with python-can's writers (``.blf``, ``.asc``,
         ``.log``, ``.csv``, ``.trc``; not ``.db``).
     """
 
     def __init__(self, interface: str, channel: str, *, bitrate: int = 1_000_000, dbc: str = str(DEFAULT_DBC),
-                 reply_timeout_s: float = 0.5, trace_path: str | None = None, **kwargs: Any) -> None:
+                 reply_timeout_s: float = 0.5, reply_retries: int = 3, trace_path: str | None = None,
+                 **kwargs: Any) -> None:
         super().__init__(**kwargs)
         self.interface, self.channel, self.bitrate = interface, channel, int(bitrate)
         self.reply_timeout_s = float(reply_timeout_s)
+        self.reply_retries = int(reply_retries)
+        if not 0 <= self.reply_retries <= 10:
+            raise ConfigError("<transport>", "reply_retries", f"expected an integer from 0 to 10, got {reply_retries!r}")
+        self.retries = 0  # requests sent again because their RIG_STATUS was lost
         try:
             self.codec = RawCanCodec(dbc)
         except ValueError as err:
@@ -180,13 +188,23 @@ class RawCanTransport(Transport):
         return True
 
     def _request_reply(self, name: str, **signals: int) -> dict[str, int]:
-        self._request = (self._request + 1) & 0xFFFF
+        """Send a request and return its RIG_STATUS, sending the same frame again (same ``seq``) after each
+        ``reply_timeout_s`` without an answer, at most ``reply_retries`` times."""
+        self._request = self._request % 0xFFFF + 1  # 1..65535, as on the serial link
         request = self._request
-        self._transmit(self.codec.encode(name, seq=request, **signals))
-        deadline = time.perf_counter() + self.reply_timeout_s
-        while request not in self._status:
-            remaining = deadline - time.perf_counter()
-            if remaining <= 0:
-                raise TransportError(f"{self.name}: no RIG_STATUS answer to {name} within {self.reply_timeout_s:g} s")
-            self._receive_one(remaining)
-        return self._status.pop(request)
+        self._status.clear()  # one request at a time: anything left is a late copy of an older answer
+        attempts = 1 + self.reply_retries
+        for attempt in range(attempts):
+            if attempt:
+                self.retries += 1
+            self._transmit(self.codec.encode(name, seq=request, **signals))
+            deadline = time.perf_counter() + self.reply_timeout_s
+            while request not in self._status:
+                remaining = deadline - time.perf_counter()
+                if remaining <= 0:
+                    break
+                self._receive_one(remaining)
+            else:
+                return self._status.pop(request)
+        raise TransportError(f"{self.name}: no RIG_STATUS answer to {name} (seq {request}) within "
+                             f"{self.reply_timeout_s:g} s, {attempts} attempts")

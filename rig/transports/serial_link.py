@@ -3,7 +3,13 @@
 
 Per sample the host sends one SETPOINT frame with the sample number; the device applies it, samples the
 load encoder and answers with one FEEDBACK frame carrying the same sequence number. Bring-up walks the
-drive's CiA 402 state machine with CONTROL frames (the device answers each with STATUS).
+drive's CiA 402 state machine with CONTROL frames (the device answers each with STATUS) and reads the
+drive's error code with ERROR_REQUEST. A request whose answer does not come within ``reply_timeout_s`` is
+sent again, unchanged (same request number), up to ``reply_retries`` times; the device answers a repeated
+request number without applying it twice.
+
+Checked when the transport is built (so at config load, before anything is opened): the baud rate carries
+one SETPOINT and one FEEDBACK per sample at the sample rate (:func:`rig.protocols.serial_frames.link_load`).
 """
 
 from __future__ import annotations
@@ -13,11 +19,20 @@ import select
 import time
 
 from rig.protocols import cia402
-from rig.protocols.errors import DeviceFault, TransportError
-from rig.protocols.serial_frames import FrameDecoder, MessageType, SerialMessage, encode_frame, unwrap_seq
+from rig.protocols.errors import ConfigError, DeviceFault, TransportError
+from rig.protocols.serial_frames import (
+    UART_BITS_PER_BYTE, FrameDecoder, MessageType, SerialMessage, encode_frame, link_load, unwrap_seq,
+)
 from rig.transports.base import FeedbackSample, Setpoint, Transport
 
-__all__ = ["SerialTransport"]
+__all__ = ["MAX_REPLY_TIMEOUT_S", "SerialTransport"]
+
+MAX_REPLY_TIMEOUT_S = 1.0
+"""The host never waits longer than this for an answer before it sends again: the spec promises the
+device a frame at least this often while it is enabled and waiting for the first SETPOINT."""
+_FAULT_STATES = (cia402.DriveState.FAULT, cia402.DriveState.FAULT_REACTION_ACTIVE)
+_ANSWER_TO = {MessageType.CONTROL: MessageType.STATUS, MessageType.STATUS_REQUEST: MessageType.STATUS,
+              MessageType.ERROR_REQUEST: MessageType.ERROR}
 
 
 class SerialTransport(Transport):
@@ -28,24 +43,52 @@ class SerialTransport(Transport):
     port
         Device path (``/dev/ttyUSB0``, a pty) or any pyserial URL.
     baudrate
-        Line rate in bit/s.
+        Line rate in bit/s; one sample's SETPOINT and FEEDBACK must fit in a sample period on an 8N1 UART
+        (:class:`ConfigError` naming the highest sample rate it carries if not).
     reply_timeout_s
-        How long a CONTROL request may wait for its STATUS answer.
+        How long a request (CONTROL, STATUS_REQUEST, ERROR_REQUEST) waits for its answer before it is sent
+        again (at most :data:`MAX_REPLY_TIMEOUT_S`).
+    reply_retries
+        How many times a request whose answer was lost is sent again (same request number) before the
+        link counts as failed.
     **kwargs
         See :class:`~rig.transports.base.Transport`.
     """
 
-    def __init__(self, port: str, *, baudrate: int = 2_000_000, reply_timeout_s: float = 0.5, **kwargs) -> None:
+    def __init__(self, port: str, *, baudrate: int = 2_000_000, reply_timeout_s: float = 0.5, reply_retries: int = 3,
+                 **kwargs) -> None:
         super().__init__(**kwargs)
         self.port = port
         self.baudrate = int(baudrate)
         self.reply_timeout_s = float(reply_timeout_s)
+        self.reply_retries = int(reply_retries)
+        if self.baudrate <= 0:
+            raise ConfigError("<transport>", "baudrate", f"expected a baud rate > 0, got {baudrate!r}")
+        if not 0 < self.reply_timeout_s <= MAX_REPLY_TIMEOUT_S:
+            raise ConfigError("<transport>", "reply_timeout_s", (
+                f"expected a number of seconds in (0, {MAX_REPLY_TIMEOUT_S:g}], got {reply_timeout_s!r} (the device's "
+                "link watchdog may expect a frame at least every second; a slow device is served by reply_retries)"))
+        if not 0 <= self.reply_retries <= 10:
+            raise ConfigError("<transport>", "reply_retries",
+                              f"expected an integer from 0 to 10, got {reply_retries!r}")
+        rate_hz = 1.0 / self.sample_period_s
+        self.load = link_load(rate_hz, self.baudrate)
+        if self.load.load > 1.0:
+            needed = self.load.bits_per_cycle * rate_hz
+            raise ConfigError("<transport>", "baudrate", (
+                f"{self.baudrate} baud cannot carry {rate_hz:g} Hz: one sample's SETPOINT and FEEDBACK take "
+                f"{self.load.bits_per_cycle} bit on an 8N1 UART ({UART_BITS_PER_BYTE} bit per byte), "
+                f"{100 * self.load.load:.0f}% of the line; the highest sample rate it carries is "
+                f"{self.load.max_rate_hz:.0f} Hz (or raise the baud rate to at least {needed:.0f})"))
+        self.retries = 0  # requests sent again because their answer was lost
         self._serial = None
         self._decoder = FrameDecoder()
         self._feedback: collections.deque[FeedbackSample] = collections.deque()
-        self._status: dict[int, SerialMessage] = {}
+        self._answers: dict[tuple[MessageType, int], SerialMessage] = {}
         self._request = 0
         self._last_seq = 0
+        self._valid_frames = 0
+        self._code_needed = False  # a faulted statusword came without a FAULT frame: read the code
 
     # -- seam ----------------------------------------------------------------------------------------------
 
@@ -64,6 +107,25 @@ class SerialTransport(Transport):
         status = self._request_reply(MessageType.STATUS_REQUEST)
         return self.drive.rad_from_counts(status.fields[1])
 
+    def _write_controlword(self, controlword: int) -> None:
+        self._request_reply(MessageType.CONTROL, controlword)
+
+    def _read_statusword(self) -> int:
+        return self._request_reply(MessageType.STATUS_REQUEST).fields[0]
+
+    def _read_error_code(self) -> int | None:
+        return self._request_reply(MessageType.ERROR_REQUEST).fields[0]
+
+    def _after_enabled(self) -> None:
+        # A FAULT frame that came before the drive reached OPERATION ENABLED reported a fault the bring-up
+        # has since reset (the walk succeeded): it must not stop the run.
+        with self._fault_lock:
+            earlier, self._fault = self._fault, None
+        self._code_needed = False
+        if earlier is not None:
+            self.warnings.append(f"before enabling: {earlier} (reset by the bring-up)")
+        return None
+
     def _send(self, setpoint: Setpoint) -> None:
         self._write(encode_frame(MessageType.SETPOINT, setpoint.seq, self.drive.counts_from_rad(setpoint.position_rad)))
         self._last_seq = setpoint.seq
@@ -71,10 +133,12 @@ class SerialTransport(Transport):
     def _recv_internal(self, timeout_s: float) -> FeedbackSample | None:
         deadline = time.perf_counter() + timeout_s
         while not self._feedback:
+            if self._code_needed:
+                self._report_faulted_statusword()
+            if self._fault is not None:
+                return None
             remaining = deadline - time.perf_counter()
             if not self._poll(max(remaining, 0.0)) and remaining <= 0:
-                return None
-            if self._fault is not None:
                 return None
         return self._feedback.popleft()
 
@@ -97,6 +161,8 @@ class SerialTransport(Transport):
 
     def _poll(self, timeout_s: float) -> bool:
         """Read what is there (waiting up to ``timeout_s`` for the first byte) and dispatch the messages."""
+        if self._serial is None:
+            raise TransportError(f"{self.name}: the port is closed")
         try:
             ready, _, _ = select.select([self._serial.fileno()], [], [], timeout_s)
             if not ready:
@@ -107,41 +173,97 @@ class SerialTransport(Transport):
                                  "adapter unplugged or device powered off?)") from err
         received = time.perf_counter()
         errors_before = self._decoder.errors
-        for message in self._decoder.feed(data):
+        before_first_frame = self._valid_frames == 0
+        messages = self._decoder.feed(data)
+        self._valid_frames += len(messages)
+        if not before_first_frame:  # bytes before the device's first frame are its boot output, not line noise
+            self.frame_errors += self._decoder.errors - errors_before
+        for message in messages:
             self._dispatch(message, received)
-        self.frame_errors += self._decoder.errors - errors_before
         return True
 
     def _dispatch(self, message: SerialMessage, received_s: float) -> None:
         if message.type is MessageType.FEEDBACK:
             statusword, actual, encoder_raw = message.fields
-            counts = encoder_raw - (1 << 32) if self.encoder.signed and encoder_raw >= 1 << 31 else encoder_raw
+            seq = unwrap_seq(message.seq, self._last_seq)
+            try:
+                counts = self._encoder_value(encoder_raw, seq)
+            except TransportError as err:  # reported like a device fault: a request/answer in progress goes on
+                self._report_fault(err)
+                return
+            state = cia402.state_from_statusword_or_none(statusword)
             self._feedback.append(FeedbackSample(
-                seq=unwrap_seq(message.seq, self._last_seq), encoder_counts=counts,
-                load_angle_rad=self._decode_encoder(counts), drive_position_rad=self.drive.rad_from_counts(actual),
-                statusword=statusword, host_time_s=received_s))
-            if cia402.state_from_statusword(statusword) in (cia402.DriveState.FAULT,
-                                                              cia402.DriveState.FAULT_REACTION_ACTIVE):
-                self._report_fault(DeviceFault(self.name, None, "the drive reports FAULT in its statusword"))
-        elif message.type is MessageType.STATUS:
-            self._status[message.seq] = message
+                seq=seq, encoder_counts=counts, load_angle_rad=self._decode_encoder(counts),
+                drive_position_rad=self.drive.rad_from_counts(actual), statusword=statusword, host_time_s=received_s,
+                target_ignored=(state is cia402.DriveState.OPERATION_ENABLED
+                                and not statusword & cia402.STATUSWORD_FOLLOWS_TARGET)))
+            if state in _FAULT_STATES:
+                self._code_needed = self._fault is None
+        elif message.type is MessageType.STATUS and message.seq == 0:
+            self._unprompted_status(message.fields[0])
         elif message.type is MessageType.FAULT:
-            self._report_fault(DeviceFault(self.name, message.fields[0], "the device reported a fault"))
+            self._code_needed = False
+            self._report_fault(DeviceFault(self.drive_label, message.fields[0], "the device reported a fault"))
+        elif message.type in (MessageType.STATUS, MessageType.ERROR):
+            self._answers[message.type, message.seq] = message
+
+    def _unprompted_status(self, statusword: int) -> None:
+        """STATUS with seq 0: the device says on its own that the drive changed state (its link watchdog
+        stopped it, the enable input dropped, it faulted)."""
+        state = cia402.state_from_statusword_or_none(statusword)
+        if state in _FAULT_STATES:
+            self._code_needed = self._fault is None
+        elif self._state == "open" and state is not cia402.DriveState.OPERATION_ENABLED:
+            self._report_fault(DeviceFault(self.drive_label, None, (
+                f"left OPERATION ENABLED without a fault (unprompted STATUS 0x{statusword:04X}: "
+                f"{state.name if state else 'no CiA 402 state'}); it no longer follows the targets")))
+
+    def _report_faulted_statusword(self) -> None:
+        """A statusword said FAULT but no FAULT frame came (lost to line noise, or a device that sends it
+        late): read the code, so that the message names it."""
+        self._code_needed = False
+        code = cia402.fault_code_or_none(self._read_error_code)
+        self._report_fault(DeviceFault(self.drive_label, code, (
+            "the drive reports FAULT in its statusword (no FAULT frame came; the code was read with ERROR_REQUEST)"
+            if code is not None else "the drive reports FAULT in its statusword")))
+
+    def _encoder_value(self, raw: int, seq: int) -> int:
+        """The position value from FEEDBACK's 32 bits: zero-extended (unsigned encoder) or sign-extended
+        (signed) from the encoder's n+m bits; anything else is a device or config error, named."""
+        width = self.encoder.bits + self.encoder.multi_turn_bits
+        value = raw - (1 << 32) if self.encoder.signed and raw >= 1 << 31 else raw
+        low = -(1 << (width - 1)) if self.encoder.signed else 0
+        if not low <= value < low + (1 << width):
+            raise TransportError(
+                f"{self.name}: FEEDBACK {seq}: encoder_counts 0x{raw:08X} is no {width}-bit "
+                f"{'signed (sign-extended)' if self.encoder.signed else 'unsigned (zero-extended)'} position value; "
+                "check [encoder] bits, multi_turn_bits and signed against the firmware (docs/serial_protocol.md, "
+                "FEEDBACK)")
+        return value
 
     def _request_reply(self, kind: MessageType, *fields: int) -> SerialMessage:
-        self._request = (self._request + 1) & 0xFFFF
-        request = self._request
-        self._write(encode_frame(kind, request, *fields))
-        deadline = time.perf_counter() + self.reply_timeout_s
-        while request not in self._status:
-            remaining = deadline - time.perf_counter()
-            if remaining <= 0:
-                raise TransportError(f"{self.name}: no STATUS answer to {kind.name} within {self.reply_timeout_s:g} s")
-            self._poll(remaining)
-        return self._status.pop(request)
-
-    def _write_controlword(self, controlword: int) -> None:
-        self._request_reply(MessageType.CONTROL, controlword)
-
-    def _read_statusword(self) -> int:
-        return self._request_reply(MessageType.STATUS_REQUEST).fields[0]
+        """Send a request and return its answer, sending the same frame again (same request number) after
+        each ``reply_timeout_s`` without an answer, at most ``reply_retries`` times."""
+        self._request = self._request % 0xFFFF + 1  # 1..65535: 0 marks unprompted STATUS
+        request, answer = self._request, _ANSWER_TO[kind]
+        self._answers.clear()  # one request at a time: anything left is a late copy of an older answer
+        frame = encode_frame(kind, request, *fields)
+        attempts = 1 + self.reply_retries
+        for attempt in range(attempts):
+            if attempt:
+                self.retries += 1
+            self._write(frame)
+            deadline = time.perf_counter() + self.reply_timeout_s
+            while (answer, request) not in self._answers:
+                remaining = deadline - time.perf_counter()
+                if remaining <= 0:
+                    break
+                self._poll(remaining)
+            else:
+                return self._answers.pop((answer, request))
+        hint = ""
+        if self._valid_frames == 0 and self._decoder.errors:
+            hint = (f"; {self._decoder.errors} damaged frames and no valid one came: is the baud rate "
+                    f"{self.baudrate} the firmware's?")
+        raise TransportError(f"{self.name}: no {answer.name} answer to {kind.name} (request {request}) within "
+                             f"{self.reply_timeout_s:g} s, {attempts} attempts{hint}")

@@ -60,6 +60,8 @@ _FIELD_RANGES = {  # struct formats of the bodies in serial_frames._BODY_FORMATS
     MessageType.FEEDBACK: [(0, 0xFFFF), (-2**31, 2**31 - 1), (0, 2**32 - 1)],
     MessageType.STATUS: [(0, 0xFFFF), (-2**31, 2**31 - 1)],
     MessageType.FAULT: [(0, 0xFFFF)],
+    MessageType.ERROR_REQUEST: [],
+    MessageType.ERROR: [(0, 0xFFFF)],
 }
 
 

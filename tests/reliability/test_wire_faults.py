@@ -110,6 +110,26 @@ def test_line_noise_is_resynchronised_and_costs_only_the_damaged_samples(tmp_pat
     assert log.num_samples == TEST_SAMPLES and result["lost"] == lost.size
     assert 3 <= lost.size <= 40  # ~3 % flipped + garbage merged into some frames; the rest arrive intact
     assert np.all(np.isfinite(np.delete(log.angle_rad, lost)))
+    # the damaged frames are counted in --json and in the log's summary (the finding: not in --json)
+    assert result["frame_errors"] >= 3 and log.metadata.extra["summary"]["frame_errors"] == result["frame_errors"]
+
+
+def test_a_baud_rate_that_cannot_carry_the_sample_rate_is_refused_at_config_load(tmp_path, capsys):
+    """The finding: 115200 baud at 1 kHz was accepted and ended at sample 61 with exit 3."""
+    from rig.protocols.errors import ConfigError
+    from rig.rig_config import load_rig_config
+
+    config = tmp_path / "slow_serial.toml"
+    template = (ROOT / "configs" / "rig_serial.toml").read_text()
+    config.write_text(template.replace("baudrate = 2000000", "baudrate = 115200"))
+    message = (r"\[transport.baudrate\] 115200 baud cannot carry 1000 Hz: one sample's SETPOINT and FEEDBACK take "
+               r"280 bit on an 8N1 UART \(10 bit per byte\), 243% of the line; the highest sample rate it carries is "
+               r"411 Hz \(or raise the baud rate to at least 280000\)")
+    with pytest.raises(ConfigError, match=message):
+        load_rig_config(config)
+    out = tmp_path / "run.csv"
+    assert main(["run", str(config), "--experiment", str(PRBS), "--out", str(out)]) == exit_codes.BAD_INPUT
+    assert "411 Hz" in capsys.readouterr().err and not out.exists()  # refused before the port is opened
 
 
 # -- safe stops ---------------------------------------------------------------------------------------------

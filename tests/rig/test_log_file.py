@@ -201,3 +201,20 @@ def test_a_sample_period_that_contradicts_the_time_column_is_refused(tmp_path):
     with pytest.raises(LogFileError, match=r"line 2: the metadata says sample_period_s = 0.01 s, but time_s steps "
                                            r"by 0.001 s \(median\)"):
         read_log(path)
+
+
+def test_a_summary_after_the_last_sample_reads_into_the_metadata_and_other_readers_skip_it(tmp_path):
+    from rig.log_file import count_samples
+
+    path = tmp_path / "run.csv"
+    record = sample_record()
+    with LogWriter(path, record.metadata) as log:
+        log.append_many(record.time_s, record.command_rad, record.angle_rad, record.encoder_counts, record.flags)
+        log.write_summary({"frame_errors": 3, "stop": "quick stop sent, then disable sent"})
+        with pytest.raises(LogFileError, match="no sample may follow"):
+            log.append(1.0, 0.0, 0.0)
+    again = read_log(path)
+    assert again.metadata.extra["summary"] == {"frame_errors": 3, "stop": "quick stop sent, then disable sent"}
+    assert len(again) == len(record) == count_samples(path)
+    table = np.genfromtxt(path, delimiter=",", names=True, skip_header=3)  # '#' lines are comments to numpy
+    assert table.size == len(record)

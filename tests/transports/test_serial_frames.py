@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import re
+from pathlib import Path
+
 import pytest
 from hypothesis import given, strategies as st
 
@@ -68,3 +71,29 @@ def test_a_stream_without_delimiters_is_discarded_and_the_next_frame_decodes():
     (0, 65535, 65536), (65535, 65536, 65535), (5, 5, 5), (3, 131074, 131075)])
 def test_sequence_numbers_unwrap_to_the_nearest_sample(seq16, reference, expected):
     assert unwrap_seq(seq16, reference) == expected
+
+
+DOC = Path(__file__).resolve().parents[2] / "docs" / "serial_protocol.md"
+
+
+@pytest.mark.parametrize(("kind", "seq", "fields", "wire"), [
+    (MessageType.CONTROL, 1, (0x0006,), "03 02 01 02 06 03 9d 89 00"),
+    (MessageType.STATUS, 1, (0x0231, 1000), "03 82 01 05 31 02 e8 03 01 03 a2 50 00"),
+    (MessageType.ERROR_REQUEST, 7, (), "03 04 07 03 cb 89 00"),
+    (MessageType.ERROR, 7, (0x2310,), "03 84 07 05 10 23 85 fc 00"),
+    (MessageType.STATUS, 0, (0x0250, 0), "02 82 01 03 50 02 01 01 01 03 b0 55 00"),
+])
+def test_the_specs_worked_examples_are_the_bytes_on_the_wire(kind, seq, fields, wire):
+    assert encode_frame(kind, seq, *fields).hex(" ") == wire
+    assert f"`{wire}`" in DOC.read_text()
+
+
+def test_the_specs_frame_sizes_and_bandwidth_table_hold():
+    from rig.protocols.serial_frames import frame_bytes_on_wire, link_load
+
+    text = DOC.read_text()
+    for kind in MessageType:
+        assert re.search(rf"\| {kind.value:#04x} \| {kind.name} \|.*\| {frame_bytes_on_wire(kind)} \|", text), kind
+    assert link_load(1000.0, 115_200).bits_per_cycle == 280
+    for baud, rate in re.findall(r"^\| ([\d ]+) \| ([\d ]+) Hz \|$", text, flags=re.M):
+        assert int(link_load(1.0, int(baud.replace(" ", ""))).max_rate_hz) == int(rate.replace(" ", ""))
