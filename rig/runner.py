@@ -136,6 +136,18 @@ class _Row:
         self.angle_rad, self.counts, self.flags = math.nan, None, _LOST
 
 
+def _write_summary(sink: SampleSink, transport: Transport, failure: BaseException | None) -> None:
+    """Hand the sink what is known only at the end (``frame_errors``, ``stop``), if it takes it."""
+    write_summary = getattr(sink, "write_summary", None)
+    if write_summary is None:
+        return
+    try:
+        write_summary({"frame_errors": transport.frame_errors, "stop": str(transport.stop_report or "")})
+    except Exception:
+        if failure is None:
+            raise  # otherwise what ended the run is the error to report, not this one
+
+
 def check_command(transport: Transport, command_rad: NDArray[np.float64]) -> None:
     """Refuse the whole command before the drive is enabled if any sample breaks the software limits; the
     first setpoint is checked against the drive's actual position (:attr:`Transport.initial_position_rad`,
@@ -323,14 +335,7 @@ def run_experiment(transport: Transport, command_rad: ArrayLike, sink: SampleSin
         finally:
             try:
                 write_rows(keep=0)
-                write_summary = getattr(sink, "write_summary", None)
-                if write_summary is not None:
-                    try:
-                        write_summary({"frame_errors": transport.frame_errors,
-                                       "stop": str(transport.stop_report or "")})
-                    except Exception:
-                        if failure is None:
-                            raise  # otherwise what ended the run is the error to report, not this one
+                _write_summary(sink, transport, failure)
             finally:
                 sink.close()
     wall = clock() - wall_start
@@ -431,6 +436,7 @@ def _run_device_clocked(transport: Transport, command: NDArray[np.float64], sink
                     write_final(last + pending_cycles)
                 else:
                     write_final(total + pending_cycles)
+                _write_summary(sink, transport, failure)
             finally:
                 sink.close()
     answered = written - ledger.counts["lost"]
