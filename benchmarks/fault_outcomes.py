@@ -33,6 +33,7 @@ CASES = [  # (wire, --sim-faults SPEC)
     ("serial", "drop=0.001"), ("serial", "burst=50@500"), ("serial", "fault=0x7121@1000"),
     ("serial", "garbage=0.01"), ("serial", "bitflip=0.01"), ("serial", "truncate=0.01"), ("serial", "lag=2@1000"),
     ("serial", "lag=60@1000"), ("serial", "unplug@1000"),
+    ("canopen", "stall=30@1000"), ("canopen", "stall=300@1000"), ("can", "stall=300@1000"), ("serial", "stall=300@1000"),
 ]
 
 
