@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from identify.experiment_record import ExperimentRecord
+from identify.experiment_record import ExperimentRecord, SampleFlag
 from identify.plant_blocks import Delay, LinearBlock, OutputBacklash, PlantModel, Resonance
 from rig.protocols.errors import TransportError
 
@@ -148,7 +148,7 @@ class DemoOutcome:
     discrepancy: Any
     report_index: Path | None = None
     timings_s: dict[str, float] = field(default_factory=dict)
-    retries: dict[str, int] = field(default_factory=dict)  # experiment -> runs repeated after lost samples
+    retries: dict[str, int] = field(default_factory=dict)  # experiment -> runs repeated after lost or held samples
 
 
 class SimulatedRigSession:
@@ -170,7 +170,9 @@ class SimulatedRigSession:
 
     def run(self, name: str, command_rad: NDArray[np.float64], *, keep_log: bool = True,
             max_lost: int = 0) -> ExperimentRecord:
-        """Stream ``command_rad`` from rest; return a record with at most ``max_lost`` unusable samples.
+        """Stream ``command_rad`` from rest; return a record with at most ``max_lost`` samples off the
+        design (unusable, or HELD: the drive applied an earlier setpoint than the designed one, which a
+        cyclic excitation cannot tolerate).
 
         A host too busy to keep the rate loses samples (they are flagged in the log). An experiment that
         lost more than ``max_lost`` is run again from rest, up to :attr:`max_attempts` times; the repeats
@@ -178,10 +180,10 @@ class SimulatedRigSession:
         """
         for attempt in range(1, self.max_attempts + 1):
             record = self._run_once(name, command_rad, keep_log=keep_log)
-            if np.count_nonzero(~record.valid_mask) <= max_lost:
+            if _samples_off_design(record) <= max_lost:
                 return record
             self.retries[name] = attempt
-        raise TransportError(f"{name}: {np.count_nonzero(~record.valid_mask)} samples were lost or faulted "
+        raise TransportError(f"{name}: {_samples_off_design(record)} samples were lost, faulted or held "
                            f"(at most {max_lost} can be used) in each of {self.max_attempts} attempts; the host "
                            "cannot keep the rig's rate: close other programs and run again, or try --transport serial")
 
@@ -213,6 +215,12 @@ class SimulatedRigSession:
         self.runs[name] = DemoRun(name, record, log_path if keep_log and self.out_dir else None,
                                   summary.late, summary.lost)
         return record
+
+
+def _samples_off_design(record: ExperimentRecord) -> int:
+    """Samples unusable, or HELD (the command really applied is not the designed one)."""
+    held = (record.flags & int(SampleFlag.HELD)) != 0
+    return int(np.count_nonzero(~record.valid_mask | held))
 
 
 def last_valid_values(record: ExperimentRecord, indices: NDArray[np.int64], max_age: int) -> NDArray[np.float64]:
@@ -388,7 +396,7 @@ def format_summary(outcome: DemoOutcome) -> str:
                  f"filter pole a = {outcome.filter_pole:.4g} (search: {outcome.filter_design.filter_pole:.4g}); "
                  f"noise bound {outcome.noise_bound_rad:.3g} rad")
     if outcome.retries:
-        lines.append("repeated after lost samples (busy host): "
+        lines.append("repeated after lost or held samples (busy host): "
                      + ", ".join(f"{name} x{count}" for name, count in outcome.retries.items()))
     if math.isfinite(sum(outcome.timings_s.values())):
         lines.append("time per step: " + ", ".join(f"{key} {value:.1f} s" for key, value in outcome.timings_s.items()))
