@@ -21,10 +21,10 @@ from pathlib import Path
 import numpy as np
 
 from identify.discrepancy_cases import hidden_effect_record
+from identify.effect_catalogue import EFFECT_NAMES
 from identify.model_discrepancy import diagnose_model
 
-TRUE_EFFECTS = ("none", "backlash", "dead_zone", "saturation", "delay", "coulomb_friction", "resonance", "offset",
-                "gain_error")
+TRUE_EFFECTS = ("none", *EFFECT_NAMES)  # every effect of the catalogue
 EMPS = Path(__file__).resolve().parents[2] / "shared" / "realdata" / "emps" / "DATA_EMPS.mat"
 
 
@@ -45,9 +45,7 @@ def confusion(cases: int, start: str, effects: tuple[str, ...], first_seed: int)
             if row != "none":
                 reductions[row].append(1.0 - result.final.gap_rad / result.initial.gap_rad)
     elapsed = time.perf_counter() - started
-    short = {"none": "none", "backlash": "backl", "dead_zone": "deadz", "saturation": "satur", "delay": "delay",
-             "coulomb_friction": "fric", "resonance": "reson", "offset": "offs", "gain_error": "gain",
-             "other": "other"}
+    short = {name: name[:5] for name in columns} | {"coulomb_friction": "fric", "offset": "offs", "gain_error": "gain"}
     print(f"\nstart model: {start}; {cases} cases per row (seeds {first_seed}..{first_seed + cases - 1}); "
           f"{elapsed:.0f} s in all")
     print("| true \\ named | " + " | ".join(short[c] for c in columns) + " | correct | more named | median gap reduction |")

@@ -35,20 +35,9 @@ from numpy.typing import ArrayLike, NDArray
 from scipy import optimize
 from scipy.signal import lfilter
 
-from identify.effect_signatures import EFFECT_NAMES, SignatureScore, signature_scores
-from identify.plant_blocks import (
-    Block,
-    CoulombFriction,
-    DeadZone,
-    Delay,
-    LinearBlock,
-    OutputBacklash,
-    OutputGain,
-    OutputOffset,
-    PlantModel,
-    Resonance,
-    Saturation,
-)
+from identify.effect_catalogue import EFFECT_NAMES, EFFECTS, GuessContext, effect
+from identify.effect_signatures import SignatureScore, signature_scores
+from identify.plant_blocks import Block, CoulombFriction, LinearBlock, OutputBacklash, PlantModel, Resonance
 from identify.validation import InvalidInputError, as_signal, positive, same_length, varying
 
 ESTIMATION_FRACTION = 0.6
@@ -75,11 +64,6 @@ _EFFECT_DIFF_STEP = 1e-3
 _BASELINE_EFFORT = 5
 """Before another effect is tried, the model so far is polished with this many times the evaluations of one
 candidate fit."""
-_NEGLIGIBLE_GAIN_ERROR = 1.0e-3
-"""A fitted gain within this of 1 is no gain error (a 0.1 % scale error is below what the workflow resolves)."""
-_MAX_RESONANCE_DAMPING = 0.3
-"""A resonance is a narrow peak: a fitted damping ratio is kept below this (a heavily damped second-order
-section would otherwise stand in for a delay)."""
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -302,7 +286,9 @@ class _Component:
 
     @property
     def free(self) -> int:
-        return 0 if self.kind == "fixed" or self.kind == "delay" else len(self.values)
+        if self.kind == "fixed" or (self.kind in EFFECTS and EFFECTS[self.kind].searched):
+            return 0
+        return len(self.values)
 
 
 def _linear_component(block: LinearBlock) -> _Component:
@@ -315,60 +301,20 @@ def _linear_component(block: LinearBlock) -> _Component:
 
 
 def _build(component: _Component, values: Sequence[float]) -> Block:
-    v = [float(x) for x in values]
     kind = component.kind
     if kind == "fixed":
         assert component.block is not None
         return component.block
+    v = [float(x) for x in values]
     if kind == "linear":
         return LinearBlock(a=tuple(v[: component.na]), b=(0.0,) * component.nk + tuple(v[component.na:]),
                            sample_period_s=component.sample_period_s)
-    if kind == "backlash":
-        return OutputBacklash(m_l=1.0, c_l=max(abs(v[0]), 1e-12), m_r=1.0, c_r=max(abs(v[1]), 1e-12))
-    if kind == "dead_zone":
-        left, right = -abs(v[0]), abs(v[1])
-        return DeadZone(left_rad=left, right_rad=right)
-    if kind == "saturation":
-        lower, upper = -abs(v[0]), abs(v[1])
-        return Saturation(lower_rad=lower, upper_rad=max(upper, lower + 1e-9))
-    if kind == "delay":
-        return Delay(int(round(v[0])))
-    if kind == "coulomb_friction":
-        slide = abs(v[1])
-        stick = max(abs(v[0]), slide, 1e-12)
-        return CoulombFriction(breakaway_torque_nm=stick, coulomb_torque_nm=slide, stiffness_nm_per_rad=1.0)
-    if kind == "resonance":
-        nyquist = 0.5 / component.sample_period_s
-        frequency = min(max(abs(v[0]), 1e-3 * nyquist), 0.98 * nyquist)
-        damping = min(max(abs(v[1]), 1e-3), _MAX_RESONANCE_DAMPING)
-        return Resonance(frequency_hz=frequency, damping_ratio=damping, sample_period_s=component.sample_period_s)
-    if kind == "offset":
-        return OutputOffset(offset_rad=v[0], drift_rad_per_s=v[1], sample_period_s=component.sample_period_s)
-    if kind == "gain_error":
-        return OutputGain(gain=1.0 + v[0])
-    raise InvalidInputError(f"effect: unknown effect {kind!r}")
+    return effect(kind).build(v, component.sample_period_s)
 
 
 def _parameters(kind: str, block: Block) -> dict[str, float]:
     """The public parameters of a fitted effect block."""
-    if isinstance(block, OutputBacklash):
-        return {"c_l_rad": block.c_l, "c_r_rad": block.c_r}
-    if isinstance(block, DeadZone):
-        return {"left_rad": block.left_rad, "right_rad": block.right_rad}
-    if isinstance(block, Saturation):
-        return {"lower_rad": block.lower_rad, "upper_rad": block.upper_rad}
-    if isinstance(block, Delay):
-        return {"samples": float(block.samples)}
-    if isinstance(block, CoulombFriction):
-        return {"breakaway_deflection_rad": block.breakaway_deflection_rad,
-                "sliding_deflection_rad": block.sliding_deflection_rad}
-    if isinstance(block, Resonance):
-        return {"frequency_hz": block.frequency_hz, "damping_ratio": block.damping_ratio}
-    if isinstance(block, OutputOffset):
-        return {"offset_rad": block.offset_rad, "drift_rad_per_s": block.drift_rad_per_s}
-    if isinstance(block, OutputGain):
-        return {"gain": block.gain, "relative_error": block.gain - 1.0}
-    raise InvalidInputError(f"effect: no parameters known for {kind!r}")
+    return {key: float(value) for key, value in effect(kind).report(block).items()}
 
 
 class _Chain:
@@ -547,52 +493,16 @@ def fit_linear_model(command_rad: ArrayLike, angle_rad: ArrayLike, sample_period
 
 
 def _insert_index(chain: _Chain, kind: str) -> int:
-    """Where an effect goes: input-side effects before the first linear component, output-side after
-    the last linear/resonance component, the offset at the very end."""
+    """Where an effect goes (its catalogue placement): ``input`` before the first linear component,
+    ``output`` after the last linear/resonance component, ``end`` at the very end."""
     linear = [i for i, c in enumerate(chain.components)
               if c.kind in ("linear", "resonance") or isinstance(c.block, (LinearBlock, Resonance))]
-    if kind in ("dead_zone", "saturation", "delay"):
+    placement = effect(kind).placement
+    if placement == "input":
         return linear[0] if linear else 0
-    if kind in ("offset", "gain_error"):
+    if placement == "end":
         return len(chain.components)
-    after = linear[-1] + 1 if linear else len(chain.components)
-    return after
-
-
-def _initial_guesses(kind: str, u: NDArray[np.float64], residual: NDArray[np.float64], delta: float,
-                     period: float, scores: dict[str, SignatureScore]) -> list[tuple[float, ...]]:
-    amplitude = max(float(np.max(np.abs(residual))), 4.0 * delta)
-    span = float(np.max(np.abs(u)))
-    levels = np.geomspace(delta, amplitude, 7)
-    if kind == "backlash":
-        return [(left, right) for left in levels for right in levels]
-    if kind == "coulomb_friction":
-        return [(r * c, c) for c in np.geomspace(delta, 2.0 * amplitude, 14) for r in (1.0, 1.25, 1.5, 1.8, 2.2, 2.8)]
-    if kind == "dead_zone":
-        # each edge on its own: a record may barely reach one side's edge, and a symmetric guess misses it
-        edges = np.geomspace(max(delta, 1e-3 * span), 0.3 * span, 6)
-        return [(left, right) for left in edges for right in edges]
-    if kind == "saturation":
-        # each limit from the commands on its side: travel limits need not be symmetric
-        levels = (0.3, 0.5, 0.7, 0.85, 0.95)
-        below = np.quantile(-u[u < 0], levels) if np.any(u < 0) else np.zeros(1)
-        above = np.quantile(u[u > 0], levels) if np.any(u > 0) else np.zeros(1)
-        return [(float(low), float(high)) for low in below for high in above]
-    if kind == "resonance":
-        nyquist = 0.5 / period
-        peak = scores["resonance"].details.get("peak_frequency_hz", 0.1 * nyquist)
-        frequencies = [f for f in (peak, *np.geomspace(0.02 * nyquist, 0.8 * nyquist, 16)) if 0.0 < f < 0.98 * nyquist]
-        return [(f, z) for f in frequencies for z in (0.02, 0.05, 0.1)]
-    if kind == "offset":
-        return [(float(np.mean(residual)), 0.0)]
-    if kind == "gain_error":
-        relative_error = scores["gain_error"].details.get("relative_error", 0.0)
-        return [(relative_error,), *((e,) for e in (-0.2, -0.05, 0.05, 0.2))]
-    raise InvalidInputError(f"effect: unknown effect {kind!r}")
-
-
-_PARAMETER_COUNT = {"backlash": 2, "dead_zone": 2, "saturation": 2, "delay": 1, "coulomb_friction": 2,
-                    "resonance": 2, "offset": 2, "gain_error": 1}
+    return linear[-1] + 1 if linear else len(chain.components)
 
 
 @dataclass(frozen=True)
@@ -616,10 +526,11 @@ def _try_effect(kind: str, chain: _Chain, u: NDArray[np.float64], y: NDArray[np.
         components.insert(index, _Component(kind, tuple(float(v) for v in values), sample_period_s=period))
         return _Chain(components)
 
-    if kind == "delay":
+    entry = effect(kind)
+    if entry.searched:
         options = [with_effect((d,)) for d in range(1, max_delay_samples + 1)]
     else:
-        options = [with_effect(g) for g in _initial_guesses(kind, u, residual, delta, period, scores)]
+        options = [with_effect(g) for g in entry.guesses(GuessContext(u, residual, delta, period, scores))]
     options = [_refit_last_linear(option, u_est, y_est) for option in options]
     if kind in ("backlash", "coulomb_friction"):
         plays = np.geomspace(delta, max(float(np.max(np.abs(residual))), 4.0 * delta), 4)
@@ -880,13 +791,13 @@ def diagnose_model(command_rad: ArrayLike, angle_rad: ArrayLike, noise_bound_rad
             candidate = _try_effect(kind, chain, u, y, n_est, delta, period, current.residual_rad, scores,
                                     max_delay_samples, max_evaluations)
             say(f"  {kind}: validated gap {candidate.gap_rad:.3g} rad")
-            if not _vanished(candidate.block, delta):
+            if not EFFECTS[kind].vanished(candidate.block, delta):
                 tried.append(candidate)
         if not tried:
             break
-        penalised = {c.kind: c.gap_rad * (1.0 + complexity_penalty * _PARAMETER_COUNT[c.kind]) for c in tried}
+        penalised = {c.kind: c.gap_rad * (1.0 + complexity_penalty * EFFECTS[c.kind].free_parameters) for c in tried}
         best = min(tried, key=lambda c: penalised[c.kind])
-        best = _prefer_backlash(best, tried, penalised, current.gap_rad)
+        best = _prefer_within_family(best, tried, penalised, current.gap_rad)
         if penalised[best.kind] > (1.0 - min_reduction) * current.gap_rad:
             break
         polished = _polish(_refine_delays(best.chain, u[:n_est], y[:n_est]), u[:n_est], y[:n_est], max_evaluations)
@@ -925,43 +836,45 @@ def diagnose_model(command_rad: ArrayLike, angle_rad: ArrayLike, noise_bound_rad
     )
 
 
-def _vanished(block: Block, delta: float) -> bool:
-    """An effect fitted to nothing (play, dead band or delay of zero size) is not an effect."""
-    if isinstance(block, OutputBacklash):
-        return block.c_l + block.c_r < delta
-    if isinstance(block, DeadZone):
-        return block.right_rad - block.left_rad < delta
-    if isinstance(block, Delay):
-        return block.samples == 0
-    if isinstance(block, CoulombFriction):
-        return block.breakaway_deflection_rad < delta / 2.0
-    if isinstance(block, OutputGain):
-        return abs(block.gain - 1.0) < _NEGLIGIBLE_GAIN_ERROR
-    return False
+STICTION_RATIO = 1.15
+"""Friction has real stiction when its breakaway twist exceeds the sliding one by this factor; without it
+(breakaway = sliding) Coulomb friction is the same map as a symmetric backlash with unit slopes."""
+
+FRICTION_CLEARLY_BETTER = 0.8
+"""Friction with stiction must fit the estimation segment to this fraction of backlash's error to be named
+over backlash (the two fits differ only through the stiction)."""
+
+FRICTION_MIN_HALVING = 0.5
+"""... and bring the validated gap to at most this fraction of the gap before."""
+
+FAMILY_TIE = 1.05
+"""Friction that wins the validated gap without real stiction gives way to backlash when backlash's penalised
+gap is within this factor of friction's (the simpler, equivalent map)."""
 
 
-def _prefer_backlash(best: _Candidate, tried: Sequence[_Candidate], penalised: dict[str, float],
-                     gap_before_rad: float) -> _Candidate:
-    """Backlash and Coulomb friction are one family (hysteresis after the drive); decide between them.
+def _prefer_within_family(best: _Candidate, tried: Sequence[_Candidate], penalised: dict[str, float],
+                          gap_before_rad: float) -> _Candidate:
+    """Backlash and Coulomb friction are one family (``"hysteresis"`` in the catalogue: hysteresis after the
+    drive); decide between them.
 
-    Friction without stiction (breakaway = sliding twist) is the same map as a symmetric backlash with unit
-    slopes, so friction is named only if its stiction is real (breakaway > 1.15 sliding) and it fits the
-    estimation segment clearly better (by 20 %). Conversely, a stick-slip model's free run is very
-    sensitive to its thresholds (where the load sticks depends on the whole history), so on the
-    validation segment backlash can look better although friction is the effect; when backlash wins the
-    validated gap but friction with real stiction fits the estimation segment clearly better and still
-    halves the gap, friction is named.
+    Friction without stiction is the same map as a symmetric backlash with unit slopes, so friction is named
+    only if its stiction is real (:data:`STICTION_RATIO`) and it fits the estimation segment clearly better
+    (:data:`FRICTION_CLEARLY_BETTER`). Conversely, a stick-slip model's free run is very sensitive to its
+    thresholds (where the load sticks depends on the whole history), so on the validation segment backlash
+    can look better although friction is the effect; when backlash wins the validated gap but friction with
+    real stiction fits the estimation segment clearly better and still halves the gap
+    (:data:`FRICTION_MIN_HALVING`), friction is named.
     """
     by_kind = {c.kind: c for c in tried}
     backlash, friction = by_kind.get("backlash"), by_kind.get("coulomb_friction")
     if best.kind not in ("backlash", "coulomb_friction") or backlash is None or friction is None:
         return best
     assert isinstance(friction.block, CoulombFriction)
-    stiction = friction.block.breakaway_torque_nm > 1.15 * friction.block.coulomb_torque_nm
-    clearly_better = friction.estimation_rms_rad < 0.8 * backlash.estimation_rms_rad
-    if stiction and clearly_better and friction.gap_rad <= 0.5 * gap_before_rad:
+    stiction = friction.block.breakaway_torque_nm > STICTION_RATIO * friction.block.coulomb_torque_nm
+    clearly_better = friction.estimation_rms_rad < FRICTION_CLEARLY_BETTER * backlash.estimation_rms_rad
+    if stiction and clearly_better and friction.gap_rad <= FRICTION_MIN_HALVING * gap_before_rad:
         return friction
     if best.kind == "coulomb_friction" and not (stiction and clearly_better) \
-            and penalised["backlash"] <= 1.05 * penalised["coulomb_friction"]:
+            and penalised["backlash"] <= FAMILY_TIE * penalised["coulomb_friction"]:
         return backlash
     return best
