@@ -45,7 +45,8 @@ def confusion(cases: int, start: str, effects: tuple[str, ...], first_seed: int)
             if row != "none":
                 reductions[row].append(1.0 - result.final.gap_rad / result.initial.gap_rad)
     elapsed = time.perf_counter() - started
-    short = {name: name[:5] for name in columns} | {"coulomb_friction": "fric", "offset": "offs", "gain_error": "gain"}
+    short = {name: name[:5] for name in columns} | {"dead_zone": "deadz", "coulomb_friction": "fric", "offset": "offs",
+                                                    "gain_error": "gain"}
     print(f"\nstart model: {start}; {cases} cases per row (seeds {first_seed}..{first_seed + cases - 1}); "
           f"{elapsed:.0f} s in all")
     print("| true \\ named | " + " | ".join(short[c] for c in columns) + " | correct | more named | median gap reduction |")

@@ -143,6 +143,8 @@ class Effect:
         The free value is an integer found by exhaustive search (the delay), not by least squares.
     needs_reversals
         The effect shows only where the command reverses its direction (hysteresis).
+    needs_given_model
+        The effect is tried only against a given model (a fitted start model has absorbed it).
     """
 
     name: str
@@ -162,6 +164,7 @@ class Effect:
     family: str | None = None
     searched: bool = False
     needs_reversals: bool = False
+    needs_given_model: bool = False
 
     def block_from_toml(self, values: dict[str, Any], sample_period_s: float) -> Block:
         """The block of a TOML table whose keys were read into ``values``."""
@@ -383,6 +386,7 @@ EFFECTS: dict[str, Effect] = {effect.name: effect for effect in (
         vanished=lambda b, delta: abs(b.gain - 1.0) < NEGLIGIBLE_GAIN_ERROR,
         random_block=lambda rng, u, f, period: OutputGain(gain=1.0 + rng.choice((-1.0, 1.0)) * rng.uniform(0.03, 0.15)),
         signature="r ~ e y^: the measured output is (1 + e) times the model's",
+        needs_given_model=True,
     ),
 )}
 """Every effect, by its diagnose name, in the order the workflow tries them."""

@@ -102,20 +102,47 @@ def diagnose_file(path_text: str, options: dict):
     return result, int(record.command_rad.size), index
 
 
+VERDICT_WORDS = {
+    "explained": "EXPLAINED: the start model already agrees with the data",
+    "named": "NAMED: missing effects found",
+    "ambiguous": "AMBIGUOUS: candidates fit equally well, none is chosen",
+    "unexplained": "UNEXPLAINED: no candidate effect helps",
+    "not_excited": "NOT EXCITED: the data cannot show the effects",
+}
+"""The verdict of :data:`identify.model_discrepancy.VERDICTS` in words (text output and report)."""
+
+
 def _print_summary(data: str, model: str | None, noise_bound: float, result, num_samples: int, index) -> None:
     print(f"data          {data}  ({num_samples} samples, validation from sample "
           f"{result.estimation_samples})")
-    print(f"start model   {model or 'linear, order %d (fitted)' % result.linear_fit.order}")
+    start = model or ("linear, order %d (fitted)" % result.linear_fit.order if result.linear_fit else "not fitted")
+    print(f"start model   {start}")
     print(f"noise bound   {noise_bound:.4g} rad")
+    print(f"verdict       {VERDICT_WORDS[result.verdict]}")
+    print(f"              {result.verdict_reason}")
     print(f"initial gap   {result.initial.gap_rad:.4g} rad, {100 * result.initial.falsified_fraction:.1f} % "
           f"of validation samples falsified, {len(result.initial.windows)} disagreement windows")
+    rounds = sorted({c.round for c in result.candidates})
+    for round_index in rounds:
+        tried = sorted((c for c in result.candidates if c.round == round_index), key=lambda c: c.penalised_gap_rad)
+        print(f"candidates {round_index + 1}  " + "; ".join(
+            f"{c.effect} {c.gap_rad:.3g} +- {c.gap_uncertainty_rad:.2g}" + (" (vanished)" if c.vanished else "")
+            for c in tried) + " rad")
     for number, step in enumerate(result.steps, 1):
-        parameters = ", ".join(f"{k} = {v:.4g}" for k, v in step.parameters.items())
+        intervals = result.parameter_intervals.get(step.effect, {})
+        parameters = ", ".join(
+            f"{k} = {v:.4g}" + (f" [{intervals[k][0]:.4g}, {intervals[k][1]:.4g}]" if k in intervals else "")
+            for k, v in step.parameters.items())
         print(f"step {number}: {step.effect:<17} gap {step.gap_before_rad:.4g} -> {step.gap_after_rad:.4g} rad  "
               f"({parameters})")
     if not result.steps:
-        print("no missing effect found")
+        print("no missing effect found" if result.verdict != "ambiguous" else
+              f"no effect chosen between {', '.join(result.ambiguous_between)}")
     print(f"final gap     {result.final.gap_rad:.4g} rad, {100 * result.final.falsified_fraction:.1f} % falsified")
+    if result.steps and result.gap_reduction:
+        print(f"gap reduction {100 * result.gap_reduction_fraction:.1f} % on the validation segment, "
+              f"{100 * result.gap_reduction['low']:.1f} .. {100 * result.gap_reduction['high']:.1f} % over "
+              f"{len(result.gap_reduction['folds'])} cross-validation folds")
     print(result.unexplained)
     if index is not None:
         print(f"report        {index}")

@@ -269,9 +269,14 @@ def _diagnose_section(result: ResultFile, used: set[str]):
     if "falsified_fraction_initial" in document and "falsified_fraction_final" in document:
         fractions = (f" Samples outside the noise bound: {100 * float(document['falsified_fraction_initial']):.1f} % "
                      f"before, {100 * float(document['falsified_fraction_final']):.1f} % after.")
-    named = ", ".join(name for name, *_ in steps) or "none (the model already explains the data)"
-    text = (f"{result.path.name}: missing effects named, in order: {named}. Free-run RMS error on the validation "
-            f"segment {gap_initial:.4g} rad before, {gap_final:.4g} rad after.{fractions}")
+    named = ", ".join(name for name, *_ in steps) or "none"
+    verdict = _diagnose_verdict(document, bool(steps))
+    from rig.commands.diagnose import VERDICT_WORDS
+
+    reason = str(document.get("verdict_reason") or "")
+    text = (f"{result.path.name}: verdict {VERDICT_WORDS.get(verdict, verdict)}"
+            f"{': ' + reason if reason else ''}. Missing effects named, in order: {named}. Free-run RMS error on "
+            f"the validation segment {gap_initial:.4g} rad before, {gap_final:.4g} rad after.{fractions}")
     labels = ["start model"] + [f"+ {name}" for name, *_ in steps]
     gaps = [gap_initial] + [after for _, _, after, _ in steps]
 
@@ -292,6 +297,25 @@ def _diagnose_section(result: ResultFile, used: set[str]):
     return ReportSection(f"Model discrepancy: {result.path.name}", text=text,
                          table_header=("missing effect", "parameters", "gap before [rad]", "gap after [rad]"),
                          table_rows=rows, figures=(ReportFigure(f"{slug}_gap", caption, draw, size_in=(6.5, 3.5)),))
+
+
+DIAGNOSE_CONSISTENT_FRACTION = 0.01
+"""A diagnosis JSON written before the verdict existed counts as explained only if at most this fraction of
+validation samples stays falsified (the workflow's default ``consistent_fraction``)."""
+
+
+def _diagnose_verdict(document: dict, named: bool) -> str:
+    """The document's verdict; for JSON without one, the verdict its numbers imply (never "explained" while
+    samples stay falsified)."""
+    verdict = document.get("verdict")
+    if isinstance(verdict, str):
+        return verdict
+    if named:
+        return "named"
+    final = document.get("falsified_fraction_final")
+    if isinstance(final, (int, float)) and final <= DIAGNOSE_CONSISTENT_FRACTION:
+        return "explained"
+    return "unexplained"
 
 
 def _unique(name: str, used: set[str]) -> str:
