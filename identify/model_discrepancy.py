@@ -37,7 +37,16 @@ from scipy.signal import lfilter
 
 from identify.effect_catalogue import EFFECT_NAMES, EFFECTS, GuessContext, effect
 from identify.effect_signatures import SignatureScore, direction_signal, signature_scores
-from identify.plant_blocks import Block, CoulombFriction, Delay, LinearBlock, OutputBacklash, PlantModel, Resonance
+from identify.plant_blocks import (
+    Block,
+    CoulombFriction,
+    Delay,
+    LinearBlock,
+    OutputBacklash,
+    OutputOffset,
+    PlantModel,
+    Resonance,
+)
 from identify.validation import InvalidInputError, as_signal, positive, same_length, varying
 
 VERDICTS = ("explained", "named", "ambiguous", "unexplained", "not_excited")
@@ -192,6 +201,7 @@ class DiscrepancyResult:
     parameter_intervals: dict[str, dict[str, tuple[float, float]]] = field(default_factory=dict)
     gap_reduction: dict[str, Any] | None = None
     excitation: dict[str, Any] = field(default_factory=dict)
+    operating_point_rad: float = 0.0
 
     def __post_init__(self) -> None:
         if self.verdict not in VERDICTS:
@@ -236,6 +246,7 @@ class DiscrepancyResult:
             "falsified_fraction_initial": float(self.initial.falsified_fraction),
             "falsified_fraction_final": float(self.final.falsified_fraction),
             "excitation": dict(self.excitation),
+            "operating_point": float(self.operating_point_rad),
         }
 
 
@@ -752,7 +763,8 @@ def diagnose_model(command_rad: ArrayLike, angle_rad: ArrayLike, noise_bound_rad
                    max_effects: int = 3, complexity_penalty: float = 0.03, min_reduction: float = 0.15,
                    consistent_fraction: float = 0.01, max_delay_samples: int = 40,
                    max_evaluations: int = 40,
-                   progress: Callable[[str], None] | None = None) -> DiscrepancyResult:
+                   progress: Callable[[str], None] | None = None,
+                   from_operating_point: bool = True) -> DiscrepancyResult:
     """Run the model-discrepancy workflow of issue 6 (steps 1-5 of the module docstring).
 
     Parameters
@@ -783,6 +795,12 @@ def diagnose_model(command_rad: ArrayLike, angle_rad: ArrayLike, noise_bound_rad
         Longest delay tried.
     max_evaluations
         Function evaluations per least-squares polish.
+    from_operating_point
+        Start the free run at the measured operating point, not at zero: when the first measured angles are
+        further than :data:`OPERATING_POINT_MIN_NOISE_BOUNDS` noise bounds from zero, the workflow runs on
+        u - y_0 and y - y_0 (y_0 the median of the first :data:`OPERATING_POINT_SAMPLES` angles), and the
+        models it returns are wrapped as y_0 + M(u - y_0). Parameters of position-dependent effects
+        (dead-zone edges, saturation limits) are then relative to y_0.
     """
     u = as_signal("command_rad", command_rad, min_samples=50)
     y = as_signal("angle_rad", angle_rad, min_samples=50)
@@ -803,6 +821,15 @@ def diagnose_model(command_rad: ArrayLike, angle_rad: ArrayLike, noise_bound_rad
         period = model.sample_period_s  # the blocks added must carry exactly the model's period
     varying("command_rad", u, "record a step or PRBS experiment (configs/experiments/prbs.toml) to compare a "
                               "model with")
+    operating_point = _operating_point(y, delta) if from_operating_point else 0.0
+    if operating_point != 0.0:
+        result = diagnose_model(u - operating_point, y - operating_point, delta, period, model,
+                                estimation_fraction=estimation_fraction, candidates=candidates,
+                                max_effects=max_effects, complexity_penalty=complexity_penalty,
+                                min_reduction=min_reduction, consistent_fraction=consistent_fraction,
+                                max_delay_samples=max_delay_samples, max_evaluations=max_evaluations,
+                                progress=progress, from_operating_point=False)
+        return _absolute(result, operating_point, period)
     n_est = int(round(estimation_fraction * u.size))
     say = progress or (lambda _message: None)
     if model is None:
@@ -882,10 +909,11 @@ AMBIGUITY_MIN_MARGIN = 0.03
 """... and is at least this fraction of the better gap: a difference of 3 % in an RMS error is within what
 a refit from another start or a few more samples changes; choosing by it would be choosing by chance."""
 
-MIN_SEGMENT_REVERSALS = 2
+MIN_SEGMENT_REVERSALS = 1
 """Each segment must see the command reverse its direction at least this often: a play, friction or a
-lag is judged where the motion turns; a segment that never turns (a ramp, one step) cannot tell them apart
-and is not scored."""
+lag is judged where the motion turns; a segment that never turns (a ramp, one step) cannot tell them apart:
+an estimation segment without a turn cannot fit them, a validation segment without one is too short to
+judge, and the record is not scored."""
 
 MIN_VALIDATION_SAMPLES = 40
 """A validation segment shorter than this is too short to judge (fewer blocks than samples per block)."""
@@ -894,6 +922,38 @@ UNMEASURED_INPUT_FRACTION = 0.05
 """An unexplained record whose output moves by more than the noise while the command and the model are at
 rest in at least this share of samples is driven by something the record does not contain (torque off and
 the load swinging, a hand on the arm): not excited by the command, rather than unexplained."""
+
+OPERATING_POINT_SAMPLES = 5
+"""The operating point is the median of this many first measured angles (a one-sample read failure at the
+start does not move it)."""
+
+OPERATING_POINT_MIN_NOISE_BOUNDS = 10.0
+"""A record whose first angles lie within this many noise bounds of zero starts at zero: the start-up
+transient of a free run from zero is then within a few noise bounds and fades."""
+
+
+def _operating_point(y: NDArray[np.float64], delta: float) -> float:
+    y0 = float(np.median(y[:OPERATING_POINT_SAMPLES]))
+    return y0 if abs(y0) > OPERATING_POINT_MIN_NOISE_BOUNDS * delta else 0.0
+
+
+def _absolute(result: DiscrepancyResult, operating_point: float, period: float) -> DiscrepancyResult:
+    """``result`` of a run on u - y_0, y - y_0 in absolute angles: simulated outputs moved back by y_0, models
+    wrapped as y_0 + M(u - y_0)."""
+    from dataclasses import replace
+
+    def wrap(model: PlantModel) -> PlantModel:
+        return PlantModel((OutputOffset(offset_rad=-operating_point, drift_rad_per_s=0.0, sample_period_s=period),
+                           *model.blocks,
+                           OutputOffset(offset_rad=operating_point, drift_rad_per_s=0.0, sample_period_s=period)))
+
+    def moved(d: Disagreement) -> Disagreement:
+        return replace(d, simulated_rad=d.simulated_rad + operating_point)
+
+    steps = tuple(replace(step, model=wrap(step.model)) for step in result.steps)
+    return replace(result, steps=steps, start_model=wrap(result.start_model), final_model=wrap(result.final_model),
+                   initial=moved(result.initial), final=moved(result.final), operating_point_rad=operating_point)
+
 
 FOLDS = 4
 """Cross-validation folds for the parameter intervals: each fold leaves out one quarter of the record."""
@@ -1102,9 +1162,9 @@ def _within_uncertainty(best_cost: float, best_error: NDArray[np.float64] | None
 
 
 def _command_reversals(u: NDArray[np.float64]) -> NDArray[np.bool_]:
-    """True at the samples where the command's direction of motion turns (moves smaller than a thousandth of
-    its range are no motion)."""
-    threshold = 1e-3 * float(np.ptp(u)) if u.size else 0.0
+    """True at the samples where the command's direction of motion turns (a designed command moves smoothly
+    or holds exactly: only steps below a millionth of its range, rounding, are no motion)."""
+    threshold = 1e-6 * float(np.ptp(u)) if u.size else 0.0
     direction = direction_signal(u, threshold)
     turns = np.zeros(u.size, dtype=bool)
     turns[1:] = (np.diff(direction) != 0) & (direction[:-1] != 0)

@@ -87,7 +87,7 @@ def test_fitted_parameters_are_close_to_the_truth():
 
 JSON_KEYS = {"verdict", "verdict_reason", "noise_bound", "missing_effects", "ambiguous_between", "candidates",
              "gap_initial", "gap_final", "gap_reduction", "falsified_fraction_initial", "falsified_fraction_final",
-             "excitation"}
+             "excitation", "operating_point"}
 
 
 def test_json_document_has_exactly_the_issue_keys():
@@ -249,3 +249,20 @@ def test_a_gain_error_is_not_a_candidate_against_a_fitted_start_model():
     record = hidden_effect_record(("gain_error",), 71)
     result = run(record, given_model=False)
     assert "gain_error" not in {c.effect for c in result.candidates}
+
+
+def test_a_record_in_absolute_angles_runs_freely_from_its_operating_point_not_from_zero():
+    record = hidden_effect_record(("backlash",), 11)
+    shift = 3.1
+    result = diagnose_model(record.command_rad + shift, record.angle_rad + shift, record.noise_bound_rad,
+                            record.sample_period_s, record.nominal_model)
+    assert result.operating_point_rad == pytest.approx(shift, abs=2e-3)
+    assert result.missing_effects == ("backlash",)
+    # the same answer as on the record at zero: no start-up transient from 0 to 3.1 rad
+    at_zero = run(record)
+    assert result.initial.gap_rad == pytest.approx(at_zero.initial.gap_rad, rel=1e-6)
+    assert result.final.gap_rad == pytest.approx(at_zero.final.gap_rad, rel=0.05)
+    # the models returned work in absolute angles: the final one reproduces the measurement within the noise
+    simulated = result.final_model.simulate(record.command_rad + shift)
+    assert np.sqrt(np.mean((simulated - record.angle_rad - shift)[result.estimation_samples:] ** 2)) < 2 * record.noise_bound_rad
+    assert result.final.simulated_rad == pytest.approx(simulated)
