@@ -796,8 +796,9 @@ def diagnose_model(command_rad: ArrayLike, angle_rad: ArrayLike, noise_bound_rad
     max_evaluations
         Function evaluations per least-squares polish.
     from_operating_point
-        Start the free run at the measured operating point, not at zero: when the first measured angles are
-        further than :data:`OPERATING_POINT_MIN_NOISE_BOUNDS` noise bounds from zero, the workflow runs on
+        Start the free run at the measured operating point, not at zero: when the record starts at rest (the
+        first angles within two noise bounds of each other) further than
+        :data:`OPERATING_POINT_MIN_NOISE_BOUNDS` noise bounds from zero, the workflow runs on
         u - y_0 and y - y_0 (y_0 the median of the first :data:`OPERATING_POINT_SAMPLES` angles), and the
         models it returns are wrapped as y_0 + M(u - y_0). Parameters of position-dependent effects
         (dead-zone edges, saturation limits) are then relative to y_0.
@@ -873,6 +874,10 @@ def diagnose_model(command_rad: ArrayLike, angle_rad: ArrayLike, noise_bound_rad
     if steps:
         say("cross-validation folds for the parameter intervals")
         intervals, reduction = _fold_intervals(chain, start_model, u, y, max_evaluations)
+        for step in steps:  # a step's value (fitted when it was added) lies in its interval too
+            for key, value in step.parameters.items():
+                low, high = intervals.get(step.effect, {}).get(key, (value, value))
+                intervals.setdefault(step.effect, {})[key] = (min(low, value), max(high, value))
     verdict, reason = _verdict(initial, current, steps, ambiguous_between, consistent, delta, consistent_fraction)
     if verdict == "unexplained":
         unmeasured = _unmeasured_input(u, y, current.simulated_rad, delta)
@@ -933,8 +938,12 @@ transient of a free run from zero is then within a few noise bounds and fades.""
 
 
 def _operating_point(y: NDArray[np.float64], delta: float) -> float:
-    y0 = float(np.median(y[:OPERATING_POINT_SAMPLES]))
-    return y0 if abs(y0) > OPERATING_POINT_MIN_NOISE_BOUNDS * delta else 0.0
+    """y_0 when the record starts at rest (its first angles within two noise bounds of each other) away from
+    zero; 0 otherwise (a record that starts in motion has a state no angle gives: it runs from zero)."""
+    first = y[:OPERATING_POINT_SAMPLES]
+    y0 = float(np.median(first))
+    at_rest = float(np.ptp(first)) <= 2.0 * delta
+    return y0 if at_rest and abs(y0) > OPERATING_POINT_MIN_NOISE_BOUNDS * delta else 0.0
 
 
 def _absolute(result: DiscrepancyResult, operating_point: float, period: float) -> DiscrepancyResult:
