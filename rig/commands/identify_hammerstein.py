@@ -172,6 +172,9 @@ def _print_table(model, path: Path, hold: int | None) -> None:
                                           for k, s in enumerate(shown)))
     for pole in model.poles:
         print(f"pole             {pole.real:+.6f} {pole.imag:+.6f}j   |p| = {abs(pole):.6f}")
+    if not model.stable:
+        print(f"WARNING          unstable: a pole has |p| = {max(abs(p) for p in model.poles):.4g} >= 1; the model "
+              "grows without bound in a free run. Try a lower --order, longer or more cyclic data, or --refine")
     print("G(q^-1)          num " + " ".join(f"{c:+.6g}" for c in numerator))
     print("                 den " + " ".join(f"{c:+.6g}" for c in denominator))
     mu0_source = f"hold of {hold} samples, re-estimated" if model.mu0_hold is not None else "given/estimated"

@@ -234,6 +234,9 @@ def _hammerstein_section(result: ResultFile, sample_period_s: float | None, used
     slug = _unique(f"hammerstein_{result.slug}", used)
     rows = [("order", str(document["order"]))]
     rows += [(f"pole {k + 1}", f"{re_part:+.6f} {im_part:+.6f}j") for k, (re_part, im_part) in enumerate(document["poles"])]
+    if "stable" in document:
+        rows.append(("stable", "yes" if document["stable"] else
+                     f"NO: a pole has |p| = {float(document.get('max_pole_magnitude', float('nan'))):.4g} >= 1"))
     for key, label in (("mu0", "mu0 = H[u_min] [rad]"), ("fit_percent", "simulation fit [%]"),
                        ("residual_rms", "residual RMS [rad]"), ("split", "B and mu estimated")):
         if key in document:
