@@ -17,9 +17,13 @@ Placement (``Effect.placement``):
 * ``"output"``: after the last linear component or resonance (a play or friction after the drive, a mode);
 * ``"end"``: at the very end (what the encoder reads: offset, scale).
 
-A block that replaces the linear dynamics rather than adding to them (the drive-train block of issue 15,
-item 2) is added the same way, with its own placement value handled in
-:func:`identify.model_discrepancy._insert_index`.
+Adding an effect: write its block (a frozen dataclass with ``apply`` and ``stepper``, as in
+:mod:`identify.plant_blocks`), add one :class:`Effect` here, and, if its residual has a signature of its own,
+score it under the same name in :func:`identify.effect_signatures.signature_scores`. The TOML reader and
+writer, the workflow's candidates, the hidden-effect cases and the confusion benchmark pick it up. A block
+that replaces the linear dynamics rather than adding to them (the drive-train block of issue 15, item 2)
+needs one more placement value, handled in :func:`identify.model_discrepancy._insert_index` and in
+:data:`PLACEMENTS`.
 """
 
 from __future__ import annotations
@@ -48,7 +52,7 @@ from identify.validation import InvalidInputError
 if TYPE_CHECKING:
     from identify.effect_signatures import SignatureScore
 
-__all__ = ["EFFECTS", "EFFECT_NAMES", "Effect", "GuessContext", "Parameter", "TomlKey", "effect",
+__all__ = ["EFFECTS", "EFFECT_NAMES", "PLACEMENTS", "Effect", "GuessContext", "Parameter", "TomlKey", "effect",
            "effect_for_block", "effect_for_toml_type"]
 
 NEGLIGIBLE_GAIN_ERROR = 1.0e-3
@@ -145,6 +149,15 @@ class Effect:
         The effect shows only where the command reverses its direction (hysteresis).
     needs_given_model
         The effect is tried only against a given model (a fitted start model has absorbed it).
+    contact_start
+        For a hysteresis after the linear block: starts of the fit from the half-widths (c_l, c_r) of a
+        contact-branch refit (``_contact_branch_start`` in :mod:`identify.model_discrepancy`).
+    stick_slip
+        The free run is discontinuous in the breakaway threshold: the fit ends with a scan of the
+        breakaway/sliding ratio.
+    linear_dynamics
+        The block is linear dynamics (it commutes with the linear block: output-side effects go after it,
+        and the linear block is refitted through it).
     """
 
     name: str
@@ -165,6 +178,9 @@ class Effect:
     searched: bool = False
     needs_reversals: bool = False
     needs_given_model: bool = False
+    contact_start: Callable[[float, float], list[tuple[float, ...]]] | None = None
+    stick_slip: bool = False
+    linear_dynamics: bool = False
 
     def block_from_toml(self, values: dict[str, Any], sample_period_s: float) -> Block:
         """The block of a TOML table whose keys were read into ``values``."""
@@ -289,6 +305,7 @@ EFFECTS: dict[str, Effect] = {effect.name: effect for effect in (
         signature="a residual that changes sign where the model's motion reverses (r ~ c s_t, s_t the last "
                   "direction of y^)",
         family="hysteresis", needs_reversals=True,
+        contact_start=lambda c_l, c_r: [(c_l, c_r)],
     ),
     Effect(
         name="dead_zone", block_class=DeadZone, toml_type="dead_zone",
@@ -343,6 +360,8 @@ EFFECTS: dict[str, Effect] = {effect.name: effect for effect in (
         random_block=_random_friction,
         signature="the backlash signature, and stick-slip: the output flat while the model moves, then a jump",
         family="hysteresis", needs_reversals=True,
+        contact_start=lambda c_l, c_r: [(ratio * 0.5 * (c_l + c_r), 0.5 * (c_l + c_r)) for ratio in (1.0, 1.5, 2.0)],
+        stick_slip=True,
     ),
     Effect(
         name="resonance", block_class=Resonance, toml_type="resonance",
@@ -357,6 +376,7 @@ EFFECTS: dict[str, Effect] = {effect.name: effect for effect in (
                                                  damping_ratio=rng.uniform(0.02, 0.08),
                                                  sample_period_s=period),
         signature="a narrow peak in the residual's spectrum (share of power within three bins of the peak)",
+        linear_dynamics=True,
     ),
     Effect(
         name="offset", block_class=OutputOffset, toml_type="offset",
@@ -416,9 +436,13 @@ def effect_for_toml_type(toml_type: str) -> Effect | None:
     return _BY_TOML.get(toml_type)
 
 
+PLACEMENTS = ("input", "output", "end")
+"""Where an effect can sit (module docstring)."""
+
+
 def _check() -> None:
     for entry in EFFECTS.values():
-        if entry.placement not in ("input", "output", "end"):
+        if entry.placement not in PLACEMENTS:
             raise AssertionError(f"{entry.name}: placement {entry.placement!r}")
         if not math.isfinite(entry.free_parameters) or entry.free_parameters < 1:
             raise AssertionError(f"{entry.name}: free_parameters")

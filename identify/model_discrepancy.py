@@ -548,7 +548,8 @@ def _insert_index(chain: _Chain, kind: str) -> int:
     """Where an effect goes (its catalogue placement): ``input`` before the first linear component,
     ``output`` after the last linear/resonance component, ``end`` at the very end."""
     linear = [i for i, c in enumerate(chain.components)
-              if c.kind in ("linear", "resonance") or isinstance(c.block, (LinearBlock, Resonance))]
+              if c.kind == "linear" or (c.kind in EFFECTS and EFFECTS[c.kind].linear_dynamics)
+              or isinstance(c.block, (LinearBlock, Resonance))]
     placement = effect(kind).placement
     if placement == "input":
         return linear[0] if linear else 0
@@ -585,22 +586,18 @@ def _try_effect(kind: str, chain: _Chain, u: NDArray[np.float64], y: NDArray[np.
     else:
         options = [with_effect(g) for g in entry.guesses(GuessContext(u, residual, delta, period, scores))]
     options = [_refit_last_linear(option, u_est, y_est) for option in options]
-    if kind in ("backlash", "coulomb_friction"):
+    if entry.contact_start is not None:
         plays = np.geomspace(delta, max(float(np.max(np.abs(residual))), 4.0 * delta), 4)
         for contact in filter(None, (_contact_branch_start(chain, u_est, y_est, play) for play in plays)):
             refit, c_l, c_r = contact
-            if kind == "backlash":
-                options.append(with_effect((c_l, c_r), refit))
-            else:
-                slide = 0.5 * (c_l + c_r)
-                options += [with_effect((ratio * slide, slide), refit) for ratio in (1.0, 1.5, 2.0)]
+            options += [with_effect(start, refit) for start in entry.contact_start(c_l, c_r)]
     costs = [_rms(_free_run_error(option, u_est, y_est)) for option in options]
     best = options[int(np.argmin(costs))]
     best = _refine_delays(best, u_est, y_est)
     if any(c.kind == "linear" for c in best.components):
         best = _polish(best, u_est, y_est, max_evaluations, frozenset({"linear"}))
     best = _polish(best, u_est, y_est, max_evaluations)
-    if kind == "coulomb_friction":
+    if entry.stick_slip:
         best = _scan_breakaway(best, index, u_est, y_est)
     error = (y - best.model().simulate(u))[n_est:] if best.linear_stable() else np.full(y.size - n_est, _BIG)
     error = np.where(np.isfinite(error), error, _BIG)
@@ -644,7 +641,7 @@ def _refit_last_linear(chain: _Chain, u: NDArray[np.float64], y: NDArray[np.floa
     if "linear" not in kinds:
         return chain
     index = kinds.index("linear")
-    if any(kind != "resonance" for kind in kinds[index + 1:]):
+    if any(not (kind in EFFECTS and EFFECTS[kind].linear_dynamics) for kind in kinds[index + 1:]):
         return chain
     linear = chain.components[index]
     others = chain.components[:index] + chain.components[index + 1:]
@@ -736,13 +733,13 @@ def _refine_delays(chain: _Chain, u: NDArray[np.float64], y: NDArray[np.float64]
     """Re-search every integer delay already in the chain within +-``reach`` samples (a delay found before
     a second effect was added absorbs part of that effect's lag)."""
     for index, component in enumerate(chain.components):
-        if component.kind != "delay":
+        if not (component.kind in EFFECTS and EFFECTS[component.kind].searched):
             continue
         current = int(round(component.values[0]))
         options = []
         for d in range(max(0, current - reach), current + reach + 1):
             components = list(chain.components)
-            components[index] = _Component("delay", (float(d),))
+            components[index] = _Component(component.kind, (float(d),))
             options.append(_Chain(components))
         errors = [_free_run_error(option, u, y) for option in options]
         costs = [_rms(e if samples is None else e[samples]) for e in errors]
