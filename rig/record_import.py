@@ -76,6 +76,12 @@ class ImportOptions:
     remove_spikes: bool = True
     irregular: str = "resample"  # or "refuse"
 
+    @property
+    def is_default(self) -> bool:
+        """No column, unit or validity option given (spike and sampling rules at their defaults)."""
+        return (all(self.columns.get(role) == role for role in ("t", "u", "y")) and "records" not in self.columns
+                and self.units == "rad" and self.valid is None and self.remove_spikes and self.irregular == "resample")
+
     def __post_init__(self) -> None:
         parse_units(self.units)
         if self.irregular not in ("resample", "refuse"):

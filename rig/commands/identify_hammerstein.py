@@ -75,6 +75,9 @@ def register(methods: argparse._SubParsersAction) -> None:
                         help="identify several files in N processes (0: one per core; default 1)")
     parser.add_argument("--scheduler", metavar="ADDRESS", default=None,
                         help="run the files on the Dask cluster at ADDRESS instead (needs dask[distributed])")
+    from rig.record_import import add_import_arguments
+
+    add_import_arguments(parser)
     parser.add_argument("--json", action="store_true",
                         help='print the model as JSON; with several files {"results": [{"file", "model" | "error"}]}')
     parser.set_defaults(handler=run)
@@ -88,6 +91,9 @@ def run(args: argparse.Namespace) -> int:
     options = {key: getattr(args, key) for key in (
         "nodes", "descending_nodes", "num_nodes", "u_min", "u_max", "order", "hold_samples", "mu0",
         "past_horizon", "future_horizon", "split", "no_feedthrough", "refine")}
+    from rig.record_import import options_from_arguments
+
+    options["import"] = options_from_arguments(args)
     if len(args.data) == 1 and args.scheduler is None:
         model, hold = identify_file(args.data[0], options)  # errors go to rig.cli with their exit code
         if args.json:
@@ -128,7 +134,16 @@ def identify_file(path_text: str, options: dict):
     path = Path(path_text)
     if not path.is_file():
         raise FileNotFoundError(f"{path}: no such file")
-    u, y = read_input_output(path)
+    imported = options.get("import")
+    if imported is None or imported.is_default:
+        u, y = read_input_output(path)  # u, y columns; no time column needed
+    else:
+        from rig.record_import import read_measurement
+
+        record, report = read_measurement(path, imported)
+        u, y = record.command_rad, record.angle_rad
+        for note in report.notes:
+            print(f"import           {note}", file=sys.stderr)
     if u.size == 0:
         raise InvalidInputError(f"{path}: no samples")
     if options["nodes"] is not None:

@@ -265,8 +265,17 @@ def _diagnose_section(result: ResultFile, used: set[str]):
     except (KeyError, TypeError, ValueError) as err:
         raise ValueError(f"{result.path}: expected the JSON of `rig diagnose --json` (missing_effects with effect, "
                          f"parameters, gap_before, gap_after; gap_initial; gap_final): {err!r}") from None
-    rows = tuple((name, ", ".join(f"{key} = {value:.4g}" if isinstance(value, (int, float)) else f"{key} = {value}"
-                                  for key, value in parameters.items()) or "-",
+    intervals = {str(e["effect"]): e.get("parameter_intervals") or {} for e in effects}
+
+    def shown(name: str, key: str, value) -> str:
+        if not isinstance(value, (int, float)):
+            return f"{key} = {value}"
+        interval = intervals.get(name, {}).get(key)
+        within = (f" [{float(interval[0]):.4g}, {float(interval[1]):.4g}]"
+                  if isinstance(interval, (list, tuple)) and len(interval) == 2 else "")
+        return f"{key} = {value:.4g}{within}"
+
+    rows = tuple((name, ", ".join(shown(name, key, value) for key, value in parameters.items()) or "-",
                   f"{before:.4g}", f"{after:.4g}") for name, before, after, parameters in steps)
     fractions = ""
     if "falsified_fraction_initial" in document and "falsified_fraction_final" in document:
@@ -279,7 +288,8 @@ def _diagnose_section(result: ResultFile, used: set[str]):
     reason = str(document.get("verdict_reason") or "")
     text = (f"{result.path.name}: verdict {VERDICT_WORDS.get(verdict, verdict)}"
             f"{': ' + reason if reason else ''}. Missing effects named, in order: {named}. Free-run RMS error on "
-            f"the validation segment {gap_initial:.4g} rad before, {gap_final:.4g} rad after.{fractions}")
+            f"the validation segment {gap_initial:.4g} rad before, {gap_final:.4g} rad after.{fractions}"
+            f"{_candidates_text(document)}")
     labels = ["start model"] + [f"+ {name}" for name, *_ in steps]
     gaps = [gap_initial] + [after for _, _, after, _ in steps]
 
@@ -300,6 +310,18 @@ def _diagnose_section(result: ResultFile, used: set[str]):
     return ReportSection(f"Model discrepancy: {result.path.name}", text=text,
                          table_header=("missing effect", "parameters", "gap before [rad]", "gap after [rad]"),
                          table_rows=rows, figures=(ReportFigure(f"{slug}_gap", caption, draw, size_in=(6.5, 3.5)),))
+
+
+def _candidates_text(document: dict) -> str:
+    """The first round's candidates with their validated gaps, best first (empty for older JSON)."""
+    candidates = [c for c in document.get("candidates") or [] if isinstance(c, dict) and c.get("round") == 0]
+    try:
+        ranked = sorted(candidates, key=lambda c: float(c["penalised_gap"]))
+        words = "; ".join(f"{c['effect']} {float(c['gap']):.3g} +- {float(c['gap_uncertainty']):.2g} rad"
+                          + (" (vanished)" if c.get("vanished") else "") for c in ranked)
+    except (KeyError, TypeError, ValueError):
+        return ""
+    return f" Candidates tried first, with their validated gaps: {words}." if words else ""
 
 
 DIAGNOSE_CONSISTENT_FRACTION = 0.01

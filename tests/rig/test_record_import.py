@@ -123,3 +123,26 @@ def test_diagnose_reads_json_records_and_reports_the_import_in_json(tmp_path, ca
     document = json.loads(capsys.readouterr().out)
     assert document["import"]["spikes"] == 1 and document["import"]["resampled"]
     assert document["verdict"] in ("explained", "named", "ambiguous", "unexplained", "not_excited")
+
+
+def test_identify_hammerstein_reads_json_records_in_degrees(tmp_path, capsys):
+    from identify.cyclic_excitation import cyclic_random_excitation
+    from identify.plant_blocks import InputBacklash, LinearBlock, PiecewiseLinearBorder, PlantModel
+
+    u = cyclic_random_excitation(100 + 1500, -3.0, 3.0, 100, rng=1)
+    nodes = (-3.0, -1.0, 1.0, 3.0)
+    plant = PlantModel((InputBacklash(PiecewiseLinearBorder(nodes, (-1.0, -0.8, 0.6, 1.0)),
+                                      PiecewiseLinearBorder(nodes, (-1.0, -0.4, 0.9, 1.0)), initial_output=-1.0),
+                        LinearBlock(a=(-1.8858, 0.9048), b=(0.0, 0.1994, -0.1804), sample_period_s=0.01)))
+    y = plant.simulate(u)
+    entries = [{"time": 0.01 * k, "cmd": float(np.degrees(a)), "pos": float(np.degrees(b))}
+               for k, (a, b) in enumerate(zip(u, y))]
+    path = tmp_path / "cyclic.json"
+    path.write_text(json.dumps(entries))
+    code = main(["identify", "hammerstein", str(path), "--columns", "t=time,u=cmd,y=pos", "--units", "deg",
+                 "--nodes=-3,-1,1,3", "--json"])
+    assert code == exit_codes.SUCCESS
+    document = json.loads(capsys.readouterr().out)
+    assert document["stable"] is True
+    # nodes in rad fit only a command converted from degrees; G's two poles have |p| = sqrt(0.9048)
+    assert [math.hypot(re, im) for re, im in document["poles"]] == pytest.approx([math.sqrt(0.9048)] * 2, abs=1e-6)

@@ -199,3 +199,18 @@ def test_the_report_states_the_verdict_and_never_claims_an_explanation_while_sam
     assert "already explains" not in section.text
     if words == "UNEXPLAINED":
         assert "95.0 % after" in section.text
+
+
+def test_the_report_shows_intervals_and_candidate_gaps_of_a_diagnosis(tmp_path):
+    from identify.discrepancy_cases import hidden_effect_record
+    from identify.model_discrepancy import diagnose_model
+
+    record = hidden_effect_record(("backlash",), 11)
+    document = diagnose_model(record.command_rad, record.angle_rad, record.noise_bound_rad, record.sample_period_s,
+                              record.nominal_model).to_json_dict()
+    path = tmp_path / "diagnose.json"
+    path.write_text(json.dumps(document))
+    (section,) = report_sections([read_result_file(path)])
+    low, high = document["missing_effects"][0]["parameter_intervals"]["c_l_rad"]
+    assert f"[{low:.4g}, {high:.4g}]" in section.table_rows[0][1]
+    assert "NAMED" in section.text and "Candidates tried first" in section.text and "delay" in section.text
