@@ -4,7 +4,8 @@ EMPS record.
 For every effect (and for no effect) ``--cases`` records are simulated with random realistic parameters and a
 12-bit encoder (:mod:`identify.discrepancy_cases`); the workflow sees the data, the noise bound and either the
 nominal linear model (``--start given``) or nothing (``--start fitted``: it fits its own linear model). The
-row is the true effect, the column the first effect named ("none" if nothing); the gap reduction is
+row is the true effect, the column the first effect named ("none" if nothing, "ambig" when the verdict is
+ambiguous: candidates within their uncertainty of each other, none chosen); the gap reduction is
 1 - gap_final / gap_initial. Also counted: cases where more effects than the true one were named.
 
 Run:  nice -n 10 .venv/bin/python benchmarks/model_discrepancy_confusion.py --cases 20 --start given
@@ -29,7 +30,7 @@ EMPS = Path(__file__).resolve().parents[2] / "shared" / "realdata" / "emps" / "D
 
 
 def confusion(cases: int, start: str, effects: tuple[str, ...], first_seed: int) -> None:
-    columns = (*TRUE_EFFECTS, "other")
+    columns = (*TRUE_EFFECTS, "ambiguous", "other")
     counts = {row: {column: 0 for column in columns} for row in effects}
     reductions: dict[str, list[float]] = {row: [] for row in effects}
     extras = {row: 0 for row in effects}
@@ -39,7 +40,8 @@ def confusion(cases: int, start: str, effects: tuple[str, ...], first_seed: int)
             record = hidden_effect_record(() if row == "none" else (row,), first_seed + case)
             result = diagnose_model(record.command_rad, record.angle_rad, record.noise_bound_rad,
                                     record.sample_period_s, record.nominal_model if start == "given" else None)
-            named = result.missing_effects[0] if result.missing_effects else "none"
+            named = result.missing_effects[0] if result.missing_effects else (
+                "ambiguous" if result.verdict == "ambiguous" else "none")
             counts[row][named if named in counts[row] else "other"] += 1
             extras[row] += len(result.missing_effects) > (0 if row == "none" else 1)
             if row != "none":
