@@ -267,3 +267,22 @@ def test_a_record_in_absolute_angles_runs_freely_from_its_operating_point_not_fr
     simulated = result.final_model.simulate(record.command_rad + shift)
     assert np.sqrt(np.mean((simulated - record.angle_rad - shift)[result.estimation_samples:] ** 2)) < 2 * record.noise_bound_rad
     assert result.final.simulated_rad == pytest.approx(simulated)
+
+
+def test_repetitions_of_one_experiment_give_one_answer_with_overlapping_intervals():
+    """Issue 15, item 4 on the simulator: the same plant and command, measured four times with fresh noise."""
+    record = hidden_effect_record(("backlash",), 12)
+    clean = record.true_model.simulate(record.command_rad)
+    count = 2 * np.pi / 2 ** 12
+    answers, intervals = set(), []
+    for repetition in range(4):
+        rng = np.random.default_rng(100 + repetition)
+        y = np.round((clean + rng.uniform(-2e-4, 2e-4, clean.size)) / count) * count
+        result = diagnose_model(record.command_rad, y, record.noise_bound_rad, record.sample_period_s,
+                                record.nominal_model)
+        answers.add((result.verdict, result.missing_effects))
+        intervals.append(result.parameter_intervals["backlash"])
+    assert answers == {("named", ("backlash",))}
+    for key in ("c_l_rad", "c_r_rad"):
+        assert max(i[key][0] for i in intervals) <= min(i[key][1] for i in intervals), \
+            f"{key}: {[i[key] for i in intervals]}"
