@@ -1135,20 +1135,27 @@ def _add_step(best: _Candidate, chain: _Chain, current: Disagreement, steps: lis
 
 def _clear_end(ends: Sequence[_Search], complexity_penalty: float) -> _Search | None:
     """The look-ahead of :func:`_search`: the end all contenders reach, or the one clearly better than every
-    other (by :data:`AMBIGUITY_SIGMAS` and :data:`AMBIGUITY_MIN_MARGIN` on the final validation errors);
-    None when two different ends are within their uncertainty of each other."""
+    other (by :data:`AMBIGUITY_SIGMAS` and :data:`AMBIGUITY_MIN_MARGIN` on the final validation errors). An
+    end within the uncertainty of another whose effects are a subset of its own gives way to it (a gain
+    error added before the dead zone that then explains everything is no second effect). None when two ends
+    with different, not nested, sets of effects are within their uncertainty of each other."""
     def cost(end: _Search) -> float:
         return end.current.gap_rad * (1.0 + complexity_penalty * sum(EFFECTS[s.effect].free_parameters
                                                                    for s in end.steps))
 
+    def effects(end: _Search) -> frozenset[str]:
+        return frozenset(s.effect for s in end.steps)
+
     ranked = sorted(ends, key=cost)
     best = ranked[0]
-    best_set = frozenset(s.effect for s in best.steps)
-    for other in ranked[1:]:
-        if frozenset(s.effect for s in other.steps) == best_set:
-            continue
-        if _within_uncertainty(cost(best), best.validation_error_rad, cost(other), other.validation_error_rad):
-            return None
+    ties = [other for other in ranked[1:] if effects(other) != effects(best)
+            and _within_uncertainty(cost(best), best.validation_error_rad, cost(other), other.validation_error_rad)]
+    for other in ties:
+        if effects(other) < effects(best):
+            best = other  # as good within the uncertainty with fewer effects: the simpler explanation
+    for other in ties:
+        if effects(other) != effects(best) and not effects(best) < effects(other):
+            return None  # different effects, equally good: ambiguous
     return best
 
 
