@@ -17,7 +17,17 @@ eq. (4) of Cerone et al. 2009):
    g = sqrt(mean r_t^2) is measured on the validation segment. The effect whose penalised gap
    g_after (1 + penalty * n_parameters) is lowest and below g_before is kept; repeat until the falsified
    fraction on the validation segment is at most ``consistent_fraction`` or no candidate helps.
-5. **Show**: one :class:`DiscrepancyStep` per kept effect and a :class:`DiscrepancyResult` overall.
+5. **Show**: one :class:`DiscrepancyStep` per kept effect and a :class:`DiscrepancyResult` overall, with a
+   verdict (:data:`VERDICTS`, issue 15): ``explained`` when the start model already agrees, ``named`` when
+   effects were kept, ``ambiguous`` when the best candidate has rivals within their uncertainty
+   (:data:`VALIDATION_BLOCKS`, :data:`AMBIGUITY_SIGMAS`, :data:`AMBIGUITY_MIN_MARGIN`) that the look-ahead
+   of :func:`_search` cannot separate, ``unexplained`` when nothing helps, and ``not_excited`` when a
+   segment never sees the command turn (:data:`MIN_SEGMENT_REVERSALS`, not scored) or the output moves
+   while command and model rest (:data:`UNMEASURED_INPUT_FRACTION`). Named effects carry parameter
+   intervals and the gap reduction its range over :data:`FOLDS` cross-validation refits.
+
+The effects themselves (blocks, parameters, placement, guesses, "vanished") come from
+:mod:`identify.effect_catalogue`.
 
 The start model and all fits use only the estimation segment; every number quoted as a gap is measured on
 the validation segment, which the fits never see.
