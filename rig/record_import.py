@@ -230,13 +230,31 @@ def _json_records(path: Path, text: str, options: ImportOptions) -> dict[str, ND
     return out
 
 
+MESSAGE_LIMIT = 400
+"""An error from another reader is cut to its first line and this many characters (it may quote a header
+line, and a one-line file's header is the whole file)."""
+
+
+def _bounded(err: LogFileError) -> RecordImportError:
+    text = str(err)
+    first = text.splitlines()[0] if text else ""
+    if len(first) > MESSAGE_LIMIT or first != text:
+        first = first[:MESSAGE_LIMIT] + " ..."
+    return RecordImportError(first)
+
+
 def _csv_columns(path: Path, options: ImportOptions) -> dict[str, NDArray[np.float64]]:
     from rig.signal_files import read_signal_table
 
     wanted = {role: options.columns[role] for role in ("t", "u", "y")}
     if options.valid:
         wanted["valid"] = options.valid
-    table = read_signal_table(path, tuple(wanted.values()))
+    try:
+        table = read_signal_table(path, tuple(wanted.values()))
+    except RecordImportError:
+        raise
+    except LogFileError as err:
+        raise _bounded(err) from None
     return {role: table[name] for role, name in wanted.items()}
 
 
@@ -271,7 +289,12 @@ def read_measurement(path: str | Path, options: ImportOptions | None = None) -> 
     default_columns = all(options.columns.get(role) == role for role in ("t", "u", "y"))
     is_json, text = (False, "") if is_rig_log(path) else _looks_like_json(path)
     if not is_json and default_columns and options.valid is None and scale == 1.0:
-        record = read_experiment_data(path)
+        try:
+            record = read_experiment_data(path)
+        except RecordImportError:
+            raise
+        except LogFileError as err:
+            raise _bounded(err) from None
         t, u, y, valid = record.time_s, record.command_rad, record.angle_rad, None
         metadata = record.metadata
     else:

@@ -146,3 +146,12 @@ def test_identify_hammerstein_reads_json_records_in_degrees(tmp_path, capsys):
     assert document["stable"] is True
     # nodes in rad fit only a command converted from degrees; G's two poles have |p| = sqrt(0.9048)
     assert [math.hypot(re, im) for re, im in document["poles"]] == pytest.approx([math.sqrt(0.9048)] * 2, abs=1e-6)
+
+
+def test_an_error_quoting_a_huge_one_line_header_is_cut(tmp_path):
+    path = tmp_path / "wide.csv"
+    path.write_text(",".join(f"column_{k}" for k in range(20000)) + "\n" + ",".join("1" for _ in range(20000)) + "\n")
+    with pytest.raises(RecordImportError) as info:
+        read_measurement(path)
+    message = str(info.value)
+    assert "\n" not in message and len(message) < 500
