@@ -77,6 +77,9 @@ class Parameter:
     name: str
     unit: str
     description: str
+    lower: float = -math.inf
+    upper: float = math.inf
+    """The values the parameter can take (a half-width is never negative): intervals are clipped to them."""
 
 
 @dataclass(frozen=True)
@@ -294,8 +297,8 @@ EFFECTS: dict[str, Effect] = {effect.name: effect for effect in (
         name="backlash", block_class=OutputBacklash, toml_type="output_backlash",
         toml_keys=(TomlKey("m_l"), TomlKey("c_l"), TomlKey("m_r"), TomlKey("c_r"), TomlKey("initial_output", default=0.0)),
         takes_sample_period=False,
-        parameters=(Parameter("c_l_rad", "rad", "left half-width of the play"),
-                    Parameter("c_r_rad", "rad", "right half-width of the play")),
+        parameters=(Parameter("c_l_rad", "rad", "left half-width of the play", lower=0.0),
+                    Parameter("c_r_rad", "rad", "right half-width of the play", lower=0.0)),
         placement="output", free_parameters=2, build=_build_backlash,
         report=lambda b: {"c_l_rad": b.c_l, "c_r_rad": b.c_r},
         guesses=_backlash_guesses,
@@ -310,8 +313,8 @@ EFFECTS: dict[str, Effect] = {effect.name: effect for effect in (
     Effect(
         name="dead_zone", block_class=DeadZone, toml_type="dead_zone",
         toml_keys=(TomlKey("left_rad"), TomlKey("right_rad")), takes_sample_period=False,
-        parameters=(Parameter("left_rad", "rad", "left edge of the dead band"),
-                    Parameter("right_rad", "rad", "right edge of the dead band")),
+        parameters=(Parameter("left_rad", "rad", "left edge of the dead band", upper=0.0),
+                    Parameter("right_rad", "rad", "right edge of the dead band", lower=0.0)),
         placement="input", free_parameters=2,
         build=lambda v, period: DeadZone(left_rad=-abs(v[0]), right_rad=abs(v[1])),
         report=lambda b: {"left_rad": b.left_rad, "right_rad": b.right_rad},
@@ -323,8 +326,8 @@ EFFECTS: dict[str, Effect] = {effect.name: effect for effect in (
     Effect(
         name="saturation", block_class=Saturation, toml_type="saturation",
         toml_keys=(TomlKey("lower_rad"), TomlKey("upper_rad")), takes_sample_period=False,
-        parameters=(Parameter("lower_rad", "rad", "lower limit of the command"),
-                    Parameter("upper_rad", "rad", "upper limit of the command")),
+        parameters=(Parameter("lower_rad", "rad", "lower limit of the command", upper=0.0),
+                    Parameter("upper_rad", "rad", "upper limit of the command", lower=0.0)),
         placement="input", free_parameters=2, build=_build_saturation,
         report=lambda b: {"lower_rad": b.lower_rad, "upper_rad": b.upper_rad},
         guesses=_saturation_guesses,
@@ -335,7 +338,7 @@ EFFECTS: dict[str, Effect] = {effect.name: effect for effect in (
     Effect(
         name="delay", block_class=Delay, toml_type="delay",
         toml_keys=(TomlKey("samples", kind="integer"),), takes_sample_period=False,
-        parameters=(Parameter("samples", "samples", "input delay in whole samples"),),
+        parameters=(Parameter("samples", "samples", "input delay in whole samples", lower=0.0),),
         placement="input", free_parameters=1,
         build=lambda v, period: Delay(int(round(v[0]))),
         report=lambda b: {"samples": float(b.samples)},
@@ -350,8 +353,8 @@ EFFECTS: dict[str, Effect] = {effect.name: effect for effect in (
         toml_keys=(TomlKey("breakaway_torque_nm"), TomlKey("coulomb_torque_nm"), TomlKey("stiffness_nm_per_rad"),
                    TomlKey("initial_output_rad", default=0.0)),
         takes_sample_period=False,
-        parameters=(Parameter("breakaway_deflection_rad", "rad", "twist at which the load breaks away"),
-                    Parameter("sliding_deflection_rad", "rad", "twist while it slides")),
+        parameters=(Parameter("breakaway_deflection_rad", "rad", "twist at which the load breaks away", lower=0.0),
+                    Parameter("sliding_deflection_rad", "rad", "twist while it slides", lower=0.0)),
         placement="output", free_parameters=2, build=_build_friction,
         report=lambda b: {"breakaway_deflection_rad": b.breakaway_deflection_rad,
                           "sliding_deflection_rad": b.sliding_deflection_rad},
@@ -366,8 +369,8 @@ EFFECTS: dict[str, Effect] = {effect.name: effect for effect in (
     Effect(
         name="resonance", block_class=Resonance, toml_type="resonance",
         toml_keys=(TomlKey("frequency_hz"), TomlKey("damping_ratio")), takes_sample_period=True,
-        parameters=(Parameter("frequency_hz", "Hz", "natural frequency of the mode"),
-                    Parameter("damping_ratio", "1", "damping ratio of the mode")),
+        parameters=(Parameter("frequency_hz", "Hz", "natural frequency of the mode", lower=0.0),
+                    Parameter("damping_ratio", "1", "damping ratio of the mode", lower=0.0)),
         placement="output", free_parameters=2, build=_build_resonance,
         report=lambda b: {"frequency_hz": b.frequency_hz, "damping_ratio": b.damping_ratio},
         guesses=_resonance_guesses,
@@ -397,7 +400,7 @@ EFFECTS: dict[str, Effect] = {effect.name: effect for effect in (
     Effect(
         name="gain_error", block_class=OutputGain, toml_type="gain",
         toml_keys=(TomlKey("gain"),), takes_sample_period=False,
-        parameters=(Parameter("gain", "1", "measured / modelled angle"),
+        parameters=(Parameter("gain", "1", "measured / modelled angle", lower=0.0),
                     Parameter("relative_error", "1", "gain - 1")),
         placement="end", free_parameters=1,
         build=lambda v, period: OutputGain(gain=1.0 + v[0]),

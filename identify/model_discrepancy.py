@@ -1283,13 +1283,20 @@ same samples reveals. Its interval is widened by this on each side."""
 
 def _resolution_floor(intervals: dict[str, dict[str, tuple[float, float]]],
                       delta: float) -> dict[str, dict[str, tuple[float, float]]]:
-    """:data:`ANGLE_RESOLUTION_NOISE_BOUNDS` applied to the angle parameters of the catalogue."""
+    """:data:`ANGLE_RESOLUTION_NOISE_BOUNDS` applied to the angle parameters of the catalogue, then every
+    interval clipped to the values its parameter can take (``Parameter.lower`` / ``upper``)."""
     out: dict[str, dict[str, tuple[float, float]]] = {}
+    widen = ANGLE_RESOLUTION_NOISE_BOUNDS * delta
     for kind, parameters in intervals.items():
-        units = {p.name: p.unit for p in EFFECTS[kind].parameters} if kind in EFFECTS else {}
-        widen = ANGLE_RESOLUTION_NOISE_BOUNDS * delta
-        out[kind] = {key: ((low - widen, high + widen) if units.get(key) == "rad" else (low, high))
-                     for key, (low, high) in parameters.items()}
+        known = {p.name: p for p in EFFECTS[kind].parameters} if kind in EFFECTS else {}
+        out[kind] = {}
+        for key, (low, high) in parameters.items():
+            parameter = known.get(key)
+            if parameter is not None and parameter.unit == "rad":
+                low, high = low - widen, high + widen
+            if parameter is not None:
+                low, high = max(low, parameter.lower), min(high, parameter.upper)
+            out[kind][key] = (low, high)
     return out
 
 
