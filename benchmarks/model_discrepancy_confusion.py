@@ -4,8 +4,10 @@ EMPS record.
 For every effect (and for no effect) ``--cases`` records are simulated with random realistic parameters and a
 12-bit encoder (:mod:`identify.discrepancy_cases`); the workflow sees the data, the noise bound and either the
 nominal linear model (``--start given``) or nothing (``--start fitted``: it fits its own linear model). The
-row is the true effect, the column the first effect named ("none" if nothing); the gap reduction is
-1 - gap_final / gap_initial. Also counted: cases where more effects than the true one were named.
+row is the true effect, the column the first effect named ("none" if nothing, "ambig" when the verdict is
+ambiguous: candidates within their uncertainty of each other, none chosen); the gap reduction is
+1 - gap_final / gap_initial. Also counted: cases where more effects than the true one were named, and how
+many fitted parameters of a rightly named effect have an interval that contains the true value.
 
 Run:  nice -n 10 .venv/bin/python benchmarks/model_discrepancy_confusion.py --cases 20 --start given
       nice -n 10 .venv/bin/python benchmarks/model_discrepancy_confusion.py --cases 5 --start fitted
@@ -21,42 +23,51 @@ from pathlib import Path
 import numpy as np
 
 from identify.discrepancy_cases import hidden_effect_record
+from identify.effect_catalogue import EFFECT_NAMES, effect
 from identify.model_discrepancy import diagnose_model
 
-TRUE_EFFECTS = ("none", "backlash", "dead_zone", "saturation", "delay", "coulomb_friction", "resonance", "offset",
-                "gain_error")
+TRUE_EFFECTS = ("none", *EFFECT_NAMES)  # every effect of the catalogue
 EMPS = Path(__file__).resolve().parents[2] / "shared" / "realdata" / "emps" / "DATA_EMPS.mat"
 
 
 def confusion(cases: int, start: str, effects: tuple[str, ...], first_seed: int) -> None:
-    columns = (*TRUE_EFFECTS, "other")
+    columns = (*TRUE_EFFECTS, "ambiguous", "other")
     counts = {row: {column: 0 for column in columns} for row in effects}
     reductions: dict[str, list[float]] = {row: [] for row in effects}
     extras = {row: 0 for row in effects}
+    covered = {row: [0, 0] for row in effects}  # parameters whose interval holds the truth, parameters
     started = time.perf_counter()
     for row in effects:
         for case in range(cases):
             record = hidden_effect_record(() if row == "none" else (row,), first_seed + case)
             result = diagnose_model(record.command_rad, record.angle_rad, record.noise_bound_rad,
                                     record.sample_period_s, record.nominal_model if start == "given" else None)
-            named = result.missing_effects[0] if result.missing_effects else "none"
+            named = result.missing_effects[0] if result.missing_effects else (
+                "ambiguous" if result.verdict == "ambiguous" else "none")
             counts[row][named if named in counts[row] else "other"] += 1
             extras[row] += len(result.missing_effects) > (0 if row == "none" else 1)
             if row != "none":
                 reductions[row].append(1.0 - result.final.gap_rad / result.initial.gap_rad)
+            if row != "none" and named == row:
+                entry = effect(row)
+                truth = entry.report(next(b for b in record.true_model.blocks if isinstance(b, entry.block_class)))
+                for key, (low, high) in result.parameter_intervals.get(row, {}).items():
+                    covered[row][0] += low <= truth[key] <= high
+                    covered[row][1] += 1
     elapsed = time.perf_counter() - started
-    short = {"none": "none", "backlash": "backl", "dead_zone": "deadz", "saturation": "satur", "delay": "delay",
-             "coulomb_friction": "fric", "resonance": "reson", "offset": "offs", "gain_error": "gain",
-             "other": "other"}
+    short = {name: name[:5] for name in columns} | {"dead_zone": "deadz", "coulomb_friction": "fric", "offset": "offs",
+                                                    "gain_error": "gain"}
     print(f"\nstart model: {start}; {cases} cases per row (seeds {first_seed}..{first_seed + cases - 1}); "
           f"{elapsed:.0f} s in all")
-    print("| true \\ named | " + " | ".join(short[c] for c in columns) + " | correct | more named | median gap reduction |")
-    print("|---" * (len(columns) + 4) + "|")
+    print("| true \\ named | " + " | ".join(short[c] for c in columns)
+          + " | correct | more named | median gap reduction | truth in interval |")
+    print("|---" * (len(columns) + 5) + "|")
     for row in effects:
         correct = counts[row][row] / cases
         median = f"{100 * np.median(reductions[row]):.1f} %" if reductions[row] else "-"
         print(f"| {row} | " + " | ".join(str(counts[row][c]) for c in columns)
-              + f" | {100 * correct:.0f} % | {extras[row]} | {median} |")
+              + f" | {100 * correct:.0f} % | {extras[row]} | {median} | "
+              + (f"{covered[row][0]} of {covered[row][1]} |" if covered[row][1] else "- |"))
 
 
 def emps(decimate: int, noise_bound_m: float) -> None:

@@ -28,6 +28,13 @@ __all__ = [
     "check_cyclic_input",
 ]
 
+CYCLIC_REQUIREMENT = (
+    "The method needs a cyclic excitation that sweeps from u_min up to u_max and back down again, many times, "
+    "through every segment of both paths (configs/experiments/hammerstein_cyclic.toml, Table I of Pouliquen et "
+    "al. 2013): step or PRBS data that hold a few levels in between do not"
+)
+"""What every complaint about the shape of the input adds: the record is not the excitation the method is for."""
+
 
 def _nodes(name: str, values: ArrayLike) -> tuple[float, ...]:
     nodes = as_signal(name, values, min_samples=2)
@@ -199,11 +206,13 @@ def check_cyclic_input(
         if bad_up[bad[0]]:
             raise InvalidInputError(
                 f"u: sample {k - 1} turns from descending to ascending at {float(signal[k - 1])}, above u_min = {low}; "
-                "Table I reverses only at u_min and u_max, otherwise a backlash leaves the identified paths"
+                "Table I reverses only at u_min and u_max, otherwise a backlash leaves the identified paths. "
+                + CYCLIC_REQUIREMENT
             )
         raise InvalidInputError(
             f"u: sample {k - 1} turns from ascending to descending at {float(signal[k - 1])}, below u_max = {high}; "
-            "Table I reverses only at u_min and u_max, otherwise a backlash leaves the identified paths"
+            "Table I reverses only at u_min and u_max, otherwise a backlash leaves the identified paths. "
+                + CYCLIC_REQUIREMENT
         )
     moves = np.flatnonzero(np.diff(signal) != 0.0)
     if moves.size:
@@ -220,9 +229,9 @@ def check_cyclic_input(
                 "trim the data so that it starts at u_min (Table I: u(0) = u_min)"
             )
     if not np.any((delta == 1) & (signal >= high - tol)):
-        raise InvalidInputError(f"u: the ascending path is never traversed up to u_max = {high}")
+        raise InvalidInputError(f"u: the ascending path is never traversed up to u_max = {high}. " + CYCLIC_REQUIREMENT)
     if not np.any((delta == 0) & (signal <= low + tol)):
-        raise InvalidInputError(f"u: the descending path is never traversed down to u_min = {low}")
+        raise InvalidInputError(f"u: the descending path is never traversed down to u_min = {low}. " + CYCLIC_REQUIREMENT)
     for path, path_nodes, on_path in (("ascending", nodes.ascending, delta == 1),
                                       ("descending", nodes.descending, delta == 0)):
         values = signal[on_path]
@@ -232,5 +241,6 @@ def check_cyclic_input(
             if visits < min_visits:
                 raise InvalidInputError(
                     f"u: segment {i} ]{a:g}; {b:g}[ of the {path} path is visited by {visits} samples "
-                    f"(at least {min_visits} needed to estimate its slope); move or remove nodes, or excite longer"
+                    f"(at least {min_visits} needed to estimate its slope); move or remove nodes, or excite longer. "
+                    + CYCLIC_REQUIREMENT
                 )

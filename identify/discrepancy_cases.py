@@ -2,8 +2,8 @@
 effects with randomised parameters of realistic size, read by an n-bit absolute encoder.
 
 The nominal model is the drive position loop of ``configs/plants/precision_gearbox.toml`` (30 Hz,
-zeta 0.7, zero-order hold at 1 kHz, one sample of latency). Effect sizes (motor-side radians, input range
-about +-1 rad): backlash half-widths 0.01-0.04 rad; dead zone edges 0.03-0.10 rad; each saturation limit
+zeta 0.7, zero-order hold at 1 kHz, one sample of latency). Effect sizes (drawn by each catalogue entry's
+``random_block``, :mod:`identify.effect_catalogue`; motor-side radians, input range about +-1 rad): backlash half-widths 0.01-0.04 rad; dead zone edges 0.03-0.10 rad; each saturation limit
 at 50-75 % of the largest command on its side that both the estimation and the validation segment reach;
 delay 3-15 samples; Coulomb friction breakaway twist 0.015-0.04 rad with sliding 40-75 % of it; resonance
 60-200 Hz with damping 0.02-0.08; gain error 3-15 % either way (a wrong gear ratio or encoder resolution).
@@ -17,21 +17,9 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from identify.plant_blocks import (
-    Block,
-    CoulombFriction,
-    DeadZone,
-    Delay,
-    LinearBlock,
-    OutputBacklash,
-    OutputGain,
-    OutputOffset,
-    PlantModel,
-    Resonance,
-    Saturation,
-)
+from identify.effect_catalogue import effect
 from identify.model_discrepancy import ESTIMATION_FRACTION
-from identify.validation import InvalidInputError
+from identify.plant_blocks import Block, LinearBlock, PlantModel
 
 __all__ = ["HiddenEffectRecord", "NOMINAL_LINEAR", "hidden_effect_record", "random_effect", "step_excitation"]
 
@@ -71,37 +59,11 @@ def step_excitation(samples: int, rng: np.random.Generator, amplitude_rad: float
 
 
 def random_effect(name: str, rng: np.random.Generator, command_rad: NDArray[np.float64]) -> tuple[Block, int | None]:
-    """A block of effect ``name`` with random realistic parameters and where it goes in the chain
-    (0: before the linear block, None: after it)."""
-    if name == "saturation":
-        # each limit lies within what both segments of the workflow's default split (first 60 % to fit,
-        # last 40 % to validate) reach on its side: a limit one segment never crosses cannot be fitted, or
-        # seen, by any method
-        split = int(round(ESTIMATION_FRACTION * command_rad.size))
-        segments = (command_rad[:split], command_rad[split:])
-        reach_down = min(float(-np.min(segment)) for segment in segments)
-        reach_up = min(float(np.max(segment)) for segment in segments)
-        return Saturation(lower_rad=-rng.uniform(0.5, 0.75) * reach_down,
-                          upper_rad=rng.uniform(0.5, 0.75) * reach_up), 0
-    if name == "backlash":
-        return OutputBacklash(m_l=1.0, c_l=rng.uniform(0.01, 0.04), m_r=1.0, c_r=rng.uniform(0.01, 0.04)), None
-    if name == "dead_zone":
-        return DeadZone(left_rad=-rng.uniform(0.03, 0.10), right_rad=rng.uniform(0.03, 0.10)), 0
-    if name == "delay":
-        return Delay(int(rng.integers(3, 16))), 0
-    if name == "coulomb_friction":
-        stick = rng.uniform(0.015, 0.04)
-        return CoulombFriction(breakaway_torque_nm=stick * 2000.0, coulomb_torque_nm=stick * 2000.0 * rng.uniform(0.4, 0.75),
-                               stiffness_nm_per_rad=2000.0), None
-    if name == "resonance":
-        return Resonance(frequency_hz=rng.uniform(60.0, 200.0), damping_ratio=rng.uniform(0.02, 0.08),
-                         sample_period_s=SAMPLE_PERIOD_S), None
-    if name == "offset":
-        return OutputOffset(offset_rad=rng.uniform(-0.05, 0.05), drift_rad_per_s=rng.uniform(-0.01, 0.01),
-                            sample_period_s=SAMPLE_PERIOD_S), None
-    if name == "gain_error":
-        return OutputGain(gain=1.0 + rng.choice((-1.0, 1.0)) * rng.uniform(0.03, 0.15)), None
-    raise InvalidInputError(f"name: unknown effect {name!r}")
+    """A block of effect ``name`` with random realistic parameters (the catalogue's ``random_block``) and
+    where it goes in the chain (0: before the linear block, None: after it)."""
+    entry = effect(name)
+    block = entry.random_block(rng, command_rad, ESTIMATION_FRACTION, SAMPLE_PERIOD_S)
+    return block, (0 if entry.placement == "input" else None)
 
 
 def hidden_effect_record(effects: tuple[str, ...], seed: int, samples: int = 3000, encoder_bits: int = 12,

@@ -29,13 +29,10 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy import signal as scipy_signal
 
+from identify.effect_catalogue import EFFECT_NAMES  # re-exported: the names live in the catalogue
+
 __all__ = ["EFFECT_NAMES", "SignatureScore", "delay_regressor", "direction_signal", "signature_scores"]
 
-EFFECT_NAMES: tuple[str, ...] = (
-    "backlash", "dead_zone", "saturation", "delay", "coulomb_friction", "resonance", "offset", "gain_error",
-)
-"""Names of the effects the workflow can name; the first six are fixed by issue 6, ``offset`` (offset and
-drift of the measured angle) and ``gain_error`` (a scale the model has wrong) are extras."""
 
 
 @dataclass(frozen=True)

@@ -201,6 +201,12 @@ class HammersteinModel:
         return np.linalg.eigvals(self.A)
 
     @property
+    def stable(self) -> bool:
+        """Every pole strictly inside the unit circle (|p| < 1). An identified G with a pole on or outside it
+        grows without bound in a free run: the data or the order do not support the model."""
+        return bool(np.all(np.abs(self.poles) < 1.0))
+
+    @property
     def transfer_function(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """(numerator, denominator) of G, coefficients of q^0, q^-1, ..., q^-n; denominator[0] = 1."""
         return _state_space_to_tf(self.A, self.B, self.C, self.D)
@@ -246,10 +252,13 @@ class HammersteinModel:
         return self.mu0 + scipy.signal.lfilter(numerator, denominator, deviation)
 
     def to_dict(self) -> dict[str, Any]:
-        """Plain numbers for JSON: order, poles [[re, im]], A, B, C, D, mu0, borders, singular values."""
+        """Plain numbers for JSON: order, poles [[re, im]], stable and the largest |p|, A, B, C, D, mu0,
+        borders, singular values."""
         return {
             "order": self.order,
             "poles": [[float(p.real), float(p.imag)] for p in self.poles],
+            "stable": self.stable,
+            "max_pole_magnitude": float(np.max(np.abs(self.poles))) if self.order else 0.0,
             "A": self.A.tolist(),
             "B": self.B.tolist(),
             "C": self.C.tolist(),

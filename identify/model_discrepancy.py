@@ -17,7 +17,17 @@ eq. (4) of Cerone et al. 2009):
    g = sqrt(mean r_t^2) is measured on the validation segment. The effect whose penalised gap
    g_after (1 + penalty * n_parameters) is lowest and below g_before is kept; repeat until the falsified
    fraction on the validation segment is at most ``consistent_fraction`` or no candidate helps.
-5. **Show**: one :class:`DiscrepancyStep` per kept effect and a :class:`DiscrepancyResult` overall.
+5. **Show**: one :class:`DiscrepancyStep` per kept effect and a :class:`DiscrepancyResult` overall, with a
+   verdict (:data:`VERDICTS`, issue 15): ``explained`` when the start model already agrees, ``named`` when
+   effects were kept, ``ambiguous`` when the best candidate has rivals within their uncertainty
+   (:data:`VALIDATION_BLOCKS`, :data:`AMBIGUITY_SIGMAS`, :data:`AMBIGUITY_MIN_MARGIN`) that the look-ahead
+   of :func:`_search` cannot separate, ``unexplained`` when nothing helps, and ``not_excited`` when a
+   segment never sees the command turn (:data:`MIN_SEGMENT_REVERSALS`, not scored) or the output moves
+   while command and model rest (:data:`UNMEASURED_INPUT_FRACTION`). Named effects carry parameter
+   intervals and the gap reduction its range over :data:`FOLDS` cross-validation refits.
+
+The effects themselves (blocks, parameters, placement, guesses, "vanished") come from
+:mod:`identify.effect_catalogue`.
 
 The start model and all fits use only the estimation segment; every number quoted as a gap is measured on
 the validation segment, which the fits never see.
@@ -35,21 +45,25 @@ from numpy.typing import ArrayLike, NDArray
 from scipy import optimize
 from scipy.signal import lfilter
 
-from identify.effect_signatures import EFFECT_NAMES, SignatureScore, signature_scores
+from identify.effect_catalogue import EFFECT_NAMES, EFFECTS, GuessContext, effect
+from identify.effect_signatures import SignatureScore, direction_signal, signature_scores
 from identify.plant_blocks import (
     Block,
     CoulombFriction,
-    DeadZone,
     Delay,
     LinearBlock,
     OutputBacklash,
-    OutputGain,
     OutputOffset,
     PlantModel,
     Resonance,
-    Saturation,
 )
 from identify.validation import InvalidInputError, as_signal, positive, same_length, varying
+
+VERDICTS = ("explained", "named", "ambiguous", "unexplained", "not_excited")
+"""The verdicts: the start model already agrees within the noise bound; effects were found (named); two or
+more candidates fit within their uncertainty of each other (all listed, none chosen); nothing helps; the
+data cannot show the effects (the command never reverses, a segment too short, or an input the record does
+not contain)."""
 
 ESTIMATION_FRACTION = 0.6
 """Default share of the record the effects are fitted on; the rest is the validation segment."""
@@ -75,11 +89,6 @@ _EFFECT_DIFF_STEP = 1e-3
 _BASELINE_EFFORT = 5
 """Before another effect is tried, the model so far is polished with this many times the evaluations of one
 candidate fit."""
-_NEGLIGIBLE_GAIN_ERROR = 1.0e-3
-"""A fitted gain within this of 1 is no gain error (a 0.1 % scale error is below what the workflow resolves)."""
-_MAX_RESONANCE_DAMPING = 0.3
-"""A resonance is a narrow peak: a fitted damping ratio is kept below this (a heavily damped second-order
-section would otherwise stand in for a delay)."""
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -195,27 +204,59 @@ class DiscrepancyResult:
     estimation_samples: int
     noise_bound_rad: float
     linear_fit: LinearFit | None = None
+    verdict: str = "unexplained"
+    verdict_reason: str = ""
+    candidates: tuple[CandidateResult, ...] = ()
+    ambiguous_between: tuple[str, ...] = ()
+    parameter_intervals: dict[str, dict[str, tuple[float, float]]] = field(default_factory=dict)
+    gap_reduction: dict[str, Any] | None = None
+    excitation: dict[str, Any] = field(default_factory=dict)
+    operating_point_rad: float = 0.0
+
+    def __post_init__(self) -> None:
+        if self.verdict not in VERDICTS:
+            raise InvalidInputError(f"verdict: expected one of {', '.join(VERDICTS)}, got {self.verdict!r}")
 
     @property
     def missing_effects(self) -> tuple[str, ...]:
         return tuple(step.effect for step in self.steps)
 
+    @property
+    def gap_reduction_fraction(self) -> float:
+        """1 - g_final / g_initial on the validation segment."""
+        return 1.0 - self.final.gap_rad / self.initial.gap_rad if self.initial.gap_rad > 0 else 0.0
+
     def to_json_dict(self) -> dict[str, Any]:
-        """The ``rig diagnose --json`` document (keys fixed by issue 6)."""
+        """The ``rig diagnose --json`` document (keys of issue 6, and of issue 15: ``verdict``,
+        ``verdict_reason``, ``noise_bound``, ``candidates``, ``ambiguous_between``, ``gap_reduction``,
+        ``excitation``, and ``parameter_intervals`` for each missing effect)."""
+        reduction: dict[str, Any] = {"value": float(self.gap_reduction_fraction)}
+        if self.gap_reduction is not None:
+            reduction.update(self.gap_reduction)
         return {
+            "verdict": self.verdict,
+            "verdict_reason": self.verdict_reason,
+            "noise_bound": float(self.noise_bound_rad),
             "missing_effects": [
                 {
                     "effect": step.effect,
                     "parameters": {k: float(v) for k, v in step.parameters.items()},
+                    "parameter_intervals": {k: [float(lo), float(hi)] for k, (lo, hi)
+                                            in self.parameter_intervals.get(step.effect, {}).items()},
                     "gap_before": float(step.gap_before_rad),
                     "gap_after": float(step.gap_after_rad),
                 }
                 for step in self.steps
             ],
+            "ambiguous_between": list(self.ambiguous_between),
+            "candidates": [candidate.to_dict() for candidate in self.candidates],
             "gap_initial": float(self.initial.gap_rad),
             "gap_final": float(self.final.gap_rad),
+            "gap_reduction": reduction,
             "falsified_fraction_initial": float(self.initial.falsified_fraction),
             "falsified_fraction_final": float(self.final.falsified_fraction),
+            "excitation": dict(self.excitation),
+            "operating_point": float(self.operating_point_rad),
         }
 
 
@@ -302,7 +343,9 @@ class _Component:
 
     @property
     def free(self) -> int:
-        return 0 if self.kind == "fixed" or self.kind == "delay" else len(self.values)
+        if self.kind == "fixed" or (self.kind in EFFECTS and EFFECTS[self.kind].searched):
+            return 0
+        return len(self.values)
 
 
 def _linear_component(block: LinearBlock) -> _Component:
@@ -315,60 +358,20 @@ def _linear_component(block: LinearBlock) -> _Component:
 
 
 def _build(component: _Component, values: Sequence[float]) -> Block:
-    v = [float(x) for x in values]
     kind = component.kind
     if kind == "fixed":
         assert component.block is not None
         return component.block
+    v = [float(x) for x in values]
     if kind == "linear":
         return LinearBlock(a=tuple(v[: component.na]), b=(0.0,) * component.nk + tuple(v[component.na:]),
                            sample_period_s=component.sample_period_s)
-    if kind == "backlash":
-        return OutputBacklash(m_l=1.0, c_l=max(abs(v[0]), 1e-12), m_r=1.0, c_r=max(abs(v[1]), 1e-12))
-    if kind == "dead_zone":
-        left, right = -abs(v[0]), abs(v[1])
-        return DeadZone(left_rad=left, right_rad=right)
-    if kind == "saturation":
-        lower, upper = -abs(v[0]), abs(v[1])
-        return Saturation(lower_rad=lower, upper_rad=max(upper, lower + 1e-9))
-    if kind == "delay":
-        return Delay(int(round(v[0])))
-    if kind == "coulomb_friction":
-        slide = abs(v[1])
-        stick = max(abs(v[0]), slide, 1e-12)
-        return CoulombFriction(breakaway_torque_nm=stick, coulomb_torque_nm=slide, stiffness_nm_per_rad=1.0)
-    if kind == "resonance":
-        nyquist = 0.5 / component.sample_period_s
-        frequency = min(max(abs(v[0]), 1e-3 * nyquist), 0.98 * nyquist)
-        damping = min(max(abs(v[1]), 1e-3), _MAX_RESONANCE_DAMPING)
-        return Resonance(frequency_hz=frequency, damping_ratio=damping, sample_period_s=component.sample_period_s)
-    if kind == "offset":
-        return OutputOffset(offset_rad=v[0], drift_rad_per_s=v[1], sample_period_s=component.sample_period_s)
-    if kind == "gain_error":
-        return OutputGain(gain=1.0 + v[0])
-    raise InvalidInputError(f"effect: unknown effect {kind!r}")
+    return effect(kind).build(v, component.sample_period_s)
 
 
 def _parameters(kind: str, block: Block) -> dict[str, float]:
     """The public parameters of a fitted effect block."""
-    if isinstance(block, OutputBacklash):
-        return {"c_l_rad": block.c_l, "c_r_rad": block.c_r}
-    if isinstance(block, DeadZone):
-        return {"left_rad": block.left_rad, "right_rad": block.right_rad}
-    if isinstance(block, Saturation):
-        return {"lower_rad": block.lower_rad, "upper_rad": block.upper_rad}
-    if isinstance(block, Delay):
-        return {"samples": float(block.samples)}
-    if isinstance(block, CoulombFriction):
-        return {"breakaway_deflection_rad": block.breakaway_deflection_rad,
-                "sliding_deflection_rad": block.sliding_deflection_rad}
-    if isinstance(block, Resonance):
-        return {"frequency_hz": block.frequency_hz, "damping_ratio": block.damping_ratio}
-    if isinstance(block, OutputOffset):
-        return {"offset_rad": block.offset_rad, "drift_rad_per_s": block.drift_rad_per_s}
-    if isinstance(block, OutputGain):
-        return {"gain": block.gain, "relative_error": block.gain - 1.0}
-    raise InvalidInputError(f"effect: no parameters known for {kind!r}")
+    return {key: float(value) for key, value in effect(kind).report(block).items()}
 
 
 class _Chain:
@@ -422,9 +425,10 @@ def _rms(values: NDArray[np.float64]) -> float:
 
 
 def _polish(chain: _Chain, u: NDArray[np.float64], y: NDArray[np.float64], max_evaluations: int,
-            kinds: frozenset[str] | None = None) -> _Chain:
+            kinds: frozenset[str] | None = None, samples: NDArray[np.bool_] | None = None) -> _Chain:
     """Least-squares fit of the free parameters of ``chain`` (only of components whose kind is in ``kinds``
-    if given) to the free-run error on (u, y)."""
+    if given) to the free-run error on (u, y) (only on the ``samples`` marked True if given: the free run
+    covers the whole record, the cost only those samples)."""
     theta_all = chain.vector()
     if theta_all.size == 0:
         return chain
@@ -442,11 +446,15 @@ def _polish(chain: _Chain, u: NDArray[np.float64], y: NDArray[np.float64], max_e
         theta[mask] = z * scale
         return chain.with_vector(theta)
 
+    def error(option: _Chain) -> NDArray[np.float64]:
+        full = _free_run_error(option, u, y)
+        return full if samples is None else full[samples]
+
     with np.errstate(all="ignore"):
-        fit = optimize.least_squares(lambda z: _free_run_error(expand(z), u, y), theta0 / scale,
+        fit = optimize.least_squares(lambda z: error(expand(z)), theta0 / scale,
                                      method="trf", diff_step=steps, max_nfev=max_evaluations)
     candidate = expand(fit.x)
-    if _rms(_free_run_error(candidate, u, y)) <= _rms(_free_run_error(chain, u, y)):
+    if _rms(error(candidate)) <= _rms(error(chain)):
         return candidate
     return chain
 
@@ -547,52 +555,17 @@ def fit_linear_model(command_rad: ArrayLike, angle_rad: ArrayLike, sample_period
 
 
 def _insert_index(chain: _Chain, kind: str) -> int:
-    """Where an effect goes: input-side effects before the first linear component, output-side after
-    the last linear/resonance component, the offset at the very end."""
+    """Where an effect goes (its catalogue placement): ``input`` before the first linear component,
+    ``output`` after the last linear/resonance component, ``end`` at the very end."""
     linear = [i for i, c in enumerate(chain.components)
-              if c.kind in ("linear", "resonance") or isinstance(c.block, (LinearBlock, Resonance))]
-    if kind in ("dead_zone", "saturation", "delay"):
+              if c.kind == "linear" or (c.kind in EFFECTS and EFFECTS[c.kind].linear_dynamics)
+              or isinstance(c.block, (LinearBlock, Resonance))]
+    placement = effect(kind).placement
+    if placement == "input":
         return linear[0] if linear else 0
-    if kind in ("offset", "gain_error"):
+    if placement == "end":
         return len(chain.components)
-    after = linear[-1] + 1 if linear else len(chain.components)
-    return after
-
-
-def _initial_guesses(kind: str, u: NDArray[np.float64], residual: NDArray[np.float64], delta: float,
-                     period: float, scores: dict[str, SignatureScore]) -> list[tuple[float, ...]]:
-    amplitude = max(float(np.max(np.abs(residual))), 4.0 * delta)
-    span = float(np.max(np.abs(u)))
-    levels = np.geomspace(delta, amplitude, 7)
-    if kind == "backlash":
-        return [(left, right) for left in levels for right in levels]
-    if kind == "coulomb_friction":
-        return [(r * c, c) for c in np.geomspace(delta, 2.0 * amplitude, 14) for r in (1.0, 1.25, 1.5, 1.8, 2.2, 2.8)]
-    if kind == "dead_zone":
-        # each edge on its own: a record may barely reach one side's edge, and a symmetric guess misses it
-        edges = np.geomspace(max(delta, 1e-3 * span), 0.3 * span, 6)
-        return [(left, right) for left in edges for right in edges]
-    if kind == "saturation":
-        # each limit from the commands on its side: travel limits need not be symmetric
-        levels = (0.3, 0.5, 0.7, 0.85, 0.95)
-        below = np.quantile(-u[u < 0], levels) if np.any(u < 0) else np.zeros(1)
-        above = np.quantile(u[u > 0], levels) if np.any(u > 0) else np.zeros(1)
-        return [(float(low), float(high)) for low in below for high in above]
-    if kind == "resonance":
-        nyquist = 0.5 / period
-        peak = scores["resonance"].details.get("peak_frequency_hz", 0.1 * nyquist)
-        frequencies = [f for f in (peak, *np.geomspace(0.02 * nyquist, 0.8 * nyquist, 16)) if 0.0 < f < 0.98 * nyquist]
-        return [(f, z) for f in frequencies for z in (0.02, 0.05, 0.1)]
-    if kind == "offset":
-        return [(float(np.mean(residual)), 0.0)]
-    if kind == "gain_error":
-        relative_error = scores["gain_error"].details.get("relative_error", 0.0)
-        return [(relative_error,), *((e,) for e in (-0.2, -0.05, 0.05, 0.2))]
-    raise InvalidInputError(f"effect: unknown effect {kind!r}")
-
-
-_PARAMETER_COUNT = {"backlash": 2, "dead_zone": 2, "saturation": 2, "delay": 1, "coulomb_friction": 2,
-                    "resonance": 2, "offset": 2, "gain_error": 1}
+    return linear[-1] + 1 if linear else len(chain.components)
 
 
 @dataclass(frozen=True)
@@ -603,6 +576,7 @@ class _Candidate:
     block: Block
     index: int
     estimation_rms_rad: float = math.inf
+    validation_error_rad: NDArray[np.float64] | None = None
 
 
 def _try_effect(kind: str, chain: _Chain, u: NDArray[np.float64], y: NDArray[np.float64], n_est: int,
@@ -616,32 +590,29 @@ def _try_effect(kind: str, chain: _Chain, u: NDArray[np.float64], y: NDArray[np.
         components.insert(index, _Component(kind, tuple(float(v) for v in values), sample_period_s=period))
         return _Chain(components)
 
-    if kind == "delay":
+    entry = effect(kind)
+    if entry.searched:
         options = [with_effect((d,)) for d in range(1, max_delay_samples + 1)]
     else:
-        options = [with_effect(g) for g in _initial_guesses(kind, u, residual, delta, period, scores)]
+        options = [with_effect(g) for g in entry.guesses(GuessContext(u, residual, delta, period, scores))]
     options = [_refit_last_linear(option, u_est, y_est) for option in options]
-    if kind in ("backlash", "coulomb_friction"):
+    if entry.contact_start is not None:
         plays = np.geomspace(delta, max(float(np.max(np.abs(residual))), 4.0 * delta), 4)
         for contact in filter(None, (_contact_branch_start(chain, u_est, y_est, play) for play in plays)):
             refit, c_l, c_r = contact
-            if kind == "backlash":
-                options.append(with_effect((c_l, c_r), refit))
-            else:
-                slide = 0.5 * (c_l + c_r)
-                options += [with_effect((ratio * slide, slide), refit) for ratio in (1.0, 1.5, 2.0)]
+            options += [with_effect(start, refit) for start in entry.contact_start(c_l, c_r)]
     costs = [_rms(_free_run_error(option, u_est, y_est)) for option in options]
     best = options[int(np.argmin(costs))]
     best = _refine_delays(best, u_est, y_est)
     if any(c.kind == "linear" for c in best.components):
         best = _polish(best, u_est, y_est, max_evaluations, frozenset({"linear"}))
     best = _polish(best, u_est, y_est, max_evaluations)
-    if kind == "coulomb_friction":
+    if entry.stick_slip:
         best = _scan_breakaway(best, index, u_est, y_est)
-    gap = _rms((y - best.model().simulate(u))[n_est:]) if best.linear_stable() else _BIG
+    error = (y - best.model().simulate(u))[n_est:] if best.linear_stable() else np.full(y.size - n_est, _BIG)
+    error = np.where(np.isfinite(error), error, _BIG)
     block = _build(best.components[index], best.components[index].values)
-    return _Candidate(kind, best, gap if math.isfinite(gap) else _BIG, block, index,
-                      _rms(_free_run_error(best, u_est, y_est)))
+    return _Candidate(kind, best, _rms(error), block, index, _rms(_free_run_error(best, u_est, y_est)), error)
 
 
 def _scan_breakaway(chain: _Chain, index: int, u: NDArray[np.float64], y: NDArray[np.float64]) -> _Chain:
@@ -680,7 +651,7 @@ def _refit_last_linear(chain: _Chain, u: NDArray[np.float64], y: NDArray[np.floa
     if "linear" not in kinds:
         return chain
     index = kinds.index("linear")
-    if any(kind != "resonance" for kind in kinds[index + 1:]):
+    if any(not (kind in EFFECTS and EFFECTS[kind].linear_dynamics) for kind in kinds[index + 1:]):
         return chain
     linear = chain.components[index]
     others = chain.components[:index] + chain.components[index + 1:]
@@ -767,19 +738,21 @@ def _output_error_fit(u: NDArray[np.float64], y: NDArray[np.float64], a: tuple[f
     return tuple(float(v) for v in fit.x), (0.0,) * delay + tuple(float(v) for v in theta)
 
 
-def _refine_delays(chain: _Chain, u: NDArray[np.float64], y: NDArray[np.float64], reach: int = 5) -> _Chain:
+def _refine_delays(chain: _Chain, u: NDArray[np.float64], y: NDArray[np.float64], reach: int = 5,
+                   samples: NDArray[np.bool_] | None = None) -> _Chain:
     """Re-search every integer delay already in the chain within +-``reach`` samples (a delay found before
     a second effect was added absorbs part of that effect's lag)."""
     for index, component in enumerate(chain.components):
-        if component.kind != "delay":
+        if not (component.kind in EFFECTS and EFFECTS[component.kind].searched):
             continue
         current = int(round(component.values[0]))
         options = []
         for d in range(max(0, current - reach), current + reach + 1):
             components = list(chain.components)
-            components[index] = _Component("delay", (float(d),))
+            components[index] = _Component(component.kind, (float(d),))
             options.append(_Chain(components))
-        costs = [_rms(_free_run_error(option, u, y)) for option in options]
+        errors = [_free_run_error(option, u, y) for option in options]
+        costs = [_rms(e if samples is None else e[samples]) for e in errors]
         chain = options[int(np.argmin(costs))]
     return chain
 
@@ -797,7 +770,8 @@ def diagnose_model(command_rad: ArrayLike, angle_rad: ArrayLike, noise_bound_rad
                    max_effects: int = 3, complexity_penalty: float = 0.03, min_reduction: float = 0.15,
                    consistent_fraction: float = 0.01, max_delay_samples: int = 40,
                    max_evaluations: int = 40,
-                   progress: Callable[[str], None] | None = None) -> DiscrepancyResult:
+                   progress: Callable[[str], None] | None = None,
+                   from_operating_point: bool = True) -> DiscrepancyResult:
     """Run the model-discrepancy workflow of issue 6 (steps 1-5 of the module docstring).
 
     Parameters
@@ -828,6 +802,13 @@ def diagnose_model(command_rad: ArrayLike, angle_rad: ArrayLike, noise_bound_rad
         Longest delay tried.
     max_evaluations
         Function evaluations per least-squares polish.
+    from_operating_point
+        Start the free run at the measured operating point, not at zero: when the record starts at rest (the
+        first angles within two noise bounds of each other) further than
+        :data:`OPERATING_POINT_MIN_NOISE_BOUNDS` noise bounds from zero, the workflow runs on
+        u - y_0 and y - y_0 (y_0 the median of the first :data:`OPERATING_POINT_SAMPLES` angles), and the
+        models it returns are wrapped as y_0 + M(u - y_0). Parameters of position-dependent effects
+        (dead-zone edges, saturation limits) are then relative to y_0.
     """
     u = as_signal("command_rad", command_rad, min_samples=50)
     y = as_signal("angle_rad", angle_rad, min_samples=50)
@@ -848,8 +829,34 @@ def diagnose_model(command_rad: ArrayLike, angle_rad: ArrayLike, noise_bound_rad
         period = model.sample_period_s  # the blocks added must carry exactly the model's period
     varying("command_rad", u, "record a step or PRBS experiment (configs/experiments/prbs.toml) to compare a "
                               "model with")
+    operating_point = _operating_point(y, delta) if from_operating_point else 0.0
+    if operating_point != 0.0:
+        result = diagnose_model(u - operating_point, y - operating_point, delta, period, model,
+                                estimation_fraction=estimation_fraction, candidates=candidates,
+                                max_effects=max_effects, complexity_penalty=complexity_penalty,
+                                min_reduction=min_reduction, consistent_fraction=consistent_fraction,
+                                max_delay_samples=max_delay_samples, max_evaluations=max_evaluations,
+                                progress=progress, from_operating_point=False)
+        return _absolute(result, operating_point, period)
     n_est = int(round(estimation_fraction * u.size))
     say = progress or (lambda _message: None)
+    if model is None:
+        # a fitted linear start model has a free static gain, which absorbs any scale error: the effect is
+        # not identifiable against it (README: a gain error can only be named against a given model)
+        candidates = [name for name in candidates if not EFFECTS[name].needs_given_model]
+    excitation = _excitation(u, n_est)
+    if excitation["reason"]:
+        # not scored: a verdict on a segment that cannot show the effects would be a guess
+        say(f"not excited: {excitation['reason']}")
+        start_model = model if model is not None else PlantModel((Delay(1),))
+        initial = disagreement(start_model, u, y, delta, n_est)
+        return DiscrepancyResult(
+            steps=(), start_model=start_model, final_model=start_model, initial=initial, final=initial,
+            consistent=initial.falsified_fraction <= consistent_fraction,
+            unexplained=f"not judged: {excitation['reason']}", estimation_samples=n_est, noise_bound_rad=delta,
+            linear_fit=None, verdict="not_excited", verdict_reason=str(excitation["reason"]),
+            excitation=excitation,
+        )
 
     linear_fit = None
     if model is None:
@@ -860,56 +867,30 @@ def diagnose_model(command_rad: ArrayLike, angle_rad: ArrayLike, noise_bound_rad
         start_model = model
     chain = _start_chain(model, linear_fit.block if linear_fit else None, 2)
     initial = disagreement(start_model, u, y, delta, n_est)
-    current = initial
-    steps: list[DiscrepancyStep] = []
-    remaining = [name for name in candidates]
-    while len(steps) < max_effects and current.falsified_fraction > consistent_fraction and remaining:
-        if steps and chain.vector().size:
-            # the same structure refitted at least as long as the candidates will be: the baseline they must
-            # beat (a further effect must earn its place by its physics, not by the extra polishing it brings)
-            baseline = _polish(_refine_delays(chain, u[:n_est], y[:n_est]), u[:n_est], y[:n_est],
-                               _BASELINE_EFFORT * max_evaluations)
-            refitted = disagreement(baseline.model(), u, y, delta, n_est)
-            if refitted.gap_rad < current.gap_rad:
-                chain, current = baseline, refitted
-                if current.falsified_fraction <= consistent_fraction:
-                    break
-        scores = signature_scores(u, y, current.simulated_rad, delta, period)
-        tried = []
-        for kind in remaining:
-            candidate = _try_effect(kind, chain, u, y, n_est, delta, period, current.residual_rad, scores,
-                                    max_delay_samples, max_evaluations)
-            say(f"  {kind}: validated gap {candidate.gap_rad:.3g} rad")
-            if not _vanished(candidate.block, delta):
-                tried.append(candidate)
-        if not tried:
-            break
-        penalised = {c.kind: c.gap_rad * (1.0 + complexity_penalty * _PARAMETER_COUNT[c.kind]) for c in tried}
-        best = min(tried, key=lambda c: penalised[c.kind])
-        best = _prefer_backlash(best, tried, penalised, current.gap_rad)
-        if penalised[best.kind] > (1.0 - min_reduction) * current.gap_rad:
-            break
-        polished = _polish(_refine_delays(best.chain, u[:n_est], y[:n_est]), u[:n_est], y[:n_est], max_evaluations)
-        if _rms((y - polished.model().simulate(u))[n_est:]) <= best.gap_rad:
-            best = _Candidate(best.kind, polished, best.gap_rad, _build(polished.components[best.index],
-                                                                       polished.components[best.index].values), best.index)
-        after = disagreement(best.chain.model(), u, y, delta, n_est)
-        evidence: dict[str, Any] = {
-            "signature_scores": {name: score.score for name, score in scores.items()},
-            "signature_details": {name: dict(score.details) for name, score in scores.items()},
-            "candidate_gaps_rad": {c.kind: c.gap_rad for c in tried},
-        }
-        steps.append(DiscrepancyStep(
-            effect=best.kind, parameters=_parameters(best.kind, best.block), evidence=evidence,
-            gap_before_rad=current.gap_rad, gap_after_rad=after.gap_rad,
-            falsified_fraction_before=current.falsified_fraction, falsified_fraction_after=after.falsified_fraction,
-            model=best.chain.model(),
-        ))
-        say(f"added {best.kind}: gap {current.gap_rad:.3g} -> {after.gap_rad:.3g} rad")
-        chain, current = best.chain, after
-        remaining = [name for name in remaining if name != best.kind]
+    settings = {"max_effects": max_effects, "consistent_fraction": consistent_fraction,
+                "complexity_penalty": complexity_penalty, "min_reduction": min_reduction,
+                "max_evaluations": max_evaluations, "max_delay_samples": max_delay_samples}
+    found = _search(_Search(chain, initial, [], [], (), initial.residual_rad[n_est:]), list(candidates), u, y, n_est,
+                    delta, period, settings, say, resolve_ties=True)
+    chain, current, steps, tried_all = found.chain, found.current, found.steps, found.tried
+    ambiguous_between = found.ambiguous_between
     final_model = chain.model() if steps else start_model
     consistent = current.falsified_fraction <= consistent_fraction
+    intervals: dict[str, dict[str, tuple[float, float]]] = {}
+    reduction = None
+    if steps:
+        say("cross-validation folds for the parameter intervals")
+        intervals, reduction = _fold_intervals(chain, start_model, u, y, max_evaluations)
+        for step in steps:  # a step's value (fitted when it was added) lies in its interval too
+            for key, value in step.parameters.items():
+                low, high = intervals.get(step.effect, {}).get(key, (value, value))
+                intervals.setdefault(step.effect, {})[key] = (min(low, value), max(high, value))
+        intervals = _resolution_floor(intervals, delta)
+    verdict, reason = _verdict(initial, current, steps, ambiguous_between, consistent, delta, consistent_fraction)
+    if verdict == "unexplained":
+        unmeasured = _unmeasured_input(u, y, current.simulated_rad, delta)
+        if unmeasured:
+            verdict, reason = "not_excited", unmeasured
     if consistent:
         unexplained = "the model is consistent with the noise bound on the validation segment"
     else:
@@ -921,47 +902,482 @@ def diagnose_model(command_rad: ArrayLike, angle_rad: ArrayLike, noise_bound_rad
     return DiscrepancyResult(
         steps=tuple(steps), start_model=start_model, final_model=final_model, initial=initial, final=current,
         consistent=consistent, unexplained=unexplained, estimation_samples=n_est, noise_bound_rad=delta,
-        linear_fit=linear_fit,
+        linear_fit=linear_fit, verdict=verdict, verdict_reason=reason, candidates=tuple(tried_all),
+        ambiguous_between=ambiguous_between, parameter_intervals=intervals, gap_reduction=reduction,
+        excitation=excitation,
     )
 
 
-def _vanished(block: Block, delta: float) -> bool:
-    """An effect fitted to nothing (play, dead band or delay of zero size) is not an effect."""
-    if isinstance(block, OutputBacklash):
-        return block.c_l + block.c_r < delta
-    if isinstance(block, DeadZone):
-        return block.right_rad - block.left_rad < delta
-    if isinstance(block, Delay):
-        return block.samples == 0
-    if isinstance(block, CoulombFriction):
-        return block.breakaway_deflection_rad < delta / 2.0
-    if isinstance(block, OutputGain):
-        return abs(block.gain - 1.0) < _NEGLIGIBLE_GAIN_ERROR
-    return False
+VALIDATION_BLOCKS = 8
+"""The validation segment is cut into this many contiguous blocks; the spread of a candidate's per-block
+gap is its uncertainty (neighbouring samples of a free-run error are strongly correlated, so the spread
+over blocks, not over samples, says how much the gap would move on another stretch of data)."""
+
+AMBIGUITY_SIGMAS = 2.0
+"""Two candidates are told apart when the log of the ratio of their penalised gaps exceeds this many
+standard errors of the paired per-block log ratios (about a 95 % one-sided level for 8 blocks; ratios, not
+differences, because both candidates' errors grow and shrink together with the motion in each block)..."""
+
+AMBIGUITY_MIN_MARGIN = 0.03
+"""... and is at least this fraction of the better gap: a difference of 3 % in an RMS error is within what
+a refit from another start or a few more samples changes; choosing by it would be choosing by chance."""
+
+MIN_SEGMENT_REVERSALS = 1
+"""Each segment must see the command reverse its direction at least this often: a play, friction or a
+lag is judged where the motion turns; a segment that never turns (a ramp, one step) cannot tell them apart:
+an estimation segment without a turn cannot fit them, a validation segment without one is too short to
+judge, and the record is not scored."""
+
+MIN_VALIDATION_SAMPLES = 40
+"""A validation segment shorter than this is too short to judge (fewer blocks than samples per block)."""
+
+UNMEASURED_INPUT_FRACTION = 0.05
+"""An unexplained record whose output moves by more than the noise while the command and the model are at
+rest in at least this share of samples is driven by something the record does not contain (torque off and
+the load swinging, a hand on the arm): not excited by the command, rather than unexplained."""
+
+OPERATING_POINT_SAMPLES = 5
+"""The operating point is the median of this many first measured angles (a one-sample read failure at the
+start does not move it)."""
+
+OPERATING_POINT_MIN_NOISE_BOUNDS = 10.0
+"""A record whose first angles lie within this many noise bounds of zero starts at zero: the start-up
+transient of a free run from zero is then within a few noise bounds and fades."""
 
 
-def _prefer_backlash(best: _Candidate, tried: Sequence[_Candidate], penalised: dict[str, float],
-                     gap_before_rad: float) -> _Candidate:
-    """Backlash and Coulomb friction are one family (hysteresis after the drive); decide between them.
+def _operating_point(y: NDArray[np.float64], delta: float) -> float:
+    """y_0 when the record starts at rest (its first angles within two noise bounds of each other) away from
+    zero; 0 otherwise (a record that starts in motion has a state no angle gives: it runs from zero)."""
+    first = y[:OPERATING_POINT_SAMPLES]
+    y0 = float(np.median(first))
+    at_rest = float(np.ptp(first)) <= 2.0 * delta
+    return y0 if at_rest and abs(y0) > OPERATING_POINT_MIN_NOISE_BOUNDS * delta else 0.0
 
-    Friction without stiction (breakaway = sliding twist) is the same map as a symmetric backlash with unit
-    slopes, so friction is named only if its stiction is real (breakaway > 1.15 sliding) and it fits the
-    estimation segment clearly better (by 20 %). Conversely, a stick-slip model's free run is very
-    sensitive to its thresholds (where the load sticks depends on the whole history), so on the
-    validation segment backlash can look better although friction is the effect; when backlash wins the
-    validated gap but friction with real stiction fits the estimation segment clearly better and still
-    halves the gap, friction is named.
+
+def _absolute(result: DiscrepancyResult, operating_point: float, period: float) -> DiscrepancyResult:
+    """``result`` of a run on u - y_0, y - y_0 in absolute angles: simulated outputs moved back by y_0, models
+    wrapped as y_0 + M(u - y_0)."""
+    from dataclasses import replace
+
+    def wrap(model: PlantModel) -> PlantModel:
+        return PlantModel((OutputOffset(offset_rad=-operating_point, drift_rad_per_s=0.0, sample_period_s=period),
+                           *model.blocks,
+                           OutputOffset(offset_rad=operating_point, drift_rad_per_s=0.0, sample_period_s=period)))
+
+    def moved(d: Disagreement) -> Disagreement:
+        return replace(d, simulated_rad=d.simulated_rad + operating_point)
+
+    steps = tuple(replace(step, model=wrap(step.model)) for step in result.steps)
+    return replace(result, steps=steps, start_model=wrap(result.start_model), final_model=wrap(result.final_model),
+                   initial=moved(result.initial), final=moved(result.final), operating_point_rad=operating_point)
+
+
+FOLDS = 4
+"""Cross-validation folds for the parameter intervals: each fold leaves out one quarter of the record."""
+
+FOLD_EVALUATIONS = 8
+"""Function evaluations of each fold's refit: it starts from the fitted values, which are close to every
+fold's optimum, so a few Gauss-Newton steps move it there; more only cost time."""
+
+
+@dataclass(frozen=True)
+class CandidateResult:
+    """One candidate tried in one round: its validated gap with an uncertainty (spread over validation
+    blocks, :data:`VALIDATION_BLOCKS`), the penalised gap it was ranked by, the fitted parameters, whether
+    it vanished, and whether it would have been kept on its own."""
+
+    round: int
+    effect: str
+    gap_rad: float
+    gap_uncertainty_rad: float
+    penalised_gap_rad: float
+    parameters: dict[str, float]
+    vanished: bool
+    helps: bool
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"round": self.round, "effect": self.effect, "gap": float(self.gap_rad),
+                "gap_uncertainty": float(self.gap_uncertainty_rad), "penalised_gap": float(self.penalised_gap_rad),
+                "parameters": {k: float(v) for k, v in self.parameters.items()}, "vanished": bool(self.vanished),
+                "helps": bool(self.helps)}
+
+
+def _block_gaps(error: NDArray[np.float64] | None) -> NDArray[np.float64]:
+    if error is None or error.size < VALIDATION_BLOCKS:
+        return np.zeros(0)
+    return np.array([_rms(part) for part in np.array_split(error, VALIDATION_BLOCKS)])
+
+
+def _gap_uncertainty(error: NDArray[np.float64] | None) -> float:
+    gaps = _block_gaps(error)
+    return float(np.std(gaps, ddof=1) / math.sqrt(gaps.size)) if gaps.size > 1 else 0.0
+
+
+def _rivals(best: _Candidate, tried: Sequence[_Candidate], penalised: dict[str, float], complexity_penalty: float,
+            accept_below_rad: float) -> tuple[str, ...]:
+    """Candidates that would also be kept and whose penalised gap is within its uncertainty of ``best``'s
+    (paired per-block differences, :data:`AMBIGUITY_SIGMAS`, :data:`AMBIGUITY_MIN_MARGIN`). A member of the
+    best one's family was already decided between by :func:`_prefer_within_family`."""
+    family = EFFECTS[best.kind].family
+    out = []
+    for other in tried:
+        if other.kind == best.kind or penalised[other.kind] > accept_below_rad:
+            continue
+        if family is not None and EFFECTS[other.kind].family == family:
+            continue
+        if _within_uncertainty(penalised[best.kind], best.validation_error_rad * (1.0 + complexity_penalty
+                               * EFFECTS[best.kind].free_parameters), penalised[other.kind],
+                               other.validation_error_rad * (1.0 + complexity_penalty
+                                                             * EFFECTS[other.kind].free_parameters)):
+            out.append(other.kind)
+    return tuple(out)
+
+
+@dataclass
+class _Search:
+    """The state of the greedy search of step 4 (the model so far, its disagreement, the effects added)."""
+
+    chain: _Chain
+    current: Disagreement
+    steps: list[DiscrepancyStep]
+    tried: list[CandidateResult]
+    ambiguous_between: tuple[str, ...] = ()
+    validation_error_rad: NDArray[np.float64] | None = None
+
+
+def _search(state: _Search, remaining: list[str], u: NDArray[np.float64], y: NDArray[np.float64], n_est: int,
+            delta: float, period: float, settings: dict[str, Any], say: Callable[[str], None],
+            resolve_ties: bool) -> _Search:
+    """Add effects greedily until the model is consistent, nothing helps or ``max_effects`` are in.
+
+    When the best candidate of a round has rivals within its uncertainty (:func:`_rivals`) and
+    ``resolve_ties`` holds, each contender is followed to the end of its own greedy search (without further
+    tie resolution): if all end in the same set of effects, or one end is clearly better than the others by
+    the same rule, that one is taken (two effects at once: whichever goes first, the pair is the answer);
+    otherwise the round is ambiguous and no contender is chosen."""
+    max_effects, consistent_fraction = settings["max_effects"], settings["consistent_fraction"]
+    complexity_penalty, min_reduction = settings["complexity_penalty"], settings["min_reduction"]
+    max_evaluations = settings["max_evaluations"]
+    chain, current = state.chain, state.current
+    steps, tried_all = list(state.steps), list(state.tried)
+    remaining = list(remaining)
+    round_index = len(steps)
+    validation_error = state.validation_error_rad
+    while len(steps) < max_effects and current.falsified_fraction > consistent_fraction and remaining:
+        if steps and chain.vector().size:
+            # the same structure refitted at least as long as the candidates will be: the baseline they must
+            # beat (a further effect must earn its place by its physics, not by the extra polishing it brings)
+            baseline = _polish(_refine_delays(chain, u[:n_est], y[:n_est]), u[:n_est], y[:n_est],
+                               _BASELINE_EFFORT * max_evaluations)
+            refitted = disagreement(baseline.model(), u, y, delta, n_est)
+            if refitted.gap_rad < current.gap_rad:
+                chain, current = baseline, refitted
+                validation_error = refitted.residual_rad[n_est:]
+                if current.falsified_fraction <= consistent_fraction:
+                    break
+        scores = signature_scores(u, y, current.simulated_rad, delta, period)
+        tried = []
+        for kind in remaining:
+            candidate = _try_effect(kind, chain, u, y, n_est, delta, period, current.residual_rad, scores,
+                                    settings["max_delay_samples"], max_evaluations)
+            say(f"  {kind}: validated gap {candidate.gap_rad:.3g} rad")
+            vanished = EFFECTS[kind].vanished(candidate.block, delta)
+            penalised_gap = candidate.gap_rad * (1.0 + complexity_penalty * EFFECTS[kind].free_parameters)
+            tried_all.append(CandidateResult(
+                round=round_index, effect=kind, gap_rad=candidate.gap_rad,
+                gap_uncertainty_rad=_gap_uncertainty(candidate.validation_error_rad),
+                penalised_gap_rad=penalised_gap, parameters=_parameters(kind, candidate.block), vanished=vanished,
+                helps=(not vanished) and penalised_gap <= (1.0 - min_reduction) * current.gap_rad))
+            if not vanished:
+                tried.append(candidate)
+        round_index += 1
+        if not tried:
+            break
+        penalised = {c.kind: c.gap_rad * (1.0 + complexity_penalty * EFFECTS[c.kind].free_parameters) for c in tried}
+        best = min(tried, key=lambda c: penalised[c.kind])
+        best = _prefer_within_family(best, tried, penalised, current.gap_rad)
+        if penalised[best.kind] > (1.0 - min_reduction) * current.gap_rad:
+            break
+        rivals = _rivals(best, tried, penalised, complexity_penalty, (1.0 - min_reduction) * current.gap_rad)
+        if rivals and resolve_ties:
+            by_kind = {c.kind: c for c in tried}
+            ends = []
+            for kind in (best.kind, *rivals):
+                step_state = _add_step(by_kind[kind], chain, current, steps, tried_all, u, y, n_est, delta, scores,
+                                       tried, max_evaluations)
+                ends.append(_search(step_state, [n for n in remaining if n != kind], u, y, n_est, delta, period,
+                                    settings, lambda _m: None, resolve_ties=False))
+            chosen = _clear_end(ends, complexity_penalty)
+            if chosen is None:
+                ambiguous_between = (best.kind, *rivals)
+                say(f"ambiguous: {', '.join(ambiguous_between)} fit equally well within their uncertainty")
+                return _Search(chain, current, steps, tried_all, ambiguous_between, validation_error)
+            say(f"the tie resolves when followed to the end: {', '.join(s.effect for s in chosen.steps)}")
+            return chosen
+        state = _add_step(best, chain, current, steps, tried_all, u, y, n_est, delta, scores, tried, max_evaluations)
+        say(f"added {best.kind}: gap {current.gap_rad:.3g} -> {state.current.gap_rad:.3g} rad")
+        chain, current, steps, validation_error = state.chain, state.current, state.steps, state.validation_error_rad
+        remaining = [name for name in remaining if name != best.kind]
+    return _Search(chain, current, steps, tried_all, (), validation_error)
+
+
+def _add_step(best: _Candidate, chain: _Chain, current: Disagreement, steps: list[DiscrepancyStep],
+              tried_all: list[CandidateResult], u: NDArray[np.float64], y: NDArray[np.float64], n_est: int,
+              delta: float, scores: dict[str, SignatureScore], tried: Sequence[_Candidate],
+              max_evaluations: int) -> _Search:
+    polished = _polish(_refine_delays(best.chain, u[:n_est], y[:n_est]), u[:n_est], y[:n_est], max_evaluations)
+    if _rms((y - polished.model().simulate(u))[n_est:]) <= best.gap_rad:
+        best = _Candidate(best.kind, polished, best.gap_rad, _build(polished.components[best.index],
+                                                                   polished.components[best.index].values), best.index)
+    after = disagreement(best.chain.model(), u, y, delta, n_est)
+    evidence: dict[str, Any] = {
+        "signature_scores": {name: score.score for name, score in scores.items()},
+        "signature_details": {name: dict(score.details) for name, score in scores.items()},
+        "candidate_gaps_rad": {c.kind: c.gap_rad for c in tried},
+    }
+    step = DiscrepancyStep(
+        effect=best.kind, parameters=_parameters(best.kind, best.block), evidence=evidence,
+        gap_before_rad=current.gap_rad, gap_after_rad=after.gap_rad,
+        falsified_fraction_before=current.falsified_fraction, falsified_fraction_after=after.falsified_fraction,
+        model=best.chain.model(),
+    )
+    return _Search(best.chain, after, [*steps, step], list(tried_all), (), after.residual_rad[n_est:])
+
+
+def _clear_end(ends: Sequence[_Search], complexity_penalty: float) -> _Search | None:
+    """The look-ahead of :func:`_search`: the end all contenders reach, or the one clearly better than every
+    other (by :data:`AMBIGUITY_SIGMAS` and :data:`AMBIGUITY_MIN_MARGIN` on the final validation errors). An
+    end within the uncertainty of another whose effects are a subset of its own gives way to it (a gain
+    error added before the dead zone that then explains everything is no second effect). None when two ends
+    with different, not nested, sets of effects are within their uncertainty of each other."""
+    def cost(end: _Search) -> float:
+        return end.current.gap_rad * (1.0 + complexity_penalty * sum(EFFECTS[s.effect].free_parameters
+                                                                   for s in end.steps))
+
+    def effects(end: _Search) -> frozenset[str]:
+        return frozenset(s.effect for s in end.steps)
+
+    ranked = sorted(ends, key=cost)
+    best = ranked[0]
+    ties = [other for other in ranked[1:] if effects(other) != effects(best)
+            and _within_uncertainty(cost(best), best.validation_error_rad, cost(other), other.validation_error_rad)]
+    for other in ties:
+        if effects(other) < effects(best):
+            best = other  # as good within the uncertainty with fewer effects: the simpler explanation
+    for other in ties:
+        if effects(other) != effects(best) and not effects(best) < effects(other):
+            return None  # different effects, equally good: ambiguous
+    return best
+
+
+def _within_uncertainty(best_cost: float, best_error: NDArray[np.float64] | None, other_cost: float,
+                        other_error: NDArray[np.float64] | None) -> bool:
+    """The paired per-block rule of :func:`_rivals` for two penalised gaps and their validation errors."""
+    if not (best_cost > 0 and other_cost > 0):
+        return True
+    margin = math.log(other_cost / best_cost)
+    best_gaps, other_gaps = _block_gaps(best_error), _block_gaps(other_error)
+    if best_gaps.size > 1 and other_gaps.size == best_gaps.size and np.all(best_gaps > 0) and np.all(other_gaps > 0):
+        log_ratio = np.log(other_gaps / best_gaps)
+        standard_error = float(np.std(log_ratio, ddof=1) / math.sqrt(log_ratio.size))
+    else:
+        standard_error = math.inf
+    return margin < AMBIGUITY_SIGMAS * standard_error or margin < math.log1p(AMBIGUITY_MIN_MARGIN)
+
+
+def _command_reversals(u: NDArray[np.float64]) -> NDArray[np.bool_]:
+    """True at the samples where the command's direction of motion turns (a designed command moves smoothly
+    or holds exactly: only steps below a millionth of its range, rounding, are no motion)."""
+    threshold = 1e-6 * float(np.ptp(u)) if u.size else 0.0
+    direction = direction_signal(u, threshold)
+    turns = np.zeros(u.size, dtype=bool)
+    turns[1:] = (np.diff(direction) != 0) & (direction[:-1] != 0)
+    return turns
+
+
+def _excitation(u: NDArray[np.float64], n_est: int) -> dict[str, Any]:
+    """Whether the record can show the effects: reversals of the command in each segment and the validation
+    segment's length (:data:`MIN_SEGMENT_REVERSALS`, :data:`MIN_VALIDATION_SAMPLES`); ``reason`` says why
+    not, or is empty."""
+    turns = _command_reversals(u)
+    estimation, validation = int(np.count_nonzero(turns[:n_est])), int(np.count_nonzero(turns[n_est:]))
+    samples = int(u.size - n_est)
+    reason = ""
+    if samples < MIN_VALIDATION_SAMPLES:
+        reason = (f"the validation segment is too short to judge: {samples} samples, at least "
+                  f"{MIN_VALIDATION_SAMPLES} needed")
+    elif estimation + validation == 0:
+        reason = "the command never reverses its direction: no effect can be told apart from a lag or a scale"
+    elif validation < MIN_SEGMENT_REVERSALS:
+        reason = (f"the validation segment is too short to judge: the command reverses {validation} times there "
+                  f"(at least {MIN_SEGMENT_REVERSALS} needed); record longer or move more often")
+    elif estimation < MIN_SEGMENT_REVERSALS:
+        reason = (f"the estimation segment cannot fit an effect: the command reverses {estimation} times there "
+                  f"(at least {MIN_SEGMENT_REVERSALS} needed)")
+    return {"reversals_estimation": estimation, "reversals_validation": validation, "validation_samples": samples,
+            "reason": reason}
+
+
+def _unmeasured_input(u: NDArray[np.float64], y: NDArray[np.float64], simulated: NDArray[np.float64],
+                      delta: float) -> str:
+    """A reason when the output moves while the command and the model are at rest
+    (:data:`UNMEASURED_INPUT_FRACTION`), else an empty string."""
+    command_still = np.abs(np.diff(u)) <= 1e-12 + 1e-6 * float(np.ptp(u))
+    model_still = np.abs(np.diff(simulated)) <= 0.1 * delta
+    output_moves = np.abs(np.diff(y)) > 2.0 * delta
+    share = float(np.mean(command_still & model_still & output_moves))
+    if share < UNMEASURED_INPUT_FRACTION:
+        return ""
+    return (f"the output moves while the command and the model are at rest in {100 * share:.0f} % of samples: "
+            "an input the record does not contain (torque off, an external load) drives it")
+
+
+def _verdict(initial: Disagreement, final: Disagreement, steps: Sequence[DiscrepancyStep],
+             ambiguous_between: tuple[str, ...], consistent: bool, delta: float,
+             consistent_fraction: float) -> tuple[str, str]:
+    """The verdict of the workflow and the reason in words (module docstring)."""
+    if initial.falsified_fraction <= consistent_fraction:
+        return "explained", (f"the start model agrees with the data within the noise bound ({delta:.3g} rad) on "
+                             f"{100 * (1 - initial.falsified_fraction):.1f} % of validation samples")
+    named = ", ".join(step.effect for step in steps)
+    if ambiguous_between:
+        before = f" after {named}" if steps else ""
+        return "ambiguous", (f"{' and '.join(ambiguous_between)} fit the validation segment equally well within "
+                             f"their uncertainty{before}: none is chosen")
+    if steps:
+        left = ("the model is then consistent with the noise bound" if consistent else
+                f"{100 * final.falsified_fraction:.1f} % of validation samples stay outside the noise bound: part "
+                "of the disagreement is unexplained")
+        return "named", f"{named} lower the validated gap from {initial.gap_rad:.3g} to {final.gap_rad:.3g} rad; {left}"
+    return "unexplained", (f"{100 * initial.falsified_fraction:.1f} % of validation samples are outside the noise "
+                           f"bound and no candidate lowers the validated gap ({initial.gap_rad:.3g} rad) enough")
+
+
+JACKKNIFE_T = 3.182
+"""Student's t at 97.5 % for FOLDS - 1 = 3 degrees of freedom: the interval is the fit +- this many
+delete-a-block jackknife standard errors (two-sided 95 % if the fold estimates were normal)."""
+
+
+def _jackknife_interval(fitted: float, folds: Sequence[float]) -> tuple[float, float]:
+    """theta^ +- t SE_jack with SE_jack^2 = (K-1)/K sum (theta_k - mean theta)^2 over the K delete-a-block
+    refits (Efron and Tibshirani 1993, ch. 11), widened to contain every refit and the fit itself. The
+    bare range of 4 refits that share 3/4 of their data is far too narrow: it covered the true parameter of
+    hidden-effect records about half the time."""
+    values = np.asarray(folds, dtype=float)
+    if values.size < 2:
+        return float(fitted), float(fitted)
+    k = values.size
+    standard_error = math.sqrt((k - 1) / k * float(np.sum((values - values.mean()) ** 2)))
+    low = min(float(fitted) - JACKKNIFE_T * standard_error, float(np.min(values)), float(fitted))
+    high = max(float(fitted) + JACKKNIFE_T * standard_error, float(np.max(values)), float(fitted))
+    return low, high
+
+
+ANGLE_RESOLUTION_NOISE_BOUNDS = 1.0
+"""An angle parameter (unit rad in the catalogue: a play's half-width, a dead-zone edge, a limit, a
+friction twist, an offset) is not resolved finer than this many noise bounds: with |e_t| <= delta every
+level the output dwells at is known only within +-delta (set membership, eq. (4) of Cerone et al. 2009),
+and a 12-bit encoder with little dither biases such levels by up to half a count, which no refit on the
+same samples reveals. Its interval is widened by this on each side."""
+
+
+def _resolution_floor(intervals: dict[str, dict[str, tuple[float, float]]],
+                      delta: float) -> dict[str, dict[str, tuple[float, float]]]:
+    """:data:`ANGLE_RESOLUTION_NOISE_BOUNDS` applied to the angle parameters of the catalogue, then every
+    interval clipped to the values its parameter can take (``Parameter.lower`` / ``upper``)."""
+    out: dict[str, dict[str, tuple[float, float]]] = {}
+    widen = ANGLE_RESOLUTION_NOISE_BOUNDS * delta
+    for kind, parameters in intervals.items():
+        known = {p.name: p for p in EFFECTS[kind].parameters} if kind in EFFECTS else {}
+        out[kind] = {}
+        for key, (low, high) in parameters.items():
+            parameter = known.get(key)
+            if parameter is not None and parameter.unit == "rad":
+                low, high = low - widen, high + widen
+            if parameter is not None:
+                low, high = max(low, parameter.lower), min(high, parameter.upper)
+            out[kind][key] = (low, high)
+    return out
+
+
+def _fold_intervals(chain: _Chain, start_model: PlantModel, u: NDArray[np.float64], y: NDArray[np.float64],
+                    max_evaluations: int) -> tuple[dict[str, dict[str, tuple[float, float]]], dict[str, Any]]:
+    """Parameter intervals of the named effects and the gap reduction with its spread, by :data:`FOLDS`-fold
+    cross-validation: the final model is refitted (from its fitted values) with one quarter of the record left
+    out of the cost (the free run still covers the whole record), and the gap of the start model and of the
+    refit are measured on the quarter left out. The interval of a parameter is the range over the fits (the
+    main fit included) widened by the jackknife (:func:`_jackknife_interval`); the reduction's range is over
+    the folds. The start model is not refitted per fold
+    (with a fitted start, its fit saw part of the folds: the reduction is then, if anything, understated)."""
+    start_simulated = start_model.simulate(u)
+    values: dict[str, dict[str, list[float]]] = {}
+
+    def collect(fitted: _Chain) -> None:
+        for component in fitted.components:
+            if component.kind in EFFECTS:
+                block = _build(component, component.values)
+                for key, value in _parameters(component.kind, block).items():
+                    values.setdefault(component.kind, {}).setdefault(key, []).append(value)
+
+    collect(chain)
+    reductions = []
+    for part in np.array_split(np.arange(u.size), FOLDS):
+        keep = np.ones(u.size, dtype=bool)
+        keep[part] = False
+        refit = _polish(_refine_delays(chain, u, y, samples=keep), u, y, min(max_evaluations, FOLD_EVALUATIONS),
+                        samples=keep)
+        collect(refit)
+        held_out = _free_run_error(refit, u, y)[part]
+        start_gap = _rms((y - start_simulated)[part])
+        if start_gap > 0.0:
+            reductions.append(1.0 - _rms(held_out) / start_gap)
+    intervals = {kind: {key: _jackknife_interval(v[0], v[1:]) for key, v in parameters.items()}
+                 for kind, parameters in values.items()}
+    reduction = {"folds": [float(r) for r in reductions],
+                 "low": float(min(reductions)) if reductions else math.nan,
+                 "high": float(max(reductions)) if reductions else math.nan}
+    return intervals, reduction
+
+
+STICTION_RATIO = 1.15
+"""Friction has real stiction when its breakaway twist exceeds the sliding one by this factor; without it
+(breakaway = sliding) Coulomb friction is the same map as a symmetric backlash with unit slopes."""
+
+FRICTION_CLEARLY_BETTER = 0.8
+"""Friction with stiction must fit the estimation segment to this fraction of backlash's error to be named
+over backlash (the two fits differ only through the stiction)."""
+
+FRICTION_MIN_HALVING = 0.5
+"""... and bring the validated gap to at most this fraction of the gap before."""
+
+FAMILY_TIE = 1.05
+"""Friction that wins the validated gap without real stiction gives way to backlash when backlash's penalised
+gap is within this factor of friction's (the simpler, equivalent map)."""
+
+
+def _prefer_within_family(best: _Candidate, tried: Sequence[_Candidate], penalised: dict[str, float],
+                          gap_before_rad: float) -> _Candidate:
+    """Backlash and Coulomb friction are one family (``"hysteresis"`` in the catalogue: hysteresis after the
+    drive); decide between them.
+
+    Friction without stiction is the same map as a symmetric backlash with unit slopes, so friction is named
+    only if its stiction is real (:data:`STICTION_RATIO`) and it fits the estimation segment clearly better
+    (:data:`FRICTION_CLEARLY_BETTER`). Conversely, a stick-slip model's free run is very sensitive to its
+    thresholds (where the load sticks depends on the whole history), so on the validation segment backlash
+    can look better although friction is the effect; when backlash wins the validated gap but friction with
+    real stiction fits the estimation segment clearly better and still halves the gap
+    (:data:`FRICTION_MIN_HALVING`), friction is named.
     """
     by_kind = {c.kind: c for c in tried}
     backlash, friction = by_kind.get("backlash"), by_kind.get("coulomb_friction")
     if best.kind not in ("backlash", "coulomb_friction") or backlash is None or friction is None:
         return best
     assert isinstance(friction.block, CoulombFriction)
-    stiction = friction.block.breakaway_torque_nm > 1.15 * friction.block.coulomb_torque_nm
-    clearly_better = friction.estimation_rms_rad < 0.8 * backlash.estimation_rms_rad
-    if stiction and clearly_better and friction.gap_rad <= 0.5 * gap_before_rad:
+    stiction = friction.block.breakaway_torque_nm > STICTION_RATIO * friction.block.coulomb_torque_nm
+    clearly_better = friction.estimation_rms_rad < FRICTION_CLEARLY_BETTER * backlash.estimation_rms_rad
+    if stiction and clearly_better and friction.gap_rad <= FRICTION_MIN_HALVING * gap_before_rad:
         return friction
     if best.kind == "coulomb_friction" and not (stiction and clearly_better) \
-            and penalised["backlash"] <= 1.05 * penalised["coulomb_friction"]:
+            and penalised["backlash"] <= FAMILY_TIE * penalised["coulomb_friction"]:
         return backlash
     return best

@@ -49,22 +49,15 @@ from pathlib import Path
 from typing import Any
 
 from identify.drive_train import POSITION_FEEDBACK, DriveTrain
+from identify.effect_catalogue import EFFECTS, Effect, effect_for_block
 from identify.plant_blocks import (
     ArctanBorder,
     Block,
-    CoulombFriction,
-    DeadZone,
-    Delay,
     InputBacklash,
     InputSwitch,
     LinearBlock,
-    OutputBacklash,
-    OutputGain,
-    OutputOffset,
     PiecewiseLinearBorder,
     PlantModel,
-    Resonance,
-    Saturation,
 )
 from identify.validation import InvalidInputError
 from rig.protocols.config_schema import ConfigTable, load_toml
@@ -250,11 +243,6 @@ def _read_state_space(t: ConfigTable, period: float) -> LinearBlock:
         raise t.error(str(err).split(":", 1)[0], str(err)) from err
 
 
-def _read_output_backlash(t: ConfigTable, period: float) -> OutputBacklash:
-    return _build(t, OutputBacklash, m_l=t.number("m_l"), c_l=t.number("c_l"), m_r=t.number("m_r"),
-                  c_r=t.number("c_r"), initial_output=t.number("initial_output", 0.0))
-
-
 def _read_input_backlash(t: ConfigTable, period: float) -> InputBacklash:
     return _build(t, InputBacklash, ascending=_parse_border(t, "ascending"), descending=_parse_border(t, "descending"),
                   initial_output=t.number("initial_output", 0.0))
@@ -265,36 +253,21 @@ def _read_input_switch(t: ConfigTable, period: float) -> InputSwitch:
                   initial_input=t.number("initial_input", 0.0), initial_ascending=t.boolean("initial_ascending", True))
 
 
-def _read_dead_zone(t: ConfigTable, period: float) -> DeadZone:
-    return _build(t, DeadZone, left_rad=t.number("left_rad"), right_rad=t.number("right_rad"))
+def _effect_reader(entry: Effect) -> Callable[[ConfigTable, float], Block]:
+    """The reader of an effect's table, from its catalogue entry's keys (:mod:`identify.effect_catalogue`)."""
 
+    def read(t: ConfigTable, period: float) -> Block:
+        values: dict[str, Any] = {}
+        for key in entry.toml_keys:
+            getter = t.integer if key.kind == "integer" else t.number
+            extra = {"minimum": 0} if key.kind == "integer" else {}
+            values[key.key] = getter(key.key, **extra) if key.default is None else getter(key.key, key.default, **extra)
+        kwargs = dict(values)
+        if entry.takes_sample_period:
+            kwargs["sample_period_s"] = period
+        return _build(t, entry.block_class, **kwargs)
 
-def _read_saturation(t: ConfigTable, period: float) -> Saturation:
-    return _build(t, Saturation, lower_rad=t.number("lower_rad"), upper_rad=t.number("upper_rad"))
-
-
-def _read_delay(t: ConfigTable, period: float) -> Delay:
-    return _build(t, Delay, samples=t.integer("samples", minimum=0))
-
-
-def _read_resonance(t: ConfigTable, period: float) -> Resonance:
-    return _build(t, Resonance, frequency_hz=t.number("frequency_hz"), damping_ratio=t.number("damping_ratio"),
-                  sample_period_s=period)
-
-
-def _read_offset(t: ConfigTable, period: float) -> OutputOffset:
-    return _build(t, OutputOffset, offset_rad=t.number("offset_rad", 0.0), drift_rad_per_s=t.number("drift_rad_per_s", 0.0),
-                  sample_period_s=period)
-
-
-def _read_gain(t: ConfigTable, period: float) -> OutputGain:
-    return _build(t, OutputGain, gain=t.number("gain"))
-
-
-def _read_friction(t: ConfigTable, period: float) -> CoulombFriction:
-    return _build(t, CoulombFriction, breakaway_torque_nm=t.number("breakaway_torque_nm"),
-                  coulomb_torque_nm=t.number("coulomb_torque_nm"), stiffness_nm_per_rad=t.number("stiffness_nm_per_rad"),
-                  initial_output_rad=t.number("initial_output_rad", 0.0))
+    return read
 
 
 DRIVE_TRAIN_REQUIRED = ("gear_ratio", "motor_inertia_kg_m2", "load_inertia_kg_m2", "shaft_stiffness_nm_per_rad")
@@ -324,19 +297,13 @@ def _read_drive_train(t: ConfigTable, period: float) -> DriveTrain:
 BLOCK_TYPES: dict[str, tuple[type, Callable[[ConfigTable, float], Block]]] = {
     "linear": (LinearBlock, _read_linear),
     "state_space": (LinearBlock, _read_state_space),
-    "output_backlash": (OutputBacklash, _read_output_backlash),
     "input_backlash": (InputBacklash, _read_input_backlash),
     "input_switch": (InputSwitch, _read_input_switch),
-    "dead_zone": (DeadZone, _read_dead_zone),
-    "saturation": (Saturation, _read_saturation),
-    "delay": (Delay, _read_delay),
-    "resonance": (Resonance, _read_resonance),
-    "offset": (OutputOffset, _read_offset),
-    "gain": (OutputGain, _read_gain),
-    "coulomb_friction": (CoulombFriction, _read_friction),
+    **{entry.toml_type: (entry.block_class, _effect_reader(entry)) for entry in EFFECTS.values()},
     "drive_train": (DriveTrain, _read_drive_train),
 }
-"""``type`` in a ``[[blocks]]`` table -> (block class, reader)."""
+"""``type`` in a ``[[blocks]]`` table -> (block class, reader): the linear and Hammerstein blocks, then every
+effect of the catalogue (:data:`identify.effect_catalogue.EFFECTS`) under its ``toml_type``."""
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -381,9 +348,6 @@ def _border_fields(border: Any, key: str) -> dict[str, Any]:
 def _block_fields(block: Block) -> dict[str, Any]:
     if isinstance(block, LinearBlock):
         return {"type": "linear", "a": list(block.a), "b": list(block.b)}
-    if isinstance(block, OutputBacklash):
-        return {"type": "output_backlash", "m_l": block.m_l, "c_l": block.c_l, "m_r": block.m_r, "c_r": block.c_r,
-                "initial_output": block.initial_output}
     if isinstance(block, InputBacklash):
         return {"type": "input_backlash", "ascending": _border_fields(block.ascending, "ascending"),
                 "descending": _border_fields(block.descending, "descending"), "initial_output": block.initial_output}
@@ -391,22 +355,9 @@ def _block_fields(block: Block) -> dict[str, Any]:
         return {"type": "input_switch", "ascending": _border_fields(block.ascending, "ascending"),
                 "descending": _border_fields(block.descending, "descending"), "initial_input": block.initial_input,
                 "initial_ascending": block.initial_ascending}
-    if isinstance(block, DeadZone):
-        return {"type": "dead_zone", "left_rad": block.left_rad, "right_rad": block.right_rad}
-    if isinstance(block, Saturation):
-        return {"type": "saturation", "lower_rad": block.lower_rad, "upper_rad": block.upper_rad}
-    if isinstance(block, Delay):
-        return {"type": "delay", "samples": block.samples}
-    if isinstance(block, Resonance):
-        return {"type": "resonance", "frequency_hz": block.frequency_hz, "damping_ratio": block.damping_ratio}
-    if isinstance(block, OutputOffset):
-        return {"type": "offset", "offset_rad": block.offset_rad, "drift_rad_per_s": block.drift_rad_per_s}
-    if isinstance(block, OutputGain):
-        return {"type": "gain", "gain": block.gain}
-    if isinstance(block, CoulombFriction):
-        return {"type": "coulomb_friction", "breakaway_torque_nm": block.breakaway_torque_nm,
-                "coulomb_torque_nm": block.coulomb_torque_nm, "stiffness_nm_per_rad": block.stiffness_nm_per_rad,
-                "initial_output_rad": block.initial_output_rad}
+    entry = effect_for_block(block)
+    if entry is not None:
+        return entry.toml_fields(block)
     if isinstance(block, DriveTrain):
         fields = {"type": "drive_train"}
         fields.update({key: getattr(block, key) for key in (*DRIVE_TRAIN_REQUIRED, *DRIVE_TRAIN_NUMBERS)})

@@ -16,9 +16,16 @@ offset/drift and gain error in the residual, add the effect that lowers the vali
 40 % of the record, which no fit sees) most beyond a complexity penalty, and repeat until the model is
 consistent with the noise bound or no effect helps.
 
-DATA is a rig-log v1 file or a plain CSV with columns t, u, y (seconds, radians). Without --model the start
-model is the best linear model of order 1 or 2 (chosen by validation error). The noise bound must cover the
-encoder's half count."""
+DATA is a rig-log v1 file, a plain CSV with columns t, u, y (seconds, radians), or per-sample JSON records
+(an object with an entries[] list, as the K-Scale sysid logger writes); --columns, --units and --valid read
+other tools' files. One-sample read failures are replaced and counted, irregular sampling is resampled with a
+note, and the free run starts from the measured operating point. Without --model the start model is the best
+linear model of order 1 or 2 (chosen by validation error). The noise bound must cover the encoder's half
+count.
+
+Example (a K-Scale STS3215 record, 4096 counts/rev: noise bound of a few counts):
+  rig diagnose sysid.json --columns t=timestamp,u=goal_position,y=position --valid torque_enable \
+      --noise-bound 0.005"""
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -40,6 +47,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         help="diagnose several files in N processes (0: one per core; default 1)")
     parser.add_argument("--scheduler", metavar="ADDRESS", default=None,
                         help="run the files on the Dask cluster at ADDRESS instead (needs dask[distributed])")
+    from rig.record_import import add_import_arguments
+
+    add_import_arguments(parser)
     parser.add_argument("--json", action="store_true",
                         help='print the result as one JSON object; with several files '
                              '{"results": [{"file", "diagnosis" | "error"}]}')
@@ -53,25 +63,27 @@ def run(args: argparse.Namespace) -> int:
 
     from rig.batch import map_files
 
+    from rig.record_import import options_from_arguments
+
     if args.report is not None:  # before the work: a diagnosis can take minutes
         from rig.output_paths import check_output_dir
 
         check_output_dir(args.report, "--report", inputs=args.data)
     options = {"model": args.model, "noise_bound": args.noise_bound, "report": args.report,
-               "report_per_file": len(args.data) > 1,
+               "report_per_file": len(args.data) > 1, "import": options_from_arguments(args),
                "progress": not args.json and sys.stderr.isatty() and (args.jobs == 1 or len(args.data) == 1)
                and args.scheduler is None}
     if len(args.data) == 1 and args.scheduler is None:
-        result, num_samples, index = diagnose_file(args.data[0], options)  # errors go to rig.cli with their code
+        outcome = diagnose_file(args.data[0], options)  # errors go to rig.cli with their code
         if args.json:
-            print(json.dumps(result.to_json_dict()))
+            print(json.dumps(_document(outcome)))
         else:
-            _print_summary(args.data[0], args.model, args.noise_bound, result, num_samples, index)
+            _print_summary(args.data[0], args.model, args.noise_bound, *outcome)
         return exit_codes.SUCCESS
     outcomes = map_files(partial(diagnose_file, options=options), args.data, jobs=args.jobs,
                          scheduler=args.scheduler)
     if args.json:
-        print(json.dumps({"results": [outcome.to_json("diagnosis", lambda result: result[0].to_json_dict())
+        print(json.dumps({"results": [outcome.to_json("diagnosis", _document)
                                       for outcome in outcomes]}))
     else:
         for outcome in outcomes:
@@ -88,9 +100,10 @@ def diagnose_file(path_text: str, options: dict):
     report's index page (None without --report). A module-level function returning picklable values, so
     that it runs in other processes."""
     from identify.model_discrepancy import diagnose_model
-    from rig.log_file import check_output_varies, read_experiment_data
+    from rig.log_file import check_output_varies
+    from rig.record_import import read_measurement
 
-    record = read_experiment_data(path_text)
+    record, imported = read_measurement(path_text, options.get("import"))
     check_output_varies(path_text, record.angle_rad)
     model = None
     if options["model"] is not None:
@@ -111,7 +124,7 @@ def diagnose_file(path_text: str, options: dict):
         with writing(directory, "--report"):
             index = write_discrepancy_report(directory, result, record.command_rad, record.angle_rad,
                                              record.metadata.sample_period_s, source=str(path_text))
-    return result, int(record.command_rad.size), index
+    return result, int(record.command_rad.size), index, imported
 
 
 def _progress_lines(path_text: str, num_samples: int):
@@ -130,20 +143,58 @@ def _progress_lines(path_text: str, num_samples: int):
     return say
 
 
-def _print_summary(data: str, model: str | None, noise_bound: float, result, num_samples: int, index) -> None:
+def _document(outcome) -> dict:
+    """The ``--json`` object of one file: the result's document plus what the import did."""
+    result, _, _, imported = outcome
+    return {**result.to_json_dict(), "import": imported.to_dict()}
+
+
+VERDICT_WORDS = {
+    "explained": "EXPLAINED: the start model already agrees with the data",
+    "named": "NAMED: missing effects found",
+    "ambiguous": "AMBIGUOUS: candidates fit equally well, none is chosen",
+    "unexplained": "UNEXPLAINED: no candidate effect helps",
+    "not_excited": "NOT EXCITED: the data cannot show the effects",
+}
+"""The verdict of :data:`identify.model_discrepancy.VERDICTS` in words (text output and report)."""
+
+
+def _print_summary(data: str, model: str | None, noise_bound: float, result, num_samples: int, index,
+                   imported=None) -> None:
     print(f"data          {data}  ({num_samples} samples, validation from sample "
           f"{result.estimation_samples})")
-    print(f"start model   {model or 'linear, order %d (fitted)' % result.linear_fit.order}")
+    start = model or ("linear, order %d (fitted)" % result.linear_fit.order if result.linear_fit else "not fitted")
+    for note in (imported.notes if imported is not None else ()):
+        print(f"import        {note}")
+    if result.operating_point_rad:
+        print(f"operating pt  {result.operating_point_rad:.4g} rad (the free run starts there)")
+    print(f"start model   {start}")
     print(f"noise bound   {noise_bound:.4g} rad")
+    print(f"verdict       {VERDICT_WORDS[result.verdict]}")
+    print(f"              {result.verdict_reason}")
     print(f"initial gap   {result.initial.gap_rad:.4g} rad, {100 * result.initial.falsified_fraction:.1f} % "
           f"of validation samples falsified, {len(result.initial.windows)} disagreement windows")
+    rounds = sorted({c.round for c in result.candidates})
+    for round_index in rounds:
+        tried = sorted((c for c in result.candidates if c.round == round_index), key=lambda c: c.penalised_gap_rad)
+        print(f"candidates {round_index + 1}  " + "; ".join(
+            f"{c.effect} {c.gap_rad:.3g} +- {c.gap_uncertainty_rad:.2g}" + (" (vanished)" if c.vanished else "")
+            for c in tried) + " rad")
     for number, step in enumerate(result.steps, 1):
-        parameters = ", ".join(f"{k} = {v:.4g}" for k, v in step.parameters.items())
+        intervals = result.parameter_intervals.get(step.effect, {})
+        parameters = ", ".join(
+            f"{k} = {v:.4g}" + (f" [{intervals[k][0]:.4g}, {intervals[k][1]:.4g}]" if k in intervals else "")
+            for k, v in step.parameters.items())
         print(f"step {number}: {step.effect:<17} gap {step.gap_before_rad:.4g} -> {step.gap_after_rad:.4g} rad  "
               f"({parameters})")
     if not result.steps:
-        print("no missing effect found")
+        print("no missing effect found" if result.verdict != "ambiguous" else
+              f"no effect chosen between {', '.join(result.ambiguous_between)}")
     print(f"final gap     {result.final.gap_rad:.4g} rad, {100 * result.final.falsified_fraction:.1f} % falsified")
+    if result.steps and result.gap_reduction:
+        print(f"gap reduction {100 * result.gap_reduction_fraction:.1f} % on the validation segment, "
+              f"{100 * result.gap_reduction['low']:.1f} .. {100 * result.gap_reduction['high']:.1f} % over "
+              f"{len(result.gap_reduction['folds'])} cross-validation folds")
     print(result.unexplained)
     if index is not None:
         print(f"report        {index}")

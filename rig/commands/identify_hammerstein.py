@@ -75,6 +75,9 @@ def register(methods: argparse._SubParsersAction) -> None:
                         help="identify several files in N processes (0: one per core; default 1)")
     parser.add_argument("--scheduler", metavar="ADDRESS", default=None,
                         help="run the files on the Dask cluster at ADDRESS instead (needs dask[distributed])")
+    from rig.record_import import add_import_arguments
+
+    add_import_arguments(parser)
     parser.add_argument("--json", action="store_true",
                         help='print the model as JSON; with several files {"results": [{"file", "model" | "error"}]}')
     parser.set_defaults(handler=run)
@@ -88,6 +91,9 @@ def run(args: argparse.Namespace) -> int:
     options = {key: getattr(args, key) for key in (
         "nodes", "descending_nodes", "num_nodes", "u_min", "u_max", "order", "hold_samples", "mu0",
         "past_horizon", "future_horizon", "split", "no_feedthrough", "refine")}
+    from rig.record_import import options_from_arguments
+
+    options["import"] = options_from_arguments(args)
     if len(args.data) == 1 and args.scheduler is None:
         model, hold = identify_file(args.data[0], options)  # errors go to rig.cli with their exit code
         if args.json:
@@ -126,7 +132,18 @@ def identify_file(path_text: str, options: dict):
     from rig.log_file import check_output_varies, read_input_output
 
     path = Path(path_text)
-    u, y = read_input_output(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no such file")
+    imported = options.get("import")
+    if imported is None or imported.is_default:
+        u, y = read_input_output(path)  # u, y columns; no time column needed
+    else:
+        from rig.record_import import read_measurement
+
+        record, report = read_measurement(path, imported)
+        u, y = record.command_rad, record.angle_rad
+        for note in report.notes:
+            print(f"import           {note}", file=sys.stderr)
     if u.size == 0:
         raise InvalidInputError(f"{path}: no samples")
     check_output_varies(path, y)
@@ -171,6 +188,9 @@ def _print_table(model, path: Path, hold: int | None) -> None:
                                           for k, s in enumerate(shown)))
     for pole in model.poles:
         print(f"pole             {pole.real:+.6f} {pole.imag:+.6f}j   |p| = {abs(pole):.6f}")
+    if not model.stable:
+        print(f"WARNING          unstable: a pole has |p| = {max(abs(p) for p in model.poles):.4g} >= 1; the model "
+              "grows without bound in a free run. Try a lower --order, longer or more cyclic data, or --refine")
     print("G(q^-1)          num " + " ".join(f"{c:+.6g}" for c in numerator))
     print("                 den " + " ".join(f"{c:+.6g}" for c in denominator))
     mu0_source = f"hold of {hold} samples, re-estimated" if model.mu0_hold is not None else "given/estimated"

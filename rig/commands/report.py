@@ -291,6 +291,9 @@ def _hammerstein_section(result: ResultFile, sample_period_s: float | None, used
     slug = _unique(f"hammerstein_{result.slug}", used)
     rows = [("order", str(document["order"]))]
     rows += [(f"pole {k + 1}", f"{re_part:+.6f} {im_part:+.6f}j") for k, (re_part, im_part) in enumerate(document["poles"])]
+    if "stable" in document:
+        rows.append(("stable", "yes" if document["stable"] else
+                     f"NO: a pole has |p| = {float(document.get('max_pole_magnitude', float('nan'))):.4g} >= 1"))
     for key, label in (("mu0", "mu0 = H[u_min] [rad]"), ("fit_percent", "simulation fit [%]"),
                        ("residual_rms", "residual RMS [rad]"), ("split", "B and mu estimated")):
         if key in document:
@@ -319,16 +322,31 @@ def _diagnose_section(result: ResultFile, used: set[str]):
     except (KeyError, TypeError, ValueError) as err:
         raise ValueError(f"{result.path}: expected the JSON of `rig diagnose --json` (missing_effects with effect, "
                          f"parameters, gap_before, gap_after; gap_initial; gap_final): {_short(err)}") from None
-    rows = tuple((name, ", ".join(f"{key} = {value:.4g}" if isinstance(value, (int, float)) else f"{key} = {value}"
-                                  for key, value in parameters.items()) or "-",
+    intervals = {str(e["effect"]): e.get("parameter_intervals") or {} for e in effects}
+
+    def shown(name: str, key: str, value) -> str:
+        if not isinstance(value, (int, float)):
+            return f"{key} = {value}"
+        interval = intervals.get(name, {}).get(key)
+        within = (f" [{float(interval[0]):.4g}, {float(interval[1]):.4g}]"
+                  if isinstance(interval, (list, tuple)) and len(interval) == 2 else "")
+        return f"{key} = {value:.4g}{within}"
+
+    rows = tuple((name, ", ".join(shown(name, key, value) for key, value in parameters.items()) or "-",
                   f"{before:.4g}", f"{after:.4g}") for name, before, after, parameters in steps)
     fractions = ""
     if "falsified_fraction_initial" in document and "falsified_fraction_final" in document:
         fractions = (f" Samples outside the noise bound: {100 * float(document['falsified_fraction_initial']):.1f} % "
                      f"before, {100 * float(document['falsified_fraction_final']):.1f} % after.")
-    named = ", ".join(name for name, *_ in steps) or "none (the model already explains the data)"
-    text = (f"{result.path.name}: missing effects named, in order: {named}. Free-run RMS error on the validation "
-            f"segment {gap_initial:.4g} rad before, {gap_final:.4g} rad after.{fractions}")
+    named = ", ".join(name for name, *_ in steps) or "none"
+    verdict = _diagnose_verdict(document, bool(steps))
+    from rig.commands.diagnose import VERDICT_WORDS
+
+    reason = str(document.get("verdict_reason") or "")
+    text = (f"{result.path.name}: verdict {VERDICT_WORDS.get(verdict, verdict)}"
+            f"{': ' + reason if reason else ''}. Missing effects named, in order: {named}. Free-run RMS error on "
+            f"the validation segment {gap_initial:.4g} rad before, {gap_final:.4g} rad after.{fractions}"
+            f"{_candidates_text(document)}")
     labels = ["start model"] + [f"+ {name}" for name, *_ in steps]
     gaps = [gap_initial] + [after for _, _, after, _ in steps]
 
@@ -349,6 +367,37 @@ def _diagnose_section(result: ResultFile, used: set[str]):
     return ReportSection(f"Model discrepancy: {result.path.name}", text=text,
                          table_header=("missing effect", "parameters", "gap before [rad]", "gap after [rad]"),
                          table_rows=rows, figures=(ReportFigure(f"{slug}_gap", caption, draw, size_in=(6.5, 3.5)),))
+
+
+def _candidates_text(document: dict) -> str:
+    """The first round's candidates with their validated gaps, best first (empty for older JSON)."""
+    candidates = [c for c in document.get("candidates") or [] if isinstance(c, dict) and c.get("round") == 0]
+    try:
+        ranked = sorted(candidates, key=lambda c: float(c["penalised_gap"]))
+        words = "; ".join(f"{c['effect']} {float(c['gap']):.3g} +- {float(c['gap_uncertainty']):.2g} rad"
+                          + (" (vanished)" if c.get("vanished") else "") for c in ranked)
+    except (KeyError, TypeError, ValueError):
+        return ""
+    return f" Candidates tried first, with their validated gaps: {words}." if words else ""
+
+
+DIAGNOSE_CONSISTENT_FRACTION = 0.01
+"""A diagnosis JSON written before the verdict existed counts as explained only if at most this fraction of
+validation samples stays falsified (the workflow's default ``consistent_fraction``)."""
+
+
+def _diagnose_verdict(document: dict, named: bool) -> str:
+    """The document's verdict; for JSON without one, the verdict its numbers imply (never "explained" while
+    samples stay falsified)."""
+    verdict = document.get("verdict")
+    if isinstance(verdict, str):
+        return verdict
+    if named:
+        return "named"
+    final = document.get("falsified_fraction_final")
+    if isinstance(final, (int, float)) and final <= DIAGNOSE_CONSISTENT_FRACTION:
+        return "explained"
+    return "unexplained"
 
 
 def _unique(name: str, used: set[str]) -> str:

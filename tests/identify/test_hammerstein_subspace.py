@@ -224,3 +224,30 @@ def test_a_constant_input_is_refused_with_what_to_do():
                                                 r"excites nothing; use the cyclic random excitation"):
         identify_hammerstein(np.full(400, -3.0), np.zeros(400), PathNodes((-3.0, 0.0, 3.0), (-3.0, 0.0, 3.0)),
                              hold_samples=50)
+
+
+def test_an_unstable_identified_model_says_so_in_json_and_text(capsys) -> None:
+    """Issue 15, item 7: |p| >= 1 is flagged (``"stable": false`` and a warning line), never printed silently."""
+    from pathlib import Path
+
+    from identify.plant_blocks import LinearBlock
+    from rig.commands.identify_hammerstein import _print_table
+
+    u = cyclic_random_excitation(HOLD + 600, -3.0, 3.0, HOLD, rng=3)
+    growing = LinearBlock(a=(-1.004,), b=(0.0, 0.05), sample_period_s=G.sample_period_s)
+    ascending = PiecewiseLinearBorder(tuple(X), tuple(H_A))
+    descending = PiecewiseLinearBorder(tuple(X), tuple(H_D))
+    y = PlantModel((InputBacklash(ascending, descending, initial_output=-1.0), growing)).simulate(u)
+    model = identify_hammerstein(u, y, NODES, hold_samples=HOLD, order=1)
+    assert abs(model.poles[0]) == pytest.approx(1.004, abs=1e-6)
+    assert model.stable is False and model.to_dict()["stable"] is False
+    assert model.to_dict()["max_pole_magnitude"] == pytest.approx(1.004, abs=1e-6)
+    _print_table(model, Path("growing.csv"), HOLD)
+    assert "WARNING          unstable: a pole has |p| = 1.004" in capsys.readouterr().out
+
+
+def test_step_data_get_told_what_the_method_needs() -> None:
+    u = np.repeat([-3.0, 1.0, -1.0, 3.0, -3.0, 0.5], 300)
+    y = exact_plant("backlash").simulate(u)
+    with pytest.raises(InvalidInputError, match="cyclic excitation that sweeps from u_min up to u_max"):
+        identify_hammerstein(u, y, NODES, hold_samples=300)

@@ -10,7 +10,7 @@ import pytest
 from identify.discrepancy_cases import NOMINAL_LINEAR, hidden_effect_record
 from identify.effect_signatures import EFFECT_NAMES, direction_signal, signature_scores
 from identify.model_discrepancy import diagnose_model, disagreement, fit_linear_model
-from identify.plant_blocks import Delay, LinearBlock, OutputGain, PlantModel
+from identify.plant_blocks import DeadZone, Delay, LinearBlock, OutputGain, PlantModel
 from identify.validation import InvalidInputError
 
 SIX = ("backlash", "dead_zone", "saturation", "delay", "coulomb_friction", "resonance")
@@ -85,13 +85,19 @@ def test_fitted_parameters_are_close_to_the_truth():
     assert step.parameters["right_rad"] == pytest.approx(truth.right_rad, abs=3e-3)
 
 
+JSON_KEYS = {"verdict", "verdict_reason", "noise_bound", "missing_effects", "ambiguous_between", "candidates",
+             "gap_initial", "gap_final", "gap_reduction", "falsified_fraction_initial", "falsified_fraction_final",
+             "excitation", "operating_point"}
+
+
 def test_json_document_has_exactly_the_issue_keys():
     record = hidden_effect_record(("dead_zone",), 61)
     document = run(record).to_json_dict()
-    assert set(document) == {"missing_effects", "gap_initial", "gap_final", "falsified_fraction_initial",
-                             "falsified_fraction_final"}
+    assert set(document) == JSON_KEYS
+    assert document["verdict"] == "named"
+    assert document["noise_bound"] == pytest.approx(record.noise_bound_rad)
     (entry,) = document["missing_effects"]
-    assert set(entry) == {"effect", "parameters", "gap_before", "gap_after"}
+    assert set(entry) == {"effect", "parameters", "parameter_intervals", "gap_before", "gap_after"}
     assert entry["effect"] == "dead_zone"
     assert entry["gap_before"] == pytest.approx(document["gap_initial"])
     assert entry["gap_after"] == pytest.approx(document["gap_final"])
@@ -160,3 +166,124 @@ def test_the_residual_input_correlation_peaks_after_the_hidden_delay(seed):
     # r_t = y^_{t-d} - y^_t answers an input step d samples after the model does, and the model's own
     # response peaks a few samples after the step
     assert delay.samples <= details["lag_of_peak_residual_input_correlation_samples"] <= delay.samples + 10
+
+
+# ----------------------------------------------------------------------------------------------------------
+# The verdict (issue 15, item 3)
+# ----------------------------------------------------------------------------------------------------------
+
+
+def test_a_record_with_no_hidden_effect_is_explained():
+    record = hidden_effect_record((), 31)
+    result = run(record)
+    assert result.verdict == "explained"
+    assert result.to_json_dict()["candidates"] == []
+
+
+def test_a_named_effect_carries_parameter_intervals_containing_its_fit_and_a_gap_reduction_range():
+    record = hidden_effect_record(("backlash",), 11)
+    result = run(record)
+    assert result.verdict == "named"
+    document = result.to_json_dict()
+    (entry,) = document["missing_effects"]
+    truth = record.true_model.blocks[1]
+    for key, true_value in (("c_l_rad", truth.c_l), ("c_r_rad", truth.c_r)):
+        low, high = entry["parameter_intervals"][key]
+        assert low <= entry["parameters"][key] <= high
+        # the interval contains the truth and is no wider than the encoder's resolution (+-delta) plus a
+        # tenth of the play
+        assert low <= true_value <= high
+        assert high - low < 2 * record.noise_bound_rad + 0.1 * true_value
+    reduction = document["gap_reduction"]
+    assert len(reduction["folds"]) == 4 and 0.9 < reduction["low"] <= reduction["high"] <= 1.0
+    tried = {c["effect"] for c in document["candidates"] if c["round"] == 0}
+    assert tried == set(EFFECT_NAMES)
+    assert all(c["gap"] > 0 and c["gap_uncertainty"] >= 0 for c in document["candidates"])
+
+
+def test_two_candidates_equally_good_are_ambiguous_and_none_is_chosen():
+    # a dead band on a command that stays positive takes a constant off it: but for the first transient the
+    # record is the same as an offset of the output, and within the noise (20 mrad) the two validated gaps
+    # differ by less than 1 %
+    rng = np.random.default_rng(1)
+    u = 0.3 + 0.6 * rng.uniform(size=20).repeat(150)
+    truth = PlantModel((DeadZone(left_rad=-0.1, right_rad=0.1), NOMINAL_LINEAR))
+    y = truth.simulate(u) + rng.uniform(-2e-2, 2e-2, u.size)
+    result = diagnose_model(u, y, 2.1e-2, 0.001, PlantModel((NOMINAL_LINEAR,)), candidates=("dead_zone", "offset"))
+    assert result.verdict == "ambiguous", result.verdict_reason
+    assert set(result.ambiguous_between) == {"offset", "dead_zone"}
+    assert result.missing_effects == ()
+    assert "none is chosen" in result.verdict_reason
+
+
+def test_a_command_that_never_reverses_is_not_excited_and_not_scored():
+    u = np.linspace(0.0, 1.0, 2000)
+    y = PlantModel((NOMINAL_LINEAR, Delay(5))).simulate(u)
+    result = diagnose_model(u, y, 1e-3, 0.001, PlantModel((NOMINAL_LINEAR,)))
+    assert result.verdict == "not_excited"
+    assert "never reverses" in result.verdict_reason
+    assert result.candidates == () and result.missing_effects == ()
+
+
+def test_a_validation_segment_with_too_few_reversals_is_said_to_be_too_short():
+    u = np.concatenate((np.tile(np.repeat([0.5, -0.5], 100), 6), np.full(900, 0.5)))
+    y = PlantModel((NOMINAL_LINEAR,)).simulate(u)
+    result = diagnose_model(u, y, 1e-3, 0.001, PlantModel((NOMINAL_LINEAR, OutputGain(1.1))))
+    assert result.verdict == "not_excited"
+    assert "validation segment is too short" in result.verdict_reason
+
+
+def test_an_output_moving_while_command_and_model_rest_is_an_unmeasured_input():
+    rng = np.random.default_rng(3)
+    record = hidden_effect_record((), 31)
+    swing = np.zeros(record.command_rad.size)
+    still = np.flatnonzero(np.abs(np.diff(record.command_rad, prepend=0.0)) == 0.0)
+    swing[still] = 0.05 * np.sin(still / 7.0) + rng.uniform(-1e-3, 1e-3, still.size)
+    result = diagnose_model(record.command_rad, record.angle_rad + swing, record.noise_bound_rad,
+                            record.sample_period_s, record.nominal_model)
+    # a 50 mrad swing at 23 Hz while the command holds: no candidate explains it, and it is not the command's
+    assert result.verdict == "not_excited", result.verdict_reason
+    assert "input the record does not contain" in result.verdict_reason
+    assert result.missing_effects == ()
+
+
+def test_a_gain_error_is_not_a_candidate_against_a_fitted_start_model():
+    record = hidden_effect_record(("gain_error",), 71)
+    result = run(record, given_model=False)
+    assert "gain_error" not in {c.effect for c in result.candidates}
+
+
+def test_a_record_in_absolute_angles_runs_freely_from_its_operating_point_not_from_zero():
+    record = hidden_effect_record(("backlash",), 11)
+    shift = 3.1
+    result = diagnose_model(record.command_rad + shift, record.angle_rad + shift, record.noise_bound_rad,
+                            record.sample_period_s, record.nominal_model)
+    assert result.operating_point_rad == pytest.approx(shift, abs=2e-3)
+    assert result.missing_effects == ("backlash",)
+    # the same answer as on the record at zero: no start-up transient from 0 to 3.1 rad
+    at_zero = run(record)
+    assert result.initial.gap_rad == pytest.approx(at_zero.initial.gap_rad, rel=1e-6)
+    assert result.final.gap_rad == pytest.approx(at_zero.final.gap_rad, rel=0.05)
+    # the models returned work in absolute angles: the final one reproduces the measurement within the noise
+    simulated = result.final_model.simulate(record.command_rad + shift)
+    assert np.sqrt(np.mean((simulated - record.angle_rad - shift)[result.estimation_samples:] ** 2)) < 2 * record.noise_bound_rad
+    assert result.final.simulated_rad == pytest.approx(simulated)
+
+
+def test_repetitions_of_one_experiment_give_one_answer_with_overlapping_intervals():
+    """Issue 15, item 4 on the simulator: the same plant and command, measured four times with fresh noise."""
+    record = hidden_effect_record(("backlash",), 12)
+    clean = record.true_model.simulate(record.command_rad)
+    count = 2 * np.pi / 2 ** 12
+    answers, intervals = set(), []
+    for repetition in range(4):
+        rng = np.random.default_rng(100 + repetition)
+        y = np.round((clean + rng.uniform(-2e-4, 2e-4, clean.size)) / count) * count
+        result = diagnose_model(record.command_rad, y, record.noise_bound_rad, record.sample_period_s,
+                                record.nominal_model)
+        answers.add((result.verdict, result.missing_effects))
+        intervals.append(result.parameter_intervals["backlash"])
+    assert answers == {("named", ("backlash",))}
+    for key in ("c_l_rad", "c_r_rad"):
+        assert max(i[key][0] for i in intervals) <= min(i[key][1] for i in intervals), \
+            f"{key}: {[i[key] for i in intervals]}"

@@ -16,7 +16,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-EMPS = Path(__file__).resolve().parents[3] / "shared" / "realdata" / "emps" / "DATA_EMPS.mat"
+EMPS = next((parent / "shared" / "realdata" / "emps" / "DATA_EMPS.mat" for parent in Path(__file__).resolve().parents
+             if (parent / "shared" / "realdata").is_dir()), Path("shared/realdata/emps/DATA_EMPS.mat"))
+"""Next to the checkout, or next to a folder above it (a git worktree sits one level deeper)."""
 
 if os.environ.get("RIG_REALDATA") == "1":
 

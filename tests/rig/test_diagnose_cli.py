@@ -49,8 +49,8 @@ def test_json_names_the_hidden_backlash_and_writes_the_report(files, capsys):
                  "--json", "--report", str(report)])
     assert code == exit_codes.SUCCESS
     document = json.loads(capsys.readouterr().out)
-    assert set(document) == {"missing_effects", "gap_initial", "gap_final", "falsified_fraction_initial",
-                             "falsified_fraction_final"}
+    assert document["verdict"] == "named"
+    assert {"noise_bound", "candidates", "gap_reduction", "verdict_reason"} <= set(document)
     assert [entry["effect"] for entry in document["missing_effects"]] == ["backlash"]
     truth = record.true_model.blocks[1]
     parameters = document["missing_effects"][0]["parameters"]
@@ -68,6 +68,7 @@ def test_text_output_names_the_effect(files, capsys):
     assert main(["diagnose", str(data), "--model", str(model), "--noise-bound", "0.001"]) == exit_codes.SUCCESS
     out = capsys.readouterr().out
     assert "step 1: backlash" in out and "final gap" in out
+    assert "verdict       NAMED" in out and "candidates 1" in out and "cross-validation folds" in out
 
 
 def test_figures_label_their_axes_with_units(files):

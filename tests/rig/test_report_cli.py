@@ -179,3 +179,38 @@ def test_a_saved_result_with_damaged_data_names_the_file(data, capsys, tmp_path)
                                    "data": {"steady": {"u": [1.0]}, "noise_bound_rad": 0.001}}))
     assert main(["report", str(damaged), "--out", str(tmp_path / "out")]) == exit_codes.BAD_INPUT
     assert f"{damaged}: data: expected steady.u, steady.y" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("document, words", [
+    # the JSON of an older rig diagnose: no verdict, nothing named, 95 % still falsified
+    ({"missing_effects": [], "gap_initial": 0.05, "gap_final": 0.05, "falsified_fraction_initial": 0.95,
+      "falsified_fraction_final": 0.95}, "UNEXPLAINED"),
+    ({**DIAGNOSE, "verdict": "ambiguous", "verdict_reason": "delay and resonance fit equally well",
+      "missing_effects": []}, "AMBIGUOUS"),
+    ({**DIAGNOSE, "missing_effects": [], "falsified_fraction_initial": 0.0, "falsified_fraction_final": 0.0},
+     "EXPLAINED"),
+])
+def test_the_report_states_the_verdict_and_never_claims_an_explanation_while_samples_stay_falsified(
+        document, words, tmp_path):
+    path = tmp_path / "diagnose.json"
+    path.write_text(json.dumps(document))
+    (section,) = report_sections([read_result_file(path)])
+    assert words in section.text
+    assert "already explains" not in section.text
+    if words == "UNEXPLAINED":
+        assert "95.0 % after" in section.text
+
+
+def test_the_report_shows_intervals_and_candidate_gaps_of_a_diagnosis(tmp_path):
+    from identify.discrepancy_cases import hidden_effect_record
+    from identify.model_discrepancy import diagnose_model
+
+    record = hidden_effect_record(("backlash",), 11)
+    document = diagnose_model(record.command_rad, record.angle_rad, record.noise_bound_rad, record.sample_period_s,
+                              record.nominal_model).to_json_dict()
+    path = tmp_path / "diagnose.json"
+    path.write_text(json.dumps(document))
+    (section,) = report_sections([read_result_file(path)])
+    low, high = document["missing_effects"][0]["parameter_intervals"]["c_l_rad"]
+    assert f"[{low:.4g}, {high:.4g}]" in section.table_rows[0][1]
+    assert "NAMED" in section.text and "Candidates tried first" in section.text and "delay" in section.text
