@@ -281,10 +281,10 @@ def read_measurement(path: str | Path, options: ImportOptions | None = None) -> 
     """Read one record for analysis with ``options`` (module docstring); return it and what was done."""
     from rig.log_file import is_rig_log, read_experiment_data
 
+    from rig.signal_files import check_input_file
+
     options = options or ImportOptions()
-    path = Path(path)
-    if not path.is_file():
-        raise RecordImportError(f"{path}: no such file")
+    path = check_input_file(path, "a rig log, a CSV file or a JSON record")
     scale = parse_units(options.units)
     default_columns = all(options.columns.get(role) == role for role in ("t", "u", "y"))
     is_json, text = (False, "") if is_rig_log(path) else _looks_like_json(path)

@@ -132,8 +132,6 @@ def identify_file(path_text: str, options: dict):
     from rig.log_file import check_output_varies, read_input_output
 
     path = Path(path_text)
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: no such file")
     imported = options.get("import")
     if imported is None or imported.is_default:
         u, y = read_input_output(path)  # u, y columns; no time column needed
