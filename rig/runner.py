@@ -1,25 +1,28 @@
-"""The experiment runner: stream an excitation at a fixed rate and account for every sample.
+"""The experiment runner: stream an excitation into the rig and account for every sample.
 
-Scheduling uses absolute deadlines ``t_k = t_0 + k T`` (no drift: a late cycle does not shift the ones
-after it). Per cycle k the runner waits for ``t_k`` (:func:`wait_until`), sends setpoint k, and files
-the feedback that arrives until sample k is answered or ``t_{k+1}`` comes; behind schedule it does not
-wait, so the loop catches up, sending setpoints no closer than half a period (:data:`CATCH_UP_SPACING`)
-and never closer than the bus time of one cycle (``Transport.min_cycle_s``). Each sample is written
-with :class:`~identify.experiment_record.SampleFlag` bits:
+Two loops, chosen by the link (:attr:`~rig.transports.base.Transport.lead_samples`); both file feedback
+by its sample number in one :class:`~rig.sample_ledger.SampleLedger`, which hands rows to the sink in
+order once they can no longer change, and both run the transport's one bring-up and one teardown:
 
-LOST       no feedback with sequence number k arrived within ``pending_cycles`` cycles (angle NaN)
-LATE       the cycle started more than ``late_tolerance_s`` after ``t_k``, or its feedback arrived after
-           ``t_{k+1}``
-DUPLICATE  feedback k arrived more than once while sample k was pending (later copies count as stale)
-FAULT      the device reported a fault during the sample (the run stops after it)
-NOT_FOLLOWED  the drive said it ignored the target in this sample (CiA 402 CSP statusword bit 12 clear)
+* **Device-clocked** (``lead_samples > 0``, CANopen): the device's clock owns the sample instants. The
+  runner keeps the setpoints ``lead_samples`` ahead of the last instant the device passed and files what
+  the device reports; row k is at k T. A setpoint that missed its instant is HELD (the command logged is
+  the one the drive applied), an instant off the period is LATE (:func:`_run_device_clocked`).
+* **Host-paced** (serial and raw CAN, protocol v1): absolute deadlines ``t_k = t_0 + k T`` (no drift: a
+  late cycle does not shift the ones after it). Per cycle k the runner waits for ``t_k``
+  (:func:`wait_until`), sends setpoint k, and files the feedback that arrives until sample k is answered
+  or ``t_{k+1}`` comes; behind schedule it catches up, sending setpoints no closer than half a period
+  (:data:`CATCH_UP_SPACING`) and never closer than the bus time of one cycle (``Transport.min_cycle_s``).
+  LATE: the cycle started more than ``late_tolerance_s`` after ``t_k``, or its feedback arrived after
+  ``t_{k+1}``.
 
-Rows are written ``pending_cycles`` cycles behind the bus, so late feedback still fills its sample
-(flagged LATE) and a duplicate still marks it. Safety: the transport is prepared (devices configured, the
-drive's actual position read, nothing enabled), the whole command is checked against the software limits
-starting from that actual position, and only then is the drive enabled; a feedback watchdog stops the run when nothing arrives for ``feedback_timeout_s``; any error,
-device fault or Ctrl-C ends with a controlled stop (quick stop, then disable) and the log closed,
-complete up to the stop.
+Both flag LOST (no feedback within ``pending_cycles`` cycles; angle NaN), DUPLICATE (a second answer for
+one sample), FAULT, NOT_FOLLOWED (CiA 402 CSP statusword bit 12 clear) and AMBIGUOUS (which instant a
+reading answers is uncertain). Safety: the transport is prepared (devices configured, the drive's actual
+position read, nothing enabled), the whole command is checked against the software limits starting from
+that actual position, and only then is the drive enabled; a feedback watchdog stops the run when nothing
+arrives for ``feedback_timeout_s``; any error, device fault or Ctrl-C ends with the controlled stop
+(quick stop, then disable) and the log closed, complete up to the stop.
 """
 
 from __future__ import annotations
@@ -34,9 +37,8 @@ from typing import Protocol
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from identify.experiment_record import SampleFlag
 from identify.validation import as_signal
-from rig.protocols.cia402 import DriveState, state_from_statusword_or_none
+from rig.protocols.cia402 import DriveState
 from rig.protocols.errors import DeviceFault, TransportError
 from rig.sample_ledger import SampleLedger
 from rig.transports.base import CommandRefused, Setpoint, Transport
@@ -47,9 +49,6 @@ __all__ = ["RunSummary", "SampleSink", "run_experiment", "wait_until"]
 _FAULT_STATES = (DriveState.FAULT, DriveState.FAULT_REACTION_ACTIVE)
 PENDING_CYCLES = 4
 """Feedback is still filed under its sample this many cycles after the sample was sent."""
-# plain ints: IntFlag arithmetic costs microseconds per sample, which a 1 kHz loop notices
-_LOST, _LATE, _DUPLICATE, _FAULT, _NOT_FOLLOWED = (int(flag) for flag in (
-    SampleFlag.LOST, SampleFlag.LATE, SampleFlag.DUPLICATE, SampleFlag.FAULT, SampleFlag.NOT_FOLLOWED))
 CATCH_UP_SPACING = 0.5
 """Behind schedule, consecutive setpoints are still sent at least this many periods apart."""
 WAKE_MARGIN_S = 300e-6
@@ -128,14 +127,6 @@ class RunSummary:
     warnings: tuple[str, ...] = ()
 
 
-class _Row:
-    __slots__ = ("seq", "time_s", "command_rad", "angle_rad", "counts", "flags")
-
-    def __init__(self, seq: int, time_s: float, command_rad: float) -> None:
-        self.seq, self.time_s, self.command_rad = seq, time_s, command_rad
-        self.angle_rad, self.counts, self.flags = math.nan, None, _LOST
-
-
 def _write_summary(sink: SampleSink, transport: Transport, failure: BaseException | None) -> None:
     """Hand the sink what is known only at the end (``frame_errors``, ``stop``), if it takes it."""
     write_summary = getattr(sink, "write_summary", None)
@@ -212,67 +203,39 @@ def run_experiment(transport: Transport, command_rad: ArrayLike, sink: SampleSin
                                    pending_cycles=pending_cycles, progress=progress, clock=clock)
     period = transport.sample_period_s
     tolerance = 0.5 * period if late_tolerance_s is None else float(late_tolerance_s)
-    rows: list[_Row] = []
+    ledger = SampleLedger(period, pending_cycles)
+    values = command.tolist()
     lateness = np.zeros(command.size)
-    counts = {"late": 0, "lost": 0, "duplicate": 0, "stale": 0, "not_followed": 0}
-    received: set[int] = set()  # answered samples among the pending rows
     cpu_start, wall_start = time.process_time(), clock()
     sent_count = 0
-    last_feedback = math.inf
-
     written = 0  # samples below this number are in the sink
+    failure: BaseException | None = None
 
-    def write_rows(keep: int) -> None:
+    def write_final(newest: int) -> None:
         nonlocal written
-        while len(rows) > keep:
-            row = rows[0]
-            # a row leaves the list only once written, and is written once: a signal (Ctrl-C) landing
-            # anywhere in here leaves the last write_rows in the finally block to write what is left
-            if row.seq >= written:
+        while (row := ledger.next_final(newest)) is not None:
+            if row.seq >= written:  # written once, even if Ctrl-C lands between append and release
                 sink.append(row.time_s, row.command_rad, row.angle_rad, row.counts, row.flags)
                 written = row.seq + 1
-            rows.pop(0)
-            received.discard(row.seq)  # final now: memory stays bounded however long the run
-            counts["lost"] += bool(row.flags & _LOST)
-            counts["late"] += bool(row.flags & _LATE)
-            counts["not_followed"] += bool(row.flags & _NOT_FOLLOWED)
+            ledger.release()
 
     def take(sample) -> None:
-        """File a feedback sample under its sample number."""
+        """File a feedback sample under its sample number; stop if the drive left OPERATION ENABLED."""
         nonlocal last_feedback
-        if sample.seq in received:
-            counts["duplicate"] += 1
-            for row in rows:
-                if row.seq == sample.seq:
-                    row.flags |= _DUPLICATE
-            return
-        row = next((row for row in rows if row.seq == sample.seq), None)
-        if row is None:
-            counts["stale"] += 1  # its row is final already (LOST) or it answers no setpoint of ours
-            return
-        received.add(sample.seq)
-        last_feedback = clock()
-        row.angle_rad, row.counts = sample.load_angle_rad, sample.encoder_counts
-        row.flags &= ~_LOST
-        if sample.target_ignored:
-            row.flags |= _NOT_FOLLOWED
-        state = state_from_statusword_or_none(sample.statusword)
-        if state in _FAULT_STATES:
-            row.flags |= _FAULT  # the drive did not follow this setpoint
-        elif state is not None and state is not DriveState.OPERATION_ENABLED:
-            row.flags |= _FAULT
+        now = clock()
+        if ledger.awaits(sample.seq):
+            last_feedback = now
+        state = ledger.file(sample, late=now > start + (sample.seq + 1) * period)  # after the next deadline
+        if state is not None and state is not DriveState.OPERATION_ENABLED and state not in _FAULT_STATES:
             raise DeviceFault(f"{transport.name} drive", None, (
                 f"left OPERATION ENABLED without a fault at sample {sample.seq} (now {state.name}: enable input "
                 "or safe torque off lost?); it no longer follows the targets"))
-        if last_feedback > start + (sample.seq + 1) * period:
-            row.flags |= _LATE  # arrived after the next deadline: the value is real, its time is not
 
     switch_interval = sys.getswitchinterval()
     # Receive threads (pyserial readers, python-can notifiers, simulated devices) need the GIL within a
     # fraction of a period, not after the default 5 ms.
     sys.setswitchinterval(min(switch_interval, period / 4))
-    start = math.inf
-    failure: BaseException | None = None
+    start = last_feedback = math.inf
     try:
         transport.prepare()
         check_command(transport, command)
@@ -281,10 +244,10 @@ def run_experiment(transport: Transport, command_rad: ArrayLike, sink: SampleSin
         catch_up_spacing = max(CATCH_UP_SPACING * period, transport.min_cycle_s)
         last_feedback = start
         last_send = -math.inf
-        for k, value in enumerate(command.tolist()):
+        for k, value in enumerate(values):
             deadline = start + k * period
-            # behind schedule, catch up at most twice as fast: devices expect SYNCs/setpoints about a period
-            # apart (a CSP drive interpolates between them), not in a burst
+            # behind schedule, catch up at most twice as fast: devices expect setpoints about a period
+            # apart, not in a burst
             send_at = max(deadline, last_send + catch_up_spacing)
             now = clock()
             if send_at - now > 0:
@@ -293,37 +256,34 @@ def run_experiment(transport: Transport, command_rad: ArrayLike, sink: SampleSin
             last_send = now
             lateness[k] = now - deadline
             if now - last_feedback > feedback_timeout_s:
-                too_late = (f"; {counts['stale']} answers came more than {pending_cycles} cycles after their "
-                            "setpoint (a device answering that late cannot be used at this rate)"
-                            if counts["stale"] else "")
+                stale = ledger.counts["stale"]
+                too_late = (f"; {stale} answers came more than {pending_cycles} cycles after their setpoint (a "
+                            "device answering that late cannot be used at this rate)" if stale else "")
                 raise TransportError(f"{transport.name}: no feedback for {now - last_feedback:.3g} s "
                                      f"(watchdog {feedback_timeout_s:g} s), stopping at sample {k}{too_late}")
             sent = transport.send(Setpoint(k, value))
-            row = _Row(k, k * period, sent.position_rad)
-            rows.append(row)
+            ledger.open_row(k, sent.position_rad, late=lateness[k] > tolerance)
             sent_count += 1
-            if lateness[k] > tolerance:
-                row.flags |= _LATE
             # Take what arrives until sample k is answered or the next deadline comes; when behind
             # schedule, only drain what is there, so that the loop catches up (answers of the last
             # pending_cycles samples are still filed when they come later).
             next_deadline = deadline + period
-            while k not in received:
+            while not ledger.answered(k):
                 sample = transport.receive(max(next_deadline - clock(), 0.0))
                 if sample is None:
                     break
                 take(sample)
-            write_rows(keep=pending_cycles)
+            write_final(k)
             if progress is not None:
-                progress(k + 1, counts["late"] + sum(bool(row.flags & _LATE) for row in rows))
+                progress(k + 1, ledger.counts["late"])
         grace_end = clock() + pending_cycles * period
-        while rows and any(row.seq not in received for row in rows) and clock() < grace_end:
+        while len(ledger) and not ledger.all_answered and clock() < grace_end:
             sample = transport.receive(max(grace_end - clock(), 0.0))
             if sample is not None:
                 take(sample)
     except BaseException as err:
-        if isinstance(err, DeviceFault) and rows:
-            rows[-1].flags |= _FAULT
+        if isinstance(err, DeviceFault):
+            ledger.mark_fault(ledger.last_opened)  # the drive did not follow this setpoint
         failure = err
         raise
     finally:
@@ -334,10 +294,11 @@ def run_experiment(transport: Transport, command_rad: ArrayLike, sink: SampleSin
                 transport.note_stop(failure)
         finally:
             try:
-                write_rows(keep=0)
+                write_final(sent_count - 1 + pending_cycles)
                 _write_summary(sink, transport, failure)
             finally:
                 sink.close()
+    counts = ledger.counts
     wall = clock() - wall_start
     rate = 0.0
     if sent_count > 1:

@@ -70,16 +70,29 @@ class SampleLedger:
     _order: collections.deque[int] = field(default_factory=collections.deque)
     _answered: set[int] = field(default_factory=set)
 
-    def open_row(self, seq: int, command_rad: float) -> LedgerRow:
-        """The row of setpoint ``seq`` (queued with ``command_rad``), LOST until its feedback is filed."""
-        row = LedgerRow(seq, seq * self.sample_period_s, command_rad)
+    def open_row(self, seq: int, command_rad: float, *, late: bool = False) -> LedgerRow:
+        """The row of setpoint ``seq`` (queued with ``command_rad``), LOST until its feedback is filed;
+        ``late``: a host-paced setpoint that left after its deadline (flagged LATE)."""
+        row = LedgerRow(seq, seq * self.sample_period_s, command_rad, flags=_LOST | (_LATE if late else 0))
         self._rows[seq] = row
         self._order.append(seq)
         return row
 
-    def file(self, sample: FeedbackSample) -> DriveState | None:
+    def answered(self, seq: int) -> bool:
+        return seq in self._answered
+
+    def awaits(self, seq: int) -> bool:
+        """Row ``seq`` is open and has no answer yet (an answer now is fresh feedback)."""
+        return seq in self._rows and seq not in self._answered
+
+    @property
+    def all_answered(self) -> bool:
+        return len(self._answered) == len(self._order)
+
+    def file(self, sample: FeedbackSample, *, late: bool = False) -> DriveState | None:
         """File one feedback sample under its number; returns the drive state its statusword shows (the
-        runner stops when that is not OPERATION ENABLED)."""
+        runner stops when that is not OPERATION ENABLED). ``late``: a host-paced answer that came after
+        the next deadline (flagged LATE: the value is real, its time is not)."""
         row = self._rows.get(sample.seq)
         if row is None:
             self.counts["stale"] += 1  # final already (LOST), or an answer to no setpoint of this run
@@ -93,7 +106,7 @@ class SampleLedger:
         row.flags &= ~_LOST
         if sample.held:
             row.flags |= _HELD
-        if abs(sample.instant_error_s) > self.late_tolerance_s:
+        if late or abs(sample.instant_error_s) > self.late_tolerance_s:
             row.flags |= _LATE
         if sample.applied_position_rad is not None:
             row.command_rad = sample.applied_position_rad  # the data stay true: the command really applied
