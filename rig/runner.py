@@ -139,6 +139,16 @@ def _write_summary(sink: SampleSink, transport: Transport, failure: BaseExceptio
             raise  # otherwise what ended the run is the error to report, not this one
 
 
+def _bring_up(transport: Transport, command_rad: NDArray[np.float64]) -> None:
+    """Prepare, check the whole command from the actual position, enable. Homing can move the actual
+    position after enabling: the command is then checked again from there (a refusal stops the drive)."""
+    checked_from = transport.prepare()
+    check_command(transport, command_rad)
+    transport.enable()
+    if transport.initial_position_rad != checked_from:
+        check_command(transport, command_rad)
+
+
 def check_command(transport: Transport, command_rad: NDArray[np.float64]) -> None:
     """Refuse the whole command before the drive is enabled if any sample breaks the software limits; the
     first setpoint is checked against the drive's actual position (:attr:`Transport.initial_position_rad`,
@@ -237,9 +247,7 @@ def run_experiment(transport: Transport, command_rad: ArrayLike, sink: SampleSin
     sys.setswitchinterval(min(switch_interval, period / 4))
     start = last_feedback = math.inf
     try:
-        transport.prepare()
-        check_command(transport, command)
-        transport.enable()
+        _bring_up(transport, command)
         start = clock() + 2 * period
         catch_up_spacing = max(CATCH_UP_SPACING * period, transport.min_cycle_s)
         last_feedback = start
@@ -345,9 +353,7 @@ def _run_device_clocked(transport: Transport, command: NDArray[np.float64], sink
     switch_interval = sys.getswitchinterval()
     sys.setswitchinterval(min(switch_interval, period / 4))  # receive threads need the GIL within a period
     try:
-        transport.prepare()
-        check_command(transport, command)
-        transport.enable()
+        _bring_up(transport, command)
         lead = transport.lead_samples
         next_seq = 0
         last_feedback = clock()
