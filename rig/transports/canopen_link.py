@@ -27,16 +27,18 @@ reset on a rising edge; :mod:`rig.protocols.cia402`), and after optional homing 
 the target is set to the actual position again before mode 8 is taken. Every exit after that ends in
 quick stop, then disable, then NMT pre-operational (:class:`~rig.transports.base.Transport`).
 
-Each sample: RPDO1 with the target, then SYNC, both from the runner's own scheduler (never triggered by
-TPDO arrival). The TPDOs answering that SYNC make one :class:`FeedbackSample`. TPDOs carry no SYNC
-counter, so each TPDO is attributed to the last SYNC on the bus before it, comparing bus timestamps
-only: the master receives its own SYNC frames back (``receive_own_messages``, SocketCAN's echo of a
-transmitted frame), stamped by the same interface clock as the TPDOs, and echoes come back in the order
-the SYNCs were sent, so the k-th echo is SYNC k. The host's own clock never enters: a TPDO that reaches
-Python late, or a SYNC whose transmission the host delayed, is still filed under the right sample,
-provided the device put its answer on the bus before the next SYNC. An interface that does not echo
-transmitted frames is refused at start-up with a message saying so. A second answer to one SYNC is
-reported again and the runner flags the sample DUPLICATE (unusable).
+Streaming (the device's clock owns the sample instants): SYNC runs from a cyclic task at the sample
+period, from configuration to the end of the stop (:meth:`_start_sync`), or from an external producer.
+The runner queues setpoints ``lead_s`` ahead (:meth:`_send`); right after SYNC k-1 is seen, the receive
+thread puts target k on the bus (:meth:`_on_sync_echo`), so it is in force at SYNC k whatever the host
+does meanwhile. The master receives its own frames back (``receive_own_messages``, SocketCAN's echo of
+a transmitted frame), stamped by the same interface clock as the TPDOs and in bus order, so it knows which
+target was last on the bus before each SYNC: a target that came too late leaves its sample HELD with the
+command really applied. TPDOs carry no SYNC counter: each is filed under the last SYNC before its bus
+timestamp once the next SYNC has been seen (the order around it is known only then), minus the node's
+``*_tpdo_latency_cycles``. The host's own clock never enters the filing. An interface that does not echo
+transmitted frames is refused at start-up. A second answer to one SYNC is reported again and the runner
+flags the sample DUPLICATE; two SYNCs closer than one cycle's bus time flag their samples AMBIGUOUS.
 In OPERATION ENABLED, a sample whose statusword has bit 12 clear ("target ignored" in cyclic synchronous
 position) is marked ``target_ignored`` (the runner flags it NOT_FOLLOWED). A drive FAULT in the statusword,
 an EMCY that is not a warning (``emcy_warning_codes``; warnings are collected in ``warnings``), a heartbeat
