@@ -7,7 +7,9 @@ conditions the script sets up and tears down itself:
 
 Per row: samples, lost (goal 0), held (setpoints that missed the device's instant; goal 0), the smallest
 lead of a setpoint over its instant, late samples, CPU per 1000 samples, the CAN bus load. CANopen runs
-on the device's clock (a cyclic SYNC, setpoints queued ``lead_s`` ahead); serial and raw CAN still speak
+on the device's clock (a cyclic SYNC, setpoints queued ``lead_s`` ahead): ``canopen`` in cyclic
+synchronous position (one target per SYNC, on the bus right after the SYNC before it), ``canopen-ip`` in
+interpolated position with the drive's buffer (the lead sits in the drive); serial and raw CAN still speak
 protocol v1, one setpoint and one answer timed by the host, so their late and lost samples are the
 host's, and "held" does not apply to them (n/a).
 
@@ -53,7 +55,10 @@ class _NullSink:
 
 
 def _config(kind: str, rate_hz: float, directory: Path):
-    text = (ROOT / "configs" / f"sim_{kind}.toml").read_text()
+    wire = "canopen" if kind == "canopen-ip" else kind
+    text = (ROOT / "configs" / f"sim_{wire}.toml").read_text()
+    if kind == "canopen-ip":  # interpolated position with the drive's buffer instead of CSP
+        text = text.replace("sdo_timeout_s = 0.5", 'sdo_timeout_s = 0.5\nmode = "ip_buffer"')
     text = text.replace("sample_rate_hz = 1000.0", f"sample_rate_hz = {rate_hz!r}")
     text = text.replace('plant = "plants/', f'plant = "{ROOT / "configs" / "plants"}/')
     text = text.replace("late_tolerance_s = 0.0005", f"late_tolerance_s = {0.5 / rate_hz!r}")
@@ -123,8 +128,8 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--duration", type=float, default=5.0, help="seconds per case (default 5)")
     parser.add_argument("--rates", type=float, nargs="+", default=[1000.0, 2000.0])
-    parser.add_argument("--transports", nargs="+", default=["canopen", "serial", "can"],
-                        choices=["canopen", "serial", "can"])
+    parser.add_argument("--transports", nargs="+", default=["canopen", "canopen-ip", "serial", "can"],
+                        choices=["canopen", "canopen-ip", "serial", "can"])
     parser.add_argument("--conditions", nargs="+", default=["idle", "busy", "stall"],
                         choices=["idle", "busy", "stall"])
     parser.add_argument("--pending-cycles", type=int, default=4,

@@ -325,8 +325,10 @@ def _run_device_clocked(transport: Transport, command: NDArray[np.float64], sink
 
     A producer and a consumer in one loop, neither of them timed by the host: setpoints are queued as far
     as ``transport.lead_samples`` ahead of the last sample instant the device passed
-    (``transport.device_sample``), feedback is filed by its sample number (:class:`SampleLedger`), and
-    rows go to the sink once final. Row k's time is the device's instant k T (a sample whose instant was
+    (``transport.device_sample``) while the device has room, feedback is filed by its sample number (the
+    instant; :class:`SampleLedger`), and rows go to the sink once final. Rows are sample instants: after a
+    drive's interpolation buffer ran dry, its later records are applied at later instants, and each row
+    logs the one really applied. Row k's time is the device's instant k T (a sample whose instant was
     off the period by more than ``late_tolerance_s`` is flagged LATE); a setpoint that missed its instant
     is logged HELD with the command really in force. A host stall shorter than the lead costs
     nothing; a longer one costs HELD samples, never lost ones. After a failure, the rows of every instant
@@ -355,17 +357,24 @@ def _run_device_clocked(transport: Transport, command: NDArray[np.float64], sink
     try:
         _bring_up(transport, command)
         lead = transport.lead_samples
-        next_seq = 0
+        next_seq = next_row = 0  # the next setpoint to queue; the next row (sample instant) to open
         last_feedback = clock()
         while written < total:
             device = transport.device_sample
-            while next_seq < total and next_seq <= device + lead:
+            while next_seq < total and next_seq <= device + lead and transport.queue_has_room:
                 sent = transport.send(Setpoint(next_seq, values[next_seq]))
-                ledger.open_row(next_seq, sent.position_rad)
+                if next_seq == next_row:
+                    ledger.open_row(next_row, sent.position_rad)
+                    next_row += 1
                 next_seq += 1
             sample = transport.receive(period)
             now = clock()
             while sample is not None:  # everything that has arrived is filed before any row is final
+                # every instant the device passed has its row, setpoint or not (a drive's buffer that ran
+                # dry takes the later records at later instants); its feedback says what was applied
+                while next_row < total and next_row <= sample.seq:
+                    ledger.open_row(next_row, transport.drive.quantize_rad(values[next_row]))
+                    next_row += 1
                 state = ledger.file(sample)
                 last_feedback = last_answer = now
                 if math.isnan(first_answer):
@@ -379,7 +388,7 @@ def _run_device_clocked(transport: Transport, command: NDArray[np.float64], sink
                 raise TransportError(f"{transport.name}: no feedback for {now - last_feedback:.3g} s "
                                      f"(watchdog {feedback_timeout_s:g} s), stopping at sample "
                                      f"{max(transport.device_sample, 0)}")
-            write_final(transport.device_sample)  # the device goes on sampling (holding) after the last setpoint
+            write_final(device)  # read before the drain: every answer it makes final has been filed
             if progress is not None:
                 progress(written, ledger.counts["held"])
     except BaseException as err:

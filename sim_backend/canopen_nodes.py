@@ -249,6 +249,12 @@ class SimulatedCanOpenRig:
         self.controlwords: list[int] = []
         self.setpoints = 0  # SYNCs sampled since the first target (RPDO) in OPERATION ENABLED
         self.streaming = False  # the plant holds exactly at rest until the first target arrives
+        # interpolated position mode (0x6060 = 7): the FIFO of interpolation data records (0x60C1:1) that
+        # RPDOs fill and each SYNC takes one from, enabled by 0x60C4:6 = 1 and controlword bit 4
+        self.ip_buffer: collections.deque[int] = collections.deque()
+        self.ip_buffer_enabled = False
+        self.ip_underruns = 0  # SYNCs in ip mode that found the buffer empty (the drive held)
+        self.ip_overruns = 0  # records that found the buffer full (dropped)
         self.syncs = 0
         self.homed = False
         self.faults: list[int] = []  # error codes of every fault the drive entered, in order
@@ -381,6 +387,10 @@ class SimulatedCanOpenRig:
         elif index == 0x6040:
             with self._lock:
                 self._on_controlword(int.from_bytes(data, "little"), time.monotonic())
+        elif index == 0x60C4 and subindex == 6:  # buffer clear: 0 clears and disables, 1 enables (CiA 402)
+            with self._lock:
+                self.ip_buffer.clear()
+                self.ip_buffer_enabled = int.from_bytes(data, "little") == 1
 
     def _on_encoder_write(self, index: int, subindex: int, od: object, data: bytes) -> None:
         if self.encoder_behaviour.static_pdos and is_pdo_parameter(index):
@@ -433,6 +443,8 @@ class SimulatedCanOpenRig:
         for variable in pdo_map:  # type: ignore[attr-defined]
             if variable.length:
                 self.drive.set_data(variable.index, variable.subindex, variable.get_data())
+                if (variable.index, variable.subindex) == (0x60C1, 1):
+                    self._push_ip_record(int.from_bytes(variable.get_data(), "little", signed=True))
         with self._lock:
             self.streaming = self.streaming or self.state is cia402.DriveState.OPERATION_ENABLED
 
@@ -569,6 +581,9 @@ class SimulatedCanOpenRig:
         if self._mode_display == cia402.HOMING_MODE:
             if self.homed:
                 word |= cia402.STATUSWORD_HOMING_ATTAINED
+        elif self._mode_display == cia402.INTERPOLATED_POSITION_MODE:
+            if self._ip_active():
+                word |= cia402.STATUSWORD_IP_MODE_ACTIVE
         elif self._mode_display == cia402.CYCLIC_SYNCHRONOUS_POSITION_MODE:
             if self.state is DS.OPERATION_ENABLED:
                 word |= STATUSWORD_FOLLOWS_COMMAND
@@ -591,11 +606,32 @@ class SimulatedCanOpenRig:
             return True
         return False
 
+    def _push_ip_record(self, counts: int) -> None:
+        """An interpolation data record into the FIFO (0x60C4:2 actual buffer size records at most)."""
+        with self._lock:
+            if self._mode_display != cia402.INTERPOLATED_POSITION_MODE or not self.ip_buffer_enabled:
+                return
+            if len(self.ip_buffer) >= int.from_bytes(self.drive.get_data(0x60C4, 2), "little"):
+                self.ip_overruns += 1
+                return
+            self.ip_buffer.append(counts)
+
+    def _ip_active(self) -> bool:
+        return (self._mode_display == cia402.INTERPOLATED_POSITION_MODE
+                and self.state is cia402.DriveState.OPERATION_ENABLED and bool(self.controlword & 0x0010))
+
     def _step_locked(self) -> None:
-        """One SYNC in OPERATION ENABLED: apply the target (or hold), step the plant, latch the values."""
+        """One SYNC in OPERATION ENABLED: apply the target (or hold), step the plant, latch the values. In
+        interpolated position mode the target is the next record of the FIFO; an empty FIFO holds the last
+        one (an underrun)."""
+        if self._ip_active():
+            if self.ip_buffer:
+                self._store(self.drive, 0x607A, self.ip_buffer.popleft(), 4, signed=True)
+            else:
+                self.ip_underruns += 1
         target = self._i32(self.drive, 0x607A)
         actual = self._i32(self.drive, 0x6064)
-        follows = self._mode_display == cia402.CYCLIC_SYNCHRONOUS_POSITION_MODE
+        follows = self._mode_display == cia402.CYCLIC_SYNCHRONOUS_POSITION_MODE or self._ip_active()
         if follows and not self.drive_behaviour.copy_target_on_enable:
             window = self._u(self.drive, 0x6065)
             if window is not None and window != FOLLOWING_ERROR_OFF and abs(target - actual) > window:

@@ -48,7 +48,10 @@ STATUSWORD_FOLLOWS_TARGET = 0x1000  # bit 12 in cyclic synchronous position mode
 STATUSWORD_HOMING_ERROR = 0x2000  # bit 13 in homing mode
 CONTROLWORD_START_HOMING = 0x001F  # enable operation + bit 4 (operation mode specific: start homing)
 HOMING_MODE = 6
+INTERPOLATED_POSITION_MODE = 7  # with a FIFO of interpolation data records (0x60C1, 0x60C4)
 CYCLIC_SYNCHRONOUS_POSITION_MODE = 8
+CONTROLWORD_ENABLE_INTERPOLATION = 0x001F  # enable operation + bit 4 (in interpolated position: enable ip mode)
+STATUSWORD_IP_MODE_ACTIVE = 0x1000  # bit 12 in interpolated position mode
 
 
 class DriveState(Enum):

@@ -111,6 +111,14 @@ class CanOpenTransport(Transport):
         How long homing may take.
     mode_switch_timeout_s
         How long the drive may take to show a new mode of operation in 0x6061 after 0x6060 was written.
+    mode
+        ``"csp"`` (default): cyclic synchronous position (0x6060 = 8): one target per SYNC, put on the bus
+        right after the SYNC before it. ``"ip_buffer"``: interpolated position with the drive's FIFO of
+        interpolation data records (0x6060 = 7, records 0x60C1:1, buffer 0x60C4: capacity read from sub 1
+        and 2, cleared and enabled by sub 6): the setpoints go on the bus as the runner queues them, up to
+        the lead or half the buffer, and the drive takes one per SYNC; an empty buffer at a SYNC (an
+        underrun) holds the last record and the sample is logged HELD. The master follows the buffer from
+        the bus order of its own RPDOs and the SYNCs, so every sample logs the record really applied.
     sync_producer
         ``"master"`` (default): this master produces SYNC from a cyclic task (python-can ``send_periodic``:
         the kernel's broadcast manager on SocketCAN, the interface's own periodic sending where it has one,
@@ -141,7 +149,7 @@ class CanOpenTransport(Transport):
                  encoder_eds: str = str(DEFAULT_ENCODER_EDS), heartbeat_ms: int = 100,
                  heartbeat_timeout_s: float = 0.5, sdo_timeout_s: float = 0.5, skip_homing: bool = True,
                  homing_method: int = 37, homing_timeout_s: float = 30.0, mode_switch_timeout_s: float = 1.0,
-                 sync_producer: str = "master", lead_s: float = 0.05, drive_tpdo_latency_cycles: int = 0,
+                 mode: str = "csp", sync_producer: str = "master", lead_s: float = 0.05, drive_tpdo_latency_cycles: int = 0,
                  encoder_tpdo_latency_cycles: int = 0,
                  emcy_warning_codes: str = "0x4", trace_path: str | None = None, **kwargs: Any) -> None:
         super().__init__(**kwargs)
@@ -160,6 +168,9 @@ class CanOpenTransport(Transport):
                 1 <= node <= 127 for node in (self.drive_node_id, self.encoder_node_id)):
             raise ConfigError("<transport>", "drive_node_id", "node-IDs must differ and lie in 1..127")
         self.mode_switch_timeout_s = float(mode_switch_timeout_s)
+        if mode not in ("csp", "ip_buffer"):
+            raise ConfigError("<transport>", "mode", f"expected \"csp\" or \"ip_buffer\", got {mode!r}")
+        self.mode = mode
         if sync_producer not in ("master", "external"):
             raise ConfigError("<transport>", "sync_producer", f"expected \"master\" or \"external\", got {sync_producer!r}")
         self.sync_producer = sync_producer
@@ -176,7 +187,8 @@ class CanOpenTransport(Transport):
         self._drive_od = _load_object_dictionary("drive_eds", self.drive_eds, self.drive_node_id)
         self._encoder_od = _load_object_dictionary("encoder_eds", self.encoder_eds, self.encoder_node_id)
         _require_objects("drive_eds", self.drive_eds, self._drive_od, _DRIVE_OBJECTS + (
-            () if self.skip_homing else ((0x6098, "the homing method (skip_homing = false)"),)))
+            () if self.skip_homing else ((0x6098, "the homing method (skip_homing = false)"),)) + (
+            _IP_BUFFER_OBJECTS if mode == "ip_buffer" else ()))
         if 0x1006 not in self._drive_od and 0x60C2 not in self._drive_od:
             raise ConfigError("<transport>", "drive_eds", (
                 f"{self.drive_eds} has neither 0x1006 (communication cycle period) nor 0x60C2 (interpolation time "
@@ -205,7 +217,12 @@ class CanOpenTransport(Transport):
         self._drive_tpdo: PdoLayout | None = None
         self._demand_tpdo: PdoLayout | None = None
         self._encoder_tpdo: PdoLayout | None = None
-        self._mode = cia402.CYCLIC_SYNCHRONOUS_POSITION_MODE
+        self._streaming_mode = (cia402.INTERPOLATED_POSITION_MODE if mode == "ip_buffer"
+                                else cia402.CYCLIC_SYNCHRONOUS_POSITION_MODE)
+        self._mode = self._streaming_mode
+        self._ip_capacity = 0  # records the drive's interpolation buffer takes (0x60C4)
+        self._ip_buffer: collections.deque[tuple[int, int]] = collections.deque()  # (sample, counts) in it
+        self._dry_since: int | None = None  # the SYNC count since which the buffer has been empty
         self._last_target_counts = 0
         self._watching = False  # from OPERATION ENABLED on: a FAULT statusword or a heartbeat not OPERATIONAL stops the run
         self._heartbeats: dict[int, tuple[float, int]] = {}  # node-ID -> (host receive time, NMT state)
@@ -239,7 +256,13 @@ class CanOpenTransport(Transport):
 
     @property
     def lead_samples(self) -> int:
-        return max(1, math.ceil(self.lead_s / self.sample_period_s - 1e-9))
+        lead = max(1, math.ceil(self.lead_s / self.sample_period_s - 1e-9))
+        return min(lead, max(1, self._ip_capacity // 2)) if self.mode == "ip_buffer" else lead
+
+    @property
+    def queue_has_room(self) -> bool:
+        with self._lock:
+            return self.mode != "ip_buffer" or len(self._ip_buffer) + len(self._rpdo_sent) < self._ip_capacity - 1
 
     @property
     def device_sample(self) -> int:
@@ -292,12 +315,15 @@ class CanOpenTransport(Transport):
                 node.sdo[0x1017].raw = self.heartbeat_ms
             self._write_cycle_period(drive)
             self._check_supported_mode(drive)
-            self._set_mode(drive, cia402.CYCLIC_SYNCHRONOUS_POSITION_MODE if self.skip_homing else cia402.HOMING_MODE)
-            self._rpdo = self._map_pdo(drive.rpdo, "drive", [(0x607A, 32)], 0x200 + self.drive_node_id)
-            self._drive_tpdo = self._map_pdo(drive.tpdo, "drive", [(0x6041, 16), (0x6064, 32)],
+            self._set_mode(drive, self._streaming_mode if self.skip_homing else cia402.HOMING_MODE)
+            target = (0x60C1, 1) if self.mode == "ip_buffer" else (0x607A, 0)
+            self._rpdo = self._map_pdo(drive.rpdo, "drive", [(*target, 32)], 0x200 + self.drive_node_id)
+            self._drive_tpdo = self._map_pdo(drive.tpdo, "drive", [(0x6041, 0, 16), (0x6064, 0, 32)],
                                              0x180 + self.drive_node_id)
-            self._encoder_tpdo = self._map_pdo(encoder.tpdo, "encoder", [(0x6004, self._encoder_value_bits())],
+            self._encoder_tpdo = self._map_pdo(encoder.tpdo, "encoder", [(0x6004, 0, self._encoder_value_bits())],
                                                0x180 + self.encoder_node_id)
+            if self.mode == "ip_buffer":
+                self._configure_ip_buffer(drive)
             self._demand_tpdo = self._map_demand_tpdo(drive)
             if self.trace_path is None:  # the PDOs' COB-IDs as read back (a static PDO keeps its own)
                 self.network.bus.set_filters(self._receive_filters())
@@ -330,15 +356,18 @@ class CanOpenTransport(Transport):
         return self._drive.sdo[0x603F].raw
 
     def _after_enabled(self) -> float | None:
-        """Homing (``skip_homing = false``), then cyclic synchronous position from where homing left the
-        drive, its target again at the actual position; the NMT states are watched from here on."""
+        """Homing (``skip_homing = false``), then the streaming mode from where homing left the drive, its
+        target again at the actual position; in interpolated position mode, bit 4 of the controlword
+        enables the interpolation; the NMT states are watched from here on."""
         moved_to = None
         if not self.skip_homing:
             with self._translated_errors("homing"):
                 self._home(self._drive)
-                self._set_mode(self._drive, cia402.CYCLIC_SYNCHRONOUS_POSITION_MODE)
+                self._set_mode(self._drive, self._streaming_mode)
                 self._wait_for_mode(self._drive)
                 moved_to = self._hold_at_actual_position(self._drive)
+        if self.mode == "ip_buffer":  # controlword bit 4: the drive starts taking records from its buffer
+            self._write_controlword(cia402.CONTROLWORD_ENABLE_INTERPOLATION)
         self._watching = True
         return moved_to
 
@@ -394,12 +423,27 @@ class CanOpenTransport(Transport):
         if 0x6502 not in drive.object_dictionary:
             return
         supported = drive.sdo[0x6502].raw
-        needed = [(7, "cyclic synchronous position")] + ([] if self.skip_homing else [(5, "homing")])
+        needed = ([(6, "interpolated position")] if self.mode == "ip_buffer" else [(7, "cyclic synchronous position")])
+        needed += [] if self.skip_homing else [(5, "homing")]
         for bit, name in needed:
             if not supported >> bit & 1:
                 raise DeviceFault(self.drive_label, None, (
                     f"does not support {name} mode (0x6502 supported drive modes = 0x{supported:08X}, bit {bit} "
-                    "clear); the master streams in cyclic synchronous position mode"))
+                    "clear)"))
+
+    def _configure_ip_buffer(self, drive: Any) -> None:
+        """The interpolation buffer (CiA 402 0x60C4): linear interpolation (0x60C0 = 0 where present),
+        cleared and enabled (sub 6: 0, then 1); its capacity is the smaller of sub 1 (maximum) and sub 2
+        (actual buffer size)."""
+        if 0x60C0 in drive.object_dictionary:
+            drive.sdo[0x60C0].raw = 0
+        drive.sdo[0x60C4][6].raw = 0
+        drive.sdo[0x60C4][6].raw = 1
+        self._ip_capacity = min(drive.sdo[0x60C4][1].raw, drive.sdo[0x60C4][2].raw)
+        if self._ip_capacity < 4:
+            raise DeviceFault(self.drive_label, None, (
+                f"its interpolation buffer holds {self._ip_capacity} records (0x60C4:1/2); mode = \"ip_buffer\" "
+                "needs at least 4: use mode = \"csp\""))
 
     def _set_mode(self, drive: Any, mode: int) -> None:
         drive.sdo[0x6060].raw = mode
@@ -503,8 +547,9 @@ class CanOpenTransport(Transport):
             time.sleep(max(self.timing.poll_interval_s, 0.01))
         drive.sdo[0x6040].raw = cia402.CONTROLWORD_ENABLE_OPERATION
 
-    def _map_pdo(self, pdos: Any, role: str, needed: list[tuple[int, int]], cob_id: int, number: int = 1) -> PdoLayout:
-        """Map PDO ``number`` of ``pdos`` to the ``needed`` objects ``(index, bits)``, synchronous (transmission type
+    def _map_pdo(self, pdos: Any, role: str, needed: list[tuple[int, int, int]], cob_id: int,
+                 number: int = 1) -> PdoLayout:
+        """Map PDO ``number`` of ``pdos`` to the ``needed`` objects ``(index, sub-index, bits)``, synchronous (transmission type
         1), then read its communication and mapping parameters back from the device: a device with static
         PDOs refuses the writes (or canopen skips entries its EDS marks read-only), and what the master
         decodes must be what the device sends. A layout that carries the needed objects is used as it is;
@@ -517,8 +562,8 @@ class CanOpenTransport(Transport):
         where = f"{kind} of {role} {node_id} (0x{pdo.com_record.od.index:04X}/0x{pdo.map_array.od.index:04X})"
         pdos.read()
         pdo.clear()
-        for index, _ in needed:
-            pdo.add_variable(index)
+        for index, subindex, _ in needed:
+            pdo.add_variable(index, subindex)
         pdo.cob_id = cob_id
         pdo.trans_type = 1
         pdo.enabled = True
@@ -536,7 +581,7 @@ class CanOpenTransport(Transport):
                 f"{where} is sent with transmission type {pdo.trans_type} (0x{pdo.com_record.od.index:04X}:02, "
                 "not writable on this device); the master needs 1, an answer to every SYNC: set it with the "
                 "vendor's tool"))
-        for index, bits in needed:
+        for index, _, bits in needed:
             if index not in layout.fields:
                 raise DeviceFault(device, None, (
                     f"{where} does not map 0x{index:04X} (it maps {layout.describe()}, not writable on this "
@@ -544,10 +589,11 @@ class CanOpenTransport(Transport):
             if layout.fields[index][1] * 8 < bits:
                 raise DeviceFault(device, None, (
                     f"{where} maps only {layout.fields[index][1] * 8} bits of 0x{index:04X}; the master needs {bits}"))
-        if kind.startswith("RPDO") and set(layout.fields) - {0x607A}:
-            extra = ", ".join(f"0x{index:04X}" for index in sorted(set(layout.fields) - {0x607A}))
+        sent = {index for index, _, _ in needed}
+        if kind.startswith("RPDO") and set(layout.fields) - sent:
+            extra = ", ".join(f"0x{index:04X}" for index in sorted(set(layout.fields) - sent))
             raise DeviceFault(device, None, (
-                f"{where} maps {extra} besides the target 0x607A (not writable on this device); the master sends "
+                f"{where} maps {extra} besides the target (not writable on this device); the master sends "
                 "only the target"))
         return layout
 
@@ -557,7 +603,7 @@ class CanOpenTransport(Transport):
         if not self._checks_latency:
             return None
         try:
-            return self._map_pdo(drive.tpdo, "drive", [(0x6062, 32)], 0x280 + self.drive_node_id, number=2)
+            return self._map_pdo(drive.tpdo, "drive", [(0x6062, 0, 32)], 0x280 + self.drive_node_id, number=2)
         except DeviceFault as err:
             self.warnings.append(f"drive {self.drive_node_id}: the TPDO latency is not checked ({err})")
             return None
@@ -598,13 +644,17 @@ class CanOpenTransport(Transport):
                     f"direction = {-1 if counts_down else 1}"))
 
     def _send(self, setpoint: Setpoint) -> None:
-        """Queue setpoint ``seq``: the receive thread puts it on the bus right after SYNC ``seq - 1`` (the
-        first one after the next SYNC), so that it is in force at SYNC ``seq`` whatever the host does."""
+        """CSP: queue setpoint ``seq``; the receive thread puts it on the bus right after SYNC ``seq - 1``,
+        so that it is in force at SYNC ``seq`` whatever the host does. Interpolated position: on the bus at
+        once, into the drive's buffer (the runner keeps it within :attr:`queue_has_room`)."""
         self._raise_device_fault()
         self._check_heartbeats()
         with self._lock:
             self._queue[setpoint.seq] = self.drive.counts_from_rad(setpoint.position_rad)
             self._queued_at[setpoint.seq] = time.perf_counter()
+            if self.mode == "ip_buffer":
+                self._put_target_on_bus(setpoint.seq)
+                return
             if self._origin is None:
                 return
             behind = self._device_sample - setpoint.seq  # >= -1: its slot right after SYNC seq - 1 has passed
@@ -714,46 +764,83 @@ class CanOpenTransport(Transport):
                     self._file_locked(*item)
                 else:
                     self._unfiled.append(item)
+            if self.mode == "ip_buffer":
+                self._take_ip_record(count)
+            else:
+                self._record_csp_target(count)
             if self._origin is not None and count >= self._origin:
                 sample = count - self._origin
-                in_force_sample, counts = self._in_force
-                self._applied[sample] = (counts, in_force_sample != sample)
                 if len(self._syncs) > 1:  # how far this instant is off the period (a thread-driven SYNC's jitter)
                     self._instant_errors[sample] = timestamp - self._syncs[-2][0] - self.sample_period_s
-                queued = self._queued_at.pop(sample, None)
-                if queued is not None:
-                    self._min_lead_s = min(self._min_lead_s, time.perf_counter() - queued)
                 self._device_sample = sample
                 self._arrived.notify_all()
-            if self._origin is None:
-                if 0 in self._queue:
-                    self._origin = count + 1
-                    self._put_target_on_bus(0)
-            else:
-                upcoming = count + 1 - self._origin
-                for stale in [seq for seq in self._queue if seq < upcoming]:  # came after their SYNC: HELD
-                    del self._queue[stale]
-                if upcoming in self._queue:
-                    self._put_target_on_bus(upcoming)
             if len(self._applied) > 4096:
                 for old in sorted(self._applied)[:2048]:
                     del self._applied[old]
                     self._instant_errors.pop(old, None)
 
+    def _record_csp_target(self, count: int) -> None:
+        """CSP at SYNC ``count``: record the target in force (the last RPDO on the bus before it: setpoint
+        s, or an earlier one if s came too late, HELD), then put the target for the next SYNC on the bus."""
+        if self._origin is not None and count >= self._origin:
+            sample = count - self._origin
+            in_force_sample, counts = self._in_force
+            self._applied[sample] = (counts, in_force_sample != sample)
+            queued = self._queued_at.pop(sample, None)
+            if queued is not None:
+                self._min_lead_s = min(self._min_lead_s, time.perf_counter() - queued)
+        if self._origin is None:
+            if 0 in self._queue:
+                self._origin = count + 1
+                self._put_target_on_bus(0)
+            return
+        upcoming = count + 1 - self._origin
+        for stale in [seq for seq in self._queue if seq < upcoming]:  # came after their SYNC: HELD
+            del self._queue[stale]
+        if upcoming in self._queue:
+            self._put_target_on_bus(upcoming)
+
+    def _take_ip_record(self, count: int) -> None:
+        """Interpolated position at SYNC ``count``: the drive takes the oldest record of its buffer (the
+        master's copy of the buffer follows the bus order of its RPDO echoes); an empty buffer is an
+        underrun: the drive holds the last record and the sample is HELD. Sample 0 is the first SYNC after
+        the first record reached the buffer."""
+        if self._origin is None:
+            if not self._ip_buffer:
+                return
+            self._origin = count
+        sample = count - self._origin
+        held = not self._ip_buffer
+        if not held:
+            self._in_force = self._ip_buffer.popleft()
+            queued = self._queued_at.pop(self._in_force[0], None)
+            if queued is not None:
+                self._min_lead_s = min(self._min_lead_s, time.perf_counter() - queued)
+            if self._dry_since is not None:  # the buffer ran dry for these instants: a negative lead
+                self._min_lead_s = min(self._min_lead_s, -(count - self._dry_since) * self.sample_period_s)
+                self._dry_since = None
+        elif self._dry_since is None:
+            self._dry_since = count  # (after the run's last record the buffer runs dry for good: no lead)
+        self._applied[sample] = (self._in_force[1], held)
+
     def _put_target_on_bus(self, sample: int) -> None:
         counts = self._queue.pop(sample)
         self._rpdo_sent.append((sample, counts))
         try:
-            self.network.send_message(self._rpdo.cob_id, self._rpdo.pack({0x607A: counts}))
+            self.network.send_message(self._rpdo.cob_id, self._rpdo.pack({index: counts for index in self._rpdo.fields}))
         except Exception as err:  # noqa: BLE001 - in the notifier thread: report, the runner raises it
             self._rpdo_sent.pop()
             self._report_fault(TransportError(f"{self.name}: sending the target of sample {sample} failed: {err}"))
 
     def _on_rpdo_echo(self, can_id: int, data: bytes, timestamp: float) -> None:
-        """Our own RPDO back from the interface: from here on, until the next one, this target is in force."""
+        """Our own RPDO back from the interface: CSP: from here on, until the next one, this target is in
+        force; interpolated position: this record is in the drive's buffer now."""
         with self._arrived:
             if self._rpdo_sent:
-                self._in_force = self._rpdo_sent.popleft()
+                if self.mode == "ip_buffer":
+                    self._ip_buffer.append(self._rpdo_sent.popleft())
+                else:
+                    self._in_force = self._rpdo_sent.popleft()
 
     def _sync_before(self, timestamp: float) -> int | None:
         """The count of the last SYNC on the bus before bus time ``timestamp`` (None: before the first)."""
@@ -816,7 +903,7 @@ class CanOpenTransport(Transport):
     def _target_ignored(self, statusword: int) -> bool:
         """CiA 402 cyclic synchronous position: statusword bit 12 clear in OPERATION ENABLED means the
         drive does not follow 0x607A (still switching mode, or a drive-internal reason)."""
-        return (self._mode == cia402.CYCLIC_SYNCHRONOUS_POSITION_MODE
+        return (self._mode == self._streaming_mode  # bit 12: follows the target (CSP), ip mode active (IP)
                 and cia402.state_from_statusword_or_none(statusword) is cia402.DriveState.OPERATION_ENABLED
                 and not statusword & cia402.STATUSWORD_FOLLOWS_TARGET)
 
@@ -933,6 +1020,10 @@ _DRIVE_OBJECTS = (
     (0x6040, "the controlword"), (0x6041, "the statusword"), (0x6060, "modes of operation"),
     (0x6061, "modes of operation display (the mode handshake)"), (0x6064, "position actual value"),
     (0x607A, "target position"),
+)
+_IP_BUFFER_OBJECTS = (
+    (0x60C1, "the interpolation data records (mode = \"ip_buffer\")"),
+    (0x60C4, "the interpolation buffer's size and its clear/enable (mode = \"ip_buffer\")"),
 )
 _ENCODER_OBJECTS = (
     (0x1017, "the producer heartbeat time the master sets and watches"),
