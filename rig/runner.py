@@ -205,6 +205,17 @@ def run_experiment(transport: Transport, command_rad: ArrayLike, sink: SampleSin
         The device faulted or the link failed; the log holds every sample up to the stop.
     """
     command = as_signal("command_rad", command_rad)
+    try:
+        # a link whose handshake decides who owns the sample clock (serial v2) knows lead_samples only now
+        transport.prepare()
+    except BaseException as err:
+        try:
+            transport.close()
+            transport.note_stop(err)
+            _write_summary(sink, transport, err)
+        finally:
+            sink.close()
+        raise
     if transport.lead_samples > 0:
         return _run_device_clocked(transport, command, sink, feedback_timeout_s=feedback_timeout_s,
                                    late_tolerance_s=0.5 * transport.sample_period_s if late_tolerance_s is None
@@ -274,7 +285,6 @@ def run_experiment(transport: Transport, command_rad: ArrayLike, sink: SampleSin
     start = math.inf
     failure: BaseException | None = None
     try:
-        transport.prepare()
         check_command(transport, command)
         transport.enable()
         start = clock() + 2 * period
@@ -384,7 +394,6 @@ def _run_device_clocked(transport: Transport, command: NDArray[np.float64], sink
     switch_interval = sys.getswitchinterval()
     sys.setswitchinterval(min(switch_interval, period / 4))  # receive threads need the GIL within a period
     try:
-        transport.prepare()
         check_command(transport, command)
         transport.enable()
         lead = transport.lead_samples
