@@ -266,11 +266,13 @@ def test_error_frames_are_counted_in_the_summary(tmp_path, no_leaks):
 
 # -- the host stalls (issue 14: the device owns the clock) ------------------------------------------------
 
-def test_a_host_stall_longer_than_the_lead_costs_held_samples_never_lost_ones(tmp_path, capsys, no_leaks):
+@pytest.mark.parametrize("kind", ["canopen", "serial"])
+def test_a_host_stall_longer_than_the_lead_costs_held_samples_never_lost_ones(kind, tmp_path, capsys, no_leaks):
     """The driver's own thread pauses 300 ms at sample 100 (the lead is 50 ms = 10 samples at the test
-    rate): the device goes on sampling at its own instants, holding the last target, and every sample of
-    the stall is in the log, flagged HELD, with the command the drive really had."""
-    code, result, err, out = _rig_run("canopen", tmp_path, "stall=300@100", capsys)
+    rate): the device goes on sampling at its own instants (CANopen: the cyclic SYNC; serial v2: the
+    device's own ticks), holding the last target, and every sample of the stall is in the log, flagged
+    HELD, with the command the drive really had."""
+    code, result, err, out = _rig_run(kind, tmp_path, "stall=300@100", capsys)
     assert code == exit_codes.SUCCESS, err
     log = read_log(out)
     held = np.flatnonzero(log.flags & SampleFlag.HELD)
