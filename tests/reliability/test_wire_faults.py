@@ -266,11 +266,11 @@ def test_error_frames_are_counted_in_the_summary(tmp_path, no_leaks):
 
 # -- the host stalls (issue 14: the device owns the clock) ------------------------------------------------
 
-@pytest.mark.parametrize("kind", ["canopen", "serial"])
+@pytest.mark.parametrize("kind", ["canopen", "serial", "can"])
 def test_a_host_stall_longer_than_the_lead_costs_held_samples_never_lost_ones(kind, tmp_path, capsys, no_leaks):
     """The driver's own thread pauses 300 ms at sample 100 (the lead is 50 ms = 10 samples at the test
-    rate): the device goes on sampling at its own instants (CANopen: the cyclic SYNC; serial v2: the
-    device's own ticks), holding the last target, and every sample of the stall is in the log, flagged
+    rate): the device goes on sampling at its own instants (CANopen: the cyclic SYNC; serial and raw CAN
+    v2: the device's own ticks), holding the last target, and every sample of the stall is in the log, flagged
     HELD, with the command the drive really had."""
     code, result, err, out = _rig_run(kind, tmp_path, "stall=300@100", capsys)
     assert code == exit_codes.SUCCESS, err
