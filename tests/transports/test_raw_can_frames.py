@@ -122,3 +122,15 @@ def test_a_v1_raw_can_device_is_driven_host_paced(tmp_path, no_leaks):
                                  late_tolerance_s=config.late_tolerance_s)
         assert transport.version == 1 and transport.lead_samples == 0 and device.setpoints == 20 and device.ticks == 0
     assert len(sink.rows) == 20 and summary.held == 0 and "protocol v1" in summary.warnings[0]
+
+
+def test_protocol_v2_refuses_a_v1_raw_can_device_before_enabling_it(tmp_path, no_leaks):
+    from rig.protocols.errors import TransportError
+    from sim_rigs import simulated
+
+    with simulated("can", tmp_path, protocol_version=1) as (_, transport, _, device):
+        transport.protocol, transport.reply_timeout_s = "v2", 0.05
+        with pytest.raises(TransportError, match=r"no RIG_DEVICE_INFO answer to RIG_HELLO: the device speaks only "
+                                                 r"protocol v1"):
+            transport.prepare()
+        assert device.controlwords == [] and [name for name, _ in device.requests] == ["RIG_STATUS_REQUEST"]
