@@ -139,10 +139,11 @@ def _write_summary(sink: SampleSink, transport: Transport, failure: BaseExceptio
             raise  # otherwise what ended the run is the error to report, not this one
 
 
-def _bring_up(transport: Transport, command_rad: NDArray[np.float64]) -> None:
-    """Prepare, check the whole command from the actual position, enable. Homing can move the actual
-    position after enabling: the command is then checked again from there (a refusal stops the drive)."""
-    checked_from = transport.prepare()
+def _check_and_enable(transport: Transport, command_rad: NDArray[np.float64]) -> None:
+    """After :meth:`Transport.prepare`: check the whole command from the actual position, then enable.
+    Homing can move the actual position after enabling: the command is then checked again from there (a
+    refusal stops the drive)."""
+    checked_from = transport.initial_position_rad
     check_command(transport, command_rad)
     transport.enable()
     if transport.initial_position_rad != checked_from:
@@ -206,6 +207,17 @@ def run_experiment(transport: Transport, command_rad: ArrayLike, sink: SampleSin
         The device faulted or the link failed; the log holds every sample up to the stop.
     """
     command = as_signal("command_rad", command_rad)
+    try:
+        # a link whose handshake decides who owns the sample clock (serial v2) knows lead_samples only now
+        transport.prepare()
+    except BaseException as err:
+        try:
+            transport.close()
+            transport.note_stop(err)
+            _write_summary(sink, transport, err)
+        finally:
+            sink.close()
+        raise
     if transport.lead_samples > 0:
         return _run_device_clocked(transport, command, sink, feedback_timeout_s=feedback_timeout_s,
                                    late_tolerance_s=0.5 * transport.sample_period_s if late_tolerance_s is None
@@ -247,7 +259,7 @@ def run_experiment(transport: Transport, command_rad: ArrayLike, sink: SampleSin
     sys.setswitchinterval(min(switch_interval, period / 4))
     start = last_feedback = math.inf
     try:
-        _bring_up(transport, command)
+        _check_and_enable(transport, command)
         start = clock() + 2 * period
         catch_up_spacing = max(CATCH_UP_SPACING * period, transport.min_cycle_s)
         last_feedback = start
@@ -355,7 +367,7 @@ def _run_device_clocked(transport: Transport, command: NDArray[np.float64], sink
     switch_interval = sys.getswitchinterval()
     sys.setswitchinterval(min(switch_interval, period / 4))  # receive threads need the GIL within a period
     try:
-        _bring_up(transport, command)
+        _check_and_enable(transport, command)
         lead = transport.lead_samples
         next_seq = next_row = 0  # the next setpoint to queue; the next row (sample instant) to open
         last_feedback = clock()

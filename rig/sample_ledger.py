@@ -32,6 +32,8 @@ _LOST, _LATE, _DUPLICATE, _FAULT, _NOT_FOLLOWED, _HELD, _AMBIGUOUS = (int(flag) 
     SampleFlag.LOST, SampleFlag.LATE, SampleFlag.DUPLICATE, SampleFlag.FAULT, SampleFlag.NOT_FOLLOWED,
     SampleFlag.HELD, SampleFlag.AMBIGUOUS))
 _FAULT_STATES = (DriveState.FAULT, DriveState.FAULT_REACTION_ACTIVE)
+_MAX_EARLY = 1 << 16
+"""Samples kept for rows not yet opened, at most (a device far ahead of the host: memory stays bounded)."""
 
 
 @dataclass
@@ -69,13 +71,19 @@ class SampleLedger:
     _rows: dict[int, LedgerRow] = field(default_factory=dict)
     _order: collections.deque[int] = field(default_factory=collections.deque)
     _answered: set[int] = field(default_factory=set)
+    _early: dict[int, FeedbackSample] = field(default_factory=dict)
 
     def open_row(self, seq: int, command_rad: float, *, late: bool = False) -> LedgerRow:
-        """The row of setpoint ``seq`` (queued with ``command_rad``), LOST until its feedback is filed;
-        ``late``: a host-paced setpoint that left after its deadline (flagged LATE)."""
+        """The row of setpoint ``seq`` (queued with ``command_rad``), LOST until its feedback is filed (at
+        once if that came first: see :meth:`file`); ``late``: a host-paced setpoint that left after its
+        deadline (flagged LATE)."""
         row = LedgerRow(seq, seq * self.sample_period_s, command_rad, flags=_LOST | (_LATE if late else 0))
         self._rows[seq] = row
         self._order.append(seq)
+        early = self._early.pop(seq, None)
+        if early is not None:
+            self.counts["stale"] -= 1  # counted stale while it had no row
+            self.file(early)
         return row
 
     def answered(self, seq: int) -> bool:
@@ -92,8 +100,17 @@ class SampleLedger:
     def file(self, sample: FeedbackSample, *, late: bool = False) -> DriveState | None:
         """File one feedback sample under its number; returns the drive state its statusword shows (the
         runner stops when that is not OPERATION ENABLED). ``late``: a host-paced answer that came after
-        the next deadline (flagged LATE: the value is real, its time is not)."""
+        the next deadline (flagged LATE: the value is real, its time is not).
+
+        A sample for a number beyond the last row opened is kept until its row opens: the device passed that
+        instant before the host had queued its setpoint (a host stall longer than the lead, on a link that
+        hears of the device's instants only when the host reads; the sample says HELD)."""
         row = self._rows.get(sample.seq)
+        if row is None and sample.seq > self.last_opened:
+            if len(self._early) < _MAX_EARLY and sample.seq not in self._early:
+                self._early[sample.seq] = sample
+            self.counts["stale"] += 1  # until its row opens (never, if it answers no setpoint of this run)
+            return state_from_statusword_or_none(sample.statusword)
         if row is None:
             self.counts["stale"] += 1  # final already (LOST), or an answer to no setpoint of this run
             return None

@@ -1,14 +1,22 @@
 """A simulated rig on the raw-CAN protocol of ``configs/raw_can.dbc``: a responder on a python-can bus
 (the ``virtual`` interface in tests) around a simulated gearbox.
 
-Each RIG_SETPOINT received in OPERATION ENABLED advances the gearbox exactly one sample and is answered by
-RIG_FEEDBACK and RIG_DRIVE_FEEDBACK with the same sequence number, so a run is deterministic whatever the
-host's timing. RIG_CONTROL runs the CiA 402 state machine (:mod:`rig.protocols.cia402`).
+Protocol v2 (the default, ``protocol_version=2``; the DBC's comments on RIG_HELLO, RIG_START, RIG_DEVICE_INFO
+and RIG_TICK_APPLIED, and the serial spec's section 16, which it mirrors): after RIG_HELLO the device buffers
+RIG_SETPOINTs by tick number and, from RIG_START on, ticks at the plant's sample period on a thread of its
+own: tick k applies setpoint k (or holds the previous target, flagged HELD), steps the gearbox once and sends
+RIG_FEEDBACK, RIG_DRIVE_FEEDBACK and RIG_TICK_APPLIED for k. The gearbox stands still before tick 0, so a run
+equals the offline simulation of the commands applied, which the host logs.
+
+Protocol v1 (``protocol_version=1``, or without RIG_HELLO): each RIG_SETPOINT received in OPERATION ENABLED
+advances the gearbox exactly one sample and is answered by RIG_FEEDBACK and RIG_DRIVE_FEEDBACK with the
+same sequence number. RIG_CONTROL runs the CiA 402 state machine (:mod:`rig.protocols.cia402`).
 """
 
 from __future__ import annotations
 
 import threading
+import time
 from collections.abc import Iterable
 
 import can
@@ -16,6 +24,7 @@ import can
 from rig.protocols import cia402
 from rig.protocols.can_bus_load import frame_bits
 from rig.protocols.raw_can_frames import DEFAULT_DBC, RawCanCodec
+from rig.protocols.serial_frames import unwrap_seq
 from sim_backend.plant import SimulatedGearbox
 
 __all__ = ["SimulatedRawCanDevice"]
@@ -46,13 +55,34 @@ class SimulatedRawCanDevice(can.Listener):
     lost_status_after_enable
         This many RIG_STATUS answers from the transition to OPERATION ENABLED on are lost; the host sends
         the request again with the same ``seq``, which the device answers without applying it twice.
+    protocol_version, buffer_capacity, sample_period_s
+        2 (default): answers RIG_HELLO and ticks on its own clock in v2 mode, buffering ``buffer_capacity``
+        setpoints, every ``sample_period_s`` (default: the gearbox's); 1: a v1 device, which ignores RIG_HELLO
+        and RIG_START. In v2 mode the sample numbers of the fault options are tick numbers.
     """
 
     def __init__(self, gearbox: SimulatedGearbox, *, channel: str, drive_counts_per_revolution: int = 1 << 17,
                  dbc_path: str = str(DEFAULT_DBC), bitrate: int = 1_000_000, silent_seqs: Iterable[int] = (),
                  fault_at_seq: int | None = None, fault_code: int = 0x7500,
                  disable_at_seq: int | None = None, error_frame_at: tuple[int, int] | None = None,
-                 lost_status_after_enable: int = 0) -> None:
+                 lost_status_after_enable: int = 0, protocol_version: int = 2, buffer_capacity: int = 64,
+                 sample_period_s: float | None = None) -> None:
+        if protocol_version not in (1, 2):
+            raise ValueError(f"protocol_version: expected 1 or 2, got {protocol_version!r}")
+        if not 1 <= int(buffer_capacity) <= 255:
+            raise ValueError(f"buffer_capacity: expected 1..255 setpoints, got {buffer_capacity!r}")
+        self.protocol_version, self.buffer_capacity = int(protocol_version), int(buffer_capacity)
+        self.sample_period_s = float(gearbox.sample_period_s if sample_period_s is None else sample_period_s)
+        self.mode = 1
+        self.buffer: dict[int, int] = {}
+        self.ticks = 0
+        self.held_ticks = 0
+        self.dropped_setpoints = 0
+        self.target_counts = 0
+        self._ticking_since: float | None = None
+        self._last_start_seq: int | None = None
+        self._stop = threading.Event()
+        self._tick_thread: threading.Thread | None = None
         self.gearbox = gearbox
         self.channel = channel
         self.drive = cia402.DriveScaling(int(drive_counts_per_revolution))
@@ -79,14 +109,23 @@ class SimulatedRawCanDevice(can.Listener):
         self._bus: can.BusABC | None = None
         self._notifier: can.Notifier | None = None
         self._lock = threading.Lock()
+        self._state_lock = threading.RLock()  # the notifier and the tick thread share the drive's state
 
     def start(self) -> SimulatedRawCanDevice:
         self._bus = can.Bus(interface="virtual", channel=self.channel, receive_own_messages=False)
         self._notifier = can.Notifier(self._bus, [self], timeout=0.05)
+        if self.protocol_version >= 2:
+            self._stop.clear()
+            self._tick_thread = threading.Thread(target=self._tick_loop, name=f"sim-can-tick-{self.channel}", daemon=True)
+            self._tick_thread.start()
         return self
 
     def close(self) -> None:
-        """Stop the receive thread and leave the bus (idempotent)."""
+        """Stop the receive and tick threads and leave the bus (idempotent)."""
+        self._stop.set()
+        if self._tick_thread is not None:
+            self._tick_thread.join(timeout=2.0)
+            self._tick_thread = None
         if self._notifier is not None:
             self._notifier.stop()
             self._notifier = None
@@ -111,6 +150,10 @@ class SimulatedRawCanDevice(can.Listener):
             self.bits += frame_bits(msg.dlc, extended=msg.is_extended_id)
 
     def on_message_received(self, msg: can.Message) -> None:
+        with self._state_lock:
+            self._on_message(msg)
+
+    def _on_message(self, msg: can.Message) -> None:
         self._count(msg)
         try:
             decoded = self.codec.decode(msg)
@@ -128,9 +171,27 @@ class SimulatedRawCanDevice(can.Listener):
                 previous_state = self.state
                 self.state = cia402.next_state(self.state, controlword, self.controlword)
                 self.controlword = controlword
+                if previous_state is cia402.DriveState.OPERATION_ENABLED and self.state is not previous_state:
+                    self._end_session()
                 if self.state is cia402.DriveState.OPERATION_ENABLED and previous_state is not self.state:
                     self._to_lose = self.lost_status_after_enable  # the target starts at the actual position
+                    self.target_counts = self.actual_counts
             self._status(signals["seq"])
+        elif name == "RIG_HELLO" and self.protocol_version >= 2:
+            self.requests.append((name, signals["seq"]))
+            if self.state is not cia402.DriveState.OPERATION_ENABLED:
+                self.mode = max(1, min(signals["version"], self.protocol_version))
+            self._send("RIG_DEVICE_INFO", seq=signals["seq"], version=self.mode, buffer_capacity=self.buffer_capacity,
+                       sample_period_ns=round(self.sample_period_s * 1e9))
+        elif name == "RIG_START" and self.protocol_version >= 2:
+            self.requests.append((name, signals["seq"]))
+            if (signals["seq"] != self._last_start_seq and self.mode >= 2 and self._ticking_since is None
+                    and self.state is cia402.DriveState.OPERATION_ENABLED):
+                self._ticking_since = time.perf_counter()  # tick 0 is now
+            self._last_start_seq = signals["seq"]
+            self._status(signals["seq"])
+        elif name == "RIG_SETPOINT" and self.mode >= 2:
+            self._queue_setpoint(signals["seq"], signals["target_counts"])
         elif name == "RIG_STATUS_REQUEST":
             self.requests.append((name, signals["seq"]))
             self._status(signals["seq"])
@@ -169,3 +230,70 @@ class SimulatedRawCanDevice(can.Listener):
         statusword = cia402.statusword_for(self.state, target_reached=True)
         self._send("RIG_FEEDBACK", seq=seq, statusword=statusword, encoder_counts=sample.encoder_counts & 0xFFFFFFFF)
         self._send("RIG_DRIVE_FEEDBACK", seq=seq, actual_counts=self.actual_counts)
+
+    # -- protocol v2: the device's own tick clock ------------------------------------------------------------
+
+    def _end_session(self) -> None:
+        self._ticking_since = None
+        self.buffer.clear()
+        self.mode = 1
+
+    def _queue_setpoint(self, seq: int, target_counts: int) -> None:
+        if self.state is not cia402.DriveState.OPERATION_ENABLED:
+            return
+        k = unwrap_seq(seq, self.ticks)
+        if k < self.ticks or (k not in self.buffer and len(self.buffer) >= self.buffer_capacity):
+            self.dropped_setpoints += 1  # too late (its tick has passed) or the buffer is full: that tick is HELD
+            return
+        self.buffer[k] = target_counts
+
+    def _tick_loop(self) -> None:
+        """Tick k at ``START + k T`` (absolute deadlines: a late wake-up catches up)."""
+        while not self._stop.is_set():
+            with self._state_lock:
+                since = self._ticking_since
+                due = None if since is None else since + self.ticks * self.sample_period_s
+            wait_s = 0.02 if due is None else min(0.02, due - time.perf_counter())
+            if wait_s > 0:
+                self._stop.wait(wait_s)
+                continue
+            with self._state_lock:
+                if self._ticking_since == since:
+                    self.tick()
+
+    def tick(self) -> None:
+        """Run the next tick k (v2): apply setpoint k or hold the previous target (HELD), step the gearbox once,
+        send the tick's three frames. Public so that tests can script ticks without the thread."""
+        with self._state_lock:
+            if self._ticking_since is None or self.state is not cia402.DriveState.OPERATION_ENABLED:
+                return
+            k = self.ticks
+            self.ticks += 1
+            if self.error_frame_at is not None and k == self.error_frame_at[1]:
+                self._bus.send(can.Message(arbitration_id=self.error_frame_at[0], is_error_frame=True, dlc=8,
+                                           data=bytes(8), is_extended_id=False))
+            if self.fault_at_seq is not None and k == self.fault_at_seq:
+                self.state = cia402.DriveState.FAULT
+                self._end_session()
+                self._send("RIG_FAULT", error_code=self.fault_code)
+                return
+            if self.disable_at_seq is not None and k == self.disable_at_seq:
+                self.state = cia402.DriveState.SWITCH_ON_DISABLED
+                self._end_session()
+                self._tick_frames(k, cia402.statusword_for(self.state), 0)
+                return
+            held = k not in self.buffer
+            self.target_counts = self.target_counts if held else self.buffer.pop(k)
+            sample = self.gearbox.step(self.drive.rad_from_counts(self.target_counts))
+            self.encoder_counts = sample.encoder_counts
+            self.actual_counts = self.target_counts
+            self.setpoints += 1
+            self.held_ticks += held
+            if (k & 0xFFFF) not in self.silent_seqs:
+                self._tick_frames(k, cia402.statusword_for(self.state, target_reached=True), 1 if held else 0)
+
+    def _tick_frames(self, k: int, statusword: int, flags: int) -> None:
+        self._send("RIG_FEEDBACK", seq=k, statusword=statusword, encoder_counts=self.encoder_counts & 0xFFFFFFFF)
+        self._send("RIG_DRIVE_FEEDBACK", seq=k, actual_counts=self.actual_counts)
+        self._send("RIG_TICK_APPLIED", seq=k, applied_counts=self.target_counts, tick_flags=flags,
+                   buffer_level=len(self.buffer))

@@ -1,8 +1,17 @@
 """A simulated rig behind a serial port: the device side of ``docs/serial_protocol.md`` on a pty pair.
 
 The host opens :attr:`SimulatedSerialDevice.port` (``/dev/pts/N``) with pyserial as it would open
-``/dev/ttyUSB0``. Each SETPOINT frame advances the simulated gearbox exactly one sample and is answered by
-one FEEDBACK frame with the same sequence number, so a run is deterministic whatever the host's timing.
+``/dev/ttyUSB0``.
+
+Protocol v2 (the default, ``protocol_version=2``; spec section 16): a HELLO puts the device in v2 mode; it
+queues SETPOINTs by tick number in a buffer of ``buffer_capacity`` setpoints and, from START on, ticks at
+the plant's own sample period on a thread of its own: at tick k it applies setpoint k (or holds the previous
+target, flagged HELD, when k is not in the buffer), steps the gearbox once and sends TICK k. The gearbox is
+stepped once per tick from tick 0 on and stands exactly still before it, so a run equals the offline
+simulation of the commands the device applied (which the host logs), whatever the host's timing.
+
+Protocol v1 (``protocol_version=1``, or a v2 device that got no HELLO): each SETPOINT frame advances the
+simulated gearbox exactly one sample and is answered by one FEEDBACK frame with the same sequence number.
 """
 
 from __future__ import annotations
@@ -17,7 +26,9 @@ import tty
 from collections.abc import Iterable
 
 from rig.protocols import cia402
-from rig.protocols.serial_frames import FrameDecoder, MessageType, SerialMessage, encode_frame
+from rig.protocols.serial_frames import (
+    PROTOCOL_VERSION, TICK_HELD, FrameDecoder, MessageType, SerialMessage, encode_frame, unwrap_seq,
+)
 from sim_backend.plant import SimulatedGearbox
 
 __all__ = ["SimulatedSerialDevice"]
@@ -77,6 +88,16 @@ class SimulatedSerialDevice:
     fault_frame_lost
         The FAULT frame of ``fault_at_seq`` is lost on the line; the host sees only the faulted
         statusword (in that sample's FEEDBACK) and must read the code with ERROR_REQUEST.
+
+    Protocol v2 (sample numbers in the fault options above are tick numbers in v2 mode):
+
+    protocol_version
+        2 (default): the device answers HELLO and runs its own tick clock in v2 mode; 1: a v1 device, which
+        drops HELLO and START as unknown types.
+    buffer_capacity
+        Setpoints the device's buffer holds (v2), reported in DEVICE_INFO.
+    sample_period_s
+        The device's tick period (default: the gearbox's sample period), reported in DEVICE_INFO.
     """
 
     def __init__(self, gearbox: SimulatedGearbox, *, drive_counts_per_revolution: int = 1 << 17,
@@ -87,7 +108,24 @@ class SimulatedSerialDevice:
                  status_delay_s: float = 0.0, fault_reset_delay_s: float = 0.0, boot_fault_code: int | None = None,
                  lost_status_after_enable: int = 0, boot_banner: bytes = b"", copy_target_at_enable: bool = True,
                  following_error_counts: int | None = None, initial_actual_counts: int = 0,
-                 fault_frame_lost: bool = False) -> None:
+                 fault_frame_lost: bool = False, protocol_version: int = PROTOCOL_VERSION, buffer_capacity: int = 64,
+                 sample_period_s: float | None = None) -> None:
+        if protocol_version not in (1, 2):
+            raise ValueError(f"protocol_version: expected 1 or 2, got {protocol_version!r}")
+        if not 1 <= int(buffer_capacity) <= 0xFFFF:
+            raise ValueError(f"buffer_capacity: expected 1..65535 setpoints, got {buffer_capacity!r}")
+        self.protocol_version = int(protocol_version)
+        self.buffer_capacity = int(buffer_capacity)
+        self.sample_period_s = float(gearbox.sample_period_s if sample_period_s is None else sample_period_s)
+        self.mode = 1  # the protocol of this session: 2 from an answered HELLO until the drive leaves OPERATION ENABLED
+        self.buffer: dict[int, int] = {}  # v2: tick -> target counts
+        self.ticks = 0  # v2: the next tick's number (ticks done)
+        self.held_ticks = 0
+        self.dropped_setpoints = 0  # v2: late (tick passed) or beyond the buffer's capacity
+        self._ticking_since: float | None = None  # v2: host time of tick 0 (START), None: not ticking
+        self._lock = threading.RLock()  # the serve and tick threads share the drive's state
+        self._write_lock = threading.Lock()
+        self._delayed_ticks: collections.deque[tuple[float, bytes]] = collections.deque()
         self.gearbox = gearbox
         self.drive = cia402.DriveScaling(int(drive_counts_per_revolution))
         self.silent_seqs = frozenset(int(seq) & 0xFFFF for seq in silent_seqs)
@@ -110,6 +148,7 @@ class SimulatedSerialDevice:
         self.copy_target_at_enable = bool(copy_target_at_enable)
         self.following_error_counts = following_error_counts
         self.fault_frame_lost = bool(fault_frame_lost)
+        self._last_start_seq: int | None = None
         self.lost_answers = 0
         self._to_lose = 0
         self._last_control_seq: int | None = None
@@ -130,19 +169,27 @@ class SimulatedSerialDevice:
         tty.setraw(self._slave_fd)
         self.port = os.ttyname(self._slave_fd)
         self._stop = threading.Event()
+        self._wake = threading.Event()  # START or the stop: the tick thread looks again
         self._thread: threading.Thread | None = None
+        self._tick_thread: threading.Thread | None = None
 
     def start(self) -> SimulatedSerialDevice:
         self._thread = threading.Thread(target=self._serve, name=f"sim-serial-{self.port}", daemon=True)
         self._thread.start()
+        if self.protocol_version >= 2:
+            self._tick_thread = threading.Thread(target=self._tick_loop, name=f"sim-serial-tick-{self.port}", daemon=True)
+            self._tick_thread.start()
         return self
 
     def close(self) -> None:
-        """Stop the device thread and close the pty (idempotent)."""
+        """Stop the device threads and close the pty (idempotent)."""
         self._stop.set()
-        if self._thread is not None:
-            self._thread.join(timeout=2.0)
-            self._thread = None
+        self._wake.set()
+        for name in ("_thread", "_tick_thread"):
+            thread = getattr(self, name)
+            if thread is not None:
+                thread.join(timeout=2.0)
+                setattr(self, name, None)
         for fd_name in ("_master_fd", "_slave_fd"):
             fd = getattr(self, fd_name)
             if fd is not None:
@@ -161,20 +208,27 @@ class SimulatedSerialDevice:
         delayed: collections.deque[tuple[float, bytes]] = collections.deque()  # (due time, reply), in order
         while not self._stop.is_set():
             timeout_s = 0.05 if not delayed else min(0.05, max(0.0, delayed[0][0] - time.perf_counter()))
-            ready, _, _ = select.select([self._master_fd], [], [], timeout_s)
+            fd = self._master_fd
+            if fd is None:
+                return  # unplugged (by the tick thread)
+            try:
+                ready, _, _ = select.select([fd], [], [], timeout_s)
+            except (OSError, ValueError):
+                return
             while delayed and delayed[0][0] <= time.perf_counter():
-                os.write(self._master_fd, delayed.popleft()[1])
+                self._write(delayed.popleft()[1])
             if not ready:
                 continue
             try:
-                data = os.read(self._master_fd, 4096)
+                data = os.read(fd, 4096)
             except OSError:
                 return
             for message in self._decoder.feed(data):
                 if self._unplugs_at(message):
                     self._unplug()
                     return
-                reply = self.handle(message)
+                with self._lock:
+                    reply = self.handle(message)
                 if not reply:
                     continue
                 reply = self._line_noise(reply)
@@ -188,21 +242,146 @@ class SimulatedSerialDevice:
                     lag = max(lag, self.status_delay_s)
                 if lag:
                     delayed.append((time.perf_counter() + lag, reply))  # latency, not throughput
-                else:
-                    os.write(self._master_fd, reply)
+                elif not self._write(reply):
+                    return
             self.frame_errors = self._decoder.errors
 
+    def _write(self, data: bytes) -> bool:
+        """Write whole frames (the serve and tick threads both write); False once the port is gone."""
+        with self._write_lock:
+            if self._master_fd is None:
+                return False
+            try:
+                os.write(self._master_fd, data)
+            except OSError:
+                return False
+        return True
+
+    # -- protocol v2: the device's own tick clock ------------------------------------------------------------
+
+    def _tick_loop(self) -> None:
+        """Tick k at ``START + k T`` (absolute deadlines: a late wake-up catches up, it does not shift later
+        ticks); TICK frames with a reply lag leave from here too, in order."""
+        while not self._stop.is_set():
+            with self._lock:
+                since, due = self._ticking_since, None
+                if since is not None:
+                    due = since + self.ticks * self.sample_period_s
+            wake = [when for when in (due, self._delayed_ticks[0][0] if self._delayed_ticks else None) if when]
+            timeout_s = 0.05 if not wake else min(0.05, max(0.0, min(wake) - time.perf_counter()))
+            if timeout_s > 0:
+                self._wake.wait(timeout_s)
+                self._wake.clear()
+            now = time.perf_counter()
+            while self._delayed_ticks and self._delayed_ticks[0][0] <= now:
+                self._write(self._delayed_ticks.popleft()[1])
+            if due is None or now < due:
+                continue
+            with self._lock:
+                if self._ticking_since != since:
+                    continue  # stopped (or restarted) meanwhile
+                if self.unplug_at_seq is not None and self.ticks == self.unplug_at_seq:
+                    self._unplug()
+                    return
+                lagged = self.reply_lag is not None and self.ticks > self.reply_lag[1]
+                frames = self.tick()
+            if not frames:
+                continue
+            frames = self._line_noise(frames)
+            if lagged:
+                self._delayed_ticks.append((now + self.reply_lag[0], frames))
+            elif not self._write(frames):
+                return
+
+    def tick(self) -> bytes:
+        """Run the device's next tick k (v2): apply setpoint k from the buffer, or hold the previous target
+        and flag the tick HELD; step the gearbox once; return the TICK frame (and a FAULT frame before it).
+        Public so that tests can script ticks without the thread."""
+        with self._lock:
+            if self._ticking_since is None or self.state is not cia402.DriveState.OPERATION_ENABLED:
+                return b""
+            k = self.ticks
+            self.ticks += 1
+            for stale in [seq for seq in self.buffer if seq < k]:  # cannot happen: refused on arrival
+                del self.buffer[stale]
+            if self.fault_at_seq is not None and k == self.fault_at_seq:
+                fault = self._fault(self.fault_code)
+                self._end_session()
+                tick = self._tick_frame(k, self._statusword(), self.target_counts, 0)
+                return tick if self.fault_frame_lost else fault + tick
+            if self.disable_at_seq is not None and k == self.disable_at_seq:
+                self.state = cia402.DriveState.SWITCH_ON_DISABLED
+                self._end_session()
+                return self._tick_frame(k, cia402.statusword_for(self.state), self.target_counts, 0)
+            held = k not in self.buffer
+            target = self.target_counts if held else self.buffer.pop(k)
+            fault = self._servo_to(target)
+            if fault:
+                self._end_session()
+                return fault + self._tick_frame(k, self._statusword(), self.target_counts, 0)
+            self.target_counts = target
+            sample = self.gearbox.step(self.drive.rad_from_counts(target))
+            self.encoder_counts = sample.encoder_counts
+            self.setpoints += 1
+            self.held_ticks += held
+            if (k & 0xFFFF) in self.silent_seqs:
+                return b""
+            return self._tick_frame(k, self._statusword() | cia402.STATUSWORD_TARGET_REACHED, target,
+                                    TICK_HELD if held else 0)
+
+    def _tick_frame(self, k: int, statusword: int, applied_counts: int, flags: int) -> bytes:
+        return encode_frame(MessageType.TICK, k, statusword, self.actual_counts, self.encoder_counts & 0xFFFFFFFF,
+                            applied_counts, flags, len(self.buffer))
+
+    def _end_session(self) -> None:
+        """The drive left OPERATION ENABLED: the tick clock stops, the buffer empties, and the device is back
+        in v1 mode until the next HELLO."""
+        self._ticking_since = None
+        self.buffer.clear()
+        self.mode = 1
+
+    def _hello(self, message: SerialMessage) -> bytes:
+        (host_version,) = message.fields
+        if self.state is not cia402.DriveState.OPERATION_ENABLED:  # the mode changes only while not enabled
+            self.mode = max(1, min(int(host_version), self.protocol_version))
+        return encode_frame(MessageType.DEVICE_INFO, message.seq, self.mode, self.buffer_capacity,
+                            round(self.sample_period_s * 1e9))
+
+    def _start(self, message: SerialMessage) -> bytes:
+        if (message.seq != self._last_start_seq and self.mode >= 2 and self._ticking_since is None
+                and self.state is cia402.DriveState.OPERATION_ENABLED):
+            self._ticking_since = time.perf_counter()  # tick 0 is now
+            self._wake.set()
+        self._last_start_seq = message.seq
+        return self._status(message.seq)
+
+    def _queue_setpoint(self, message: SerialMessage) -> bytes:
+        """v2: SETPOINT k goes into the buffer for tick k; one for a tick that has passed, or beyond the
+        buffer's capacity, is dropped (the tick it was for is HELD)."""
+        if self.state is not cia402.DriveState.OPERATION_ENABLED:
+            return b""
+        k = unwrap_seq(message.seq, self.ticks)
+        if k < self.ticks or (k not in self.buffer and len(self.buffer) >= self.buffer_capacity):
+            self.dropped_setpoints += 1
+            return b""
+        self.buffer[k] = message.fields[0]
+        return b""
+
     def _unplugs_at(self, message: SerialMessage) -> bool:
-        return (self.unplug_at_seq is not None and message.type is MessageType.SETPOINT
-                and message.seq == self.unplug_at_seq & 0xFFFF)
+        return (self.unplug_at_seq is not None and message.type is MessageType.SETPOINT and self.mode < 2
+                and message.seq == self.unplug_at_seq & 0xFFFF)  # v2: at tick unplug_at_seq (_tick_loop)
 
     def _unplug(self) -> None:
         """The port disappears; the drive's link watchdog disables it (a real drive's communication
         watchdog, e.g. CiA 402 0x6007 abort connection option code)."""
-        self.state = cia402.DriveState.SWITCH_ON_DISABLED
-        self.unplugged = True
-        fd, self._master_fd = self._master_fd, None
-        os.close(fd)
+        with self._lock:
+            self.state = cia402.DriveState.SWITCH_ON_DISABLED
+            self._end_session()
+            self.unplugged = True
+        with self._write_lock:
+            fd, self._master_fd = self._master_fd, None
+        if fd is not None:
+            os.close(fd)
 
     def _line_noise(self, reply: bytes) -> bytes:
         """The reply as the line delivers it: maybe one bit flipped (not in the 0x00 delimiter, so the
@@ -234,9 +413,15 @@ class SimulatedSerialDevice:
         if message.type is MessageType.ERROR_REQUEST:
             self.requests.append((message.type, message.seq))
             return encode_frame(MessageType.ERROR, message.seq, self.error_code)
+        if self.protocol_version >= 2 and message.type is MessageType.HELLO:
+            self.requests.append((message.type, message.seq))
+            return self._hello(message)
+        if self.protocol_version >= 2 and message.type is MessageType.START:
+            self.requests.append((message.type, message.seq))
+            return self._start(message)
         if message.type is MessageType.SETPOINT:
-            return self._setpoint(message)
-        return b""
+            return self._queue_setpoint(message) if self.mode >= 2 else self._setpoint(message)
+        return b""  # v1: HELLO and START are unknown types, dropped unanswered
 
     def _control(self, controlword: int) -> bytes:
         """Apply a controlword; returns a FAULT frame if the transition faulted the drive."""
@@ -252,6 +437,8 @@ class SimulatedSerialDevice:
                     self._reset_due = time.perf_counter() + self.fault_reset_delay_s
             else:
                 self.error_code = 0
+        if previous_state is cia402.DriveState.OPERATION_ENABLED and self.state is not previous_state:
+            self._end_session()
         if self.state is cia402.DriveState.OPERATION_ENABLED and previous_state is not self.state:
             self._to_lose = self.lost_status_after_enable
             if self.copy_target_at_enable:

@@ -21,6 +21,16 @@ Message types (host -> device below 0x80, device -> host from 0x80)::
     0x83 FAULT       seq = 0               body: error_code:u16 (CiA 402 0x603F codes)
     0x84 ERROR       seq = request number  body: error_code:u16 (0x0000: no error)
 
+Protocol v2 (the device owns the sample clock; a v1 device drops these types as unknown)::
+
+    0x05 HELLO       seq = request number  body: version:u8 (the highest the host speaks, 2)
+    0x06 START       seq = request number  (no body; answered by STATUS): the device's tick 0 is now
+    0x85 DEVICE_INFO seq = request number  body: version:u8, buffer_capacity:u16, sample_period_ns:u32
+    0x86 TICK        seq = tick number k   body: statusword:u16, actual_counts:i32, encoder_counts:u32,
+                                                 applied_counts:i32, tick_flags:u8, buffer_level:u16
+
+In v2, SETPOINT's seq is the device tick k it is for (queued in the device's buffer until tick k).
+
 The encoder value is the position value in its low n+m bits: zero-extended to 32 bits for an unsigned
 encoder, sign-extended (a 32-bit two's complement) for a signed one (decode with ``signed=True``).
 Request numbers run 1..65535 (0 is never a request: it marks unprompted STATUS); a request whose answer
@@ -38,7 +48,7 @@ from enum import IntEnum
 from rig.protocols.can_bus_load import BusLoad
 
 __all__ = [
-    "FrameDecoder", "FrameError", "MessageType", "SerialMessage", "UART_BITS_PER_BYTE", "cobs_decode", "cobs_encode",
+    "FrameDecoder", "FrameError", "MessageType", "PROTOCOL_VERSION", "SerialMessage", "TICK_HELD", "UART_BITS_PER_BYTE", "cobs_decode", "cobs_encode",
     "crc16", "decode_frame", "encode_frame", "frame_bytes_on_wire", "link_load", "unwrap_seq",
 ]
 
@@ -56,10 +66,20 @@ class MessageType(IntEnum):
     CONTROL = 0x02
     STATUS_REQUEST = 0x03
     ERROR_REQUEST = 0x04
+    HELLO = 0x05
+    START = 0x06
     FEEDBACK = 0x81
     STATUS = 0x82
     FAULT = 0x83
     ERROR = 0x84
+    DEVICE_INFO = 0x85
+    TICK = 0x86
+
+
+PROTOCOL_VERSION = 2
+"""The highest protocol version this host speaks (``docs/serial_protocol.md``, section 16)."""
+TICK_HELD = 0x01
+"""TICK ``tick_flags`` bit 0: no setpoint for this tick was in the buffer; the device held the previous target."""
 
 
 _BODY_FORMATS: dict[MessageType, struct.Struct] = {
@@ -71,6 +91,10 @@ _BODY_FORMATS: dict[MessageType, struct.Struct] = {
     MessageType.STATUS: struct.Struct("<Hi"),
     MessageType.FAULT: struct.Struct("<H"),
     MessageType.ERROR: struct.Struct("<H"),
+    MessageType.HELLO: struct.Struct("<B"),
+    MessageType.START: struct.Struct("<"),
+    MessageType.DEVICE_INFO: struct.Struct("<BHI"),
+    MessageType.TICK: struct.Struct("<HiIiBH"),
 }
 _HEADER = struct.Struct("<BH")
 _CRC = struct.Struct("<H")

@@ -5,10 +5,18 @@ Per sample the host sends RIG_SETPOINT with the sample number; the device answer
 every answer is attributed to its sample exactly. Bring-up walks the CiA 402 state machine with
 RIG_CONTROL frames (each answered by RIG_STATUS); RIG_FAULT from the device stops the run.
 The receive side runs in the caller's thread (``bus.recv``): no background threads.
+
+Protocol v2 (the DBC's comments on RIG_HELLO, RIG_START, RIG_DEVICE_INFO, RIG_TICK_APPLIED; the serial
+spec's section 16, which it mirrors): the device owns the sample clock. :meth:`_prepare` sends RIG_HELLO; a
+device answering RIG_DEVICE_INFO with version 2 buffers RIG_SETPOINTs by tick number, ticks from RIG_START
+on at its own period, and reports each tick k with RIG_FEEDBACK, RIG_DRIVE_FEEDBACK and RIG_TICK_APPLIED
+(the target in force, HELD, the buffer level). A device that does not answer (a v1 device), or a DBC without
+the v2 frames, is driven host-paced, the v1 way, unless ``protocol = "v2"``.
 """
 
 from __future__ import annotations
 
+import math
 import time
 from typing import Any
 
@@ -20,6 +28,9 @@ from rig.protocols.serial_frames import unwrap_seq
 from rig.transports.base import FeedbackSample, Setpoint, Transport, check_trace_path
 
 __all__ = ["RawCanTransport"]
+
+_PROTOCOLS = ("auto", "v1", "v2")
+_V2_MESSAGES = ("RIG_HELLO", "RIG_START", "RIG_DEVICE_INFO", "RIG_TICK_APPLIED")
 
 
 class RawCanTransport(Transport):
@@ -41,12 +52,22 @@ class RawCanTransport(Transport):
     trace_path
         Write every frame sent and received to this file with python-can's writers (``.blf``, ``.asc``,
         ``.log``, ``.csv``, ``.trc``; not ``.db``).
+    protocol
+        ``"auto"`` (default): v2 if the device answers RIG_HELLO, else v1 (host-paced, with a warning); ``"v2"``:
+        refuse a device that does not; ``"v1"``: send no RIG_HELLO.
+    lead_s
+        v2: how far ahead of the device's ticks setpoints are queued (default 50 ms), at most its buffer.
     """
 
     def __init__(self, interface: str, channel: str, *, bitrate: int = 1_000_000, dbc: str = str(DEFAULT_DBC),
                  reply_timeout_s: float = 0.5, reply_retries: int = 3, trace_path: str | None = None,
-                 **kwargs: Any) -> None:
+                 protocol: str = "auto", lead_s: float = 0.05, **kwargs: Any) -> None:
         super().__init__(**kwargs)
+        if protocol not in _PROTOCOLS:
+            raise ConfigError("<transport>", "protocol", f"expected one of {', '.join(map(repr, _PROTOCOLS))}, got {protocol!r}")
+        if not (math.isfinite(lead_s) and lead_s > 0):
+            raise ConfigError("<transport>", "lead_s", f"expected a lead > 0 s, got {lead_s!r}")
+        self.protocol, self.lead_s = protocol, float(lead_s)
         self.interface, self.channel, self.bitrate = interface, channel, int(bitrate)
         self.reply_timeout_s = float(reply_timeout_s)
         self.reply_retries = int(reply_retries)
@@ -58,13 +79,17 @@ class RawCanTransport(Transport):
         except ValueError as err:
             raise ConfigError("<transport>", "dbc", str(err)) from err
         lengths = self.codec.lengths
-        self.load = bus_load((lengths["RIG_SETPOINT"], lengths["RIG_FEEDBACK"], lengths["RIG_DRIVE_FEEDBACK"]),
-                             1.0 / self.sample_period_s, self.bitrate)
+        self.speaks_v2 = protocol != "v1" and all(name in lengths for name in _V2_MESSAGES)
+        cycle = ["RIG_SETPOINT", "RIG_FEEDBACK", "RIG_DRIVE_FEEDBACK"] + (["RIG_TICK_APPLIED"] if self.speaks_v2 else [])
+        self.load = bus_load(tuple(lengths[name] for name in cycle), 1.0 / self.sample_period_s, self.bitrate)
         if self.load.load > 1.0:
             raise ConfigError("<transport>", "bitrate", (
                 f"{self.bitrate} bit/s cannot carry {1 / self.sample_period_s:g} Hz: one cycle takes "
                 f"{self.load.bits_per_cycle} bit ({100 * self.load.load:.0f}% load); the limit is "
-                f"{self.load.max_rate_hz:.0f} Hz"))
+                f"{self.load.max_rate_hz:.0f} Hz" + (" (protocol v2, 4 frames a cycle; protocol = \"v1\" needs 3)"
+                                                     if self.speaks_v2 else "")))
+        if protocol == "v2" and not self.speaks_v2:
+            raise ConfigError("<transport>", "dbc", f"protocol = \"v2\" needs the frames {', '.join(_V2_MESSAGES)} in {dbc}")
         self.trace_path = check_trace_path(trace_path)
         self._trace = None
         self._bus = None
@@ -72,6 +97,35 @@ class RawCanTransport(Transport):
         self._status: dict[int, dict[str, int]] = {}
         self._parts: dict[int, dict[str, Any]] = {}
         self._last_seq = 0
+        self._reset_clock()
+
+    def _reset_clock(self) -> None:
+        self.version, self.buffer_capacity = 1, 0
+        self._started = self._queued_any = False
+        self._device_sample = -1
+        self._tick_origin_s = math.inf
+        self._queued_at: dict[int, float] = {}
+        self._min_lead_s = math.inf
+        self._fault_sample: int | None = None
+        self._info: dict[int, dict[str, int]] = {}
+
+    @property
+    def lead_samples(self) -> int:
+        if self.version < 2:
+            return 0
+        return min(self.buffer_capacity, max(1, math.ceil(self.lead_s / self.sample_period_s - 1e-9)))
+
+    @property
+    def device_sample(self) -> int:
+        return self._device_sample
+
+    @property
+    def min_lead_s(self) -> float:
+        return self._min_lead_s if math.isfinite(self._min_lead_s) else math.nan
+
+    @property
+    def fault_sample(self) -> int | None:
+        return self._fault_sample
 
     # -- seam ----------------------------------------------------------------------------------------------
 
@@ -91,7 +145,39 @@ class RawCanTransport(Transport):
             self._trace = can.Logger(self.trace_path)
 
     def _prepare(self) -> float:
-        return self.drive.rad_from_counts(self._request_reply("RIG_STATUS_REQUEST")["actual_counts"])
+        position = self.drive.rad_from_counts(self._request_reply("RIG_STATUS_REQUEST")["actual_counts"])
+        self._negotiate()
+        return position
+
+    def _negotiate(self) -> None:
+        """RIG_HELLO -> RIG_DEVICE_INFO, before anything enabling (as serial v2, spec section 16.2)."""
+        self._reset_clock()
+        if not self.speaks_v2:
+            return
+        try:
+            info = self._request_reply("RIG_HELLO", answer="RIG_DEVICE_INFO", attempts=2, version=2)
+        except TransportError:
+            if self.protocol == "v2":
+                raise TransportError(f"{self.name}: no RIG_DEVICE_INFO answer to RIG_HELLO: the device speaks only "
+                                     "protocol v1; set [transport] protocol = \"auto\" to drive it host-paced") from None
+            self.warnings.append("the device did not answer RIG_HELLO: driven as a protocol v1 device (host-paced; the "
+                                 "host's timing decides the sample instants)")
+            return
+        version, capacity, period_ns = info["version"], info["buffer_capacity"], info["sample_period_ns"]
+        if version > 2 or version < 1:
+            raise TransportError(f"{self.name}: RIG_DEVICE_INFO says protocol version {version}; the host asked for 2")
+        if version < 2:
+            if self.protocol == "v2":
+                raise TransportError(f"{self.name}: the device answers RIG_HELLO with version {version}; "
+                                     "protocol = \"v2\" needs 2")
+            return
+        if not math.isclose(period_ns * 1e-9, self.sample_period_s, rel_tol=1e-6, abs_tol=1e-9):
+            raise ConfigError("<transport>", "sample_rate_hz", (
+                f"{1 / self.sample_period_s:g} Hz, but the device ticks every {period_ns} ns (RIG_DEVICE_INFO): set "
+                "sample_rate_hz to the device's rate"))
+        if capacity < 1:
+            raise TransportError(f"{self.name}: RIG_DEVICE_INFO reports a setpoint buffer of {capacity}")
+        self.version, self.buffer_capacity = 2, int(capacity)
 
     def _write_controlword(self, controlword: int) -> None:
         self._request_reply("RIG_CONTROL", controlword=controlword)
@@ -103,8 +189,18 @@ class RawCanTransport(Transport):
         self._transmit(self.codec.encode("RIG_SETPOINT", seq=setpoint.seq,
                                          target_counts=self.drive.counts_from_rad(setpoint.position_rad)))
         self._last_seq = setpoint.seq
+        if self.version >= 2:
+            now = time.perf_counter()
+            self._queued_any = True
+            if setpoint.seq <= self._device_sample:  # its tick has passed: dropped by the device, HELD
+                self._min_lead_s = min(self._min_lead_s, self._tick_origin_s + setpoint.seq * self.sample_period_s - now)
+            else:
+                self._queued_at[setpoint.seq] = now
 
     def _recv_internal(self, timeout_s: float) -> FeedbackSample | None:
+        if self.version >= 2 and not self._started and self._queued_any:
+            self._started = True
+            self._request_reply("RIG_START")  # the device's tick 0: the setpoints queued so far are its lead
         deadline = time.perf_counter() + timeout_s
         while True:
             sample = self._receive_one(max(deadline - time.perf_counter(), 0.0))
@@ -168,43 +264,74 @@ class RawCanTransport(Transport):
         name, signals = decoded
         if name == "RIG_STATUS":
             self._status[signals["seq"]] = signals
+        elif name == "RIG_DEVICE_INFO":
+            self._info[signals["seq"]] = signals
         elif name == "RIG_FAULT":
+            if self._started and self._fault_sample is None:
+                self._fault_sample = self._device_sample + 1  # sent before the frames of the tick it happened in
             self._report_fault(DeviceFault(self.name, signals["error_code"], "the device reported a fault"))
-        elif name in ("RIG_FEEDBACK", "RIG_DRIVE_FEEDBACK"):
-            seq = unwrap_seq(signals["seq"], self._last_seq)
+        elif name in ("RIG_FEEDBACK", "RIG_DRIVE_FEEDBACK") or (name == "RIG_TICK_APPLIED" and self.version >= 2):
+            v2 = self.version >= 2
+            seq = unwrap_seq(signals["seq"], self._device_sample + 1 if v2 else self._last_seq)
             parts = self._parts.setdefault(seq, {})
             parts[name] = signals
-            if len(parts) == 2:
+            if len(parts) == (3 if v2 else 2):
                 del self._parts[seq]
                 feedback, drive = parts["RIG_FEEDBACK"], parts["RIG_DRIVE_FEEDBACK"]
                 raw = feedback["encoder_counts"]
                 counts = raw - (1 << 32) if self.encoder.signed and raw >= 1 << 31 else raw
+                received = time.perf_counter()
+                held, applied = False, None
+                if v2:
+                    tick = parts["RIG_TICK_APPLIED"]
+                    held, applied = bool(tick["tick_flags"] & 1), self.drive.rad_from_counts(tick["applied_counts"])
+                    self._account_tick(seq, held, received)
                 return FeedbackSample(seq=seq, encoder_counts=counts, load_angle_rad=self._decode_encoder(counts),
                                       drive_position_rad=self.drive.rad_from_counts(drive["actual_counts"]),
-                                      statusword=feedback["statusword"], host_time_s=time.perf_counter())
+                                      statusword=feedback["statusword"], host_time_s=received, held=held,
+                                      applied_position_rad=applied)
             if len(self._parts) > 256:
                 for old in sorted(self._parts)[:128]:
                     del self._parts[old]
         return True
 
-    def _request_reply(self, name: str, **signals: int) -> dict[str, int]:
-        """Send a request and return its RIG_STATUS, sending the same frame again (same ``seq``) after each
-        ``reply_timeout_s`` without an answer, at most ``reply_retries`` times."""
+    def _account_tick(self, k: int, held: bool, received_s: float) -> None:
+        """Tick k's lead (as on serial v2: tick 0's host time estimated from the earliest arrival) and the
+        device's position in its clock."""
+        period = self.sample_period_s
+        self._tick_origin_s = min(self._tick_origin_s, received_s - k * period)
+        queued = self._queued_at.pop(k, None)
+        if queued is not None:
+            lead = self._tick_origin_s + k * period - queued
+            self._min_lead_s = min(self._min_lead_s, min(lead, 0.0) if held else lead)
+        if k > self._device_sample:
+            if len(self._queued_at) > 4 * max(self.buffer_capacity, 16):
+                for old in [seq for seq in self._queued_at if seq < k]:
+                    del self._queued_at[old]
+            self._device_sample = k
+
+    def _request_reply(self, name: str, *, answer: str = "RIG_STATUS", attempts: int | None = None,
+                       **signals: int) -> dict[str, int]:
+        """Send a request and return its answer (RIG_STATUS, or ``answer``), sending the same frame again (same
+        ``seq``) after each ``reply_timeout_s`` without one, at most ``reply_retries`` times (``attempts``: at
+        most that many sends in all)."""
         self._request = self._request % 0xFFFF + 1  # 1..65535, as on the serial link
         request = self._request
         self._status.clear()  # one request at a time: anything left is a late copy of an older answer
-        attempts = 1 + self.reply_retries
+        self._info.clear()
+        answers = self._info if answer == "RIG_DEVICE_INFO" else self._status
+        attempts = 1 + self.reply_retries if attempts is None else min(attempts, 1 + self.reply_retries)
         for attempt in range(attempts):
             if attempt:
                 self.retries += 1
             self._transmit(self.codec.encode(name, seq=request, **signals))
             deadline = time.perf_counter() + self.reply_timeout_s
-            while request not in self._status:
+            while request not in answers:
                 remaining = deadline - time.perf_counter()
                 if remaining <= 0:
                     break
                 self._receive_one(remaining)
             else:
-                return self._status.pop(request)
-        raise TransportError(f"{self.name}: no RIG_STATUS answer to {name} (seq {request}) within "
+                return answers.pop(request)
+        raise TransportError(f"{self.name}: no {answer} answer to {name} (seq {request}) within "
                              f"{self.reply_timeout_s:g} s, {attempts} attempts")

@@ -8,20 +8,32 @@ drive's error code with ERROR_REQUEST. A request whose answer does not come with
 sent again, unchanged (same request number), up to ``reply_retries`` times; the device answers a repeated
 request number without applying it twice.
 
+Protocol v2 (spec section 16): the device owns the sample clock. At :meth:`_prepare` the host sends HELLO;
+a device that answers DEVICE_INFO with version 2 reports its buffer capacity and its tick period (checked
+against the config's rate). The runner then queues SETPOINTs tagged with their tick number up to
+:attr:`lead_samples` ahead of the last tick the device reported; the first receive after the first setpoint
+sends START (the device's tick 0); each TICK frame becomes a :class:`FeedbackSample` with ``held`` and the
+target the device really applied. A device that does not answer HELLO (a v1 device drops unknown types) is
+driven the v1 way, host-paced (``lead_samples = 0``), unless ``protocol = "v2"`` demands v2.
+
 Checked when the transport is built (so at config load, before anything is opened): the baud rate carries
-one SETPOINT and one FEEDBACK per sample at the sample rate (:func:`rig.protocols.serial_frames.link_load`).
+one SETPOINT and one FEEDBACK per sample at the sample rate (:func:`rig.protocols.serial_frames.link_load`;
+v2's TICK, 24 bytes up, and SETPOINT, 11 bytes down, need less of each direction than v1's 28 bytes in
+series).
 """
 
 from __future__ import annotations
 
 import collections
+import math
 import select
 import time
 
 from rig.protocols import cia402
 from rig.protocols.errors import ConfigError, DeviceFault, TransportError
 from rig.protocols.serial_frames import (
-    UART_BITS_PER_BYTE, FrameDecoder, MessageType, SerialMessage, encode_frame, link_load, unwrap_seq,
+    PROTOCOL_VERSION, TICK_HELD, UART_BITS_PER_BYTE, FrameDecoder, MessageType, SerialMessage, encode_frame, link_load,
+    unwrap_seq,
 )
 from rig.transports.base import FeedbackSample, Setpoint, Transport
 
@@ -32,7 +44,12 @@ MAX_REPLY_TIMEOUT_S = 1.0
 device a frame at least this often while it is enabled and waiting for the first SETPOINT."""
 _FAULT_STATES = (cia402.DriveState.FAULT, cia402.DriveState.FAULT_REACTION_ACTIVE)
 _ANSWER_TO = {MessageType.CONTROL: MessageType.STATUS, MessageType.STATUS_REQUEST: MessageType.STATUS,
-              MessageType.ERROR_REQUEST: MessageType.ERROR}
+              MessageType.ERROR_REQUEST: MessageType.ERROR, MessageType.HELLO: MessageType.DEVICE_INFO,
+              MessageType.START: MessageType.STATUS}
+PROTOCOLS = ("auto", "v1", "v2")
+HELLO_ATTEMPTS = 2
+"""HELLO is sent at most this often (once more after a lost answer): a device that answered the STATUS_REQUEST
+before it but not two HELLOs is a v1 device, which drops unknown message types."""
 
 
 class SerialTransport(Transport):
@@ -51,13 +68,25 @@ class SerialTransport(Transport):
     reply_retries
         How many times a request whose answer was lost is sent again (same request number) before the
         link counts as failed.
+    protocol
+        ``"auto"`` (default): protocol v2 if the device answers HELLO, else v1 (host-paced, with a warning);
+        ``"v2"``: refuse a device that does not speak v2; ``"v1"``: send no HELLO, drive it host-paced.
+    lead_s
+        v2: how far ahead of the device's ticks setpoints are queued (default 50 ms), as
+        ``ceil(lead_s / T)`` setpoints, at most the device's buffer capacity.
     **kwargs
         See :class:`~rig.transports.base.Transport`.
     """
 
     def __init__(self, port: str, *, baudrate: int = 2_000_000, reply_timeout_s: float = 0.5, reply_retries: int = 3,
-                 **kwargs) -> None:
+                 protocol: str = "auto", lead_s: float = 0.05, **kwargs) -> None:
         super().__init__(**kwargs)
+        if protocol not in PROTOCOLS:
+            raise ConfigError("<transport>", "protocol", f"expected one of {', '.join(map(repr, PROTOCOLS))}, got {protocol!r}")
+        self.protocol = protocol
+        if not (math.isfinite(lead_s) and lead_s > 0):
+            raise ConfigError("<transport>", "lead_s", f"expected a lead > 0 s, got {lead_s!r}")
+        self.lead_s = float(lead_s)
         self.port = port
         self.baudrate = int(baudrate)
         self.reply_timeout_s = float(reply_timeout_s)
@@ -89,6 +118,37 @@ class SerialTransport(Transport):
         self._last_seq = 0
         self._valid_frames = 0
         self._code_needed = False  # a faulted statusword came without a FAULT frame: read the code
+        self._reset_clock()
+
+    def _reset_clock(self) -> None:
+        """Forget the device clock of a previous bring-up (v2 state)."""
+        self.version = 1  # the protocol this bring-up speaks (from the handshake)
+        self.buffer_capacity = 0
+        self._started = False  # START sent and answered
+        self._queued_any = False
+        self._device_sample = -1  # the highest tick the device reported
+        self._tick_origin_s = math.inf  # host time of tick 0, estimated as min(arrival of TICK k - k T)
+        self._queued_at: dict[int, float] = {}  # tick -> host time its SETPOINT was written
+        self._min_lead_s = math.inf
+        self._fault_sample: int | None = None
+
+    @property
+    def lead_samples(self) -> int:
+        if self.version < 2:
+            return 0  # v1: host-paced
+        return min(self.buffer_capacity, max(1, math.ceil(self.lead_s / self.sample_period_s - 1e-9)))
+
+    @property
+    def device_sample(self) -> int:
+        return self._device_sample
+
+    @property
+    def min_lead_s(self) -> float:
+        return self._min_lead_s if math.isfinite(self._min_lead_s) else math.nan
+
+    @property
+    def fault_sample(self) -> int | None:
+        return self._fault_sample
 
     # -- seam ----------------------------------------------------------------------------------------------
 
@@ -105,7 +165,43 @@ class SerialTransport(Transport):
 
     def _prepare(self) -> float:
         status = self._request_reply(MessageType.STATUS_REQUEST)
+        self._negotiate()
         return self.drive.rad_from_counts(status.fields[1])
+
+    def _negotiate(self) -> None:
+        """The version handshake (spec section 16.2), before anything enabling: HELLO -> DEVICE_INFO."""
+        self._reset_clock()
+        if self.protocol == "v1":
+            return
+        try:
+            info = self._request_reply(MessageType.HELLO, PROTOCOL_VERSION, attempts=HELLO_ATTEMPTS)
+        except TransportError:
+            if self.protocol == "v2":
+                raise TransportError(
+                    f"{self.name}: no DEVICE_INFO answer to HELLO ({HELLO_ATTEMPTS} attempts): the device speaks only "
+                    "protocol v1 (it drops HELLO); set [transport] protocol = \"auto\" to drive it host-paced, or update "
+                    "its firmware (docs/serial_protocol.md, section 16)") from None
+            self.warnings.append("the device did not answer HELLO: driven as a protocol v1 device (host-paced; the host's "
+                                 "timing decides the sample instants)")
+            return
+        version, capacity, period_ns = info.fields
+        if version > PROTOCOL_VERSION or version < 1:
+            raise TransportError(f"{self.name}: DEVICE_INFO says protocol version {version}; this host asked for at most "
+                                 f"{PROTOCOL_VERSION} (the device must answer with the lower of the two)")
+        if version < 2:
+            if self.protocol == "v2":
+                raise TransportError(f"{self.name}: the device answers HELLO with protocol version {version}; "
+                                     "[transport] protocol = \"v2\" needs 2")
+            return
+        period_s = period_ns * 1e-9
+        if not math.isclose(period_s, self.sample_period_s, rel_tol=1e-6, abs_tol=1e-9):
+            raise ConfigError("<transport>", "sample_rate_hz", (
+                f"{1 / self.sample_period_s:g} Hz, but the device ticks every {period_ns} ns ({1 / period_s:g} Hz, "
+                "DEVICE_INFO): set sample_rate_hz to the device's rate" if period_ns else
+                "the device reports a sample period of 0 ns in DEVICE_INFO"))
+        if capacity < 1:
+            raise TransportError(f"{self.name}: DEVICE_INFO reports a setpoint buffer of {capacity}; v2 needs at least 1")
+        self.version, self.buffer_capacity = 2, int(capacity)
 
     def _write_controlword(self, controlword: int) -> None:
         self._request_reply(MessageType.CONTROL, controlword)
@@ -127,10 +223,22 @@ class SerialTransport(Transport):
         return None
 
     def _send(self, setpoint: Setpoint) -> None:
+        """v1: the setpoint of this sample, now. v2: queued in the device's buffer for tick ``seq``; one for a
+        tick the device has already reported is dropped there (that tick was HELD)."""
         self._write(encode_frame(MessageType.SETPOINT, setpoint.seq, self.drive.counts_from_rad(setpoint.position_rad)))
         self._last_seq = setpoint.seq
+        if self.version >= 2:
+            now = time.perf_counter()
+            self._queued_any = True
+            if setpoint.seq <= self._device_sample:  # too late: its lead, from the device clock's estimate
+                self._min_lead_s = min(self._min_lead_s, self._tick_origin_s + setpoint.seq * self.sample_period_s - now)
+            else:
+                self._queued_at[setpoint.seq] = now
 
     def _recv_internal(self, timeout_s: float) -> FeedbackSample | None:
+        if self.version >= 2 and not self._started and self._queued_any:
+            self._started = True
+            self._request_reply(MessageType.START)  # the device's tick 0: the setpoints queued so far are its lead
         deadline = time.perf_counter() + timeout_s
         while not self._feedback:
             if self._code_needed:
@@ -199,13 +307,49 @@ class SerialTransport(Transport):
                                 and not statusword & cia402.STATUSWORD_FOLLOWS_TARGET)))
             if state in _FAULT_STATES:
                 self._code_needed = self._fault is None
+        elif message.type is MessageType.TICK and self.version >= 2:
+            self._tick(message, received_s)
         elif message.type is MessageType.STATUS and message.seq == 0:
             self._unprompted_status(message.fields[0])
         elif message.type is MessageType.FAULT:
             self._code_needed = False
+            if self._started and self._fault_sample is None:
+                self._fault_sample = self._device_sample + 1  # it comes before the TICK of the tick it happened in
             self._report_fault(DeviceFault(self.drive_label, message.fields[0], "the device reported a fault"))
-        elif message.type in (MessageType.STATUS, MessageType.ERROR):
+        elif message.type in (MessageType.STATUS, MessageType.ERROR, MessageType.DEVICE_INFO):
             self._answers[message.type, message.seq] = message
+
+    def _tick(self, message: SerialMessage, received_s: float) -> None:
+        """TICK k (v2): what the device measured at its own tick k, the target it applied, whether it held."""
+        statusword, actual, encoder_raw, applied, flags, _level = message.fields
+        k = unwrap_seq(message.seq, self._device_sample + 1)
+        try:
+            counts = self._encoder_value(encoder_raw, k)
+        except TransportError as err:
+            self._report_fault(err)
+            return
+        period = self.sample_period_s
+        held = bool(flags & TICK_HELD)
+        # tick k's host time is at most its TICK's arrival: the earliest arrival minus k T estimates tick 0
+        self._tick_origin_s = min(self._tick_origin_s, received_s - k * period)
+        queued = self._queued_at.pop(k, None)
+        if queued is not None:
+            lead = self._tick_origin_s + k * period - queued
+            self._min_lead_s = min(self._min_lead_s, min(lead, 0.0) if held else lead)
+        if k > self._device_sample:
+            if len(self._queued_at) > 4 * max(self.buffer_capacity, 16):  # setpoints whose TICK was lost
+                for old in [seq for seq in self._queued_at if seq < k]:
+                    del self._queued_at[old]
+            self._device_sample = k
+        state = cia402.state_from_statusword_or_none(statusword)
+        self._feedback.append(FeedbackSample(
+            seq=k, encoder_counts=counts, load_angle_rad=self._decode_encoder(counts),
+            drive_position_rad=self.drive.rad_from_counts(actual), statusword=statusword, host_time_s=received_s,
+            target_ignored=(state is cia402.DriveState.OPERATION_ENABLED
+                            and not statusword & cia402.STATUSWORD_FOLLOWS_TARGET),
+            held=held, applied_position_rad=self.drive.rad_from_counts(applied)))
+        if state in _FAULT_STATES:
+            self._code_needed = self._fault is None
 
     def _unprompted_status(self, statusword: int) -> None:
         """STATUS with seq 0: the device says on its own that the drive changed state (its link watchdog
@@ -241,14 +385,15 @@ class SerialTransport(Transport):
                 "FEEDBACK)")
         return value
 
-    def _request_reply(self, kind: MessageType, *fields: int) -> SerialMessage:
+    def _request_reply(self, kind: MessageType, *fields: int, attempts: int | None = None) -> SerialMessage:
         """Send a request and return its answer, sending the same frame again (same request number) after
-        each ``reply_timeout_s`` without an answer, at most ``reply_retries`` times."""
+        each ``reply_timeout_s`` without an answer, at most ``reply_retries`` times (``attempts``: at most
+        that many sends in all)."""
         self._request = self._request % 0xFFFF + 1  # 1..65535: 0 marks unprompted STATUS
         request, answer = self._request, _ANSWER_TO[kind]
         self._answers.clear()  # one request at a time: anything left is a late copy of an older answer
         frame = encode_frame(kind, request, *fields)
-        attempts = 1 + self.reply_retries
+        attempts = 1 + self.reply_retries if attempts is None else min(attempts, 1 + self.reply_retries)
         for attempt in range(attempts):
             if attempt:
                 self.retries += 1

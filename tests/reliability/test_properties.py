@@ -62,6 +62,10 @@ _FIELD_RANGES = {  # struct formats of the bodies in serial_frames._BODY_FORMATS
     MessageType.FAULT: [(0, 0xFFFF)],
     MessageType.ERROR_REQUEST: [],
     MessageType.ERROR: [(0, 0xFFFF)],
+    MessageType.HELLO: [(0, 0xFF)],
+    MessageType.START: [],
+    MessageType.DEVICE_INFO: [(0, 0xFF), (0, 0xFFFF), (0, 2**32 - 1)],
+    MessageType.TICK: [(0, 0xFFFF), (-2**31, 2**31 - 1), (0, 2**32 - 1), (-2**31, 2**31 - 1), (0, 0xFF), (0, 0xFFFF)],
 }
 
 

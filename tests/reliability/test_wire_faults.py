@@ -33,9 +33,13 @@ PRBS = ROOT / "configs" / "experiments" / "prbs.toml"
 TEST_SAMPLES = 300  # 1.5 s at the test rigs' 200 Hz
 
 
-def _rig_run(kind: str, tmp_path: Path, spec: str, capsys) -> tuple[int, dict | None, str, Path]:
+def _rig_run(kind: str, tmp_path: Path, spec: str, capsys, *, protocol: str | None = None
+             ) -> tuple[int, dict | None, str, Path]:
     out = tmp_path / "run.csv"
-    code = main(["run", str(write_test_config(kind, tmp_path)), "--experiment", str(PRBS), "--out", str(out),
+    config = write_test_config(kind, tmp_path)
+    if protocol is not None:  # serial: "v1" drives even a v2 device host-paced (no HELLO)
+        config.write_text(config.read_text().replace("[transport]\n", f'[transport]\nprotocol = "{protocol}"\n', 1))
+    code = main(["run", str(config), "--experiment", str(PRBS), "--out", str(out),
                  "--duration", str(TEST_SAMPLES / 200), "--sim-faults", spec, "--json"])
     captured = capsys.readouterr()
     result = json.loads(captured.out) if code == exit_codes.SUCCESS else None
@@ -196,7 +200,8 @@ def test_truncated_serial_frames_cost_only_their_samples(tmp_path, capsys, no_le
 
 
 def test_a_device_that_answers_late_gives_late_samples_with_real_values(tmp_path, capsys, no_leaks):
-    code, result, err, out = _rig_run("serial", tmp_path, "lag=8@100", capsys)  # 8 ms > the 5 ms period
+    """Host-paced (protocol v1): the host's clock says when the rig sampled, so a late answer is a LATE sample."""
+    code, result, err, out = _rig_run("serial", tmp_path, "lag=8@100", capsys, protocol="v1")  # 8 ms > the 5 ms period
     assert code == exit_codes.SUCCESS, err
     log = read_log(out)
     kept = np.flatnonzero(~(log.flags & SampleFlag.LOST).astype(bool))
@@ -205,8 +210,18 @@ def test_a_device_that_answers_late_gives_late_samples_with_real_values(tmp_path
     assert late_kept.size >= 0.9 * (TEST_SAMPLES - 102)
 
 
+def test_a_v2_device_that_answers_late_still_gives_samples_at_its_own_instants(tmp_path, capsys, no_leaks):
+    """Protocol v2: TICK k says which instant it is, so an 8 ms late answer neither loses nor distorts a sample;
+    it only eats 8 ms of the 50 ms lead."""
+    code, result, err, out = _rig_run("serial", tmp_path, "lag=8@100", capsys)
+    assert code == exit_codes.SUCCESS, err
+    log = read_log(out)
+    assert log.num_samples == TEST_SAMPLES and result["lost"] == 0 == np.count_nonzero(log.flags & SampleFlag.LOST)
+    assert result["held"] == np.count_nonzero(log.flags & SampleFlag.HELD)  # counted as flagged, whatever the load
+
+
 def test_a_device_answering_later_than_the_pending_window_is_stopped_by_the_watchdog(tmp_path, capsys, no_leaks):
-    code, _, err, _ = _rig_run("serial", tmp_path, "lag=60@100", capsys)  # 12 cycles late
+    code, _, err, _ = _rig_run("serial", tmp_path, "lag=60@100", capsys, protocol="v1")  # 12 cycles late
     assert code == exit_codes.DEVICE_FAULT
     assert "answers came more than 4 cycles after their setpoint" in err
 
@@ -251,11 +266,13 @@ def test_error_frames_are_counted_in_the_summary(tmp_path, no_leaks):
 
 # -- the host stalls (issue 14: the device owns the clock) ------------------------------------------------
 
-def test_a_host_stall_longer_than_the_lead_costs_held_samples_never_lost_ones(tmp_path, capsys, no_leaks):
+@pytest.mark.parametrize("kind", ["canopen", "serial", "can"])
+def test_a_host_stall_longer_than_the_lead_costs_held_samples_never_lost_ones(kind, tmp_path, capsys, no_leaks):
     """The driver's own thread pauses 300 ms at sample 100 (the lead is 50 ms = 10 samples at the test
-    rate): the device goes on sampling at its own instants, holding the last target, and every sample of
-    the stall is in the log, flagged HELD, with the command the drive really had."""
-    code, result, err, out = _rig_run("canopen", tmp_path, "stall=300@100", capsys)
+    rate): the device goes on sampling at its own instants (CANopen: the cyclic SYNC; serial and raw CAN
+    v2: the device's own ticks), holding the last target, and every sample of the stall is in the log, flagged
+    HELD, with the command the drive really had."""
+    code, result, err, out = _rig_run(kind, tmp_path, "stall=300@100", capsys)
     assert code == exit_codes.SUCCESS, err
     log = read_log(out)
     held = np.flatnonzero(log.flags & SampleFlag.HELD)

@@ -46,7 +46,7 @@ def test_streamed_run_equals_the_offline_simulation(kind, tmp_path, no_leaks):
     time_s, sent, angle, counts, flags = (np.array(column, dtype=object) for column in zip(*sink.rows))
     np.testing.assert_allclose(time_s.astype(float), np.arange(NUM_SAMPLES) * period)
     flags = flags.astype(int)
-    held = (flags & SampleFlag.HELD) != 0  # device-clocked (CANopen): a target that missed its SYNC
+    held = (flags & SampleFlag.HELD) != 0  # device-clocked (CANopen, serial and raw CAN v2): a target that missed its instant
     # commands are the excitation quantised to drive counts (131072 per revolution: < 2.4e-5 rad); a HELD
     # sample logs the target really in force, the one before it
     np.testing.assert_allclose(sent[~held].astype(float), command[~held], atol=np.pi / 131072)
@@ -78,5 +78,5 @@ def test_close_does_a_controlled_stop_and_is_idempotent(kind, tmp_path, no_leaks
         assert drive.controlwords == [0x06, 0x07, 0x0F, 0x02, 0x00]  # bring-up; quick stop, then disable voltage
         if kind == "canopen":  # the cyclic SYNC goes on until the stop: the drive held the one target
             assert drive.setpoints >= 1 and _i32(drive.drive, 0x607A) == 0
-        else:
-            assert drive.setpoints == 1
+        else:  # serial, raw CAN v2: the device ticks on its own clock until the stop, holding the one target
+            assert drive.setpoints >= 1 and drive.target_counts == 0 and drive.ticks == drive.setpoints

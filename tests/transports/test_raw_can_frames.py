@@ -60,8 +60,11 @@ def test_can_trace_records_every_setpoint_frame(kind, tmp_path, capsys, no_leaks
     setpoint_id = 0x110 if kind == "can" else 0x201  # RIG_SETPOINT, or the drive's RPDO1
     assert sum(frame.arbitration_id == setpoint_id for frame in frames) == 20
     answers = sum(frame.arbitration_id == (0x190 if kind == "can" else 0x182) for frame in frames)
-    # CANopen: the devices answer every SYNC, which runs from configuration to the end of the stop
-    assert answers == 20 if kind == "can" else answers > 20
+    # CANopen: the devices answer every SYNC, which runs from configuration to the end of the stop; raw CAN v2:
+    # the device answers each of its ticks, from RIG_START to the stop (at least one per setpoint)
+    assert answers > 20 if kind == "canopen" else answers >= 20
+    if kind == "can":
+        assert sum(frame.arbitration_id == 0x192 for frame in frames) == answers  # RIG_TICK_APPLIED with each
 
 
 def test_sqlite_traces_and_serial_traces_are_refused(tmp_path, capsys):
@@ -70,3 +73,64 @@ def test_sqlite_traces_and_serial_traces_are_refused(tmp_path, capsys):
     assert "not .db: SqliteWriter drops frames" in capsys.readouterr().err
     assert main(["run", str(write_test_config("serial", tmp_path)), *args, "--can-trace", str(tmp_path / "t.blf")]) == 2
     assert "--can-trace: the serial transport has no CAN frames to trace" in capsys.readouterr().err
+
+
+def test_scripted_v2_exchange_with_the_simulated_responder(tmp_path):
+    """Protocol v2 (the DBC's RIG_HELLO ... RIG_TICK_APPLIED): handshake, setpoints buffered by tick, START, ticks
+    applied or HELD with the target in force, a late setpoint dropped; no threads (ticks run when called)."""
+    gearbox = load_plant_config(write_test_plant(tmp_path)).gearbox(seed=2)
+    device = SimulatedRawCanDevice(gearbox, channel="unused", buffer_capacity=8)
+    answers: list[tuple[str, dict]] = []
+    device._send = lambda name, **signals: answers.append((name, signals))
+
+    def tx(name, **signals):
+        answers.clear()
+        device.on_message_received(CODEC.encode(name, **signals))
+        return list(answers)
+
+    assert tx("RIG_HELLO", seq=1, version=2) == [
+        ("RIG_DEVICE_INFO", {"seq": 1, "version": 2, "buffer_capacity": 8, "sample_period_ns": 5_000_000})]
+    for seq, word in enumerate((0x06, 0x07, 0x0F), start=2):
+        tx("RIG_CONTROL", seq=seq, controlword=word)
+    assert tx("RIG_SETPOINT", seq=0, target_counts=1000) == [] and tx("RIG_SETPOINT", seq=1, target_counts=2000) == []
+    answers.clear()
+    device.tick()
+    assert answers == [] and device.ticks == 0  # no tick before START
+    assert tx("RIG_START", seq=5)[0][0] == "RIG_STATUS"
+    answers.clear()
+    device.tick(), device.tick(), device.tick()
+    applied = [signals for name, signals in answers if name == "RIG_TICK_APPLIED"]
+    assert applied == [{"seq": 0, "applied_counts": 1000, "tick_flags": 0, "buffer_level": 1},
+                       {"seq": 1, "applied_counts": 2000, "tick_flags": 0, "buffer_level": 0},
+                       {"seq": 2, "applied_counts": 2000, "tick_flags": 1, "buffer_level": 0}]  # underrun: HELD
+    encoder = [signals["encoder_counts"] for name, signals in answers if name == "RIG_FEEDBACK"]
+    expected = load_plant_config(write_test_plant(tmp_path)).gearbox(seed=2).simulate(
+        [1000 * 2 * 3.141592653589793 / 131072] + [2000 * 2 * 3.141592653589793 / 131072] * 2)
+    assert encoder == [int(value) & 0xFFFFFFFF for value in expected.encoder_counts]  # one plant step per tick
+    assert tx("RIG_SETPOINT", seq=2, target_counts=3000) == [] and device.dropped_setpoints == 1  # too late
+    tx("RIG_CONTROL", seq=6, controlword=0x02)  # quick stop: the session ends
+    assert device.mode == 1 and device.buffer == {}
+
+
+def test_a_v1_raw_can_device_is_driven_host_paced(tmp_path, no_leaks):
+    from rig.runner import run_experiment
+    from sim_rigs import ListSink, excitation, simulated
+
+    sink = ListSink()
+    with simulated("can", tmp_path, protocol_version=1) as (config, transport, _, device):
+        summary = run_experiment(transport, excitation(20), sink, feedback_timeout_s=config.feedback_timeout_s,
+                                 late_tolerance_s=config.late_tolerance_s)
+        assert transport.version == 1 and transport.lead_samples == 0 and device.setpoints == 20 and device.ticks == 0
+    assert len(sink.rows) == 20 and summary.held == 0 and "protocol v1" in summary.warnings[0]
+
+
+def test_protocol_v2_refuses_a_v1_raw_can_device_before_enabling_it(tmp_path, no_leaks):
+    from rig.protocols.errors import TransportError
+    from sim_rigs import simulated
+
+    with simulated("can", tmp_path, protocol_version=1) as (_, transport, _, device):
+        transport.protocol, transport.reply_timeout_s = "v2", 0.05
+        with pytest.raises(TransportError, match=r"no RIG_DEVICE_INFO answer to RIG_HELLO: the device speaks only "
+                                                 r"protocol v1"):
+            transport.prepare()
+        assert device.controlwords == [] and [name for name, _ in device.requests] == ["RIG_STATUS_REQUEST"]

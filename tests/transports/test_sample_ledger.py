@@ -83,3 +83,18 @@ def test_a_sample_within_the_late_tolerance_is_not_late():
     ledger.open_row(0, 0.0)
     ledger.file(_feedback(0, instant_error_s=-0.0004))
     assert _release_all(ledger, device_sample=0)[0][4] == 0
+
+
+def test_a_sample_that_comes_before_its_row_is_filed_when_the_row_opens():
+    """A device that passed instant 3 before the host queued setpoint 3 (a host stall longer than the lead,
+    on serial v2, where the host hears of the device's instants only when it reads): not stale, HELD."""
+    ledger = SampleLedger(sample_period_s=0.001, pending_cycles=1)
+    for seq in range(3):
+        ledger.open_row(seq, 0.1 * seq)
+        ledger.file(_feedback(seq, applied_position_rad=0.1 * seq))
+    ledger.file(_feedback(3, angle=3.0, held=True, applied_position_rad=0.2))
+    assert ledger.counts["stale"] == 1  # no row yet
+    ledger.open_row(3, 0.3)
+    assert ledger.counts["stale"] == 0
+    rows = _release_all(ledger, device_sample=5)
+    assert rows[3][2:] == (0.2, 3.0, int(SampleFlag.HELD)) and ledger.counts["lost"] == 0

@@ -84,6 +84,9 @@ def test_the_driver_runs_a_device_written_from_the_spec(tmp_path, capsys, no_lea
     result = json.loads(out)
     assert result["samples"] == SAMPLES and result["lost"] == 0
     assert result["frame_errors"] == 0 and result["not_followed"] == 0  # the boot output is not line noise
+    # a v1 device (it drops HELLO, spec section 16.2) is driven host-paced, and the summary says so
+    assert result["min_lead_s"] is None and result["held"] == 0
+    assert any("driven as a protocol v1 device" in warning for warning in result["warnings"])
     log = read_log(tmp_path / "run.csv")
     assert log.metadata.extra["summary"]["frame_errors"] == 0
     assert "ends SWITCH ON DISABLED" in log.metadata.extra["summary"]["stop"]
