@@ -33,6 +33,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "rig.commands.run",
     "rig.commands.diagnose",
     "rig.commands.report",
+    "rig.commands.export",
 )
 
 EPILOG = """exit codes:

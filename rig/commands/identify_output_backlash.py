@@ -65,13 +65,14 @@ SAVED_FORMAT = "rig output-backlash result v1"
 def _read(path_text: str, role: str):
     """(u, y) of the ``role`` experiment, naming the role when the file is missing."""
     from rig.log_file import check_output_varies, is_rig_log, read_input_output
+    from rig.measurement_files import measurement_format, read_measurement_record
     from rig.signal_files import check_input_file
 
     if not Path(path_text).exists():
         raise FileNotFoundError(f"{path_text}: no such file ({role} data)")
     path = check_input_file(path_text, f"the {role} data (a CSV with columns u, y, or a rig log)")
     if role == "steady-state":
-        if is_rig_log(path):
+        if is_rig_log(path) or (measurement_format(path) is not None and read_measurement_record(path) is not None):
             return staircase_steady_points(path)[:2]
         if _has_time_column(path):
             raise ValueError(
@@ -86,9 +87,9 @@ def _read(path_text: str, role: str):
 
 
 def _has_time_column(path: Path) -> bool:
-    from rig.signal_files import read_signal_table
+    from rig.measurement_files import read_table
 
-    return "t" in read_signal_table(path, ("u", "y"), optional_columns=("t",))
+    return "t" in read_table(path, ("u", "y"), optional_columns=("t",))
 
 
 STEADY_TAIL_FRACTION = 0.1
@@ -104,11 +105,11 @@ def staircase_steady_points(path: Path):
     import numpy as np
 
     from identify.excitation_design import staircase_steady_state_indices
-    from rig.log_file import read_log
+    from rig.log_file import read_experiment_data
 
     from collections.abc import Mapping
 
-    record = read_log(path)
+    record = read_experiment_data(path)
     config = record.metadata.config if isinstance(record.metadata.config, Mapping) else {}
     excitation = config.get("excitation") if isinstance(config.get("excitation"), Mapping) else {}
     kind = excitation.get("kind")

@@ -162,14 +162,14 @@ def experiment_log_metadata(config: Any, excitation: Any, gearbox: Any, num_samp
 
 
 def load_command_file(path: str | Path, sample_period_s: float) -> Any:
-    """An excitation read from a CSV file with a ``command_rad`` column (and optionally ``time_s``)."""
+    """An excitation read from a CSV, MDF4 or MAT file with a ``command_rad`` column (and optionally ``time_s``)."""
     import numpy as np
 
     from rig.experiment_config import Excitation
     from rig.protocols.errors import LogFileError
-    from rig.signal_files import read_signal_table
+    from rig.measurement_files import read_table
 
-    table = read_signal_table(path, ("command_rad",))
+    table = read_table(path, ("command_rad",), optional_columns=("time_s",))
     if "time_s" in table and table["time_s"].size > 1:
         steps = np.diff(table["time_s"])
         bad = np.flatnonzero(~np.isclose(steps, sample_period_s, rtol=1e-6, atol=1e-12))
