@@ -34,6 +34,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "rig.commands.diagnose",
     "rig.commands.report",
     "rig.commands.export",
+    "rig.commands.import_trace",
 )
 
 EPILOG = """exit codes:

@@ -19,7 +19,7 @@ from typing import Any
 
 from rig import exit_codes
 
-__all__ = ["DEFAULT_CONFIG", "register", "run", "simulated_rig", "start_simulated_devices"]
+__all__ = ["DEFAULT_CONFIG", "register", "rig_config_metadata", "run", "simulated_rig", "start_simulated_devices"]
 
 DEFAULT_CONFIG = Path(__file__).resolve().parents[2] / "configs" / "sim_canopen.toml"
 
@@ -128,6 +128,19 @@ def start_simulated_devices(config: Any, gearbox: Any, stack: contextlib.ExitSta
     raise ConfigError(config.source, "simulation", f"there is no simulated device for {config.scheme}:// transports")
 
 
+def rig_config_metadata(config: Any) -> dict[str, Any]:
+    """The rig config as a log's metadata records it (``config["rig"]``): file, name, URL, rate, transport
+    options, drive scaling, limits and encoder."""
+    return {"file": config.source, "name": config.name, "url": config.url, "sample_rate_hz": config.sample_rate_hz,
+            "options": config.options, "drive_counts_per_revolution": config.drive.counts_per_revolution,
+            "limits": {"position_min_rad": config.limits.position_min_rad,
+                       "position_max_rad": config.limits.position_max_rad,
+                       "rate_max_rad_per_s": config.limits.rate_max_rad_per_s},
+            "encoder": {"bits": config.encoder.bits, "multi_turn_bits": config.encoder.multi_turn_bits,
+                        "signed": config.encoder.signed, "direction": config.encoder.direction,
+                        "offset_counts": config.encoder.offset_counts}}
+
+
 def experiment_log_metadata(config: Any, excitation: Any, gearbox: Any, num_samples: int,
                             sim_faults: dict[str, Any] | None = None) -> Any:
     """The metadata of a log of ``num_samples`` samples of ``excitation`` on the rig of ``config`` (and the
@@ -135,14 +148,7 @@ def experiment_log_metadata(config: Any, excitation: Any, gearbox: Any, num_samp
     from identify import __version__
     from identify.experiment_record import ExperimentMetadata
 
-    rig_config = {"file": config.source, "name": config.name, "url": config.url, "sample_rate_hz": config.sample_rate_hz,
-                  "options": config.options, "drive_counts_per_revolution": config.drive.counts_per_revolution,
-                  "limits": {"position_min_rad": config.limits.position_min_rad,
-                             "position_max_rad": config.limits.position_max_rad,
-                             "rate_max_rad_per_s": config.limits.rate_max_rad_per_s},
-                  "encoder": {"bits": config.encoder.bits, "multi_turn_bits": config.encoder.multi_turn_bits,
-                              "signed": config.encoder.signed, "direction": config.encoder.direction,
-                              "offset_counts": config.encoder.offset_counts}}
+    rig_config = rig_config_metadata(config)
     values: dict[str, Any] = {}
     if gearbox is not None:
         from sim_backend.plant_config import describe_noise
