@@ -20,7 +20,8 @@ the end of every half-wave of the filtered square-wave staircase, positive and n
 any order. STEADY may also be the rig log of the steady_staircase experiment as `rig run` or `rig simulate`
 wrote it: its metadata say where each half-wave ends, and the last valid sample of each half-wave's
 settled tail (its last 10 %) is taken, as `rig demo` does. DYNAMIC.csv has columns u and y per sample (a column t is ignored). Both may also be rig-log
-v1 files (command_rad is u, angle_rad is y). --noise-bound is the bound on the output error, e.g.
+v1 files (command_rad is u, angle_rad is y), also as the .mf4/.mdf/.mat of `rig export`, or MDF4/MAT files
+with channels u and y. --noise-bound is the bound on the output error, e.g.
 2*pi/2**n for an n-bit encoder. All bounds are guaranteed to contain every parameter consistent with the
 data, the noise bound and the model structure; an empty feasible set exits with code 4 and says why."""
 

@@ -39,7 +39,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         help="rig config (configs/sim_*.toml, configs/rig_*.toml; default: the simulated CANopen rig, "
                              "configs/sim_canopen.toml)")
     parser.add_argument("--experiment", metavar="EXP.toml", required=True,
-                        help="experiment config (configs/experiments/*.toml), or a CSV file with a command_rad column "
+                        help="experiment config (configs/experiments/*.toml), or a CSV, .mf4/.mdf or .mat file with a command_rad column "
                              "(one value per sample; an optional time_s column must step by the rig's period)")
     parser.add_argument("--out", metavar="LOG", required=True, help="log file to write (CSV, rig-log v1)")
     parser.add_argument("--duration", type=float, default=None, metavar="S",
@@ -245,7 +245,7 @@ def run(args: argparse.Namespace) -> int:
             raise ValueError(f"--duration: expected a number of seconds > 0, got {args.duration}")
         num_samples = max(1, int(round(args.duration * config.sample_rate_hz)))
         _check_run_length(config, num_samples, f"--duration {args.duration:g}")
-    if Path(args.experiment).suffix.lower() == ".csv":
+    if Path(args.experiment).suffix.lower() in (".csv", ".mf4", ".mdf", ".mat"):
         excitation = load_command_file(args.experiment, config.sample_period_s)
     else:
         excitation = load_experiment_config(args.experiment)

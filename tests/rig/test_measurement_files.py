@@ -159,10 +159,13 @@ def test_without_asammdf_the_error_names_the_extra(log, tmp_path, capsys, monkey
     assert not (tmp_path / "run.mf4").exists()
 
 
-def test_rig_run_takes_its_excitation_from_a_mat_file(tmp_path):
-    from rig.commands.run import load_command_file
-
+def test_rig_run_takes_its_excitation_from_a_mat_file(tmp_path, capsys):
     mat = tmp_path / "excitation.mat"
-    savemat(mat, {"command_rad": np.linspace(0, 0.1, 50), "time_s": np.arange(50) * 0.001})
-    excitation = load_command_file(mat, 0.001)
-    np.testing.assert_array_equal(excitation.command_rad, np.linspace(0, 0.1, 50))
+    command = np.linspace(0, 0.02, 50)
+    savemat(mat, {"command_rad": command, "time_s": np.arange(50) * 0.001})
+    log = tmp_path / "run.csv"
+    assert main(["run", str(CONFIGS / "sim_serial.toml"), "--experiment", str(mat), "--out", str(log),
+                 "--json"]) == exit_codes.SUCCESS
+    record = read_log(log)
+    assert len(record) == 50 and record.metadata.excitation == "excitation"
+    np.testing.assert_allclose(record.command_rad, command, atol=1e-4)  # quantised to drive counts
