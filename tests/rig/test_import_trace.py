@@ -1,5 +1,5 @@
 """``rig import TRACE`` (issue 17, item 3): the trace of ``rig run --can-trace`` gives back the run's own log
-sample for sample in every trace format, a missing frame is a LOST sample, and damaged or foreign traces get
+sample for sample in every trace format, raw CAN and CANopen (HELD samples too), a missing frame is a LOST sample, and damaged or foreign traces get
 an error naming the frame."""
 
 from __future__ import annotations
@@ -45,10 +45,10 @@ def _config(directory: Path, kind: str = "can") -> Path:
     return path
 
 
-def _run(directory: Path, trace: Path, seconds: float = 0.1) -> Path:
+def _run(directory: Path, trace: Path, seconds: float = 0.1, kind: str = "can", *options: str) -> Path:
     log = directory / "run.csv"
-    assert main(["run", str(_config(directory)), "--experiment", str(CONFIGS / "experiments" / "prbs.toml"),
-                 "--out", str(log), "--duration", repr(seconds), "--can-trace", str(trace), "--json"]) == 0
+    assert main(["run", str(_config(directory, kind)), "--experiment", str(CONFIGS / "experiments" / "prbs.toml"),
+                 "--out", str(log), "--duration", repr(seconds), "--can-trace", str(trace), "--json", *options]) == 0
     return log
 
 
@@ -65,17 +65,33 @@ def _assert_same_samples(run_log: Path, imported_log: Path, ignore_late: bool = 
     assert imported.metadata.source == run.metadata.source and imported.metadata.encoder_bits == 12
 
 
-@pytest.mark.parametrize("suffix", [".blf", ".asc", ".log", ".trc"])
-def test_the_trace_of_a_run_imports_as_the_runs_log(suffix, tmp_path, capsys):
+@pytest.mark.parametrize("kind, suffix", [("can", ".blf"), ("can", ".asc"), ("can", ".log"), ("can", ".trc"),
+                                          ("canopen", ".blf"), ("canopen", ".asc")])
+def test_the_trace_of_a_run_imports_as_the_runs_log(kind, suffix, tmp_path, capsys):
     trace = tmp_path / f"run{suffix}"
-    log = _run(tmp_path, trace)
+    log = _run(tmp_path, trace, 0.1, kind)
     capsys.readouterr()
     imported = tmp_path / "imported.csv"
-    assert main(["import", str(trace), "--config", str(tmp_path / "sim_can.toml"), "--out", str(imported),
+    assert main(["import", str(trace), "--config", str(tmp_path / f"sim_{kind}.toml"), "--out", str(imported),
                  "--json"]) == exit_codes.SUCCESS
     result = json.loads(capsys.readouterr().out)
     assert result["samples"] == 20 and result["frame_errors"] == 0
-    _assert_same_samples(log, imported)
+    # CANopen: the device's SYNC spacing decides LATE, and the trace has the SYNCs: every flag is compared
+    _assert_same_samples(log, imported, ignore_late=kind == "can")
+
+
+def test_a_canopen_trace_with_held_samples_imports_as_the_runs_log(tmp_path, capsys):
+    """A host stall longer than the lead: the drive held earlier targets, and the trace shows which."""
+    trace = tmp_path / "run.blf"
+    log = _run(tmp_path, trace, 0.3, "canopen", "--sim-faults", "stall=150@10")
+    assert json.loads(capsys.readouterr().out)["held"] > 0
+    record = import_trace(trace, load_rig_config(tmp_path / "sim_canopen.toml"))
+    imported = tmp_path / "imported.csv"
+    from rig.log_file import write_log
+
+    write_log(imported, record)
+    assert record.count_flag(SampleFlag.HELD) > 0
+    _assert_same_samples(log, imported, ignore_late=False)
 
 
 def test_a_missing_feedback_frame_is_a_lost_sample(tmp_path):
@@ -117,12 +133,15 @@ def test_damaged_and_foreign_traces_are_named(tmp_path, capsys):
         import_trace(skipping, load_rig_config(config))
 
 
-def test_a_canopen_rig_is_refused_clearly_and_the_output_is_checked_first(tmp_path, capsys):
+def test_a_serial_rig_is_refused_and_the_output_is_checked_first(tmp_path, capsys):
     trace = tmp_path / "t.asc"
     with can.Logger(str(trace)) as writer:
         writer.on_message_received(can.Message(arbitration_id=0x80, data=b"", is_extended_id=False))
+    assert main(["import", str(trace), "--config", str(CONFIGS / "sim_serial.toml"), "--out",
+                 str(tmp_path / "o.csv")]) == exit_codes.BAD_INPUT
+    assert "the serial transport has no CAN frames" in capsys.readouterr().err
     assert main(["import", str(trace), "--config", str(_config(tmp_path, "canopen")), "--out",
                  str(tmp_path / "o.csv")]) == exit_codes.BAD_INPUT
-    assert "CANopen trace is not implemented yet" in capsys.readouterr().err
+    assert "no RPDO1 of the drive (0x201)" in capsys.readouterr().err
     assert main(["import", str(trace), "--config", str(_config(tmp_path)), "--out",
                  str(tmp_path / "missing" / "o.csv")]) == exit_codes.WRITE_FAILED
