@@ -169,3 +169,11 @@ def test_rig_run_takes_its_excitation_from_a_mat_file(tmp_path, capsys):
     record = read_log(log)
     assert len(record) == 50 and record.metadata.excitation == "excitation"
     np.testing.assert_allclose(record.command_rad, command, atol=1e-4)  # quantised to drive counts
+
+
+def test_rig_report_draws_an_exported_mdf4_log(log, tmp_path, capsys):
+    mdf = tmp_path / "run.mf4"
+    assert main(["export", str(log), "--out", str(mdf)]) == exit_codes.SUCCESS
+    out = tmp_path / "report"
+    assert main(["report", str(mdf), "--out", str(out), "--json"]) == exit_codes.SUCCESS
+    assert (out / "index.html").is_file() and "run.mf4" in (out / "index.html").read_text()
