@@ -33,6 +33,8 @@ COMMAND_MODULES: tuple[str, ...] = (
     "rig.commands.run",
     "rig.commands.diagnose",
     "rig.commands.report",
+    "rig.commands.export",
+    "rig.commands.import_trace",
 )
 
 EPILOG = """exit codes:

@@ -24,7 +24,8 @@ Format ``rig-log v1`` (a CSV file with a commented header)::
   log of a killed run has no summary line; comment-aware readers (pandas, numpy, MATLAB above) skip it.
 
 :func:`read_experiment_data` also accepts plain CSV files with columns ``t,u,y`` (seconds, radians) made by
-other tools, through :func:`rig.signal_files.read_signal_table`.
+other tools, and ASAM MDF4 (``.mf4``/``.mdf``) and MATLAB (``.mat``) files, a rig log exported by ``rig export``
+or channels ``t,u,y`` of another tool (:mod:`rig.measurement_files`, which dispatches on the suffix).
 """
 
 from __future__ import annotations
@@ -48,7 +49,7 @@ from numpy.typing import ArrayLike, NDArray
 from identify.experiment_record import ExperimentMetadata, ExperimentRecord, SampleFlag
 from identify.validation import InvalidInputError
 from rig.protocols.errors import LogFileError
-from rig.signal_files import check_input_file, read_signal_table
+from rig.signal_files import check_input_file
 
 __all__ = ["COLUMNS", "FORMAT_LINE", "LogWriteError", "LogWriter", "check_output_varies", "count_samples", "is_rig_log",
            "read_experiment_data", "read_log", "write_log"]
@@ -481,10 +482,17 @@ def read_experiment_data(path: str | Path) -> ExperimentRecord:
     """Read a ``rig-log v1`` file, or a plain CSV with columns ``t,u,y`` (seconds, radians) from another
     tool (``#`` comment lines allowed, other columns ignored). The sample period of a plain CSV is the
     median time step."""
+    from rig.measurement_files import measurement_format, read_measurement_record, read_table
+
     path = check_input_file(path, "a rig-log v1 file or a CSV with columns t,u,y")
-    if is_rig_log(path):
+    kind = measurement_format(path)
+    if kind is None and is_rig_log(path):
         return read_log(path)
-    table = read_signal_table(path, ("t", "u", "y"))
+    if kind is not None:
+        record = read_measurement_record(path)
+        if record is not None:
+            return record
+    table = read_table(path, ("t", "u", "y"))
     t, u, y = table["t"], table["u"], table["y"]
     if t.size < 2:
         raise LogFileError(f"{path}: expected at least two samples, got {t.size}")
@@ -497,11 +505,15 @@ def read_input_output(path: str | Path) -> tuple[NDArray[np.float64], NDArray[np
     """(u, y) for identification from a ``rig-log v1`` file or a CSV with columns ``u`` and ``y``. The
     methods need only the sample order, so a ``t`` column is optional; when present it must increase (rows
     out of order, e.g. two files pasted together, would be identified as one record)."""
+    from rig.measurement_files import measurement_format, read_measurement_record, read_table
+
     path = check_input_file(path, "a rig-log v1 file or a CSV with columns u,y")
-    if is_rig_log(path):
-        record = read_log(path)
+    kind = measurement_format(path)
+    record = read_log(path) if kind is None and is_rig_log(path) else (
+        read_measurement_record(path) if kind is not None else None)
+    if record is not None:
         return record.command_rad, record.angle_rad
-    table = read_signal_table(path, ("u", "y"), optional_columns=("t",))
+    table = read_table(path, ("u", "y"), optional_columns=("t",))
     if "t" in table and table["t"].size > 1:
         _check_time_column(path, table["t"])
     return table["u"], table["y"]

@@ -20,7 +20,8 @@ the end of every half-wave of the filtered square-wave staircase, positive and n
 any order. STEADY may also be the rig log of the steady_staircase experiment as `rig run` or `rig simulate`
 wrote it: its metadata say where each half-wave ends, and the last valid sample of each half-wave's
 settled tail (its last 10 %) is taken, as `rig demo` does. DYNAMIC.csv has columns u and y per sample (a column t is ignored). Both may also be rig-log
-v1 files (command_rad is u, angle_rad is y). --noise-bound is the bound on the output error, e.g.
+v1 files (command_rad is u, angle_rad is y), also as the .mf4/.mdf/.mat of `rig export`, or MDF4/MAT files
+with channels u and y. --noise-bound is the bound on the output error, e.g.
 2*pi/2**n for an n-bit encoder. All bounds are guaranteed to contain every parameter consistent with the
 data, the noise bound and the model structure; an empty feasible set exits with code 4 and says why."""
 
@@ -65,13 +66,14 @@ SAVED_FORMAT = "rig output-backlash result v1"
 def _read(path_text: str, role: str):
     """(u, y) of the ``role`` experiment, naming the role when the file is missing."""
     from rig.log_file import check_output_varies, is_rig_log, read_input_output
+    from rig.measurement_files import measurement_format, read_measurement_record
     from rig.signal_files import check_input_file
 
     if not Path(path_text).exists():
         raise FileNotFoundError(f"{path_text}: no such file ({role} data)")
     path = check_input_file(path_text, f"the {role} data (a CSV with columns u, y, or a rig log)")
     if role == "steady-state":
-        if is_rig_log(path):
+        if is_rig_log(path) or (measurement_format(path) is not None and read_measurement_record(path) is not None):
             return staircase_steady_points(path)[:2]
         if _has_time_column(path):
             raise ValueError(
@@ -86,9 +88,9 @@ def _read(path_text: str, role: str):
 
 
 def _has_time_column(path: Path) -> bool:
-    from rig.signal_files import read_signal_table
+    from rig.measurement_files import read_table
 
-    return "t" in read_signal_table(path, ("u", "y"), optional_columns=("t",))
+    return "t" in read_table(path, ("u", "y"), optional_columns=("t",))
 
 
 STEADY_TAIL_FRACTION = 0.1
@@ -104,11 +106,11 @@ def staircase_steady_points(path: Path):
     import numpy as np
 
     from identify.excitation_design import staircase_steady_state_indices
-    from rig.log_file import read_log
+    from rig.log_file import read_experiment_data
 
     from collections.abc import Mapping
 
-    record = read_log(path)
+    record = read_experiment_data(path)
     config = record.metadata.config if isinstance(record.metadata.config, Mapping) else {}
     excitation = config.get("excitation") if isinstance(config.get("excitation"), Mapping) else {}
     kind = excitation.get("kind")

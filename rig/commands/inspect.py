@@ -18,10 +18,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="show a log's metadata, sample count and lost samples",
         description=(
             "Show a log's metadata, its sample count and its lost-sample count, or say exactly what is wrong "
-            "with a damaged or foreign file. Plain CSV files with columns t,u,y are accepted too."
+            "with a damaged or foreign file. Plain CSV files with columns t,u,y and ASAM MDF4 (.mf4/.mdf) or MATLAB (.mat) "
+            "files are accepted too."
         ),
     )
-    parser.add_argument("log", metavar="LOG", help="a rig-log v1 file or a CSV with columns t,u,y")
+    parser.add_argument("log", metavar="LOG", help="a rig-log v1 file, a CSV with columns t,u,y, or .mf4/.mdf/.mat")
     parser.add_argument("--json", action="store_true", help="print the summary as JSON")
     parser.set_defaults(handler=run)
 

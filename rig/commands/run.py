@@ -19,7 +19,7 @@ from typing import Any
 
 from rig import exit_codes
 
-__all__ = ["DEFAULT_CONFIG", "register", "run", "simulated_rig", "start_simulated_devices"]
+__all__ = ["DEFAULT_CONFIG", "register", "rig_config_metadata", "run", "simulated_rig", "start_simulated_devices"]
 
 DEFAULT_CONFIG = Path(__file__).resolve().parents[2] / "configs" / "sim_canopen.toml"
 
@@ -39,7 +39,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         help="rig config (configs/sim_*.toml, configs/rig_*.toml; default: the simulated CANopen rig, "
                              "configs/sim_canopen.toml)")
     parser.add_argument("--experiment", metavar="EXP.toml", required=True,
-                        help="experiment config (configs/experiments/*.toml), or a CSV file with a command_rad column "
+                        help="experiment config (configs/experiments/*.toml), or a CSV, .mf4/.mdf or .mat file with a command_rad column "
                              "(one value per sample; an optional time_s column must step by the rig's period)")
     parser.add_argument("--out", metavar="LOG", required=True, help="log file to write (CSV, rig-log v1)")
     parser.add_argument("--duration", type=float, default=None, metavar="S",
@@ -128,6 +128,19 @@ def start_simulated_devices(config: Any, gearbox: Any, stack: contextlib.ExitSta
     raise ConfigError(config.source, "simulation", f"there is no simulated device for {config.scheme}:// transports")
 
 
+def rig_config_metadata(config: Any) -> dict[str, Any]:
+    """The rig config as a log's metadata records it (``config["rig"]``): file, name, URL, rate, transport
+    options, drive scaling, limits and encoder."""
+    return {"file": config.source, "name": config.name, "url": config.url, "sample_rate_hz": config.sample_rate_hz,
+            "options": config.options, "drive_counts_per_revolution": config.drive.counts_per_revolution,
+            "limits": {"position_min_rad": config.limits.position_min_rad,
+                       "position_max_rad": config.limits.position_max_rad,
+                       "rate_max_rad_per_s": config.limits.rate_max_rad_per_s},
+            "encoder": {"bits": config.encoder.bits, "multi_turn_bits": config.encoder.multi_turn_bits,
+                        "signed": config.encoder.signed, "direction": config.encoder.direction,
+                        "offset_counts": config.encoder.offset_counts}}
+
+
 def experiment_log_metadata(config: Any, excitation: Any, gearbox: Any, num_samples: int,
                             sim_faults: dict[str, Any] | None = None) -> Any:
     """The metadata of a log of ``num_samples`` samples of ``excitation`` on the rig of ``config`` (and the
@@ -135,14 +148,7 @@ def experiment_log_metadata(config: Any, excitation: Any, gearbox: Any, num_samp
     from identify import __version__
     from identify.experiment_record import ExperimentMetadata
 
-    rig_config = {"file": config.source, "name": config.name, "url": config.url, "sample_rate_hz": config.sample_rate_hz,
-                  "options": config.options, "drive_counts_per_revolution": config.drive.counts_per_revolution,
-                  "limits": {"position_min_rad": config.limits.position_min_rad,
-                             "position_max_rad": config.limits.position_max_rad,
-                             "rate_max_rad_per_s": config.limits.rate_max_rad_per_s},
-                  "encoder": {"bits": config.encoder.bits, "multi_turn_bits": config.encoder.multi_turn_bits,
-                              "signed": config.encoder.signed, "direction": config.encoder.direction,
-                              "offset_counts": config.encoder.offset_counts}}
+    rig_config = rig_config_metadata(config)
     values: dict[str, Any] = {}
     if gearbox is not None:
         from sim_backend.plant_config import describe_noise
@@ -162,14 +168,14 @@ def experiment_log_metadata(config: Any, excitation: Any, gearbox: Any, num_samp
 
 
 def load_command_file(path: str | Path, sample_period_s: float) -> Any:
-    """An excitation read from a CSV file with a ``command_rad`` column (and optionally ``time_s``)."""
+    """An excitation read from a CSV, MDF4 or MAT file with a ``command_rad`` column (and optionally ``time_s``)."""
     import numpy as np
 
     from rig.experiment_config import Excitation
     from rig.protocols.errors import LogFileError
-    from rig.signal_files import read_signal_table
+    from rig.measurement_files import read_table
 
-    table = read_signal_table(path, ("command_rad",))
+    table = read_table(path, ("command_rad",), optional_columns=("time_s",))
     if "time_s" in table and table["time_s"].size > 1:
         steps = np.diff(table["time_s"])
         bad = np.flatnonzero(~np.isclose(steps, sample_period_s, rtol=1e-6, atol=1e-12))
@@ -239,7 +245,7 @@ def run(args: argparse.Namespace) -> int:
             raise ValueError(f"--duration: expected a number of seconds > 0, got {args.duration}")
         num_samples = max(1, int(round(args.duration * config.sample_rate_hz)))
         _check_run_length(config, num_samples, f"--duration {args.duration:g}")
-    if Path(args.experiment).suffix.lower() == ".csv":
+    if Path(args.experiment).suffix.lower() in (".csv", ".mf4", ".mdf", ".mat"):
         excitation = load_command_file(args.experiment, config.sample_period_s)
     else:
         excitation = load_experiment_config(args.experiment)

@@ -1,0 +1,67 @@
+"""``rig import TRACE --config RIG.toml --out LOG``: a CAN trace of a rig run as a rig log
+(:mod:`rig.trace_import`)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+from rig import exit_codes
+
+DESCRIPTION = """\
+Decode a CAN trace of a run into a rig-log v1 file, every sample accounted for, by the transport of RIG.toml:
+
+  can://      sample k is the k-th RIG_SETPOINT (configs/raw_can.dbc or the config's dbc), its reading the
+              RIG_FEEDBACK + RIG_DRIVE_FEEDBACK pair with the same sequence number (LOST where it is missing
+              or came more than 4 setpoints late, DUPLICATE, FAULT); LATE from the trace's time stamps
+  canopen://  sample 0's SYNC is the one after the first drive RPDO1; each TPDO is filed under the last SYNC
+              before its time stamp (the mapping the driver sets up, node-IDs from the config); HELD where
+              the RPDO1 in force at a SYNC is an earlier sample's, LATE where the SYNC spacing is off
+
+The trace of `rig run --can-trace run.blf` gives back the log the run wrote (raw CAN: LATE apart, which the
+run judged on the host's clock). TRACE is read with python-can's readers, chosen by suffix: .blf (Vector
+CANalyzer/CANoe), .asc, .trc (PEAK PCAN-View), .log (candump -l), .csv (python-can)."""
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    parser = subparsers.add_parser(
+        "import",
+        help="decode a CAN trace (BLF, ASC, TRC, candump) of a raw-CAN or CANopen run into a rig log",
+        description=DESCRIPTION,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    parser.add_argument("trace", metavar="TRACE", help="CAN trace: .blf, .asc, .trc, .log (candump -l) or .csv")
+    parser.add_argument("--config", metavar="RIG.toml", required=True,
+                        help="the rig config of the run (rate, drive scaling, encoder, DBC or node-IDs)")
+    parser.add_argument("--out", metavar="LOG", required=True, help="log file to write (CSV, rig-log v1)")
+    parser.add_argument("--json", action="store_true",
+                        help='print {"log", "trace", "samples", "lost", "late", "held", "duplicate", "fault", '
+                             '"frame_errors"} as JSON')
+    parser.set_defaults(handler=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from identify.experiment_record import SampleFlag
+    from rig.log_file import write_log
+    from rig.output_paths import check_output_file, writing
+    from rig.rig_config import load_rig_config
+    from rig.trace_import import import_trace
+
+    check_output_file(args.out, "--out", inputs=[args.trace, args.config])
+    config = load_rig_config(args.config)
+    record = import_trace(args.trace, config)
+    with writing(args.out, "--out"):
+        write_log(args.out, record)
+    result = {"log": args.out, "trace": args.trace, "samples": len(record),
+              **{name: record.count_flag(flag) for name, flag in (
+                  ("lost", SampleFlag.LOST), ("late", SampleFlag.LATE), ("held", SampleFlag.HELD),
+                  ("duplicate", SampleFlag.DUPLICATE),
+                  ("fault", SampleFlag.FAULT))},
+              "frame_errors": record.metadata.extra["summary"]["frame_errors"]}
+    if args.json:
+        print(json.dumps(result))
+    else:
+        width = max(len(key) for key in result)
+        for key, value in result.items():
+            print(f"{key:<{width}}  {value}")
+    return exit_codes.SUCCESS

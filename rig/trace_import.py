@@ -1,0 +1,348 @@
+"""Turn a CAN trace of a rig run (BLF, ASC, TRC, candump ``.log``, python-can ``.csv``) into a rig log.
+
+The trace is read with python-can's readers (``can.LogReader`` chooses by suffix) and decoded with the rig's
+own codec, so a capture of CANalyzer, PCAN-View or ``candump`` on the rig's bus gives the log ``rig run`` would
+have written, for raw-CAN (``can://``) and CANopen (``canopen://``) rigs. Every sample is accounted for.
+
+Raw CAN (``configs/raw_can.dbc`` or the config's ``dbc``):
+
+* sample k is the k-th RIG_SETPOINT (its ``seq``, unwrapped from 16 bits, must count up from the first one);
+  ``time_s = k * sample_period_s`` and ``command_rad`` is its ``target_counts`` in radians (the drive's scaling),
+  which is what the runner logs (the command as the drive receives it);
+* its reading is the RIG_FEEDBACK + RIG_DRIVE_FEEDBACK pair with the same ``seq``, decoded as the transport
+  decodes it (signed counts, the angle continuous with the previous reading), filed as the runner files it:
+  only while at most ``PENDING_CYCLES`` later setpoints have been sent (else it is stale and the sample LOST),
+  a second copy marks DUPLICATE, a fault state in its statusword FAULT; a RIG_FAULT frame marks the sample
+  of the last setpoint sent FAULT;
+* LATE is judged from the trace's time stamps against the first setpoint's (``t0 + k T`` plus the config's
+  ``late_tolerance_s`` for a setpoint; ``t0 + (k+1) T`` for its reading): the trace's clock, not the host's
+  monotonic clock of the run, so a LATE flag near the tolerance may differ from the run's own log.
+
+CANopen (SYNC + drive RPDO1 + TPDOs, the mapping :mod:`rig.transports.canopen_link` sets up: drive TPDO1
+0x6041 + 0x6064 at 0x180 + node, drive TPDO2 0x6062 at 0x280 + node where the drive sends it, encoder TPDO1
+0x6004 at 0x180 + node; node-IDs and TPDO latencies from the config), frames taken in time-stamp order:
+
+* sample 0's SYNC is the one after the first RPDO1; sample s's target is the RPDO1 sent after SYNC s - 1;
+  the target in force at SYNC s is the last RPDO1 before it (HELD, with that command, when it is not sample
+  s's own);
+* each TPDO is filed under the last SYNC before its time stamp (minus its latency in cycles), as the
+  transport files it; a complete set is the reading (DUPLICATE for a second one, AMBIGUOUS when SYNCs came
+  closer than one cycle's bus time or the drive's 0x6062 is not the target in force, NOT_FOLLOWED, FAULT);
+* LATE when a SYNC's spacing is off the period by more than ``late_tolerance_s``; these are the SYNCs'
+  own time stamps, so the flags equal the run's;
+* the samples run to the last RPDO1's (a run whose last setpoints were all HELD ends earlier), and a
+  sample whose setpoint never reached the bus and that has no reading takes the previous command (the
+  trace does not hold the value the host had queued).
+
+Error frames and malformed frames of ours are counted (``frame_errors`` in the summary) and ridden through, as
+the transport does. A trace that cannot be read, or whose setpoints do not follow one another, raises
+:class:`~rig.protocols.errors.LogFileError` naming the frame (its index in the trace and its time stamp).
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from identify.experiment_record import ExperimentMetadata, ExperimentRecord, SampleFlag
+from rig.protocols.cia402 import DriveState, state_from_statusword_or_none
+from rig.protocols.errors import ConfigError, LogFileError
+from rig.protocols.serial_frames import unwrap_seq
+from rig.runner import PENDING_CYCLES
+from rig.signal_files import check_input_file
+
+__all__ = ["TRACE_SUFFIXES", "import_trace"]
+
+TRACE_SUFFIXES = (".blf", ".asc", ".trc", ".log", ".csv")
+_FAULT_STATES = (DriveState.FAULT, DriveState.FAULT_REACTION_ACTIVE)
+_LOST, _LATE, _DUPLICATE, _FAULT = (int(flag) for flag in (SampleFlag.LOST, SampleFlag.LATE, SampleFlag.DUPLICATE,
+                                                          SampleFlag.FAULT))
+
+
+def _frames(path: Path) -> Any:
+    """``(index, message)`` of every frame of the trace; a frame the reader cannot parse raises an error naming it."""
+    import can
+
+    try:
+        reader = can.LogReader(str(path))
+    except (ValueError, NotImplementedError) as err:
+        raise LogFileError(f"{path}: not a CAN trace python-can reads ({err}); expected "
+                           f"{', '.join(TRACE_SUFFIXES)}") from None
+    except Exception as err:  # a damaged header: BLFParseError, struct.error, UnicodeDecodeError ...
+        raise LogFileError(f"{path}: cannot read the trace: {type(err).__name__}: {err}") from None
+    index = -1
+    try:
+        with reader:
+            for index, message in enumerate(reader):
+                yield index, message
+    except LogFileError:
+        raise
+    except Exception as err:
+        raise LogFileError(f"{path}: frame {index + 1} (after the frame at index {index}) cannot be read: "
+                           f"{type(err).__name__}: {err}; the trace is damaged") from None
+
+
+def import_trace(trace: str | Path, config: Any) -> ExperimentRecord:
+    """The rig log of the run captured in ``trace`` on the rig of ``config`` (a loaded rig config); raw CAN
+    or CANopen by the config's transport."""
+    path = check_input_file(trace, f"a CAN trace ({', '.join(TRACE_SUFFIXES)})")
+    if path.suffix.lower() not in TRACE_SUFFIXES:
+        raise LogFileError(f"{path}: unknown trace suffix {path.suffix or '(none)'!r}; expected "
+                           f"{', '.join(TRACE_SUFFIXES)} (python-can's readers choose by suffix)")
+    if config.scheme == "can":
+        return _import_raw_can(path, config)
+    if config.scheme == "canopen":
+        return _import_canopen(path, config)
+    raise ConfigError(config.source, "transport.url", f"the {config.scheme} transport has no CAN frames: a trace "
+                      "is imported for can:// and canopen:// rigs")
+
+
+class _Row:
+    __slots__ = ("command_rad", "angle_rad", "counts", "flags")
+
+    def __init__(self, command_rad: float) -> None:
+        self.command_rad, self.angle_rad, self.counts, self.flags = command_rad, math.nan, 0, _LOST
+
+
+def _import_raw_can(path: Path, config: Any) -> ExperimentRecord:
+    from rig.protocols.raw_can_frames import DEFAULT_DBC, RawCanCodec
+
+    try:
+        codec = RawCanCodec(config.options.get("dbc") or DEFAULT_DBC)
+    except ValueError as err:
+        raise ConfigError(config.source, "transport.dbc", str(err)) from err
+    period, tolerance = config.sample_period_s, config.late_tolerance_s
+    encoder, drive = config.encoder, config.drive
+    rows: list[_Row] = []
+    received: set[int] = set()
+    parts: dict[int, dict[str, Any]] = {}
+    last_seq, first_seq, t0 = 0, None, None
+    last_angle: float | None = None
+    frame_errors = frames = 0
+    for index, message in _frames(path):
+        frames += 1
+        if message.is_error_frame:
+            frame_errors += 1
+            continue
+        try:
+            decoded = codec.decode(message)
+        except ValueError:
+            frame_errors += 1  # a frame of ours with a wrong length: the transport rides through it too
+            continue
+        if decoded is None:
+            continue
+        name, signals = decoded
+        where = f"frame {index} at {message.timestamp:.6f} s"
+        if name == "RIG_SETPOINT":
+            if first_seq is None:
+                first_seq = last_seq = signals["seq"]
+                t0 = message.timestamp
+            else:
+                seq = unwrap_seq(signals["seq"], last_seq)
+                if seq != last_seq + 1:
+                    raise LogFileError(
+                        f"{path}: {where}: RIG_SETPOINT seq {signals['seq']} does not follow seq "
+                        f"{last_seq & 0xFFFF} (expected {(last_seq + 1) & 0xFFFF}): the trace misses setpoints or holds "
+                        "more than one run; cut it to one run (a run's setpoints count up by one)")
+                last_seq = seq
+            k = last_seq - first_seq
+            row = _Row(drive.rad_from_counts(signals["target_counts"]))
+            if message.timestamp - t0 > k * period + tolerance:
+                row.flags |= _LATE
+            rows.append(row)
+        elif name == "RIG_FAULT":
+            if rows:
+                rows[-1].flags |= _FAULT
+        elif name in ("RIG_FEEDBACK", "RIG_DRIVE_FEEDBACK") and first_seq is not None:
+            seq = unwrap_seq(signals["seq"], last_seq)
+            pair = parts.setdefault(seq, {})
+            pair[name] = signals
+            if len(pair) < 2:
+                continue
+            del parts[seq]
+            raw = pair["RIG_FEEDBACK"]["encoder_counts"]
+            counts = raw - (1 << 32) if encoder.signed and raw >= 1 << 31 else raw
+            angle = encoder.rad_from_counts(counts, near_rad=0.0 if last_angle is None else last_angle)
+            last_angle = angle
+            k = seq - first_seq
+            if not 0 <= k < len(rows) or k < len(rows) - 1 - PENDING_CYCLES:
+                continue  # answers no setpoint of the run, or came after its sample was written (LOST)
+            row = rows[k]
+            if k in received:
+                row.flags |= _DUPLICATE
+                continue
+            received.add(k)
+            row.angle_rad, row.counts = angle, counts
+            row.flags &= ~_LOST
+            if state_from_statusword_or_none(pair["RIG_FEEDBACK"]["statusword"]) in _FAULT_STATES:
+                row.flags |= _FAULT
+            if message.timestamp - t0 > (k + 1) * period:
+                row.flags |= _LATE
+    if frames == 0:
+        raise LogFileError(f"{path}: no CAN frame could be read from it: the trace is empty, damaged, or not a "
+                           f"{path.suffix} file (python-can's reader for {path.suffix} found nothing)")
+    if not rows:
+        raise LogFileError(f"{path}: no RIG_SETPOINT frame (0x{codec.frame_ids['RIG_SETPOINT']:03X}) in {frames} "
+                           f"frames: not a capture of a run on the raw-CAN rig of {config.source}")
+    from rig import __version__
+    from rig.commands.run import rig_config_metadata
+
+    metadata = ExperimentMetadata(
+        sample_period_s=period, source=config.name, transport=config.url, encoder_bits=encoder.bits,
+        config={"rig": rig_config_metadata(config), "num_samples": len(rows)}, software_version=__version__,
+        extra={"imported_from": {"trace": str(path), "frames": frames, "first_seq": first_seq},
+               "summary": {"frame_errors": frame_errors}})
+    n = len(rows)
+    flags = np.array([row.flags for row in rows], dtype=np.uint8)
+    return ExperimentRecord(time_s=np.arange(n) * period, command_rad=np.array([row.command_rad for row in rows]),
+                            angle_rad=np.array([row.angle_rad for row in rows]),
+                            encoder_counts=np.array([row.counts for row in rows], dtype=np.int64), flags=flags,
+                            metadata=metadata)
+
+
+def _import_canopen(path: Path, config: Any) -> ExperimentRecord:
+    """SYNC + RPDO1 + TPDOs (the mapping the transport sets up: drive TPDO1 0x6041 + 0x6064, drive TPDO2
+    0x6062 where the EDS has it, encoder TPDO1 0x6004), each TPDO filed under the last SYNC before its time
+    stamp, as :mod:`rig.transports.canopen_link` files them; frames are taken in time-stamp order."""
+    from rig.transports import parse_transport_url, transport_class
+    from rig.transports.canopen_link import SYNC_COB_ID
+
+    link = transport_class("canopen")(**parse_transport_url(config.url)[1], **config.transport_options())
+    drive_node, encoder_node = link.drive_node_id, link.encoder_node_id
+    ids = {0x180 + drive_node: "drive", 0x280 + drive_node: "demand", 0x180 + encoder_node: "encoder"}
+    rpdo_id = 0x200 + drive_node
+    period, tolerance = config.sample_period_s, config.late_tolerance_s
+    encoder, drive = config.encoder, config.drive
+    frames = sorted(((message.timestamp, index, message) for index, message in _frames(path)
+                     if not message.is_error_frame), key=lambda item: (item[0], item[1]))
+    frame_errors = 0
+    has_demand = any(message.arbitration_id == 0x280 + drive_node for _, _, message in frames)
+    syncs: list[float] = []
+    origin: int | None = None
+    in_force: tuple[int, int] = (-1, 0)
+    applied: dict[int, tuple[int, bool]] = {}
+    instant_errors: dict[int, float] = {}
+    ambiguous: set[int] = set()
+    rpdos: list[tuple[int, int]] = []
+    unfiled: list[tuple[str, Any, float]] = []
+    parts: dict[int, dict[str, Any]] = {}
+    answers: dict[int, list[dict[str, Any]]] = {}
+    last_angle: float | None = None
+
+    def file(part: str, value: Any, stamp: float) -> None:
+        nonlocal last_angle
+        count = next((number for number in range(len(syncs), 0, -1) if syncs[number - 1] <= stamp), None)
+        if count is None or origin is None:
+            return
+        seq = count - link.latency_cycles[part] - origin
+        if seq < 0:
+            return
+        pair = parts.setdefault(seq, {})
+        pair[part] = value
+        if "drive" in pair and "encoder" in pair and ("demand" in pair or not has_demand):
+            angle = encoder.rad_from_counts(pair["encoder"], near_rad=0.0 if last_angle is None else last_angle)
+            last_angle = angle
+            answers.setdefault(seq, []).append({**pair, "angle": angle})
+
+    for stamp, index, message in frames:
+        cob = message.arbitration_id
+        if cob == SYNC_COB_ID:
+            syncs.append(stamp)
+            count = len(syncs)
+            if count > 1 and stamp - syncs[-2] < link.min_cycle_s:
+                ambiguous.update((count - 1, count))
+            pending, unfiled = unfiled, []
+            for item in pending:
+                if item[2] < stamp:
+                    file(*item)
+                else:
+                    unfiled.append(item)
+            if origin is not None and count >= origin:
+                sample = count - origin
+                applied[sample] = (in_force[1], in_force[0] != sample)
+                if count > 1:
+                    instant_errors[sample] = stamp - syncs[-2] - period
+        elif cob == rpdo_id:
+            if len(message.data) != 4:
+                frame_errors += 1
+                continue
+            counts = int.from_bytes(bytes(message.data), "little", signed=True)
+            if origin is None:
+                origin = len(syncs) + 1
+            sample = len(syncs) + 1 - origin  # put on the bus right after SYNC sample - 1
+            rpdos.append((sample, counts))
+            in_force = (sample, counts)
+        elif cob in ids:
+            part = ids[cob]
+            data = bytes(message.data)
+            try:
+                if part == "drive":
+                    value: Any = (int.from_bytes(data[0:2], "little"), int.from_bytes(data[2:6], "little", signed=True))
+                    if len(data) != 6:
+                        raise ValueError
+                elif part == "demand":
+                    if len(data) != 4:
+                        raise ValueError
+                    value = int.from_bytes(data, "little", signed=True)
+                else:
+                    if len(data) != 4:
+                        raise ValueError
+                    raw = int.from_bytes(data, "little")
+                    value = raw - (1 << 32) if encoder.signed and raw >= 1 << 31 else raw
+            except ValueError:
+                frame_errors += 1
+                continue
+            unfiled.append((part, value, stamp))
+    if origin is None:
+        raise LogFileError(f"{path}: no RPDO1 of the drive (0x{rpdo_id:03X}) in {len(frames)} frames: not a capture "
+                           f"of a run on the CANopen rig of {config.source}")
+    total = max(sample for sample, _ in rpdos) + 1
+    targets: dict[int, int] = {}
+    for sample, counts in rpdos:
+        targets.setdefault(sample, counts)
+    rows: list[_Row] = []
+    for seq in range(total):
+        command = drive.rad_from_counts(targets[seq]) if seq in targets else math.nan
+        row = _Row(command)
+        found = answers.get(seq, [])
+        if found:
+            answer = found[0]
+            statusword, _ = answer["drive"]
+            counts, held = applied.get(seq, (None, False))
+            row.angle_rad, row.counts = answer["angle"], answer["encoder"]
+            row.flags &= ~_LOST
+            if held:
+                row.flags |= int(SampleFlag.HELD)
+            if abs(instant_errors.get(seq, 0.0)) > tolerance:
+                row.flags |= _LATE
+            if counts is not None:
+                row.command_rad = drive.rad_from_counts(counts)
+            state = state_from_statusword_or_none(statusword)
+            if state is DriveState.OPERATION_ENABLED and not statusword & (1 << 12):
+                row.flags |= int(SampleFlag.NOT_FOLLOWED)
+            if any(seq + origin + latency in ambiguous for latency in link.latency_cycles.values()) or (
+                    "demand" in answer and counts is not None and answer["demand"] != counts):
+                row.flags |= int(SampleFlag.AMBIGUOUS)
+            if state in _FAULT_STATES or (state is not None and state is not DriveState.OPERATION_ENABLED):
+                row.flags |= _FAULT
+            if len(found) > 1:
+                row.flags |= _DUPLICATE
+        if math.isnan(row.command_rad):
+            row.command_rad = rows[-1].command_rad if rows else 0.0
+        rows.append(row)
+    from rig import __version__
+    from rig.commands.run import rig_config_metadata
+
+    metadata = ExperimentMetadata(
+        sample_period_s=period, source=config.name, transport=config.url, encoder_bits=encoder.bits,
+        config={"rig": rig_config_metadata(config), "num_samples": len(rows)}, software_version=__version__,
+        extra={"imported_from": {"trace": str(path), "frames": len(frames), "origin_sync": origin},
+               "summary": {"frame_errors": frame_errors}})
+    n = len(rows)
+    return ExperimentRecord(time_s=np.arange(n) * period, command_rad=np.array([row.command_rad for row in rows]),
+                            angle_rad=np.array([row.angle_rad for row in rows]),
+                            encoder_counts=np.array([row.counts for row in rows], dtype=np.int64),
+                            flags=np.array([row.flags for row in rows], dtype=np.uint8), metadata=metadata)

@@ -1,0 +1,147 @@
+"""``rig import TRACE`` (issue 17, item 3): the trace of ``rig run --can-trace`` gives back the run's own log
+sample for sample in every trace format, raw CAN and CANopen (HELD samples too), a missing frame is a LOST sample, and damaged or foreign traces get
+an error naming the frame."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import can
+import numpy as np
+import pytest
+
+from identify.experiment_record import SampleFlag
+from rig import exit_codes
+from rig.cli import main
+from rig.log_file import read_log
+from rig.protocols.errors import LogFileError
+from rig.rig_config import load_rig_config
+from rig.trace_import import import_trace
+
+CONFIGS = Path(__file__).resolve().parents[2] / "configs"
+RATE_HZ = 200.0  # as the transport tests: a modest rate that a loaded CI host keeps
+
+
+def _config(directory: Path, kind: str = "can") -> Path:
+    plant = (CONFIGS / "plants" / "precision_gearbox.toml").read_text()
+    plant = plant.replace("sample_period_s = 0.001", f"sample_period_s = {1 / RATE_HZ!r}")
+    plant = plant.replace("frequency_hz = 120.0", "frequency_hz = 40.0")  # below this rate's Nyquist frequency
+    (directory / "plant.toml").write_text(plant)
+    lines = []
+    for line in (CONFIGS / f"sim_{kind}.toml").read_text().splitlines():
+        if line.startswith("sample_rate_hz"):
+            line = f"sample_rate_hz = {RATE_HZ!r}"
+        elif line.startswith("plant ="):
+            line = f'plant = "{directory / "plant.toml"}"'
+        elif line.startswith("feedback_timeout_s"):
+            line = "feedback_timeout_s = 0.5"
+        elif line.startswith("url = "):
+            scheme = line.split('"')[1].split(":")[0]
+            line = f'url = "{scheme}://virtual/import_{directory.name}"'  # one bus per test
+        lines.append(line)
+    path = directory / f"sim_{kind}.toml"
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def _run(directory: Path, trace: Path, seconds: float = 0.1, kind: str = "can", *options: str) -> Path:
+    log = directory / "run.csv"
+    assert main(["run", str(_config(directory, kind)), "--experiment", str(CONFIGS / "experiments" / "prbs.toml"),
+                 "--out", str(log), "--duration", repr(seconds), "--can-trace", str(trace), "--json", *options]) == 0
+    return log
+
+
+def _assert_same_samples(run_log: Path, imported_log: Path, ignore_late: bool = True) -> None:
+    run, imported = read_log(run_log), read_log(imported_log)
+    np.testing.assert_array_equal(imported.time_s, run.time_s)
+    np.testing.assert_array_equal(imported.command_rad, run.command_rad)
+    np.testing.assert_array_equal(imported.angle_rad, run.angle_rad)
+    np.testing.assert_array_equal(imported.encoder_counts, run.encoder_counts)
+    # LATE is the host's judgement of its own monotonic clock; the import judges it from the trace's stamps
+    mask = ~np.uint8(SampleFlag.LATE) if ignore_late else np.uint8(0xFF)
+    np.testing.assert_array_equal(imported.flags & mask, run.flags & mask)
+    assert imported.metadata.sample_period_s == run.metadata.sample_period_s
+    assert imported.metadata.source == run.metadata.source and imported.metadata.encoder_bits == 12
+
+
+@pytest.mark.parametrize("kind, suffix", [("can", ".blf"), ("can", ".asc"), ("can", ".log"), ("can", ".trc"),
+                                          ("canopen", ".blf"), ("canopen", ".asc")])
+def test_the_trace_of_a_run_imports_as_the_runs_log(kind, suffix, tmp_path, capsys):
+    trace = tmp_path / f"run{suffix}"
+    log = _run(tmp_path, trace, 0.1, kind)
+    capsys.readouterr()
+    imported = tmp_path / "imported.csv"
+    assert main(["import", str(trace), "--config", str(tmp_path / f"sim_{kind}.toml"), "--out", str(imported),
+                 "--json"]) == exit_codes.SUCCESS
+    result = json.loads(capsys.readouterr().out)
+    assert result["samples"] == 20 and result["frame_errors"] == 0
+    # CANopen: the device's SYNC spacing decides LATE, and the trace has the SYNCs: every flag is compared
+    _assert_same_samples(log, imported, ignore_late=kind == "can")
+
+
+def test_a_canopen_trace_with_held_samples_imports_as_the_runs_log(tmp_path, capsys):
+    """A host stall longer than the lead: the drive held earlier targets, and the trace shows which."""
+    trace = tmp_path / "run.blf"
+    log = _run(tmp_path, trace, 0.3, "canopen", "--sim-faults", "stall=150@10")
+    assert json.loads(capsys.readouterr().out)["held"] > 0
+    record = import_trace(trace, load_rig_config(tmp_path / "sim_canopen.toml"))
+    imported = tmp_path / "imported.csv"
+    from rig.log_file import write_log
+
+    write_log(imported, record)
+    assert record.count_flag(SampleFlag.HELD) > 0
+    _assert_same_samples(log, imported, ignore_late=False)
+
+
+def test_a_missing_feedback_frame_is_a_lost_sample(tmp_path):
+    log = _run(tmp_path, tmp_path / "run.blf")
+    frames = list(can.BLFReader(str(tmp_path / "run.blf")))
+    dropped = next(index for index, frame in enumerate(frames)
+                   if frame.arbitration_id == 0x190 and frame.data[0] == 7)  # RIG_FEEDBACK of sample 7
+    edited = tmp_path / "edited.asc"
+    with can.Logger(str(edited)) as writer:
+        for index, frame in enumerate(frames):
+            if index != dropped:
+                writer.on_message_received(frame)
+    record = import_trace(edited, load_rig_config(tmp_path / "sim_can.toml"))
+    run = read_log(log)
+    assert record.flags[7] & SampleFlag.LOST and np.isnan(record.angle_rad[7])
+    keep = np.arange(len(run)) != 7
+    np.testing.assert_array_equal(record.angle_rad[keep], run.angle_rad[keep])
+
+
+def test_damaged_and_foreign_traces_are_named(tmp_path, capsys):
+    config = _config(tmp_path)
+    damaged = tmp_path / "damaged.blf"
+    damaged.write_bytes(b"LOGG" + b"\x07" * 300)
+    assert main(["import", str(damaged), "--config", str(config), "--out", str(tmp_path / "o.csv")]) == 2
+    assert f"{damaged}: no CAN frame could be read from it" in capsys.readouterr().err
+    foreign = tmp_path / "foreign.asc"
+    with can.Logger(str(foreign)) as writer:
+        for k in range(5):
+            writer.on_message_received(can.Message(arbitration_id=0x123, data=bytes([k]), timestamp=k * 0.01,
+                                                   is_extended_id=False))
+    with pytest.raises(LogFileError, match=r"no RIG_SETPOINT frame \(0x110\) in 5 frames"):
+        import_trace(foreign, load_rig_config(config))
+    skipping = tmp_path / "skipping.asc"
+    with can.Logger(str(skipping)) as writer:
+        for index, seq in enumerate((0, 1, 3)):
+            writer.on_message_received(can.Message(arbitration_id=0x110, data=bytes([seq, 0, 0, 0, 0, 0]),
+                                                   timestamp=index * 0.005, is_extended_id=False))
+    with pytest.raises(LogFileError, match=r"frame 2 at .* RIG_SETPOINT seq 3 does not follow seq 1"):
+        import_trace(skipping, load_rig_config(config))
+
+
+def test_a_serial_rig_is_refused_and_the_output_is_checked_first(tmp_path, capsys):
+    trace = tmp_path / "t.asc"
+    with can.Logger(str(trace)) as writer:
+        writer.on_message_received(can.Message(arbitration_id=0x80, data=b"", is_extended_id=False))
+    assert main(["import", str(trace), "--config", str(CONFIGS / "sim_serial.toml"), "--out",
+                 str(tmp_path / "o.csv")]) == exit_codes.BAD_INPUT
+    assert "the serial transport has no CAN frames" in capsys.readouterr().err
+    assert main(["import", str(trace), "--config", str(_config(tmp_path, "canopen")), "--out",
+                 str(tmp_path / "o.csv")]) == exit_codes.BAD_INPUT
+    assert "no RPDO1 of the drive (0x201)" in capsys.readouterr().err
+    assert main(["import", str(trace), "--config", str(_config(tmp_path)), "--out",
+                 str(tmp_path / "missing" / "o.csv")]) == exit_codes.WRITE_FAILED
