@@ -57,12 +57,18 @@ __all__ = ["LINEAR_BOUND_METHODS", "EmptyLinearSetExplanation", "LinearBlockBoun
 
 LINEAR_BOUND_METHODS = ("paper", "coupled")
 
-_DEFAULT_SETTINGS = {"solver": "simplex", "simplex_strategy": 1, "presolve": "on", "run_crossover": "on"}
+_DEFAULT_SETTINGS = {"solver": "simplex", "simplex_strategy": 1, "presolve": "on", "run_crossover": "on",
+                     "simplex_scale_strategy": 2}
 _RECOVERY_SETTINGS = (
     {"solver": "simplex", "simplex_strategy": 1, "presolve": "on"},
     {"solver": "simplex", "simplex_strategy": 1, "presolve": "off"},
+    # the chained equations of long records have rows of very different size; unscaled dual simplex solved
+    # the bounding LP of issue 19 (N = 10 000, 12 bits) that every scaled setting stopped on with "Solve error"
+    {"solver": "simplex", "simplex_strategy": 1, "presolve": "on", "simplex_scale_strategy": 0},
     {"solver": "ipm", "run_crossover": "off", "presolve": "on"},
+    {"solver": "ipm", "run_crossover": "off", "presolve": "off"},
 )
+_RECOVERY_NAMES = "warm start dropped, dual simplex with and without presolve and without scaling, interior point"
 _B_BOX = 1e6
 """A-priori box |b_j| <= 1e6; a bound that reaches it is reported as unbounded (infinite)."""
 
@@ -166,6 +172,9 @@ class LinearBlockBounds:
         Solver diagnostics.
     max_certificate_gap
         Largest difference between a solver's optimum and the certified (Neumaier-Shcherbina) bound used.
+    notes
+        One sentence per bound that is looser than the method would give, saying which parameter and why
+        (a bounding LP that HiGHS could not solve: the bound is the last valid one before that LP).
     """
 
     method: str
@@ -179,6 +188,7 @@ class LinearBlockBounds:
     num_tightening_rounds: int
     feasible_orthants: tuple[tuple[int, ...], ...]
     max_certificate_gap: float = field(default=0.0)
+    notes: tuple[str, ...] = field(default=())
 
     @property
     def is_empty(self) -> bool:
@@ -202,10 +212,27 @@ class _LP:
     upper: NDArray[np.float64]
 
 
+class _SolverFailure(RuntimeError):
+    """HiGHS stopped on an LP without an optimum or a proof of infeasibility, after every recovery setting."""
+
+    def __init__(self, status: str) -> None:
+        super().__init__(f"HiGHS failed on a bounding LP: {status} (tried: {_RECOVERY_NAMES})")
+        self.status = status
+
+
 class _Counter:
     def __init__(self) -> None:
         self.solves = 0
         self.max_gap = 0.0
+        # (parameter index, "lower"/"upper", HiGHS status, stage) of every bound kept at its previous value
+        self.fallbacks: list[tuple[int, str, str, str]] = []
+        self.stage = "paper method"
+
+    def merge(self, other: "_Counter") -> None:
+        """Add the counts of work done elsewhere (a window solved in another process)."""
+        self.solves += other.solves
+        self.max_gap = max(self.max_gap, other.max_gap)
+        self.fallbacks.extend(other.fallbacks)
 
 
 class _Solver:
@@ -285,7 +312,7 @@ class _Solver:
         if status == self._status.kInfeasible:
             return math.inf, None
         if status != self._status.kOptimal:
-            raise RuntimeError(f"HiGHS failed on a bounding LP: {highs.modelStatusToString(status)}")
+            raise _SolverFailure(highs.modelStatusToString(status))
         solution = highs.getSolution()
         x = np.asarray(solution.col_value, dtype=float)
         y = np.asarray(solution.row_dual, dtype=float)
@@ -318,7 +345,10 @@ def _proven_infeasible(lp: _LP, counter: _Counter) -> bool:
                   np.append(lp.lower, 0.0), np.append(lp.upper, 1e6))
     cost = np.zeros(lp.lower.size + 1)
     cost[-1] = 1.0
-    bound, _ = _certified_minimum(relaxed, cost, counter)
+    try:
+        bound, _ = _certified_minimum(relaxed, cost, counter)
+    except _SolverFailure:
+        return False  # not proven: the caller keeps the set (a valid, looser answer)
     return bound > 0.0
 
 
@@ -412,13 +442,26 @@ def _bounds_over(lp: _LP, p: int, counter: _Counter,
     (``points[2k]`` minimises and ``points[2k + 1]`` maximises variable k).
 
     ``bases``: optimal HiGHS bases per objective (same order) from an LP of the same shape; objectives that have
-    one start from it, and the list is updated in place with this LP's optimal bases."""
+    one start from it, and the list is updated in place with this LP's optimal bases.
+
+    A bound whose LP HiGHS cannot solve (after the recovery settings of :meth:`_Solver.minimize`) is the
+    LP's own column bound for that variable, which holds for every point of the set (the caller's current
+    box); it is recorded in ``counter.fallbacks`` and its point is None."""
     lows, highs, points = np.empty(p), np.empty(p), []
     solver = _Solver(lp)
 
     def solve(cost: NDArray[np.float64], index: int) -> tuple[float, NDArray[np.float64] | None]:
         start = bases[index] if bases is not None and index < len(bases) else None
-        value, x = solver.minimize(cost, counter, start)
+        try:
+            value, x = solver.minimize(cost, counter, start)
+        except _SolverFailure as failure:
+            k, side = divmod(index, 2)
+            counter.fallbacks.append((k, "upper" if side else "lower", failure.status, counter.stage))
+            solver.warm = False
+            if bases is not None:
+                bases.extend([None] * (index + 1 - len(bases)))
+                bases[index] = None
+            return (-lp.upper[k] if side else lp.lower[k]), _FAILED
         if bases is not None and x is not None:
             basis = solver.highs.getBasis()
             if index < len(bases):
@@ -434,9 +477,15 @@ def _bounds_over(lp: _LP, p: int, counter: _Counter,
         if x_low is None:  # infeasible: no other objective can do better
             return np.full(p, math.inf), np.full(p, -math.inf), []
         neg, x_high = solve(-cost, 2 * k + 1)
+        if x_high is None:
+            return np.full(p, math.inf), np.full(p, -math.inf), []
         highs[k] = -neg
-        points.extend([x_low, x_high])
+        points.extend([None if x_low is _FAILED else x_low, None if x_high is _FAILED else x_high])
     return lows, highs, points
+
+
+_FAILED = np.zeros(0)
+"""Marker point of a bound that fell back to the column box (not an infeasibility)."""
 
 
 def _paper_bounds(data: _Data, counter: _Counter) -> tuple[NDArray[np.float64], NDArray[np.float64], list[tuple[int, ...]]]:
@@ -623,6 +672,7 @@ def _coupled_bounds(data: _Data, low: NDArray[np.float64], high: NDArray[np.floa
     p = data.orders.num_parameters
     rounds = 0
     if data.u.size > 2 * _WINDOW and data.orders.na:
+        counter.stage = f"coupled relaxation of the first {_WINDOW} samples"
         window = _subset(data, _WINDOW)
         low, high, used, _, empty = _tighten(window, low, high, counter, max_rounds, relative_improvement, False)
         rounds += used
@@ -632,6 +682,7 @@ def _coupled_bounds(data: _Data, low: NDArray[np.float64], high: NDArray[np.floa
         relaxation = _FULL_DATA_RELAXATION
     else:
         relaxation = _coupled_lp
+    counter.stage = f"coupled relaxation of all {data.u.size} samples"
     low, high, used, points, empty = _tighten(data, low, high, counter, max_rounds, relative_improvement, True,
                                               relaxation)
     if empty:
@@ -833,6 +884,7 @@ def bound_linear_block(input_rad: ArrayLike, inner_lower_rad: ArrayLike, inner_u
             inner_low, inner_high, witness = _inner_values(data, low, high, points, counter)
             inner = ({n: float(v) for n, v in zip(names, inner_low)}, {n: float(v) for n, v in zip(names, inner_high)},
                      None if witness is None else {n: float(v) for n, v in zip(names, witness)})
+    notes = _fallback_notes(names, counter)
     intervals = {}
     for k, name in enumerate(names):
         lo, hi = float(low[k]), float(high[k])
@@ -841,4 +893,17 @@ def bound_linear_block(input_rad: ArrayLike, inner_lower_rad: ArrayLike, inner_u
             hi = math.inf if hi >= _B_BOX * (1 - 1e-9) else hi
         intervals[name] = ParameterInterval(lo, hi)
     return LinearBlockBounds(method, orders, intervals, inner[0], inner[1], inner[2], None, counter.solves, rounds,
-                             tuple(feasible), counter.max_gap)
+                             tuple(feasible), counter.max_gap, notes)
+
+
+def _fallback_notes(names: tuple[str, ...], counter: _Counter) -> tuple[str, ...]:
+    """One note per (parameter, side) whose bounding LP HiGHS could not solve at some stage."""
+    seen: dict[tuple[int, str], list[str]] = {}
+    for k, side, status, stage in counter.fallbacks:
+        seen.setdefault((k, side), [])
+        if f"{stage} ({status})" not in seen[(k, side)]:
+            seen[(k, side)].append(f"{stage} ({status})")
+    return tuple(
+        f"{names[k]} {side} bound: HiGHS could not solve its bounding LP in the {', '.join(where)} after "
+        f"the retries ({_RECOVERY_NAMES}); the bound there is the previous valid one, so it may be looser "
+        "than the method allows (still guaranteed)" for (k, side), where in sorted(seen.items()))

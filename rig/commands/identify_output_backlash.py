@@ -164,7 +164,7 @@ def _document(result, method: str) -> dict:
     if result.is_empty:
         return {"empty": True, "explanation": result.explanation, "method": method}
     inner = result.inner_signal
-    return {
+    document = {
         "backlash": {name: {k: _number(v) for k, v in interval.as_dict().items()}
                      for name, interval in result.backlash_intervals.items()},
         "linear": {name: {k: _number(v) for k, v in interval.as_dict().items()}
@@ -173,6 +173,9 @@ def _document(result, method: str) -> dict:
         "invertible_samples": inner.num_invertible,
         "samples": int(inner.lower_rad.size),
     }
+    if result.linear.notes:  # only then: the keys of issue 2 stay exactly those otherwise
+        document["notes"] = list(result.linear.notes)
+    return document
 
 
 def _run_one(args: argparse.Namespace, steady: str, dynamic: str) -> int:
@@ -208,6 +211,8 @@ def _run_one(args: argparse.Namespace, steady: str, dynamic: str) -> int:
                 low, high = (f"{value:>14.8g}" if math.isfinite(value) else f"{'-':>14}"
                              for value in (result.linear.inner_lower[name], result.linear.inner_upper[name]))
                 print(f"{name:<10} {low} {high}")
+        for note in result.linear.notes:
+            print(f"note: {note}")
     sys.stdout.flush()
     return exit_codes.SUCCESS
 

@@ -173,3 +173,35 @@ def test_interval_relaxation_holds_at_the_truth_and_contains_the_mccormick_one()
     assert np.all(outer_low <= mccormick_low + 1e-9) and np.all(mccormick_high <= outer_high + 1e-9)
     # and it is not vacuous: it tightens the box it was given
     assert np.all(outer_high - outer_low < high - low)
+
+
+def test_a_bounding_lp_that_highs_cannot_solve_falls_back_to_a_valid_bound_with_a_note(monkeypatch) -> None:
+    # Issue 19: at N = 10 000, 12 bits (benchmark seed [2009, 10000, 12, 1]) one LP of the full-data relaxation
+    # stopped with "Solve error" under every recovery setting and the user got a traceback. Here every LP that
+    # bounds b2 from above in the coupled rounds "fails" the same way: the result must still contain the truth,
+    # stay inside the paper method's box, and name the parameter.
+    import identify.linear_block_bounds as module
+
+    data = experiment(12, 41)
+    _, reference = _run(12, 41, "coupled")
+    original = module._Solver.minimize
+
+    def failing(self, cost, counter, start=None):
+        if counter.stage.startswith("coupled") and cost.size > 4 and cost[3] == -1.0:
+            counter.solves += 1
+            raise module._SolverFailure("Solve error")
+        return original(self, cost, counter, start)
+
+    monkeypatch.setattr(module._Solver, "minimize", failing)
+    _, paper = _run(12, 41, "paper")
+    _, result = _run(12, 41, "coupled")
+    linear = result.linear
+    assert len(linear.notes) == 1 and linear.notes[0].startswith("b2 upper bound: HiGHS could not solve")
+    assert "Solve error" in linear.notes[0]
+    for name, value in THETA.items():
+        interval = linear.intervals[name]
+        assert interval.contains(value)
+        assert paper.linear_intervals[name].lower <= interval.lower and interval.upper <= paper.linear_intervals[name].upper
+    # the other bounds are unaffected by the one that fell back
+    assert linear.intervals["a1"].lower == pytest.approx(reference.linear_intervals["a1"].lower, abs=1e-6)
+    assert reference.linear.notes == ()
