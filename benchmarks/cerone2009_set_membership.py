@@ -143,7 +143,8 @@ def scaling(args: argparse.Namespace) -> None:
                 shared = shared_backlash_constraints(y, delta, backlash, inner)
                 linear = bound_linear_block(u, inner.lower_rad, inner.upper_rad, na=2, nk=1, nb=2, method="coupled",
                                             shared_backlash=shared, map_windows=map_windows,
-                                            joint_samples=args.joint_samples, verify_inner=not args.no_inner)
+                                            joint_samples=args.joint_samples,
+                                            verify_inner=num_samples <= args.inner_max)
                 wall = time.perf_counter() - started
                 cpu = _cpu_s() + _pool_cpu_s(pool) - cpu
                 ratio = math.nan
@@ -182,7 +183,8 @@ def main() -> None:
     parser.add_argument("--first-run", type=int, default=0, help="--scaling: index of the first run (default 0)")
     parser.add_argument("--jobs", type=int, default=1, help="--scaling: processes for the windows (default 1)")
     parser.add_argument("--joint-samples", type=int, default=3000, help="--scaling: joint_samples (default 3000)")
-    parser.add_argument("--no-inner", action="store_true", help="--scaling: skip the verified inner values")
+    parser.add_argument("--inner-max", type=int, default=10000,
+                        help="--scaling: verified inner values (outer/inner) only up to this N (default 10000)")
     args = parser.parse_args()
     if args.scaling is not None:
         scaling(args)

@@ -691,6 +691,7 @@ class _WindowPlan:
     num_parts: int
     passes: int
     part_passes: int
+    all_parts: int = 1
 
 
 def _window_segments(num_samples: int, window: int, overlap: int) -> list[tuple[int, int]]:
@@ -813,6 +814,16 @@ def _coupled_bounds(data: _Data, low: NDArray[np.float64], high: NDArray[np.floa
         active = [int(k) for k in np.flatnonzero(near)] or list(range(len(windows)))
     rounds += passes
     chunks = _window_segments(N, max(joint_samples, window), _WINDOW_OVERLAP) if N > joint_samples else [(0, N)]
+    all_parts = len(chunks)
+    if len(chunks) > 1:
+        # Only the parts that hold a window whose own bound came within one box width of the intersection in
+        # some direction: the others are valid too, but far from deciding (the same rule as the passes').
+        width = high - low
+        near = np.any((own_low > low - width) | (own_high < high + width), axis=1)
+        starts = np.array([segment[0] for segment in segments])[near]
+        stops = np.array([segment[1] for segment in segments])[near]
+        deciding = [chunk for chunk in chunks if np.any((starts >= chunk[0]) & (stops <= chunk[1]))]
+        chunks = deciding or chunks
     points: list[NDArray[np.float64] | None] = [None] * (2 * p)
     chunk_passes = 0
     # All data jointly: all max_rounds rounds unless nothing moves. Each round maps a box monotonically (a
@@ -820,8 +831,8 @@ def _coupled_bounds(data: _Data, low: NDArray[np.float64], high: NDArray[np.floa
     # from before issue 19, so after as many rounds it lies inside their result too; stopping at the passes'
     # tolerance could stop earlier, from a box that is already close. Parts: the passes' tolerance, and a
     # second pass from the intersected box only if the first one still moved it by 10 %.
-    settings = np.array([max_rounds, 1e-6 if len(chunks) == 1 else relative_improvement])
-    for chunk_passes in range(1, (2 if len(chunks) > 1 else 1) + 1):
+    settings = np.array([max_rounds, 1e-6 if all_parts == 1 else relative_improvement])
+    for chunk_passes in range(1, (2 if all_parts > 1 else 1) + 1):
         label = f"joint relaxation of {len(chunks)} part(s) of up to {min(N, joint_samples)} samples"
         new_low, new_high = low.copy(), high.copy()
         best_low, best_high = np.full(p, -math.inf), np.full(p, math.inf)
@@ -847,7 +858,7 @@ def _coupled_bounds(data: _Data, low: NDArray[np.float64], high: NDArray[np.floa
         low, high = new_low, np.maximum(new_high, new_low)
         if shrink < 0.1:
             break
-    return low, high, rounds, points, _WindowPlan(tuple(segments), len(chunks), passes, chunk_passes)
+    return low, high, rounds, points, _WindowPlan(tuple(segments), len(chunks), passes, chunk_passes, all_parts)
 
 
 def _subset(data: _Data, count: int) -> _Data:
@@ -1078,9 +1089,9 @@ def bound_linear_block(input_rad: ArrayLike, inner_lower_rad: ArrayLike, inner_u
 def _describe(plan: _WindowPlan, num_samples: int, window: int, joint_samples: int) -> str:
     if len(plan.segments) == 1:
         return f"all {num_samples} samples in one McCormick relaxation"
-    joint = (f"then all {num_samples} samples jointly" if plan.num_parts <= 1 else
-             f"then {plan.num_parts} overlapping parts of {joint_samples} samples jointly, intersected "
-             f"({plan.part_passes} pass{'es' if plan.part_passes > 1 else ''})")
+    joint = (f"then all {num_samples} samples jointly" if plan.all_parts <= 1 else
+             f"then {plan.num_parts} of {plan.all_parts} overlapping parts of {joint_samples} samples jointly (those "
+             f"holding a deciding window), intersected ({plan.part_passes} pass{'es' if plan.part_passes > 1 else ''})")
     return (f"{len(plan.segments)} windows of {window} samples (overlap {_WINDOW_OVERLAP}), {plan.passes} passes "
             f"of intersected window bounds, {joint}")
 

@@ -57,7 +57,7 @@ def register(methods: argparse._SubParsersAction) -> None:
     parser.add_argument("--joint-samples", type=int, default=3000, metavar="N",
                         help="coupled method: the final relaxation is solved jointly over all samples up to N, else "
                              "over overlapping parts of N samples whose bounds are intersected (default 3000; larger "
-                             "is tighter and slower)")
+                             "is tighter and slower); the verified inner values are computed only up to N samples")
     parser.add_argument("--save", metavar="RESULT.json", default=None,
                         help="also write the bounds with the data they came from (steady points, dynamic record, "
                              "noise bound, orders), so that `rig report RESULT.json` draws the feasible polygons, "
@@ -170,7 +170,10 @@ def _bound(steady: str, dynamic: str, options: dict, map_windows=None, progress=
                                               filter_step_amplitude_rad=options["filter_step"],
                                               window_samples=options["window_samples"],
                                               joint_samples=options["joint_samples"], map_windows=map_windows,
-                                              progress=progress)
+                                              progress=progress,
+                                              # on long records the verified inner points cost more than the
+                                              # bounds (each solves the exact problem over every sample)
+                                              verify_inner=len(u) <= options["joint_samples"])
     except InvalidInputError as err:
         raise InvalidInputError(f"{err} (--steady {steady}, --dynamic {dynamic})") from err
     return result, steady_u, steady_y, u, y

@@ -267,3 +267,30 @@ def test_parts_of_a_long_record_run_through_a_map_and_give_the_same_bounds() -> 
         interval = serial.intervals[name]
         assert interval.contains(value)
         assert paper.linear_intervals[name].lower <= interval.lower and interval.upper <= paper.linear_intervals[name].upper
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(__import__("os").environ.get("RIG_SLOW") != "1", reason="about a minute: opt-in with RIG_SLOW=1")
+def test_the_issue_19_record_that_stopped_highs_gives_bounds() -> None:
+    # The benchmark's run 1 at N = 10 000, 12 bits (seed [2009, 10000, 12, 1]): the all-data LP stopped with
+    # "HiGHS failed on a bounding LP: Solve error" and a traceback. Now: bounds that contain the truth.
+    from identify.excitation_design import filtered_staircase, prbs_sequence, staircase_steady_state_indices
+    from identify.feasible_parameter_set import bound_backlash_parameters
+    from identify.inner_signal_bounds import bound_inner_signal
+    from cerone2009_data import PLANT
+
+    staircase = filtered_staircase(list(np.linspace(0.6, 3.0, 50)), 0.8125, 100)
+    steady = staircase_steady_state_indices(50, 100)
+    rng = np.random.default_rng([2009, 10000, 12, 1])
+    delta = 2.0 * np.pi / 2**12
+    steady_y = PLANT.simulate(staircase)[steady] + rng.uniform(-delta, delta, steady.size)
+    u = prbs_sequence(10000, 1.0, rng=rng)
+    y = PLANT.simulate(u) + rng.uniform(-delta, delta, u.size)
+    backlash = bound_backlash_parameters(staircase[steady], steady_y, delta)
+    inner = bound_inner_signal(y, delta, backlash)
+    shared = shared_backlash_constraints(y, delta, backlash, inner)
+    result = bound_linear_block(u, inner.lower_rad, inner.upper_rad, na=2, nk=1, nb=2, shared_backlash=shared,
+                                verify_inner=False)
+    for name, value in THETA.items():
+        assert result.intervals[name].contains(value)
+        assert result.intervals[name].half_width < 1e-4
