@@ -260,7 +260,7 @@ def test_parts_of_a_long_record_run_through_a_map_and_give_the_same_bounds() -> 
         parallel = bound_linear_block(*args, na=2, nk=1, nb=2, shared_backlash=shared, joint_samples=400,
                                       verify_inner=False, map_windows=pool.map)
     assert parallel.intervals == serial.intervals
-    assert "then 3 overlapping parts of 400 samples jointly" in serial.windowing
+    assert "then 3 of 3 overlapping parts of 400 samples jointly" in serial.windowing
     assert any(stage.startswith("window pass 1") and done == total == 5 for stage, done, total in seen)
     assert any(stage.startswith("joint relaxation of 3 part") and done == total == 3 for stage, done, total in seen)
     for name, value in THETA.items():
