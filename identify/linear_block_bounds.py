@@ -24,11 +24,23 @@ that gives a point of the exact feasible set, so ``inner_lower``/``inner_upper``
 bounds are to the exact ones (if that a admits no exact solution, a is moved towards the box centre in
 steps 0.95, 0.8, 0.5, 0).
 
-For records longer than 400 samples the box of a is first tightened on the first 200 samples (the
-feasible set of a subset of the equations contains the full one, so those bounds are valid and the LPs
-are small); the box of a is then narrow, and the rounds over all the data use a smaller relaxation that
-is tight for a narrow box (:func:`_interval_lp`: a_i δx_s = a_i^c δx_s + e, |e| <= r_i Δx_s, without
-product columns or envelope rows). Every round's LPs start from the previous round's optimal bases.
+For records longer than two windows (400 samples) the work goes window by window, so that it grows about
+linearly with the record (issue 19; :func:`_coupled_bounds`). The feasible set of any subset of the
+equations contains the full one, so every window's bounds are valid. The box of a is first tightened on the
+first 200 samples (McCormick); the box of a is then narrow, and the later LPs use a smaller relaxation that is
+tight for a narrow box (:func:`_interval_lp`: a_i δx_s = a_i^c δx_s + e, |e| <= r_i Δx_s, without product
+columns or envelope rows). Every 200-sample window (consecutive ones share 20 samples) is bounded, the boxes
+are intersected and fed back into every window's relaxation until they stop shrinking; the windows are
+independent tasks for ``map_windows`` (a process pool's or a Dask client's ``executor.map``). The final rounds
+solve the relaxation jointly over all samples when there are at most ``joint_samples`` (3000): the all-data
+relaxation, from a box inside the one it started from before, and never wider. Longer records are solved
+jointly in overlapping parts of ``joint_samples`` samples, whose boxes are intersected: about linear in N, but
+wider than one relaxation over everything would be (bounded-error information is spread over the record).
+Each round's LPs start from the previous round's optimal bases.
+
+A bounding LP that HiGHS cannot solve under any recovery setting (warm start dropped, dual simplex with and
+without presolve and without scaling, interior point) keeps that bound at its previous valid value, and
+``LinearBlockBounds.notes`` says which parameter and why.
 
 Guarantees against solver tolerances: every LP bound is replaced by the Neumaier-Shcherbina bound computed
 from the solver's dual values and the finite variable boxes (a valid bound for any dual vector), and an
