@@ -160,7 +160,8 @@ def scaling(args: argparse.Namespace) -> None:
                   f"{max(r['wall'] for r in rows):>7.2f} {np.median([r['cpu'] for r in rows]):>7.2f} "
                   f"{_peak_mib():>8.0f} | " + " ".join(f"{h:>8.1e}" for h in half)
                   + f" | {np.mean([r['in'] for r in rows]):>4.0%} "
-                  + (f"{np.median(ratios):>9.2f}" if ratios else f"{'-':>9}") + f" | {rows[-1]['windowing']}",
+                  + (f"{np.median(ratios):>9.2f}" if ratios and np.median(ratios) < 100 else
+                     f"{'>100' if ratios else '-':>9}") + f" | {rows[-1]['windowing']}",
                   flush=True)
             for r in rows:
                 for note in r["notes"]:

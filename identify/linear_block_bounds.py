@@ -82,6 +82,8 @@ _RECOVERY_SETTINGS = (
     {"solver": "ipm", "run_crossover": "off", "presolve": "off"},
 )
 _RECOVERY_NAMES = "warm start dropped, dual simplex with and without presolve and without scaling, interior point"
+_TIME_LIMIT_S = 20.0
+"""HiGHS time limit per attempt on one LP (plus 0.2 ms per row); a time-out counts as a failed attempt."""
 _B_BOX = 1e6
 """A-priori box |b_j| <= 1e6; a bound that reaches it is reported as unbounded (infinite)."""
 
@@ -279,11 +281,20 @@ class _Solver:
         self.highs = _Highs()
         self.highs.setOptionValue("output_flag", False)
         self.highs.setOptionValue("presolve", presolve)
+        # A bounded time per attempt: a warm start that stalls on a long record's LP (issue 19: one part of a
+        # 100 000-sample record kept a worker busy for over 15 minutes) goes on to the recovery settings and,
+        # at worst, to the fallback bound, instead of holding up the whole record.
+        # HiGHS counts its time limit over all runs of one model, so each run sets it from the time used so far.
+        self.time_limit_s = _TIME_LIMIT_S + 2e-4 * float(A.shape[0])
         self.highs.passModel(model)
 
         self._status = HighsModelStatus
         self.columns = np.arange(A.shape[1], dtype=np.int32)
         self.warm = False
+
+    def _run(self) -> None:
+        self.highs.setOptionValue("time_limit", self.highs.getRunTime() + self.time_limit_s)
+        self.highs.run()
 
     def minimize(self, cost: NDArray[np.float64], counter: _Counter,
                  start: object | None = None) -> tuple[float, NDArray[np.float64] | None]:
@@ -301,7 +312,7 @@ class _Solver:
             highs.setOptionValue("simplex_strategy", 4)
             highs.setOptionValue("presolve", "off")
         highs.changeColsCost(self.columns.size, self.columns, np.asarray(cost, dtype=float))
-        highs.run()
+        self._run()
         status = highs.getModelStatus()
         if status not in (self._status.kOptimal, self._status.kInfeasible):
             # Recover from a stalled warm start or a numerically poor basis (the chained equations can make
@@ -312,7 +323,7 @@ class _Solver:
                 highs.clearSolver()
                 for option, value in settings.items():
                     highs.setOptionValue(option, value)
-                highs.run()
+                self._run()
                 status = highs.getModelStatus()
                 if status in (self._status.kOptimal, self._status.kInfeasible):
                     break
