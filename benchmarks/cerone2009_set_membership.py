@@ -11,6 +11,15 @@ Usage (from the repository root)::
 
     nice -n 10 .venv/bin/python benchmarks/cerone2009_set_membership.py --runs 100 --num-samples 100
     nice -n 10 .venv/bin/python benchmarks/cerone2009_set_membership.py --runs 20 --num-samples 1000
+
+Scaling with the record length (issue 19): ``--scaling N [N ...]`` runs the coupled method only, for every N
+and n_bit, with run r of (N, n_bit) drawn from ``numpy.random.default_rng([seed, N, n_bit, r])`` (so one
+failing case is rerun alone with ``--scaling N --n-bits n --first-run r --runs 1``), and prints wall and CPU
+time (this process and its worker processes), peak memory, median half-widths, truth containment and the
+outer/inner ratio::
+
+    nice -n 10 .venv/bin/python benchmarks/cerone2009_set_membership.py --scaling 100 1000 10000 100000 \
+        --runs 3 --jobs 2
 """
 
 from __future__ import annotations
@@ -18,7 +27,10 @@ from __future__ import annotations
 import argparse
 import math
 import os
+import resource
 import time
+from concurrent.futures import ProcessPoolExecutor
+from functools import partial
 
 import numpy as np
 
@@ -77,13 +89,107 @@ def run_once(n_bit: int, num_samples: int, rng: np.random.Generator, staircase: 
     return out
 
 
+def _cpu_s() -> float:
+    """CPU seconds of this process and of its (finished or running-pool) children so far."""
+    own = resource.getrusage(resource.RUSAGE_SELF)
+    children = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return own.ru_utime + own.ru_stime + children.ru_utime + children.ru_stime
+
+
+def _peak_mib() -> float:
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+def _pool_cpu_s(pool: ProcessPoolExecutor | None) -> float:
+    """CPU seconds of the live worker processes (RUSAGE_CHILDREN counts them only once they exit)."""
+    if pool is None:
+        return 0.0
+    total = 0.0
+    for pid in list(getattr(pool, "_processes", {}) or {}):
+        try:
+            with open(f"/proc/{pid}/stat") as stat:
+                fields = stat.read().rsplit(")", 1)[1].split()
+            total += (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+        except (OSError, ValueError, IndexError):
+            pass
+    return total
+
+
+def scaling(args: argparse.Namespace) -> None:
+    plant = PlantModel((LinearBlock((0.5, 0.7), (0.0, 1.4, 0.8), 1.0), OutputBacklash(**GAMMA)))
+    staircase = filtered_staircase(list(np.linspace(0.6, 3.0, 50)), 0.8125, 100)
+    steady = staircase_steady_state_indices(50, 100)
+    steady_w = plant.simulate(staircase)[steady]
+    pool = ProcessPoolExecutor(args.jobs) if args.jobs > 1 else None
+    map_windows = map if pool is None else partial(pool.map, chunksize=4)
+    print(f"Coupled bounds against the record length: seed {args.seed}, run r of (N, n_bit) from "
+          f"default_rng([{args.seed}, N, n_bit, r]); {args.jobs} process(es) for the windows, joint_samples "
+          f"{args.joint_samples}, {os.cpu_count()} cores; medians over the runs")
+    header = (f"{'N':>6} {'n_bit':>5} {'runs':>4} | {'wall s':>7} {'max':>7} {'CPU s':>7} {'peak MiB':>8} | "
+              + " ".join(f"{'D' + name:>8}" for name in THETA) + f" | {'in':>4} {'out/inner':>9} | windowing")
+    print(header)
+    for num_samples in args.scaling:
+        for n_bit in args.n_bits:
+            rows = []
+            for run in range(args.first_run, args.first_run + args.runs):
+                rng = np.random.default_rng([args.seed, num_samples, n_bit, run])
+                delta = 2.0 * np.pi / 2**n_bit
+                steady_y = steady_w + rng.uniform(-delta, delta, steady.size)
+                u = prbs_sequence(num_samples, 1.0, rng=rng)
+                y = plant.simulate(u) + rng.uniform(-delta, delta, num_samples)
+                started, cpu = time.perf_counter(), _cpu_s() + _pool_cpu_s(pool)
+                backlash = bound_backlash_parameters(staircase[steady], steady_y, delta)
+                inner = bound_inner_signal(y, delta, backlash)
+                shared = shared_backlash_constraints(y, delta, backlash, inner)
+                linear = bound_linear_block(u, inner.lower_rad, inner.upper_rad, na=2, nk=1, nb=2, method="coupled",
+                                            shared_backlash=shared, map_windows=map_windows,
+                                            joint_samples=args.joint_samples,
+                                            verify_inner=num_samples <= args.inner_max)
+                wall = time.perf_counter() - started
+                cpu = _cpu_s() + _pool_cpu_s(pool) - cpu
+                ratio = math.nan
+                if linear.inner_lower is not None:
+                    ratio = max((linear.intervals[k].upper - linear.intervals[k].lower)
+                                / max(linear.inner_upper[k] - linear.inner_lower[k], 1e-300) for k in THETA)
+                rows.append({"wall": wall, "cpu": cpu, "half": [linear.intervals[k].half_width for k in THETA],
+                             "in": all(linear.intervals[k].contains(v) for k, v in THETA.items()), "ratio": ratio,
+                             "windowing": linear.windowing, "notes": linear.notes})
+            half = np.median([r["half"] for r in rows], axis=0)
+            ratios = [r["ratio"] for r in rows if math.isfinite(r["ratio"])]
+            print(f"{num_samples:>6} {n_bit:>5} {len(rows):>4} | {np.median([r['wall'] for r in rows]):>7.2f} "
+                  f"{max(r['wall'] for r in rows):>7.2f} {np.median([r['cpu'] for r in rows]):>7.2f} "
+                  f"{_peak_mib():>8.0f} | " + " ".join(f"{h:>8.1e}" for h in half)
+                  + f" | {np.mean([r['in'] for r in rows]):>4.0%} "
+                  + (f"{np.median(ratios):>9.2f}" if ratios and np.median(ratios) < 100 else
+                     f"{'>100' if ratios else '-':>9}") + f" | {rows[-1]['windowing']}",
+                  flush=True)
+            for r in rows:
+                for note in r["notes"]:
+                    print(f"{'':>6} note: {note}")
+    if pool is not None:
+        pool.shutdown()
+    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else math.nan
+    print(f"(peak MiB: the largest resident set of this process so far; CPU: this process and its window workers; "
+          f"load average at the end {load:.2f})")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--runs", type=int, default=100, help="Monte Carlo runs per n_bit (default 100)")
     parser.add_argument("--num-samples", type=int, default=100, help="N of the PRBS experiment (default 100)")
     parser.add_argument("--n-bits", type=int, nargs="+", default=list(N_BITS))
     parser.add_argument("--seed", type=int, default=2009)
+    parser.add_argument("--scaling", type=int, nargs="+", metavar="N", default=None,
+                        help="coupled method only, for each record length N (see the module docstring)")
+    parser.add_argument("--first-run", type=int, default=0, help="--scaling: index of the first run (default 0)")
+    parser.add_argument("--jobs", type=int, default=1, help="--scaling: processes for the windows (default 1)")
+    parser.add_argument("--joint-samples", type=int, default=3000, help="--scaling: joint_samples (default 3000)")
+    parser.add_argument("--inner-max", type=int, default=10000,
+                        help="--scaling: verified inner values (outer/inner) only up to this N (default 10000)")
     args = parser.parse_args()
+    if args.scaling is not None:
+        scaling(args)
+        return
 
     plant = PlantModel((LinearBlock((0.5, 0.7), (0.0, 1.4, 0.8), 1.0), OutputBacklash(**GAMMA)))
     staircase = filtered_staircase(list(np.linspace(0.6, 3.0, 50)), 0.8125, 100)

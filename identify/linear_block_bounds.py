@@ -24,11 +24,23 @@ that gives a point of the exact feasible set, so ``inner_lower``/``inner_upper``
 bounds are to the exact ones (if that a admits no exact solution, a is moved towards the box centre in
 steps 0.95, 0.8, 0.5, 0).
 
-For records longer than 400 samples the box of a is first tightened on the first 200 samples (the
-feasible set of a subset of the equations contains the full one, so those bounds are valid and the LPs
-are small); the box of a is then narrow, and the rounds over all the data use a smaller relaxation that
-is tight for a narrow box (:func:`_interval_lp`: a_i δx_s = a_i^c δx_s + e, |e| <= r_i Δx_s, without
-product columns or envelope rows). Every round's LPs start from the previous round's optimal bases.
+For records longer than two windows (400 samples) the work goes window by window, so that it grows about
+linearly with the record (issue 19; :func:`_coupled_bounds`). The feasible set of any subset of the
+equations contains the full one, so every window's bounds are valid. The box of a is first tightened on the
+first 200 samples (McCormick); the box of a is then narrow, and the later LPs use a smaller relaxation that is
+tight for a narrow box (:func:`_interval_lp`: a_i δx_s = a_i^c δx_s + e, |e| <= r_i Δx_s, without product
+columns or envelope rows). Every 200-sample window (consecutive ones share 20 samples) is bounded, the boxes
+are intersected and fed back into every window's relaxation until they stop shrinking; the windows are
+independent tasks for ``map_windows`` (a process pool's or a Dask client's ``executor.map``). The final rounds
+solve the relaxation jointly over all samples when there are at most ``joint_samples`` (3000): the all-data
+relaxation, from a box inside the one it started from before, and never wider. Longer records are solved
+jointly in overlapping parts of ``joint_samples`` samples, whose boxes are intersected: about linear in N, but
+wider than one relaxation over everything would be (bounded-error information is spread over the record).
+Each round's LPs start from the previous round's optimal bases.
+
+A bounding LP that HiGHS cannot solve under any recovery setting (warm start dropped, dual simplex with and
+without presolve and without scaling, interior point) keeps that bound at its previous valid value, and
+``LinearBlockBounds.notes`` says which parameter and why.
 
 Guarantees against solver tolerances: every LP bound is replaced by the Neumaier-Shcherbina bound computed
 from the solver's dual values and the finite variable boxes (a valid bound for any dual vector), and an
@@ -41,8 +53,9 @@ from __future__ import annotations
 
 import itertools
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 import scipy.sparse as sp
@@ -52,17 +65,25 @@ from scipy.optimize import linprog
 from identify.feasible_parameter_set import ParameterInterval
 from identify.validation import InvalidInputError, as_signal, same_length
 
-__all__ = ["LINEAR_BOUND_METHODS", "EmptyLinearSetExplanation", "LinearBlockBounds", "LinearModelOrders",
-           "SharedBacklashConstraints", "bound_linear_block"]
+__all__ = ["DEFAULT_JOINT_SAMPLES", "DEFAULT_WINDOW_SAMPLES", "LINEAR_BOUND_METHODS", "EmptyLinearSetExplanation", "LinearBlockBounds", "LinearModelOrders", "MapFunction",
+           "Progress", "SharedBacklashConstraints", "bound_linear_block"]
 
 LINEAR_BOUND_METHODS = ("paper", "coupled")
 
-_DEFAULT_SETTINGS = {"solver": "simplex", "simplex_strategy": 1, "presolve": "on", "run_crossover": "on"}
+_DEFAULT_SETTINGS = {"solver": "simplex", "simplex_strategy": 1, "presolve": "on", "run_crossover": "on",
+                     "simplex_scale_strategy": 2}
 _RECOVERY_SETTINGS = (
     {"solver": "simplex", "simplex_strategy": 1, "presolve": "on"},
     {"solver": "simplex", "simplex_strategy": 1, "presolve": "off"},
+    # the chained equations of long records have rows of very different size; unscaled dual simplex solved
+    # the bounding LP of issue 19 (N = 10 000, 12 bits) that every scaled setting stopped on with "Solve error"
+    {"solver": "simplex", "simplex_strategy": 1, "presolve": "on", "simplex_scale_strategy": 0},
     {"solver": "ipm", "run_crossover": "off", "presolve": "on"},
+    {"solver": "ipm", "run_crossover": "off", "presolve": "off"},
 )
+_RECOVERY_NAMES = "warm start dropped, dual simplex with and without presolve and without scaling, interior point"
+_TIME_LIMIT_S = 20.0
+"""HiGHS time limit per attempt on one LP (plus 0.2 ms per row); a time-out counts as a failed attempt."""
 _B_BOX = 1e6
 """A-priori box |b_j| <= 1e6; a bound that reaches it is reported as unbounded (infinite)."""
 
@@ -166,6 +187,11 @@ class LinearBlockBounds:
         Solver diagnostics.
     max_certificate_gap
         Largest difference between a solver's optimum and the certified (Neumaier-Shcherbina) bound used.
+    notes
+        One sentence per bound that is looser than the method would give, saying which parameter and why
+        (a bounding LP that HiGHS could not solve: the bound is the last valid one before that LP).
+    windowing
+        How the record was split for the bounding LPs (windows, passes, joint samples), in words.
     """
 
     method: str
@@ -179,6 +205,8 @@ class LinearBlockBounds:
     num_tightening_rounds: int
     feasible_orthants: tuple[tuple[int, ...], ...]
     max_certificate_gap: float = field(default=0.0)
+    notes: tuple[str, ...] = field(default=())
+    windowing: str = field(default="")
 
     @property
     def is_empty(self) -> bool:
@@ -202,10 +230,27 @@ class _LP:
     upper: NDArray[np.float64]
 
 
+class _SolverFailure(RuntimeError):
+    """HiGHS stopped on an LP without an optimum or a proof of infeasibility, after every recovery setting."""
+
+    def __init__(self, status: str) -> None:
+        super().__init__(f"HiGHS failed on a bounding LP: {status} (tried: {_RECOVERY_NAMES})")
+        self.status = status
+
+
 class _Counter:
     def __init__(self) -> None:
         self.solves = 0
         self.max_gap = 0.0
+        # (parameter index, "lower"/"upper", HiGHS status, stage) of every bound kept at its previous value
+        self.fallbacks: list[tuple[int, str, str, str]] = []
+        self.stage = "paper method"
+
+    def merge(self, other: "_Counter") -> None:
+        """Add the counts of work done elsewhere (a window solved in another process)."""
+        self.solves += other.solves
+        self.max_gap = max(self.max_gap, other.max_gap)
+        self.fallbacks.extend(other.fallbacks)
 
 
 class _Solver:
@@ -236,11 +281,20 @@ class _Solver:
         self.highs = _Highs()
         self.highs.setOptionValue("output_flag", False)
         self.highs.setOptionValue("presolve", presolve)
+        # A bounded time per attempt: a warm start that stalls on a long record's LP (issue 19: one part of a
+        # 100 000-sample record kept a worker busy for over 15 minutes) goes on to the recovery settings and,
+        # at worst, to the fallback bound, instead of holding up the whole record.
+        # HiGHS counts its time limit over all runs of one model, so each run sets it from the time used so far.
+        self.time_limit_s = _TIME_LIMIT_S + 2e-4 * float(A.shape[0])
         self.highs.passModel(model)
 
         self._status = HighsModelStatus
         self.columns = np.arange(A.shape[1], dtype=np.int32)
         self.warm = False
+
+    def _run(self) -> None:
+        self.highs.setOptionValue("time_limit", self.highs.getRunTime() + self.time_limit_s)
+        self.highs.run()
 
     def minimize(self, cost: NDArray[np.float64], counter: _Counter,
                  start: object | None = None) -> tuple[float, NDArray[np.float64] | None]:
@@ -258,7 +312,7 @@ class _Solver:
             highs.setOptionValue("simplex_strategy", 4)
             highs.setOptionValue("presolve", "off")
         highs.changeColsCost(self.columns.size, self.columns, np.asarray(cost, dtype=float))
-        highs.run()
+        self._run()
         status = highs.getModelStatus()
         if status not in (self._status.kOptimal, self._status.kInfeasible):
             # Recover from a stalled warm start or a numerically poor basis (the chained equations can make
@@ -269,7 +323,7 @@ class _Solver:
                 highs.clearSolver()
                 for option, value in settings.items():
                     highs.setOptionValue(option, value)
-                highs.run()
+                self._run()
                 status = highs.getModelStatus()
                 if status in (self._status.kOptimal, self._status.kInfeasible):
                     break
@@ -285,7 +339,7 @@ class _Solver:
         if status == self._status.kInfeasible:
             return math.inf, None
         if status != self._status.kOptimal:
-            raise RuntimeError(f"HiGHS failed on a bounding LP: {highs.modelStatusToString(status)}")
+            raise _SolverFailure(highs.modelStatusToString(status))
         solution = highs.getSolution()
         x = np.asarray(solution.col_value, dtype=float)
         y = np.asarray(solution.row_dual, dtype=float)
@@ -318,7 +372,10 @@ def _proven_infeasible(lp: _LP, counter: _Counter) -> bool:
                   np.append(lp.lower, 0.0), np.append(lp.upper, 1e6))
     cost = np.zeros(lp.lower.size + 1)
     cost[-1] = 1.0
-    bound, _ = _certified_minimum(relaxed, cost, counter)
+    try:
+        bound, _ = _certified_minimum(relaxed, cost, counter)
+    except _SolverFailure:
+        return False  # not proven: the caller keeps the set (a valid, looser answer)
     return bound > 0.0
 
 
@@ -417,13 +474,26 @@ def _bounds_over(lp: _LP, p: int, counter: _Counter,
     (``points[2k]`` minimises and ``points[2k + 1]`` maximises variable k).
 
     ``bases``: optimal HiGHS bases per objective (same order) from an LP of the same shape; objectives that have
-    one start from it, and the list is updated in place with this LP's optimal bases."""
+    one start from it, and the list is updated in place with this LP's optimal bases.
+
+    A bound whose LP HiGHS cannot solve (after the recovery settings of :meth:`_Solver.minimize`) is the
+    LP's own column bound for that variable, which holds for every point of the set (the caller's current
+    box); it is recorded in ``counter.fallbacks`` and its point is None."""
     lows, highs, points = np.empty(p), np.empty(p), []
     solver = _Solver(lp)
 
     def solve(cost: NDArray[np.float64], index: int) -> tuple[float, NDArray[np.float64] | None]:
         start = bases[index] if bases is not None and index < len(bases) else None
-        value, x = solver.minimize(cost, counter, start)
+        try:
+            value, x = solver.minimize(cost, counter, start)
+        except _SolverFailure as failure:
+            k, side = divmod(index, 2)
+            counter.fallbacks.append((k, "upper" if side else "lower", failure.status, counter.stage))
+            solver.warm = False
+            if bases is not None:
+                bases.extend([None] * (index + 1 - len(bases)))
+                bases[index] = None
+            return (-lp.upper[k] if side else lp.lower[k]), _FAILED
         if bases is not None and x is not None:
             basis = solver.highs.getBasis()
             if index < len(bases):
@@ -439,9 +509,15 @@ def _bounds_over(lp: _LP, p: int, counter: _Counter,
         if x_low is None:  # infeasible: no other objective can do better
             return np.full(p, math.inf), np.full(p, -math.inf), []
         neg, x_high = solve(-cost, 2 * k + 1)
+        if x_high is None:
+            return np.full(p, math.inf), np.full(p, -math.inf), []
         highs[k] = -neg
-        points.extend([x_low, x_high])
+        points.extend([None if x_low is _FAILED else x_low, None if x_high is _FAILED else x_high])
     return lows, highs, points
+
+
+_FAILED = np.zeros(0)
+"""Marker point of a bound that fell back to the column box (not an infeasibility)."""
 
 
 def _paper_bounds(data: _Data, counter: _Counter) -> tuple[NDArray[np.float64], NDArray[np.float64], list[tuple[int, ...]]]:
@@ -617,31 +693,200 @@ def _tighten(data: _Data, low: NDArray[np.float64], high: NDArray[np.float64], c
 
 
 _WINDOW = 200
-"""Samples used to tighten the box of a before the full-data relaxation (the set from a subset of the
-equations contains the full set, so its bounds are valid; the LPs are much smaller)."""
+"""Samples per window: the box of a is first tightened on the first window (the set from a subset of the
+equations contains the full set, so its bounds are valid; the LPs are small), then every window is bounded."""
+_WINDOW_OVERLAP = 20
+"""Samples shared by consecutive windows (so that every equation lies whole inside some window)."""
+_JOINT_SAMPLES = 3000
+"""Samples of the final joint relaxation: all of them for records up to this length (the all-data relaxation),
+else the windows that decide the bounds, up to this many samples."""
 _FULL_DATA_RELAXATION = _interval_lp
+
+DEFAULT_WINDOW_SAMPLES = _WINDOW
+DEFAULT_JOINT_SAMPLES = _JOINT_SAMPLES
+
+MapFunction = Callable[..., Iterable[Any]]
+"""``map(function, tasks)``: the builtin, or ``Executor.map`` to run the windows in other processes."""
+Progress = Callable[[str, int, int], None]
+"""``progress(stage, done, total)``, called as windows finish."""
+
+
+@dataclass(frozen=True)
+class _WindowPlan:
+    """How the record was cut: ``segments`` (start, stop) of the windows and the joint samples used."""
+
+    segments: tuple[tuple[int, int], ...]
+    num_parts: int
+    passes: int
+    part_passes: int
+    all_parts: int = 1
+
+
+def _window_segments(num_samples: int, window: int, overlap: int) -> list[tuple[int, int]]:
+    step = max(window - overlap, 1)
+    starts = list(range(0, max(num_samples - window, 0) + 1, step))
+    if starts[-1] + window < num_samples:
+        starts.append(num_samples - window)
+    return [(start, min(start + window, num_samples)) for start in starts]
+
+
+def _restrict(data: _Data, segments: Sequence[tuple[int, int]]) -> _Data:
+    """The problem on the equations that lie whole inside the given sample segments (overlapping or touching
+    segments are merged first, so every sample appears once). The feasible set of a subset of the equations
+    contains the full one."""
+    n = data.orders.first_equation
+    merged: list[list[int]] = []
+    for start, stop in sorted(segments):
+        if merged and start <= merged[-1][1]:
+            merged[-1][1] = max(merged[-1][1], stop)
+        else:
+            merged.append([start, stop])
+    samples = np.concatenate([np.arange(start, stop) for start, stop in merged])
+    keep = np.zeros(data.times.size, dtype=bool)
+    for start, stop in merged:
+        keep |= (data.times >= start + n) & (data.times < stop)
+    position = np.full(data.u.size, -1, dtype=np.int64)
+    position[samples] = np.arange(samples.size)
+    shared = data.shared
+    if shared is not None:
+        inside = position[shared.sample_indices] >= 0
+        shared = SharedBacklashConstraints(position[shared.sample_indices[inside]], shared.rising[inside],
+                                           shared.output_rad[inside], shared.zeta_bound_rad[inside], shared.rows,
+                                           shared.rhs, shared.lower, shared.upper)
+    return _Data(data.orders, data.u[samples], data.xc[samples], data.dx[samples], position[data.times[keep]],
+                 data.regressors[keep], shared)
+
+
+def _window_task(task: tuple[str, _Data, NDArray[np.float64], NDArray[np.float64], list[NDArray[np.float64]]]
+                 ) -> tuple[Any, _Counter]:
+    """One window's work, in this or another process (module level, plain data in and out).
+
+    ``("bounds", window, low, high, [])``: certified bounds of every parameter on the window's interval
+    relaxation over the box. ``("joint", part, low, high, [[max_rounds, tolerance]])``: the rounds of the
+    interval relaxation on a part of the record (:func:`_tighten`): its box, rounds, the θ of its extreme
+    points and whether it is proven empty."""
+    kind, window, low, high, points = task
+    counter = _Counter()
+    if kind == "joint":
+        counter.stage = f"joint relaxation of {window.u.size} samples"
+        max_rounds, tolerance = int(points[0][0]), float(points[0][1])
+        low, high, used, extreme, empty = _tighten(window, low, high, counter, max_rounds, tolerance, True,
+                                                   _FULL_DATA_RELAXATION)
+        return (low, high, used, [None if x is None else x[: window.orders.num_parameters] for x in extreme],
+                empty), counter
+    counter.stage = "window relaxation"
+    new_low, new_high, _ = _bounds_over(_FULL_DATA_RELAXATION(window, low, high), window.orders.num_parameters, counter)
+    return (new_low, new_high), counter
 
 
 def _coupled_bounds(data: _Data, low: NDArray[np.float64], high: NDArray[np.float64], counter: _Counter,
-                    max_rounds: int, relative_improvement: float) -> tuple[NDArray[np.float64], NDArray[np.float64], int, list[NDArray[np.float64]]]:
-    """Coupled bounds; for long records the box of a is first tightened on the first ``_WINDOW`` samples."""
-    p = data.orders.num_parameters
-    rounds = 0
-    if data.u.size > 2 * _WINDOW and data.orders.na:
-        window = _subset(data, _WINDOW)
-        low, high, used, _, empty = _tighten(window, low, high, counter, max_rounds, relative_improvement, False)
-        rounds += used
-        if empty:
-            return np.full(p, math.nan), np.full(p, math.nan), rounds, []
-        # the window did the wide tightening; the box of a is narrow, so the interval relaxation is tight
-        relaxation = _FULL_DATA_RELAXATION
-    else:
-        relaxation = _coupled_lp
-    low, high, used, points, empty = _tighten(data, low, high, counter, max_rounds, relative_improvement, True,
-                                              relaxation)
+                    max_rounds: int, relative_improvement: float, map_windows: MapFunction = map,
+                    progress: Progress | None = None, window: int = _WINDOW,
+                    joint_samples: int = _JOINT_SAMPLES
+                    ) -> tuple[NDArray[np.float64], NDArray[np.float64], int, list[NDArray[np.float64]], _WindowPlan]:
+    """Coupled bounds; records longer than two windows go window by window (Item 1 of issue 19).
+
+    1. The McCormick rounds on the first window make the box of a narrow.
+    2. Every window (``window`` samples, consecutive ones sharing ``_WINDOW_OVERLAP``) is bounded on the
+       interval relaxation over the current box; the boxes are intersected (each contains the whole record's
+       set) and fed back into every window's relaxation, until no interval shrinks by more than
+       ``relative_improvement``. The windows are independent: ``map_windows`` may run them in parallel.
+    3. The final rounds solve the interval relaxation jointly over all samples when there are at most
+       ``joint_samples`` (the all-data relaxation, from a narrower box than the first window's, so never
+       wider than it); otherwise jointly over each of the overlapping parts of ``joint_samples`` samples
+       (in parallel through ``map_windows``), their boxes intersected, and once more from the intersection.
+       Intersecting window boxes alone is 1.1-2 times wider than the joint relaxation (the information of
+       bounded-error data is spread over the whole record), so the parts are large.
+
+    Each step's bounds are certified bounds of a valid relaxation of a subset of the equations over a box that
+    contains the feasible set, so their intersection is a guaranteed outer bound."""
+    p, na, N = data.orders.num_parameters, data.orders.na, data.u.size
+    if N <= 2 * window or not na:
+        counter.stage = f"coupled relaxation of all {N} samples"
+        low, high, used, points, empty = _tighten(data, low, high, counter, max_rounds, relative_improvement, True)
+        plan = _WindowPlan(((0, N),), 1, 0, 1)
+        return (np.full(p, math.nan), np.full(p, math.nan), used, [], plan) if empty else (low, high, used, points, plan)
+    counter.stage = f"coupled relaxation of the first {window} samples"
+    low, high, rounds, _, empty = _tighten(_subset(data, window), low, high, counter, max_rounds,
+                                           relative_improvement, False)
+    segments = _window_segments(N, window, _WINDOW_OVERLAP)
     if empty:
-        return np.full(p, math.nan), np.full(p, math.nan), rounds + used, []
-    return low, high, rounds + used, points
+        return np.full(p, math.nan), np.full(p, math.nan), rounds, [], _WindowPlan(tuple(segments), 0, 0, 0)
+    windows = [_restrict(data, [segment]) for segment in segments]
+    own_low, own_high = np.full((len(windows), p), -math.inf), np.full((len(windows), p), math.inf)
+    active = list(range(len(windows)))
+    passes = 0
+    for passes in range(1, max(max_rounds, 1) + 1):
+        label = f"window pass {passes}"
+        new_low, new_high = low.copy(), high.copy()
+        tasks = (("bounds", windows[k], low, high, []) for k in active)
+        for count, (k, ((lows, highs), done)) in enumerate(zip(active, map_windows(_window_task, tasks))):
+            counter.merge(done)
+            own_low[k], own_high[k] = lows, highs
+            new_low, new_high = np.maximum(new_low, lows), np.minimum(new_high, highs)
+            if progress is not None:
+                progress(label, count + 1, len(active))
+        if np.any(new_low > new_high):
+            # every window is a valid relaxation, so disjoint boxes prove the set empty only up to solver
+            # tolerances: let the joint relaxation below decide
+            break
+        shrink = np.max(((high - low) - (new_high - new_low)) / np.maximum(high - low, 1e-300))
+        low, high = new_low, new_high
+        if shrink < relative_improvement:
+            break
+        # The next pass only re-bounds the windows whose own bound came within one box width of the
+        # intersection in some direction: a window far from it stays far when the box shrinks, and the
+        # windows left out are still valid (only the tightening is given up, never the guarantee).
+        width = high - low
+        near = np.any((own_low > low - width) | (own_high < high + width), axis=1)
+        active = [int(k) for k in np.flatnonzero(near)] or list(range(len(windows)))
+    rounds += passes
+    chunks = _window_segments(N, max(joint_samples, window), _WINDOW_OVERLAP) if N > joint_samples else [(0, N)]
+    all_parts = len(chunks)
+    if len(chunks) > 1:
+        # Only the parts that hold a window whose own bound came within one box width of the intersection in
+        # some direction: the others are valid too, but far from deciding (the same rule as the passes').
+        width = high - low
+        near = np.any((own_low > low - width) | (own_high < high + width), axis=1)
+        starts = np.array([segment[0] for segment in segments])[near]
+        stops = np.array([segment[1] for segment in segments])[near]
+        deciding = [chunk for chunk in chunks if np.any((starts >= chunk[0]) & (stops <= chunk[1]))]
+        chunks = deciding or chunks
+    points: list[NDArray[np.float64] | None] = [None] * (2 * p)
+    chunk_passes = 0
+    # All data jointly: all max_rounds rounds unless nothing moves. Each round maps a box monotonically (a
+    # smaller box gives a smaller relaxation) and this box lies inside the one the all-data rounds started
+    # from before issue 19, so after as many rounds it lies inside their result too; stopping at the passes'
+    # tolerance could stop earlier, from a box that is already close. Parts: the passes' tolerance, and a
+    # second pass from the intersected box only if the first one still moved it by 10 %.
+    settings = np.array([max_rounds, 1e-6 if all_parts == 1 else relative_improvement])
+    for chunk_passes in range(1, (2 if all_parts > 1 else 1) + 1):
+        label = f"joint relaxation of {len(chunks)} part(s) of up to {min(N, joint_samples)} samples"
+        new_low, new_high = low.copy(), high.copy()
+        best_low, best_high = np.full(p, -math.inf), np.full(p, math.inf)
+        tasks = (("joint", _restrict(data, [chunk]), low, high, [settings]) for chunk in chunks)
+        if progress is not None:
+            progress(label, 0, len(chunks))
+        for k, ((lows, highs, used, chunk_points, empty), done) in enumerate(map_windows(_window_task, tasks)):
+            counter.merge(done)
+            if empty:
+                # a part of the equations has no solution, so neither has the whole record
+                return np.full(p, math.nan), np.full(p, math.nan), rounds + used, [], _WindowPlan(
+                    tuple(segments), len(chunks), passes, chunk_passes)
+            rounds = max(rounds, passes + used)
+            for j in range(p):
+                if chunk_points and lows[j] > best_low[j]:
+                    best_low[j], points[2 * j] = lows[j], chunk_points[2 * j]
+                if chunk_points and highs[j] < best_high[j]:
+                    best_high[j], points[2 * j + 1] = highs[j], chunk_points[2 * j + 1]
+            new_low, new_high = np.maximum(new_low, lows), np.minimum(new_high, highs)
+            if progress is not None:
+                progress(label, k + 1, len(chunks))
+        shrink = np.max(((high - low) - (new_high - new_low)) / np.maximum(high - low, 1e-300))
+        low, high = new_low, np.maximum(new_high, new_low)
+        if shrink < 0.1:
+            break
+    return low, high, rounds, points, _WindowPlan(tuple(segments), len(chunks), passes, chunk_passes, all_parts)
 
 
 def _subset(data: _Data, count: int) -> _Data:
@@ -794,7 +1039,9 @@ def bound_linear_block(input_rad: ArrayLike, inner_lower_rad: ArrayLike, inner_u
                        na: int, nk: int, nb: int, method: str = "coupled", max_tightening_rounds: int = 6,
                        tightening_tolerance: float = 0.02,
                        shared_backlash: SharedBacklashConstraints | None = None,
-                       verify_inner: bool = True) -> LinearBlockBounds:
+                       verify_inner: bool = True, window_samples: int = _WINDOW,
+                       joint_samples: int = _JOINT_SAMPLES, map_windows: MapFunction | None = None,
+                       progress: Progress | None = None) -> LinearBlockBounds:
     """Guaranteed bounds on θ = [a_1..a_na, b_nk..b_nb] with unit static gain (eq. (8)), Section 5.
 
     Parameters
@@ -816,9 +1063,22 @@ def bound_linear_block(input_rad: ArrayLike, inner_lower_rad: ArrayLike, inner_u
     verify_inner
         Coupled method: compute the verified inner values (2p or more extra LPs; about a quarter of the time
         for long records). The outer bounds do not depend on it.
+    window_samples, joint_samples
+        Coupled method on records longer than two windows: windows of this many samples are bounded one by
+        one and their boxes intersected; the final relaxation is solved jointly over all samples if there are
+        at most ``joint_samples``, else over the windows that decide the bounds, up to that many samples
+        (see :func:`_coupled_bounds`; the time grows about linearly with the record).
+    map_windows
+        ``map(function, tasks)`` used for the windows, e.g. ``executor.map`` of a process pool or a Dask
+        client's executor; the builtin ``map`` (one process) by default. The tasks and results are plain data.
+    progress
+        ``progress(stage, done, total)``, called as windows finish (for long records).
     """
     if method not in LINEAR_BOUND_METHODS:
         raise InvalidInputError(f"method: expected one of {', '.join(LINEAR_BOUND_METHODS)}, got {method!r}")
+    for name, value, least in (("window_samples", window_samples, 20), ("joint_samples", joint_samples, 20)):
+        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < least:
+            raise InvalidInputError(f"{name}: expected an integer >= {least}, got {value!r}")
     orders = LinearModelOrders(na, nk, nb)
     data = _prepare(input_rad, inner_lower_rad, inner_upper_rad, orders, shared_backlash)
     counter = _Counter()
@@ -829,15 +1089,20 @@ def bound_linear_block(input_rad: ArrayLike, inner_lower_rad: ArrayLike, inner_u
                                  counter.max_gap)
     rounds = 0
     inner = (None, None, None)
+    windowing = f"all {data.u.size} samples in one relaxation per orthant"
     if method == "coupled":
-        low, high, rounds, points = _coupled_bounds(data, low, high, counter, max_tightening_rounds, tightening_tolerance)
+        low, high, rounds, points, plan = _coupled_bounds(
+            data, low, high, counter, max_tightening_rounds, tightening_tolerance,
+            map if map_windows is None else map_windows, progress, window_samples, joint_samples)
+        windowing = _describe(plan, data.u.size, window_samples, joint_samples)
         if np.any(np.isnan(low)):
             return LinearBlockBounds(method, orders, {}, None, None, None, _explain(data, counter), counter.solves,
-                                     rounds, tuple(feasible), counter.max_gap)
+                                     rounds, tuple(feasible), counter.max_gap, windowing=windowing)
         if points and verify_inner:
             inner_low, inner_high, witness = _inner_values(data, low, high, points, counter)
             inner = ({n: float(v) for n, v in zip(names, inner_low)}, {n: float(v) for n, v in zip(names, inner_high)},
                      None if witness is None else {n: float(v) for n, v in zip(names, witness)})
+    notes = _fallback_notes(names, counter)
     intervals = {}
     for k, name in enumerate(names):
         lo, hi = float(low[k]), float(high[k])
@@ -846,4 +1111,27 @@ def bound_linear_block(input_rad: ArrayLike, inner_lower_rad: ArrayLike, inner_u
             hi = math.inf if hi >= _B_BOX * (1 - 1e-9) else hi
         intervals[name] = ParameterInterval(lo, hi)
     return LinearBlockBounds(method, orders, intervals, inner[0], inner[1], inner[2], None, counter.solves, rounds,
-                             tuple(feasible), counter.max_gap)
+                             tuple(feasible), counter.max_gap, notes, windowing)
+
+
+def _describe(plan: _WindowPlan, num_samples: int, window: int, joint_samples: int) -> str:
+    if len(plan.segments) == 1:
+        return f"all {num_samples} samples in one McCormick relaxation"
+    joint = (f"then all {num_samples} samples jointly" if plan.all_parts <= 1 else
+             f"then {plan.num_parts} of {plan.all_parts} overlapping parts of {joint_samples} samples jointly (those "
+             f"holding a deciding window), intersected ({plan.part_passes} pass{'es' if plan.part_passes > 1 else ''})")
+    return (f"{len(plan.segments)} windows of {window} samples (overlap {_WINDOW_OVERLAP}), {plan.passes} passes "
+            f"of intersected window bounds, {joint}")
+
+
+def _fallback_notes(names: tuple[str, ...], counter: _Counter) -> tuple[str, ...]:
+    """One note per (parameter, side) whose bounding LP HiGHS could not solve at some stage."""
+    seen: dict[tuple[int, str], list[str]] = {}
+    for k, side, status, stage in counter.fallbacks:
+        seen.setdefault((k, side), [])
+        if f"{stage} ({status})" not in seen[(k, side)]:
+            seen[(k, side)].append(f"{stage} ({status})")
+    return tuple(
+        f"{names[k]} {side} bound: HiGHS could not solve its bounding LP in the {', '.join(where)} after "
+        f"the retries ({_RECOVERY_NAMES}); the bound there is the previous valid one, so it may be looser "
+        "than the method allows (still guaranteed)" for (k, side), where in sorted(seen.items()))

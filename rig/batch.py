@@ -9,6 +9,7 @@ Dask is optional (``pip install 'dask[distributed]'``); it is imported only when
 from __future__ import annotations
 
 import contextlib
+import functools
 import os
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import Executor, ProcessPoolExecutor
@@ -110,6 +111,17 @@ def _sigint_held() -> Iterator[None]:
         yield
     finally:
         signal.pthread_sigmask(signal.SIG_SETMASK, previous)
+
+
+def map_callable(executor: Executor | None, chunksize: int = 4) -> Callable[..., Any]:
+    """A ``map(function, tasks)`` that runs on ``executor`` (in order), or the builtin ``map`` for None: the
+    form :func:`identify.linear_block_bounds.bound_linear_block` takes its windows in (``identify`` imports
+    nothing of ``rig``). Local processes get the tasks in chunks (small tasks cost less to send)."""
+    if executor is None:
+        return map
+    if isinstance(executor, ProcessPoolExecutor):
+        return functools.partial(executor.map, chunksize=chunksize)
+    return executor.map
 
 
 def map_files(function: Callable[[str], Any], paths: Sequence[str], *, jobs: int = 1,

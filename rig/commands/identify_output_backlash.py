@@ -49,9 +49,18 @@ def register(methods: argparse._SubParsersAction) -> None:
                         help="amplitude of the step used to tune the filter pole, if known (alpha terms of eq. (14)-(15))")
     parser.add_argument("--json", action="store_true", help="print the bounds as one JSON object")
     parser.add_argument("--jobs", type=int, default=1, metavar="N",
-                        help="bound several --steady/--dynamic pairs in N processes (0: one per core; default 1)")
+                        help="N processes (0: one per core; default 1): for one pair, the windows of a long record; "
+                             "for several --steady/--dynamic pairs, the pairs")
     parser.add_argument("--scheduler", metavar="ADDRESS", default=None,
-                        help="run the pairs on the Dask cluster at ADDRESS instead (needs dask[distributed])")
+                        help="run the windows (one pair) or the pairs on the Dask cluster at ADDRESS instead "
+                             "(needs dask[distributed])")
+    parser.add_argument("--window-samples", type=int, default=200, metavar="N",
+                        help="coupled method: records longer than two windows are bounded window by window, N samples "
+                             "each (default 200)")
+    parser.add_argument("--joint-samples", type=int, default=3000, metavar="N",
+                        help="coupled method: the final relaxation is solved jointly over all samples up to N, else "
+                             "over overlapping parts of N samples whose bounds are intersected (default 3000; larger "
+                             "is tighter and slower); the verified inner values are computed only up to N samples")
     parser.add_argument("--save", metavar="RESULT.json", default=None,
                         help="also write the bounds with the data they came from (steady points, dynamic record, "
                              "noise bound, orders), so that `rig report RESULT.json` draws the feasible polygons, "
@@ -167,7 +176,9 @@ def run(args: argparse.Namespace) -> int:
         from rig.output_paths import check_output_file
 
         check_output_file(args.save, "--save", inputs=[*args.steady, *args.dynamic])
-    if len(args.steady) == 1 and args.scheduler is None:
+    if args.jobs < 0:
+        raise ValueError(f"--jobs: expected 0 (all cores) or a positive number of processes, got {args.jobs}")
+    if len(args.steady) == 1:
         return _run_one(args, args.steady[0], args.dynamic[0])
     return _run_batch(args)
 
@@ -183,7 +194,7 @@ def _run_batch(args: argparse.Namespace) -> int:
         raise ValueError("--dynamic: each dynamic file once when several pairs are given")
     if args.save is not None:
         raise ValueError("--save: one --steady/--dynamic pair at a time")
-    options = {key: getattr(args, key) for key in ("noise_bound", "na", "nk", "nb", "method", "filter_step")}
+    options = {key: getattr(args, key) for key in _OPTIONS}
     outcomes = map_files(partial(bound_pair, steady_of=dict(zip(args.dynamic, args.steady)), options=options),
                          args.dynamic, jobs=args.jobs, scheduler=args.scheduler)
     entries = []
@@ -221,7 +232,10 @@ def bound_pair(dynamic: str, steady_of: dict[str, str], options: dict) -> dict:
     return _document(result, options["method"])
 
 
-def _bound(steady: str, dynamic: str, options: dict):
+_OPTIONS = ("noise_bound", "na", "nk", "nb", "method", "filter_step", "window_samples", "joint_samples")
+
+
+def _bound(steady: str, dynamic: str, options: dict, map_windows=None, progress=None):
     from identify.output_backlash_identification import bound_output_backlash_system
     from identify.validation import InvalidInputError
 
@@ -230,7 +244,13 @@ def _bound(steady: str, dynamic: str, options: dict):
     try:
         result = bound_output_backlash_system(steady_u, steady_y, u, y, options["noise_bound"], na=options["na"],
                                               nk=options["nk"], nb=options["nb"], method=options["method"],
-                                              filter_step_amplitude_rad=options["filter_step"])
+                                              filter_step_amplitude_rad=options["filter_step"],
+                                              window_samples=options["window_samples"],
+                                              joint_samples=options["joint_samples"], map_windows=map_windows,
+                                              progress=progress,
+                                              # on long records the verified inner points cost more than the
+                                              # bounds (each solves the exact problem over every sample)
+                                              verify_inner=len(u) <= options["joint_samples"])
     except InvalidInputError as err:
         raise InvalidInputError(f"{err} (--steady {steady}, --dynamic {dynamic})") from err
     return result, steady_u, steady_y, u, y
@@ -241,7 +261,7 @@ def _document(result, method: str) -> dict:
     if result.is_empty:
         return {"empty": True, "explanation": result.explanation, "method": method}
     inner = result.inner_signal
-    return {
+    document = {
         "backlash": {name: {k: _number(v) for k, v in interval.as_dict().items()}
                      for name, interval in result.backlash_intervals.items()},
         "linear": {name: {k: _number(v) for k, v in interval.as_dict().items()}
@@ -250,6 +270,33 @@ def _document(result, method: str) -> dict:
         "invertible_samples": inner.num_invertible,
         "samples": int(inner.lower_rad.size),
     }
+    if result.linear.notes:  # only then: the keys of issue 2 stay exactly those otherwise
+        document["notes"] = list(result.linear.notes)
+    return document
+
+
+class _ProgressLine:
+    """Progress of the windows on stderr: one line rewritten in place on a terminal, else a line per stage
+    (and per quarter of a long stage), so that logs stay short and stdout stays the result (``--json``)."""
+
+    def __init__(self, stream) -> None:
+        self.stream = stream
+        self.tty = hasattr(stream, "isatty") and stream.isatty()
+        self.stage: str | None = None
+        self.quarter = -1
+
+    def __call__(self, stage: str, done: int, total: int) -> None:
+        if self.tty:
+            end = "\n" if done == total else ""
+            self.stream.write(f"\r{stage}: {done}/{total}{end}")
+        else:
+            quarter = (4 * done) // max(total, 1)
+            if stage == self.stage and quarter == self.quarter:
+                return
+            self.stage, self.quarter = stage, quarter
+            if done == 0 or quarter > 0:
+                self.stream.write(f"{stage}: {done}/{total}\n")
+        self.stream.flush()
 
 
 def _steady_description(steady: str, count: int) -> str:
@@ -261,8 +308,12 @@ def _steady_description(steady: str, count: int) -> str:
 
 
 def _run_one(args: argparse.Namespace, steady: str, dynamic: str) -> int:
-    options = {key: getattr(args, key) for key in ("noise_bound", "na", "nk", "nb", "method", "filter_step")}
-    result, steady_u, steady_y, u, y = _bound(steady, dynamic, options)
+    from rig.batch import executor_for, map_callable
+
+    options = {key: getattr(args, key) for key in _OPTIONS}
+    with executor_for(args.jobs, args.scheduler) as executor:
+        result, steady_u, steady_y, u, y = _bound(steady, dynamic, options, map_callable(executor),
+                                                  _ProgressLine(sys.stderr))
     document = _document(result, args.method)
     if result.is_empty:
         if args.json:
@@ -280,6 +331,8 @@ def _run_one(args: argparse.Namespace, steady: str, dynamic: str) -> int:
         print(f"steady-state data  {steady}  ({_steady_description(steady, len(steady_u))})")
         print(f"dynamic data       {dynamic}  ({inner.lower_rad.size} samples, {inner.num_invertible} invertible)")
         print(f"noise bound        {args.noise_bound:.6g} rad     method {args.method}")
+        if result.linear.windowing:
+            print(f"windowing          {result.linear.windowing}")
         print()
         print(f"{'parameter':<10} {'lower':>14} {'upper':>14} {'center':>14} {'half-width':>11}")
         for name, interval in (*backlash.items(), *linear.items()):
@@ -293,6 +346,8 @@ def _run_one(args: argparse.Namespace, steady: str, dynamic: str) -> int:
                 low, high = (f"{value:>14.8g}" if math.isfinite(value) else f"{'-':>14}"
                              for value in (result.linear.inner_lower[name], result.linear.inner_upper[name]))
                 print(f"{name:<10} {low} {high}")
+        for note in result.linear.notes:
+            print(f"note: {note}")
     sys.stdout.flush()
     return exit_codes.SUCCESS
 

@@ -114,3 +114,43 @@ def test_unpaired_steady_and_dynamic_files_are_refused(files, capsys) -> None:
                  str(dynamic), "--noise-bound", repr(NOISE), "--na", "2", "--nk", "1", "--nb", "2"])
     assert code == exit_codes.BAD_INPUT
     assert "give them in pairs (got 2 --steady and 1 --dynamic)" in capsys.readouterr().err
+
+
+@pytest.fixture(scope="module")
+def long_files(tmp_path_factory):
+    """A 900-sample record: long enough to be bounded window by window."""
+    folder = tmp_path_factory.mktemp("cerone_long")
+    rng = np.random.default_rng(3)
+    staircase = filtered_staircase(list(np.linspace(0.6, 3.0, 50)), 0.8125, 100)
+    steady = staircase_steady_state_indices(50, 100)
+    steady_y = PLANT.simulate(staircase)[steady] + rng.uniform(-NOISE, NOISE, steady.size)
+    steady_csv = folder / "steady.csv"
+    steady_csv.write_text("u,y\n" + "".join(f"{float(a)!r},{float(b)!r}\n" for a, b in zip(staircase[steady], steady_y)))
+    u = prbs_sequence(900, 1.0, rng=rng)
+    y = PLANT.simulate(u) + rng.uniform(-NOISE, NOISE, u.size)
+    dynamic_csv = folder / "dynamic.csv"
+    dynamic_csv.write_text("u,y\n" + "".join(f"{float(a)!r},{float(b)!r}\n" for a, b in zip(u, y)))
+    return steady_csv, dynamic_csv
+
+
+def test_long_record_shows_progress_and_says_which_windowing_it_used(long_files, capsys) -> None:
+    assert main(_args(long_files, "--joint-samples", "400")) == exit_codes.SUCCESS
+    captured = capsys.readouterr()
+    assert "method coupled" in captured.out
+    assert "windowing          5 windows of 200 samples (overlap 20)" in captured.out
+    assert "overlapping parts of 400 samples jointly" in captured.out
+    assert "window pass 1: 5/5" in captured.err and "joint relaxation of 3 part(s) of up to 400 samples: 3/3" in captured.err
+    # --json keeps stdout one JSON object with the keys of issue 2; the progress goes to stderr
+    assert main(_args(long_files, "--joint-samples", "400", "--json")) == exit_codes.SUCCESS
+    captured = capsys.readouterr()
+    assert set(json.loads(captured.out)) == {"backlash", "linear", "method", "invertible_samples", "samples"}
+    assert "window pass 1" in captured.err
+
+
+def test_windows_of_one_record_run_in_worker_processes_with_the_same_bounds(long_files, capsys) -> None:
+    assert main(_args(long_files, "--joint-samples", "400", "--json")) == exit_codes.SUCCESS
+    serial = json.loads(capsys.readouterr().out)
+    assert main(_args(long_files, "--joint-samples", "400", "--json", "--jobs", "2")) == exit_codes.SUCCESS
+    assert json.loads(capsys.readouterr().out) == serial
+    assert main(_args(long_files, "--jobs", "-1")) == exit_codes.BAD_INPUT
+    assert "--jobs: expected 0 (all cores)" in capsys.readouterr().err
