@@ -47,6 +47,7 @@ Example
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
@@ -58,6 +59,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from identify.border_lifting import PathNodes, check_cyclic_input, lifted_input
 from identify.plant_blocks import InputBacklash, PiecewiseLinearBorder
+from identify.result_format import check_kind, malformed, tagged
 from identify.validation import InvalidInputError, as_signal, same_length, varying
 
 __all__ = [
@@ -251,10 +253,14 @@ class HammersteinModel:
         numerator, denominator = self.transfer_function
         return self.mu0 + scipy.signal.lfilter(numerator, denominator, deviation)
 
+    KIND = "hammerstein_model"
+    VERSION = 1
+
     def to_dict(self) -> dict[str, Any]:
-        """Plain numbers for JSON: order, poles [[re, im]], stable and the largest |p|, A, B, C, D, mu0,
-        borders, singular values."""
-        return {
+        """The ``rig identify hammerstein --json`` document: ``kind`` ``"hammerstein_model"``, ``version`` 1,
+        order, poles [[re, im]], stable and the largest |p|, A, B, C, D, mu0, borders, singular values, the
+        horizons and fit, and what :meth:`from_dict` needs besides (nodes, slopes, initial state)."""
+        return tagged(self.KIND, self.VERSION, {
             "order": self.order,
             "poles": [[float(p.real), float(p.imag)] for p in self.poles],
             "stable": self.stable,
@@ -277,8 +283,39 @@ class HammersteinModel:
             "refinement": None if self.refinement is None else {
                 "rms_before": self.refinement.rms_before, "rms_after": self.refinement.rms_after,
                 "applied": self.refinement.applied, "evaluations": self.refinement.evaluations,
+                "converged": self.refinement.converged, "message": self.refinement.message,
             },
-        }
+            "nodes": {"ascending": list(self.nodes.ascending), "descending": list(self.nodes.descending)},
+            "mu_ascending": self.mu_ascending.tolist(),
+            "mu_descending": self.mu_descending.tolist(),
+            "num_columns": self.num_columns,
+            "initial_state": self.initial_state.tolist(),
+            "mu0_hold": self.mu0_hold,
+        })
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> HammersteinModel:
+        """Inverse of :meth:`to_dict` (poles, stability and borders are recomputed); a document of another
+        kind or version is a ResultFormatError naming both, a malformed one names the key."""
+        check_kind(data, cls.KIND, (cls.VERSION,))
+        with malformed(cls.KIND):
+            order = data["order"]
+            if isinstance(order, bool) or not isinstance(order, int) or order < 1:
+                raise ValueError(f"order is {order!r}, expected an integer >= 1")
+            refined = data["refinement"]
+            refinement = None if refined is None else RefinementReport(
+                float(refined["rms_before"]), float(refined["rms_after"]), int(refined["evaluations"]),
+                bool(refined["converged"]), str(refined["message"]), bool(refined["applied"]))
+            hold = data["mu0_hold"]
+            return cls(A=data["A"], B=data["B"], C=data["C"], D=float(data["D"]), mu0=float(data["mu0"]),
+                       nodes=PathNodes(tuple(data["nodes"]["ascending"]), tuple(data["nodes"]["descending"])),
+                       mu_ascending=data["mu_ascending"], mu_descending=data["mu_descending"],
+                       singular_values=data["singular_values"], order=order,
+                       past_horizon=int(data["past_horizon"]), future_horizon=int(data["future_horizon"]),
+                       num_columns=int(data["num_columns"]), split=str(data["split"]),
+                       initial_state=data["initial_state"], fit_percent=float(data["fit_percent"]),
+                       residual_rms=float(data["residual_rms"]), mu0_hold=None if hold is None else float(hold),
+                       refinement=refinement)
 
 
 def _border(nodes: tuple[float, ...], slopes: NDArray[np.float64], mu0: float) -> PiecewiseLinearBorder:

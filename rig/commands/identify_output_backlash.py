@@ -59,7 +59,8 @@ def register(methods: argparse._SubParsersAction) -> None:
 
 
 SAVED_FORMAT = "rig output-backlash result v1"
-"""The ``format`` of a ``--save`` file: the ``--json`` object plus ``data`` (the inputs)."""
+"""The ``format`` of a ``--save`` file: the ``--json`` object (kind ``output_backlash``) plus ``data`` (the
+inputs it came from)."""
 
 
 def _read(path_text: str, role: str):
@@ -153,10 +154,6 @@ def staircase_steady_points(path: Path):
     return u, y, description
 
 
-def _number(value: float) -> float | str:
-    return value if math.isfinite(value) else ("inf" if value > 0 else "-inf")
-
-
 def run(args: argparse.Namespace) -> int:
     if len(args.steady) != len(args.dynamic):
         raise ValueError(f"--steady/--dynamic: give them in pairs (got {len(args.steady)} --steady and "
@@ -175,7 +172,7 @@ def _run_batch(args: argparse.Namespace) -> int:
     with its error while the others come out."""
     from functools import partial
 
-    from rig.batch import map_files
+    from rig.batch import batch_document, map_files
 
     if len(set(args.dynamic)) != len(args.dynamic):
         raise ValueError("--dynamic: each dynamic file once when several pairs are given")
@@ -190,7 +187,7 @@ def _run_batch(args: argparse.Namespace) -> int:
         entry.update({"error": outcome.error} if outcome.error is not None else {"bounds": outcome.result})
         entries.append(entry)
     if args.json:
-        print(json.dumps({"results": entries}))
+        print(json.dumps(batch_document(entries)))
     else:
         for entry in entries:
             print(f"steady-state data  {entry['steady']}\ndynamic data       {entry['dynamic']}")
@@ -235,19 +232,10 @@ def _bound(steady: str, dynamic: str, options: dict):
 
 
 def _document(result, method: str) -> dict:
-    """The ``--json`` object of issue 2 (keys fixed there)."""
-    if result.is_empty:
-        return {"empty": True, "explanation": result.explanation, "method": method}
-    inner = result.inner_signal
-    return {
-        "backlash": {name: {k: _number(v) for k, v in interval.as_dict().items()}
-                     for name, interval in result.backlash_intervals.items()},
-        "linear": {name: {k: _number(v) for k, v in interval.as_dict().items()}
-                   for name, interval in result.linear_intervals.items()},
-        "method": method,
-        "invertible_samples": inner.num_invertible,
-        "samples": int(inner.lower_rad.size),
-    }
+    """The ``--json`` object: :meth:`OutputBacklashIdentification.to_dict` (the keys of issue 2, with
+    ``kind`` and ``version``)."""
+    assert result.method == method
+    return result.to_dict()
 
 
 def _steady_description(steady: str, count: int) -> str:

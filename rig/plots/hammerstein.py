@@ -6,16 +6,14 @@
 * :func:`singular_values_figure`: the singular values of the PI-MOESP projection (eq. (12)) with the chosen
   order marked.
 
-Each function takes a :class:`identify.hammerstein_subspace.HammersteinModel` or the dictionary of its
-``to_dict()`` (the JSON printed by ``rig identify hammerstein --json``) and a figure name, and returns a
-:class:`rig.report.ReportFigure`.
+Each function takes a :class:`identify.hammerstein_subspace.HammersteinModel` (a saved one is read with
+``HammersteinModel.from_dict``) and a figure name, and returns a :class:`rig.report.ReportFigure`.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Union
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -25,8 +23,8 @@ from rig.report import ReportFigure
 
 __all__ = ["HammersteinSource", "borders_figure", "hammerstein_figures", "poles_figure", "singular_values_figure"]
 
-HammersteinSource = Union[HammersteinModel, Mapping[str, Any]]
-"""A model, or the dictionary of ``HammersteinModel.to_dict()`` / ``rig identify hammerstein --json``."""
+HammersteinSource = HammersteinModel
+"""What the figures draw: the model itself, never its JSON."""
 
 
 @dataclass(frozen=True)
@@ -43,26 +41,14 @@ class _ModelView:
     fit_percent: float | None
 
 
-def _view(model: HammersteinSource) -> _ModelView:
-    if isinstance(model, HammersteinModel):
-        return _ModelView(model.order, np.asarray(model.poles, dtype=complex),
-                          np.asarray(model.ascending_border.nodes_u), np.asarray(model.ascending_border.values),
-                          np.asarray(model.descending_border.nodes_u), np.asarray(model.descending_border.values),
-                          np.asarray(model.singular_values), float(model.fit_percent))
-    if isinstance(model, Mapping):
-        missing = [key for key in ("order", "poles", "borders", "singular_values") if key not in model]
-        if missing:
-            raise ValueError(f"model: expected the keys of HammersteinModel.to_dict(); missing {', '.join(missing)}")
-        poles = np.array([complex(float(re), float(im)) for re, im in model["poles"]], dtype=complex)
-        borders = model["borders"]
-        fit = model.get("fit_percent")
-        return _ModelView(int(model["order"]), poles,
-                          np.asarray(borders["ascending"]["u"], dtype=float),
-                          np.asarray(borders["ascending"]["h"], dtype=float),
-                          np.asarray(borders["descending"]["u"], dtype=float),
-                          np.asarray(borders["descending"]["h"], dtype=float),
-                          np.asarray(model["singular_values"], dtype=float), None if fit is None else float(fit))
-    raise TypeError(f"model: expected a HammersteinModel or its to_dict() mapping, got {type(model).__name__}")
+def _view(model: HammersteinModel) -> _ModelView:
+    if not isinstance(model, HammersteinModel):
+        raise TypeError(f"model: expected a HammersteinModel (read a saved one with HammersteinModel.from_dict), "
+                        f"got {type(model).__name__}")
+    return _ModelView(model.order, np.asarray(model.poles, dtype=complex),
+                      np.asarray(model.ascending_border.nodes_u), np.asarray(model.ascending_border.values),
+                      np.asarray(model.descending_border.nodes_u), np.asarray(model.descending_border.values),
+                      np.asarray(model.singular_values), float(model.fit_percent))
 
 
 def _matched_distance(estimated: NDArray[np.complex128], true: NDArray[np.complex128]) -> float:

@@ -10,7 +10,7 @@ import scipy.signal
 
 from identify.border_lifting import PathNodes, lifted_input
 from identify.cyclic_excitation import cyclic_random_excitation
-from identify.hammerstein_subspace import identify_hammerstein, pi_moesp_observability
+from identify.hammerstein_subspace import HammersteinModel, identify_hammerstein, pi_moesp_observability
 from identify.plant_blocks import (
     InputBacklash,
     InputSwitch,
@@ -20,6 +20,7 @@ from identify.plant_blocks import (
     pouliquen2013_backlash,
     pouliquen2013_switch,
 )
+from identify.result_format import ResultFormatError
 from identify.validation import InvalidInputError
 
 # Section IV: G(q) = q^-1 (0.1994 - 0.1804 q^-1) / (1 - 1.8858 q^-1 + 0.9048 q^-2), G(1) = 1.
@@ -174,6 +175,12 @@ def test_result_is_frozen_and_serialises_to_the_issue_json(excitation) -> None:
     y = exact_plant("switch").simulate(excitation)
     model = identify_hammerstein(excitation, y, NODES, hold_samples=HOLD, order=2)
     record = json.loads(json.dumps(model.to_dict()))
+    assert record["kind"] == "hammerstein_model" and record["version"] == 1
+    reopened = HammersteinModel.from_dict(record)
+    assert reopened.to_dict() == model.to_dict()
+    assert np.array_equal(reopened.simulate(excitation), model.simulate(excitation))
+    with pytest.raises(ResultFormatError, match="kind 'hammerstein_model' version 2 cannot be read"):
+        HammersteinModel.from_dict({**record, "version": 2})
     assert record["order"] == 2 and len(record["poles"]) == 2
     assert np.allclose(sorted(record["poles"]), sorted([[p.real, p.imag] for p in TRUE_POLES]), atol=1e-10)
     assert np.array(record["A"]).shape == (2, 2) and len(record["B"]) == 2 and len(record["C"]) == 2
