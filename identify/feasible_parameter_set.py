@@ -138,6 +138,31 @@ class BacklashSidePolygon:
                    np.asarray(data["sample_indices"], dtype=np.int64).reshape(-1), floats("steady_input_rad"),
                    floats("strip_lower_rad"), floats("strip_upper_rad"))
 
+    def side_line(self, slope: float, slope_times_deadband: float, x_rad: ArrayLike) -> NDArray[np.float64]:
+        """w = m x - p on the right side (eq. (11)), w = m x + p on the left (eq. (12))."""
+        x = np.asarray(x_rad, dtype=float)
+        return slope * x + (-slope_times_deadband if self.side == "right" else slope_times_deadband)
+
+    def contains(self, slope: float, slope_times_deadband: float) -> bool:
+        """Whether (m, p = m·c) lies in this side of D_γ: m > 0, p >= 0 and every strip
+        lo_k <= m ū_k ∓ p <= hi_k (eqs. (16)-(17)), up to rounding (1e-12 relative)."""
+        if self.is_empty:
+            return False
+        value = self.side_line(slope, slope_times_deadband, self.steady_input_rad)
+        tolerance = 1e-12 * max(1.0, float(np.max(np.abs(value)))) if value.size else 0.0
+        return bool(np.all(self.strip_lower_rad - tolerance <= value)
+                    and np.all(value <= self.strip_upper_rad + tolerance) and slope > 0 and slope_times_deadband >= 0)
+
+    def output_band(self, x_rad: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Lowest and highest w over every line of this side at each x: w is linear in (m, p), so over the
+        convex polygon its extremes are at vertices (exact, not sampled)."""
+        x = np.atleast_1d(np.asarray(x_rad, dtype=float))
+        if self.is_empty:
+            raise InvalidInputError(f"the {self.side} side of the backlash feasible set is empty: no band")
+        sign = -1.0 if self.side == "right" else 1.0
+        lines = np.outer(x, self.slope_vertices) + sign * self.slope_times_deadband_vertices[None, :]
+        return lines.min(axis=1), lines.max(axis=1)
+
     @property
     def deadband_vertices(self) -> NDArray[np.float64]:
         """c = p/m at the vertices."""
@@ -185,6 +210,11 @@ class BacklashFeasibleSet:
             raise InvalidInputError(f"the backlash feasible set is empty: {self.explanation.message}")
         assert self.m_l and self.c_l and self.m_r and self.c_r
         return {"m_l": self.m_l, "c_l": self.c_l, "m_r": self.m_r, "c_r": self.c_r}
+
+    def contains(self, m_l: float, c_l: float, m_r: float, c_r: float) -> dict[str, bool]:
+        """Per side (``left``, ``right``), whether the backlash (m, c) lies in D_γ (eqs. (14)-(17)); both
+        False for an empty set."""
+        return {"left": self.left.contains(m_l, m_l * c_l), "right": self.right.contains(m_r, m_r * c_r)}
 
     KIND = "backlash_feasible_set"
     VERSION = 1

@@ -43,7 +43,7 @@ import itertools
 import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import scipy.sparse as sp
@@ -52,6 +52,9 @@ from scipy.optimize import linprog
 
 from identify.feasible_parameter_set import ParameterInterval
 from identify.result_format import check_kind, malformed, number, tagged
+
+if TYPE_CHECKING:
+    from identify.linear_block_response import MagnitudeEnvelope
 from identify.validation import InvalidInputError, as_signal, same_length
 
 __all__ = ["LINEAR_BOUND_METHODS", "EmptyLinearSetExplanation", "LinearBlockBounds", "LinearModelOrders",
@@ -185,6 +188,15 @@ class LinearBlockBounds:
     @property
     def is_empty(self) -> bool:
         return self.explanation is not None
+
+    def magnitude_envelope(self, omega_rad_per_sample: ArrayLike) -> MagnitudeEnvelope:
+        """The guaranteed range of |G(e^{jω})| over the parameter box at ω (rad/sample), with the central
+        model's |G| (:class:`identify.linear_block_response.MagnitudeEnvelope`); raises for an empty set."""
+        from identify.linear_block_response import MagnitudeEnvelope
+
+        if self.is_empty:
+            raise InvalidInputError("the linear-block feasible set is empty: no envelope")
+        return MagnitudeEnvelope.of_box(self.intervals, omega_rad_per_sample)
 
     KIND = "linear_block_bounds"
     VERSION = 1
