@@ -46,7 +46,8 @@ from scipy import optimize
 from scipy.signal import lfilter
 
 from identify.effect_catalogue import EFFECT_NAMES, EFFECTS, GuessContext, effect
-from identify.effect_signatures import SignatureScore, direction_signal, signature_scores
+from identify.border_lifting import direction_signal
+from identify.effect_signatures import SignatureScore, signature_scores
 from identify.plant_blocks import (
     Block,
     CoulombFriction,
@@ -1280,7 +1281,7 @@ def _command_reversals(u: NDArray[np.float64]) -> NDArray[np.bool_]:
     """True at the samples where the command's direction of motion turns (a designed command moves smoothly
     or holds exactly: only steps below a millionth of its range, rounding, are no motion)."""
     threshold = 1e-6 * float(np.ptp(u)) if u.size else 0.0
-    direction = direction_signal(u, threshold)
+    direction = direction_signal(u, threshold=threshold)
     turns = np.zeros(u.size, dtype=bool)
     turns[1:] = (np.diff(direction) != 0) & (direction[:-1] != 0)
     return turns

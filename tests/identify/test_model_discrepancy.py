@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from identify.discrepancy_cases import NOMINAL_LINEAR, hidden_effect_record
-from identify.effect_signatures import EFFECT_NAMES, direction_signal, signature_scores
+from identify.border_lifting import direction_signal
+from identify.effect_signatures import EFFECT_NAMES, signature_scores
 from identify.model_discrepancy import DiscrepancyReport, diagnose_model, disagreement, fit_linear_model
 from identify.plant_blocks import DeadZone, Delay, LinearBlock, OutputGain, PlantModel
 from identify.validation import InvalidInputError
@@ -143,7 +144,7 @@ def test_signatures_point_at_the_effect(seed):
 
 def test_direction_signal_holds_the_last_direction():
     values = np.array([0.0, 1.0, 2.0, 2.0, 2.0, 1.0, 1.0, 3.0])
-    assert direction_signal(values, 0.5).tolist() == [0.0, 1.0, 1.0, 1.0, 1.0, -1.0, -1.0, 1.0]
+    assert direction_signal(values, threshold=0.5).tolist() == [0.0, 1.0, 1.0, 1.0, 1.0, -1.0, -1.0, 1.0]
 
 
 def test_misuse_is_reported_by_argument_name():
