@@ -307,10 +307,23 @@ class HammersteinModel:
                 float(refined["rms_before"]), float(refined["rms_after"]), int(refined["evaluations"]),
                 bool(refined["converged"]), str(refined["message"]), bool(refined["applied"]))
             hold = data["mu0_hold"]
-            return cls(A=data["A"], B=data["B"], C=data["C"], D=float(data["D"]), mu0=float(data["mu0"]),
-                       nodes=PathNodes(tuple(data["nodes"]["ascending"]), tuple(data["nodes"]["descending"])),
-                       mu_ascending=data["mu_ascending"], mu_descending=data["mu_descending"],
-                       singular_values=data["singular_values"], order=order,
+
+            def numbers(key: str, shape: tuple[int, ...]) -> NDArray[np.float64]:
+                try:
+                    values = np.asarray(data[key], dtype=float)
+                except (TypeError, ValueError):
+                    raise ValueError(f"{key}: expected numbers, got {str(data[key])[:40]}") from None
+                if values.shape != shape or not np.all(np.isfinite(values)):
+                    raise ValueError(f"{key}: expected {' x '.join(map(str, shape)) or 'one'} finite numbers, got "
+                                     f"shape {values.shape}")
+                return values
+
+            nodes = PathNodes(tuple(data["nodes"]["ascending"]), tuple(data["nodes"]["descending"]))
+            return cls(A=numbers("A", (order, order)), B=numbers("B", (order,)), C=numbers("C", (order,)),
+                       D=float(data["D"]), mu0=float(data["mu0"]), nodes=nodes,
+                       mu_ascending=numbers("mu_ascending", (len(nodes.ascending) - 1,)),
+                       mu_descending=numbers("mu_descending", (len(nodes.descending) - 1,)),
+                       singular_values=numbers("singular_values", (np.size(data["singular_values"]),)), order=order,
                        past_horizon=int(data["past_horizon"]), future_horizon=int(data["future_horizon"]),
                        num_columns=int(data["num_columns"]), split=str(data["split"]),
                        initial_state=data["initial_state"], fit_percent=float(data["fit_percent"]),

@@ -69,6 +69,20 @@ class InnerSignalBounds:
     def num_invertible(self) -> int:
         return int(np.count_nonzero(self.invertible))
 
+    def contains(self, inner_rad: ArrayLike) -> NDArray[np.bool_]:
+        """Per sample, whether x_t^min <= x_t <= x_t^max for a signal of the same length (e.g. a simulated
+        true x_t)."""
+        x = np.asarray(inner_rad, dtype=float)
+        if x.shape != self.lower_rad.shape:
+            raise InvalidInputError(f"inner_rad: expected {self.lower_rad.size} samples like the bounds, got shape "
+                                    f"{x.shape}")
+        return (self.lower_rad <= x) & (x <= self.upper_rad)
+
+    def median_half_width_rad(self, *, invertible: bool) -> float:
+        """Median Δx_t over the invertible samples (``invertible=True``) or the others; nan if there are none."""
+        chosen = self.half_width_rad[self.invertible == invertible]
+        return float(np.median(chosen)) if chosen.size else float("nan")
+
     KIND = "inner_signal_bounds"
     VERSION = 1
 

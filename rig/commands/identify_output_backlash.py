@@ -46,15 +46,16 @@ def register(methods: argparse._SubParsersAction) -> None:
                              "paper: errors-in-variables bounds per equation (Cerone 1993)")
     parser.add_argument("--filter-step", type=float, default=None, metavar="RAD",
                         help="amplitude of the step used to tune the filter pole, if known (alpha terms of eq. (14)-(15))")
-    parser.add_argument("--json", action="store_true", help="print the bounds as one JSON object")
+    parser.add_argument("--json", action="store_true",
+                        help="print the result as one JSON object (kind output_backlash, version 1: the bounds and "
+                             "the whole result, which `rig report` draws)")
     parser.add_argument("--jobs", type=int, default=1, metavar="N",
                         help="bound several --steady/--dynamic pairs in N processes (0: one per core; default 1)")
     parser.add_argument("--scheduler", metavar="ADDRESS", default=None,
                         help="run the pairs on the Dask cluster at ADDRESS instead (needs dask[distributed])")
     parser.add_argument("--save", metavar="RESULT.json", default=None,
-                        help="also write the bounds with the data they came from (steady points, dynamic record, "
-                             "noise bound, orders), so that `rig report RESULT.json` draws the feasible polygons, "
-                             "the backlash band and the inner-signal bounds")
+                        help="also write the --json object with the data it came from (steady points, dynamic "
+                             "record, noise bound, orders) to RESULT.json")
     parser.set_defaults(handler=run)
 
 

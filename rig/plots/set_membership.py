@@ -292,11 +292,11 @@ def inner_signal_figure(result: OutputBacklashIdentification | InnerSignalBounds
         raise ValueError(f"true_inner_rad: expected {count} samples like the bounds, got shape {truth.shape}")
     invertible = np.asarray(inner.invertible, dtype=bool)
     half = inner.half_width_rad
-    median_inv = float(np.median(half[invertible])) * 1e3 if invertible.any() else float("nan")
-    median_band = float(np.median(half[~invertible])) * 1e3 if (~invertible).any() else float("nan")
+    median_inv = inner.median_half_width_rad(invertible=True) * 1e3
+    median_band = inner.median_half_width_rad(invertible=False) * 1e3
     truth_text = ""
     if truth is not None:
-        inside = int(np.count_nonzero((inner.lower_rad <= truth) & (truth <= inner.upper_rad)))
+        inside = int(np.count_nonzero(inner.contains(truth)))
         truth_text = f" The true x_t (black) is inside the bounds at {inside} of {count} samples."
 
     def draw(figure) -> None:

@@ -94,3 +94,10 @@ def test_a_malformed_document_names_the_key(result) -> None:
     del document["linear_bounds"]["orders"]
     with pytest.raises(ResultFormatError, match="'orders' is missing"):
         OutputBacklashIdentification.from_dict(document)
+
+
+def test_the_inner_signal_bounds_contain_the_true_inner_signal(result) -> None:
+    inner = result.inner_signal
+    true_x = PLANT.blocks[0].apply(prbs_sequence(100, 1.0, rng=1))
+    assert inner.contains(true_x).all() and not inner.contains(true_x + 1.0).any()
+    assert inner.median_half_width_rad(invertible=True) <= inner.median_half_width_rad(invertible=False)
