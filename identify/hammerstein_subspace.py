@@ -60,7 +60,7 @@ from numpy.typing import ArrayLike, NDArray
 from identify.border_lifting import PathNodes, check_cyclic_input, lifted_input
 from identify.plant_blocks import InputBacklash, PiecewiseLinearBorder
 from identify.result_format import check_kind, malformed, tagged
-from identify.validation import InvalidInputError, as_signal, same_length, varying
+from identify.validation import InvalidInputError, as_signal, renamed_parameters, same_length, varying
 
 __all__ = [
     "HammersteinModel",
@@ -225,7 +225,8 @@ class HammersteinModel:
         _, response = scipy.signal.freqz(numerator, denominator, worN=omega)
         return response
 
-    def nonlinearity_output(self, u: ArrayLike, *, nonlinearity: Literal["paths", "backlash"] = "paths",
+    @renamed_parameters(u="input_rad")
+    def nonlinearity_output(self, input_rad: ArrayLike, *, nonlinearity: Literal["paths", "backlash"] = "paths",
                             initial_direction: int = 0) -> NDArray[np.float64]:
         """H[u(t)] of the identified model.
 
@@ -234,7 +235,7 @@ class HammersteinModel:
         the identified paths, v(t) = min(P_d(u), max(P_a(u), v(t-1))) from v(-1) = μ0, which also covers
         a backlash driven by inputs that reverse inside the interval.
         """
-        signal = as_signal("u", u)
+        signal = as_signal("input_rad", input_rad)
         if nonlinearity == "paths":
             return self.mu0 + lifted_input(signal, self.nodes, initial_direction=initial_direction) @ self.mu
         if nonlinearity == "backlash":
@@ -242,13 +243,14 @@ class HammersteinModel:
             return block.apply(signal)
         raise InvalidInputError(f"nonlinearity: expected 'paths' or 'backlash', got {nonlinearity!r}")
 
-    def simulate(self, u: ArrayLike, *, nonlinearity: Literal["paths", "backlash"] = "paths",
+    @renamed_parameters(u="input_rad")
+    def simulate(self, input_rad: ArrayLike, *, nonlinearity: Literal["paths", "backlash"] = "paths",
                  initial_direction: int = 0) -> NDArray[np.float64]:
-        """Output of the identified model for input ``u``, starting at rest at u_min (output μ0).
+        """Output of the identified model for the input u (``input_rad``), starting at rest at u_min (output μ0).
 
         See :meth:`nonlinearity_output` for ``nonlinearity``.
         """
-        deviation = self.nonlinearity_output(u, nonlinearity=nonlinearity,
+        deviation = self.nonlinearity_output(input_rad, nonlinearity=nonlinearity,
                                              initial_direction=initial_direction) - self.mu0
         numerator, denominator = self.transfer_function
         return self.mu0 + scipy.signal.lfilter(numerator, denominator, deviation)
@@ -695,9 +697,10 @@ def _check_int(name: str, value: Any, lowest: int) -> int:
     return int(value)
 
 
+@renamed_parameters(u="input_rad", y="output_rad")
 def identify_hammerstein(
-    u: ArrayLike,
-    y: ArrayLike,
+    input_rad: ArrayLike,
+    output_rad: ArrayLike,
     nodes: PathNodes | ArrayLike,
     *,
     hold_samples: int | None = None,
@@ -721,8 +724,9 @@ def identify_hammerstein(
 
     Parameters
     ----------
-    u, y
-        Input and output, one sample each per time step, starting at u_min (with the hold, if any).
+    input_rad, output_rad
+        Input u and output y, one sample each per time step, starting at u_min (with the hold, if any); the
+        old keyword names ``u=``, ``y=`` still work, with a DeprecationWarning.
     nodes
         Path nodes (eq. (3)); :meth:`PathNodes.uniform` for equally spaced ones, or one sequence of node
         positions shared by both paths.
@@ -756,10 +760,10 @@ def identify_hammerstein(
         sample, path or segment), too little data for the horizons, an input that is not persistently
         exciting, an order the data do not support, or a linear part with no finite non-zero static gain.
     """
-    u_signal = varying("u", as_signal("u", u), "use the cyclic random excitation of "
+    u_signal = varying("input_rad", as_signal("input_rad", input_rad), "use the cyclic random excitation of "
                        "identify.cyclic_excitation (configs/experiments/hammerstein_cyclic.toml)")
-    y_signal = as_signal("y", y)
-    N = same_length(u=u_signal, y=y_signal)
+    y_signal = as_signal("output_rad", output_rad)
+    N = same_length(input_rad=u_signal, output_rad=y_signal)
     if not isinstance(nodes, PathNodes):
         try:
             shared = tuple(float(v) for v in nodes)

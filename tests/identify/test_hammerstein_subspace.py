@@ -177,6 +177,11 @@ def test_result_is_frozen_and_serialises_to_the_issue_json(excitation) -> None:
     record = json.loads(json.dumps(model.to_dict()))
     assert record["kind"] == "hammerstein_model" and record["version"] == 1
     reopened = HammersteinModel.from_dict(record)
+    with pytest.warns(DeprecationWarning, match=r"simulate\(u=...\) is deprecated: the parameter is now input_rad"):
+        assert np.array_equal(model.simulate(u=excitation), model.simulate(excitation))
+    with pytest.warns(DeprecationWarning, match="identify_hammerstein"):
+        again = identify_hammerstein(u=excitation, y=y, nodes=NODES, hold_samples=HOLD, order=2)
+    assert again.to_dict() == model.to_dict()
     assert reopened.to_dict() == model.to_dict()
     assert np.array_equal(reopened.simulate(excitation), model.simulate(excitation))
     with pytest.raises(ResultFormatError, match="kind 'hammerstein_model' version 2 cannot be read"):
@@ -200,9 +205,9 @@ def test_errors_name_the_problem(excitation) -> None:
     y = exact_plant("switch").simulate(excitation)
     bad = y.copy()
     bad[321] = np.nan
-    with pytest.raises(InvalidInputError, match="y: sample 321 is nan"):
+    with pytest.raises(InvalidInputError, match="output_rad: sample 321 is nan"):
         identify_hammerstein(excitation, bad, NODES, hold_samples=HOLD)
-    with pytest.raises(InvalidInputError, match="u has 3100, y has 3099"):
+    with pytest.raises(InvalidInputError, match="input_rad has 3100, output_rad has 3099"):
         identify_hammerstein(excitation, y[:-1], NODES, hold_samples=HOLD)
     with pytest.raises(InvalidInputError, match=r"too few .* at least 4"):
         identify_hammerstein(excitation[:400], y[:400], NODES, hold_samples=HOLD)
@@ -227,7 +232,7 @@ def test_errors_name_the_problem(excitation) -> None:
 
 
 def test_a_constant_input_is_refused_with_what_to_do():
-    with pytest.raises(InvalidInputError, match=r"u: the input is constant \(-3 in all 400 samples\), so it "
+    with pytest.raises(InvalidInputError, match=r"input_rad: the input is constant \(-3 in all 400 samples\), so it "
                                                 r"excites nothing; use the cyclic random excitation"):
         identify_hammerstein(np.full(400, -3.0), np.zeros(400), PathNodes((-3.0, 0.0, 3.0), (-3.0, 0.0, 3.0)),
                              hold_samples=50)
