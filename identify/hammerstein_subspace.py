@@ -60,7 +60,7 @@ from numpy.typing import ArrayLike, NDArray
 from identify.border_lifting import PathNodes, check_cyclic_input, lifted_input
 from identify.plant_blocks import InputBacklash, PiecewiseLinearBorder
 from identify.result_format import check_kind, malformed, tagged
-from identify.validation import InvalidInputError, as_signal, renamed_parameters, same_length, varying
+from identify.validation import InvalidInputError, as_signal, positive, renamed_parameters, same_length, varying
 
 __all__ = [
     "HammersteinModel",
@@ -209,6 +209,34 @@ class HammersteinModel:
         return bool(np.all(np.abs(self.poles) < 1.0))
 
     @property
+    def max_pole_magnitude(self) -> float:
+        """The largest |p| (>= 1: not stable)."""
+        return float(np.max(np.abs(self.poles))) if self.order else 0.0
+
+    def natural_frequencies_hz(self, sample_period_s: float) -> NDArray[np.float64]:
+        """|ln p| / (2π T) of every pole, distinct values ascending (a complex pair counts once)."""
+        with np.errstate(divide="ignore"):
+            frequencies = np.abs(np.log(self.poles.astype(complex))) / (2 * np.pi * positive("sample_period_s",
+                                                                                             sample_period_s))
+        return np.unique(np.round(frequencies, 12))
+
+    def pole_distance(self, true_poles: ArrayLike) -> float:
+        """The distance from the farthest true pole to its nearest identified pole (nan if either is empty)."""
+        truth = np.atleast_1d(np.asarray(true_poles, dtype=complex))
+        estimated = self.poles
+        if estimated.size == 0 or truth.size == 0:
+            return float("nan")
+        return float(np.max(np.min(np.abs(truth[:, None] - estimated[None, :]), axis=1)))
+
+    @property
+    def largest_play_rad(self) -> float:
+        """max over the ascending nodes of P_d(u) - P_a(u): the play seen at the output."""
+        u = np.asarray(self.ascending_border.nodes_u)
+        gap = (np.interp(u, self.descending_border.nodes_u, self.descending_border.values)
+               - np.asarray(self.ascending_border.values))
+        return float(np.max(gap))
+
+    @property
     def transfer_function(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """(numerator, denominator) of G, coefficients of q^0, q^-1, ..., q^-n; denominator[0] = 1."""
         return _state_space_to_tf(self.A, self.B, self.C, self.D)
@@ -266,7 +294,7 @@ class HammersteinModel:
             "order": self.order,
             "poles": [[float(p.real), float(p.imag)] for p in self.poles],
             "stable": self.stable,
-            "max_pole_magnitude": float(np.max(np.abs(self.poles))) if self.order else 0.0,
+            "max_pole_magnitude": self.max_pole_magnitude,
             "A": self.A.tolist(),
             "B": self.B.tolist(),
             "C": self.C.tolist(),

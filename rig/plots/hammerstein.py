@@ -51,13 +51,6 @@ def _view(model: HammersteinModel) -> _ModelView:
                       np.asarray(model.singular_values), float(model.fit_percent))
 
 
-def _matched_distance(estimated: NDArray[np.complex128], true: NDArray[np.complex128]) -> float:
-    """Largest distance from a true pole to its nearest estimated pole."""
-    if estimated.size == 0 or true.size == 0:
-        return float("nan")
-    return float(np.max(np.min(np.abs(true[:, None] - estimated[None, :]), axis=1)))
-
-
 def poles_figure(model: HammersteinSource, name: str, *, true_poles: ArrayLike | None = None,
                  sample_period_s: float | None = None) -> ReportFigure:
     """The poles of the identified G (eigenvalues of A, step 1 of Section III) in the z-plane.
@@ -74,16 +67,14 @@ def poles_figure(model: HammersteinSource, name: str, *, true_poles: ArrayLike |
     """
     view = _view(model)
     truth = None if true_poles is None else np.atleast_1d(np.asarray(true_poles, dtype=complex))
-    radius = float(np.max(np.abs(view.poles))) if view.poles.size else float("nan")
     pole_text = ", ".join(f"{p.real:.4f}{p.imag:+.4f}j" for p in np.sort_complex(view.poles))
-    notes = [f"order {view.order}, poles {pole_text}, largest |p| = {radius:.4f}"
-             f" ({'stable' if radius < 1.0 else 'NOT stable'})"]
+    notes = [f"order {view.order}, poles {pole_text}, largest |p| = {model.max_pole_magnitude:.4f}"
+             f" ({'stable' if model.stable else 'NOT stable'})"]
     if sample_period_s is not None and view.poles.size:
-        with np.errstate(divide="ignore"):
-            frequencies = np.abs(np.log(view.poles.astype(complex))) / (2 * np.pi * float(sample_period_s))
-        notes.append("natural frequencies " + ", ".join(f"{f:.3g} Hz" for f in np.unique(np.round(frequencies, 12))))
+        notes.append("natural frequencies " + ", ".join(f"{f:.3g} Hz"
+                                                        for f in model.natural_frequencies_hz(sample_period_s)))
     if truth is not None:
-        notes.append(f"farthest true pole is {_matched_distance(view.poles, truth):.3g} from an estimated one")
+        notes.append(f"farthest true pole is {model.pole_distance(truth):.3g} from an estimated one")
 
     def draw(figure) -> None:
         whole, zoom = figure.subplots(1, 2)
@@ -132,8 +123,7 @@ def borders_figure(model: HammersteinSource, name: str, *, true_ascending: Calla
     view = _view(model)
     notes = [f"{view.ascending_u.size} ascending and {view.descending_u.size} descending nodes on "
              f"[{view.ascending_u[0]:.4g}, {view.ascending_u[-1]:.4g}] rad"]
-    gap = np.interp(view.ascending_u, view.descending_u, view.descending_h) - view.ascending_h
-    notes.append(f"largest vertical gap P_d - P_a = {float(np.max(gap)):.4g} rad (the play seen at the output)")
+    notes.append(f"largest vertical gap P_d - P_a = {model.largest_play_rad:.4g} rad (the play seen at the output)")
     errors = []
     for label, nodes_u, nodes_h, border in (("ascending", view.ascending_u, view.ascending_h, true_ascending),
                                             ("descending", view.descending_u, view.descending_h, true_descending)):

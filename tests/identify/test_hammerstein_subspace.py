@@ -253,6 +253,7 @@ def test_an_unstable_identified_model_says_so_in_json_and_text(capsys) -> None:
     model = identify_hammerstein(u, y, NODES, hold_samples=HOLD, order=1)
     assert abs(model.poles[0]) == pytest.approx(1.004, abs=1e-6)
     assert model.stable is False and model.to_dict()["stable"] is False
+    assert model.max_pole_magnitude == pytest.approx(1.004, abs=1e-6)
     assert model.to_dict()["max_pole_magnitude"] == pytest.approx(1.004, abs=1e-6)
     _print_table(model, Path("growing.csv"), HOLD)
     assert "WARNING          unstable: a pole has |p| = 1.004" in capsys.readouterr().out
@@ -263,3 +264,12 @@ def test_step_data_get_told_what_the_method_needs() -> None:
     y = exact_plant("backlash").simulate(u)
     with pytest.raises(InvalidInputError, match="cyclic excitation that sweeps from u_min up to u_max"):
         identify_hammerstein(u, y, NODES, hold_samples=300)
+
+
+def test_the_numbers_the_pole_and_border_figures_show(excitation) -> None:
+    y = exact_plant("switch").simulate(excitation)
+    model = identify_hammerstein(excitation, y, NODES, hold_samples=HOLD, order=2)
+    assert model.pole_distance(TRUE_POLES) < 1e-9 and model.pole_distance(TRUE_POLES + 0.1) > 0.05
+    natural = model.natural_frequencies_hz(0.01)
+    assert natural.size == 1 and natural[0] == pytest.approx(abs(np.log(TRUE_POLES[0])) / (2 * np.pi * 0.01))
+    assert model.largest_play_rad == pytest.approx(float(np.max(np.asarray(H_D) - np.asarray(H_A))), abs=1e-9)
