@@ -50,7 +50,7 @@ def diagnose_one(path: str, noise_bound_rad: float) -> dict:
     record, imported = read_measurement(path, options)
     started = time.perf_counter()
     result = diagnose_model(record.command_rad, record.angle_rad, noise_bound_rad, record.metadata.sample_period_s)
-    document = result.to_json_dict()
+    document = result.to_dict()
     return {"file": Path(path).name, "verdict": result.verdict, "reason": result.verdict_reason,
             "effects": tuple(result.missing_effects), "ambiguous": tuple(result.ambiguous_between),
             "intervals": {effect: dict(values) for effect, values in result.parameter_intervals.items()},

@@ -23,6 +23,7 @@ __all__ = [
     "PathNodes",
     "uniform_nodes",
     "direction_signal",
+    "path_indicator",
     "piecewise_linear_basis",
     "lifted_input",
     "check_cyclic_input",
@@ -106,8 +107,34 @@ def uniform_nodes(u_min: float, u_max: float, num_nodes: int) -> NDArray[np.floa
     return nodes
 
 
-def direction_signal(u: ArrayLike, *, initial_direction: int = 0) -> NDArray[np.int8]:
-    """δ(t) of Section II-B: 1 if u(t) > u(t-1), 0 if u(t) < u(t-1), δ(t-1) if u(t) = u(t-1).
+def direction_signal(values: ArrayLike, *, threshold: float = 0.0) -> NDArray[np.float64]:
+    """s_t in {-1, 0, +1}: the sign of the last increment of ``values`` up to t larger than ``threshold`` in
+    size (0 before the first). The one direction of motion of the package: the paper's δ(t)
+    (:func:`path_indicator`) and the backlash and friction signatures of :mod:`identify.effect_signatures`
+    both read it.
+
+    Parameters
+    ----------
+    values
+        The signal (a command, or a model's output).
+    threshold
+        Increments of at most this size are no motion (0: any change is; use a small positive value for
+        a signal with rounding noise).
+    """
+    signal = np.asarray(values, dtype=float)
+    if signal.size == 0:
+        return np.zeros(0)
+    steps = np.diff(signal, prepend=signal[0])
+    sign = np.where(steps > threshold, 1.0, np.where(steps < -threshold, -1.0, np.nan))
+    sign[0] = 0.0 if np.isnan(sign[0]) else sign[0]
+    index = np.where(~np.isnan(sign), np.arange(sign.size), 0)
+    np.maximum.accumulate(index, out=index)
+    return sign[index]
+
+
+def path_indicator(u: ArrayLike, *, initial_direction: int = 0) -> NDArray[np.int8]:
+    """δ(t) of Section II-B: 1 if u(t) > u(t-1), 0 if u(t) < u(t-1), δ(t-1) if u(t) = u(t-1); that is, 1 on
+    the ascending path and 0 on the descending one (:func:`direction_signal` +1 and -1).
 
     Parameters
     ----------
@@ -120,17 +147,8 @@ def direction_signal(u: ArrayLike, *, initial_direction: int = 0) -> NDArray[np.
     signal = as_signal("u", u)
     if initial_direction not in (0, 1):
         raise InvalidInputError(f"initial_direction: expected 0 (descending) or 1 (ascending), got {initial_direction!r}")
-    step = np.zeros(signal.size, dtype=np.int8)
-    step[1:] = np.sign(np.diff(signal)).astype(np.int8)
-    moved = np.flatnonzero(step)
-    if moved.size == 0:
-        return np.full(signal.size, initial_direction, dtype=np.int8)
-    last_move = np.zeros(signal.size, dtype=np.intp)
-    last_move[moved] = moved
-    last_move = np.maximum.accumulate(last_move)
-    delta = (step[last_move] > 0).astype(np.int8)
-    delta[: moved[0]] = initial_direction
-    return delta
+    direction = direction_signal(signal)
+    return np.where(direction == 0.0, initial_direction, direction > 0.0).astype(np.int8)
 
 
 def piecewise_linear_basis(u: ArrayLike, nodes: ArrayLike) -> NDArray[np.float64]:
@@ -154,7 +172,7 @@ def lifted_input(u: ArrayLike, nodes: PathNodes, *, initial_direction: int = 0) 
         ``[P^a(u) δ, P^d(u) (1 - δ)]``; with μ the node slopes, H[u(t)] = μ0 + z(t) μ.
     """
     signal = as_signal("u", u)
-    delta = direction_signal(signal, initial_direction=initial_direction).astype(float)[:, None]
+    delta = path_indicator(signal, initial_direction=initial_direction).astype(float)[:, None]
     return np.hstack((piecewise_linear_basis(signal, nodes.ascending) * delta,
                       piecewise_linear_basis(signal, nodes.descending) * (1.0 - delta)))
 
@@ -194,7 +212,7 @@ def check_cyclic_input(
             f"u: sample {k} is {float(signal[k])}, outside the node interval [{low}; {high}] "
             f"({outside.size} samples outside); widen the nodes or clip the data"
         )
-    delta = direction_signal(signal, initial_direction=initial_direction)
+    delta = path_indicator(signal, initial_direction=initial_direction)
     turns = np.flatnonzero(np.diff(delta.astype(np.int8)) != 0) + 1  # delta changes at sample k
     # the turning point is the last sample before the first move in the new direction
     turning_values = signal[turns - 1]

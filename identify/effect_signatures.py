@@ -29,9 +29,10 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy import signal as scipy_signal
 
+from identify.border_lifting import direction_signal
 from identify.effect_catalogue import EFFECT_NAMES  # re-exported: the names live in the catalogue
 
-__all__ = ["EFFECT_NAMES", "SignatureScore", "delay_regressor", "direction_signal", "signature_scores"]
+__all__ = ["EFFECT_NAMES", "SignatureScore", "delay_regressor", "signature_scores"]
 
 
 
@@ -55,16 +56,6 @@ def _explained(residual: NDArray[np.float64], *regressors: NDArray[np.float64]) 
     theta, *_ = np.linalg.lstsq(phi, residual, rcond=None)
     left = residual - phi @ theta
     return float(max(0.0, 1.0 - float(np.dot(left, left)) / energy))
-
-
-def direction_signal(values: NDArray[np.float64], threshold: float) -> NDArray[np.float64]:
-    """s_t = sign of the last increment of ``values`` larger than ``threshold`` (0 before the first)."""
-    steps = np.diff(values, prepend=values[0])
-    sign = np.where(steps > threshold, 1.0, np.where(steps < -threshold, -1.0, np.nan))
-    sign[0] = 0.0 if np.isnan(sign[0]) else sign[0]
-    index = np.where(~np.isnan(sign), np.arange(sign.size), 0)
-    np.maximum.accumulate(index, out=index)
-    return sign[index]
 
 
 def delay_regressor(simulated_rad: NDArray[np.float64], lag: int) -> NDArray[np.float64]:
@@ -94,7 +85,7 @@ def signature_scores(command_rad: NDArray[np.float64], angle_rad: NDArray[np.flo
     r = y - y_hat
     delta = float(noise_bound_rad)
     moving_threshold = max(1e-12, 1e-3 * float(np.ptp(y_hat)) / max(1.0, np.sqrt(y_hat.size)))
-    direction = direction_signal(y_hat, moving_threshold)
+    direction = direction_signal(y_hat, threshold=moving_threshold)
     scores: dict[str, SignatureScore] = {}
 
     backlash = _explained(r, direction)

@@ -24,12 +24,15 @@ from __future__ import annotations
 
 import math
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import linprog
 
+from identify.result_format import check_kind, malformed, number, numbers, tagged
 from identify.validation import InvalidInputError, as_signal, same_length
 
 __all__ = [
@@ -65,6 +68,15 @@ class ParameterInterval:
 
     def as_dict(self) -> dict[str, float]:
         return {"lower": self.lower, "upper": self.upper, "center": self.center}
+
+    def to_dict(self) -> dict[str, Any]:
+        """``{"lower", "upper", "center"}`` for JSON (infinite ends as ``"inf"``/``"-inf"``)."""
+        return {key: number(value) for key, value in self.as_dict().items()}
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> ParameterInterval:
+        """Inverse of :meth:`to_dict` (``center`` is recomputed)."""
+        return cls(float(data["lower"]), float(data["upper"]))
 
 
 @dataclass(frozen=True)
@@ -107,6 +119,49 @@ class BacklashSidePolygon:
                           np.column_stack([-hi, sign_c * np.ones_like(u)])])
         rhs = np.concatenate([u, -u])
         return rows, rhs
+
+    def to_dict(self) -> dict[str, Any]:
+        """Every attribute as lists of numbers (a part of :meth:`BacklashFeasibleSet.to_dict`)."""
+        return {"side": self.side, "slope_vertices": numbers(self.slope_vertices),
+                "slope_times_deadband_vertices": numbers(self.slope_times_deadband_vertices),
+                "sample_indices": [int(i) for i in self.sample_indices],
+                "steady_input_rad": numbers(self.steady_input_rad), "strip_lower_rad": numbers(self.strip_lower_rad),
+                "strip_upper_rad": numbers(self.strip_upper_rad)}
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> BacklashSidePolygon:
+        """Inverse of :meth:`to_dict`."""
+        def floats(key: str) -> NDArray[np.float64]:
+            return np.asarray([float(v) for v in data[key]], dtype=float)
+
+        return cls(str(data["side"]), floats("slope_vertices"), floats("slope_times_deadband_vertices"),
+                   np.asarray(data["sample_indices"], dtype=np.int64).reshape(-1), floats("steady_input_rad"),
+                   floats("strip_lower_rad"), floats("strip_upper_rad"))
+
+    def side_line(self, slope: float, slope_times_deadband: float, x_rad: ArrayLike) -> NDArray[np.float64]:
+        """w = m x - p on the right side (eq. (11)), w = m x + p on the left (eq. (12))."""
+        x = np.asarray(x_rad, dtype=float)
+        return slope * x + (-slope_times_deadband if self.side == "right" else slope_times_deadband)
+
+    def contains(self, slope: float, slope_times_deadband: float) -> bool:
+        """Whether (m, p = m·c) lies in this side of D_γ: m > 0, p >= 0 and every strip
+        lo_k <= m ū_k ∓ p <= hi_k (eqs. (16)-(17)), up to rounding (1e-12 relative)."""
+        if self.is_empty:
+            return False
+        value = self.side_line(slope, slope_times_deadband, self.steady_input_rad)
+        tolerance = 1e-12 * max(1.0, float(np.max(np.abs(value)))) if value.size else 0.0
+        return bool(np.all(self.strip_lower_rad - tolerance <= value)
+                    and np.all(value <= self.strip_upper_rad + tolerance) and slope > 0 and slope_times_deadband >= 0)
+
+    def output_band(self, x_rad: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Lowest and highest w over every line of this side at each x: w is linear in (m, p), so over the
+        convex polygon its extremes are at vertices (exact, not sampled)."""
+        x = np.atleast_1d(np.asarray(x_rad, dtype=float))
+        if self.is_empty:
+            raise InvalidInputError(f"the {self.side} side of the backlash feasible set is empty: no band")
+        sign = -1.0 if self.side == "right" else 1.0
+        lines = np.outer(x, self.slope_vertices) + sign * self.slope_times_deadband_vertices[None, :]
+        return lines.min(axis=1), lines.max(axis=1)
 
     @property
     def deadband_vertices(self) -> NDArray[np.float64]:
@@ -155,6 +210,45 @@ class BacklashFeasibleSet:
             raise InvalidInputError(f"the backlash feasible set is empty: {self.explanation.message}")
         assert self.m_l and self.c_l and self.m_r and self.c_r
         return {"m_l": self.m_l, "c_l": self.c_l, "m_r": self.m_r, "c_r": self.c_r}
+
+    def contains(self, m_l: float, c_l: float, m_r: float, c_r: float) -> dict[str, bool]:
+        """Per side (``left``, ``right``), whether the backlash (m, c) lies in D_γ (eqs. (14)-(17)); both
+        False for an empty set."""
+        return {"left": self.left.contains(m_l, m_l * c_l), "right": self.right.contains(m_r, m_r * c_r)}
+
+    KIND = "backlash_feasible_set"
+    VERSION = 1
+
+    def to_dict(self) -> dict[str, Any]:
+        """``{"kind": "backlash_feasible_set", "version": 1, ...}``: both polygons, the four intervals (None
+        when empty), the noise bound, α and the explanation of an empty set."""
+        explanation = None if self.explanation is None else {
+            "side": self.explanation.side, "conflicting_samples": list(self.explanation.conflicting_samples),
+            "required_noise_scale": number(self.explanation.required_noise_scale),
+            "message": self.explanation.message}
+        return tagged(self.KIND, self.VERSION, {
+            "left": self.left.to_dict(), "right": self.right.to_dict(),
+            "intervals": {name: None if interval is None else interval.to_dict()
+                          for name, interval in (("m_l", self.m_l), ("c_l", self.c_l), ("m_r", self.m_r),
+                                                 ("c_r", self.c_r))},
+            "noise_bound_rad": number(self.noise_bound_rad), "alpha_rad": numbers(np.ravel(self.alpha_rad)),
+            "alpha_shape": list(np.shape(self.alpha_rad)), "explanation": explanation})
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> BacklashFeasibleSet:
+        """Inverse of :meth:`to_dict`; a document of another kind or version is a ResultFormatError."""
+        check_kind(data, cls.KIND, (cls.VERSION,))
+        with malformed(cls.KIND):
+            intervals = {name: None if data["intervals"][name] is None else
+                         ParameterInterval.from_dict(data["intervals"][name]) for name in ("m_l", "c_l", "m_r", "c_r")}
+            explained = data["explanation"]
+            explanation = None if explained is None else EmptyFeasibleSetExplanation(
+                str(explained["side"]), tuple(int(i) for i in explained["conflicting_samples"]),
+                float(explained["required_noise_scale"]), str(explained["message"]))
+            alpha = np.asarray([float(v) for v in data["alpha_rad"]], dtype=float).reshape(data["alpha_shape"])
+            return cls(BacklashSidePolygon.from_dict(data["left"]), BacklashSidePolygon.from_dict(data["right"]),
+                       **intervals, noise_bound_rad=float(data["noise_bound_rad"]), alpha_rad=alpha,
+                       explanation=explanation)
 
 
 def clip_polygon(vertices: NDArray[np.float64], normal: NDArray[np.float64], offset: float) -> NDArray[np.float64]:

@@ -47,6 +47,7 @@ Example
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
@@ -58,7 +59,8 @@ from numpy.typing import ArrayLike, NDArray
 
 from identify.border_lifting import PathNodes, check_cyclic_input, lifted_input
 from identify.plant_blocks import InputBacklash, PiecewiseLinearBorder
-from identify.validation import InvalidInputError, as_signal, same_length, varying
+from identify.result_format import check_kind, malformed, tagged
+from identify.validation import InvalidInputError, as_signal, positive, renamed_parameters, same_length, varying
 
 __all__ = [
     "HammersteinModel",
@@ -207,6 +209,34 @@ class HammersteinModel:
         return bool(np.all(np.abs(self.poles) < 1.0))
 
     @property
+    def max_pole_magnitude(self) -> float:
+        """The largest |p| (>= 1: not stable)."""
+        return float(np.max(np.abs(self.poles))) if self.order else 0.0
+
+    def natural_frequencies_hz(self, sample_period_s: float) -> NDArray[np.float64]:
+        """|ln p| / (2π T) of every pole, distinct values ascending (a complex pair counts once)."""
+        with np.errstate(divide="ignore"):
+            frequencies = np.abs(np.log(self.poles.astype(complex))) / (2 * np.pi * positive("sample_period_s",
+                                                                                             sample_period_s))
+        return np.unique(np.round(frequencies, 12))
+
+    def pole_distance(self, true_poles: ArrayLike) -> float:
+        """The distance from the farthest true pole to its nearest identified pole (nan if either is empty)."""
+        truth = np.atleast_1d(np.asarray(true_poles, dtype=complex))
+        estimated = self.poles
+        if estimated.size == 0 or truth.size == 0:
+            return float("nan")
+        return float(np.max(np.min(np.abs(truth[:, None] - estimated[None, :]), axis=1)))
+
+    @property
+    def largest_play_rad(self) -> float:
+        """max over the ascending nodes of P_d(u) - P_a(u): the play seen at the output."""
+        u = np.asarray(self.ascending_border.nodes_u)
+        gap = (np.interp(u, self.descending_border.nodes_u, self.descending_border.values)
+               - np.asarray(self.ascending_border.values))
+        return float(np.max(gap))
+
+    @property
     def transfer_function(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """(numerator, denominator) of G, coefficients of q^0, q^-1, ..., q^-n; denominator[0] = 1."""
         return _state_space_to_tf(self.A, self.B, self.C, self.D)
@@ -223,7 +253,8 @@ class HammersteinModel:
         _, response = scipy.signal.freqz(numerator, denominator, worN=omega)
         return response
 
-    def nonlinearity_output(self, u: ArrayLike, *, nonlinearity: Literal["paths", "backlash"] = "paths",
+    @renamed_parameters(u="input_rad")
+    def nonlinearity_output(self, input_rad: ArrayLike, *, nonlinearity: Literal["paths", "backlash"] = "paths",
                             initial_direction: int = 0) -> NDArray[np.float64]:
         """H[u(t)] of the identified model.
 
@@ -232,7 +263,7 @@ class HammersteinModel:
         the identified paths, v(t) = min(P_d(u), max(P_a(u), v(t-1))) from v(-1) = μ0, which also covers
         a backlash driven by inputs that reverse inside the interval.
         """
-        signal = as_signal("u", u)
+        signal = as_signal("input_rad", input_rad)
         if nonlinearity == "paths":
             return self.mu0 + lifted_input(signal, self.nodes, initial_direction=initial_direction) @ self.mu
         if nonlinearity == "backlash":
@@ -240,25 +271,30 @@ class HammersteinModel:
             return block.apply(signal)
         raise InvalidInputError(f"nonlinearity: expected 'paths' or 'backlash', got {nonlinearity!r}")
 
-    def simulate(self, u: ArrayLike, *, nonlinearity: Literal["paths", "backlash"] = "paths",
+    @renamed_parameters(u="input_rad")
+    def simulate(self, input_rad: ArrayLike, *, nonlinearity: Literal["paths", "backlash"] = "paths",
                  initial_direction: int = 0) -> NDArray[np.float64]:
-        """Output of the identified model for input ``u``, starting at rest at u_min (output μ0).
+        """Output of the identified model for the input u (``input_rad``), starting at rest at u_min (output μ0).
 
         See :meth:`nonlinearity_output` for ``nonlinearity``.
         """
-        deviation = self.nonlinearity_output(u, nonlinearity=nonlinearity,
+        deviation = self.nonlinearity_output(input_rad, nonlinearity=nonlinearity,
                                              initial_direction=initial_direction) - self.mu0
         numerator, denominator = self.transfer_function
         return self.mu0 + scipy.signal.lfilter(numerator, denominator, deviation)
 
+    KIND = "hammerstein_model"
+    VERSION = 1
+
     def to_dict(self) -> dict[str, Any]:
-        """Plain numbers for JSON: order, poles [[re, im]], stable and the largest |p|, A, B, C, D, mu0,
-        borders, singular values."""
-        return {
+        """The ``rig identify hammerstein --json`` document: ``kind`` ``"hammerstein_model"``, ``version`` 1,
+        order, poles [[re, im]], stable and the largest |p|, A, B, C, D, mu0, borders, singular values, the
+        horizons and fit, and what :meth:`from_dict` needs besides (nodes, slopes, initial state)."""
+        return tagged(self.KIND, self.VERSION, {
             "order": self.order,
             "poles": [[float(p.real), float(p.imag)] for p in self.poles],
             "stable": self.stable,
-            "max_pole_magnitude": float(np.max(np.abs(self.poles))) if self.order else 0.0,
+            "max_pole_magnitude": self.max_pole_magnitude,
             "A": self.A.tolist(),
             "B": self.B.tolist(),
             "C": self.C.tolist(),
@@ -277,8 +313,52 @@ class HammersteinModel:
             "refinement": None if self.refinement is None else {
                 "rms_before": self.refinement.rms_before, "rms_after": self.refinement.rms_after,
                 "applied": self.refinement.applied, "evaluations": self.refinement.evaluations,
+                "converged": self.refinement.converged, "message": self.refinement.message,
             },
-        }
+            "nodes": {"ascending": list(self.nodes.ascending), "descending": list(self.nodes.descending)},
+            "mu_ascending": self.mu_ascending.tolist(),
+            "mu_descending": self.mu_descending.tolist(),
+            "num_columns": self.num_columns,
+            "initial_state": self.initial_state.tolist(),
+            "mu0_hold": self.mu0_hold,
+        })
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> HammersteinModel:
+        """Inverse of :meth:`to_dict` (poles, stability and borders are recomputed); a document of another
+        kind or version is a ResultFormatError naming both, a malformed one names the key."""
+        check_kind(data, cls.KIND, (cls.VERSION,))
+        with malformed(cls.KIND):
+            order = data["order"]
+            if isinstance(order, bool) or not isinstance(order, int) or order < 1:
+                raise ValueError(f"order is {order!r}, expected an integer >= 1")
+            refined = data["refinement"]
+            refinement = None if refined is None else RefinementReport(
+                float(refined["rms_before"]), float(refined["rms_after"]), int(refined["evaluations"]),
+                bool(refined["converged"]), str(refined["message"]), bool(refined["applied"]))
+            hold = data["mu0_hold"]
+
+            def numbers(key: str, shape: tuple[int, ...]) -> NDArray[np.float64]:
+                try:
+                    values = np.asarray(data[key], dtype=float)
+                except (TypeError, ValueError):
+                    raise ValueError(f"{key}: expected numbers, got {str(data[key])[:40]}") from None
+                if values.shape != shape or not np.all(np.isfinite(values)):
+                    raise ValueError(f"{key}: expected {' x '.join(map(str, shape)) or 'one'} finite numbers, got "
+                                     f"shape {values.shape}")
+                return values
+
+            nodes = PathNodes(tuple(data["nodes"]["ascending"]), tuple(data["nodes"]["descending"]))
+            return cls(A=numbers("A", (order, order)), B=numbers("B", (order,)), C=numbers("C", (order,)),
+                       D=float(data["D"]), mu0=float(data["mu0"]), nodes=nodes,
+                       mu_ascending=numbers("mu_ascending", (len(nodes.ascending) - 1,)),
+                       mu_descending=numbers("mu_descending", (len(nodes.descending) - 1,)),
+                       singular_values=numbers("singular_values", (np.size(data["singular_values"]),)), order=order,
+                       past_horizon=int(data["past_horizon"]), future_horizon=int(data["future_horizon"]),
+                       num_columns=int(data["num_columns"]), split=str(data["split"]),
+                       initial_state=data["initial_state"], fit_percent=float(data["fit_percent"]),
+                       residual_rms=float(data["residual_rms"]), mu0_hold=None if hold is None else float(hold),
+                       refinement=refinement)
 
 
 def _border(nodes: tuple[float, ...], slopes: NDArray[np.float64], mu0: float) -> PiecewiseLinearBorder:
@@ -645,9 +725,10 @@ def _check_int(name: str, value: Any, lowest: int) -> int:
     return int(value)
 
 
+@renamed_parameters(u="input_rad", y="output_rad")
 def identify_hammerstein(
-    u: ArrayLike,
-    y: ArrayLike,
+    input_rad: ArrayLike,
+    output_rad: ArrayLike,
     nodes: PathNodes | ArrayLike,
     *,
     hold_samples: int | None = None,
@@ -671,8 +752,9 @@ def identify_hammerstein(
 
     Parameters
     ----------
-    u, y
-        Input and output, one sample each per time step, starting at u_min (with the hold, if any).
+    input_rad, output_rad
+        Input u and output y, one sample each per time step, starting at u_min (with the hold, if any); the
+        old keyword names ``u=``, ``y=`` still work, with a DeprecationWarning.
     nodes
         Path nodes (eq. (3)); :meth:`PathNodes.uniform` for equally spaced ones, or one sequence of node
         positions shared by both paths.
@@ -706,10 +788,10 @@ def identify_hammerstein(
         sample, path or segment), too little data for the horizons, an input that is not persistently
         exciting, an order the data do not support, or a linear part with no finite non-zero static gain.
     """
-    u_signal = varying("u", as_signal("u", u), "use the cyclic random excitation of "
+    u_signal = varying("input_rad", as_signal("input_rad", input_rad), "use the cyclic random excitation of "
                        "identify.cyclic_excitation (configs/experiments/hammerstein_cyclic.toml)")
-    y_signal = as_signal("y", y)
-    N = same_length(u=u_signal, y=y_signal)
+    y_signal = as_signal("output_rad", output_rad)
+    N = same_length(input_rad=u_signal, output_rad=y_signal)
     if not isinstance(nodes, PathNodes):
         try:
             shared = tuple(float(v) for v in nodes)

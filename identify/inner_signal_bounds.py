@@ -18,13 +18,16 @@ where they do. Its extremes over D_γ and the noise are again at vertices and η
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from identify.feasible_parameter_set import BacklashFeasibleSet
 from identify.linear_block_bounds import SharedBacklashConstraints
+from identify.result_format import check_kind, malformed, numbers, tagged
 from identify.validation import InvalidInputError, as_signal
 
 __all__ = ["InnerSignalBounds", "bound_inner_signal", "shared_backlash_constraints"]
@@ -65,6 +68,42 @@ class InnerSignalBounds:
     @property
     def num_invertible(self) -> int:
         return int(np.count_nonzero(self.invertible))
+
+    def contains(self, inner_rad: ArrayLike) -> NDArray[np.bool_]:
+        """Per sample, whether x_t^min <= x_t <= x_t^max for a signal of the same length (e.g. a simulated
+        true x_t)."""
+        x = np.asarray(inner_rad, dtype=float)
+        if x.shape != self.lower_rad.shape:
+            raise InvalidInputError(f"inner_rad: expected {self.lower_rad.size} samples like the bounds, got shape "
+                                    f"{x.shape}")
+        return (self.lower_rad <= x) & (x <= self.upper_rad)
+
+    def median_half_width_rad(self, *, invertible: bool) -> float:
+        """Median Δx_t over the invertible samples (``invertible=True``) or the others; nan if there are none."""
+        chosen = self.half_width_rad[self.invertible == invertible]
+        return float(np.median(chosen)) if chosen.size else float("nan")
+
+    KIND = "inner_signal_bounds"
+    VERSION = 1
+
+    def to_dict(self) -> dict[str, Any]:
+        """``{"kind": "inner_signal_bounds", "version": 1, ...}``: the four per-sample arrays as lists."""
+        return tagged(self.KIND, self.VERSION, {
+            "lower_rad": numbers(self.lower_rad), "upper_rad": numbers(self.upper_rad),
+            "invertible": [bool(v) for v in self.invertible], "direction": [int(v) for v in self.direction]})
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> InnerSignalBounds:
+        """Inverse of :meth:`to_dict`; a document of another kind or version is a ResultFormatError."""
+        check_kind(data, cls.KIND, (cls.VERSION,))
+        with malformed(cls.KIND):
+            lower = np.asarray([float(v) for v in data["lower_rad"]], dtype=float)
+            upper = np.asarray([float(v) for v in data["upper_rad"]], dtype=float)
+            invertible = np.asarray(data["invertible"], dtype=bool).reshape(-1)
+            direction = np.asarray(data["direction"], dtype=np.int8).reshape(-1)
+            if not lower.shape == upper.shape == invertible.shape == direction.shape:
+                raise ValueError("lower_rad, upper_rad, invertible and direction differ in length")
+            return cls(lower, upper, invertible, direction)
 
 
 def _line_extremes(y: NDArray[np.float64], noise: float, slopes: NDArray[np.float64],

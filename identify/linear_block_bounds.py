@@ -53,9 +53,9 @@ from __future__ import annotations
 
 import itertools
 import math
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import scipy.sparse as sp
@@ -63,6 +63,10 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import linprog
 
 from identify.feasible_parameter_set import ParameterInterval
+from identify.result_format import check_kind, malformed, number, tagged
+
+if TYPE_CHECKING:
+    from identify.linear_block_response import MagnitudeEnvelope
 from identify.validation import InvalidInputError, as_signal, same_length
 
 __all__ = ["DEFAULT_JOINT_SAMPLES", "DEFAULT_WINDOW_SAMPLES", "LINEAR_BOUND_METHODS", "EmptyLinearSetExplanation", "LinearBlockBounds", "LinearModelOrders", "MapFunction",
@@ -211,6 +215,60 @@ class LinearBlockBounds:
     @property
     def is_empty(self) -> bool:
         return self.explanation is not None
+
+    def magnitude_envelope(self, omega_rad_per_sample: ArrayLike) -> MagnitudeEnvelope:
+        """The guaranteed range of |G(e^{jω})| over the parameter box at ω (rad/sample), with the central
+        model's |G| (:class:`identify.linear_block_response.MagnitudeEnvelope`); raises for an empty set."""
+        from identify.linear_block_response import MagnitudeEnvelope
+
+        if self.is_empty:
+            raise InvalidInputError("the linear-block feasible set is empty: no envelope")
+        return MagnitudeEnvelope.of_box(self.intervals, omega_rad_per_sample)
+
+    KIND = "linear_block_bounds"
+    VERSION = 1
+
+    def to_dict(self) -> dict[str, Any]:
+        """``{"kind": "linear_block_bounds", "version": 1, ...}``: every attribute as plain JSON values."""
+        def values(mapping: dict[str, float] | None) -> dict[str, float | str] | None:
+            return None if mapping is None else {name: number(value) for name, value in mapping.items()}
+
+        explanation = None if self.explanation is None else {
+            "conflicting_samples": list(self.explanation.conflicting_samples),
+            "required_extra_error_rad": number(self.explanation.required_extra_error_rad),
+            "message": self.explanation.message}
+        return tagged(self.KIND, self.VERSION, {
+            "method": self.method, "orders": {"na": self.orders.na, "nk": self.orders.nk, "nb": self.orders.nb},
+            "intervals": {name: interval.to_dict() for name, interval in self.intervals.items()},
+            "inner_lower": values(self.inner_lower), "inner_upper": values(self.inner_upper),
+            "inner_point": values(self.inner_point), "explanation": explanation,
+            "num_linear_programs": self.num_linear_programs, "num_tightening_rounds": self.num_tightening_rounds,
+            "feasible_orthants": [list(orthant) for orthant in self.feasible_orthants],
+            "max_certificate_gap": number(self.max_certificate_gap)})
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> LinearBlockBounds:
+        """Inverse of :meth:`to_dict`; a document of another kind or version is a ResultFormatError."""
+        check_kind(data, cls.KIND, (cls.VERSION,))
+        with malformed(cls.KIND):
+            def values(key: str) -> dict[str, float] | None:
+                return None if data[key] is None else {str(k): float(v) for k, v in data[key].items()}
+
+            explained = data["explanation"]
+            orders = data["orders"]
+            return cls(
+                method=str(data["method"]),
+                orders=LinearModelOrders(int(orders["na"]), int(orders["nk"]), int(orders["nb"])),
+                intervals={str(k): ParameterInterval.from_dict(v) for k, v in data["intervals"].items()},
+                inner_lower=values("inner_lower"), inner_upper=values("inner_upper"),
+                inner_point=values("inner_point"),
+                explanation=None if explained is None else EmptyLinearSetExplanation(
+                    tuple(int(i) for i in explained["conflicting_samples"]),
+                    float(explained["required_extra_error_rad"]), str(explained["message"])),
+                num_linear_programs=int(data["num_linear_programs"]),
+                num_tightening_rounds=int(data["num_tightening_rounds"]),
+                feasible_orthants=tuple(tuple(int(sign) for sign in orthant) for orthant in data["feasible_orthants"]),
+                max_certificate_gap=float(data["max_certificate_gap"]))
 
 
 # ----------------------------------------------------------------------------------------------------------

@@ -36,7 +36,7 @@ the validation segment, which the fits never see.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -46,7 +46,8 @@ from scipy import optimize
 from scipy.signal import lfilter
 
 from identify.effect_catalogue import EFFECT_NAMES, EFFECTS, GuessContext, effect
-from identify.effect_signatures import SignatureScore, direction_signal, signature_scores
+from identify.border_lifting import direction_signal
+from identify.effect_signatures import SignatureScore, signature_scores
 from identify.plant_blocks import (
     Block,
     CoulombFriction,
@@ -57,6 +58,7 @@ from identify.plant_blocks import (
     PlantModel,
     Resonance,
 )
+from identify.result_format import check_kind, malformed, tagged
 from identify.validation import InvalidInputError, as_signal, positive, same_length, varying
 
 VERDICTS = ("explained", "named", "ambiguous", "unexplained", "not_excited")
@@ -73,6 +75,8 @@ __all__ = [
     "Disagreement",
     "DiscrepancyStep",
     "DiscrepancyResult",
+    "DiscrepancyReport",
+    "MissingEffect",
     "LinearFit",
     "EFFECT_NAMES",
     "diagnose_model",
@@ -226,14 +230,74 @@ class DiscrepancyResult:
         """1 - g_final / g_initial on the validation segment."""
         return 1.0 - self.final.gap_rad / self.initial.gap_rad if self.initial.gap_rad > 0 else 0.0
 
-    def to_json_dict(self) -> dict[str, Any]:
-        """The ``rig diagnose --json`` document (keys of issue 6, and of issue 15: ``verdict``,
-        ``verdict_reason``, ``noise_bound``, ``candidates``, ``ambiguous_between``, ``gap_reduction``,
-        ``excitation``, and ``parameter_intervals`` for each missing effect)."""
+    def report(self) -> DiscrepancyReport:
+        """What the workflow found, without the models and signals: the content of :meth:`to_dict`."""
         reduction: dict[str, Any] = {"value": float(self.gap_reduction_fraction)}
         if self.gap_reduction is not None:
             reduction.update(self.gap_reduction)
-        return {
+        return DiscrepancyReport(
+            verdict=self.verdict, verdict_reason=self.verdict_reason, noise_bound_rad=float(self.noise_bound_rad),
+            missing_effects=tuple(MissingEffect(
+                step.effect, {k: float(v) for k, v in step.parameters.items()},
+                {k: (float(lo), float(hi)) for k, (lo, hi) in self.parameter_intervals.get(step.effect, {}).items()},
+                float(step.gap_before_rad), float(step.gap_after_rad)) for step in self.steps),
+            ambiguous_between=tuple(self.ambiguous_between), candidates=tuple(self.candidates),
+            gap_initial_rad=float(self.initial.gap_rad), gap_final_rad=float(self.final.gap_rad),
+            gap_reduction=reduction, falsified_fraction_initial=float(self.initial.falsified_fraction),
+            falsified_fraction_final=float(self.final.falsified_fraction), excitation=dict(self.excitation),
+            operating_point_rad=float(self.operating_point_rad))
+
+    def to_dict(self) -> dict[str, Any]:
+        """The ``rig diagnose --json`` document, ``self.report().to_dict()`` (:meth:`DiscrepancyReport.to_dict`)."""
+        return self.report().to_dict()
+
+
+@dataclass(frozen=True)
+class MissingEffect:
+    """One effect the workflow added: its fitted parameters with their cross-validated intervals and the
+    validated gap before and after (an entry of :attr:`DiscrepancyReport.missing_effects`)."""
+
+    effect: str
+    parameters: dict[str, float]
+    parameter_intervals: dict[str, tuple[float, float]]
+    gap_before_rad: float
+    gap_after_rad: float
+
+
+@dataclass(frozen=True)
+class DiscrepancyReport:
+    """What :func:`diagnose_model` found, as the ``rig diagnose --json`` document holds it (kind
+    ``"model_discrepancy"``, version 1): the verdict with its reason, the missing effects with intervals,
+    the candidates with their gaps and uncertainties, the gaps and falsified fractions before and after,
+    the excitation check and the operating point. :meth:`DiscrepancyResult.report` makes one."""
+
+    verdict: str
+    verdict_reason: str
+    noise_bound_rad: float
+    missing_effects: tuple[MissingEffect, ...]
+    ambiguous_between: tuple[str, ...]
+    candidates: tuple[CandidateResult, ...]
+    gap_initial_rad: float
+    gap_final_rad: float
+    gap_reduction: dict[str, Any]
+    falsified_fraction_initial: float
+    falsified_fraction_final: float
+    excitation: dict[str, Any]
+    operating_point_rad: float
+
+    KIND = "model_discrepancy"
+    VERSION = 1
+
+    def __post_init__(self) -> None:
+        if self.verdict not in VERDICTS:
+            raise InvalidInputError(f"verdict: expected one of {', '.join(VERDICTS)}, got {self.verdict!r}")
+
+    def to_dict(self) -> dict[str, Any]:
+        """``kind``, ``version`` and the keys of issue 6 and issue 15: ``verdict``, ``verdict_reason``,
+        ``noise_bound``, ``missing_effects`` (with ``parameter_intervals``), ``ambiguous_between``,
+        ``candidates``, ``gap_initial``, ``gap_final``, ``gap_reduction``, ``falsified_fraction_initial``,
+        ``falsified_fraction_final``, ``excitation``, ``operating_point``."""
+        return tagged(self.KIND, self.VERSION, {
             "verdict": self.verdict,
             "verdict_reason": self.verdict_reason,
             "noise_bound": float(self.noise_bound_rad),
@@ -242,22 +306,43 @@ class DiscrepancyResult:
                     "effect": step.effect,
                     "parameters": {k: float(v) for k, v in step.parameters.items()},
                     "parameter_intervals": {k: [float(lo), float(hi)] for k, (lo, hi)
-                                            in self.parameter_intervals.get(step.effect, {}).items()},
+                                            in step.parameter_intervals.items()},
                     "gap_before": float(step.gap_before_rad),
                     "gap_after": float(step.gap_after_rad),
                 }
-                for step in self.steps
+                for step in self.missing_effects
             ],
             "ambiguous_between": list(self.ambiguous_between),
             "candidates": [candidate.to_dict() for candidate in self.candidates],
-            "gap_initial": float(self.initial.gap_rad),
-            "gap_final": float(self.final.gap_rad),
-            "gap_reduction": reduction,
-            "falsified_fraction_initial": float(self.initial.falsified_fraction),
-            "falsified_fraction_final": float(self.final.falsified_fraction),
+            "gap_initial": float(self.gap_initial_rad),
+            "gap_final": float(self.gap_final_rad),
+            "gap_reduction": dict(self.gap_reduction),
+            "falsified_fraction_initial": float(self.falsified_fraction_initial),
+            "falsified_fraction_final": float(self.falsified_fraction_final),
             "excitation": dict(self.excitation),
             "operating_point": float(self.operating_point_rad),
-        }
+        })
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> DiscrepancyReport:
+        """Inverse of :meth:`to_dict`; keys a command added beside (``rig diagnose``'s ``import``) are
+        ignored. A document of another kind or version is a ResultFormatError naming both."""
+        check_kind(data, cls.KIND, (cls.VERSION,))
+        with malformed(cls.KIND):
+            return cls(
+                verdict=str(data["verdict"]), verdict_reason=str(data["verdict_reason"]),
+                noise_bound_rad=float(data["noise_bound"]),
+                missing_effects=tuple(MissingEffect(
+                    str(e["effect"]), {str(k): float(v) for k, v in e["parameters"].items()},
+                    {str(k): (float(lo), float(hi)) for k, (lo, hi) in e["parameter_intervals"].items()},
+                    float(e["gap_before"]), float(e["gap_after"])) for e in data["missing_effects"]),
+                ambiguous_between=tuple(str(name) for name in data["ambiguous_between"]),
+                candidates=tuple(CandidateResult.from_dict(c) for c in data["candidates"]),
+                gap_initial_rad=float(data["gap_initial"]), gap_final_rad=float(data["gap_final"]),
+                gap_reduction=dict(data["gap_reduction"]),
+                falsified_fraction_initial=float(data["falsified_fraction_initial"]),
+                falsified_fraction_final=float(data["falsified_fraction_final"]),
+                excitation=dict(data["excitation"]), operating_point_rad=float(data["operating_point"]))
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -1001,6 +1086,13 @@ class CandidateResult:
                 "parameters": {k: float(v) for k, v in self.parameters.items()}, "vanished": bool(self.vanished),
                 "helps": bool(self.helps)}
 
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> CandidateResult:
+        """Inverse of :meth:`to_dict`."""
+        return cls(int(data["round"]), str(data["effect"]), float(data["gap"]), float(data["gap_uncertainty"]),
+                   float(data["penalised_gap"]), {str(k): float(v) for k, v in data["parameters"].items()},
+                   bool(data["vanished"]), bool(data["helps"]))
+
 
 def _block_gaps(error: NDArray[np.float64] | None) -> NDArray[np.float64]:
     if error is None or error.size < VALIDATION_BLOCKS:
@@ -1189,7 +1281,7 @@ def _command_reversals(u: NDArray[np.float64]) -> NDArray[np.bool_]:
     """True at the samples where the command's direction of motion turns (a designed command moves smoothly
     or holds exactly: only steps below a millionth of its range, rounding, are no motion)."""
     threshold = 1e-6 * float(np.ptp(u)) if u.size else 0.0
-    direction = direction_signal(u, threshold)
+    direction = direction_signal(u, threshold=threshold)
     turns = np.zeros(u.size, dtype=bool)
     turns[1:] = (np.diff(direction) != 0) & (direction[:-1] != 0)
     return turns

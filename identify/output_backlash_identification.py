@@ -13,7 +13,9 @@ conflict and what to check.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import Any
 
 from numpy.typing import ArrayLike
 
@@ -22,6 +24,7 @@ from identify.inner_signal_bounds import InnerSignalBounds, bound_inner_signal, 
 from identify.linear_block_bounds import (DEFAULT_JOINT_SAMPLES, DEFAULT_WINDOW_SAMPLES, LINEAR_BOUND_METHODS,
                                           LinearBlockBounds, LinearModelOrders, MapFunction, Progress,
                                           bound_linear_block)
+from identify.result_format import check_kind, malformed, number, tagged
 from identify.validation import InvalidInputError, as_signal, same_length
 
 __all__ = ["OutputBacklashIdentification", "bound_output_backlash_system"]
@@ -41,12 +44,50 @@ class OutputBacklashIdentification:
         Bounds on θ (stage 3); None if stage 1 found an empty set.
     noise_bound_rad
         Δη used for both experiments.
+    method
+        The linear-block method, ``"coupled"`` or ``"paper"``.
     """
 
     backlash: BacklashFeasibleSet
     inner_signal: InnerSignalBounds | None
     linear: LinearBlockBounds | None
     noise_bound_rad: float
+    method: str = "coupled"
+
+    KIND = "output_backlash"
+    VERSION = 1
+
+    def to_dict(self) -> dict[str, Any]:
+        """The ``rig identify output-backlash --json`` document: ``kind`` ``"output_backlash"``, ``version``
+        1, the keys of issue 2 (``backlash`` and ``linear`` intervals, ``method``, ``invertible_samples``,
+        ``samples``; for an empty set ``empty`` and ``explanation``), and the whole result for
+        :meth:`from_dict`: ``noise_bound_rad``, ``backlash_set``, ``inner_signal``, ``linear_bounds``."""
+        whole = {"noise_bound_rad": number(self.noise_bound_rad), "backlash_set": self.backlash.to_dict(),
+                 "inner_signal": None if self.inner_signal is None else self.inner_signal.to_dict(),
+                 "linear_bounds": None if self.linear is None else self.linear.to_dict()}
+        if self.is_empty:
+            return tagged(self.KIND, self.VERSION, {"empty": True, "explanation": self.explanation,
+                                                    "method": self.method, **whole})
+        assert self.inner_signal is not None
+        return tagged(self.KIND, self.VERSION, {
+            "backlash": {name: interval.to_dict() for name, interval in self.backlash_intervals.items()},
+            "linear": {name: interval.to_dict() for name, interval in self.linear_intervals.items()},
+            "method": self.method,
+            "invertible_samples": self.inner_signal.num_invertible,
+            "samples": int(self.inner_signal.lower_rad.size),
+            **whole})
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> OutputBacklashIdentification:
+        """Inverse of :meth:`to_dict` (the summary keys are recomputed from the whole result); a document of
+        another kind or version is a ResultFormatError naming both."""
+        check_kind(data, cls.KIND, (cls.VERSION,))
+        with malformed(cls.KIND):
+            inner, linear = data["inner_signal"], data["linear_bounds"]
+            return cls(BacklashFeasibleSet.from_dict(data["backlash_set"]),
+                       None if inner is None else InnerSignalBounds.from_dict(inner),
+                       None if linear is None else LinearBlockBounds.from_dict(linear),
+                       float(data["noise_bound_rad"]), str(data["method"]))
 
     @property
     def is_empty(self) -> bool:
@@ -130,10 +171,10 @@ def bound_output_backlash_system(steady_input_rad: ArrayLike, steady_output_rad:
     backlash = bound_backlash_parameters(steady_input_rad, steady_output_rad, noise,
                                          filter_step_amplitude_rad=filter_step_amplitude_rad)
     if backlash.is_empty:
-        return OutputBacklashIdentification(backlash, None, None, noise)
+        return OutputBacklashIdentification(backlash, None, None, noise, method)
     inner = bound_inner_signal(y, noise, backlash)
     shared = shared_backlash_constraints(y, noise, backlash, inner) if method == "coupled" else None
     linear = bound_linear_block(u, inner.lower_rad, inner.upper_rad, na=na, nk=nk, nb=nb, method=method,
                                 shared_backlash=shared, verify_inner=verify_inner, window_samples=window_samples,
                                 joint_samples=joint_samples, map_windows=map_windows, progress=progress)
-    return OutputBacklashIdentification(backlash, inner, linear, noise)
+    return OutputBacklashIdentification(backlash, inner, linear, noise, method)

@@ -7,8 +7,15 @@ traceback from inside numpy or scipy.
 
 from __future__ import annotations
 
+import functools
+import warnings
+from collections.abc import Callable
+from typing import Any, TypeVar
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+
+F = TypeVar("F", bound=Callable[..., Any])
 
 
 class InvalidInputError(ValueError):
@@ -68,3 +75,21 @@ def varying(name: str, signal: NDArray[np.float64], what_to_do: str) -> NDArray[
         raise InvalidInputError(f"{name}: the input is constant ({float(signal[0]):g} in all {signal.size} samples), "
                                 f"so it excites nothing; {what_to_do}")
     return signal
+
+
+def renamed_parameters(**new_of_old: str) -> Callable[[F], F]:
+    """Accept the documented old keyword names of a function's parameters (``u=`` for ``input_rad=``) with a
+    DeprecationWarning; positional calls are unchanged. ``@renamed_parameters(u="input_rad")``."""
+    def decorate(function: F) -> F:
+        @functools.wraps(function)
+        def wrapper(*args: Any, **kwargs: Any) -> Any:
+            for old, new in new_of_old.items():
+                if old in kwargs:
+                    if new in kwargs:
+                        raise TypeError(f"{function.__name__}() got both {old}= and {new}=; {old} is the old name")
+                    warnings.warn(f"{function.__name__}({old}=...) is deprecated: the parameter is now {new}",
+                                  DeprecationWarning, stacklevel=2)
+                    kwargs[new] = kwargs.pop(old)
+            return function(*args, **kwargs)
+        return wrapper  # type: ignore[return-value]
+    return decorate

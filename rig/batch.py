@@ -34,6 +34,17 @@ class FileOutcome:
         return {"file": self.path, key: result_to_json(self.result)}
 
 
+BATCH_KIND = "batch"
+BATCH_VERSION = 1
+
+
+def batch_document(entries: Sequence[dict[str, Any]]) -> dict[str, Any]:
+    """The ``--json`` object of a command given several files: ``{"kind": "batch", "version": 1,
+    "results": entries}``, each entry naming its file(s) and holding a result document (itself with its
+    ``kind``) or an ``error``. ``rig report`` reads it."""
+    return {"kind": BATCH_KIND, "version": BATCH_VERSION, "results": list(entries)}
+
+
 def _guarded(function: Callable[[str], Any], path: str) -> FileOutcome:
     try:
         return FileOutcome(path, result=function(path))

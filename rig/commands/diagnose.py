@@ -53,7 +53,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     add_import_arguments(parser)
     parser.add_argument("--json", action="store_true",
                         help='print the result as one JSON object; with several files '
-                             '{"results": [{"file", "diagnosis" | "error"}]}')
+                             '{"kind": "batch", "version": 1, "results": [{"file", "diagnosis" | "error"}]}')
     parser.set_defaults(handler=run)
 
 
@@ -62,7 +62,7 @@ def run(args: argparse.Namespace) -> int:
 
     import sys
 
-    from rig.batch import map_files
+    from rig.batch import batch_document, map_files
 
     from rig.record_import import options_from_arguments
 
@@ -84,8 +84,7 @@ def run(args: argparse.Namespace) -> int:
     outcomes = map_files(partial(diagnose_file, options=options), args.data, jobs=args.jobs,
                          scheduler=args.scheduler)
     if args.json:
-        print(json.dumps({"results": [outcome.to_json("diagnosis", _document)
-                                      for outcome in outcomes]}))
+        print(json.dumps(batch_document([outcome.to_json("diagnosis", _document) for outcome in outcomes])))
     else:
         for outcome in outcomes:
             if outcome.error is None:
@@ -147,7 +146,7 @@ def _progress_lines(path_text: str, num_samples: int):
 def _document(outcome) -> dict:
     """The ``--json`` object of one file: the result's document plus what the import did."""
     result, _, _, imported = outcome
-    return {**result.to_json_dict(), "import": imported.to_dict()}
+    return {**result.to_dict(), "import": imported.to_dict()}
 
 
 VERDICT_WORDS = {

@@ -80,14 +80,15 @@ def register(methods: argparse._SubParsersAction) -> None:
 
     add_import_arguments(parser)
     parser.add_argument("--json", action="store_true",
-                        help='print the model as JSON; with several files {"results": [{"file", "model" | "error"}]}')
+                        help='print the model as JSON (kind hammerstein_model); with several files '
+                             '{"kind": "batch", "version": 1, "results": [{"file", "model" | "error"}]}')
     parser.set_defaults(handler=run)
 
 
 def run(args: argparse.Namespace) -> int:
     from functools import partial
 
-    from rig.batch import map_files
+    from rig.batch import batch_document, map_files
 
     options = {key: getattr(args, key) for key in (
         "nodes", "descending_nodes", "num_nodes", "u_min", "u_max", "order", "hold_samples", "mu0",
@@ -106,8 +107,8 @@ def run(args: argparse.Namespace) -> int:
     outcomes = map_files(partial(identify_file, options=options), args.data, jobs=args.jobs,
                          scheduler=args.scheduler)
     if args.json:
-        print(json.dumps({"results": [outcome.to_json("model", lambda result: result[0].to_dict())
-                                      for outcome in outcomes]}))
+        print(json.dumps(batch_document([outcome.to_json("model", lambda result: result[0].to_dict())
+                                         for outcome in outcomes])))
     else:
         for outcome in outcomes:
             if outcome.error is None:

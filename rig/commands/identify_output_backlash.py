@@ -47,7 +47,9 @@ def register(methods: argparse._SubParsersAction) -> None:
                              "paper: errors-in-variables bounds per equation (Cerone 1993)")
     parser.add_argument("--filter-step", type=float, default=None, metavar="RAD",
                         help="amplitude of the step used to tune the filter pole, if known (alpha terms of eq. (14)-(15))")
-    parser.add_argument("--json", action="store_true", help="print the bounds as one JSON object")
+    parser.add_argument("--json", action="store_true",
+                        help="print the result as one JSON object (kind output_backlash, version 1: the bounds and "
+                             "the whole result, which `rig report` draws)")
     parser.add_argument("--jobs", type=int, default=1, metavar="N",
                         help="N processes (0: one per core; default 1): for one pair, the windows of a long record; "
                              "for several --steady/--dynamic pairs, the pairs")
@@ -62,14 +64,14 @@ def register(methods: argparse._SubParsersAction) -> None:
                              "over overlapping parts of N samples whose bounds are intersected (default 3000; larger "
                              "is tighter and slower); the verified inner values are computed only up to N samples")
     parser.add_argument("--save", metavar="RESULT.json", default=None,
-                        help="also write the bounds with the data they came from (steady points, dynamic record, "
-                             "noise bound, orders), so that `rig report RESULT.json` draws the feasible polygons, "
-                             "the backlash band and the inner-signal bounds")
+                        help="also write the --json object with the data it came from (steady points, dynamic "
+                             "record, noise bound, orders) to RESULT.json")
     parser.set_defaults(handler=run)
 
 
 SAVED_FORMAT = "rig output-backlash result v1"
-"""The ``format`` of a ``--save`` file: the ``--json`` object plus ``data`` (the inputs)."""
+"""The ``format`` of a ``--save`` file: the ``--json`` object (kind ``output_backlash``) plus ``data`` (the
+inputs it came from)."""
 
 
 def _read(path_text: str, role: str):
@@ -164,10 +166,6 @@ def staircase_steady_points(path: Path):
     return u, y, description
 
 
-def _number(value: float) -> float | str:
-    return value if math.isfinite(value) else ("inf" if value > 0 else "-inf")
-
-
 def run(args: argparse.Namespace) -> int:
     if len(args.steady) != len(args.dynamic):
         raise ValueError(f"--steady/--dynamic: give them in pairs (got {len(args.steady)} --steady and "
@@ -188,7 +186,7 @@ def _run_batch(args: argparse.Namespace) -> int:
     with its error while the others come out."""
     from functools import partial
 
-    from rig.batch import map_files
+    from rig.batch import batch_document, map_files
 
     if len(set(args.dynamic)) != len(args.dynamic):
         raise ValueError("--dynamic: each dynamic file once when several pairs are given")
@@ -203,7 +201,7 @@ def _run_batch(args: argparse.Namespace) -> int:
         entry.update({"error": outcome.error} if outcome.error is not None else {"bounds": outcome.result})
         entries.append(entry)
     if args.json:
-        print(json.dumps({"results": entries}))
+        print(json.dumps(batch_document(entries)))
     else:
         for entry in entries:
             print(f"steady-state data  {entry['steady']}\ndynamic data       {entry['dynamic']}")
@@ -257,20 +255,11 @@ def _bound(steady: str, dynamic: str, options: dict, map_windows=None, progress=
 
 
 def _document(result, method: str) -> dict:
-    """The ``--json`` object of issue 2 (keys fixed there)."""
-    if result.is_empty:
-        return {"empty": True, "explanation": result.explanation, "method": method}
-    inner = result.inner_signal
-    document = {
-        "backlash": {name: {k: _number(v) for k, v in interval.as_dict().items()}
-                     for name, interval in result.backlash_intervals.items()},
-        "linear": {name: {k: _number(v) for k, v in interval.as_dict().items()}
-                   for name, interval in result.linear_intervals.items()},
-        "method": method,
-        "invertible_samples": inner.num_invertible,
-        "samples": int(inner.lower_rad.size),
-    }
-    if result.linear.notes:  # only then: the keys of issue 2 stay exactly those otherwise
+    """The ``--json`` object: :meth:`OutputBacklashIdentification.to_dict` (the keys of issue 2, with
+    ``kind`` and ``version``), and ``notes`` when a bound fell back (a bounding LP HiGHS could not solve)."""
+    assert result.method == method
+    document = result.to_dict()
+    if result.linear is not None and result.linear.notes:
         document["notes"] = list(result.linear.notes)
     return document
 

@@ -3,19 +3,24 @@
 RESULTS may be, in any order and mixed:
 
 * experiment logs (``rig-log v1``) or plain CSV files with columns ``t,u,y``: signals and loop timing;
-* the JSON printed by ``rig identify output-backlash --json`` (one file per method; several are shown side by
-  side): interval table, interval figure and the Bode magnitude of the linear-block box; the file written by
-  its ``--save`` adds the backlash band, the feasible polygons and the inner-signal bounds;
-* the JSON printed by ``rig identify hammerstein --json``: poles, borders and singular values;
-* the JSON printed by ``rig diagnose --json``: the missing effects and how much each closed the gap.
+* result JSON as the commands write it with ``--json`` or ``--save``, read by its ``kind`` and ``version``
+  keys (never guessed from the other keys):
 
-Each file is recognised by its content (the log header, or the JSON keys); anything else is refused with a
-message naming the file and what was expected.
+  - ``output_backlash`` (``rig identify output-backlash``; one file per method, shown side by side): interval
+    table, interval figure, Bode magnitude of the linear-block box, backlash band, feasible polygons and
+    inner-signal bounds;
+  - ``hammerstein_model`` (``rig identify hammerstein``): poles, borders and singular values;
+  - ``model_discrepancy`` (``rig diagnose``): the verdict, the missing effects and how much each closed the gap;
+  - ``batch`` (any of these commands given several files): every result it holds, and the files that failed.
+
+Each result type reads itself (``from_dict``); a kind or version this version cannot read is refused with a
+message naming the file, the kind and version found, and those it reads.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import re
 import sys
@@ -25,23 +30,29 @@ from typing import Any
 
 from rig import exit_codes
 
-__all__ = ["ResultFile", "read_result_file", "register", "report_sections", "run", "write_result_report"]
+__all__ = ["ResultFile", "read_result_file", "read_result_files", "readable_kinds", "register", "report_sections", "run",
+           "write_result_report"]
 
 DESCRIPTION = """\
 Write a static HTML report (index.html and PNG figures) from result files:
 
   experiment logs (rig-log v1) or CSV files with columns t,u,y     signals and sample-period jitter
-  JSON of `rig identify output-backlash --json` (one per method)  intervals side by side, Bode of the box
-  file of `rig identify output-backlash --save FILE`             the same, plus polygons, band, inner bounds
-  JSON of `rig identify hammerstein --json`                      poles, borders, singular values
-  JSON of `rig diagnose --json`                                  missing effects and the gap they closed
+  JSON of `rig identify output-backlash --json` or --save FILE    intervals side by side (one file per
+    (kind output_backlash)                                         method), Bode of the box, polygons,
+                                                                   backlash band, inner-signal bounds
+  JSON of `rig identify hammerstein --json` (kind hammerstein_model)  poles, borders, singular values
+  JSON of `rig diagnose --json` (kind model_discrepancy)           verdict, missing effects, gap closed
+  JSON of any of these commands given several files (kind batch)  every result in it
 
+Result JSON is read by its "kind" and "version" keys; a kind or version this version cannot read is
+refused with both named.
 Save the JSON with e.g. `rig identify hammerstein run.csv --json > hammerstein.json`. The frequency axis
 of the Bode figure is in Hz when --sample-period is given or an experiment log is among the files, else in
 cycles per sample. The command prints the path of index.html."""
 
 EXPECTED = ("a rig-log v1 experiment log, a CSV file with columns t,u,y, or the JSON printed by "
-            "`rig identify output-backlash --json`, `rig identify hammerstein --json` or `rig diagnose --json`")
+            "`rig identify output-backlash --json`, `rig identify hammerstein --json` or `rig diagnose --json` "
+            "(one file or several)")
 
 
 @dataclass(frozen=True)
@@ -49,34 +60,32 @@ class ResultFile:
     """One input of the report: its path, its kind and its content.
 
     ``kind`` is ``"experiment"`` (``content`` an :class:`identify.experiment_record.ExperimentRecord`),
-    ``"output_backlash"``, ``"hammerstein"`` or ``"diagnose"`` (``content`` the parsed JSON object).
+    ``"output_backlash"`` (an :class:`identify.output_backlash_identification.OutputBacklashIdentification`),
+    ``"hammerstein_model"`` (an :class:`identify.hammerstein_subspace.HammersteinModel`),
+    ``"model_discrepancy"`` (an :class:`identify.model_discrepancy.DiscrepancyReport`) or ``"error"`` (the
+    message of a file a batch command could not process). ``entry`` names the file an entry of a batch file
+    (kind ``"batch"``) came from; it is None for a file that holds one result.
     """
 
     path: Path
     kind: str
     content: Any
+    entry: str | None = None
+
+    @property
+    def name(self) -> str:
+        """The file's name, with the batch entry it came from."""
+        return self.path.name if self.entry is None else f"{self.path.name} [{self.entry}]"
 
     @property
     def slug(self) -> str:
-        """The file stem reduced to the characters a figure name allows."""
-        return re.sub(r"[^A-Za-z0-9_-]+", "_", self.path.stem).strip("_") or "result"
-
-
-def _json_kind(document: Any) -> str | None:
-    if not isinstance(document, dict):
-        return None
-    keys = set(document)
-    if {"missing_effects", "gap_initial", "gap_final"} <= keys:
-        return "diagnose"
-    if {"order", "poles", "borders", "singular_values"} <= keys:
-        return "hammerstein"
-    if {"backlash", "linear", "method"} <= keys or (document.get("empty") is True and "method" in keys):
-        return "output_backlash"
-    return None
+        """The file stem (and entry) reduced to the characters a figure name allows."""
+        stem = self.path.stem if self.entry is None else f"{self.path.stem}_{Path(self.entry).stem}"
+        return re.sub(r"[^A-Za-z0-9_-]+", "_", stem).strip("_") or "result"
 
 
 MAX_JSON_BYTES = 256 << 20
-"""Largest result JSON read (a --save file of a million samples is about 40 MB)."""
+"""Largest result JSON read (a --save file of a million samples is about 80 MB)."""
 
 
 def _short(value: Any, limit: int = 80) -> str:
@@ -85,50 +94,75 @@ def _short(value: Any, limit: int = 80) -> str:
     return text if len(text) <= limit else f"{text[:limit]}... ({len(text)} characters)"
 
 
-def _check_hammerstein(document: dict[str, Any], path: Path) -> None:
-    """Refuse a malformed `rig identify hammerstein --json` document before anything is drawn from it."""
-    import numpy as np
+def _readers() -> dict[str, tuple[int, Any]]:
+    """kind -> (the version read, the result type's from_dict)."""
+    from identify.hammerstein_subspace import HammersteinModel
+    from identify.model_discrepancy import DiscrepancyReport
+    from identify.output_backlash_identification import OutputBacklashIdentification
 
+    return {cls.KIND: (cls.VERSION, cls.from_dict)
+            for cls in (OutputBacklashIdentification, HammersteinModel, DiscrepancyReport)}
+
+
+def readable_kinds() -> str:
+    """The kinds and versions this command reads, for messages and the help."""
+    from rig.batch import BATCH_KIND, BATCH_VERSION
+
+    kinds = [f"{kind} v{version}" for kind, (version, _) in _readers().items()]
+    return ", ".join([*kinds, f"{BATCH_KIND} v{BATCH_VERSION}"])
+
+
+def _results_of(document: Any, path: Path) -> list[ResultFile]:
+    """Dispatch on the document's ``kind`` (never on its other keys); a batch gives one entry per file."""
+    from identify.result_format import ResultFormatError, kind_of
+    from rig.batch import BATCH_KIND, BATCH_VERSION
     from rig.protocols.errors import LogFileError
 
+    kind, version = kind_of(document)
+    if kind is None:
+        keys = _short(", ".join(sorted(document))) if isinstance(document, dict) else type(document).__name__
+        raise LogFileError(f"{path}: JSON without a 'kind' key (keys [{keys}]): not a result file of this version "
+                           f"(an older one, or not written by rig); this command reads the kinds {readable_kinds()} "
+                           "as the --json and --save options write them: write it again with the command")
+    if kind == BATCH_KIND and version == BATCH_VERSION:
+        entries = document.get("results")
+        if not isinstance(entries, list) or not entries:
+            raise LogFileError(f"{path}: kind batch: expected a non-empty list 'results'")
+        out = []
+        for number, entry in enumerate(entries, 1):
+            if not isinstance(entry, dict):
+                raise LogFileError(f"{path}: kind batch: results[{number - 1}] is not a JSON object")
+            name = str(entry.get("file") or entry.get("dynamic") or f"entry {number}")
+            if "error" in entry:
+                out.append(ResultFile(path, "error", str(entry["error"]), entry=name))
+                continue
+            inner = [value for value in entry.values() if kind_of(value)[0] is not None]
+            if len(inner) != 1:
+                raise LogFileError(f"{path}: kind batch: results[{number - 1}] ({name}) holds neither one result "
+                                   "(an object with a 'kind') nor an 'error'")
+            out += [dataclasses.replace(result, entry=name) for result in _results_of(inner[0], path)]
+        return out
+    readers = _readers()
+    if kind not in readers or readers[kind][0] != version:
+        raise LogFileError(f"{path}: kind {_short(kind, 40)!r} version {_short(version, 20)} cannot be read by this "
+                           f"version of rig report, which reads {readable_kinds()}")
     try:
-        order = document["order"]
-        if isinstance(order, bool) or not isinstance(order, int) or order < 1:
-            raise ValueError(f"order is {_short(repr(order))}, expected an integer >= 1")
-        def numbers(key: str, value: Any) -> Any:
-            try:
-                return np.asarray(value, dtype=float)
-            except (TypeError, ValueError):
-                raise ValueError(f"{key}: expected numbers, got {_short(value, 40)}") from None
-
-        poles = numbers("poles", document["poles"])
-        if poles.ndim != 2 or poles.shape[1] != 2 or not np.all(np.isfinite(poles)):
-            raise ValueError("poles: expected a list of [real, imaginary] pairs of finite numbers")
-        for side in ("ascending", "descending"):
-            border = document["borders"][side]
-            u, h = numbers(f"borders.{side}.u", border["u"]), numbers(f"borders.{side}.h", border["h"])
-            if u.ndim != 1 or u.shape != h.shape or u.size < 2 or not np.all(np.isfinite(u) & np.isfinite(h)):
-                raise ValueError(f"borders.{side}: expected lists u and h of the same length >= 2, finite numbers")
-        singular = numbers("singular_values", document["singular_values"])
-        if singular.ndim != 1 or singular.size < 1 or not np.all(np.isfinite(singular)):
-            raise ValueError("singular_values: expected a list of finite numbers")
-    except KeyError as err:
-        raise LogFileError(f"{path}: key {err} is missing; expected the JSON of `rig identify hammerstein --json` "
-                           "unchanged (write it again with that command)") from None
-    except (TypeError, ValueError) as err:
-        raise LogFileError(f"{path}: not the JSON of `rig identify hammerstein --json`: {_short(str(err), 160)}; "
-                           "write it again with that command") from None
+        return [ResultFile(path, kind, readers[kind][1](document))]
+    except ResultFormatError as err:
+        raise LogFileError(f"{path}: {_short(str(err), 200)}; write it again with the command that made it "
+                           "(--json or --save), unchanged") from None
 
 
-def read_result_file(path: str | Path) -> ResultFile:
-    """Recognise and read one result file.
+def read_result_files(path: str | Path) -> list[ResultFile]:
+    """Recognise and read one result file: the results it holds (several for a batch file).
 
     Raises
     ------
     FileNotFoundError
         The path is not a file.
     rig.protocols.errors.LogFileError
-        The file is none of the known kinds; the message names the file and what was expected.
+        The file is none of the known kinds, or a JSON document of a kind or version this version cannot
+        read; the message names the file, the kind and version found and those it reads.
     """
     from identify.validation import InvalidInputError
     from rig.log_file import read_experiment_data
@@ -147,7 +181,7 @@ def read_result_file(path: str | Path) -> ResultFile:
     if nul >= 0:
         raise LogFileError(f"{path}: not a text file (NUL bytes at byte {nul}); expected {EXPECTED}")
     if head.removeprefix(b"\xef\xbb\xbf").startswith(b"# rig-log"):
-        return ResultFile(path, "experiment", read_experiment_data(path))
+        return [ResultFile(path, "experiment", read_experiment_data(path))]
     if head.removeprefix(b"\xef\xbb\xbf").lstrip().startswith((b"{", b"[")):
         if path.stat().st_size > MAX_JSON_BYTES:
             raise LogFileError(f"{path}: {path.stat().st_size} bytes is too large for a result JSON (at most "
@@ -164,43 +198,27 @@ def read_result_file(path: str | Path) -> ResultFile:
                                "diagnosis.json`") from None
         except RecursionError:
             raise LogFileError(f"{path}: the JSON is nested too deeply; expected {EXPECTED}") from None
-        kind = _json_kind(document)
-        if kind == "hammerstein":
-            _check_hammerstein(document, path)
-        if kind is None:
-            keys = _short(", ".join(sorted(document))) if isinstance(document, dict) else type(document).__name__
-            raise LogFileError(
-                f"{path}: JSON with keys [{keys}] is not a result this command knows; expected the JSON of "
-                "`rig identify output-backlash --json` (keys backlash, linear, method), `rig identify hammerstein "
-                "--json` (keys order, poles, borders, singular_values) or `rig diagnose --json` (keys "
-                "missing_effects, gap_initial, gap_final)")
-        return ResultFile(path, kind, document)
+        return _results_of(document, path)
     try:
-        return ResultFile(path, "experiment", read_experiment_data(path))
+        return [ResultFile(path, "experiment", read_experiment_data(path))]
     except (LogFileError, InvalidInputError, ValueError) as err:
         reason = str(err).removeprefix(f"{path}: ")
         raise LogFileError(f"{path}: not a result file ({reason}); expected {EXPECTED}") from None
 
 
+def read_result_file(path: str | Path) -> ResultFile:
+    """:func:`read_result_files` of a file that holds one result (a batch file is refused: use that)."""
+    from rig.protocols.errors import LogFileError
+
+    results = read_result_files(path)
+    if len(results) != 1:
+        raise LogFileError(f"{path}: a batch file of {len(results)} results; read it with read_result_files")
+    return results[0]
+
+
 # ----------------------------------------------------------------------------------------------------------
 # sections
 # ----------------------------------------------------------------------------------------------------------
-
-
-def _intervals(document: dict[str, Any], group: str, path: Path) -> dict[str, Any]:
-    from identify.feasible_parameter_set import ParameterInterval
-
-    def number(value: Any) -> float:
-        return float(value)  # the JSON writes infinite bounds as the strings "inf"/"-inf"; float() reads both
-
-    out = {}
-    for name, values in document.get(group, {}).items():
-        try:
-            out[name] = ParameterInterval(number(values["lower"]), number(values["upper"]))
-        except (KeyError, TypeError, ValueError):
-            raise ValueError(f"{path}: {group}.{name}: expected an object with numbers lower and upper, got "
-                             f"{_short(values)}") from None
-    return out
 
 
 def _experiment_section(result: ResultFile, used: set[str]):
@@ -220,139 +238,110 @@ def _experiment_section(result: ResultFile, used: set[str]):
 
 
 def _set_membership_section(results: list[ResultFile], sample_period_s: float | None, used: set[str]):
-    from rig.plots.set_membership import (linear_block_bode_figure, parameter_intervals_figure, parameter_sort_key,
+    from rig.plots.set_membership import (backlash_characteristic_figure, feasible_polygons_figure, inner_signal_figure,
+                                          linear_block_bode_figure, parameter_intervals_figure, parameter_sort_key,
                                           parameter_unit)
     from rig.report import ReportSection
 
-    methods: dict[str, dict[str, Any]] = {}
+    methods: dict[str, Any] = {}
     paragraphs = ["Guaranteed bounds of a linear block followed by an output backlash (Cerone, Piga and Regruto "
                   "2009): every parameter consistent with the data, the noise bound and the model structure lies "
                   "in its interval."]
     for result in results:
-        document = result.content
-        label = str(document.get("method", result.slug))
+        identification = result.content
+        label = identification.method
         if label in methods:
             label = _unique(f"{label} ({result.slug})", set(methods))
-        if document.get("empty"):
-            paragraphs.append(f"{result.path.name} ({label} method): EMPTY feasible set. "
-                              f"{document.get('explanation', '')}")
+        if identification.is_empty:
+            paragraphs.append(f"{result.name} ({label} method): EMPTY feasible set. {identification.explanation}")
             continue
-        methods[label] = {**_intervals(document, "backlash", result.path), **_intervals(document, "linear", result.path)}
-        if "invertible_samples" in document and "samples" in document:
-            paragraphs.append(f"{result.path.name} ({label} method): {document['invertible_samples']} of "
-                              f"{document['samples']} dynamic samples invertible.")
+        methods[label] = identification
+        inner = identification.inner_signal
+        paragraphs.append(f"{result.name} ({label} method): {inner.num_invertible} of {inner.lower_rad.size} "
+                          "dynamic samples invertible.")
     figures = []
     header: tuple[str, ...] = ()
     rows: tuple[tuple[str, ...], ...] = ()
     if methods:
-        names = sorted({name for per in methods.values() for name in per}, key=parameter_sort_key)
+        intervals = {label: {**result.backlash_intervals, **result.linear_intervals}
+                     for label, result in methods.items()}
+        names = sorted({name for per in intervals.values() for name in per}, key=parameter_sort_key)
         header = ("parameter", "unit", *(f"{label} {end}" for label in methods for end in ("lower", "upper")))
         rows = tuple((name, parameter_unit(name),
                       *(f"{getattr(per[name], end):.6g}" if name in per else "-"
-                        for per in methods.values() for end in ("lower", "upper")))
+                        for per in intervals.values() for end in ("lower", "upper")))
                      for name in names)
         base = _unique("set_membership", used)
         figures.append(parameter_intervals_figure(methods, f"{base}_intervals"))
-        if any(re.fullmatch(r"b\d+", name) for per in methods.values() for name in per):
-            figures.append(linear_block_bode_figure(methods, f"{base}_bode", sample_period_s=sample_period_s))
+        figures.append(linear_block_bode_figure(methods, f"{base}_bode", sample_period_s=sample_period_s))
+    drawn: list[dict[str, Any]] = []  # the methods share stages 1 and 2: one set of their figures per data set
     for result in results:
-        if "data" in result.content and not result.content.get("empty"):
-            figures += _saved_set_figures(result, sample_period_s, used)
+        identification = result.content
+        if identification.backlash.is_empty:
+            continue
+        stages = {"backlash": identification.backlash.to_dict(),
+                  "inner": None if identification.inner_signal is None else identification.inner_signal.to_dict()}
+        if stages in drawn:
+            continue
+        drawn.append(stages)
+        slug = _unique(f"set_membership_{result.slug}", used)
+        figures += [backlash_characteristic_figure(identification, f"{slug}_backlash"),
+                    feasible_polygons_figure(identification, f"{slug}_polygons")]
+        if identification.inner_signal is not None:
+            figures.append(inner_signal_figure(identification, f"{slug}_inner", sample_period_s=sample_period_s))
     return ReportSection("Set membership: output backlash and linear block", text="\n\n".join(paragraphs),
                          table_header=header, table_rows=rows, figures=tuple(figures))
 
 
-def _saved_set_figures(result: ResultFile, sample_period_s: float | None, used: set[str]) -> list:
-    """The backlash band, the feasible polygons and the inner-signal bounds of a ``--save`` file,
-    recomputed exactly from the data it holds (D_γ and the inner bounds are closed-form, eqs. (11)-(28);
-    the costly linear-block bounds are read from the file)."""
-    from identify.feasible_parameter_set import bound_backlash_parameters
-    from identify.inner_signal_bounds import bound_inner_signal
-    from rig.plots.set_membership import backlash_characteristic_figure, feasible_polygons_figure, inner_signal_figure
-
-    data = result.content["data"]
-    try:
-        noise = float(data["noise_bound_rad"])
-        backlash = bound_backlash_parameters(data["steady"]["u"], data["steady"]["y"], noise,
-                                             filter_step_amplitude_rad=data.get("filter_step_rad"))
-        inner = None if backlash.is_empty else bound_inner_signal(data["dynamic"]["y"], noise, backlash)
-    except (KeyError, TypeError, ValueError) as err:
-        raise ValueError(f"{result.path}: data: expected steady.u, steady.y, dynamic.y and noise_bound_rad as "
-                         f"written by `rig identify output-backlash --save` ({_short(str(err), 160)})") from None
-    slug = _unique(f"set_membership_{result.slug}", used)
-    figures = [backlash_characteristic_figure(backlash, f"{slug}_backlash"),
-               feasible_polygons_figure(backlash, f"{slug}_polygons")]
-    if inner is not None:
-        figures.append(inner_signal_figure(inner, f"{slug}_inner", sample_period_s=sample_period_s))
-    return figures
-
-
 def _hammerstein_section(result: ResultFile, sample_period_s: float | None, used: set[str]):
+    import numpy as np
+
     from rig.plots.hammerstein import borders_figure, poles_figure, singular_values_figure
     from rig.report import ReportSection
 
-    document = result.content
+    model = result.content
     slug = _unique(f"hammerstein_{result.slug}", used)
-    rows = [("order", str(document["order"]))]
-    rows += [(f"pole {k + 1}", f"{re_part:+.6f} {im_part:+.6f}j") for k, (re_part, im_part) in enumerate(document["poles"])]
-    if "stable" in document:
-        rows.append(("stable", "yes" if document["stable"] else
-                     f"NO: a pole has |p| = {float(document.get('max_pole_magnitude', float('nan'))):.4g} >= 1"))
-    for key, label in (("mu0", "mu0 = H[u_min] [rad]"), ("fit_percent", "simulation fit [%]"),
-                       ("residual_rms", "residual RMS [rad]"), ("split", "B and mu estimated")):
-        if key in document:
-            value = document[key]
-            rows.append((label, f"{value:.6g}" if isinstance(value, (int, float)) else str(value)))
-    text = (f"{result.path.name}: Hammerstein model with input backlash or switch identified by subspace "
+    rows = [("order", str(model.order))]
+    rows += [(f"pole {k + 1}", f"{pole.real:+.6f} {pole.imag:+.6f}j") for k, pole in enumerate(model.poles)]
+    rows.append(("stable", "yes" if model.stable else
+                 f"NO: a pole has |p| = {float(np.max(np.abs(model.poles))):.4g} >= 1"))
+    rows += [("mu0 = H[u_min] [rad]", f"{model.mu0:.6g}"), ("simulation fit [%]", f"{model.fit_percent:.6g}"),
+             ("residual RMS [rad]", f"{model.residual_rms:.6g}"), ("B and mu estimated", model.split)]
+    text = (f"{result.name}: Hammerstein model with input backlash or switch identified by subspace "
             "(Pouliquen et al. 2013).")
-    return ReportSection(f"Hammerstein model: {result.path.name}", text=text, table_header=("quantity", "value"),
+    return ReportSection(f"Hammerstein model: {result.name}", text=text, table_header=("quantity", "value"),
                          table_rows=tuple(rows),
-                         figures=(poles_figure(document, f"{slug}_poles", sample_period_s=sample_period_s),
-                                  borders_figure(document, f"{slug}_borders"),
-                                  singular_values_figure(document, f"{slug}_singular_values")))
+                         figures=(poles_figure(model, f"{slug}_poles", sample_period_s=sample_period_s),
+                                  borders_figure(model, f"{slug}_borders"),
+                                  singular_values_figure(model, f"{slug}_singular_values")))
 
 
 def _diagnose_section(result: ResultFile, used: set[str]):
+    from rig.commands.diagnose import VERDICT_WORDS
     from rig.report import ReportFigure, ReportSection
 
-    document = result.content
+    report = result.content
     slug = _unique(f"diagnose_{result.slug}", used)
-    effects = list(document.get("missing_effects") or [])
-    try:
-        gap_initial = float(document["gap_initial"])
-        gap_final = float(document["gap_final"])
-        steps = [(str(e["effect"]), float(e["gap_before"]), float(e["gap_after"]), dict(e.get("parameters", {})))
-                 for e in effects]
-    except (KeyError, TypeError, ValueError) as err:
-        raise ValueError(f"{result.path}: expected the JSON of `rig diagnose --json` (missing_effects with effect, "
-                         f"parameters, gap_before, gap_after; gap_initial; gap_final): {_short(err)}") from None
-    intervals = {str(e["effect"]): e.get("parameter_intervals") or {} for e in effects}
+    steps = report.missing_effects
 
-    def shown(name: str, key: str, value) -> str:
-        if not isinstance(value, (int, float)):
-            return f"{key} = {value}"
-        interval = intervals.get(name, {}).get(key)
-        within = (f" [{float(interval[0]):.4g}, {float(interval[1]):.4g}]"
-                  if isinstance(interval, (list, tuple)) and len(interval) == 2 else "")
+    def shown(step, key: str, value: float) -> str:
+        interval = step.parameter_intervals.get(key)
+        within = f" [{interval[0]:.4g}, {interval[1]:.4g}]" if interval is not None else ""
         return f"{key} = {value:.4g}{within}"
 
-    rows = tuple((name, ", ".join(shown(name, key, value) for key, value in parameters.items()) or "-",
-                  f"{before:.4g}", f"{after:.4g}") for name, before, after, parameters in steps)
-    fractions = ""
-    if "falsified_fraction_initial" in document and "falsified_fraction_final" in document:
-        fractions = (f" Samples outside the noise bound: {100 * float(document['falsified_fraction_initial']):.1f} % "
-                     f"before, {100 * float(document['falsified_fraction_final']):.1f} % after.")
-    named = ", ".join(name for name, *_ in steps) or "none"
-    verdict = _diagnose_verdict(document, bool(steps))
-    from rig.commands.diagnose import VERDICT_WORDS
-
-    reason = str(document.get("verdict_reason") or "")
-    text = (f"{result.path.name}: verdict {VERDICT_WORDS.get(verdict, verdict)}"
+    rows = tuple((step.effect, ", ".join(shown(step, key, value) for key, value in step.parameters.items()) or "-",
+                  f"{step.gap_before_rad:.4g}", f"{step.gap_after_rad:.4g}") for step in steps)
+    gap_initial, gap_final = report.gap_initial_rad, report.gap_final_rad
+    fractions = (f" Samples outside the noise bound: {100 * report.falsified_fraction_initial:.1f} % before, "
+                 f"{100 * report.falsified_fraction_final:.1f} % after.")
+    named = ", ".join(step.effect for step in steps) or "none"
+    reason = report.verdict_reason
+    text = (f"{result.name}: verdict {VERDICT_WORDS.get(report.verdict, report.verdict)}"
             f"{': ' + reason if reason else ''}. Missing effects named, in order: {named}. Free-run RMS error on "
             f"the validation segment {gap_initial:.4g} rad before, {gap_final:.4g} rad after.{fractions}"
-            f"{_candidates_text(document)}")
-    labels = ["start model"] + [f"+ {name}" for name, *_ in steps]
-    gaps = [gap_initial] + [after for _, _, after, _ in steps]
+            f"{_candidates_text(report)}")
+    labels = ["start model"] + [f"+ {step.effect}" for step in steps]
+    gaps = [gap_initial] + [step.gap_after_rad for step in steps]
 
     def draw(figure) -> None:
         axes = figure.subplots()
@@ -363,45 +352,29 @@ def _diagnose_section(result: ResultFile, used: set[str]):
         axes.set_ylabel("validation gap (free-run RMS) [rad]")
         axes.grid(True, axis="y", lw=0.3, alpha=0.5)
 
-    reduction = (1.0 - gap_final / gap_initial) * 100.0 if gap_initial > 0 else 0.0
+    reduction = 100.0 * float(report.gap_reduction.get("value", 0.0))
     caption = (f"Model discrepancy: the free-run RMS error on the validation segment for the start model and after "
                f"each effect added ({named}); the gap went from {gap_initial:.4g} to {gap_final:.4g} rad "
                f"({reduction:.0f} % smaller). Look for each added effect lowering the bar clearly; a last bar still far "
                "above the noise level means something is still unexplained.")
-    return ReportSection(f"Model discrepancy: {result.path.name}", text=text,
+    return ReportSection(f"Model discrepancy: {result.name}", text=text,
                          table_header=("missing effect", "parameters", "gap before [rad]", "gap after [rad]"),
                          table_rows=rows, figures=(ReportFigure(f"{slug}_gap", caption, draw, size_in=(6.5, 3.5)),))
 
 
-def _candidates_text(document: dict) -> str:
-    """The first round's candidates with their validated gaps, best first (empty for older JSON)."""
-    candidates = [c for c in document.get("candidates") or [] if isinstance(c, dict) and c.get("round") == 0]
-    try:
-        ranked = sorted(candidates, key=lambda c: float(c["penalised_gap"]))
-        words = "; ".join(f"{c['effect']} {float(c['gap']):.3g} +- {float(c['gap_uncertainty']):.2g} rad"
-                          + (" (vanished)" if c.get("vanished") else "") for c in ranked)
-    except (KeyError, TypeError, ValueError):
-        return ""
+def _candidates_text(report) -> str:
+    """The first round's candidates with their validated gaps, best first."""
+    ranked = sorted((c for c in report.candidates if c.round == 0), key=lambda c: c.penalised_gap_rad)
+    words = "; ".join(f"{c.effect} {c.gap_rad:.3g} +- {c.gap_uncertainty_rad:.2g} rad"
+                      + (" (vanished)" if c.vanished else "") for c in ranked)
     return f" Candidates tried first, with their validated gaps: {words}." if words else ""
 
 
-DIAGNOSE_CONSISTENT_FRACTION = 0.01
-"""A diagnosis JSON written before the verdict existed counts as explained only if at most this fraction of
-validation samples stays falsified (the workflow's default ``consistent_fraction``)."""
+def _errors_section(results: list[ResultFile]):
+    from rig.report import ReportSection
 
-
-def _diagnose_verdict(document: dict, named: bool) -> str:
-    """The document's verdict; for JSON without one, the verdict its numbers imply (never "explained" while
-    samples stay falsified)."""
-    verdict = document.get("verdict")
-    if isinstance(verdict, str):
-        return verdict
-    if named:
-        return "named"
-    final = document.get("falsified_fraction_final")
-    if isinstance(final, (int, float)) and final <= DIAGNOSE_CONSISTENT_FRACTION:
-        return "explained"
-    return "unexplained"
+    return ReportSection("Files the batch commands could not process",
+                         text="\n\n".join(f"{result.name}: {result.content}" for result in results))
 
 
 def _unique(name: str, used: set[str]) -> str:
@@ -429,8 +402,12 @@ def report_sections(results: list[ResultFile], *, sample_period_s: float | None 
     if backlash_results:
         sections.append(_named(backlash_results, _set_membership_section, backlash_results, sample_period_s, used))
     sections += [_named(result, _hammerstein_section, result, sample_period_s, used) for result in results
-                 if result.kind == "hammerstein"]
-    sections += [_named(result, _diagnose_section, result, used) for result in results if result.kind == "diagnose"]
+                 if result.kind == "hammerstein_model"]
+    sections += [_named(result, _diagnose_section, result, used) for result in results
+                 if result.kind == "model_discrepancy"]
+    errors = [result for result in results if result.kind == "error"]
+    if errors:
+        sections.append(_errors_section(errors))
     return sections
 
 
@@ -471,7 +448,7 @@ def write_result_report(paths: list[str | Path], out_dir: str | Path, *, title: 
     """Read every result file, write the report to ``out_dir``; return (index.html path, number of figures)."""
     from rig.report import write_report
 
-    results = [read_result_file(path) for path in paths]
+    results = [result for path in paths for result in read_result_files(path)]
     sections = report_sections(results, sample_period_s=sample_period_s)
     index = write_report(out_dir, title, sections)
     return index, sum(len(section.figures) for section in sections)

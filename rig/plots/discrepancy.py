@@ -8,7 +8,8 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from identify.effect_signatures import delay_regressor, direction_signal
+from identify.border_lifting import direction_signal
+from identify.effect_signatures import delay_regressor
 from identify.model_discrepancy import DiscrepancyResult, DiscrepancyStep
 from rig.report import ReportFigure, ReportSection, write_report
 
@@ -73,7 +74,7 @@ def signature_figure(step: DiscrepancyStep, number: int, residual_rad: NDArray[n
     effect = step.effect
     moving = max(1e-12, 1e-3 * float(np.ptp(simulated_rad)) / max(1.0, np.sqrt(simulated_rad.size)))
     if effect in ("backlash", "coulomb_friction"):
-        x, x_label = direction_signal(simulated_rad, moving), "direction of motion of the model [-1 / +1]"
+        x, x_label = direction_signal(simulated_rad, threshold=moving), "direction of motion of the model [-1 / +1]"
         what = "the residual switches level with the direction of motion"
     elif effect in ("dead_zone", "saturation"):
         x, x_label = command_rad, "command u [rad]"

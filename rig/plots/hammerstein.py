@@ -6,16 +6,14 @@
 * :func:`singular_values_figure`: the singular values of the PI-MOESP projection (eq. (12)) with the chosen
   order marked.
 
-Each function takes a :class:`identify.hammerstein_subspace.HammersteinModel` or the dictionary of its
-``to_dict()`` (the JSON printed by ``rig identify hammerstein --json``) and a figure name, and returns a
-:class:`rig.report.ReportFigure`.
+Each function takes a :class:`identify.hammerstein_subspace.HammersteinModel` (a saved one is read with
+``HammersteinModel.from_dict``) and a figure name, and returns a :class:`rig.report.ReportFigure`.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Union
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -25,8 +23,8 @@ from rig.report import ReportFigure
 
 __all__ = ["HammersteinSource", "borders_figure", "hammerstein_figures", "poles_figure", "singular_values_figure"]
 
-HammersteinSource = Union[HammersteinModel, Mapping[str, Any]]
-"""A model, or the dictionary of ``HammersteinModel.to_dict()`` / ``rig identify hammerstein --json``."""
+HammersteinSource = HammersteinModel
+"""What the figures draw: the model itself, never its JSON."""
 
 
 @dataclass(frozen=True)
@@ -43,33 +41,14 @@ class _ModelView:
     fit_percent: float | None
 
 
-def _view(model: HammersteinSource) -> _ModelView:
-    if isinstance(model, HammersteinModel):
-        return _ModelView(model.order, np.asarray(model.poles, dtype=complex),
-                          np.asarray(model.ascending_border.nodes_u), np.asarray(model.ascending_border.values),
-                          np.asarray(model.descending_border.nodes_u), np.asarray(model.descending_border.values),
-                          np.asarray(model.singular_values), float(model.fit_percent))
-    if isinstance(model, Mapping):
-        missing = [key for key in ("order", "poles", "borders", "singular_values") if key not in model]
-        if missing:
-            raise ValueError(f"model: expected the keys of HammersteinModel.to_dict(); missing {', '.join(missing)}")
-        poles = np.array([complex(float(re), float(im)) for re, im in model["poles"]], dtype=complex)
-        borders = model["borders"]
-        fit = model.get("fit_percent")
-        return _ModelView(int(model["order"]), poles,
-                          np.asarray(borders["ascending"]["u"], dtype=float),
-                          np.asarray(borders["ascending"]["h"], dtype=float),
-                          np.asarray(borders["descending"]["u"], dtype=float),
-                          np.asarray(borders["descending"]["h"], dtype=float),
-                          np.asarray(model["singular_values"], dtype=float), None if fit is None else float(fit))
-    raise TypeError(f"model: expected a HammersteinModel or its to_dict() mapping, got {type(model).__name__}")
-
-
-def _matched_distance(estimated: NDArray[np.complex128], true: NDArray[np.complex128]) -> float:
-    """Largest distance from a true pole to its nearest estimated pole."""
-    if estimated.size == 0 or true.size == 0:
-        return float("nan")
-    return float(np.max(np.min(np.abs(true[:, None] - estimated[None, :]), axis=1)))
+def _view(model: HammersteinModel) -> _ModelView:
+    if not isinstance(model, HammersteinModel):
+        raise TypeError(f"model: expected a HammersteinModel (read a saved one with HammersteinModel.from_dict), "
+                        f"got {type(model).__name__}")
+    return _ModelView(model.order, np.asarray(model.poles, dtype=complex),
+                      np.asarray(model.ascending_border.nodes_u), np.asarray(model.ascending_border.values),
+                      np.asarray(model.descending_border.nodes_u), np.asarray(model.descending_border.values),
+                      np.asarray(model.singular_values), float(model.fit_percent))
 
 
 def poles_figure(model: HammersteinSource, name: str, *, true_poles: ArrayLike | None = None,
@@ -88,16 +67,14 @@ def poles_figure(model: HammersteinSource, name: str, *, true_poles: ArrayLike |
     """
     view = _view(model)
     truth = None if true_poles is None else np.atleast_1d(np.asarray(true_poles, dtype=complex))
-    radius = float(np.max(np.abs(view.poles))) if view.poles.size else float("nan")
     pole_text = ", ".join(f"{p.real:.4f}{p.imag:+.4f}j" for p in np.sort_complex(view.poles))
-    notes = [f"order {view.order}, poles {pole_text}, largest |p| = {radius:.4f}"
-             f" ({'stable' if radius < 1.0 else 'NOT stable'})"]
+    notes = [f"order {view.order}, poles {pole_text}, largest |p| = {model.max_pole_magnitude:.4f}"
+             f" ({'stable' if model.stable else 'NOT stable'})"]
     if sample_period_s is not None and view.poles.size:
-        with np.errstate(divide="ignore"):
-            frequencies = np.abs(np.log(view.poles.astype(complex))) / (2 * np.pi * float(sample_period_s))
-        notes.append("natural frequencies " + ", ".join(f"{f:.3g} Hz" for f in np.unique(np.round(frequencies, 12))))
+        notes.append("natural frequencies " + ", ".join(f"{f:.3g} Hz"
+                                                        for f in model.natural_frequencies_hz(sample_period_s)))
     if truth is not None:
-        notes.append(f"farthest true pole is {_matched_distance(view.poles, truth):.3g} from an estimated one")
+        notes.append(f"farthest true pole is {model.pole_distance(truth):.3g} from an estimated one")
 
     def draw(figure) -> None:
         whole, zoom = figure.subplots(1, 2)
@@ -146,8 +123,7 @@ def borders_figure(model: HammersteinSource, name: str, *, true_ascending: Calla
     view = _view(model)
     notes = [f"{view.ascending_u.size} ascending and {view.descending_u.size} descending nodes on "
              f"[{view.ascending_u[0]:.4g}, {view.ascending_u[-1]:.4g}] rad"]
-    gap = np.interp(view.ascending_u, view.descending_u, view.descending_h) - view.ascending_h
-    notes.append(f"largest vertical gap P_d - P_a = {float(np.max(gap)):.4g} rad (the play seen at the output)")
+    notes.append(f"largest vertical gap P_d - P_a = {model.largest_play_rad:.4g} rad (the play seen at the output)")
     errors = []
     for label, nodes_u, nodes_h, border in (("ascending", view.ascending_u, view.ascending_h, true_ascending),
                                             ("descending", view.descending_u, view.descending_h, true_descending)):

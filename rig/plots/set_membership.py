@@ -20,7 +20,6 @@ Functions that only need intervals also take plain ``{name: ParameterInterval}``
 
 from __future__ import annotations
 
-import re
 from collections.abc import Mapping, Sequence
 from typing import Any, Union
 
@@ -30,13 +29,13 @@ from numpy.typing import ArrayLike, NDArray
 from identify.feasible_parameter_set import BacklashFeasibleSet, BacklashSidePolygon, ParameterInterval
 from identify.inner_signal_bounds import InnerSignalBounds
 from identify.linear_block_bounds import LinearBlockBounds
+from identify.linear_block_response import linear_parameter, magnitude, polynomials
 from identify.output_backlash_identification import OutputBacklashIdentification
 from rig.report import ReportFigure
 
 __all__ = [
     "IntervalSource",
     "backlash_characteristic_figure",
-    "box_magnitude_envelope",
     "default_result_figures",
     "feasible_polygons_figure",
     "inner_signal_figure",
@@ -46,8 +45,8 @@ __all__ = [
     "parameter_unit",
 ]
 
-IntervalSource = Union[OutputBacklashIdentification, LinearBlockBounds, Mapping[str, ParameterInterval]]
-"""What the interval figures accept: a full result, the linear-block bounds, or ``{name: interval}``."""
+IntervalSource = Union[OutputBacklashIdentification, LinearBlockBounds]
+"""What the interval figures accept: a full result or the linear-block bounds (result objects, never JSON)."""
 
 _METHOD_COLOURS = ("tab:blue", "tab:orange", "tab:green", "tab:purple", "tab:brown", "tab:pink")
 _BACKLASH_ORDER = ("m_l", "c_l", "m_r", "c_r")
@@ -87,31 +86,9 @@ def _true_backlash(true_backlash: Any) -> dict[str, float] | None:
     return {name: float(getattr(true_backlash, name)) for name in _BACKLASH_ORDER}
 
 
-def _line_band(polygon: BacklashSidePolygon, x_rad: NDArray[np.float64]) -> tuple[NDArray, NDArray]:
-    """Lowest and highest w over the lines of one side of D_γ at each x.
-
-    w = m x ∓ p is linear in (m, p), so over the convex polygon its extremes are at vertices (the band is
-    exact, not sampled)."""
-    sign = -1.0 if polygon.side == "right" else 1.0
-    lines = np.outer(x_rad, polygon.slope_vertices) + sign * polygon.slope_times_deadband_vertices[None, :]
-    return lines.min(axis=1), lines.max(axis=1)
-
-
 def _central_line(polygon: BacklashSidePolygon) -> tuple[float, float]:
     """(m, p) of the vertex mean: a point inside the convex polygon, used as the reference line."""
     return float(np.mean(polygon.slope_vertices)), float(np.mean(polygon.slope_times_deadband_vertices))
-
-
-def _side_line(side: str, slope: float, slope_times_deadband: float, x_rad: NDArray) -> NDArray:
-    return slope * x_rad + (-slope_times_deadband if side == "right" else slope_times_deadband)
-
-
-def _point_in_polygon(polygon: BacklashSidePolygon, slope: float, slope_times_deadband: float) -> bool:
-    """Whether (m, p) satisfies every strip lo_k <= m ū_k ∓ p <= hi_k of the side (eqs. (16)-(17))."""
-    value = _side_line(polygon.side, slope, slope_times_deadband, polygon.steady_input_rad)
-    tolerance = 1e-12 * max(1.0, float(np.max(np.abs(value))))
-    return bool(np.all(polygon.strip_lower_rad - tolerance <= value)
-                and np.all(value <= polygon.strip_upper_rad + tolerance) and slope > 0 and slope_times_deadband >= 0)
 
 
 def _interval_text(interval: ParameterInterval | None, unit: str = "") -> str:
@@ -155,7 +132,7 @@ def backlash_characteristic_figure(result: OutputBacklashIdentification | Backla
     for side in sides:
         if not side.is_empty:
             edge = np.array([float(np.max(np.abs(side.steady_input_rad))) * (1 if side.side == "right" else -1)])
-            low, high = _line_band(side, edge)
+            low, high = side.output_band(edge)
             widths_mrad[side.side] = float(high[0] - low[0]) * 1e3
     colours = {"left": "tab:blue", "right": "tab:orange"}
 
@@ -170,29 +147,29 @@ def backlash_characteristic_figure(result: OutputBacklashIdentification | Backla
                                capsize=2, lw=0.8)
             if side.is_empty:
                 continue
-            low, high = _line_band(side, x_full)
+            low, high = side.output_band(x_full)
             full_axes.fill_between(x_full, low, high, color=colour, alpha=0.35, lw=0.8, edgecolor=colour,
                                    label=f"{side.side} lines of D_γ")
             slope, offset = _central_line(side)
             x_side = np.linspace(0.0, reach, 100) if side.side == "right" else np.linspace(-reach, 0.0, 100)
-            reference = _side_line(side.side, slope, offset, x_side)
-            low, high = _line_band(side, x_side)
+            reference = side.side_line(slope, offset, x_side)
+            low, high = side.output_band(x_side)
             zoom_axes.fill_between(x_side, (low - reference) * 1e3, (high - reference) * 1e3, color=colour,
                                    alpha=0.35, lw=0, label=f"{side.side} band")
-            point_reference = _side_line(side.side, slope, offset, side.steady_input_rad)
+            point_reference = side.side_line(slope, offset, side.steady_input_rad)
             zoom_axes.errorbar(side.steady_input_rad, (centre - point_reference) * 1e3, yerr=half * 1e3, fmt=".",
                                ms=4, color=colour, capsize=2, lw=0.8)
             if truth is not None:
                 m_true = truth["m_r"] if side.side == "right" else truth["m_l"]
                 p_true = m_true * (truth["c_r"] if side.side == "right" else truth["c_l"])
-                zoom_axes.plot(x_side, (_side_line(side.side, m_true, p_true, x_side) - reference) * 1e3, "k--",
+                zoom_axes.plot(x_side, (side.side_line(m_true, p_true, x_side) - reference) * 1e3, "k--",
                                lw=0.9)
         if truth is not None:
-            for side_name in ("left", "right"):
-                m_true = truth[f"m_{side_name[0]}"]
-                p_true = m_true * truth[f"c_{side_name[0]}"]
-                full_axes.plot(x_full, _side_line(side_name, m_true, p_true, x_full), "k--", lw=0.8,
-                               label="true lines" if side_name == "left" else None)
+            for side in sides:
+                m_true = truth[f"m_{side.side[0]}"]
+                p_true = m_true * truth[f"c_{side.side[0]}"]
+                full_axes.plot(x_full, side.side_line(m_true, p_true, x_full), "k--", lw=0.8,
+                               label="true lines" if side.side == "left" else None)
         full_axes.axhline(0.0, color="0.7", lw=0.5)
         full_axes.axvline(0.0, color="0.7", lw=0.5)
         full_axes.set_xlabel("inner signal x [rad]")
@@ -212,9 +189,7 @@ def backlash_characteristic_figure(result: OutputBacklashIdentification | Backla
     else:
         truth_text = ""
         if truth is not None:
-            inside = [side.side for side in sides
-                      if _point_in_polygon(side, truth[f"m_{side.side[0]}"],
-                                           truth[f"m_{side.side[0]}"] * truth[f"c_{side.side[0]}"])]
+            inside = [side for side, holds in backlash.contains(**truth).items() if holds]
             truth_text = (f" The true lines (dashed) are inside the band on {len(inside)} of 2 sides"
                           f"{' (' + ', '.join(inside) + ')' if inside else ''}.")
         state = (f"Band width at the largest amplitude: left {widths_mrad.get('left', float('nan')):.3g} mrad, "
@@ -249,7 +224,7 @@ def feasible_polygons_figure(result: OutputBacklashIdentification | BacklashFeas
                 f"{_interval_text(getattr(backlash, f'm_{letter}'))}, c_{letter} in "
                 f"{_interval_text(getattr(backlash, f'c_{letter}'), 'rad')}")
         if truth is not None:
-            inside = _point_in_polygon(side, truth[f"m_{letter}"], truth[f"m_{letter}"] * truth[f"c_{letter}"])
+            inside = side.contains(truth[f"m_{letter}"], truth[f"m_{letter}"] * truth[f"c_{letter}"])
             text += f", true point {'inside' if inside else 'OUTSIDE'}"
         verdicts.append(text)
 
@@ -317,11 +292,11 @@ def inner_signal_figure(result: OutputBacklashIdentification | InnerSignalBounds
         raise ValueError(f"true_inner_rad: expected {count} samples like the bounds, got shape {truth.shape}")
     invertible = np.asarray(inner.invertible, dtype=bool)
     half = inner.half_width_rad
-    median_inv = float(np.median(half[invertible])) * 1e3 if invertible.any() else float("nan")
-    median_band = float(np.median(half[~invertible])) * 1e3 if (~invertible).any() else float("nan")
+    median_inv = inner.median_half_width_rad(invertible=True) * 1e3
+    median_band = inner.median_half_width_rad(invertible=False) * 1e3
     truth_text = ""
     if truth is not None:
-        inside = int(np.count_nonzero((inner.lower_rad <= truth) & (truth <= inner.upper_rad)))
+        inside = int(np.count_nonzero(inner.contains(truth)))
         truth_text = f" The true x_t (black) is inside the bounds at {inside} of {count} samples."
 
     def draw(figure) -> None:
@@ -368,10 +343,8 @@ def _intervals_of(source: IntervalSource) -> dict[str, ParameterInterval]:
         return {**source.backlash_intervals, **source.linear_intervals}
     if isinstance(source, LinearBlockBounds):
         return {} if source.is_empty else dict(source.intervals)
-    if isinstance(source, Mapping):
-        return {str(key): value for key, value in source.items()}
-    raise TypeError(f"expected an OutputBacklashIdentification, LinearBlockBounds or a mapping of intervals, got "
-                    f"{type(source).__name__}")
+    raise TypeError(f"expected an OutputBacklashIdentification or LinearBlockBounds (a saved one is read with "
+                    f"its from_dict), got {type(source).__name__}")
 
 
 def _inner_values(source: IntervalSource) -> tuple[dict[str, float], dict[str, float]] | None:
@@ -385,9 +358,9 @@ def parameter_sort_key(name: str) -> tuple[int, int, str]:
     """Model order: m_l c_l m_r c_r, then a1, a2, ..., then b<nk>.., then anything else by name."""
     if name in _BACKLASH_ORDER:
         return (0, _BACKLASH_ORDER.index(name), name)
-    match = re.fullmatch(r"([ab])(\d+)", name)
-    if match:
-        return (1 if match.group(1) == "a" else 2, int(match.group(2)), name)
+    parsed = linear_parameter(name)
+    if parsed is not None:
+        return (1 if parsed[0] == "a" else 2, parsed[1], name)
     return (3, 0, name)
 
 
@@ -404,8 +377,7 @@ def parameter_intervals_figure(results: Mapping[str, IntervalSource], name: str,
     Parameters
     ----------
     results
-        Method label -> result, linear-block bounds or ``{name: ParameterInterval}``; an empty result shows
-        as "empty".
+        Method label -> result or linear-block bounds; an empty result shows as "empty".
     true_values
         Parameter name -> true value (simulation), drawn as a red line at 0.
     parameters
@@ -443,7 +415,7 @@ def parameter_intervals_figure(results: Mapping[str, IntervalSource], name: str,
         summary.append(text)
     if len(labels) >= 2 and intervals[labels[0]] and intervals[labels[-1]]:
         common = [p for p in names if p in intervals[labels[0]] and p in intervals[labels[-1]]
-                  and re.fullmatch(r"[ab]\d+", p) and intervals[labels[0]][p].half_width > 0]
+                  and linear_parameter(p) is not None and intervals[labels[0]][p].half_width > 0]
         if common:
             ratio = np.median([intervals[labels[-1]][p].half_width / intervals[labels[0]][p].half_width
                                for p in common])
@@ -505,111 +477,14 @@ def parameter_intervals_figure(results: Mapping[str, IntervalSource], name: str,
 # ----------------------------------------------------------------------------------------------------------
 
 
-def _polynomials(theta: Mapping[str, float]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """(B coefficients of q^0..q^-nb, A coefficients 1, a_1..a_na) from ``{a1.., b<nk>..}``."""
-    a_terms = {int(key[1:]): value for key, value in theta.items() if re.fullmatch(r"a\d+", key)}
-    b_terms = {int(key[1:]): value for key, value in theta.items() if re.fullmatch(r"b\d+", key)}
-    if not b_terms:
-        raise ValueError("linear intervals: expected parameters b<k> of B(q^-1), got "
-                         f"{', '.join(sorted(theta)) or 'none'}")
-    a = np.zeros(max(a_terms, default=0) + 1)
-    a[0] = 1.0
-    for index, value in a_terms.items():
-        a[index] = value
-    b = np.zeros(max(b_terms) + 1)
-    for index, value in b_terms.items():
-        b[index] = value
-    return b, a
-
-
-def _magnitude_db(b: NDArray, a: NDArray, omega: NDArray) -> NDArray[np.float64]:
-    z_inv = np.exp(-1j * omega)
-    numerator = np.polyval(b[::-1], z_inv)
-    denominator = np.polyval(a[::-1], z_inv)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        return 20.0 * np.log10(np.abs(numerator) / np.abs(denominator))
-
-
-def _linear_intervals(source: IntervalSource) -> dict[str, ParameterInterval]:
-    return {key: value for key, value in _intervals_of(source).items() if re.fullmatch(r"[ab]\d+", key)}
-
-
-def _true_polynomials(true_linear: Any) -> tuple[NDArray, NDArray] | None:
-    if true_linear is None:
-        return None
+def _true_polynomials(true_linear: Any) -> tuple[NDArray, NDArray]:
     if isinstance(true_linear, Mapping):
-        return _polynomials(true_linear)
+        return polynomials(true_linear)
     if isinstance(true_linear, tuple) and len(true_linear) == 2:
         a_part, b_part = true_linear
     else:
         a_part, b_part = true_linear.a, true_linear.b
     return np.asarray(b_part, dtype=float), np.r_[1.0, np.asarray(a_part, dtype=float)]
-
-
-def _zonotope_modulus_range(centre: NDArray[np.complex128],
-                            generators: NDArray[np.complex128]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """Smallest and largest |z| over z = centre + Σ_k t_k g_k, |t_k| <= 1, per row (one row per frequency).
-
-    The set is a zonotope of the complex plane, a convex polygon with at most 2p vertices: with every
-    generator turned into the upper half-plane and sorted by angle, the boundary runs from centre - Σ g_k
-    by steps 2 g_k up to centre + Σ g_k and back by -2 g_k. |z| is convex, so its maximum is at a vertex; its
-    minimum is 0 if the polygon holds the origin, else the distance from the origin to the nearest edge.
-    """
-    flip = (generators.imag < 0) | ((generators.imag == 0) & (generators.real < 0))
-    g = np.where(flip, -generators, generators)
-    g = np.take_along_axis(g, np.argsort(np.angle(g), axis=1, kind="stable"), axis=1)
-    total = g.sum(axis=1)
-    steps = np.concatenate([2.0 * g, -2.0 * g], axis=1)
-    vertices = (centre - total)[:, None] + np.concatenate(
-        [np.zeros((g.shape[0], 1)), np.cumsum(steps, axis=1)[:, :-1]], axis=1)
-    largest = np.max(np.abs(vertices), axis=1)
-    start, edge = vertices, steps
-    to_origin = -start
-    cross = edge.real * to_origin.imag - edge.imag * to_origin.real
-    length2 = np.abs(edge) ** 2
-    inside = np.all(cross >= -1e-15 * np.maximum(length2, 1e-300), axis=1)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        along = np.where(length2 > 0, (to_origin.real * edge.real + to_origin.imag * edge.imag) / length2, 0.0)
-    nearest = start + np.clip(along, 0.0, 1.0) * edge
-    # A flat zonotope (collinear generators) has no interior: the origin is in it only if it is on an edge.
-    following = np.roll(vertices, -1, axis=1)
-    area = 0.5 * np.abs(np.sum(vertices.real * following.imag - following.real * vertices.imag, axis=1))
-    perimeter = np.sum(np.sqrt(length2), axis=1)
-    has_interior = area > 1e-12 * perimeter**2
-    smallest = np.where(inside & has_interior, 0.0, np.min(np.abs(nearest), axis=1))
-    return smallest, largest
-
-
-def box_magnitude_envelope(box: Mapping[str, ParameterInterval],
-                           omega_rad_per_sample: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """Exact lowest and highest |G(e^{jω})| over a box of θ = (a_1..a_na, b_nk..b_nb), G = B(q^-1)/A(q^-1).
-
-    B(e^{-jω}) depends only on b and A(e^{-jω}) only on a, each linearly, so over the box each ranges over a
-    zonotope of the complex plane (:func:`_zonotope_modulus_range`), independently of the other; hence
-    sup |G| = max|B| / min|A| and inf |G| = min|B| / max|A| exactly (+inf where some A of the box vanishes
-    on the unit circle, i.e. a model of the box has a pole there). The box contains the feasible set of
-    Section 5 of Cerone et al. (2009), so every feasible model's |G| lies in this envelope.
-    """
-    omega = np.atleast_1d(np.asarray(omega_rad_per_sample, dtype=float))
-    a_terms = {int(k[1:]): v for k, v in box.items() if re.fullmatch(r"a\d+", k)}
-    b_terms = {int(k[1:]): v for k, v in box.items() if re.fullmatch(r"b\d+", k)}
-    if not b_terms:
-        raise ValueError(f"box: expected parameters b<k> of B(q^-1), got {', '.join(sorted(box)) or 'none'}")
-
-    def zonotope(terms: Mapping[int, ParameterInterval], constant: float) -> tuple[NDArray, NDArray]:
-        if not terms:
-            return np.full(omega.shape, constant, dtype=complex), np.zeros((omega.size, 1), dtype=complex)
-        powers = np.array(sorted(terms))
-        phasors = np.exp(-1j * np.outer(omega, powers))
-        centre = constant + phasors @ np.array([terms[k].center for k in powers])
-        return centre, phasors * np.array([terms[k].half_width for k in powers])[None, :]
-
-    b_min, b_max = _zonotope_modulus_range(*zonotope(b_terms, 0.0))
-    a_min, a_max = _zonotope_modulus_range(*zonotope(a_terms, 1.0))
-    with np.errstate(divide="ignore", invalid="ignore"):
-        upper = np.where(a_min > 0, b_max / np.where(a_min > 0, a_min, 1.0), np.inf)
-        lower = b_min / a_max
-    return lower, upper
 
 
 def linear_block_bode_figure(results: IntervalSource | Mapping[str, IntervalSource], name: str, *,
@@ -618,29 +493,31 @@ def linear_block_bode_figure(results: IntervalSource | Mapping[str, IntervalSour
     """Bode magnitude of the linear block G(q) = B(q^-1)/A(q^-1): central model and the parameter box's envelope.
 
     The central model is θ^c, the centre of the intervals (eq. (19) applied to Section 5). The envelope is
-    the exact range of |G(e^{jω})| over the box of θ (:func:`box_magnitude_envelope`); the box contains the
-    feasible set, so the envelope is guaranteed to contain the |G| of every feasible model, but it is wider
-    than the set's own (box models need not be feasible nor have unit static gain, eq. (8)).
+    :meth:`identify.linear_block_bounds.LinearBlockBounds.magnitude_envelope`, the exact range of |G(e^{jω})|
+    over the box of θ; the box contains the feasible set, so the envelope is guaranteed to contain the |G| of
+    every feasible model, but it is wider than the set's own (box models need not be feasible nor have unit
+    static gain, eq. (8)). The figure draws the envelope and formats the numbers it computed.
 
     Parameters
     ----------
     results
-        One source (a result, linear-block bounds or ``{name: ParameterInterval}`` with ``a<i>``/``b<j>``), or
-        method label -> source to overlay several methods.
+        One result or linear-block bounds, or method label -> either to overlay several methods.
     sample_period_s
         Frequencies in Hz when given, else in cycles per sample.
     true_linear
         The true block: an object with ``a`` (a_1..a_na) and ``b`` (b_0..b_nb), e.g.
         :class:`identify.plant_blocks.LinearBlock`, a tuple ``(a, b)`` or a mapping ``{a1.., b<k>..}``.
     """
-    if isinstance(results, (OutputBacklashIdentification, LinearBlockBounds)) or (
-            isinstance(results, Mapping) and results and all(isinstance(v, ParameterInterval) for v in results.values())):
-        sources: dict[str, Any] = {"": results}
-    else:
-        sources = dict(results)  # type: ignore[arg-type]
-    boxes = {label: _linear_intervals(source) for label, source in sources.items()}
-    boxes = {label: box for label, box in boxes.items() if box}
-    if not boxes:
+    sources: dict[str, Any] = ({"": results} if isinstance(results, (OutputBacklashIdentification, LinearBlockBounds))
+                               else dict(results))
+    linear_of = {label: source.linear if isinstance(source, OutputBacklashIdentification) else source
+                 for label, source in sources.items()}
+    for label, linear in linear_of.items():
+        if linear is not None and not isinstance(linear, LinearBlockBounds):
+            raise TypeError(f"results: expected OutputBacklashIdentification or LinearBlockBounds, got "
+                            f"{type(linear).__name__}{' for ' + label if label else ''}")
+    linear_of = {label: linear for label, linear in linear_of.items() if linear is not None and not linear.is_empty}
+    if not linear_of:
         raise ValueError("results: no linear-block intervals to draw (empty feasible set?)")
     omega = np.logspace(np.log10(np.pi / 1000.0), np.log10(np.pi), num_frequencies)
     if sample_period_s is None:
@@ -649,41 +526,36 @@ def linear_block_bode_figure(results: IntervalSource | Mapping[str, IntervalSour
         frequency = omega / (2 * np.pi * float(sample_period_s))
         frequency_label = "frequency [Hz]"
         nyquist_text = f"{0.5 / float(sample_period_s):.4g} Hz"
-    feasible_points = {}
-    for label, source in sources.items():
-        linear = source.linear if isinstance(source, OutputBacklashIdentification) else source
-        if isinstance(linear, LinearBlockBounds) and linear.inner_point:
-            feasible_points[label] = _magnitude_db(*_polynomials(linear.inner_point), omega)
-    curves = {}
-    for label, box in boxes.items():
-        centre = _magnitude_db(*_polynomials({k: v.center for k, v in box.items()}), omega)
-        lower, upper = box_magnitude_envelope(box, omega)
-        with np.errstate(divide="ignore"):
-            curves[label] = (centre, 20.0 * np.log10(lower), 20.0 * np.log10(upper))
+    envelopes = {label: linear.magnitude_envelope(omega) for label, linear in linear_of.items()}
+    feasible_points = {label: 20.0 * np.log10(magnitude(*polynomials(linear.inner_point), omega))
+                       for label, linear in linear_of.items() if linear.inner_point}
+    curves = {label: (envelope.central_db, envelope.lower_db, envelope.upper_db)
+              for label, envelope in envelopes.items()}
     true_db = None
+    true_magnitude = None
     if true_linear is not None:
-        polynomials = _true_polynomials(true_linear)
-        assert polynomials is not None
-        true_db = _magnitude_db(*polynomials, omega)
+        true_b, true_a = _true_polynomials(true_linear)
+        true_magnitude = magnitude(true_b, true_a, omega)
+        with np.errstate(divide="ignore"):
+            true_db = 20.0 * np.log10(true_magnitude)
 
     notes = []
-    for label, (centre, low, high) in curves.items():
-        width = high - low
-        finite = np.isfinite(width)
+    for label, envelope in envelopes.items():
+        bounded = envelope.bounded_fraction
         text = f"{label + ': ' if label else ''}" + (
-            f"median envelope width {float(np.median(width[finite])):.3g} dB"
-            + (f" where it is bounded ({100.0 * np.mean(finite):.0f} % of frequencies)" if not finite.all() else "")
-            if finite.any() else "envelope unbounded at every frequency")
-        if np.any(~np.isfinite(high)):
-            text += (f", no upper bound at {100.0 * np.mean(~np.isfinite(high)):.0f} % of frequencies (some box model "
-                     "has a pole on the unit circle there)")
-        if np.any(~np.isfinite(low)):
-            text += (f", lower bound 0 at {100.0 * np.mean(~np.isfinite(low)):.0f} % of frequencies (some box model "
+            f"median envelope width {envelope.median_width_db:.3g} dB"
+            + (f" where it is bounded ({100.0 * bounded:.0f} % of frequencies)" if bounded < 1.0 else "")
+            if bounded > 0.0 else "envelope unbounded at every frequency")
+        if envelope.unbounded_above_fraction > 0.0:
+            text += (f", no upper bound at {100.0 * envelope.unbounded_above_fraction:.0f} % of frequencies (some box "
+                     "model has a pole on the unit circle there)")
+        if envelope.zero_below_fraction > 0.0:
+            text += (f", lower bound 0 at {100.0 * envelope.zero_below_fraction:.0f} % of frequencies (some box model "
                      "has a zero there)")
-        text += f", central |G| at the lowest frequency {centre[0]:.3g} dB"
-        if true_db is not None:
-            inside = np.mean((low - 1e-9 <= true_db) & (true_db <= high + 1e-9)) * 100.0
-            text += f", true |G| inside the envelope at {inside:.0f} % of frequencies"
+        text += f", central |G| at the lowest frequency {envelope.central_db[0]:.3g} dB"
+        if true_magnitude is not None:
+            text += (f", true |G| inside the envelope at {100.0 * envelope.fraction_containing(true_magnitude):.0f} % "
+                     "of frequencies")
         notes.append(text)
 
     # The visible range follows the models, not an envelope that may reach +-inf.

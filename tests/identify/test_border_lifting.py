@@ -11,6 +11,7 @@ from identify.border_lifting import (
     PathNodes,
     check_cyclic_input,
     direction_signal,
+    path_indicator,
     lifted_input,
     piecewise_linear_basis,
     uniform_nodes,
@@ -22,11 +23,12 @@ from identify.validation import InvalidInputError
 NODES = PathNodes.uniform(-3.0, 3.0, 8)
 
 
-def test_direction_signal_follows_its_definition() -> None:
-    u = [0.0, 0.0, 1.0, 1.0, 0.5, 0.5, 0.7, 0.7, 0.2]
-    assert direction_signal(u).tolist() == [0, 0, 1, 1, 0, 0, 1, 1, 0]
-    assert direction_signal(u, initial_direction=1).tolist()[:2] == [1, 1]
-    assert direction_signal([2.0, 2.0]).tolist() == [0, 0]
+def test_path_indicator_follows_its_definition_and_reads_the_one_direction_signal() -> None:
+    u = [0.0, 0.0, 1.0, 1.0, 0.5, 0.5, 2.0, 2.0, -1.0]
+    assert path_indicator(u).tolist() == [0, 0, 1, 1, 0, 0, 1, 1, 0]
+    assert path_indicator(u, initial_direction=1).tolist()[:2] == [1, 1]
+    assert path_indicator([2.0, 2.0]).tolist() == [0, 0]
+    assert direction_signal(u).tolist() == [0, 0, 1, 1, -1, -1, 1, 1, -1]
 
 
 def test_basis_functions_match_eq3_and_sum_to_the_distance_from_u_min() -> None:

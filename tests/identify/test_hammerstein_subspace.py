@@ -10,7 +10,7 @@ import scipy.signal
 
 from identify.border_lifting import PathNodes, lifted_input
 from identify.cyclic_excitation import cyclic_random_excitation
-from identify.hammerstein_subspace import identify_hammerstein, pi_moesp_observability
+from identify.hammerstein_subspace import HammersteinModel, identify_hammerstein, pi_moesp_observability
 from identify.plant_blocks import (
     InputBacklash,
     InputSwitch,
@@ -20,6 +20,7 @@ from identify.plant_blocks import (
     pouliquen2013_backlash,
     pouliquen2013_switch,
 )
+from identify.result_format import ResultFormatError
 from identify.validation import InvalidInputError
 
 # Section IV: G(q) = q^-1 (0.1994 - 0.1804 q^-1) / (1 - 1.8858 q^-1 + 0.9048 q^-2), G(1) = 1.
@@ -174,6 +175,17 @@ def test_result_is_frozen_and_serialises_to_the_issue_json(excitation) -> None:
     y = exact_plant("switch").simulate(excitation)
     model = identify_hammerstein(excitation, y, NODES, hold_samples=HOLD, order=2)
     record = json.loads(json.dumps(model.to_dict()))
+    assert record["kind"] == "hammerstein_model" and record["version"] == 1
+    reopened = HammersteinModel.from_dict(record)
+    with pytest.warns(DeprecationWarning, match=r"simulate\(u=...\) is deprecated: the parameter is now input_rad"):
+        assert np.array_equal(model.simulate(u=excitation), model.simulate(excitation))
+    with pytest.warns(DeprecationWarning, match="identify_hammerstein"):
+        again = identify_hammerstein(u=excitation, y=y, nodes=NODES, hold_samples=HOLD, order=2)
+    assert again.to_dict() == model.to_dict()
+    assert reopened.to_dict() == model.to_dict()
+    assert np.array_equal(reopened.simulate(excitation), model.simulate(excitation))
+    with pytest.raises(ResultFormatError, match="kind 'hammerstein_model' version 2 cannot be read"):
+        HammersteinModel.from_dict({**record, "version": 2})
     assert record["order"] == 2 and len(record["poles"]) == 2
     assert np.allclose(sorted(record["poles"]), sorted([[p.real, p.imag] for p in TRUE_POLES]), atol=1e-10)
     assert np.array(record["A"]).shape == (2, 2) and len(record["B"]) == 2 and len(record["C"]) == 2
@@ -193,9 +205,9 @@ def test_errors_name_the_problem(excitation) -> None:
     y = exact_plant("switch").simulate(excitation)
     bad = y.copy()
     bad[321] = np.nan
-    with pytest.raises(InvalidInputError, match="y: sample 321 is nan"):
+    with pytest.raises(InvalidInputError, match="output_rad: sample 321 is nan"):
         identify_hammerstein(excitation, bad, NODES, hold_samples=HOLD)
-    with pytest.raises(InvalidInputError, match="u has 3100, y has 3099"):
+    with pytest.raises(InvalidInputError, match="input_rad has 3100, output_rad has 3099"):
         identify_hammerstein(excitation, y[:-1], NODES, hold_samples=HOLD)
     with pytest.raises(InvalidInputError, match=r"too few .* at least 4"):
         identify_hammerstein(excitation[:400], y[:400], NODES, hold_samples=HOLD)
@@ -220,7 +232,7 @@ def test_errors_name_the_problem(excitation) -> None:
 
 
 def test_a_constant_input_is_refused_with_what_to_do():
-    with pytest.raises(InvalidInputError, match=r"u: the input is constant \(-3 in all 400 samples\), so it "
+    with pytest.raises(InvalidInputError, match=r"input_rad: the input is constant \(-3 in all 400 samples\), so it "
                                                 r"excites nothing; use the cyclic random excitation"):
         identify_hammerstein(np.full(400, -3.0), np.zeros(400), PathNodes((-3.0, 0.0, 3.0), (-3.0, 0.0, 3.0)),
                              hold_samples=50)
@@ -241,6 +253,7 @@ def test_an_unstable_identified_model_says_so_in_json_and_text(capsys) -> None:
     model = identify_hammerstein(u, y, NODES, hold_samples=HOLD, order=1)
     assert abs(model.poles[0]) == pytest.approx(1.004, abs=1e-6)
     assert model.stable is False and model.to_dict()["stable"] is False
+    assert model.max_pole_magnitude == pytest.approx(1.004, abs=1e-6)
     assert model.to_dict()["max_pole_magnitude"] == pytest.approx(1.004, abs=1e-6)
     _print_table(model, Path("growing.csv"), HOLD)
     assert "WARNING          unstable: a pole has |p| = 1.004" in capsys.readouterr().out
@@ -251,3 +264,12 @@ def test_step_data_get_told_what_the_method_needs() -> None:
     y = exact_plant("backlash").simulate(u)
     with pytest.raises(InvalidInputError, match="cyclic excitation that sweeps from u_min up to u_max"):
         identify_hammerstein(u, y, NODES, hold_samples=300)
+
+
+def test_the_numbers_the_pole_and_border_figures_show(excitation) -> None:
+    y = exact_plant("switch").simulate(excitation)
+    model = identify_hammerstein(excitation, y, NODES, hold_samples=HOLD, order=2)
+    assert model.pole_distance(TRUE_POLES) < 1e-9 and model.pole_distance(TRUE_POLES + 0.1) > 0.05
+    natural = model.natural_frequencies_hz(0.01)
+    assert natural.size == 1 and natural[0] == pytest.approx(abs(np.log(TRUE_POLES[0])) / (2 * np.pi * 0.01))
+    assert model.largest_play_rad == pytest.approx(float(np.max(np.asarray(H_D) - np.asarray(H_A))), abs=1e-9)

@@ -4,12 +4,15 @@ random realistic parameters, read by a 12-bit encoder; the workflow sees only th
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 
 from identify.discrepancy_cases import NOMINAL_LINEAR, hidden_effect_record
-from identify.effect_signatures import EFFECT_NAMES, direction_signal, signature_scores
-from identify.model_discrepancy import diagnose_model, disagreement, fit_linear_model
+from identify.border_lifting import direction_signal
+from identify.effect_signatures import EFFECT_NAMES, signature_scores
+from identify.model_discrepancy import DiscrepancyReport, diagnose_model, disagreement, fit_linear_model
 from identify.plant_blocks import DeadZone, Delay, LinearBlock, OutputGain, PlantModel
 from identify.validation import InvalidInputError
 
@@ -50,7 +53,7 @@ def test_names_nothing_when_no_effect_is_missing(seed, given_model):
     result = run(record, given_model)
     assert result.missing_effects == ()
     assert result.consistent
-    assert result.to_json_dict()["missing_effects"] == []
+    assert result.to_dict()["missing_effects"] == []
     # 12-bit quantisation plus 0.2 mrad noise: the RMS error of a right model is below the bound / sqrt(3)
     assert result.final.gap_rad < record.noise_bound_rad / np.sqrt(3.0) * 1.1
 
@@ -87,12 +90,12 @@ def test_fitted_parameters_are_close_to_the_truth():
 
 JSON_KEYS = {"verdict", "verdict_reason", "noise_bound", "missing_effects", "ambiguous_between", "candidates",
              "gap_initial", "gap_final", "gap_reduction", "falsified_fraction_initial", "falsified_fraction_final",
-             "excitation", "operating_point"}
+             "excitation", "operating_point", "kind", "version"}
 
 
 def test_json_document_has_exactly_the_issue_keys():
     record = hidden_effect_record(("dead_zone",), 61)
-    document = run(record).to_json_dict()
+    document = run(record).to_dict()
     assert set(document) == JSON_KEYS
     assert document["verdict"] == "named"
     assert document["noise_bound"] == pytest.approx(record.noise_bound_rad)
@@ -141,7 +144,7 @@ def test_signatures_point_at_the_effect(seed):
 
 def test_direction_signal_holds_the_last_direction():
     values = np.array([0.0, 1.0, 2.0, 2.0, 2.0, 1.0, 1.0, 3.0])
-    assert direction_signal(values, 0.5).tolist() == [0.0, 1.0, 1.0, 1.0, 1.0, -1.0, -1.0, 1.0]
+    assert direction_signal(values, threshold=0.5).tolist() == [0.0, 1.0, 1.0, 1.0, 1.0, -1.0, -1.0, 1.0]
 
 
 def test_misuse_is_reported_by_argument_name():
@@ -177,14 +180,16 @@ def test_a_record_with_no_hidden_effect_is_explained():
     record = hidden_effect_record((), 31)
     result = run(record)
     assert result.verdict == "explained"
-    assert result.to_json_dict()["candidates"] == []
+    assert result.to_dict()["candidates"] == []
 
 
 def test_a_named_effect_carries_parameter_intervals_containing_its_fit_and_a_gap_reduction_range():
     record = hidden_effect_record(("backlash",), 11)
     result = run(record)
     assert result.verdict == "named"
-    document = result.to_json_dict()
+    document = result.to_dict()
+    assert document["kind"] == "model_discrepancy" and document["version"] == 1
+    assert DiscrepancyReport.from_dict(json.loads(json.dumps(document))) == result.report()
     (entry,) = document["missing_effects"]
     truth = record.true_model.blocks[1]
     for key, true_value in (("c_l_rad", truth.c_l), ("c_r_rad", truth.c_r)):

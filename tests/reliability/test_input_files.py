@@ -280,20 +280,33 @@ def test_messages_name_the_file_and_stay_on_one_short_line(tmp_path, capsys):
     _error(capsys, main(["report", str(keys), "--out", str(tmp_path / "r2")]), exit_codes.BAD_INPUT, str(keys))
 
 
-@pytest.mark.parametrize("document, expected", [
-    ({"order": 2, "poles": [0.5, 0.2], "borders": {}, "singular_values": [1.0]}, "poles: expected a list of"),
-    ({"order": 2, "poles": [[0.5, 0.1]], "borders": {"ascending": {"u": [0, 1], "h": [0]}},
-      "singular_values": [1.0]}, "borders.ascending: expected lists u and h of the same length"),
-    ({"order": 2, "poles": [[0.5, 0.1]], "borders": {"ascending": {"u": [0, 1], "h": [0, 1]},
-                                                    "descending": {"u": [0, 1], "h": [0, 1]}},
-      "singular_values": ["x"]}, "singular_values: expected numbers, got ['x']"),
-    ({"order": "two", "poles": [], "borders": {}, "singular_values": []}, "order is 'two'"),
+@pytest.fixture(scope="module")
+def hammerstein_document():
+    from identify.border_lifting import PathNodes
+    from identify.cyclic_excitation import cyclic_random_excitation
+    from identify.hammerstein_subspace import identify_hammerstein
+    from identify.plant_blocks import LinearBlock, PlantModel, pouliquen2013_backlash
+
+    u = cyclic_random_excitation(1200, -3.0, 3.0, hold_samples=50, rng=0)
+    G = LinearBlock(a=(-1.8858, 0.9048), b=(0.0, 0.1994, -0.1804), sample_period_s=0.01)
+    y = PlantModel((pouliquen2013_backlash(), G)).simulate(u)
+    return identify_hammerstein(u, y, PathNodes.uniform(-3.0, 3.0, 8), hold_samples=50).to_dict()
+
+
+@pytest.mark.parametrize("damage, expected", [
+    ({"A": [[0.5]]}, "A: expected 2 x 2 finite numbers, got shape (1, 1)"),
+    ({"singular_values": ["x"]}, "singular_values: expected numbers, got ['x']"),
+    ({"order": "two"}, "order is 'two', expected an integer >= 1"),
+    ({"mu_ascending": [1.0, 2.0]}, "mu_ascending: expected 7 finite numbers, got shape (2,)"),
+    ({"nodes": {"ascending": [0.0, 1.0]}}, "key 'descending' is missing"),
 ])
-def test_a_malformed_result_json_is_named_before_anything_is_drawn(tmp_path, capsys, document, expected):
+def test_a_malformed_result_json_is_named_before_anything_is_drawn(tmp_path, capsys, hammerstein_document, damage,
+                                                                   expected):
     path = tmp_path / "model.json"
-    path.write_text(json.dumps(document))
+    path.write_text(json.dumps({**hammerstein_document, **damage}))
     _error(capsys, main(["report", str(path), "--out", str(tmp_path / "r")]), exit_codes.BAD_INPUT,
-           f"{path}: not the JSON of `rig identify hammerstein --json`: {expected}")
+           f"{path}: kind 'hammerstein_model': ", expected, "write it again with the command that made it")
+    assert not (tmp_path / "r" / "index.html").exists()
     path.write_text('{"order": 2,\n "poles": [1, 2,]}')
     _error(capsys, main(["report", str(path), "--out", str(tmp_path / "r")]), exit_codes.BAD_INPUT,
            f"{path}: line 2, column 17: invalid JSON")

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -116,10 +117,21 @@ def test_several_files_are_diagnosed_in_parallel_and_a_bad_one_is_reported(files
     code = main(["diagnose", str(data), str(broken), str(data), "--model", str(model), "--noise-bound",
                  repr(record.noise_bound_rad), "--jobs", "2", "--json", "--report", str(report)])
     assert code == exit_codes.BAD_INPUT  # one file failed; the others still came out
-    results = json.loads(capsys.readouterr().out)["results"]
+    printed = capsys.readouterr().out
+    batch = json.loads(printed)
+    assert (batch["kind"], batch["version"]) == ("batch", 1)
+    results = batch["results"]
     assert [entry["file"] for entry in results] == [str(data), str(broken), str(data)]
     for entry in (results[0], results[2]):
         assert [effect["effect"] for effect in entry["diagnosis"]["missing_effects"]] == ["backlash"]
     assert results[0]["diagnosis"] == results[2]["diagnosis"]  # the same file gives the same answer in any process
     assert "broken.csv" in results[1]["error"] and "line 2" in results[1]["error"]
     assert missing_images(report / "data" / "index.html") == []
+
+    # `rig report` reads the batch file the command wrote: both diagnoses, and the file that failed
+    saved = tmp_path / "batch.json"
+    saved.write_text(printed)
+    assert main(["report", str(saved), "--out", str(tmp_path / "page")]) == exit_codes.SUCCESS
+    page = Path(capsys.readouterr().out.strip()).read_text(encoding="utf-8")
+    assert page.count("Model discrepancy: batch.json [") == 2
+    assert "could not process" in page and "broken.csv" in page

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from identify.excitation_design import filtered_staircase, prbs_sequence, staircase_steady_state_indices
+from identify.output_backlash_identification import OutputBacklashIdentification
 from identify.plant_blocks import LinearBlock, OutputBacklash, PlantModel
 from rig import exit_codes
 from rig.cli import main
@@ -42,7 +43,12 @@ def _args(files, *extra: str) -> list[str]:
 def test_json_has_exactly_the_issue_keys_and_bounds_contain_the_truth(files, capsys) -> None:
     assert main(_args(files, "--json")) == exit_codes.SUCCESS
     document = json.loads(capsys.readouterr().out)
-    assert set(document) == {"backlash", "linear", "method", "invertible_samples", "samples"}
+    # the keys of issue 2, the kind and version, and the whole result (issue 16) for from_dict
+    assert set(document) == {"backlash", "linear", "method", "invertible_samples", "samples", "kind", "version",
+                             "noise_bound_rad", "backlash_set", "inner_signal", "linear_bounds"}
+    assert (document["kind"], document["version"]) == ("output_backlash", 1)
+    reopened = OutputBacklashIdentification.from_dict(document)
+    assert reopened.to_dict() == document and reopened.linear_intervals["a1"].lower == document["linear"]["a1"]["lower"]
     assert list(document["backlash"]) == ["m_l", "c_l", "m_r", "c_r"]
     assert list(document["linear"]) == ["a1", "a2", "b1", "b2"]
     assert document["method"] == "coupled" and document["samples"] == 100
@@ -102,7 +108,9 @@ def test_several_pairs_are_bounded_in_parallel_and_a_bad_one_is_reported(files, 
                  "--steady", str(steady), "--dynamic", str(missing), "--steady", str(steady), "--dynamic", str(copy),
                  "--noise-bound", repr(NOISE), "--na", "2", "--nk", "1", "--nb", "2", "--jobs", "2", "--json"])
     assert code == exit_codes.BAD_INPUT  # one pair failed; the others still came out
-    results = json.loads(capsys.readouterr().out)["results"]
+    batch = json.loads(capsys.readouterr().out)
+    assert (batch["kind"], batch["version"]) == ("batch", 1)
+    results = batch["results"]
     assert [entry["dynamic"] for entry in results] == [str(dynamic), str(missing), str(copy)]
     assert results[0]["bounds"] == single and results[2]["bounds"] == single  # same as one at a time
     assert "missing.csv: no such file (dynamic data)" in results[1]["error"]

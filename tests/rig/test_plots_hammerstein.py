@@ -11,7 +11,7 @@ from plot_checks import unlabelled_axes
 
 from identify.border_lifting import PathNodes
 from identify.cyclic_excitation import cyclic_random_excitation
-from identify.hammerstein_subspace import identify_hammerstein
+from identify.hammerstein_subspace import HammersteinModel, identify_hammerstein
 from identify.plant_blocks import LinearBlock, PlantModel, pouliquen2013_backlash
 from rig.plots.hammerstein import borders_figure, hammerstein_figures, poles_figure, singular_values_figure
 from rig.report import ReportSection, missing_images, write_report
@@ -67,12 +67,12 @@ def test_singular_values_figure_marks_the_order_at_the_gap(model):
     assert _number(r"σ_2/σ_3 = ([0-9.eE+-]*[0-9])", figure.caption) > 10
 
 
-def test_figures_from_the_json_of_the_command_match_the_model(model):
-    document = json.loads(json.dumps(model.to_dict()))
+def test_figures_of_a_saved_and_reopened_model_match_the_model_and_a_dictionary_is_refused(model):
+    reopened = HammersteinModel.from_dict(json.loads(json.dumps(model.to_dict())))
     for make in (poles_figure, borders_figure, singular_values_figure):
-        assert make(document, "from_json").caption == make(model, "from_model").caption
-    with pytest.raises(ValueError, match="missing borders, singular_values"):
-        poles_figure({"order": 2, "poles": []}, "bad")
+        assert make(reopened, "from_json").caption == make(model, "from_model").caption
+    with pytest.raises(TypeError, match="expected a HammersteinModel"):
+        poles_figure(model.to_dict(), "bad")
 
 
 def test_every_figure_renders_with_units_and_no_missing_image(model, tmp_path):

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-import re
+import dataclasses
 
 import numpy as np
 import pytest
@@ -10,11 +10,11 @@ from plot_checks import unlabelled_axes
 
 from identify.excitation_design import filtered_staircase, prbs_sequence, staircase_steady_state_indices
 from identify.feasible_parameter_set import ParameterInterval
+from identify.linear_block_bounds import EmptyLinearSetExplanation
 from identify.output_backlash_identification import bound_output_backlash_system
 from identify.plant_blocks import LinearBlock, OutputBacklash, PlantModel
 from rig.plots.set_membership import (
     backlash_characteristic_figure,
-    box_magnitude_envelope,
     default_result_figures,
     feasible_polygons_figure,
     inner_signal_figure,
@@ -48,99 +48,80 @@ def results(experiment):
             for method in ("paper", "coupled")}
 
 
-def _number(pattern: str, text: str) -> float:
-    match = re.search(pattern, text)
-    assert match, f"{pattern!r} not in {text!r}"
-    return float(match.group(1))
+def _drawn(report_figure):
+    """The matplotlib figure a ReportFigure draws (off-screen)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from matplotlib.figure import Figure
+
+    figure = Figure(figsize=report_figure.size_in, layout="constrained")
+    report_figure.draw(figure)
+    return figure
 
 
-def test_characteristic_and_polygons_contain_the_true_backlash(results):
-    characteristic = backlash_characteristic_figure(results["coupled"], "characteristic", true_backlash=BACKLASH)
-    assert "12 steady-state points" in characteristic.caption
-    assert "±Δη = ±0.001 rad" in characteristic.caption
-    assert "inside the band on 2 of 2 sides" in characteristic.caption
-    polygons = feasible_polygons_figure(results["coupled"], "polygons", true_backlash=BACKLASH)
-    assert polygons.caption.count("rad, true point inside") == 2
-    # A backlash with twice the right dead band is not in D_γ^r: the figure must say so.
-    wrong = {"m_l": 0.248, "c_l": 0.0698, "m_r": 0.252, "c_r": 2 * 0.0349}
-    assert "true point OUTSIDE" in feasible_polygons_figure(results["coupled"], "p", true_backlash=wrong).caption
-    assert "on 1 of 2 sides (left)" in backlash_characteristic_figure(results["coupled"], "c", true_backlash=wrong).caption
+def _labels(axes) -> list[str]:
+    return [line.get_label() for line in axes.get_lines()] + [c.get_label() for c in axes.collections]
 
 
-def test_inner_signal_figure_counts_invertible_samples_and_checks_the_truth(results, experiment):
+def test_characteristic_and_polygons_show_both_sides_the_points_and_the_true_backlash(results):
+    characteristic = _drawn(backlash_characteristic_figure(results["coupled"], "c", true_backlash=BACKLASH))
+    full, zoom = characteristic.axes[:2]
+    assert {"left lines of D_γ", "right lines of D_γ", "true lines"} <= set(_labels(full))
+    # the 12 steady-state points with their error bars, 6 per side
+    points = [c for c in full.containers if hasattr(c, "lines")]
+    assert sorted(len(c.lines[0].get_xdata()) for c in points) == [6, 6]
+    polygons = _drawn(feasible_polygons_figure(results["coupled"], "p", true_backlash=BACKLASH))
+    for axes, letter in zip(polygons.axes, ("l", "r")):
+        star = next(line for line in axes.get_lines() if line.get_label() == "true (m, m·c)")
+        m_true = TRUE_VALUES[f"m_{letter}"]
+        assert star.get_xdata()[0] == pytest.approx(m_true)
+        assert star.get_ydata()[0] == pytest.approx(m_true * TRUE_VALUES[f"c_{letter}"])
+        assert axes.patches, "the polygon is drawn filled"
+        assert axes.get_xlabel() == f"slope m_{letter} [rad/rad]"
+
+
+def test_inner_signal_figure_shows_bounds_invertible_samples_and_the_truth(results, experiment):
     _, _, u, _ = experiment
     inner = results["paper"].inner_signal
     true_x = LINEAR.apply(u)
-    figure = inner_signal_figure(results["paper"], "inner", sample_period_s=0.01, true_inner_rad=true_x)
-    assert f"{inner.num_invertible} samples" in figure.caption
-    assert "inside the bounds at 60 of 60 samples" in figure.caption
+    figure = _drawn(inner_signal_figure(results["paper"], "inner", sample_period_s=0.01, true_inner_rad=true_x))
+    bounds_axes = figure.axes[0]
+    truth = next(line for line in bounds_axes.get_lines() if line.get_label() == "true x_t")
+    np.testing.assert_allclose(truth.get_ydata(), true_x)
+    invertible = next(c for c in bounds_axes.containers if c.get_label() == "invertible samples (Prop. 2)")
+    assert len(invertible.lines[0].get_xdata()) == inner.num_invertible
     with pytest.raises(ValueError, match="true_inner_rad: expected 60 samples"):
         inner_signal_figure(results["paper"], "inner", true_inner_rad=true_x[:10])
 
 
-def test_interval_figure_compares_methods_against_the_truth(results):
-    figure = parameter_intervals_figure(results, "intervals", true_values=TRUE_VALUES)
-    assert "paper: median half-width" in figure.caption and "coupled: median half-width" in figure.caption
-    assert figure.caption.count("true value inside 8 of 8") == 2
-    # The coupled bounds are much tighter on the linear block (about 6 % of the paper widths here).
-    assert _number(r"coupled/paper on the linear block = ([0-9.eE+-]*[0-9])", figure.caption) < 0.5
-    shifted = {**TRUE_VALUES, "a1": 0.6}
-    assert figure.caption != parameter_intervals_figure(results, "i", true_values=shifted).caption
-    assert "true value inside 7 of 8" in parameter_intervals_figure(results, "i", true_values=shifted).caption
+def test_interval_figure_has_one_panel_per_parameter_and_a_row_per_method(results):
+    figure = _drawn(parameter_intervals_figure(results, "intervals", true_values=TRUE_VALUES))
+    visible = [axes for axes in figure.axes if axes.get_visible()]
+    assert len(visible) == 8
+    for axes in visible:
+        assert [label.get_text() for label in axes.get_yticklabels()] == ["paper", "coupled"]
+    with pytest.raises(TypeError, match="expected an OutputBacklashIdentification or LinearBlockBounds"):
+        parameter_intervals_figure({"json": {"a1": ParameterInterval(0.4, 0.6)}}, "i")
 
 
-def test_bode_envelope_contains_the_true_model(results):
-    figure = linear_block_bode_figure(results, "bode", sample_period_s=0.01, true_linear=LINEAR)
-    assert "Nyquist frequency 50 Hz" in figure.caption
-    assert figure.caption.count("true |G| inside the envelope at 100 %") == 2
-    paper = _number(r"paper: median envelope width ([0-9.eE+-]*[0-9]) dB", figure.caption)
-    coupled = _number(r"coupled: median envelope width ([0-9.eE+-]*[0-9]) dB", figure.caption)
-    assert coupled < paper
-    # Without a sample period the axis is normalised; from plain intervals (JSON) it draws the same model.
-    intervals = dict(results["coupled"].linear_intervals)
-    normalised = linear_block_bode_figure(intervals, "bode_plain")
-    assert "0.5 cycles/sample" in normalised.caption
-    assert f"median envelope width {coupled:.3g} dB" in normalised.caption
+def test_bode_figure_draws_each_method_s_envelope_and_the_true_model(results):
+    figure = _drawn(linear_block_bode_figure(results, "bode", sample_period_s=0.01, true_linear=LINEAR))
+    magnitude_axes = figure.axes[0]
+    labels = _labels(magnitude_axes)
+    for method in ("paper", "coupled"):
+        assert f"{method}: envelope over the box" in labels and f"{method}: central model θ^c" in labels
+    assert "true G" in labels
+    assert magnitude_axes.get_xlim()[1] >= 50.0 * 0.9  # Hz up to Nyquist of 10 ms
+    # the envelope drawn is the result's own
+    coupled = next(line for line in magnitude_axes.get_lines() if line.get_label() == "coupled: central model θ^c")
+    omega = 2 * np.pi * np.asarray(coupled.get_xdata()) * 0.01
+    np.testing.assert_allclose(coupled.get_ydata(), results["coupled"].linear.magnitude_envelope(omega).central_db)
+    normalised = _drawn(linear_block_bode_figure(results["coupled"].linear, "bode_plain"))
+    assert normalised.axes[1].get_xlabel() == "frequency [cycles/sample]"
     with pytest.raises(ValueError, match="no linear-block intervals"):
-        linear_block_bode_figure({"m_l": ParameterInterval(0.2, 0.3)}, "none")
-
-
-def test_box_envelope_is_exact_on_a_hand_case_and_contains_every_box_model():
-    # G = b0 / (1 + a1 q^-1), a1 in [0.4, 0.6], b0 in [1, 2]: at ω = 0, |A| = 1 + a1; at ω = π, |A| = 1 - a1.
-    lower, upper = box_magnitude_envelope({"a1": ParameterInterval(0.4, 0.6), "b0": ParameterInterval(1.0, 2.0)},
-                                          [0.0, np.pi])
-    np.testing.assert_allclose(lower, [1 / 1.6, 1 / 0.6], rtol=1e-12)
-    np.testing.assert_allclose(upper, [2 / 1.4, 2 / 0.4], rtol=1e-12)
-    # A box around a second-order model: every sampled model lies inside the envelope, and the upper envelope
-    # is reached. |B| is largest at a corner of the b-box; |A| is smallest on the boundary of its zonotope,
-    # where every a_i but one sits at a bound: searching those edges finds the supremum.
-    rng = np.random.default_rng(3)
-    box = {"a1": ParameterInterval(-1.25, -1.15), "a2": ParameterInterval(0.45, 0.5),
-           "b1": ParameterInterval(0.1, 0.2), "b2": ParameterInterval(0.05, 0.1)}
-    omega = np.linspace(0.01, np.pi, 200)
-    z = np.exp(-1j * omega)
-    lower, upper = box_magnitude_envelope(box, omega)
-
-    def magnitude(a1, a2, b1, b2):
-        return np.abs((b1 * z + b2 * z**2) / (1 + a1 * z + a2 * z**2))
-
-    samples = np.array([magnitude(*(rng.uniform(box[k].lower, box[k].upper) for k in ("a1", "a2", "b1", "b2")))
-                        for _ in range(300)])
-    assert np.all(samples >= lower * (1 - 1e-12)) and np.all(samples <= upper * (1 + 1e-12))
-    dense = np.linspace(0.0, 1.0, 201)
-    a_edges = [(box["a1"].lower + t * 0.1, a2) for t in dense for a2 in (0.45, 0.5)]
-    a_edges += [(a1, 0.45 + t * 0.05) for t in dense for a1 in (-1.25, -1.15)]
-    largest = np.max([magnitude(a1, a2, b1, b2) for a1, a2 in a_edges for b1 in (0.1, 0.2) for b2 in (0.05, 0.1)],
-                     axis=0)
-    assert np.all(largest <= upper * (1 + 1e-12))
-    assert np.min(largest / upper) > 0.999
-    # A box of zero width is one model: the envelope collapses onto it.
-    point = {k: ParameterInterval(v.center, v.center) for k, v in box.items()}
-    lower, upper = box_magnitude_envelope(point, omega)
-    z = np.exp(-1j * omega)
-    exact = np.abs((0.15 * z + 0.075 * z**2) / (1 - 1.2 * z + 0.475 * z**2))
-    np.testing.assert_allclose(lower, exact, rtol=1e-9)
-    np.testing.assert_allclose(upper, exact, rtol=1e-9)
+        empty = dataclasses.replace(results["coupled"].linear, explanation=EmptyLinearSetExplanation((), 0.0, "none"))
+        linear_block_bode_figure({"empty": empty}, "none")
 
 
 def test_every_figure_renders_with_units_and_no_missing_image(results, experiment, tmp_path):

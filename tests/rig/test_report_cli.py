@@ -4,6 +4,7 @@ Also the documented Chromium check script, on the path that needs no browser (Ch
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import subprocess
 import sys
@@ -15,6 +16,8 @@ import pytest
 from identify.cyclic_excitation import cyclic_random_excitation
 from identify.excitation_design import filtered_staircase, prbs_sequence, staircase_steady_state_indices
 from identify.experiment_record import ExperimentMetadata, ExperimentRecord
+from identify.model_discrepancy import DiscrepancyReport, MissingEffect
+from identify.output_backlash_identification import bound_output_backlash_system
 from identify.plant_blocks import LinearBlock, OutputBacklash, PlantModel, pouliquen2013_backlash
 from rig import exit_codes
 from rig.cli import main
@@ -24,10 +27,12 @@ from rig.report import missing_images
 
 SM_PLANT = PlantModel((LinearBlock((0.5, 0.7), (0.0, 1.4, 0.8), 0.01), OutputBacklash(0.248, 0.0698, 0.252, 0.0349)))
 NOISE = 1e-3
-DIAGNOSE = {"missing_effects": [{"effect": "backlash", "parameters": {"width_rad": 0.02}, "gap_before": 0.01,
-                                 "gap_after": 0.002}],
-            "gap_initial": 0.01, "gap_final": 0.002, "falsified_fraction_initial": 0.4,
-            "falsified_fraction_final": 0.01}
+DIAGNOSIS = DiscrepancyReport(
+    verdict="named", verdict_reason="backlash closes the gap", noise_bound_rad=1e-3,
+    missing_effects=(MissingEffect("backlash", {"width_rad": 0.02}, {}, 0.01, 0.002),), ambiguous_between=(),
+    candidates=(), gap_initial_rad=0.01, gap_final_rad=0.002, gap_reduction={"value": 0.8},
+    falsified_fraction_initial=0.4, falsified_fraction_final=0.01, excitation={}, operating_point_rad=0.0)
+DIAGNOSE = DIAGNOSIS.to_dict()
 REPO = Path(__file__).resolve().parents[2]
 
 
@@ -73,11 +78,12 @@ def test_report_from_a_log_and_the_json_of_identify_and_diagnose(data, capsys, t
     printed = json.loads(capsys.readouterr().out)
     index = Path(printed["report"])
     assert index == (out / "index.html").resolve() and index.is_file()
-    # 2 experiment figures (signals, timing), intervals + Bode for both methods together, 1 discrepancy figure.
-    assert printed["figures"] == 5
+    # 2 experiment figures (signals, timing), intervals + Bode for both methods together, the backlash band,
+    # polygons and inner-signal bounds once (both methods share them), 1 discrepancy figure.
+    assert printed["figures"] == 8
     assert missing_images(index) == []
     page = index.read_text(encoding="utf-8")
-    assert page.count("<img ") == 5
+    assert page.count("<img ") == 8 and "set_membership_paper_polygons.png" in page
     for title in ("Experiment: prbs.log", "Set membership", "Model discrepancy: diagnose.json"):
         assert title in page
     # The interval table shows each method's bounds as printed by `rig identify output-backlash --json`.
@@ -93,7 +99,7 @@ def test_the_json_of_identify_hammerstein_gives_its_three_figures(data, capsys):
     hammerstein = _json_of(capsys, ["identify", "hammerstein", str(data / "cyclic.csv"), "--json"],
                            data / "hammerstein.json")
     result = read_result_file(hammerstein)
-    assert result.kind == "hammerstein"
+    assert result.kind == "hammerstein_model"
     (section,) = report_sections([result], sample_period_s=0.01)
     assert [figure.name for figure in section.figures] == [
         "hammerstein_hammerstein_poles", "hammerstein_hammerstein_borders", "hammerstein_hammerstein_singular_values"]
@@ -102,15 +108,21 @@ def test_the_json_of_identify_hammerstein_gives_its_three_figures(data, capsys):
 
 
 def test_report_prints_the_index_path_and_shows_an_empty_set(data, capsys, tmp_path):
+    staircase = filtered_staircase(list(np.linspace(0.6, 3.0, 6)), 0.8125, 100)
+    steady = staircase_steady_state_indices(6, 100)
+    wrong = SM_PLANT.simulate(staircase)[steady] + 20 * NOISE * np.resize([1.0, -1.0, 0.0], steady.size)
+    u = prbs_sequence(60, 1.0, rng=1)
+    result = bound_output_backlash_system(staircase[steady], wrong, u, SM_PLANT.simulate(u), NOISE, na=2, nk=1, nb=2,
+                                          method="paper")
+    assert result.is_empty
     empty = data / "empty.json"
-    empty.write_text(json.dumps({"empty": True, "method": "paper",
-                                 "explanation": "steady-state data: no right backlash line passes within the bound"}))
+    empty.write_text(json.dumps(result.to_dict()))
     code = main(["report", str(empty), "--out", str(tmp_path / "r"), "--sample-period", "0.001"])
     assert code == exit_codes.SUCCESS
     index = Path(capsys.readouterr().out.strip())
     assert index == (tmp_path / "r" / "index.html").resolve()
     page = index.read_text(encoding="utf-8")
-    assert "EMPTY feasible set" in page and "no right backlash line passes" in page
+    assert "EMPTY feasible set" in page and result.explanation.split(":")[1].strip()[:30] in page
     assert missing_images(index) == []
 
 
@@ -128,7 +140,8 @@ def test_foreign_files_are_refused_with_the_file_and_what_was_expected(data, cap
     other_json.write_text(json.dumps({"speed": 3, "name": "x"}))
     assert main(["report", str(other_json), "--out", str(tmp_path / "r")]) == exit_codes.BAD_INPUT
     error = capsys.readouterr().err
-    assert f"{other_json}: JSON with keys [name, speed] is not a result" in error
+    assert f"{other_json}: JSON without a 'kind' key (keys [name, speed])" in error
+    assert "output_backlash v1, hammerstein_model v1, model_discrepancy v1, batch v1" in error
 
     binary = tmp_path / "figure.png"
     binary.write_bytes(b"\x89PNG\r\n\x1a\n\x00\x00\xff\xfe")
@@ -172,31 +185,44 @@ def test_a_saved_output_backlash_result_reopens_and_draws_polygons_band_and_inne
         assert f"set_membership_coupled_saved{name}" in page
 
 
-def test_a_saved_result_with_damaged_data_names_the_file(data, capsys, tmp_path):
+def test_a_saved_result_with_damaged_data_names_the_file_and_the_key(data, capsys, tmp_path):
+    document = json.loads(_json_of(capsys, ["identify", "output-backlash", "--steady", str(data / "steady.csv"),
+                                            "--dynamic", str(data / "prbs.log"), "--noise-bound", repr(NOISE), "--na",
+                                            "2", "--nk", "1", "--nb", "2", "--json", "--method", "paper"],
+                                   tmp_path / "printed.json").read_text())
+    del document["backlash_set"]["left"]
     damaged = tmp_path / "damaged.json"
-    damaged.write_text(json.dumps({"backlash": {"m_l": {"lower": 0.2, "upper": 0.3}},
-                                   "linear": {"a1": {"lower": 0.4, "upper": 0.6}}, "method": "coupled",
-                                   "data": {"steady": {"u": [1.0]}, "noise_bound_rad": 0.001}}))
+    damaged.write_text(json.dumps(document))
     assert main(["report", str(damaged), "--out", str(tmp_path / "out")]) == exit_codes.BAD_INPUT
-    assert f"{damaged}: data: expected steady.u, steady.y" in capsys.readouterr().err
+    assert f"{damaged}: kind 'backlash_feasible_set': key 'left' is missing" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize("document, words", [
-    # the JSON of an older rig diagnose: no verdict, nothing named, 95 % still falsified
-    ({"missing_effects": [], "gap_initial": 0.05, "gap_final": 0.05, "falsified_fraction_initial": 0.95,
-      "falsified_fraction_final": 0.95}, "UNEXPLAINED"),
-    ({**DIAGNOSE, "verdict": "ambiguous", "verdict_reason": "delay and resonance fit equally well",
-      "missing_effects": []}, "AMBIGUOUS"),
-    ({**DIAGNOSE, "missing_effects": [], "falsified_fraction_initial": 0.0, "falsified_fraction_final": 0.0},
-     "EXPLAINED"),
+    ({"kind": "hammerstein_model", "version": 9}, "kind 'hammerstein_model' version 9 cannot be read"),
+    ({"kind": "gearbox_photo", "version": 1}, "kind 'gearbox_photo' version 1 cannot be read"),
+    ({**DIAGNOSE, "version": 2}, "kind 'model_discrepancy' version 2 cannot be read"),
 ])
-def test_the_report_states_the_verdict_and_never_claims_an_explanation_while_samples_stay_falsified(
-        document, words, tmp_path):
-    path = tmp_path / "diagnose.json"
+def test_a_kind_or_version_it_cannot_read_is_named(document, words, capsys, tmp_path):
+    path = tmp_path / "result.json"
     path.write_text(json.dumps(document))
+    assert main(["report", str(path), "--out", str(tmp_path / "out")]) == exit_codes.BAD_INPUT
+    error = capsys.readouterr().err
+    assert f"{path}: {words}" in error and "model_discrepancy v1" in error
+
+
+@pytest.mark.parametrize("changes, words", [
+    ({"verdict": "unexplained", "missing_effects": (), "gap_final_rad": 0.01, "falsified_fraction_final": 0.95},
+     "UNEXPLAINED"),
+    ({"verdict": "ambiguous", "verdict_reason": "delay and resonance fit equally well", "missing_effects": (),
+      "ambiguous_between": ("delay", "resonance")}, "AMBIGUOUS"),
+    ({"verdict": "explained", "missing_effects": (), "falsified_fraction_initial": 0.0,
+      "falsified_fraction_final": 0.0}, "EXPLAINED"),
+])
+def test_the_report_states_the_verdict_of_the_diagnosis(changes, words, tmp_path):
+    path = tmp_path / "diagnose.json"
+    path.write_text(json.dumps(dataclasses.replace(DIAGNOSIS, **changes).to_dict()))
     (section,) = report_sections([read_result_file(path)])
     assert words in section.text
-    assert "already explains" not in section.text
     if words == "UNEXPLAINED":
         assert "95.0 % after" in section.text
 
@@ -207,7 +233,7 @@ def test_the_report_shows_intervals_and_candidate_gaps_of_a_diagnosis(tmp_path):
 
     record = hidden_effect_record(("backlash",), 11)
     document = diagnose_model(record.command_rad, record.angle_rad, record.noise_bound_rad, record.sample_period_s,
-                              record.nominal_model).to_json_dict()
+                              record.nominal_model).to_dict()
     path = tmp_path / "diagnose.json"
     path.write_text(json.dumps(document))
     (section,) = report_sections([read_result_file(path)])
