@@ -244,7 +244,8 @@ class LinearBlockBounds:
             "inner_point": values(self.inner_point), "explanation": explanation,
             "num_linear_programs": self.num_linear_programs, "num_tightening_rounds": self.num_tightening_rounds,
             "feasible_orthants": [list(orthant) for orthant in self.feasible_orthants],
-            "max_certificate_gap": number(self.max_certificate_gap)})
+            "max_certificate_gap": number(self.max_certificate_gap), "notes": list(self.notes),
+            "windowing": self.windowing})
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any]) -> LinearBlockBounds:
@@ -268,7 +269,8 @@ class LinearBlockBounds:
                 num_linear_programs=int(data["num_linear_programs"]),
                 num_tightening_rounds=int(data["num_tightening_rounds"]),
                 feasible_orthants=tuple(tuple(int(sign) for sign in orthant) for orthant in data["feasible_orthants"]),
-                max_certificate_gap=float(data["max_certificate_gap"]))
+                max_certificate_gap=float(data["max_certificate_gap"]),
+                notes=tuple(str(note) for note in data.get("notes", ())), windowing=str(data.get("windowing", "")))
 
 
 # ----------------------------------------------------------------------------------------------------------

@@ -16,7 +16,11 @@ Raw CAN (``configs/raw_can.dbc`` or the config's ``dbc``):
   of the last setpoint sent FAULT;
 * LATE is judged from the trace's time stamps against the first setpoint's (``t0 + k T`` plus the config's
   ``late_tolerance_s`` for a setpoint; ``t0 + (k+1) T`` for its reading): the trace's clock, not the host's
-  monotonic clock of the run, so a LATE flag near the tolerance may differ from the run's own log.
+  monotonic clock of the run, so a LATE flag near the tolerance may differ from the run's own log;
+* protocol v2 (the device owns the clock: RIG_START, and a RIG_TICK_APPLIED with each tick): a setpoint's
+  seq is its tick, every reading of a tick of the run is filed (no pending window: the device, not the
+  host, decides the instant), the command logged is the tick's ``applied_counts`` and a HELD tick is
+  flagged HELD; LATE is not judged (the ticks carry no instant of their own).
 
 CANopen (SYNC + drive RPDO1 + TPDOs, the mapping :mod:`rig.transports.canopen_link` sets up: drive TPDO1
 0x6041 + 0x6064 at 0x180 + node, drive TPDO2 0x6062 at 0x280 + node where the drive sends it, encoder TPDO1
@@ -58,8 +62,8 @@ __all__ = ["TRACE_SUFFIXES", "import_trace"]
 
 TRACE_SUFFIXES = (".blf", ".asc", ".trc", ".log", ".csv")
 _FAULT_STATES = (DriveState.FAULT, DriveState.FAULT_REACTION_ACTIVE)
-_LOST, _LATE, _DUPLICATE, _FAULT = (int(flag) for flag in (SampleFlag.LOST, SampleFlag.LATE, SampleFlag.DUPLICATE,
-                                                          SampleFlag.FAULT))
+_LOST, _LATE, _DUPLICATE, _FAULT, _HELD = (int(flag) for flag in (
+    SampleFlag.LOST, SampleFlag.LATE, SampleFlag.DUPLICATE, SampleFlag.FAULT, SampleFlag.HELD))
 
 
 def _frames(path: Path) -> Any:
@@ -120,6 +124,7 @@ def _import_raw_can(path: Path, config: Any) -> ExperimentRecord:
     received: set[int] = set()
     parts: dict[int, dict[str, Any]] = {}
     last_seq, first_seq, t0 = 0, None, None
+    device_clocked = False  # protocol v2: RIG_START / RIG_TICK_APPLIED seen
     last_angle: float | None = None
     frame_errors = frames = 0
     for index, message in _frames(path):
@@ -156,6 +161,15 @@ def _import_raw_can(path: Path, config: Any) -> ExperimentRecord:
         elif name == "RIG_FAULT":
             if rows:
                 rows[-1].flags |= _FAULT
+        elif name == "RIG_START":
+            device_clocked = True
+        elif name == "RIG_TICK_APPLIED" and first_seq is not None:
+            device_clocked = True
+            k = unwrap_seq(signals["seq"], last_seq) - first_seq
+            if 0 <= k < len(rows):
+                rows[k].command_rad = drive.rad_from_counts(signals["applied_counts"])
+                if signals["tick_flags"] & 1:
+                    rows[k].flags |= _HELD
         elif name in ("RIG_FEEDBACK", "RIG_DRIVE_FEEDBACK") and first_seq is not None:
             seq = unwrap_seq(signals["seq"], last_seq)
             pair = parts.setdefault(seq, {})
@@ -168,7 +182,7 @@ def _import_raw_can(path: Path, config: Any) -> ExperimentRecord:
             angle = encoder.rad_from_counts(counts, near_rad=0.0 if last_angle is None else last_angle)
             last_angle = angle
             k = seq - first_seq
-            if not 0 <= k < len(rows) or k < len(rows) - 1 - PENDING_CYCLES:
+            if not 0 <= k < len(rows) or (not device_clocked and k < len(rows) - 1 - PENDING_CYCLES):
                 continue  # answers no setpoint of the run, or came after its sample was written (LOST)
             row = rows[k]
             if k in received:
@@ -196,7 +210,7 @@ def _import_raw_can(path: Path, config: Any) -> ExperimentRecord:
         extra={"imported_from": {"trace": str(path), "frames": frames, "first_seq": first_seq},
                "summary": {"frame_errors": frame_errors}})
     n = len(rows)
-    flags = np.array([row.flags for row in rows], dtype=np.uint8)
+    flags = np.array([row.flags & ~_LATE if device_clocked else row.flags for row in rows], dtype=np.uint8)
     return ExperimentRecord(time_s=np.arange(n) * period, command_rad=np.array([row.command_rad for row in rows]),
                             angle_rad=np.array([row.angle_rad for row in rows]),
                             encoder_counts=np.array([row.counts for row in rows], dtype=np.int64), flags=flags,
