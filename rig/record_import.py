@@ -280,14 +280,18 @@ def _looks_like_json(path: Path) -> tuple[bool, str]:
 def read_measurement(path: str | Path, options: ImportOptions | None = None) -> tuple[ExperimentRecord, ImportReport]:
     """Read one record for analysis with ``options`` (module docstring); return it and what was done."""
     from rig.log_file import is_rig_log, read_experiment_data
-
+    from rig.measurement_files import measurement_format
     from rig.signal_files import check_input_file
 
     options = options or ImportOptions()
-    path = check_input_file(path, "a rig log, a CSV file or a JSON record")
+    path = check_input_file(path, "a rig log, a CSV, MDF4 or MAT file, or a JSON record")
     scale = parse_units(options.units)
     default_columns = all(options.columns.get(role) == role for role in ("t", "u", "y"))
-    is_json, text = (False, "") if is_rig_log(path) else _looks_like_json(path)
+    binary = measurement_format(path) is not None  # MDF4 / MAT: channels by name, read by their own reader
+    if binary and not (default_columns and options.valid is None and scale == 1.0):
+        raise RecordImportError(f"{path}: --columns, --units and --valid are for CSV and JSON records; an MDF4 or "
+                                "MAT file needs channels t, u, y in s and rad (as `rig export` writes them)")
+    is_json, text = (False, "") if binary or is_rig_log(path) else _looks_like_json(path)
     if not is_json and default_columns and options.valid is None and scale == 1.0:
         try:
             record = read_experiment_data(path)

@@ -174,7 +174,7 @@ def read_result_files(path: str | Path) -> list[ResultFile]:
     from rig.measurement_files import measurement_format
 
     if measurement_format(path) is not None:  # binary: an MDF4 or MAT file is an experiment or nothing
-        return ResultFile(path, "experiment", read_experiment_data(path))
+        return [ResultFile(path, "experiment", read_experiment_data(path))]
     with path.open("rb") as handle:
         head = handle.read(4096)
     nul = head.find(b"\0")
