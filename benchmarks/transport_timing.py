@@ -103,7 +103,8 @@ def measure(kind: str, rate_hz: float, duration_s: float, directory: Path, pendi
     }
     load = getattr(transport, "load", None)
     if load is not None:
-        row.update(bus_load_pct=100 * load.load, measured_load_pct=100 * measured_load, bus_limit_hz=load.max_rate_hz)
+        row.update(bus_load_pct=100 * load.load, bus_limit_hz=load.max_rate_hz,
+                   measured_load_pct=None if measured_load is None else 100 * measured_load)
     return row
 
 
@@ -155,7 +156,8 @@ def main() -> int:
           "samples | load avg | CAN load (worst case / measured) |")
     print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     for row in rows:
-        can = (f"{row['bus_load_pct']:.1f}% / {row['measured_load_pct']:.1f}%" if "bus_load_pct" in row else "n/a")
+        measured = "n/a" if row.get("measured_load_pct") is None else f"{row['measured_load_pct']:.1f}%"
+        can = f"{row['bus_load_pct']:.1f}% / {measured}" if "bus_load_pct" in row else "n/a"
         held = "n/a" if row["held"] is None else row["held"]
         lead = "n/a" if row["min_lead_ms"] is None else f"{row['min_lead_ms']:.1f} ms"
         print(f"| {row['condition']} | {row['transport']} | {row['rate_hz']:.0f} Hz | {row['samples']} | {row['lost']} | "
