@@ -40,6 +40,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from rig.commands.run import start_simulated_devices  # noqa: E402
+from rig.protocols.errors import ConfigError  # noqa: E402
 from rig.rig_config import load_rig_config  # noqa: E402
 from rig.runner import run_experiment  # noqa: E402
 from rig.transports import open_transport  # noqa: E402
@@ -85,7 +86,8 @@ def measure(kind: str, rate_hz: float, duration_s: float, directory: Path, pendi
             time.sleep(STALL_S)
 
     with contextlib.ExitStack() as stack:
-        url, device = start_simulated_devices(config, gearbox, stack)
+        clocked = {"sample_period_s": 1.0 / rate_hz} if kind in ("serial", "can") else {}  # the device's own tick
+        url, device = start_simulated_devices(config, gearbox, stack, **clocked)
         transport = open_transport(url, **config.transport_options())
         summary = run_experiment(transport, command, _NullSink(), feedback_timeout_s=config.feedback_timeout_s,
                                  late_tolerance_s=config.late_tolerance_s, pending_cycles=pending_cycles,
@@ -143,8 +145,11 @@ def main() -> int:
             with condition(name):
                 for kind in args.transports:
                     for rate in args.rates:
-                        row = measure(kind, rate, args.duration, Path(directory), args.pending_cycles,
-                                      stall_every_s=5.0 if name == "stall" else None)
+                        try:
+                            row = measure(kind, rate, args.duration, Path(directory), args.pending_cycles,
+                                          stall_every_s=5.0 if name == "stall" else None)
+                        except ConfigError as err:  # e.g. a rate the bus cannot carry: refused on load
+                            row = {"transport": kind, "rate_hz": rate, "refused": err.problem}
                         rows.append({"condition": name, **row})
     if args.json:
         print(json.dumps(rows, indent=1))
@@ -153,9 +158,13 @@ def main() -> int:
           f"{platform.machine()}, {os.cpu_count()} cores, simulated devices in-process, stall = {1e3 * STALL_S:g} ms "
           "every 5 s")
     print("| condition | transport | rate | samples | lost | held | min lead | late | duplicate | CPU per 1000 "
-          "samples | load avg | CAN load (worst case / measured) |")
+          "samples | load avg | link load (worst case / measured) |")
     print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     for row in rows:
+        if "refused" in row:
+            print(f"| {row['condition']} | {row['transport']} | {row['rate_hz']:.0f} Hz | refused on load: "
+                  f"{row['refused'][:90]} |||||||||")
+            continue
         measured = "n/a" if row.get("measured_load_pct") is None else f"{row['measured_load_pct']:.1f}%"
         can = f"{row['bus_load_pct']:.1f}% / {measured}" if "bus_load_pct" in row else "n/a"
         held = "n/a" if row["held"] is None else row["held"]
