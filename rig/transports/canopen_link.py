@@ -74,6 +74,10 @@ DEFAULT_ENCODER_EDS = _CONFIGS / "sim_encoder_cia406.eds"
 # encoder TPDO1 (0x6004)
 CYCLE_FRAME_BYTES = (0, 4, 6, 4)
 DEMAND_TPDO_BYTES = 4  # drive TPDO2 = 0x6062 position demand value, where the drive has it (latency check)
+LATENCY_EVIDENCE_SAMPLES = 3
+"""Samples in a row whose 0x6062 is an earlier sample's target before the run stops for a wrong TPDO
+latency: a wrong latency shows on every sample whose target changed, a target that crossed its SYNC on a
+bus whose receivers see concurrent frames in different orders (python-can's virtual bus) on one."""
 _MODE_NAMES = {cia402.CYCLIC_SYNCHRONOUS_POSITION_MODE: "cyclic synchronous position", cia402.HOMING_MODE: "homing"}
 _NMT_STATES = {0x00: "INITIALISING", 0x04: "STOPPED", 0x05: "OPERATIONAL", 0x7F: "PRE-OPERATIONAL"}
 _NMT_OPERATIONAL = 0x05
@@ -241,6 +245,7 @@ class CanOpenTransport(Transport):
         self._instant_errors: dict[int, float] = {}  # sample -> SYNC spacing minus the period (s)
         self._ambiguous: set[int] = set()  # SYNC counts whose answers cannot be filed for certain
         self._device_sample = -1
+        self._latency_evidence = 0  # samples in a row whose 0x6062 was an earlier target (_check_latency)
         self._fault_sample: int | None = None  # the last sample instant passed when a fault was reported
         self._min_lead_s = float("inf")
         self._lock = threading.Lock()
@@ -872,9 +877,10 @@ class CanOpenTransport(Transport):
             counts, held = self._applied.get(seq, (None, False))
             ambiguous = (bool(self._ambiguous)
                          and any(seq + self._origin + latency in self._ambiguous for latency in self.latency_cycles.values()))
-            if "demand" in parts and counts is not None and parts["demand"] != counts:
-                ambiguous = True
-                self._check_latency(seq, parts["demand"])
+            if "demand" in parts and counts is not None:
+                mismatch = parts["demand"] != counts
+                ambiguous = ambiguous or mismatch
+                self._check_latency(seq, parts["demand"] if mismatch else None)
             self._ready.append(FeedbackSample(
                 seq=seq, encoder_counts=parts["encoder"], load_angle_rad=self._decode_encoder(parts["encoder"]),
                 drive_position_rad=self.drive.rad_from_counts(actual), statusword=statusword,
@@ -886,18 +892,29 @@ class CanOpenTransport(Transport):
             for old in sorted(self._parts)[:256]:
                 del self._parts[old]
 
-    def _check_latency(self, seq: int, demand: int) -> None:
-        """The drive's 0x6062 for sample ``seq`` is not the target in force at its SYNC: if it is an earlier
-        sample's, the drive answers later than ``drive_tpdo_latency_cycles`` says, and every sample would be
-        filed too early: stop, saying what to set."""
+    def _check_latency(self, seq: int, demand: int | None) -> None:
+        """Compare the drive's 0x6062 for sample ``seq`` with the target in force at its SYNC (``demand``
+        None: they agree). A demand that is an earlier sample's target is evidence that the drive answers
+        later than ``drive_tpdo_latency_cycles`` says; a wrong latency shows on every sample whose target
+        changed, so after :data:`LATENCY_EVIDENCE_SAMPLES` such samples in a row the run stops saying what
+        to set. A single mismatch (a target that reached the drive on the other side of its SYNC than the
+        echoes say) only makes that sample AMBIGUOUS."""
+        counts = self._applied[seq][0]
+        if demand is None:
+            if self._applied.get(seq - 1, (counts,))[0] != counts:
+                self._latency_evidence = 0  # a changed target the drive reported in time
+            return
         for late in range(1, 4):
             earlier = self._applied.get(seq - late)
-            if earlier is not None and earlier[0] == demand and earlier[0] != self._applied[seq][0]:
+            if earlier is not None and earlier[0] == demand and earlier[0] != counts:
+                self._latency_evidence += 1
+                if self._latency_evidence < LATENCY_EVIDENCE_SAMPLES:
+                    return
                 configured = self.latency_cycles["drive"]
                 self._report_fault(DeviceFault(self.drive_label, None, (
                     f"answers SYNC k after SYNC k + {configured + late}: its position demand value 0x6062 at sample "
-                    f"{seq} is the target of sample {seq - late}; set drive_tpdo_latency_cycles = {configured + late} "
-                    "(and check encoder_tpdo_latency_cycles)")))
+                    f"{seq} is the target of sample {seq - late} ({LATENCY_EVIDENCE_SAMPLES} samples in a row); set "
+                    f"drive_tpdo_latency_cycles = {configured + late} (and check encoder_tpdo_latency_cycles)")))
                 return
 
     def _target_ignored(self, statusword: int) -> bool:

@@ -265,3 +265,41 @@ def test_an_encoder_counting_the_other_way_is_refused_naming_the_code_sequence()
     with pytest.raises(DeviceFault, match=r"counts down with the angle \(0x6000 bit 0, code sequence = 1\).*"
                                           r"set \[encoder\] direction = -1"):
         transport._check_encoder(_EncoderObjects({0x6001: 4096, 0x6002: 4096, 0x6000: 1}))
+
+
+def test_one_demand_value_off_is_an_ambiguous_sample_and_three_in_a_row_a_wrong_latency():
+    """0x6062 (position demand value) beside each sample: one that shows the previous target is a target
+    that crossed its SYNC (AMBIGUOUS); three in a row is a device answering a SYNC later than configured."""
+    from rig.protocols.errors import DeviceFault
+    from rig.transports.canopen_link import LATENCY_EVIDENCE_SAMPLES, PdoLayout
+
+    transport = _streaming_canopen_transport()
+    transport._demand_tpdo = PdoLayout("TPDO2 of drive 1", 0x281, {0x6062: (0, 4)}, 4)
+    count = 12
+    for sample in range(count):  # a new target for every sample
+        transport._send(Setpoint(sample, transport.drive.rad_from_counts(100 * sample)))
+    clock = iter(1.0 + k / 1000 for k in range(100))
+
+    def sync() -> float:
+        at = next(clock)
+        transport._on_sync_echo(0x80, b"", at)  # records the target in force, puts the next one on the bus
+        transport._on_rpdo_echo(0x201, b"", at + 0.0001)
+        return at
+
+    def answer(demand: int) -> None:
+        at = sync()
+        for part, value in (("drive", (0x1637, demand)), ("encoder", 5), ("demand", demand)):
+            transport._file(part, value, at + 0.0003)
+
+    sync()  # the first SYNC: target 0 goes out for the next one
+    for demand in (0, 0, 200, 300):  # sample 1's demand is sample 0's target: one crossing
+        answer(demand)
+    sync()  # files the answers to the last SYNC
+    samples = {sample.seq: sample for sample in transport._ready}
+    assert samples[1].ambiguous and not samples[0].ambiguous and not samples[2].ambiguous
+    transport.raise_fault()  # no fault from a single crossing
+    for sample in range(5, 5 + LATENCY_EVIDENCE_SAMPLES + 1):  # from here the drive answers one SYNC late
+        answer(100 * (sample - 1))
+    sync()
+    with pytest.raises(DeviceFault, match=r"set drive_tpdo_latency_cycles = 1"):
+        transport.raise_fault()
