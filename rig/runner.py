@@ -348,6 +348,9 @@ def _run_device_clocked(transport: Transport, command: NDArray[np.float64], sink
     instants that never came are not samples and are not written.
     """
     period = transport.sample_period_s
+    # the device, not the host, fixes each instant: a row can wait for an answer as long as the lead lasts
+    # (an answer that a busy host reads late is still filed under its instant, never LOST)
+    pending_cycles = max(pending_cycles, transport.lead_samples)
     ledger = SampleLedger(period, pending_cycles, late_tolerance_s)
     values = command.tolist()
     total = len(values)

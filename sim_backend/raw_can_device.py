@@ -65,7 +65,7 @@ class SimulatedRawCanDevice(can.Listener):
                  dbc_path: str = str(DEFAULT_DBC), bitrate: int = 1_000_000, silent_seqs: Iterable[int] = (),
                  fault_at_seq: int | None = None, fault_code: int = 0x7500,
                  disable_at_seq: int | None = None, error_frame_at: tuple[int, int] | None = None,
-                 lost_status_after_enable: int = 0, protocol_version: int = 2, buffer_capacity: int = 64,
+                 lost_status_after_enable: int = 0, protocol_version: int = 2, buffer_capacity: int = 255,
                  sample_period_s: float | None = None) -> None:
         if protocol_version not in (1, 2):
             raise ValueError(f"protocol_version: expected 1 or 2, got {protocol_version!r}")

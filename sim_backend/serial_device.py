@@ -108,7 +108,7 @@ class SimulatedSerialDevice:
                  status_delay_s: float = 0.0, fault_reset_delay_s: float = 0.0, boot_fault_code: int | None = None,
                  lost_status_after_enable: int = 0, boot_banner: bytes = b"", copy_target_at_enable: bool = True,
                  following_error_counts: int | None = None, initial_actual_counts: int = 0,
-                 fault_frame_lost: bool = False, protocol_version: int = PROTOCOL_VERSION, buffer_capacity: int = 64,
+                 fault_frame_lost: bool = False, protocol_version: int = PROTOCOL_VERSION, buffer_capacity: int = 256,
                  sample_period_s: float | None = None) -> None:
         if protocol_version not in (1, 2):
             raise ValueError(f"protocol_version: expected 1 or 2, got {protocol_version!r}")

@@ -130,7 +130,7 @@ class CanOpenTransport(Transport):
         after the controlled stop. ``"external"``: another node (a drive or PLC) produces SYNC at the
         sample rate; the master only listens.
     lead_s
-        How far ahead of the device's sample instants the runner queues setpoints (default 50 ms); the
+        How far ahead of the device's sample instants the runner queues setpoints (default 100 ms, as Klipper schedules ahead); the
         target for sample k goes on the bus right after SYNC k-1, from the receive thread.
     drive_tpdo_latency_cycles, encoder_tpdo_latency_cycles
         The node answers SYNC k after SYNC k + this many (0: before the next SYNC; 1: a device that sends
@@ -153,7 +153,7 @@ class CanOpenTransport(Transport):
                  encoder_eds: str = str(DEFAULT_ENCODER_EDS), heartbeat_ms: int = 100,
                  heartbeat_timeout_s: float = 0.5, sdo_timeout_s: float = 0.5, skip_homing: bool = True,
                  homing_method: int = 37, homing_timeout_s: float = 30.0, mode_switch_timeout_s: float = 1.0,
-                 mode: str = "csp", sync_producer: str = "master", lead_s: float = 0.05, drive_tpdo_latency_cycles: int = 0,
+                 mode: str = "csp", sync_producer: str = "master", lead_s: float = 0.1, drive_tpdo_latency_cycles: int = 0,
                  encoder_tpdo_latency_cycles: int = 0,
                  emcy_warning_codes: str = "0x4", trace_path: str | None = None, **kwargs: Any) -> None:
         super().__init__(**kwargs)

@@ -56,12 +56,12 @@ class RawCanTransport(Transport):
         ``"auto"`` (default): v2 if the device answers RIG_HELLO, else v1 (host-paced, with a warning); ``"v2"``:
         refuse a device that does not; ``"v1"``: send no RIG_HELLO.
     lead_s
-        v2: how far ahead of the device's ticks setpoints are queued (default 50 ms), at most its buffer.
+        v2: how far ahead of the device's ticks setpoints are queued (default 100 ms, as Klipper schedules ahead), at most its buffer.
     """
 
     def __init__(self, interface: str, channel: str, *, bitrate: int = 1_000_000, dbc: str = str(DEFAULT_DBC),
                  reply_timeout_s: float = 0.5, reply_retries: int = 3, trace_path: str | None = None,
-                 protocol: str = "auto", lead_s: float = 0.05, **kwargs: Any) -> None:
+                 protocol: str = "auto", lead_s: float = 0.1, **kwargs: Any) -> None:
         super().__init__(**kwargs)
         if protocol not in _PROTOCOLS:
             raise ConfigError("<transport>", "protocol", f"expected one of {', '.join(map(repr, _PROTOCOLS))}, got {protocol!r}")

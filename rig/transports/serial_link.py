@@ -72,14 +72,14 @@ class SerialTransport(Transport):
         ``"auto"`` (default): protocol v2 if the device answers HELLO, else v1 (host-paced, with a warning);
         ``"v2"``: refuse a device that does not speak v2; ``"v1"``: send no HELLO, drive it host-paced.
     lead_s
-        v2: how far ahead of the device's ticks setpoints are queued (default 50 ms), as
+        v2: how far ahead of the device's ticks setpoints are queued (default 100 ms, as Klipper schedules ahead), as
         ``ceil(lead_s / T)`` setpoints, at most the device's buffer capacity.
     **kwargs
         See :class:`~rig.transports.base.Transport`.
     """
 
     def __init__(self, port: str, *, baudrate: int = 2_000_000, reply_timeout_s: float = 0.5, reply_retries: int = 3,
-                 protocol: str = "auto", lead_s: float = 0.05, **kwargs) -> None:
+                 protocol: str = "auto", lead_s: float = 0.1, **kwargs) -> None:
         super().__init__(**kwargs)
         if protocol not in PROTOCOLS:
             raise ConfigError("<transport>", "protocol", f"expected one of {', '.join(map(repr, PROTOCOLS))}, got {protocol!r}")
