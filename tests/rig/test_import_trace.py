@@ -83,7 +83,7 @@ def test_the_trace_of_a_run_imports_as_the_runs_log(kind, suffix, tmp_path, caps
 def test_a_canopen_trace_with_held_samples_imports_as_the_runs_log(tmp_path, capsys):
     """A host stall longer than the lead: the drive held earlier targets, and the trace shows which."""
     trace = tmp_path / "run.blf"
-    log = _run(tmp_path, trace, 0.3, "canopen", "--sim-faults", "stall=150@10")
+    log = _run(tmp_path, trace, 0.6, "canopen", "--sim-faults", "stall=150@10")  # held mid-run: lead 100 ms
     assert json.loads(capsys.readouterr().out)["held"] > 0
     record = import_trace(trace, load_rig_config(tmp_path / "sim_canopen.toml"))
     imported = tmp_path / "imported.csv"
