@@ -230,16 +230,7 @@ def run_experiment(transport: Transport, command_rad: ArrayLike, sink: SampleSin
     lateness = np.zeros(command.size)
     cpu_start, wall_start = time.process_time(), clock()
     sent_count = 0
-    written = 0  # samples below this number are in the sink
     failure: BaseException | None = None
-
-    def write_final(newest: int) -> None:
-        nonlocal written
-        while (row := ledger.next_final(newest)) is not None:
-            if row.seq >= written:  # written once, even if Ctrl-C lands between append and release
-                sink.append(row.time_s, row.command_rad, row.angle_rad, row.counts, row.flags)
-                written = row.seq + 1
-            ledger.release()
 
     def take(sample) -> None:
         """File a feedback sample under its sample number; stop if the drive left OPERATION ENABLED."""
@@ -293,7 +284,7 @@ def run_experiment(transport: Transport, command_rad: ArrayLike, sink: SampleSin
                 if sample is None:
                     break
                 take(sample)
-            write_final(k)
+            ledger.write_final(k, sink)
             if progress is not None:
                 progress(k + 1, ledger.counts["late"])
         grace_end = clock() + pending_cycles * period
@@ -314,7 +305,7 @@ def run_experiment(transport: Transport, command_rad: ArrayLike, sink: SampleSin
                 transport.note_stop(failure)
         finally:
             try:
-                write_final(sent_count - 1 + pending_cycles)
+                ledger.write_final(sent_count - 1 + pending_cycles, sink)
                 _write_summary(sink, transport, failure)
             finally:
                 sink.close()
@@ -356,16 +347,7 @@ def _run_device_clocked(transport: Transport, command: NDArray[np.float64], sink
     total = len(values)
     cpu_start, wall_start = time.process_time(), clock()
     first_answer = last_answer = math.nan
-    written = 0  # rows below this sample number are in the sink
     failure: BaseException | None = None
-
-    def write_final(device_sample: int) -> None:
-        nonlocal written
-        while (row := ledger.next_final(device_sample)) is not None:
-            if row.seq >= written:  # written once, even if Ctrl-C lands between append and release
-                sink.append(row.time_s, row.command_rad, row.angle_rad, row.counts, row.flags)
-                written = row.seq + 1
-            ledger.release()
 
     switch_interval = sys.getswitchinterval()
     sys.setswitchinterval(min(switch_interval, period / 4))  # receive threads need the GIL within a period
@@ -374,7 +356,7 @@ def _run_device_clocked(transport: Transport, command: NDArray[np.float64], sink
         lead = transport.lead_samples
         next_seq = next_row = 0  # the next setpoint to queue; the next row (sample instant) to open
         last_feedback = clock()
-        while written < total:
+        while ledger.written < total:
             device = transport.device_sample
             while next_seq < total and next_seq <= device + lead and transport.queue_has_room:
                 sent = transport.send(Setpoint(next_seq, values[next_seq]))
@@ -403,9 +385,9 @@ def _run_device_clocked(transport: Transport, command: NDArray[np.float64], sink
                 raise TransportError(f"{transport.name}: no feedback for {now - last_feedback:.3g} s "
                                      f"(watchdog {feedback_timeout_s:g} s), stopping at sample "
                                      f"{max(transport.device_sample, 0)}")
-            write_final(device)  # read before the drain: every answer it makes final has been filed
+            ledger.write_final(device, sink)  # read before the drain: every answer it makes final has been filed
             if progress is not None:
-                progress(written, ledger.counts["held"])
+                progress(ledger.written, ledger.counts["held"])
     except BaseException as err:
         failure = err
         raise
@@ -424,16 +406,17 @@ def _run_device_clocked(transport: Transport, command: NDArray[np.float64], sink
                         faulted = [seq for seq in (ledger.first_fault, transport.fault_sample) if seq is not None]
                         last = min(faulted) if faulted else max(stop_at, 0)
                         ledger.mark_fault(last)
-                    write_final(last + pending_cycles)
+                    ledger.write_final(last + pending_cycles, sink)
                 else:
-                    write_final(total + pending_cycles)
+                    ledger.write_final(total + pending_cycles, sink)
                 _write_summary(sink, transport, failure)
             finally:
                 sink.close()
-    answered = written - ledger.counts["lost"]
+    answered = ledger.written - ledger.counts["lost"]
     rate = (answered - 1) / (last_answer - first_answer) if answered > 1 and last_answer > first_answer else 0.0
     held = ledger.counts["held"]
-    return RunSummary(samples=written, lost=ledger.counts["lost"], late=ledger.counts["late"], duplicate=ledger.counts["duplicate"],
+    return RunSummary(samples=ledger.written, lost=ledger.counts["lost"], late=ledger.counts["late"],
+                      duplicate=ledger.counts["duplicate"],
                       stale=ledger.counts["stale"], frame_errors=transport.frame_errors, rate_hz=rate,
                       send_lateness_s=np.zeros(0), cpu_s=time.process_time() - cpu_start, wall_s=clock() - wall_start,
                       not_followed=ledger.counts["not_followed"], held=held, min_lead_s=transport.min_lead_s,

@@ -72,6 +72,8 @@ class SampleLedger:
     _order: collections.deque[int] = field(default_factory=collections.deque)
     _answered: set[int] = field(default_factory=set)
     _early: dict[int, FeedbackSample] = field(default_factory=dict)
+    written: int = 0
+    """Rows below this sample number are in the sink."""
 
     def open_row(self, seq: int, command_rad: float, *, late: bool = False) -> LedgerRow:
         """The row of setpoint ``seq`` (queued with ``command_rad``), LOST until its feedback is filed (at
@@ -162,6 +164,15 @@ class SampleLedger:
         self.counts["held"] += bool(row.flags & _HELD)
         self.counts["late"] += bool(row.flags & (_HELD | _LATE))
         self.counts["not_followed"] += bool(row.flags & _NOT_FOLLOWED)
+
+    def write_final(self, newest: int, sink) -> None:
+        """Hand every row that is final at ``newest`` (:meth:`next_final`) to ``sink.append``, oldest first,
+        each once, even if Ctrl-C lands between the append and the release."""
+        while (row := self.next_final(newest)) is not None:
+            if row.seq >= self.written:
+                sink.append(row.time_s, row.command_rad, row.angle_rad, row.counts, row.flags)
+                self.written = row.seq + 1
+            self.release()
 
     @property
     def first_fault(self) -> int | None:

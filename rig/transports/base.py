@@ -223,6 +223,10 @@ class Transport(ABC):
         self._fault: RigError | None = None
         self._fault_lock = threading.Lock()
         self._last_angle_rad: float | None = None
+        # a device-clocked backend keeps these up to date from what the device reports
+        self._device_sample = -1
+        self._min_lead_s = math.inf
+        self._fault_sample: int | None = None
 
     # -- public behaviour, written once ------------------------------------------------------------------
 
@@ -250,19 +254,19 @@ class Transport(ABC):
     def device_sample(self) -> int:
         """On a device-clocked link: the number of the last sample instant the device has passed (-1
         before the first)."""
-        return -1
+        return self._device_sample
 
     @property
     def min_lead_s(self) -> float:
         """On a device-clocked link: the smallest time seen between a setpoint being queued and its sample
-        instant (negative: a setpoint that came too late and was HELD)."""
-        return math.nan
+        instant (negative: a setpoint that came too late and was HELD); nan when none was measured."""
+        return self._min_lead_s if math.isfinite(self._min_lead_s) else math.nan
 
     @property
     def fault_sample(self) -> int | None:
         """On a device-clocked link: the sample instant at which the device reported its fault (None: no
         fault, or not known)."""
-        return None
+        return self._fault_sample if self._fault_sample is None or self._fault_sample >= 0 else None
 
     @property
     def is_open(self) -> bool:
@@ -408,6 +412,11 @@ class Transport(ABC):
         self.close()
 
     # -- helpers for backends ------------------------------------------------------------------------------
+
+    def _samples_ahead(self, lead_s: float, capacity: int | None = None) -> int:
+        """``lead_s`` in whole sample periods (at least 1), at most ``capacity`` (a device's buffer)."""
+        lead = max(1, math.ceil(lead_s / self.sample_period_s - 1e-9))
+        return lead if capacity is None else min(capacity, lead)
 
     def _report_fault(self, fault: RigError) -> None:
         """Record an asynchronous fault (first one wins); called from receive threads."""

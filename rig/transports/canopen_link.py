@@ -51,7 +51,6 @@ from __future__ import annotations
 
 import collections
 import contextlib
-import math
 import threading
 import time
 from collections.abc import Iterator
@@ -261,25 +260,12 @@ class CanOpenTransport(Transport):
 
     @property
     def lead_samples(self) -> int:
-        lead = max(1, math.ceil(self.lead_s / self.sample_period_s - 1e-9))
-        return min(lead, max(1, self._ip_capacity // 2)) if self.mode == "ip_buffer" else lead
+        return self._samples_ahead(self.lead_s, max(1, self._ip_capacity // 2) if self.mode == "ip_buffer" else None)
 
     @property
     def queue_has_room(self) -> bool:
         with self._lock:
             return self.mode != "ip_buffer" or len(self._ip_buffer) + len(self._rpdo_sent) < self._ip_capacity - 1
-
-    @property
-    def device_sample(self) -> int:
-        return self._device_sample
-
-    @property
-    def min_lead_s(self) -> float:
-        return self._min_lead_s if math.isfinite(self._min_lead_s) else math.nan
-
-    @property
-    def fault_sample(self) -> int | None:
-        return self._fault_sample if self._fault_sample is None or self._fault_sample >= 0 else None
 
     # -- seam ----------------------------------------------------------------------------------------------
 

@@ -136,19 +136,7 @@ class SerialTransport(Transport):
     def lead_samples(self) -> int:
         if self.version < 2:
             return 0  # v1: host-paced
-        return min(self.buffer_capacity, max(1, math.ceil(self.lead_s / self.sample_period_s - 1e-9)))
-
-    @property
-    def device_sample(self) -> int:
-        return self._device_sample
-
-    @property
-    def min_lead_s(self) -> float:
-        return self._min_lead_s if math.isfinite(self._min_lead_s) else math.nan
-
-    @property
-    def fault_sample(self) -> int | None:
-        return self._fault_sample
+        return self._samples_ahead(self.lead_s, self.buffer_capacity)
 
     # -- seam ----------------------------------------------------------------------------------------------
 
