@@ -6,12 +6,13 @@ conditions the script sets up and tears down itself:
 (c) ``stall``: idle, plus a 50 ms pause of the driver's own thread every 5 s (``--sim-faults stall``).
 
 Per row: samples, lost (goal 0), held (setpoints that missed the device's instant; goal 0), the smallest
-lead of a setpoint over its instant, late samples, CPU per 1000 samples, the CAN bus load. CANopen runs
-on the device's clock (a cyclic SYNC, setpoints queued ``lead_s`` ahead): ``canopen`` in cyclic
-synchronous position (one target per SYNC, on the bus right after the SYNC before it), ``canopen-ip`` in
-interpolated position with the drive's buffer (the lead sits in the drive); serial and raw CAN still speak
-protocol v1, one setpoint and one answer timed by the host, so their late and lost samples are the
-host's, and "held" does not apply to them (n/a).
+lead of a setpoint over its instant, late samples, CPU per 1000 samples, the CAN bus load. Every wire runs
+on the device's clock with the default lead (100 ms): ``canopen`` with the default ``mode = "auto"``,
+which streams interpolated position into the simulated drive's 64-record buffer (the lead sits in the
+drive, at most the buffer less 2 records); ``canopen-csp`` forces cyclic synchronous position (one target
+per SYNC, on the bus right after the SYNC before it: under one period of lead on the bus); ``serial`` and
+``can`` speak protocol v2 (the device ticks, setpoints tagged with their tick). A v1 device is host-paced
+and "held" does not apply to it (n/a).
 
 The simulated devices run in the driver's own process (python-can's virtual bus is in-process), so they
 compete with it for the GIL and both cores: on real hardware the driver is the only Python in the loop.
@@ -56,10 +57,10 @@ class _NullSink:
 
 
 def _config(kind: str, rate_hz: float, directory: Path):
-    wire = "canopen" if kind == "canopen-ip" else kind
+    wire = "canopen" if kind == "canopen-csp" else kind
     text = (ROOT / "configs" / f"sim_{wire}.toml").read_text()
-    if kind == "canopen-ip":  # interpolated position with the drive's buffer instead of CSP
-        text = text.replace("sdo_timeout_s = 0.5", 'sdo_timeout_s = 0.5\nmode = "ip_buffer"')
+    if kind == "canopen-csp":  # cyclic synchronous position instead of the default's drive buffer
+        text = text.replace("sdo_timeout_s = 0.5", 'sdo_timeout_s = 0.5\nmode = "csp"')
     text = text.replace("sample_rate_hz = 1000.0", f"sample_rate_hz = {rate_hz!r}")
     text = text.replace('plant = "plants/', f'plant = "{ROOT / "configs" / "plants"}/')
     text = text.replace("late_tolerance_s = 0.0005", f"late_tolerance_s = {0.5 / rate_hz!r}")
@@ -131,8 +132,8 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--duration", type=float, default=5.0, help="seconds per case (default 5)")
     parser.add_argument("--rates", type=float, nargs="+", default=[1000.0, 2000.0])
-    parser.add_argument("--transports", nargs="+", default=["canopen", "canopen-ip", "serial", "can"],
-                        choices=["canopen", "canopen-ip", "serial", "can"])
+    parser.add_argument("--transports", nargs="+", default=["canopen", "canopen-csp", "serial", "can"],
+                        choices=["canopen", "canopen-csp", "serial", "can"])
     parser.add_argument("--conditions", nargs="+", default=["idle", "busy", "stall"],
                         choices=["idle", "busy", "stall"])
     parser.add_argument("--pending-cycles", type=int, default=4,

@@ -26,9 +26,15 @@ CANopen (SYNC + drive RPDO1 + TPDOs, the mapping :mod:`rig.transports.canopen_li
 0x6041 + 0x6064 at 0x180 + node, drive TPDO2 0x6062 at 0x280 + node where the drive sends it, encoder TPDO1
 0x6004 at 0x180 + node; node-IDs and TPDO latencies from the config), frames taken in time-stamp order:
 
-* sample 0's SYNC is the one after the first RPDO1; sample s's target is the RPDO1 sent after SYNC s - 1;
-  the target in force at SYNC s is the last RPDO1 before it (HELD, with that command, when it is not sample
-  s's own);
+* the streaming mode is the last value the master wrote to 0x6060 by SDO before the first RPDO1 (the
+  trace's start-up; a trace that starts later takes the config's ``mode``, which must then not be
+  ``"auto"``);
+* cyclic synchronous position (8): sample 0's SYNC is the one after the first RPDO1; sample s's target is
+  the RPDO1 sent after SYNC s - 1; the target in force at SYNC s is the last RPDO1 before it (HELD, with
+  that command, when it is not sample s's own);
+* interpolated position (7): RPDO1 k is setpoint k, a record into the drive's buffer; sample 0's SYNC is
+  the first one after the first record, and each SYNC takes the oldest record of the buffer (an empty
+  buffer holds the last one: HELD, with that command);
 * each TPDO is filed under the last SYNC before its time stamp (minus its latency in cycles), as the
   transport files it; a complete set is the reading (DUPLICATE for a second one, AMBIGUOUS when SYNCs came
   closer than one cycle's bus time or the drive's 0x6062 is not the target in force, NOT_FOLLOWED, FAULT);
@@ -45,6 +51,7 @@ the transport does. A trace that cannot be read, or whose setpoints do not follo
 
 from __future__ import annotations
 
+import collections
 import math
 from pathlib import Path
 from typing import Any
@@ -52,6 +59,7 @@ from typing import Any
 import numpy as np
 
 from identify.experiment_record import ExperimentMetadata, ExperimentRecord, SampleFlag
+from rig.protocols import cia402
 from rig.protocols.cia402 import DriveState, state_from_statusword_or_none
 from rig.protocols.errors import ConfigError, LogFileError
 from rig.protocols.serial_frames import unwrap_seq
@@ -217,6 +225,25 @@ def _import_raw_can(path: Path, config: Any) -> ExperimentRecord:
                             metadata=metadata)
 
 
+def _streams_interpolated_position(path: Path, link: Any, mode_written: int | None, index: int,
+                                   stamp: float) -> bool:
+    """Whether the run the trace holds streamed interpolated position (7) or CSP (8): the 0x6060 the
+    master wrote before its first RPDO1 (frame ``index``), else the config's ``mode``."""
+    if mode_written == cia402.INTERPOLATED_POSITION_MODE:
+        return True
+    if mode_written == cia402.CYCLIC_SYNCHRONOUS_POSITION_MODE:
+        return False
+    if mode_written is not None:
+        raise LogFileError(f"{path}: frame {index} at {stamp:.6f} s: the drive streams in mode of operation "
+                           f"{mode_written} (0x6060), neither interpolated position (7) nor CSP (8)")
+    if link.mode_requested == "auto":
+        raise LogFileError(f"{path}: frame {index} at {stamp:.6f} s is the first RPDO1, and the trace holds no "
+                           "SDO write of 0x6060 before it (it starts after the start-up): it cannot tell "
+                           "interpolated position from CSP; set mode = \"ip_buffer\" or \"csp\" in the "
+                           "config's [transport]")
+    return link.mode == "ip_buffer"
+
+
 def _import_canopen(path: Path, config: Any) -> ExperimentRecord:
     """SYNC + RPDO1 + TPDOs (the mapping the transport sets up: drive TPDO1 0x6041 + 0x6064, drive TPDO2
     0x6062 where the EDS has it, encoder TPDO1 0x6004), each TPDO filed under the last SYNC before its time
@@ -227,7 +254,7 @@ def _import_canopen(path: Path, config: Any) -> ExperimentRecord:
     link = transport_class("canopen")(**parse_transport_url(config.url)[1], **config.transport_options())
     drive_node, encoder_node = link.drive_node_id, link.encoder_node_id
     ids = {0x180 + drive_node: "drive", 0x280 + drive_node: "demand", 0x180 + encoder_node: "encoder"}
-    rpdo_id = 0x200 + drive_node
+    rpdo_id, sdo_request_id = 0x200 + drive_node, 0x600 + drive_node
     period, tolerance = config.sample_period_s, config.late_tolerance_s
     encoder, drive = config.encoder, config.drive
     frames = sorted(((message.timestamp, index, message) for index, message in _frames(path)
@@ -241,6 +268,9 @@ def _import_canopen(path: Path, config: Any) -> ExperimentRecord:
     instant_errors: dict[int, float] = {}
     ambiguous: set[int] = set()
     rpdos: list[tuple[int, int]] = []
+    mode_written: int | None = None  # the last 0x6060 the master wrote by SDO before streaming
+    interpolating = False  # interpolated position: the RPDOs are records into the drive's buffer
+    buffer: collections.deque[tuple[int, int]] = collections.deque()
     unfiled: list[tuple[str, Any, float]] = []
     parts: dict[int, dict[str, Any]] = {}
     answers: dict[int, list[dict[str, Any]]] = {}
@@ -274,21 +304,38 @@ def _import_canopen(path: Path, config: Any) -> ExperimentRecord:
                     file(*item)
                 else:
                     unfiled.append(item)
+            if interpolating and origin is None and buffer:
+                origin = count
             if origin is not None and count >= origin:
                 sample = count - origin
-                applied[sample] = (in_force[1], in_force[0] != sample)
+                if interpolating:
+                    held = not buffer
+                    in_force = in_force if held else buffer.popleft()
+                else:
+                    held = in_force[0] != sample
+                applied[sample] = (in_force[1], held)
                 if count > 1:
                     instant_errors[sample] = stamp - syncs[-2] - period
+        elif cob == sdo_request_id and not rpdos:
+            data = bytes(message.data)  # an expedited SDO download (CiA 301 7.2.4.3.3) of 0x6060 sub 0
+            if len(data) == 8 and data[0] & 0xE0 == 0x20 and data[1:4] == bytes((0x60, 0x60, 0)):
+                mode_written = int.from_bytes(data[4:5], "little", signed=True)
         elif cob == rpdo_id:
             if len(message.data) != 4:
                 frame_errors += 1
                 continue
             counts = int.from_bytes(bytes(message.data), "little", signed=True)
-            if origin is None:
-                origin = len(syncs) + 1
-            sample = len(syncs) + 1 - origin  # put on the bus right after SYNC sample - 1
+            if not rpdos:
+                interpolating = _streams_interpolated_position(path, link, mode_written, index, stamp)
+            if interpolating:
+                sample = len(rpdos)  # record k is setpoint k
+                buffer.append((sample, counts))
+            else:
+                if origin is None:
+                    origin = len(syncs) + 1
+                sample = len(syncs) + 1 - origin  # put on the bus right after SYNC sample - 1
+                in_force = (sample, counts)
             rpdos.append((sample, counts))
-            in_force = (sample, counts)
         elif cob in ids:
             part = ids[cob]
             data = bytes(message.data)

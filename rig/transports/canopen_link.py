@@ -115,13 +115,18 @@ class CanOpenTransport(Transport):
     mode_switch_timeout_s
         How long the drive may take to show a new mode of operation in 0x6061 after 0x6060 was written.
     mode
-        ``"csp"`` (default): cyclic synchronous position (0x6060 = 8): one target per SYNC, put on the bus
-        right after the SYNC before it. ``"ip_buffer"``: interpolated position with the drive's FIFO of
+        ``"auto"`` (default): ``"ip_buffer"`` where the drive has an interpolation buffer (its EDS lists
+        0x60C1 and 0x60C4, 0x6502 bit 6 says interpolated position is supported where the EDS has 0x6502,
+        and 0x60C4 holds at least :data:`MIN_IP_BUFFER_RECORDS`), else ``"csp"``. ``"csp"``: cyclic
+        synchronous position (0x6060 = 8): one target per SYNC, put on the bus right after the SYNC before
+        it, so its lead on the bus is under one period whatever ``lead_s`` is (a receive thread that misses
+        that window holds the sample). ``"ip_buffer"``: interpolated position with the drive's FIFO of
         interpolation data records (0x6060 = 7, records 0x60C1:1, buffer 0x60C4: capacity read from sub 1
         and 2, cleared and enabled by sub 6): the setpoints go on the bus as the runner queues them, up to
-        the lead or half the buffer, and the drive takes one per SYNC; an empty buffer at a SYNC (an
-        underrun) holds the last record and the sample is logged HELD. The master follows the buffer from
-        the bus order of its own RPDOs and the SYNCs, so every sample logs the record really applied.
+        the lead or the buffer less :data:`IP_BUFFER_MARGIN_RECORDS`, and the drive takes one per SYNC; an
+        empty buffer at a SYNC (an underrun) holds the last record and the sample is logged HELD. The master
+        follows the buffer from the bus order of its own RPDOs and the SYNCs, so every sample logs the record
+        really applied.
     sync_producer
         ``"master"`` (default): this master produces SYNC from a cyclic task (python-can ``send_periodic``:
         the kernel's broadcast manager on SocketCAN, the interface's own periodic sending where it has one,
@@ -152,7 +157,7 @@ class CanOpenTransport(Transport):
                  encoder_eds: str = str(DEFAULT_ENCODER_EDS), heartbeat_ms: int = 100,
                  heartbeat_timeout_s: float = 0.5, sdo_timeout_s: float = 0.5, skip_homing: bool = True,
                  homing_method: int = 37, homing_timeout_s: float = 30.0, mode_switch_timeout_s: float = 1.0,
-                 mode: str = "csp", sync_producer: str = "master", lead_s: float = 0.1, drive_tpdo_latency_cycles: int = 0,
+                 mode: str = "auto", sync_producer: str = "master", lead_s: float = 0.1, drive_tpdo_latency_cycles: int = 0,
                  encoder_tpdo_latency_cycles: int = 0,
                  emcy_warning_codes: str = "0x4", trace_path: str | None = None, **kwargs: Any) -> None:
         super().__init__(**kwargs)
@@ -171,9 +176,9 @@ class CanOpenTransport(Transport):
                 1 <= node <= 127 for node in (self.drive_node_id, self.encoder_node_id)):
             raise ConfigError("<transport>", "drive_node_id", "node-IDs must differ and lie in 1..127")
         self.mode_switch_timeout_s = float(mode_switch_timeout_s)
-        if mode not in ("csp", "ip_buffer"):
-            raise ConfigError("<transport>", "mode", f"expected \"csp\" or \"ip_buffer\", got {mode!r}")
-        self.mode = mode
+        if mode not in ("auto", "csp", "ip_buffer"):
+            raise ConfigError("<transport>", "mode", f"expected \"auto\", \"csp\" or \"ip_buffer\", got {mode!r}")
+        self.mode_requested = mode
         if sync_producer not in ("master", "external"):
             raise ConfigError("<transport>", "sync_producer", f"expected \"master\" or \"external\", got {sync_producer!r}")
         self.sync_producer = sync_producer
@@ -192,6 +197,8 @@ class CanOpenTransport(Transport):
         _require_objects("drive_eds", self.drive_eds, self._drive_od, _DRIVE_OBJECTS + (
             () if self.skip_homing else ((0x6098, "the homing method (skip_homing = false)"),)) + (
             _IP_BUFFER_OBJECTS if mode == "ip_buffer" else ()))
+        has_ip_buffer = all(index in self._drive_od for index, _ in _IP_BUFFER_OBJECTS)
+        self._use_mode("ip_buffer" if mode == "ip_buffer" or (mode == "auto" and has_ip_buffer) else "csp")
         if 0x1006 not in self._drive_od and 0x60C2 not in self._drive_od:
             raise ConfigError("<transport>", "drive_eds", (
                 f"{self.drive_eds} has neither 0x1006 (communication cycle period) nor 0x60C2 (interpolation time "
@@ -220,9 +227,7 @@ class CanOpenTransport(Transport):
         self._drive_tpdo: PdoLayout | None = None
         self._demand_tpdo: PdoLayout | None = None
         self._encoder_tpdo: PdoLayout | None = None
-        self._streaming_mode = (cia402.INTERPOLATED_POSITION_MODE if mode == "ip_buffer"
-                                else cia402.CYCLIC_SYNCHRONOUS_POSITION_MODE)
-        self._mode = self._streaming_mode
+        self._mode = self._streaming_mode  # the mode of operation last written to 0x6060
         self._ip_capacity = 0  # records the drive's interpolation buffer takes (0x60C4)
         self._ip_buffer: collections.deque[tuple[int, int]] = collections.deque()  # (sample, counts) in it
         self._dry_since: int | None = None  # the SYNC count since which the buffer has been empty
@@ -258,9 +263,17 @@ class CanOpenTransport(Transport):
         """One cycle's frames on the bus (worst-case bit stuffing): two SYNCs closer than this are bunched."""
         return 1.0 / self.load.max_rate_hz
 
+    def _use_mode(self, mode: str) -> None:
+        """Stream in ``mode`` (``"csp"`` or ``"ip_buffer"``; see the class docstring)."""
+        self.mode = mode
+        self._streaming_mode = (cia402.INTERPOLATED_POSITION_MODE if mode == "ip_buffer"
+                                else cia402.CYCLIC_SYNCHRONOUS_POSITION_MODE)
+
     @property
     def lead_samples(self) -> int:
-        return self._samples_ahead(self.lead_s, max(1, self._ip_capacity // 2) if self.mode == "ip_buffer" else None)
+        if self.mode != "ip_buffer":
+            return self._samples_ahead(self.lead_s)
+        return self._samples_ahead(self.lead_s, max(1, self._ip_capacity - IP_BUFFER_MARGIN_RECORDS))
 
     @property
     def queue_has_room(self) -> bool:
@@ -305,10 +318,10 @@ class CanOpenTransport(Transport):
                 node.nmt.state = "PRE-OPERATIONAL"
                 node.sdo[0x1017].raw = self.heartbeat_ms
             self._write_cycle_period(drive)
-            self._check_supported_mode(drive)
+            self._choose_streaming_mode(drive)
+            self._rpdo = self._map_target_rpdo(drive)
+            self._check_supported_modes(drive)
             self._set_mode(drive, self._streaming_mode if self.skip_homing else cia402.HOMING_MODE)
-            target = (0x60C1, 1) if self.mode == "ip_buffer" else (0x607A, 0)
-            self._rpdo = self._map_pdo(drive.rpdo, "drive", [(*target, 32)], 0x200 + self.drive_node_id)
             self._drive_tpdo = self._map_pdo(drive.tpdo, "drive", [(0x6041, 0, 16), (0x6064, 0, 32)],
                                              0x180 + self.drive_node_id)
             self._encoder_tpdo = self._map_pdo(encoder.tpdo, "encoder", [(0x6004, 0, self._encoder_value_bits())],
@@ -359,8 +372,21 @@ class CanOpenTransport(Transport):
                 moved_to = self._hold_at_actual_position(self._drive)
         if self.mode == "ip_buffer":  # controlword bit 4: the drive starts taking records from its buffer
             self._write_controlword(cia402.CONTROLWORD_ENABLE_INTERPOLATION)
+        self._await_syncs_in_operation()
         self._watching = True
         return moved_to
+
+    def _await_syncs_in_operation(self) -> None:
+        """Let :data:`SYNCS_BEFORE_STREAMING` SYNCs pass after the drive reached OPERATION ENABLED, so that
+        the first sample's TPDOs were latched after it even from a drive that answers a SYNC later than
+        configured: such a drive is then caught by its 0x6062 (the latency check), not mistaken for one
+        that dropped out of OPERATION ENABLED."""
+        with self._arrived:
+            target = self._sync_count + SYNCS_BEFORE_STREAMING
+            timeout_s = SYNC_ECHO_TIMEOUT_S + 10 * SYNCS_BEFORE_STREAMING * self.sample_period_s
+            if not self._arrived.wait_for(lambda: self._sync_count >= target, timeout_s):
+                raise TransportError(f"{self.name}: SYNC stopped after the drive was enabled (none for "
+                                     f"{timeout_s:g} s); check the SYNC producer")
 
     def _before_stop(self) -> None:
         """A drive whose heartbeat says STOPPED (CiA 301 0x1029 error behaviour) answers no SDO: bring it to
@@ -408,12 +434,48 @@ class CanOpenTransport(Transport):
             drive.sdo[0x60C2][1].raw = period_us
             drive.sdo[0x60C2][2].raw = -6
 
-    def _check_supported_mode(self, drive: Any) -> None:
-        """0x6502 (supported drive modes, where the EDS has it): bit 7 is cyclic synchronous position,
-        bit 5 homing."""
-        if 0x6502 not in drive.object_dictionary:
+    def _supported_modes(self, drive: Any) -> int | None:
+        """0x6502 (supported drive modes), where the EDS has it: bit 7 cyclic synchronous position, bit 6
+        interpolated position, bit 5 homing."""
+        return drive.sdo[0x6502].raw if 0x6502 in drive.object_dictionary else None
+
+    def _choose_streaming_mode(self, drive: Any) -> None:
+        """Read the interpolation buffer's capacity; with ``mode = "auto"``, fall back from interpolated
+        position to CSP where the drive cannot take it (0x6502 bit 6 clear, or a buffer of fewer than
+        :data:`MIN_IP_BUFFER_RECORDS` records in 0x60C4)."""
+        if self.mode != "ip_buffer":
             return
-        supported = drive.sdo[0x6502].raw
+        supported = self._supported_modes(drive)
+        can_interpolate = supported is None or bool(supported >> 6 & 1)
+        # the buffer's capacity: the smaller of 0x60C4 sub 1 (maximum) and sub 2 (actual buffer size)
+        self._ip_capacity = min(drive.sdo[0x60C4][1].raw, drive.sdo[0x60C4][2].raw) if can_interpolate else 0
+        if self._ip_capacity < MIN_IP_BUFFER_RECORDS and self.mode_requested == "auto":
+            self._use_mode("csp")
+        elif self._ip_capacity < MIN_IP_BUFFER_RECORDS and can_interpolate:
+            raise DeviceFault(self.drive_label, None, (
+                f"its interpolation buffer holds {self._ip_capacity} records (0x60C4:1/2); mode = \"ip_buffer\" "
+                f"needs at least {MIN_IP_BUFFER_RECORDS}: use mode = \"csp\" or \"auto\""))
+
+    def _map_target_rpdo(self, drive: Any) -> PdoLayout:
+        """RPDO1 carries the target: 0x60C1:1 (interpolation data record) or 0x607A (target position). With
+        ``mode = "auto"``, a drive whose static RPDO1 cannot carry 0x60C1 streams CSP."""
+        def mapped() -> PdoLayout:
+            target = (0x60C1, 1) if self.mode == "ip_buffer" else (0x607A, 0)
+            return self._map_pdo(drive.rpdo, "drive", [(*target, 32)], 0x200 + self.drive_node_id)
+
+        try:
+            return mapped()
+        except DeviceFault:
+            if self.mode_requested != "auto" or self.mode != "ip_buffer":
+                raise
+        self._use_mode("csp")
+        return mapped()
+
+    def _check_supported_modes(self, drive: Any) -> None:
+        """The streaming mode, and homing where it is used, against 0x6502 where the EDS has it."""
+        supported = self._supported_modes(drive)
+        if supported is None:
+            return
         needed = ([(6, "interpolated position")] if self.mode == "ip_buffer" else [(7, "cyclic synchronous position")])
         needed += [] if self.skip_homing else [(5, "homing")]
         for bit, name in needed:
@@ -424,17 +486,11 @@ class CanOpenTransport(Transport):
 
     def _configure_ip_buffer(self, drive: Any) -> None:
         """The interpolation buffer (CiA 402 0x60C4): linear interpolation (0x60C0 = 0 where present),
-        cleared and enabled (sub 6: 0, then 1); its capacity is the smaller of sub 1 (maximum) and sub 2
-        (actual buffer size)."""
+        cleared and enabled (sub 6: 0, then 1)."""
         if 0x60C0 in drive.object_dictionary:
             drive.sdo[0x60C0].raw = 0
         drive.sdo[0x60C4][6].raw = 0
         drive.sdo[0x60C4][6].raw = 1
-        self._ip_capacity = min(drive.sdo[0x60C4][1].raw, drive.sdo[0x60C4][2].raw)
-        if self._ip_capacity < 4:
-            raise DeviceFault(self.drive_label, None, (
-                f"its interpolation buffer holds {self._ip_capacity} records (0x60C4:1/2); mode = \"ip_buffer\" "
-                "needs at least 4: use mode = \"csp\""))
 
     def _set_mode(self, drive: Any, mode: int) -> None:
         drive.sdo[0x6060].raw = mode
@@ -749,6 +805,7 @@ class CanOpenTransport(Transport):
                 # overtaken the answers to the one before it, so neither sample can be filed for certain
                 self._ambiguous.update((count - 1, count))
             self._syncs.append((timestamp, count))
+            self._arrived.notify_all()  # (also wakes _await_syncs_in_operation)
             unfiled, self._unfiled = self._unfiled, []
             for item in unfiled:
                 if item[2] < timestamp:
@@ -1024,6 +1081,16 @@ _DRIVE_OBJECTS = (
     (0x6061, "modes of operation display (the mode handshake)"), (0x6064, "position actual value"),
     (0x607A, "target position"),
 )
+SYNCS_BEFORE_STREAMING = 2
+"""SYNCs between OPERATION ENABLED and the first setpoint (:meth:`CanOpenTransport._await_syncs_in_operation`)."""
+MIN_IP_BUFFER_RECORDS = 4
+"""The smallest interpolation buffer (0x60C4) worth streaming into: below it, the margin below leaves no
+lead to speak of (``mode = "auto"`` uses CSP instead)."""
+IP_BUFFER_MARGIN_RECORDS = 2
+"""Records of the drive's buffer the lead leaves free: one RPDO on the bus whose echo the master has not
+seen yet, and one record the drive may already have taken at a SYNC whose echo the master has not seen
+yet. The master's copy of the buffer follows the echoes, so it can trail the drive's by these two."""
+
 _IP_BUFFER_OBJECTS = (
     (0x60C1, "the interpolation data records (mode = \"ip_buffer\")"),
     (0x60C4, "the interpolation buffer's size and its clear/enable (mode = \"ip_buffer\")"),

@@ -23,7 +23,8 @@ CONFIGS = Path(__file__).resolve().parents[2] / "configs"
 RATE_HZ = 200.0  # as the transport tests: a modest rate that a loaded CI host keeps
 
 
-def _config(directory: Path, kind: str = "can") -> Path:
+def _config(directory: Path, kind: str = "can", mode: str | None = None) -> Path:
+    """The simulated rig of ``kind`` at the test rate; ``mode`` sets the CANopen streaming mode."""
     plant = (CONFIGS / "plants" / "precision_gearbox.toml").read_text()
     plant = plant.replace("sample_period_s = 0.001", f"sample_period_s = {1 / RATE_HZ!r}")
     plant = plant.replace("frequency_hz = 120.0", "frequency_hz = 40.0")  # below this rate's Nyquist frequency
@@ -39,15 +40,18 @@ def _config(directory: Path, kind: str = "can") -> Path:
         elif line.startswith("url = "):
             scheme = line.split('"')[1].split(":")[0]
             line = f'url = "{scheme}://virtual/import_{directory.name}"'  # one bus per test
+        elif line.startswith("sdo_timeout_s") and mode is not None:
+            line += f'\nmode = "{mode}"'
         lines.append(line)
     path = directory / f"sim_{kind}.toml"
     path.write_text("\n".join(lines) + "\n")
     return path
 
 
-def _run(directory: Path, trace: Path, seconds: float = 0.1, kind: str = "can", *options: str) -> Path:
+def _run(directory: Path, trace: Path, seconds: float = 0.1, kind: str = "can", *options: str,
+         mode: str | None = None) -> Path:
     log = directory / "run.csv"
-    assert main(["run", str(_config(directory, kind)), "--experiment", str(CONFIGS / "experiments" / "prbs.toml"),
+    assert main(["run", str(_config(directory, kind, mode)), "--experiment", str(CONFIGS / "experiments" / "prbs.toml"),
                  "--out", str(log), "--duration", repr(seconds), "--can-trace", str(trace), "--json", *options]) == 0
     return log
 
@@ -80,10 +84,12 @@ def test_the_trace_of_a_run_imports_as_the_runs_log(kind, suffix, tmp_path, caps
     _assert_same_samples(log, imported, ignore_late=kind == "can")
 
 
-def test_a_canopen_trace_with_held_samples_imports_as_the_runs_log(tmp_path, capsys):
-    """A host stall longer than the lead: the drive held earlier targets, and the trace shows which."""
+@pytest.mark.parametrize("mode", ["ip_buffer", "csp"])
+def test_a_canopen_trace_with_held_samples_imports_as_the_runs_log(mode, tmp_path, capsys):
+    """A host stall longer than the lead: the drive held earlier targets (CSP) or ran out of records
+    (interpolated position), and the trace shows which."""
     trace = tmp_path / "run.blf"
-    log = _run(tmp_path, trace, 0.6, "canopen", "--sim-faults", "stall=150@10")  # held mid-run: lead 100 ms
+    log = _run(tmp_path, trace, 0.6, "canopen", "--sim-faults", "stall=150@10", mode=mode)  # lead 100 ms
     assert json.loads(capsys.readouterr().out)["held"] > 0
     record = import_trace(trace, load_rig_config(tmp_path / "sim_canopen.toml"))
     imported = tmp_path / "imported.csv"
@@ -145,3 +151,24 @@ def test_a_serial_rig_is_refused_and_the_output_is_checked_first(tmp_path, capsy
     assert "no RPDO1 of the drive (0x201)" in capsys.readouterr().err
     assert main(["import", str(trace), "--config", str(_config(tmp_path)), "--out",
                  str(tmp_path / "missing" / "o.csv")]) == exit_codes.WRITE_FAILED
+
+
+def test_a_canopen_trace_that_starts_after_the_start_up_needs_the_mode_in_the_config(tmp_path, capsys):
+    trace = tmp_path / "run.blf"
+    log = _run(tmp_path, trace, 0.1, "canopen")
+    capsys.readouterr()
+    frames = list(can.BLFReader(str(trace)))
+    first_rpdo = next(index for index, frame in enumerate(frames) if frame.arbitration_id == 0x201)
+    late = tmp_path / "late.blf"
+    with can.Logger(str(late)) as writer:  # the last SYNCs before streaming, none of the start-up's SDOs
+        for frame in frames[first_rpdo - 20:]:
+            if frame.arbitration_id != 0x601:
+                writer.on_message_received(frame)
+    with pytest.raises(LogFileError, match=r"no SDO write of 0x6060 before it .* set mode = \"ip_buffer\" or "
+                                           r"\"csp\" in the config's \[transport\]"):
+        import_trace(late, load_rig_config(tmp_path / "sim_canopen.toml"))
+    told = _config(tmp_path, "canopen", "ip_buffer")
+    record = import_trace(late, load_rig_config(told))
+    run = read_log(log)
+    np.testing.assert_array_equal(record.command_rad, run.command_rad)
+    np.testing.assert_array_equal(record.angle_rad, run.angle_rad)

@@ -78,8 +78,9 @@ def no_leaks():
 
 
 @contextlib.contextmanager
-def simulated(kind: str, directory: Path, **fault_injection):
-    """(config, transport, gearbox, simulated drive) for a simulated rig of ``kind``; everything closed on exit."""
+def simulated(kind: str, directory: Path, transport_options: dict | None = None, **fault_injection):
+    """(config, transport, gearbox, simulated drive) for a simulated rig of ``kind``; everything closed on exit.
+    ``transport_options`` override the config's (e.g. ``{"mode": "csp"}``)."""
     from rig.commands.run import start_simulated_devices  # the application layer wires devices
     from rig.transports import open_transport
     from sim_backend.plant_config import load_plant_config
@@ -88,7 +89,7 @@ def simulated(kind: str, directory: Path, **fault_injection):
     gearbox = load_plant_config(config.simulation.plant_path).gearbox(seed=config.simulation.seed)
     with contextlib.ExitStack() as stack:
         url, drive = start_simulated_devices(config, gearbox, stack, **fault_injection)
-        transport = open_transport(url, **config.transport_options())
+        transport = open_transport(url, **dict(config.transport_options(), **(transport_options or {})))
         stack.callback(transport.close)
         yield config, transport, gearbox, drive
 

@@ -28,7 +28,7 @@ def _u(node, index, subindex=0, signed=False):
 
 
 def test_start_up_configures_csp_mode_pdos_and_heartbeats_by_sdo(tmp_path, no_leaks):
-    with simulated("canopen", tmp_path) as (config, transport, _, rig):
+    with simulated("canopen", tmp_path, {"mode": "csp"}) as (config, transport, _, rig):
         transport.open()
         drive, encoder = rig.drive, rig.encoder
         assert _u(drive, 0x6060, signed=True) == 8  # cyclic synchronous position
@@ -98,7 +98,7 @@ def test_the_simulated_bus_reports_its_load(tmp_path, no_leaks):
 
 def test_homing_runs_before_streaming_when_not_skipped(tmp_path, no_leaks):
     path = write_test_config("canopen", tmp_path)
-    path.write_text(path.read_text().replace("sdo_timeout_s = 0.5", "sdo_timeout_s = 0.5\nskip_homing = false"))
+    path.write_text(path.read_text().replace("sdo_timeout_s = 0.5", 'sdo_timeout_s = 0.5\nskip_homing = false\nmode = "csp"'))
     config = load_rig_config(path)
     gearbox = load_plant_config(config.simulation.plant_path).gearbox(seed=config.simulation.seed)
     with contextlib.ExitStack() as stack:
@@ -134,7 +134,7 @@ def _streaming_canopen_transport(**options):
     test_sdo.py style): SYNC echoes, RPDO echoes and TPDOs with their bus timestamps, no threads."""
     from rig.transports.canopen_link import PdoLayout
 
-    transport = _unopened_canopen_transport(**options)
+    transport = _unopened_canopen_transport(**{"mode": "csp", **options})
     transport.network = _RecordingNetwork()
     transport._rpdo = PdoLayout("RPDO1 of drive 1", 0x201, {0x607A: (0, 4)}, 4)
     transport._in_force = (-1, 0)

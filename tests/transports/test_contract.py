@@ -75,7 +75,9 @@ def test_close_does_a_controlled_stop_and_is_idempotent(kind, tmp_path, no_leaks
         assert transport.receive(timeout_s=1.0).seq == 0
         transport.close()
         transport.close()
-        assert drive.controlwords == [0x06, 0x07, 0x0F, 0x02, 0x00]  # bring-up; quick stop, then disable voltage
+        # bring-up (interpolated position: bit 4 enables the interpolation); quick stop, then disable voltage
+        interpolation = [0x1F] if getattr(transport, "mode", None) == "ip_buffer" else []
+        assert drive.controlwords == [0x06, 0x07, 0x0F, *interpolation, 0x02, 0x00]
         if kind == "canopen":  # the cyclic SYNC goes on until the stop: the drive held the one target
             assert drive.setpoints >= 1 and _i32(drive.drive, 0x607A) == 0
         else:  # serial, raw CAN v2: the device ticks on its own clock until the stop, holding the one target

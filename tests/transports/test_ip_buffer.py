@@ -61,7 +61,7 @@ def test_the_drive_takes_one_record_per_sync_from_its_buffer(tmp_path, no_leaks)
 
 
 def test_a_host_stall_longer_than_the_lead_empties_the_buffer_and_every_sample_says_so(tmp_path, no_leaks):
-    """300 ms of host stall at the 200 Hz test rate: the lead (100 ms = 20 samples, within half the drive's
+    """300 ms of host stall at the 200 Hz test rate: the lead (100 ms = 20 samples, within the drive's
     64-record buffer) runs out, the drive holds its
     last record for the rest, the log files every instant with the record really applied."""
     sink = ListSink()
@@ -90,3 +90,62 @@ def test_ip_buffer_needs_the_buffer_objects_in_the_eds(tmp_path):
     eds = eds_without(DEFAULT_DRIVE_EDS, [0x60C4], tmp_path / "drive.eds")
     with pytest.raises(ConfigError, match=r"has no object 0x60C4; the master needs it for the interpolation buffer"):
         open_transport(config.url, **dict(config.transport_options(), drive_eds=str(eds), mode="ip_buffer"))
+
+
+def _auto_rig(tmp_path, drive_eds=None, supported_modes=None, **behaviour):
+    """A simulated rig driven with the default ``mode = "auto"``; ``supported_modes`` overrides the drive's
+    0x6502, ``behaviour`` the drive's :class:`DriveBehaviour` (e.g. static PDOs)."""
+    from rig.commands.run import start_simulated_devices
+    from sim_backend.canopen_behaviour import DriveBehaviour
+
+    config = load_rig_config(write_test_config("canopen", tmp_path))
+    gearbox = load_plant_config(config.simulation.plant_path).gearbox(seed=config.simulation.seed)
+    stack = contextlib.ExitStack()
+    url, rig = start_simulated_devices(config, gearbox, stack, drive_behaviour=DriveBehaviour(**behaviour))
+    if supported_modes is not None:
+        rig.drive.set_data(0x6502, 0, supported_modes.to_bytes(4, "little"))
+    eds = rig.write_eds(tmp_path)[0] if drive_eds is None else drive_eds(tmp_path)
+    transport = open_transport(url, **dict(config.transport_options(), drive_eds=str(eds)))
+    stack.callback(transport.close)
+    return stack, config, transport, rig
+
+
+def _without_the_buffer(tmp_path):
+    from rig.transports.canopen_link import DEFAULT_DRIVE_EDS
+
+    return eds_without(DEFAULT_DRIVE_EDS, [0x60C1, 0x60C4], tmp_path / "drive_without_buffer.eds")
+
+
+@pytest.mark.parametrize(("case", "options", "expected_mode"), [
+    ("a drive with a 64-record buffer", {}, "ip_buffer"),
+    ("an EDS without 0x60C1/0x60C4", {"drive_eds": _without_the_buffer}, "csp"),
+    ("0x6502 without interpolated position (bit 6)", {"supported_modes": 0b1010_0000}, "csp"),
+    ("a static RPDO1 that carries 0x607A", {"static_pdos": True}, "csp"),
+])
+def test_auto_mode_uses_the_drives_buffer_where_it_has_one_and_csp_elsewhere(case, options, expected_mode,
+                                                                             tmp_path, no_leaks):
+    sink = ListSink()
+    stack, config, transport, rig = _auto_rig(tmp_path, **options)
+    with stack:
+        summary = run_experiment(transport, excitation(40), sink, feedback_timeout_s=config.feedback_timeout_s,
+                                 late_tolerance_s=config.late_tolerance_s)
+        mode_of_operation = int.from_bytes(rig.drive.get_data(0x6060, 0), "little", signed=True)
+    assert transport.mode == expected_mode
+    assert mode_of_operation == {"ip_buffer": 7, "csp": 8}[expected_mode]
+    assert summary.lost == 0 and len(sink.rows) == 40
+    _equals_the_offline_simulation_of_the_logged_command(config, sink)
+
+
+def test_the_lead_fills_the_buffer_less_its_margin_and_no_more():
+    from rig.protocols.encoder_counts import EncoderResolution
+    from rig.transports.canopen_link import IP_BUFFER_MARGIN_RECORDS, CanOpenTransport
+
+    def lead(lead_s: float, capacity: int) -> int:
+        transport = CanOpenTransport("virtual", "unused", encoder=EncoderResolution(bits=12, signed=True),
+                                     sample_period_s=1e-3, mode="ip_buffer", lead_s=lead_s)
+        transport._ip_capacity = capacity
+        return transport.lead_samples
+
+    assert lead(0.1, 64) == 64 - IP_BUFFER_MARGIN_RECORDS  # 100 ms asked, 62 ms is what the drive holds
+    assert lead(0.01, 64) == 10
+    assert lead(0.1, 256) == 100
