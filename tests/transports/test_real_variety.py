@@ -73,11 +73,12 @@ def _rig_with(tmp_path, name: str, master_options: dict, fault_at: int | None):
         yield config, transport, rig
 
 
+@pytest.mark.parametrize("mode", ["auto", "csp"])  # auto: interpolated position where the drive can take it
 @pytest.mark.parametrize("name", sorted(EXPECTED))
-def test_the_master_runs_clean_or_stops_safely_on_each_real_behaviour(name, tmp_path, no_leaks):
+def test_the_master_runs_clean_or_stops_safely_on_each_real_behaviour(name, mode, tmp_path, no_leaks):
     outcome, message, master_options, fault_at = EXPECTED[name]
     sink = ListSink()
-    with _rig_with(tmp_path, name, master_options, fault_at) as (config, transport, rig):
+    with _rig_with(tmp_path, name, {"mode": mode, **master_options}, fault_at) as (config, transport, rig):
         try:
             summary = run_experiment(transport, excitation(60), sink, feedback_timeout_s=config.feedback_timeout_s,
                                      late_tolerance_s=config.late_tolerance_s)
