@@ -328,7 +328,7 @@ def _run_device_clocked(transport: Transport, command: NDArray[np.float64], sink
 
     A producer and a consumer in one loop, neither of them timed by the host: setpoints are queued as far
     as ``transport.lead_samples`` ahead of the last sample instant the device passed
-    (``transport.device_sample``) while the device has room, feedback is filed by its sample number (the
+    (``transport.device_sample``), feedback is filed by its sample number (the
     instant; :class:`SampleLedger`), and rows go to the sink once final. Rows are sample instants: after a
     drive's interpolation buffer ran dry, its later records are applied at later instants, and each row
     logs the one really applied. Row k's time is the device's instant k T (a sample whose instant was
@@ -358,7 +358,7 @@ def _run_device_clocked(transport: Transport, command: NDArray[np.float64], sink
         last_feedback = clock()
         while ledger.written < total:
             device = transport.device_sample
-            while next_seq < total and next_seq <= device + lead and transport.queue_has_room:
+            while next_seq < total and next_seq <= device + lead:
                 sent = transport.send(Setpoint(next_seq, values[next_seq]))
                 if next_seq == next_row:
                     ledger.open_row(next_row, sent.position_rad)

@@ -245,12 +245,6 @@ class Transport(ABC):
         return 0
 
     @property
-    def queue_has_room(self) -> bool:
-        """On a device-clocked link: whether one more setpoint may be queued now (a drive's interpolation
-        buffer is finite)."""
-        return True
-
-    @property
     def device_sample(self) -> int:
         """On a device-clocked link: the number of the last sample instant the device has passed (-1
         before the first)."""

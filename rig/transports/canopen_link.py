@@ -24,14 +24,15 @@ it can enable the drive):
 
 The base class then walks the drive to OPERATION ENABLED by SDO on 0x6040/0x6041 (paced polling, fault
 reset on a rising edge; :mod:`rig.protocols.cia402`), and after optional homing (mode 6, method 0x6098)
-the target is set to the actual position again before mode 8 is taken. Every exit after that ends in
+the target is set to the actual position again before the streaming mode (8 or 7) is taken. Every exit after that ends in
 quick stop, then disable, then NMT pre-operational (:class:`~rig.transports.base.Transport`).
 
 Streaming (the device's clock owns the sample instants): SYNC runs from a cyclic task at the sample
 period, from configuration to the end of the stop (:meth:`_start_sync`), or from an external producer.
-The runner queues setpoints ``lead_s`` ahead (:meth:`_send`); right after SYNC k-1 is seen, the receive
-thread puts target k on the bus (:meth:`_on_sync_echo`), so it is in force at SYNC k whatever the host
-does meanwhile. The master receives its own frames back (``receive_own_messages``, SocketCAN's echo of
+The runner queues setpoints ``lead_s`` ahead (:meth:`_send`). In cyclic synchronous position, right after
+SYNC k-1 is seen the receive thread puts target k on the bus (:meth:`_on_sync_echo`), so it is in force
+at SYNC k whatever the runner's thread does meanwhile; in interpolated position (``mode``), the receive
+thread keeps the drive's buffer of records filled from the queue at every SYNC. The master receives its own frames back (``receive_own_messages``, SocketCAN's echo of
 a transmitted frame), stamped by the same interface clock as the TPDOs and in bus order, so it knows which
 target was last on the bus before each SYNC: a target that came too late leaves its sample HELD with the
 command really applied. TPDOs carry no SYNC counter: each is filed under the last SYNC before its bus
@@ -122,9 +123,10 @@ class CanOpenTransport(Transport):
         it, so its lead on the bus is under one period whatever ``lead_s`` is (a receive thread that misses
         that window holds the sample). ``"ip_buffer"``: interpolated position with the drive's FIFO of
         interpolation data records (0x6060 = 7, records 0x60C1:1, buffer 0x60C4: capacity read from sub 1
-        and 2, cleared and enabled by sub 6): the setpoints go on the bus as the runner queues them, up to
-        the lead or the buffer less :data:`IP_BUFFER_MARGIN_RECORDS`, and the drive takes one per SYNC; an
-        empty buffer at a SYNC (an underrun) holds the last record and the sample is logged HELD. The master
+        and 2, cleared and enabled by sub 6): the runner queues setpoints ``lead_s`` ahead and the master
+        keeps the drive's buffer filled from that queue up to :data:`IP_BUFFER_MARGIN_RECORDS` below its
+        capacity (:meth:`_top_up_ip_buffer`), and the drive takes one per SYNC; an empty buffer at a SYNC
+        (an underrun) holds the last record and the sample is logged HELD. The master
         follows the buffer from the bus order of its own RPDOs and the SYNCs, so every sample logs the record
         really applied.
     sync_producer
@@ -230,6 +232,7 @@ class CanOpenTransport(Transport):
         self._mode = self._streaming_mode  # the mode of operation last written to 0x6060
         self._ip_capacity = 0  # records the drive's interpolation buffer takes (0x60C4)
         self._ip_buffer: collections.deque[tuple[int, int]] = collections.deque()  # (sample, counts) in it
+        self._next_record = 0  # the setpoint that goes into the drive's buffer next
         self._dry_since: int | None = None  # the SYNC count since which the buffer has been empty
         self._last_target_counts = 0
         self._watching = False  # from OPERATION ENABLED on: a FAULT statusword or a heartbeat not OPERATIONAL stops the run
@@ -271,14 +274,7 @@ class CanOpenTransport(Transport):
 
     @property
     def lead_samples(self) -> int:
-        if self.mode != "ip_buffer":
-            return self._samples_ahead(self.lead_s)
-        return self._samples_ahead(self.lead_s, max(1, self._ip_capacity - IP_BUFFER_MARGIN_RECORDS))
-
-    @property
-    def queue_has_room(self) -> bool:
-        with self._lock:
-            return self.mode != "ip_buffer" or len(self._ip_buffer) + len(self._rpdo_sent) < self._ip_capacity - 1
+        return self._samples_ahead(self.lead_s)
 
     # -- seam ----------------------------------------------------------------------------------------------
 
@@ -692,15 +688,15 @@ class CanOpenTransport(Transport):
 
     def _send(self, setpoint: Setpoint) -> None:
         """CSP: queue setpoint ``seq``; the receive thread puts it on the bus right after SYNC ``seq - 1``,
-        so that it is in force at SYNC ``seq`` whatever the host does. Interpolated position: on the bus at
-        once, into the drive's buffer (the runner keeps it within :attr:`queue_has_room`)."""
+        so that it is in force at SYNC ``seq`` whatever the host does. Interpolated position: queued, and
+        on the bus as soon as the drive's buffer has room (:meth:`_top_up_ip_buffer`)."""
         self._raise_device_fault()
         self._check_heartbeats()
         with self._lock:
             self._queue[setpoint.seq] = self.drive.counts_from_rad(setpoint.position_rad)
             self._queued_at[setpoint.seq] = time.perf_counter()
             if self.mode == "ip_buffer":
-                self._put_target_on_bus(setpoint.seq)
+                self._top_up_ip_buffer()
                 return
             if self._origin is None:
                 return
@@ -814,6 +810,7 @@ class CanOpenTransport(Transport):
                     self._unfiled.append(item)
             if self.mode == "ip_buffer":
                 self._take_ip_record(count)
+                self._top_up_ip_buffer()
             else:
                 self._record_csp_target(count)
             if self._origin is not None and count >= self._origin:
@@ -870,6 +867,20 @@ class CanOpenTransport(Transport):
         elif self._dry_since is None:
             self._dry_since = count  # (after the run's last record the buffer runs dry for good: no lead)
         self._applied[sample] = (self._in_force[1], held)
+
+    def _top_up_ip_buffer(self) -> None:
+        """Interpolated position: put the queued records on the bus, in order, while the drive's buffer
+        (the master's copy of it, plus the records whose echo is due) has room below
+        :data:`IP_BUFFER_MARGIN_RECORDS`. Called with the lock held, from the runner's thread as it queues
+        and from the receive thread at every SYNC: the lead is kept in the host's queue and the drive's
+        buffer together, so a stall of the runner's thread (a log write, a busy desktop) shorter than the
+        lead costs nothing; a pause of the whole process (a garbage collection holds every Python thread)
+        is ridden through for as long as the drive's buffer lasts."""
+        room = self._ip_capacity - IP_BUFFER_MARGIN_RECORDS - len(self._ip_buffer) - len(self._rpdo_sent)
+        while room > 0 and self._next_record in self._queue:
+            self._put_target_on_bus(self._next_record)
+            self._next_record += 1
+            room -= 1
 
     def _put_target_on_bus(self, sample: int) -> None:
         counts = self._queue.pop(sample)

@@ -136,16 +136,39 @@ def test_auto_mode_uses_the_drives_buffer_where_it_has_one_and_csp_elsewhere(cas
     _equals_the_offline_simulation_of_the_logged_command(config, sink)
 
 
-def test_the_lead_fills_the_buffer_less_its_margin_and_no_more():
+class _RecordingNetwork:
+    """Stands in for canopen.Network in scripted exchanges: records the frames the master sends."""
+
+    def __init__(self) -> None:
+        self.sent: list[int] = []
+
+    def send_message(self, can_id: int, data: bytes) -> None:
+        self.sent.append(int.from_bytes(data, "little", signed=True))
+
+
+def test_the_receive_thread_keeps_the_drives_buffer_full_from_the_hosts_queue():
+    """Scripted (no threads): 100 setpoints queued (a 100 ms lead at 1 kHz) into a 64-record buffer. The
+    buffer is filled to its margin at once; each SYNC takes a record and the receive thread puts the next
+    queued one on the bus, so the runner's thread may stall for its whole lead without an underrun."""
     from rig.protocols.encoder_counts import EncoderResolution
-    from rig.transports.canopen_link import IP_BUFFER_MARGIN_RECORDS, CanOpenTransport
+    from rig.transports import Setpoint
+    from rig.transports.canopen_link import IP_BUFFER_MARGIN_RECORDS, CanOpenTransport, PdoLayout
 
-    def lead(lead_s: float, capacity: int) -> int:
-        transport = CanOpenTransport("virtual", "unused", encoder=EncoderResolution(bits=12, signed=True),
-                                     sample_period_s=1e-3, mode="ip_buffer", lead_s=lead_s)
-        transport._ip_capacity = capacity
-        return transport.lead_samples
-
-    assert lead(0.1, 64) == 64 - IP_BUFFER_MARGIN_RECORDS  # 100 ms asked, 62 ms is what the drive holds
-    assert lead(0.01, 64) == 10
-    assert lead(0.1, 256) == 100
+    transport = CanOpenTransport("virtual", "unused", encoder=EncoderResolution(bits=12, signed=True),
+                                 sample_period_s=1e-3, mode="ip_buffer", lead_s=0.1)
+    transport.network = _RecordingNetwork()
+    transport._rpdo = PdoLayout("RPDO1 of drive 1", 0x201, {0x60C1: (0, 4)}, 4)
+    transport._ip_capacity = 64
+    assert transport.lead_samples == 100  # the lead is the host's: queue and buffer together
+    for seq in range(100):
+        transport._send(Setpoint(seq, transport.drive.rad_from_counts(seq)))
+    full = 64 - IP_BUFFER_MARGIN_RECORDS
+    assert transport.network.sent == list(range(full))  # in order, up to the margin, the rest queued
+    for record in range(full):
+        transport._on_rpdo_echo(0x201, b"", 1.0)  # the bus carried them: in the drive's buffer now
+    for count in range(1, 39):  # the runner's thread queues nothing more: 38 SYNCs pass
+        transport._on_sync_echo(0x80, b"", 1.0 + count * 1e-3)
+        transport._on_rpdo_echo(0x201, b"", 1.0 + count * 1e-3 + 2e-4)
+    assert transport.network.sent == list(range(100))  # every queued record went in, one per SYNC
+    assert not any(held for _, held in transport._applied.values())
+    assert [transport._applied[sample][0] for sample in range(38)] == list(range(38))
