@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import dataclasses
 import json
 import math
 import sys
@@ -53,8 +54,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--sim-faults-seed", metavar="N", type=int, default=0,
                         help="seed of the random faults (default 0): the same seed repeats the same faults")
     parser.add_argument("--json", action="store_true",
-                        help='print {"log", "samples", "lost", "late", "rate_hz", "held", "min_lead_s", '
-                             '"not_followed", "duplicate", "frame_errors", "warnings", "stop"} as JSON')
+                        help='print the run summary as JSON: {"kind": "run_summary", "version": 1, "log", "samples", '
+                             '"lost", "late", "rate_hz", "held", "min_lead_s", "not_followed", "duplicate", '
+                             '"frame_errors", "warnings", "stop", "stale", "cpu_s", "wall_s"} (rig report reads it)')
     parser.set_defaults(handler=run)
 
 
@@ -290,13 +292,9 @@ def run(args: argparse.Namespace) -> int:
         summary = run_experiment(transport, command, log, feedback_timeout_s=config.feedback_timeout_s,
                                  late_tolerance_s=config.late_tolerance_s,
                                  progress=progress if bar is not None or stalls else None)
-    result = {"log": str(args.out), "samples": summary.samples, "lost": summary.lost, "late": summary.late,
-              "rate_hz": summary.rate_hz, "held": summary.held,
-              "min_lead_s": None if math.isnan(summary.min_lead_s) else summary.min_lead_s,
-              "not_followed": summary.not_followed, "duplicate": summary.duplicate,
-              "frame_errors": summary.frame_errors, "warnings": list(summary.warnings), "stop": summary.stop}
+    summary = dataclasses.replace(summary, log=str(args.out))
     if args.json:
-        print(json.dumps(result))
+        print(json.dumps(summary.to_dict()))
     else:
         print(f"rig         {config.name} ({url})")
         print(f"experiment  {excitation.name} ({excitation.kind}, seed {excitation.seed})")
