@@ -15,8 +15,9 @@ from importlib.metadata import PackageNotFoundError, version
 
 __all__ = ["HighsLp", "HighsModelStatus", "MatrixFormat", "SOLVER_METHODS", "TESTED_HIGHSPY", "quiet_highs"]
 
-TESTED_HIGHSPY = "1.7 to 1.16"
-"""The highspy releases this adapter was tested with (``pyproject.toml``: ``highspy>=1.7,<1.17``)."""
+TESTED_HIGHSPY = "1.16.0"
+"""The highspy release this adapter was tested with; ``pyproject.toml`` allows ``highspy>=1.7,<1.17`` (the
+lower bound is the project's earlier one, not re-tested here)."""
 
 SOLVER_METHODS = ("setOptionValue", "passModel", "run", "getRunTime", "getModelStatus", "modelStatusToString",
                   "changeColsCost", "getSolution", "getBasis", "setBasis", "clearSolver")
@@ -36,7 +37,7 @@ except ImportError as err:  # pragma: no cover - only with an untested highspy
     raise ImportError(
         f"highspy {_installed()} has no private class highspy._core._Highs (or HighsLp, HighsModelStatus, "
         f"MatrixFormat), which identify.highs_solver uses to solve LPs without a banner on stdout; it was "
-        f"tested with highspy {TESTED_HIGHSPY}: install one of those (pip install 'highspy>=1.7,<1.17')"
+        f"tested with highspy {TESTED_HIGHSPY}: install it (pip install 'highspy==1.16.0')"
     ) from err
 
 
@@ -52,7 +53,7 @@ def quiet_highs() -> _Highs:
     missing = [name for name in SOLVER_METHODS if not callable(getattr(highs, name, None))]
     if missing:
         raise ImportError(f"highspy {_installed()}: highspy._core._Highs has no {', '.join(missing)}; "
-                          f"identify.highs_solver was tested with highspy {TESTED_HIGHSPY}: install one of those "
-                          "(pip install 'highspy>=1.7,<1.17')")
+                          f"identify.highs_solver was tested with highspy {TESTED_HIGHSPY}: install it "
+                          "(pip install 'highspy==1.16.0')")
     highs.setOptionValue("output_flag", False)
     return highs
