@@ -6,11 +6,12 @@ import json
 
 import numpy as np
 import pytest
+import scipy.linalg
 import scipy.signal
 
 from identify.border_lifting import PathNodes, lifted_input
 from identify.cyclic_excitation import cyclic_random_excitation
-from identify.hammerstein_subspace import HammersteinModel, identify_hammerstein, pi_moesp_observability
+from identify.hammerstein_subspace import HammersteinModel, HammersteinOptions, identify_hammerstein, pi_moesp_observability
 from identify.plant_blocks import (
     InputBacklash,
     InputSwitch,
@@ -97,12 +98,34 @@ def test_backlash_mode_simulates_a_backlash_on_inputs_that_reverse_inside_the_in
     assert np.max(np.abs(model.simulate(wander)[600:] - truth)) > 0.05
 
 
-def test_gram_and_qr_factorisations_give_the_same_projection(excitation) -> None:
+def _block_hankel(signal, first: int, num_blocks: int, num_columns: int):
+    """Transposed block-Hankel matrix: row k is [s(first + k), ..., s(first + k + num_blocks - 1)]."""
+    m = signal.shape[1]
+    windows = np.lib.stride_tricks.sliding_window_view(signal, (num_blocks, m))[:, 0]
+    return windows[first : first + num_columns].reshape(num_columns, num_blocks * m)
+
+
+def _qr_observability(z, y, p: int, f: int):
+    """Reference for pi_moesp_observability: a Householder QR of the stacked, centred [Z_f, Z_p, Y_f] (j rows)
+    gives L32 of eq. (11) directly (slow: O(j ((p+f) m + f)^2))."""
+    inputs, outputs = np.asarray(z, dtype=float), np.asarray(y, dtype=float).reshape(-1, 1)
+    m = inputs.shape[1]
+    j = inputs.shape[0] - p - f + 1
+    a, b = f * m, (f + p) * m
+    stacked = np.hstack((_block_hankel(inputs, p, f, j), _block_hankel(inputs, 0, p, j),
+                         _block_hankel(outputs, p, f, j)))
+    stacked -= stacked.mean(axis=0)
+    R = scipy.linalg.lapack.dgeqrf(stacked, overwrite_a=True)[0][: b + f]
+    U, singular_values, _ = scipy.linalg.svd(np.triu(R)[a:b, b:].T)
+    return U, singular_values, np.abs(np.diag(R)[:b])
+
+
+def test_the_gram_factorisation_gives_the_projection_of_a_householder_qr(excitation) -> None:
     y = exact_plant("backlash").simulate(excitation)
     y = y + paper_noise(y, 10.0, np.random.default_rng(3))
     z = lifted_input(excitation, NODES)
-    U_gram, s_gram, d_gram = pi_moesp_observability(z, y, 8, 8, factorisation="gram")
-    U_qr, s_qr, d_qr = pi_moesp_observability(z, y, 8, 8, factorisation="qr")
+    U_gram, s_gram, d_gram = pi_moesp_observability(z, y, 8, 8)
+    U_qr, s_qr, d_qr = _qr_observability(z, y, 8, 8)
     assert np.allclose(s_gram, s_qr, rtol=1e-9)
     assert np.allclose(d_gram, d_qr, rtol=1e-8)
     # same 2-dimensional column space of Γ_f
@@ -273,3 +296,21 @@ def test_the_numbers_the_pole_and_border_figures_show(excitation) -> None:
     natural = model.natural_frequencies_hz(0.01)
     assert natural.size == 1 and natural[0] == pytest.approx(abs(np.log(TRUE_POLES[0])) / (2 * np.pi * 0.01))
     assert model.largest_play_rad == pytest.approx(float(np.max(np.asarray(H_D) - np.asarray(H_A))), abs=1e-9)
+
+
+def test_the_options_object_and_the_keywords_are_one_call(excitation) -> None:
+    y = exact_plant("backlash").simulate(excitation)
+    y = y + paper_noise(y, 20.0, np.random.default_rng(8))
+    options = HammersteinOptions(hold_samples=HOLD, split="rank1", feedthrough=False)
+    by_object = identify_hammerstein(excitation, y, NODES, options)
+    by_keywords = identify_hammerstein(excitation, y, NODES, hold_samples=HOLD, split="rank1", feedthrough=False)
+    assert by_object.to_dict() == by_keywords.to_dict()  # exactly: the same floats
+    # keywords override the object's fields
+    assert identify_hammerstein(excitation, y, NODES, options, split="separate").to_dict() == identify_hammerstein(
+        excitation, y, NODES, hold_samples=HOLD, feedthrough=False).to_dict()
+    with pytest.raises(TypeError, match=r"unexpected keyword argument 'hold' \(the options are hold_samples, mu0, "):
+        identify_hammerstein(excitation, y, NODES, hold=HOLD)
+    with pytest.raises(InvalidInputError, match="past_horizon: expected an integer >= 1, got 0"):
+        HammersteinOptions(past_horizon=0)
+    with pytest.raises(InvalidInputError, match="hold_samples, mu0: give one of them, not both"):
+        HammersteinOptions(hold_samples=HOLD, mu0=-1.0)
