@@ -80,7 +80,7 @@ def no_leaks():
 @contextlib.contextmanager
 def simulated(kind: str, directory: Path, **fault_injection):
     """(config, transport, gearbox, simulated drive) for a simulated rig of ``kind``; everything closed on exit."""
-    from rig.commands.run import start_simulated_devices  # the application layer wires devices
+    from rig.transports.simulated import start_simulated_devices
     from rig.transports import open_transport
     from sim_backend.plant_config import load_plant_config
 

@@ -23,7 +23,7 @@ from sim_rigs import ListSink, excitation, no_leaks, write_test_config  # noqa: 
 
 @contextlib.contextmanager
 def _ip_rig(tmp_path):
-    from rig.commands.run import start_simulated_devices
+    from rig.transports.simulated import start_simulated_devices
 
     path = write_test_config("canopen", tmp_path)
     path.write_text(path.read_text().replace("sdo_timeout_s = 0.5", 'sdo_timeout_s = 0.5\nmode = "ip_buffer"'))
