@@ -49,6 +49,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 import dataclasses
+import logging
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
@@ -71,6 +72,8 @@ __all__ = [
     "pi_moesp_observability",
     "select_order",
 ]
+
+logger = logging.getLogger(__name__)
 
 DEFAULT_FUTURE_HORIZON = 15
 DEFAULT_PAST_HORIZON = 15
@@ -924,7 +927,10 @@ def _choose_order(singular_values: NDArray[np.float64], options: HammersteinOpti
     the horizons and the singular values support it."""
     p, f = options.past_horizon, options.future_horizon
     if options.order == "auto":
-        return select_order(singular_values, min(options.max_order, f - 1, p))
+        n = select_order(singular_values, min(options.max_order, f - 1, p))
+        logger.info("order %d chosen from the singular values (gap s_%d / s_%d = %.3g)", n, n, n + 1,
+                    singular_values[n - 1] / max(singular_values[n], np.finfo(float).tiny))
+        return n
     n = int(options.order)
     if n >= f or n > p:
         raise InvalidInputError(f"order: {n} needs future_horizon > {n} and past_horizon >= {n}, got {f} and {p}")
@@ -984,6 +990,9 @@ def _refined_model(z: NDArray, y: NDArray, numerator: NDArray, denominator: NDAr
     A, B, C, D, x0, model_output = subspace
     numerator, denominator, mu, mu0, zi, refinement = _refine(
         z, y, numerator, denominator, mu, mu0, free_response, feedthrough)
+    logger.info("output-error refinement %s: RMS %.6g -> %.6g rad after %d evaluations (%s)",
+                "applied" if refinement.applied else "not applied", refinement.rms_before, refinement.rms_after,
+                refinement.evaluations, refinement.message)
     if refinement.applied:
         n = A.shape[0]
         A_c, B_c, C_c, D_c = scipy.signal.tf2ss(numerator, denominator)

@@ -12,6 +12,7 @@ starts: ``rig.transports`` stays importable without it, and ``sim_backend`` neve
 from __future__ import annotations
 
 import contextlib
+import logging
 import math
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
@@ -29,6 +30,8 @@ if TYPE_CHECKING:
     from sim_backend.plant import SimulatedGearbox
     from sim_backend.raw_can_device import SimulatedRawCanDevice
     from sim_backend.serial_device import SimulatedSerialDevice
+
+logger = logging.getLogger(__name__)
 
 __all__ = ["SIMULATED_DEVICES", "SimulatedDevice", "SimulatedDeviceType", "simulated_rig", "start_simulated_devices"]
 
@@ -118,7 +121,12 @@ def start_simulated_devices(config: RigConfig, gearbox: SimulatedGearbox, stack:
         raise ConfigError(config.source, "simulation",
                           f"there is no simulated device for {config.scheme}:// transports "
                           f"(simulated: {', '.join(f'{scheme}://' for scheme in SIMULATED_DEVICES)})")
-    return entry.start(config, gearbox, stack, device_options)
+    url, device = entry.start(config, gearbox, stack, device_options)
+    logger.info("started the simulated %s rig of %s: %s, plant %s, at %s", config.scheme, config.source, entry.devices,
+                gearbox.name, url)
+    if device_options:
+        logger.info("the simulated devices inject: %s", ", ".join(sorted(device_options)))
+    return url, device
 
 
 @contextlib.contextmanager
