@@ -151,7 +151,7 @@ class HammersteinModel:
     residual_rms
         RMS of y - y_model on the identification data.
     mu0_hold
-        The paper's μ0: the output mean over the hold (None if ``mu0`` was given).
+        The paper's μ0: the output mean over the hold (None if ``mu0_rad`` was given).
     refinement
         Report of the output-error refinement, or None if it was not run.
     """
@@ -421,7 +421,7 @@ def _hankel_gram(w: NDArray[np.float64], num_blocks: int, num_columns: int) -> N
 
 
 def pi_moesp_observability(
-    z: ArrayLike, y: ArrayLike, past_horizon: int, future_horizon: int, *, remove_offset: bool = True,
+    inputs: ArrayLike, output_rad: ArrayLike, past_horizon: int, future_horizon: int, *, remove_offset: bool = True,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
     """Left singular vectors and singular values of the PI-MOESP projection O_f of eq. (11).
 
@@ -433,10 +433,10 @@ def pi_moesp_observability(
 
     Parameters
     ----------
-    z
-        Inputs, shape (N, m) (the lifted input of eq. (4)) or (N,).
-    y
-        Outputs, shape (N,).
+    inputs
+        The inputs z, shape (N, m) (the lifted input of eq. (4)) or (N,).
+    output_rad
+        The output y, shape (N,).
     past_horizon, future_horizon
         p and f.
     remove_offset
@@ -449,10 +449,10 @@ def pi_moesp_observability(
         U (f, f) left singular vectors, the singular values (largest first), and |diag| of the input part of
         L (a zero there means the input is not persistently exciting of order p + f).
     """
-    inputs = np.asarray(z, dtype=float)
+    inputs = np.asarray(inputs, dtype=float)
     if inputs.ndim == 1:
         inputs = inputs[:, None]
-    outputs = np.asarray(y, dtype=float).reshape(-1, 1)
+    outputs = np.asarray(output_rad, dtype=float).reshape(-1, 1)
     p, f = int(past_horizon), int(future_horizon)
     m = inputs.shape[1]
     j = inputs.shape[0] - p - f + 1
@@ -716,8 +716,8 @@ class HammersteinOptions:
     ----------
     hold_samples
         Length K of the leading hold at u_min: μ0 starts as the mean of y over it (Section III).
-    mu0
-        μ0 = H[u_min] in rad when it is known (then no hold is needed). With neither, μ0 starts at 0; with
+    mu0_rad
+        μ0 = H[u_min] when it is known (then no hold is needed). With neither, μ0 starts at 0; with
         ``estimate_offset`` (the default) it is re-estimated from all data anyway.
     order
         n, or ``"auto"``: the largest gap among the first ``max_order`` singular values.
@@ -731,7 +731,7 @@ class HammersteinOptions:
         ``"separate"`` (default: Remark 5, B, D and μ by alternating least squares with A, C fixed; it
         was as accurate or better in ``benchmarks/pouliquen2013_hammerstein.py``) or ``"rank1"`` (eq. (14)).
     estimate_offset
-        Re-estimate μ0 jointly with B and D (a constant regressor); ``False`` keeps the hold mean or ``mu0``.
+        Re-estimate μ0 jointly with B and D (a constant regressor); ``False`` keeps the hold mean or ``mu0_rad``.
     refine
         Run the output-error refinement after the subspace step (:class:`RefinementReport`).
     initial_direction
@@ -741,7 +741,7 @@ class HammersteinOptions:
     """
 
     hold_samples: int | None = None
-    mu0: float | None = None
+    mu0_rad: float | None = None
     order: int | Literal["auto"] = "auto"
     max_order: int = 10
     past_horizon: int = DEFAULT_PAST_HORIZON
@@ -760,15 +760,15 @@ class HammersteinOptions:
             raise InvalidInputError(f"split: expected 'rank1' or 'separate', got {self.split!r}")
         if self.order != "auto":
             object.__setattr__(self, "order", _check_int("order", self.order, 1))
-        if self.mu0 is not None:
+        if self.mu0_rad is not None:
             if self.hold_samples is not None:
-                raise InvalidInputError("hold_samples, mu0: give one of them, not both")
-            if not np.isfinite(float(self.mu0)):
-                raise InvalidInputError(f"mu0: expected a finite number, got {self.mu0!r}")
+                raise InvalidInputError("hold_samples, mu0_rad: give one of them, not both")
+            if not np.isfinite(float(self.mu0_rad)):
+                raise InvalidInputError(f"mu0_rad: expected a finite number, got {self.mu0_rad!r}")
         elif self.hold_samples is not None:
             object.__setattr__(self, "hold_samples", _check_int("hold_samples", self.hold_samples, 1))
         elif not self.estimate_offset:
-            raise InvalidInputError("hold_samples, mu0: give one of them, or set estimate_offset=True")
+            raise InvalidInputError("hold_samples, mu0_rad: give one of them, or set estimate_offset=True")
 
 
 _OPTION_NAMES = tuple(f.name for f in dataclasses.fields(HammersteinOptions))
@@ -831,11 +831,11 @@ def identify_hammerstein(
     needed_columns = (p + f) * m + f
     if j < needed_columns:
         raise InvalidInputError(
-            f"u, y: {N} samples are too few for past_horizon={p}, future_horizon={f} and {m} lifted inputs: "
+            f"input_rad, output_rad: {N} samples are too few for past_horizon={p}, future_horizon={f} and {m} lifted inputs: "
             f"the Hankel matrices need at least {needed_columns} columns, i.e. {needed_columns + p + f - 1} samples"
         )
     check_cyclic_input(u_signal, nodes, initial_direction=options.initial_direction,
-                       tolerance=_node_tolerance(nodes), min_visits=options.min_visits)
+                       tolerance_rad=_node_tolerance(nodes), min_visits=options.min_visits)
 
     z = lifted_input(u_signal, nodes, initial_direction=options.initial_direction)
     y_bar = y_signal - mu0_start
@@ -886,10 +886,10 @@ def _node_tolerance(nodes: PathNodes) -> float:
 
 def _start_offset(u: NDArray[np.float64], y: NDArray[np.float64], nodes: PathNodes,
                   options: HammersteinOptions) -> tuple[float, float | None]:
-    """(μ0 to start from, the paper's hold mean or None): ``mu0`` if given, else the mean of y over the hold
-    at u_min (Section III), else 0 (then the offset is estimated from all data)."""
-    if options.mu0 is not None:
-        return float(options.mu0), None
+    """(μ0 to start from, the paper's hold mean or None): ``mu0_rad`` if given, else the mean of y over the
+    hold at u_min (Section III), else 0 (then the offset is estimated from all data)."""
+    if options.mu0_rad is not None:
+        return float(options.mu0_rad), None
     if options.hold_samples is None:
         return 0.0, None
     K = options.hold_samples
@@ -900,7 +900,7 @@ def _start_offset(u: NDArray[np.float64], y: NDArray[np.float64], nodes: PathNod
         k = int(off_hold[0])
         raise InvalidInputError(
             f"hold_samples: sample {k} of the hold is u = {float(u[k])}, expected u_min = {nodes.u_min}; "
-            "shorten hold_samples or give mu0"
+            "shorten hold_samples or give mu0_rad"
         )
     mu0_hold = float(np.mean(y[:K]))
     return mu0_hold, mu0_hold
@@ -916,7 +916,7 @@ def _observability(z: NDArray[np.float64], y_bar: NDArray[np.float64], p: int,
     U, singular_values, input_diagonal = pi_moesp_observability(z, y_bar, p, f)
     if input_diagonal.min() <= 1e-10 * input_diagonal.max():
         raise InvalidInputError(
-            f"u: the lifted input is not persistently exciting of order p + f = {p + f} "
+            f"input_rad: the lifted input is not persistently exciting of order p + f = {p + f} "
             f"({z.shape[1]} lifted inputs): check the excitation or use fewer nodes or shorter horizons"
         )
     return U, singular_values
@@ -976,7 +976,7 @@ def _unit_static_gain(A: NDArray[np.float64], B: NDArray[np.float64], C: NDArray
         gain = np.inf
     if not np.isfinite(gain) or abs(gain) < 1e-12 * (abs(D) + np.linalg.norm(C) * np.linalg.norm(B)):
         raise InvalidInputError(
-            f"u, y: the identified linear part has static gain {gain}; the normalisation G(1) = 1 (assumption A.2) "
+            f"input_rad, output_rad: the identified linear part has static gain {gain}; the normalisation G(1) = 1 (assumption A.2) "
             f"needs a finite non-zero gain (poles {np.round(np.linalg.eigvals(A), 4).tolist()})"
         )
     return B / gain, D / gain, mu * gain

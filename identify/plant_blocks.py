@@ -916,9 +916,9 @@ class PlantModel:
                 return float(period)
         return None
 
-    def simulate(self, command: ArrayLike) -> NDArray[np.float64]:
+    def simulate(self, command_rad: ArrayLike) -> NDArray[np.float64]:
         """Run a whole command signal (rad) through the chain from rest and return the output (rad)."""
-        y = as_signal("command", command)
+        y = as_signal("command_rad", command_rad)
         for block in self.blocks:
             y = block.apply(y)
         return np.asarray(y, dtype=float)

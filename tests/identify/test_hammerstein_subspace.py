@@ -175,7 +175,7 @@ def test_mu0_from_hold_given_or_estimated(excitation) -> None:
     y_noisy = y + 0.05 * np.random.default_rng(8).standard_normal(y.size)
     paper = identify_hammerstein(excitation, y_noisy, NODES, hold_samples=HOLD, estimate_offset=False)
     assert paper.mu0 == pytest.approx(np.mean(y_noisy[:HOLD]), abs=1e-12) == paper.mu0_hold
-    given = identify_hammerstein(excitation[HOLD:], y[HOLD:], NODES, mu0=-0.75)
+    given = identify_hammerstein(excitation[HOLD:], y[HOLD:], NODES, mu0_rad=-0.75)
     assert given.mu0 == pytest.approx(-0.75, abs=1e-9) and given.mu0_hold is None
     assert given.ascending_border.values[0] == given.mu0
     estimated = identify_hammerstein(excitation[HOLD:], y[HOLD:], NODES)  # no hold, no μ0
@@ -237,7 +237,7 @@ def test_errors_name_the_problem(excitation) -> None:
     with pytest.raises(InvalidInputError, match="sample 101 of the hold is u = 0.07"):
         identify_hammerstein(excitation, y, NODES, hold_samples=HOLD + 2)
     with pytest.raises(InvalidInputError, match="give one of them, not both"):
-        identify_hammerstein(excitation, y, NODES, hold_samples=HOLD, mu0=-1.0)
+        identify_hammerstein(excitation, y, NODES, hold_samples=HOLD, mu0_rad=-1.0)
     with pytest.raises(InvalidInputError, match="order: 15 needs future_horizon > 15"):
         identify_hammerstein(excitation, y, NODES, hold_samples=HOLD, order=15)
     with pytest.raises(InvalidInputError, match="the data support at most order 2"):
@@ -248,7 +248,7 @@ def test_errors_name_the_problem(excitation) -> None:
         identify_hammerstein(excitation, y, NODES, hold_samples=HOLD, split="svd")  # type: ignore[arg-type]
     narrow = PathNodes.uniform(-2.0, 2.0, 5)
     with pytest.raises(InvalidInputError, match="outside the node interval"):
-        identify_hammerstein(excitation, y, narrow, mu0=-1.0)
+        identify_hammerstein(excitation, y, narrow, mu0_rad=-1.0)
     dense = PathNodes(tuple(np.linspace(-3.0, 3.0, 8)), (-3.0, -2.9999, 3.0))
     with pytest.raises(InvalidInputError, match=r"segment 1 \]-3; -2.9999\[ of the descending path"):
         identify_hammerstein(excitation, y, dense, hold_samples=HOLD, min_visits=5)
@@ -308,9 +308,9 @@ def test_the_options_object_and_the_keywords_are_one_call(excitation) -> None:
     # keywords override the object's fields
     assert identify_hammerstein(excitation, y, NODES, options, split="separate").to_dict() == identify_hammerstein(
         excitation, y, NODES, hold_samples=HOLD, feedthrough=False).to_dict()
-    with pytest.raises(TypeError, match=r"unexpected keyword argument 'hold' \(the options are hold_samples, mu0, "):
+    with pytest.raises(TypeError, match=r"unexpected keyword argument 'hold' \(the options are hold_samples, mu0_rad, "):
         identify_hammerstein(excitation, y, NODES, hold=HOLD)
     with pytest.raises(InvalidInputError, match="past_horizon: expected an integer >= 1, got 0"):
         HammersteinOptions(past_horizon=0)
-    with pytest.raises(InvalidInputError, match="hold_samples, mu0: give one of them, not both"):
-        HammersteinOptions(hold_samples=HOLD, mu0=-1.0)
+    with pytest.raises(InvalidInputError, match="hold_samples, mu0_rad: give one of them, not both"):
+        HammersteinOptions(hold_samples=HOLD, mu0_rad=-1.0)
