@@ -40,7 +40,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from rig.commands.run import start_simulated_devices  # noqa: E402
+from rig.transports.simulated import start_simulated_devices  # noqa: E402
 from rig.protocols.errors import ConfigError  # noqa: E402
 from rig.rig_config import load_rig_config  # noqa: E402
 from rig.runner import run_experiment  # noqa: E402

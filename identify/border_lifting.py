@@ -76,17 +76,20 @@ class PathNodes:
         object.__setattr__(self, "descending", descending)
 
     @classmethod
-    def uniform(cls, u_min: float, u_max: float, num_nodes: int) -> PathNodes:
-        """``num_nodes`` equally spaced nodes on [u_min; u_max] for both paths (n_p = num_nodes - 1)."""
-        nodes = uniform_nodes(u_min, u_max, num_nodes)
+    def uniform(cls, input_min_rad: float, input_max_rad: float, num_nodes: int) -> PathNodes:
+        """``num_nodes`` equally spaced nodes on [u_min; u_max] = [``input_min_rad``; ``input_max_rad``] for
+        both paths (n_p = num_nodes - 1)."""
+        nodes = uniform_nodes(input_min_rad, input_max_rad, num_nodes)
         return cls(tuple(nodes), tuple(nodes))
 
     @property
     def u_min(self) -> float:
+        """u_min, the first node of both paths [rad]."""
         return self.ascending[0]
 
     @property
     def u_max(self) -> float:
+        """u_max, the last node of both paths [rad]."""
         return self.ascending[-1]
 
     @property
@@ -95,11 +98,13 @@ class PathNodes:
         return len(self.ascending) + len(self.descending) - 2
 
 
-def uniform_nodes(u_min: float, u_max: float, num_nodes: int) -> NDArray[np.float64]:
-    """``num_nodes`` equally spaced nodes from ``u_min`` to ``u_max`` inclusive (n_p + 1 nodes, eq. (3))."""
-    low, high = float(u_min), float(u_max)
+def uniform_nodes(input_min_rad: float, input_max_rad: float, num_nodes: int) -> NDArray[np.float64]:
+    """``num_nodes`` equally spaced nodes from u_min = ``input_min_rad`` to u_max = ``input_max_rad``
+    inclusive (n_p + 1 nodes, eq. (3))."""
+    low, high = float(input_min_rad), float(input_max_rad)
     if not (np.isfinite(low) and np.isfinite(high) and low < high):
-        raise InvalidInputError(f"u_min, u_max: expected finite u_min < u_max, got {u_min!r}, {u_max!r}")
+        raise InvalidInputError(f"input_min_rad, input_max_rad: expected finite numbers with input_min_rad < "
+                                f"input_max_rad, got {input_min_rad!r}, {input_max_rad!r}")
     if int(num_nodes) != num_nodes or num_nodes < 2:
         raise InvalidInputError(f"num_nodes: expected an integer >= 2 (u_min and u_max at least), got {num_nodes!r}")
     nodes = np.linspace(low, high, int(num_nodes))
@@ -108,7 +113,8 @@ def uniform_nodes(u_min: float, u_max: float, num_nodes: int) -> NDArray[np.floa
 
 
 def direction_signal(values: ArrayLike, *, threshold: float = 0.0) -> NDArray[np.float64]:
-    """s_t in {-1, 0, +1}: the sign of the last increment of ``values`` up to t larger than ``threshold`` in
+    """s_t in {-1, 0, +1}: the sign of the last increment of ``values`` up to t larger than ``threshold`` (in
+    the unit of ``values``) in
     size (0 before the first). The one direction of motion of the package: the paper's δ(t)
     (:func:`path_indicator`) and the backlash and friction signatures of :mod:`identify.effect_signatures`
     both read it.
@@ -132,60 +138,60 @@ def direction_signal(values: ArrayLike, *, threshold: float = 0.0) -> NDArray[np
     return sign[index]
 
 
-def path_indicator(u: ArrayLike, *, initial_direction: int = 0) -> NDArray[np.int8]:
+def path_indicator(input_rad: ArrayLike, *, initial_direction: int = 0) -> NDArray[np.int8]:
     """δ(t) of Section II-B: 1 if u(t) > u(t-1), 0 if u(t) < u(t-1), δ(t-1) if u(t) = u(t-1); that is, 1 on
     the ascending path and 0 on the descending one (:func:`direction_signal` +1 and -1).
 
     Parameters
     ----------
-    u
-        The input signal.
+    input_rad
+        The input signal u.
     initial_direction
         δ(-1), used until the input first moves (0: the input came down to u(0), as at the end of a Table I
         cycle or a hold at u_min).
     """
-    signal = as_signal("u", u)
+    signal = as_signal("input_rad", input_rad)
     if initial_direction not in (0, 1):
         raise InvalidInputError(f"initial_direction: expected 0 (descending) or 1 (ascending), got {initial_direction!r}")
     direction = direction_signal(signal)
     return np.where(direction == 0.0, initial_direction, direction > 0.0).astype(np.int8)
 
 
-def piecewise_linear_basis(u: ArrayLike, nodes: ArrayLike) -> NDArray[np.float64]:
+def piecewise_linear_basis(input_rad: ArrayLike, nodes: ArrayLike) -> NDArray[np.float64]:
     """P_i(u(t)), i = 1..n_p, of eq. (3): 0 below n_{i-1}, u - n_{i-1} on the segment, n_i - n_{i-1} above.
 
     Returns
     -------
-    ndarray, shape (len(u), len(nodes) - 1)
+    ndarray, shape (len(input_rad), len(nodes) - 1)
     """
-    signal = as_signal("u", u)
+    signal = as_signal("input_rad", input_rad)
     node_array = np.asarray(_nodes("nodes", nodes))
     return np.clip(signal[:, None] - node_array[None, :-1], 0.0, np.diff(node_array)[None, :])
 
 
-def lifted_input(u: ArrayLike, nodes: PathNodes, *, initial_direction: int = 0) -> NDArray[np.float64]:
+def lifted_input(input_rad: ArrayLike, nodes: PathNodes, *, initial_direction: int = 0) -> NDArray[np.float64]:
     """The lifted input z(t) of eq. (4), one row per sample, ascending columns first.
 
     Returns
     -------
-    ndarray, shape (len(u), nodes.num_lifted_inputs)
+    ndarray, shape (len(input_rad), nodes.num_lifted_inputs)
         ``[P^a(u) δ, P^d(u) (1 - δ)]``; with μ the node slopes, H[u(t)] = μ0 + z(t) μ.
     """
-    signal = as_signal("u", u)
+    signal = as_signal("input_rad", input_rad)
     delta = path_indicator(signal, initial_direction=initial_direction).astype(float)[:, None]
     return np.hstack((piecewise_linear_basis(signal, nodes.ascending) * delta,
                       piecewise_linear_basis(signal, nodes.descending) * (1.0 - delta)))
 
 
 def check_cyclic_input(
-    u: ArrayLike,
+    input_rad: ArrayLike,
     nodes: PathNodes,
     *,
     initial_direction: int = 0,
-    tolerance: float | None = None,
+    tolerance_rad: float | None = None,
     min_visits: int = 1,
 ) -> None:
-    """Raise :class:`InvalidInputError` unless ``u`` drives the paths the way Table I does.
+    """Raise :class:`InvalidInputError` unless the input u (``input_rad``) drives the paths the way Table I does.
 
     The lifting of eq. (4) holds for a backlash only if every ascending run starts at u_min and every
     descending run at u_max (Section II-B: the paths are then unique), and the slopes μ_i are identifiable
@@ -199,17 +205,17 @@ def check_cyclic_input(
 
     Parameters
     ----------
-    tolerance
+    tolerance_rad
         How far from u_min/u_max a sample may be and still count as being there; default 1e-9 of the range.
     """
-    signal = as_signal("u", u)
+    signal = as_signal("input_rad", input_rad)
     low, high = nodes.u_min, nodes.u_max
-    tol = 1e-9 * (high - low) if tolerance is None else float(tolerance)
+    tol = 1e-9 * (high - low) if tolerance_rad is None else float(tolerance_rad)
     outside = np.flatnonzero((signal < low - tol) | (signal > high + tol))
     if outside.size:
         k = int(outside[0])
         raise InvalidInputError(
-            f"u: sample {k} is {float(signal[k])}, outside the node interval [{low}; {high}] "
+            f"input_rad: sample {k} is {float(signal[k])}, outside the node interval [{low}; {high}] "
             f"({outside.size} samples outside); widen the nodes or clip the data"
         )
     delta = path_indicator(signal, initial_direction=initial_direction)
@@ -223,12 +229,12 @@ def check_cyclic_input(
         k = int(turns[bad[0]])
         if bad_up[bad[0]]:
             raise InvalidInputError(
-                f"u: sample {k - 1} turns from descending to ascending at {float(signal[k - 1])}, above u_min = {low}; "
+                f"input_rad: sample {k - 1} turns from descending to ascending at {float(signal[k - 1])}, above u_min = {low}; "
                 "Table I reverses only at u_min and u_max, otherwise a backlash leaves the identified paths. "
                 + CYCLIC_REQUIREMENT
             )
         raise InvalidInputError(
-            f"u: sample {k - 1} turns from ascending to descending at {float(signal[k - 1])}, below u_max = {high}; "
+            f"input_rad: sample {k - 1} turns from ascending to descending at {float(signal[k - 1])}, below u_max = {high}; "
             "Table I reverses only at u_min and u_max, otherwise a backlash leaves the identified paths. "
                 + CYCLIC_REQUIREMENT
         )
@@ -238,18 +244,18 @@ def check_cyclic_input(
         rising = signal[first + 1] > signal[first]
         if rising and signal[first] > low + tol:
             raise InvalidInputError(
-                f"u: the first ascending run starts at sample {first} from {float(signal[first])}, above u_min = {low}; "
+                f"input_rad: the first ascending run starts at sample {first} from {float(signal[first])}, above u_min = {low}; "
                 "trim the data so that it starts at u_min (Table I: u(0) = u_min)"
             )
         if not rising and signal[first] < high - tol:
             raise InvalidInputError(
-                f"u: the first descending run starts at sample {first} from {float(signal[first])}, below u_max = {high}; "
+                f"input_rad: the first descending run starts at sample {first} from {float(signal[first])}, below u_max = {high}; "
                 "trim the data so that it starts at u_min (Table I: u(0) = u_min)"
             )
     if not np.any((delta == 1) & (signal >= high - tol)):
-        raise InvalidInputError(f"u: the ascending path is never traversed up to u_max = {high}. " + CYCLIC_REQUIREMENT)
+        raise InvalidInputError(f"input_rad: the ascending path is never traversed up to u_max = {high}. " + CYCLIC_REQUIREMENT)
     if not np.any((delta == 0) & (signal <= low + tol)):
-        raise InvalidInputError(f"u: the descending path is never traversed down to u_min = {low}. " + CYCLIC_REQUIREMENT)
+        raise InvalidInputError(f"input_rad: the descending path is never traversed down to u_min = {low}. " + CYCLIC_REQUIREMENT)
     for path, path_nodes, on_path in (("ascending", nodes.ascending, delta == 1),
                                       ("descending", nodes.descending, delta == 0)):
         values = signal[on_path]
@@ -258,7 +264,7 @@ def check_cyclic_input(
             visits = int(np.count_nonzero((values > a) & (values < b)))
             if visits < min_visits:
                 raise InvalidInputError(
-                    f"u: segment {i} ]{a:g}; {b:g}[ of the {path} path is visited by {visits} samples "
+                    f"input_rad: segment {i} ]{a:g}; {b:g}[ of the {path} path is visited by {visits} samples "
                     f"(at least {min_visits} needed to estimate its slope); move or remove nodes, or excite longer. "
                     + CYCLIC_REQUIREMENT
                 )

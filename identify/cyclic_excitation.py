@@ -32,12 +32,15 @@ SAMPLES_PER_CYCLE = 4
 """Table I has four steps per cycle (random ascending, u_max, random descending, u_min)."""
 
 
-def _check(u_min: float, u_max: float, hold_samples: int, samples_per_step: int) -> tuple[float, float]:
-    low, high = float(u_min), float(u_max)
+def _check(input_min_rad: float, input_max_rad: float, hold_samples: int,
+           samples_per_step: int) -> tuple[float, float]:
+    low, high = float(input_min_rad), float(input_max_rad)
     if not (np.isfinite(low) and np.isfinite(high)):
-        raise InvalidInputError(f"u_min, u_max: expected finite numbers, got {u_min!r}, {u_max!r}")
+        raise InvalidInputError(f"input_min_rad, input_max_rad: expected finite numbers, got {input_min_rad!r}, "
+                                f"{input_max_rad!r}")
     if not low < high:
-        raise InvalidInputError(f"u_min, u_max: expected u_min < u_max, got u_min={low}, u_max={high}")
+        raise InvalidInputError(f"input_min_rad, input_max_rad: expected input_min_rad < input_max_rad, got "
+                                f"input_min_rad={low}, input_max_rad={high}")
     if int(hold_samples) != hold_samples or hold_samples < 0:
         raise InvalidInputError(f"hold_samples: expected an integer >= 0, got {hold_samples!r}")
     if int(samples_per_step) != samples_per_step or samples_per_step < 1:
@@ -60,8 +63,8 @@ def _strictly_inside(values: NDArray[np.float64], low: float, high: float) -> ND
 
 def cyclic_random_excitation(
     num_samples: int,
-    u_min: float,
-    u_max: float,
+    input_min_rad: float,
+    input_max_rad: float,
     hold_samples: int,
     rng: np.random.Generator | int | None,
     *,
@@ -73,7 +76,7 @@ def cyclic_random_excitation(
     ----------
     num_samples
         Total length, hold included. The last cycle is cut wherever ``num_samples`` falls.
-    u_min, u_max
+    input_min_rad, input_max_rad
         The working interval [u_min; u_max] on which the nonlinearity's borders are identified.
     hold_samples
         Samples at ``u_min`` before the cyclic sequence (Section III, estimation of μ0). Table I's own
@@ -97,7 +100,7 @@ def cyclic_random_excitation(
     >>> u[[0, 1, 2, 4, 6, 8]].tolist()
     [-3.0, -3.0, -3.0, 3.0, -3.0, 3.0]
     """
-    low, high = _check(u_min, u_max, hold_samples, samples_per_step)
+    low, high = _check(input_min_rad, input_max_rad, hold_samples, samples_per_step)
     if int(num_samples) != num_samples or num_samples < 0:
         raise InvalidInputError(f"num_samples: expected an integer >= 0, got {num_samples!r}")
     generator = _generator(rng)
@@ -115,8 +118,8 @@ def cyclic_random_excitation(
 
 
 def iter_cyclic_random_excitation(
-    u_min: float,
-    u_max: float,
+    input_min_rad: float,
+    input_max_rad: float,
     hold_samples: int,
     rng: np.random.Generator | int | None,
     *,
@@ -134,7 +137,7 @@ def iter_cyclic_random_excitation(
     >>> [next(stream) for _ in range(3)]
     [-3.0, -3.0, -3.0]
     """
-    low, high = _check(u_min, u_max, hold_samples, samples_per_step)
+    low, high = _check(input_min_rad, input_max_rad, hold_samples, samples_per_step)
     if num_samples is not None and (int(num_samples) != num_samples or num_samples < 0):
         raise InvalidInputError(f"num_samples: expected an integer >= 0 or None, got {num_samples!r}")
     generator = _generator(rng)

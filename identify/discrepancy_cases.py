@@ -42,9 +42,10 @@ class HiddenEffectRecord:
     effects: tuple[str, ...]
 
 
-def step_excitation(samples: int, rng: np.random.Generator, amplitude_rad: float = 1.0) -> NDArray[np.float64]:
+def step_excitation(num_samples: int, rng: np.random.Generator, amplitude_rad: float = 1.0) -> NDArray[np.float64]:
     """Random steps held 40-250 samples, levels uniform in +-``amplitude_rad``, every third level small
     (within 15 % of the amplitude) so that behaviour near zero is seen, every other transition a step, the others ramps of 1-400 samples."""
+    samples = int(num_samples)
     out = np.empty(samples)
     k, level, index = 0, 0.0, 0
     while k < samples:
@@ -66,12 +67,14 @@ def random_effect(name: str, rng: np.random.Generator, command_rad: NDArray[np.f
     return block, (0 if entry.placement == "input" else None)
 
 
-def hidden_effect_record(effects: tuple[str, ...], seed: int, samples: int = 3000, encoder_bits: int = 12,
-                         noise_rad: float = 2.0e-4) -> HiddenEffectRecord:
-    """Simulate the nominal linear model plus ``effects`` (possibly none) on a random step excitation, and
-    measure the output with an ``encoder_bits`` absolute encoder (one count 2 pi / 2^bits) plus uniform noise
-    of at most ``noise_rad``; the noise bound is half a count plus ``noise_rad``."""
+def hidden_effect_record(effects: tuple[str, ...], seed: int, num_samples: int = 3000, encoder_bits: int = 12,
+                         noise_amplitude_rad: float = 2.0e-4) -> HiddenEffectRecord:
+    """Simulate the nominal linear model plus ``effects`` (possibly none) on a random step excitation of
+    ``num_samples`` samples, and measure the output with an ``encoder_bits`` absolute encoder (one count
+    2 pi / 2^bits) plus uniform noise of at most ``noise_amplitude_rad``; the noise bound is half a count plus
+    ``noise_amplitude_rad``."""
     rng = np.random.default_rng(seed)
+    samples, noise_rad = int(num_samples), float(noise_amplitude_rad)
     u = step_excitation(samples, rng)
     model = PlantModel((NOMINAL_LINEAR,))
     for name in effects:

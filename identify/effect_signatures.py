@@ -58,11 +58,11 @@ def _explained(residual: NDArray[np.float64], *regressors: NDArray[np.float64]) 
     return float(max(0.0, 1.0 - float(np.dot(left, left)) / energy))
 
 
-def delay_regressor(simulated_rad: NDArray[np.float64], lag: int) -> NDArray[np.float64]:
-    """y^_{t-d} - y^_t (held at y^_0 before the record): exactly the residual a model d = ``lag`` samples
-    early leaves."""
+def delay_regressor(simulated_rad: NDArray[np.float64], lag_samples: int) -> NDArray[np.float64]:
+    """y^_{t-d} - y^_t (held at y^_0 before the record): exactly the residual a model d = ``lag_samples``
+    samples early leaves."""
     y_hat = np.asarray(simulated_rad, dtype=float)
-    lag = min(max(int(lag), 0), y_hat.size)
+    lag = min(max(int(lag_samples), 0), y_hat.size)
     return np.concatenate((np.full(lag, y_hat[0]), y_hat[: y_hat.size - lag])) - y_hat
 
 

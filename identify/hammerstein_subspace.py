@@ -10,7 +10,7 @@ ascending and descending borders of the nonlinearity:
    [Z_f; Z_p; Y_f] gives the projection O_f of eq. (11) as L32 Q2; its left singular vectors span Γ_f.
    The L factor is the Cholesky factor of the Gram matrix of the input rows, which the Hankel structure
    gives in O((p+f) m^2 N), so no j × j projection and no explicit inverse is formed
-   (:func:`pi_moesp_observability`; ``factorisation="qr"`` is the Householder reference);
+   (:func:`pi_moesp_observability`; the tests hold a Householder QR reference);
 3. the order n from the largest gap between consecutive singular values (or given);
 4. A and C from the shift invariance of Γ_f (step 1 of Section III);
 5. bold B = B μ and bold D = D μ by linear least squares on the output with the initial state (step 2);
@@ -48,6 +48,8 @@ Example
 from __future__ import annotations
 
 from collections.abc import Mapping
+import dataclasses
+import logging
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
@@ -64,11 +66,14 @@ from identify.validation import InvalidInputError, as_signal, positive, renamed_
 
 __all__ = [
     "HammersteinModel",
+    "HammersteinOptions",
     "RefinementReport",
     "identify_hammerstein",
     "pi_moesp_observability",
     "select_order",
 ]
+
+logger = logging.getLogger(__name__)
 
 DEFAULT_FUTURE_HORIZON = 15
 DEFAULT_PAST_HORIZON = 15
@@ -146,7 +151,7 @@ class HammersteinModel:
     residual_rms
         RMS of y - y_model on the identification data.
     mu0_hold
-        The paper's μ0: the output mean over the hold (None if ``mu0`` was given).
+        The paper's μ0: the output mean over the hold (None if ``mu0_rad`` was given).
     refinement
         Report of the output-error refinement, or None if it was not run.
     """
@@ -379,18 +384,12 @@ def _state_space_to_tf(A: NDArray[np.float64], B: NDArray[np.float64], C: NDArra
 # ----------------------------------------------------------------------------------------------------------
 
 
-def _block_hankel(signal: NDArray[np.float64], first: int, num_blocks: int, num_columns: int) -> NDArray[np.float64]:
-    """Transposed block-Hankel matrix: row k is [s(first + k), ..., s(first + k + num_blocks - 1)]."""
-    m = signal.shape[1]
-    windows = np.lib.stride_tricks.sliding_window_view(signal, (num_blocks, m))[:, 0]
-    return windows[first : first + num_columns].reshape(num_columns, num_blocks * m)
-
-
 _GRAM_CHUNK = 4096
 
 
 def _hankel_gram(w: NDArray[np.float64], num_blocks: int, num_columns: int) -> NDArray[np.float64]:
-    """H^T H for the transposed block-Hankel H = _block_hankel(w, 0, num_blocks, num_columns), in O(s M^2 j).
+    """H^T H for the transposed block-Hankel H whose row t is [w(t), ..., w(t + num_blocks - 1)], t < num_columns,
+    in O(s M^2 j).
 
     Block (b1, b2) is Σ_{t<j} w(t + b1) w(t + b2)^T. Along a diagonal b2 - b1 = d it changes only by the
     samples that enter and leave the window, so one lag product per d plus a running sum of s rank-one
@@ -422,27 +421,24 @@ def _hankel_gram(w: NDArray[np.float64], num_blocks: int, num_columns: int) -> N
 
 
 def pi_moesp_observability(
-    z: ArrayLike, y: ArrayLike, past_horizon: int, future_horizon: int,
-    *, factorisation: Literal["gram", "qr"] = "gram", remove_offset: bool = True,
+    inputs: ArrayLike, output_rad: ArrayLike, past_horizon: int, future_horizon: int, *, remove_offset: bool = True,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
     """Left singular vectors and singular values of the PI-MOESP projection O_f of eq. (11).
 
     With the LQ factorisation [Z_f; Z_p; Y_f] = L Q (no explicit inverse), O_f = Y_f Φ^T (Φ Φ^T)^-1 Φ
     Π_{Z_f}^⊥ = L32 Q2, so the SVD of the small block L32 (f × p m) gives the U_1 and S_1 of eq. (12).
+    The L factor of the input rows is the Cholesky factor of their Gram matrix, which the Hankel structure
+    gives in O((p+f) m^2 N) operations (:func:`_hankel_gram`), and the output rows follow by triangular
+    solves (the tests compare it with a Householder QR of the stacked j × ((p+f) m + f) matrix).
 
     Parameters
     ----------
-    z
-        Inputs, shape (N, m) (the lifted input of eq. (4)) or (N,).
-    y
-        Outputs, shape (N,).
+    inputs
+        The inputs z, shape (N, m) (the lifted input of eq. (4)) or (N,).
+    output_rad
+        The output y, shape (N,).
     past_horizon, future_horizon
         p and f.
-    factorisation
-        ``"gram"`` (default) gets the L factor of the input rows as the Cholesky factor of their Gram
-        matrix, which the Hankel structure gives in O((p+f) m^2 N) operations, and the output rows by
-        triangular solves; ``"qr"`` runs a Householder QR on the j × ((p+f) m + f) stacked matrix (slower,
-        and the reference the tests compare against).
     remove_offset
         Project out a constant as well as Z_f (equivalently, centre every Hankel row), so that a constant
         output offset, such as an error in μ0, does not appear as an extra state.
@@ -453,46 +449,32 @@ def pi_moesp_observability(
         U (f, f) left singular vectors, the singular values (largest first), and |diag| of the input part of
         L (a zero there means the input is not persistently exciting of order p + f).
     """
-    inputs = np.asarray(z, dtype=float)
+    inputs = np.asarray(inputs, dtype=float)
     if inputs.ndim == 1:
         inputs = inputs[:, None]
-    outputs = np.asarray(y, dtype=float).reshape(-1, 1)
+    outputs = np.asarray(output_rad, dtype=float).reshape(-1, 1)
     p, f = int(past_horizon), int(future_horizon)
     m = inputs.shape[1]
     j = inputs.shape[0] - p - f + 1
     a, b = f * m, (f + p) * m
-    if factorisation == "qr":
-        stacked = np.hstack((
-            _block_hankel(inputs, p, f, j),       # Z_f
-            _block_hankel(inputs, 0, p, j),       # Z_p
-            _block_hankel(outputs, p, f, j),      # Y_f
-        ))
-        if remove_offset:
-            stacked -= stacked.mean(axis=0)
-        R = scipy.linalg.lapack.dgeqrf(stacked, overwrite_a=True)[0][: b + f]
-        L32 = np.triu(R)[a:b, b:].T
-        input_diagonal = np.abs(np.diag(R)[:b])
-    elif factorisation == "gram":
-        s, M = p + f, m + 1
-        w = np.hstack((inputs, outputs))
-        gram = _hankel_gram(w, s, j)
-        if remove_offset:
-            # row sums of the Hankel matrix: Σ_{t<j} w(t + b), from one cumulative sum
-            cumulative = np.vstack((np.zeros((1, M)), np.cumsum(w, axis=0)))
-            sums = (cumulative[j : j + s] - cumulative[:s]).ravel()
-            gram -= np.outer(sums, sums) / j
-        index = np.arange(s * M).reshape(s, M)
-        order = np.concatenate((index[p:, :m].ravel(), index[:p, :m].ravel(), index[p:, m]))
-        gram = gram[np.ix_(order, order)]
-        try:
-            R_in = scipy.linalg.cholesky(gram[:b, :b], lower=False, check_finite=False)
-        except np.linalg.LinAlgError:
-            return np.eye(f), np.zeros(min(f, p * m)), np.zeros(b)
-        R_out = scipy.linalg.solve_triangular(R_in, gram[:b, b:], trans="T", check_finite=False)
-        L32 = R_out[a:b].T
-        input_diagonal = np.abs(np.diag(R_in))
-    else:
-        raise InvalidInputError(f"factorisation: expected 'gram' or 'qr', got {factorisation!r}")
+    s, M = p + f, m + 1
+    w = np.hstack((inputs, outputs))
+    gram = _hankel_gram(w, s, j)
+    if remove_offset:
+        # row sums of the Hankel matrix: Σ_{t<j} w(t + b), from one cumulative sum
+        cumulative = np.vstack((np.zeros((1, M)), np.cumsum(w, axis=0)))
+        sums = (cumulative[j : j + s] - cumulative[:s]).ravel()
+        gram -= np.outer(sums, sums) / j
+    index = np.arange(s * M).reshape(s, M)
+    order = np.concatenate((index[p:, :m].ravel(), index[:p, :m].ravel(), index[p:, m]))
+    gram = gram[np.ix_(order, order)]
+    try:
+        R_in = scipy.linalg.cholesky(gram[:b, :b], lower=False, check_finite=False)
+    except np.linalg.LinAlgError:
+        return np.eye(f), np.zeros(min(f, p * m)), np.zeros(b)
+    R_out = scipy.linalg.solve_triangular(R_in, gram[:b, b:], trans="T", check_finite=False)
+    L32 = R_out[a:b].T
+    input_diagonal = np.abs(np.diag(R_in))
     U, singular_values, _ = scipy.linalg.svd(L32, full_matrices=True, check_finite=False)
     return U, singular_values, input_diagonal
 
@@ -725,30 +707,89 @@ def _check_int(name: str, value: Any, lowest: int) -> int:
     return int(value)
 
 
+@dataclass(frozen=True)
+class HammersteinOptions:
+    """The settings of :func:`identify_hammerstein`, checked when built (an :class:`InvalidInputError` names
+    the field). ``identify_hammerstein(u, y, nodes, options)`` or the same fields as keywords.
+
+    Attributes
+    ----------
+    hold_samples
+        Length K of the leading hold at u_min: μ0 starts as the mean of y over it (Section III).
+    mu0_rad
+        μ0 = H[u_min] when it is known (then no hold is needed). With neither, μ0 starts at 0; with
+        ``estimate_offset`` (the default) it is re-estimated from all data anyway.
+    order
+        n, or ``"auto"``: the largest gap among the first ``max_order`` singular values.
+    max_order
+        The largest n that ``order="auto"`` considers.
+    past_horizon, future_horizon
+        p and f of the block-Hankel matrices (f > n and p > n; j = N - p - f + 1 columns).
+    feedthrough
+        Estimate D (the paper's eq. (6)); ``False`` fixes D = 0 for a strictly proper G.
+    split
+        ``"separate"`` (default: Remark 5, B, D and μ by alternating least squares with A, C fixed; it
+        was as accurate or better in ``benchmarks/pouliquen2013_hammerstein.py``) or ``"rank1"`` (eq. (14)).
+    estimate_offset
+        Re-estimate μ0 jointly with B and D (a constant regressor); ``False`` keeps the hold mean or ``mu0_rad``.
+    refine
+        Run the output-error refinement after the subspace step (:class:`RefinementReport`).
+    initial_direction
+        δ(-1) of the direction signal (0: the input came down to u(0)).
+    min_visits
+        Fewest samples each node segment must hold on each path.
+    """
+
+    hold_samples: int | None = None
+    mu0_rad: float | None = None
+    order: int | Literal["auto"] = "auto"
+    max_order: int = 10
+    past_horizon: int = DEFAULT_PAST_HORIZON
+    future_horizon: int = DEFAULT_FUTURE_HORIZON
+    feedthrough: bool = True
+    split: Literal["rank1", "separate"] = "separate"
+    estimate_offset: bool = True
+    refine: bool = False
+    initial_direction: int = 0
+    min_visits: int = 1
+
+    def __post_init__(self) -> None:
+        for name, lowest in (("past_horizon", 1), ("future_horizon", 2), ("max_order", 1)):
+            object.__setattr__(self, name, _check_int(name, getattr(self, name), lowest))
+        if self.split not in ("rank1", "separate"):
+            raise InvalidInputError(f"split: expected 'rank1' or 'separate', got {self.split!r}")
+        if self.order != "auto":
+            object.__setattr__(self, "order", _check_int("order", self.order, 1))
+        if self.mu0_rad is not None:
+            if self.hold_samples is not None:
+                raise InvalidInputError("hold_samples, mu0_rad: give one of them, not both")
+            if not np.isfinite(float(self.mu0_rad)):
+                raise InvalidInputError(f"mu0_rad: expected a finite number, got {self.mu0_rad!r}")
+        elif self.hold_samples is not None:
+            object.__setattr__(self, "hold_samples", _check_int("hold_samples", self.hold_samples, 1))
+        elif not self.estimate_offset:
+            raise InvalidInputError("hold_samples, mu0_rad: give one of them, or set estimate_offset=True")
+
+
+_OPTION_NAMES = tuple(f.name for f in dataclasses.fields(HammersteinOptions))
+
+
 @renamed_parameters(u="input_rad", y="output_rad")
 def identify_hammerstein(
     input_rad: ArrayLike,
     output_rad: ArrayLike,
     nodes: PathNodes | ArrayLike,
-    *,
-    hold_samples: int | None = None,
-    mu0: float | None = None,
-    order: int | Literal["auto"] = "auto",
-    max_order: int = 10,
-    past_horizon: int = DEFAULT_PAST_HORIZON,
-    future_horizon: int = DEFAULT_FUTURE_HORIZON,
-    feedthrough: bool = True,
-    split: Literal["rank1", "separate"] = "separate",
-    estimate_offset: bool = True,
-    refine: bool = False,
-    initial_direction: int = 0,
-    min_visits: int = 1,
+    options: HammersteinOptions | None = None,
+    **option_values: Any,
 ) -> HammersteinModel:
     """Identify G(q) and the borders of an input backlash or switch from one Table I experiment.
 
-    Implements Section III of Pouliquen et al. (2013): the lifting of eq. (4), PI-MOESP (eqs. (8)-(13)),
-    A and C from Γ_f, bold B and bold D by least squares, the rank-1 split of eq. (14) and the unit static
-    gain of A.2. See the module docstring for what goes beyond the paper.
+    Implements Section III of Pouliquen et al. (2013), one named step each: μ0 from the hold
+    (:func:`_start_offset`), the lifting of eq. (4) and PI-MOESP, eqs. (8)-(13) (:func:`_observability`),
+    the order from the singular values (:func:`_choose_order`), A and C from Γ_f (:func:`_shift_invariance`),
+    bold B and bold D by least squares with the rank-1 split of eq. (14) or Remark 5 (:func:`_input_gains`),
+    the unit static gain of A.2 (:func:`_unit_static_gain`) and the optional refinement. See the module
+    docstring for what goes beyond the paper.
 
     Parameters
     ----------
@@ -758,163 +799,207 @@ def identify_hammerstein(
     nodes
         Path nodes (eq. (3)); :meth:`PathNodes.uniform` for equally spaced ones, or one sequence of node
         positions shared by both paths.
-    hold_samples
-        Length K of the leading hold at u_min: μ0 starts as the mean of y over it (Section III).
-    mu0
-        μ0 when it is known (then no hold is needed). With neither, μ0 starts at 0; with
-        ``estimate_offset`` (the default) it is re-estimated from all data anyway.
-    order
-        n, or ``"auto"``: the largest gap among the first ``max_order`` singular values.
-    past_horizon, future_horizon
-        p and f of the block-Hankel matrices (f > n and p > n; j = N - p - f + 1 columns).
-    feedthrough
-        Estimate D (the paper's eq. (6)); ``False`` fixes D = 0 for a strictly proper G.
-    split
-        ``"separate"`` (default: Remark 5, B, D and μ by alternating least squares with A, C fixed; it
-        was as accurate or better in ``benchmarks/pouliquen2013_hammerstein.py``) or ``"rank1"`` (eq. (14)).
-    estimate_offset
-        Re-estimate μ0 jointly with B and D (a constant regressor); ``False`` keeps the hold mean or ``mu0``.
-    refine
-        Run the output-error refinement after the subspace step (:class:`RefinementReport`).
-    initial_direction
-        δ(-1) of the direction signal (0: the input came down to u(0)).
-    min_visits
-        Fewest samples each node segment must hold on each path.
+    options
+        The settings (:class:`HammersteinOptions`); or give its fields as keywords (``hold_samples=50``,
+        ``split="rank1"``, ...), which override those of ``options``.
 
     Raises
     ------
     InvalidInputError
         Non-finite samples, lengths that differ, an input that does not follow the cyclic design (names the
         sample, path or segment), too little data for the horizons, an input that is not persistently
-        exciting, an order the data do not support, or a linear part with no finite non-zero static gain.
+        exciting, an order the data do not support, a linear part with no finite non-zero static gain, or a
+        setting out of range.
+    TypeError
+        A keyword that is no field of :class:`HammersteinOptions` (the message lists them).
     """
+    unknown = sorted(set(option_values) - set(_OPTION_NAMES))
+    if unknown:
+        raise TypeError(f"identify_hammerstein() got an unexpected keyword argument {unknown[0]!r} (the options "
+                        f"are {', '.join(_OPTION_NAMES)})")
+    options = dataclasses.replace(options or HammersteinOptions(), **option_values)
     u_signal = varying("input_rad", as_signal("input_rad", input_rad), "use the cyclic random excitation of "
                        "identify.cyclic_excitation (configs/experiments/hammerstein_cyclic.toml)")
     y_signal = as_signal("output_rad", output_rad)
     N = same_length(input_rad=u_signal, output_rad=y_signal)
-    if not isinstance(nodes, PathNodes):
-        try:
-            shared = tuple(float(v) for v in nodes)
-        except (TypeError, ValueError) as err:
-            raise InvalidInputError(
-                f"nodes: expected a PathNodes or a sequence of node positions, got {type(nodes).__name__}"
-            ) from err
-        nodes = PathNodes(shared, shared)
-    p = _check_int("past_horizon", past_horizon, 1)
-    f = _check_int("future_horizon", future_horizon, 2)
-    max_order = _check_int("max_order", max_order, 1)
-    if split not in ("rank1", "separate"):
-        raise InvalidInputError(f"split: expected 'rank1' or 'separate', got {split!r}")
+    nodes = _path_nodes(nodes)
+    p, f = options.past_horizon, options.future_horizon
 
-    tolerance = 1e-9 * (nodes.u_max - nodes.u_min)
-    mu0_hold: float | None = None
-    if mu0 is not None:
-        if hold_samples is not None:
-            raise InvalidInputError("hold_samples, mu0: give one of them, not both")
-        mu0_start = float(mu0)
-        if not np.isfinite(mu0_start):
-            raise InvalidInputError(f"mu0: expected a finite number, got {mu0!r}")
-    elif hold_samples is not None:
-        K = _check_int("hold_samples", hold_samples, 1)
-        if K > N:
-            raise InvalidInputError(f"hold_samples: {K} is longer than the data ({N} samples)")
-        off_hold = np.flatnonzero(np.abs(u_signal[:K] - nodes.u_min) > tolerance)
-        if off_hold.size:
-            k = int(off_hold[0])
-            raise InvalidInputError(
-                f"hold_samples: sample {k} of the hold is u = {float(u_signal[k])}, expected u_min = {nodes.u_min}; "
-                "shorten hold_samples or give mu0"
-            )
-        mu0_hold = float(np.mean(y_signal[:K]))
-        mu0_start = mu0_hold
-    else:
-        if not estimate_offset:
-            raise InvalidInputError("hold_samples, mu0: give one of them, or set estimate_offset=True")
-        mu0_start = 0.0
-
+    mu0_start, mu0_hold = _start_offset(u_signal, y_signal, nodes, options)
     m = nodes.num_lifted_inputs
     j = N - p - f + 1
     needed_columns = (p + f) * m + f
     if j < needed_columns:
         raise InvalidInputError(
-            f"u, y: {N} samples are too few for past_horizon={p}, future_horizon={f} and {m} lifted inputs: "
+            f"input_rad, output_rad: {N} samples are too few for past_horizon={p}, future_horizon={f} and {m} lifted inputs: "
             f"the Hankel matrices need at least {needed_columns} columns, i.e. {needed_columns + p + f - 1} samples"
         )
-    check_cyclic_input(u_signal, nodes, initial_direction=initial_direction, tolerance=tolerance,
-                       min_visits=min_visits)
+    check_cyclic_input(u_signal, nodes, initial_direction=options.initial_direction,
+                       tolerance_rad=_node_tolerance(nodes), min_visits=options.min_visits)
 
-    z = lifted_input(u_signal, nodes, initial_direction=initial_direction)
+    z = lifted_input(u_signal, nodes, initial_direction=options.initial_direction)
     y_bar = y_signal - mu0_start
-    # The subspace step projects out a constant (an error in μ0 would otherwise look like an extra
-    # state); the offset itself is estimated in the least-squares step.
+    U, singular_values = _observability(z, y_bar, p, f)
+    n = _choose_order(singular_values, options)
+    A, C = _shift_invariance(U, singular_values, n)
+    B, D, mu, x0, offset, free_response = _input_gains(A, C, z, y_bar, options)
+    mu0_final = mu0_start + offset
+    B, D, mu = _unit_static_gain(A, B, C, D, mu)
+
+    numerator, denominator = _state_space_to_tf(A, B, C, D)
+    model_output = mu0_final + scipy.signal.lfilter(numerator, denominator, z @ mu) + free_response @ x0
+    refinement = None
+    if options.refine:
+        A, B, C, D, mu, mu0_final, x0, model_output, refinement = _refined_model(
+            z, y_signal, numerator, denominator, mu, mu0_final, free_response @ x0, options.feedthrough,
+            (A, B, C, D, x0, model_output))
+    residual = y_signal - model_output
+    spread = np.linalg.norm(y_signal - y_signal.mean())
+    fit = 100.0 * (1.0 - np.linalg.norm(residual) / spread) if spread > 0 else float("nan")
+    num_a = len(nodes.ascending) - 1
+    return HammersteinModel(
+        A=A, B=B, C=C, D=D, mu0=mu0_final, nodes=nodes,
+        mu_ascending=mu[:num_a], mu_descending=mu[num_a:],
+        singular_values=singular_values, order=n, past_horizon=p, future_horizon=f, num_columns=j,
+        split=options.split, initial_state=x0, fit_percent=float(fit),
+        residual_rms=float(np.sqrt(np.mean(residual**2))), mu0_hold=mu0_hold, refinement=refinement,
+    )
+
+
+def _path_nodes(nodes: PathNodes | ArrayLike) -> PathNodes:
+    """``nodes`` as :class:`PathNodes`: one sequence of positions is shared by both paths."""
+    if isinstance(nodes, PathNodes):
+        return nodes
+    try:
+        shared = tuple(float(v) for v in nodes)  # type: ignore[union-attr]
+    except (TypeError, ValueError) as err:
+        raise InvalidInputError(
+            f"nodes: expected a PathNodes or a sequence of node positions, got {type(nodes).__name__}"
+        ) from err
+    return PathNodes(shared, shared)
+
+
+def _node_tolerance(nodes: PathNodes) -> float:
+    """How far from a node value an input still counts as at it (u_min on the hold, the cyclic check)."""
+    return 1e-9 * (nodes.u_max - nodes.u_min)
+
+
+def _start_offset(u: NDArray[np.float64], y: NDArray[np.float64], nodes: PathNodes,
+                  options: HammersteinOptions) -> tuple[float, float | None]:
+    """(μ0 to start from, the paper's hold mean or None): ``mu0_rad`` if given, else the mean of y over the
+    hold at u_min (Section III), else 0 (then the offset is estimated from all data)."""
+    if options.mu0_rad is not None:
+        return float(options.mu0_rad), None
+    if options.hold_samples is None:
+        return 0.0, None
+    K = options.hold_samples
+    if K > u.size:
+        raise InvalidInputError(f"hold_samples: {K} is longer than the data ({u.size} samples)")
+    off_hold = np.flatnonzero(np.abs(u[:K] - nodes.u_min) > _node_tolerance(nodes))
+    if off_hold.size:
+        k = int(off_hold[0])
+        raise InvalidInputError(
+            f"hold_samples: sample {k} of the hold is u = {float(u[k])}, expected u_min = {nodes.u_min}; "
+            "shorten hold_samples or give mu0_rad"
+        )
+    mu0_hold = float(np.mean(y[:K]))
+    return mu0_hold, mu0_hold
+
+
+def _observability(z: NDArray[np.float64], y_bar: NDArray[np.float64], p: int,
+                   f: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """U and the singular values of the PI-MOESP projection (eqs. (8)-(12)), after checking that the lifted
+    input is persistently exciting of order p + f.
+
+    The subspace step projects out a constant (an error in μ0 would otherwise look like an extra state);
+    the offset itself is estimated in the least-squares step."""
     U, singular_values, input_diagonal = pi_moesp_observability(z, y_bar, p, f)
     if input_diagonal.min() <= 1e-10 * input_diagonal.max():
         raise InvalidInputError(
-            f"u: the lifted input is not persistently exciting of order p + f = {p + f} "
-            f"({m} lifted inputs): check the excitation or use fewer nodes or shorter horizons"
+            f"input_rad: the lifted input is not persistently exciting of order p + f = {p + f} "
+            f"({z.shape[1]} lifted inputs): check the excitation or use fewer nodes or shorter horizons"
         )
-    if order == "auto":
-        n = select_order(singular_values, min(max_order, f - 1, p))
-    else:
-        n = _check_int("order", order, 1)
-        if n >= f or n > p:
-            raise InvalidInputError(
-                f"order: {n} needs future_horizon > {n} and past_horizon >= {n}, got {f} and {p}"
-            )
-        if n > singular_values.size or singular_values[n - 1] <= 1e-12 * singular_values[0]:
-            raise InvalidInputError(
-                f"order: the data support at most order {int(np.sum(singular_values > 1e-12 * singular_values[0]))} "
-                f"(singular values {np.array2string(singular_values[: n + 1], precision=3)})"
-            )
+    return U, singular_values
 
-    # Step 1 of Section III: C and A from the extended observability matrix Γ_f = U_1 S_1^(1/2).
+
+def _choose_order(singular_values: NDArray[np.float64], options: HammersteinOptions) -> int:
+    """n: the largest gap of the singular values (eq. (12)) for ``order="auto"``, else the given order if
+    the horizons and the singular values support it."""
+    p, f = options.past_horizon, options.future_horizon
+    if options.order == "auto":
+        n = select_order(singular_values, min(options.max_order, f - 1, p))
+        logger.info("order %d chosen from the singular values (gap s_%d / s_%d = %.3g)", n, n, n + 1,
+                    singular_values[n - 1] / max(singular_values[n], np.finfo(float).tiny))
+        return n
+    n = int(options.order)
+    if n >= f or n > p:
+        raise InvalidInputError(f"order: {n} needs future_horizon > {n} and past_horizon >= {n}, got {f} and {p}")
+    if n > singular_values.size or singular_values[n - 1] <= 1e-12 * singular_values[0]:
+        raise InvalidInputError(
+            f"order: the data support at most order {int(np.sum(singular_values > 1e-12 * singular_values[0]))} "
+            f"(singular values {np.array2string(singular_values[: n + 1], precision=3)})"
+        )
+    return n
+
+
+def _shift_invariance(U: NDArray[np.float64], singular_values: NDArray[np.float64],
+                      n: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Step 1 of Section III: C and A from the extended observability matrix Γ_f = U_1 S_1^(1/2)."""
     gamma = U[:, :n] * np.sqrt(singular_values[:n])
     C = gamma[0].copy()
     A = _lstsq(gamma[:-1], gamma[1:])
+    return A, C
 
-    # Step 2: bold B, bold D (and x0, offset) by least squares; step 3: eq. (14) or Remark 5.
-    reg = _regressors(A, C, z, y_bar, feedthrough, estimate_offset)
+
+def _input_gains(A: NDArray[np.float64], C: NDArray[np.float64], z: NDArray[np.float64], y_bar: NDArray[np.float64],
+                 options: HammersteinOptions) -> tuple[NDArray, float, NDArray, NDArray, float, NDArray]:
+    """Steps 2 and 3 of Section III: bold B, bold D (and x0, the offset) by least squares, then eq. (14)'s
+    rank-1 split or Remark 5's separate fit. Returns B, D, μ, x0, the offset added to μ0 (0 unless
+    ``estimate_offset``) and the free response C A^t (N, n)."""
+    n = A.shape[0]
+    reg = _regressors(A, C, z, y_bar, options.feedthrough, options.estimate_offset)
     bold_B, bold_D, nuisance = _overparameterised_fit(reg)
-    B, D, mu = _rank_one_split(bold_B, bold_D, feedthrough)
-    if split == "separate":
+    B, D, mu = _rank_one_split(bold_B, bold_D, options.feedthrough)
+    if options.split == "separate":
         B, D, mu, nuisance = _separate_fit(reg, mu)
-    x0 = nuisance[:n]
-    mu0_final = mu0_start + (float(nuisance[n]) if estimate_offset else 0.0)
+    offset = float(nuisance[n]) if options.estimate_offset else 0.0
+    return B, D, mu, nuisance[:n], offset, reg.O
 
-    # A.2: scale so that G(1) = D + C (I - A)^-1 B = 1.
+
+def _unit_static_gain(A: NDArray[np.float64], B: NDArray[np.float64], C: NDArray[np.float64], D: float,
+                      mu: NDArray[np.float64]) -> tuple[NDArray[np.float64], float, NDArray[np.float64]]:
+    """A.2: scale B, D by 1/G(1) and μ by G(1), so that G(1) = D + C (I - A)^-1 B = 1."""
+    n = A.shape[0]
     try:
         gain = float(D + C @ np.linalg.solve(np.eye(n) - A, B))
     except np.linalg.LinAlgError:
         gain = np.inf
     if not np.isfinite(gain) or abs(gain) < 1e-12 * (abs(D) + np.linalg.norm(C) * np.linalg.norm(B)):
         raise InvalidInputError(
-            f"u, y: the identified linear part has static gain {gain}; the normalisation G(1) = 1 (assumption A.2) "
+            f"input_rad, output_rad: the identified linear part has static gain {gain}; the normalisation G(1) = 1 (assumption A.2) "
             f"needs a finite non-zero gain (poles {np.round(np.linalg.eigvals(A), 4).tolist()})"
         )
-    B, D, mu = B / gain, D / gain, mu * gain
+    return B / gain, D / gain, mu * gain
 
-    num_a = len(nodes.ascending) - 1
-    numerator, denominator = _state_space_to_tf(A, B, C, D)
-    model_output = mu0_final + scipy.signal.lfilter(numerator, denominator, z @ mu) + reg.O @ x0
-    refinement = None
-    if refine:
-        numerator, denominator, mu, mu0_final, zi, refinement = _refine(
-            z, y_signal, numerator, denominator, mu, mu0_final, reg.O @ x0, feedthrough)
-        if refinement.applied:
-            A_c, B_c, C_c, D_c = scipy.signal.tf2ss(numerator, denominator)
-            A, B, C, D = A_c, B_c[:, 0], C_c[0], float(D_c[0, 0])
-            # x(0) in the new coordinates: the free response of the refined filter state, matched on n samples
-            free = scipy.signal.lfilter(numerator, denominator, np.zeros(N), zi=zi)[0]
-            model_output = mu0_final + scipy.signal.lfilter(numerator, denominator, z @ mu) + free
-            observability = np.vstack([C @ np.linalg.matrix_power(A, k) for k in range(2 * n)])
-            x0 = _lstsq(observability, free[: 2 * n])
-    residual = y_signal - model_output
-    spread = np.linalg.norm(y_signal - y_signal.mean())
-    fit = 100.0 * (1.0 - np.linalg.norm(residual) / spread) if spread > 0 else float("nan")
-    return HammersteinModel(
-        A=A, B=B, C=C, D=D, mu0=mu0_final, nodes=nodes,
-        mu_ascending=mu[:num_a], mu_descending=mu[num_a:],
-        singular_values=singular_values, order=n, past_horizon=p, future_horizon=f, num_columns=j,
-        split=split, initial_state=x0, fit_percent=float(fit),
-        residual_rms=float(np.sqrt(np.mean(residual**2))), mu0_hold=mu0_hold, refinement=refinement,
-    )
+
+def _refined_model(z: NDArray, y: NDArray, numerator: NDArray, denominator: NDArray, mu: NDArray, mu0: float,
+                   free_response: NDArray, feedthrough: bool, subspace: tuple) -> tuple:
+    """The output-error refinement (:func:`_refine`) and, if it was applied, the refined model in
+    controllable canonical form with x(0) in its coordinates; else the subspace model ``subspace`` =
+    (A, B, C, D, x0, model output) unchanged. Returns A, B, C, D, μ, μ0, x0, the model output, the report."""
+    A, B, C, D, x0, model_output = subspace
+    numerator, denominator, mu, mu0, zi, refinement = _refine(
+        z, y, numerator, denominator, mu, mu0, free_response, feedthrough)
+    logger.info("output-error refinement %s: RMS %.6g -> %.6g rad after %d evaluations (%s)",
+                "applied" if refinement.applied else "not applied", refinement.rms_before, refinement.rms_after,
+                refinement.evaluations, refinement.message)
+    if refinement.applied:
+        n = A.shape[0]
+        A_c, B_c, C_c, D_c = scipy.signal.tf2ss(numerator, denominator)
+        A, B, C, D = A_c, B_c[:, 0], C_c[0], float(D_c[0, 0])
+        # x(0) in the new coordinates: the free response of the refined filter state, matched on 2n samples
+        free = scipy.signal.lfilter(numerator, denominator, np.zeros(y.size), zi=zi)[0]
+        model_output = mu0 + scipy.signal.lfilter(numerator, denominator, z @ mu) + free
+        observability = np.vstack([C @ np.linalg.matrix_power(A, k) for k in range(2 * n)])
+        x0 = _lstsq(observability, free[: 2 * n])
+    return A, B, C, D, mu, mu0, x0, model_output, refinement

@@ -317,9 +317,8 @@ class _Solver:
     """One HiGHS model of an :class:`_LP`, re-solved for many objectives from the previous basis."""
 
     def __init__(self, lp: _LP, presolve: str = "on") -> None:
-        # The bare core class: highspy.Highs() prints a banner to stdout on construction (it would break
-        # ``--json`` output) and enables callbacks that we do not use.
-        from highspy._core import HighsLp, HighsModelStatus, MatrixFormat, _Highs
+        # highspy.Highs() prints a banner (it would break ``--json`` output): the adapter gives a quiet instance.
+        from identify.highs_solver import HighsLp, HighsModelStatus, MatrixFormat, quiet_highs
 
         self.lp = lp
         A = sp.vstack([lp.A_ub, lp.A_eq]).tocsc()
@@ -338,8 +337,7 @@ class _Solver:
         model.a_matrix_.start_ = A.indptr.astype(np.int32)
         model.a_matrix_.index_ = A.indices.astype(np.int32)
         model.a_matrix_.value_ = A.data.astype(float)
-        self.highs = _Highs()
-        self.highs.setOptionValue("output_flag", False)
+        self.highs = quiet_highs()
         self.highs.setOptionValue("presolve", presolve)
         # A bounded time per attempt: a warm start that stalls on a long record's LP (issue 19: one part of a
         # 100 000-sample record kept a worker busy for over 15 minutes) goes on to the recovery settings and,

@@ -393,8 +393,9 @@ class PiecewiseLinearBorder:
     def __call__(self, u: float) -> float:
         return float(np.interp(u, self.nodes_u, self.values))
 
-    def evaluate_list(self, u: list[float]) -> list[float]:
-        return np.interp(np.asarray(u, dtype=float), self.nodes_u, self.values).tolist()
+    def evaluate_list(self, input_rad: list[float]) -> list[float]:
+        """The border at each input value (a list in, a list out: the per-sample steppers use it)."""
+        return np.interp(np.asarray(input_rad, dtype=float), self.nodes_u, self.values).tolist()
 
 
 @dataclass(frozen=True)
@@ -431,8 +432,9 @@ class ArctanBorder:
             return self.upper_value
         return math.atan(u + self.input_shift) + self.output_shift
 
-    def evaluate_list(self, u: list[float]) -> list[float]:
-        return [self(v) for v in u]
+    def evaluate_list(self, input_rad: list[float]) -> list[float]:
+        """The border at each input value (a list in, a list out: the per-sample steppers use it)."""
+        return [self(v) for v in input_rad]
 
 
 def pouliquen2013_backlash() -> InputBacklash:
@@ -916,9 +918,9 @@ class PlantModel:
                 return float(period)
         return None
 
-    def simulate(self, command: ArrayLike) -> NDArray[np.float64]:
+    def simulate(self, command_rad: ArrayLike) -> NDArray[np.float64]:
         """Run a whole command signal (rad) through the chain from rest and return the output (rad)."""
-        y = as_signal("command", command)
+        y = as_signal("command_rad", command_rad)
         for block in self.blocks:
             y = block.apply(y)
         return np.asarray(y, dtype=float)

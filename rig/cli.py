@@ -11,6 +11,7 @@ import argparse
 import contextlib
 import errno
 import importlib
+import logging
 import os
 import signal
 import sys
@@ -134,10 +135,48 @@ def build_parser() -> argparse.ArgumentParser:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
+    parser.add_argument("-v", "--verbose", action="count", default=0,
+                        help="show diagnostics on stderr: -v what the rig and the methods do (bring-up, stop, "
+                             "device warnings, chosen orders), -vv details (damaged frames, python-can and canopen), "
+                             "-vvv everything python-can and canopen log; put it before the command: rig -v run ...")
     subparsers = parser.add_subparsers(title="commands", metavar="COMMAND", required=True)
     for module_name in COMMAND_MODULES:
         importlib.import_module(module_name).register(subparsers)
     return parser
+
+
+OUR_LOGGERS = ("rig", "identify", "sim_backend")
+"""The packages whose loggers ``-v`` shows (python-can's ``can`` and canopen's ``canopen`` join at ``-vv``)."""
+
+
+@contextlib.contextmanager
+def logging_to_stderr(verbosity: int) -> Iterator[None]:
+    """While the command runs, log records of our packages (and, from ``-vv``, of python-can and canopen) go
+    to stderr as ``rig: LEVEL logger: message`` lines: ``-v`` INFO, ``-vv`` DEBUG for ours and INFO for
+    theirs, ``-vvv`` DEBUG for all. Without ``-v`` nothing is configured (Python shows WARNING and above).
+    Levels and the handler are restored on exit (tests call :func:`main` many times in one process)."""
+    if verbosity <= 0:
+        yield
+        return
+    handler = logging.StreamHandler(sys.stderr)
+    handler.setFormatter(logging.Formatter("rig: %(levelname)s %(name)s: %(message)s"))
+    ours = logging.INFO if verbosity == 1 else logging.DEBUG
+    levels = {name: ours for name in OUR_LOGGERS}
+    if verbosity >= 2:
+        levels.update({name: logging.INFO if verbosity == 2 else logging.DEBUG for name in ("can", "canopen")})
+    loggers = {name: logging.getLogger(name) for name in levels}
+    previous = {name: (logger.level, logger.propagate) for name, logger in loggers.items()}
+    for name, logger in loggers.items():
+        logger.setLevel(levels[name])
+        logger.addHandler(handler)
+        logger.propagate = False  # one line per record, whatever the root logger does
+    try:
+        yield
+    finally:
+        for name, logger in loggers.items():
+            logger.removeHandler(handler)
+            logger.setLevel(previous[name][0])
+            logger.propagate = previous[name][1]
 
 
 def show_warning_as_note(message: Warning | str, category: type[Warning], filename: str, lineno: int,
@@ -168,7 +207,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     started = time.time()
     drives = getattr(args.handler, "__module__", "") in DRIVE_COMMANDS
     try:
-        with signals_as_interrupts(drives), warnings.catch_warnings():
+        with signals_as_interrupts(drives), warnings.catch_warnings(), logging_to_stderr(args.verbose):
             warnings.showwarning = show_warning_as_note
             try:
                 return int(args.handler(args))

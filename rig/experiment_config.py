@@ -93,7 +93,8 @@ def _cyclic_random(table: ConfigTable, rng: np.random.Generator) -> tuple[NDArra
                   "u_min": table.number("u_min"), "u_max": table.number("u_max"),
                   "hold_samples": table.integer("hold_samples", 0, minimum=0),
                   "samples_per_step": table.integer("samples_per_step", 1, minimum=1)}
-    return _call(table, cyclic_random_excitation, parameters, rng), parameters
+    arguments = {"u_min": "input_min_rad", "u_max": "input_max_rad"}  # the config keys keep the paper's letters
+    return _call(table, cyclic_random_excitation, parameters, rng, arguments), parameters
 
 
 EXCITATION_KINDS: dict[str, Callable[[ConfigTable, np.random.Generator], tuple[NDArray[np.float64], dict[str, Any]]]] = {
@@ -105,11 +106,15 @@ EXCITATION_KINDS: dict[str, Callable[[ConfigTable, np.random.Generator], tuple[N
 
 
 def _call(table: ConfigTable, function: Callable[..., Any], parameters: dict[str, Any],
-          rng: np.random.Generator) -> NDArray[np.float64]:
+          rng: np.random.Generator, arguments: dict[str, str] | None = None) -> NDArray[np.float64]:
+    """``function(**parameters, rng=rng)``, a config key renamed to the parameter ``arguments`` maps it to; an
+    InvalidInputError becomes the config error of the key it names."""
+    arguments = arguments or {}
     try:
-        signal = function(**parameters, rng=rng)
+        signal = function(**{arguments.get(key, key): value for key, value in parameters.items()}, rng=rng)
     except InvalidInputError as err:
-        key = str(err).split(":", 1)[0].split(",")[0].strip()
+        named = str(err).split(":", 1)[0].split(",")[0].strip()
+        key = {parameter: key for key, parameter in arguments.items()}.get(named, named)
         raise table.error(key if key in parameters else "<table>", str(err)) from err
     return np.asarray(signal, dtype=float)
 

@@ -30,13 +30,14 @@ from __future__ import annotations
 import math
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from typing import Protocol
+from typing import Any, ClassVar, Protocol
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from identify.result_format import check_kind, malformed, tagged
 from identify.validation import as_signal
 from rig.protocols.cia402 import DriveState
 from rig.protocols.errors import DeviceFault, TransportError
@@ -108,6 +109,12 @@ class RunSummary:
         What the controlled stop did (:class:`~rig.protocols.cia402.StopReport`, as text).
     warnings
         Device warnings ridden through (e.g. an encoder's temperature EMCY).
+    log
+        The log file the samples went to, when the caller knows it (the runner writes to a
+        :class:`SampleSink`; ``rig run`` sets it with :func:`dataclasses.replace`).
+
+    The summary serialises itself (:meth:`to_dict`, :meth:`from_dict`; kind ``"run_summary"``, version 1,
+    the conventions of :mod:`identify.result_format`): that document is what ``rig run --json`` prints.
     """
 
     samples: int
@@ -125,6 +132,61 @@ class RunSummary:
     min_lead_s: float = math.nan
     stop: str = ""
     warnings: tuple[str, ...] = ()
+    log: str | None = None
+
+    KIND: ClassVar[str] = "run_summary"
+    VERSION: ClassVar[int] = 1
+    SAVED: ClassVar[tuple[str, ...]] = (
+        "samples", "lost", "late", "rate_hz", "held", "min_lead_s", "not_followed", "duplicate", "frame_errors",
+        "warnings", "stop", "stale", "cpu_s", "wall_s")
+    """The fields in the document after ``kind``, ``version`` and ``log``, in this order (the first twelve
+    keys are those ``rig run --json`` always printed)."""
+
+    def to_dict(self) -> dict[str, Any]:
+        """``{"kind": "run_summary", "version": 1, "log": ..., "samples": ..., ...}`` (:attr:`SAVED`), plain
+        JSON values: ``min_lead_s`` is null when the link is host-paced (NaN in the summary), ``warnings`` a
+        list. The per-sample ``send_lateness_s`` is not written (it grows with the run: 8 bytes a sample);
+        :meth:`from_dict` gives an empty array for it."""
+        values: dict[str, Any] = {"log": self.log}
+        for name in self.SAVED:
+            value = getattr(self, name)
+            if name == "min_lead_s":
+                value = None if math.isnan(value) else float(value)
+            elif name == "warnings":
+                value = list(value)
+            values[name] = value
+        return tagged(self.KIND, self.VERSION, values)
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> RunSummary:
+        """Inverse of :meth:`to_dict`; a document of another kind or version is a ResultFormatError naming
+        both, a missing or malformed key is one naming the key."""
+        check_kind(data, cls.KIND, (cls.VERSION,))
+        with malformed(cls.KIND):
+            counts = {}
+            for name in ("samples", "lost", "late", "held", "not_followed", "duplicate", "frame_errors", "stale"):
+                value = data[name]
+                if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+                    raise ValueError(f"{name} is {value!r}, expected an integer >= 0")
+                counts[name] = value
+            seconds = {}
+            for name in ("rate_hz", "cpu_s", "wall_s", "min_lead_s"):
+                value = data[name]
+                if value is None and name == "min_lead_s":
+                    value = math.nan
+                if isinstance(value, bool) or not isinstance(value, (int, float)):
+                    raise ValueError(f"{name} is {value!r}, expected a number")
+                seconds[name] = float(value)
+            warnings = data["warnings"]
+            if not isinstance(warnings, list) or not all(isinstance(w, str) for w in warnings):
+                raise ValueError(f"warnings is {warnings!r}, expected a list of strings")
+            stop, log = data["stop"], data["log"]
+            if not isinstance(stop, str):
+                raise ValueError(f"stop is {stop!r}, expected a string")
+            if log is not None and not isinstance(log, str):
+                raise ValueError(f"log is {log!r}, expected a path or null")
+            return cls(**counts, **seconds, send_lateness_s=np.zeros(0), stop=stop, warnings=tuple(warnings),
+                       log=log)
 
 
 def _write_summary(sink: SampleSink, transport: Transport, failure: BaseException | None) -> None:

@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -178,11 +177,3 @@ class SimulatedGearbox:
             measured_angle_rad=np.asarray(measured, dtype=float),
             encoder_counts=np.asarray(counts, dtype=np.int64),
         )
-
-    @classmethod
-    def from_toml(cls, path: str | Path, seed: int | None = None) -> SimulatedGearbox:
-        """Build the gearbox described by a plant config (``configs/plants/*.toml``); ``seed`` overrides the
-        file's ``seed``."""
-        from sim_backend.plant_config import load_plant_config
-
-        return load_plant_config(path).gearbox(seed=seed)

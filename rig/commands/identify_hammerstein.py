@@ -170,7 +170,7 @@ def identify_file(path_text: str, options: dict):
             )
     model = identify_hammerstein(
         u, y, nodes,
-        hold_samples=hold, mu0=options["mu0"], order=options["order"],
+        hold_samples=hold, mu0_rad=options["mu0"], order=options["order"],
         past_horizon=DEFAULT_PAST_HORIZON if options["past_horizon"] is None else options["past_horizon"],
         future_horizon=DEFAULT_FUTURE_HORIZON if options["future_horizon"] is None else options["future_horizon"],
         feedthrough=not options["no_feedthrough"], split=options["split"], refine=options["refine"],

@@ -11,6 +11,7 @@ RESULTS may be, in any order and mixed:
     inner-signal bounds;
   - ``hammerstein_model`` (``rig identify hammerstein``): poles, borders and singular values;
   - ``model_discrepancy`` (``rig diagnose``): the verdict, the missing effects and how much each closed the gap;
+  - ``run_summary`` (``rig run --json``): what the run did (samples, lost, late or held, stop), as a table;
   - ``batch`` (any of these commands given several files): every result it holds, and the files that failed.
 
 Each result type reads itself (``from_dict``); a kind or version this version cannot read is refused with a
@@ -42,6 +43,7 @@ Write a static HTML report (index.html and PNG figures) from result files:
                                                                    backlash band, inner-signal bounds
   JSON of `rig identify hammerstein --json` (kind hammerstein_model)  poles, borders, singular values
   JSON of `rig diagnose --json` (kind model_discrepancy)           verdict, missing effects, gap closed
+  JSON of `rig run --json` (kind run_summary)                      samples, lost, late/held, stop
   JSON of any of these commands given several files (kind batch)  every result in it
 
 Result JSON is read by its "kind" and "version" keys; a kind or version this version cannot read is
@@ -51,8 +53,8 @@ of the Bode figure is in Hz when --sample-period is given or an experiment log i
 cycles per sample. The command prints the path of index.html."""
 
 EXPECTED = ("a rig-log v1 experiment log, a CSV file with columns t,u,y, or the JSON printed by "
-            "`rig identify output-backlash --json`, `rig identify hammerstein --json` or `rig diagnose --json` "
-            "(one file or several)")
+            "`rig identify output-backlash --json`, `rig identify hammerstein --json`, `rig diagnose --json` "
+            "(one file or several) or `rig run --json`")
 
 
 @dataclass(frozen=True)
@@ -62,7 +64,8 @@ class ResultFile:
     ``kind`` is ``"experiment"`` (``content`` an :class:`identify.experiment_record.ExperimentRecord`),
     ``"output_backlash"`` (an :class:`identify.output_backlash_identification.OutputBacklashIdentification`),
     ``"hammerstein_model"`` (an :class:`identify.hammerstein_subspace.HammersteinModel`),
-    ``"model_discrepancy"`` (an :class:`identify.model_discrepancy.DiscrepancyReport`) or ``"error"`` (the
+    ``"model_discrepancy"`` (an :class:`identify.model_discrepancy.DiscrepancyReport`), ``"run_summary"`` (a
+    :class:`rig.runner.RunSummary`) or ``"error"`` (the
     message of a file a batch command could not process). ``entry`` names the file an entry of a batch file
     (kind ``"batch"``) came from; it is None for a file that holds one result.
     """
@@ -99,9 +102,10 @@ def _readers() -> dict[str, tuple[int, Any]]:
     from identify.hammerstein_subspace import HammersteinModel
     from identify.model_discrepancy import DiscrepancyReport
     from identify.output_backlash_identification import OutputBacklashIdentification
+    from rig.runner import RunSummary
 
     return {cls.KIND: (cls.VERSION, cls.from_dict)
-            for cls in (OutputBacklashIdentification, HammersteinModel, DiscrepancyReport)}
+            for cls in (OutputBacklashIdentification, HammersteinModel, DiscrepancyReport, RunSummary)}
 
 
 def readable_kinds() -> str:
@@ -362,6 +366,25 @@ def _diagnose_section(result: ResultFile, used: set[str]):
                          table_rows=rows, figures=(ReportFigure(f"{slug}_gap", caption, draw, size_in=(6.5, 3.5)),))
 
 
+def _run_summary_section(result: ResultFile):
+    """What ``rig run`` did, as its summary says (no figure: the log itself draws the signals and timing)."""
+    import math
+
+    from rig.report import ReportSection
+
+    summary = result.content
+    rows = [("log", summary.log or "-"), ("samples", str(summary.samples)), ("lost", str(summary.lost)),
+            ("late", str(summary.late)), ("duplicate", str(summary.duplicate))]
+    if not math.isnan(summary.min_lead_s):  # device-clocked: a late setpoint is a HELD sample
+        rows += [("held", str(summary.held)), ("smallest lead [ms]", f"{1e3 * summary.min_lead_s:.3g}")]
+    rows += [("not followed", str(summary.not_followed)), ("frame errors", str(summary.frame_errors)),
+             ("achieved rate [Hz]", f"{summary.rate_hz:.6g}"), ("stop", summary.stop or "-")]
+    rows += [("warning", warning) for warning in summary.warnings]
+    text = (f"{result.name}: the summary `rig run --json` printed. Give the log file too to see the signals and "
+            "the loop timing.")
+    return ReportSection(f"Run: {result.name}", text=text, table_header=("quantity", "value"), table_rows=tuple(rows))
+
+
 def _candidates_text(report) -> str:
     """The first round's candidates with their validated gaps, best first."""
     ranked = sorted((c for c in report.candidates if c.round == 0), key=lambda c: c.penalised_gap_rad)
@@ -387,8 +410,8 @@ def _unique(name: str, used: set[str]) -> str:
 
 
 def report_sections(results: list[ResultFile], *, sample_period_s: float | None = None) -> list:
-    """The report's sections: experiments, then set membership (all methods together), Hammerstein models and
-    discrepancy diagnoses, each in the order given.
+    """The report's sections: experiments, then set membership (all methods together), Hammerstein models,
+    discrepancy diagnoses and run summaries, each in the order given.
 
     ``sample_period_s`` sets the frequency axis of the Bode and pole figures; without it the first experiment
     log's period is used, if any.
@@ -405,6 +428,7 @@ def report_sections(results: list[ResultFile], *, sample_period_s: float | None 
                  if result.kind == "hammerstein_model"]
     sections += [_named(result, _diagnose_section, result, used) for result in results
                  if result.kind == "model_discrepancy"]
+    sections += [_named(result, _run_summary_section, result) for result in results if result.kind == "run_summary"]
     errors = [result for result in results if result.kind == "error"]
     if errors:
         sections.append(_errors_section(errors))
@@ -472,7 +496,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument("results", nargs="+", metavar="RESULT",
-                        help="experiment log, t,u,y CSV, or saved JSON of rig identify/diagnose --json")
+                        help="experiment log, t,u,y CSV, or saved JSON of rig identify/diagnose/run --json")
     parser.add_argument("--out", required=True, metavar="DIR", help="directory for index.html and the PNG figures")
     parser.add_argument("--title", default="rig report", help="page title (default: rig report)")
     parser.add_argument("--sample-period", type=_positive_float, default=None, metavar="S",

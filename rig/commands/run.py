@@ -1,25 +1,25 @@
 """``rig run CONFIG.toml --experiment EXP.toml --out LOG``: drive a rig (real or simulated) with an
 experiment's excitation at the config's fixed rate and write a ``rig-log v1`` file.
 
-This module is the application layer that wires simulated devices (``sim_backend``) to transports when
-the rig config has a ``[simulation]`` table (:func:`simulated_rig`).
+A rig config with a ``[simulation]`` table runs against simulated devices started by
+:func:`rig.transports.simulated.simulated_rig` (the table of simulated devices beside the transport registry).
 """
 
 from __future__ import annotations
 
 import argparse
 import contextlib
+import dataclasses
 import json
 import math
 import sys
 import time
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 from rig import exit_codes
 
-__all__ = ["DEFAULT_CONFIG", "register", "rig_config_metadata", "run", "simulated_rig", "start_simulated_devices"]
+__all__ = ["DEFAULT_CONFIG", "experiment_log_metadata", "load_command_file", "register", "rig_config_metadata", "run"]
 
 DEFAULT_CONFIG = Path(__file__).resolve().parents[2] / "configs" / "sim_canopen.toml"
 
@@ -53,79 +53,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--sim-faults-seed", metavar="N", type=int, default=0,
                         help="seed of the random faults (default 0): the same seed repeats the same faults")
     parser.add_argument("--json", action="store_true",
-                        help='print {"log", "samples", "lost", "late", "rate_hz", "held", "min_lead_s", '
-                             '"not_followed", "duplicate", "frame_errors", "warnings", "stop"} as JSON')
+                        help='print the run summary as JSON: {"kind": "run_summary", "version": 1, "log", "samples", '
+                             '"lost", "late", "rate_hz", "held", "min_lead_s", "not_followed", "duplicate", '
+                             '"frame_errors", "warnings", "stop", "stale", "cpu_s", "wall_s"} (rig report reads it)')
     parser.set_defaults(handler=run)
-
-
-@contextlib.contextmanager
-def simulated_rig(config: Any, command_rad: Any = None, faults: Any = None) -> Iterator[tuple[str, Any]]:
-    """Start the simulated devices of a rig config with a ``[simulation]`` table; yield the URL the
-    transport must open and the simulated gearbox. ``faults`` (a :class:`sim_backend.faults.FaultPlan`)
-    makes the devices inject wire faults. Devices are stopped on exit."""
-    from sim_backend.plant_config import load_plant_config
-
-    from rig.protocols.errors import ConfigError
-
-    sim = config.simulation
-    plant_config = load_plant_config(sim.plant_path)
-    gearbox = plant_config.gearbox(seed=sim.seed)
-    if not math.isclose(gearbox.sample_period_s, config.sample_period_s, rel_tol=1e-9):
-        raise ConfigError(config.source, "sample_rate_hz",
-                          f"{config.sample_rate_hz:g} Hz differs from the simulated plant's "
-                          f"{1 / gearbox.sample_period_s:g} Hz ({sim.plant_path})")
-    if gearbox.encoder != config.encoder:
-        raise ConfigError(config.source, "encoder", f"differs from the simulated plant's encoder {gearbox.encoder}")
-    if command_rad is not None and getattr(gearbox.noise, "needs_reference", False):
-        gearbox = gearbox.calibrated_for(command_rad)
-    fault_options = {}
-    if faults is not None:
-        fault_options = faults.device_options(config.scheme, 0 if command_rad is None else len(command_rad))
-    with contextlib.ExitStack() as stack:
-        url, _ = start_simulated_devices(config, gearbox, stack, **fault_options)
-        yield url, gearbox
-
-
-def start_simulated_devices(config: Any, gearbox: Any, stack: contextlib.ExitStack,
-                            **fault_injection: Any) -> tuple[str, Any]:
-    """Start the simulated device(s) for ``config``'s transport on ``gearbox`` (closed by ``stack``);
-    return the URL to open and the simulated drive (which records the controlwords it received).
-    ``fault_injection`` goes to the drive (tests)."""
-    if config.scheme == "serial":
-        from sim_backend.serial_device import SimulatedSerialDevice
-
-        device = stack.enter_context(SimulatedSerialDevice(
-            gearbox, drive_counts_per_revolution=config.drive.counts_per_revolution, **fault_injection))
-        return f"serial://{device.port}", device
-    from rig.protocols.errors import ConfigError
-
-    if config.scheme == "canopen":
-        from rig.transports import parse_transport_url
-        from sim_backend.canopen_nodes import SimulatedCanOpenRig
-
-        _, where = parse_transport_url(config.url)
-        if where["interface"] != "virtual":
-            raise ConfigError(config.source, "transport.url", "a simulated CANopen rig runs on the virtual interface: "
-                                                              "canopen://virtual/CHANNEL")
-        options = config.options
-        rig = stack.enter_context(SimulatedCanOpenRig(
-            gearbox, channel=where["channel"], drive_node_id=options.get("drive_node_id", 1),
-            encoder_node_id=options.get("encoder_node_id", 2), bitrate=options.get("bitrate", 1_000_000),
-            drive_counts_per_revolution=config.drive.counts_per_revolution, **fault_injection))
-        return config.url, rig
-    if config.scheme == "can":
-        from rig.transports import parse_transport_url
-        from sim_backend.raw_can_device import SimulatedRawCanDevice
-
-        _, where = parse_transport_url(config.url)
-        if where["interface"] != "virtual":
-            raise ConfigError(config.source, "transport.url", "a simulated raw-CAN rig runs on the virtual interface: "
-                                                              "can://virtual/CHANNEL")
-        device = stack.enter_context(SimulatedRawCanDevice(
-            gearbox, channel=where["channel"], drive_counts_per_revolution=config.drive.counts_per_revolution,
-            bitrate=config.options.get("bitrate", 1_000_000), **fault_injection))
-        return config.url, device
-    raise ConfigError(config.source, "simulation", f"there is no simulated device for {config.scheme}:// transports")
 
 
 def rig_config_metadata(config: Any) -> dict[str, Any]:
@@ -226,6 +157,7 @@ def run(args: argparse.Namespace) -> int:
     from rig.rig_config import load_rig_config
     from rig.runner import run_experiment
     from rig.transports import open_transport
+    from rig.transports.simulated import simulated_rig
 
     config = load_rig_config(args.config)
     inputs = [args.config, args.experiment]
@@ -290,13 +222,9 @@ def run(args: argparse.Namespace) -> int:
         summary = run_experiment(transport, command, log, feedback_timeout_s=config.feedback_timeout_s,
                                  late_tolerance_s=config.late_tolerance_s,
                                  progress=progress if bar is not None or stalls else None)
-    result = {"log": str(args.out), "samples": summary.samples, "lost": summary.lost, "late": summary.late,
-              "rate_hz": summary.rate_hz, "held": summary.held,
-              "min_lead_s": None if math.isnan(summary.min_lead_s) else summary.min_lead_s,
-              "not_followed": summary.not_followed, "duplicate": summary.duplicate,
-              "frame_errors": summary.frame_errors, "warnings": list(summary.warnings), "stop": summary.stop}
+    summary = dataclasses.replace(summary, log=str(args.out))
     if args.json:
-        print(json.dumps(result))
+        print(json.dumps(summary.to_dict()))
     else:
         print(f"rig         {config.name} ({url})")
         print(f"experiment  {excitation.name} ({excitation.kind}, seed {excitation.seed})")

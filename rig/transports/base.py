@@ -43,6 +43,7 @@ threads with :meth:`Transport._report_fault`; the next :meth:`send`/:meth:`recei
 
 from __future__ import annotations
 
+import logging
 import math
 import threading
 import time
@@ -55,6 +56,10 @@ from rig.protocols import cia402
 from rig.protocols.cia402 import BringUpTiming, DriveScaling, StopReport
 from rig.protocols.encoder_counts import EncoderResolution
 from rig.protocols.errors import ConfigError, RigError, TransportError
+
+logger = logging.getLogger(__name__)
+"""Bring-up, stop, device warnings ridden through and damaged frames (``rig -v`` shows them; ``-vv`` the
+damaged frames one by one)."""
 
 __all__ = ["BringUpTiming", "CommandLimits", "CommandRefused", "DriveScaling", "FeedbackSample", "Setpoint",
            "Transport", "check_trace_path"]
@@ -288,6 +293,7 @@ class Transport(ABC):
         self._state = "preparing"
         self._enabling_sent, self.stop_report = False, None
         self._last_angle_rad = None  # the first reading of this run unwraps near 0 (_decode_encoder)
+        logger.info("%s: connecting and configuring the devices", self.name)
         try:
             self._connect()
             self.initial_position_rad = float(self._prepare())
@@ -296,6 +302,7 @@ class Transport(ABC):
             raise
         self._previous_rad = self.initial_position_rad
         self._state = "prepared"
+        logger.info("%s: prepared; the drive's actual position is %.9g rad", self.name, self.initial_position_rad)
         return self.initial_position_rad
 
     def enable(self) -> None:
@@ -316,6 +323,7 @@ class Transport(ABC):
             self._teardown(err)
             raise
         self._state = "open"
+        logger.info("%s: OPERATION ENABLED at %.9g rad", self.drive_label, self.initial_position_rad)
 
     def send(self, setpoint: Setpoint) -> Setpoint:
         """Check ``setpoint`` against the limits, send it, and return it as the drive receives it (its
@@ -351,9 +359,10 @@ class Transport(ABC):
             try:
                 self._before_stop()
             except Exception:  # noqa: BLE001 - the stop is attempted anyway
-                pass
+                logger.debug("%s: before the stop", self.name, exc_info=True)
             self.stop_report = cia402.quick_stop_then_disable(self._write_controlword, self._read_statusword,
                                                               timing=self.timing)
+            logger.info("%s: %s", self.drive_label, self.stop_report)
             self._release()
             self._state = "stopped"
         elif self._state in ("preparing", "prepared"):
@@ -371,7 +380,7 @@ class Transport(ABC):
         try:
             self._release_devices()
         except Exception:  # noqa: BLE001 - best effort: the drive is already disabled or unreachable
-            pass
+            logger.debug("%s: releasing the devices", self.name, exc_info=True)
 
     def _teardown(self, err: BaseException) -> None:
         """The one exit path after a failure in the bring-up: stop (quick stop and disable if an enabling
@@ -417,6 +426,19 @@ class Transport(ABC):
         with self._fault_lock:
             if self._fault is None:
                 self._fault = fault
+        logger.debug("%s: reported: %s", self.name, fault)
+
+    def _ride_through(self, warning: str) -> None:
+        """A device warning that does not stop the run: kept in :attr:`warnings` (the run summary lists them)
+        and logged."""
+        self.warnings.append(warning)
+        logger.info("%s: %s", self.name, warning)
+
+    def _count_frame_errors(self, what: str, count: int = 1) -> None:
+        """``count`` damaged frames discarded (:attr:`frame_errors`); ``what`` says which, for ``rig -vv``."""
+        if count:
+            self.frame_errors += count
+            logger.debug("%s: %d damaged frame(s) discarded: %s", self.name, count, what)
 
     def _decode_encoder(self, counts: int) -> float:
         """Counts -> radians, continuous with the previous reading (the one conversion, in the codec).

@@ -648,7 +648,7 @@ class CanOpenTransport(Transport):
         try:
             return self._map_pdo(drive.tpdo, "drive", [(0x6062, 0, 32)], 0x280 + self.drive_node_id, number=2)
         except DeviceFault as err:
-            self.warnings.append(f"drive {self.drive_node_id}: the TPDO latency is not checked ({err})")
+            self._ride_through(f"drive {self.drive_node_id}: the TPDO latency is not checked ({err})")
             return None
 
     def _encoder_value_bits(self) -> int:
@@ -739,7 +739,7 @@ class CanOpenTransport(Transport):
             statusword = self._drive_tpdo.value(pdo.data, 0x6041)
             actual = self._drive_tpdo.value(pdo.data, 0x6064, signed=True)
         except ValueError:
-            self.frame_errors += 1  # a TPDO shorter than its mapping (CiA 301: a PDO length error)
+            self._count_frame_errors("drive TPDO shorter than its mapping")  # CiA 301: a PDO length error
             return
         self._file("drive", (statusword, actual), pdo.timestamp)
         if self._watching and cia402.state_from_statusword_or_none(statusword) in (
@@ -754,7 +754,7 @@ class CanOpenTransport(Transport):
         try:
             demand = self._demand_tpdo.value(pdo.data, 0x6062, signed=True)
         except ValueError:
-            self.frame_errors += 1
+            self._count_frame_errors("demand TPDO shorter than its mapping")
             return
         self._file("demand", demand, pdo.timestamp)
 
@@ -762,7 +762,7 @@ class CanOpenTransport(Transport):
         try:
             raw = self._encoder_tpdo.value(pdo.data, 0x6004)  # UNSIGNED32 (CiA 406)
         except ValueError:
-            self.frame_errors += 1
+            self._count_frame_errors("encoder TPDO shorter than its mapping")
             return
         bits = 8 * self._encoder_tpdo.fields[0x6004][1]
         counts = raw - (1 << bits) if self.encoder.signed and raw >= 1 << (bits - 1) else raw
@@ -980,7 +980,7 @@ class CanOpenTransport(Transport):
 
     def _on_error_frame(self, message: Any) -> None:
         """An error frame (canopen's own listener ignores them): bus-off stops the run, others are counted."""
-        self.frame_errors += 1
+        self._count_frame_errors(f"CAN error frame {bytes(message.data).hex()}")
         if is_bus_off(message):
             self._report_fault(TransportError(
                 f"{self.name}: the CAN controller went bus off ({describe_error_frame(message)}): nothing can be "
@@ -995,8 +995,8 @@ class CanOpenTransport(Transport):
         if code & 0xFF00 == 0:
             return
         if _is_warning(code, self.emcy_warning_prefixes):
-            self.warnings.append(f"{role} {node_id}: EMCY 0x{code:04X} ({error_code_meaning(code)}), ridden "
-                                 "through (emcy_warning_codes)")
+            self._ride_through(f"{role} {node_id}: EMCY 0x{code:04X} ({error_code_meaning(code)}), ridden "
+                               "through (emcy_warning_codes)")
             return
         with self._arrived:
             if self._emcy is None:

@@ -148,8 +148,8 @@ class RawCanTransport(Transport):
             if self.protocol == "v2":
                 raise TransportError(f"{self.name}: no RIG_DEVICE_INFO answer to RIG_HELLO: the device speaks only "
                                      "protocol v1; set [transport] protocol = \"auto\" to drive it host-paced") from None
-            self.warnings.append("the device did not answer RIG_HELLO: driven as a protocol v1 device (host-paced; the "
-                                 "host's timing decides the sample instants)")
+            self._ride_through("the device did not answer RIG_HELLO: driven as a protocol v1 device (host-paced; the "
+                               "host's timing decides the sample instants)")
             return
         version, capacity, period_ns = info["version"], info["buffer_capacity"], info["sample_period_ns"]
         if version > 2 or version < 1:
@@ -236,7 +236,7 @@ class RawCanTransport(Transport):
         if self._trace is not None:
             self._trace.on_message_received(msg)
         if msg.is_error_frame:
-            self.frame_errors += 1
+            self._count_frame_errors(f"CAN error frame {bytes(msg.data).hex()}")
             if is_bus_off(msg):
                 self._report_fault(TransportError(
                     f"{self.name}: the CAN controller went bus off ({describe_error_frame(msg)}): nothing can be "
@@ -244,8 +244,8 @@ class RawCanTransport(Transport):
             return True
         try:
             decoded = self.codec.decode(msg)
-        except ValueError:
-            self.frame_errors += 1
+        except ValueError as err:
+            self._count_frame_errors(f"0x{msg.arbitration_id:X}: {err}")
             return True
         if decoded is None:
             return True

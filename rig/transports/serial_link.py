@@ -169,8 +169,8 @@ class SerialTransport(Transport):
                     f"{self.name}: no DEVICE_INFO answer to HELLO ({HELLO_ATTEMPTS} attempts): the device speaks only "
                     "protocol v1 (it drops HELLO); set [transport] protocol = \"auto\" to drive it host-paced, or update "
                     "its firmware (docs/serial_protocol.md, section 16)") from None
-            self.warnings.append("the device did not answer HELLO: driven as a protocol v1 device (host-paced; the host's "
-                                 "timing decides the sample instants)")
+            self._ride_through("the device did not answer HELLO: driven as a protocol v1 device (host-paced; the host's "
+                               "timing decides the sample instants)")
             return
         version, capacity, period_ns = info.fields
         if version > PROTOCOL_VERSION or version < 1:
@@ -207,7 +207,7 @@ class SerialTransport(Transport):
             earlier, self._fault = self._fault, None
         self._code_needed = False
         if earlier is not None:
-            self.warnings.append(f"before enabling: {earlier} (reset by the bring-up)")
+            self._ride_through(f"before enabling: {earlier} (reset by the bring-up)")
         return None
 
     def _send(self, setpoint: Setpoint) -> None:
@@ -273,7 +273,7 @@ class SerialTransport(Transport):
         messages = self._decoder.feed(data)
         self._valid_frames += len(messages)
         if not before_first_frame:  # bytes before the device's first frame are its boot output, not line noise
-            self.frame_errors += self._decoder.errors - errors_before
+            self._count_frame_errors("CRC or COBS failure, or an unknown frame type", self._decoder.errors - errors_before)
         for message in messages:
             self._dispatch(message, received)
         return True

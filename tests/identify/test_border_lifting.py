@@ -73,7 +73,7 @@ def test_check_accepts_the_design_and_names_what_is_wrong() -> None:
 
     outside = u.copy()
     outside[57] = 3.5
-    with pytest.raises(InvalidInputError, match="sample 57 is 3.5, outside"):
+    with pytest.raises(InvalidInputError, match="input_rad: sample 57 is 3.5, outside"):
         check_cyclic_input(outside, NODES)
 
     early_turn = u.copy()

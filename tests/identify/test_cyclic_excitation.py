@@ -54,7 +54,7 @@ def test_samples_per_step_repeats_each_value() -> None:
 @pytest.mark.parametrize(
     "kwargs, message",
     [
-        ({"u_min": 1.0, "u_max": 1.0}, "u_min < u_max"),
+        ({"input_min_rad": 1.0, "input_max_rad": 1.0}, "input_min_rad < input_max_rad"),
         ({"hold_samples": -1}, "hold_samples"),
         ({"num_samples": 2.5}, "num_samples"),
         ({"rng": "seed"}, "rng"),
@@ -62,6 +62,6 @@ def test_samples_per_step_repeats_each_value() -> None:
     ],
 )
 def test_bad_arguments_are_named(kwargs: dict, message: str) -> None:
-    arguments = {"num_samples": 10, "u_min": -1.0, "u_max": 1.0, "hold_samples": 0, "rng": 0} | kwargs
+    arguments = {"num_samples": 10, "input_min_rad": -1.0, "input_max_rad": 1.0, "hold_samples": 0, "rng": 0} | kwargs
     with pytest.raises(InvalidInputError, match=message):
         cyclic_random_excitation(**arguments)

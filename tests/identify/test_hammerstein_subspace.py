@@ -2,15 +2,17 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import numpy as np
 import pytest
+import scipy.linalg
 import scipy.signal
 
 from identify.border_lifting import PathNodes, lifted_input
 from identify.cyclic_excitation import cyclic_random_excitation
-from identify.hammerstein_subspace import HammersteinModel, identify_hammerstein, pi_moesp_observability
+from identify.hammerstein_subspace import HammersteinModel, HammersteinOptions, identify_hammerstein, pi_moesp_observability
 from identify.plant_blocks import (
     InputBacklash,
     InputSwitch,
@@ -97,12 +99,34 @@ def test_backlash_mode_simulates_a_backlash_on_inputs_that_reverse_inside_the_in
     assert np.max(np.abs(model.simulate(wander)[600:] - truth)) > 0.05
 
 
-def test_gram_and_qr_factorisations_give_the_same_projection(excitation) -> None:
+def _block_hankel(signal, first: int, num_blocks: int, num_columns: int):
+    """Transposed block-Hankel matrix: row k is [s(first + k), ..., s(first + k + num_blocks - 1)]."""
+    m = signal.shape[1]
+    windows = np.lib.stride_tricks.sliding_window_view(signal, (num_blocks, m))[:, 0]
+    return windows[first : first + num_columns].reshape(num_columns, num_blocks * m)
+
+
+def _qr_observability(z, y, p: int, f: int):
+    """Reference for pi_moesp_observability: a Householder QR of the stacked, centred [Z_f, Z_p, Y_f] (j rows)
+    gives L32 of eq. (11) directly (slow: O(j ((p+f) m + f)^2))."""
+    inputs, outputs = np.asarray(z, dtype=float), np.asarray(y, dtype=float).reshape(-1, 1)
+    m = inputs.shape[1]
+    j = inputs.shape[0] - p - f + 1
+    a, b = f * m, (f + p) * m
+    stacked = np.hstack((_block_hankel(inputs, p, f, j), _block_hankel(inputs, 0, p, j),
+                         _block_hankel(outputs, p, f, j)))
+    stacked -= stacked.mean(axis=0)
+    R = scipy.linalg.lapack.dgeqrf(stacked, overwrite_a=True)[0][: b + f]
+    U, singular_values, _ = scipy.linalg.svd(np.triu(R)[a:b, b:].T)
+    return U, singular_values, np.abs(np.diag(R)[:b])
+
+
+def test_the_gram_factorisation_gives_the_projection_of_a_householder_qr(excitation) -> None:
     y = exact_plant("backlash").simulate(excitation)
     y = y + paper_noise(y, 10.0, np.random.default_rng(3))
     z = lifted_input(excitation, NODES)
-    U_gram, s_gram, d_gram = pi_moesp_observability(z, y, 8, 8, factorisation="gram")
-    U_qr, s_qr, d_qr = pi_moesp_observability(z, y, 8, 8, factorisation="qr")
+    U_gram, s_gram, d_gram = pi_moesp_observability(z, y, 8, 8)
+    U_qr, s_qr, d_qr = _qr_observability(z, y, 8, 8)
     assert np.allclose(s_gram, s_qr, rtol=1e-9)
     assert np.allclose(d_gram, d_qr, rtol=1e-8)
     # same 2-dimensional column space of Γ_f
@@ -152,7 +176,7 @@ def test_mu0_from_hold_given_or_estimated(excitation) -> None:
     y_noisy = y + 0.05 * np.random.default_rng(8).standard_normal(y.size)
     paper = identify_hammerstein(excitation, y_noisy, NODES, hold_samples=HOLD, estimate_offset=False)
     assert paper.mu0 == pytest.approx(np.mean(y_noisy[:HOLD]), abs=1e-12) == paper.mu0_hold
-    given = identify_hammerstein(excitation[HOLD:], y[HOLD:], NODES, mu0=-0.75)
+    given = identify_hammerstein(excitation[HOLD:], y[HOLD:], NODES, mu0_rad=-0.75)
     assert given.mu0 == pytest.approx(-0.75, abs=1e-9) and given.mu0_hold is None
     assert given.ascending_border.values[0] == given.mu0
     estimated = identify_hammerstein(excitation[HOLD:], y[HOLD:], NODES)  # no hold, no μ0
@@ -214,7 +238,7 @@ def test_errors_name_the_problem(excitation) -> None:
     with pytest.raises(InvalidInputError, match="sample 101 of the hold is u = 0.07"):
         identify_hammerstein(excitation, y, NODES, hold_samples=HOLD + 2)
     with pytest.raises(InvalidInputError, match="give one of them, not both"):
-        identify_hammerstein(excitation, y, NODES, hold_samples=HOLD, mu0=-1.0)
+        identify_hammerstein(excitation, y, NODES, hold_samples=HOLD, mu0_rad=-1.0)
     with pytest.raises(InvalidInputError, match="order: 15 needs future_horizon > 15"):
         identify_hammerstein(excitation, y, NODES, hold_samples=HOLD, order=15)
     with pytest.raises(InvalidInputError, match="the data support at most order 2"):
@@ -225,7 +249,7 @@ def test_errors_name_the_problem(excitation) -> None:
         identify_hammerstein(excitation, y, NODES, hold_samples=HOLD, split="svd")  # type: ignore[arg-type]
     narrow = PathNodes.uniform(-2.0, 2.0, 5)
     with pytest.raises(InvalidInputError, match="outside the node interval"):
-        identify_hammerstein(excitation, y, narrow, mu0=-1.0)
+        identify_hammerstein(excitation, y, narrow, mu0_rad=-1.0)
     dense = PathNodes(tuple(np.linspace(-3.0, 3.0, 8)), (-3.0, -2.9999, 3.0))
     with pytest.raises(InvalidInputError, match=r"segment 1 \]-3; -2.9999\[ of the descending path"):
         identify_hammerstein(excitation, y, dense, hold_samples=HOLD, min_visits=5)
@@ -273,3 +297,21 @@ def test_the_numbers_the_pole_and_border_figures_show(excitation) -> None:
     natural = model.natural_frequencies_hz(0.01)
     assert natural.size == 1 and natural[0] == pytest.approx(abs(np.log(TRUE_POLES[0])) / (2 * np.pi * 0.01))
     assert model.largest_play_rad == pytest.approx(float(np.max(np.asarray(H_D) - np.asarray(H_A))), abs=1e-9)
+
+
+def test_the_options_object_and_the_keywords_are_one_call(excitation) -> None:
+    y = exact_plant("backlash").simulate(excitation)
+    y = y + paper_noise(y, 20.0, np.random.default_rng(8))
+    options = HammersteinOptions(hold_samples=HOLD, split="rank1", feedthrough=False)
+    by_object = identify_hammerstein(excitation, y, NODES, options)
+    by_keywords = identify_hammerstein(excitation, y, NODES, hold_samples=HOLD, split="rank1", feedthrough=False)
+    assert by_object.to_dict() == by_keywords.to_dict()  # exactly: the same floats
+    # keywords override the object's fields
+    separate = dataclasses.replace(options, split="separate")
+    assert identify_hammerstein(excitation, y, NODES, separate, split="rank1").to_dict() == by_keywords.to_dict()
+    with pytest.raises(TypeError, match=r"unexpected keyword argument 'hold' \(the options are hold_samples, mu0_rad, "):
+        identify_hammerstein(excitation, y, NODES, hold=HOLD)
+    with pytest.raises(InvalidInputError, match="past_horizon: expected an integer >= 1, got 0"):
+        HammersteinOptions(past_horizon=0)
+    with pytest.raises(InvalidInputError, match="hold_samples, mu0_rad: give one of them, not both"):
+        HammersteinOptions(hold_samples=HOLD, mu0_rad=-1.0)

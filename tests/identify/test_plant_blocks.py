@@ -309,7 +309,7 @@ def test_plant_rejects_mismatched_periods_non_blocks_and_bad_samples():
         PlantModel((CERONE_LINEAR, Resonance(10.0, 0.1, 1e-2)))
     with pytest.raises(InvalidInputError, match=r"blocks\[1\]"):
         PlantModel((CERONE_LINEAR, "backlash"))
-    with pytest.raises(InvalidInputError, match="command: sample 2 is nan"):
+    with pytest.raises(InvalidInputError, match="command_rad: sample 2 is nan"):
         PlantModel((CERONE_LINEAR,)).simulate([0.0, 1.0, float("nan")])
     with pytest.raises(InvalidInputError, match="u_t: sample 0"):
         PlantModel((CERONE_LINEAR,)).stepper().step(float("inf"))

@@ -112,11 +112,11 @@ def test_sigint_and_sigterm_end_rig_run_with_a_controlled_stop(signal_number, co
 def test_sigterm_disables_the_drive_and_a_second_signal_does_not_cut_the_stop_short(tmp_path, monkeypatch, capsys,
                                                                                     no_leaks):
     """In-process, so the simulated drive's controlwords can be read: quick stop (0x02), then disable (0x00)."""
-    import rig.commands.run as run_command
+    import rig.transports.simulated as simulated
     from rig.transports.serial_link import SerialTransport
 
     drives = []
-    real_start, real_close = run_command.start_simulated_devices, SerialTransport.close
+    real_start, real_close = simulated.start_simulated_devices, SerialTransport.close
 
     def start_and_keep(*args, **kwargs):
         url, drive = real_start(*args, **kwargs)
@@ -128,7 +128,7 @@ def test_sigterm_disables_the_drive_and_a_second_signal_does_not_cut_the_stop_sh
             os.kill(os.getpid(), signal.SIGTERM)  # arrives in the middle of the controlled stop
         real_close(self)
 
-    monkeypatch.setattr(run_command, "start_simulated_devices", start_and_keep)
+    monkeypatch.setattr(simulated, "start_simulated_devices", start_and_keep)
     monkeypatch.setattr(SerialTransport, "close", close_after_a_second_sigterm)
     out = tmp_path / "run.csv"
 

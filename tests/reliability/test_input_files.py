@@ -380,7 +380,7 @@ def test_a_lost_end_sample_is_taken_from_the_settled_tail(tmp_path):
 def test_diagnose_shows_its_steps_on_a_terminal(tmp_path, capsys, monkeypatch):
     from identify.discrepancy_cases import hidden_effect_record
 
-    record = hidden_effect_record(("backlash",), 3, samples=1500)
+    record = hidden_effect_record(("backlash",), 3, num_samples=1500)
     data = _write(tmp_path / "data.csv", np.arange(record.command_rad.size) * record.sample_period_s,
                   record.command_rad, record.angle_rad)
     monkeypatch.setattr(sys.stderr, "isatty", lambda: True)

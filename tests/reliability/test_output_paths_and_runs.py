@@ -169,11 +169,11 @@ def test_run_refuses_to_overwrite_its_config_and_checks_the_can_trace_before_the
                                                                                        capsys, monkeypatch):
     import shutil
 
-    import rig.commands.run as run_command
+    import rig.transports.simulated as simulated
     from rig.transports.canopen_link import CanOpenTransport
 
     monkeypatch.setattr(CanOpenTransport, "open", lambda self: pytest.fail("the drive was enabled"))
-    monkeypatch.setattr(run_command, "simulated_rig", lambda *a, **k: pytest.fail("the devices were started"))
+    monkeypatch.setattr(simulated, "simulated_rig", lambda *a, **k: pytest.fail("the devices were started"))
     configs = tmp_path / "configs"
     shutil.copytree(CONFIGS, configs, ignore=shutil.ignore_patterns("*.eds", "*.dbc"))
     config = configs / "sim_canopen.toml"

@@ -13,7 +13,7 @@ from rig.cli import main
 from rig.experiment_config import load_experiment_config
 from rig.log_file import read_log
 from rig.protocols.errors import ConfigError
-from sim_backend.plant import SimulatedGearbox
+from sim_backend.plant_config import load_plant_config
 
 ROOT = Path(__file__).resolve().parents[2]
 PLANTS = ROOT / "configs" / "plants"
@@ -29,7 +29,7 @@ def test_simulate_writes_a_log_that_matches_the_simulated_gearbox(tmp_path, caps
     record = read_log(out)
     excitation = cyclic_random_excitation(4100, -3.0, 3.0, 50, np.random.default_rng(9))
     np.testing.assert_array_equal(record.command_rad, excitation)
-    expected = SimulatedGearbox.from_toml(PLANTS / "pouliquen2013_switch.toml", seed=10).simulate(excitation)
+    expected = load_plant_config(PLANTS / "pouliquen2013_switch.toml").gearbox(seed=10).simulate(excitation)
     np.testing.assert_array_equal(record.angle_rad, expected.measured_angle_rad)
     np.testing.assert_array_equal(record.encoder_counts, expected.encoder_counts)
     meta = record.metadata
@@ -38,7 +38,7 @@ def test_simulate_writes_a_log_that_matches_the_simulated_gearbox(tmp_path, caps
     assert meta.noise_kind == "coloured" and meta.noise_bound_rad == np.inf
     assert meta.config["noise"]["std_rad"] > 0  # the SNR was turned into a level and recorded
     # the log carries the whole plant description: it rebuilds the same truth
-    from sim_backend.plant_config import load_plant_config, plant_config_from_toml_text
+    from sim_backend.plant_config import plant_config_from_toml_text
 
     assert plant_config_from_toml_text(meta.config["plant_toml"]).blocks == load_plant_config(
         PLANTS / "pouliquen2013_switch.toml").blocks
@@ -102,7 +102,7 @@ def test_logged_noise_bound_covers_noise_and_encoder_rounding(tmp_path):
     assert main(["simulate", str(PLANTS / "precision_gearbox.toml"), "--excitation",
                  str(EXPERIMENTS / "hammerstein_cyclic.toml"), "--out", str(out), "--json"]) == 0
     record = read_log(out)
-    gearbox = SimulatedGearbox.from_toml(PLANTS / "precision_gearbox.toml")
+    gearbox = load_plant_config(PLANTS / "precision_gearbox.toml").gearbox()
     assert record.metadata.noise_bound_rad == pytest.approx(2e-4 + np.pi / 4096)
     assert record.metadata.noise_bound_rad == pytest.approx(gearbox.measurement_error_bound_rad)
     assert record.metadata.config["additive_noise_bound_rad"] == 2e-4

@@ -22,6 +22,7 @@ from canopen.profiles.p402 import BaseNode402
 
 from sim_backend.canopen_nodes import DRIVE_EDS, ENCODER_EDS, SimulatedCanOpenRig
 from sim_backend.plant import SimulatedGearbox
+from sim_backend.plant_config import load_plant_config
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "transports"))
 from sim_rigs import no_leaks  # noqa: E402,F401  (the fixture, re-exported)
@@ -114,7 +115,7 @@ def collect(pdo_map: Any) -> queue.Queue:
 
 
 def gearbox(encoder: Any = None) -> SimulatedGearbox:
-    box = SimulatedGearbox.from_toml(PLANT, seed=1)
+    box = load_plant_config(PLANT).gearbox(seed=1)
     if encoder is not None:
         box = SimulatedGearbox(box.plant, encoder, box.noise, box.sample_period_s, box.seed, box.name)
     return box

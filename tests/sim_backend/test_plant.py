@@ -13,6 +13,7 @@ from identify.validation import InvalidInputError
 from rig.protocols.encoder_counts import EncoderResolution
 from sim_backend.noise import BoundedUniformNoise, GaussianNoise
 from sim_backend.plant import GearboxSample, SimulatedGearbox
+from sim_backend.plant_config import load_plant_config
 
 PLANTS = Path(__file__).resolve().parents[2] / "configs" / "plants"
 NAMES = ("cerone2009", "pouliquen2013_backlash", "pouliquen2013_switch", "precision_gearbox")
@@ -25,7 +26,7 @@ def command(num_samples: int, amplitude_rad: float) -> np.ndarray:
 
 @pytest.mark.parametrize("name", NAMES)
 def test_step_by_step_equals_simulate_for_every_shipped_plant(name):
-    gearbox = SimulatedGearbox.from_toml(PLANTS / f"{name}.toml", seed=5)
+    gearbox = load_plant_config(PLANTS / f"{name}.toml").gearbox(seed=5)
     u = command(1500, 3.0 if name.startswith("pouliquen") else 1.0)
     run = gearbox.simulate(u)
     stepped = gearbox.calibrated_for(u)
@@ -39,7 +40,7 @@ def test_step_by_step_equals_simulate_for_every_shipped_plant(name):
 
 @pytest.mark.parametrize("name", ("cerone2009", "precision_gearbox"))
 def test_measurement_error_is_within_noise_bound_plus_half_a_count(name):
-    gearbox = SimulatedGearbox.from_toml(PLANTS / f"{name}.toml")
+    gearbox = load_plant_config(PLANTS / f"{name}.toml").gearbox()
     run = gearbox.simulate(command(5000, 1.0))
     error = np.abs(run.measured_angle_rad - run.load_angle_rad)
     bound = gearbox.noise_bound_rad + gearbox.encoder.quantization_bound_rad
@@ -50,7 +51,7 @@ def test_measurement_error_is_within_noise_bound_plus_half_a_count(name):
 
 
 def test_cerone_plant_reaches_the_right_line_of_the_backlash_at_steady_state():
-    gearbox = SimulatedGearbox.from_toml(PLANTS / "cerone2009.toml")
+    gearbox = load_plant_config(PLANTS / "cerone2009.toml").gearbox()
     filtered_step = LinearBlock(a=(-0.8125,), b=(0.0, 0.1875), sample_period_s=1e-3).apply(np.full(400, 2.0))
     run = gearbox.simulate(filtered_step)
     # eq. (11): y = m_r (u - c_r) + eta at steady state, |eta| <= one count
@@ -58,7 +59,7 @@ def test_cerone_plant_reaches_the_right_line_of_the_backlash_at_steady_state():
 
 
 def test_cerone_noise_gives_the_snr_of_table_ii_for_12_bits():
-    gearbox = SimulatedGearbox.from_toml(PLANTS / "cerone2009.toml", seed=1)
+    gearbox = load_plant_config(PLANTS / "cerone2009.toml").gearbox(seed=1)
     prbs = np.random.default_rng(2).choice([-1.0, 1.0], size=20000)  # the +-1 PRBS of Section 6
     run = gearbox.simulate(prbs)
     error = run.measured_angle_rad - run.load_angle_rad

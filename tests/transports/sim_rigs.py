@@ -81,7 +81,7 @@ def no_leaks():
 def simulated(kind: str, directory: Path, transport_options: dict | None = None, **fault_injection):
     """(config, transport, gearbox, simulated drive) for a simulated rig of ``kind``; everything closed on exit.
     ``transport_options`` override the config's (e.g. ``{"mode": "csp"}``)."""
-    from rig.commands.run import start_simulated_devices  # the application layer wires devices
+    from rig.transports.simulated import start_simulated_devices
     from rig.transports import open_transport
     from sim_backend.plant_config import load_plant_config
 

@@ -7,7 +7,7 @@ import contextlib
 
 import pytest
 
-from rig.commands.run import start_simulated_devices
+from rig.transports.simulated import start_simulated_devices
 from rig.protocols.encoder_counts import EncoderResolution
 from rig.runner import run_experiment
 from rig.transports import open_transport

@@ -23,7 +23,7 @@ from sim_rigs import ListSink, excitation, no_leaks, write_test_config  # noqa: 
 
 @contextlib.contextmanager
 def _ip_rig(tmp_path):
-    from rig.commands.run import start_simulated_devices
+    from rig.transports.simulated import start_simulated_devices
 
     path = write_test_config("canopen", tmp_path)
     path.write_text(path.read_text().replace("sdo_timeout_s = 0.5", 'sdo_timeout_s = 0.5\nmode = "ip_buffer"'))
@@ -95,7 +95,7 @@ def test_ip_buffer_needs_the_buffer_objects_in_the_eds(tmp_path):
 def _auto_rig(tmp_path, drive_eds=None, supported_modes=None, **behaviour):
     """A simulated rig driven with the default ``mode = "auto"``; ``supported_modes`` overrides the drive's
     0x6502, ``behaviour`` the drive's :class:`DriveBehaviour` (e.g. static PDOs)."""
-    from rig.commands.run import start_simulated_devices
+    from rig.transports.simulated import start_simulated_devices
     from sim_backend.canopen_behaviour import DriveBehaviour
 
     config = load_rig_config(write_test_config("canopen", tmp_path))

@@ -55,7 +55,7 @@ def test_every_behaviour_of_the_variety_has_an_expected_outcome():
 
 @contextlib.contextmanager
 def _rig_with(tmp_path, name: str, master_options: dict, fault_at: int | None):
-    from rig.commands.run import start_simulated_devices
+    from rig.transports.simulated import start_simulated_devices
 
     drive_behaviour, encoder_behaviour = VARIETY[name]
     config = load_rig_config(write_test_config("canopen", tmp_path))

@@ -14,6 +14,7 @@ from rig.log_file import read_log
 from rig.protocols.encoder_counts import EncoderResolution
 from rig.protocols.errors import ConfigError, TransportError
 from rig.rig_config import load_rig_config
+from rig.runner import RunSummary
 from rig.transports import open_transport, parse_transport_url
 from sim_backend.plant_config import load_plant_config
 from sim_rigs import CONFIGS, no_leaks, write_test_config  # noqa: F401  (no_leaks is a fixture)
@@ -89,6 +90,11 @@ def test_rig_run_writes_a_log_equal_to_the_offline_simulation(kind, tmp_path, ca
     assert code == 0
     result = json.loads(capsys.readouterr().out)
     assert result["log"] == str(out) and result["samples"] == 60 and result["rate_hz"] > 0
+    # the document is the run summary's own (kind and version first), with the keys --json always printed
+    assert list(result)[:14] == ["kind", "version", "log", "samples", "lost", "late", "rate_hz", "held", "min_lead_s",
+                                 "not_followed", "duplicate", "frame_errors", "warnings", "stop"]
+    assert (result["kind"], result["version"]) == ("run_summary", 1)
+    assert RunSummary.from_dict(result).to_dict() == result
     record = read_log(out)
     assert record.num_samples == 60 and record.metadata.transport.startswith(f"{kind}://")
     assert record.metadata.sample_period_s == 0.005 and record.metadata.seed == 4

@@ -1,0 +1,163 @@
+"""Simulated devices behind the transports: the table :data:`SIMULATED_DEVICES`, one entry per URL scheme
+of the transport registry (:data:`rig.transports.BACKENDS`).
+
+A rig config with a ``[simulation]`` table names a plant (``configs/plants/*.toml``); :func:`simulated_rig`
+builds that gearbox, checks it against the rig config (rate, encoder), starts the scheme's simulated
+device(s) on it and yields the URL the transport opens. The devices speak the real protocol (canopen
+LocalNodes and python-can virtual-bus peers, a byte-level serial peer on a pty), so the transport code is
+the same for a simulated and a real rig. ``sim_backend`` is imported only here and only when a device
+starts: ``rig.transports`` stays importable without it, and ``sim_backend`` never imports this module.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import math
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Union
+
+from rig.protocols.errors import ConfigError
+
+if TYPE_CHECKING:
+    import numpy as np
+    from numpy.typing import NDArray
+
+    from rig.rig_config import RigConfig
+    from sim_backend.canopen_nodes import SimulatedCanOpenRig
+    from sim_backend.faults import FaultPlan
+    from sim_backend.plant import SimulatedGearbox
+    from sim_backend.raw_can_device import SimulatedRawCanDevice
+    from sim_backend.serial_device import SimulatedSerialDevice
+
+logger = logging.getLogger(__name__)
+
+__all__ = ["SIMULATED_DEVICES", "SimulatedDevice", "SimulatedDeviceType", "simulated_rig", "start_simulated_devices"]
+
+SimulatedDevice = Union["SimulatedSerialDevice", "SimulatedCanOpenRig", "SimulatedRawCanDevice"]
+"""What a started device entry returns besides the URL: the simulated drive side, which records the
+controlwords and setpoints it received (tests read them)."""
+
+StartDevice = Callable[["RigConfig", "SimulatedGearbox", contextlib.ExitStack, dict[str, object]],
+                       tuple[str, SimulatedDevice]]
+
+
+@dataclass(frozen=True)
+class SimulatedDeviceType:
+    """How to start the simulated device(s) that answer one transport scheme.
+
+    ``start(config, gearbox, stack, device_options)`` enters the device(s) into ``stack`` (closed with it)
+    and returns the URL the transport must open and the simulated drive; ``device_options`` are keyword
+    arguments of the device class (fault injection, behaviours of the real variety)."""
+
+    scheme: str
+    devices: str
+    start: StartDevice
+
+
+def _virtual_channel(config: RigConfig, what: str) -> str:
+    """The channel of ``config.url``, which must be on python-can's virtual interface."""
+    from rig.transports import parse_transport_url
+
+    _, where = parse_transport_url(config.url)
+    if where["interface"] != "virtual":
+        raise ConfigError(config.source, "transport.url", f"a simulated {what} rig runs on the virtual interface: "
+                                                          f"{config.scheme}://virtual/CHANNEL")
+    return str(where["channel"])
+
+
+def _start_serial(config: RigConfig, gearbox: SimulatedGearbox, stack: contextlib.ExitStack,
+                  device_options: dict[str, object]) -> tuple[str, SimulatedDevice]:
+    from sim_backend.serial_device import SimulatedSerialDevice
+
+    device = stack.enter_context(SimulatedSerialDevice(
+        gearbox, drive_counts_per_revolution=config.drive.counts_per_revolution, **device_options))  # type: ignore[arg-type]
+    return f"serial://{device.port}", device
+
+
+def _start_canopen(config: RigConfig, gearbox: SimulatedGearbox, stack: contextlib.ExitStack,
+                   device_options: dict[str, object]) -> tuple[str, SimulatedDevice]:
+    from sim_backend.canopen_nodes import SimulatedCanOpenRig
+
+    channel = _virtual_channel(config, "CANopen")
+    options = config.options
+    rig = stack.enter_context(SimulatedCanOpenRig(
+        gearbox, channel=channel, drive_node_id=options.get("drive_node_id", 1),
+        encoder_node_id=options.get("encoder_node_id", 2), bitrate=options.get("bitrate", 1_000_000),
+        drive_counts_per_revolution=config.drive.counts_per_revolution, **device_options))  # type: ignore[arg-type]
+    return config.url, rig
+
+
+def _start_raw_can(config: RigConfig, gearbox: SimulatedGearbox, stack: contextlib.ExitStack,
+                   device_options: dict[str, object]) -> tuple[str, SimulatedDevice]:
+    from sim_backend.raw_can_device import SimulatedRawCanDevice
+
+    channel = _virtual_channel(config, "raw-CAN")
+    device = stack.enter_context(SimulatedRawCanDevice(
+        gearbox, channel=channel, drive_counts_per_revolution=config.drive.counts_per_revolution,
+        bitrate=config.options.get("bitrate", 1_000_000), **device_options))  # type: ignore[arg-type]
+    return config.url, device
+
+
+SIMULATED_DEVICES: dict[str, SimulatedDeviceType] = {
+    "canopen": SimulatedDeviceType("canopen", "a CiA 402 drive and a CiA 406 encoder, canopen LocalNodes on "
+                                   "python-can's virtual bus (sim_backend.canopen_nodes)", _start_canopen),
+    "can": SimulatedDeviceType("can", "a raw-CAN device of configs/raw_can.dbc on python-can's virtual bus "
+                               "(sim_backend.raw_can_device)", _start_raw_can),
+    "serial": SimulatedDeviceType("serial", "a COBS/CRC-16 serial device on a pty (sim_backend.serial_device)",
+                                  _start_serial),
+}
+"""scheme -> the simulated device(s) that answer its transport (the keys of :data:`rig.transports.BACKENDS`)."""
+
+
+def start_simulated_devices(config: RigConfig, gearbox: SimulatedGearbox, stack: contextlib.ExitStack,
+                            **device_options: object) -> tuple[str, SimulatedDevice]:
+    """Start the simulated device(s) for ``config``'s transport on ``gearbox`` (closed by ``stack``);
+    return the URL to open and the simulated drive (which records the controlwords it received).
+    ``device_options`` go to the device class (fault injection; tests choose behaviours)."""
+    entry = SIMULATED_DEVICES.get(config.scheme)
+    if entry is None:
+        raise ConfigError(config.source, "simulation",
+                          f"there is no simulated device for {config.scheme}:// transports "
+                          f"(simulated: {', '.join(f'{scheme}://' for scheme in SIMULATED_DEVICES)})")
+    url, device = entry.start(config, gearbox, stack, device_options)
+    logger.info("started the simulated %s rig of %s: %s, plant %s, at %s", config.scheme, config.source, entry.devices,
+                gearbox.name, url)
+    if device_options:
+        logger.info("the simulated devices inject: %s", ", ".join(sorted(device_options)))
+    return url, device
+
+
+@contextlib.contextmanager
+def simulated_rig(config: RigConfig, command_rad: NDArray[np.float64] | None = None,
+                  faults: FaultPlan | None = None) -> Iterator[tuple[str, SimulatedGearbox]]:
+    """Start the simulated devices of a rig config with a ``[simulation]`` table; yield the URL the
+    transport must open and the simulated gearbox. ``command_rad`` (the whole command) calibrates noise
+    that needs a reference; ``faults`` makes the devices inject wire faults. Devices are stopped on exit.
+
+    Raises
+    ------
+    ConfigError
+        The config has no ``[simulation]`` table, or its rate or encoder differs from the plant's.
+    """
+    from sim_backend.plant_config import load_plant_config
+
+    sim = config.simulation
+    if sim is None:
+        raise ConfigError(config.source, "simulation", "a real rig (no [simulation] table): nothing to simulate")
+    gearbox = load_plant_config(sim.plant_path).gearbox(seed=sim.seed)
+    if not math.isclose(gearbox.sample_period_s, config.sample_period_s, rel_tol=1e-9):
+        raise ConfigError(config.source, "sample_rate_hz",
+                          f"{config.sample_rate_hz:g} Hz differs from the simulated plant's "
+                          f"{1 / gearbox.sample_period_s:g} Hz ({sim.plant_path})")
+    if gearbox.encoder != config.encoder:
+        raise ConfigError(config.source, "encoder", f"differs from the simulated plant's encoder {gearbox.encoder}")
+    if command_rad is not None and getattr(gearbox.noise, "needs_reference", False):
+        gearbox = gearbox.calibrated_for(command_rad)
+    device_options: dict[str, object] = {}
+    if faults is not None:
+        device_options = faults.device_options(config.scheme, 0 if command_rad is None else len(command_rad))
+    with contextlib.ExitStack() as stack:
+        url, _ = start_simulated_devices(config, gearbox, stack, **device_options)
+        yield url, gearbox
