@@ -21,7 +21,8 @@ from dask.distributed import Client
 
 from identify.cyclic_excitation import cyclic_random_excitation
 from identify.discrepancy_cases import hidden_effect_record
-from identify.plant_blocks import InputBacklash, LinearBlock, PiecewiseLinearBorder, PlantModel
+from identify.excitation_design import filtered_staircase, prbs_sequence, staircase_steady_state_indices
+from identify.plant_blocks import InputBacklash, LinearBlock, OutputBacklash, PiecewiseLinearBorder, PlantModel
 from rig import exit_codes
 from rig.cli import main
 from rig.report import missing_images
@@ -69,8 +70,10 @@ def cluster(tmp_path_factory):
         log.close()
 
     try:
+        # should this test process be killed before its finaliser runs: the scheduler ends after two idle
+        # minutes, and the workers a minute after it
         start("distributed.cli.dask_scheduler", "--host", "127.0.0.1", "--port", "0", "--no-dashboard",
-              "--scheduler-file", str(scheduler_file), cwd=root)
+              "--scheduler-file", str(scheduler_file), "--idle-timeout", "120s", cwd=root)
         deadline = time.monotonic() + START_TIMEOUT_S
         while not scheduler_file.exists() or not scheduler_file.read_text().strip():
             assert processes[0].poll() is None, (root / "dask_scheduler.log").read_text()
@@ -84,7 +87,8 @@ def cluster(tmp_path_factory):
             folder.mkdir()
             worker_dirs.append(folder)
             start("distributed.cli.dask_worker", address, "--name", name, "--nworkers", "1", "--nthreads", "1",
-                  "--host", "127.0.0.1", "--no-dashboard", "--local-directory", str(folder), cwd=folder)
+                  "--host", "127.0.0.1", "--no-dashboard", "--local-directory", str(folder), "--death-timeout", "60s",
+                  cwd=folder)
         with Client(address, timeout=START_TIMEOUT_S, set_as_default=False) as client:
             client.wait_for_workers(2, timeout=START_TIMEOUT_S)
         yield address, worker_dirs
@@ -116,7 +120,22 @@ def data_dir(tmp_path_factory):
                                         sample_period_s=0.01)))
         y = plant.simulate(u) + 0.5
         (folder / f"{name}.csv").write_text("u,y\n" + "".join(f"{float(a)!r},{float(b)!r}\n" for a, b in zip(u, y)))
+    # a staircase and two PRBS records of a linear system with output backlash (Cerone et al. 2009)
+    plant = PlantModel((LinearBlock((0.5, 0.7), (0.0, 1.4, 0.8), 1.0), OutputBacklash(0.248, 0.0698, 0.252, 0.0349)))
+    rng = np.random.default_rng(0)
+    staircase = filtered_staircase(list(np.linspace(0.6, 3.0, 50)), 0.8125, 100)
+    steady = staircase_steady_state_indices(50, 100)
+    steady_y = plant.simulate(staircase)[steady] + rng.uniform(-NOISE_CERONE, NOISE_CERONE, steady.size)
+    (folder / "steady.csv").write_text("u,y\n" + "".join(
+        f"{float(a)!r},{float(b)!r}\n" for a, b in zip(staircase[steady], steady_y)))
+    for name in ("prbs_a", "prbs_b"):
+        u = prbs_sequence(100, 1.0, rng=rng)
+        y = plant.simulate(u) + rng.uniform(-NOISE_CERONE, NOISE_CERONE, u.size)
+        (folder / f"{name}.csv").write_text("u,y\n" + "".join(f"{float(a)!r},{float(b)!r}\n" for a, b in zip(u, y)))
     return folder
+
+
+NOISE_CERONE = 2 * np.pi / 2**12
 
 
 def assert_same_numbers(local, remote, where: str = "") -> None:
@@ -189,6 +208,22 @@ def test_identify_hammerstein_on_the_cluster_equals_the_local_run(cluster, data_
     assert tasks_executed(address) - before == 2
     assert [entry["file"] for entry in remote["results"]] == ["cyclic_a.csv", "cyclic_b.csv"]
     assert all("model" in entry for entry in remote["results"])
+    assert_same_numbers(local, remote)
+
+
+def test_output_backlash_pairs_on_the_cluster_equal_the_local_run(cluster, data_dir, monkeypatch, capsys):
+    """Each pair's steady-state file travels with its task too."""
+    address, _ = cluster
+    monkeypatch.chdir(data_dir)
+    common = ["identify", "output-backlash", "--steady", "steady.csv", "--dynamic", "prbs_a.csv", "--steady",
+              "steady.csv", "--dynamic", "prbs_b.csv", "--noise-bound", repr(NOISE_CERONE), "--na", "2", "--nk", "1",
+              "--nb", "2", "--json"]
+    code, local = run_json(capsys, *common, "--jobs", "1")
+    assert code == exit_codes.SUCCESS
+    code, remote = run_json(capsys, *common, "--scheduler", address)
+    assert code == exit_codes.SUCCESS
+    assert [entry["dynamic"] for entry in remote["results"]] == ["prbs_a.csv", "prbs_b.csv"]
+    assert all("bounds" in entry for entry in remote["results"])
     assert_same_numbers(local, remote)
 
 
