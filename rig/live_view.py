@@ -34,7 +34,8 @@ from numpy.typing import NDArray
 from identify.experiment_record import SampleFlag
 
 __all__ = ["FRAME_INTERVAL_S", "LIVE_BUFFER_ROWS", "LiveFeed", "LiveFrame", "LiveView", "ObservedSink",
-           "TerminalRenderer", "WindowRenderer", "choose_renderer", "display_available", "open_live_view"]
+           "TerminalRenderer", "WindowRenderer", "WindowUnavailable", "choose_renderer", "display_available",
+           "open_live_view"]
 
 LIVE_BUFFER_ROWS = 4096
 """Rows held between the sample path and the view at most (4 s at 1 kHz); older ones are pushed out."""
@@ -234,12 +235,13 @@ def display_available(environ: Any = None) -> bool:
 
 def choose_renderer(stream: TextIO) -> Renderer:
     """A :class:`WindowRenderer` when a display is there and matplotlib opens a window on it, else a
-    :class:`TerminalRenderer` on ``stream``."""
-    if display_available():
-        window = WindowRenderer.start()
-        if window is not None:
-            return window
-    return TerminalRenderer(stream)
+    :class:`TerminalRenderer` on ``stream`` (which says why there is no window when one was tried)."""
+    if not display_available():
+        return TerminalRenderer(stream)
+    try:
+        return WindowRenderer.start()
+    except WindowUnavailable as err:
+        return TerminalRenderer(stream, note=f"no window: {err}")
 
 
 @contextlib.contextmanager
@@ -265,8 +267,9 @@ class TerminalRenderer:
     terminal each frame replaces the previous one in place (ANSI cursor moves); into a file or pipe a
     frame is written at most every 2 s."""
 
-    def __init__(self, stream: TextIO, width: int = 72, height: int = 12) -> None:
+    def __init__(self, stream: TextIO, width: int = 72, height: int = 12, note: str = "") -> None:
         self.stream = stream
+        self.note = note
         self.width, self.height = width, height
         self.tty = bool(getattr(stream, "isatty", lambda: False)())
         self.min_interval_s = FRAME_INTERVAL_S if self.tty else 2.0
@@ -294,6 +297,8 @@ class TerminalRenderer:
         span = f"{frame.time_s[0]:.2f} .. {frame.time_s[-1]:.2f} s" if frame.time_s.size else "no samples yet"
         lines.append(f" . command   * load angle   # both   {span}")
         lines.append(frame.status_line())
+        if self.note:
+            lines.append(self.note)
         return lines
 
     def draw(self, frame: LiveFrame) -> None:
@@ -306,6 +311,10 @@ class TerminalRenderer:
 
     def close(self) -> None:
         pass
+
+
+class WindowUnavailable(Exception):
+    """No matplotlib window could be opened; the message says why."""
 
 
 WINDOW_POINTS = 2000
@@ -328,10 +337,10 @@ class WindowRenderer:
         self.frames_shown = 0
 
     @classmethod
-    def start(cls, *, require_window: bool = True, timeout_s: float = 30.0) -> WindowRenderer | None:
-        """The window process, once it has opened a figure; None when it did not start in ``timeout_s`` or,
-        with ``require_window``, when matplotlib opens no window there (no GUI toolkit installed: it fell
-        back to a non-interactive backend). Without it, the figure is drawn off screen (tests)."""
+    def start(cls, *, require_window: bool = True, timeout_s: float = 30.0) -> WindowRenderer:
+        """The window process, once it has opened a figure. Raises :class:`WindowUnavailable` when it could
+        not open one, did not answer in ``timeout_s``, or, with ``require_window``, opened no window
+        (matplotlib fell back to a non-interactive backend: no display server answering, or no GUI toolkit). Without ``require_window`` the figure may be drawn off screen (tests)."""
         import multiprocessing
 
         context = multiprocessing.get_context("spawn")  # a fresh interpreter: no forked threads or locks
@@ -339,18 +348,30 @@ class WindowRenderer:
         process = context.Process(target=_window_process, args=(theirs,), name="rig-live-window", daemon=True)
         process.start()
         theirs.close()
-        if not ours.poll(timeout_s):
-            process.terminate()
+        try:
+            if not ours.poll(timeout_s):
+                raise WindowUnavailable(f"the window's process did not start within {timeout_s:g} s")
+            try:
+                kind, detail = ours.recv()
+            except EOFError:
+                raise WindowUnavailable(f"the window's process ended (exit code {process.exitcode})") from None
+            if kind != "ready":
+                raise WindowUnavailable(detail)
+            if require_window and detail.lower() in NON_INTERACTIVE_BACKENDS:
+                raise WindowUnavailable(
+                    f"matplotlib chose its non-interactive backend {detail}: no display server answers at "
+                    f"{os.environ.get('DISPLAY') or os.environ.get('WAYLAND_DISPLAY') or 'DISPLAY'}, or no GUI "
+                    "toolkit (tkinter, PyQt) is installed")
+        except WindowUnavailable:
+            with contextlib.suppress(OSError):
+                ours.send(None)
             process.join(5)
+            if process.is_alive():
+                process.terminate()
+                process.join(5)
             ours.close()
-            return None
-        _, backend = ours.recv()
-        if require_window and backend.lower() in NON_INTERACTIVE_BACKENDS:
-            ours.send(None)
-            process.join(5)
-            ours.close()
-            return None
-        return cls(process, ours, backend)
+            raise
+        return cls(process, ours, detail)
 
     def draw(self, frame: LiveFrame) -> None:
         # the final frame waits (a little) for the window to be ready, and for it to be drawn
@@ -392,19 +413,22 @@ def _window_process(connection: Any) -> None:
     counters in its title; answers "ready" with its backend, then each frame with the number drawn."""
     import warnings
 
-    import matplotlib.pyplot as plt
-
     warnings.filterwarnings("ignore", message=".*non-interactive.*")  # drawn off screen: nothing to show
+    try:
+        import matplotlib.pyplot as plt
 
-    figure, axes = plt.subplots(figsize=(9, 4.5), num="rig run --live")
-    (command_line,) = axes.plot([], [], label="command", linewidth=1.0)
-    (angle_line,) = axes.plot([], [], label="load angle", linewidth=1.0)
-    axes.set_xlabel("time [s]")
-    axes.set_ylabel("angle [rad]")
-    axes.legend(loc="upper left")
-    title = axes.set_title("waiting for the first sample", fontsize=9)
-    figure.tight_layout()
-    plt.show(block=False)
+        figure, axes = plt.subplots(figsize=(9, 4.5), num="rig run --live")
+        (command_line,) = axes.plot([], [], label="command", linewidth=1.0)
+        (angle_line,) = axes.plot([], [], label="load angle", linewidth=1.0)
+        axes.set_xlabel("time [s]")
+        axes.set_ylabel("angle [rad]")
+        axes.legend(loc="upper left")
+        title = axes.set_title("waiting for the first sample", fontsize=9)
+        figure.tight_layout()
+        plt.show(block=False)
+    except Exception as err:  # e.g. TclError: couldn't connect to display
+        connection.send(("failed", f"{type(err).__name__}: {err}".splitlines()[0]))
+        return
     connection.send(("ready", plt.get_backend()))
     shown = 0
     while True:

@@ -167,7 +167,7 @@ def test_the_terminal_plot_puts_both_curves_between_their_range():
 
 def test_the_window_draws_what_it_is_sent_off_screen(headless):
     window = WindowRenderer.start(require_window=False)  # Agg: the same figure code, drawn off screen
-    assert window is not None and window.backend.lower() == "agg"
+    assert window.backend.lower() == "agg"
     try:
         window.draw(_frame(100))
         window.draw(_frame(200, final=True))  # waits until the window has drawn the final frame
@@ -175,3 +175,13 @@ def test_the_window_draws_what_it_is_sent_off_screen(headless):
     finally:
         window.close()
     assert not window._process.is_alive()
+
+
+def test_a_display_that_does_not_answer_gives_the_terminal_view_and_says_why(monkeypatch):
+    monkeypatch.setenv("DISPLAY", ":97")  # set, as after a closed X forwarding, but no server behind it
+    monkeypatch.delenv("MPLBACKEND", raising=False)
+    renderer = live_view.choose_renderer(stream=None)
+    assert isinstance(renderer, TerminalRenderer)
+    assert renderer.note.startswith("no window: matplotlib chose its non-interactive backend")
+    assert "no display server answers at :97" in renderer.note
+    assert renderer.render(_frame(10))[-1] == renderer.note  # shown under the status line
