@@ -83,7 +83,8 @@ class LiveFeed:
     @property
     def dropped(self) -> int:
         """Rows the view never saw (pushed out of the full buffer); the log has them all."""
-        return self.offered - self.taken - len(self._rows)
+        pending = len(self._rows)  # first: a row is counted offered before it is buffered
+        return self.offered - self.taken - pending
 
 
 class ObservedSink:
@@ -169,8 +170,8 @@ class LiveView:
         self.feed = LiveFeed(LIVE_BUFFER_ROWS if capacity is None else capacity)
         self.total_samples = int(total_samples)
         self.frame_interval_s = max(frame_interval_s, getattr(renderer, "min_interval_s", 0.0))
-        window_rows = max(2, int(math.ceil(window_s / sample_period_s)))
-        self._window: collections.deque[tuple[float, float, float]] = collections.deque(maxlen=window_rows)
+        self._window_rows = max(2, int(math.ceil(window_s / sample_period_s)))
+        self._window = np.zeros((0, 3))  # time, command, angle of the rows shown
         self.frames_drawn = 0
         self.frames_skipped = 0
         self._stopping = threading.Event()
@@ -204,8 +205,10 @@ class LiveView:
             self.error = err
 
     def _draw(self, final: bool) -> None:
-        self._window.extend(self.feed.take())
-        rows = np.array(self._window, dtype=float).reshape(-1, 3)
+        # only the new rows go through Python objects; the window is joined as arrays (a copy, no loop), so
+        # the view holds the interpreter lock for microseconds at a time, not for a whole window
+        new = np.array(self.feed.take(), dtype=float).reshape(-1, 3)
+        self._window = rows = np.concatenate([self._window, new])[-self._window_rows:]
         feed = self.feed
         self.renderer.draw(LiveFrame(rows[:, 0], rows[:, 1], rows[:, 2], samples=feed.offered,
                                      total_samples=self.total_samples, lost=feed.lost, held=feed.held,
@@ -288,7 +291,8 @@ class TerminalRenderer:
             for signal, mark in ((frame.command_rad, "."), (frame.angle_rad, "*")):
                 finite = np.isfinite(signal)
                 rows = np.round((high - signal[finite]) / (high - low) * (self.height - 1)).astype(int)
-                for x, y in zip(column[finite].tolist(), rows.tolist()):
+                for cell in np.unique(rows * self.width + column[finite]).tolist():  # each cell once
+                    y, x = divmod(cell, self.width)
                     grid[y][x] = "#" if grid[y][x] not in (" ", mark) else mark
         border = "+" + "-" * self.width + "+"
         lines = [f"{border}  {high:+.4g} rad"]
