@@ -75,12 +75,13 @@ def cluster(tmp_path_factory):
         start("distributed.cli.dask_scheduler", "--host", "127.0.0.1", "--port", "0", "--no-dashboard",
               "--scheduler-file", str(scheduler_file), "--idle-timeout", "120s", cwd=root)
         deadline = time.monotonic() + START_TIMEOUT_S
-        while not scheduler_file.exists() or not scheduler_file.read_text().strip():
+        address = None
+        while address is None:
             assert processes[0].poll() is None, (root / "dask_scheduler.log").read_text()
             assert time.monotonic() < deadline, "the scheduler wrote no scheduler file"
+            with contextlib.suppress(FileNotFoundError, json.JSONDecodeError, KeyError):
+                address = json.loads(scheduler_file.read_text())["address"]  # once it is written whole
             time.sleep(0.1)
-        time.sleep(0.2)  # the file is written in one go, but let a slow disk finish it
-        address = json.loads(scheduler_file.read_text())["address"]
         worker_dirs = []
         for name in ("worker-1", "worker-2"):
             folder = root / name
