@@ -249,7 +249,7 @@ def test_a_scheduler_that_does_not_answer_is_named(data_dir, monkeypatch, capsys
 
     from rig import batch
 
-    monkeypatch.setattr(batch, "SCHEDULER_TIMEOUT_S", 2.0)
+    monkeypatch.setattr(batch, "SCHEDULER_TIMEOUT_S", 1.0)
     with socket.socket() as probe:  # a port nobody listens on
         probe.bind(("127.0.0.1", 0))
         port = probe.getsockname()[1]
