@@ -415,8 +415,11 @@ class WindowRenderer:
 def _window_process(connection: Any) -> None:
     """In the window's process: a figure with the command and the load angle of the last seconds, the
     counters in its title; answers "ready" with its backend, then each frame with the number drawn."""
+    import signal
     import warnings
 
+    # a Ctrl-C at the terminal reaches this process too: the run reports it, and then closes the window
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     warnings.filterwarnings("ignore", message=".*non-interactive.*")  # drawn off screen: nothing to show
     try:
         import matplotlib.pyplot as plt
