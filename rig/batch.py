@@ -4,19 +4,30 @@ Both go through the ``concurrent.futures.Executor`` interface: :class:`~concurre
 on the local cores, or the executor of a ``dask.distributed.Client`` (``Client(address).get_executor()``)
 for a fleet of machines, so the same batch runs on either and this module writes no scheduler of its own.
 Dask is optional (``pip install 'dask[distributed]'``); it is imported only when a scheduler is named.
+
+The workers of a cluster do not share the client's file system (another machine, another working
+directory, a container): with a scheduler, every file a task reads is read here and travels with the task
+(:class:`ShippedFile`); the worker writes it into a temporary directory of its own, under its own name, and
+the task reads that copy (:func:`shipped_path`). Messages name the file as the user gave it.
 """
 
 from __future__ import annotations
 
 import contextlib
+import contextvars
 import functools
 import os
-from collections.abc import Callable, Iterator, Sequence
+import tempfile
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from concurrent.futures import Executor, ProcessPoolExecutor
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 from rig.protocols.errors import ConfigError
+
+SCHEDULER_TIMEOUT_S = 30.0
+"""How long the client waits for the scheduler named by ``--scheduler`` to answer (Dask's own default)."""
 
 
 @dataclass(frozen=True)
@@ -61,7 +72,14 @@ def executor_for(jobs: int, scheduler: str | None = None) -> Iterator[Executor |
             from dask.distributed import Client
         except ImportError as err:
             raise ConfigError("--scheduler", "scheduler", "needs Dask: pip install 'dask[distributed]'") from err
-        with Client(scheduler) as client:
+        try:
+            client = Client(scheduler, timeout=SCHEDULER_TIMEOUT_S, set_as_default=False)
+        except (OSError, ValueError, TypeError) as err:  # no answer, refused, or an address Dask cannot parse
+            raise ValueError(
+                f"--scheduler {scheduler}: no Dask scheduler answered ({err}); start one (`dask scheduler`, or "
+                "the cluster's own: dask-jobqueue, Dask Kubernetes) and pass the address it prints, "
+                "tcp://HOST:PORT") from err
+        with client:
             yield client.get_executor()
         return
     workers = usable_cores() if jobs == 0 else jobs
@@ -136,18 +154,92 @@ def map_callable(executor: Executor | None, chunksize: int = 4) -> Callable[...,
 
 
 def map_files(function: Callable[[str], Any], paths: Sequence[str], *, jobs: int = 1,
-              scheduler: str | None = None) -> list[FileOutcome]:
+              scheduler: str | None = None, shared_files: Sequence[str] = ()) -> list[FileOutcome]:
     """``function(path)`` for every path, in the order given; ``function`` must be picklable (a
     module-level function or a ``functools.partial`` of one) when it runs in other processes. Local
     processes are capped at the number of files and of usable cores (``--jobs 1000`` on three files
-    starts three)."""
+    starts three).
+
+    On a Dask cluster (``scheduler``) each file, and each of ``shared_files`` (read by every task, such as
+    a model; the task opens it through :func:`shipped_path`), is read here and shipped with its task:
+    a file this machine cannot read is that file's error, a shared one stops the batch before any work."""
     if jobs < 0:
         raise ValueError(f"--jobs: expected 0 (all cores) or a positive number of processes, got {jobs}")
     if scheduler is None:
         jobs = min(usable_cores() if jobs == 0 else jobs, usable_cores(), max(1, len(paths)))
+    shared = tuple(ShippedFile.read(path) for path in shared_files) if scheduler is not None else ()
     with executor_for(jobs, scheduler) as executor:
         if executor is None:
             return [_guarded(function, path) for path in paths]
-        with _sigint_held():
-            futures = [executor.submit(_guarded, function, path) for path in paths]
-        return [future.result() for future in futures]
+        if scheduler is None:
+            with _sigint_held():
+                futures = [executor.submit(_guarded, function, path) for path in paths]
+            return [future.result() for future in futures]
+        outcomes: list[FileOutcome | None] = []
+        futures = []
+        for path in paths:
+            try:
+                shipped = ShippedFile.read(path)
+            except OSError as err:
+                outcomes.append(FileOutcome(path, error=_os_error_message(err)))
+                continue
+            outcomes.append(None)
+            futures.append(executor.submit(_run_shipped, function, shipped, shared))
+        results = iter([future.result() for future in futures])
+        return [outcome if outcome is not None else next(results) for outcome in outcomes]
+
+
+@dataclass(frozen=True)
+class ShippedFile:
+    """A file read on the client, carried to a cluster worker with its task: ``path`` as the user named it,
+    ``content`` its bytes."""
+
+    path: str
+    content: bytes
+
+    @classmethod
+    def read(cls, path: str) -> ShippedFile:
+        return cls(str(path), Path(path).read_bytes())
+
+
+_SHIPPED: contextvars.ContextVar[Mapping[str, str]] = contextvars.ContextVar("rig_shipped_files", default={})
+"""In a task on a cluster worker: the user's path of each file shipped with it -> its copy on the worker."""
+
+
+def shipped_path(path: str) -> str:
+    """Where a task reads ``path``: the worker's copy of it when it was shipped with the task (a cluster
+    worker, :func:`map_files` with a scheduler), else ``path`` itself."""
+    return _SHIPPED.get().get(str(path), str(path))
+
+
+def user_path(path: str) -> str:
+    """The path the user gave for ``path`` when it is a worker's copy of a shipped file, else ``path``."""
+    return next((user for user, copy in _SHIPPED.get().items() if copy == str(path)), str(path))
+
+
+def _run_shipped(function: Callable[[str], Any], shipped: ShippedFile,
+                 shared: Sequence[ShippedFile]) -> FileOutcome:
+    """On a cluster worker: write the task's files into a temporary directory (each under its own name, in
+    a folder of its own), run ``function`` on the copy of ``shipped``, and name the user's paths in an
+    error message instead of the copies'."""
+    with tempfile.TemporaryDirectory(prefix="rig-task-") as folder:
+        copies = {}
+        for number, file in enumerate((shipped, *shared)):
+            copy = Path(folder, str(number), Path(file.path).name or "file")
+            copy.parent.mkdir()
+            copy.write_bytes(file.content)
+            copies[file.path] = str(copy)
+        token = _SHIPPED.set(copies)
+        try:
+            outcome = _guarded(function, copies[shipped.path])
+        finally:
+            _SHIPPED.reset(token)
+    error = outcome.error
+    if error is not None:
+        for path, copy in sorted(copies.items(), key=lambda item: -len(item[1])):
+            error = error.replace(copy, path)
+    return FileOutcome(shipped.path, outcome.result, error)
+
+
+def _os_error_message(err: OSError) -> str:
+    return f"{err.filename}: {err.strerror}" if err.filename is not None and err.strerror else str(err)

@@ -81,8 +81,13 @@ def run(args: argparse.Namespace) -> int:
         else:
             _print_summary(args.data[0], args.model, args.noise_bound, *outcome)
         return exit_codes.SUCCESS
-    outcomes = map_files(partial(diagnose_file, options=options), args.data, jobs=args.jobs,
-                         scheduler=args.scheduler)
+    # a cluster's workers do not write into this machine's file system: there, the figures are drawn here
+    draw_here = args.scheduler is not None and args.report is not None
+    outcomes = map_files(partial(diagnose_file, options={**options, "report": None} if draw_here else options),
+                         args.data, jobs=args.jobs, scheduler=args.scheduler,
+                         shared_files=[args.model] if args.model is not None else [])
+    if draw_here:
+        outcomes = [_with_report(outcome, options) for outcome in outcomes]
     if args.json:
         print(json.dumps(batch_document([outcome.to_json("diagnosis", _document) for outcome in outcomes])))
     else:
@@ -101,6 +106,7 @@ def diagnose_file(path_text: str, options: dict):
     that it runs in other processes."""
     from identify.model_discrepancy import diagnose_model
     from rig.log_file import check_output_varies
+    from rig.batch import shipped_path
     from rig.record_import import read_measurement
 
     record, imported = read_measurement(path_text, options.get("import"))
@@ -109,22 +115,41 @@ def diagnose_file(path_text: str, options: dict):
     if options["model"] is not None:
         from sim_backend.plant_config import load_plant_config
 
-        model = load_plant_config(options["model"]).plant
+        model = load_plant_config(shipped_path(options["model"])).plant  # a cluster worker's copy
     progress = _progress_lines(path_text, record.command_rad.size) if options.get("progress") else None
     result = diagnose_model(record.command_rad, record.angle_rad, options["noise_bound"],
                             record.metadata.sample_period_s, model, progress=progress)
     index = None
     if options["report"] is not None:
-        from rig.output_paths import writing
-        from rig.plots.discrepancy import write_discrepancy_report
-
-        directory = Path(options["report"])
-        if options["report_per_file"]:
-            directory = directory / Path(path_text).stem
-        with writing(directory, "--report"):
-            index = write_discrepancy_report(directory, result, record.command_rad, record.angle_rad,
-                                             record.metadata.sample_period_s, source=str(path_text))
+        index = _write_report(path_text, result, record, options)
     return result, int(record.command_rad.size), index, imported
+
+
+def _write_report(path_text: str, result, record, options: dict):
+    """The figures and HTML page of one file's diagnosis under ``--report``; returns the index page."""
+    from rig.output_paths import writing
+    from rig.plots.discrepancy import write_discrepancy_report
+
+    directory = Path(options["report"])
+    if options["report_per_file"]:
+        directory = directory / Path(path_text).stem
+    with writing(directory, "--report"):
+        return write_discrepancy_report(directory, result, record.command_rad, record.angle_rad,
+                                        record.metadata.sample_period_s, source=str(path_text))
+
+
+def _with_report(outcome, options: dict):
+    """A file diagnosed on a cluster worker, with its report drawn here from the file read again."""
+    import dataclasses
+
+    from rig.record_import import read_measurement
+
+    if outcome.error is not None:
+        return outcome
+    result, num_samples, _, imported = outcome.result
+    record, _ = read_measurement(outcome.path, options.get("import"))
+    index = _write_report(outcome.path, result, record, options)
+    return dataclasses.replace(outcome, result=(result, num_samples, index, imported))
 
 
 def _progress_lines(path_text: str, num_samples: int):

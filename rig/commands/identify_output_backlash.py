@@ -194,7 +194,8 @@ def _run_batch(args: argparse.Namespace) -> int:
         raise ValueError("--save: one --steady/--dynamic pair at a time")
     options = {key: getattr(args, key) for key in _OPTIONS}
     outcomes = map_files(partial(bound_pair, steady_of=dict(zip(args.dynamic, args.steady)), options=options),
-                         args.dynamic, jobs=args.jobs, scheduler=args.scheduler)
+                         args.dynamic, jobs=args.jobs, scheduler=args.scheduler,
+                         shared_files=sorted(set(args.steady)))
     entries = []
     for steady, outcome in zip(args.steady, outcomes):
         entry = {"steady": steady, "dynamic": outcome.path}
@@ -226,7 +227,9 @@ def _run_batch(args: argparse.Namespace) -> int:
 def bound_pair(dynamic: str, steady_of: dict[str, str], options: dict) -> dict:
     """The ``--json`` document of one experiment (``{"empty": true, ...}`` for an empty feasible set); a
     module-level function returning plain data, so that it runs in other processes."""
-    result, *_ = _bound(steady_of[dynamic], dynamic, options)
+    from rig.batch import shipped_path, user_path
+
+    result, *_ = _bound(shipped_path(steady_of[user_path(dynamic)]), dynamic, options)  # a cluster worker's copies
     return _document(result, options["method"])
 
 

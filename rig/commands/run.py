@@ -52,6 +52,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                              "'bitflip=0.001', 'unplug@400' (serial); see README, Faults and outcomes")
     parser.add_argument("--sim-faults-seed", metavar="N", type=int, default=0,
                         help="seed of the random faults (default 0): the same seed repeats the same faults")
+    parser.add_argument("--live", action="store_true",
+                        help="show the command, the load angle and the lost/held counters as the run goes: a "
+                             "matplotlib window when there is a display, else a text plot on stderr; the view "
+                             "drops frames when it falls behind, never samples")
     parser.add_argument("--json", action="store_true",
                         help='print the run summary as JSON: {"kind": "run_summary", "version": 1, "log", "samples", '
                              '"lost", "late", "rate_hz", "held", "min_lead_s", "not_followed", "duplicate", '
@@ -204,10 +208,16 @@ def run(args: argparse.Namespace) -> int:
             options["trace_path"] = args.can_trace
         transport = open_transport(url, **options)
         injected = None if faults is None else {"spec": args.sim_faults, "seed": args.sim_faults_seed}
+        view = None
+        if args.live:  # on the sink: the view sees each row after the log has it (rig/live_view.py)
+            from rig.live_view import open_live_view
+
+            view = stack.enter_context(open_live_view(command.size, config.sample_period_s, sys.stderr))
         log = LogWriter(args.out, experiment_log_metadata(config, excitation, gearbox, command.size, injected),
                         flush_every=10, flush_interval_s=0.05)
+        sink = log if view is None else view.observe(log)
         bar = None
-        if not args.json and sys.stderr.isatty():
+        if not args.json and not args.live and sys.stderr.isatty():
             from tqdm import tqdm
 
             bar = stack.enter_context(tqdm(total=command.size, unit="sample", file=sys.stderr))
@@ -219,9 +229,11 @@ def run(args: argparse.Namespace) -> int:
             if bar is not None and (done % 50 == 0 or done == command.size):
                 bar.n = done
                 bar.set_postfix(late=late, refresh=True)
-        summary = run_experiment(transport, command, log, feedback_timeout_s=config.feedback_timeout_s,
+        summary = run_experiment(transport, command, sink, feedback_timeout_s=config.feedback_timeout_s,
                                  late_tolerance_s=config.late_tolerance_s,
                                  progress=progress if bar is not None or stalls else None)
+    if view is not None:
+        print(view.summary_line(), file=sys.stderr)
     summary = dataclasses.replace(summary, log=str(args.out))
     if args.json:
         print(json.dumps(summary.to_dict()))

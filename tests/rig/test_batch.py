@@ -1,3 +1,5 @@
+import sys
+
 import pytest
 
 from rig.batch import map_files
@@ -16,11 +18,9 @@ def test_outcomes_keep_the_order_and_errors_do_not_stop_the_batch():
                                                                 ("x.bad", None, "x.bad: not a log")]
 
 
-def test_negative_jobs_and_a_missing_dask_are_named():
+def test_negative_jobs_and_a_missing_dask_are_named(monkeypatch):
     with pytest.raises(ValueError, match="--jobs: expected 0"):
         map_files(parse_length, ["a"], jobs=-1)
-    try:
-        import dask.distributed  # noqa: F401
-    except ImportError:
-        with pytest.raises(ConfigError, match=r"pip install 'dask\[distributed\]'"):
-            map_files(parse_length, ["a"], scheduler="tcp://127.0.0.1:8786")
+    monkeypatch.setitem(sys.modules, "dask.distributed", None)  # as if Dask were not installed
+    with pytest.raises(ConfigError, match=r"pip install 'dask\[distributed\]'"):
+        map_files(parse_length, ["a"], scheduler="tcp://127.0.0.1:8786")
