@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from rig.demo import DemoOutcome, summary_rows
+from rig.demo_outcome import SUMMARY_HEADER, DemoOutcome, summary_rows
 from rig.plots.discrepancy import discrepancy_section
 from rig.plots.experiment import signal_figure, timing_figure
 from rig.plots.hammerstein import hammerstein_figures
@@ -38,7 +38,7 @@ def demo_report_sections(outcome: DemoOutcome) -> list[ReportSection]:
                   f"guaranteed for the noise bound {outcome.noise_bound_rad:.3g} rad when the model structure "
                   "holds; friction and encoder drift are outside that structure, so a true value outside its "
                   "interval points at them, not at a numerical error."),
-            table_header=("quantity", "true", "paper method", "coupled method / estimate"),
+            table_header=SUMMARY_HEADER,
             table_rows=tuple(summary_rows(outcome)),
         ),
         ReportSection(

@@ -8,7 +8,7 @@ import pytest
 
 from identify.plant_blocks import Delay, LinearBlock, OutputBacklash, PlantModel, Resonance
 from rig.cli import main
-from rig.demo import true_gearbox
+from rig.demo_outcome import true_gearbox
 from rig.protocols.errors import TransportError
 from rig.report import missing_images
 
@@ -38,25 +38,33 @@ def test_demo_writes_a_complete_report_and_bounds_contain_the_truth(tmp_path, ca
     assert len(re.findall(r"<img ", page)) >= 6
     assert (out / "logs" / "prbs.csv").is_file() and (out / "logs" / "staircase.csv").is_file()
     rows = {row[0]: row for row in result["rows"]}
-    # Friction and encoder drift lie outside the set-membership structure, yet on this plant every
-    # bound still contains the true value; the coupled bounds must lie inside the paper's.
+    # The staircase uses the reference pole (no overshoot of x_t for the play to hold), so the structure of the
+    # method holds on the steady-state points: every bound contains the true value and the exact set D_γ the
+    # true point, on both sides (the table says what the polygon figure draws); coupled bounds lie in the paper's.
     for name in ("backlash m_l", "backlash c_l", "backlash m_r", "backlash c_r", "linear a1", "linear b3"):
         true = float(rows[name][1])
         for column in (2, 3):
             lower, upper = (float(x) for x in rows[name][column].strip("[]").split(","))
             assert lower - 1e-9 <= true <= upper + 1e-9, (name, column, rows[name])
+    membership = rows["backlash: true (m, m·c) in the exact set D_γ"]
+    assert membership[2] == membership[3] == "left inside, right inside"
     paper = [float(x) for x in rows["linear a1"][2].strip("[]").split(",")]
     coupled = [float(x) for x in rows["linear a1"][3].strip("[]").split(",")]
     assert paper[0] <= coupled[0] and coupled[1] <= paper[1]
     play_true = float(rows["Hammerstein play [rad]"][1])
     play_estimate = float(rows["Hammerstein play [rad]"][3].split()[0])
     assert play_estimate == pytest.approx(play_true, abs=0.0015)  # one count of the 12-bit encoder
-    # The diagnosis of the nominal model (gear ratio, no play) must name the backlash and shrink the gap.
+    # The diagnosis of the nominal model (gear ratio, no play) must name the backlash and shrink the gap; its
+    # play comes with the cross-validated interval.
     assert rows["discrepancy: missing effect"][3].split(", ")[0] == "backlash"
-    assert float(rows["discrepancy: fitted play [rad]"][3]) == pytest.approx(play_true, abs=0.0015)
-    gap_before = float(rows["discrepancy: gap [rad]"][2].split()[0])
-    gap_after = float(rows["discrepancy: gap [rad]"][3].split()[0])
+    fitted, interval = rows["discrepancy: fitted play c_l + c_r [rad]"][3].split(" in ")
+    assert float(fitted) == pytest.approx(play_true, abs=0.0015)
+    low, high = (float(x) for x in interval.strip("[]").split(","))
+    assert low <= float(fitted) <= high
+    gap_before = float(rows["discrepancy: gap of the nominal model [rad]"][3])
+    gap_after = float(rows["discrepancy: gap with backlash [rad]"][3])
     assert gap_after < 0.5 * gap_before
+    assert all(row[2] == "-" for name, row in rows.items() if name.startswith(("discrepancy", "Hammerstein")))
     assert "Model discrepancy" in page
 
 
@@ -78,3 +86,13 @@ def test_lost_steady_state_samples_take_the_last_usable_one_within_the_tail():
     np.testing.assert_array_equal(last_valid_values(record, np.array([3, 4, 9]), max_age=2), [3.0, 3.0, 8.0])
     with pytest.raises(TransportError, match=r"samples 4\.\.4 were all lost"):
         last_valid_values(record, np.array([4]), max_age=0)
+
+
+def test_the_report_and_the_outcome_do_not_import_the_demo_runner():
+    import subprocess
+    import sys
+
+    code = ("import sys, rig.demo_report, rig.demo_outcome; "
+            "print('rig.demo' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.strip() == "False"
