@@ -36,17 +36,26 @@ def demo_report_sections(outcome: DemoOutcome) -> list[ReportSection]:
                   f"c_r = {truth.backlash.c_r:.4g} rad on the motor side, friction, a torsion mode, 12-bit load "
                   f"encoder) was driven over the {outcome.transport} transport. Set-membership bounds are "
                   f"guaranteed for the noise bound {outcome.noise_bound_rad:.3g} rad when the model structure "
-                  "holds; friction and encoder drift are outside that structure, so a true value outside its "
-                  "interval points at them, not at a numerical error."),
+                  "holds (a linear block, then an output backlash, reached at steady state without an overshoot of "
+                  "the inner signal that the play would hold). Friction and the encoder's drift lie outside that "
+                  "structure; the table's row on "
+                  "D_γ says whether the exact feasible set holds the true backlash, as the polygon figure draws it. "
+                  "The Hammerstein and discrepancy rows are estimates (no paper-method column)."),
             table_header=SUMMARY_HEADER,
             table_rows=tuple(summary_rows(outcome)),
         ),
         ReportSection(
             "Experiments",
-            text="Every experiment was streamed at the rig's fixed rate by the same runner that drives a real rig.",
+            text=("Every experiment was streamed at the rig's fixed rate by the same runner that drives a real rig. "
+                  f"On the {outcome.transport} wire the device's clock owns the sample instants: the log's time "
+                  "column is the instant k·T the device sampled at, so the timing figures show what is known "
+                  "instead, the samples flagged HELD, LATE or LOST and how far ahead of its instant each setpoint "
+                  f"was queued. The staircase is filtered with a = {outcome.filter_pole:.4g}: "
+                  f"{outcome.filter_pole_reason}."),
             figures=tuple(figure for name in ("staircase", "prbs", "cyclic") if name in runs
                           for figure in (signal_figure(runs[name].record, f"signals_{name}"),
-                                         timing_figure(runs[name].record, f"timing_{name}"))),
+                                         timing_figure(runs[name].record, f"timing_{name}", lead_s=runs[name].lead_s,
+                                                       min_lead_s=runs[name].min_lead_s))),
         ),
         ReportSection(
             "Set-membership bounds (Cerone, Piga, Regruto 2009)",
@@ -56,7 +65,7 @@ def demo_report_sections(outcome: DemoOutcome) -> list[ReportSection]:
             figures=tuple(default_result_figures(
                 outcome.set_membership, "sm_", sample_period_s=truth.linear.sample_period_s,
                 true_backlash=truth.backlash, true_linear=truth.linear,
-                true_values={**_true_backlash_values(outcome), **truth.theta(plan.na, plan.nk, plan.nb)})),
+                true_values={**truth.backlash_values, **truth.theta(plan.na, plan.nk, plan.nb)})),
         ),
         ReportSection(
             "Hammerstein model (Pouliquen et al. 2013)",
@@ -73,11 +82,6 @@ def demo_report_sections(outcome: DemoOutcome) -> list[ReportSection]:
                                   "the cyclic experiment, against the nominal gearbox model without its play")
     sections.append(replace(section, title=f"Model discrepancy: {section.title.lower()}"))
     return sections
-
-
-def _true_backlash_values(outcome: DemoOutcome) -> dict[str, float]:
-    backlash = outcome.truth.backlash
-    return {"m_l": backlash.m_l, "c_l": backlash.c_l, "m_r": backlash.m_r, "c_r": backlash.c_r}
 
 
 def write_demo_report(outcome: DemoOutcome, out_dir: str | Path) -> Path:

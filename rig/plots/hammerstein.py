@@ -123,7 +123,8 @@ def borders_figure(model: HammersteinSource, name: str, *, true_ascending: Calla
     view = _view(model)
     notes = [f"{view.ascending_u.size} ascending and {view.descending_u.size} descending nodes on "
              f"[{view.ascending_u[0]:.4g}, {view.ascending_u[-1]:.4g}] rad"]
-    notes.append(f"largest vertical gap P_d - P_a = {model.largest_play_rad:.4g} rad (the play seen at the output)")
+    notes.append(f"largest gap P_d - P_a = {model.largest_play_rad:.4g} rad (the play seen at the output; the "
+                 "subspace method gives no interval, the gaps at the other nodes show their spread)")
     errors = []
     for label, nodes_u, nodes_h, border in (("ascending", view.ascending_u, view.ascending_h, true_ascending),
                                             ("descending", view.descending_u, view.descending_h, true_descending)):
@@ -135,8 +136,12 @@ def borders_figure(model: HammersteinSource, name: str, *, true_ascending: Calla
     if view.fit_percent is not None:
         notes.append(f"simulation fit {view.fit_percent:.1f} %")
 
+    # The play is a few mrad on a range of a rad: drawn again as the gap P_d - P_a at the ascending nodes (the
+    # gap HammersteinModel.largest_play_rad takes the maximum of), against the true paths' gap when known.
+    gap_mrad = (np.interp(view.ascending_u, view.descending_u, view.descending_h) - view.ascending_h) * 1e3
+
     def draw(figure) -> None:
-        axes = figure.subplots()
+        axes, gap_axes = figure.subplots(2, 1, sharex=True, height_ratios=(3, 1.4))
         low, high = float(view.ascending_u[0]), float(view.ascending_u[-1])
         grid = np.linspace(low, high, 300)
         axes.plot(view.ascending_u, view.ascending_h, "-o", color="tab:orange", ms=4, label="ascending path P_a")
@@ -147,15 +152,24 @@ def borders_figure(model: HammersteinSource, name: str, *, true_ascending: Calla
         if true_descending is not None:
             axes.plot(grid, [true_descending(float(u)) for u in grid], "--", color="navy", lw=1.0,
                       label="true descending")
-        axes.set_xlabel("input u [rad]")
         axes.set_ylabel("nonlinearity output H[u] [rad]")
         axes.grid(True, lw=0.3, alpha=0.5)
         axes.legend(loc="upper left", fontsize=7)
+        gap_axes.plot(view.ascending_u, gap_mrad, "o-", color="tab:purple", ms=4, lw=0.8, label="P_d - P_a at the nodes")
+        if true_ascending is not None and true_descending is not None:
+            true_gap = [(true_descending(float(u)) - true_ascending(float(u))) * 1e3 for u in grid]
+            gap_axes.plot(grid, true_gap, "k--", lw=1.0, label="true gap")
+        gap_axes.axhline(0.0, color="0.6", lw=0.5)
+        gap_axes.set_xlabel("input u [rad]")
+        gap_axes.set_ylabel("gap [mrad]")
+        gap_axes.grid(True, lw=0.3, alpha=0.5)
+        gap_axes.legend(loc="lower center", fontsize=7)
 
     caption = (f"Borders of the input nonlinearity (Pouliquen et al. 2013, eq. (3)): piecewise-linear paths with "
-               f"their nodes{', true paths dashed' if errors else ''}. {'; '.join(notes)}. Look for the ascending "
-               "path below the descending one (backlash), both meeting at the ends, and the nodes on the true paths.")
-    return ReportFigure(name, caption, draw, size_in=(7.0, 4.5))
+               f"their nodes{', true paths dashed' if errors else ''}; below, the gap P_d - P_a at the nodes in mrad. "
+               f"{'; '.join(notes)}. Look for the ascending path below the descending one (backlash), both meeting "
+               "at the ends, and the nodes on the true paths.")
+    return ReportFigure(name, caption, draw, size_in=(7.0, 5.5))
 
 
 def singular_values_figure(model: HammersteinSource, name: str) -> ReportFigure:
