@@ -132,9 +132,9 @@ def timing_figure(record: ExperimentRecord, name: str, *, lead_s: float | None =
             values = [leads_ms[label] for label in labels]
             lead_axes.bar(labels, values, color=["tab:gray", "tab:blue"][: len(values)])
             lead_axes.axhline(0.0, color="k", lw=0.8)
-            lead_axes.set_ylabel("setpoint ahead of its instant [ms]")
+            lead_axes.set_ylabel("lead [ms]")
             lead_axes.tick_params(axis="x", labelsize=7)
-            lead_axes.set_xlabel("of the run [-]")
+            lead_axes.set_xlabel("setpoint before its instant [-]", fontsize=8)
             lead_axes.set_ylim(min(0.0, min(values)) * 1.2 - 0.05 * max(values), 1.15 * max(values))
 
     flagged_total = int(np.count_nonzero(record.flags & int(sum(TIMING_FLAGS))))

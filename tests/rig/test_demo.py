@@ -54,6 +54,9 @@ def test_demo_writes_a_complete_report_and_bounds_contain_the_truth(tmp_path, ca
     play_true = float(rows["Hammerstein play [rad]"][1])
     play_estimate = float(rows["Hammerstein play [rad]"][3].split()[0])
     assert play_estimate == pytest.approx(play_true, abs=0.0015)  # one count of the 12-bit encoder
+    low, high = (float(x) for x in re.search(r"spread over ([-0-9.e]+)\.\.([-0-9.e]+) rad",
+                                             rows["Hammerstein play [rad]"][3]).groups())
+    assert low <= play_estimate <= high
     # The diagnosis of the nominal model (gear ratio, no play) must name the backlash and shrink the gap; its
     # play comes with the cross-validated interval.
     assert rows["discrepancy: missing effect"][3].split(", ")[0] == "backlash"
@@ -96,3 +99,38 @@ def test_the_report_and_the_outcome_do_not_import_the_demo_runner():
             "print('rig.demo' in sys.modules)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.strip() == "False"
+
+
+def test_the_staircase_pole_keeps_the_true_backlash_in_the_exact_set_where_the_search_s_pole_does_not():
+    """Why the demo filters its staircase with the reference pole: offline, without noise (the load angle
+    itself), a staircase with the pole the search accepts on the precision gearbox drives x_t through the
+    torsion mode into an overshoot that the play holds, and D_γ then excludes the true backlash."""
+    from types import SimpleNamespace
+
+    from identify.excitation_design import filtered_staircase, staircase_steady_state_indices
+    from identify.feasible_parameter_set import bound_backlash_parameters
+    from rig.demo import CONFIG_DIR, staircase_filter_pole
+    from rig.demo_outcome import QUICK_PLAN
+    from rig.rig_config import load_rig_config
+    from sim_backend.plant_config import load_plant_config
+
+    config = load_rig_config(CONFIG_DIR / "sim_serial.toml")
+    plant_config = load_plant_config(config.simulation.plant_path)
+    truth = true_gearbox(plant_config.plant)
+    noise_bound = plant_config.gearbox(seed=0).measurement_error_bound_rad
+    amplitudes = list(QUICK_PLAN.staircase_amplitudes_rad)
+    steady = staircase_steady_state_indices(len(amplitudes), QUICK_PLAN.samples_per_half_wave)
+    # the search's pole is the fastest one the drive's rate limit allows (the search itself accepts a = 0)
+    search = SimpleNamespace(filter_pole=0.0, reference_pole=QUICK_PLAN.reference_pole, threshold_rad=2 * noise_bound)
+    chosen, _ = staircase_filter_pole(search, amplitudes, config.limits.rate_max_rad_per_s, config.sample_period_s)
+    fastest = 1.0 - 0.99 * config.limits.rate_max_rad_per_s * config.sample_period_s / (2 * max(amplitudes))
+    assert chosen == QUICK_PLAN.reference_pole > fastest
+    inside = {}
+    for pole in (fastest, chosen):
+        staircase = filtered_staircase(amplitudes, pole, QUICK_PLAN.samples_per_half_wave)
+        load = plant_config.plant.simulate(staircase)[steady]
+        backlash_set = bound_backlash_parameters(staircase[steady], load, noise_bound,
+                                                 filter_step_amplitude_rad=QUICK_PLAN.filter_step_amplitude_rad)
+        inside[pole] = backlash_set.contains(**truth.backlash_values)
+    assert inside[chosen] == {"left": True, "right": True}
+    assert not all(inside[fastest].values()), inside[fastest]
