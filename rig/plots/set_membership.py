@@ -249,7 +249,8 @@ def feasible_polygons_figure(result: OutputBacklashIdentification | BacklashFeas
             axes.set_xlabel(f"slope m_{letter} [rad/rad]")
             axes.set_ylabel(f"m_{letter}·c_{letter} [rad]")
             axes.xaxis.set_major_locator(MaxNLocator(4))
-            axes.legend(loc="best", fontsize=7)
+            if axes.get_legend_handles_labels()[0]:  # an empty side without a true point has nothing to list
+                axes.legend(loc="best", fontsize=7)
 
     caption = ("Feasible polygons of the backlash in (m, m·c) coordinates (Cerone et al. 2009, eqs. (14)-(17): "
                "each steady-state point is a strip, each side the intersection of its strips). "
