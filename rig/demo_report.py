@@ -9,7 +9,7 @@ import numpy as np
 
 from rig.demo_outcome import SUMMARY_HEADER, DemoOutcome, summary_rows
 from rig.plots.discrepancy import discrepancy_section
-from rig.plots.experiment import signal_figure, timing_figure
+from rig.plots.experiment import RunTiming, runs_timing_figure, signal_figure
 from rig.plots.hammerstein import hammerstein_figures
 from rig.plots.set_membership import default_result_figures
 from rig.report import ReportSection, write_report
@@ -29,6 +29,7 @@ def demo_report_sections(outcome: DemoOutcome) -> list[ReportSection]:
 
     def descending(u: float) -> float:
         return min(backlash.m_r * (u_max - backlash.c_r), backlash.m_l * (u + backlash.c_l))
+    experiments = [name for name in ("staircase", "prbs", "cyclic") if name in runs]
     sections = [
         ReportSection(
             "Summary",
@@ -48,14 +49,13 @@ def demo_report_sections(outcome: DemoOutcome) -> list[ReportSection]:
             "Experiments",
             text=("Every experiment was streamed at the rig's fixed rate by the same runner that drives a real rig. "
                   f"On the {outcome.transport} wire the device's clock owns the sample instants: the log's time "
-                  "column is the instant k·T the device sampled at, so the timing figures show what is known "
-                  "instead, the samples flagged HELD, LATE or LOST and how far ahead of its instant each setpoint "
-                  f"was queued. The staircase is filtered with a = {outcome.filter_pole:.4g}: "
+                  "column is the instant k·T the device sampled at, so the timing figure shows what is known "
+                  "instead (last figure), the samples flagged HELD, LATE or LOST and how far ahead of its instant "
+                  f"each setpoint was queued. The staircase is filtered with a = {outcome.filter_pole:.4g}: "
                   f"{outcome.filter_pole_reason}."),
-            figures=tuple(figure for name in ("staircase", "prbs", "cyclic") if name in runs
-                          for figure in (signal_figure(runs[name].record, f"signals_{name}"),
-                                         timing_figure(runs[name].record, f"timing_{name}", lead_s=runs[name].lead_s,
-                                                       min_lead_s=runs[name].min_lead_s))),
+            figures=(*(signal_figure(runs[name].record, f"signals_{name}") for name in experiments),
+                     runs_timing_figure([RunTiming(name, runs[name].record, runs[name].lead_s, runs[name].min_lead_s)
+                                         for name in experiments], "timing")),
         ),
         ReportSection(
             "Set-membership bounds (Cerone, Piga, Regruto 2009)",

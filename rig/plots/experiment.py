@@ -12,6 +12,8 @@ measured, and its period deviation is drawn.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
+from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
@@ -19,7 +21,8 @@ from numpy.typing import NDArray
 from identify.experiment_record import ExperimentRecord, SampleFlag
 from rig.report import ReportFigure
 
-__all__ = ["TIMING_FLAGS", "signal_figure", "time_column_is_nominal", "timing_figure"]
+__all__ = ["TIMING_FLAGS", "RunTiming", "runs_timing_figure", "signal_figure", "time_column_is_nominal",
+           "timing_figure"]
 
 NOMINAL_TIME_TOLERANCE_S = 1e-9
 """A time column within this of t_0 + k·T at every sample is the nominal grid (float64 rounding of k·T at
@@ -152,6 +155,85 @@ def timing_figure(record: ExperimentRecord, name: str, *, lead_s: float | None =
                + ("" if flagged_total else "none") + f").{lead_text} Look for no HELD or LATE samples"
                + (" and a smallest lead well above 0." if "smallest lead" in leads_ms else "."))
     return ReportFigure(name, caption, draw, size_in=(8.0, 1.6 + 0.3 * len(rows)))
+
+
+@dataclass(frozen=True)
+class RunTiming:
+    """One run as :func:`runs_timing_figure` draws it: its log and what its :class:`rig.runner.RunSummary`
+    knew of the lead (``lead_s`` 0: a host-paced run; ``min_lead_s`` nan: not measured)."""
+
+    name: str
+    record: ExperimentRecord
+    lead_s: float = 0.0
+    min_lead_s: float = math.nan
+
+
+_FLAG_COLOURS = {SampleFlag.HELD: "tab:red", SampleFlag.LATE: "tab:orange", SampleFlag.LOST: "k"}
+
+
+def runs_timing_figure(runs: Sequence[RunTiming], name: str) -> ReportFigure:
+    """The timing of several device-clocked runs in one figure: per run, a row with a tick at each sample
+    flagged with one of :data:`TIMING_FLAGS` (HELD red, LATE orange, LOST black, others purple) over the
+    run's duration, and the lead: how far ahead of the device's instants the setpoints were queued and the
+    smallest lead seen (below 0: a setpoint missed its instant and the sample is HELD)."""
+    if not runs:
+        raise ValueError("runs: expected at least one run")
+    counts = [{flag: run.record.count_flag(flag) for flag in TIMING_FLAGS} for run in runs]
+    leads = [(run.lead_s * 1e3, run.min_lead_s * 1e3 if math.isfinite(run.min_lead_s) else math.nan) for run in runs]
+
+    def row_label(run: RunTiming, count: dict[SampleFlag, int]) -> str:
+        flagged = ", ".join(f"{count[flag]} {flag.name}" for flag in TIMING_FLAGS if count[flag]) or "none flagged"
+        return f"{run.name}\n{len(run.record)} samples, {flagged}"
+
+    def draw(figure) -> None:
+        flag_axes, lead_axes = figure.subplots(1, 2, width_ratios=(3, 2), sharey=True)
+        for row, run in enumerate(runs):
+            record = run.record
+            time_s = record.time_s - record.time_s[0]
+            flag_axes.plot([0.0, float(time_s[-1])], [row, row], color="0.8", lw=6, solid_capstyle="butt")
+            for flag in TIMING_FLAGS:
+                at = time_s[(record.flags & int(flag)) != 0]
+                if at.size:
+                    flag_axes.plot(at, np.full(at.size, row), "|", ms=12, color=_FLAG_COLOURS.get(flag, "tab:purple"),
+                                   label=flag.name)
+        flag_axes.set_yticks(range(len(runs)), [row_label(run, count) for run, count in zip(runs, counts)],
+                             fontsize=7)
+        flag_axes.set_ylim(len(runs) - 0.5, -0.5)
+        flag_axes.set_xlabel("time in the run (device's instants k·T) [s]")
+        flag_axes.set_ylabel("run, flagged samples [-]")
+        handles, labels = flag_axes.get_legend_handles_labels()
+        if handles:
+            unique = dict(zip(labels, handles))
+            flag_axes.legend(unique.values(), unique.keys(), loc="lower right", fontsize=7)
+        rows = np.arange(len(runs))
+        lead_axes.barh(rows - 0.18, [queued for queued, _ in leads], height=0.34, color="tab:gray",
+                       label="queued ahead")
+        smallest = np.array([low for _, low in leads])
+        measured = np.isfinite(smallest)
+        lead_axes.barh(rows[measured] + 0.18, smallest[measured], height=0.34, color="tab:blue",
+                       label="smallest lead seen")
+        lead_axes.axvline(0.0, color="k", lw=0.8)
+        lead_axes.set_xlabel("setpoint ahead of its instant [ms]")
+        lead_axes.set_ylabel("same runs [-]")
+        lead_axes.legend(loc="lower right", fontsize=7)
+
+    lines = []
+    for run, count, (queued, smallest) in zip(runs, counts, leads):
+        flagged = sum(count.values())
+        text = f"{run.name}: {flagged} of {len(run.record)} samples flagged"
+        if queued > 0:
+            text += f", queued {queued:.3g} ms ahead" + (f", smallest lead {smallest:.3g} ms"
+                                                        if math.isfinite(smallest) else ", smallest lead not measured")
+        else:
+            text += ", host-paced (no lead)"
+        lines.append(text)
+    caption = ("Timing of the runs as the device saw it. Each log's time column is the device's own sample instant "
+               f"k·T, so its spacing carries no jitter to plot; left, the samples flagged as not taken at their "
+               "instant with their own setpoint (HELD, LATE, LOST ...) over each run; right, how far ahead of its "
+               "instant each setpoint was queued and the smallest lead seen (below 0 the setpoint missed its "
+               f"instant and the sample is HELD). {'; '.join(lines)}. Look for no ticks on the left and smallest "
+               "leads well above 0 on the right.")
+    return ReportFigure(name, caption, draw, size_in=(9.0, 1.2 + 0.55 * len(runs)))
 
 
 def _period_deviation_figure(record: ExperimentRecord, name: str) -> ReportFigure:

@@ -553,22 +553,19 @@ def _envelope_note(label: str, envelope: MagnitudeEnvelope, true_magnitude: NDAr
     """What the caption says of one method's envelope: the numbers :class:`MagnitudeEnvelope` computed."""
     prefix = f"{label}: " if label else ""
     bounded = envelope.bounded_fraction
-    if bounded == 0.0:
-        text = f"{prefix}the box's envelope is unbounded at every frequency, not drawn"
-    else:
-        text = (f"{prefix}the box's envelope is bounded at {_percent(bounded)} of the frequencies, median width "
-                f"{envelope.median_width_db:.3g} dB there" + ("" if bounded >= ENVELOPE_DRAWN_FROM else ", not drawn"))
     reasons = []
     if envelope.unbounded_above_fraction > 0.0:
-        reasons.append(f"no upper bound at {_percent(envelope.unbounded_above_fraction)} (some box model has a pole on "
-                       "the unit circle there)")
+        reasons.append(f"no upper bound at {_percent(envelope.unbounded_above_fraction)}, where a model of the box "
+                       "has a pole on the unit circle")
     if envelope.zero_below_fraction > 0.0:
-        reasons.append(f"lower bound 0 at {_percent(envelope.zero_below_fraction)} (some box model has a zero there)")
-    if reasons:
-        text += " (" + "; ".join(reasons) + ")"
-    text += f"; central |G| at the lowest frequency {envelope.central_db[0]:.3g} dB"
-    if true_magnitude is not None and bounded > 0.0:
-        text += f"; true |G| inside the envelope at {_percent(envelope.fraction_containing(true_magnitude))} of frequencies"
+        reasons.append(f"lower bound 0 at {_percent(envelope.zero_below_fraction)}, where one has a zero there")
+    why = f" ({'; '.join(reasons)})" if reasons else ""
+    if bounded < ENVELOPE_DRAWN_FROM:
+        return f"{prefix}envelope not drawn, bounded at {_percent(bounded)} of the frequencies{why}"
+    text = (f"{prefix}envelope bounded at {_percent(bounded)} of the frequencies{why}, median width "
+            f"{envelope.median_width_db:.3g} dB there")
+    if true_magnitude is not None:
+        text += f", true |G| inside it at {_percent(envelope.fraction_containing(true_magnitude))} of them"
     return text
 
 

@@ -83,3 +83,23 @@ def test_experiment_figures_render(tmp_path):
     figures = (signal_figure(record, "signals"), timing_figure(record, "timing", lead_s=0.1, min_lead_s=-0.002))
     index = write_report(tmp_path, "Experiment", [ReportSection("Run", figures=figures)])
     assert missing_images(index) == []
+
+
+def test_the_timing_of_several_runs_shows_each_run_s_flags_and_leads():
+    from rig.plots.experiment import RunTiming, runs_timing_figure
+
+    flagged = make_record()
+    clean = ExperimentRecord(flagged.time_s, flagged.command_rad, np.sin(flagged.time_s), None,
+                             np.zeros(len(flagged), dtype=np.uint8), flagged.metadata)
+    runs = [RunTiming("staircase", clean, 0.1, 0.0158), RunTiming("cyclic", flagged, 0.1, -0.002),
+            RunTiming("old log", clean)]
+    report_figure = runs_timing_figure(runs, "timing")
+    assert unlabelled_axes(report_figure) == []
+    flag_axes, lead_axes = _drawn(report_figure).axes
+    ticks = {line.get_label(): line for line in flag_axes.get_lines() if line.get_marker() == "|"}
+    np.testing.assert_allclose(ticks["HELD"].get_xdata(), flagged.time_s[[90, 91]])
+    assert set(ticks["HELD"].get_ydata()) == {1}  # on the cyclic row only
+    assert set(ticks) == {"HELD", "LATE", "LOST"}
+    queued = [bar.get_width() for bar in lead_axes.patches[:3]]
+    smallest = [bar.get_width() for bar in lead_axes.patches[3:]]
+    assert queued == pytest.approx([100.0, 100.0, 0.0]) and smallest == pytest.approx([15.8, -2.0])
