@@ -198,13 +198,13 @@ def runs_timing_figure(runs: Sequence[RunTiming], name: str) -> ReportFigure:
                                    label=flag.name)
         flag_axes.set_yticks(range(len(runs)), [row_label(run, count) for run, count in zip(runs, counts)],
                              fontsize=7)
-        flag_axes.set_ylim(len(runs) - 0.5, -0.5)
+        flag_axes.set_ylim(len(runs) + 0.3, -0.5)  # a free band at the bottom for the legends
         flag_axes.set_xlabel("time in the run (device's instants k·T) [s]")
         flag_axes.set_ylabel("run, flagged samples [-]")
         handles, labels = flag_axes.get_legend_handles_labels()
         if handles:
             unique = dict(zip(labels, handles))
-            flag_axes.legend(unique.values(), unique.keys(), loc="lower right", fontsize=7)
+            flag_axes.legend(unique.values(), unique.keys(), loc="lower right", fontsize=7, ncol=len(unique))
         rows = np.arange(len(runs))
         lead_axes.barh(rows - 0.18, [queued for queued, _ in leads], height=0.34, color="tab:gray",
                        label="queued ahead")
@@ -215,7 +215,7 @@ def runs_timing_figure(runs: Sequence[RunTiming], name: str) -> ReportFigure:
         lead_axes.axvline(0.0, color="k", lw=0.8)
         lead_axes.set_xlabel("setpoint ahead of its instant [ms]")
         lead_axes.set_ylabel("same runs [-]")
-        lead_axes.legend(loc="lower right", fontsize=7)
+        lead_axes.legend(loc="lower right", fontsize=7, ncol=2)
 
     lines = []
     for run, count, (queued, smallest) in zip(runs, counts, leads):

@@ -75,8 +75,8 @@ class NodePlay:
 
     def describe(self) -> str:
         """The estimate with its spread, as the table and the caption both print it."""
-        return (f"{self.median_rad:.4g} rad (median gap P_d - P_a over {self.interior_gaps_rad.size} interior nodes, "
-                f"which spread over {self.lowest_rad:.3g}..{self.highest_rad:.3g} rad)")
+        return (f"{self.median_rad:.4g} (median gap P_d - P_a at {self.interior_gaps_rad.size} interior nodes; "
+                f"spread {self.lowest_rad:.3g}..{self.highest_rad:.3g}) rad")
 
 
 def play_at_nodes(model: HammersteinModel) -> NodePlay:
