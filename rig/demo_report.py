@@ -41,7 +41,9 @@ def demo_report_sections(outcome: DemoOutcome) -> list[ReportSection]:
                   "the inner signal that the play would hold). Friction and the encoder's drift lie outside that "
                   "structure; the table's row on "
                   "D_γ says whether the exact feasible set holds the true backlash, as the polygon figure draws it. "
-                  "The Hammerstein and discrepancy rows are estimates (no paper-method column)."),
+                  "The Hammerstein and discrepancy rows are estimates (no paper-method column); the Hammerstein "
+                  "structure puts the play before the drive loop, where this gearbox has it after, so its play is "
+                  "an approximation."),
             table_header=SUMMARY_HEADER,
             table_rows=tuple(summary_rows(outcome)),
         ),
