@@ -68,17 +68,25 @@ class SimulatedRigSession:
         cyclic excitation cannot tolerate).
 
         A host too busy to keep the rate loses samples (they are flagged in the log). An experiment that
-        lost more than ``max_lost`` is run again from rest, up to :attr:`max_attempts` times; the repeats
-        are counted in :attr:`retries`. The log goes to ``out_dir/logs/<name>.csv`` when kept.
+        lost more than ``max_lost`` is run again from rest, up to :attr:`max_attempts` times; so is one whose
+        link failed (the simulated devices run in this process: a host stall longer than the feedback
+        watchdog starves them too, which on a real rig would be a fault). The repeats are counted in
+        :attr:`retries`. The log goes to ``out_dir/logs/<name>.csv`` when kept.
         """
+        problem = ""
         for attempt in range(1, self.max_attempts + 1):
-            record = self._run_once(name, command_rad, keep_log=keep_log)
-            if _samples_off_design(record) <= max_lost:
-                return record
+            try:
+                record = self._run_once(name, command_rad, keep_log=keep_log)
+            except TransportError as err:  # the link itself is in this process: a stall, not a broken wire
+                problem = f"the link failed ({err})"
+            else:
+                if _samples_off_design(record) <= max_lost:
+                    return record
+                problem = (f"{_samples_off_design(record)} samples were lost, faulted or held (at most {max_lost} "
+                           "can be used)")
             self.retries[name] = attempt
-        raise TransportError(f"{name}: {_samples_off_design(record)} samples were lost, faulted or held "
-                           f"(at most {max_lost} can be used) in each of {self.max_attempts} attempts; the host "
-                           "cannot keep the rig's rate: close other programs and run again, or try --transport serial")
+        raise TransportError(f"{name}: in each of {self.max_attempts} attempts {problem}; the host cannot keep the "
+                             "rig's rate: close other programs and run again, or try --transport serial")
 
     def _run_once(self, name: str, command_rad: NDArray[np.float64], *, keep_log: bool) -> ExperimentRecord:
         import tempfile

@@ -138,3 +138,25 @@ def test_the_staircase_pole_keeps_the_true_backlash_in_the_exact_set_where_the_s
         inside[pole] = backlash_set.contains(**truth.backlash_values)
     assert inside[chosen] == {"left": True, "right": True}
     assert not all(inside[fastest].values()), inside[fastest]
+
+
+def test_an_experiment_whose_link_fails_on_a_busy_host_is_run_again_and_then_reported(monkeypatch):
+    from rig.demo import SimulatedRigSession
+
+    session = SimulatedRigSession("serial", None)
+    attempts = []
+
+    def stalled(name, command_rad, *, keep_log):
+        attempts.append(name)
+        if len(attempts) < 3:
+            raise TransportError("serial:///dev/pts/0: no feedback for 0.1 s (watchdog 0.1 s)")
+        return lossy_record()
+
+    monkeypatch.setattr(session, "_run_once", stalled)
+    assert len(session.run("prbs", np.zeros(10), max_lost=2)) == 10
+    assert session.retries == {"prbs": 2} and len(attempts) == 3
+    attempts.clear()
+    monkeypatch.setattr(session, "_run_once", lambda *a, **k: (_ for _ in ()).throw(
+        TransportError("serial:///dev/pts/0: no feedback for 0.1 s")))
+    with pytest.raises(TransportError, match=r"cyclic: in each of 5 attempts the link failed \(serial.*no feedback"):
+        session.run("cyclic", np.zeros(10))
