@@ -85,8 +85,9 @@ class SimulatedRigSession:
                 problem = (f"{_samples_off_design(record)} samples were lost, faulted or held (at most {max_lost} "
                            "can be used)")
             self.retries[name] = attempt
+        other_wire = ", or try --transport serial" if self.transport != "serial" else ""
         raise TransportError(f"{name}: in each of {self.max_attempts} attempts {problem}; the host cannot keep the "
-                             "rig's rate: close other programs and run again, or try --transport serial")
+                             f"rig's rate: close other programs and run again{other_wire}")
 
     def _run_once(self, name: str, command_rad: NDArray[np.float64], *, keep_log: bool) -> ExperimentRecord:
         import tempfile

@@ -19,8 +19,8 @@ from identify.plant_blocks import Delay, LinearBlock, OutputBacklash, PlantModel
 from rig.plots.hammerstein import play_at_nodes
 from rig.report import format_interval
 
-__all__ = ["FULL_PLAN", "QUICK_PLAN", "SUMMARY_HEADER", "DemoOutcome", "DemoPlan", "DemoRun", "TrueGearbox", "format_summary",
-           "summary_rows", "true_gearbox"]
+__all__ = ["FULL_PLAN", "QUICK_PLAN", "SUMMARY_HEADER", "DemoOutcome", "DemoPlan", "DemoRun", "TrueGearbox",
+           "format_summary", "summary_rows", "true_gearbox"]
 
 
 @dataclass(frozen=True)

@@ -201,7 +201,8 @@ def borders_figure(model: HammersteinSource, name: str, *, true_ascending: Calla
         axes.set_ylabel("nonlinearity output H[u] [rad]")
         axes.grid(True, lw=0.3, alpha=0.5)
         axes.legend(loc="upper left", fontsize=7)
-        gap_axes.plot(view.ascending_u, gap_mrad, "o-", color="tab:purple", ms=4, lw=0.8, label="P_d - P_a at the nodes")
+        gap_axes.plot(view.ascending_u, gap_mrad, "o-", color="tab:purple", ms=4, lw=0.8,
+                      label="P_d - P_a at the nodes")
         if true_ascending is not None and true_descending is not None:
             true_gap = [(true_descending(float(u)) - true_ascending(float(u))) * 1e3 for u in grid]
             gap_axes.plot(grid, true_gap, "k--", lw=1.0, label="true gap")

@@ -158,5 +158,7 @@ def test_an_experiment_whose_link_fails_on_a_busy_host_is_run_again_and_then_rep
     attempts.clear()
     monkeypatch.setattr(session, "_run_once", lambda *a, **k: (_ for _ in ()).throw(
         TransportError("serial:///dev/pts/0: no feedback for 0.1 s")))
-    with pytest.raises(TransportError, match=r"cyclic: in each of 5 attempts the link failed \(serial.*no feedback"):
+    message = (r"cyclic: in each of 5 attempts the link failed \(serial.*no feedback"
+               r".*close other programs and run again$")
+    with pytest.raises(TransportError, match=message):
         session.run("cyclic", np.zeros(10))

@@ -12,7 +12,8 @@ from identify.border_lifting import PathNodes
 from identify.cyclic_excitation import cyclic_random_excitation
 from identify.hammerstein_subspace import HammersteinModel, identify_hammerstein
 from identify.plant_blocks import LinearBlock, PlantModel, pouliquen2013_backlash
-from rig.plots.hammerstein import borders_figure, hammerstein_figures, play_at_nodes, poles_figure, singular_values_figure
+from rig.plots.hammerstein import (borders_figure, hammerstein_figures, play_at_nodes, poles_figure,
+                                  singular_values_figure)
 from rig.report import ReportSection, missing_images, write_report
 
 G = LinearBlock(a=(-1.8858, 0.9048), b=(0.0, 0.1994, -0.1804), sample_period_s=0.01)
