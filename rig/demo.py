@@ -22,7 +22,7 @@ import contextlib
 from collections.abc import Callable, Iterator
 from dataclasses import replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -32,6 +32,9 @@ from rig.demo_outcome import (FULL_PLAN, QUICK_PLAN, DemoOutcome, DemoPlan, Demo
                               true_gearbox)
 from rig.demo_report import write_demo_report
 from rig.protocols.errors import TransportError
+
+if TYPE_CHECKING:
+    from identify.excitation_design import FilterPoleDesign
 
 __all__ = ["DEMO_STEPS", "FULL_PLAN", "QUICK_PLAN", "SimulatedRigSession", "format_summary", "last_valid_values",
            "run_demo", "staircase_filter_pole", "summary_rows"]
@@ -142,7 +145,7 @@ def last_valid_values(record: ExperimentRecord, indices: NDArray[np.int64], max_
     return values
 
 
-def staircase_filter_pole(design: Any, amplitudes_rad: list[float], rate_max_rad_per_s: float,
+def staircase_filter_pole(design: FilterPoleDesign, amplitudes_rad: list[float], rate_max_rad_per_s: float,
                           sample_period_s: float) -> tuple[float, str]:
     """The pole a of the filtered staircase and why: the search's reference pole ā, or slower where the
     drive's rate limit requires (the first step of the largest half-wave, (1 - a) 2 max β, within it).
@@ -152,7 +155,7 @@ def staircase_filter_pole(design: Any, amplitudes_rad: list[float], rate_max_rad
     at amplitude ū_s, and the staircase's half-waves jump by about 2ū_s. An overshoot of x_t that the play
     holds (through a lightly damped torsion mode) can then put the true backlash outside D_γ while the
     search sees nothing; ā is the pole the Appendix takes as slow enough that x_t does not overshoot.
-    ``design`` is the :class:`identify.excitation_design.FilterPoleDesign` of the search.
+    ``design`` is the search's result.
     """
     rate_limited = 1.0 - 0.99 * rate_max_rad_per_s * sample_period_s / (2 * max(amplitudes_rad))
     reference = float(design.reference_pole)
