@@ -7,9 +7,9 @@ from pathlib import Path
 
 import numpy as np
 
-from rig.demo import DemoOutcome, summary_rows
+from rig.demo_outcome import SUMMARY_HEADER, DemoOutcome, summary_rows
 from rig.plots.discrepancy import discrepancy_section
-from rig.plots.experiment import signal_figure, timing_figure
+from rig.plots.experiment import RunTiming, runs_timing_figure, signal_figure
 from rig.plots.hammerstein import hammerstein_figures
 from rig.plots.set_membership import default_result_figures
 from rig.report import ReportSection, write_report
@@ -29,6 +29,7 @@ def demo_report_sections(outcome: DemoOutcome) -> list[ReportSection]:
 
     def descending(u: float) -> float:
         return min(backlash.m_r * (u_max - backlash.c_r), backlash.m_l * (u + backlash.c_l))
+    experiments = [name for name in ("staircase", "prbs", "cyclic") if name in runs]
     sections = [
         ReportSection(
             "Summary",
@@ -36,17 +37,27 @@ def demo_report_sections(outcome: DemoOutcome) -> list[ReportSection]:
                   f"c_r = {truth.backlash.c_r:.4g} rad on the motor side, friction, a torsion mode, 12-bit load "
                   f"encoder) was driven over the {outcome.transport} transport. Set-membership bounds are "
                   f"guaranteed for the noise bound {outcome.noise_bound_rad:.3g} rad when the model structure "
-                  "holds; friction and encoder drift are outside that structure, so a true value outside its "
-                  "interval points at them, not at a numerical error."),
-            table_header=("quantity", "true", "paper method", "coupled method / estimate"),
+                  "holds (a linear block, then an output backlash, reached at steady state without an overshoot of "
+                  "the inner signal that the play would hold). Friction and the encoder's drift lie outside that "
+                  "structure; the table's row on "
+                  "D_γ says whether the exact feasible set holds the true backlash, as the polygon figure draws it. "
+                  "The Hammerstein and discrepancy rows are estimates (no paper-method column); the Hammerstein "
+                  "structure puts the play before the drive loop, where this gearbox has it after, so its play is "
+                  "an approximation."),
+            table_header=SUMMARY_HEADER,
             table_rows=tuple(summary_rows(outcome)),
         ),
         ReportSection(
             "Experiments",
-            text="Every experiment was streamed at the rig's fixed rate by the same runner that drives a real rig.",
-            figures=tuple(figure for name in ("staircase", "prbs", "cyclic") if name in runs
-                          for figure in (signal_figure(runs[name].record, f"signals_{name}"),
-                                         timing_figure(runs[name].record, f"timing_{name}"))),
+            text=("Every experiment was streamed at the rig's fixed rate by the same runner that drives a real rig. "
+                  f"On the {outcome.transport} wire the device's clock owns the sample instants: the log's time "
+                  "column is the instant k·T the device sampled at, so the timing figure shows what is known "
+                  "instead (last figure), the samples flagged HELD, LATE or LOST and how far ahead of its instant "
+                  f"each setpoint was queued. The staircase is filtered with a = {outcome.filter_pole:.4g}: "
+                  f"{outcome.filter_pole_reason}."),
+            figures=(*(signal_figure(runs[name].record, f"signals_{name}") for name in experiments),
+                     runs_timing_figure([RunTiming(name, runs[name].record, runs[name].lead_s, runs[name].min_lead_s)
+                                         for name in experiments], "timing")),
         ),
         ReportSection(
             "Set-membership bounds (Cerone, Piga, Regruto 2009)",
@@ -56,7 +67,7 @@ def demo_report_sections(outcome: DemoOutcome) -> list[ReportSection]:
             figures=tuple(default_result_figures(
                 outcome.set_membership, "sm_", sample_period_s=truth.linear.sample_period_s,
                 true_backlash=truth.backlash, true_linear=truth.linear,
-                true_values={**_true_backlash_values(outcome), **truth.theta(plan.na, plan.nk, plan.nb)})),
+                true_values={**truth.backlash_values, **truth.theta(plan.na, plan.nk, plan.nb)})),
         ),
         ReportSection(
             "Hammerstein model (Pouliquen et al. 2013)",
@@ -73,11 +84,6 @@ def demo_report_sections(outcome: DemoOutcome) -> list[ReportSection]:
                                   "the cyclic experiment, against the nominal gearbox model without its play")
     sections.append(replace(section, title=f"Model discrepancy: {section.title.lower()}"))
     return sections
-
-
-def _true_backlash_values(outcome: DemoOutcome) -> dict[str, float]:
-    backlash = outcome.truth.backlash
-    return {"m_l": backlash.m_l, "c_l": backlash.c_l, "m_r": backlash.m_r, "c_r": backlash.c_r}
 
 
 def write_demo_report(outcome: DemoOutcome, out_dir: str | Path) -> Path:

@@ -9,6 +9,7 @@ only, with the non-interactive Agg backend.
 from __future__ import annotations
 
 import html
+import math
 import re
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -16,6 +17,25 @@ from pathlib import Path
 from typing import Any
 
 FIGURE_DPI = 110
+
+ROUNDING_OF_ZERO = 1e-9
+"""A bound whose magnitude is below this fraction of its interval's width is the solver's rounding of 0
+(an LP vertex at ``-1.15e-14`` for a dead band that starts at 0) and is printed as 0."""
+
+
+def format_bound(value: float, width: float, digits: int = 5) -> str:
+    """``value`` with ``digits`` significant digits; 0 when it is rounding of 0 next to ``width``
+    (:data:`ROUNDING_OF_ZERO`); ``inf`` and ``-inf`` as such."""
+    if math.isfinite(width) and abs(value) <= ROUNDING_OF_ZERO * abs(width):
+        return "0"
+    return f"{value:.{digits}g}"
+
+
+def format_interval(lower: float, upper: float, digits: int = 5, unit: str = "") -> str:
+    """``[lower, upper]`` as a report prints it (see :func:`format_bound`), with `` unit`` when given."""
+    width = upper - lower if upper > lower else 0.0
+    suffix = f" {unit}" if unit and unit != "-" else ""
+    return f"[{format_bound(lower, width, digits)}, {format_bound(upper, width, digits)}]{suffix}"
 
 
 @dataclass(frozen=True)

@@ -14,33 +14,59 @@ from identify.model_discrepancy import DiscrepancyResult, DiscrepancyStep
 from rig.report import ReportFigure, ReportSection, write_report
 
 
+ZOOM_SAMPLES = 200
+"""A record longer than 5 times this is also drawn over this many samples from the start of the validation
+segment: at the report's width a free run of thousands of samples is a solid band."""
+
+
 def comparison_figure(result: DiscrepancyResult, angle_rad: NDArray[np.float64], time_s: NDArray[np.float64],
                       name: str = "measured_vs_simulated") -> ReportFigure:
-    """Measured angle with the start and final model's free-run simulations, and both residuals."""
+    """Measured angle with the start and final model's free-run simulations, and both residuals; a long
+    record also over :data:`ZOOM_SAMPLES` samples from the start of the validation segment (right)."""
+    zoom = None
+    if time_s.size > 5 * ZOOM_SAMPLES:
+        start = min(result.estimation_samples, time_s.size - ZOOM_SAMPLES)
+        zoom = slice(start, start + ZOOM_SAMPLES)
 
-    def draw(figure) -> None:
-        top, bottom = figure.subplots(2, 1, sharex=True)
-        top.plot(time_s, angle_rad, lw=1.2, color="black", label="measured")
-        top.plot(time_s, result.initial.simulated_rad, lw=0.8, color="tab:red", label="start model")
-        top.plot(time_s, result.final.simulated_rad, lw=0.8, ls="--", color="tab:green", label="final model")
+    def draw_column(top, bottom, where: slice) -> None:
+        t = time_s[where]
+        top.plot(t, angle_rad[where], lw=1.2, color="black", label="measured")
+        top.plot(t, result.initial.simulated_rad[where], lw=0.8, color="tab:red", label="start model")
+        top.plot(t, result.final.simulated_rad[where], lw=0.8, ls="--", color="tab:green", label="final model")
         top.set_ylabel("load angle y [rad]")
-        top.legend(loc="best", fontsize=8)
-        bottom.plot(time_s, result.initial.residual_rad, lw=0.7, color="tab:red", label="start model")
-        bottom.plot(time_s, result.final.residual_rad, lw=0.7, color="tab:green", label="final model")
+        bottom.plot(t, result.initial.residual_rad[where], lw=0.7, color="tab:red", label="start model")
+        bottom.plot(t, result.final.residual_rad[where], lw=0.7, color="tab:green", label="final model")
         for sign in (-1.0, 1.0):
             bottom.axhline(sign * result.noise_bound_rad, color="gray", lw=0.8, ls=":")
-        bottom.axvline(time_s[result.estimation_samples], color="tab:blue", lw=0.8)
+        if t[0] <= time_s[result.estimation_samples] <= t[-1]:
+            bottom.axvline(time_s[result.estimation_samples], color="tab:blue", lw=0.8)
         bottom.set_ylabel("residual y - y_sim [rad]")
         bottom.set_xlabel("time [s]")
+
+    def draw(figure) -> None:
+        if zoom is None:
+            top, bottom = figure.subplots(2, 1, sharex=True)
+            draw_column(top, bottom, slice(None))
+        else:
+            grid = figure.subplots(2, 2, sharex="col", width_ratios=(3, 2))
+            draw_column(grid[0, 0], grid[1, 0], slice(None))
+            draw_column(grid[0, 1], grid[1, 1], zoom)
+            for axes in grid[:, 0]:
+                axes.axvspan(time_s[zoom.start], time_s[zoom.stop - 1], color="tab:orange", alpha=0.2, lw=0)
+            grid[0, 1].set_title(f"zoom: {ZOOM_SAMPLES} samples of the validation segment", fontsize=9)
+            top, bottom = grid[0, 0], grid[1, 0]
+        top.legend(loc="best", fontsize=8)
         bottom.legend(loc="best", fontsize=8)
 
+    zoom_text = (f" Right: the shaded {ZOOM_SAMPLES} samples from the start of the validation segment."
+                 if zoom is not None else "")
     return ReportFigure(
         name,
         f"Measured load angle against the free-run simulation of the start model (red) and of the final model "
         f"(green, dashed); below, the residuals with the noise bound +-{result.noise_bound_rad:.3g} rad (dotted) "
         f"and the start of the validation segment (blue line). Gap {result.initial.gap_rad:.3g} rad before, "
-        f"{result.final.gap_rad:.3g} rad after: the green residual should stay inside the dotted band.",
-        draw, size_in=(7.5, 5.0))
+        f"{result.final.gap_rad:.3g} rad after: the green residual should stay inside the dotted band.{zoom_text}",
+        draw, size_in=(9.5, 5.0) if zoom is not None else (7.5, 5.0))
 
 
 def windows_figure(result: DiscrepancyResult, time_s: NDArray[np.float64], name: str = "disagreement_windows") -> ReportFigure:

@@ -21,7 +21,8 @@ from numpy.typing import ArrayLike, NDArray
 from identify.hammerstein_subspace import HammersteinModel
 from rig.report import ReportFigure
 
-__all__ = ["HammersteinSource", "borders_figure", "hammerstein_figures", "poles_figure", "singular_values_figure"]
+__all__ = ["HammersteinSource", "NodePlay", "borders_figure", "hammerstein_figures", "play_at_nodes", "poles_figure",
+           "singular_values_figure"]
 
 HammersteinSource = HammersteinModel
 """What the figures draw: the model itself, never its JSON."""
@@ -39,6 +40,51 @@ class _ModelView:
     descending_h: NDArray[np.float64]
     singular_values: NDArray[np.float64]
     fit_percent: float | None
+
+
+@dataclass(frozen=True)
+class NodePlay:
+    """The play seen at the output, read at the nodes: the gap P_d(u_i) - P_a(u_i) at each ascending node
+    (P_d interpolated there, as :attr:`HammersteinModel.largest_play_rad` reads it).
+
+    On Table I cycles a play between two parallel lines gives the same gap at every interior node (the paths
+    meet at u_min and u_max), so the median over the interior nodes is its estimate and their spread the
+    only uncertainty the subspace method offers (it gives no interval); for curved borders the gap varies
+    with u and the median is only a typical value. Belongs with ``largest_play_rad`` in
+    :mod:`identify.hammerstein_subspace`; it is here until that module takes it.
+    """
+
+    nodes_u: NDArray[np.float64]
+    gaps_rad: NDArray[np.float64]
+
+    @property
+    def interior_gaps_rad(self) -> NDArray[np.float64]:
+        return self.gaps_rad[1:-1] if self.gaps_rad.size > 2 else self.gaps_rad
+
+    @property
+    def median_rad(self) -> float:
+        return float(np.median(self.interior_gaps_rad))
+
+    @property
+    def lowest_rad(self) -> float:
+        return float(np.min(self.interior_gaps_rad))
+
+    @property
+    def highest_rad(self) -> float:
+        return float(np.max(self.interior_gaps_rad))
+
+    def describe(self) -> str:
+        """The estimate with its spread, as the table and the caption both print it."""
+        return (f"{self.median_rad:.4g} (median gap P_d - P_a at {self.interior_gaps_rad.size} interior nodes; "
+                f"spread {self.lowest_rad:.3g}..{self.highest_rad:.3g}) rad")
+
+
+def play_at_nodes(model: HammersteinModel) -> NodePlay:
+    """The gaps P_d - P_a of ``model`` at its ascending nodes (:class:`NodePlay`)."""
+    nodes_u = np.asarray(model.ascending_border.nodes_u, dtype=float)
+    gaps = (np.interp(nodes_u, model.descending_border.nodes_u, model.descending_border.values)
+            - np.asarray(model.ascending_border.values, dtype=float))
+    return NodePlay(nodes_u, gaps)
 
 
 def _view(model: HammersteinModel) -> _ModelView:
@@ -123,7 +169,8 @@ def borders_figure(model: HammersteinSource, name: str, *, true_ascending: Calla
     view = _view(model)
     notes = [f"{view.ascending_u.size} ascending and {view.descending_u.size} descending nodes on "
              f"[{view.ascending_u[0]:.4g}, {view.ascending_u[-1]:.4g}] rad"]
-    notes.append(f"largest vertical gap P_d - P_a = {model.largest_play_rad:.4g} rad (the play seen at the output)")
+    play = play_at_nodes(model)
+    notes.append(f"the play seen at the output {play.describe()}; the subspace method gives no interval")
     errors = []
     for label, nodes_u, nodes_h, border in (("ascending", view.ascending_u, view.ascending_h, true_ascending),
                                             ("descending", view.descending_u, view.descending_h, true_descending)):
@@ -135,8 +182,12 @@ def borders_figure(model: HammersteinSource, name: str, *, true_ascending: Calla
     if view.fit_percent is not None:
         notes.append(f"simulation fit {view.fit_percent:.1f} %")
 
+    # The play is a few mrad on a range of a rad: drawn again as the gap P_d - P_a at the ascending nodes,
+    # against the true paths' gap when known.
+    gap_mrad = play.gaps_rad * 1e3
+
     def draw(figure) -> None:
-        axes = figure.subplots()
+        axes, gap_axes = figure.subplots(2, 1, sharex=True, height_ratios=(3, 1.4))
         low, high = float(view.ascending_u[0]), float(view.ascending_u[-1])
         grid = np.linspace(low, high, 300)
         axes.plot(view.ascending_u, view.ascending_h, "-o", color="tab:orange", ms=4, label="ascending path P_a")
@@ -147,15 +198,25 @@ def borders_figure(model: HammersteinSource, name: str, *, true_ascending: Calla
         if true_descending is not None:
             axes.plot(grid, [true_descending(float(u)) for u in grid], "--", color="navy", lw=1.0,
                       label="true descending")
-        axes.set_xlabel("input u [rad]")
         axes.set_ylabel("nonlinearity output H[u] [rad]")
         axes.grid(True, lw=0.3, alpha=0.5)
         axes.legend(loc="upper left", fontsize=7)
+        gap_axes.plot(view.ascending_u, gap_mrad, "o-", color="tab:purple", ms=4, lw=0.8,
+                      label="P_d - P_a at the nodes")
+        if true_ascending is not None and true_descending is not None:
+            true_gap = [(true_descending(float(u)) - true_ascending(float(u))) * 1e3 for u in grid]
+            gap_axes.plot(grid, true_gap, "k--", lw=1.0, label="true gap")
+        gap_axes.axhline(0.0, color="0.6", lw=0.5)
+        gap_axes.set_xlabel("input u [rad]")
+        gap_axes.set_ylabel("gap [mrad]")
+        gap_axes.grid(True, lw=0.3, alpha=0.5)
+        gap_axes.legend(loc="lower center", fontsize=7)
 
     caption = (f"Borders of the input nonlinearity (Pouliquen et al. 2013, eq. (3)): piecewise-linear paths with "
-               f"their nodes{', true paths dashed' if errors else ''}. {'; '.join(notes)}. Look for the ascending "
-               "path below the descending one (backlash), both meeting at the ends, and the nodes on the true paths.")
-    return ReportFigure(name, caption, draw, size_in=(7.0, 4.5))
+               f"their nodes{', true paths dashed' if errors else ''}; below, the gap P_d - P_a at the nodes in mrad. "
+               f"{'; '.join(notes)}. Look for the ascending path below the descending one (backlash), both meeting "
+               "at the ends, and the nodes on the true paths.")
+    return ReportFigure(name, caption, draw, size_in=(7.0, 5.5))
 
 
 def singular_values_figure(model: HammersteinSource, name: str) -> ReportFigure:

@@ -21,6 +21,7 @@ Functions that only need intervals also take plain ``{name: ParameterInterval}``
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from typing import Any, Union
 
 import numpy as np
@@ -29,9 +30,9 @@ from numpy.typing import ArrayLike, NDArray
 from identify.feasible_parameter_set import BacklashFeasibleSet, BacklashSidePolygon, ParameterInterval
 from identify.inner_signal_bounds import InnerSignalBounds
 from identify.linear_block_bounds import LinearBlockBounds
-from identify.linear_block_response import linear_parameter, magnitude, polynomials
+from identify.linear_block_response import MagnitudeEnvelope, linear_parameter, magnitude, polynomials
 from identify.output_backlash_identification import OutputBacklashIdentification
-from rig.report import ReportFigure
+from rig.report import ReportFigure, format_interval
 
 __all__ = [
     "IntervalSource",
@@ -94,8 +95,7 @@ def _central_line(polygon: BacklashSidePolygon) -> tuple[float, float]:
 def _interval_text(interval: ParameterInterval | None, unit: str = "") -> str:
     if interval is None:
         return "empty"
-    suffix = f" {unit}" if unit and unit != "-" else ""
-    return f"[{interval.lower:.5g}, {interval.upper:.5g}]{suffix}"
+    return format_interval(interval.lower, interval.upper, unit=unit)
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -249,7 +249,8 @@ def feasible_polygons_figure(result: OutputBacklashIdentification | BacklashFeas
             axes.set_xlabel(f"slope m_{letter} [rad/rad]")
             axes.set_ylabel(f"m_{letter}·c_{letter} [rad]")
             axes.xaxis.set_major_locator(MaxNLocator(4))
-            axes.legend(loc="best", fontsize=7)
+            if axes.get_legend_handles_labels()[0]:  # an empty side without a true point has nothing to list
+                axes.legend(loc="best", fontsize=7)
 
     caption = ("Feasible polygons of the backlash in (m, m·c) coordinates (Cerone et al. 2009, eqs. (14)-(17): "
                "each steady-state point is a strip, each side the intersection of its strips). "
@@ -348,10 +349,16 @@ def _intervals_of(source: IntervalSource) -> dict[str, ParameterInterval]:
 
 
 def _inner_values(source: IntervalSource) -> tuple[dict[str, float], dict[str, float]] | None:
+    """The verified inner values (lower, upper) of the parameters that have them (finite: the coupled
+    method found a verified point reaching them), or None when no parameter has."""
     linear = source.linear if isinstance(source, OutputBacklashIdentification) else source
-    if isinstance(linear, LinearBlockBounds) and linear.inner_lower is not None and linear.inner_upper is not None:
-        return linear.inner_lower, linear.inner_upper
-    return None
+    if not isinstance(linear, LinearBlockBounds) or linear.inner_lower is None or linear.inner_upper is None:
+        return None
+    names = [name for name in linear.inner_lower if name in linear.inner_upper
+             and np.isfinite(linear.inner_lower[name]) and np.isfinite(linear.inner_upper[name])]
+    if not names:
+        return None
+    return {name: linear.inner_lower[name] for name in names}, {name: linear.inner_upper[name] for name in names}
 
 
 def parameter_sort_key(name: str) -> tuple[int, int, str]:
@@ -421,6 +428,9 @@ def parameter_intervals_figure(results: Mapping[str, IntervalSource], name: str,
                                for p in common])
             summary.append(f"median width ratio {labels[-1]}/{labels[0]} on the linear block = {ratio:.3g}")
 
+    with_inner = [label for label in labels if inner[label] is not None]
+    inner_text = (f"; thick pale bars: verified inner values of {', '.join(with_inner)} (the exact bounds lie between "
+                  "them and the thin bars)") if with_inner else ""
     columns = min(4, len(names))
     rows = -(-len(names) // columns)
 
@@ -465,9 +475,8 @@ def parameter_intervals_figure(results: Mapping[str, IntervalSource], name: str,
 
     what = "true value (red line at 0)" if truth else "first method's centre (no true values given)"
     caption = (f"Guaranteed parameter intervals per method ({', '.join(labels)}), each axis relative to the {what}; "
-               "backlash m, c from eqs. (18)-(20), linear block a_i, b_j from Section 5 of Cerone et al. (2009); "
-               "thick pale bars: verified inner values of the coupled method (the exact bounds lie between them and "
-               f"the thin bars). {'; '.join(summary)}. Look for every bar crossing the red line and for the tighter "
+               "backlash m, c from eqs. (18)-(20), linear block a_i, b_j from Section 5 of Cerone et al. (2009)"
+               f"{inner_text}. {'; '.join(summary)}. Look for every bar crossing the red line and for the tighter "
                "method.")
     return ReportFigure(name, caption, draw, size_in=(9.0, 1.0 + 1.35 * rows))
 
@@ -487,27 +496,25 @@ def _true_polynomials(true_linear: Any) -> tuple[NDArray, NDArray]:
     return np.asarray(b_part, dtype=float), np.r_[1.0, np.asarray(a_part, dtype=float)]
 
 
-def linear_block_bode_figure(results: IntervalSource | Mapping[str, IntervalSource], name: str, *,
-                             sample_period_s: float | None = None, true_linear: Any = None,
-                             num_frequencies: int = 400) -> ReportFigure:
-    """Bode magnitude of the linear block G(q) = B(q^-1)/A(q^-1): central model and the parameter box's envelope.
+@dataclass(frozen=True)
+class _FrequencyAxis:
+    omega: NDArray[np.float64]  # rad/sample, π/1000..π
+    values: NDArray[np.float64]  # what the axis shows
+    label: str
+    nyquist_text: str
 
-    The central model is θ^c, the centre of the intervals (eq. (19) applied to Section 5). The envelope is
-    :meth:`identify.linear_block_bounds.LinearBlockBounds.magnitude_envelope`, the exact range of |G(e^{jω})|
-    over the box of θ; the box contains the feasible set, so the envelope is guaranteed to contain the |G| of
-    every feasible model, but it is wider than the set's own (box models need not be feasible nor have unit
-    static gain, eq. (8)). The figure draws the envelope and formats the numbers it computed.
 
-    Parameters
-    ----------
-    results
-        One result or linear-block bounds, or method label -> either to overlay several methods.
-    sample_period_s
-        Frequencies in Hz when given, else in cycles per sample.
-    true_linear
-        The true block: an object with ``a`` (a_1..a_na) and ``b`` (b_0..b_nb), e.g.
-        :class:`identify.plant_blocks.LinearBlock`, a tuple ``(a, b)`` or a mapping ``{a1.., b<k>..}``.
-    """
+def _frequency_axis(sample_period_s: float | None, num_frequencies: int) -> _FrequencyAxis:
+    """ω log-spaced up to Nyquist, shown in Hz when the sample period is known, else in cycles per sample."""
+    omega = np.logspace(np.log10(np.pi / 1000.0), np.log10(np.pi), num_frequencies)
+    if sample_period_s is None:
+        return _FrequencyAxis(omega, omega / (2 * np.pi), "frequency [cycles/sample]", "0.5 cycles/sample")
+    period = float(sample_period_s)
+    return _FrequencyAxis(omega, omega / (2 * np.pi * period), "frequency [Hz]", f"{0.5 / period:.4g} Hz")
+
+
+def _linear_bounds_of(results: IntervalSource | Mapping[str, IntervalSource]) -> dict[str, LinearBlockBounds]:
+    """Method label ("" for a single source) -> its non-empty linear-block bounds."""
     sources: dict[str, Any] = ({"": results} if isinstance(results, (OutputBacklashIdentification, LinearBlockBounds))
                                else dict(results))
     linear_of = {label: source.linear if isinstance(source, OutputBacklashIdentification) else source
@@ -519,100 +526,145 @@ def linear_block_bode_figure(results: IntervalSource | Mapping[str, IntervalSour
     linear_of = {label: linear for label, linear in linear_of.items() if linear is not None and not linear.is_empty}
     if not linear_of:
         raise ValueError("results: no linear-block intervals to draw (empty feasible set?)")
-    omega = np.logspace(np.log10(np.pi / 1000.0), np.log10(np.pi), num_frequencies)
-    if sample_period_s is None:
-        frequency, frequency_label, nyquist_text = omega / (2 * np.pi), "frequency [cycles/sample]", "0.5 cycles/sample"
-    else:
-        frequency = omega / (2 * np.pi * float(sample_period_s))
-        frequency_label = "frequency [Hz]"
-        nyquist_text = f"{0.5 / float(sample_period_s):.4g} Hz"
-    envelopes = {label: linear.magnitude_envelope(omega) for label, linear in linear_of.items()}
-    feasible_points = {label: 20.0 * np.log10(magnitude(*polynomials(linear.inner_point), omega))
-                       for label, linear in linear_of.items() if linear.inner_point}
-    curves = {label: (envelope.central_db, envelope.lower_db, envelope.upper_db)
-              for label, envelope in envelopes.items()}
-    true_db = None
-    true_magnitude = None
-    if true_linear is not None:
-        true_b, true_a = _true_polynomials(true_linear)
-        true_magnitude = magnitude(true_b, true_a, omega)
-        with np.errstate(divide="ignore"):
-            true_db = 20.0 * np.log10(true_magnitude)
+    return linear_of
 
-    notes = []
-    for label, envelope in envelopes.items():
-        bounded = envelope.bounded_fraction
-        text = f"{label + ': ' if label else ''}" + (
-            f"median envelope width {envelope.median_width_db:.3g} dB"
-            + (f" where it is bounded ({100.0 * bounded:.0f} % of frequencies)" if bounded < 1.0 else "")
-            if bounded > 0.0 else "envelope unbounded at every frequency")
-        if envelope.unbounded_above_fraction > 0.0:
-            text += (f", no upper bound at {100.0 * envelope.unbounded_above_fraction:.0f} % of frequencies (some box "
-                     "model has a pole on the unit circle there)")
-        if envelope.zero_below_fraction > 0.0:
-            text += (f", lower bound 0 at {100.0 * envelope.zero_below_fraction:.0f} % of frequencies (some box model "
-                     "has a zero there)")
-        text += f", central |G| at the lowest frequency {envelope.central_db[0]:.3g} dB"
-        if true_magnitude is not None:
-            text += (f", true |G| inside the envelope at {100.0 * envelope.fraction_containing(true_magnitude):.0f} % "
-                     "of frequencies")
-        notes.append(text)
 
-    # The visible range follows the models, not an envelope that may reach +-inf.
-    shown = [centre for centre, _, _ in curves.values()] + ([true_db] if true_db is not None else [])
-    finite_values = np.concatenate([curve[np.isfinite(curve)] for curve in shown])
-    y_low = float(np.percentile(finite_values, 1)) - 30.0
-    y_high = float(np.percentile(finite_values, 99)) + 30.0
-    reference_db = true_db if true_db is not None else list(curves.values())[-1][0]
-    reference_label = "|G_true|" if true_db is not None else f"|G({list(curves)[-1] + ' ' if list(curves)[-1] else ''}θ^c)|"
+def _decibels(values: NDArray[np.float64]) -> NDArray[np.float64]:
+    with np.errstate(divide="ignore"):
+        return 20.0 * np.log10(values)
+
+
+def _percent(fraction: float) -> str:
+    """A fraction as a percentage that never rounds a few frequencies to "0 %" or all but a few to "100 %"."""
+    if 0.0 < fraction < 0.01:
+        return "< 1 %"
+    if 0.99 < fraction < 1.0:
+        return "> 99 %"
+    return f"{100.0 * fraction:.0f} %"
+
+
+ENVELOPE_DRAWN_FROM = 0.5
+"""The box's envelope is drawn for a method only where it is bounded, and only if it is bounded at this
+fraction of the frequencies at least: a band of a few disjoint slivers between infinite stretches tells
+nothing, and the caption gives the fraction instead."""
+
+
+def _envelope_note(label: str, envelope: MagnitudeEnvelope, true_magnitude: NDArray[np.float64] | None) -> str:
+    """What the caption says of one method's envelope: the numbers :class:`MagnitudeEnvelope` computed."""
+    prefix = f"{label}: " if label else ""
+    bounded = envelope.bounded_fraction
+    reasons = []
+    if envelope.unbounded_above_fraction > 0.0:
+        reasons.append(f"no upper bound at {_percent(envelope.unbounded_above_fraction)}, where a model of the box "
+                       "has a pole on the unit circle")
+    if envelope.zero_below_fraction > 0.0:
+        reasons.append(f"lower bound 0 at {_percent(envelope.zero_below_fraction)}, where one has a zero there")
+    why = f" ({'; '.join(reasons)})" if reasons else ""
+    if bounded < ENVELOPE_DRAWN_FROM:
+        return f"{prefix}envelope not drawn, bounded at {_percent(bounded)} of the frequencies{why}"
+    text = (f"{prefix}envelope bounded at {_percent(bounded)} of the frequencies{why}, median width "
+            f"{envelope.median_width_db:.3g} dB there")
+    if true_magnitude is not None:
+        text += f", true |G| inside it at {_percent(envelope.fraction_containing(true_magnitude))} of them"
+    return text
+
+
+def linear_block_bode_figure(results: IntervalSource | Mapping[str, IntervalSource], name: str, *,
+                             sample_period_s: float | None = None, true_linear: Any = None,
+                             num_frequencies: int = 400) -> ReportFigure:
+    """Bode magnitude of the linear block G(q) = B(q^-1)/A(q^-1): central model and the parameter box's envelope.
+
+    The central model is θ^c, the centre of the intervals (eq. (19) applied to Section 5). The envelope is
+    :meth:`identify.linear_block_bounds.LinearBlockBounds.magnitude_envelope`, the exact range of |G(e^{jω})|
+    over the box of θ; the box contains the feasible set, so the envelope is guaranteed to contain the |G| of
+    every feasible model, but it is wider than the set's own (box models need not be feasible nor have unit
+    static gain, eq. (8)). A box that holds a model with a pole on the unit circle has no upper bound there:
+    the envelope is drawn only where it is bounded, and only for a method whose envelope is bounded at
+    :data:`ENVELOPE_DRAWN_FROM` of the frequencies; the caption says which. The figure formats the numbers
+    the envelope computed.
+
+    Parameters
+    ----------
+    results
+        One result or linear-block bounds, or method label -> either to overlay several methods.
+    sample_period_s
+        Frequencies in Hz when given, else in cycles per sample.
+    true_linear
+        The true block: an object with ``a`` (a_1..a_na) and ``b`` (b_0..b_nb), e.g.
+        :class:`identify.plant_blocks.LinearBlock`, a tuple ``(a, b)`` or a mapping ``{a1.., b<k>..}``.
+    """
+    linear_of = _linear_bounds_of(results)
+    axis = _frequency_axis(sample_period_s, num_frequencies)
+    envelopes = {label: linear.magnitude_envelope(axis.omega) for label, linear in linear_of.items()}
+    feasible_db = {label: _decibels(magnitude(*polynomials(linear.inner_point), axis.omega))
+                   for label, linear in linear_of.items() if linear.inner_point}
+    true_magnitude = None if true_linear is None else magnitude(*_true_polynomials(true_linear), axis.omega)
+    true_db = None if true_magnitude is None else _decibels(true_magnitude)
+    drawn_envelopes = {label for label, envelope in envelopes.items()
+                       if envelope.bounded_fraction >= ENVELOPE_DRAWN_FROM}
+    notes = [_envelope_note(label, envelope, true_magnitude) for label, envelope in envelopes.items()]
+    draw = _bode_drawing(axis, envelopes, drawn_envelopes, feasible_db, true_db)
+    shaded = ("shaded, the exact range of |G| over the parameter box where it is bounded (it contains the |G| of "
+              "every model of the feasible set, but box models need not be feasible nor have unit static gain, so "
+              "it is wider than the set's own)") if drawn_envelopes else "no envelope drawn"
+    caption = (f"Bode magnitude of the linear block G = B/A (Cerone et al. 2009, Section 5) up to the Nyquist "
+               f"frequency {axis.nyquist_text}: line, the central model θ^c of each method; {shaded}"
+               f"{'; dotted, a model verified to satisfy the exact constraints' if feasible_db else ''}"
+               f"{'; dashed, the true model' if true_db is not None else ''}. {'. '.join(notes)}. Bottom: the same "
+               f"relative to {'the true model' if true_db is not None else 'the last central model'}. Look for "
+               f"{'the central models on the true curve and ' if true_db is not None else ''}"
+               "a narrow envelope where the excitation had power.")
+    return ReportFigure(name, caption, draw, size_in=(7.5, 5.5))
+
+
+def _bode_drawing(axis: _FrequencyAxis, envelopes: Mapping[str, MagnitudeEnvelope], drawn_envelopes: set[str],
+                  feasible_db: Mapping[str, NDArray[np.float64]],
+                  true_db: NDArray[np.float64] | None) -> Any:
+    """The drawing function of :func:`linear_block_bode_figure`: |G| on top, |G| relative to the reference
+    (the true model, else the last central model) below; the y ranges follow the models, not an envelope."""
+    labels = list(envelopes)
+    colour = {label: _METHOD_COLOURS[index % len(_METHOD_COLOURS)] for index, label in enumerate(labels)}
+    reference_db = true_db if true_db is not None else envelopes[labels[-1]].central_db
+    reference_label = "|G_true|" if true_db is not None else f"|G({labels[-1] + ' ' if labels[-1] else ''}θ^c)|"
+    models = [envelope.central_db for envelope in envelopes.values()] + list(feasible_db.values())
+    shown = np.concatenate([curve[np.isfinite(curve)] for curve in models + ([true_db] if true_db is not None else [])])
+    y_low, y_high = float(np.percentile(shown, 1)) - 20.0, float(np.percentile(shown, 99)) + 20.0
+    deviations = np.concatenate([np.abs(curve - reference_db)[np.isfinite(curve - reference_db)] for curve in models])
+    limit = min(max(1.3 * float(np.percentile(deviations, 95)) if deviations.size else 1.0, 1.0), 60.0)
 
     def draw(figure) -> None:
         axes, deviation_axes = figure.subplots(2, 1, sharex=True, height_ratios=(3, 2))
-        deviations = []
-        for index, (label, (centre, low, high)) in enumerate(curves.items()):
-            colour = _METHOD_COLOURS[index % len(_METHOD_COLOURS)]
+        for label, envelope in envelopes.items():
             prefix = f"{label}: " if label else ""
-            axes.fill_between(frequency, np.clip(low, y_low, y_high), np.clip(high, y_low, y_high), color=colour,
-                              alpha=0.25, lw=0, label=f"{prefix}envelope over the box")
-            axes.plot(frequency, centre, color=colour, lw=1.2, label=f"{prefix}central model θ^c")
-            deviation = (low - reference_db, high - reference_db, centre - reference_db)
-            deviations.append(deviation)
-        for index, (label, point_db) in enumerate(feasible_points.items()):
-            colour = _METHOD_COLOURS[list(curves).index(label) % len(_METHOD_COLOURS)] if label in curves else "k"
-            axes.plot(frequency, point_db, ":", color=colour, lw=1.2,
+            if label in drawn_envelopes:
+                bounded = envelope.bounded
+                low = np.where(bounded, envelope.lower_db, np.nan)
+                high = np.where(bounded, envelope.upper_db, np.nan)
+                axes.fill_between(axis.values, low, high, where=bounded, color=colour[label], alpha=0.25, lw=0,
+                                  label=f"{prefix}envelope over the box")
+                deviation_axes.fill_between(axis.values, low - reference_db, high - reference_db, where=bounded,
+                                            color=colour[label], alpha=0.25, lw=0)
+            axes.plot(axis.values, envelope.central_db, color=colour[label], lw=1.2,
+                      label=f"{prefix}central model θ^c")
+            deviation_axes.plot(axis.values, envelope.central_db - reference_db, color=colour[label], lw=1.0)
+        for label, point_db in feasible_db.items():
+            axes.plot(axis.values, point_db, ":", color=colour[label], lw=1.2,
                       label=f"{label + ': ' if label else ''}a verified feasible model")
-            deviation_axes.plot(frequency, np.clip(point_db - reference_db, -60.0, 60.0), ":", color=colour, lw=1.2)
+            deviation_axes.plot(axis.values, point_db - reference_db, ":", color=colour[label], lw=1.2)
         if true_db is not None:
-            axes.plot(frequency, true_db, "k--", lw=1.0, label="true G")
+            axes.plot(axis.values, true_db, "k--", lw=1.0, label="true G")
         axes.set_ylim(y_low, y_high)
         axes.set_xscale("log")
         axes.set_ylabel("magnitude |G| [dB]")
         axes.grid(True, which="both", lw=0.3, alpha=0.5)
         axes.legend(loc="lower left", fontsize=7)
-        finite_spans = [np.abs(d[np.isfinite(d)]) for triple in deviations for d in triple[:2]]
-        span = float(np.percentile(np.concatenate(finite_spans), 90)) if finite_spans else 1.0
-        limit = min(max(1.5 * span, 0.01), 60.0)
-        for index, (low, high, centre) in enumerate(deviations):
-            colour = _METHOD_COLOURS[index % len(_METHOD_COLOURS)]
-            deviation_axes.fill_between(frequency, np.clip(low, -limit, limit), np.clip(high, -limit, limit),
-                                        color=colour, alpha=0.25, lw=0.6, edgecolor=colour)
-            deviation_axes.plot(frequency, np.clip(centre, -limit, limit), color=colour, lw=1.0)
         deviation_axes.axhline(0.0, color="k", ls="--" if true_db is not None else "-", lw=1.0)
         deviation_axes.set_ylim(-limit, limit)
-        deviation_axes.set_xlabel(frequency_label)
+        deviation_axes.set_xlabel(axis.label)
         deviation_axes.set_ylabel(f"|G| - {reference_label} [dB]", fontsize=8)
         deviation_axes.grid(True, which="both", lw=0.3, alpha=0.5)
 
-    caption = (f"Bode magnitude of the linear block G = B/A (Cerone et al. 2009, Section 5) up to the Nyquist "
-               f"frequency {nyquist_text}: line, the central model θ^c; shaded, the exact range of |G| over the "
-               "parameter box (the box's envelope: it contains the |G| of every model of the feasible set, but box "
-               "models need not be feasible nor have unit static gain, so it is wider than the set's own)"
-               f"{'; dotted, a model verified to satisfy the exact constraints (coupled method)' if feasible_points else ''}"
-               f"{'; dashed, the true model' if true_db is not None else ''}. {'; '.join(notes)}. Bottom: the same "
-               f"relative to {'the true model' if true_db is not None else 'the last central model'}, clipped to "
-               "the plotted range. Look for the true curve inside the envelope and a narrow envelope where the "
-               "excitation had power.")
-    return ReportFigure(name, caption, draw, size_in=(7.5, 5.5))
+    return draw
 
 
 def default_result_figures(results: Mapping[str, OutputBacklashIdentification], prefix: str, *,

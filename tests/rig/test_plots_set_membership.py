@@ -147,6 +147,45 @@ def test_empty_feasible_set_is_shown_not_hidden(experiment):
     assert result.is_empty
     figures = default_result_figures({"paper": result}, "empty_")
     assert [f.name for f in figures] == ["empty_backlash", "empty_polygons"]
-    assert "The feasible set is EMPTY" in figures[0].caption
-    assert "EMPTY" in figures[1].caption
+    assert result.backlash.explanation is not None  # the caption's reason is the result's own
+    polygons = _drawn(figures[1])
+    empty_sides = [axes for axes in polygons.axes if any("empty" in text.get_text() for text in axes.texts)]
+    assert len(empty_sides) == sum(side.is_empty for side in (result.backlash.left, result.backlash.right)) >= 1
+    assert not any(axes.patches for axes in empty_sides)
     assert unlabelled_axes(figures[0]) == []
+
+
+def test_bode_figure_leaves_out_an_envelope_that_is_unbounded_at_most_frequencies(results):
+    # a box wide enough in a1 to hold models with a pole on the unit circle at every frequency it reaches
+    coupled = results["coupled"].linear
+    wide = dataclasses.replace(coupled, intervals={**coupled.intervals, "a1": ParameterInterval(-3.0, 3.0),
+                                                   "a2": ParameterInterval(-3.0, 3.0)})
+    omega = 2 * np.pi * np.logspace(-3, np.log10(0.5), 50)
+    assert wide.magnitude_envelope(omega).bounded_fraction < 0.5  # the premise of the test
+    figure = _drawn(linear_block_bode_figure({"tight": coupled, "wide": wide}, "bode", true_linear=LINEAR))
+    labels = _labels(figure.axes[0])
+    assert "wide: envelope over the box" not in labels and "wide: central model θ^c" in labels
+    tight_band = next(c for c in figure.axes[0].collections if c.get_label() == "tight: envelope over the box")
+    # the band drawn reaches no further than the result's own envelope (it is drawn only where it is bounded)
+    frequencies = np.asarray(next(line for line in figure.axes[0].get_lines()
+                                  if line.get_label() == "tight: central model θ^c").get_xdata())
+    envelope = coupled.magnitude_envelope(2 * np.pi * frequencies)
+    band_y = np.concatenate([path.vertices[:, 1] for path in tight_band.get_paths()])
+    finite = envelope.upper_db[envelope.bounded]
+    assert band_y.max() <= finite.max() + 1e-9 and band_y.min() >= envelope.lower_db[envelope.bounded].min() - 1e-9
+
+
+def test_interval_figure_draws_inner_bars_only_for_a_method_that_has_them(results):
+    figure = _drawn(parameter_intervals_figure(results, "intervals", true_values=TRUE_VALUES))
+    thick = [line for axes in figure.axes for line in axes.get_lines() if line.get_linewidth() >= 6.0]
+    coupled = results["coupled"].linear
+    verified = [name for name in (coupled.inner_lower or {})
+                if np.isfinite(coupled.inner_lower[name]) and np.isfinite(coupled.inner_upper[name])]
+    assert len(thick) == len(verified)
+    # a method whose search for a verified point failed (NaN inner values) draws none
+    failed = dataclasses.replace(coupled, inner_lower=dict.fromkeys(coupled.intervals, float("nan")),
+                                 inner_upper=dict.fromkeys(coupled.intervals, float("nan")), inner_point=None)
+    none_drawn = _drawn(parameter_intervals_figure({"coupled": failed}, "failed"))
+    assert not [line for axes in none_drawn.axes for line in axes.get_lines() if line.get_linewidth() >= 6.0]
+    paper_only = _drawn(parameter_intervals_figure({"paper": results["paper"]}, "paper_only"))
+    assert not [line for axes in paper_only.axes for line in axes.get_lines() if line.get_linewidth() >= 6.0]

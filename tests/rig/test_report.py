@@ -36,3 +36,13 @@ def test_duplicate_figure_names_are_refused(tmp_path):
 def test_figure_name_must_be_a_safe_file_stem():
     with pytest.raises(ValueError, match="letters, digits"):
         ReportFigure("../escape", "caption", draw_line)
+
+
+def test_bounds_that_are_rounding_of_zero_print_as_zero_and_others_keep_their_digits():
+    from rig.report import format_interval
+
+    assert format_interval(-1.1535e-14, 0.011535) == "[0, 0.011535]"  # an LP vertex at a dead band's start
+    assert format_interval(-3.2141, -3.0926) == "[-3.2141, -3.0926]"
+    assert format_interval(-1e-6, 1e-6) == "[-1e-06, 1e-06]"  # small, but not small against its width
+    assert format_interval(2.0e-12, float("inf")) == "[2e-12, inf]"  # no width to compare with: kept
+    assert format_interval(0.25, 0.25, digits=3, unit="rad") == "[0.25, 0.25] rad"

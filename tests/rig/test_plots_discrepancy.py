@@ -1,0 +1,46 @@
+"""Figures of the model-discrepancy workflow, drawn from a real diagnosis of a simulated hidden backlash."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from plot_checks import unlabelled_axes
+
+from identify.discrepancy_cases import hidden_effect_record
+from identify.model_discrepancy import diagnose_model
+from rig.plots.discrepancy import ZOOM_SAMPLES, comparison_figure
+
+
+@pytest.fixture(scope="module")
+def diagnosis():
+    record = hidden_effect_record(("backlash",), 3, samples=1200)  # long enough for the zoom (> 5 x 200)
+    result = diagnose_model(record.command_rad, record.angle_rad, record.noise_bound_rad, record.sample_period_s,
+                            record.nominal_model)
+    return record, result, np.arange(record.command_rad.size) * record.sample_period_s
+
+
+def _drawn(report_figure):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from matplotlib.figure import Figure
+
+    figure = Figure(figsize=report_figure.size_in, layout="constrained")
+    report_figure.draw(figure)
+    return figure
+
+
+def test_a_long_free_run_is_also_drawn_over_a_window_of_the_validation_segment(diagnosis):
+    record, result, time_s = diagnosis
+    report_figure = comparison_figure(result, record.angle_rad, time_s)
+    assert unlabelled_axes(report_figure) == []
+    figure = _drawn(report_figure)
+    assert len(figure.axes) == 4
+    zoom_top = figure.axes[1]
+    measured = next(line for line in zoom_top.get_lines() if line.get_label() == "measured")
+    start = result.estimation_samples
+    np.testing.assert_allclose(measured.get_xdata(), time_s[start:start + ZOOM_SAMPLES])
+    np.testing.assert_allclose(measured.get_ydata(), record.angle_rad[start:start + ZOOM_SAMPLES])
+    zoom_residual = figure.axes[3]
+    final = next(line for line in zoom_residual.get_lines() if line.get_label() == "final model")
+    np.testing.assert_allclose(final.get_ydata(), result.final.residual_rad[start:start + ZOOM_SAMPLES])
