@@ -63,12 +63,13 @@ def simulated_rig(config: Any, command_rad: Any = None, faults: Any = None) -> I
     """Start the simulated devices of a rig config with a ``[simulation]`` table; yield the URL the
     transport must open and the simulated gearbox. ``faults`` (a :class:`sim_backend.faults.FaultPlan`)
     makes the devices inject wire faults. Devices are stopped on exit."""
-    from sim_backend.plant_config import load_plant_config
+    from sim_backend.plant_config import load_simulated_plant
 
     from rig.protocols.errors import ConfigError
 
     sim = config.simulation
-    plant_config = load_plant_config(sim.plant_path)
+    plant_config = load_simulated_plant(sim.plant_path, sample_period_s=config.sample_period_s, encoder=config.encoder,
+                                        fmu_input=sim.fmu_input, fmu_output=sim.fmu_output)
     gearbox = plant_config.gearbox(seed=sim.seed)
     if not math.isclose(gearbox.sample_period_s, config.sample_period_s, rel_tol=1e-9):
         raise ConfigError(config.source, "sample_rate_hz",
