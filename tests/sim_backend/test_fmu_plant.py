@@ -51,6 +51,24 @@ def test_the_block_samples_the_fmu_with_the_input_held_for_one_period(test_fmus)
     assert np.max(np.abs(out)) > 0.5
 
 
+@pytest.mark.parametrize("version", ["2.0", "3.0"])
+@pytest.mark.parametrize("interface", ["CoSimulation", "ModelExchange"])
+def test_fmi_2_and_3_co_simulation_and_model_exchange_sample_the_same_model(version, interface, c_servo_fmus):
+    block = open_fmu_block(c_servo_fmus[(version, interface)], PERIOD_S)
+    assert block.fmi_version == version
+    assert block.interface == {"CoSimulation": "co_simulation", "ModelExchange": "model_exchange"}[interface]
+    rng = np.random.default_rng(4)
+    command = np.repeat(rng.uniform(-1.0, 1.0, 30), 10)
+    out = block.apply(command)
+    # the C servo integrates the same model by RK4 with 16 sub-steps (co-simulation) or is integrated by
+    # CVode here (model exchange, relative tolerance 1e-8, through the events of its indicator angle - 0.5)
+    np.testing.assert_allclose(out, servo_zoh(command, PERIOD_S), atol=1e-6)
+    assert np.count_nonzero(np.diff(np.sign(out - 0.5))) >= 4  # the event indicator crossed zero
+    stepper = block.stepper()
+    np.testing.assert_array_equal([stepper.step(x) for x in command], out)
+    stepper.close()
+
+
 def test_stepping_equals_a_whole_run_and_the_block_pickles(test_fmus):
     block = open_fmu_block(test_fmus["gearbox_servo"], PERIOD_S)
     command = np.sin(np.linspace(0.0, 12.0, 300))

@@ -51,6 +51,21 @@ def test_a_run_with_an_fmu_plant_gives_the_fmu_simulated_offline_on_the_logged_c
     assert np.ptp(expected.load_angle_rad) > 1.0  # the PRBS of +-1 rad moved the FMU's load
 
 
+def test_a_model_exchange_fmu_is_stepped_once_per_sync_too(c_servo_fmus, tmp_path, no_leaks):
+    fmu_path = c_servo_fmus[("3.0", "ModelExchange")]
+    config_path = fmu_rig_config("canopen", tmp_path, fmu_path)
+    log_path = tmp_path / "run.csv"
+    assert main(["run", config_path, "--experiment", str(CONFIGS / "experiments" / "prbs.toml"),
+                 "--out", str(log_path), "--duration", "0.5"]) == exit_codes.SUCCESS
+    record = read_log(log_path)
+    config = load_rig_config(config_path)
+    lost = (record.flags & SampleFlag.LOST) != 0
+    expected = load_simulated_plant(fmu_path, sample_period_s=config.sample_period_s,
+                                    encoder=config.encoder).gearbox().simulate(record.command_rad)
+    np.testing.assert_array_equal(record.angle_rad[~lost], expected.measured_angle_rad[~lost])
+    assert np.count_nonzero(~lost) > 75
+
+
 def test_an_fmu_plant_with_several_inputs_is_named_when_the_config_loads(test_fmus, tmp_path):
     with pytest.raises(ConfigError) as error:
         load_rig_config(fmu_rig_config("canopen", tmp_path, test_fmus["two_port_gearbox"]))
