@@ -533,7 +533,12 @@ class _ModelExchangeStepper(FmuStepper):
         while time_s < stop_s and not math.isclose(time_s, stop_s, rel_tol=1e-12, abs_tol=1e-12 * self.period):
             target = min(stop_s, self.next_event_s)
             time_event = math.isclose(target, self.next_event_s, rel_tol=1e-12, abs_tol=1e-12 * self.period)
-            state_event, _, time_s = self.solver.step(time_s, target)
+            try:
+                state_event, _, time_s = self.solver.step(time_s, target)
+            except RuntimeError as err:  # fmpy's report of a CVode failure
+                raise InvalidInputError(f"{self.block.name}: CVode cannot integrate the model-exchange FMU from "
+                                        f"t = {time_s:g} s (sample {self.samples}): {err}; check the model, or "
+                                        "export it for co-simulation (its own solver)") from err
             self.fmu.setTime(time_s)
             step_event = False
             if self.needs_completed_step:
