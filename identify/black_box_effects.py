@@ -27,7 +27,7 @@ from collections.abc import Iterable, Sequence
 from identify.effect_catalogue import EFFECT_NAMES, effect
 from identify.plant_blocks import PlantModel
 
-__all__ = ["AROUND_BLACK_BOX", "effects_around_black_box", "is_black_box"]
+__all__ = ["AROUND_BLACK_BOX", "effects_around_black_box", "is_black_box", "placements_text"]
 
 AROUND_BLACK_BOX = {
     "input": "before the model's input",

@@ -25,13 +25,13 @@ from __future__ import annotations
 
 import atexit
 import math
-from abc import ABC, abstractmethod
 import os
 import shutil
 import tempfile
 import threading
 import weakref
 import zipfile
+from abc import ABC, abstractmethod
 from collections import OrderedDict
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -55,6 +55,9 @@ INTERFACES = ("co_simulation", "model_exchange")
 MODEL_EXCHANGE_RELATIVE_TOLERANCE = 1e-8
 """CVode's relative tolerance for a model-exchange FMU: tight, because the workflow compares free runs to
 the noise bound of an encoder (a few 1e-4 rad on angles of order 1 rad)."""
+
+_FMI_WARNING = 1
+_FMI_STATUS = {1: "Warning", 2: "Discard", 3: "Error", 4: "Fatal", 5: "Pending"}
 
 _CACHED_RUNS = 16
 """Free runs of one block kept per process (:meth:`FmuBlock.apply`): the workflow simulates the same FMU
@@ -103,11 +106,11 @@ def _platform() -> str:
     return str(fmpy.platform)
 
 
-def _fmpy() -> Any:
+def _fmpy(path: str) -> Any:
     try:
         import fmpy
     except ImportError as err:
-        raise ConfigError("--model", "fmu", "reading an FMU needs the package fmpy: pip install 'gearbox-rig[fmu]'") \
+        raise ConfigError(path, "fmpy", "reading an FMU needs the package fmpy: pip install 'gearbox-rig[fmu]'") \
             from err
     return fmpy
 
@@ -118,8 +121,8 @@ def describe_fmu(path: str | os.PathLike[str]) -> FmuDescription:
     Raises :class:`~rig.protocols.errors.ConfigError` naming the file when it is missing, not an FMU (a zip
     archive holding ``modelDescription.xml``), of an FMI version other than 2.0 or 3.0, or without a
     co-simulation or model-exchange interface."""
-    fmpy = _fmpy()
     source = str(path)
+    fmpy = _fmpy(source)
     if not Path(source).is_file():
         raise ConfigError(source, "file", "no such FMU file (give the path of the .fmu your tool exported)")
     try:
@@ -194,12 +197,12 @@ def _check_platform(description: FmuDescription, interface: str) -> None:
     if any(name.startswith(binary_names) for name in names):
         return
     present = ", ".join(p for p in description.platforms if p != "c-code") or "none"
-    sources = " It holds C sources: compile it for this platform (fmpy.util.compile_platform_binary)." \
+    sources = " It holds C sources: compile them for this platform (fmpy.build.build_platform_binary)." \
         if "c-code" in description.platforms else ""
     raise ConfigError(description.path, "binaries",
-                      f"the FMU has no binary for this platform ({current}: binaries/{current}/{identifier}.so or "
-                      f"binaries/{fmpy.platform_tuple}/); it has binaries for: {present}.{sources} Export it from "
-                      "your tool for this platform.")
+                      f"the FMU has no binary for this platform ({current}: binaries/{current}/{identifier}"
+                      f"{fmpy.sharedLibraryExtension} or binaries/{fmpy.platform_tuple}/); it has binaries for: "
+                      f"{present}.{sources} Export it from your tool for this platform.")
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -208,7 +211,8 @@ def _check_platform(description: FmuDescription, interface: str) -> None:
 
 
 class _Unpacked:
-    """An FMU extracted into a temporary directory (removed at exit), with its model description."""
+    """An FMU extracted into a temporary directory (removed at exit), with its model description, the last
+    runs of :meth:`FmuBlock.apply` and the instances it may reuse."""
 
     def __init__(self, path: str) -> None:
         from fmpy import extract, read_model_description
@@ -218,17 +222,22 @@ class _Unpacked:
         self.directory = extract(path, unzipdir=tempfile.mkdtemp(prefix="rig-fmu-"))
         atexit.register(shutil.rmtree, self.directory, True)
         self.libraries: list[Any] = []
+        self.lock = threading.Lock()
+        self.runs: OrderedDict[tuple[Any, ...], NDArray[np.float64]] = OrderedDict()
+        self.idle: dict[str, list[Any]] = {interface: [] for interface in INTERFACES}
+        self.reset_works: dict[str, bool | None] = {interface: None for interface in INTERFACES}
+        """Per interface: None until :meth:`FmuBlock.apply` has compared a run of a reset instance with a
+        run of a fresh one, then whether they agreed."""
 
     def keep_loaded(self, fmu: Any) -> None:
         """Hold one more reference to the instance's shared library for the life of the process: fmpy closes
         the library with each freed instance, and an FMU whose library is unloaded and loaded again between
         instances (pythonfmu's embeds Python) may keep state that does not survive it."""
-        if not self.libraries:
-            import ctypes
+        with self.lock:
+            if not self.libraries:
+                import ctypes
 
-            self.libraries.append(ctypes.CDLL(fmu.dll._name))
-        self.lock = threading.Lock()
-        self.runs: OrderedDict[tuple[Any, ...], NDArray[np.float64]] = OrderedDict()
+                self.libraries.append(ctypes.CDLL(fmu.dll._name))
 
 
 _UNPACKED: dict[tuple[str, int, int], _Unpacked] = {}
@@ -295,23 +304,65 @@ class FmuBlock:
             if cached is not None:
                 unpacked.runs.move_to_end(key)
                 return cached.copy()
-        stepper = self.stepper()
-        try:
-            out = np.fromiter((stepper.step(x) for x in u.tolist()), dtype=float, count=u.size)
-        finally:
-            stepper.close()
+        out = self._run(unpacked, u)
         with unpacked.lock:
             unpacked.runs[key] = out
             while len(unpacked.runs) > _CACHED_RUNS:
                 unpacked.runs.popitem(last=False)
         return out.copy()
 
-    def stepper(self) -> FmuStepper:
-        """A fresh instance of the FMU at its initial state, advanced one sample per ``step(x)``."""
+    def _run(self, unpacked: _Unpacked, u: NDArray[np.float64]) -> NDArray[np.float64]:
+        """One free run on an idle instance brought back to its initial state by the FMI reset (instantiating
+        costs fmpy about 20 ms, more than a whole run of a fast FMU), or on a fresh one. The first reuse is
+        checked against a fresh instance on the same input; an FMU whose reset does not give the same run
+        gets a fresh instance every time."""
+        with unpacked.lock:
+            works = unpacked.reset_works[self.interface]
+            idle = unpacked.idle[self.interface].pop() if works is not False and unpacked.idle[self.interface] else None
+        try:
+            stepper = self.stepper(reuse=idle)
+        except Exception:  # an FMU whose reset fails: fresh instances from now on
+            if idle is None:
+                raise
+            _free(idle)
+            with unpacked.lock:
+                unpacked.reset_works[self.interface] = False
+            stepper, idle = self.stepper(), None
+        out = _drive(stepper, u)
+        if idle is not None and works is None:
+            fresh = _drive(self.stepper(), u, keep=False)
+            agree = bool(np.array_equal(out, fresh))
+            with unpacked.lock:
+                unpacked.reset_works[self.interface] = agree
+            if not agree:
+                with unpacked.lock:
+                    for instance in unpacked.idle[self.interface]:
+                        _free(instance)
+                    unpacked.idle[self.interface].clear()
+                return fresh
+        return out
+
+    def stepper(self, reuse: Any = None) -> FmuStepper:
+        """A fresh instance of the FMU at its initial state, advanced one sample per ``step(x)`` (``reuse``: an
+        idle fmpy instance of this FMU to reset instead of instantiating one)."""
         unpacked = _unpacked(self.path)
         if self.interface == "co_simulation":
-            return _CoSimulationStepper(unpacked, self)
-        return _ModelExchangeStepper(unpacked, self)
+            return _CoSimulationStepper(unpacked, self, reuse)
+        return _ModelExchangeStepper(unpacked, self, reuse)
+
+
+def _drive(stepper: FmuStepper, u: NDArray[np.float64], keep: bool = True) -> NDArray[np.float64]:
+    """Step ``stepper`` through ``u``; then hand its instance back for reuse (``keep``) or free it."""
+    try:
+        out = np.fromiter((stepper.step(x) for x in u.tolist()), dtype=float, count=u.size)
+    except BaseException:
+        stepper.close()
+        raise
+    if keep:
+        stepper.release()
+    else:
+        stepper.close()
+    return out
 
 
 def open_fmu_block(path: str | os.PathLike[str], sample_period_s: float, input_name: str | None = None,
@@ -365,7 +416,7 @@ class FmuStepper(ABC):
     """Advances one FMU instance by one sample per :meth:`step`; frees the instance on :meth:`close` (or when
     garbage-collected)."""
 
-    def __init__(self, unpacked: _Unpacked, block: FmuBlock) -> None:
+    def __init__(self, unpacked: _Unpacked, block: FmuBlock, reuse: Any = None) -> None:
         from ctypes import c_double, c_uint32
 
         from fmpy.simulation import instantiate_fmu
@@ -374,32 +425,49 @@ class FmuStepper(ABC):
         self.period = block.sample_period_s
         self.samples = 0
         self.time = 0.0
+        self._unpacked = unpacked
         kind = "CoSimulation" if block.interface == "co_simulation" else "ModelExchange"
         self.is_fmi3 = block.fmi_version.startswith("3.")
-        fmu = instantiate_fmu(unpacked.directory, unpacked.model_description, kind)
-        unpacked.keep_loaded(fmu)
+        if reuse is None:
+            fmu = instantiate_fmu(unpacked.directory, unpacked.model_description, kind)
+            unpacked.keep_loaded(fmu)
+        else:
+            fmu = reuse
+            fmu.reset()  # FMI 2.0 fmi2Reset / 3.0 fmi3Reset: as if just instantiated
         self.fmu = fmu
         self._finalizer = weakref.finalize(self, _free, fmu)
         self._finalizer.atexit = False  # at exit the process ends: freeing then races threads still stepping
-        # the raw FMI calls on arrays made once: fmpy's setReal/getReal build new arrays on every call
+        # the FMI functions themselves on arrays made once: fmpy's setReal/getReal build new arrays and go
+        # through its call logger on every call (three calls a sample: about half the time of a fast FMU)
+        self._functions = fmu._functions
         input_ref, output_ref = (c_uint32 * 1)(block.input_reference), (c_uint32 * 1)(block.output_reference)
         value = self._value = (c_double * 1)()
-        component = fmu.component
+        component = self._component = fmu.component
         if self.is_fmi3:
-            set_float, get_float = fmu.fmi3SetFloat64, fmu.fmi3GetFloat64
+            set_float, get_float = self._functions["fmi3SetFloat64"], self._functions["fmi3GetFloat64"]
             self._set = lambda: set_float(component, input_ref, 1, value, 1)
             self._get = lambda: get_float(component, output_ref, 1, value, 1)
         else:
-            set_real, get_real = fmu.fmi2SetReal, fmu.fmi2GetReal
+            set_real, get_real = self._functions["fmi2SetReal"], self._functions["fmi2GetReal"]
             self._set = lambda: set_real(component, input_ref, 1, value)
             self._get = lambda: get_real(component, output_ref, 1, value)
 
+    def _check(self, function: str, status: int) -> None:
+        """fmpy's rule: a status above Warning (Discard, Error, Fatal) is a failure."""
+        if status > _FMI_WARNING:
+            raise InvalidInputError(f"{self.block.name}: {function} failed with FMI status "
+                                    f"{_FMI_STATUS.get(status, status)} at sample {self.samples} (t = {self.time:g} s)")
+
     def _write_input(self, x: float) -> None:
         self._value[0] = x
-        self._set()
+        status = self._set()
+        if status:
+            self._check("setting the input " + repr(self.block.input_name), status)
 
     def _read_output(self) -> float:
-        self._get()
+        status = self._get()
+        if status:
+            self._check("getting the output " + repr(self.block.output_name), status)
         return float(self._value[0])
 
     def step(self, x: float) -> float:
@@ -429,6 +497,15 @@ class FmuStepper(ABC):
         """Terminate and free the FMU instance."""
         self._finalizer()
 
+    def release(self) -> None:
+        """Hand the instance to :meth:`FmuBlock.apply` for reuse instead of freeing it (freed if this FMU's
+        reset was found not to restore its initial state)."""
+        with self._unpacked.lock:
+            if self._unpacked.reset_works[self.block.interface] is not False and self._finalizer.detach() is not None:
+                self._unpacked.idle[self.block.interface].append(self.fmu)
+                return
+        self.close()
+
 
 def _free(fmu: Any) -> None:
     try:
@@ -444,8 +521,10 @@ def _free(fmu: Any) -> None:
 class _CoSimulationStepper(FmuStepper):
     """FMI co-simulation: the FMU's own solver advances it from one communication point to the next."""
 
-    def __init__(self, unpacked: _Unpacked, block: FmuBlock) -> None:
-        super().__init__(unpacked, block)
+    def __init__(self, unpacked: _Unpacked, block: FmuBlock, reuse: Any = None) -> None:
+        from ctypes import byref, c_bool, c_double
+
+        super().__init__(unpacked, block, reuse)
         fmu = self.fmu
         if self.is_fmi3:
             fmu.enterInitializationMode(startTime=0.0)
@@ -453,15 +532,22 @@ class _CoSimulationStepper(FmuStepper):
             fmu.setupExperiment(startTime=0.0)
             fmu.enterInitializationMode()
         fmu.exitInitializationMode()
+        component, period = self._component, self.period
+        if self.is_fmi3:  # fmi3DoStep(..., eventHandlingNeeded, terminateSimulation, earlyReturn, lastSuccessfulTime)
+            do_step, self._terminate = self._functions["fmi3DoStep"], c_bool()
+            flags = (byref(c_bool()), byref(self._terminate), byref(c_bool()), byref(c_double()))
+            self._do_step = lambda start_s: do_step(component, start_s, period, True, *flags)
+        else:
+            do_step = self._functions["fmi2DoStep"]
+            self._do_step = lambda start_s: do_step(component, start_s, period, 1)
 
     def _advance(self, start_s: float, stop_s: float) -> None:
-        if self.is_fmi3:
-            _, terminate, _, _ = self.fmu.doStep(currentCommunicationPoint=start_s, communicationStepSize=self.period)
-            if terminate:
-                raise InvalidInputError(f"{self.block.name}: the FMU asked to terminate at t = {stop_s:g} s "
-                                        f"(sample {self.samples})")
-        else:
-            self.fmu.doStep(currentCommunicationPoint=start_s, communicationStepSize=self.period)
+        status = self._do_step(start_s)
+        if status:
+            self._check("doStep", status)
+        if self.is_fmi3 and self._terminate.value:
+            raise InvalidInputError(f"{self.block.name}: the FMU asked to terminate at t = {stop_s:g} s "
+                                    f"(sample {self.samples})")
 
 
 class _HeldInput:
@@ -479,8 +565,8 @@ class _ModelExchangeStepper(FmuStepper):
     events are handled by the FMI event iteration (enter event mode, update discrete states until none is
     needed, back to continuous time), and the integrator restarts after each event and input jump."""
 
-    def __init__(self, unpacked: _Unpacked, block: FmuBlock) -> None:
-        super().__init__(unpacked, block)
+    def __init__(self, unpacked: _Unpacked, block: FmuBlock, reuse: Any = None) -> None:
+        super().__init__(unpacked, block, reuse)
         from fmpy.sundials import CVodeSolver
 
         fmu = self.fmu

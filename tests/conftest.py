@@ -20,12 +20,15 @@ def test_fmus(tmp_path_factory) -> dict[str, Path]:
 
 
 @pytest.fixture(scope="session")
-def c_servo_fmus(tmp_path_factory) -> dict[tuple[str, str], Path]:
-    """The C servo as FMI 2.0 and 3.0, each with only a model-exchange or only a co-simulation interface."""
+def c_servo_fmus(tmp_path_factory) -> dict[tuple[str, str] | str, Path]:
+    """The C servo as FMI 2.0 and 3.0, each with only a model-exchange or only a co-simulation interface, and
+    as FMI 2.0 co-simulation with a reset that keeps its state (``"broken_reset"``)."""
     import shutil
 
     if shutil.which("gcc") is None:
         pytest.skip("gcc is needed to build the C test FMU (apt-get install gcc)")
     folder = tmp_path_factory.mktemp("c_fmus")
-    return {(version, interface): build_c_servo(folder, version, (interface,))
-            for version in ("2.0", "3.0") for interface in ("ModelExchange", "CoSimulation")}
+    built = {(version, interface): build_c_servo(folder, version, (interface,))
+             for version in ("2.0", "3.0") for interface in ("ModelExchange", "CoSimulation")}
+    built["broken_reset"] = build_c_servo(folder, "2.0", ("CoSimulation",), broken_reset=True)
+    return built

@@ -58,18 +58,20 @@ SERVO_VARIABLES = {
 }
 
 
-def build_c_servo(folder: Path, fmi_version: str, interfaces: tuple[str, ...]) -> Path:
+def build_c_servo(folder: Path, fmi_version: str, interfaces: tuple[str, ...], broken_reset: bool = False) -> Path:
     """``tests/fmu_models/servo.c`` compiled with gcc for this platform and zipped as an FMI ``fmi_version``
-    FMU that declares ``interfaces`` ("ModelExchange", "CoSimulation")."""
+    FMU that declares ``interfaces`` ("ModelExchange", "CoSimulation"); ``broken_reset``: its reset keeps
+    the state."""
     import fmpy
 
     gcc = shutil.which("gcc")
     if gcc is None:
         raise FileNotFoundError("gcc is needed to build the C test FMU (apt-get install gcc)")
     platform = fmpy.platform if fmi_version == "2.0" else fmpy.platform_tuple
-    name = f"servo_fmi{fmi_version[0]}_{'_'.join(i.lower() for i in interfaces)}"
+    name = f"servo_fmi{fmi_version[0]}_{'_'.join(i.lower() for i in interfaces)}{'_broken_reset' * broken_reset}"
     library = folder / f"{name}.so"
     subprocess.run([gcc, "-shared", "-fPIC", "-O2", *(["-DFMI3"] if fmi_version != "2.0" else []),
+                    *(["-DBROKEN_RESET"] if broken_reset else []),
                     "-o", str(library), str(FMU_MODELS / "servo.c"), "-lm"], check=True)
     token = 'guid="{8c4e810f-3df3-4a00-8276-176fa3c9f000}"' if fmi_version == "2.0" else \
         'instantiationToken="{8c4e810f-3df3-4a00-8276-176fa3c9f000}"'

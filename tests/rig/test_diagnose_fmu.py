@@ -36,19 +36,26 @@ def write_record(path, command: np.ndarray, angle: np.ndarray) -> None:
 
 
 HIDDEN = {
-    # an effect before the FMU's input: the workflow re-simulates the FMU for every trial of its edges
+    # an effect before the input of the pythonfmu FMU (FMI 2.0): the workflow re-simulates the FMU for every
+    # trial of the dead zone's edges
     "dead_zone": (lambda fmu: PlantModel((DeadZone(left_rad=-0.06, right_rad=0.08), fmu)),
                   {"left_rad": -0.06, "right_rad": 0.08}),
-    # an effect after its output
+    # an effect after the output of the C servo as FMI 3.0 co-simulation (the same model, about three times
+    # faster per sample)
     "backlash": (lambda fmu: PlantModel((fmu, OutputBacklash(m_l=1.0, c_l=0.03, m_r=1.0, c_r=0.02))),
                  {"c_l_rad": 0.03, "c_r_rad": 0.02}),
 }
 
 
+def fmu_for(hidden: str, request) -> object:
+    if hidden == "dead_zone":
+        return request.getfixturevalue("test_fmus")["gearbox_servo"]
+    return request.getfixturevalue("c_servo_fmus")[("3.0", "CoSimulation")]
+
+
 @pytest.mark.parametrize("hidden", sorted(HIDDEN))
-def test_an_effect_hidden_around_the_fmu_is_named_with_its_truth_in_the_interval(hidden, test_fmus, tmp_path,
-                                                                                 capsys):
-    fmu_path = test_fmus["gearbox_servo"]
+def test_an_effect_hidden_around_the_fmu_is_named_with_its_truth_in_the_interval(hidden, request, tmp_path, capsys):
+    fmu_path = fmu_for(hidden, request)
     truth_model, truth = HIDDEN[hidden]
     command = alternating_steps()
     angle = ENCODER.rad_from_counts(ENCODER.counts_from_rad(truth_model(open_fmu_block(fmu_path, PERIOD_S))

@@ -16,7 +16,7 @@ from identify.effect_catalogue import EFFECT_NAMES, EFFECTS
 from identify.plant_blocks import DeadZone, PlantModel
 from rig.protocols.encoder_counts import EncoderResolution
 from rig.protocols.errors import ConfigError
-from sim_backend.fmu_plant import FmuBlock, describe_fmu, open_fmu_block
+from sim_backend.fmu_plant import FmuBlock, _unpacked, describe_fmu, open_fmu_block
 from sim_backend.plant_config import load_simulated_plant
 
 PERIOD_S = 0.01
@@ -67,6 +67,23 @@ def test_fmi_2_and_3_co_simulation_and_model_exchange_sample_the_same_model(vers
     stepper = block.stepper()
     np.testing.assert_array_equal([stepper.step(x) for x in command], out)
     stepper.close()
+
+
+def test_whole_runs_reuse_instances_only_where_the_fmu_reset_restores_the_initial_state(c_servo_fmus):
+    command = np.repeat([0.4, -0.7, 0.9], 60)
+    for fmu in (("2.0", "CoSimulation"), "broken_reset"):
+        block = open_fmu_block(c_servo_fmus[fmu], PERIOD_S)
+        stepper = block.stepper()
+        fresh = np.array([stepper.step(x) for x in command])
+        stepper.close()
+        for shift in (0.0, 0.1, 0.2):  # different inputs: no run comes from the cache of runs
+            stepper = block.stepper()
+            expected = np.array([stepper.step(x) for x in command + shift])
+            stepper.close()
+            np.testing.assert_array_equal(block.apply(command + shift), expected)
+        np.testing.assert_array_equal(block.apply(command), fresh)
+        # the first reuse was checked against a fresh instance: the broken reset was caught there
+        assert _unpacked(block.path).reset_works["co_simulation"] is (fmu != "broken_reset")
 
 
 def test_stepping_equals_a_whole_run_and_the_block_pickles(test_fmus):
