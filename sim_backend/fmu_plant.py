@@ -32,7 +32,7 @@ import threading
 import weakref
 import zipfile
 from abc import ABC, abstractmethod
-from collections import OrderedDict
+from collections import OrderedDict, deque
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -58,6 +58,8 @@ the noise bound of an encoder (a few 1e-4 rad on angles of order 1 rad)."""
 
 _FMI_WARNING = 1
 _FMI_STATUS = {1: "Warning", 2: "Discard", 3: "Error", 4: "Fatal", 5: "Pending"}
+
+_KEPT_LOG_MESSAGES = 20
 
 _CACHED_RUNS = 16
 """Free runs of one block kept per process (:meth:`FmuBlock.apply`): the workflow simulates the same FMU
@@ -224,10 +226,27 @@ class _Unpacked:
         self.libraries: list[Any] = []
         self.lock = threading.Lock()
         self.runs: OrderedDict[tuple[Any, ...], NDArray[np.float64]] = OrderedDict()
+        self.log: deque[str] = deque(maxlen=_KEPT_LOG_MESSAGES)
         self.idle: dict[str, list[Any]] = {interface: [] for interface in INTERFACES}
         self.reset_works: dict[str, bool | None] = {interface: None for interface in INTERFACES}
         """Per interface: None until :meth:`FmuBlock.apply` has compared a run of a reset instance with a
         run of a fresh one, then whether they agreed."""
+
+    def log_fmi2(self, component: Any, instance_name: bytes, status: int, category: bytes, message: bytes) -> None:
+        """The FMU's log messages (FMI 2.0 logger): kept for error messages, never printed (a library must not
+        print: ``rig diagnose --json`` writes one JSON document to standard output)."""
+        self._keep(status, message)
+
+    def log_fmi3(self, environment: Any, status: int, category: bytes, message: bytes) -> None:
+        """The FMI 3.0 logMessage callback, as :meth:`log_fmi2`."""
+        self._keep(status, message)
+
+    def _keep(self, status: int, message: bytes | None) -> None:
+        text = (message or b"").decode("utf-8", "replace").strip()
+        self.log.append(f"[{_FMI_STATUS.get(status, 'OK')}] {text[:200]}")
+
+    def last_message(self) -> str:
+        return f" (the FMU's last log message: {self.log[-1]})" if self.log else ""
 
     def keep_loaded(self, fmu: Any) -> None:
         """Hold one more reference to the instance's shared library for the life of the process: fmpy closes
@@ -429,7 +448,8 @@ class FmuStepper(ABC):
         kind = "CoSimulation" if block.interface == "co_simulation" else "ModelExchange"
         self.is_fmi3 = block.fmi_version.startswith("3.")
         if reuse is None:
-            fmu = instantiate_fmu(unpacked.directory, unpacked.model_description, kind)
+            logger = unpacked.log_fmi3 if self.is_fmi3 else unpacked.log_fmi2
+            fmu = instantiate_fmu(unpacked.directory, unpacked.model_description, kind, logger=logger)
             unpacked.keep_loaded(fmu)
         else:
             fmu = reuse
@@ -456,7 +476,8 @@ class FmuStepper(ABC):
         """fmpy's rule: a status above Warning (Discard, Error, Fatal) is a failure."""
         if status > _FMI_WARNING:
             raise InvalidInputError(f"{self.block.name}: {function} failed with FMI status "
-                                    f"{_FMI_STATUS.get(status, status)} at sample {self.samples} (t = {self.time:g} s)")
+                                    f"{_FMI_STATUS.get(status, status)} at sample {self.samples} (t = {self.time:g} s)"
+                                    f"{self._unpacked.last_message()}")
 
     def _write_input(self, x: float) -> None:
         self._value[0] = x
@@ -624,7 +645,8 @@ class _ModelExchangeStepper(FmuStepper):
             except RuntimeError as err:  # fmpy's report of a CVode failure
                 raise InvalidInputError(f"{self.block.name}: CVode cannot integrate the model-exchange FMU from "
                                         f"t = {time_s:g} s (sample {self.samples}): {err}; check the model, or "
-                                        "export it for co-simulation (its own solver)") from err
+                                        "export it for co-simulation (its own solver)"
+                                        f"{self._unpacked.last_message()}") from err
             self.fmu.setTime(time_s)
             step_event = False
             if self.needs_completed_step:
