@@ -62,23 +62,6 @@ from rig.transports.base import CommandLimits
 
 __all__ = ["RigConfig", "SimulationConfig", "load_rig_config"]
 
-
-def _check_fmu_plant(table: ConfigTable, simulation: SimulationConfig, rate_hz: float) -> None:
-    """An FMU plant is checked on load (the file, its input and output, its binary for this platform), so that
-    a bad one is named before any device starts; ``fmu_input`` / ``fmu_output`` belong to an FMU only."""
-    from sim_backend.fmu_plant import is_fmu_path, open_fmu_block
-
-    if not is_fmu_path(simulation.plant_path):
-        for key in ("fmu_input", "fmu_output"):
-            if getattr(simulation, key) is not None:
-                raise table.error(key, f"chooses a variable of an FMU plant, but the plant is {simulation.plant_path.name}")
-        return
-    try:
-        open_fmu_block(simulation.plant_path, 1.0 / rate_hz, simulation.fmu_input, simulation.fmu_output,
-                       options=("fmu_input", "fmu_output"))
-    except ConfigError as err:
-        raise table.error("plant", str(err)) from err
-
 SIMULATED_SERIAL_URL = "serial://pty"
 
 
@@ -178,6 +161,23 @@ def _transport_options(table: ConfigTable, scheme: str) -> dict[str, Any]:
         else:  # a string, or a path given as a string (default None)
             options[key] = table.string(key)
     return options
+
+
+def _check_fmu_plant(table: ConfigTable, simulation: SimulationConfig, rate_hz: float) -> None:
+    """An FMU plant is checked on load (the file, its input and output, its binary for this platform), so that
+    a bad one is named before any device starts; ``fmu_input`` / ``fmu_output`` belong to an FMU only."""
+    from sim_backend.fmu_plant import is_fmu_path, open_fmu_block
+
+    if not is_fmu_path(simulation.plant_path):
+        for key in ("fmu_input", "fmu_output"):
+            if getattr(simulation, key) is not None:
+                raise table.error(key, f"chooses a variable of an FMU plant, but the plant is {simulation.plant_path.name}")
+        return
+    try:
+        open_fmu_block(simulation.plant_path, 1.0 / rate_hz, simulation.fmu_input, simulation.fmu_output,
+                       options=("fmu_input", "fmu_output"))
+    except ConfigError as err:
+        raise table.error("plant", str(err)) from err
 
 
 def load_rig_config(path: str | Path) -> RigConfig:
