@@ -602,14 +602,32 @@ class _ModelExchangeStepper(FmuStepper):
         self._update_discrete_states(0.0)
         fmu.enterContinuousTimeMode()
         self.needs_completed_step = bool(description.modelExchange.needsCompletedIntegratorStep)
+        self._failures: list[str] = []
+        prefix = "fmi3" if self.is_fmi3 else "fmi2"
+        derivatives = "GetContinuousStateDerivatives" if self.is_fmi3 else "GetDerivatives"
+        callbacks = {key: self._callback(prefix + name) for key, name in (
+            ("get_x", "GetContinuousStates"), ("set_x", "SetContinuousStates"), ("get_dx", derivatives),
+            ("get_z", "GetEventIndicators"), ("get_nominals", "GetNominalsOfContinuousStates"),
+            ("set_time", "SetTime"))}
         self.solver = CVodeSolver(
-            nx=description.numberOfContinuousStates, nz=description.numberOfEventIndicators,
-            get_x=fmu.getContinuousStates, set_x=fmu.setContinuousStates,
-            get_dx=fmu.getContinuousStateDerivatives if self.is_fmi3 else fmu.getDerivatives,
-            get_z=fmu.getEventIndicators, get_nominals=fmu.getNominalsOfContinuousStates, set_time=fmu.setTime,
+            nx=description.numberOfContinuousStates, nz=description.numberOfEventIndicators, **callbacks,
             input=_HeldInput(), startTime=0.0, maxStep=block.sample_period_s,
             relativeTolerance=MODEL_EXCHANGE_RELATIVE_TOLERANCE)
         self._held: float | None = None
+
+    def _callback(self, function: str) -> Any:
+        """The FMI function ``function`` for CVode's callbacks, called on the library directly. fmpy's wrappers
+        raise on a failed call, but an exception raised inside CVode's ctypes callback is printed and lost
+        (the integration goes on with whatever the FMU left); here a failed call is noted and raised by
+        :meth:`_advance` when the solver returns."""
+        call, component, failures = self._functions[function], self._component, self._failures
+
+        def checked(*args: Any) -> None:
+            status = call(component, *args)
+            if status > _FMI_WARNING and not failures:
+                failures.append(f"{function} failed with FMI status {_FMI_STATUS.get(status, status)}")
+
+        return checked
 
     def _update_discrete_states(self, time_s: float) -> None:
         fmu = self.fmu
@@ -647,6 +665,9 @@ class _ModelExchangeStepper(FmuStepper):
                                         f"t = {time_s:g} s (sample {self.samples}): {err}; check the model, or "
                                         "export it for co-simulation (its own solver)"
                                         f"{self._unpacked.last_message()}") from err
+            if self._failures:
+                raise InvalidInputError(f"{self.block.name}: {self._failures[0]} while CVode integrated it near "
+                                        f"t = {time_s:g} s (sample {self.samples}){self._unpacked.last_message()}")
             self.fmu.setTime(time_s)
             step_event = False
             if self.needs_completed_step:

@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import math
 import pickle
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -175,3 +177,16 @@ def test_a_block_refuses_a_non_finite_command(test_fmus):
     with pytest.raises(ValueError, match="interface"):
         FmuBlock(path=block.path, sample_period_s=PERIOD_S, input_name="command", output_name="angle",
                  interface="scheduled_execution")
+
+
+def test_fmpy_loads_only_when_an_fmu_is_used():
+    # identify never sees fmpy; the FMU module and the commands import it only to read an FMU
+    code = (
+        "import sys, pkgutil, importlib, identify\n"
+        "for info in pkgutil.walk_packages(identify.__path__, 'identify.'):\n"
+        "    importlib.import_module(info.name)\n"
+        "import sim_backend.fmu_plant, sim_backend.plant_config, rig.rig_config, rig.commands.diagnose\n"
+        "print(','.join(sorted(m for m in sys.modules if m.split('.')[0] in ('fmpy', 'pythonfmu'))))\n"
+    )
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert result.stdout.strip() == ""
