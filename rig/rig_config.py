@@ -37,8 +37,10 @@ The format::
     poll_interval_s = 0.002              # statusword polling pace while waiting for a transition
 
     [simulation]                         # only for a simulated rig: the plant behind the wire
-    plant = "plants/precision_gearbox.toml"   # relative to this file
+    plant = "plants/precision_gearbox.toml"   # relative to this file; or an FMU: "my_gearbox.fmu"
     seed = 4                             # optional: seed of the simulated noise
+    # fmu_input = "command"              # an FMU with several real inputs/outputs: which carry the
+    # fmu_output = "angle"               # commanded angle and the load angle (rad)
 
 A simulated serial rig uses ``url = "serial://pty"``: the simulated device creates a pty and the command
 line puts its path in the URL.
@@ -69,6 +71,8 @@ class SimulationConfig:
 
     plant_path: Path
     seed: int | None = None
+    fmu_input: str | None = None
+    fmu_output: str | None = None
 
 
 @dataclass(frozen=True)
@@ -159,6 +163,23 @@ def _transport_options(table: ConfigTable, scheme: str) -> dict[str, Any]:
     return options
 
 
+def _check_fmu_plant(table: ConfigTable, simulation: SimulationConfig, rate_hz: float) -> None:
+    """An FMU plant is checked on load (the file, its input and output, its binary for this platform), so that
+    a bad one is named before any device starts; ``fmu_input`` / ``fmu_output`` belong to an FMU only."""
+    from sim_backend.fmu_plant import is_fmu_path, open_fmu_block
+
+    if not is_fmu_path(simulation.plant_path):
+        for key in ("fmu_input", "fmu_output"):
+            if getattr(simulation, key) is not None:
+                raise table.error(key, f"chooses a variable of an FMU plant, but the plant is {simulation.plant_path.name}")
+        return
+    try:
+        open_fmu_block(simulation.plant_path, 1.0 / rate_hz, simulation.fmu_input, simulation.fmu_output,
+                       options=("fmu_input", "fmu_output"))
+    except ConfigError as err:
+        raise table.error("plant", str(err)) from err
+
+
 def load_rig_config(path: str | Path) -> RigConfig:
     """Read and validate a rig config; raises :class:`ConfigError` naming the file and key."""
     path = Path(path)
@@ -209,7 +230,9 @@ def load_rig_config(path: str | Path) -> RigConfig:
         plant_path = (path.parent / plant) if not Path(plant).is_absolute() else Path(plant)
         if not plant_path.is_file():
             raise sim.error("plant", f"no such plant config {plant_path}")
-        simulation = SimulationConfig(plant_path, sim.integer("seed", None, minimum=0))
+        simulation = SimulationConfig(plant_path, sim.integer("seed", None, minimum=0),
+                                      sim.string("fmu_input", None), sim.string("fmu_output", None))
+        _check_fmu_plant(sim, simulation, rate)
         sim.finish()
     if url == SIMULATED_SERIAL_URL and simulation is None:
         raise transport.error("url", f"{SIMULATED_SERIAL_URL} is the simulated device's pty: add a [simulation] table")

@@ -66,8 +66,8 @@ from rig.protocols.errors import ConfigError
 from sim_backend.noise import BoundedUniformNoise, ColouredNoise, GaussianNoise, NoiseModel, NoNoise
 from sim_backend.plant import SimulatedGearbox
 
-__all__ = ["BLOCK_TYPES", "PlantConfig", "describe_noise", "load_plant_config", "plant_config_from_toml_text",
-           "plant_config_to_toml"]
+__all__ = ["BLOCK_TYPES", "PlantConfig", "describe_noise", "load_plant_config", "load_simulated_plant",
+           "plant_config_from_toml_text", "plant_config_to_toml"]
 
 
 @dataclass(frozen=True)
@@ -116,6 +116,19 @@ def load_plant_config(path: str | Path) -> PlantConfig:
     """Read and validate a plant config; raises :class:`ConfigError` naming the file and key."""
     root = load_toml(path)
     return _parse(root, default_name=Path(path).stem)
+
+
+def load_simulated_plant(path: str | Path, *, sample_period_s: float, encoder: EncoderResolution,
+                         fmu_input: str | None = None, fmu_output: str | None = None) -> PlantConfig:
+    """The plant behind a simulated rig (``[simulation] plant`` of a rig config): a plant TOML, or an FMU
+    (:func:`sim_backend.fmu_plant.fmu_plant_config`: the FMU's block at the rig's sample period, read by the
+    rig's encoder; ``fmu_input`` / ``fmu_output`` choose its variables when it has several)."""
+    from sim_backend.fmu_plant import fmu_plant_config, is_fmu_path
+
+    if is_fmu_path(path):
+        return fmu_plant_config(path, sample_period_s, encoder, input_name=fmu_input, output_name=fmu_output,
+                                options=("fmu_input", "fmu_output"))
+    return load_plant_config(path)
 
 
 def plant_config_from_toml_text(text: str, source: str = "<text>") -> PlantConfig:

@@ -38,8 +38,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     parser.add_argument("data", metavar="DATA", nargs="+",
                         help="a rig-log v1 file, a CSV with columns t,u,y, or .mf4/.mdf/.mat; several are diagnosed independently")
-    parser.add_argument("--model", metavar="PLANT.toml", default=None,
-                        help="plant config of the user's model (default: fit a linear model)")
+    parser.add_argument("--model", metavar="PLANT.toml|PLANT.fmu", default=None,
+                        help="the user's model: a plant config, or an FMU (FMI 2.0/3.0, co-simulation or model "
+                             "exchange; needs fmpy: pip install 'gearbox-rig[fmu]'); default: fit a linear model")
+    parser.add_argument("--fmu-input", metavar="NAME", default=None,
+                        help="the FMU's input that takes the commanded angle in rad (needed when it has several)")
+    parser.add_argument("--fmu-output", metavar="NAME", default=None,
+                        help="the FMU's output that gives the load angle in rad (needed when it has several)")
     parser.add_argument("--noise-bound", type=float, required=True, metavar="RAD",
                         help="bound on the measurement error |e_t| in rad (include the encoder's half count)")
     parser.add_argument("--report", metavar="DIR", default=None,
@@ -70,16 +75,19 @@ def run(args: argparse.Namespace) -> int:
         from rig.output_paths import check_output_dir
 
         check_output_dir(args.report, "--report", inputs=args.data)
-    options = {"model": args.model, "noise_bound": args.noise_bound, "report": args.report,
+    fmu = _fmu_options(args)
+    options = {"model": args.model, "fmu": fmu, "noise_bound": args.noise_bound, "report": args.report,
                "report_per_file": len(args.data) > 1, "import": options_from_arguments(args),
                "progress": not args.json and sys.stderr.isatty() and (args.jobs == 1 or len(args.data) == 1)
                and args.scheduler is None}
+    note = black_box_note(options)
+    document = partial(_document, black_box=note)
     if len(args.data) == 1 and args.scheduler is None:
         outcome = diagnose_file(args.data[0], options)  # errors go to rig.cli with their code
         if args.json:
-            print(json.dumps(_document(outcome)))
+            print(json.dumps(document(outcome)))
         else:
-            _print_summary(args.data[0], args.model, args.noise_bound, *outcome)
+            _print_summary(args.data[0], args.model, args.noise_bound, *outcome, black_box=note)
         return exit_codes.SUCCESS
     # a cluster's workers do not write into this machine's file system: there, the figures are drawn here
     draw_here = args.scheduler is not None and args.report is not None
@@ -89,11 +97,11 @@ def run(args: argparse.Namespace) -> int:
     if draw_here:
         outcomes = [_with_report(outcome, options) for outcome in outcomes]
     if args.json:
-        print(json.dumps(batch_document([outcome.to_json("diagnosis", _document) for outcome in outcomes])))
+        print(json.dumps(batch_document([outcome.to_json("diagnosis", document) for outcome in outcomes])))
     else:
         for outcome in outcomes:
             if outcome.error is None:
-                _print_summary(outcome.path, args.model, args.noise_bound, *outcome.result)
+                _print_summary(outcome.path, args.model, args.noise_bound, *outcome.result, black_box=note)
             else:
                 print(f"data          {outcome.path}\nerror         {outcome.error}")
             print()
@@ -111,14 +119,10 @@ def diagnose_file(path_text: str, options: dict):
 
     record, imported = read_measurement(path_text, options.get("import"))
     check_output_varies(path_text, record.angle_rad)
-    model = None
-    if options["model"] is not None:
-        from sim_backend.plant_config import load_plant_config
-
-        model = load_plant_config(shipped_path(options["model"])).plant  # a cluster worker's copy
+    model, candidates = _start_model(options, record.metadata.sample_period_s)
     progress = _progress_lines(path_text, record.command_rad.size) if options.get("progress") else None
     result = diagnose_model(record.command_rad, record.angle_rad, options["noise_bound"],
-                            record.metadata.sample_period_s, model, progress=progress)
+                            record.metadata.sample_period_s, model, candidates=candidates, progress=progress)
     index = None
     if options["report"] is not None:
         index = _write_report(path_text, result, record, options)
@@ -152,6 +156,58 @@ def _with_report(outcome, options: dict):
     return dataclasses.replace(outcome, result=(result, num_samples, index, imported))
 
 
+def _fmu_options(args: argparse.Namespace) -> dict | None:
+    """For ``--model PLANT.fmu``: check the FMU before any work (file, variables, platform binary) and return
+    what the workers need to open it again; None for a plant TOML or no model. ``--fmu-input`` /
+    ``--fmu-output`` without an FMU are refused."""
+    from rig.protocols.errors import ConfigError
+    from sim_backend.fmu_plant import is_fmu_path, open_fmu_block
+
+    if args.model is None or not is_fmu_path(args.model):
+        for option, value in (("--fmu-input", args.fmu_input), ("--fmu-output", args.fmu_output)):
+            if value is not None:
+                raise ConfigError(option, "--model", f"{option} chooses a variable of an FMU: give --model PLANT.fmu")
+        return None
+    block = open_fmu_block(args.model, 1.0, args.fmu_input, args.fmu_output)  # the period is each file's
+    return {"input": block.input_name, "output": block.output_name}
+
+
+def _start_model(options: dict, sample_period_s: float):
+    """The start model of ``--model`` and the candidate effects: a plant TOML's blocks and every effect; an
+    FMU as one black-box block (:mod:`sim_backend.fmu_plant`) sampled at the record's period and the effects
+    that can be added around it (:func:`identify.black_box_effects.effects_around_black_box`); no model: a
+    fitted linear model (None) and every effect."""
+    from identify.effect_catalogue import EFFECT_NAMES
+    from rig.batch import shipped_path
+
+    if options["model"] is None:
+        return None, EFFECT_NAMES
+    if options.get("fmu") is None:
+        from sim_backend.plant_config import load_plant_config
+
+        return load_plant_config(shipped_path(options["model"])).plant, EFFECT_NAMES  # a cluster worker's copy
+    from identify.black_box_effects import effects_around_black_box
+    from identify.plant_blocks import PlantModel
+    from sim_backend.fmu_plant import open_fmu_block
+
+    block = open_fmu_block(shipped_path(options["model"]), sample_period_s, options["fmu"]["input"],
+                           options["fmu"]["output"])
+    candidates, _ = effects_around_black_box()
+    return PlantModel((block,)), candidates
+
+
+def black_box_note(options: dict) -> dict | None:
+    """What ``--json`` and the text output say about an FMU start model: the file, its input and output, the
+    effects tried around it (and where they go) and those skipped with the reason; None without an FMU."""
+    if options.get("fmu") is None:
+        return None
+    from identify.black_box_effects import effects_around_black_box, placements_text
+
+    tried, skipped = effects_around_black_box()
+    return {"file": str(options["model"]), "input": options["fmu"]["input"], "output": options["fmu"]["output"],
+            "effects_tried": placements_text(tried), "effects_skipped": skipped}
+
+
 def _progress_lines(path_text: str, num_samples: int):
     """On a terminal: a line on stderr for each step of the diagnosis, with the time since it began (a
     record of 20 000 samples takes about two minutes; the time grows about linearly with the samples)."""
@@ -168,10 +224,14 @@ def _progress_lines(path_text: str, num_samples: int):
     return say
 
 
-def _document(outcome) -> dict:
-    """The ``--json`` object of one file: the result's document plus what the import did."""
+def _document(outcome, black_box: dict | None = None) -> dict:
+    """The ``--json`` object of one file: the result's document plus what the import did (and, for an FMU
+    start model, ``fmu``: :func:`black_box_note`)."""
     result, _, _, imported = outcome
-    return {**result.to_dict(), "import": imported.to_dict()}
+    document = {**result.to_dict(), "import": imported.to_dict()}
+    if black_box is not None:
+        document["fmu"] = black_box
+    return document
 
 
 VERDICT_WORDS = {
@@ -185,7 +245,7 @@ VERDICT_WORDS = {
 
 
 def _print_summary(data: str, model: str | None, noise_bound: float, result, num_samples: int, index,
-                   imported=None) -> None:
+                   imported=None, black_box: dict | None = None) -> None:
     print(f"data          {data}  ({num_samples} samples, validation from sample "
           f"{result.estimation_samples})")
     start = model or ("linear, order %d (fitted)" % result.linear_fit.order if result.linear_fit else "not fitted")
@@ -194,6 +254,11 @@ def _print_summary(data: str, model: str | None, noise_bound: float, result, num
     if result.operating_point_rad:
         print(f"operating pt  {result.operating_point_rad:.4g} rad (the free run starts there)")
     print(f"start model   {start}")
+    if black_box is not None:
+        print(f"fmu           input {black_box['input']!r}, output {black_box['output']!r}: effects are added "
+              "around it (input side: before its input; output side: after its output)")
+        for name, reason in black_box["effects_skipped"].items():
+            print(f"not tried     {name}: {reason}")
     print(f"noise bound   {noise_bound:.4g} rad")
     print(f"verdict       {VERDICT_WORDS[result.verdict]}")
     print(f"              {result.verdict_reason}")

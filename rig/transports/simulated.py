@@ -141,12 +141,14 @@ def simulated_rig(config: RigConfig, command_rad: NDArray[np.float64] | None = N
     ConfigError
         The config has no ``[simulation]`` table, or its rate or encoder differs from the plant's.
     """
-    from sim_backend.plant_config import load_plant_config
+    from sim_backend.plant_config import load_simulated_plant
 
     sim = config.simulation
     if sim is None:
         raise ConfigError(config.source, "simulation", "a real rig (no [simulation] table): nothing to simulate")
-    gearbox = load_plant_config(sim.plant_path).gearbox(seed=sim.seed)
+    plant = load_simulated_plant(sim.plant_path, sample_period_s=config.sample_period_s, encoder=config.encoder,
+                                 fmu_input=sim.fmu_input, fmu_output=sim.fmu_output)  # a plant TOML or an FMU
+    gearbox = plant.gearbox(seed=sim.seed)
     if not math.isclose(gearbox.sample_period_s, config.sample_period_s, rel_tol=1e-9):
         raise ConfigError(config.source, "sample_rate_hz",
                           f"{config.sample_rate_hz:g} Hz differs from the simulated plant's "
