@@ -104,7 +104,7 @@ def data_dir(tmp_path_factory):
     folder = tmp_path_factory.mktemp("client-data")
     for name, effects, seed in (("backlash", ("backlash",), 3), ("dead_zone", ("dead_zone",), 4),
                                 ("nothing", (), 5)):
-        record = hidden_effect_record(effects, seed, samples=1500)
+        record = hidden_effect_record(effects, seed, num_samples=1500)
         time_s = np.arange(record.command_rad.size) * record.sample_period_s
         (folder / f"{name}.csv").write_text("t,u,y\n" + "".join(
             f"{t!r},{u!r},{y!r}\n" for t, u, y in

@@ -13,7 +13,7 @@ from rig.plots.discrepancy import ZOOM_SAMPLES, comparison_figure
 
 @pytest.fixture(scope="module")
 def diagnosis():
-    record = hidden_effect_record(("backlash",), 3, samples=1200)  # long enough for the zoom (> 5 x 200)
+    record = hidden_effect_record(("backlash",), 3, num_samples=1200)  # long enough for the zoom (> 5 x 200)
     result = diagnose_model(record.command_rad, record.angle_rad, record.noise_bound_rad, record.sample_period_s,
                             record.nominal_model)
     return record, result, np.arange(record.command_rad.size) * record.sample_period_s
