@@ -182,7 +182,7 @@ class RawCanTransport(Transport):
             self._queued_any = True
             if setpoint.seq <= self._device_sample:  # its tick has passed: dropped by the device, HELD
                 self._min_lead_s = min(self._min_lead_s, self._tick_origin_s + setpoint.seq * self.sample_period_s - now)
-            else:
+            elif self._started:  # queued before START, a setpoint is ahead of a clock that has not started
                 self._queued_at[setpoint.seq] = now
 
     def _recv_internal(self, timeout_s: float) -> FeedbackSample | None:

@@ -27,7 +27,6 @@ from __future__ import annotations
 import collections
 import math
 import select
-import time
 
 from rig.protocols import cia402
 from rig.protocols.errors import ConfigError, DeviceFault, TransportError
@@ -216,24 +215,24 @@ class SerialTransport(Transport):
         self._write(encode_frame(MessageType.SETPOINT, setpoint.seq, self.drive.counts_from_rad(setpoint.position_rad)))
         self._last_seq = setpoint.seq
         if self.version >= 2:
-            now = time.perf_counter()
+            now = self.clock()
             self._queued_any = True
             if setpoint.seq <= self._device_sample:  # too late: its lead, from the device clock's estimate
                 self._min_lead_s = min(self._min_lead_s, self._tick_origin_s + setpoint.seq * self.sample_period_s - now)
-            else:
+            elif self._started:  # queued before START, a setpoint is ahead of a clock that has not started
                 self._queued_at[setpoint.seq] = now
 
     def _recv_internal(self, timeout_s: float) -> FeedbackSample | None:
         if self.version >= 2 and not self._started and self._queued_any:
             self._started = True
             self._request_reply(MessageType.START)  # the device's tick 0: the setpoints queued so far are its lead
-        deadline = time.perf_counter() + timeout_s
+        deadline = self.clock() + timeout_s
         while not self._feedback:
             if self._code_needed:
                 self._report_faulted_statusword()
             if self._fault is not None:
                 return None
-            remaining = deadline - time.perf_counter()
+            remaining = deadline - self.clock()
             if not self._poll(max(remaining, 0.0)) and remaining <= 0:
                 return None
         return self._feedback.popleft()
@@ -267,7 +266,7 @@ class SerialTransport(Transport):
         except Exception as err:  # serial.SerialException, OSError, ValueError on a closed port
             raise TransportError(f"{self.name}: read from {self.port} failed: {err} (the port disappeared: "
                                  "adapter unplugged or device powered off?)") from err
-        received = time.perf_counter()
+        received = self.clock()
         errors_before = self._decoder.errors
         before_first_frame = self._valid_frames == 0
         messages = self._decoder.feed(data)
@@ -386,9 +385,9 @@ class SerialTransport(Transport):
             if attempt:
                 self.retries += 1
             self._write(frame)
-            deadline = time.perf_counter() + self.reply_timeout_s
+            deadline = self.clock() + self.reply_timeout_s
             while (answer, request) not in self._answers:
-                remaining = deadline - time.perf_counter()
+                remaining = deadline - self.clock()
                 if remaining <= 0:
                     break
                 self._poll(remaining)

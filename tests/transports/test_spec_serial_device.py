@@ -1,6 +1,11 @@
-"""The real driver (``rig run`` through ``rig.cli.main``) against a device written only from
-``docs/serial_protocol.md`` (:mod:`spec_serial_device`, which imports nothing of ours): if one of these fails,
-the spec and the driver disagree, and the spec is what a firmware author has."""
+"""The real driver (``rig run`` through ``rig.cli.main``, or :func:`rig.runner.run_experiment`) against a
+device written only from ``docs/serial_protocol.md`` (:mod:`spec_serial_device`, which imports nothing of
+ours), on a pty with the device ticking on its own wall-clock thread: if one of these fails, the spec and
+the driver disagree, and the spec is what a firmware author has.
+
+These runs use real threads and real time, so they assert accounting (every sample filed under its own
+number with the values the device sent, HELD samples logging the command the device applied), never
+timing; the tick-by-tick behaviour is tested on a simulated clock in ``test_spec_serial_v2_clocked.py``."""
 
 from __future__ import annotations
 
@@ -17,18 +22,23 @@ from rig.cli import main
 from rig.log_file import read_log
 from rig.protocols.cia402 import BringUpTiming, DriveScaling
 from rig.protocols.encoder_counts import EncoderResolution
-from rig.protocols.errors import DeviceFault
+from rig.protocols.errors import ConfigError, DeviceFault
+from rig.runner import run_experiment
 from rig.transports.base import Setpoint
 from rig.transports.serial_link import SerialTransport
 
-from sim_rigs import no_leaks  # noqa: F401  (a fixture)
-from spec_serial_device import CONTROL, ERROR_REQUEST, SWITCH_ON_DISABLED, SpecSerialDevice
+from sim_rigs import ListSink, no_leaks  # noqa: F401  (a fixture)
+from spec_serial_device import CONTROL, ERROR_REQUEST, HELLO, START, SWITCH_ON_DISABLED, SpecSerialDevice
 
 RATE_HZ = 200.0
 SAMPLES = 200
+DRIVE = DriveScaling(1 << 17)
+LEAD_S = 0.5
+"""The lead of the v2 runs here: 100 setpoints at 200 Hz. Only a host stalled for half a second falls behind
+it, far beyond the jitter of a busy 2-core machine (tens of milliseconds), so held = 0 is no timing bet."""
 
 
-def _rig_config(tmp_path, port: str) -> str:
+def _rig_config(tmp_path, port: str, transport: str = "") -> str:
     path = tmp_path / "spec_rig.toml"
     path.write_text(f"""
 name = "spec_rig"
@@ -38,6 +48,7 @@ sample_rate_hz = {RATE_HZ}
 url = "serial://{port}"
 baudrate = 115200
 reply_timeout_s = 0.3
+{transport}
 
 [drive]
 counts_per_revolution = 131072
@@ -67,18 +78,111 @@ def _command(tmp_path) -> tuple[str, np.ndarray]:
     return str(path), command
 
 
-def _run(tmp_path, device: SpecSerialDevice, capsys) -> tuple[int, str, str]:
+def _run(tmp_path, device: SpecSerialDevice, capsys, transport: str = "") -> tuple[int, str, str]:
     experiment, _ = _command(tmp_path)
-    code = main(["run", _rig_config(tmp_path, device.port), "--experiment", experiment,
+    code = main(["run", _rig_config(tmp_path, device.port, transport), "--experiment", experiment,
                  "--out", str(tmp_path / "run.csv"), "--json"])
     captured = capsys.readouterr()
     return code, captured.out, captured.err
 
 
-def test_the_driver_runs_a_device_written_from_the_spec(tmp_path, capsys, no_leaks):
-    """Boot output with a leading 0x00, a lost STATUS answer right after enabling: bring-up, every sample
-    filed under its own seq with the value the device sent, the stop leaves the device disabled."""
-    with SpecSerialDevice(lost_status_after_enable=1, boot_output=b"\x00boot v1.0 ok\r\n\x00") as device:
+def _transport(device: SpecSerialDevice, **options) -> SerialTransport:
+    return SerialTransport(device.port, baudrate=115200, encoder=EncoderResolution(bits=16),
+                           sample_period_s=1 / RATE_HZ, drive=DRIVE, timing=BringUpTiming(), name="spec", **options)
+
+
+def _assert_rows_are_the_devices_ticks(log, device: SpecSerialDevice) -> None:
+    """Row k is tick k: its time k T, the encoder counts the device sent in TICK k, HELD exactly where the
+    device held, and the command column the target the device applied (spec section 16.3)."""
+    assert len(log.encoder_counts) == SAMPLES and set(range(SAMPLES)) <= set(device.ticks)
+    ticks = [device.ticks[k] for k in range(SAMPLES)]
+    np.testing.assert_allclose(log.time_s, np.arange(SAMPLES) / RATE_HZ, rtol=0, atol=1e-12)
+    assert log.encoder_counts.tolist() == [tick.encoder_counts for tick in ticks]
+    assert ((log.flags & SampleFlag.HELD) != 0).tolist() == [tick.held for tick in ticks]
+    assert log.command_rad.tolist() == [DRIVE.rad_from_counts(tick.applied_counts) for tick in ticks]
+
+
+# -- protocol v2 (spec section 16) ------------------------------------------------------------------------------
+
+def test_the_driver_runs_a_v2_device_written_from_the_spec(tmp_path, capsys, no_leaks):
+    """Boot output, the first DEVICE_INFO lost (the host's second HELLO gets it: section 16.2), a lost STATUS
+    right after enabling: the run is v2, every sample is the device's tick under its own number, nothing
+    lost or held with a lead far above the host's jitter, and the drive ends disabled."""
+    with SpecSerialDevice(lost_device_info=1, lost_status_after_enable=1,
+                          boot_output=b"\x00boot v2.0 ok\r\n\x00") as device:
+        code, out, err = _run(tmp_path, device, capsys, transport=f"lead_s = {LEAD_S}\nprotocol = \"v2\"")
+    assert code == exit_codes.SUCCESS, err
+    result = json.loads(out)
+    assert result["samples"] == SAMPLES and result["lost"] == 0 and result["held"] == 0
+    assert result["frame_errors"] == 0 and result["not_followed"] == 0 and not result["warnings"]
+    # the smallest lead of a setpoint sent after START over its tick: positive, and never more than the lead
+    assert 0 < result["min_lead_s"] <= LEAD_S
+    assert device.sessions == 1 and device.mode == 1  # one session, ended by the stop (section 16.2)
+    hellos = [seq for kind, seq in device.requests if kind == HELLO]
+    assert len(hellos) == 2 and len(set(hellos)) == 1  # the same request sent again after the lost answer
+    assert [kind for kind, _ in device.requests].count(START) == 1
+    log = read_log(tmp_path / "run.csv")
+    _assert_rows_are_the_devices_ticks(log, device)
+    _, command = _command(tmp_path)
+    np.testing.assert_allclose(log.command_rad, [DRIVE.quantize_rad(value) for value in command], rtol=0, atol=0)
+    count_rad = 2 * np.pi / 2**16  # the encoder reads the drive through a fixed gain; the first reading near 0
+    assert np.all(np.abs(log.angle_rad - log.command_rad) <= count_rad) and -0.002 < log.angle_rad[0] < 0
+    assert device.dropped_setpoints == {}  # none came late, none found the buffer full
+    assert "ends SWITCH ON DISABLED" in log.metadata.extra["summary"]["stop"]
+    assert device.controlwords == [0x0006, 0x0007, 0x000F, 0x0002, 0x0000] and device.state == SWITCH_ON_DISABLED
+
+
+def test_setpoints_lost_on_the_line_are_held_ticks_logging_the_command_applied(tmp_path, capsys, no_leaks):
+    """An underrun the host cannot prevent (three SETPOINTs lost to line noise): the device holds the last
+    target at those ticks and says HELD; the log keeps the samples with the command really applied."""
+    with SpecSerialDevice(lost_setpoints=(120, 121, 122)) as device:
+        code, out, err = _run(tmp_path, device, capsys, transport=f"lead_s = {LEAD_S}")
+    assert code == exit_codes.SUCCESS, err
+    result = json.loads(out)
+    assert result["samples"] == SAMPLES and result["lost"] == 0 and result["held"] == 3 and result["late"] == 3
+    log = read_log(tmp_path / "run.csv")
+    _assert_rows_are_the_devices_ticks(log, device)
+    assert np.flatnonzero(log.flags & SampleFlag.HELD).tolist() == [120, 121, 122]
+    assert log.command_rad[120:123].tolist() == [log.command_rad[119]] * 3  # held at setpoint 119's target
+    _, command = _command(tmp_path)
+    assert not math.isclose(log.command_rad[121], DRIVE.quantize_rad(command[121]))  # not what was designed
+
+
+def test_a_host_stall_longer_than_the_lead_holds_samples_and_loses_none(no_leaks):
+    """The driver's thread stalls 0.3 s with a 50 ms lead: the device goes on ticking on its own clock, the
+    ticks the stall outlasted are HELD with the command applied, none is lost, and the run goes on."""
+    stall_s, lead_s = 0.3, 0.05
+    command = 0.2 * np.sin(2 * np.pi * np.arange(SAMPLES) / 50)
+    stalled = []
+
+    def progress(done: int, _late: int) -> None:
+        if done >= 60 and not stalled:
+            stalled.append(done)
+            time.sleep(stall_s)  # the host's own thread, not the device's
+
+    sink = ListSink()
+    with SpecSerialDevice() as device:
+        transport = _transport(device, lead_s=lead_s)
+        summary = run_experiment(transport, command, sink, feedback_timeout_s=1.0, progress=progress)
+    assert summary.samples == SAMPLES and summary.lost == 0 and stalled
+    flags = np.array([row[4] for row in sink.rows])
+    held = np.flatnonzero(flags & SampleFlag.HELD)
+    # the stall outlasts the lead by 250 ms = 50 ticks; a busy machine only stalls the host longer
+    assert summary.held == held.size >= round((stall_s - lead_s) * RATE_HZ) - 1 and summary.min_lead_s < 0
+    assert [row[1] for row in sink.rows] == [DRIVE.rad_from_counts(device.ticks[k].applied_counts)
+                                             for k in range(SAMPLES)]
+    assert all(device.ticks[k].held for k in held) and held.min() > 60
+    assert sorted(device.dropped_setpoints) == held.tolist()  # each came after its tick and was dropped
+
+
+# -- version handshake and v1 devices (spec section 16.2) -------------------------------------------------------
+
+def test_a_v1_device_is_driven_the_v1_way_and_the_summary_says_so(tmp_path, capsys, no_leaks):
+    """Boot output with a leading 0x00, a lost STATUS answer right after enabling, a device that drops HELLO
+    (an unknown type): bring-up, every sample filed under its own seq with the value the device sent, the
+    stop leaves the device disabled."""
+    with SpecSerialDevice(protocol_version=1, lost_status_after_enable=1,
+                          boot_output=b"\x00boot v1.0 ok\r\n\x00") as device:
         code, out, err = _run(tmp_path, device, capsys)
     assert code == exit_codes.SUCCESS, err
     result = json.loads(out)
@@ -87,6 +191,7 @@ def test_the_driver_runs_a_device_written_from_the_spec(tmp_path, capsys, no_lea
     # a v1 device (it drops HELLO, spec section 16.2) is driven host-paced, and the summary says so
     assert result["min_lead_s"] is None and result["held"] == 0
     assert any("driven as a protocol v1 device" in warning for warning in result["warnings"])
+    assert [kind for kind, _ in device.requests].count(HELLO) == 0  # dropped: never a request it saw
     log = read_log(tmp_path / "run.csv")
     assert log.metadata.extra["summary"]["frame_errors"] == 0
     assert "ends SWITCH ON DISABLED" in log.metadata.extra["summary"]["stop"]
@@ -104,33 +209,72 @@ def test_the_driver_runs_a_device_written_from_the_spec(tmp_path, capsys, no_lea
     assert device.state == SWITCH_ON_DISABLED
 
 
-def test_a_fault_the_reset_cannot_clear_is_named_with_the_code_read_by_error_request(tmp_path, capsys, no_leaks):
-    with SpecSerialDevice(boot_fault_code=0x5441, fault_clears=False) as device:
+def test_a_v1_device_that_answers_hello_with_version_1_is_driven_the_v1_way(no_leaks):
+    with SpecSerialDevice(protocol_version=1, knows_hello=True) as device:
+        transport = _transport(device)
+        try:
+            transport.open()
+            assert transport.version == 1 and transport.lead_samples == 0
+            assert [kind for kind, _ in device.requests].count(HELLO) == 1  # answered at once
+            transport.send(Setpoint(0, 0.0))
+            assert transport.receive(timeout_s=1.0).seq == 0 and device.feedback == {0: 0}
+        finally:
+            transport.close()
+    assert device.sessions == 0 and device.state == SWITCH_ON_DISABLED
+
+
+def test_protocol_v2_refuses_a_v1_device_before_enabling_it(tmp_path, capsys, no_leaks):
+    with SpecSerialDevice(protocol_version=1) as device:
+        code, _, err = _run(tmp_path, device, capsys, transport='protocol = "v2"')
+    assert code != exit_codes.SUCCESS
+    assert "speaks only protocol v1 (it drops HELLO)" in err and 'protocol = "auto"' in err
+    assert device.controlwords == [] and device.feedback == {}
+
+
+def test_protocol_v1_drives_a_v2_device_host_paced(tmp_path, capsys, no_leaks):
+    """Section 16.2: a v2 device must still work with a host that never sends HELLO."""
+    with SpecSerialDevice() as device:
+        code, out, err = _run(tmp_path, device, capsys, transport='protocol = "v1"')
+    assert code == exit_codes.SUCCESS, err
+    result = json.loads(out)
+    assert result["samples"] == SAMPLES and result["lost"] == 0 and result["min_lead_s"] is None
+    assert device.sessions == 0 and device.ticks == {} and sorted(device.feedback) == list(range(SAMPLES))
+
+
+# -- faults and the watchdog, in both protocols ------------------------------------------------------------------
+
+@pytest.mark.parametrize("version", [1, 2])
+def test_a_fault_the_reset_cannot_clear_is_named_with_the_code_read_by_error_request(tmp_path, capsys, no_leaks,
+                                                                                        version):
+    with SpecSerialDevice(protocol_version=version, boot_fault_code=0x5441, fault_clears=False) as device:
         code, _, err = _run(tmp_path, device, capsys)
     assert code == exit_codes.DEVICE_FAULT
     assert "(code 0x5441: safe torque off / enable input inactive)" in err and "stays in FAULT" in err
     assert any(kind == ERROR_REQUEST for kind, _ in device.requests)
-    assert 0x000F not in device.controlwords and not device.feedback  # never enabled, nothing streamed
+    assert 0x000F not in device.controlwords and not device.feedback and not device.ticks  # never enabled
 
 
-def test_a_fault_whose_fault_frame_is_lost_is_named_from_error_request(tmp_path, capsys, no_leaks):
-    with SpecSerialDevice(fault_at_sample=60, fault_code=0x2310, fault_frame_lost=True) as device:
+@pytest.mark.parametrize("version", [1, 2])
+def test_a_fault_whose_fault_frame_is_lost_is_named_from_error_request(tmp_path, capsys, no_leaks, version):
+    with SpecSerialDevice(protocol_version=version, fault_at_sample=60, fault_code=0x2310,
+                          fault_frame_lost=True) as device:
         code, _, err = _run(tmp_path, device, capsys)
     assert code == exit_codes.DEVICE_FAULT
     assert "(code 0x2310: continuous over-current on the device output side)" in err
     assert "no FAULT frame came" in err
     log = read_log(tmp_path / "run.csv")
-    assert log.flags[60] & SampleFlag.FAULT
+    assert log.flags[60] & SampleFlag.FAULT and not np.any(log.flags[:60] & (SampleFlag.FAULT | SampleFlag.LOST))
     assert device.controlwords[-2:] == [0x0002, 0x0000]
+    if version == 2:  # section 16.3: the tick clock stopped with the fault, the faulted tick is the last sample
+        assert max(device.ticks) == 60 and device.mode == 1 and len(log.flags) == 61
 
 
 def test_the_devices_link_watchdog_stops_the_drive_and_the_host_hears_of_it(no_leaks):
     """A host that falls silent after enabling: the device's own watchdog (spec section 10) disables the
-    drive and says so with an unprompted STATUS (seq 0), which stops the host's stream."""
-    with SpecSerialDevice() as device:
-        transport = SerialTransport(device.port, baudrate=115200, encoder=EncoderResolution(bits=16),
-                                    sample_period_s=1 / RATE_HZ, drive=DriveScaling(1 << 17),
-                                    timing=BringUpTiming(), name="spec")
+    drive and says so with an unprompted STATUS (seq 0), which stops the host's stream. (v2's longer
+    watchdog is tested on a simulated clock.)"""
+    with SpecSerialDevice(protocol_version=1) as device:
+        transport = _transport(device)
         try:
             transport.open()
             for k in range(10):
@@ -145,3 +289,11 @@ def test_the_devices_link_watchdog_stops_the_drive_and_the_host_hears_of_it(no_l
         finally:
             transport.close()
     assert math.isclose(transport.initial_position_rad, 0.0)
+
+
+def test_a_device_ticking_at_another_rate_is_refused_before_enabling(no_leaks):
+    with SpecSerialDevice(sample_period_ns=1_000_000) as device:
+        transport = _transport(device)
+        with pytest.raises(ConfigError, match=r"200 Hz, but the device ticks every 1000000 ns \(1000 Hz"):
+            transport.open()
+    assert device.controlwords == []
