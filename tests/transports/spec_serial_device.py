@@ -264,20 +264,21 @@ class SpecSerialDevice:
     def run_due(self) -> None:
         """Ticks (section 16.3) and the link watchdog's expiry (section 10), in time order, up to now."""
         now = self._clock()
-        while (when := self._next_event_s()) <= now:
+        while (when := self.next_event_s()) <= now:
             if self._watchdog_deadline is not None and self._watchdog_deadline <= when:
                 self._watchdog_expires()
             else:
                 self._tick()
 
-    def _next_event_s(self) -> float:
+    def next_event_s(self) -> float:
+        """When the next tick or the link watchdog's expiry is due on the device's clock (inf: nothing)."""
         tick = self._tick0_s + self._next_tick * self.period_s if self._next_tick is not None else float("inf")
         watchdog = self._watchdog_deadline if self._watchdog_deadline is not None else float("inf")
         return min(tick, watchdog)
 
     def _serve(self) -> None:
         while not self._stop.is_set():
-            timeout_s = min(0.01, max(0.0, self._next_event_s() - self._clock()))
+            timeout_s = min(0.01, max(0.0, self.next_event_s() - self._clock()))
             ready, _, _ = select.select([self._master], [], [], timeout_s)
             data = b""
             if ready:

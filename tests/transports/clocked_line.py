@@ -1,0 +1,79 @@
+"""The real host transport and a serial device on one simulated line and one simulated clock: no pty, no
+thread, no sleep, so a test of the v2 streaming logic depends on nothing but the code.
+
+* A frame the host writes reaches the device at once, at the clock's present time.
+* What the device sends waits until the host polls.
+* Time passes only while the host waits for something (a poll with a timeout): the clock moves to the
+  device's next event (a tick, its link watchdog) or to the end of the wait, whichever comes first, and the
+  device does what falls due. The host's own computing takes no time, so every tick's TICK arrives at the
+  tick's instant, unless the test stalls the host (:meth:`ClockedLine.stall`), during which the device goes
+  on ticking on its own clock.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+
+from rig.protocols.serial_frames import FrameDecoder
+from rig.transports.serial_link import SerialTransport
+
+
+class SimulatedClock:
+    """Seconds that move only when told to (``clock()`` reads it)."""
+
+    def __init__(self, start_s: float = 0.0) -> None:
+        self.now_s = float(start_s)
+
+    def __call__(self) -> float:
+        return self.now_s
+
+    def advance_to(self, when_s: float) -> None:
+        if when_s < self.now_s:
+            raise ValueError(f"a clock does not go back: {when_s} < {self.now_s}")
+        self.now_s = when_s
+
+
+class ClockedLine:
+    """Joins ``transport`` (built with ``clock=clock``) to a device that runs on ``clock``.
+
+    The device side is three functions: ``feed(data)`` (bytes from the host, now), ``next_event_s()``
+    (when its next event is due; inf for none) and ``run_due()`` (do what is due by now); the device sends
+    through the ``output`` callable it was given, :meth:`device_writes`.
+    """
+
+    def __init__(self, transport: SerialTransport, clock: SimulatedClock, *, feed: Callable[[bytes], None],
+                 next_event_s: Callable[[], float], run_due: Callable[[], None]) -> None:
+        self.transport, self.clock = transport, clock
+        self._feed, self._next_event_s, self._run_due = feed, next_event_s, run_due
+        self._to_host = bytearray()
+        self._decoder = FrameDecoder()
+        self.polls_that_waited = 0
+        transport._connect = lambda: None
+        transport._write = self._feed
+        transport._poll = self._host_polls
+
+    def device_writes(self, data: bytes) -> None:
+        self._to_host += data
+
+    def stall(self, seconds: float) -> None:
+        """The host does nothing for ``seconds``; the device lives through them event by event."""
+        end = self.clock() + seconds
+        while (when := self._next_event_s()) <= end:
+            self.clock.advance_to(max(when, self.clock()))
+            self._run_due()
+        self.clock.advance_to(end)
+
+    def _host_polls(self, timeout_s: float) -> bool:
+        if not self._to_host and timeout_s > 0:
+            self.polls_that_waited += 1
+            end = self.clock() + timeout_s
+            when = self._next_event_s()
+            self.clock.advance_to(min(end, max(when, self.clock())) if math.isfinite(when) else end)
+            self._run_due()
+        if not self._to_host:
+            return False
+        data, self._to_host = bytes(self._to_host), bytearray()
+        for message in self._decoder.feed(data):
+            self.transport._dispatch(message, self.clock())
+        return True
