@@ -34,6 +34,20 @@ class SimulatedClock:
         self.now_s = when_s
 
 
+def simulated_device_line(transport: SerialTransport, clock: SimulatedClock, device) -> ClockedLine:
+    """A :class:`ClockedLine` to :class:`sim_backend.serial_device.SimulatedSerialDevice` (built with
+    ``clock=clock``), scripted through its ``handle`` / ``next_tick_s`` / ``run_due``."""
+    decoder = FrameDecoder()
+
+    def feed(data: bytes) -> None:
+        for message in decoder.feed(data):
+            line.device_writes(device.handle(message))
+
+    line = ClockedLine(transport, clock, feed=feed, next_event_s=device.next_tick_s,
+                       run_due=lambda: line.device_writes(device.run_due()))
+    return line
+
+
 class ClockedLine:
     """Joins ``transport`` (built with ``clock=clock``) to a device that runs on ``clock``.
 
@@ -48,7 +62,7 @@ class ClockedLine:
         self._feed, self._next_event_s, self._run_due = feed, next_event_s, run_due
         self._to_host = bytearray()
         self._decoder = FrameDecoder()
-        self.polls_that_waited = 0
+        self.to_host: list = []  # every SerialMessage the host received, in order
         transport._connect = lambda: None
         transport._write = self._feed
         transport._poll = self._host_polls
@@ -66,7 +80,6 @@ class ClockedLine:
 
     def _host_polls(self, timeout_s: float) -> bool:
         if not self._to_host and timeout_s > 0:
-            self.polls_that_waited += 1
             end = self.clock() + timeout_s
             when = self._next_event_s()
             self.clock.advance_to(min(end, max(when, self.clock())) if math.isfinite(when) else end)
@@ -75,5 +88,6 @@ class ClockedLine:
             return False
         data, self._to_host = bytes(self._to_host), bytearray()
         for message in self._decoder.feed(data):
+            self.to_host.append(message)
             self.transport._dispatch(message, self.clock())
         return True

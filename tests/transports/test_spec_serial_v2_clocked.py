@@ -226,3 +226,54 @@ def test_the_spec_device_without_hello_streams_the_v1_way_and_a_session_ends_wit
     clock.advance_to(1.0)
     device.run_due()
     assert device.mode == 1 and list(device.ticks) == [0] and device.next_event_s() == math.inf
+
+
+# -- the simulated rig's own device (sim_backend) on the same clock ----------------------------------------------
+
+@pytest.fixture
+def simulated_rig(tmp_path):
+    """(line, transport, device, clock, gearbox factory) for ``SimulatedSerialDevice`` on a simulated clock."""
+    from sim_backend.plant_config import load_plant_config
+    from sim_backend.serial_device import SimulatedSerialDevice
+
+    from clocked_line import simulated_device_line
+    from sim_rigs import write_test_plant
+
+    plant = load_plant_config(write_test_plant(tmp_path))
+    devices = []
+
+    def make(**device_options):
+        clock = SimulatedClock(1000.0)
+        device = SimulatedSerialDevice(plant.gearbox(seed=3), clock=clock, buffer_capacity=64, **device_options)
+        devices.append(device)
+        transport = SerialTransport("simulated", encoder=EncoderResolution(bits=12, signed=True),  # the plant's
+                                    sample_period_s=PERIOD_S, drive=DRIVE, timing=BringUpTiming(poll_interval_s=0.0),
+                                    reply_timeout_s=0.3, lead_s=LEAD_S, name="clocked", clock=clock)
+        return simulated_device_line(transport, clock, device), transport, device, clock, lambda: plant.gearbox(seed=3)
+
+    yield make
+    for device in devices:
+        device.close()
+
+
+def test_the_simulated_device_ticks_on_the_clock_and_its_run_equals_the_offline_simulation(simulated_rig):
+    """A 20.5-tick host stall with a 10-tick lead: exactly 11 HELD rows, and the logged angles equal the
+    offline simulation of the commands logged (those the device applied), whatever the host did."""
+    line, transport, device, clock, fresh_gearbox = simulated_rig()
+    summary, sink, _ = _run(line, transport, clock, _command(), stall_at=80, stall_s=0.1025)
+    assert summary.samples == SAMPLES and summary.lost == 0 and summary.held == 11
+    levels = [message.fields[5] for message in line.to_host if message.type.name == "TICK"][:SAMPLES]
+    assert max(levels) == LEAD - 1 and levels[:80] == [LEAD - 1] * 80  # the lead kept until the stall
+    _, commands, angles, _, flags = (np.array(column, dtype=float) for column in zip(*sink.rows))
+    held = np.flatnonzero(flags.astype(int) & SampleFlag.HELD)
+    assert held.size == 11 and np.all(np.diff(held) == 1) and np.all(commands[held] == commands[held[0] - 1])
+    np.testing.assert_array_equal(angles, fresh_gearbox().simulate(commands).measured_angle_rad)
+    assert device.dropped_setpoints == 11 and device.mode == 1
+
+
+def test_a_tick_that_never_comes_is_one_lost_row(simulated_rig):
+    line, transport, device, clock, _ = simulated_rig(silent_seqs=(70,))
+    summary, sink, _ = _run(line, transport, clock, _command())
+    flags = _flags(sink)
+    assert summary.lost == 1 and np.flatnonzero(flags & SampleFlag.LOST).tolist() == [70] and summary.held == 0
+    assert math.isnan(sink.rows[70][2]) and not any(flags[:70]) and not any(flags[71:])
