@@ -209,6 +209,16 @@ def test_a_v1_device_is_driven_the_v1_way_and_the_summary_says_so(tmp_path, caps
     assert device.state == SWITCH_ON_DISABLED
 
 
+def test_a_v2_device_whose_two_device_info_answers_are_lost_fails_safe(tmp_path, capsys, no_leaks):
+    """Spec section 16.2: the device is in v2 mode, the host took it for v1. Its SETPOINTs are queued, never
+    answered, never applied (no START): the drive holds still, the feedback watchdog stops the run."""
+    with SpecSerialDevice(lost_device_info=2) as device:
+        code, out, err = _run(tmp_path, device, capsys)
+    assert code != exit_codes.SUCCESS and "no feedback for" in err
+    assert device.sessions == 0 and device.ticks == {} and device.feedback == {} and device.actual == 0
+    assert device.controlwords[-2:] == [0x0002, 0x0000] and device.state == SWITCH_ON_DISABLED
+
+
 def test_a_v1_device_that_answers_hello_with_version_1_is_driven_the_v1_way(no_leaks):
     with SpecSerialDevice(protocol_version=1, knows_hello=True) as device:
         transport = _transport(device)
