@@ -20,6 +20,7 @@ import math
 import time
 from typing import Any
 
+from rig.protocols import cia402
 from rig.protocols.can_bus_load import bus_load
 from rig.protocols.can_error_frames import describe_error_frame, is_bus_off
 from rig.protocols.errors import ConfigError, DeviceFault, TransportError
@@ -31,6 +32,7 @@ __all__ = ["RawCanTransport"]
 
 _PROTOCOLS = ("auto", "v1", "v2")
 _V2_MESSAGES = ("RIG_HELLO", "RIG_START", "RIG_DEVICE_INFO", "RIG_TICK_APPLIED")
+_FAULT_STATES = (cia402.DriveState.FAULT, cia402.DriveState.FAULT_REACTION_ACTIVE)
 
 
 class RawCanTransport(Transport):
@@ -274,6 +276,8 @@ class RawCanTransport(Transport):
                     tick = parts["RIG_TICK_APPLIED"]
                     held, applied = bool(tick["tick_flags"] & 1), self.drive.rad_from_counts(tick["applied_counts"])
                     self._account_tick(seq, held, received)
+                if cia402.state_from_statusword_or_none(feedback["statusword"]) in _FAULT_STATES:
+                    self._faulted_statusword(seq, feedback["statusword"])
                 return FeedbackSample(seq=seq, encoder_counts=counts, load_angle_rad=self._decode_encoder(counts),
                                       drive_position_rad=self.drive.rad_from_counts(drive["actual_counts"]),
                                       statusword=feedback["statusword"], host_time_s=received, held=held,
@@ -282,6 +286,15 @@ class RawCanTransport(Transport):
                 for old in sorted(self._parts)[:128]:
                     del self._parts[old]
         return True
+
+    def _faulted_statusword(self, seq: int, statusword: int) -> None:
+        """A statusword says FAULT: the run stops at this sample even if RIG_FAULT was lost on the bus (the
+        serial spec's section 9, which the DBC follows). Raw CAN has no request for the error code."""
+        if self._fault is None and self._fault_sample is None:
+            self._fault_sample = seq
+        self._report_fault(DeviceFault(self.name, None, (
+            f"the drive reports FAULT in its statusword 0x{statusword:04X} at sample {seq} (no RIG_FAULT frame "
+            "came with the error code: lost on the bus?)")))
 
     def _account_tick(self, k: int, held: bool, received_s: float) -> None:
         """Tick k's lead (as on serial v2: tick 0's host time estimated from the earliest arrival) and the

@@ -213,13 +213,22 @@ class SpecSerialDevice:
         self._thread: threading.Thread | None = None
         self._master = self._slave = -1
         if output is None:
-            self._master, self._slave = os.openpty()
-            tty.setraw(self._slave)
-            self.port = os.ttyname(self._slave)
-            self._output: Callable[[bytes], object] = lambda data: os.write(self._master, data)
-            self._thread = threading.Thread(target=self._serve, name="spec-serial-device", daemon=True)
-        else:
-            self._output = output
+            output = self._open_link()
+            self._thread = threading.Thread(target=self._serve, name=f"spec-device-{id(self):x}", daemon=True)
+        self._output = output
+
+    def _open_link(self) -> Callable[[bytes], object]:
+        """The pty the host opens (:attr:`port`); returns how the device writes to it."""
+        self._master, self._slave = os.openpty()
+        tty.setraw(self._slave)
+        self.port = os.ttyname(self._slave)
+        return lambda data: os.write(self._master, data)
+
+    def _close_link(self) -> None:
+        for fd in (self._master, self._slave):
+            if fd >= 0:
+                os.close(fd)
+        self._master = self._slave = -1
 
     @property
     def period_s(self) -> float:
@@ -235,10 +244,7 @@ class SpecSerialDevice:
         self._stop.set()
         if self._thread is not None and self._thread.is_alive():
             self._thread.join(timeout=2.0)
-        for fd in (self._master, self._slave):
-            if fd >= 0:
-                os.close(fd)
-        self._master = self._slave = -1
+        self._close_link()
 
     def __enter__(self) -> SpecSerialDevice:
         return self.start()
@@ -290,6 +296,10 @@ class SpecSerialDevice:
 
     # -- frames in and out -----------------------------------------------------------------------------------------
 
+    def _send(self, kind: int, seq: int, *fields: int) -> None:
+        """One message to the host, framed as section 2 says."""
+        self._write(frame(kind, seq, *fields))
+
     def _write(self, data: bytes) -> None:
         if not self._sent_anything:
             data, self._sent_anything = self.boot_output + data, True
@@ -309,7 +319,7 @@ class SpecSerialDevice:
         if self._to_lose:
             self._to_lose -= 1
             return
-        self._write(frame(STATUS, seq, self._statusword(), self.actual))
+        self._send(STATUS, seq, self._statusword(), self.actual)
 
     def _handle(self, kind: int, seq: int, fields: tuple[int, ...]) -> None:
         if kind == SETPOINT and seq in self._setpoints_to_lose:
@@ -328,7 +338,7 @@ class SpecSerialDevice:
             self._status(seq)
         elif kind == ERROR_REQUEST:
             self.requests.append((kind, seq))
-            self._write(frame(ERROR, seq, self.error_code))
+            self._send(ERROR, seq, self.error_code)
         elif kind == HELLO:
             self.requests.append((kind, seq))
             self._hello(seq, fields[0])
@@ -377,7 +387,7 @@ class SpecSerialDevice:
         self._watchdog_deadline = None
         self._end_session()
         if not self.fault_frame_lost:
-            self._write(frame(FAULT, 0, self.fault_code))
+            self._send(FAULT, 0, self.fault_code)
 
     def _watchdog_expires(self) -> None:
         """Section 10 (and 16.4): quick stop, disable, unprompted STATUS with seq 0; the session ends."""
@@ -386,7 +396,7 @@ class SpecSerialDevice:
         self._end_session()
         self.state = SWITCH_ON_DISABLED  # the ideal drive is at rest at once
         self.unprompted.append(self._statusword())
-        self._write(frame(STATUS, 0, self._statusword(), self.actual))
+        self._send(STATUS, 0, self._statusword(), self.actual)
 
     # -- sections 8 (v1): one FEEDBACK per SETPOINT -----------------------------------------------------------------
 
@@ -394,12 +404,12 @@ class SpecSerialDevice:
         self._streaming = True
         if seq == self.fault_at_sample:
             self._fault()
-            self._write(frame(FEEDBACK, seq, self._statusword(), self.actual, (self.actual // 2) & 0xFFFF))
+            self._send(FEEDBACK, seq, self._statusword(), self.actual, (self.actual // 2) & 0xFFFF)
             return
         self.target = self.actual = target
         encoder = (self.actual // 2) & 0xFFFF  # unsigned 16-bit: zero-extended
         self.feedback[seq] = encoder
-        self._write(frame(FEEDBACK, seq, self._statusword() | TARGET_REACHED, self.actual, encoder))
+        self._send(FEEDBACK, seq, self._statusword() | TARGET_REACHED, self.actual, encoder)
 
     # -- section 16: protocol v2, the device owns the sample clock ----------------------------------------------
 
@@ -410,7 +420,7 @@ class SpecSerialDevice:
         if self._device_info_to_lose:
             self._device_info_to_lose -= 1
             return
-        self._write(frame(DEVICE_INFO, seq, self.mode, self.buffer_capacity, self.sample_period_ns))
+        self._send(DEVICE_INFO, seq, self.mode, self.buffer_capacity, self.sample_period_ns)
 
     def _start(self, seq: int) -> None:
         """Section 16.3: in v2 mode, OPERATION ENABLED and not ticking, tick 0 is now; once per request number."""
@@ -452,8 +462,8 @@ class SpecSerialDevice:
         encoder = (self.actual // 2) & 0xFFFF  # as in FEEDBACK (section 4)
         record = TickRecord(statusword, self.actual, encoder, applied, held, len(self._queue))
         self.ticks[k] = record
-        self._write(frame(TICK, k & 0xFFFF, statusword, self.actual, encoder, applied,
-                          TICK_HELD if held else 0, record.buffer_level))
+        self._send(TICK, k & 0xFFFF, statusword, self.actual, encoder, applied,
+                   TICK_HELD if held else 0, record.buffer_level)
 
     def _end_session(self) -> None:
         """Section 16.2: the tick clock stops, the buffer is emptied, the device is back in v1 mode."""
