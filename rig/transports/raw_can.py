@@ -180,7 +180,7 @@ class RawCanTransport(Transport):
                                          target_counts=self.drive.counts_from_rad(setpoint.position_rad)))
         self._last_seq = setpoint.seq
         if self.version >= 2:
-            now = time.perf_counter()
+            now = self.clock()
             self._queued_any = True
             if setpoint.seq <= self._device_sample:  # its tick has passed: dropped by the device, HELD
                 self._min_lead_s = min(self._min_lead_s, self._tick_origin_s + setpoint.seq * self.sample_period_s - now)
@@ -191,12 +191,12 @@ class RawCanTransport(Transport):
         if self.version >= 2 and not self._started and self._queued_any:
             self._started = True
             self._request_reply("RIG_START")  # the device's tick 0: the setpoints queued so far are its lead
-        deadline = time.perf_counter() + timeout_s
+        deadline = self.clock() + timeout_s
         while True:
-            sample = self._receive_one(max(deadline - time.perf_counter(), 0.0))
+            sample = self._receive_one(max(deadline - self.clock(), 0.0))
             if isinstance(sample, FeedbackSample):
                 return sample
-            if sample is None and time.perf_counter() >= deadline:
+            if sample is None and self.clock() >= deadline:
                 return None
             if self._fault is not None:
                 return None
@@ -252,7 +252,9 @@ class RawCanTransport(Transport):
         if decoded is None:
             return True
         name, signals = decoded
-        if name == "RIG_STATUS":
+        if name == "RIG_STATUS" and signals["seq"] == 0:
+            self._unprompted_status(signals["statusword"])
+        elif name == "RIG_STATUS":
             self._status[signals["seq"]] = signals
         elif name == "RIG_DEVICE_INFO":
             self._info[signals["seq"]] = signals
@@ -270,7 +272,7 @@ class RawCanTransport(Transport):
                 feedback, drive = parts["RIG_FEEDBACK"], parts["RIG_DRIVE_FEEDBACK"]
                 raw = feedback["encoder_counts"]
                 counts = raw - (1 << 32) if self.encoder.signed and raw >= 1 << 31 else raw
-                received = time.perf_counter()
+                received = self.clock()
                 held, applied = False, None
                 if v2:
                     tick = parts["RIG_TICK_APPLIED"]
@@ -286,6 +288,18 @@ class RawCanTransport(Transport):
                 for old in sorted(self._parts)[:128]:
                     del self._parts[old]
         return True
+
+    def _unprompted_status(self, statusword: int) -> None:
+        """RIG_STATUS with seq 0 (never a request number): the device says on its own that the drive changed
+        state (its link watchdog stopped it, the enable input dropped), as serial's STATUS seq 0."""
+        state = cia402.state_from_statusword_or_none(statusword)
+        if state in _FAULT_STATES:
+            self._report_fault(DeviceFault(self.name, None, f"the drive reports FAULT (unprompted RIG_STATUS "
+                                                            f"0x{statusword:04X}; no RIG_FAULT frame came)"))
+        elif self._state == "open" and state is not cia402.DriveState.OPERATION_ENABLED:
+            self._report_fault(DeviceFault(self.name, None, (
+                f"left OPERATION ENABLED without a fault (unprompted RIG_STATUS 0x{statusword:04X}: "
+                f"{state.name if state else 'no CiA 402 state'}); it no longer follows the targets")))
 
     def _faulted_statusword(self, seq: int, statusword: int) -> None:
         """A statusword says FAULT: the run stops at this sample even if RIG_FAULT was lost on the bus (the
@@ -326,9 +340,9 @@ class RawCanTransport(Transport):
             if attempt:
                 self.retries += 1
             self._transmit(self.codec.encode(name, seq=request, **signals))
-            deadline = time.perf_counter() + self.reply_timeout_s
+            deadline = self.clock() + self.reply_timeout_s
             while request not in answers:
-                remaining = deadline - time.perf_counter()
+                remaining = deadline - self.clock()
                 if remaining <= 0:
                     break
                 self._receive_one(remaining)

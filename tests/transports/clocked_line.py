@@ -12,11 +12,30 @@ thread, no sleep, so a test of the v2 streaming logic depends on nothing but the
 
 from __future__ import annotations
 
+import collections
 import math
 from collections.abc import Callable
 
 from rig.protocols.serial_frames import FrameDecoder
 from rig.transports.serial_link import SerialTransport
+
+
+def _wait_for_the_device(clock, timeout_s: float, next_event_s, run_due) -> None:
+    """The host waits up to ``timeout_s``: the clock moves to the device's next event (which happens) or to
+    the end of the wait, whichever comes first."""
+    end = clock() + timeout_s
+    when = next_event_s()
+    clock.advance_to(min(end, max(when, clock())) if math.isfinite(when) else end)
+    run_due()
+
+
+def _live_through(clock, seconds: float, next_event_s, run_due) -> None:
+    """``seconds`` pass with the host doing nothing; the device does every event that falls in them."""
+    end = clock() + seconds
+    while (when := next_event_s()) <= end:
+        clock.advance_to(max(when, clock()))
+        run_due()
+    clock.advance_to(end)
 
 
 class SimulatedClock:
@@ -72,18 +91,11 @@ class ClockedLine:
 
     def stall(self, seconds: float) -> None:
         """The host does nothing for ``seconds``; the device lives through them event by event."""
-        end = self.clock() + seconds
-        while (when := self._next_event_s()) <= end:
-            self.clock.advance_to(max(when, self.clock()))
-            self._run_due()
-        self.clock.advance_to(end)
+        _live_through(self.clock, seconds, self._next_event_s, self._run_due)
 
     def _host_polls(self, timeout_s: float) -> bool:
         if not self._to_host and timeout_s > 0:
-            end = self.clock() + timeout_s
-            when = self._next_event_s()
-            self.clock.advance_to(min(end, max(when, self.clock())) if math.isfinite(when) else end)
-            self._run_due()
+            _wait_for_the_device(self.clock, timeout_s, self._next_event_s, self._run_due)
         if not self._to_host:
             return False
         data, self._to_host = bytes(self._to_host), bytearray()
@@ -91,3 +103,41 @@ class ClockedLine:
             self.to_host.append(message)
             self.transport._dispatch(message, self.clock())
         return True
+
+
+class ClockedBus:
+    """A python-can bus between :class:`rig.transports.raw_can.RawCanTransport` (built with ``clock=clock``)
+    and the raw-CAN spec device on ``clock``, with :class:`ClockedLine`'s rules: ``send`` reaches the device at
+    once; ``recv(timeout)`` returns the device's next frame, the clock moving to the device's next event or
+    the timeout while there is none. The device sends through :meth:`device_sends`."""
+
+    def __init__(self, transport, clock: SimulatedClock, device) -> None:
+        import can
+
+        self._message = can.Message
+        self.transport, self.clock, self.device = transport, clock, device
+        self._to_host: collections.deque = collections.deque()
+        self.to_host: list = []  # (arbitration_id, data) the host received, in order
+        transport._connect = lambda: setattr(transport, "_bus", self)
+
+    def device_sends(self, arbitration_id: int, data: bytes) -> None:
+        self._to_host.append((arbitration_id, bytes(data)))
+
+    def stall(self, seconds: float) -> None:
+        _live_through(self.clock, seconds, self.device.next_event_s, self.device.run_due)
+
+    def send(self, message, timeout=None) -> None:
+        self.device.feed_frame(message.arbitration_id, bytes(message.data))
+
+    def recv(self, timeout: float | None = None):
+        if not self._to_host and timeout:
+            _wait_for_the_device(self.clock, timeout, self.device.next_event_s, self.device.run_due)
+        if not self._to_host:
+            return None
+        arbitration_id, data = self._to_host.popleft()
+        self.to_host.append((arbitration_id, data))
+        return self._message(arbitration_id=arbitration_id, data=data, is_extended_id=False,
+                             timestamp=self.clock())
+
+    def shutdown(self) -> None:
+        pass
