@@ -141,3 +141,35 @@ class ClockedBus:
 
     def shutdown(self) -> None:
         pass
+
+
+class SimulatedRawCanEndpoint:
+    """:class:`sim_backend.raw_can_device.SimulatedRawCanDevice` (built with ``clock=``) as the device of a
+    :class:`ClockedBus`: ``endpoint = SimulatedRawCanEndpoint(device); bus = ClockedBus(transport, clock,
+    endpoint); endpoint.connect(bus)``."""
+
+    def __init__(self, device) -> None:
+        import can
+
+        self.device, self._message = device, can.Message
+        self._bus: ClockedBus | None = None
+
+    def connect(self, bus: ClockedBus) -> None:
+        self._bus = bus
+        self.device.start_scripted(self)
+
+    def send(self, message, timeout=None) -> None:  # the device's frames, to the host
+        self._bus.device_sends(message.arbitration_id, bytes(message.data))
+
+    def shutdown(self) -> None:
+        pass
+
+    def feed_frame(self, arbitration_id: int, data: bytes) -> None:
+        self.device.on_message_received(self._message(arbitration_id=arbitration_id, data=data, is_extended_id=False))
+        self.device.run_due()
+
+    def next_event_s(self) -> float:
+        return self.device.next_tick_s()
+
+    def run_due(self) -> None:
+        self.device.run_due()

@@ -95,3 +95,30 @@ def test_the_raw_can_v2_watchdog_rides_through_a_stall_and_is_heard_when_it_stop
     with pytest.raises(DeviceFault, match=r"left OPERATION ENABLED without a fault \(unprompted RIG_STATUS 0x0240: SWITCH_ON_DISABLED"):
         _run(bus, transport, clock, stall_at=40, stall_s=1.2, feedback_timeout_s=2.0)
     assert device.watchdog_expired and device.state == SWITCH_ON_DISABLED
+
+
+# -- the simulated rig's own raw-CAN device (sim_backend) on the same clock --------------------------------------
+
+def test_the_simulated_raw_can_device_ticks_on_the_clock_and_its_run_equals_the_offline_simulation(tmp_path):
+    from sim_backend.plant_config import load_plant_config
+    from sim_backend.raw_can_device import SimulatedRawCanDevice
+
+    from clocked_line import SimulatedRawCanEndpoint
+    from sim_rigs import write_test_plant
+
+    plant = load_plant_config(write_test_plant(tmp_path))
+    clock = SimulatedClock(500.0)
+    device = SimulatedRawCanDevice(plant.gearbox(seed=3), channel="unused", clock=clock)
+    transport = RawCanTransport("virtual", "clocked", encoder=EncoderResolution(bits=12, signed=True),  # the plant's
+                                sample_period_s=PERIOD_S, drive=DRIVE, timing=BringUpTiming(poll_interval_s=0.0),
+                                reply_timeout_s=0.3, lead_s=LEAD * PERIOD_S, name="clocked", clock=clock)
+    endpoint = SimulatedRawCanEndpoint(device)
+    bus = ClockedBus(transport, clock, endpoint)
+    endpoint.connect(bus)
+    summary, sink, _, _ = _run(bus, transport, clock, stall_at=80, stall_s=0.1025)
+    device.close()
+    assert summary.samples == SAMPLES and summary.lost == 0 and summary.held == 11 == device.dropped_setpoints
+    _, commands, angles, _, flags = (np.array(column, dtype=float) for column in zip(*sink.rows))
+    held = np.flatnonzero(flags.astype(int) & SampleFlag.HELD)
+    assert np.all(np.diff(held) == 1) and np.all(commands[held] == commands[held[0] - 1])
+    np.testing.assert_array_equal(angles, plant.gearbox(seed=3).simulate(commands).measured_angle_rad)
