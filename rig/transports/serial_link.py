@@ -111,7 +111,9 @@ class SerialTransport(Transport):
         self.retries = 0  # requests sent again because their answer was lost
         self._serial = None
         self._decoder = FrameDecoder()
-        self._feedback: collections.deque[FeedbackSample] = collections.deque()
+        # samples in wire order; in v2 a FAULT frame waits here behind the TICKs that came before it (and
+        # lets the faulted tick's own TICK pass), so that every tick the device reported is filed
+        self._feedback: collections.deque[FeedbackSample | DeviceFault] = collections.deque()
         self._answers: dict[tuple[MessageType, int], SerialMessage] = {}
         self._request = 0
         self._last_seq = 0
@@ -235,7 +237,11 @@ class SerialTransport(Transport):
             remaining = deadline - self.clock()
             if not self._poll(max(remaining, 0.0)) and remaining <= 0:
                 return None
-        return self._feedback.popleft()
+        item = self._feedback.popleft()
+        if isinstance(item, DeviceFault):  # the device's FAULT frame, after every sample that came before it
+            self._report_fault(item)
+            return None
+        return item
 
     def _close(self) -> None:
         if self._serial is not None:
@@ -300,9 +306,13 @@ class SerialTransport(Transport):
             self._unprompted_status(message.fields[0])
         elif message.type is MessageType.FAULT:
             self._code_needed = False
-            if self._started and self._fault_sample is None:
-                self._fault_sample = self._device_sample + 1  # it comes before the TICK of the tick it happened in
-            self._report_fault(DeviceFault(self.drive_label, message.fields[0], "the device reported a fault"))
+            fault = DeviceFault(self.drive_label, message.fields[0], "the device reported a fault")
+            if self._started:
+                if self._fault_sample is None:
+                    self._fault_sample = self._device_sample + 1  # it comes before the TICK of the tick it happened in
+                self._feedback.append(fault)  # raised once the TICKs received before it are filed
+            else:
+                self._report_fault(fault)
         elif message.type in (MessageType.STATUS, MessageType.ERROR, MessageType.DEVICE_INFO):
             self._answers[message.type, message.seq] = message
 
@@ -329,14 +339,19 @@ class SerialTransport(Transport):
                     del self._queued_at[old]
             self._device_sample = k
         state = cia402.state_from_statusword_or_none(statusword)
-        self._feedback.append(FeedbackSample(
+        sample = FeedbackSample(
             seq=k, encoder_counts=counts, load_angle_rad=self._decode_encoder(counts),
             drive_position_rad=self.drive.rad_from_counts(actual), statusword=statusword, host_time_s=received_s,
             target_ignored=(state is cia402.DriveState.OPERATION_ENABLED
                             and not statusword & cia402.STATUSWORD_FOLLOWS_TARGET),
-            held=held, applied_position_rad=self.drive.rad_from_counts(applied)))
+            held=held, applied_position_rad=self.drive.rad_from_counts(applied))
+        fault_waiting = bool(self._feedback) and isinstance(self._feedback[-1], DeviceFault)
+        if fault_waiting and state in _FAULT_STATES:  # the faulted tick's TICK: filed before its FAULT frame acts
+            self._feedback.insert(len(self._feedback) - 1, sample)
+        else:
+            self._feedback.append(sample)
         if state in _FAULT_STATES:
-            self._code_needed = self._fault is None
+            self._code_needed = self._fault is None and not fault_waiting
 
     def _unprompted_status(self, statusword: int) -> None:
         """STATUS with seq 0: the device says on its own that the drive changed state (its link watchdog

@@ -156,6 +156,10 @@ class SpecSerialDevice:
         This many DEVICE_INFO answers are lost on the line (section 16.2: the host tries HELLO twice).
     lost_setpoints
         SETPOINTs with these seq values are lost on the line, each once (in v2: that tick is HELD).
+    watchdog_streaming_s, watchdog_ticking_s
+        The link watchdog once v1 streaming began (section 10: at least max(10 T, 50 ms), 100 ms suggested)
+        and after START in v2 (section 16.4: at least 0.5 s, 1 s suggested). The bounds are lower bounds: a
+        device on a shared, loaded test machine may choose seconds.
     boot_output
         Written before the first frame (section 11).
     boot_fault_code
@@ -168,7 +172,8 @@ class SpecSerialDevice:
     def __init__(self, *, protocol_version: int = 2, knows_hello: bool | None = None, buffer_capacity: int = 64, sample_period_ns: int = 5_000_000,
                  clock: Callable[[], float] = time.monotonic, output: Callable[[bytes], object] | None = None,
                  lost_status_after_enable: int = 0, lost_device_info: int = 0,
-                 lost_setpoints: tuple[int, ...] = (), boot_output: bytes = b"",
+                 lost_setpoints: tuple[int, ...] = (), watchdog_streaming_s: float = WATCHDOG_STREAMING_S,
+                 watchdog_ticking_s: float = WATCHDOG_TICKING_S, boot_output: bytes = b"",
                  boot_fault_code: int | None = None, fault_clears: bool = True, fault_at_sample: int | None = None,
                  fault_code: int = 0x2310, fault_frame_lost: bool = False) -> None:
         self.protocol_version = protocol_version
@@ -188,6 +193,7 @@ class SpecSerialDevice:
         self._device_info_to_lose = lost_device_info
         self._setpoints_to_lose = set(lost_setpoints)
         self.boot_output = boot_output
+        self.watchdog_streaming_s, self.watchdog_ticking_s = watchdog_streaming_s, watchdog_ticking_s
         self.target = self.actual = 0
         self.previous_controlword = 0
         self.last_applied_request = 0  # sections 6 and 16.3: CONTROL and START act once per number; 0 is none
@@ -353,9 +359,9 @@ class SpecSerialDevice:
 
     def _restart_watchdog(self) -> None:
         if self.mode == 2:  # section 16.4
-            timeout_s = WATCHDOG_TICKING_S if self._next_tick is not None else WATCHDOG_BEFORE_FIRST_SETPOINT_S
+            timeout_s = self.watchdog_ticking_s if self._next_tick is not None else WATCHDOG_BEFORE_FIRST_SETPOINT_S
         else:  # section 10
-            timeout_s = WATCHDOG_STREAMING_S if self._streaming else WATCHDOG_BEFORE_FIRST_SETPOINT_S
+            timeout_s = self.watchdog_streaming_s if self._streaming else WATCHDOG_BEFORE_FIRST_SETPOINT_S
         self._watchdog_deadline = self._clock() + timeout_s
 
     # -- section 5: the state machine -----------------------------------------------------------------------------

@@ -277,3 +277,47 @@ def test_a_tick_that_never_comes_is_one_lost_row(simulated_rig):
     flags = _flags(sink)
     assert summary.lost == 1 and np.flatnonzero(flags & SampleFlag.LOST).tolist() == [70] and summary.held == 0
     assert math.isnan(sink.rows[70][2]) and not any(flags[:70]) and not any(flags[71:])
+
+
+def test_the_v1_link_watchdog_stops_the_drive_and_the_host_hears_of_it(rig):
+    """Section 10, v1 (the device got no HELLO): streaming host-paced, then the host falls silent. Within
+    the device's 100 ms nothing happens; past it the device disables the drive and says so with an
+    unprompted STATUS (seq 0), which stops the host's stream."""
+    from rig.transports.base import Setpoint
+
+    line, transport, device, clock = rig(protocol="v1")
+    transport.open()
+    try:
+        for k in range(10):
+            line.stall(PERIOD_S)
+            transport.send(Setpoint(k, 0.0))
+            assert transport.receive(timeout_s=0.0).seq == k  # FEEDBACK at once
+        line.stall(0.099)  # since the last SETPOINT
+        assert not device.watchdog_expired
+        line.stall(0.002)
+        assert device.watchdog_expired and device.state == SWITCH_ON_DISABLED and device.unprompted == [0x0240]
+        with pytest.raises(DeviceFault, match=r"left OPERATION ENABLED without a fault \(unprompted STATUS 0x0240"):
+            transport.receive(timeout_s=0.0)
+    finally:
+        transport.close()
+    assert device.controlwords[-2:] == [0x0002, 0x0000]
+
+
+@pytest.mark.parametrize("fault_at", [84, 95, 105])
+def test_a_fault_during_a_host_stall_files_every_tick_before_it(rig, fault_at):
+    """Before the lead ran out (84), within the lead (95), past the rows the host had opened (105): every
+    tick up to the faulted one is a row, with its values, and the faulted one is the last, flagged FAULT."""
+    line, transport, device, clock = rig(fault_at_sample=fault_at, fault_code=0x2310)
+    sink, stalled = ListSink(), []
+
+    def progress(done: int, _held: int) -> None:
+        if done >= 80 and not stalled:
+            stalled.append(clock())
+            line.stall(0.1025)
+
+    with pytest.raises(DeviceFault, match=r"0x2310"):
+        run_experiment(transport, _command(), sink, feedback_timeout_s=0.5, clock=clock, progress=progress)
+    flags = _flags(sink)
+    assert len(sink.rows) == fault_at + 1 and flags[fault_at] & SampleFlag.FAULT
+    assert not np.any(flags[:fault_at] & (SampleFlag.FAULT | SampleFlag.LOST))
+    assert [row[3] for row in sink.rows[:fault_at]] == [device.ticks[k].encoder_counts for k in range(fault_at)]
