@@ -109,6 +109,7 @@ class RawCanTransport(Transport):
         self._queued_at: dict[int, float] = {}
         self._min_lead_s = math.inf
         self._fault_sample: int | None = None
+        self._pending_fault: DeviceFault | None = None  # v2: RIG_FAULT, until the faulted tick's frames are in
         self._info: dict[int, dict[str, int]] = {}
 
     @property
@@ -196,6 +197,8 @@ class RawCanTransport(Transport):
             sample = self._receive_one(max(deadline - self.clock(), 0.0))
             if isinstance(sample, FeedbackSample):
                 return sample
+            if sample is None and self._pending_fault is not None:  # the faulted tick's frames did not follow
+                self._report_fault(self._pending_fault)
             if sample is None and self.clock() >= deadline:
                 return None
             if self._fault is not None:
@@ -259,9 +262,13 @@ class RawCanTransport(Transport):
         elif name == "RIG_DEVICE_INFO":
             self._info[signals["seq"]] = signals
         elif name == "RIG_FAULT":
-            if self._started and self._fault_sample is None:
-                self._fault_sample = self._device_sample + 1  # sent before the frames of the tick it happened in
-            self._report_fault(DeviceFault(self.name, signals["error_code"], "the device reported a fault"))
+            fault = DeviceFault(self.name, signals["error_code"], "the device reported a fault")
+            if self._started:  # sent before the frames of the tick it happened in: that tick is filed first
+                if self._fault_sample is None:
+                    self._fault_sample = self._device_sample + 1
+                self._pending_fault = fault
+            else:
+                self._report_fault(fault)
         elif name in ("RIG_FEEDBACK", "RIG_DRIVE_FEEDBACK") or (name == "RIG_TICK_APPLIED" and self.version >= 2):
             v2 = self.version >= 2
             seq = unwrap_seq(signals["seq"], self._device_sample + 1 if v2 else self._last_seq)
@@ -304,6 +311,9 @@ class RawCanTransport(Transport):
     def _faulted_statusword(self, seq: int, statusword: int) -> None:
         """A statusword says FAULT: the run stops at this sample even if RIG_FAULT was lost on the bus (the
         serial spec's section 9, which the DBC follows). Raw CAN has no request for the error code."""
+        if self._pending_fault is not None:  # the faulted tick after its RIG_FAULT: the code is known
+            self._report_fault(self._pending_fault)
+            return
         if self._fault is None and self._fault_sample is None:
             self._fault_sample = seq
         self._report_fault(DeviceFault(self.name, None, (

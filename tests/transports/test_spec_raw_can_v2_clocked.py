@@ -122,3 +122,23 @@ def test_the_simulated_raw_can_device_ticks_on_the_clock_and_its_run_equals_the_
     held = np.flatnonzero(flags.astype(int) & SampleFlag.HELD)
     assert np.all(np.diff(held) == 1) and np.all(commands[held] == commands[held[0] - 1])
     np.testing.assert_array_equal(angles, plant.gearbox(seed=3).simulate(commands).measured_angle_rad)
+
+
+@pytest.mark.parametrize("fault_at", [84, 95, 105])
+def test_a_raw_can_fault_during_a_host_stall_ends_the_log_with_the_faulted_tick(rig, fault_at):
+    """RIG_FAULT comes before the frames of the faulted tick (DBC): before the lead ran out (84), within it
+    (95), past the rows the host had opened (105), the faulted tick is the log's last row, flagged FAULT."""
+    bus, transport, device, clock = rig(fault_at_sample=fault_at, fault_code=0x2310)
+    sink, stalled = ListSink(), []
+
+    def progress(done: int, _held: int) -> None:
+        if done >= 80 and not stalled:
+            stalled.append(clock())
+            bus.stall(0.1025)
+
+    with pytest.raises(DeviceFault, match=r"0x2310"):
+        run_experiment(transport, np.zeros(SAMPLES), sink, feedback_timeout_s=0.5, clock=clock, progress=progress)
+    flags = np.array([row[4] for row in sink.rows])
+    assert len(sink.rows) == fault_at + 1 and flags[fault_at] & SampleFlag.FAULT
+    assert not np.any(flags[:fault_at] & (SampleFlag.FAULT | SampleFlag.LOST))
+    assert [row[3] for row in sink.rows[:fault_at]] == [device.ticks[k].encoder_counts for k in range(fault_at)]
