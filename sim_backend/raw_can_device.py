@@ -15,9 +15,10 @@ same sequence number. RIG_CONTROL runs the CiA 402 state machine (:mod:`rig.prot
 
 from __future__ import annotations
 
+import math
 import threading
 import time
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 
 import can
 
@@ -59,6 +60,10 @@ class SimulatedRawCanDevice(can.Listener):
         2 (default): answers RIG_HELLO and ticks on its own clock in v2 mode, buffering ``buffer_capacity``
         setpoints, every ``sample_period_s`` (default: the gearbox's); 1: a v1 device, which ignores RIG_HELLO
         and RIG_START. In v2 mode the sample numbers of the fault options are tick numbers.
+    clock
+        The device's clock in seconds (``time.perf_counter``). The threads of :meth:`start` wait on the wall
+        clock; for a simulated clock use :meth:`start_scripted` instead (no thread), hand it the host's frames
+        with :meth:`on_message_received` and run the ticks the clock has reached with :meth:`run_due`.
     """
 
     def __init__(self, gearbox: SimulatedGearbox, *, channel: str, drive_counts_per_revolution: int = 1 << 17,
@@ -66,11 +71,12 @@ class SimulatedRawCanDevice(can.Listener):
                  fault_at_seq: int | None = None, fault_code: int = 0x7500,
                  disable_at_seq: int | None = None, error_frame_at: tuple[int, int] | None = None,
                  lost_status_after_enable: int = 0, protocol_version: int = 2, buffer_capacity: int = 255,
-                 sample_period_s: float | None = None) -> None:
+                 sample_period_s: float | None = None, clock: Callable[[], float] = time.perf_counter) -> None:
         if protocol_version not in (1, 2):
             raise ValueError(f"protocol_version: expected 1 or 2, got {protocol_version!r}")
         if not 1 <= int(buffer_capacity) <= 255:
             raise ValueError(f"buffer_capacity: expected 1..255 setpoints, got {buffer_capacity!r}")
+        self._clock = clock
         self.protocol_version, self.buffer_capacity = int(protocol_version), int(buffer_capacity)
         self.sample_period_s = float(gearbox.sample_period_s if sample_period_s is None else sample_period_s)
         self.mode = 1
@@ -119,6 +125,25 @@ class SimulatedRawCanDevice(can.Listener):
             self._tick_thread = threading.Thread(target=self._tick_loop, name=f"sim-can-tick-{self.channel}", daemon=True)
             self._tick_thread.start()
         return self
+
+    def start_scripted(self, bus) -> SimulatedRawCanDevice:
+        """Send through ``bus`` (anything with python-can's ``send(msg)``) with no thread: a scripted test hands
+        the device the host's frames (:meth:`on_message_received`) and ticks it (:meth:`run_due`)."""
+        self._bus = bus
+        return self
+
+    def next_tick_s(self) -> float:
+        """When the next tick is due on the device's clock: ``START + k T`` (inf while not ticking)."""
+        with self._state_lock:
+            return math.inf if self._ticking_since is None else self._ticking_since + self.ticks * self.sample_period_s
+
+    def run_due(self) -> None:
+        """Every tick the device's clock has reached, in order (:meth:`tick` each, without the thread)."""
+        while self.next_tick_s() <= self._clock():
+            done = self.ticks
+            self.tick()
+            if self.ticks == done:  # no longer ticking (not enabled)
+                break
 
     def close(self) -> None:
         """Stop the receive and tick threads and leave the bus (idempotent)."""
@@ -187,7 +212,7 @@ class SimulatedRawCanDevice(can.Listener):
             self.requests.append((name, signals["seq"]))
             if (signals["seq"] != self._last_start_seq and self.mode >= 2 and self._ticking_since is None
                     and self.state is cia402.DriveState.OPERATION_ENABLED):
-                self._ticking_since = time.perf_counter()  # tick 0 is now
+                self._ticking_since = self._clock()  # tick 0 is now
             self._last_start_seq = signals["seq"]
             self._status(signals["seq"])
         elif name == "RIG_SETPOINT" and self.mode >= 2:
@@ -253,7 +278,7 @@ class SimulatedRawCanDevice(can.Listener):
             with self._state_lock:
                 since = self._ticking_since
                 due = None if since is None else since + self.ticks * self.sample_period_s
-            wait_s = 0.02 if due is None else min(0.02, due - time.perf_counter())
+            wait_s = 0.02 if due is None else min(0.02, due - self._clock())
             if wait_s > 0:
                 self._stop.wait(wait_s)
                 continue

@@ -17,13 +17,14 @@ simulated gearbox exactly one sample and is answered by one FEEDBACK frame with 
 from __future__ import annotations
 
 import collections
+import math
 import os
 import random
 import select
 import threading
 import time
 import tty
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 
 from rig.protocols import cia402
 from rig.protocols.serial_frames import (
@@ -98,6 +99,10 @@ class SimulatedSerialDevice:
         Setpoints the device's buffer holds (v2), reported in DEVICE_INFO.
     sample_period_s
         The device's tick period (default: the gearbox's sample period), reported in DEVICE_INFO.
+    clock
+        The device's clock in seconds (``time.perf_counter``). The threads of :meth:`start` wait on the wall
+        clock; a simulated clock is for scripted use without them: :meth:`handle` the host's messages,
+        :meth:`run_due` the ticks the clock has reached (:meth:`next_tick_s` says when the next one is).
     """
 
     def __init__(self, gearbox: SimulatedGearbox, *, drive_counts_per_revolution: int = 1 << 17,
@@ -109,11 +114,12 @@ class SimulatedSerialDevice:
                  lost_status_after_enable: int = 0, boot_banner: bytes = b"", copy_target_at_enable: bool = True,
                  following_error_counts: int | None = None, initial_actual_counts: int = 0,
                  fault_frame_lost: bool = False, protocol_version: int = PROTOCOL_VERSION, buffer_capacity: int = 256,
-                 sample_period_s: float | None = None) -> None:
+                 sample_period_s: float | None = None, clock: Callable[[], float] = time.perf_counter) -> None:
         if protocol_version not in (1, 2):
             raise ValueError(f"protocol_version: expected 1 or 2, got {protocol_version!r}")
         if not 1 <= int(buffer_capacity) <= 0xFFFF:
             raise ValueError(f"buffer_capacity: expected 1..65535 setpoints, got {buffer_capacity!r}")
+        self._clock = clock
         self.protocol_version = int(protocol_version)
         self.buffer_capacity = int(buffer_capacity)
         self.sample_period_s = float(gearbox.sample_period_s if sample_period_s is None else sample_period_s)
@@ -207,7 +213,7 @@ class SimulatedSerialDevice:
     def _serve(self) -> None:
         delayed: collections.deque[tuple[float, bytes]] = collections.deque()  # (due time, reply), in order
         while not self._stop.is_set():
-            timeout_s = 0.05 if not delayed else min(0.05, max(0.0, delayed[0][0] - time.perf_counter()))
+            timeout_s = 0.05 if not delayed else min(0.05, max(0.0, delayed[0][0] - self._clock()))
             fd = self._master_fd
             if fd is None:
                 return  # unplugged (by the tick thread)
@@ -215,7 +221,7 @@ class SimulatedSerialDevice:
                 ready, _, _ = select.select([fd], [], [], timeout_s)
             except (OSError, ValueError):
                 return
-            while delayed and delayed[0][0] <= time.perf_counter():
+            while delayed and delayed[0][0] <= self._clock():
                 self._write(delayed.popleft()[1])
             if not ready:
                 continue
@@ -241,7 +247,7 @@ class SimulatedSerialDevice:
                 if message.type is not MessageType.SETPOINT:
                     lag = max(lag, self.status_delay_s)
                 if lag:
-                    delayed.append((time.perf_counter() + lag, reply))  # latency, not throughput
+                    delayed.append((self._clock() + lag, reply))  # latency, not throughput
                 elif not self._write(reply):
                     return
             self.frame_errors = self._decoder.errors
@@ -268,11 +274,11 @@ class SimulatedSerialDevice:
                 if since is not None:
                     due = since + self.ticks * self.sample_period_s
             wake = [when for when in (due, self._delayed_ticks[0][0] if self._delayed_ticks else None) if when]
-            timeout_s = 0.05 if not wake else min(0.05, max(0.0, min(wake) - time.perf_counter()))
+            timeout_s = 0.05 if not wake else min(0.05, max(0.0, min(wake) - self._clock()))
             if timeout_s > 0:
                 self._wake.wait(timeout_s)
                 self._wake.clear()
-            now = time.perf_counter()
+            now = self._clock()
             while self._delayed_ticks and self._delayed_ticks[0][0] <= now:
                 self._write(self._delayed_ticks.popleft()[1])
             if due is None or now < due:
@@ -329,6 +335,22 @@ class SimulatedSerialDevice:
             return self._tick_frame(k, self._statusword() | cia402.STATUSWORD_TARGET_REACHED, target,
                                     TICK_HELD if held else 0)
 
+    def next_tick_s(self) -> float:
+        """When the next tick is due on the device's clock: ``START + k T`` (inf while not ticking)."""
+        with self._lock:
+            return math.inf if self._ticking_since is None else self._ticking_since + self.ticks * self.sample_period_s
+
+    def run_due(self) -> bytes:
+        """Every tick the device's clock has reached, in order (:meth:`tick` each, without the thread): the
+        frames they send."""
+        frames = bytearray()
+        while self.next_tick_s() <= self._clock():
+            done = self.ticks
+            frames += self.tick()
+            if self.ticks == done:  # no longer ticking (not enabled)
+                break
+        return bytes(frames)
+
     def _tick_frame(self, k: int, statusword: int, applied_counts: int, flags: int) -> bytes:
         return encode_frame(MessageType.TICK, k, statusword, self.actual_counts, self.encoder_counts & 0xFFFFFFFF,
                             applied_counts, flags, len(self.buffer))
@@ -350,7 +372,7 @@ class SimulatedSerialDevice:
     def _start(self, message: SerialMessage) -> bytes:
         if (message.seq != self._last_start_seq and self.mode >= 2 and self._ticking_since is None
                 and self.state is cia402.DriveState.OPERATION_ENABLED):
-            self._ticking_since = time.perf_counter()  # tick 0 is now
+            self._ticking_since = self._clock()  # tick 0 is now
             self._wake.set()
         self._last_start_seq = message.seq
         return self._status(message.seq)
@@ -434,7 +456,7 @@ class SimulatedSerialDevice:
             if self.fault_reset_delay_s > 0:  # the reset takes time: still FAULT until then
                 self.state = previous_state
                 if rising:
-                    self._reset_due = time.perf_counter() + self.fault_reset_delay_s
+                    self._reset_due = self._clock() + self.fault_reset_delay_s
             else:
                 self.error_code = 0
         if previous_state is cia402.DriveState.OPERATION_ENABLED and self.state is not previous_state:
@@ -446,7 +468,7 @@ class SimulatedSerialDevice:
         return b""
 
     def _finish_fault_reset(self) -> None:
-        if self._reset_due is not None and time.perf_counter() >= self._reset_due:
+        if self._reset_due is not None and self._clock() >= self._reset_due:
             self._reset_due = None
             if self.state is cia402.DriveState.FAULT:
                 self.state, self.error_code = cia402.DriveState.SWITCH_ON_DISABLED, 0

@@ -48,6 +48,7 @@ import math
 import threading
 import time
 from abc import ABC, abstractmethod
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
@@ -116,7 +117,7 @@ class FeedbackSample:
     statusword
         The drive's CiA 402 statusword (0x6041).
     host_time_s
-        ``time.perf_counter()`` when the host received the sample.
+        The host's clock (:attr:`Transport.clock`, ``time.perf_counter()``) when the host received the sample.
     target_ignored
         The drive said it did not follow the target in this sample (CiA 402 cyclic synchronous position
         mode: statusword bit 12 clear in OPERATION ENABLED); the runner flags the sample NOT_FOLLOWED.
@@ -196,6 +197,9 @@ class Transport(ABC):
         Deadlines and pacing of the CiA 402 bring-up and stop (:class:`~rig.protocols.cia402.BringUpTiming`).
     name
         Label in messages and logs (e.g. the URL).
+    clock
+        The host's clock in seconds (:func:`time.perf_counter`); every timeout and timestamp of the link reads
+        it. A scripted test passes a simulated clock that moves only when the host waits.
 
     Examples
     --------
@@ -207,7 +211,8 @@ class Transport(ABC):
     """
 
     def __init__(self, *, encoder: EncoderResolution, sample_period_s: float, limits: CommandLimits | None = None,
-                 drive: DriveScaling | None = None, timing: BringUpTiming | None = None, name: str = "") -> None:
+                 drive: DriveScaling | None = None, timing: BringUpTiming | None = None, name: str = "",
+                 clock: Callable[[], float] = time.perf_counter) -> None:
         if not isinstance(encoder, EncoderResolution):
             raise TypeError(f"encoder: expected an EncoderResolution, got {type(encoder).__name__}")
         if not (math.isfinite(sample_period_s) and sample_period_s > 0):
@@ -218,6 +223,7 @@ class Transport(ABC):
         self.drive = drive or DriveScaling()
         self.timing = timing or BringUpTiming()
         self.name = name or type(self).__name__
+        self.clock = clock
         self.initial_position_rad = 0.0
         self.frame_errors = 0
         self.stop_report: StopReport | None = None
@@ -339,10 +345,10 @@ class Transport(ABC):
     def receive(self, timeout_s: float) -> FeedbackSample | None:
         """The next feedback sample, or None if none arrives within ``timeout_s`` (>= 0)."""
         self._require_open()
-        deadline = time.perf_counter() + max(timeout_s, 0.0)
+        deadline = self.clock() + max(timeout_s, 0.0)
         while True:
             self.raise_fault()
-            remaining = deadline - time.perf_counter()
+            remaining = deadline - self.clock()
             sample = self._recv_internal(max(remaining, 0.0))
             if sample is not None:
                 return sample

@@ -20,6 +20,7 @@ import math
 import time
 from typing import Any
 
+from rig.protocols import cia402
 from rig.protocols.can_bus_load import bus_load
 from rig.protocols.can_error_frames import describe_error_frame, is_bus_off
 from rig.protocols.errors import ConfigError, DeviceFault, TransportError
@@ -31,6 +32,7 @@ __all__ = ["RawCanTransport"]
 
 _PROTOCOLS = ("auto", "v1", "v2")
 _V2_MESSAGES = ("RIG_HELLO", "RIG_START", "RIG_DEVICE_INFO", "RIG_TICK_APPLIED")
+_FAULT_STATES = (cia402.DriveState.FAULT, cia402.DriveState.FAULT_REACTION_ACTIVE)
 
 
 class RawCanTransport(Transport):
@@ -107,6 +109,7 @@ class RawCanTransport(Transport):
         self._queued_at: dict[int, float] = {}
         self._min_lead_s = math.inf
         self._fault_sample: int | None = None
+        self._pending_fault: DeviceFault | None = None  # v2: RIG_FAULT, until the faulted tick's frames are in
         self._info: dict[int, dict[str, int]] = {}
 
     @property
@@ -178,23 +181,25 @@ class RawCanTransport(Transport):
                                          target_counts=self.drive.counts_from_rad(setpoint.position_rad)))
         self._last_seq = setpoint.seq
         if self.version >= 2:
-            now = time.perf_counter()
+            now = self.clock()
             self._queued_any = True
             if setpoint.seq <= self._device_sample:  # its tick has passed: dropped by the device, HELD
                 self._min_lead_s = min(self._min_lead_s, self._tick_origin_s + setpoint.seq * self.sample_period_s - now)
-            else:
+            elif self._started:  # queued before START, a setpoint is ahead of a clock that has not started
                 self._queued_at[setpoint.seq] = now
 
     def _recv_internal(self, timeout_s: float) -> FeedbackSample | None:
         if self.version >= 2 and not self._started and self._queued_any:
             self._started = True
             self._request_reply("RIG_START")  # the device's tick 0: the setpoints queued so far are its lead
-        deadline = time.perf_counter() + timeout_s
+        deadline = self.clock() + timeout_s
         while True:
-            sample = self._receive_one(max(deadline - time.perf_counter(), 0.0))
+            sample = self._receive_one(max(deadline - self.clock(), 0.0))
             if isinstance(sample, FeedbackSample):
                 return sample
-            if sample is None and time.perf_counter() >= deadline:
+            if sample is None and self._pending_fault is not None:  # the faulted tick's frames did not follow
+                self._report_fault(self._pending_fault)
+            if sample is None and self.clock() >= deadline:
                 return None
             if self._fault is not None:
                 return None
@@ -250,14 +255,20 @@ class RawCanTransport(Transport):
         if decoded is None:
             return True
         name, signals = decoded
-        if name == "RIG_STATUS":
+        if name == "RIG_STATUS" and signals["seq"] == 0:
+            self._unprompted_status(signals["statusword"])
+        elif name == "RIG_STATUS":
             self._status[signals["seq"]] = signals
         elif name == "RIG_DEVICE_INFO":
             self._info[signals["seq"]] = signals
         elif name == "RIG_FAULT":
-            if self._started and self._fault_sample is None:
-                self._fault_sample = self._device_sample + 1  # sent before the frames of the tick it happened in
-            self._report_fault(DeviceFault(self.name, signals["error_code"], "the device reported a fault"))
+            fault = DeviceFault(self.name, signals["error_code"], "the device reported a fault")
+            if self._started:  # sent before the frames of the tick it happened in: that tick is filed first
+                if self._fault_sample is None:
+                    self._fault_sample = self._device_sample + 1
+                self._pending_fault = fault
+            else:
+                self._report_fault(fault)
         elif name in ("RIG_FEEDBACK", "RIG_DRIVE_FEEDBACK") or (name == "RIG_TICK_APPLIED" and self.version >= 2):
             v2 = self.version >= 2
             seq = unwrap_seq(signals["seq"], self._device_sample + 1 if v2 else self._last_seq)
@@ -268,12 +279,14 @@ class RawCanTransport(Transport):
                 feedback, drive = parts["RIG_FEEDBACK"], parts["RIG_DRIVE_FEEDBACK"]
                 raw = feedback["encoder_counts"]
                 counts = raw - (1 << 32) if self.encoder.signed and raw >= 1 << 31 else raw
-                received = time.perf_counter()
+                received = self.clock()
                 held, applied = False, None
                 if v2:
                     tick = parts["RIG_TICK_APPLIED"]
                     held, applied = bool(tick["tick_flags"] & 1), self.drive.rad_from_counts(tick["applied_counts"])
                     self._account_tick(seq, held, received)
+                if cia402.state_from_statusword_or_none(feedback["statusword"]) in _FAULT_STATES:
+                    self._faulted_statusword(seq, feedback["statusword"])
                 return FeedbackSample(seq=seq, encoder_counts=counts, load_angle_rad=self._decode_encoder(counts),
                                       drive_position_rad=self.drive.rad_from_counts(drive["actual_counts"]),
                                       statusword=feedback["statusword"], host_time_s=received, held=held,
@@ -282,6 +295,30 @@ class RawCanTransport(Transport):
                 for old in sorted(self._parts)[:128]:
                     del self._parts[old]
         return True
+
+    def _unprompted_status(self, statusword: int) -> None:
+        """RIG_STATUS with seq 0 (never a request number): the device says on its own that the drive changed
+        state (its link watchdog stopped it, the enable input dropped), as serial's STATUS seq 0."""
+        state = cia402.state_from_statusword_or_none(statusword)
+        if state in _FAULT_STATES:
+            self._report_fault(DeviceFault(self.name, None, f"the drive reports FAULT (unprompted RIG_STATUS "
+                                                            f"0x{statusword:04X}; no RIG_FAULT frame came)"))
+        elif self._state == "open" and state is not cia402.DriveState.OPERATION_ENABLED:
+            self._report_fault(DeviceFault(self.name, None, (
+                f"left OPERATION ENABLED without a fault (unprompted RIG_STATUS 0x{statusword:04X}: "
+                f"{state.name if state else 'no CiA 402 state'}); it no longer follows the targets")))
+
+    def _faulted_statusword(self, seq: int, statusword: int) -> None:
+        """A statusword says FAULT: the run stops at this sample even if RIG_FAULT was lost on the bus (the
+        serial spec's section 9, which the DBC follows). Raw CAN has no request for the error code."""
+        if self._pending_fault is not None:  # the faulted tick after its RIG_FAULT: the code is known
+            self._report_fault(self._pending_fault)
+            return
+        if self._fault is None and self._fault_sample is None:
+            self._fault_sample = seq
+        self._report_fault(DeviceFault(self.name, None, (
+            f"the drive reports FAULT in its statusword 0x{statusword:04X} at sample {seq} (no RIG_FAULT frame "
+            "came with the error code: lost on the bus?)")))
 
     def _account_tick(self, k: int, held: bool, received_s: float) -> None:
         """Tick k's lead (as on serial v2: tick 0's host time estimated from the earliest arrival) and the
@@ -313,9 +350,9 @@ class RawCanTransport(Transport):
             if attempt:
                 self.retries += 1
             self._transmit(self.codec.encode(name, seq=request, **signals))
-            deadline = time.perf_counter() + self.reply_timeout_s
+            deadline = self.clock() + self.reply_timeout_s
             while request not in answers:
-                remaining = deadline - time.perf_counter()
+                remaining = deadline - self.clock()
                 if remaining <= 0:
                     break
                 self._receive_one(remaining)

@@ -27,7 +27,6 @@ from __future__ import annotations
 import collections
 import math
 import select
-import time
 
 from rig.protocols import cia402
 from rig.protocols.errors import ConfigError, DeviceFault, TransportError
@@ -112,7 +111,9 @@ class SerialTransport(Transport):
         self.retries = 0  # requests sent again because their answer was lost
         self._serial = None
         self._decoder = FrameDecoder()
-        self._feedback: collections.deque[FeedbackSample] = collections.deque()
+        # samples in wire order; in v2 a FAULT frame waits here behind the TICKs that came before it (and
+        # lets the faulted tick's own TICK pass), so that every tick the device reported is filed
+        self._feedback: collections.deque[FeedbackSample | DeviceFault] = collections.deque()
         self._answers: dict[tuple[MessageType, int], SerialMessage] = {}
         self._request = 0
         self._last_seq = 0
@@ -216,27 +217,31 @@ class SerialTransport(Transport):
         self._write(encode_frame(MessageType.SETPOINT, setpoint.seq, self.drive.counts_from_rad(setpoint.position_rad)))
         self._last_seq = setpoint.seq
         if self.version >= 2:
-            now = time.perf_counter()
+            now = self.clock()
             self._queued_any = True
             if setpoint.seq <= self._device_sample:  # too late: its lead, from the device clock's estimate
                 self._min_lead_s = min(self._min_lead_s, self._tick_origin_s + setpoint.seq * self.sample_period_s - now)
-            else:
+            elif self._started:  # queued before START, a setpoint is ahead of a clock that has not started
                 self._queued_at[setpoint.seq] = now
 
     def _recv_internal(self, timeout_s: float) -> FeedbackSample | None:
         if self.version >= 2 and not self._started and self._queued_any:
             self._started = True
             self._request_reply(MessageType.START)  # the device's tick 0: the setpoints queued so far are its lead
-        deadline = time.perf_counter() + timeout_s
+        deadline = self.clock() + timeout_s
         while not self._feedback:
             if self._code_needed:
                 self._report_faulted_statusword()
             if self._fault is not None:
                 return None
-            remaining = deadline - time.perf_counter()
+            remaining = deadline - self.clock()
             if not self._poll(max(remaining, 0.0)) and remaining <= 0:
                 return None
-        return self._feedback.popleft()
+        item = self._feedback.popleft()
+        if isinstance(item, DeviceFault):  # the device's FAULT frame, after every sample that came before it
+            self._report_fault(item)
+            return None
+        return item
 
     def _close(self) -> None:
         if self._serial is not None:
@@ -267,7 +272,7 @@ class SerialTransport(Transport):
         except Exception as err:  # serial.SerialException, OSError, ValueError on a closed port
             raise TransportError(f"{self.name}: read from {self.port} failed: {err} (the port disappeared: "
                                  "adapter unplugged or device powered off?)") from err
-        received = time.perf_counter()
+        received = self.clock()
         errors_before = self._decoder.errors
         before_first_frame = self._valid_frames == 0
         messages = self._decoder.feed(data)
@@ -301,9 +306,13 @@ class SerialTransport(Transport):
             self._unprompted_status(message.fields[0])
         elif message.type is MessageType.FAULT:
             self._code_needed = False
-            if self._started and self._fault_sample is None:
-                self._fault_sample = self._device_sample + 1  # it comes before the TICK of the tick it happened in
-            self._report_fault(DeviceFault(self.drive_label, message.fields[0], "the device reported a fault"))
+            fault = DeviceFault(self.drive_label, message.fields[0], "the device reported a fault")
+            if self._started:
+                if self._fault_sample is None:
+                    self._fault_sample = self._device_sample + 1  # it comes before the TICK of the tick it happened in
+                self._feedback.append(fault)  # raised once the TICKs received before it are filed
+            else:
+                self._report_fault(fault)
         elif message.type in (MessageType.STATUS, MessageType.ERROR, MessageType.DEVICE_INFO):
             self._answers[message.type, message.seq] = message
 
@@ -330,14 +339,19 @@ class SerialTransport(Transport):
                     del self._queued_at[old]
             self._device_sample = k
         state = cia402.state_from_statusword_or_none(statusword)
-        self._feedback.append(FeedbackSample(
+        sample = FeedbackSample(
             seq=k, encoder_counts=counts, load_angle_rad=self._decode_encoder(counts),
             drive_position_rad=self.drive.rad_from_counts(actual), statusword=statusword, host_time_s=received_s,
             target_ignored=(state is cia402.DriveState.OPERATION_ENABLED
                             and not statusword & cia402.STATUSWORD_FOLLOWS_TARGET),
-            held=held, applied_position_rad=self.drive.rad_from_counts(applied)))
+            held=held, applied_position_rad=self.drive.rad_from_counts(applied))
+        fault_waiting = bool(self._feedback) and isinstance(self._feedback[-1], DeviceFault)
+        if fault_waiting and state in _FAULT_STATES:  # the faulted tick's TICK: filed before its FAULT frame acts
+            self._feedback.insert(len(self._feedback) - 1, sample)
+        else:
+            self._feedback.append(sample)
         if state in _FAULT_STATES:
-            self._code_needed = self._fault is None
+            self._code_needed = self._fault is None and not fault_waiting
 
     def _unprompted_status(self, statusword: int) -> None:
         """STATUS with seq 0: the device says on its own that the drive changed state (its link watchdog
@@ -386,9 +400,9 @@ class SerialTransport(Transport):
             if attempt:
                 self.retries += 1
             self._write(frame)
-            deadline = time.perf_counter() + self.reply_timeout_s
+            deadline = self.clock() + self.reply_timeout_s
             while (answer, request) not in self._answers:
-                remaining = deadline - time.perf_counter()
+                remaining = deadline - self.clock()
                 if remaining <= 0:
                     break
                 self._poll(remaining)

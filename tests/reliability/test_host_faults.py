@@ -67,6 +67,15 @@ def _start_run(out: Path, config: Path, in_child: Callable[[], None] | None = No
                             cwd=ROOT, preexec_fn=prepare)
 
 
+def _streaming_config(directory: Path) -> Path:
+    """The simulated serial rig at the test rate with a 0.5 s feedback watchdog (``configs/sim_serial.toml``
+    has 0.1 s): the simulated device shares the child's process, and when a loaded machine freezes the whole
+    process for longer than the watchdog, the host can wake first, find nothing yet and stop the run with a
+    false "no feedback" (reproduced with SIGSTOP/SIGCONT of ``rig run``); these tests are about signals and
+    write failures, not that."""
+    return write_test_config("serial", directory)
+
+
 def _wait_for_rows(out: Path, rows: int, process: subprocess.Popen | None = None, timeout_s: float = 30.0) -> int:
     """Wait until ``out`` holds at least ``rows`` complete sample lines; return how many it holds."""
     deadline = time.monotonic() + timeout_s
@@ -92,7 +101,7 @@ def _read_cleanly(path: Path):
 
 def test_sigint_and_sigterm_end_rig_run_with_a_controlled_stop(signal_number, code, tmp_path):
     out = tmp_path / "run.csv"
-    process = _start_run(out, ROOT / "configs" / "sim_serial.toml")
+    process = _start_run(out, _streaming_config(tmp_path))
     try:
         _wait_for_rows(out, 50, process)
         process.send_signal(signal_number)
@@ -153,7 +162,7 @@ def test_sigterm_disables_the_drive_and_a_second_signal_does_not_cut_the_stop_sh
 
 def test_sigkill_keeps_every_flushed_sample_and_rig_inspect_reads_them(tmp_path, capsys):
     out = tmp_path / "run.csv"
-    process = _start_run(out, ROOT / "configs" / "sim_serial.toml")
+    process = _start_run(out, _streaming_config(tmp_path))
     try:
         flushed = _wait_for_rows(out, 100, process)
         process.send_signal(signal.SIGKILL)
@@ -175,7 +184,7 @@ def test_file_size_limit_during_rig_run_stops_safely_and_keeps_what_was_flushed(
         signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # write() fails with EFBIG instead of killing the process
         resource.setrlimit(resource.RLIMIT_FSIZE, (20_000, 20_000))
 
-    process = _start_run(out, ROOT / "configs" / "sim_serial.toml", in_child=limit_file_size)
+    process = _start_run(out, _streaming_config(tmp_path), in_child=limit_file_size)
     _, stderr = process.communicate(timeout=60)
     assert process.returncode == exit_codes.WRITE_FAILED, stderr
     assert stderr.count("\n") == 1 and "Traceback" not in stderr

@@ -93,7 +93,7 @@ def test_ctrl_c_ends_with_a_controlled_stop_and_a_closed_log(kind, tmp_path, no_
     sink = ListSink()
 
     def interrupt_at_15(done: int, late: int) -> None:
-        if done == 15:
+        if done >= 15:  # (not ==: a device-clocked run makes rows final in bursts on a busy host, 14 -> 17)
             raise KeyboardInterrupt
 
     with simulated(kind, tmp_path) as (config, transport, _, drive):

@@ -1,0 +1,144 @@
+"""Raw-CAN protocol v2 tick by tick on a simulated clock (no bus thread, no sleep): the real
+:class:`~rig.transports.raw_can.RawCanTransport` and runner drive the raw-CAN device written only from
+``configs/raw_can.dbc`` and the spec (:mod:`spec_raw_can_device`) through :class:`clocked_line.ClockedBus`."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from identify.experiment_record import SampleFlag
+from rig.protocols.cia402 import BringUpTiming, DriveScaling
+from rig.protocols.encoder_counts import EncoderResolution
+from rig.protocols.errors import DeviceFault
+from rig.runner import run_experiment
+from rig.transports.raw_can import RawCanTransport
+
+from clocked_line import ClockedBus, SimulatedClock
+from sim_rigs import ListSink
+from spec_raw_can_device import RIG_TICK_APPLIED, SpecRawCanDevice
+from spec_serial_device import SWITCH_ON_DISABLED
+
+PERIOD_S = 0.005
+DRIVE = DriveScaling(1 << 17)
+SAMPLES = 200
+LEAD = 10  # the default 50 ms lead here at 5 ms
+
+
+@pytest.fixture
+def rig():
+    def make(**device_options):
+        clock = SimulatedClock(500.0)
+        bus: ClockedBus | None = None
+        device = SpecRawCanDevice(clock=clock, output=lambda arbitration_id, data: bus.device_sends(arbitration_id,
+                                                                                                   data),
+                                  **device_options)
+        transport = RawCanTransport("virtual", "clocked", encoder=EncoderResolution(bits=16),
+                                    sample_period_s=PERIOD_S, drive=DRIVE, timing=BringUpTiming(poll_interval_s=0.0),
+                                    reply_timeout_s=0.3, lead_s=LEAD * PERIOD_S, name="clocked", clock=clock)
+        bus = ClockedBus(transport, clock, device)
+        return bus, transport, device, clock
+
+    return make
+
+
+def _run(bus: ClockedBus, transport, clock, *, stall_at=None, stall_s=0.0, feedback_timeout_s=0.5):
+    stalled = []
+
+    def progress(done: int, _held: int) -> None:
+        if stall_at is not None and done >= stall_at and not stalled:
+            stalled.append(clock())
+            bus.stall(stall_s)
+
+    sink = ListSink()
+    command = 0.2 * np.sin(2 * np.pi * np.arange(SAMPLES) / 50)
+    summary = run_experiment(transport, command, sink, feedback_timeout_s=feedback_timeout_s, clock=clock,
+                             progress=progress)
+    return summary, sink, command, stalled
+
+
+def test_the_raw_can_host_keeps_the_lead_tick_by_tick(rig):
+    bus, transport, device, clock = rig()
+    summary, sink, command, _ = _run(bus, transport, clock)
+    assert summary.samples == SAMPLES and summary.lost == summary.held == summary.duplicate == 0
+    assert [device.ticks[k].buffer_level for k in range(SAMPLES)] == [min(LEAD - 1, SAMPLES - 1 - k)
+                                                                      for k in range(SAMPLES)]
+    assert math.isclose(summary.min_lead_s, LEAD * PERIOD_S, rel_tol=1e-9)
+    assert [row[1] for row in sink.rows] == [DRIVE.quantize_rad(value) for value in command]
+    assert [row[3] for row in sink.rows] == [device.ticks[k].encoder_counts for k in range(SAMPLES)]
+    assert sum(arbitration_id == RIG_TICK_APPLIED for arbitration_id, _ in bus.to_host) >= SAMPLES
+    assert device.state == SWITCH_ON_DISABLED and device.controlwords == [0x0006, 0x0007, 0x000F, 0x0002, 0x0000]
+
+
+def test_a_raw_can_host_stall_longer_than_the_lead_holds_exactly_the_ticks_it_outlasts(rig):
+    bus, transport, device, clock = rig()
+    summary, sink, command, (stall_start,) = _run(bus, transport, clock, stall_at=80, stall_s=0.1025)
+    tick_s = [device._tick0_s + k * PERIOD_S for k in range(max(device.ticks) + 1)]
+    heard = max(k for k, when in enumerate(tick_s) if when <= stall_start)
+    last_in_stall = max(k for k, when in enumerate(tick_s) if when <= stall_start + 0.1025)
+    held = np.flatnonzero(np.array([row[4] for row in sink.rows]) & SampleFlag.HELD).tolist()
+    assert held == list(range(heard + LEAD, last_in_stall + 1)) and summary.held == 11 and summary.lost == 0
+    assert [row[1] for row in sink.rows][held[0]:held[-1] + 1] == [sink.rows[held[0] - 1][1]] * 11
+    assert sorted(device.dropped_setpoints) == held
+
+
+def test_the_raw_can_v2_watchdog_rides_through_a_stall_and_is_heard_when_it_stops_the_drive(rig):
+    """The DBC says nothing of a link watchdog; the serial spec it refers to does (sections 10, 16.4): 0.9 s
+    of silence is ridden through holding, 1.2 s stops the drive, and the host hears it from the unprompted
+    RIG_STATUS (seq 0) instead of waiting out its feedback watchdog."""
+    bus, transport, device, clock = rig()
+    summary, *_ = _run(bus, transport, clock, stall_at=40, stall_s=0.9, feedback_timeout_s=2.0)
+    assert not device.watchdog_expired and summary.samples == SAMPLES and summary.lost == 0 and summary.held > 0
+    bus, transport, device, clock = rig()
+    with pytest.raises(DeviceFault, match=r"left OPERATION ENABLED without a fault \(unprompted RIG_STATUS 0x0240: SWITCH_ON_DISABLED"):
+        _run(bus, transport, clock, stall_at=40, stall_s=1.2, feedback_timeout_s=2.0)
+    assert device.watchdog_expired and device.state == SWITCH_ON_DISABLED
+
+
+# -- the simulated rig's own raw-CAN device (sim_backend) on the same clock --------------------------------------
+
+def test_the_simulated_raw_can_device_ticks_on_the_clock_and_its_run_equals_the_offline_simulation(tmp_path):
+    from sim_backend.plant_config import load_plant_config
+    from sim_backend.raw_can_device import SimulatedRawCanDevice
+
+    from clocked_line import SimulatedRawCanEndpoint
+    from sim_rigs import write_test_plant
+
+    plant = load_plant_config(write_test_plant(tmp_path))
+    clock = SimulatedClock(500.0)
+    device = SimulatedRawCanDevice(plant.gearbox(seed=3), channel="unused", clock=clock)
+    transport = RawCanTransport("virtual", "clocked", encoder=EncoderResolution(bits=12, signed=True),  # the plant's
+                                sample_period_s=PERIOD_S, drive=DRIVE, timing=BringUpTiming(poll_interval_s=0.0),
+                                reply_timeout_s=0.3, lead_s=LEAD * PERIOD_S, name="clocked", clock=clock)
+    endpoint = SimulatedRawCanEndpoint(device)
+    bus = ClockedBus(transport, clock, endpoint)
+    endpoint.connect(bus)
+    summary, sink, _, _ = _run(bus, transport, clock, stall_at=80, stall_s=0.1025)
+    device.close()
+    assert summary.samples == SAMPLES and summary.lost == 0 and summary.held == 11 == device.dropped_setpoints
+    _, commands, angles, _, flags = (np.array(column, dtype=float) for column in zip(*sink.rows))
+    held = np.flatnonzero(flags.astype(int) & SampleFlag.HELD)
+    assert np.all(np.diff(held) == 1) and np.all(commands[held] == commands[held[0] - 1])
+    np.testing.assert_array_equal(angles, plant.gearbox(seed=3).simulate(commands).measured_angle_rad)
+
+
+@pytest.mark.parametrize("fault_at", [84, 95, 105])
+def test_a_raw_can_fault_during_a_host_stall_ends_the_log_with_the_faulted_tick(rig, fault_at):
+    """RIG_FAULT comes before the frames of the faulted tick (DBC): before the lead ran out (84), within it
+    (95), past the rows the host had opened (105), the faulted tick is the log's last row, flagged FAULT."""
+    bus, transport, device, clock = rig(fault_at_sample=fault_at, fault_code=0x2310)
+    sink, stalled = ListSink(), []
+
+    def progress(done: int, _held: int) -> None:
+        if done >= 80 and not stalled:
+            stalled.append(clock())
+            bus.stall(0.1025)
+
+    with pytest.raises(DeviceFault, match=r"0x2310"):
+        run_experiment(transport, np.zeros(SAMPLES), sink, feedback_timeout_s=0.5, clock=clock, progress=progress)
+    flags = np.array([row[4] for row in sink.rows])
+    assert len(sink.rows) == fault_at + 1 and flags[fault_at] & SampleFlag.FAULT
+    assert not np.any(flags[:fault_at] & (SampleFlag.FAULT | SampleFlag.LOST))
+    assert [row[3] for row in sink.rows[:fault_at]] == [device.ticks[k].encoder_counts for k in range(fault_at)]
