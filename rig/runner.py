@@ -48,6 +48,9 @@ __all__ = ["RunSummary", "SampleSink", "run_experiment", "wait_until"]
 
 
 _FAULT_STATES = (DriveState.FAULT, DriveState.FAULT_REACTION_ACTIVE)
+WATCHDOG_GRACE = 0.5
+"""How long, as a share of ``feedback_timeout_s``, the host goes on listening once the silence exceeds it
+(:class:`FeedbackWatchdog`)."""
 PENDING_CYCLES = 4
 """Feedback is still filed under its sample this many cycles after the sample was sent."""
 CATCH_UP_SPACING = 0.5
@@ -56,6 +59,36 @@ WAKE_MARGIN_S = 300e-6
 """The loop sleeps until this long before a deadline, then polls: a sleeping thread wakes up to a few
 hundred microseconds late (timer slack, a virtual machine's scheduler), a polling one within microseconds
 (median send lateness 80 -> 30 us at 1 kHz on the 2-core CI host)."""
+
+
+class FeedbackWatchdog:
+    """Stops a run whose device has gone silent for ``timeout_s`` (``feedback_timeout_s``).
+
+    The silence must also last while the host listens: once it exceeds ``timeout_s``, the host goes on
+    listening for another :data:`WATCHDOG_GRACE` of it before giving up, so that a host that was itself
+    paused (a garbage collection, a frozen or swapped-out process) first hears the answers that queued
+    meanwhile, and a simulated device in the host's own process has a moment to catch up with its clock."""
+
+    def __init__(self, timeout_s: float, now: float) -> None:
+        self.timeout_s = float(timeout_s)
+        self.last_feedback = now
+        self._overdue_since: float | None = None
+
+    def fed(self, now: float) -> None:
+        """An answer came at ``now``."""
+        self.last_feedback, self._overdue_since = now, None
+
+    def expired(self, now: float) -> bool:
+        """Whether the device has been silent for longer than the watchdog allows, as heard at ``now``."""
+        if now - self.last_feedback <= self.timeout_s:
+            return False
+        if self._overdue_since is None:
+            self._overdue_since = now
+        return now - self._overdue_since > WATCHDOG_GRACE * self.timeout_s
+
+    def message(self, transport_name: str, now: float) -> str:
+        return (f"{transport_name}: no feedback for {now - self.last_feedback:.3g} s (watchdog "
+                f"{self.timeout_s:g} s)")
 
 
 def wait_until(deadline: float, clock: Callable[[], float] = time.perf_counter) -> None:
@@ -251,7 +284,8 @@ def run_experiment(transport: Transport, command_rad: ArrayLike, sink: SampleSin
         Receives one row per sample (time, command as sent, load angle, encoder counts, flags); always
         closed, also on error.
     feedback_timeout_s
-        Watchdog: stop with :class:`TransportError` when no feedback arrives for this long.
+        Watchdog: stop with :class:`TransportError` when no feedback arrives for this long, and for half
+        as long again while the host listens (:class:`FeedbackWatchdog`).
     late_tolerance_s
         A cycle starting later than this after its deadline is LATE (default: half a period).
     pending_cycles
@@ -296,10 +330,9 @@ def run_experiment(transport: Transport, command_rad: ArrayLike, sink: SampleSin
 
     def take(sample) -> None:
         """File a feedback sample under its sample number; stop if the drive left OPERATION ENABLED."""
-        nonlocal last_feedback
         now = clock()
         if ledger.awaits(sample.seq):
-            last_feedback = now
+            watchdog.fed(now)
         state = ledger.file(sample, late=now > start + (sample.seq + 1) * period)  # after the next deadline
         if state is not None and state is not DriveState.OPERATION_ENABLED and state not in _FAULT_STATES:
             raise DeviceFault(f"{transport.name} drive", None, (
@@ -310,12 +343,13 @@ def run_experiment(transport: Transport, command_rad: ArrayLike, sink: SampleSin
     # Receive threads (pyserial readers, python-can notifiers, simulated devices) need the GIL within a
     # fraction of a period, not after the default 5 ms.
     sys.setswitchinterval(min(switch_interval, period / 4))
-    start = last_feedback = math.inf
+    start = math.inf
+    watchdog = FeedbackWatchdog(feedback_timeout_s, math.inf)
     try:
         _check_and_enable(transport, command)
         start = clock() + 2 * period
         catch_up_spacing = max(CATCH_UP_SPACING * period, transport.min_cycle_s)
-        last_feedback = start
+        watchdog.fed(start)
         last_send = -math.inf
         for k, value in enumerate(values):
             deadline = start + k * period
@@ -328,12 +362,11 @@ def run_experiment(transport: Transport, command_rad: ArrayLike, sink: SampleSin
                 now = clock()
             last_send = now
             lateness[k] = now - deadline
-            if now - last_feedback > feedback_timeout_s:
+            if watchdog.expired(now):
                 stale = ledger.counts["stale"]
                 too_late = (f"; {stale} answers came more than {pending_cycles} cycles after their setpoint (a "
                             "device answering that late cannot be used at this rate)" if stale else "")
-                raise TransportError(f"{transport.name}: no feedback for {now - last_feedback:.3g} s "
-                                     f"(watchdog {feedback_timeout_s:g} s), stopping at sample {k}{too_late}")
+                raise TransportError(f"{watchdog.message(transport.name, now)}, stopping at sample {k}{too_late}")
             sent = transport.send(Setpoint(k, value))
             ledger.open_row(k, sent.position_rad, late=lateness[k] > tolerance)
             sent_count += 1
@@ -417,7 +450,7 @@ def _run_device_clocked(transport: Transport, command: NDArray[np.float64], sink
         _check_and_enable(transport, command)
         lead = transport.lead_samples
         next_seq = next_row = 0  # the next setpoint to queue; the next row (sample instant) to open
-        last_feedback = clock()
+        watchdog = FeedbackWatchdog(feedback_timeout_s, clock())
         while ledger.written < total:
             device = transport.device_sample
             while next_seq < total and next_seq <= device + lead:
@@ -435,7 +468,8 @@ def _run_device_clocked(transport: Transport, command: NDArray[np.float64], sink
                     ledger.open_row(next_row, transport.drive.quantize_rad(values[next_row]))
                     next_row += 1
                 state = ledger.file(sample)
-                last_feedback = last_answer = now
+                watchdog.fed(now)
+                last_answer = now
                 if math.isnan(first_answer):
                     first_answer = now
                 if state is not None and state is not DriveState.OPERATION_ENABLED and state not in _FAULT_STATES:
@@ -443,9 +477,8 @@ def _run_device_clocked(transport: Transport, command: NDArray[np.float64], sink
                         f"left OPERATION ENABLED without a fault at sample {sample.seq} (now {state.name}: enable "
                         "input or safe torque off lost?); it no longer follows the targets"))
                 sample = transport.receive(0.0)
-            if now - last_feedback > feedback_timeout_s:
-                raise TransportError(f"{transport.name}: no feedback for {now - last_feedback:.3g} s "
-                                     f"(watchdog {feedback_timeout_s:g} s), stopping at sample "
+            if watchdog.expired(now):
+                raise TransportError(f"{watchdog.message(transport.name, now)}, stopping at sample "
                                      f"{max(transport.device_sample, 0)}")
             ledger.write_final(device, sink)  # read before the drain: every answer it makes final has been filed
             if progress is not None:

@@ -125,3 +125,19 @@ def test_ctrl_c_while_a_sample_is_being_written_loses_no_sample(tmp_path, no_lea
     assert sink.closed and len(times) > 10
     assert times == sorted(set(times))  # every sample once, in order
     assert np.allclose(np.diff(times), times[1] - times[0])  # none skipped
+
+
+def test_the_watchdog_fires_only_after_the_host_has_listened_through_the_silence():
+    """A host paused for 0.3 s (a frozen process) finds the 0.1 s watchdog overdue the moment it wakes; it
+    listens for another half of it before giving up, and an answer in that time keeps the run going."""
+    from rig.runner import WATCHDOG_GRACE, FeedbackWatchdog
+
+    watchdog = FeedbackWatchdog(0.1, now=10.0)
+    assert not watchdog.expired(10.09)
+    assert not watchdog.expired(10.3)  # woke up after the pause: overdue, but not heard out yet
+    assert not watchdog.expired(10.3 + 0.9 * WATCHDOG_GRACE * 0.1)
+    watchdog.fed(10.34)  # the answers that queued during the pause
+    assert not watchdog.expired(10.43)
+    assert not watchdog.expired(10.45)  # overdue again: listening
+    assert watchdog.expired(10.45 + 1.1 * WATCHDOG_GRACE * 0.1)  # a silent device: stopped
+    assert "no feedback for 0.16 s (watchdog 0.1 s)" in watchdog.message("rig", 10.5)
