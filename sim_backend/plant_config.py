@@ -299,11 +299,14 @@ BLOCK_TYPES: dict[str, tuple[type, Callable[[ConfigTable, float], Block]]] = {
     "state_space": (LinearBlock, _read_state_space),
     "input_backlash": (InputBacklash, _read_input_backlash),
     "input_switch": (InputSwitch, _read_input_switch),
-    **{entry.toml_type: (entry.block_class, _effect_reader(entry)) for entry in EFFECTS.values()},
+    **{entry.toml_type: (entry.block_class, _effect_reader(entry)) for entry in EFFECTS.values()
+       if entry.placement != "dynamics"},
     "drive_train": (DriveTrain, _read_drive_train),
 }
 """``type`` in a ``[[blocks]]`` table -> (block class, reader): the linear and Hammerstein blocks, then every
-effect of the catalogue (:data:`identify.effect_catalogue.EFFECTS`) under its ``toml_type``."""
+effect of the catalogue (:data:`identify.effect_catalogue.EFFECTS`) under its ``toml_type``; the catalogue's
+dynamics effects (friction on the load, gravity, rate and torque limits) are keys of the one ``drive_train``
+table."""
 
 
 # ----------------------------------------------------------------------------------------------------------
