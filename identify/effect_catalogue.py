@@ -170,7 +170,7 @@ class Effect:
         contact-branch refit (``_contact_branch_start`` in :mod:`identify.model_discrepancy`).
     stick_slip
         The free run is discontinuous in the breakaway threshold: the fit ends with a scan of the
-        breakaway/sliding ratio.
+        breakaway/sliding ratio (``_scan_breakaway``, or ``_scan_static_friction`` for a dynamics effect).
     linear_dynamics
         The block is linear dynamics (it commutes with the linear block: output-side effects go after it,
         and the linear block is refitted through it).
@@ -605,6 +605,7 @@ EFFECTS: dict[str, Effect] = {effect.name: effect for effect in (
         random_block=_random_load_friction,
         signature="a lag against the model's motion (r ~ -c sign(v^)), the load left short where it stops",
         train_fields=_friction_fields,
+        stick_slip=True,
     ),
     Effect(
         name="gravity", block_class=DriveTrain, toml_type="drive_train",

@@ -463,12 +463,14 @@ def _build(component: _Component, values: Sequence[float]) -> Block:
     return effect(kind).build(v, component.sample_period_s)
 
 
-LOOP_DAMPING_RANGE = (0.05, 3.0)
+LOOP_DAMPING_RANGE = (0.05, 2.0)
 """The damping ratio of a fitted drive train's position loop is kept within this range (below: an
-oscillator no servo is tuned to; above: a first-order lag, which zeta = 3 already is within 3 %)."""
+oscillator no servo is tuned to; above: a first-order lag, which zeta = 2 already is within 7 % in its
+rise time; a wider range only buys sub-steps, which grow with zeta omega_n T)."""
 
-LOOP_BANDWIDTH_NYQUIST_SHARE = 0.5
-"""... and its bandwidth at most this share of the Nyquist frequency (faster is no dynamics at this T)."""
+LOOP_BANDWIDTH_NYQUIST_SHARE = 0.2
+"""... and its bandwidth at most this share of the Nyquist frequency (a position loop faster than a tenth
+of the sample rate is no dynamics the record resolves; at 1 kHz: 100 Hz, 63 sub-steps at zeta = 2)."""
 
 
 def _train(base: DriveTrain, values: Sequence[float], effects: Sequence[str], loop_free: bool) -> DriveTrain:
@@ -731,6 +733,11 @@ def _try_effect(kind: str, chain: _Chain, u: NDArray[np.float64], y: NDArray[np.
         simulated = y - residual
         options = [with_effect(g) for g in entry.guesses(GuessContext(u, residual, delta, period, scores,
                                                                       simulated, train))]
+        if entry.placement == "dynamics" and chain.components[index].loop_free and options:
+            # the guesses ranked at the start model's loop; the best LOOP_START_GUESSES from every loop start
+            costs = [_rms(_free_run_error(option, u_est, y_est)) for option in options]
+            ranked = [options[i] for i in np.argsort(costs)[:LOOP_START_GUESSES]]
+            options = [_with_loop(option, index, loop) for option in ranked for loop in _loop_starts(train)]
     options = [_refit_last_linear(option, u_est, y_est) for option in options]
     if entry.contact_start is not None:
         plays = np.geomspace(delta, max(float(np.max(np.abs(residual))), 4.0 * delta), 4)
@@ -743,7 +750,9 @@ def _try_effect(kind: str, chain: _Chain, u: NDArray[np.float64], y: NDArray[np.
     if any(c.kind == "linear" for c in best.components):
         best = _polish(best, u_est, y_est, max_evaluations, frozenset({"linear"}))
     best = _polish(best, u_est, y_est, _budget(best, max_evaluations))
-    if entry.stick_slip:
+    if entry.stick_slip and train is not None:
+        best = _scan_static_friction(best, index, kind, u_est, y_est)
+    elif entry.stick_slip:
         best = _scan_breakaway(best, index, u_est, y_est)
     error = (y - best.model().simulate(u))[n_est:] if best.linear_stable() else np.full(y.size - n_est, _BIG)
     error = np.where(np.isfinite(error), error, _BIG)
@@ -794,6 +803,31 @@ def _dynamics_chain(chain: _Chain, index: int, u: NDArray[np.float64]) -> tuple[
     train = _build(holder, holder.values)
     assert isinstance(train, DriveTrain)
     return _Chain(components), train
+
+
+LOOP_START_FACTORS = ((1.0, 1.0), (0.5, 0.7), (0.5, 1.4), (2.0, 0.7), (2.0, 1.4))
+"""Starts of a free loop in a dynamics fit, as factors on the bandwidth and damping of the start model's
+rigid equivalent (:func:`rigid_train_like`): the linear model was fitted with the effect missing, and a
+speed limit or friction makes it slower and more damped than the drive's loop is (a rate-limited record's
+linear fit gave 47 Hz at the damping cap for a 30 Hz, zeta 0.7 loop)."""
+
+
+LOOP_START_GUESSES = 2
+"""... tried with the best this many effect guesses at the start model's loop (each start is a sub-stepped
+run: all guesses from all starts would cost five times as many)."""
+
+
+def _loop_starts(train: DriveTrain) -> list[tuple[float, float]]:
+    low, high = LOOP_DAMPING_RANGE
+    return [(f * train.position_loop_bandwidth_hz, min(max(z * train.position_loop_damping_ratio, low), high))
+            for f, z in LOOP_START_FACTORS]
+
+
+def _with_loop(chain: _Chain, index: int, loop: tuple[float, float]) -> _Chain:
+    components = list(chain.components)
+    holder = components[index]
+    components[index] = replace(holder, values=tuple(loop) + holder.values[2:])
+    return _Chain(components)
 
 
 _TRAIN_CACHE: dict[tuple[Any, ...], DriveTrain] = {}
@@ -855,6 +889,27 @@ def _scan_breakaway(chain: _Chain, index: int, u: NDArray[np.float64], y: NDArra
         return _Chain(components)
 
     options = [chain, *(with_ratio(ratio) for ratio in np.linspace(1.0, 3.0, 41))]
+    costs = [_rms(_free_run_error(option, u, y)) for option in options]
+    return options[int(np.argmin(costs))]
+
+
+def _scan_static_friction(chain: _Chain, index: int, kind: str, u: NDArray[np.float64],
+                          y: NDArray[np.float64]) -> _Chain:
+    """:func:`_scan_breakaway` for friction inside a drive train: the breakaway/Coulomb ratio T_s / T_c over
+    1..2 in steps of 0.05 at the fitted Coulomb friction (its values are T_c / J, (T_s - T_c) / J, ...)."""
+    holder = chain.components[index]
+    offset = (2 if holder.loop_free else 0) + sum(EFFECTS[name].free_parameters
+                                                 for name in holder.effects[:holder.effects.index(kind)])
+    coulomb = abs(holder.values[offset])
+
+    def with_ratio(ratio: float) -> _Chain:
+        values = list(holder.values)
+        values[offset + 1] = (ratio - 1.0) * coulomb
+        components = list(chain.components)
+        components[index] = replace(holder, values=tuple(values))
+        return _Chain(components)
+
+    options = [chain, *(with_ratio(ratio) for ratio in np.linspace(1.0, 2.0, 21))]
     costs = [_rms(_free_run_error(option, u, y)) for option in options]
     return options[int(np.argmin(costs))]
 
