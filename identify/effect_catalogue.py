@@ -178,6 +178,10 @@ class Effect:
         Placement ``"dynamics"`` only: (free values, the drive train they go into) -> the
         :class:`~identify.drive_train.DriveTrain` fields the effect sets (``build`` then merges them into
         :func:`reference_train`); any real vector gives valid fields.
+    resolution
+        Dynamics effects: (fitted train, its free run y^, the angle resolution e) -> half-widths by which
+        the parameters' intervals are widened: what an angle known only within +-e leaves unresolved of a
+        torque or a limit (the fold refits all see the same quantised levels and cannot show it).
     """
 
     name: str
@@ -202,6 +206,7 @@ class Effect:
     stick_slip: bool = False
     linear_dynamics: bool = False
     train_fields: Callable[[Sequence[float], DriveTrain], dict[str, Any]] | None = None
+    resolution: Callable[[DriveTrain, NDArray[np.float64], float], dict[str, float]] | None = None
 
     def in_train(self, values: Sequence[float], train: DriveTrain) -> DriveTrain:
         """``train`` with this dynamics effect's fields set from its free ``values``."""
@@ -464,6 +469,37 @@ def _random_torque_limit(rng: np.random.Generator, u: NDArray[np.float64], f: fl
     return _train_builder(_torque_fields)((rng.uniform(0.3, 0.6) * _segment_peak(rng, u, f, period, 2),), period)
 
 
+
+def _torque_resolution(train: DriveTrain, keys: Sequence[str], resolution_rad: float) -> dict[str, float]:
+    """A torque per inertia shows as a static error T / (J omega_n^2) known within +-e: +-e omega_n^2."""
+    return {key: resolution_rad * _loop_stiffness_per_inertia(train) for key in keys}
+
+
+def _longest_run(mask: NDArray[np.bool_]) -> int:
+    best = run = 0
+    for flag in mask.tolist():
+        run = run + 1 if flag else 0
+        best = max(best, run)
+    return best
+
+
+def _limit_resolution(train: DriveTrain, simulated: NDArray[np.float64], resolution_rad: float,
+                      order: int) -> float:
+    """A speed (order 1) or acceleration (order 2) limit is the slope or curvature of the free run over the
+    longest stretch of n samples at the limit; with both ends known within +-e it is known within
+    2 e / (n T) (speed) or 4 e / (n T)^2 (acceleration, from e = a (n T)^2 / 2 at each end)."""
+    period = train.sample_period_s
+    rate = np.asarray(simulated, dtype=float)
+    for _ in range(order):
+        rate = np.gradient(rate) / period
+    limit = (train.motor_speed_limit_rad_per_s / train.gear_ratio if order == 1
+             else train.motor_torque_limit_nm * train.gear_ratio / train.total_inertia_kg_m2)
+    if not math.isfinite(limit):
+        return 0.0
+    samples = max(_longest_run(np.abs(rate) >= 0.98 * limit), 1)
+    return (2.0 if order == 1 else 4.0) * resolution_rad / (samples * period) ** order
+
+
 def _static_error(train: DriveTrain, torque_per_inertia: float) -> float:
     return torque_per_inertia / _loop_stiffness_per_inertia(train)
 
@@ -606,6 +642,8 @@ EFFECTS: dict[str, Effect] = {effect.name: effect for effect in (
         signature="a lag against the model's motion (r ~ -c sign(v^)), the load left short where it stops",
         train_fields=_friction_fields,
         stick_slip=True,
+        resolution=lambda train, y_hat, e: _torque_resolution(
+            train, ("coulomb_per_inertia_rad_per_s2", "static_per_inertia_rad_per_s2"), e),
     ),
     Effect(
         name="gravity", block_class=DriveTrain, toml_type="drive_train",
@@ -623,6 +661,7 @@ EFFECTS: dict[str, Effect] = {effect.name: effect for effect in (
         random_block=_random_gravity,
         signature="a position-dependent sag (r ~ -S sin(y^ - theta_0), S = m g l / (J omega_n^2))",
         train_fields=_gravity_fields,
+        resolution=lambda train, y_hat, e: _torque_resolution(train, ("gravity_per_inertia_rad_per_s2",), e),
     ),
     Effect(
         name="rate_limit", block_class=DriveTrain, toml_type="drive_train",
@@ -637,6 +676,7 @@ EFFECTS: dict[str, Effect] = {effect.name: effect for effect in (
         random_block=_random_rate_limit,
         signature="a lag that grows while the model moves faster than the limit (r ~ -T sum (v^ - clip(v^, q)))",
         train_fields=_rate_fields,
+        resolution=lambda train, y_hat, e: {"speed_limit_rad_per_s": _limit_resolution(train, y_hat, e, 1)},
     ),
     Effect(
         name="torque_limit", block_class=DriveTrain, toml_type="drive_train",
@@ -650,6 +690,7 @@ EFFECTS: dict[str, Effect] = {effect.name: effect for effect in (
         random_block=_random_torque_limit,
         signature="the lag of an acceleration limit (the double sum of the model's excess acceleration)",
         train_fields=_torque_fields,
+        resolution=lambda train, y_hat, e: {"torque_limit_per_inertia_rad_per_s2": _limit_resolution(train, y_hat, e, 2)},
     ),
 )}
 """Every effect, by its diagnose name, in the order the workflow tries them."""

@@ -1167,7 +1167,7 @@ def diagnose_model(command_rad: ArrayLike, angle_rad: ArrayLike, noise_bound_rad
             for key, value in step.parameters.items():
                 low, high = intervals.get(step.effect, {}).get(key, (value, value))
                 intervals.setdefault(step.effect, {})[key] = (min(low, value), max(high, value))
-        intervals = _resolution_floor(intervals, delta)
+        intervals = _resolution_floor(intervals, delta, _final_train(chain), current.simulated_rad)
     verdict, reason = _verdict(initial, current, steps, ambiguous_between, consistent, delta, consistent_fraction)
     if verdict == "unexplained":
         unmeasured = _unmeasured_input(u, y, current.simulated_rad, delta)
@@ -1573,19 +1573,37 @@ and a 12-bit encoder with little dither biases such levels by up to half a count
 same samples reveals. Its interval is widened by this on each side."""
 
 
-def _resolution_floor(intervals: dict[str, dict[str, tuple[float, float]]],
-                      delta: float) -> dict[str, dict[str, tuple[float, float]]]:
-    """:data:`ANGLE_RESOLUTION_NOISE_BOUNDS` applied to the angle parameters of the catalogue, then every
-    interval clipped to the values its parameter can take (``Parameter.lower`` / ``upper``)."""
+def _final_train(chain: _Chain) -> DriveTrain | None:
+    """The drive train of a fitted chain, if it has one."""
+    for component in chain.components:
+        if component.kind == "drive_train":
+            train = _build(component, component.values)
+            assert isinstance(train, DriveTrain)
+            return train
+    return None
+
+
+def _resolution_floor(intervals: dict[str, dict[str, tuple[float, float]]], delta: float,
+                      train: DriveTrain | None = None,
+                      simulated: NDArray[np.float64] | None = None) -> dict[str, dict[str, tuple[float, float]]]:
+    """:data:`ANGLE_RESOLUTION_NOISE_BOUNDS` applied to the angle parameters of the catalogue, the
+    catalogue's ``resolution`` of each dynamics effect (what +-delta on the angles leaves unresolved of a
+    torque or a limit, from the fitted train and its free run), then every interval clipped to the values its
+    parameter can take (``Parameter.lower`` / ``upper``)."""
     out: dict[str, dict[str, tuple[float, float]]] = {}
     widen = ANGLE_RESOLUTION_NOISE_BOUNDS * delta
     for kind, parameters in intervals.items():
-        known = {p.name: p for p in EFFECTS[kind].parameters} if kind in EFFECTS else {}
+        entry = EFFECTS.get(kind)
+        known = {p.name: p for p in entry.parameters} if entry is not None else {}
+        extra: dict[str, float] = {}
+        if entry is not None and entry.resolution is not None and train is not None and simulated is not None:
+            extra = entry.resolution(train, simulated, ANGLE_RESOLUTION_NOISE_BOUNDS * delta)
         out[kind] = {}
         for key, (low, high) in parameters.items():
             parameter = known.get(key)
             if parameter is not None and parameter.unit == "rad":
                 low, high = low - widen, high + widen
+            low, high = low - extra.get(key, 0.0), high + extra.get(key, 0.0)
             if parameter is not None:
                 low, high = max(low, parameter.lower), min(high, parameter.upper)
             out[kind][key] = (low, high)
