@@ -34,7 +34,10 @@ TRUE_EFFECTS = ("none", *EFFECT_NAMES)  # every effect of the catalogue
 PAIRS = ("gravity+rate_limit", "load_friction+gravity", "backlash+gravity", "delay+torque_limit")
 """Default rows of two effects at once: the servo with an arm (weight and speed limit, friction and weight),
 an output play behind a drive with an arm, a lag before a torque-limited drive."""
-EMPS = Path(__file__).resolve().parents[2] / "shared" / "realdata" / "emps" / "DATA_EMPS.mat"
+EMPS = next((parent / "shared" / "realdata" for parent in Path(__file__).resolve().parents
+             if (parent / "shared" / "realdata").is_dir()),
+            Path(__file__).resolve().parents[2] / "shared" / "realdata") / "emps" / "DATA_EMPS.mat"
+"""``shared/realdata`` next to the checkout or next to any folder above it (a git worktree sits deeper)."""
 
 
 def run_case(effects: tuple[str, ...], seed: int, start: str) -> dict:
