@@ -19,16 +19,14 @@ acceleration that both segments reach. Several dynamics effects go into the one 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import NDArray
 
-from dataclasses import replace
-
+from identify.drive_train import DriveTrain
 from identify.effect_catalogue import effect
 from identify.model_discrepancy import ESTIMATION_FRACTION, rigid_train_like
-from identify.drive_train import DriveTrain
 from identify.plant_blocks import Block, LinearBlock, PlantModel
 
 __all__ = ["HiddenEffectRecord", "NOMINAL_LINEAR", "hidden_effect_record", "random_effect", "step_excitation"]
