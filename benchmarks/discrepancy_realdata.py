@@ -9,7 +9,7 @@ parameter intervals and whether the four agree: same verdict and same named effe
 parameter intervals that overlap (all four share a point). The agreement rate is the share of
 configurations where they do (goal 100 %). Then the EMPS record, as in ``model_discrepancy_confusion.py``.
 
-Run: ``.venv/bin/python benchmarks/discrepancy_realdata.py [--jobs 2]``.
+Run: ``.venv/bin/python benchmarks/discrepancy_realdata.py [--jobs 2] [--trajectories sin_sin,sin_time_square]``.
 """
 
 from __future__ import annotations
@@ -77,13 +77,17 @@ def agree(runs: list[dict]) -> tuple[bool, str]:
     return True, ""
 
 
-def kscale(noise_bound_rad: float, jobs: int) -> None:
+def kscale(noise_bound_rad: float, jobs: int, trajectories: set[str] | None = None) -> None:
     with (KSCALE / "index.csv").open() as handle:
-        rows = list(csv.DictReader(handle))
+        rows = [row for row in csv.DictReader(handle) if trajectories is None or row["trajectory"] in trajectories]
     started = time.perf_counter()
+    runs = []
     with ProcessPoolExecutor(max_workers=jobs) as pool:
-        runs = list(pool.map(diagnose_one, [str(KSCALE / row["file"]) for row in rows],
-                             [noise_bound_rad] * len(rows)))
+        for row, run in zip(rows, pool.map(diagnose_one, [str(KSCALE / row["file"]) for row in rows],
+                                           [noise_bound_rad] * len(rows))):
+            runs.append(run)  # one line per record as it is done (a long run can be read while it goes on)
+            print(f"  {row['trajectory']} kp {row['kp']} {run['file']}: {run['verdict']} "
+                  f"{'+'.join(run['effects'] or run['ambiguous']) or '-'} ({run['seconds']:.0f} s)", flush=True)
     elapsed = time.perf_counter() - started
     groups: dict[tuple[str, str], list[dict]] = defaultdict(list)
     for row, run in zip(rows, runs):
@@ -151,6 +155,8 @@ def main() -> None:
                         help="noise bound in counts of the 4096-count encoder (default 1.5: the half count of "
                              "quantisation plus one count of reading noise)")
     parser.add_argument("--jobs", type=int, default=2)
+    parser.add_argument("--trajectories", default=None,
+                        help="only these trajectories, comma-separated (default: all five)")
     parser.add_argument("--no-emps", action="store_true")
     parser.add_argument("--emps-decimate", type=int, default=5)
     parser.add_argument("--emps-noise-bound", type=float, default=1e-6, metavar="M")
@@ -158,7 +164,8 @@ def main() -> None:
     if not KSCALE.is_dir():
         print(f"{KSCALE} not found")
     else:
-        kscale(args.noise_bound_counts * COUNT_RAD, args.jobs)
+        kscale(args.noise_bound_counts * COUNT_RAD, args.jobs,
+               set(args.trajectories.split(",")) if args.trajectories else None)
     if not args.no_emps:
         emps(args.emps_decimate, args.emps_noise_bound)
 

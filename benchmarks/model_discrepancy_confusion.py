@@ -1,5 +1,5 @@
-"""Confusion matrix of the model-discrepancy workflow (issue 6) on hidden-effect records, and a run on the real
-EMPS record.
+"""Confusion matrix of the model-discrepancy workflow (issue 6, extended in issue 15 item 6) on hidden-effect
+records, and a run on the real EMPS record.
 
 For every effect (and for no effect) ``--cases`` records are simulated with random realistic parameters and a
 12-bit encoder (:mod:`identify.discrepancy_cases`); the workflow sees the data, the noise bound and either the
@@ -9,8 +9,11 @@ ambiguous: candidates within their uncertainty of each other, none chosen); the 
 1 - gap_final / gap_initial. Also counted: cases where more effects than the true one were named, and how
 many fitted parameters of a rightly named effect have an interval that contains the true value.
 
-Run:  nice -n 10 .venv/bin/python benchmarks/model_discrepancy_confusion.py --cases 20 --start given
-      nice -n 10 .venv/bin/python benchmarks/model_discrepancy_confusion.py --cases 5 --start fitted
+Rows of two effects at once (``--pairs``, ``a+b``): a case is correct when exactly the two are named (in either
+order); the table gives the named sets.
+
+Run:  nice -n 10 .venv/bin/python benchmarks/model_discrepancy_confusion.py --cases 20 --start given --jobs 2
+      nice -n 10 .venv/bin/python benchmarks/model_discrepancy_confusion.py --cases 5 --start fitted --jobs 2
       nice -n 10 .venv/bin/python benchmarks/model_discrepancy_confusion.py --emps-only
 """
 
@@ -18,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import time
+from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -27,47 +31,102 @@ from identify.effect_catalogue import EFFECT_NAMES, effect
 from identify.model_discrepancy import diagnose_model
 
 TRUE_EFFECTS = ("none", *EFFECT_NAMES)  # every effect of the catalogue
-EMPS = Path(__file__).resolve().parents[2] / "shared" / "realdata" / "emps" / "DATA_EMPS.mat"
+PAIRS = ("gravity+rate_limit", "load_friction+gravity", "backlash+gravity", "delay+torque_limit")
+"""Default rows of two effects at once: the servo with an arm (weight and speed limit, friction and weight),
+an output play behind a drive with an arm, a lag before a torque-limited drive."""
+EMPS = next((parent / "shared" / "realdata" for parent in Path(__file__).resolve().parents
+             if (parent / "shared" / "realdata").is_dir()),
+            Path(__file__).resolve().parents[2] / "shared" / "realdata") / "emps" / "DATA_EMPS.mat"
+"""``shared/realdata`` next to the checkout or next to any folder above it (a git worktree sits deeper)."""
 
 
-def confusion(cases: int, start: str, effects: tuple[str, ...], first_seed: int) -> None:
-    columns = (*TRUE_EFFECTS, "ambiguous", "other")
-    counts = {row: {column: 0 for column in columns} for row in effects}
-    reductions: dict[str, list[float]] = {row: [] for row in effects}
-    extras = {row: 0 for row in effects}
-    covered = {row: [0, 0] for row in effects}  # parameters whose interval holds the truth, parameters
+def run_case(effects: tuple[str, ...], seed: int, start: str) -> dict:
+    """One hidden-effect record diagnosed: the named effects, the verdict, the gap reduction, and per named
+    true effect how many of its parameter intervals hold the truth."""
+    record = hidden_effect_record(effects, seed)
     started = time.perf_counter()
-    for row in effects:
-        for case in range(cases):
-            record = hidden_effect_record(() if row == "none" else (row,), first_seed + case)
-            result = diagnose_model(record.command_rad, record.angle_rad, record.noise_bound_rad,
-                                    record.sample_period_s, record.nominal_model if start == "given" else None)
-            named = result.missing_effects[0] if result.missing_effects else (
-                "ambiguous" if result.verdict == "ambiguous" else "none")
-            counts[row][named if named in counts[row] else "other"] += 1
-            extras[row] += len(result.missing_effects) > (0 if row == "none" else 1)
-            if row != "none":
-                reductions[row].append(1.0 - result.final.gap_rad / result.initial.gap_rad)
-            if row != "none" and named == row:
-                entry = effect(row)
-                truth = entry.report(next(b for b in record.true_model.blocks if isinstance(b, entry.block_class)))
-                for key, (low, high) in result.parameter_intervals.get(row, {}).items():
-                    covered[row][0] += low <= truth[key] <= high
-                    covered[row][1] += 1
+    result = diagnose_model(record.command_rad, record.angle_rad, record.noise_bound_rad,
+                            record.sample_period_s, record.nominal_model if start == "given" else None)
+    covered = [0, 0]
+    for name in set(effects) & set(result.missing_effects):
+        entry = effect(name)
+        truth = entry.report(next(b for b in record.true_model.blocks if isinstance(b, entry.block_class)))
+        for key, (low, high) in result.parameter_intervals.get(name, {}).items():
+            covered[0] += low <= truth[key] <= high
+            covered[1] += 1
+    return {"named": tuple(result.missing_effects), "verdict": result.verdict,
+            "reduction": 1.0 - result.final.gap_rad / result.initial.gap_rad if result.initial.gap_rad > 0 else 0.0,
+            "covered": covered, "seconds": time.perf_counter() - started}
+
+
+def _run_rows(rows: tuple[tuple[str, ...], ...], cases: int, start: str, first_seed: int,
+              jobs: int) -> dict[tuple[str, ...], list[dict]]:
+    tasks = [(row, first_seed + case) for row in rows for case in range(cases)]
+    with ProcessPoolExecutor(max_workers=jobs) as pool:
+        results = list(pool.map(run_case, [t[0] for t in tasks], [t[1] for t in tasks], [start] * len(tasks)))
+    out: dict[tuple[str, ...], list[dict]] = {row: [] for row in rows}
+    for (row, _), result in zip(tasks, results):
+        out[row].append(result)
+    return out
+
+
+def confusion(cases: int, start: str, effects: tuple[str, ...], first_seed: int, jobs: int) -> None:
+    columns = (*TRUE_EFFECTS, "ambiguous", "other")
+    started = time.perf_counter()
+    runs = _run_rows(tuple(() if row == "none" else (row,) for row in effects), cases, start, first_seed, jobs)
     elapsed = time.perf_counter() - started
     short = {name: name[:5] for name in columns} | {"dead_zone": "deadz", "coulomb_friction": "fric", "offset": "offs",
-                                                    "gain_error": "gain"}
+                                                    "gain_error": "gain", "load_friction": "lfric", "gravity": "grav",
+                                                    "rate_limit": "rate", "torque_limit": "torq"}
     print(f"\nstart model: {start}; {cases} cases per row (seeds {first_seed}..{first_seed + cases - 1}); "
-          f"{elapsed:.0f} s in all")
+          f"{elapsed:.0f} s in all with {jobs} process(es)")
     print("| true \\ named | " + " | ".join(short[c] for c in columns)
-          + " | correct | more named | median gap reduction | truth in interval |")
-    print("|---" * (len(columns) + 5) + "|")
+          + " | correct | more named | median gap reduction | truth in interval | median s |")
+    print("|---" * (len(columns) + 6) + "|")
+    diagonal = total = inside = intervals = 0
     for row in effects:
-        correct = counts[row][row] / cases
-        median = f"{100 * np.median(reductions[row]):.1f} %" if reductions[row] else "-"
-        print(f"| {row} | " + " | ".join(str(counts[row][c]) for c in columns)
-              + f" | {100 * correct:.0f} % | {extras[row]} | {median} | "
-              + (f"{covered[row][0]} of {covered[row][1]} |" if covered[row][1] else "- |"))
+        results = runs[() if row == "none" else (row,)]
+        counts = {column: 0 for column in columns}
+        for result in results:
+            named = result["named"][0] if result["named"] else ("ambiguous" if result["verdict"] == "ambiguous" else "none")
+            counts[named if named in counts else "other"] += 1
+        extras = sum(len(r["named"]) > (0 if row == "none" else 1) for r in results)
+        covered = [sum(r["covered"][0] for r in results), sum(r["covered"][1] for r in results)]
+        reductions = [r["reduction"] for r in results] if row != "none" else []
+        median = f"{100 * np.median(reductions):.1f} %" if reductions else "-"
+        diagonal, total = diagonal + counts[row], total + len(results)
+        inside, intervals = inside + covered[0], intervals + covered[1]
+        print(f"| {row} | " + " | ".join(str(counts[c]) for c in columns)
+              + f" | {100 * counts[row] / len(results):.0f} % | {extras} | {median} | "
+              + (f"{covered[0]} of {covered[1]}" if covered[1] else "-")
+              + f" | {np.median([r['seconds'] for r in results]):.1f} |")
+    print(f"\ndiagonal {diagonal} of {total} ({100 * diagonal / total:.1f} %); truth in interval {inside} of "
+          f"{intervals} ({100 * inside / max(intervals, 1):.1f} %)")
+
+
+def pairs(cases: int, start: str, rows: tuple[tuple[str, ...], ...], first_seed: int, jobs: int) -> None:
+    """Two hidden effects at once: correct when exactly the two are named."""
+    started = time.perf_counter()
+    runs = _run_rows(rows, cases, start, first_seed, jobs)
+    print(f"\ntwo effects at once, start model: {start}; {cases} cases per row (seeds {first_seed}.."
+          f"{first_seed + cases - 1}); {time.perf_counter() - started:.0f} s in all with {jobs} process(es)")
+    print("| true effects | both named, nothing else | named sets (count) | ambiguous | median gap reduction | "
+          "truth in interval | median s |")
+    print("|---|---|---|---|---|---|---|")
+    for row in rows:
+        results = runs[row]
+        right = sum(set(r["named"]) == set(row) for r in results)
+        sets: dict[str, int] = {}
+        for r in results:
+            label = "+".join(r["named"]) if r["named"] else ("ambiguous" if r["verdict"] == "ambiguous" else "none")
+            sets[label] = sets.get(label, 0) + 1
+        covered = [sum(r["covered"][0] for r in results), sum(r["covered"][1] for r in results)]
+        print(f"| {' + '.join(row)} | {right} of {len(results)} ({100 * right / len(results):.0f} %) | "
+              + ", ".join(f"{k} ({v})" for k, v in sorted(sets.items(), key=lambda kv: -kv[1]))
+              + f" | {sum(r['verdict'] == 'ambiguous' for r in results)} | "
+              + f"{100 * np.median([r['reduction'] for r in results]):.1f} % | "
+              + (f"{covered[0]} of {covered[1]}" if covered[1] else "-")
+              + f" | {np.median([r['seconds'] for r in results]):.1f} |")
 
 
 def emps(decimate: int, noise_bound_m: float) -> None:
@@ -106,6 +165,9 @@ def main() -> None:
     parser.add_argument("--effects", default=None,
                         help="rows, comma-separated (default: all; with --start fitted all but gain_error, which a "
                              "fitted linear start model absorbs: no method can name it there)")
+    parser.add_argument("--pairs", default=",".join(PAIRS),
+                        help="rows of two effects, a+b comma-separated (default: %(default)s; '' for none)")
+    parser.add_argument("--jobs", type=int, default=1, help="processes (default 1)")
     parser.add_argument("--first-seed", type=int, default=1000)
     parser.add_argument("--emps-only", action="store_true")
     parser.add_argument("--no-emps", action="store_true")
@@ -113,11 +175,15 @@ def main() -> None:
     parser.add_argument("--emps-noise-bound", type=float, default=1e-6, metavar="M")
     args = parser.parse_args()
     if args.effects is not None:
-        effects = tuple(args.effects.split(","))
+        effects = tuple(e for e in args.effects.split(",") if e)
     else:
         effects = tuple(e for e in TRUE_EFFECTS if args.start == "given" or e != "gain_error")
     if not args.emps_only:
-        confusion(args.cases, args.start, effects, args.first_seed)
+        if effects:
+            confusion(args.cases, args.start, effects, args.first_seed, args.jobs)
+        rows = tuple(tuple(row.split("+")) for row in args.pairs.split(",") if row)
+        if rows:
+            pairs(args.cases, args.start, rows, args.first_seed, args.jobs)
     if not args.no_emps:
         emps(args.emps_decimate, args.emps_noise_bound)
 

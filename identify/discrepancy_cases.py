@@ -7,18 +7,26 @@ zeta 0.7, zero-order hold at 1 kHz, one sample of latency). Effect sizes (drawn 
 at 50-75 % of the largest command on its side that both the estimation and the validation segment reach;
 delay 3-15 samples; Coulomb friction breakaway twist 0.015-0.04 rad with sliding 40-75 % of it; resonance
 60-200 Hz with damping 0.02-0.08; gain error 3-15 % either way (a wrong gear ratio or encoder resolution).
+
+The drive-train effects (placement ``"dynamics"``) replace the nominal linear block with the rigid drive
+train of the same response (:func:`identify.model_discrepancy.rigid_train_like`) holding them: friction on
+the load whose Coulomb part holds the loop within 8-25 mrad (breakaway 1-1.5 times it, viscous up to a
+fifth of the loop's damping); an arm whose weight sags the loop by 10-40 mrad when horizontal, hanging
+within +-0.5 rad of zero; a speed limit at 40-70 % and a torque limit at 30-60 % of the peak speed or
+acceleration that both segments reach. Several dynamics effects go into the one train.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import NDArray
 
+from identify.drive_train import DriveTrain
 from identify.effect_catalogue import effect
-from identify.model_discrepancy import ESTIMATION_FRACTION
+from identify.model_discrepancy import ESTIMATION_FRACTION, rigid_train_like
 from identify.plant_blocks import Block, LinearBlock, PlantModel
 
 __all__ = ["HiddenEffectRecord", "NOMINAL_LINEAR", "hidden_effect_record", "random_effect", "step_excitation"]
@@ -61,7 +69,8 @@ def step_excitation(num_samples: int, rng: np.random.Generator, amplitude_rad: f
 
 def random_effect(name: str, rng: np.random.Generator, command_rad: NDArray[np.float64]) -> tuple[Block, int | None]:
     """A block of effect ``name`` with random realistic parameters (the catalogue's ``random_block``) and
-    where it goes in the chain (0: before the linear block, None: after it)."""
+    where it goes in the chain (0: before the linear block, None: after it; a dynamics effect's block is a
+    drive train whose fields :func:`hidden_effect_record` merges into the nominal one)."""
     entry = effect(name)
     block = entry.random_block(rng, command_rad, ESTIMATION_FRACTION, SAMPLE_PERIOD_S)
     return block, (0 if entry.placement == "input" else None)
@@ -79,7 +88,15 @@ def hidden_effect_record(effects: tuple[str, ...], seed: int, num_samples: int =
     model = PlantModel((NOMINAL_LINEAR,))
     for name in effects:
         block, index = random_effect(name, rng, u)
-        if index is None:
+        entry = effect(name)
+        if entry.placement == "dynamics":  # its fields go into the train that replaces the linear block
+            at = next(i for i, b in enumerate(model.blocks) if isinstance(b, (LinearBlock, DriveTrain)))
+            train = model.blocks[at]
+            if isinstance(train, LinearBlock):
+                train = rigid_train_like(train, u)
+            train = replace(train, **{key.key: getattr(block, key.key) for key in entry.toml_keys})
+            model = PlantModel(model.blocks[:at] + (train,) + model.blocks[at + 1:])
+        elif index is None:
             model = model.with_block(block)
         else:
             model = model.with_block(block, index)

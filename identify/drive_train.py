@@ -154,7 +154,8 @@ class DriveTrain:
     load_inertia_kg_m2
         J_l > 0, the load's inertia about its axis (for a pendulum arm at least m l^2).
     shaft_stiffness_nm_per_rad
-        k > 0, the torsional stiffness between the gear and the load, at the load side (N m per load rad).
+        k > 0, the torsional stiffness between the gear and the load, at the load side (N m per load rad);
+        ``math.inf``: a rigid shaft (see :attr:`rigid`; no play then).
     shaft_damping_nm_s_per_rad
         d >= 0, the shaft's damping at the load side; it acts only in contact (Modelica ElastoBacklash).
     play_rad
@@ -235,7 +236,7 @@ class DriveTrain:
 
     def __post_init__(self) -> None:
         positive_fields = ("sample_period_s", "gear_ratio", "motor_inertia_kg_m2", "load_inertia_kg_m2",
-                           "shaft_stiffness_nm_per_rad", "position_loop_bandwidth_hz",
+                           "position_loop_bandwidth_hz",
                            "position_loop_damping_ratio", "gravity_m_per_s2")
         for name in positive_fields:
             object.__setattr__(self, name, _positive(name, getattr(self, name)))
@@ -246,7 +247,7 @@ class DriveTrain:
             object.__setattr__(self, name, _non_negative(name, getattr(self, name)))
         for name in ("hanging_angle_rad", "initial_angle_rad"):
             object.__setattr__(self, name, _finite(name, getattr(self, name)))
-        for name in ("motor_speed_limit_rad_per_s", "motor_torque_limit_nm"):
+        for name in ("shaft_stiffness_nm_per_rad", "motor_speed_limit_rad_per_s", "motor_torque_limit_nm"):
             object.__setattr__(self, name, _limit(name, getattr(self, name)))
         feedforward = _finite("velocity_feedforward", self.velocity_feedforward)
         if not 0.0 <= feedforward <= 1.0:
@@ -259,6 +260,11 @@ class DriveTrain:
         if not isinstance(self.drive_enabled, (bool, np.bool_)):
             raise InvalidInputError(f"drive_enabled: expected True or False, got {self.drive_enabled!r}")
         object.__setattr__(self, "drive_enabled", bool(self.drive_enabled))
+        if self.rigid and self.play_rad > 0.0:
+            raise InvalidInputError(
+                f"play_rad: a rigid shaft (shaft_stiffness_nm_per_rad = inf) has no play, got {self.play_rad:g}; "
+                "give a finite stiffness for a train with play"
+            )
         if self.static_friction_nm < self.coulomb_friction_nm:
             raise InvalidInputError(
                 f"static_friction_nm: expected static_friction_nm >= coulomb_friction_nm "
@@ -279,6 +285,19 @@ class DriveTrain:
             )
 
     # -- derived quantities ------------------------------------------------------------------------------
+
+    @property
+    def rigid(self) -> bool:
+        """An infinitely stiff shaft: motor and load move as one inertia N^2 J_m + J_l,
+
+        .. math:: (J_m' + J_l) \\ddot\\theta = \\tau_{drive} - N^2 d_m \\dot\\theta - \\tau_{friction}
+                  - m g l \\sin(\\theta - \\theta_0),
+
+        the limit k -> inf of the module docstring's equations (the shaft damping then plays no part). The
+        sub-step rule drops the shaft's rates, so a rigid train needs far fewer sub-steps than a stiff one:
+        the form the model-discrepancy workflow fits (:mod:`identify.effect_catalogue`, placement
+        ``"dynamics"``)."""
+        return math.isinf(self.shaft_stiffness_nm_per_rad)
 
     @property
     def reflected_motor_inertia_kg_m2(self) -> float:
@@ -323,13 +342,18 @@ class DriveTrain:
         K_v / J_m' (the play open), omega_n, K_p and K_i."""
         motor = self.reflected_motor_inertia_kg_m2
         load = self.load_inertia_kg_m2
-        compliance = 1.0 / motor + 1.0 / load
-        rates = [
-            math.sqrt(self.shaft_stiffness_nm_per_rad * compliance),
-            self.shaft_damping_nm_s_per_rad * compliance,
-            math.sqrt(self.gravity_torque_nm / load),
-            self.motor_viscous_damping_nm_s_per_rad / self.motor_inertia_kg_m2,
-        ]
+        if self.rigid:  # one inertia: no shaft mode, and the velocity loop acts on the whole train
+            motor = load = self.total_inertia_kg_m2
+            rates = [math.sqrt(self.gravity_torque_nm / load),
+                     self.motor_viscous_damping_nm_s_per_rad * self.gear_ratio**2 / motor]
+        else:
+            compliance = 1.0 / motor + 1.0 / load
+            rates = [
+                math.sqrt(self.shaft_stiffness_nm_per_rad * compliance),
+                self.shaft_damping_nm_s_per_rad * compliance,
+                math.sqrt(self.gravity_torque_nm / load),
+                self.motor_viscous_damping_nm_s_per_rad / self.motor_inertia_kg_m2,
+            ]
         if self.drive_enabled:
             rates += [self.velocity_gain_nm_s_per_rad / motor, self.natural_frequency_rad_per_s,
                       self.position_gain_per_s, self.position_integral_gain_per_s]
@@ -377,9 +401,10 @@ class DriveTrain:
         half = 0.5 * self.play_rad
         twist = trajectory.motor_angle_rad / self.gear_ratio - trajectory.load_angle_rad
         dead = np.where(twist > half, twist - half, np.where(twist < -half, twist + half, 0.0))
+        shaft = 0.0 if self.rigid else 0.5 * self.shaft_stiffness_nm_per_rad * dead**2
         return (0.5 * self.motor_inertia_kg_m2 * trajectory.motor_velocity_rad_per_s**2
                 + 0.5 * self.load_inertia_kg_m2 * trajectory.load_velocity_rad_per_s**2
-                + 0.5 * self.shaft_stiffness_nm_per_rad * dead**2
+                + shaft
                 + self.gravity_torque_nm * (1.0 - np.cos(trajectory.load_angle_rad - self.hanging_angle_rad)))
 
 
@@ -432,10 +457,11 @@ class DriveTrainStepper:
 
     __slots__ = ("_constants", "_substeps", "_h", "phi", "omega_phi", "theta", "omega", "integral",
                  "previous_command", "stuck", "_drive_torque", "_shaft_torque", "_friction_torque", "_ratio",
-                 "samples")
+                 "samples", "_rigid")
 
     def __init__(self, train: DriveTrain) -> None:
         self._ratio = train.gear_ratio
+        self._rigid = (train.rigid, train.total_inertia_kg_m2, train.load_inertia_kg_m2 / train.total_inertia_kg_m2)
         self._substeps = train.substeps_per_sample
         self._h = train.sample_period_s / self._substeps
         ratio = train.gear_ratio
@@ -515,6 +541,8 @@ class DriveTrainStepper:
         r = float(x)
         if not math.isfinite(r):
             raise InvalidInputError(f"x: sample {self.samples} is {x!r}; expected a finite angle in rad")
+        if self._rigid[0]:
+            return self._step_rigid(r)
         (motor_inertia, load_inertia, stiffness, damping, half_play, motor_damping, coulomb, static, viscous,
          gravity, hanging, drive_on, load_feedback, kp, ki, feedforward, kv, speed_limit, torque_limit,
          period) = self._constants
@@ -584,6 +612,62 @@ class DriveTrainStepper:
                 integral += h * (r - (theta if load_feedback else phi))
 
         self.phi, self.omega_phi, self.theta, self.omega = phi, omega_phi, theta, omega
+        self.integral, self.stuck = integral, stuck
+        self.samples += 1
+        return start
+
+    def _step_rigid(self, r: float) -> float:
+        """:meth:`step` of a rigid train (:attr:`DriveTrain.rigid`): the same drive, friction and gravity
+        on the one inertia J = N^2 J_m + J_l, the same Störmer-Verlet sub-steps; the motor follows the load."""
+        (_, _, _, _, _, motor_damping, coulomb, static, viscous, gravity, hanging, drive_on, _, kp, ki,
+         feedforward, kv, speed_limit, torque_limit, period) = self._constants
+        _, inertia, load_share = self._rigid
+        h = self._h
+        kick = 0.5 * h
+        theta, omega, integral, stuck = self.theta, self.omega, self.integral, self.stuck
+        start = theta
+        rate = feedforward * (r - self.previous_command) / period
+        self.previous_command = r
+        sin = math.sin
+        for substep in range(self._substeps):
+            integrating = True
+            for half in (0, 1):
+                if drive_on:
+                    reference = kp * (r - theta + ki * integral) + rate
+                    if reference > speed_limit:
+                        reference, integrating = speed_limit, False
+                    elif reference < -speed_limit:
+                        reference, integrating = -speed_limit, False
+                    drive = kv * (reference - omega)
+                    if drive > torque_limit:
+                        drive, integrating = torque_limit, False
+                    elif drive < -torque_limit:
+                        drive, integrating = -torque_limit, False
+                else:
+                    drive = 0.0
+                weight = gravity * sin(theta - hanging)
+                external = drive - motor_damping * omega - weight
+                momentum = inertia * omega + kick * external
+                if stuck and -static <= external <= static:
+                    friction = external
+                elif -kick * coulomb <= momentum <= kick * coulomb:
+                    friction = momentum / kick
+                    omega = 0.0
+                    stuck = True
+                else:
+                    sliding = coulomb if momentum > 0.0 else -coulomb
+                    omega = (momentum - kick * sliding) / (inertia + kick * viscous)
+                    friction = sliding + viscous * omega
+                    stuck = False
+                if substep == 0 and half == 0:
+                    # the torque through the gear: J_l / J of the drive's net torque, J_m' / J of the load's
+                    shaft = load_share * (drive - motor_damping * omega) + (1.0 - load_share) * (friction + weight)
+                    self._drive_torque, self._shaft_torque, self._friction_torque = drive, shaft, friction
+                if half == 0:
+                    theta += h * omega
+            if drive_on and integrating and ki != 0.0:
+                integral += h * (r - theta)
+        self.phi, self.omega_phi, self.theta, self.omega = theta, omega, theta, omega
         self.integral, self.stuck = integral, stuck
         self.samples += 1
         return start

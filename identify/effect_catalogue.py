@@ -15,27 +15,36 @@ Placement (``Effect.placement``):
 
 * ``"input"``: before the first linear component (a map of the command: dead zone, saturation, delay);
 * ``"output"``: after the last linear component or resonance (a play or friction after the drive, a mode);
-* ``"end"``: at the very end (what the encoder reads: offset, scale).
+* ``"end"``: at the very end (what the encoder reads: offset, scale);
+* ``"dynamics"``: inside the drive's dynamics, as fields of a :class:`~identify.drive_train.DriveTrain`
+  (friction on the load's motion, gravity, the drive's rate and torque limits). Such an effect is realised
+  by merging its fields into the model's drive train, if the model has one (a given model with a
+  ``drive_train`` block, or a chain where another dynamics effect was already added), or else by replacing
+  the model's linear dynamics with the rigid drive train of the same response
+  (:func:`identify.model_discrepancy.rigid_train_like`: a P-P cascade of bandwidth f_n and damping zeta fitted to
+  the linear block's free run, free again in the joint fit when the start model was fitted). Its
+  parameters are per unit inertia (the workflow sees positions only: a torque T and the inertia J it acts
+  on are known only as T / J), and its TOML form is the ``drive_train`` table's keys it sets.
 
 Adding an effect: write its block (a frozen dataclass with ``apply`` and ``stepper``, as in
 :mod:`identify.plant_blocks`), add one :class:`Effect` here, and, if its residual has a signature of its own,
 score it under the same name in :func:`identify.effect_signatures.signature_scores`. The TOML reader and
-writer, the workflow's candidates, the hidden-effect cases and the confusion benchmark pick it up. A block
-that replaces the linear dynamics rather than adding to them (the drive-train block of issue 15, item 2)
-needs one more placement value, handled in :func:`identify.model_discrepancy._insert_index` and in
-:data:`PLACEMENTS`.
+writer, the workflow's candidates, the hidden-effect cases and the confusion benchmark pick it up. A dynamics
+effect is one entry too: its ``train_fields`` map free values to the drive train's fields (placement
+``"dynamics"``, handled in :func:`identify.model_discrepancy._insert_index` and ``_dynamics_chain``).
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
 
+from identify.drive_train import DriveTrain
 from identify.plant_blocks import (
     Block,
     CoulombFriction,
@@ -52,8 +61,8 @@ from identify.validation import InvalidInputError
 if TYPE_CHECKING:
     from identify.effect_signatures import SignatureScore
 
-__all__ = ["EFFECTS", "EFFECT_NAMES", "PLACEMENTS", "Effect", "GuessContext", "Parameter", "TomlKey", "effect",
-           "effect_for_block", "effect_for_toml_type"]
+__all__ = ["DYNAMICS_EFFECTS", "EFFECTS", "EFFECT_NAMES", "PLACEMENTS", "Effect", "GuessContext", "Parameter",
+           "TomlKey", "effect", "effect_for_block", "effect_for_toml_type", "reference_train"]
 
 NEGLIGIBLE_GAIN_ERROR = 1.0e-3
 """A fitted gain within this of 1 is no gain error: a 0.1 % scale error is below what the workflow resolves
@@ -101,6 +110,10 @@ class GuessContext:
     noise_bound_rad: float
     sample_period_s: float
     scores: dict[str, SignatureScore]
+    simulated_rad: NDArray[np.float64] | None = None
+    """y^_t, the start model's free run (the drive-train guesses read its speeds and accelerations)."""
+    train: DriveTrain | None = None
+    """For a dynamics effect: the drive train it goes into (its loop bandwidth scales the guesses)."""
 
     @property
     def residual_amplitude_rad(self) -> float:
@@ -157,10 +170,18 @@ class Effect:
         contact-branch refit (``_contact_branch_start`` in :mod:`identify.model_discrepancy`).
     stick_slip
         The free run is discontinuous in the breakaway threshold: the fit ends with a scan of the
-        breakaway/sliding ratio.
+        breakaway/sliding ratio (``_scan_breakaway``, or ``_scan_static_friction`` for a dynamics effect).
     linear_dynamics
         The block is linear dynamics (it commutes with the linear block: output-side effects go after it,
         and the linear block is refitted through it).
+    train_fields
+        Placement ``"dynamics"`` only: (free values, the drive train they go into) -> the
+        :class:`~identify.drive_train.DriveTrain` fields the effect sets (``build`` then merges them into
+        :func:`reference_train`); any real vector gives valid fields.
+    resolution
+        Dynamics effects: (fitted train, its free run y^, the angle resolution e) -> half-widths by which
+        the parameters' intervals are widened: what an angle known only within +-e leaves unresolved of a
+        torque or a limit (the fold refits all see the same quantised levels and cannot show it).
     """
 
     name: str
@@ -184,6 +205,13 @@ class Effect:
     contact_start: Callable[[float, float], list[tuple[float, ...]]] | None = None
     stick_slip: bool = False
     linear_dynamics: bool = False
+    train_fields: Callable[[Sequence[float], DriveTrain], dict[str, Any]] | None = None
+    resolution: Callable[[DriveTrain, NDArray[np.float64], float], dict[str, float]] | None = None
+
+    def in_train(self, values: Sequence[float], train: DriveTrain) -> DriveTrain:
+        """``train`` with this dynamics effect's fields set from its free ``values``."""
+        assert self.train_fields is not None, f"{self.name} is no dynamics effect"
+        return replace(train, **self.train_fields(values, train))
 
     def block_from_toml(self, values: dict[str, Any], sample_period_s: float) -> Block:
         """The block of a TOML table whose keys were read into ``values``."""
@@ -290,6 +318,190 @@ def _random_friction(rng: np.random.Generator, u: NDArray[np.float64], estimatio
     stick = rng.uniform(0.015, 0.04)
     return CoulombFriction(breakaway_torque_nm=stick * 2000.0, coulomb_torque_nm=stick * 2000.0 * rng.uniform(0.4, 0.75),
                            stiffness_nm_per_rad=2000.0)
+
+
+
+# -- dynamics effects (placement "dynamics") ----------------------------------------------------------------
+
+REFERENCE_BANDWIDTH_HZ = 30.0
+REFERENCE_DAMPING_RATIO = 0.7
+"""The position loop of :func:`reference_train` when no start model says otherwise (the drive loop of the
+hidden-effect records, :mod:`identify.discrepancy_cases`)."""
+
+
+def reference_train(sample_period_s: float, bandwidth_hz: float = REFERENCE_BANDWIDTH_HZ,
+                    damping_ratio: float = REFERENCE_DAMPING_RATIO) -> DriveTrain:
+    """The normalised rigid drive train the workflow fits: gear 1, total inertia J = 1 kg m^2 (0.5 at the
+    motor, 0.5 at the load: with a rigid shaft only the sum matters), a P-P cascade of ``bandwidth_hz`` and
+    ``damping_ratio`` and nothing else. With J = 1 a torque in N m is the acceleration T / J it causes in
+    rad/s^2, which is what positions alone can show."""
+    return DriveTrain(sample_period_s=sample_period_s, gear_ratio=1.0, motor_inertia_kg_m2=0.5,
+                      load_inertia_kg_m2=0.5, shaft_stiffness_nm_per_rad=math.inf,
+                      position_loop_bandwidth_hz=bandwidth_hz, position_loop_damping_ratio=damping_ratio)
+
+
+def _loop_stiffness_per_inertia(train: DriveTrain) -> float:
+    """omega_n^2: a torque T / J on the train leaves a static position error T / (J omega_n^2) in its P loop."""
+    return train.natural_frequency_rad_per_s ** 2
+
+
+def _friction_fields(v: Sequence[float], train: DriveTrain) -> dict[str, Any]:
+    inertia = train.total_inertia_kg_m2
+    coulomb = abs(v[0])
+    return {"coulomb_friction_nm": coulomb * inertia, "static_friction_nm": (coulomb + abs(v[1])) * inertia,
+            "viscous_friction_nm_s_per_rad": abs(v[2]) * inertia}
+
+
+def _gravity_fields(v: Sequence[float], train: DriveTrain) -> dict[str, Any]:
+    # m g l / J = |v0|: keep the train's arm (m, l) if it has one, else an arm of the load's inertia at 1 m
+    # (m l^2 = J_l, the largest point mass the load inertia allows), and set g
+    if train.pendulum_mass_kg * train.pendulum_length_m > 0.0:
+        mass, length = train.pendulum_mass_kg, train.pendulum_length_m
+    else:
+        mass, length = train.load_inertia_kg_m2, 1.0
+    per_inertia = max(abs(v[0]), 1e-9)
+    return {"pendulum_mass_kg": mass, "pendulum_length_m": length, "hanging_angle_rad": float(v[1]),
+            "gravity_m_per_s2": per_inertia * train.total_inertia_kg_m2 / (mass * length)}
+
+
+def _rate_fields(v: Sequence[float], train: DriveTrain) -> dict[str, Any]:
+    return {"motor_speed_limit_rad_per_s": max(abs(v[0]), 1e-6) * train.gear_ratio}
+
+
+def _torque_fields(v: Sequence[float], train: DriveTrain) -> dict[str, Any]:
+    return {"motor_torque_limit_nm": max(abs(v[0]), 1e-6) * train.total_inertia_kg_m2 / train.gear_ratio}
+
+
+def _train_builder(fields: Callable[[Sequence[float], DriveTrain], dict[str, Any]]) -> Callable[[Sequence[float], float], Block]:
+    return lambda v, period: replace(reference_train(period), **fields(v, reference_train(period)))
+
+
+def _friction_report(b: DriveTrain) -> dict[str, float]:
+    inertia = b.total_inertia_kg_m2
+    return {"coulomb_per_inertia_rad_per_s2": b.coulomb_friction_nm / inertia,
+            "static_per_inertia_rad_per_s2": b.static_friction_nm / inertia,
+            "viscous_per_inertia_per_s": b.viscous_friction_nm_s_per_rad / inertia}
+
+
+def _band_levels(context: GuessContext, count: int) -> NDArray[np.float64]:
+    """Static position errors from the noise bound to the residual's amplitude, as T / J = error omega_n^2."""
+    assert context.train is not None
+    return _levels(context, count) * _loop_stiffness_per_inertia(context.train)
+
+
+def _load_friction_guesses(context: GuessContext) -> list[tuple[float, ...]]:
+    # Coulomb friction T_c / J that holds the load within a band of the noise bound .. the residual's
+    # amplitude; breakaway 1 or 1.5 times it; a little viscous friction (2 % of the loop's damping
+    # 2 zeta omega_n: a start at exactly 0 would not move in the scaled polish)
+    assert context.train is not None
+    viscous = 0.02 * 2.0 * context.train.position_loop_damping_ratio * context.train.natural_frequency_rad_per_s
+    return [(c, excess * c, viscous) for c in _band_levels(context, 6) for excess in (0.01, 0.5)]
+
+
+def _gravity_guesses(context: GuessContext) -> list[tuple[float, ...]]:
+    # the sag the gravity signature fitted (m g l / J = sag omega_n^2, theta_0 from its phase), and levels
+    score = context.scores.get("gravity")
+    guesses = []
+    assert context.train is not None
+    if score is not None and score.details.get("sag_amplitude_rad", 0.0) > 0.0:
+        guesses.append((score.details["sag_amplitude_rad"] * _loop_stiffness_per_inertia(context.train),
+                        score.details["hanging_angle_rad"]))
+    # theta_0 = +-0.1 rad (a start at exactly 0 would not move in the scaled polish)
+    return guesses + [(g, side * 0.1) for g in _band_levels(context, 5) for side in (-1.0, 1.0)]
+
+
+def _peaks(context: GuessContext, order: int) -> tuple[float, float]:
+    """The peak speed (order 1) or acceleration (order 2) of the start model's free run and of the
+    measurement (y = y^ + r; its acceleration, noisy at a count per T^2, is not used: 0)."""
+    simulated = context.simulated_rad if context.simulated_rad is not None else np.zeros_like(context.residual_rad)
+    model, measured = simulated, simulated + context.residual_rad
+    for _ in range(order):
+        model = np.gradient(model) / context.sample_period_s
+        measured = np.gradient(measured) / context.sample_period_s
+    return float(np.max(np.abs(model))), (float(np.max(np.abs(measured))) if order == 1 else 0.0)
+
+
+def _rate_limit_guesses(context: GuessContext) -> list[tuple[float, ...]]:
+    # a limit below the model's peak speed (else it changes nothing), and the measured peak speed
+    model, measured = _peaks(context, 1)
+    return [(fraction * model,) for fraction in (0.3, 0.5, 0.7, 0.9)] + ([(measured,)] if 0 < measured < model else [])
+
+
+def _torque_limit_guesses(context: GuessContext) -> list[tuple[float, ...]]:
+    model, _ = _peaks(context, 2)
+    return [(fraction * model,) for fraction in (0.1, 0.2, 0.35, 0.5, 0.7, 0.9)]
+
+
+def _segment_peak(rng: np.random.Generator, u: NDArray[np.float64], estimation_fraction: float, period: float,
+                  order: int) -> float:
+    """The smaller of the two segments' peak speed (order 1) or acceleration (order 2) of the reference
+    train's free run: a hidden limit below it is reached in both segments."""
+    y = reference_train(period).apply(u)
+    for _ in range(order):
+        y = np.gradient(y) / period
+    split = int(round(estimation_fraction * u.size))
+    return min(float(np.max(np.abs(y[:split]))), float(np.max(np.abs(y[split:]))))
+
+
+def _random_load_friction(rng: np.random.Generator, u: NDArray[np.float64], f: float, period: float) -> Block:
+    # Coulomb friction holding the load within 8-25 mrad of the reference loop (30 Hz: T_c / J of 280-890
+    # rad/s^2), breakaway 1-1.5 times it, viscous up to a fifth of the loop's own damping 2 zeta omega_n
+    stiffness = _loop_stiffness_per_inertia(reference_train(period))
+    coulomb = rng.uniform(0.008, 0.025) * stiffness
+    loop_damping = 2.0 * REFERENCE_DAMPING_RATIO * 2.0 * math.pi * REFERENCE_BANDWIDTH_HZ
+    return _train_builder(_friction_fields)((coulomb, coulomb * rng.uniform(0.0, 0.5),
+                                             rng.uniform(0.0, 0.2) * loop_damping), period)
+
+
+def _random_gravity(rng: np.random.Generator, u: NDArray[np.float64], f: float, period: float) -> Block:
+    # an arm whose weight sags the 30 Hz loop by 10-40 mrad when horizontal, hanging within +-0.5 rad of 0
+    stiffness = _loop_stiffness_per_inertia(reference_train(period))
+    return _train_builder(_gravity_fields)((rng.uniform(0.010, 0.040) * stiffness, rng.uniform(-0.5, 0.5)), period)
+
+
+def _random_rate_limit(rng: np.random.Generator, u: NDArray[np.float64], f: float, period: float) -> Block:
+    # 40-70 % of the peak speed both segments reach
+    return _train_builder(_rate_fields)((rng.uniform(0.4, 0.7) * _segment_peak(rng, u, f, period, 1),), period)
+
+
+def _random_torque_limit(rng: np.random.Generator, u: NDArray[np.float64], f: float, period: float) -> Block:
+    # 30-60 % of the peak acceleration both segments reach
+    return _train_builder(_torque_fields)((rng.uniform(0.3, 0.6) * _segment_peak(rng, u, f, period, 2),), period)
+
+
+
+def _torque_resolution(train: DriveTrain, keys: Sequence[str], resolution_rad: float) -> dict[str, float]:
+    """A torque per inertia shows as a static error T / (J omega_n^2) known within +-e: +-e omega_n^2."""
+    return {key: resolution_rad * _loop_stiffness_per_inertia(train) for key in keys}
+
+
+def _longest_run(mask: NDArray[np.bool_]) -> int:
+    best = run = 0
+    for flag in mask.tolist():
+        run = run + 1 if flag else 0
+        best = max(best, run)
+    return best
+
+
+def _limit_resolution(train: DriveTrain, simulated: NDArray[np.float64], resolution_rad: float,
+                      order: int) -> float:
+    """A speed (order 1) or acceleration (order 2) limit is the slope or curvature of the free run over the
+    longest stretch of n samples at the limit; with both ends known within +-e it is known within
+    2 e / (n T) (speed) or 4 e / (n T)^2 (acceleration, from e = a (n T)^2 / 2 at each end)."""
+    period = train.sample_period_s
+    rate = np.asarray(simulated, dtype=float)
+    for _ in range(order):
+        rate = np.gradient(rate) / period
+    limit = (train.motor_speed_limit_rad_per_s / train.gear_ratio if order == 1
+             else train.motor_torque_limit_nm * train.gear_ratio / train.total_inertia_kg_m2)
+    if not math.isfinite(limit):
+        return 0.0
+    samples = max(_longest_run(np.abs(rate) >= 0.98 * limit), 1)
+    return (2.0 if order == 1 else 4.0) * resolution_rad / (samples * period) ** order
+
+
+def _static_error(train: DriveTrain, torque_per_inertia: float) -> float:
+    return torque_per_inertia / _loop_stiffness_per_inertia(train)
 
 
 EFFECTS: dict[str, Effect] = {effect.name: effect for effect in (
@@ -411,14 +623,88 @@ EFFECTS: dict[str, Effect] = {effect.name: effect for effect in (
         signature="r ~ e y^: the measured output is (1 + e) times the model's",
         needs_given_model=True,
     ),
+    Effect(
+        name="load_friction", block_class=DriveTrain, toml_type="drive_train",
+        toml_keys=(TomlKey("coulomb_friction_nm"), TomlKey("static_friction_nm"),
+                   TomlKey("viscous_friction_nm_s_per_rad")),
+        takes_sample_period=True,
+        parameters=(Parameter("coulomb_per_inertia_rad_per_s2", "rad/s^2", "Coulomb friction T_c / J on the load's motion", lower=0.0),
+                    Parameter("static_per_inertia_rad_per_s2", "rad/s^2", "breakaway friction T_s / J (>= T_c / J)", lower=0.0),
+                    Parameter("viscous_per_inertia_per_s", "1/s", "viscous friction d_v / J", lower=0.0)),
+        placement="dynamics", free_parameters=3, build=_train_builder(_friction_fields),
+        report=_friction_report, guesses=_load_friction_guesses,
+        # vanished: the breakaway friction holds the loop within half a noise bound (T_s / (J omega_n^2)
+        # < delta / 2) and the viscous part adds less than 1 % to the loop's damping 2 zeta omega_n
+        vanished=lambda b, delta: (_static_error(b, b.static_friction_nm / b.total_inertia_kg_m2) < delta / 2.0
+                                   and b.viscous_friction_nm_s_per_rad / b.total_inertia_kg_m2
+                                   < 0.01 * 2.0 * b.position_loop_damping_ratio * b.natural_frequency_rad_per_s),
+        random_block=_random_load_friction,
+        signature="a lag against the model's motion (r ~ -c sign(v^)), the load left short where it stops",
+        train_fields=_friction_fields,
+        stick_slip=True,
+        resolution=lambda train, y_hat, e: _torque_resolution(
+            train, ("coulomb_per_inertia_rad_per_s2", "static_per_inertia_rad_per_s2"), e),
+    ),
+    Effect(
+        name="gravity", block_class=DriveTrain, toml_type="drive_train",
+        toml_keys=(TomlKey("pendulum_mass_kg"), TomlKey("pendulum_length_m"), TomlKey("gravity_m_per_s2"),
+                   TomlKey("hanging_angle_rad")),
+        takes_sample_period=True,
+        parameters=(Parameter("gravity_per_inertia_rad_per_s2", "rad/s^2", "m g l / J: the weight's largest torque over the inertia", lower=0.0),
+                    Parameter("hanging_angle_rad", "rad", "angle at which the arm hangs straight down")),
+        placement="dynamics", free_parameters=2, build=_train_builder(_gravity_fields),
+        report=lambda b: {"gravity_per_inertia_rad_per_s2": b.gravity_torque_nm / b.total_inertia_kg_m2,
+                          "hanging_angle_rad": b.hanging_angle_rad},
+        guesses=_gravity_guesses,
+        # vanished: the arm's weight, horizontal, sags the loop by less than half a noise bound
+        vanished=lambda b, delta: _static_error(b, b.gravity_torque_nm / b.total_inertia_kg_m2) < delta / 2.0,
+        random_block=_random_gravity,
+        signature="a position-dependent sag (r ~ -S sin(y^ - theta_0), S = m g l / (J omega_n^2))",
+        train_fields=_gravity_fields,
+        resolution=lambda train, y_hat, e: _torque_resolution(train, ("gravity_per_inertia_rad_per_s2",), e),
+    ),
+    Effect(
+        name="rate_limit", block_class=DriveTrain, toml_type="drive_train",
+        toml_keys=(TomlKey("motor_speed_limit_rad_per_s"),), takes_sample_period=True,
+        parameters=(Parameter("speed_limit_rad_per_s", "rad/s", "largest speed of the load (the drive's speed limit / N)", lower=0.0),),
+        placement="dynamics", free_parameters=1, build=_train_builder(_rate_fields),
+        report=lambda b: {"speed_limit_rad_per_s": b.motor_speed_limit_rad_per_s / b.gear_ratio},
+        guesses=_rate_limit_guesses,
+        # vanished: never (as saturation): a limit the motion never reaches changes nothing, so it cannot
+        # lower the penalised gap and is not kept
+        vanished=lambda b, delta: False,
+        random_block=_random_rate_limit,
+        signature="a lag that grows while the model moves faster than the limit (r ~ -T sum (v^ - clip(v^, q)))",
+        train_fields=_rate_fields,
+        resolution=lambda train, y_hat, e: {"speed_limit_rad_per_s": _limit_resolution(train, y_hat, e, 1)},
+    ),
+    Effect(
+        name="torque_limit", block_class=DriveTrain, toml_type="drive_train",
+        toml_keys=(TomlKey("motor_torque_limit_nm"),), takes_sample_period=True,
+        parameters=(Parameter("torque_limit_per_inertia_rad_per_s2", "rad/s^2", "N tau_max / J: the largest acceleration the drive gives", lower=0.0),),
+        placement="dynamics", free_parameters=1, build=_train_builder(_torque_fields),
+        report=lambda b: {"torque_limit_per_inertia_rad_per_s2": b.motor_torque_limit_nm * b.gear_ratio
+                          / b.total_inertia_kg_m2},
+        guesses=_torque_limit_guesses,
+        vanished=lambda b, delta: False,  # as rate_limit
+        random_block=_random_torque_limit,
+        signature="the lag of an acceleration limit (the double sum of the model's excess acceleration)",
+        train_fields=_torque_fields,
+        resolution=lambda train, y_hat, e: {"torque_limit_per_inertia_rad_per_s2": _limit_resolution(train, y_hat, e, 2)},
+    ),
 )}
 """Every effect, by its diagnose name, in the order the workflow tries them."""
 
 EFFECT_NAMES: tuple[str, ...] = tuple(EFFECTS)
 """Names of the effects the workflow can name."""
 
-_BY_CLASS = {entry.block_class: entry for entry in EFFECTS.values()}
-_BY_TOML = {entry.toml_type: entry for entry in EFFECTS.values()}
+_BY_CLASS = {entry.block_class: entry for entry in EFFECTS.values() if entry.placement != "dynamics"}
+_BY_TOML = {entry.toml_type: entry for entry in EFFECTS.values() if entry.placement != "dynamics"}
+"""Blocks and TOML types of one effect each; the dynamics effects share the ``drive_train`` block and table
+(read and written as a whole by :mod:`sim_backend.plant_config`)."""
+
+DYNAMICS_EFFECTS: tuple[str, ...] = tuple(name for name, entry in EFFECTS.items() if entry.placement == "dynamics")
+"""The effects realised inside a drive train."""
 
 
 def effect(name: str) -> Effect:
@@ -430,7 +716,8 @@ def effect(name: str) -> Effect:
 
 
 def effect_for_block(block: Block) -> Effect | None:
-    """The entry whose block class ``block`` is, or None (a linear block, an input backlash ...)."""
+    """The entry whose block class ``block`` is, or None (a linear block, an input backlash, a drive train:
+    the dynamics effects it holds are :data:`DYNAMICS_EFFECTS`)."""
     return _BY_CLASS.get(type(block))
 
 
@@ -439,7 +726,7 @@ def effect_for_toml_type(toml_type: str) -> Effect | None:
     return _BY_TOML.get(toml_type)
 
 
-PLACEMENTS = ("input", "output", "end")
+PLACEMENTS = ("input", "output", "end", "dynamics")
 """Where an effect can sit (module docstring)."""
 
 
@@ -449,6 +736,8 @@ def _check() -> None:
             raise AssertionError(f"{entry.name}: placement {entry.placement!r}")
         if not math.isfinite(entry.free_parameters) or entry.free_parameters < 1:
             raise AssertionError(f"{entry.name}: free_parameters")
+        if (entry.placement == "dynamics") != (entry.train_fields is not None):
+            raise AssertionError(f"{entry.name}: a dynamics effect, and only one, has train_fields")
 
 
 _check()

@@ -17,7 +17,17 @@ the measured input u_t, the measured output y_t and the model's simulated output
 * ``resonance``: the share of the residual's power (Welch spectrum) within three bins of its peak, and the
   peak frequency;
 * ``offset``: r_t ~ o + drift * t T;
-* ``gain_error``: r_t ~ e y^_t (the measured output is (1 + e) times the model's); the details give e.
+* ``gain_error``: r_t ~ e y^_t (the measured output is (1 + e) times the model's); the details give e;
+* ``load_friction``: r_t ~ -c sign(v^_t), v^ the model's velocity: friction inside the dynamics holds the
+  load back against its motion (a lag of constant size while it moves, the load left short where it stops);
+* ``gravity``: r_t ~ alpha sin(y^_t) + beta cos(y^_t): a position-dependent load sags the output by
+  -(m g l / (J omega_n^2)) sin(y^ - theta_0) (the details give the sag amplitude hypot(alpha, beta) and
+  theta_0 = atan2(beta, alpha));
+* ``rate_limit``: r_t ~ -T sum_{s<=t} (v^_s - clip(v^_s, -q, q)) with q the 85 % quantile of |v^| over the
+  moving samples: the lag a speed limit accumulates while the model moves faster than it (the details give
+  the model's and the measurement's peak speeds);
+* ``torque_limit``: the same with the model's acceleration a^ and its 85 % quantile (the lag behind an
+  acceleration limit is the double sum); the details give the model's peak acceleration.
 """
 
 from __future__ import annotations
@@ -144,4 +154,29 @@ def signature_scores(command_rad: NDArray[np.float64], angle_rad: NDArray[np.flo
     energy = float(np.dot(y_hat, y_hat))
     relative_error = float(np.dot(r, y_hat)) / energy if energy > 0.0 else 0.0
     scores["gain_error"] = SignatureScore("gain_error", _explained(r, y_hat), {"relative_error": relative_error})
+    scores.update(_drive_train_scores(y, y_hat, r, sample_period_s))
     return scores
+
+
+def _drive_train_scores(y: NDArray[np.float64], y_hat: NDArray[np.float64], r: NDArray[np.float64],
+                        period: float) -> dict[str, SignatureScore]:
+    """The signatures of the drive-train effects (module docstring: ``load_friction`` .. ``torque_limit``)."""
+    speed = np.gradient(y_hat) / period
+    measured_speed = np.gradient(y) / period
+    moving = np.abs(speed) > 1e-6 * max(float(np.max(np.abs(speed))), 1e-300)
+    out = {"load_friction": SignatureScore("load_friction", _explained(r, -np.sign(speed) * moving), {})}
+    sin, cos = np.sin(y_hat), np.cos(y_hat)
+    theta, *_ = np.linalg.lstsq(np.column_stack((sin, cos)), r, rcond=None)
+    out["gravity"] = SignatureScore("gravity", _explained(r, sin, cos), {
+        "sag_amplitude_rad": float(np.hypot(theta[0], theta[1])),
+        "hanging_angle_rad": float(np.arctan2(theta[1], -theta[0])) if np.any(theta) else 0.0})
+    acceleration = np.gradient(speed) / period
+    for name, rate, integrations in (("rate_limit", speed, 1), ("torque_limit", acceleration, 2)):
+        level = float(np.quantile(np.abs(rate[moving]), 0.85)) if np.any(moving) else 0.0
+        regressor = rate - np.clip(rate, -level, level)
+        for _ in range(integrations):
+            regressor = -np.cumsum(regressor) * period
+        out[name] = SignatureScore(name, _explained(r, regressor), {
+            "model_peak_rad_per_s" if integrations == 1 else "model_peak_rad_per_s2": float(np.max(np.abs(rate))),
+            **({"measured_peak_rad_per_s": float(np.max(np.abs(measured_speed)))} if integrations == 1 else {})})
+    return out

@@ -37,7 +37,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -45,7 +45,8 @@ from numpy.typing import ArrayLike, NDArray
 from scipy import optimize
 from scipy.signal import lfilter
 
-from identify.effect_catalogue import EFFECT_NAMES, EFFECTS, GuessContext, effect
+from identify.drive_train import DriveTrain
+from identify.effect_catalogue import EFFECT_NAMES, EFFECTS, GuessContext, effect, reference_train
 from identify.border_lifting import direction_signal
 from identify.effect_signatures import SignatureScore, signature_scores
 from identify.plant_blocks import (
@@ -82,6 +83,7 @@ __all__ = [
     "diagnose_model",
     "disagreement",
     "fit_linear_model",
+    "rigid_train_like",
 ]
 
 _BIG = 1.0e6
@@ -417,14 +419,18 @@ def disagreement(model: PlantModel, command_rad: ArrayLike, angle_rad: ArrayLike
 
 @dataclass(frozen=True)
 class _Component:
-    """One link of the chain: a fixed block, or a named effect with free parameters."""
+    """One link of the chain: a fixed block, or a named effect with free parameters, or a drive train
+    holding dynamics effects (kind ``"drive_train"``: ``block`` the train they go into, ``effects`` their
+    names in the order of ``values``, led by the loop's bandwidth and damping when ``loop_free``)."""
 
-    kind: str  # "fixed", "linear", or an effect name
+    kind: str  # "fixed", "linear", "drive_train", or an effect name
     values: tuple[float, ...] = ()
     block: Block | None = None
     sample_period_s: float = 1.0
     na: int = 0
     nk: int = 0  # leading zeros of B (pure delay of a linear component), not free
+    effects: tuple[str, ...] = ()
+    loop_free: bool = False
 
     @property
     def free(self) -> int:
@@ -451,7 +457,38 @@ def _build(component: _Component, values: Sequence[float]) -> Block:
     if kind == "linear":
         return LinearBlock(a=tuple(v[: component.na]), b=(0.0,) * component.nk + tuple(v[component.na:]),
                            sample_period_s=component.sample_period_s)
+    if kind == "drive_train":
+        assert isinstance(component.block, DriveTrain)
+        return _train(component.block, v, component.effects, component.loop_free)
     return effect(kind).build(v, component.sample_period_s)
+
+
+LOOP_DAMPING_RANGE = (0.05, 2.0)
+"""The damping ratio of a fitted drive train's position loop is kept within this range (below: an
+oscillator no servo is tuned to; above: a first-order lag, which zeta = 2 already is within 7 % in its
+rise time; a wider range only buys sub-steps, which grow with zeta omega_n T)."""
+
+LOOP_BANDWIDTH_NYQUIST_SHARE = 0.2
+"""... and its bandwidth at most this share of the Nyquist frequency (a position loop faster than a tenth
+of the sample rate is no dynamics the record resolves; at 1 kHz: 100 Hz, 63 sub-steps at zeta = 2)."""
+
+
+def _train(base: DriveTrain, values: Sequence[float], effects: Sequence[str], loop_free: bool) -> DriveTrain:
+    """``base`` with the loop (when ``loop_free``: bandwidth and damping, the first two values) and then each
+    dynamics effect's fields set from ``values`` (catalogue ``train_fields``)."""
+    train, k = base, 0
+    if loop_free:
+        nyquist = 0.5 / base.sample_period_s
+        train = replace(train, position_loop_bandwidth_hz=min(max(abs(values[0]), 1e-3 * nyquist),
+                                                               LOOP_BANDWIDTH_NYQUIST_SHARE * nyquist),
+                        position_loop_damping_ratio=min(max(abs(values[1]), LOOP_DAMPING_RANGE[0]),
+                                                        LOOP_DAMPING_RANGE[1]))
+        k = 2
+    for name in effects:
+        entry = EFFECTS[name]
+        train = entry.in_train(values[k:k + entry.free_parameters], train)
+        k += entry.free_parameters
+    return train
 
 
 def _parameters(kind: str, block: Block) -> dict[str, float]:
@@ -474,8 +511,7 @@ class _Chain:
         for c in self.components:
             if c.free:
                 n = len(c.values)
-                out.append(_Component(c.kind, tuple(float(x) for x in theta[k:k + n]), c.block, c.sample_period_s, c.na,
-                                      c.nk))
+                out.append(replace(c, values=tuple(float(x) for x in theta[k:k + n])))
                 k += n
             else:
                 out.append(c)
@@ -641,11 +677,18 @@ def fit_linear_model(command_rad: ArrayLike, angle_rad: ArrayLike, sample_period
 
 def _insert_index(chain: _Chain, kind: str) -> int:
     """Where an effect goes (its catalogue placement): ``input`` before the first linear component,
-    ``output`` after the last linear/resonance component, ``end`` at the very end."""
+    ``output`` after the last linear/resonance component, ``end`` at the very end; ``dynamics`` at the drive
+    train (the chain's ``drive_train`` component, or the fixed drive train of a given model), else at the
+    first linear component, which :func:`_dynamics_chain` replaces with a drive train; -1 when the chain
+    has neither (a model without linear dynamics: no dynamics effect can go in)."""
     linear = [i for i, c in enumerate(chain.components)
-              if c.kind == "linear" or (c.kind in EFFECTS and EFFECTS[c.kind].linear_dynamics)
-              or isinstance(c.block, (LinearBlock, Resonance))]
+              if c.kind in ("linear", "drive_train") or (c.kind in EFFECTS and EFFECTS[c.kind].linear_dynamics)
+              or isinstance(c.block, (LinearBlock, Resonance, DriveTrain))]
     placement = effect(kind).placement
+    if placement == "dynamics":
+        trains = [i for i, c in enumerate(chain.components) if c.kind == "drive_train" or isinstance(c.block, DriveTrain)]
+        plain = [i for i, c in enumerate(chain.components) if c.kind == "linear" or isinstance(c.block, LinearBlock)]
+        return (trains or plain or [-1])[0]
     if placement == "input":
         return linear[0] if linear else 0
     if placement == "end":
@@ -669,17 +712,32 @@ def _try_effect(kind: str, chain: _Chain, u: NDArray[np.float64], y: NDArray[np.
                 max_delay_samples: int, max_evaluations: int) -> _Candidate:
     index = _insert_index(chain, kind)
     u_est, y_est = u[:n_est], y[:n_est]
+    entry = effect(kind)
+    train: DriveTrain | None = None
+    if entry.placement == "dynamics":
+        chain, train = _dynamics_chain(chain, index, u_est)
 
     def with_effect(values: tuple[float, ...], base: _Chain = chain) -> _Chain:
         components = list(base.components)
-        components.insert(index, _Component(kind, tuple(float(v) for v in values), sample_period_s=period))
+        if entry.placement == "dynamics":  # merged into the drive train
+            holder = components[index]
+            components[index] = replace(holder, values=holder.values + tuple(float(v) for v in values),
+                                        effects=holder.effects + (kind,))
+        else:
+            components.insert(index, _Component(kind, tuple(float(v) for v in values), sample_period_s=period))
         return _Chain(components)
 
-    entry = effect(kind)
     if entry.searched:
         options = [with_effect((d,)) for d in range(1, max_delay_samples + 1)]
     else:
-        options = [with_effect(g) for g in entry.guesses(GuessContext(u, residual, delta, period, scores))]
+        simulated = y - residual
+        options = [with_effect(g) for g in entry.guesses(GuessContext(u, residual, delta, period, scores,
+                                                                      simulated, train))]
+        if entry.placement == "dynamics" and chain.components[index].loop_free and options:
+            # the guesses ranked at the start model's loop; the best LOOP_START_GUESSES from every loop start
+            costs = [_rms(_free_run_error(option, u_est, y_est)) for option in options]
+            ranked = [options[i] for i in np.argsort(costs)[:LOOP_START_GUESSES]]
+            options = [_with_loop(option, index, loop) for option in ranked for loop in _loop_starts(train)]
     options = [_refit_last_linear(option, u_est, y_est) for option in options]
     if entry.contact_start is not None:
         plays = np.geomspace(delta, max(float(np.max(np.abs(residual))), 4.0 * delta), 4)
@@ -691,13 +749,131 @@ def _try_effect(kind: str, chain: _Chain, u: NDArray[np.float64], y: NDArray[np.
     best = _refine_delays(best, u_est, y_est)
     if any(c.kind == "linear" for c in best.components):
         best = _polish(best, u_est, y_est, max_evaluations, frozenset({"linear"}))
-    best = _polish(best, u_est, y_est, max_evaluations)
-    if entry.stick_slip:
+    best = _polish(best, u_est, y_est, _budget(best, max_evaluations))
+    if entry.stick_slip and train is not None:
+        best = _scan_static_friction(best, index, kind, u_est, y_est)
+    elif entry.stick_slip:
         best = _scan_breakaway(best, index, u_est, y_est)
     error = (y - best.model().simulate(u))[n_est:] if best.linear_stable() else np.full(y.size - n_est, _BIG)
     error = np.where(np.isfinite(error), error, _BIG)
     block = _build(best.components[index], best.components[index].values)
     return _Candidate(kind, best, _rms(error), block, index, _rms(_free_run_error(best, u_est, y_est)), error)
+
+
+DYNAMICS_EVALUATIONS = 15
+"""Function evaluations of a polish of a chain with a drive train in it (:func:`_budget`): each is a
+sub-stepped drive-train run (about 10 ms for 2000 samples, against 0.1 ms for the linear chains), and the
+guesses (from the start model's peaks, its loop stiffness and the signatures) start within a few
+Gauss-Newton steps of the optimum."""
+
+
+def _budget(chain: _Chain, evaluations: int) -> int:
+    """``evaluations``, or at most :data:`DYNAMICS_EVALUATIONS` when the chain holds a drive train."""
+    if any(c.kind == "drive_train" for c in chain.components):
+        return min(evaluations, DYNAMICS_EVALUATIONS)
+    return evaluations
+
+
+def _dynamics_chain(chain: _Chain, index: int, u: NDArray[np.float64]) -> tuple[_Chain, DriveTrain]:
+    """The chain with a ``drive_train`` component at ``index`` (catalogue placement ``dynamics``) and the
+    train the effect goes into: that component if there is one; a given model's fixed drive train made a
+    component (loop fixed); or the linear component replaced by the rigid drive train of the same response
+    (:func:`rigid_train_like`; loop free again in the joint fit when the linear block was free, fixed
+    when it was the given model's)."""
+    component = chain.components[index]
+    if component.kind == "drive_train":
+        train = _build(component, component.values)
+        assert isinstance(train, DriveTrain)
+        return chain, train
+    if isinstance(component.block, DriveTrain):
+        holder = _Component("drive_train", (), component.block, component.block.sample_period_s)
+    else:
+        linear = _build(component, component.values)
+        assert isinstance(linear, LinearBlock)
+        before = chain.components[:index]
+        inner = PlantModel(tuple(_build(c, c.values) for c in before)).simulate(u) if before else u
+        fitted = rigid_train_like(linear, inner)
+        if component.kind == "linear":
+            holder = _Component("drive_train", (fitted.position_loop_bandwidth_hz, fitted.position_loop_damping_ratio),
+                                fitted, linear.sample_period_s, loop_free=True)
+        else:
+            holder = _Component("drive_train", (), fitted, linear.sample_period_s)
+    components = list(chain.components)
+    components[index] = holder
+    train = _build(holder, holder.values)
+    assert isinstance(train, DriveTrain)
+    return _Chain(components), train
+
+
+LOOP_START_FACTORS = ((1.0, 1.0), (0.5, 0.7), (0.5, 1.4), (2.0, 0.7), (2.0, 1.4))
+"""Starts of a free loop in a dynamics fit, as factors on the bandwidth and damping of the start model's
+rigid equivalent (:func:`rigid_train_like`): the linear model was fitted with the effect missing, and a
+speed limit or friction makes it slower and more damped than the drive's loop is (a rate-limited record's
+linear fit gave 47 Hz at the damping cap for a 30 Hz, zeta 0.7 loop)."""
+
+
+LOOP_START_GUESSES = 2
+"""... tried with the best this many effect guesses at the start model's loop (each start is a sub-stepped
+run: all guesses from all starts would cost five times as many)."""
+
+
+def _loop_starts(train: DriveTrain) -> list[tuple[float, float]]:
+    low, high = LOOP_DAMPING_RANGE
+    return [(f * train.position_loop_bandwidth_hz, min(max(z * train.position_loop_damping_ratio, low), high))
+            for f, z in LOOP_START_FACTORS]
+
+
+def _with_loop(chain: _Chain, index: int, loop: tuple[float, float]) -> _Chain:
+    components = list(chain.components)
+    holder = components[index]
+    components[index] = replace(holder, values=tuple(loop) + holder.values[2:])
+    return _Chain(components)
+
+
+_TRAIN_CACHE: dict[tuple[Any, ...], DriveTrain] = {}
+
+
+def rigid_train_like(block: LinearBlock, u: NDArray[np.float64]) -> DriveTrain:
+    """The rigid drive train (:func:`identify.effect_catalogue.reference_train`) whose position loop
+    reproduces ``block``'s free run on ``u`` best (least squares on bandwidth f_n and damping zeta). Start:
+    the continuous poles s = ln(z) / T of the block's dominant pair (complex: omega_n = |s|,
+    zeta = -Re s / |s|; real: omega_n = sqrt(s_1 s_2), zeta = (s_1 + s_2) / (2 omega_n); one real pole s:
+    omega_n = 2|s|, zeta = 1, the critically damped pair of the same rise). The same block and input give
+    the same train (cached: every dynamics candidate of a round starts from it)."""
+    key = (block.a, block.b, block.sample_period_s, u.size, hash(u.tobytes()))
+    if key in _TRAIN_CACHE:
+        return _TRAIN_CACHE[key]
+    period = block.sample_period_s
+    poles = np.roots((1.0, *block.a)) if block.a else np.zeros(0)
+    poles = poles[np.abs(poles) > 1e-9]
+    continuous = np.log(poles.astype(complex)) / period
+    continuous = continuous[np.argsort(np.abs(continuous))][:2]
+    if continuous.size == 2:
+        natural = float(np.sqrt(np.abs(continuous[0] * continuous[1])))
+        damping = float(-np.real(continuous.sum()) / (2.0 * natural)) if natural > 0 else 1.0
+    elif continuous.size == 1:
+        natural, damping = 2.0 * float(abs(continuous[0])), 1.0
+    else:
+        natural, damping = 2.0 * math.pi * 0.1 / period, 1.0
+    nyquist = 0.5 / period
+    start = (min(max(natural / (2.0 * math.pi), 1e-3 * nyquist), LOOP_BANDWIDTH_NYQUIST_SHARE * nyquist),
+             min(max(damping, LOOP_DAMPING_RANGE[0]), LOOP_DAMPING_RANGE[1]))
+    target = block.apply(u)
+    base = reference_train(period, *start)
+
+    def error(v: NDArray[np.float64]) -> NDArray[np.float64]:
+        try:
+            return _train(base, v, (), True).apply(u) - target
+        except InvalidInputError:
+            return np.full(u.size, _BIG / math.sqrt(u.size))
+
+    with np.errstate(all="ignore"):
+        fit = optimize.least_squares(error, np.array(start), method="trf", diff_step=1e-4, max_nfev=20)
+    train = _train(base, fit.x, (), True)
+    if len(_TRAIN_CACHE) > 64:
+        _TRAIN_CACHE.clear()
+    _TRAIN_CACHE[key] = train
+    return train
 
 
 def _scan_breakaway(chain: _Chain, index: int, u: NDArray[np.float64], y: NDArray[np.float64]) -> _Chain:
@@ -713,6 +889,27 @@ def _scan_breakaway(chain: _Chain, index: int, u: NDArray[np.float64], y: NDArra
         return _Chain(components)
 
     options = [chain, *(with_ratio(ratio) for ratio in np.linspace(1.0, 3.0, 41))]
+    costs = [_rms(_free_run_error(option, u, y)) for option in options]
+    return options[int(np.argmin(costs))]
+
+
+def _scan_static_friction(chain: _Chain, index: int, kind: str, u: NDArray[np.float64],
+                          y: NDArray[np.float64]) -> _Chain:
+    """:func:`_scan_breakaway` for friction inside a drive train: the breakaway/Coulomb ratio T_s / T_c over
+    1..2 in steps of 0.05 at the fitted Coulomb friction (its values are T_c / J, (T_s - T_c) / J, ...)."""
+    holder = chain.components[index]
+    offset = (2 if holder.loop_free else 0) + sum(EFFECTS[name].free_parameters
+                                                 for name in holder.effects[:holder.effects.index(kind)])
+    coulomb = abs(holder.values[offset])
+
+    def with_ratio(ratio: float) -> _Chain:
+        values = list(holder.values)
+        values[offset + 1] = (ratio - 1.0) * coulomb
+        components = list(chain.components)
+        components[index] = replace(holder, values=tuple(values))
+        return _Chain(components)
+
+    options = [chain, *(with_ratio(ratio) for ratio in np.linspace(1.0, 2.0, 21))]
     costs = [_rms(_free_run_error(option, u, y)) for option in options]
     return options[int(np.argmin(costs))]
 
@@ -970,7 +1167,7 @@ def diagnose_model(command_rad: ArrayLike, angle_rad: ArrayLike, noise_bound_rad
             for key, value in step.parameters.items():
                 low, high = intervals.get(step.effect, {}).get(key, (value, value))
                 intervals.setdefault(step.effect, {})[key] = (min(low, value), max(high, value))
-        intervals = _resolution_floor(intervals, delta)
+        intervals = _resolution_floor(intervals, delta, _final_train(chain), current.simulated_rad)
     verdict, reason = _verdict(initial, current, steps, ambiguous_between, consistent, delta, consistent_fraction)
     if verdict == "unexplained":
         unmeasured = _unmeasured_input(u, y, current.simulated_rad, delta)
@@ -1160,7 +1357,7 @@ def _search(state: _Search, remaining: list[str], u: NDArray[np.float64], y: NDA
             # the same structure refitted at least as long as the candidates will be: the baseline they must
             # beat (a further effect must earn its place by its physics, not by the extra polishing it brings)
             baseline = _polish(_refine_delays(chain, u[:n_est], y[:n_est]), u[:n_est], y[:n_est],
-                               _BASELINE_EFFORT * max_evaluations)
+                               _budget(chain, _BASELINE_EFFORT * max_evaluations))
             refitted = disagreement(baseline.model(), u, y, delta, n_est)
             if refitted.gap_rad < current.gap_rad:
                 chain, current = baseline, refitted
@@ -1170,6 +1367,8 @@ def _search(state: _Search, remaining: list[str], u: NDArray[np.float64], y: NDA
         scores = signature_scores(u, y, current.simulated_rad, delta, period)
         tried = []
         for kind in remaining:
+            if _insert_index(chain, kind) < 0:
+                continue  # a dynamics effect needs linear dynamics or a drive train to go into
             candidate = _try_effect(kind, chain, u, y, n_est, delta, period, current.residual_rad, scores,
                                     settings["max_delay_samples"], max_evaluations)
             say(f"  {kind}: validated gap {candidate.gap_rad:.3g} rad")
@@ -1217,7 +1416,8 @@ def _add_step(best: _Candidate, chain: _Chain, current: Disagreement, steps: lis
               tried_all: list[CandidateResult], u: NDArray[np.float64], y: NDArray[np.float64], n_est: int,
               delta: float, scores: dict[str, SignatureScore], tried: Sequence[_Candidate],
               max_evaluations: int) -> _Search:
-    polished = _polish(_refine_delays(best.chain, u[:n_est], y[:n_est]), u[:n_est], y[:n_est], max_evaluations)
+    polished = _polish(_refine_delays(best.chain, u[:n_est], y[:n_est]), u[:n_est], y[:n_est],
+                       _budget(best.chain, max_evaluations))
     if _rms((y - polished.model().simulate(u))[n_est:]) <= best.gap_rad:
         best = _Candidate(best.kind, polished, best.gap_rad, _build(polished.components[best.index],
                                                                    polished.components[best.index].values), best.index)
@@ -1373,19 +1573,37 @@ and a 12-bit encoder with little dither biases such levels by up to half a count
 same samples reveals. Its interval is widened by this on each side."""
 
 
-def _resolution_floor(intervals: dict[str, dict[str, tuple[float, float]]],
-                      delta: float) -> dict[str, dict[str, tuple[float, float]]]:
-    """:data:`ANGLE_RESOLUTION_NOISE_BOUNDS` applied to the angle parameters of the catalogue, then every
-    interval clipped to the values its parameter can take (``Parameter.lower`` / ``upper``)."""
+def _final_train(chain: _Chain) -> DriveTrain | None:
+    """The drive train of a fitted chain, if it has one."""
+    for component in chain.components:
+        if component.kind == "drive_train":
+            train = _build(component, component.values)
+            assert isinstance(train, DriveTrain)
+            return train
+    return None
+
+
+def _resolution_floor(intervals: dict[str, dict[str, tuple[float, float]]], delta: float,
+                      train: DriveTrain | None = None,
+                      simulated: NDArray[np.float64] | None = None) -> dict[str, dict[str, tuple[float, float]]]:
+    """:data:`ANGLE_RESOLUTION_NOISE_BOUNDS` applied to the angle parameters of the catalogue, the
+    catalogue's ``resolution`` of each dynamics effect (what +-delta on the angles leaves unresolved of a
+    torque or a limit, from the fitted train and its free run), then every interval clipped to the values its
+    parameter can take (``Parameter.lower`` / ``upper``)."""
     out: dict[str, dict[str, tuple[float, float]]] = {}
     widen = ANGLE_RESOLUTION_NOISE_BOUNDS * delta
     for kind, parameters in intervals.items():
-        known = {p.name: p for p in EFFECTS[kind].parameters} if kind in EFFECTS else {}
+        entry = EFFECTS.get(kind)
+        known = {p.name: p for p in entry.parameters} if entry is not None else {}
+        extra: dict[str, float] = {}
+        if entry is not None and entry.resolution is not None and train is not None and simulated is not None:
+            extra = entry.resolution(train, simulated, ANGLE_RESOLUTION_NOISE_BOUNDS * delta)
         out[kind] = {}
         for key, (low, high) in parameters.items():
             parameter = known.get(key)
             if parameter is not None and parameter.unit == "rad":
                 low, high = low - widen, high + widen
+            low, high = low - extra.get(key, 0.0), high + extra.get(key, 0.0)
             if parameter is not None:
                 low, high = max(low, parameter.lower), min(high, parameter.upper)
             out[kind][key] = (low, high)
@@ -1406,10 +1624,11 @@ def _fold_intervals(chain: _Chain, start_model: PlantModel, u: NDArray[np.float6
 
     def collect(fitted: _Chain) -> None:
         for component in fitted.components:
-            if component.kind in EFFECTS:
+            kinds = component.effects if component.kind == "drive_train" else (component.kind,)
+            for kind in (k for k in kinds if k in EFFECTS):
                 block = _build(component, component.values)
-                for key, value in _parameters(component.kind, block).items():
-                    values.setdefault(component.kind, {}).setdefault(key, []).append(value)
+                for key, value in _parameters(kind, block).items():
+                    values.setdefault(kind, {}).setdefault(key, []).append(value)
 
     collect(chain)
     reductions = []

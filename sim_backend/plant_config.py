@@ -32,8 +32,9 @@ what was expected, and unknown keys are rejected. The format::
 A ``drive_train`` block (:class:`identify.drive_train.DriveTrain`, the physical train with position loop,
 play, shaft, friction and gravity) takes the constructor's keyword arguments as keys, each with its unit in
 its name (see ``DRIVE_TRAIN_KEYS``); the sample period is the file's. Only ``gear_ratio``,
-``motor_inertia_kg_m2``, ``load_inertia_kg_m2`` and ``shaft_stiffness_nm_per_rad`` are required; a limit
-that is left out is no limit.
+``motor_inertia_kg_m2`` and ``load_inertia_kg_m2`` are required; a limit that is left out is no limit, and a
+``shaft_stiffness_nm_per_rad`` left out is a rigid shaft (the form ``rig diagnose`` fits its drive-train
+effects in: friction on the load, gravity, rate and torque limits).
 
 Input backlash and switch borders are inline tables: ``{ kind = "table", nodes_u = [...], values = [...] }``
 or ``{ kind = "arctan", input_shift = -1.0, output_shift = 0.0, lower_input = -2.0, upper_input = 2.0,
@@ -283,17 +284,18 @@ def _effect_reader(entry: Effect) -> Callable[[ConfigTable, float], Block]:
     return read
 
 
-DRIVE_TRAIN_REQUIRED = ("gear_ratio", "motor_inertia_kg_m2", "load_inertia_kg_m2", "shaft_stiffness_nm_per_rad")
+DRIVE_TRAIN_REQUIRED = ("gear_ratio", "motor_inertia_kg_m2", "load_inertia_kg_m2")
 DRIVE_TRAIN_NUMBERS = ("shaft_damping_nm_s_per_rad", "play_rad", "position_loop_bandwidth_hz",
                        "position_loop_damping_ratio", "velocity_feedforward", "position_integral_gain_per_s",
                        "motor_viscous_damping_nm_s_per_rad", "coulomb_friction_nm", "static_friction_nm",
                        "viscous_friction_nm_s_per_rad", "pendulum_mass_kg", "pendulum_length_m", "gravity_m_per_s2",
                        "hanging_angle_rad", "initial_angle_rad")
-DRIVE_TRAIN_LIMITS = ("motor_speed_limit_rad_per_s", "motor_torque_limit_nm")
+DRIVE_TRAIN_LIMITS = ("shaft_stiffness_nm_per_rad", "motor_speed_limit_rad_per_s", "motor_torque_limit_nm")
 DRIVE_TRAIN_KEYS = (*DRIVE_TRAIN_REQUIRED, *DRIVE_TRAIN_NUMBERS, *DRIVE_TRAIN_LIMITS, "position_feedback",
                     "drive_enabled")
 """The keys of a ``drive_train`` block: required, optional numbers (default: the constructor's), limits
-(left out: none; TOML has no way to write a missing limit other than leaving it out), and the two switches."""
+(left out: infinite, i.e. a rigid shaft, no speed limit, no torque limit; TOML has no way to write a missing
+limit other than leaving it out), and the two switches."""
 
 
 def _read_drive_train(t: ConfigTable, period: float) -> DriveTrain:
@@ -301,6 +303,7 @@ def _read_drive_train(t: ConfigTable, period: float) -> DriveTrain:
     kwargs: dict[str, Any] = {key: t.number(key) for key in DRIVE_TRAIN_REQUIRED}
     kwargs.update({key: t.number(key, defaults[key].default) for key in DRIVE_TRAIN_NUMBERS})
     kwargs.update({key: t.number(key) for key in DRIVE_TRAIN_LIMITS if t.has(key)})
+    kwargs.setdefault("shaft_stiffness_nm_per_rad", math.inf)  # left out: a rigid shaft
     kwargs["position_feedback"] = t.string("position_feedback", defaults["position_feedback"].default,
                                            choices=POSITION_FEEDBACK)
     kwargs["drive_enabled"] = t.boolean("drive_enabled", defaults["drive_enabled"].default)
@@ -312,11 +315,14 @@ BLOCK_TYPES: dict[str, tuple[type, Callable[[ConfigTable, float], Block]]] = {
     "state_space": (LinearBlock, _read_state_space),
     "input_backlash": (InputBacklash, _read_input_backlash),
     "input_switch": (InputSwitch, _read_input_switch),
-    **{entry.toml_type: (entry.block_class, _effect_reader(entry)) for entry in EFFECTS.values()},
+    **{entry.toml_type: (entry.block_class, _effect_reader(entry)) for entry in EFFECTS.values()
+       if entry.placement != "dynamics"},
     "drive_train": (DriveTrain, _read_drive_train),
 }
 """``type`` in a ``[[blocks]]`` table -> (block class, reader): the linear and Hammerstein blocks, then every
-effect of the catalogue (:data:`identify.effect_catalogue.EFFECTS`) under its ``toml_type``."""
+effect of the catalogue (:data:`identify.effect_catalogue.EFFECTS`) under its ``toml_type``; the catalogue's
+dynamics effects (friction on the load, gravity, rate and torque limits) are keys of the one ``drive_train``
+table."""
 
 
 # ----------------------------------------------------------------------------------------------------------

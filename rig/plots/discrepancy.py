@@ -114,6 +114,19 @@ def signature_figure(step: DiscrepancyStep, number: int, residual_rad: NDArray[n
     elif effect == "gain_error":
         x, x_label = simulated_rad, "model output y^ [rad]"
         what = "the residual is proportional to the model's output"
+    elif effect in ("load_friction", "rate_limit"):
+        period = float(time_s[1] - time_s[0]) if time_s.size > 1 else 1.0
+        x, x_label = np.gradient(simulated_rad) / period, "speed of the model dy^/dt [rad/s]"
+        what = ("the residual opposes the model's motion" if effect == "load_friction"
+                else "the residual grows where the model moves faster than the drive can")
+    elif effect == "torque_limit":
+        period = float(time_s[1] - time_s[0]) if time_s.size > 1 else 1.0
+        x = np.gradient(np.gradient(simulated_rad) / period) / period
+        x_label = "acceleration of the model d2y^/dt2 [rad/s^2]"
+        what = "the residual grows where the model accelerates harder than the drive can"
+    elif effect == "gravity":
+        x, x_label = simulated_rad, "model angle y^ [rad]"
+        what = "the residual follows the sine of the angle: a position-dependent load"
     else:
         x, x_label = time_s, "time [s]"
         what = ("a narrow peak in the spectrum of the residual" if effect == "resonance"

@@ -11,6 +11,7 @@ import pytest
 
 from identify.discrepancy_cases import NOMINAL_LINEAR, hidden_effect_record
 from identify.border_lifting import direction_signal
+from identify.effect_catalogue import EFFECTS
 from identify.effect_signatures import EFFECT_NAMES, signature_scores
 from identify.model_discrepancy import DiscrepancyReport, diagnose_model, disagreement, fit_linear_model
 from identify.plant_blocks import DeadZone, Delay, LinearBlock, OutputGain, PlantModel
@@ -19,9 +20,16 @@ from identify.validation import InvalidInputError
 SIX = ("backlash", "dead_zone", "saturation", "delay", "coulomb_friction", "resonance")
 
 
-def run(record, given_model=True):
+SERIES = tuple(name for name in EFFECT_NAMES if EFFECTS[name].placement != "dynamics")
+"""The effects that are blocks of the series chain. The fitted-start tests of these effects try only them:
+each drive-train candidate costs a sub-stepped simulation per evaluation (from a fitted start 5-10 times
+the whole series search), and that the drive-train candidates do not take these effects' place is what
+``benchmarks/model_discrepancy_confusion.py`` checks with the whole catalogue (BENCHMARKS.md)."""
+
+
+def run(record, given_model=True, candidates=EFFECT_NAMES):
     return diagnose_model(record.command_rad, record.angle_rad, record.noise_bound_rad, record.sample_period_s,
-                          record.nominal_model if given_model else None)
+                          record.nominal_model if given_model else None, candidates=candidates)
 
 
 @pytest.mark.parametrize("effect", SIX)
@@ -38,7 +46,7 @@ def test_names_the_hidden_effect_and_halves_the_gap_given_the_nominal_model(effe
 @pytest.mark.parametrize("effect", SIX)
 def test_names_the_hidden_effect_from_a_fitted_linear_start_model(effect):
     record = hidden_effect_record((effect,), 21)
-    result = run(record, given_model=False)
+    result = run(record, given_model=False, candidates=SERIES)
     assert result.linear_fit is not None
     assert result.missing_effects[:1] == (effect,)
     assert result.final.gap_rad <= 0.5 * result.initial.gap_rad
@@ -61,7 +69,7 @@ def test_names_nothing_when_no_effect_is_missing(seed, given_model):
 def test_finds_backlash_and_delay_together():
     record = hidden_effect_record(("backlash", "delay"), 41)
     true_delay = record.true_model.find(Delay)[0].samples
-    result = run(record)
+    result = run(record, candidates=SERIES)
     assert set(result.missing_effects[:2]) == {"backlash", "delay"}
     delay_step = next(step for step in result.steps if step.effect == "delay")
     # the play adds lag of its own, so the delay is found to within a few samples
