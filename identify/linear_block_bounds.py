@@ -36,7 +36,8 @@ solve the relaxation jointly over all samples when there are at most ``joint_sam
 relaxation, from a box inside the one it started from before, and never wider. Longer records are solved
 jointly in overlapping parts of ``joint_samples`` samples, whose boxes are intersected: about linear in N, but
 wider than one relaxation over everything would be (bounded-error information is spread over the record).
-Each round's LPs start from the previous round's optimal bases.
+Within one LP, the bounds of the parameters are solved on one HiGHS model whose objective changes, each
+solve starting from the previous optimal basis.
 
 A bounding LP that HiGHS cannot solve under any recovery setting (warm start dropped, dual simplex with and
 without presolve and without scaling, interior point) keeps that bound at its previous valid value, and
@@ -54,6 +55,7 @@ from __future__ import annotations
 import itertools
 import math
 from collections.abc import Callable, Iterable, Mapping, Sequence
+from concurrent.futures import BrokenExecutor
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
@@ -325,6 +327,8 @@ class _Counter:
         # (parameter index, "lower"/"upper", HiGHS status, stage) of every bound kept at its previous value
         self.fallbacks: list[tuple[int, str, str, str]] = []
         self.stage = "paper method"
+        # (stage, reason) of every stage whose worker processes were lost (:class:`_GuardedMap`)
+        self.lost_stages: list[tuple[str, str]] = []
 
     def merge(self, other: "_Counter") -> None:
         """Add the counts of work done elsewhere (a window solved in another process)."""
@@ -374,21 +378,16 @@ class _Solver:
         self.highs.setOptionValue("time_limit", self.highs.getRunTime() + self.time_limit_s)
         self.highs.run()
 
-    def minimize(self, cost: NDArray[np.float64], counter: _Counter,
-                 start: object | None = None) -> tuple[float, NDArray[np.float64] | None]:
+    def minimize(self, cost: NDArray[np.float64], counter: _Counter) -> tuple[float, NDArray[np.float64] | None]:
         """Certified lower bound of min cost^T z (Neumaier-Shcherbina: valid for any dual vector, given the
         finite column boxes) and the solver's minimiser; (inf, None) if the solver reports infeasibility.
 
-        ``start``: a HiGHS basis of an LP of the same shape (the same objective in the previous tightening
-        round) to start from instead of the current basis. The bound does not depend on the start."""
+        Each solve starts from this model's previous optimal basis. Bases are not carried over from the LP of
+        the previous tightening round (an earlier version did): at N = 100 000, 8 bits, such a re-started solve
+        of a joint part sent HiGHS 1.16 into an unbounded recursion (``HEkkDualRHS::chooseNormal``, a segfault
+        by stack overflow), reproduced in one process; the same part solves in about a second without it."""
         counter.solves += 1
         highs = self.highs
-        if start is not None:
-            highs.setBasis(start)
-            # The box shrank since that basis was optimal, so it is usually primal infeasible; primal simplex
-            # (phase 1 from it) measured faster than dual here.
-            highs.setOptionValue("simplex_strategy", 4)
-            highs.setOptionValue("presolve", "off")
         highs.changeColsCost(self.columns.size, self.columns, np.asarray(cost, dtype=float))
         self._run()
         status = highs.getModelStatus()
@@ -547,13 +546,10 @@ def _orthant_lp(data: _Data, signs: tuple[int, ...]) -> _LP:
     return _LP(sp.csr_matrix(A_ub), b_ub, A_eq, b_eq, lower, upper)
 
 
-def _bounds_over(lp: _LP, p: int, counter: _Counter,
-                 bases: list[object] | None = None) -> tuple[NDArray[np.float64], NDArray[np.float64], list[NDArray[np.float64]]]:
+def _bounds_over(lp: _LP, p: int, counter: _Counter) -> tuple[NDArray[np.float64], NDArray[np.float64], list[NDArray[np.float64]]]:
     """Certified min and max of each of the first p variables, with the minimisers/maximisers
-    (``points[2k]`` minimises and ``points[2k + 1]`` maximises variable k).
-
-    ``bases``: optimal HiGHS bases per objective (same order) from an LP of the same shape; objectives that have
-    one start from it, and the list is updated in place with this LP's optimal bases.
+    (``points[2k]`` minimises and ``points[2k + 1]`` maximises variable k), on one HiGHS model whose
+    objective changes (each solve continues from the previous optimal basis).
 
     A bound whose LP HiGHS cannot solve (after the recovery settings of :meth:`_Solver.minimize`) is the
     LP's own column bound for that variable, which holds for every point of the set (the caller's current
@@ -562,24 +558,13 @@ def _bounds_over(lp: _LP, p: int, counter: _Counter,
     solver = _Solver(lp)
 
     def solve(cost: NDArray[np.float64], index: int) -> tuple[float, NDArray[np.float64] | None]:
-        start = bases[index] if bases is not None and index < len(bases) else None
         try:
-            value, x = solver.minimize(cost, counter, start)
+            return solver.minimize(cost, counter)
         except _SolverFailure as failure:
             k, side = divmod(index, 2)
             counter.fallbacks.append((k, "upper" if side else "lower", failure.status, counter.stage))
             solver.warm = False
-            if bases is not None:
-                bases.extend([None] * (index + 1 - len(bases)))
-                bases[index] = None
             return (-lp.upper[k] if side else lp.lower[k]), _FAILED
-        if bases is not None and x is not None:
-            basis = solver.highs.getBasis()
-            if index < len(bases):
-                bases[index] = basis
-            else:
-                bases.append(basis)
-        return value, x
 
     for k in range(p):
         cost = np.zeros(lp.lower.size)
@@ -750,13 +735,12 @@ def _tighten(data: _Data, low: NDArray[np.float64], high: NDArray[np.float64], c
     p, na = data.orders.num_parameters, data.orders.na
     rounds = 0
     converged = na == 0
-    bases: list[object] = []  # the rounds' LPs have one shape: each objective starts from its last optimum
     while True:
         rounds += 1
         final = converged or rounds >= max_rounds
         lp = relaxation(data, low, high)
         count = p if (final and full_last_round) else na
-        new_low, new_high, points = _bounds_over(lp, count, counter, bases)
+        new_low, new_high, points = _bounds_over(lp, count, counter)
         if not np.all(np.isfinite(new_low)):
             if _proven_infeasible(lp, counter):
                 return low, high, rounds, [], True
@@ -801,6 +785,7 @@ class _WindowPlan:
     passes: int
     part_passes: int
     all_parts: int = 1
+    second_pass_parts: int = 0
 
 
 def _window_segments(num_samples: int, window: int, overlap: int) -> list[tuple[int, int]]:
@@ -860,6 +845,34 @@ def _window_task(task: tuple[str, _Data, NDArray[np.float64], NDArray[np.float64
     return (new_low, new_high), counter
 
 
+class _GuardedMap:
+    """``map_windows(_window_task, tasks)`` that survives the loss of the processes running it.
+
+    A worker process that dies (a segfault inside HiGHS, the out-of-memory killer) breaks a process pool
+    (``BrokenProcessPool``, a ``BrokenExecutor``) and a Dask cluster reports ``KilledWorker``. Every window's
+    and part's box contains the feasible set, so the results that did arrive still give a valid bound: the
+    map stops there, the failure is recorded for the notes, and every later stage gets no results (it keeps
+    the box it was given) instead of the user getting a traceback."""
+
+    def __init__(self, map_windows: MapFunction, counter: _Counter) -> None:
+        self._map = map_windows
+        self._counter = counter
+        self.failure: str | None = None
+
+    def results(self, tasks: Iterable[Any], stage: str) -> Iterable[Any]:
+        if self.failure is not None:
+            return
+        try:
+            for result, done in self._map(_window_task, tasks):
+                self._counter.merge(done)
+                yield result
+        except Exception as error:  # noqa: BLE001 - only the executor's own failures, re-raised otherwise
+            if not (isinstance(error, BrokenExecutor) or type(error).__name__ == "KilledWorker"):
+                raise
+            self.failure = f"{type(error).__name__}: {error}".rstrip(": ")
+            self._counter.lost_stages.append((stage, self.failure))
+
+
 def _coupled_bounds(data: _Data, low: NDArray[np.float64], high: NDArray[np.float64], counter: _Counter,
                     max_rounds: int, relative_improvement: float, map_windows: MapFunction = map,
                     progress: Progress | None = None, window: int = _WINDOW,
@@ -894,6 +907,7 @@ def _coupled_bounds(data: _Data, low: NDArray[np.float64], high: NDArray[np.floa
     if empty:
         return np.full(p, math.nan), np.full(p, math.nan), rounds, [], _WindowPlan(tuple(segments), 0, 0, 0)
     windows = [_restrict(data, [segment]) for segment in segments]
+    guarded = _GuardedMap(map_windows, counter)
     own_low, own_high = np.full((len(windows), p), -math.inf), np.full((len(windows), p), math.inf)
     active = list(range(len(windows)))
     passes = 0
@@ -901,8 +915,7 @@ def _coupled_bounds(data: _Data, low: NDArray[np.float64], high: NDArray[np.floa
         label = f"window pass {passes}"
         new_low, new_high = low.copy(), high.copy()
         tasks = (("bounds", windows[k], low, high, []) for k in active)
-        for count, (k, ((lows, highs), done)) in enumerate(zip(active, map_windows(_window_task, tasks))):
-            counter.merge(done)
+        for count, (k, (lows, highs)) in enumerate(zip(active, guarded.results(tasks, label))):
             own_low[k], own_high[k] = lows, highs
             new_low, new_high = np.maximum(new_low, lows), np.minimum(new_high, highs)
             if progress is not None:
@@ -941,15 +954,18 @@ def _coupled_bounds(data: _Data, low: NDArray[np.float64], high: NDArray[np.floa
     # tolerance could stop earlier, from a box that is already close. Parts: the passes' tolerance, and a
     # second pass from the intersected box only if the first one still moved it by 10 %.
     settings = np.array([max_rounds, 1e-6 if all_parts == 1 else relative_improvement])
+    part_low, part_high = np.full((len(chunks), p), -math.inf), np.full((len(chunks), p), math.inf)
+    active_parts = list(range(len(chunks)))
     for chunk_passes in range(1, (2 if all_parts > 1 else 1) + 1):
-        label = f"joint relaxation of {len(chunks)} part(s) of up to {min(N, joint_samples)} samples"
+        label = f"joint relaxation of {len(active_parts)} part(s) of up to {min(N, joint_samples)} samples"
         new_low, new_high = low.copy(), high.copy()
         best_low, best_high = np.full(p, -math.inf), np.full(p, math.inf)
-        tasks = (("joint", _restrict(data, [chunk]), low, high, [settings]) for chunk in chunks)
+        tasks = (("joint", _restrict(data, [chunks[c]]), low, high, [settings]) for c in active_parts)
         if progress is not None:
-            progress(label, 0, len(chunks))
-        for k, ((lows, highs, used, chunk_points, empty), done) in enumerate(map_windows(_window_task, tasks)):
-            counter.merge(done)
+            progress(label, 0, len(active_parts))
+        for k, (c, (lows, highs, used, chunk_points, empty)) in enumerate(
+                zip(active_parts, guarded.results(tasks, label))):
+            part_low[c], part_high[c] = lows, highs
             if empty:
                 # a part of the equations has no solution, so neither has the whole record
                 return np.full(p, math.nan), np.full(p, math.nan), rounds + used, [], _WindowPlan(
@@ -962,12 +978,18 @@ def _coupled_bounds(data: _Data, low: NDArray[np.float64], high: NDArray[np.floa
                     best_high[j], points[2 * j + 1] = highs[j], chunk_points[2 * j + 1]
             new_low, new_high = np.maximum(new_low, lows), np.minimum(new_high, highs)
             if progress is not None:
-                progress(label, k + 1, len(chunks))
+                progress(label, k + 1, len(active_parts))
         shrink = np.max(((high - low) - (new_high - new_low)) / np.maximum(high - low, 1e-300))
         low, high = new_low, np.maximum(new_high, new_low)
         if shrink < 0.1:
             break
-    return low, high, rounds, points, _WindowPlan(tuple(segments), len(chunks), passes, chunk_passes, all_parts)
+        # The second pass only re-solves the parts whose own bound came within one box width of the
+        # intersection in some direction (the windows' rule): the others stay valid, just far from deciding.
+        width = high - low
+        near = np.any((part_low > low - width) | (part_high < high + width), axis=1)
+        active_parts = [int(c) for c in np.flatnonzero(near)] or active_parts
+    return low, high, rounds, points, _WindowPlan(tuple(segments), len(chunks), passes, chunk_passes, all_parts,
+                                                  len(active_parts) if chunk_passes > 1 else 0)
 
 
 def _subset(data: _Data, count: int) -> _Data:
@@ -1181,7 +1203,7 @@ def bound_linear_block(input_rad: ArrayLike, inner_lower_rad: ArrayLike, inner_u
                                      num_linear_programs=counter.solves, num_tightening_rounds=rounds,
                                      feasible_orthants=tuple(feasible), max_certificate_gap=counter.max_gap,
                                      windowing=windowing)
-        if points and verify_inner:
+        if verify_inner and any(point is not None for point in points):
             inner_low, inner_high, witness = _inner_values(data, low, high, points, counter)
             inner = ({n: float(v) for n, v in zip(names, inner_low)}, {n: float(v) for n, v in zip(names, inner_high)},
                      None if witness is None else {n: float(v) for n, v in zip(names, witness)})
@@ -1204,7 +1226,9 @@ def _describe(plan: _WindowPlan, num_samples: int, window: int, joint_samples: i
         return f"all {num_samples} samples in one McCormick relaxation"
     joint = (f"then all {num_samples} samples jointly" if plan.all_parts <= 1 else
              f"then {plan.num_parts} of {plan.all_parts} overlapping parts of {joint_samples} samples jointly (those "
-             f"holding a deciding window), intersected ({plan.part_passes} pass{'es' if plan.part_passes > 1 else ''})")
+             f"holding a deciding window), intersected ({plan.part_passes} pass{'es' if plan.part_passes > 1 else ''}"
+             + (f", the second over the {plan.second_pass_parts} parts near the intersection" if plan.part_passes > 1
+                else "") + ")")
     return (f"{len(plan.segments)} windows of {window} samples (overlap {_WINDOW_OVERLAP}), {plan.passes} passes "
             f"of intersected window bounds, {joint}")
 
@@ -1216,7 +1240,13 @@ def _fallback_notes(names: tuple[str, ...], counter: _Counter) -> tuple[str, ...
         seen.setdefault((k, side), [])
         if f"{stage} ({status})" not in seen[(k, side)]:
             seen[(k, side)].append(f"{stage} ({status})")
-    return tuple(
+    solver_notes = tuple(
         f"{names[k]} {side} bound: HiGHS could not solve its bounding LP in the {', '.join(where)} after "
         f"the retries ({_RECOVERY_NAMES}); the bound there is the previous valid one, so it may be looser "
         "than the method allows (still guaranteed)" for (k, side), where in sorted(seen.items()))
+    lost_notes = tuple(
+        f"all parameters: a process running the windows stopped in the {stage} ({reason}); the bounds are the "
+        "intersection of the windows and parts solved before that (still guaranteed, possibly looser than the "
+        "method allows); rerun with fewer jobs or another joint_samples for the rest"
+        for stage, reason in counter.lost_stages)
+    return solver_notes + lost_notes

@@ -188,11 +188,11 @@ def test_a_bounding_lp_that_highs_cannot_solve_falls_back_to_a_valid_bound_with_
     _, reference = _run(12, 41, "coupled")
     original = module._Solver.minimize
 
-    def failing(self, cost, counter, start=None):
+    def failing(self, cost, counter):
         if counter.stage.startswith("coupled") and cost.size > 4 and cost[3] == -1.0:
             counter.solves += 1
             raise module._SolverFailure("Solve error")
-        return original(self, cost, counter, start)
+        return original(self, cost, counter)
 
     monkeypatch.setattr(module._Solver, "minimize", failing)
     _, paper = _run(12, 41, "paper")
@@ -269,6 +269,49 @@ def test_parts_of_a_long_record_run_through_a_map_and_give_the_same_bounds() -> 
         interval = serial.intervals[name]
         assert interval.contains(value)
         assert paper.linear_intervals[name].lower <= interval.lower and interval.upper <= paper.linear_intervals[name].upper
+
+
+def _window_task_whose_joint_parts_kill_their_process(task):
+    """A worker that dies like the one of issue 19 (segfault inside HiGHS), here by SIGKILL."""
+    import os
+    import signal
+
+    import identify.linear_block_bounds as module
+
+    if task[0] == "joint":
+        os.kill(os.getpid(), signal.SIGKILL)
+    return module._ORIGINAL_WINDOW_TASK(task)
+
+
+def test_a_worker_process_that_dies_gives_valid_looser_bounds_with_a_note(monkeypatch) -> None:
+    # Issue 19: at N = 100 000, 8 bits, a worker segfaulted inside HiGHS and the user got BrokenProcessPool.
+    # Here every worker that starts a joint part dies: the window bounds must be returned, with a note.
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
+    import identify.linear_block_bounds as module
+
+    data, paper = _run(10, 61, "paper", num_samples=900)
+    inner = paper.inner_signal
+    shared = shared_backlash_constraints(data.output_rad, data.noise_bound_rad, paper.backlash, inner)
+    args = (data.input_rad, inner.lower_rad, inner.upper_rad)
+    serial = bound_linear_block(*args, na=2, nk=1, nb=2, shared_backlash=shared, joint_samples=400)
+    monkeypatch.setattr(module, "_ORIGINAL_WINDOW_TASK", module._window_task, raising=False)
+    monkeypatch.setattr(module, "_window_task", _window_task_whose_joint_parts_kill_their_process)
+    with ProcessPoolExecutor(2, mp_context=multiprocessing.get_context("fork")) as pool:
+        lost = bound_linear_block(*args, na=2, nk=1, nb=2, shared_backlash=shared, joint_samples=400,
+                                  map_windows=pool.map)
+    assert len(lost.notes) == 1
+    assert lost.notes[0].startswith("all parameters: a process running the windows stopped in the joint relaxation")
+    assert "BrokenProcessPool" in lost.notes[0]
+    assert serial.notes == ()
+    for name, value in THETA.items():
+        interval = lost.intervals[name]
+        assert interval.contains(value)
+        # the windows' bound: inside the paper method's, around the full method's
+        assert paper.linear_intervals[name].lower <= interval.lower and interval.upper <= paper.linear_intervals[name].upper
+        assert interval.lower <= serial.intervals[name].lower and serial.intervals[name].upper <= interval.upper
+    assert lost.inner_lower is None  # no joint part finished, so no extreme points to verify
 
 
 @pytest.mark.slow
