@@ -60,6 +60,28 @@ def test_true_parameters_inside_every_bound_and_coupled_inside_paper(n_bit: int)
         assert coupled.max_certificate_gap < 1e-6
 
 
+@pytest.mark.parametrize("n_bit, seed", [(8, 71), (12, 72)])
+def test_partition_of_the_box_of_a_brings_the_outer_bounds_to_the_verified_points(n_bit: int, seed: int) -> None:
+    # Issue 19: at 8 bits the outer interval was 1.25-2 times the span of verified feasible points. The
+    # partition (spatial branch and bound on a) must stay an outer bound, inside the one-relaxation bound,
+    # and with the verified points (bisection and local steps) come within 10 % of them.
+    data, paper = _run(n_bit, seed, "paper")
+    inner = paper.inner_signal
+    shared = shared_backlash_constraints(data.output_rad, data.noise_bound_rad, paper.backlash, inner)
+    args = (data.input_rad, inner.lower_rad, inner.upper_rad)
+    single = bound_linear_block(*args, na=2, nk=1, nb=2, shared_backlash=shared, partition_samples=0)
+    cells = bound_linear_block(*args, na=2, nk=1, nb=2, shared_backlash=shared)
+    assert "partitioned into cells" in cells.windowing and "partitioned" not in single.windowing
+    slack = single.max_certificate_gap + cells.max_certificate_gap
+    for name, value in THETA.items():
+        outer, wide = cells.intervals[name], single.intervals[name]
+        assert outer.contains(value)
+        assert wide.lower - slack <= outer.lower and outer.upper <= wide.upper + slack
+        low, high = cells.inner_lower[name], cells.inner_upper[name]
+        assert outer.lower <= low <= high <= outer.upper
+        assert outer.upper - outer.lower <= 1.1 * (high - low), (name, outer, low, high)
+
+
 def test_unit_static_gain_holds_across_the_bounds() -> None:
     _, result = _run(12, 5)
     iv = result.linear_intervals
@@ -295,12 +317,12 @@ def test_a_worker_process_that_dies_gives_valid_looser_bounds_with_a_note(monkey
     inner = paper.inner_signal
     shared = shared_backlash_constraints(data.output_rad, data.noise_bound_rad, paper.backlash, inner)
     args = (data.input_rad, inner.lower_rad, inner.upper_rad)
-    serial = bound_linear_block(*args, na=2, nk=1, nb=2, shared_backlash=shared, joint_samples=400)
+    options = {"joint_samples": 400, "partition_samples": 0}
+    serial = bound_linear_block(*args, na=2, nk=1, nb=2, shared_backlash=shared, **options)
     monkeypatch.setattr(module, "_ORIGINAL_WINDOW_TASK", module._window_task, raising=False)
     monkeypatch.setattr(module, "_window_task", _window_task_whose_joint_parts_kill_their_process)
     with ProcessPoolExecutor(2, mp_context=multiprocessing.get_context("fork")) as pool:
-        lost = bound_linear_block(*args, na=2, nk=1, nb=2, shared_backlash=shared, joint_samples=400,
-                                  map_windows=pool.map)
+        lost = bound_linear_block(*args, na=2, nk=1, nb=2, shared_backlash=shared, map_windows=pool.map, **options)
     assert len(lost.notes) == 1
     assert lost.notes[0].startswith("all parameters: a process running the windows stopped in the joint relaxation")
     assert "BrokenProcessPool" in lost.notes[0]
