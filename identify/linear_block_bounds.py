@@ -869,6 +869,9 @@ _PARTITION_BOXES = 24
 """Sub-boxes of a solved at most by the partition; it stops earlier once a refinement moves no bound by 1 %."""
 
 
+_PARTITION_STAGE = "partition of the box of a (cells)"
+
+
 @dataclass(frozen=True)
 class _SubBox:
     """One cell of the partition of the box of a, with the box of θ its relaxation gives and the extreme
@@ -882,8 +885,8 @@ class _SubBox:
 
 
 def _partitioned_bounds(data: _Data, low: NDArray[np.float64], high: NDArray[np.float64], counter: _Counter,
-                        max_boxes: int = _PARTITION_BOXES, relative_improvement: float = 0.01
-                        ) -> tuple[NDArray[np.float64], NDArray[np.float64], list[NDArray[np.float64] | None], int]:
+                        max_boxes: int = _PARTITION_BOXES, relative_improvement: float = 0.01,
+                        progress: Progress | None = None) -> tuple[NDArray[np.float64], NDArray[np.float64], list[NDArray[np.float64] | None], int]:
     """The final tightening of short records: spatial branch and bound on the box of a.
 
     The relaxations replace a_i δx_s by a set that grows with the width of the box of a_i (McCormick:
@@ -932,6 +935,8 @@ def _partitioned_bounds(data: _Data, low: NDArray[np.float64], high: NDArray[np.
             cell = solve(a_low, a_high)
             if cell is not None:
                 cells.append(cell)
+            if progress is not None:
+                progress(_PARTITION_STAGE, solved, max_boxes)
         if not cells:  # every cell proven empty, the caller's relaxation not (tolerances): keep its box
             return low, high, [None] * (2 * p), solved
         cells_low, cells_high = hull(cells)
@@ -946,6 +951,8 @@ def _partitioned_bounds(data: _Data, low: NDArray[np.float64], high: NDArray[np.
         # a cell is replaced by its halves only once they are solved (in the next turn of the loop)
         pending = [half for index in deciding for half in halves(cells[index])]
         cells = [cell for index, cell in enumerate(cells) if index not in deciding]
+    if progress is not None:
+        progress(_PARTITION_STAGE, solved, solved)  # the stage ends, usually before the most cells it may take
     points: list[NDArray[np.float64] | None] = [None] * (2 * p)
     for k in range(p):
         if cells:
@@ -1395,7 +1402,7 @@ def bound_linear_block(input_rad: ArrayLike, inner_lower_rad: ArrayLike, inner_u
             map if map_windows is None else map_windows, progress, window_samples, joint_samples)
         windowing = _describe(plan, data.u.size, window_samples, joint_samples)
         if not np.any(np.isnan(low)) and na and data.u.size <= partition_samples:
-            low, high, cell_points, cells = _partitioned_bounds(data, low, high, counter)
+            low, high, cell_points, cells = _partitioned_bounds(data, low, high, counter, progress=progress)
             points = [new if new is not None else old for new, old in zip(cell_points, points)] if points else cell_points
             windowing += f", then the box of a partitioned into cells ({cells} solved)"
         if np.any(np.isnan(low)):

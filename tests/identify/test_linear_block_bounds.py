@@ -70,8 +70,12 @@ def test_partition_of_the_box_of_a_brings_the_outer_bounds_to_the_verified_point
     shared = shared_backlash_constraints(data.output_rad, data.noise_bound_rad, paper.backlash, inner)
     args = (data.input_rad, inner.lower_rad, inner.upper_rad)
     single = bound_linear_block(*args, na=2, nk=1, nb=2, shared_backlash=shared, partition_samples=0)
-    cells = bound_linear_block(*args, na=2, nk=1, nb=2, shared_backlash=shared)
+    seen = []
+    cells = bound_linear_block(*args, na=2, nk=1, nb=2, shared_backlash=shared,
+                               progress=lambda stage, done, total: seen.append((stage, done, total)))
     assert "partitioned into cells" in cells.windowing and "partitioned" not in single.windowing
+    stage, done, total = seen[-1]  # the progress of the partition ends with done == total
+    assert stage.startswith("partition of the box of a") and done == total > 0
     slack = single.max_certificate_gap + cells.max_certificate_gap
     for name, value in THETA.items():
         outer, wide = cells.intervals[name], single.intervals[name]
