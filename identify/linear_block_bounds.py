@@ -1210,7 +1210,8 @@ _INNER_LOCAL_STEPS = 4
 
 
 def _inner_values(data: _Data, low: NDArray[np.float64], high: NDArray[np.float64], points: list[NDArray[np.float64]],
-                  counter: _Counter) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64] | None]:
+                  counter: _Counter, refine: bool = True
+                  ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64] | None]:
     """Verified values of every parameter, attained by points of the exact feasible set.
 
     For each bound: fix a at the relaxation's extreme point's a, or, if that a admits no exact solution, at the
@@ -1219,7 +1220,8 @@ def _inner_values(data: _Data, low: NDArray[np.float64], high: NDArray[np.float6
     then local steps of a sequential LP: the bilinear terms linearised at the verified point propose a new a
     within a trust region (:meth:`_ExactProblemAtFixedA.linearized`), which counts only once the exactly
     linear problem at that a (in b and δx) has a solution. Every reported value is that of such a solution,
-    checked against the equations."""
+    checked against the equations. Without ``refine`` (long records, where each exact LP spans the whole
+    record) only the weights are tried, without bisection and local steps."""
     orders = data.orders
     na, p = orders.na, orders.num_parameters
     inner_low, inner_high = np.full(p, math.nan), np.full(p, math.nan)
@@ -1266,7 +1268,7 @@ def _inner_values(data: _Data, low: NDArray[np.float64], high: NDArray[np.float6
             if found is None:
                 continue
             weight, best = found
-            if last_infeasible is not None:
+            if refine and last_infeasible is not None:
                 inside, outside = weight, last_infeasible
                 for _ in range(_INNER_BISECTIONS):
                     middle = 0.5 * (inside + outside)
@@ -1276,7 +1278,7 @@ def _inner_values(data: _Data, low: NDArray[np.float64], high: NDArray[np.float6
                     else:
                         outside = middle
             radius = 0.25 * (high[:na] - low[:na])
-            for _ in range(_INNER_LOCAL_STEPS):
+            for _ in range(_INNER_LOCAL_STEPS if refine else 0):
                 a0 = best[:na]
                 proposal = checked(exact.linearized(a0, best, np.maximum(low[:na], a0 - radius),
                                                     np.minimum(high[:na], a0 + radius)), k, direction)
@@ -1411,7 +1413,8 @@ def bound_linear_block(input_rad: ArrayLike, inner_lower_rad: ArrayLike, inner_u
                                      feasible_orthants=tuple(feasible), max_certificate_gap=counter.max_gap,
                                      windowing=windowing)
         if verify_inner and any(point is not None for point in points):
-            inner_low, inner_high, witness = _inner_values(data, low, high, points, counter)
+            refine = data.u.size <= max(partition_samples, 2 * window_samples)
+            inner_low, inner_high, witness = _inner_values(data, low, high, points, counter, refine)
             inner = ({n: float(v) for n, v in zip(names, inner_low)}, {n: float(v) for n, v in zip(names, inner_high)},
                      None if witness is None else {n: float(v) for n, v in zip(names, witness)})
     notes = _fallback_notes(names, counter)
