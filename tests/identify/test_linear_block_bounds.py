@@ -14,10 +14,11 @@ from cerone2009_data import GAMMA, THETA, experiment
 TABLE_II_15_BIT = {"a1": 4.3e-4, "a2": 2.5e-4, "b1": 4.3e-4, "b2": 7.2e-4}
 
 
-def _run(n_bit: int, seed: int, method: str = "coupled", num_samples: int = 100):
+def _run(n_bit: int, seed: int, method: str = "coupled", num_samples: int = 100, **options):
     data = experiment(n_bit, seed, num_samples)
     return data, bound_output_backlash_system(data.steady_input_rad, data.steady_output_rad, data.input_rad,
-                                              data.output_rad, data.noise_bound_rad, na=2, nk=1, nb=2, method=method)
+                                              data.output_rad, data.noise_bound_rad, na=2, nk=1, nb=2, method=method,
+                                              **options)
 
 
 def test_fifteen_bit_example_recovers_theta_to_the_papers_precision() -> None:
@@ -155,7 +156,7 @@ def test_long_record_tightens_on_a_window_first_and_still_contains_the_truth() -
     # N = 500 > 2 x 200: the box of a is tightened on the first 200 samples, then rounds of the interval
     # relaxation over all the data
     _, paper = _run(10, 21, "paper", num_samples=500)
-    _, coupled = _run(10, 21, "coupled", num_samples=500)
+    _, coupled = _run(10, 21, "coupled", num_samples=500, partition_samples=0)  # the windows, not the partition
     for name, value in THETA.items():
         outer_paper, outer = paper.linear_intervals[name], coupled.linear_intervals[name]
         assert outer.contains(value)
@@ -282,11 +283,13 @@ def test_parts_of_a_long_record_run_through_a_map_and_give_the_same_bounds() -> 
     shared = shared_backlash_constraints(data.output_rad, data.noise_bound_rad, paper.backlash, inner)
     args = (data.input_rad, inner.lower_rad, inner.upper_rad)
     seen = []
-    serial = bound_linear_block(*args, na=2, nk=1, nb=2, shared_backlash=shared, joint_samples=400,
-                                verify_inner=False, progress=lambda stage, done, total: seen.append((stage, done, total)))
+    # the map runs the windows and parts; the partition of short records (in-process) is switched off here
+    options = {"joint_samples": 400, "partition_samples": 0, "verify_inner": False}
+    serial = bound_linear_block(*args, na=2, nk=1, nb=2, shared_backlash=shared, **options,
+                                progress=lambda stage, done, total: seen.append((stage, done, total)))
     with ThreadPoolExecutor(2) as pool:
-        parallel = bound_linear_block(*args, na=2, nk=1, nb=2, shared_backlash=shared, joint_samples=400,
-                                      verify_inner=False, map_windows=pool.map)
+        parallel = bound_linear_block(*args, na=2, nk=1, nb=2, shared_backlash=shared, **options,
+                                      map_windows=pool.map)
     assert parallel.intervals == serial.intervals
     assert "then 3 of 3 overlapping parts of 400 samples jointly" in serial.windowing
     assert any(stage.startswith("window pass 1") and done == total == 5 for stage, done, total in seen)
