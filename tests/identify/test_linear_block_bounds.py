@@ -368,3 +368,17 @@ def test_the_issue_19_record_that_stopped_highs_gives_bounds() -> None:
     for name, value in THETA.items():
         assert result.intervals[name].contains(value)
         assert result.intervals[name].half_width < 1e-4
+
+
+def test_linear_block_bounds_are_built_from_keywords() -> None:
+    # issue 16, item 4: no more 11 positional arguments; the diagnostics default to "none"
+    from identify.feasible_parameter_set import ParameterInterval
+    from identify.linear_block_bounds import LinearBlockBounds, LinearModelOrders
+
+    orders = LinearModelOrders(1, 0, 0)
+    bounds = LinearBlockBounds(method="paper", orders=orders, intervals={"a1": ParameterInterval(-0.5, -0.4),
+                                                                         "b0": ParameterInterval(0.5, 0.6)})
+    assert not bounds.is_empty and bounds.notes == () and bounds.num_linear_programs == 0
+    assert LinearBlockBounds.from_dict(bounds.to_dict()) == bounds
+    with pytest.raises(TypeError):
+        LinearBlockBounds("paper", orders, {})  # type: ignore[misc]
