@@ -37,7 +37,7 @@ import numpy as np
 from identify.excitation_design import filtered_staircase, prbs_sequence, staircase_steady_state_indices
 from identify.feasible_parameter_set import bound_backlash_parameters
 from identify.inner_signal_bounds import bound_inner_signal, shared_backlash_constraints
-from identify.linear_block_bounds import bound_linear_block
+from identify.linear_block_bounds import DEFAULT_PARTITION_SAMPLES, bound_linear_block
 from identify.plant_blocks import LinearBlock, OutputBacklash, PlantModel
 
 GAMMA = {"m_l": 0.248, "c_l": 0.0698, "m_r": 0.252, "c_r": 0.0349}
@@ -124,7 +124,8 @@ def scaling(args: argparse.Namespace) -> None:
     map_windows = map if pool is None else partial(pool.map, chunksize=4)
     print(f"Coupled bounds against the record length: seed {args.seed}, run r of (N, n_bit) from "
           f"default_rng([{args.seed}, N, n_bit, r]); {args.jobs} process(es) for the windows, joint_samples "
-          f"{args.joint_samples}, {os.cpu_count()} cores; medians over the runs")
+          f"{args.joint_samples}, partition_samples {args.partition_samples}, {os.cpu_count()} cores; medians over the "
+          "runs")
     header = (f"{'N':>6} {'n_bit':>5} {'runs':>4} | {'wall s':>7} {'max':>7} {'CPU s':>7} {'peak MiB':>8} | "
               + " ".join(f"{'D' + name:>8}" for name in THETA) + f" | {'in':>4} {'out/inner':>9} | windowing")
     print(header)
@@ -144,6 +145,7 @@ def scaling(args: argparse.Namespace) -> None:
                 linear = bound_linear_block(u, inner.lower_rad, inner.upper_rad, na=2, nk=1, nb=2, method="coupled",
                                             shared_backlash=shared, map_windows=map_windows,
                                             joint_samples=args.joint_samples,
+                                            partition_samples=args.partition_samples,
                                             verify_inner=num_samples <= args.inner_max)
                 wall = time.perf_counter() - started
                 cpu = _cpu_s() + _pool_cpu_s(pool) - cpu
@@ -184,6 +186,9 @@ def main() -> None:
     parser.add_argument("--first-run", type=int, default=0, help="--scaling: index of the first run (default 0)")
     parser.add_argument("--jobs", type=int, default=1, help="--scaling: processes for the windows (default 1)")
     parser.add_argument("--joint-samples", type=int, default=3000, help="--scaling: joint_samples (default 3000)")
+    parser.add_argument("--partition-samples", type=int, default=DEFAULT_PARTITION_SAMPLES,
+                        help="--scaling: partition of the box of a up to this N (default "
+                             f"{DEFAULT_PARTITION_SAMPLES}; 0: off)")
     parser.add_argument("--inner-max", type=int, default=10000,
                         help="--scaling: verified inner values (outer/inner) only up to this N (default 10000)")
     args = parser.parse_args()

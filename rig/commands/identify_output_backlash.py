@@ -63,6 +63,10 @@ def register(methods: argparse._SubParsersAction) -> None:
                         help="coupled method: the final relaxation is solved jointly over all samples up to N, else "
                              "over overlapping parts of N samples whose bounds are intersected (default 3000; larger "
                              "is tighter and slower); the verified inner values are computed only up to N samples")
+    parser.add_argument("--partition-samples", type=int, default=1000, metavar="N",
+                        help="coupled method: records up to N samples (default 1000; 0: never) get a final "
+                             "tightening by partition of the box of a (a few times slower, outer bounds close to the "
+                             "verified inner values)")
     parser.add_argument("--save", metavar="RESULT.json", default=None,
                         help="also write the --json object with the data it came from (steady points, dynamic "
                              "record, noise bound, orders) to RESULT.json")
@@ -233,7 +237,8 @@ def bound_pair(dynamic: str, steady_of: dict[str, str], options: dict) -> dict:
     return _document(result, options["method"])
 
 
-_OPTIONS = ("noise_bound", "na", "nk", "nb", "method", "filter_step", "window_samples", "joint_samples")
+_OPTIONS = ("noise_bound", "na", "nk", "nb", "method", "filter_step", "window_samples", "joint_samples",
+            "partition_samples")
 
 
 def _bound(steady: str, dynamic: str, options: dict, map_windows=None, progress=None):
@@ -247,7 +252,8 @@ def _bound(steady: str, dynamic: str, options: dict, map_windows=None, progress=
                                               nk=options["nk"], nb=options["nb"], method=options["method"],
                                               filter_step_amplitude_rad=options["filter_step"],
                                               window_samples=options["window_samples"],
-                                              joint_samples=options["joint_samples"], map_windows=map_windows,
+                                              joint_samples=options["joint_samples"],
+                                              partition_samples=options["partition_samples"], map_windows=map_windows,
                                               progress=progress,
                                               # on long records the verified inner points cost more than the
                                               # bounds (each solves the exact problem over every sample)

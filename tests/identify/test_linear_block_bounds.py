@@ -14,10 +14,11 @@ from cerone2009_data import GAMMA, THETA, experiment
 TABLE_II_15_BIT = {"a1": 4.3e-4, "a2": 2.5e-4, "b1": 4.3e-4, "b2": 7.2e-4}
 
 
-def _run(n_bit: int, seed: int, method: str = "coupled", num_samples: int = 100):
+def _run(n_bit: int, seed: int, method: str = "coupled", num_samples: int = 100, **options):
     data = experiment(n_bit, seed, num_samples)
     return data, bound_output_backlash_system(data.steady_input_rad, data.steady_output_rad, data.input_rad,
-                                              data.output_rad, data.noise_bound_rad, na=2, nk=1, nb=2, method=method)
+                                              data.output_rad, data.noise_bound_rad, na=2, nk=1, nb=2, method=method,
+                                              **options)
 
 
 def test_fifteen_bit_example_recovers_theta_to_the_papers_precision() -> None:
@@ -58,6 +59,32 @@ def test_true_parameters_inside_every_bound_and_coupled_inside_paper(n_bit: int)
             assert coupled.inner_lower is not None and coupled.inner_upper is not None
             assert outer.lower <= coupled.inner_lower[name] <= coupled.inner_upper[name] <= outer.upper
         assert coupled.max_certificate_gap < 1e-6
+
+
+@pytest.mark.parametrize("n_bit, seed", [(8, 71), (12, 72)])
+def test_partition_of_the_box_of_a_brings_the_outer_bounds_to_the_verified_points(n_bit: int, seed: int) -> None:
+    # Issue 19: at 8 bits the outer interval was 1.25-2 times the span of verified feasible points. The
+    # partition (spatial branch and bound on a) must stay an outer bound, inside the one-relaxation bound,
+    # and with the verified points (bisection and local steps) come within 10 % of them.
+    data, paper = _run(n_bit, seed, "paper")
+    inner = paper.inner_signal
+    shared = shared_backlash_constraints(data.output_rad, data.noise_bound_rad, paper.backlash, inner)
+    args = (data.input_rad, inner.lower_rad, inner.upper_rad)
+    single = bound_linear_block(*args, na=2, nk=1, nb=2, shared_backlash=shared, partition_samples=0)
+    seen = []
+    cells = bound_linear_block(*args, na=2, nk=1, nb=2, shared_backlash=shared,
+                               progress=lambda stage, done, total: seen.append((stage, done, total)))
+    assert "partitioned into cells" in cells.windowing and "partitioned" not in single.windowing
+    stage, done, total = seen[-1]  # the progress of the partition ends with done == total
+    assert stage.startswith("partition of the box of a") and done == total > 0
+    slack = single.max_certificate_gap + cells.max_certificate_gap
+    for name, value in THETA.items():
+        outer, wide = cells.intervals[name], single.intervals[name]
+        assert outer.contains(value)
+        assert wide.lower - slack <= outer.lower and outer.upper <= wide.upper + slack
+        low, high = cells.inner_lower[name], cells.inner_upper[name]
+        assert outer.lower <= low <= high <= outer.upper
+        assert outer.upper - outer.lower <= 1.1 * (high - low), (name, outer, low, high)
 
 
 def test_unit_static_gain_holds_across_the_bounds() -> None:
@@ -129,7 +156,7 @@ def test_long_record_tightens_on_a_window_first_and_still_contains_the_truth() -
     # N = 500 > 2 x 200: the box of a is tightened on the first 200 samples, then rounds of the interval
     # relaxation over all the data
     _, paper = _run(10, 21, "paper", num_samples=500)
-    _, coupled = _run(10, 21, "coupled", num_samples=500)
+    _, coupled = _run(10, 21, "coupled", num_samples=500, partition_samples=0)  # the windows, not the partition
     for name, value in THETA.items():
         outer_paper, outer = paper.linear_intervals[name], coupled.linear_intervals[name]
         assert outer.contains(value)
@@ -164,7 +191,9 @@ def test_interval_relaxation_holds_at_the_truth_and_contains_the_mccormick_one()
     interval = _interval_lp(problem, low, high)
     truth = np.concatenate([theta, data.inner_rad - problem.xc])
     assert np.all(np.abs(truth[4:]) <= problem.dx + 1e-12)
-    assert np.all(interval.A_ub @ truth <= interval.b_ub + 1e-9)
+    A_range, range_lower, range_upper = interval.ranged()
+    assert A_range.shape[0] == problem.times.size  # one ranged row per equation
+    assert np.all(range_lower - 1e-9 <= A_range @ truth) and np.all(A_range @ truth <= range_upper + 1e-9)
     assert np.allclose(interval.A_eq @ truth, interval.b_eq)
     counter = _Counter()
     outer_low, outer_high, _ = _bounds_over(interval, 4, counter)
@@ -186,11 +215,11 @@ def test_a_bounding_lp_that_highs_cannot_solve_falls_back_to_a_valid_bound_with_
     _, reference = _run(12, 41, "coupled")
     original = module._Solver.minimize
 
-    def failing(self, cost, counter, start=None):
+    def failing(self, cost, counter):
         if counter.stage.startswith("coupled") and cost.size > 4 and cost[3] == -1.0:
             counter.solves += 1
             raise module._SolverFailure("Solve error")
-        return original(self, cost, counter, start)
+        return original(self, cost, counter)
 
     monkeypatch.setattr(module._Solver, "minimize", failing)
     _, paper = _run(12, 41, "paper")
@@ -254,11 +283,13 @@ def test_parts_of_a_long_record_run_through_a_map_and_give_the_same_bounds() -> 
     shared = shared_backlash_constraints(data.output_rad, data.noise_bound_rad, paper.backlash, inner)
     args = (data.input_rad, inner.lower_rad, inner.upper_rad)
     seen = []
-    serial = bound_linear_block(*args, na=2, nk=1, nb=2, shared_backlash=shared, joint_samples=400,
-                                verify_inner=False, progress=lambda stage, done, total: seen.append((stage, done, total)))
+    # the map runs the windows and parts; the partition of short records (in-process) is switched off here
+    options = {"joint_samples": 400, "partition_samples": 0, "verify_inner": False}
+    serial = bound_linear_block(*args, na=2, nk=1, nb=2, shared_backlash=shared, **options,
+                                progress=lambda stage, done, total: seen.append((stage, done, total)))
     with ThreadPoolExecutor(2) as pool:
-        parallel = bound_linear_block(*args, na=2, nk=1, nb=2, shared_backlash=shared, joint_samples=400,
-                                      verify_inner=False, map_windows=pool.map)
+        parallel = bound_linear_block(*args, na=2, nk=1, nb=2, shared_backlash=shared, **options,
+                                      map_windows=pool.map)
     assert parallel.intervals == serial.intervals
     assert "then 3 of 3 overlapping parts of 400 samples jointly" in serial.windowing
     assert any(stage.startswith("window pass 1") and done == total == 5 for stage, done, total in seen)
@@ -267,6 +298,49 @@ def test_parts_of_a_long_record_run_through_a_map_and_give_the_same_bounds() -> 
         interval = serial.intervals[name]
         assert interval.contains(value)
         assert paper.linear_intervals[name].lower <= interval.lower and interval.upper <= paper.linear_intervals[name].upper
+
+
+def _window_task_whose_joint_parts_kill_their_process(task):
+    """A worker that dies like the one of issue 19 (segfault inside HiGHS), here by SIGKILL."""
+    import os
+    import signal
+
+    import identify.linear_block_bounds as module
+
+    if task[0] == "joint":
+        os.kill(os.getpid(), signal.SIGKILL)
+    return module._ORIGINAL_WINDOW_TASK(task)
+
+
+def test_a_worker_process_that_dies_gives_valid_looser_bounds_with_a_note(monkeypatch) -> None:
+    # Issue 19: at N = 100 000, 8 bits, a worker segfaulted inside HiGHS and the user got BrokenProcessPool.
+    # Here every worker that starts a joint part dies: the window bounds must be returned, with a note.
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
+    import identify.linear_block_bounds as module
+
+    data, paper = _run(10, 61, "paper", num_samples=900)
+    inner = paper.inner_signal
+    shared = shared_backlash_constraints(data.output_rad, data.noise_bound_rad, paper.backlash, inner)
+    args = (data.input_rad, inner.lower_rad, inner.upper_rad)
+    options = {"joint_samples": 400, "partition_samples": 0}
+    serial = bound_linear_block(*args, na=2, nk=1, nb=2, shared_backlash=shared, **options)
+    monkeypatch.setattr(module, "_ORIGINAL_WINDOW_TASK", module._window_task, raising=False)
+    monkeypatch.setattr(module, "_window_task", _window_task_whose_joint_parts_kill_their_process)
+    with ProcessPoolExecutor(2, mp_context=multiprocessing.get_context("fork")) as pool:
+        lost = bound_linear_block(*args, na=2, nk=1, nb=2, shared_backlash=shared, map_windows=pool.map, **options)
+    assert len(lost.notes) == 1
+    assert lost.notes[0].startswith("all parameters: a process running the windows stopped in the joint relaxation")
+    assert "BrokenProcessPool" in lost.notes[0]
+    assert serial.notes == ()
+    for name, value in THETA.items():
+        interval = lost.intervals[name]
+        assert interval.contains(value)
+        # the windows' bound: inside the paper method's, around the full method's
+        assert paper.linear_intervals[name].lower <= interval.lower and interval.upper <= paper.linear_intervals[name].upper
+        assert interval.lower <= serial.intervals[name].lower and serial.intervals[name].upper <= interval.upper
+    assert lost.inner_lower is None  # no joint part finished, so no extreme points to verify
 
 
 @pytest.mark.slow
@@ -294,3 +368,17 @@ def test_the_issue_19_record_that_stopped_highs_gives_bounds() -> None:
     for name, value in THETA.items():
         assert result.intervals[name].contains(value)
         assert result.intervals[name].half_width < 1e-4
+
+
+def test_linear_block_bounds_are_built_from_keywords() -> None:
+    # issue 16, item 4: no more 11 positional arguments; the diagnostics default to "none"
+    from identify.feasible_parameter_set import ParameterInterval
+    from identify.linear_block_bounds import LinearBlockBounds, LinearModelOrders
+
+    orders = LinearModelOrders(1, 0, 0)
+    bounds = LinearBlockBounds(method="paper", orders=orders, intervals={"a1": ParameterInterval(-0.5, -0.4),
+                                                                         "b0": ParameterInterval(0.5, 0.6)})
+    assert not bounds.is_empty and bounds.notes == () and bounds.num_linear_programs == 0
+    assert LinearBlockBounds.from_dict(bounds.to_dict()) == bounds
+    with pytest.raises(TypeError):
+        LinearBlockBounds("paper", orders, {})  # type: ignore[misc]

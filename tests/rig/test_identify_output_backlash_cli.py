@@ -147,20 +147,23 @@ def test_long_record_shows_progress_and_says_which_windowing_it_used(long_files,
     assert "method coupled" in captured.out
     assert "windowing          5 windows of 200 samples (overlap 20)" in captured.out
     assert "overlapping parts of 400 samples jointly" in captured.out
+    assert "then the box of a partitioned into cells" in captured.out  # 900 samples <= --partition-samples 1000
     assert "window pass 1: 5/5" in captured.err and "joint relaxation of 3 part(s) of up to 400 samples: 3/3" in captured.err
     # --json keeps stdout one JSON object: the keys of issue 2 and the result's own (issue 16); the
     # progress goes to stderr
-    assert main(_args(long_files, "--joint-samples", "400", "--json")) == exit_codes.SUCCESS
+    assert main(_args(long_files, "--joint-samples", "400", "--partition-samples", "0", "--json")) == exit_codes.SUCCESS
     captured = capsys.readouterr()
+    assert "partitioned" not in json.loads(captured.out)["linear_bounds"]["windowing"]
     assert set(json.loads(captured.out)) >= {"backlash", "linear", "method", "invertible_samples", "samples", "kind",
                                              "version"}
     assert "window pass 1" in captured.err
 
 
 def test_windows_of_one_record_run_in_worker_processes_with_the_same_bounds(long_files, capsys) -> None:
-    assert main(_args(long_files, "--joint-samples", "400", "--json")) == exit_codes.SUCCESS
+    options = ("--joint-samples", "400", "--partition-samples", "0", "--json")
+    assert main(_args(long_files, *options)) == exit_codes.SUCCESS
     serial = json.loads(capsys.readouterr().out)
-    assert main(_args(long_files, "--joint-samples", "400", "--json", "--jobs", "2")) == exit_codes.SUCCESS
+    assert main(_args(long_files, *options, "--jobs", "2")) == exit_codes.SUCCESS
     assert json.loads(capsys.readouterr().out) == serial
     assert main(_args(long_files, "--jobs", "-1")) == exit_codes.BAD_INPUT
     assert "--jobs: expected 0 (all cores)" in capsys.readouterr().err
