@@ -833,14 +833,14 @@ def _with_loop(chain: _Chain, index: int, loop: tuple[float, float]) -> _Chain:
 _TRAIN_CACHE: dict[tuple[Any, ...], DriveTrain] = {}
 
 
-def rigid_train_like(block: LinearBlock, u: NDArray[np.float64]) -> DriveTrain:
+def rigid_train_like(block: LinearBlock, input_rad: NDArray[np.float64]) -> DriveTrain:
     """The rigid drive train (:func:`identify.effect_catalogue.reference_train`) whose position loop
-    reproduces ``block``'s free run on ``u`` best (least squares on bandwidth f_n and damping zeta). Start:
+    reproduces ``block``'s free run on ``input_rad`` best (least squares on bandwidth f_n and damping zeta). Start:
     the continuous poles s = ln(z) / T of the block's dominant pair (complex: omega_n = |s|,
     zeta = -Re s / |s|; real: omega_n = sqrt(s_1 s_2), zeta = (s_1 + s_2) / (2 omega_n); one real pole s:
     omega_n = 2|s|, zeta = 1, the critically damped pair of the same rise). The same block and input give
     the same train (cached: every dynamics candidate of a round starts from it)."""
-    key = (block.a, block.b, block.sample_period_s, u.size, hash(u.tobytes()))
+    key = (block.a, block.b, block.sample_period_s, input_rad.size, hash(input_rad.tobytes()))
     if key in _TRAIN_CACHE:
         return _TRAIN_CACHE[key]
     period = block.sample_period_s
@@ -858,14 +858,14 @@ def rigid_train_like(block: LinearBlock, u: NDArray[np.float64]) -> DriveTrain:
     nyquist = 0.5 / period
     start = (min(max(natural / (2.0 * math.pi), 1e-3 * nyquist), LOOP_BANDWIDTH_NYQUIST_SHARE * nyquist),
              min(max(damping, LOOP_DAMPING_RANGE[0]), LOOP_DAMPING_RANGE[1]))
-    target = block.apply(u)
+    target = block.apply(input_rad)
     base = reference_train(period, *start)
 
     def error(v: NDArray[np.float64]) -> NDArray[np.float64]:
         try:
-            return _train(base, v, (), True).apply(u) - target
+            return _train(base, v, (), True).apply(input_rad) - target
         except InvalidInputError:
-            return np.full(u.size, _BIG / math.sqrt(u.size))
+            return np.full(input_rad.size, _BIG / math.sqrt(input_rad.size))
 
     with np.errstate(all="ignore"):
         fit = optimize.least_squares(error, np.array(start), method="trf", diff_step=1e-4, max_nfev=20)

@@ -694,7 +694,8 @@ class CanOpenTransport(Transport):
         self._check_heartbeats()
         with self._lock:
             self._queue[setpoint.seq] = self.drive.counts_from_rad(setpoint.position_rad)
-            self._queued_at[setpoint.seq] = time.perf_counter()
+            if self._origin is not None:  # the lead counts once the drive's clock runs the samples (before it,
+                self._queued_at[setpoint.seq] = time.perf_counter()  # the first setpoint is just ahead by design)
             if self.mode == "ip_buffer":
                 self._top_up_ip_buffer()
                 return
@@ -702,7 +703,8 @@ class CanOpenTransport(Transport):
                 return
             behind = self._device_sample - setpoint.seq  # >= -1: its slot right after SYNC seq - 1 has passed
             if behind >= 0:  # its SYNC is past: the device held the previous target (the sample is HELD)
-                del self._queue[setpoint.seq], self._queued_at[setpoint.seq]
+                del self._queue[setpoint.seq]
+                self._queued_at.pop(setpoint.seq, None)
                 self._min_lead_s = min(self._min_lead_s, -(behind + 1) * self.sample_period_s)
             elif behind == -1:  # late, but its SYNC may still be ahead: the RPDO echoes will tell
                 self._min_lead_s = min(self._min_lead_s, 0.0)
