@@ -24,18 +24,19 @@ it can enable the drive):
 
 The base class then walks the drive to OPERATION ENABLED by SDO on 0x6040/0x6041 (paced polling, fault
 reset on a rising edge; :mod:`rig.protocols.cia402`), and after optional homing (mode 6, method 0x6098)
-the target is set to the actual position again before the streaming mode (8 or 7) is taken. Every exit after that ends in
-quick stop, then disable, then NMT pre-operational (:class:`~rig.transports.base.Transport`).
+the target is set to the actual position again before the streaming mode (8 or 7) is taken. Every exit
+after that ends in quick stop, then disable, then NMT pre-operational
+(:class:`~rig.transports.base.Transport`).
 
 Streaming (the device's clock owns the sample instants): SYNC runs from a cyclic task at the sample
 period, from configuration to the end of the stop (:meth:`_start_sync`), or from an external producer.
 The runner queues setpoints ``lead_s`` ahead (:meth:`_send`). In cyclic synchronous position, right after
 SYNC k-1 is seen the receive thread puts target k on the bus (:meth:`_on_sync_echo`), so it is in force
 at SYNC k whatever the runner's thread does meanwhile; in interpolated position (``mode``), the receive
-thread keeps the drive's buffer of records filled from the queue at every SYNC. The master receives its own frames back (``receive_own_messages``, SocketCAN's echo of
-a transmitted frame), stamped by the same interface clock as the TPDOs and in bus order, so it knows which
-target was last on the bus before each SYNC: a target that came too late leaves its sample HELD with the
-command really applied. TPDOs carry no SYNC counter: each is filed under the last SYNC before its bus
+thread keeps the drive's buffer of records filled from the queue at every SYNC. The master receives its
+own frames back (``receive_own_messages``, SocketCAN's echo of a transmitted frame), stamped by the same
+interface clock as the TPDOs and in bus order, so it knows which target was last on the bus before each
+SYNC: a target that came too late leaves its sample HELD with the command really applied. TPDOs carry no SYNC counter: each is filed under the last SYNC before its bus
 timestamp once the next SYNC has been seen (the order around it is known only then), minus the node's
 ``*_tpdo_latency_cycles``. The host's own clock never enters the filing. An interface that does not echo
 transmitted frames is refused at start-up. A second answer to one SYNC is reported again and the runner
