@@ -70,13 +70,13 @@ class TrueGearbox:
     @property
     def play_rad(self) -> float:
         """Total play seen at the load, m_l c_l + m_r c_r: the gap between the two backlash lines."""
-        return self.backlash.m_l * self.backlash.c_l + self.backlash.m_r * self.backlash.c_r
+        return self.backlash.m_l * self.backlash.c_l_rad + self.backlash.m_r * self.backlash.c_r_rad
 
     @property
     def backlash_values(self) -> dict[str, float]:
         """γ = (m_l, c_l, m_r, c_r) by name, as the bounds name them."""
         backlash = self.backlash
-        return {"m_l": backlash.m_l, "c_l": backlash.c_l, "m_r": backlash.m_r, "c_r": backlash.c_r}
+        return {"m_l": backlash.m_l, "c_l": backlash.c_l_rad, "m_r": backlash.m_r, "c_r": backlash.c_r_rad}
 
     def nominal_without_backlash(self) -> PlantModel:
         """The plant with its play replaced by the bare gear ratio: the model a user would start from."""
@@ -159,7 +159,8 @@ class DemoOutcome:
         result = self.set_membership[method]
         if result.backlash.is_empty:
             return {}
-        return result.backlash.contains(**self.truth.backlash_values)
+        truth = self.truth.backlash
+        return result.backlash.contains(truth.m_l, truth.c_l_rad, truth.m_r, truth.c_r_rad)
 
 
 def _membership_text(sides: dict[str, bool]) -> str:
