@@ -67,6 +67,7 @@ from identify.validation import InvalidInputError, as_signal, positive, renamed_
 __all__ = [
     "HammersteinModel",
     "HammersteinOptions",
+    "NodePlay",
     "RefinementReport",
     "identify_hammerstein",
     "pi_moesp_observability",
@@ -109,6 +110,50 @@ class RefinementReport:
     converged: bool
     message: str
     applied: bool
+
+
+@dataclass(frozen=True)
+class NodePlay:
+    """The play seen at the output, read at the nodes: the gap P_d(u_i) - P_a(u_i) at each ascending node
+    u_i, with P_d interpolated there (eq. (3); :meth:`HammersteinModel.play_at_nodes`).
+
+    On Table I cycles a play between two parallel lines gives the same gap at every interior node (the paths
+    meet at u_min and u_max), so the median over the interior nodes is its estimate and their spread the
+    only uncertainty the subspace method offers (it gives no interval); for curved borders the gap varies
+    with u and the median is only a typical value.
+
+    Attributes
+    ----------
+    nodes_rad
+        The ascending nodes u_i.
+    gaps_rad
+        P_d(u_i) - P_a(u_i) at each of them.
+    """
+
+    nodes_rad: NDArray[np.float64]
+    gaps_rad: NDArray[np.float64]
+
+    @property
+    def interior_gaps_rad(self) -> NDArray[np.float64]:
+        """The gaps without the end nodes, where both paths meet (all of them for two nodes)."""
+        return self.gaps_rad[1:-1] if self.gaps_rad.size > 2 else self.gaps_rad
+
+    @property
+    def median_rad(self) -> float:
+        return float(np.median(self.interior_gaps_rad))
+
+    @property
+    def lowest_rad(self) -> float:
+        return float(np.min(self.interior_gaps_rad))
+
+    @property
+    def highest_rad(self) -> float:
+        return float(np.max(self.interior_gaps_rad))
+
+    def describe(self) -> str:
+        """The estimate with its spread, as the demo's table and the border figure's caption both state it."""
+        return (f"{self.median_rad:.4g} (median gap P_d - P_a at {self.interior_gaps_rad.size} interior nodes; "
+                f"spread {self.lowest_rad:.3g}..{self.highest_rad:.3g}) rad")
 
 
 def _frozen(name: str, values: ArrayLike, shape: tuple[int, ...]) -> NDArray[np.float64]:
@@ -233,13 +278,17 @@ class HammersteinModel:
             return float("nan")
         return float(np.max(np.min(np.abs(truth[:, None] - estimated[None, :]), axis=1)))
 
+    def play_at_nodes(self) -> NodePlay:
+        """The gaps P_d(u_i) - P_a(u_i) at the ascending nodes (eq. (3)): the play seen at the output."""
+        nodes_rad = np.asarray(self.ascending_border.nodes_u, dtype=float)
+        gaps_rad = (np.interp(nodes_rad, self.descending_border.nodes_u, self.descending_border.values)
+                    - np.asarray(self.ascending_border.values, dtype=float))
+        return NodePlay(nodes_rad, gaps_rad)
+
     @property
     def largest_play_rad(self) -> float:
-        """max over the ascending nodes of P_d(u) - P_a(u): the play seen at the output."""
-        u = np.asarray(self.ascending_border.nodes_u)
-        gap = (np.interp(u, self.descending_border.nodes_u, self.descending_border.values)
-               - np.asarray(self.ascending_border.values))
-        return float(np.max(gap))
+        """max over the ascending nodes of P_d(u) - P_a(u) (:meth:`play_at_nodes`)."""
+        return float(np.max(self.play_at_nodes().gaps_rad))
 
     @property
     def transfer_function(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:

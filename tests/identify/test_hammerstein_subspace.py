@@ -12,7 +12,8 @@ import scipy.signal
 
 from identify.border_lifting import PathNodes, lifted_input
 from identify.cyclic_excitation import cyclic_random_excitation
-from identify.hammerstein_subspace import HammersteinModel, HammersteinOptions, identify_hammerstein, pi_moesp_observability
+from identify.hammerstein_subspace import (HammersteinModel, HammersteinOptions, NodePlay, identify_hammerstein,
+                                          pi_moesp_observability)
 from identify.plant_blocks import (
     InputBacklash,
     InputSwitch,
@@ -297,6 +298,22 @@ def test_the_numbers_the_pole_and_border_figures_show(excitation) -> None:
     natural = model.natural_frequencies_hz(0.01)
     assert natural.size == 1 and natural[0] == pytest.approx(abs(np.log(TRUE_POLES[0])) / (2 * np.pi * 0.01))
     assert model.largest_play_rad == pytest.approx(float(np.max(np.asarray(H_D) - np.asarray(H_A))), abs=1e-9)
+
+
+def test_the_play_at_the_nodes_is_the_gap_between_the_paths(excitation) -> None:
+    # borders on shared nodes: the gap at node i is H_D[i] - H_A[i], the end nodes (where the paths meet) are
+    # left out of the median and the spread
+    y = exact_plant("backlash").simulate(excitation)
+    play = identify_hammerstein(excitation, y, NODES, hold_samples=HOLD).play_at_nodes()
+    np.testing.assert_allclose(play.nodes_rad, X)
+    np.testing.assert_allclose(play.gaps_rad, H_D - H_A, atol=1e-9)
+    interior = (H_D - H_A)[1:-1]
+    assert play.median_rad == pytest.approx(float(np.median(interior)), abs=1e-9)
+    assert (play.lowest_rad, play.highest_rad) == pytest.approx((interior.min(), interior.max()), abs=1e-9)
+    assert f"{play.median_rad:.4g}" in play.describe() and f"{interior.size} interior nodes" in play.describe()
+    # two nodes: nothing is interior, both gaps count
+    two = NodePlay(np.array([0.0, 1.0]), np.array([0.1, 0.3]))
+    assert two.median_rad == pytest.approx(0.2) and two.lowest_rad == 0.1
 
 
 def test_the_options_object_and_the_keywords_are_one_call(excitation) -> None:
