@@ -96,7 +96,8 @@ class SimulatedSerialDevice:
         2 (default): the device answers HELLO and runs its own tick clock in v2 mode; 1: a v1 device, which
         drops HELLO and START as unknown types.
     buffer_capacity
-        Setpoints the device's buffer holds (v2), reported in DEVICE_INFO.
+        Setpoints the device's buffer holds (v2), reported in DEVICE_INFO: 1024 (6 KB) by default, so that the
+        transport's default 250 ms lead fits at 2 kHz (500 setpoints) with room to spare.
     sample_period_s
         The device's tick period (default: the gearbox's sample period), reported in DEVICE_INFO.
     clock
@@ -113,7 +114,7 @@ class SimulatedSerialDevice:
                  status_delay_s: float = 0.0, fault_reset_delay_s: float = 0.0, boot_fault_code: int | None = None,
                  lost_status_after_enable: int = 0, boot_banner: bytes = b"", copy_target_at_enable: bool = True,
                  following_error_counts: int | None = None, initial_actual_counts: int = 0,
-                 fault_frame_lost: bool = False, protocol_version: int = PROTOCOL_VERSION, buffer_capacity: int = 256,
+                 fault_frame_lost: bool = False, protocol_version: int = PROTOCOL_VERSION, buffer_capacity: int = 1024,
                  sample_period_s: float | None = None, clock: Callable[[], float] = time.perf_counter) -> None:
         if protocol_version not in (1, 2):
             raise ValueError(f"protocol_version: expected 1 or 2, got {protocol_version!r}")

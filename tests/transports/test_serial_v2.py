@@ -240,10 +240,12 @@ def test_a_v1_simulated_device_is_driven_host_paced_and_equals_the_offline_simul
 def test_a_v2_run_reports_its_lead_and_every_row_is_a_tick(tmp_path, no_leaks):
     sink = ListSink()
     with simulated("serial", tmp_path) as (config, transport, _, device):
-        summary = run_experiment(transport, excitation(40), sink, feedback_timeout_s=config.feedback_timeout_s,
+        # more samples than the default lead (250 ms, 50 at the test's 200 Hz): some setpoints go after START
+        summary = run_experiment(transport, excitation(80), sink, feedback_timeout_s=config.feedback_timeout_s,
                                  late_tolerance_s=config.late_tolerance_s)
-        assert transport.version == 2 and device.ticks >= 40 and device.state is DriveState.SWITCH_ON_DISABLED
+        assert transport.lead_samples == 50
+        assert transport.version == 2 and device.ticks >= 80 and device.state is DriveState.SWITCH_ON_DISABLED
     flags = np.array([row[4] for row in sink.rows])
-    assert len(sink.rows) == 40 and summary.held == np.count_nonzero(flags & SampleFlag.HELD)
+    assert len(sink.rows) == 80 and summary.held == np.count_nonzero(flags & SampleFlag.HELD)
     assert summary.lost == np.count_nonzero(flags & SampleFlag.LOST) and not summary.warnings
     assert not math.isnan(summary.min_lead_s)
