@@ -14,9 +14,14 @@ per SYNC, on the bus right after the SYNC before it: under one period of lead on
 ``can`` speak protocol v2 (the device ticks, setpoints tagged with their tick). A v1 device is host-paced
 and "held" does not apply to it (n/a).
 
-The simulated devices run in the driver's own process (python-can's virtual bus is in-process), so they
-compete with it for the GIL and both cores: on real hardware the driver is the only Python in the loop.
-Usage::
+The simulated serial device runs in a process of its own (``python -m sim_backend.serial_device``, on a pty),
+as a real device is a microcontroller with its own clock: it shares neither the GIL nor the garbage
+collector's pauses with the driver, so a HELD serial sample is a stall of the host (``--serial-device
+thread`` runs it as a thread of the driver's process instead, as ``rig run`` does). The CAN devices run in
+the driver's process (python-can's virtual bus is in-process), so they compete with it for the GIL and both
+cores: a pause of the whole process (a full garbage collection, a starved process) stops their clock too,
+and they catch up in a burst that the lead has to cover. "CPU per 1000 samples" is the driver's process
+(for serial: without the device's). Usage::
 
     python benchmarks/transport_timing.py                   # 5 s per case
     python benchmarks/transport_timing.py --duration 60 --conditions idle busy stall
@@ -46,6 +51,7 @@ from rig.rig_config import load_rig_config  # noqa: E402
 from rig.runner import run_experiment  # noqa: E402
 from rig.transports import open_transport  # noqa: E402
 from sim_backend.plant_config import load_plant_config  # noqa: E402
+from sim_backend.serial_device import serial_device_process  # noqa: E402
 
 
 class _NullSink:
@@ -72,7 +78,7 @@ def _config(kind: str, rate_hz: float, directory: Path):
 
 
 def measure(kind: str, rate_hz: float, duration_s: float, directory: Path, pending_cycles: int,
-            stall_every_s: float | None = None) -> dict[str, object]:
+            stall_every_s: float | None = None, serial_device: str = "process") -> dict[str, object]:
     config = _config(kind, rate_hz, directory)
     # the plant's physics stay at its own 1 kHz; only the wall-clock rate of the loop changes here
     gearbox = load_plant_config(config.simulation.plant_path).gearbox(seed=config.simulation.seed)
@@ -88,7 +94,13 @@ def measure(kind: str, rate_hz: float, duration_s: float, directory: Path, pendi
 
     with contextlib.ExitStack() as stack:
         clocked = {"sample_period_s": 1.0 / rate_hz} if kind in ("serial", "can") else {}  # the device's own tick
-        url, device = start_simulated_devices(config, gearbox, stack, **clocked)
+        if kind == "serial" and serial_device == "process":
+            port = stack.enter_context(serial_device_process(
+                config.simulation.plant_path, seed=config.simulation.seed, sample_period_s=1.0 / rate_hz,
+                drive_counts_per_revolution=config.drive.counts_per_revolution))
+            url, device = f"serial://{port}", None
+        else:
+            url, device = start_simulated_devices(config, gearbox, stack, **clocked)
         transport = open_transport(url, **config.transport_options())
         summary = run_experiment(transport, command, _NullSink(), feedback_timeout_s=config.feedback_timeout_s,
                                  late_tolerance_s=config.late_tolerance_s, pending_cycles=pending_cycles,
@@ -138,6 +150,9 @@ def main() -> int:
                         choices=["idle", "busy", "stall"])
     parser.add_argument("--pending-cycles", type=int, default=4,
                         help="feedback later than this many cycles is LOST (the runner's default: 4)")
+    parser.add_argument("--serial-device", choices=["process", "thread"], default="process",
+                        help="run the simulated serial device in a process of its own (default) or as a thread of "
+                             "the driver's process")
     parser.add_argument("--json", action="store_true", help="print the rows as JSON")
     args = parser.parse_args()
     rows = []
@@ -148,7 +163,8 @@ def main() -> int:
                     for rate in args.rates:
                         try:
                             row = measure(kind, rate, args.duration, Path(directory), args.pending_cycles,
-                                          stall_every_s=5.0 if name == "stall" else None)
+                                          stall_every_s=5.0 if name == "stall" else None,
+                                          serial_device=args.serial_device)
                         except ConfigError as err:  # e.g. a rate the bus cannot carry: refused on load
                             row = {"transport": kind, "rate_hz": rate, "refused": err.problem}
                         rows.append({"condition": name, **row})
@@ -156,8 +172,8 @@ def main() -> int:
         print(json.dumps(rows, indent=1))
         return 0
     print(f"# transport timing, {args.duration:g} s per case, Python {platform.python_version()}, "
-          f"{platform.machine()}, {os.cpu_count()} cores, simulated devices in-process, stall = {1e3 * STALL_S:g} ms "
-          "every 5 s")
+          f"{platform.machine()}, {os.cpu_count()} cores, simulated serial device: {args.serial_device}, CAN devices "
+          f"in-process, stall = {1e3 * STALL_S:g} ms every 5 s, load average {os.getloadavg()[0]:.2f} at the end")
     print("| condition | transport | rate | samples | lost | held | min lead | late | duplicate | CPU per 1000 "
           "samples | load avg | link load (worst case / measured) |")
     print("|---|---|---|---|---|---|---|---|---|---|---|---|")
