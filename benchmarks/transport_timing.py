@@ -6,7 +6,9 @@ conditions the script sets up and tears down itself:
 (c) ``stall``: idle, plus a 50 ms pause of the driver's own thread every 5 s (``--sim-faults stall``).
 
 Per row: samples, lost (goal 0), held (setpoints that missed the device's instant; goal 0), the smallest
-lead of a setpoint over its instant, late samples, CPU per 1000 samples, the CAN bus load. Every wire runs
+lead of a setpoint over its instant, late samples, CPU per 1000 samples, the CAN bus load, and who stalled:
+the longest gap between two rows the runner filed (the host's longest pause, stalls included) and the
+longest garbage collection of the driver's process. Every wire runs
 on the device's clock with the default lead (100 ms): ``canopen`` with the default ``mode = "auto"``,
 which streams interpolated position into the simulated drive's 64-record buffer (the lead sits in the
 drive, at most the buffer less 2 records); ``canopen-csp`` forces cyclic synchronous position (one target
@@ -31,6 +33,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import gc
 import json
 import os
 import platform
@@ -87,10 +90,21 @@ def measure(kind: str, rate_hz: float, duration_s: float, directory: Path, pendi
     stalls = [] if stall_every_s is None else [int(k * stall_every_s * rate_hz)
                                                for k in range(1, int(duration_s / stall_every_s) + 1)]
 
+    progress_s: list[float] = []  # when the runner filed each row: the longest gap is the host's longest pause
+    gc_pauses_s = [0.0]
+    gc_started = [0.0]
+
     def stall(done: int, late: int) -> None:
+        progress_s.append(time.perf_counter())
         while stalls and done >= stalls[0]:
             stalls.pop(0)
             time.sleep(STALL_S)
+
+    def gc_timer(phase: str, info: dict) -> None:
+        if phase == "start":
+            gc_started[0] = time.perf_counter()
+        else:
+            gc_pauses_s.append(time.perf_counter() - gc_started[0])
 
     with contextlib.ExitStack() as stack:
         clocked = {"sample_period_s": 1.0 / rate_hz} if kind in ("serial", "can") else {}  # the device's own tick
@@ -102,9 +116,11 @@ def measure(kind: str, rate_hz: float, duration_s: float, directory: Path, pendi
         else:
             url, device = start_simulated_devices(config, gearbox, stack, **clocked)
         transport = open_transport(url, **config.transport_options())
+        gc.callbacks.append(gc_timer)
+        stack.callback(gc.callbacks.remove, gc_timer)
         summary = run_experiment(transport, command, _NullSink(), feedback_timeout_s=config.feedback_timeout_s,
                                  late_tolerance_s=config.late_tolerance_s, pending_cycles=pending_cycles,
-                                 progress=stall if stalls else None)
+                                 progress=stall)
         measured_load = device.bus_load() if hasattr(device, "bus_load") else None
         if measured_load is None and hasattr(device, "bits"):
             measured_load = device.bits / (summary.wall_s * device.bitrate)
@@ -115,6 +131,7 @@ def measure(kind: str, rate_hz: float, duration_s: float, directory: Path, pendi
         "min_lead_ms": 1e3 * summary.min_lead_s if device_clocked else None,
         "late": summary.late, "duplicate": summary.duplicate, "load_average": os.getloadavg()[0],
         "cpu_ms_per_1000": 1e6 * summary.cpu_s / max(summary.samples, 1),
+        "host_gap_ms": 1e3 * float(np.max(np.diff(progress_s), initial=0.0)), "gc_ms": 1e3 * max(gc_pauses_s),
     }
     load = getattr(transport, "load", None)
     if load is not None:
@@ -175,12 +192,12 @@ def main() -> int:
           f"{platform.machine()}, {os.cpu_count()} cores, simulated serial device: {args.serial_device}, CAN devices "
           f"in-process, stall = {1e3 * STALL_S:g} ms every 5 s, load average {os.getloadavg()[0]:.2f} at the end")
     print("| condition | transport | rate | samples | lost | held | min lead | late | duplicate | CPU per 1000 "
-          "samples | load avg | link load (worst case / measured) |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
+          "samples | load avg | link load (worst case / measured) | longest host gap | longest gc |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for row in rows:
         if "refused" in row:
             print(f"| {row['condition']} | {row['transport']} | {row['rate_hz']:.0f} Hz | refused on load: "
-                  f"{row['refused'][:90]} |||||||||")
+                  f"{row['refused'][:90]} |||||||||||")
             continue
         measured = "n/a" if row.get("measured_load_pct") is None else f"{row['measured_load_pct']:.1f}%"
         can = f"{row['bus_load_pct']:.1f}% / {measured}" if "bus_load_pct" in row else "n/a"
@@ -188,7 +205,7 @@ def main() -> int:
         lead = "n/a" if row["min_lead_ms"] is None else f"{row['min_lead_ms']:.1f} ms"
         print(f"| {row['condition']} | {row['transport']} | {row['rate_hz']:.0f} Hz | {row['samples']} | {row['lost']} | "
               f"{held} | {lead} | {row['late']} | {row['duplicate']} | {row['cpu_ms_per_1000']:.0f} ms | "
-              f"{row['load_average']:.2f} | {can} |")
+              f"{row['load_average']:.2f} | {can} | {row['host_gap_ms']:.1f} ms | {row['gc_ms']:.1f} ms |")
     return 0
 
 

@@ -31,6 +31,7 @@ from rig.protocols.errors import ConfigError, DeviceFault, TransportError
 from rig.protocols.raw_can_frames import DEFAULT_DBC, RawCanCodec
 from rig.protocols.serial_frames import unwrap_seq
 from rig.transports.base import FeedbackSample, Setpoint, Transport, check_trace_path
+from rig.transports.serial_link import DEFAULT_LEAD_S
 
 __all__ = ["RawCanTransport"]
 
@@ -67,12 +68,14 @@ class RawCanTransport(Transport):
         with a warning); ``"v2"``: refuse a device that does not own the clock (v2 or v3 is accepted);
         ``"v1"``: send no RIG_HELLO.
     lead_s
-        v2: how far ahead of the device's ticks setpoints are queued (default 100 ms, as Klipper schedules ahead), at most its buffer.
+        v2/v3: how far ahead of the device's ticks setpoints are queued, at most its buffer (RIG_DEVICE_INFO: at
+        most 255 setpoints, 127.5 ms at 2 kHz). Default: serial's :data:`~rig.transports.serial_link.DEFAULT_LEAD_S`
+        (250 ms; why: see there), the protocol this one mirrors.
     """
 
     def __init__(self, interface: str, channel: str, *, bitrate: int = 1_000_000, dbc: str = str(DEFAULT_DBC),
                  reply_timeout_s: float = 0.5, reply_retries: int = 3, trace_path: str | None = None,
-                 protocol: str = "auto", lead_s: float = 0.1, **kwargs: Any) -> None:
+                 protocol: str = "auto", lead_s: float = DEFAULT_LEAD_S, **kwargs: Any) -> None:
         super().__init__(**kwargs)
         if protocol not in _PROTOCOLS:
             raise ConfigError("<transport>", "protocol", f"expected one of {', '.join(map(repr, _PROTOCOLS))}, got {protocol!r}")
