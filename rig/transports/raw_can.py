@@ -52,7 +52,9 @@ class RawCanTransport(Transport):
     interface, channel
         python-can interface name and channel (from ``can://INTERFACE/CHANNEL``).
     bitrate
-        Bus bit rate; the cycle's three frames must fit at the sample rate (:class:`ConfigError` if not).
+        Bus bit rate; a cycle's frames (RIG_SETPOINT and the device's: 3 frames in v1 and v3, 4 in v2) must fit
+        at the sample rate (:class:`ConfigError` if not: at config load for the best version the DBC has, after
+        the handshake for the version the device speaks).
     dbc
         The DBC file with the frame layout (``configs/raw_can.dbc`` by default).
     reply_timeout_s

@@ -13,7 +13,7 @@ import pytest
 from identify.experiment_record import SampleFlag
 from rig.protocols.cia402 import BringUpTiming, DriveScaling
 from rig.protocols.encoder_counts import EncoderResolution
-from rig.protocols.errors import DeviceFault
+from rig.protocols.errors import ConfigError, DeviceFault
 from rig.runner import run_experiment
 from rig.transports.raw_can import RawCanTransport
 
@@ -32,14 +32,14 @@ LEAD = 10  # the default 50 ms lead here at 5 ms
 
 @pytest.fixture
 def rig():
-    def make(**device_options):
+    def make(period_s=PERIOD_S, **device_options):
         clock = SimulatedClock(500.0)
         bus: ClockedBus | None = None
         device = SpecRawCanDevice(clock=clock, output=lambda arbitration_id, data: bus.device_sends(arbitration_id,
                                                                                                    data),
-                                  **device_options)
+                                  sample_period_ns=round(period_s * 1e9), **device_options)
         transport = RawCanTransport("virtual", "clocked", encoder=EncoderResolution(bits=16),
-                                    sample_period_s=PERIOD_S, drive=DRIVE, timing=BringUpTiming(poll_interval_s=0.0),
+                                    sample_period_s=period_s, drive=DRIVE, timing=BringUpTiming(poll_interval_s=0.0),
                                     reply_timeout_s=0.3, lead_s=LEAD * PERIOD_S, name="clocked", clock=clock)
         bus = ClockedBus(transport, clock, device)
         return bus, transport, device, clock
@@ -184,3 +184,16 @@ def test_a_raw_can_fault_during_a_host_stall_ends_the_log_with_the_faulted_tick(
     assert len(sink.rows) == fault_at + 1 and flags[fault_at] & SampleFlag.FAULT
     assert not np.any(flags[:fault_at] & (SampleFlag.FAULT | SampleFlag.LOST))
     assert [row[3] for row in sink.rows[:fault_at]] == [device.ticks[k].encoder_counts for k in range(fault_at)]
+
+
+def test_at_2_khz_a_v3_device_is_driven_and_a_v2_device_is_refused_naming_its_limit(rig):
+    """1 Mbit/s: a v3 cycle is 394 bit (2538 Hz), a v2 cycle 512 bit (1953 Hz): the v2 device is refused after
+    the handshake, before anything enabled it."""
+    bus, transport, device, clock = rig(period_s=0.0005)
+    summary, *_ = _run(bus, transport, clock)
+    assert transport.version == 3 and summary.samples == SAMPLES and summary.lost == summary.held == 0
+    assert transport.load.bits_per_cycle == 394 and round(transport.load.max_rate_hz) == 2538
+    bus, transport, device, clock = rig(period_s=0.0005, protocol_version=2)
+    with pytest.raises(ConfigError, match=r"device speaks raw-CAN protocol v2 \(3 frames a tick, 512 bit.*at most 1953 Hz"):
+        _run(bus, transport, clock)
+    assert device.controlwords == []
