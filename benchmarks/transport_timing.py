@@ -116,11 +116,13 @@ def measure(kind: str, rate_hz: float, duration_s: float, directory: Path, pendi
         else:
             url, device = start_simulated_devices(config, gearbox, stack, **clocked)
         transport = open_transport(url, **config.transport_options())
-        gc.callbacks.append(gc_timer)
-        stack.callback(gc.callbacks.remove, gc_timer)
-        summary = run_experiment(transport, command, _NullSink(), feedback_timeout_s=config.feedback_timeout_s,
-                                 late_tolerance_s=config.late_tolerance_s, pending_cycles=pending_cycles,
-                                 progress=stall)
+        gc.callbacks.append(gc_timer)  # the collections of the run only
+        try:
+            summary = run_experiment(transport, command, _NullSink(), feedback_timeout_s=config.feedback_timeout_s,
+                                     late_tolerance_s=config.late_tolerance_s, pending_cycles=pending_cycles,
+                                     progress=stall)
+        finally:
+            gc.callbacks.remove(gc_timer)
         measured_load = device.bus_load() if hasattr(device, "bus_load") else None
         if measured_load is None and hasattr(device, "bits"):
             measured_load = device.bits / (summary.wall_s * device.bitrate)

@@ -25,7 +25,7 @@ import time
 from typing import Any
 
 from rig.protocols import cia402
-from rig.protocols.can_bus_load import bus_load
+from rig.protocols.can_bus_load import BusLoad, bus_load
 from rig.protocols.can_error_frames import describe_error_frame, is_bus_off
 from rig.protocols.errors import ConfigError, DeviceFault, TransportError
 from rig.protocols.raw_can_frames import DEFAULT_DBC, RawCanCodec
@@ -138,7 +138,7 @@ class RawCanTransport(Transport):
             return 0
         return self._samples_ahead(self.lead_s, self.buffer_capacity)
 
-    def _cycle_load(self, version: int):
+    def _cycle_load(self, version: int) -> BusLoad:
         """The bus load of one cycle (RIG_SETPOINT and the device's frames of ``version``) at the sample rate."""
         names = ("RIG_SETPOINT",) + _TICK_FRAMES[version]
         return bus_load(tuple(self.codec.lengths[name] for name in names), 1.0 / self.sample_period_s, self.bitrate)
@@ -163,6 +163,7 @@ class RawCanTransport(Transport):
     def _prepare(self) -> float:
         position = self.drive.rad_from_counts(self._request_reply("RIG_STATUS_REQUEST")["actual_counts"])
         self._negotiate()
+        self.load = self._cycle_load(self.version)  # the frames this device really sends
         return position
 
     def _negotiate(self) -> None:
@@ -201,7 +202,7 @@ class RawCanTransport(Transport):
                 "sample_rate_hz to the device's rate"))
         if capacity < 1:
             raise TransportError(f"{self.name}: RIG_DEVICE_INFO reports a setpoint buffer of {capacity}")
-        self.version, self.buffer_capacity, self.load = int(version), int(capacity), load
+        self.version, self.buffer_capacity = int(version), int(capacity)
 
     def _write_controlword(self, controlword: int) -> None:
         self._request_reply("RIG_CONTROL", controlword=controlword)
