@@ -1,7 +1,10 @@
 """A simulated rig behind a serial port: the device side of ``docs/serial_protocol.md`` on a pty pair.
 
 The host opens :attr:`SimulatedSerialDevice.port` (``/dev/pts/N``) with pyserial as it would open
-``/dev/ttyUSB0``.
+``/dev/ttyUSB0``. ``rig run`` starts the device as threads of its own process; ``python -m
+sim_backend.serial_device PLANT.toml`` (:func:`serial_device_process`) runs it in a process of its own, as a
+real device is a microcontroller with its own clock (the benchmark does, so that a pause of the driver
+does not stop the device's clock).
 
 Protocol v2 (the default, ``protocol_version=2``; spec section 16): a HELLO puts the device in v2 mode; it
 queues SETPOINTs by tick number in a buffer of ``buffer_capacity`` setpoints and, from START on, ticks at
