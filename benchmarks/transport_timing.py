@@ -7,8 +7,8 @@ conditions the script sets up and tears down itself:
 
 Per row: samples, lost (goal 0), held (setpoints that missed the device's instant; goal 0), the smallest
 lead of a setpoint over its instant, late samples, CPU per 1000 samples, the CAN bus load, and who stalled:
-the longest gap between two rows the runner filed (the host's longest pause, stalls included) and the
-longest garbage collection of the driver's process. Every wire runs
+the longest gap between two rows the runner filed (a pause of the host, stalls included, or a silence of
+the device) and the longest garbage collection of the driver's process during the run. Every wire runs
 on the device's clock with the default lead (100 ms): ``canopen`` with the default ``mode = "auto"``,
 which streams interpolated position into the simulated drive's 64-record buffer (the lead sits in the
 drive, at most the buffer less 2 records); ``canopen-csp`` forces cyclic synchronous position (one target
@@ -18,8 +18,9 @@ and "held" does not apply to it (n/a).
 
 The simulated serial device runs in a process of its own (``python -m sim_backend.serial_device``, on a pty),
 as a real device is a microcontroller with its own clock: it shares neither the GIL nor the garbage
-collector's pauses with the driver, so a HELD serial sample is a stall of the host (``--serial-device
-thread`` runs it as a thread of the driver's process instead, as ``rig run`` does). The CAN devices run in
+collector's pauses with the driver (``--serial-device thread`` runs it as a thread of the driver's process
+instead, as ``rig run`` does). On a machine so loaded that the device's own process is starved, its ticks
+run late and catch up in a burst, and ticks beyond the lead are HELD, which a real device would not do. The CAN devices run in
 the driver's process (python-can's virtual bus is in-process), so they compete with it for the GIL and both
 cores: a pause of the whole process (a full garbage collection, a starved process) stops their clock too,
 and they catch up in a burst that the lead has to cover. "CPU per 1000 samples" is the driver's process
