@@ -37,13 +37,16 @@ __all__ = ["ResultFile", "read_result_file", "read_result_files", "readable_kind
 DESCRIPTION = """\
 Write a static HTML report (index.html and PNG figures) from result files:
 
-  experiment logs (rig-log v1) or CSV files with columns t,u,y     signals and sample-period jitter
+  experiment logs (rig-log v1) or CSV files with columns t,u,y     signals and timing (device-clocked:
+                                                                   HELD samples, smallest lead; else the
+                                                                   period jitter, send lateness)
   JSON of `rig identify output-backlash --json` or --save FILE    intervals side by side (one file per
     (kind output_backlash)                                         method), Bode of the box, polygons,
                                                                    backlash band, inner-signal bounds
   JSON of `rig identify hammerstein --json` (kind hammerstein_model)  poles, borders, singular values
   JSON of `rig diagnose --json` (kind model_discrepancy)           verdict, missing effects, gap closed
-  JSON of `rig run --json` (kind run_summary)                      samples, lost, late/held, stop
+  JSON of `rig run --json` (kind run_summary)                      samples, lost, late/held, smallest
+                                                                   lead or send lateness, stop
   JSON of any of these commands given several files (kind batch)  every result in it
 
 Result JSON is read by its "kind" and "version" keys; a kind or version this version cannot read is
