@@ -24,7 +24,11 @@ from numpy.typing import ArrayLike, NDArray
 
 from identify.validation import InvalidInputError
 
-__all__ = ["ExperimentMetadata", "ExperimentRecord", "SampleFlag"]
+__all__ = ["NOMINAL_TIME_TOLERANCE_S", "ExperimentMetadata", "ExperimentRecord", "SampleFlag"]
+
+NOMINAL_TIME_TOLERANCE_S = 1e-9
+"""A time column within this of t_0 + k·T at every sample is the nominal grid (float64 rounding of k·T at
+an hour of 1 kHz samples is below 1e-12 s): its spacing carries no measured jitter."""
 
 
 class SampleFlag(IntFlag):
@@ -280,3 +284,14 @@ class ExperimentRecord:
     def count_flag(self, flag: SampleFlag) -> int:
         """Number of samples with ``flag`` set."""
         return int(np.count_nonzero(self.flags & int(flag)))
+
+    @property
+    def period_deviation_s(self) -> NDArray[np.float64]:
+        """t_k - t_(k-1) - T for k = 1..N-1: how far each measured sample period is from the nominal one."""
+        return np.diff(self.time_s) - self.sample_period_s
+
+    def time_column_is_nominal(self) -> bool:
+        """Whether ``time_s`` is t_0 + k·T to within :data:`NOMINAL_TIME_TOLERANCE_S` at every sample (a
+        device-clocked log: its spacing carries no jitter to measure)."""
+        grid = self.time_s[0] + np.arange(len(self)) * self.sample_period_s if len(self) else self.time_s
+        return bool(np.all(np.abs(self.time_s - grid) <= NOMINAL_TIME_TOLERANCE_S))

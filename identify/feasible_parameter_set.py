@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import math
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -39,9 +39,11 @@ __all__ = [
     "BacklashFeasibleSet",
     "BacklashSidePolygon",
     "EmptyFeasibleSetExplanation",
+    "IntervalSetSummary",
     "ParameterInterval",
     "bound_backlash_parameters",
     "clip_polygon",
+    "median_width_ratio",
 ]
 
 _PAD_RELATIVE = 1e-12
@@ -77,6 +79,39 @@ class ParameterInterval:
     def from_dict(cls, data: Mapping[str, Any]) -> ParameterInterval:
         """Inverse of :meth:`to_dict` (``center`` is recomputed)."""
         return cls(float(data["lower"]), float(data["upper"]))
+
+
+@dataclass(frozen=True)
+class IntervalSetSummary:
+    """What one method's intervals say as a whole: the median half-width (eq. (19)) over the parameters
+    compared, and how many of those whose true value is known contain it."""
+
+    median_half_width: float
+    truth_inside: int
+    truth_known: int
+
+    @classmethod
+    def of(cls, intervals: Mapping[str, ParameterInterval], names: Sequence[str] | None = None,
+           truth: Mapping[str, float] | None = None) -> IntervalSetSummary:
+        """Summary over ``names`` (default: every interval) of ``intervals``; ``truth``: name -> true value."""
+        compared = [name for name in (intervals if names is None else names) if name in intervals]
+        if not compared:
+            raise InvalidInputError("intervals: none of the parameters to summarise has an interval")
+        truth = truth or {}
+        known = [name for name in compared if name in truth]
+        return cls(float(np.median([intervals[name].half_width for name in compared])),
+                   sum(intervals[name].contains(float(truth[name])) for name in known), len(known))
+
+
+def median_width_ratio(intervals: Mapping[str, ParameterInterval], reference: Mapping[str, ParameterInterval],
+                       names: Sequence[str]) -> float | None:
+    """Median over ``names`` of half-width(intervals) / half-width(reference), over the parameters both
+    have and whose reference half-width is positive: below 1, ``intervals`` are the tighter; None when
+    no parameter qualifies."""
+    common = [name for name in names if name in intervals and name in reference and reference[name].half_width > 0]
+    if not common:
+        return None
+    return float(np.median([intervals[name].half_width / reference[name].half_width for name in common]))
 
 
 @dataclass(frozen=True)
@@ -164,6 +199,21 @@ class BacklashSidePolygon:
         sign = -1.0 if self.side == "right" else 1.0
         lines = np.outer(x, self.slope_vertices) + sign * self.slope_times_deadband_vertices[None, :]
         return lines.min(axis=1), lines.max(axis=1)
+
+    def central_line(self) -> tuple[float, float]:
+        """(m, p) of the vertex mean: a point inside the convex polygon (a reference line of this side)."""
+        if self.is_empty:
+            raise InvalidInputError(f"the {self.side} side of the backlash feasible set is empty: no central line")
+        return float(np.mean(self.slope_vertices)), float(np.mean(self.slope_times_deadband_vertices))
+
+    def band_width_at_largest_input_rad(self) -> float:
+        """Width of :meth:`output_band` at the side's largest steady-state input |ū| (signed to the side):
+        how far apart the lines of D_γ are where the data reach furthest; NaN for an empty side."""
+        if self.is_empty or not self.steady_input_rad.size:
+            return float("nan")
+        edge = float(np.max(np.abs(self.steady_input_rad))) * (1.0 if self.side == "right" else -1.0)
+        low, high = self.output_band(edge)
+        return float(high[0] - low[0])
 
     @property
     def deadband_vertices(self) -> NDArray[np.float64]:

@@ -253,18 +253,17 @@ def _timing_text(record) -> str:
     import numpy as np
 
     from identify.experiment_record import SampleFlag
-    from rig.plots.experiment import time_column_is_nominal
 
     summary = record.metadata.extra.get("summary", {})
     clock = summary.get("sample_clock")
-    if clock == "device" or (clock is None and time_column_is_nominal(record)):
+    if clock == "device" or (clock is None and record.time_column_is_nominal()):
         lead = summary.get("min_lead_s")
         lead_text = (f"smallest lead of a setpoint over its instant {lead * 1e3:.3g} ms" if lead is not None
                      else "the smallest lead is not in this log")
         return (f"device-clocked (the time column is the device's sample instants k·T, no jitter to measure): "
                 f"{record.count_flag(SampleFlag.HELD)} HELD samples (setpoints that missed their instant), "
                 f"{lead_text}")
-    jitter_s = np.diff(record.time_s) - record.sample_period_s
+    jitter_s = record.period_deviation_s
     largest_us = float(np.max(np.abs(jitter_s))) * 1e6 if jitter_s.size else 0.0
     text = f"{'host-paced: ' if clock == 'host' else ''}largest period deviation {largest_us:.0f} us in the time column"
     quantiles = [(name, summary.get(f"send_lateness_{name}_s")) for name in ("p50", "p99", "max")]

@@ -21,12 +21,7 @@ from numpy.typing import NDArray
 from identify.experiment_record import ExperimentRecord, SampleFlag
 from rig.report import ReportFigure
 
-__all__ = ["TIMING_FLAGS", "RunTiming", "runs_timing_figure", "signal_figure", "time_column_is_nominal",
-           "timing_figure"]
-
-NOMINAL_TIME_TOLERANCE_S = 1e-9
-"""A time column within this of t_0 + k·T at every sample is the nominal grid (float64 rounding of k·T at
-an hour of 1 kHz samples is below 1e-12 s): its spacing carries no measured jitter."""
+__all__ = ["TIMING_FLAGS", "RunTiming", "runs_timing_figure", "signal_figure", "timing_figure"]
 
 TIMING_FLAGS = (SampleFlag.HELD, SampleFlag.LATE, SampleFlag.LOST, SampleFlag.AMBIGUOUS, SampleFlag.DUPLICATE,
                 SampleFlag.NOT_FOLLOWED, SampleFlag.FAULT)
@@ -37,12 +32,6 @@ ZOOM_REVERSALS = 60
 """A command that reverses more often than this over the record is drawn again over a window of
 :data:`WINDOW_REVERSALS` of them: at the report's width its whole trace is a solid block."""
 WINDOW_REVERSALS = 20
-
-
-def time_column_is_nominal(record: ExperimentRecord) -> bool:
-    """Whether ``record.time_s`` is t_0 + k·T to within :data:`NOMINAL_TIME_TOLERANCE_S` at every sample."""
-    grid = record.time_s[0] + np.arange(len(record)) * record.sample_period_s
-    return bool(np.all(np.abs(record.time_s - grid) <= NOMINAL_TIME_TOLERANCE_S))
 
 
 def _reversals(command_rad: NDArray[np.float64]) -> NDArray[np.int64]:
@@ -99,13 +88,13 @@ def timing_figure(record: ExperimentRecord, name: str, *, lead_s: float | None =
                   min_lead_s: float | None = None) -> ReportFigure:
     """What is known of the timing of the samples: the flags over time and, when given, the run's lead.
 
-    On a log whose time column is the nominal grid (:func:`time_column_is_nominal`, every device-clocked
-    log): one row per flag of :data:`TIMING_FLAGS` with a tick at each flagged sample, and a panel with how
+    On a log whose time column is the nominal grid (:meth:`ExperimentRecord.time_column_is_nominal`, every
+    device-clocked log): one row per flag of :data:`TIMING_FLAGS` with a tick at each flagged sample, and a panel with how
     far ahead of the device's instants the setpoints were queued (``lead_s``) and the smallest lead seen
     (``min_lead_s``; negative: a setpoint came too late and the sample is HELD). On a measured time column:
     the deviation of each period from T over time and as a histogram, LATE samples marked.
     """
-    if not time_column_is_nominal(record):
+    if not record.time_column_is_nominal():
         return _period_deviation_figure(record, name)
     period_s = record.sample_period_s
     counts = {flag: record.count_flag(flag) for flag in TIMING_FLAGS}
@@ -239,7 +228,7 @@ def runs_timing_figure(runs: Sequence[RunTiming], name: str) -> ReportFigure:
 def _period_deviation_figure(record: ExperimentRecord, name: str) -> ReportFigure:
     """Deviation of each measured sample period from the nominal one, over time and as a histogram."""
     nominal_s = record.sample_period_s
-    deviation_us = (np.diff(record.time_s) - nominal_s) * 1e6
+    deviation_us = record.period_deviation_s * 1e6
     late = record.count_flag(SampleFlag.LATE)
     p99 = float(np.percentile(np.abs(deviation_us), 99)) if deviation_us.size else 0.0
 

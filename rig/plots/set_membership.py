@@ -27,7 +27,8 @@ from typing import Any, Union
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from identify.feasible_parameter_set import BacklashFeasibleSet, BacklashSidePolygon, ParameterInterval
+from identify.feasible_parameter_set import (BacklashFeasibleSet, IntervalSetSummary, ParameterInterval,
+                                            median_width_ratio)
 from identify.inner_signal_bounds import InnerSignalBounds
 from identify.linear_block_bounds import LinearBlockBounds
 from identify.linear_block_response import MagnitudeEnvelope, linear_parameter, magnitude, polynomials
@@ -88,11 +89,6 @@ def _true_backlash(true_backlash: Any) -> dict[str, float] | None:
     return {name: float(getattr(true_backlash, fields[name])) for name in _BACKLASH_ORDER}
 
 
-def _central_line(polygon: BacklashSidePolygon) -> tuple[float, float]:
-    """(m, p) of the vertex mean: a point inside the convex polygon, used as the reference line."""
-    return float(np.mean(polygon.slope_vertices)), float(np.mean(polygon.slope_times_deadband_vertices))
-
-
 def _interval_text(interval: ParameterInterval | None, unit: str = "") -> str:
     if interval is None:
         return "empty"
@@ -125,33 +121,39 @@ def backlash_characteristic_figure(result: OutputBacklashIdentification | Backla
     """
     backlash = _backlash_set(result)
     truth = _true_backlash(true_backlash)
+    return ReportFigure(name, _characteristic_caption(backlash, truth), _characteristic_drawing(backlash, truth),
+                        size_in=(9.0, 4.0))
+
+
+_SIDE_COLOURS = {"left": "tab:blue", "right": "tab:orange"}
+
+
+def _true_side_line(truth: Mapping[str, float], side: str) -> tuple[float, float]:
+    """(m, p = m·c) of the true backlash on ``side``."""
+    slope = truth[f"m_{side[0]}"]
+    return slope, slope * truth[f"c_{side[0]}"]
+
+
+def _characteristic_drawing(backlash: BacklashFeasibleSet, truth: Mapping[str, float] | None):
+    """The drawing of :func:`backlash_characteristic_figure`: the full characteristic and its zoom."""
     sides = (backlash.left, backlash.right)
-    all_inputs = np.concatenate([side.steady_input_rad for side in sides])
-    reach = 1.1 * float(np.max(np.abs(all_inputs)))
+    reach = 1.1 * float(np.max(np.abs(np.concatenate([side.steady_input_rad for side in sides]))))
     x_full = np.linspace(-reach, reach, 200)
-    widths_mrad: dict[str, float] = {}
-    for side in sides:
-        if not side.is_empty:
-            edge = np.array([float(np.max(np.abs(side.steady_input_rad))) * (1 if side.side == "right" else -1)])
-            low, high = side.output_band(edge)
-            widths_mrad[side.side] = float(high[0] - low[0]) * 1e3
-    colours = {"left": "tab:blue", "right": "tab:orange"}
 
     def draw(figure) -> None:
         full_axes, zoom_axes = figure.subplots(1, 2)
         for side in sides:
-            colour = colours[side.side]
+            colour = _SIDE_COLOURS[side.side]
             centre = 0.5 * (side.strip_lower_rad + side.strip_upper_rad)
             half = 0.5 * (side.strip_upper_rad - side.strip_lower_rad)
-            label = f"{side.side} half-wave points"
-            full_axes.errorbar(side.steady_input_rad, centre, yerr=half, fmt=".", ms=4, color=colour, label=label,
-                               capsize=2, lw=0.8)
+            full_axes.errorbar(side.steady_input_rad, centre, yerr=half, fmt=".", ms=4, color=colour,
+                               label=f"{side.side} half-wave points", capsize=2, lw=0.8)
             if side.is_empty:
                 continue
             low, high = side.output_band(x_full)
             full_axes.fill_between(x_full, low, high, color=colour, alpha=0.35, lw=0.8, edgecolor=colour,
                                    label=f"{side.side} lines of D_γ")
-            slope, offset = _central_line(side)
+            slope, offset = side.central_line()
             x_side = np.linspace(0.0, reach, 100) if side.side == "right" else np.linspace(-reach, 0.0, 100)
             reference = side.side_line(slope, offset, x_side)
             low, high = side.output_band(x_side)
@@ -161,15 +163,11 @@ def backlash_characteristic_figure(result: OutputBacklashIdentification | Backla
             zoom_axes.errorbar(side.steady_input_rad, (centre - point_reference) * 1e3, yerr=half * 1e3, fmt=".",
                                ms=4, color=colour, capsize=2, lw=0.8)
             if truth is not None:
-                m_true = truth["m_r"] if side.side == "right" else truth["m_l"]
-                p_true = m_true * (truth["c_r"] if side.side == "right" else truth["c_l"])
-                zoom_axes.plot(x_side, (side.side_line(m_true, p_true, x_side) - reference) * 1e3, "k--",
-                               lw=0.9)
+                zoom_axes.plot(x_side, (side.side_line(*_true_side_line(truth, side.side), x_side) - reference) * 1e3,
+                               "k--", lw=0.9)
         if truth is not None:
             for side in sides:
-                m_true = truth[f"m_{side.side[0]}"]
-                p_true = m_true * truth[f"c_{side.side[0]}"]
-                full_axes.plot(x_full, side.side_line(m_true, p_true, x_full), "k--", lw=0.8,
+                full_axes.plot(x_full, side.side_line(*_true_side_line(truth, side.side), x_full), "k--", lw=0.8,
                                label="true lines" if side.side == "left" else None)
         full_axes.axhline(0.0, color="0.7", lw=0.5)
         full_axes.axvline(0.0, color="0.7", lw=0.5)
@@ -180,7 +178,12 @@ def backlash_characteristic_figure(result: OutputBacklashIdentification | Backla
         zoom_axes.set_xlabel("inner signal x [rad]")
         zoom_axes.set_ylabel("w - central line [mrad]")
 
-    count = int(all_inputs.size)
+    return draw
+
+
+def _characteristic_caption(backlash: BacklashFeasibleSet, truth: Mapping[str, float] | None) -> str:
+    """The caption of :func:`backlash_characteristic_figure`: band widths, intervals, where the truth lies."""
+    count = int(backlash.left.steady_input_rad.size + backlash.right.steady_input_rad.size)
     alpha_max = float(np.max(backlash.alpha_rad)) if backlash.alpha_rad.size else 0.0
     widening = f" widened by α up to {alpha_max:.3g} rad (filter step known)" if alpha_max > 0 else ""
     if backlash.is_empty:
@@ -194,16 +197,17 @@ def backlash_characteristic_figure(result: OutputBacklashIdentification | Backla
             inside = [side for side, holds in membership.items() if holds]
             truth_text = (f" The true lines (dashed) are inside the band on {len(inside)} of 2 sides"
                           f"{' (' + ', '.join(inside) + ')' if inside else ''}.")
-        state = (f"Band width at the largest amplitude: left {widths_mrad.get('left', float('nan')):.3g} mrad, "
-                 f"right {widths_mrad.get('right', float('nan')):.3g} mrad; m_l in {_interval_text(backlash.m_l)}, "
-                 f"c_l in {_interval_text(backlash.c_l, 'rad')}, m_r in {_interval_text(backlash.m_r)}, "
-                 f"c_r in {_interval_text(backlash.c_r, 'rad')}.{truth_text} Look for every error bar touching "
-                 "its band (it must, by construction) and for a band that narrows where the points are dense.")
-    caption = (f"Backlash characteristic w(x) (Cerone et al. 2009, eqs. (11)-(17)): shaded, every line of the "
-               f"feasible set D_γ (exact, from the polygon vertices); dots, the {count} steady-state points with "
-               f"their noise interval ±Δη = ±{backlash.noise_bound_rad:.3g} rad{widening}. Right: the same relative "
-               f"to a central line of each side, in mrad. {state}")
-    return ReportFigure(name, caption, draw, size_in=(9.0, 4.0))
+        left_mrad = backlash.left.band_width_at_largest_input_rad() * 1e3
+        right_mrad = backlash.right.band_width_at_largest_input_rad() * 1e3
+        state = (f"Band width at the largest amplitude: left {left_mrad:.3g} mrad, right {right_mrad:.3g} mrad; "
+                 f"m_l in {_interval_text(backlash.m_l)}, c_l in {_interval_text(backlash.c_l, 'rad')}, m_r in "
+                 f"{_interval_text(backlash.m_r)}, c_r in {_interval_text(backlash.c_r, 'rad')}.{truth_text} Look "
+                 "for every error bar touching its band (it must, by construction) and for a band that narrows "
+                 "where the points are dense.")
+    return (f"Backlash characteristic w(x) (Cerone et al. 2009, eqs. (11)-(17)): shaded, every line of the "
+            f"feasible set D_γ (exact, from the polygon vertices); dots, the {count} steady-state points with "
+            f"their noise interval ±Δη = ±{backlash.noise_bound_rad:.3g} rad{widening}. Right: the same relative "
+            f"to a central line of each side, in mrad. {state}")
 
 
 def feasible_polygons_figure(result: OutputBacklashIdentification | BacklashFeasibleSet, name: str, *,
@@ -400,8 +404,18 @@ def parameter_intervals_figure(results: Mapping[str, IntervalSource], name: str,
         {key for per_method in intervals.values() for key in per_method}, key=parameter_sort_key)
     if not names:
         raise ValueError("results: no intervals to draw (every result is empty)")
-    labels = list(intervals)
     truth = dict(true_values or {})
+    rows = -(-len(names) // min(4, len(names)))
+    return ReportFigure(name, _intervals_caption(intervals, inner, names, truth),
+                        _intervals_drawing(intervals, inner, names, truth), size_in=(9.0, 1.0 + 1.35 * rows))
+
+
+_InnerValues = Union[tuple[dict[str, float], dict[str, float]], None]
+
+
+def _interval_references(intervals: Mapping[str, Mapping[str, ParameterInterval]], names: Sequence[str],
+                         truth: Mapping[str, float]) -> dict[str, float]:
+    """Per parameter, the value its axis is drawn relative to: the truth, else the first method's centre."""
     references: dict[str, float] = {}
     for parameter in names:
         if parameter in truth:
@@ -409,30 +423,44 @@ def parameter_intervals_figure(results: Mapping[str, IntervalSource], name: str,
         else:
             first = next((per[parameter] for per in intervals.values() if parameter in per), None)
             references[parameter] = first.center if first is not None else 0.0
+    return references
 
+
+def _intervals_caption(intervals: Mapping[str, Mapping[str, ParameterInterval]],
+                       inner: Mapping[str, _InnerValues], names: Sequence[str], truth: Mapping[str, float]) -> str:
+    """The caption of :func:`parameter_intervals_figure`: each method's :class:`IntervalSetSummary` and the
+    :func:`median_width_ratio` of the last method to the first on the linear block."""
+    labels = list(intervals)
     summary = []
     for label in labels:
-        per = intervals[label]
-        if not per:
+        if not intervals[label]:
             summary.append(f"{label}: empty feasible set")
             continue
-        known = [p for p in names if p in per and p in truth]
-        contained = sum(per[p].contains(truth[p]) for p in known)
-        text = f"{label}: median half-width {np.median([per[p].half_width for p in names if p in per]):.3g}"
-        if known:
-            text += f", true value inside {contained} of {len(known)}"
+        numbers = IntervalSetSummary.of(intervals[label], names, truth)
+        text = f"{label}: median half-width {numbers.median_half_width:.3g}"
+        if numbers.truth_known:
+            text += f", true value inside {numbers.truth_inside} of {numbers.truth_known}"
         summary.append(text)
-    if len(labels) >= 2 and intervals[labels[0]] and intervals[labels[-1]]:
-        common = [p for p in names if p in intervals[labels[0]] and p in intervals[labels[-1]]
-                  and linear_parameter(p) is not None and intervals[labels[0]][p].half_width > 0]
-        if common:
-            ratio = np.median([intervals[labels[-1]][p].half_width / intervals[labels[0]][p].half_width
-                               for p in common])
+    if len(labels) >= 2:
+        linear_names = [p for p in names if linear_parameter(p) is not None]
+        ratio = median_width_ratio(intervals[labels[-1]], intervals[labels[0]], linear_names)
+        if ratio is not None:
             summary.append(f"median width ratio {labels[-1]}/{labels[0]} on the linear block = {ratio:.3g}")
-
     with_inner = [label for label in labels if inner[label] is not None]
     inner_text = (f"; thick pale bars: verified inner values of {', '.join(with_inner)} (the exact bounds lie between "
                   "them and the thin bars)") if with_inner else ""
+    what = "true value (red line at 0)" if truth else "first method's centre (no true values given)"
+    return (f"Guaranteed parameter intervals per method ({', '.join(labels)}), each axis relative to the {what}; "
+            "backlash m, c from eqs. (18)-(20), linear block a_i, b_j from Section 5 of Cerone et al. (2009)"
+            f"{inner_text}. {'; '.join(summary)}. Look for every bar crossing the red line and for the tighter "
+            "method.")
+
+
+def _intervals_drawing(intervals: Mapping[str, Mapping[str, ParameterInterval]],
+                       inner: Mapping[str, _InnerValues], names: Sequence[str], truth: Mapping[str, float]):
+    """The drawing of :func:`parameter_intervals_figure`: one panel per parameter, one bar per method."""
+    labels = list(intervals)
+    references = _interval_references(intervals, names, truth)
     columns = min(4, len(names))
     rows = -(-len(names) // columns)
 
@@ -475,12 +503,7 @@ def parameter_intervals_figure(results: Mapping[str, IntervalSource], name: str,
         for axes in axes_grid[len(names):]:
             axes.set_visible(False)
 
-    what = "true value (red line at 0)" if truth else "first method's centre (no true values given)"
-    caption = (f"Guaranteed parameter intervals per method ({', '.join(labels)}), each axis relative to the {what}; "
-               "backlash m, c from eqs. (18)-(20), linear block a_i, b_j from Section 5 of Cerone et al. (2009)"
-               f"{inner_text}. {'; '.join(summary)}. Look for every bar crossing the red line and for the tighter "
-               "method.")
-    return ReportFigure(name, caption, draw, size_in=(9.0, 1.0 + 1.35 * rows))
+    return draw
 
 
 # ----------------------------------------------------------------------------------------------------------

@@ -65,3 +65,12 @@ def test_metadata_round_trips_through_a_plain_dict_and_keeps_unknown_keys():
     assert newer.extra["rig_temperature_c"] == 21.5
     with pytest.raises(InvalidInputError, match="sample_period_s"):
         ExperimentMetadata(sample_period_s=0.0)
+
+
+def test_the_nominal_grid_is_told_from_a_measured_time_column():
+    nominal = record(time_s=2.5 + np.arange(5) * 1e-3)
+    assert nominal.time_column_is_nominal()
+    np.testing.assert_allclose(nominal.period_deviation_s, 0.0, atol=1e-12)
+    measured = record(time_s=[0.0, 1.0e-3, 2.2e-3, 3.0e-3, 4.0e-3])
+    assert not measured.time_column_is_nominal()
+    np.testing.assert_allclose(measured.period_deviation_s, [0.0, 0.2e-3, -0.2e-3, 0.0], atol=1e-12)

@@ -7,7 +7,8 @@ import pytest
 from scipy.optimize import linprog
 from scipy.spatial import HalfspaceIntersection
 
-from identify.feasible_parameter_set import bound_backlash_parameters
+from identify.feasible_parameter_set import (IntervalSetSummary, ParameterInterval, bound_backlash_parameters,
+                                            median_width_ratio)
 from identify.validation import InvalidInputError
 from cerone2009_data import GAMMA, STEADY_INPUT, experiment, noise_bound
 
@@ -30,6 +31,33 @@ def test_hand_checked_parallelogram_vertices_and_orthotope() -> None:
     assert fps.c_l.lower == pytest.approx(0.012 / 0.248, abs=1e-12)
     assert fps.c_l.upper == pytest.approx(0.018 / 0.252, abs=1e-12)
     assert fps.m_r.lower <= 0.248 and fps.m_r.upper >= 0.252  # padding only widens
+
+
+def test_band_width_and_central_line_of_the_hand_checked_parallelogram() -> None:
+    fps = bound_backlash_parameters(U, Y, 1e-3)
+    # at the largest input |u| = 2 the strips are y +- 1e-3, and every vertex lies on one of their edges:
+    # right w = 2m - p in {0.489, 0.491}, left w = -2m + p in {-0.486, -0.484}
+    assert fps.right.band_width_at_largest_input_rad() == pytest.approx(2e-3, abs=1e-12)
+    assert fps.left.band_width_at_largest_input_rad() == pytest.approx(2e-3, abs=1e-12)
+    assert fps.right.central_line() == pytest.approx((0.25, 0.010), abs=1e-12)
+    assert fps.left.central_line() == pytest.approx((0.25, 0.015), abs=1e-12)
+    slope, offset = fps.right.central_line()
+    assert fps.right.contains(slope, offset)  # the vertex mean of a convex polygon lies inside it
+
+
+def test_interval_summaries_count_the_truth_and_compare_widths() -> None:
+    tight = {"a1": ParameterInterval(0.9, 1.1), "a2": ParameterInterval(-0.1, 0.3), "b1": ParameterInterval(2.0, 2.0)}
+    loose = {"a1": ParameterInterval(0.0, 2.0), "a2": ParameterInterval(-1.0, 1.0), "b1": ParameterInterval(1.0, 3.0)}
+    summary = IntervalSetSummary.of(tight, truth={"a1": 1.05, "a2": 0.5})
+    assert summary.median_half_width == pytest.approx(0.1)  # half-widths 0.1, 0.2, 0
+    assert (summary.truth_inside, summary.truth_known) == (1, 2)  # a2's 0.5 lies above 0.3
+    assert IntervalSetSummary.of(tight, names=["a2", "c9"]).median_half_width == pytest.approx(0.2)
+    # ratios 0.1/1, 0.2/1, 0/1 -> median 0.1; a parameter the reference lacks or with zero width is left out
+    assert median_width_ratio(tight, loose, ["a1", "a2", "b1"]) == pytest.approx(0.1)
+    assert median_width_ratio(loose, tight, ["a1", "a2", "b1"]) == pytest.approx(7.5)  # 10, 5; b1's 0 left out
+    assert median_width_ratio(tight, loose, ["c9"]) is None
+    with pytest.raises(InvalidInputError, match="none of the parameters"):
+        IntervalSetSummary.of(tight, names=["c9"])
 
 
 def test_alpha_widens_the_noise_interval_by_two_noise_bounds_times_u_over_step() -> None:

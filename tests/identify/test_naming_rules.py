@@ -46,8 +46,8 @@ PAPER_SYMBOLS = {"D": "the feedthrough of (A, B, C, D)", "mu0": "μ0 of Poulique
 
 ANY_UNIT = {
     # a number in the unit of whatever the caller gives: an interval of any parameter, a tolerance on any
-    # signal, a coordinate of any polygon
-    "value", "lower", "upper", "threshold", "offset", "x", "u_t",
+    # signal, a coordinate of any polygon, the median half-width of intervals of any parameters
+    "value", "lower", "upper", "threshold", "offset", "x", "u_t", "median_half_width",
 }
 
 

@@ -3,7 +3,7 @@ import pytest
 from plot_checks import unlabelled_axes
 
 from identify.experiment_record import ExperimentMetadata, ExperimentRecord, SampleFlag
-from rig.plots.experiment import signal_figure, time_column_is_nominal, timing_figure
+from rig.plots.experiment import signal_figure, timing_figure
 from rig.report import ReportSection, missing_images, write_report
 
 
@@ -37,7 +37,7 @@ def _drawn(report_figure):
 def test_a_log_on_the_device_clock_shows_its_flags_and_the_lead_not_rounding_noise():
     # k·T computed as a device-clocked log writes it: spacing equal to T up to float64 rounding
     record = make_record(np.cumsum(np.full(200, 1e-3)) - 1e-3)
-    assert time_column_is_nominal(record)
+    assert record.time_column_is_nominal()
     figure = _drawn(timing_figure(record, "timing", lead_s=0.1, min_lead_s=0.0973))
     flag_axes, lead_axes = figure.axes
     # one row for HELD and LATE, and for each other flag that occurs (here LOST), in TIMING_FLAGS order
@@ -56,7 +56,7 @@ def test_a_log_on_the_device_clock_shows_its_flags_and_the_lead_not_rounding_noi
 def test_a_measured_time_column_shows_its_period_deviation():
     time_s = np.arange(200) * 1e-3 + np.r_[0.0, np.full(199, 2e-6)]
     record = make_record(time_s)
-    assert not time_column_is_nominal(record)
+    assert not record.time_column_is_nominal()
     figure = _drawn(timing_figure(record, "timing"))
     trace = figure.axes[0].get_lines()[0]
     np.testing.assert_allclose(trace.get_ydata(), (np.diff(time_s) - 1e-3) * 1e6)
