@@ -64,6 +64,7 @@ of Π_k (1 - p_k q^-1) with |p_k| < 1 are bounded by the binomial ones.
 from __future__ import annotations
 
 import itertools
+import logging
 import math
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from concurrent.futures import BrokenExecutor
@@ -82,10 +83,12 @@ if TYPE_CHECKING:
     from identify.linear_block_response import MagnitudeEnvelope
 from identify.validation import InvalidInputError, as_signal, same_length
 
-__all__ = ["DEFAULT_JOINT_SAMPLES", "DEFAULT_PARTITION_SAMPLES", "DEFAULT_WINDOW_SAMPLES", "LINEAR_BOUND_METHODS", "EmptyLinearSetExplanation", "LinearBlockBounds", "LinearModelOrders", "MapFunction",
+__all__ = ["DEFAULT_JOINT_SAMPLES", "DEFAULT_MOMENT_SAMPLES", "DEFAULT_PARTITION_SAMPLES", "DEFAULT_WINDOW_SAMPLES", "LINEAR_BOUND_METHODS", "EmptyLinearSetExplanation", "LinearBlockBounds", "LinearModelOrders", "MapFunction",
            "Progress", "SharedBacklashConstraints", "bound_linear_block"]
 
 LINEAR_BOUND_METHODS = ("paper", "coupled")
+
+_LOG = logging.getLogger(__name__)
 
 _DEFAULT_SETTINGS = {"solver": "simplex", "simplex_strategy": 1, "presolve": "on", "run_crossover": "on",
                      "simplex_scale_strategy": 2}
@@ -863,6 +866,8 @@ def _window_task(task: tuple[str, _Data, NDArray[np.float64], NDArray[np.float64
 
 DEFAULT_PARTITION_SAMPLES = 1000
 """Records up to this length get the final tightening by partition of the box of a (:func:`_partitioned_bounds`)."""
+DEFAULT_MOMENT_SAMPLES = 0
+"""Records up to this length get the moment (SDP) cuts as a last tightening (:func:`_moment_bounds`); off by default."""
 _PARTITION_BOXES = 24
 """Sub-boxes of a solved at most by the partition; it stops earlier once a refinement moves no bound by 1 %."""
 
@@ -961,6 +966,78 @@ def _partitioned_bounds(data: _Data, low: NDArray[np.float64], high: NDArray[np.
     return current_low, current_high, points, solved
 
 
+_MOMENT_STAGE = "moment (SDP) relaxation"
+
+
+def _lifted_moment_lp(data: _Data, low: NDArray[np.float64], high: NDArray[np.float64]
+                      ) -> tuple[sp.csr_matrix, NDArray[np.float64], sp.csr_matrix, NDArray[np.float64],
+                                 NDArray[np.float64], NDArray[np.float64]]:
+    """The McCormick LP (:func:`_coupled_lp`, with the shared backlash if any) lifted by the moment columns
+    A_ij ~ a_i a_j (box from the products of the bounds of a, McCormick rows) and D_s ~ δx_s^2 (0 <= D_s <=
+    Δx_s^2): (A_ub, b_ub, A_eq, b_eq, lower, upper). Without cuts it is the McCormick LP (A, D are free in
+    their boxes); the cuts of :func:`identify.moment_relaxation.moment_cuts` are rows over these columns."""
+    from identify import moment_relaxation as moments
+
+    na, N = data.orders.na, data.u.size
+    base = _coupled_lp(data, low, high)
+    width = base.lower.size
+    extra = moments.moment_columns(na, N)
+    a_low, a_high = low[:na], high[:na]
+    pair_low, pair_high = [], []
+    for i, j in [(i, j) for i in range(na) for j in range(i, na)]:
+        corners = [a_low[i] * a_low[j], a_low[i] * a_high[j], a_high[i] * a_low[j], a_high[i] * a_high[j]]
+        # a_i^2 >= 0 even when the box of a_i holds 0
+        least = 0.0 if i == j and a_low[i] <= 0.0 <= a_high[i] else min(corners)
+        pair_low.append(least - 1e-12 * (1.0 + abs(least)))
+        pair_high.append(max(corners) + 1e-12 * (1.0 + abs(max(corners))))
+    lower = np.concatenate([base.lower, pair_low, np.zeros(N)])
+    upper = np.concatenate([base.upper, pair_high, data.dx ** 2 * (1.0 + 1e-12)])
+
+    def widen(matrix: sp.csr_matrix) -> sp.csr_matrix:
+        return sp.hstack([matrix, sp.csr_matrix((matrix.shape[0], extra))]).tocsr()
+
+    rlt, rlt_rhs = moments.moment_rows(na, a_low, a_high, width + extra, width)
+    return (sp.vstack([widen(base.A_ub), rlt]).tocsr(), np.concatenate([base.b_ub, rlt_rhs]), widen(base.A_eq),
+            base.b_eq, lower, upper)
+
+
+def _moment_bounds(data: _Data, low: NDArray[np.float64], high: NDArray[np.float64], counter: _Counter,
+                   notes: list[str]) -> tuple[NDArray[np.float64], NDArray[np.float64], float]:
+    """The final tightening by the first-order moment relaxation (:mod:`identify.moment_relaxation`): the SDP
+    of every bound is solved with cvxpy, its PSD duals become cuts of the McCormick LP lifted by the moment
+    columns (A, D), and that LP's certified bounds are intersected with the box. An SDP that fails, or a
+    missing cvxpy, leaves the bound as it was and adds a note. Returns the box and the SDP time in seconds."""
+    from identify import moment_relaxation as moments
+
+    missing = moments.available()
+    if missing is not None:
+        notes.append(f"all parameters: the moment (SDP) relaxation was not run: {missing}; the bounds are the LP ones")
+        return low, high, 0.0
+    na, p, N = data.orders.na, data.orders.num_parameters, data.u.size
+    A_ub, b_ub, A_eq, b_eq, lower, upper = _lifted_moment_lp(data, low, high)
+    try:
+        cuts = moments.moment_cuts(na=na, p=p, num_samples=N, equations=A_eq, equation_rhs=b_eq,
+                                   inequalities=A_ub, inequality_rhs=b_ub, lower=lower, upper=upper,
+                                   objectives=list(range(2 * p)), delta_bound_rad=data.dx)
+    except Exception as error:  # noqa: BLE001 - any failure of the optional SDP path keeps the LP bounds
+        notes.append(f"all parameters: the moment (SDP) relaxation failed ({type(error).__name__}: {error}); "
+                     "the bounds are the LP ones (still guaranteed)")
+        return low, high, 0.0
+    names = data.orders.parameter_names
+    for objective, status in cuts.failed:
+        k, side = divmod(objective, 2)
+        notes.append(f"{names[k]} {'upper' if side else 'lower'} bound: the moment SDP gave no dual ({status}); "
+                     "that bound is the LP one (still guaranteed)")
+    if not cuts.rhs.size:
+        return low, high, cuts.sdp_s
+    lp = _LP(sp.vstack([A_ub, cuts.rows]).tocsr(), np.concatenate([b_ub, cuts.rhs]), A_eq, b_eq, lower, upper)
+    counter.stage = f"{_MOMENT_STAGE} of {N} samples"
+    new_low, new_high, _ = _bounds_over(lp, p, counter)
+    if not np.all(np.isfinite(new_low)):
+        return low, high, cuts.sdp_s  # not proven empty here: keep the box (the LP path decides emptiness)
+    return np.maximum(low, new_low), np.minimum(high, new_high), cuts.sdp_s
+
+
 class _GuardedMap:
     """``map_windows(_window_task, tasks)`` that survives the loss of the processes running it.
 
@@ -1042,6 +1119,8 @@ def _coupled_bounds(data: _Data, low: NDArray[np.float64], high: NDArray[np.floa
             break
         shrink = np.max(((high - low) - (new_high - new_low)) / np.maximum(high - low, 1e-300))
         low, high = new_low, new_high
+        _LOG.debug("window pass %d over %d window(s): largest relative shrink %.4f, half-widths %s", passes,
+                   len(active), shrink, 0.5 * (high - low))
         if shrink < relative_improvement:
             break
         # The next pass only re-bounds the windows whose own bound came within one box width of the
@@ -1098,6 +1177,8 @@ def _coupled_bounds(data: _Data, low: NDArray[np.float64], high: NDArray[np.floa
         shrink = np.max(((high - low) - (new_high - new_low)) / np.maximum(high - low, 1e-300))
         gain = (high - low) - (np.maximum(new_high, new_low) - new_low)
         low, high = new_low, np.maximum(new_high, new_low)
+        _LOG.debug("joint pass %d over %d part(s): largest relative shrink %.4f, half-widths %s", chunk_passes,
+                   len(active_parts), shrink, 0.5 * (high - low))
         if shrink < 0.1:
             break
         # The second pass only re-solves the parts whose own bound lies within this pass's gain in width of
@@ -1341,7 +1422,7 @@ def bound_linear_block(input_rad: ArrayLike, inner_lower_rad: ArrayLike, inner_u
                        shared_backlash: SharedBacklashConstraints | None = None,
                        verify_inner: bool = True, window_samples: int = _WINDOW,
                        joint_samples: int = _JOINT_SAMPLES, partition_samples: int = DEFAULT_PARTITION_SAMPLES,
-                       map_windows: MapFunction | None = None,
+                       moment_samples: int = DEFAULT_MOMENT_SAMPLES, map_windows: MapFunction | None = None,
                        progress: Progress | None = None) -> LinearBlockBounds:
     """Guaranteed bounds on θ = [a_1..a_na, b_nk..b_nb] with unit static gain (eq. (8)), Section 5.
 
@@ -1373,6 +1454,10 @@ def bound_linear_block(input_rad: ArrayLike, inner_lower_rad: ArrayLike, inner_u
         Coupled method on records up to this length: the final tightening cuts the box of a into cells, each
         bounded by its own relaxation, and takes the hull (spatial branch and bound, :func:`_partitioned_bounds`;
         narrows the outer bounds towards the exact set at a few times the cost). 0 switches it off.
+    moment_samples
+        Coupled method on records up to this length: a last tightening by the first-order moment (SDP)
+        relaxation, solved with cvxpy and certified through LP cuts (:func:`_moment_bounds`). 0 (the default)
+        switches it off; it needs cvxpy (``pip install 'gearbox-rig[sdp]'``), else a note says it did not run.
     map_windows
         ``map(function, tasks)`` used for the windows, e.g. ``executor.map`` of a process pool or a Dask
         client's executor; the builtin ``map`` (one process) by default. The tasks and results are plain data.
@@ -1382,7 +1467,7 @@ def bound_linear_block(input_rad: ArrayLike, inner_lower_rad: ArrayLike, inner_u
     if method not in LINEAR_BOUND_METHODS:
         raise InvalidInputError(f"method: expected one of {', '.join(LINEAR_BOUND_METHODS)}, got {method!r}")
     for name, value, least in (("window_samples", window_samples, 20), ("joint_samples", joint_samples, 20),
-                               ("partition_samples", partition_samples, 0)):
+                               ("partition_samples", partition_samples, 0), ("moment_samples", moment_samples, 0)):
         if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < least:
             raise InvalidInputError(f"{name}: expected an integer >= {least}, got {value!r}")
     orders = LinearModelOrders(na, nk, nb)
@@ -1395,6 +1480,7 @@ def bound_linear_block(input_rad: ArrayLike, inner_lower_rad: ArrayLike, inner_u
                                  num_linear_programs=counter.solves, max_certificate_gap=counter.max_gap)
     rounds = 0
     inner = (None, None, None)
+    moment_notes: list[str] = []
     windowing = f"all {data.u.size} samples in one relaxation per orthant"
     if method == "coupled":
         low, high, rounds, points, plan = _coupled_bounds(
@@ -1405,6 +1491,9 @@ def bound_linear_block(input_rad: ArrayLike, inner_lower_rad: ArrayLike, inner_u
             low, high, cell_points, cells = _partitioned_bounds(data, low, high, counter, progress=progress)
             points = [new if new is not None else old for new, old in zip(cell_points, points)] if points else cell_points
             windowing += f", then the box of a partitioned into cells ({cells} solved)"
+        if not np.any(np.isnan(low)) and na and data.u.size <= moment_samples:
+            low, high, sdp_s = _moment_bounds(data, low, high, counter, moment_notes)
+            windowing += f", then cuts from the moment (SDP) relaxation ({sdp_s:.1f} s in cvxpy)"
         if np.any(np.isnan(low)):
             return LinearBlockBounds(method=method, orders=orders, intervals={}, explanation=_explain(data, counter),
                                      num_linear_programs=counter.solves, num_tightening_rounds=rounds,
@@ -1415,7 +1504,7 @@ def bound_linear_block(input_rad: ArrayLike, inner_lower_rad: ArrayLike, inner_u
             inner_low, inner_high, witness = _inner_values(data, low, high, points, counter, refine)
             inner = ({n: float(v) for n, v in zip(names, inner_low)}, {n: float(v) for n, v in zip(names, inner_high)},
                      None if witness is None else {n: float(v) for n, v in zip(names, witness)})
-    notes = _fallback_notes(names, counter)
+    notes = _fallback_notes(names, counter) + tuple(moment_notes)
     intervals = {}
     for k, name in enumerate(names):
         lo, hi = float(low[k]), float(high[k])
