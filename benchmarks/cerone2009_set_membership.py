@@ -124,7 +124,8 @@ def scaling(args: argparse.Namespace) -> None:
     map_windows = map if pool is None else partial(pool.map, chunksize=4)
     print(f"Coupled bounds against the record length: seed {args.seed}, run r of (N, n_bit) from "
           f"default_rng([{args.seed}, N, n_bit, r]); {args.jobs} process(es) for the windows, joint_samples "
-          f"{args.joint_samples}, partition_samples {args.partition_samples}, {os.cpu_count()} cores; medians over the "
+          f"{args.joint_samples}, partition_samples {args.partition_samples}, moment_samples {args.moment_samples}, "
+          f"{os.cpu_count()} cores; medians over the "
           "runs")
     header = (f"{'N':>6} {'n_bit':>5} {'runs':>4} | {'wall s':>7} {'max':>7} {'CPU s':>7} {'peak MiB':>8} | "
               + " ".join(f"{'D' + name:>8}" for name in THETA) + f" | {'in':>4} {'out/inner':>9} | windowing")
@@ -146,6 +147,7 @@ def scaling(args: argparse.Namespace) -> None:
                                             shared_backlash=shared, map_windows=map_windows,
                                             joint_samples=args.joint_samples,
                                             partition_samples=args.partition_samples,
+                                            moment_samples=args.moment_samples,
                                             verify_inner=num_samples <= args.inner_max)
                 wall = time.perf_counter() - started
                 cpu = _cpu_s() + _pool_cpu_s(pool) - cpu
@@ -189,6 +191,8 @@ def main() -> None:
     parser.add_argument("--partition-samples", type=int, default=DEFAULT_PARTITION_SAMPLES,
                         help="--scaling: partition of the box of a up to this N (default "
                              f"{DEFAULT_PARTITION_SAMPLES}; 0: off)")
+    parser.add_argument("--moment-samples", type=int, default=0,
+                        help="--scaling: cuts from the moment (SDP) relaxation with cvxpy up to this N (default 0: off)")
     parser.add_argument("--inner-max", type=int, default=10000,
                         help="--scaling: verified inner values (outer/inner) only up to this N (default 10000)")
     args = parser.parse_args()
