@@ -128,7 +128,7 @@ def scaling(args: argparse.Namespace) -> None:
           f"{os.cpu_count()} cores; medians over the "
           "runs")
     header = (f"{'N':>6} {'n_bit':>5} {'runs':>4} | {'wall s':>7} {'max':>7} {'CPU s':>7} {'peak MiB':>8} | "
-              + " ".join(f"{'D' + name:>8}" for name in THETA) + f" | {'in':>4} {'out/inner':>9} | windowing")
+              + " ".join(f"{'D' + name:>9}" for name in THETA) + f" | {'in':>4} {'out/inner':>9} | windowing")
     print(header)
     for num_samples in args.scaling:
         for n_bit in args.n_bits:
@@ -162,7 +162,7 @@ def scaling(args: argparse.Namespace) -> None:
             ratios = [r["ratio"] for r in rows if math.isfinite(r["ratio"])]
             print(f"{num_samples:>6} {n_bit:>5} {len(rows):>4} | {np.median([r['wall'] for r in rows]):>7.2f} "
                   f"{max(r['wall'] for r in rows):>7.2f} {np.median([r['cpu'] for r in rows]):>7.2f} "
-                  f"{_peak_mib():>8.0f} | " + " ".join(f"{h:>8.1e}" for h in half)
+                  f"{_peak_mib():>8.0f} | " + " ".join(f"{h:>9.3e}" for h in half)
                   + f" | {np.mean([r['in'] for r in rows]):>4.0%} "
                   + (f"{np.median(ratios):>9.2f}" if ratios and np.median(ratios) < 100 else
                      f"{'>100' if ratios else '-':>9}") + f" | {rows[-1]['windowing']}",
