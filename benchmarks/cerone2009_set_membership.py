@@ -156,6 +156,11 @@ def scaling(args: argparse.Namespace) -> None:
                 if linear.inner_lower is not None:
                     ratio = max((linear.intervals[k].upper - linear.intervals[k].lower)
                                 / max(linear.inner_upper[k] - linear.inner_lower[k], 1e-300) for k in THETA)
+                if pool is not None and any("BrokenProcessPool" in note for note in linear.notes):
+                    # a worker died (the run's bounds stay valid, with a note): the next runs get a new pool
+                    pool.shutdown(wait=False)
+                    pool = ProcessPoolExecutor(args.jobs)
+                    map_windows = partial(pool.map, chunksize=4)
                 rows.append({"wall": wall, "cpu": cpu, "half": [linear.intervals[k].half_width for k in THETA],
                              "in": all(linear.intervals[k].contains(v) for k, v in THETA.items()), "ratio": ratio,
                              "windowing": linear.windowing, "notes": linear.notes})

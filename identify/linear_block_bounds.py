@@ -92,14 +92,13 @@ LINEAR_BOUND_METHODS = ("paper", "coupled")
 _LOG = logging.getLogger(__name__)
 
 _DEFAULT_SETTINGS = {"solver": "simplex", "simplex_strategy": 1, "presolve": "on", "run_crossover": "on",
-                     "simplex_scale_strategy": 2, "simplex_dual_edge_weight_strategy": 1}
-"""The first solve of every model: dual simplex with Devex pricing (``simplex_dual_edge_weight_strategy`` 1).
-On a 3000-sample part of the interval relaxation (issue 19) the 8 bounding LPs took 0.55 s instead of 0.77 s
-with HiGHS's own choice of pricing at 12 bits, 0.84 instead of 0.96 s at 8 bits, 0.64 instead of 0.65 s at 15 bits
-(CPU, one part, load about 10)."""
+                     "simplex_scale_strategy": 2}
+"""Dual simplex with HiGHS's own pricing for every model's first solve. Devex pricing
+(``simplex_dual_edge_weight_strategy`` 1) made one 3000-sample part's 8 LPs 3-28 % faster, but with it a worker
+segfaulted inside HiGHS 1.16 (a stack overflow, like the ``HEkkDualRHS::chooseNormal`` recursion of issue 19) on
+N = 100 000, 8 bits, run 0, which this setting had solved: not used (BENCHMARKS.md)."""
 _RECOVERY_SETTINGS = (
-    # HiGHS's own choice of dual pricing first (the settings before Devex was chosen), then the others
-    {"solver": "simplex", "simplex_strategy": 1, "presolve": "on", "simplex_dual_edge_weight_strategy": -1},
+    {"solver": "simplex", "simplex_strategy": 1, "presolve": "on"},
     {"solver": "simplex", "simplex_strategy": 1, "presolve": "off"},
     # the chained equations of long records have rows of very different size; unscaled dual simplex solved
     # the bounding LP of issue 19 (N = 10 000, 12 bits) that every scaled setting stopped on with "Solve error"
@@ -107,7 +106,7 @@ _RECOVERY_SETTINGS = (
     {"solver": "ipm", "run_crossover": "off", "presolve": "on"},
     {"solver": "ipm", "run_crossover": "off", "presolve": "off"},
 )
-_RECOVERY_NAMES = "warm start dropped, HiGHS's own dual pricing, dual simplex with and without presolve and without scaling, interior point"
+_RECOVERY_NAMES = "warm start dropped, dual simplex with and without presolve and without scaling, interior point"
 _TIME_LIMIT_S = 20.0
 """HiGHS time limit per attempt on one LP (plus 0.2 ms per row); a time-out counts as a failed attempt."""
 _B_BOX = 1e6
