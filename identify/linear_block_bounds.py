@@ -47,6 +47,11 @@ the hull of the cells is the bound; the cells that decide a bound are halved aga
 whole box left up to half of the reported width to the relaxation at 8 bits (issue 19); the cells bring the
 outer bounds to within about 5-10 % of the verified inner values.
 
+Records up to ``moment_samples`` (0 by default: off) get a last tightening by the first-order moment (SDP)
+relaxation of the bilinear terms (:func:`_moment_bounds`, :mod:`identify.moment_relaxation`, with cvxpy): the
+duals of its PSD constraints become cuts of the lifted McCormick LP, whose bound HiGHS certifies as every other
+LP's. On the paper's example it narrows the bounds by under 1 % at about twice the cost (BENCHMARKS.md).
+
 A window or part whose worker process dies (a segfault inside the solver, the out-of-memory killer; a process
 pool's ``BrokenProcessPool``, Dask's ``KilledWorker``) is not a traceback either: the bounds are those of the
 windows and parts that finished (:class:`_GuardedMap`), with a note.
