@@ -125,10 +125,11 @@ def scaling(args: argparse.Namespace) -> None:
     map_windows = map if pool is None else partial(pool.map, chunksize=4)
     print(f"Coupled bounds against the record length: seed {args.seed}, run r of (N, n_bit) from "
           f"default_rng([{args.seed}, N, n_bit, r]); {args.jobs} process(es) for the windows, joint_samples "
-          f"{args.joint_samples}, partition_samples {args.partition_samples}, {os.cpu_count()} cores; medians over the "
+          f"{args.joint_samples}, partition_samples {args.partition_samples}, moment_samples {args.moment_samples}, "
+          f"{os.cpu_count()} cores; medians over the "
           "runs")
     header = (f"{'N':>6} {'n_bit':>5} {'runs':>4} | {'wall s':>7} {'max':>7} {'CPU s':>7} {'peak MiB':>8} | "
-              + " ".join(f"{'D' + name:>8}" for name in THETA) + f" | {'in':>4} {'out/inner':>9} | windowing")
+              + " ".join(f"{'D' + name:>9}" for name in THETA) + f" | {'in':>4} {'out/inner':>9} | windowing")
     print(header)
     for num_samples in args.scaling:
         for n_bit in args.n_bits:
@@ -147,6 +148,7 @@ def scaling(args: argparse.Namespace) -> None:
                                             shared_backlash=shared, map_windows=map_windows,
                                             joint_samples=args.joint_samples,
                                             partition_samples=args.partition_samples,
+                                            moment_samples=args.moment_samples,
                                             verify_inner=num_samples <= args.inner_max)
                 wall = time.perf_counter() - started
                 cpu = _cpu_s() + _pool_cpu_s(pool) - cpu
@@ -154,6 +156,11 @@ def scaling(args: argparse.Namespace) -> None:
                 if linear.inner_lower is not None:
                     ratio = max((linear.intervals[k].upper - linear.intervals[k].lower)
                                 / max(linear.inner_upper[k] - linear.inner_lower[k], 1e-300) for k in THETA)
+                if pool is not None and any("BrokenProcessPool" in note for note in linear.notes):
+                    # a worker died (the run's bounds stay valid, with a note): the next runs get a new pool
+                    pool.shutdown(wait=False)
+                    pool = ProcessPoolExecutor(args.jobs)
+                    map_windows = partial(pool.map, chunksize=4)
                 rows.append({"wall": wall, "cpu": cpu, "half": [linear.intervals[k].half_width for k in THETA],
                              "in": all(linear.intervals[k].contains(v) for k, v in THETA.items()), "ratio": ratio,
                              "windowing": linear.windowing, "notes": linear.notes})
@@ -161,7 +168,7 @@ def scaling(args: argparse.Namespace) -> None:
             ratios = [r["ratio"] for r in rows if math.isfinite(r["ratio"])]
             print(f"{num_samples:>6} {n_bit:>5} {len(rows):>4} | {np.median([r['wall'] for r in rows]):>7.2f} "
                   f"{max(r['wall'] for r in rows):>7.2f} {np.median([r['cpu'] for r in rows]):>7.2f} "
-                  f"{_peak_mib():>8.0f} | " + " ".join(f"{h:>8.1e}" for h in half)
+                  f"{_peak_mib():>8.0f} | " + " ".join(f"{h:>9.3e}" for h in half)
                   + f" | {np.mean([r['in'] for r in rows]):>4.0%} "
                   + (f"{np.median(ratios):>9.2f}" if ratios and np.median(ratios) < 100 else
                      f"{'>100' if ratios else '-':>9}") + f" | {rows[-1]['windowing']}",
@@ -190,6 +197,8 @@ def main() -> None:
     parser.add_argument("--partition-samples", type=int, default=DEFAULT_PARTITION_SAMPLES,
                         help="--scaling: partition of the box of a up to this N (default "
                              f"{DEFAULT_PARTITION_SAMPLES}; 0: off)")
+    parser.add_argument("--moment-samples", type=int, default=0,
+                        help="--scaling: cuts from the moment (SDP) relaxation with cvxpy up to this N (default 0: off)")
     parser.add_argument("--inner-max", type=int, default=10000,
                         help="--scaling: verified inner values (outer/inner) only up to this N (default 10000)")
     args = parser.parse_args()

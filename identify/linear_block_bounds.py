@@ -35,7 +35,8 @@ are intersected and fed back into every window's relaxation until they stop shri
 independent tasks for ``map_windows`` (a process pool's or a Dask client's ``executor.map``). The final rounds
 solve the relaxation jointly over all samples when there are at most ``joint_samples`` (3000): the all-data
 relaxation, from a box inside the one it started from before, and never wider. Longer records are solved
-jointly in overlapping parts of ``joint_samples`` samples, whose boxes are intersected: about linear in N, but
+jointly in overlapping parts of ``joint_samples`` samples, one round each, whose boxes are intersected and fed
+back for further passes over the parts (a fixed point like the windows'): about linear in N, but
 wider than one relaxation over everything would be (bounded-error information is spread over the record).
 Within one LP, the bounds of the parameters are solved on one HiGHS model whose objective changes, each
 solve starting from the previous optimal basis.
@@ -45,6 +46,11 @@ a (:func:`_partitioned_bounds`): the box is cut into cells, each bounded by its 
 the hull of the cells is the bound; the cells that decide a bound are halved again. One relaxation over the
 whole box left up to half of the reported width to the relaxation at 8 bits (issue 19); the cells bring the
 outer bounds to within about 5-10 % of the verified inner values.
+
+Records up to ``moment_samples`` (0 by default: off) get a last tightening by the first-order moment (SDP)
+relaxation of the bilinear terms (:func:`_moment_bounds`, :mod:`identify.moment_relaxation`, with cvxpy): the
+duals of its PSD constraints become cuts of the lifted McCormick LP, whose bound HiGHS certifies as every other
+LP's. On the paper's example it narrows the bounds by under 1 % at about twice the cost (BENCHMARKS.md).
 
 A window or part whose worker process dies (a segfault inside the solver, the out-of-memory killer; a process
 pool's ``BrokenProcessPool``, Dask's ``KilledWorker``) is not a traceback either: the bounds are those of the
@@ -64,6 +70,7 @@ of Π_k (1 - p_k q^-1) with |p_k| < 1 are bounded by the binomial ones.
 from __future__ import annotations
 
 import itertools
+import logging
 import math
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from concurrent.futures import BrokenExecutor
@@ -82,13 +89,19 @@ if TYPE_CHECKING:
     from identify.linear_block_response import MagnitudeEnvelope
 from identify.validation import InvalidInputError, as_signal, same_length
 
-__all__ = ["DEFAULT_JOINT_SAMPLES", "DEFAULT_PARTITION_SAMPLES", "DEFAULT_WINDOW_SAMPLES", "LINEAR_BOUND_METHODS", "EmptyLinearSetExplanation", "LinearBlockBounds", "LinearModelOrders", "MapFunction",
+__all__ = ["DEFAULT_JOINT_SAMPLES", "DEFAULT_MOMENT_SAMPLES", "DEFAULT_PARTITION_SAMPLES", "DEFAULT_WINDOW_SAMPLES", "LINEAR_BOUND_METHODS", "EmptyLinearSetExplanation", "LinearBlockBounds", "LinearModelOrders", "MapFunction",
            "Progress", "SharedBacklashConstraints", "bound_linear_block"]
 
 LINEAR_BOUND_METHODS = ("paper", "coupled")
 
+_LOG = logging.getLogger(__name__)
+
 _DEFAULT_SETTINGS = {"solver": "simplex", "simplex_strategy": 1, "presolve": "on", "run_crossover": "on",
                      "simplex_scale_strategy": 2}
+"""Dual simplex with HiGHS's own pricing for every model's first solve. Devex pricing
+(``simplex_dual_edge_weight_strategy`` 1) made one 3000-sample part's 8 LPs 3-28 % faster, but with it a worker
+segfaulted inside HiGHS 1.16 (a stack overflow, like the ``HEkkDualRHS::chooseNormal`` recursion of issue 19) on
+N = 100 000, 8 bits, run 0, which this setting had solved: not used (BENCHMARKS.md)."""
 _RECOVERY_SETTINGS = (
     {"solver": "simplex", "simplex_strategy": 1, "presolve": "on"},
     {"solver": "simplex", "simplex_strategy": 1, "presolve": "off"},
@@ -371,6 +384,8 @@ class _Solver:
         model.a_matrix_.index_ = A.indices.astype(np.int32)
         model.a_matrix_.value_ = A.data.astype(float)
         self.highs = quiet_highs()
+        for option, value in _DEFAULT_SETTINGS.items():
+            self.highs.setOptionValue(option, value)
         self.highs.setOptionValue("presolve", presolve)
         # A bounded time per attempt: a warm start that stalls on a long record's LP (issue 19: one part of a
         # 100 000-sample record kept a worker busy for over 15 minutes) goes on to the recovery settings and,
@@ -782,6 +797,13 @@ _JOINT_SAMPLES = 3000
 """Samples of the final joint relaxation: all of them for records up to this length (the all-data relaxation),
 else the windows that decide the bounds, up to this many samples."""
 _FULL_DATA_RELAXATION = _interval_lp
+_PART_ROUNDS = 1
+"""Rounds of a part's interval relaxation per pass over the parts (its final round, all parameters). A part's own
+further rounds tighten from its own box only, a further pass from the intersection of all parts: at N = 10 000,
+12 bits (run 0), one round per pass over 4 passes gave a1 4.85e-6 in 9.9 CPU-s of joint LPs, six rounds per
+pass over 2 passes 4.98e-6 in 13.9 CPU-s (issue 19)."""
+_PART_PASSES = 6
+"""Passes over the parts at most (they stop earlier once a pass shrinks no interval by ``tightening_tolerance``)."""
 
 DEFAULT_WINDOW_SAMPLES = _WINDOW
 DEFAULT_JOINT_SAMPLES = _JOINT_SAMPLES
@@ -863,6 +885,8 @@ def _window_task(task: tuple[str, _Data, NDArray[np.float64], NDArray[np.float64
 
 DEFAULT_PARTITION_SAMPLES = 1000
 """Records up to this length get the final tightening by partition of the box of a (:func:`_partitioned_bounds`)."""
+DEFAULT_MOMENT_SAMPLES = 0
+"""Records up to this length get the moment (SDP) cuts as a last tightening (:func:`_moment_bounds`); off by default."""
 _PARTITION_BOXES = 24
 """Sub-boxes of a solved at most by the partition; it stops earlier once a refinement moves no bound by 1 %."""
 
@@ -961,6 +985,78 @@ def _partitioned_bounds(data: _Data, low: NDArray[np.float64], high: NDArray[np.
     return current_low, current_high, points, solved
 
 
+_MOMENT_STAGE = "moment (SDP) relaxation"
+
+
+def _lifted_moment_lp(data: _Data, low: NDArray[np.float64], high: NDArray[np.float64]
+                      ) -> tuple[sp.csr_matrix, NDArray[np.float64], sp.csr_matrix, NDArray[np.float64],
+                                 NDArray[np.float64], NDArray[np.float64]]:
+    """The McCormick LP (:func:`_coupled_lp`, with the shared backlash if any) lifted by the moment columns
+    A_ij ~ a_i a_j (box from the products of the bounds of a, McCormick rows) and D_s ~ δx_s^2 (0 <= D_s <=
+    Δx_s^2): (A_ub, b_ub, A_eq, b_eq, lower, upper). Without cuts it is the McCormick LP (A, D are free in
+    their boxes); the cuts of :func:`identify.moment_relaxation.moment_cuts` are rows over these columns."""
+    from identify import moment_relaxation as moments
+
+    na, N = data.orders.na, data.u.size
+    base = _coupled_lp(data, low, high)
+    width = base.lower.size
+    extra = moments.moment_columns(na, N)
+    a_low, a_high = low[:na], high[:na]
+    pair_low, pair_high = [], []
+    for i, j in [(i, j) for i in range(na) for j in range(i, na)]:
+        corners = [a_low[i] * a_low[j], a_low[i] * a_high[j], a_high[i] * a_low[j], a_high[i] * a_high[j]]
+        # a_i^2 >= 0 even when the box of a_i holds 0
+        least = 0.0 if i == j and a_low[i] <= 0.0 <= a_high[i] else min(corners)
+        pair_low.append(least - 1e-12 * (1.0 + abs(least)))
+        pair_high.append(max(corners) + 1e-12 * (1.0 + abs(max(corners))))
+    lower = np.concatenate([base.lower, pair_low, np.zeros(N)])
+    upper = np.concatenate([base.upper, pair_high, data.dx ** 2 * (1.0 + 1e-12)])
+
+    def widen(matrix: sp.csr_matrix) -> sp.csr_matrix:
+        return sp.hstack([matrix, sp.csr_matrix((matrix.shape[0], extra))]).tocsr()
+
+    rlt, rlt_rhs = moments.moment_rows(na, a_low, a_high, width + extra, width)
+    return (sp.vstack([widen(base.A_ub), rlt]).tocsr(), np.concatenate([base.b_ub, rlt_rhs]), widen(base.A_eq),
+            base.b_eq, lower, upper)
+
+
+def _moment_bounds(data: _Data, low: NDArray[np.float64], high: NDArray[np.float64], counter: _Counter,
+                   notes: list[str]) -> tuple[NDArray[np.float64], NDArray[np.float64], float]:
+    """The final tightening by the first-order moment relaxation (:mod:`identify.moment_relaxation`): the SDP
+    of every bound is solved with cvxpy, its PSD duals become cuts of the McCormick LP lifted by the moment
+    columns (A, D), and that LP's certified bounds are intersected with the box. An SDP that fails, or a
+    missing cvxpy, leaves the bound as it was and adds a note. Returns the box and the SDP time in seconds."""
+    from identify import moment_relaxation as moments
+
+    missing = moments.available()
+    if missing is not None:
+        notes.append(f"all parameters: the moment (SDP) relaxation was not run: {missing}; the bounds are the LP ones")
+        return low, high, 0.0
+    na, p, N = data.orders.na, data.orders.num_parameters, data.u.size
+    A_ub, b_ub, A_eq, b_eq, lower, upper = _lifted_moment_lp(data, low, high)
+    try:
+        cuts = moments.moment_cuts(na=na, p=p, num_samples=N, equations=A_eq, equation_rhs=b_eq,
+                                   inequalities=A_ub, inequality_rhs=b_ub, lower=lower, upper=upper,
+                                   objectives=list(range(2 * p)), delta_bound_rad=data.dx)
+    except Exception as error:  # noqa: BLE001 - any failure of the optional SDP path keeps the LP bounds
+        notes.append(f"all parameters: the moment (SDP) relaxation failed ({type(error).__name__}: {error}); "
+                     "the bounds are the LP ones (still guaranteed)")
+        return low, high, 0.0
+    names = data.orders.parameter_names
+    for objective, status in cuts.failed:
+        k, side = divmod(objective, 2)
+        notes.append(f"{names[k]} {'upper' if side else 'lower'} bound: the moment SDP gave no dual ({status}); "
+                     "that bound is the LP one (still guaranteed)")
+    if not cuts.rhs.size:
+        return low, high, cuts.sdp_s
+    lp = _LP(sp.vstack([A_ub, cuts.rows]).tocsr(), np.concatenate([b_ub, cuts.rhs]), A_eq, b_eq, lower, upper)
+    counter.stage = f"{_MOMENT_STAGE} of {N} samples"
+    new_low, new_high, _ = _bounds_over(lp, p, counter)
+    if not np.all(np.isfinite(new_low)):
+        return low, high, cuts.sdp_s  # not proven empty here: keep the box (the LP path decides emptiness)
+    return np.maximum(low, new_low), np.minimum(high, new_high), cuts.sdp_s
+
+
 class _GuardedMap:
     """``map_windows(_window_task, tasks)`` that survives the loss of the processes running it.
 
@@ -1004,7 +1100,8 @@ def _coupled_bounds(data: _Data, low: NDArray[np.float64], high: NDArray[np.floa
     3. The final rounds solve the interval relaxation jointly over all samples when there are at most
        ``joint_samples`` (the all-data relaxation, from a narrower box than the first window's, so never
        wider than it); otherwise jointly over each of the overlapping parts of ``joint_samples`` samples
-       (in parallel through ``map_windows``), their boxes intersected, and once more from the intersection.
+       (in parallel through ``map_windows``), their boxes intersected, and again from the intersection (one
+       round of each part per pass) until a pass shrinks no interval by ``relative_improvement``.
        Intersecting window boxes alone is 1.1-2 times wider than the joint relaxation (the information of
        bounded-error data is spread over the whole record), so the parts are large.
 
@@ -1042,6 +1139,8 @@ def _coupled_bounds(data: _Data, low: NDArray[np.float64], high: NDArray[np.floa
             break
         shrink = np.max(((high - low) - (new_high - new_low)) / np.maximum(high - low, 1e-300))
         low, high = new_low, new_high
+        _LOG.debug("window pass %d over %d window(s): largest relative shrink %.4f, half-widths %s", passes,
+                   len(active), shrink, 0.5 * (high - low))
         if shrink < relative_improvement:
             break
         # The next pass only re-bounds the windows whose own bound came within one box width of the
@@ -1067,13 +1166,17 @@ def _coupled_bounds(data: _Data, low: NDArray[np.float64], high: NDArray[np.floa
     # All data jointly: all max_rounds rounds unless nothing moves. Each round maps a box monotonically (a
     # smaller box gives a smaller relaxation) and this box lies inside the one the all-data rounds started
     # from before issue 19, so after as many rounds it lies inside their result too; stopping at the passes'
-    # tolerance could stop earlier, from a box that is already close. Parts: the passes' tolerance, and a
-    # second pass from the intersected box only if the first one still moved it by 10 %.
-    settings = np.array([max_rounds, 1e-6 if all_parts == 1 else relative_improvement])
+    # tolerance could stop earlier, from a box that is already close. Parts: a fixed point over the parts,
+    # one round of each part's relaxation per pass (_PART_ROUNDS), every pass from the intersection of the
+    # previous one, until a pass shrinks no interval by relative_improvement or _PART_PASSES passes were run. The
+    # box after any pass is a guaranteed outer bound, so the stopping rule trades only tightness, never validity.
+    settings = np.array([max_rounds, 1e-6]) if all_parts == 1 else np.array([_PART_ROUNDS, relative_improvement])
     part_low, part_high = np.full((len(chunks), p), -math.inf), np.full((len(chunks), p), math.inf)
     active_parts = list(range(len(chunks)))
-    for chunk_passes in range(1, (2 if all_parts > 1 else 1) + 1):
+    last_pass_parts = 0
+    for chunk_passes in range(1, (_PART_PASSES if all_parts > 1 else 1) + 1):
         label = f"joint relaxation of {len(active_parts)} part(s) of up to {min(N, joint_samples)} samples"
+        last_pass_parts = len(active_parts)
         new_low, new_high = low.copy(), high.copy()
         best_low, best_high = np.full(p, -math.inf), np.full(p, math.inf)
         tasks = (("joint", _restrict(data, [chunks[c]]), low, high, [settings]) for c in active_parts)
@@ -1098,15 +1201,17 @@ def _coupled_bounds(data: _Data, low: NDArray[np.float64], high: NDArray[np.floa
         shrink = np.max(((high - low) - (new_high - new_low)) / np.maximum(high - low, 1e-300))
         gain = (high - low) - (np.maximum(new_high, new_low) - new_low)
         low, high = new_low, np.maximum(new_high, new_low)
-        if shrink < 0.1:
+        _LOG.debug("joint pass %d over %d part(s): largest relative shrink %.4f, half-widths %s", chunk_passes,
+                   len(active_parts), shrink, 0.5 * (high - low))
+        if shrink < relative_improvement:
             break
-        # The second pass only re-solves the parts whose own bound lies within this pass's gain in width of
+        # The next pass only re-solves the parts whose own bound lies within this pass's gain in width of
         # the intersection: a part's relaxation tightens with the box (its envelopes are about r_i Δx_s), so
         # a part further off than the box shrank is not expected to decide; the others stay valid bounds.
         near = np.any((part_low > low - gain) | (part_high < high + gain), axis=1)
         active_parts = [int(c) for c in np.flatnonzero(near)] or active_parts
     return low, high, rounds, points, _WindowPlan(tuple(segments), len(chunks), passes, chunk_passes, all_parts,
-                                                  len(active_parts) if chunk_passes > 1 else 0)
+                                                  last_pass_parts if chunk_passes > 1 else 0)
 
 
 def _subset(data: _Data, count: int) -> _Data:
@@ -1341,7 +1446,7 @@ def bound_linear_block(input_rad: ArrayLike, inner_lower_rad: ArrayLike, inner_u
                        shared_backlash: SharedBacklashConstraints | None = None,
                        verify_inner: bool = True, window_samples: int = _WINDOW,
                        joint_samples: int = _JOINT_SAMPLES, partition_samples: int = DEFAULT_PARTITION_SAMPLES,
-                       map_windows: MapFunction | None = None,
+                       moment_samples: int = DEFAULT_MOMENT_SAMPLES, map_windows: MapFunction | None = None,
                        progress: Progress | None = None) -> LinearBlockBounds:
     """Guaranteed bounds on θ = [a_1..a_na, b_nk..b_nb] with unit static gain (eq. (8)), Section 5.
 
@@ -1373,6 +1478,10 @@ def bound_linear_block(input_rad: ArrayLike, inner_lower_rad: ArrayLike, inner_u
         Coupled method on records up to this length: the final tightening cuts the box of a into cells, each
         bounded by its own relaxation, and takes the hull (spatial branch and bound, :func:`_partitioned_bounds`;
         narrows the outer bounds towards the exact set at a few times the cost). 0 switches it off.
+    moment_samples
+        Coupled method on records up to this length: a last tightening by the first-order moment (SDP)
+        relaxation, solved with cvxpy and certified through LP cuts (:func:`_moment_bounds`). 0 (the default)
+        switches it off; it needs cvxpy (``pip install 'gearbox-rig[sdp]'``), else a note says it did not run.
     map_windows
         ``map(function, tasks)`` used for the windows, e.g. ``executor.map`` of a process pool or a Dask
         client's executor; the builtin ``map`` (one process) by default. The tasks and results are plain data.
@@ -1382,7 +1491,7 @@ def bound_linear_block(input_rad: ArrayLike, inner_lower_rad: ArrayLike, inner_u
     if method not in LINEAR_BOUND_METHODS:
         raise InvalidInputError(f"method: expected one of {', '.join(LINEAR_BOUND_METHODS)}, got {method!r}")
     for name, value, least in (("window_samples", window_samples, 20), ("joint_samples", joint_samples, 20),
-                               ("partition_samples", partition_samples, 0)):
+                               ("partition_samples", partition_samples, 0), ("moment_samples", moment_samples, 0)):
         if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < least:
             raise InvalidInputError(f"{name}: expected an integer >= {least}, got {value!r}")
     orders = LinearModelOrders(na, nk, nb)
@@ -1395,6 +1504,7 @@ def bound_linear_block(input_rad: ArrayLike, inner_lower_rad: ArrayLike, inner_u
                                  num_linear_programs=counter.solves, max_certificate_gap=counter.max_gap)
     rounds = 0
     inner = (None, None, None)
+    moment_notes: list[str] = []
     windowing = f"all {data.u.size} samples in one relaxation per orthant"
     if method == "coupled":
         low, high, rounds, points, plan = _coupled_bounds(
@@ -1405,6 +1515,9 @@ def bound_linear_block(input_rad: ArrayLike, inner_lower_rad: ArrayLike, inner_u
             low, high, cell_points, cells = _partitioned_bounds(data, low, high, counter, progress=progress)
             points = [new if new is not None else old for new, old in zip(cell_points, points)] if points else cell_points
             windowing += f", then the box of a partitioned into cells ({cells} solved)"
+        if not np.any(np.isnan(low)) and na and data.u.size <= moment_samples:
+            low, high, sdp_s = _moment_bounds(data, low, high, counter, moment_notes)
+            windowing += f", then cuts from the moment (SDP) relaxation ({sdp_s:.1f} s in cvxpy)"
         if np.any(np.isnan(low)):
             return LinearBlockBounds(method=method, orders=orders, intervals={}, explanation=_explain(data, counter),
                                      num_linear_programs=counter.solves, num_tightening_rounds=rounds,
@@ -1415,7 +1528,7 @@ def bound_linear_block(input_rad: ArrayLike, inner_lower_rad: ArrayLike, inner_u
             inner_low, inner_high, witness = _inner_values(data, low, high, points, counter, refine)
             inner = ({n: float(v) for n, v in zip(names, inner_low)}, {n: float(v) for n, v in zip(names, inner_high)},
                      None if witness is None else {n: float(v) for n, v in zip(names, witness)})
-    notes = _fallback_notes(names, counter)
+    notes = _fallback_notes(names, counter) + tuple(moment_notes)
     intervals = {}
     for k, name in enumerate(names):
         lo, hi = float(low[k]), float(high[k])
@@ -1435,8 +1548,8 @@ def _describe(plan: _WindowPlan, num_samples: int, window: int, joint_samples: i
     joint = (f"then all {num_samples} samples jointly" if plan.all_parts <= 1 else
              f"then {plan.num_parts} of {plan.all_parts} overlapping parts of {joint_samples} samples jointly (those "
              f"holding a deciding window), intersected ({plan.part_passes} pass{'es' if plan.part_passes > 1 else ''}"
-             + (f", the second over the {plan.second_pass_parts} parts near the intersection" if plan.part_passes > 1
-                else "") + ")")
+             f" of one round each" + (f", the last over the {plan.second_pass_parts} parts near the intersection"
+                                      if plan.part_passes > 1 else "") + ")")
     return (f"{len(plan.segments)} windows of {window} samples (overlap {_WINDOW_OVERLAP}), {plan.passes} passes "
             f"of intersected window bounds, {joint}")
 

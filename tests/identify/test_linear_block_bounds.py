@@ -300,6 +300,33 @@ def test_parts_of_a_long_record_run_through_a_map_and_give_the_same_bounds() -> 
         assert paper.linear_intervals[name].lower <= interval.lower and interval.upper <= paper.linear_intervals[name].upper
 
 
+def test_the_passes_over_the_parts_iterate_to_a_fixed_point_that_one_pass_contains(monkeypatch) -> None:
+    # Issue 19: the parts of a long record are solved one round each per pass, every pass from the
+    # intersection of the previous one, until a pass shrinks no interval by the tightening tolerance. More
+    # passes only intersect more valid boxes: never wider than one pass, and the truth stays inside.
+    import identify.linear_block_bounds as module
+
+    data, paper = _run(8, 62, "paper", num_samples=900)
+    inner = paper.inner_signal
+    shared = shared_backlash_constraints(data.output_rad, data.noise_bound_rad, paper.backlash, inner)
+    args = (data.input_rad, inner.lower_rad, inner.upper_rad)
+    options = {"na": 2, "nk": 1, "nb": 2, "shared_backlash": shared, "joint_samples": 400, "partition_samples": 0,
+               "verify_inner": False}
+    passes = bound_linear_block(*args, **options)
+    monkeypatch.setattr(module, "_PART_PASSES", 1)
+    single = bound_linear_block(*args, **options)
+    assert "(1 pass of one round each)" in single.windowing
+    used = int(passes.windowing.split("intersected (")[1].split(" pass")[0])
+    assert 2 <= used <= 6, passes.windowing
+    narrower = 0
+    for name, value in THETA.items():
+        many, one = passes.intervals[name], single.intervals[name]
+        assert many.contains(value)
+        assert one.lower <= many.lower and many.upper <= one.upper
+        narrower += many.half_width < one.half_width * (1 - 1e-6)
+    assert narrower >= 1
+
+
 def _window_task_whose_joint_parts_kill_their_process(task):
     """A worker that dies like the one of issue 19 (segfault inside HiGHS), here by SIGKILL."""
     import os
