@@ -37,7 +37,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field, fields, replace
 from typing import Any
 
 import numpy as np
@@ -80,6 +80,7 @@ __all__ = [
     "MissingEffect",
     "LinearFit",
     "EFFECT_NAMES",
+    "DiagnoseOptions",
     "diagnose_model",
     "disagreement",
     "fit_linear_model",
@@ -1046,27 +1047,13 @@ def _start_chain(model: PlantModel | None, linear: LinearBlock | None, order: in
     return _Chain([_Component("fixed", block=block) for block in model.blocks])
 
 
-def diagnose_model(command_rad: ArrayLike, angle_rad: ArrayLike, noise_bound_rad: float,
-                   sample_period_s: float, model: PlantModel | None = None, *,
-                   estimation_fraction: float = ESTIMATION_FRACTION, candidates: Sequence[str] = EFFECT_NAMES,
-                   max_effects: int = 3, complexity_penalty: float = 0.03, min_reduction: float = 0.15,
-                   consistent_fraction: float = 0.01, max_delay_samples: int = 40,
-                   max_evaluations: int = 40,
-                   progress: Callable[[str], None] | None = None,
-                   from_operating_point: bool = True) -> DiscrepancyResult:
-    """Run the model-discrepancy workflow of issue 6 (steps 1-5 of the module docstring).
+@dataclass(frozen=True)
+class DiagnoseOptions:
+    """The settings of :func:`diagnose_model`, checked when built (an :class:`InvalidInputError` names the
+    field). ``diagnose_model(u, y, delta, T, model, options)`` or the same fields as keywords.
 
-    Parameters
+    Attributes
     ----------
-    command_rad, angle_rad
-        Measured input u_t and output y_t (rad), one record.
-    noise_bound_rad
-        delta: bound on the measurement error, |e_t| <= delta (include the encoder's half count).
-    sample_period_s
-        T.
-    model
-        The user's model; None fits the best low-order linear model (:func:`fit_linear_model`), whose
-        coefficients are then refitted together with every effect.
     estimation_fraction
         The first fraction of the record is the estimation segment, the rest the validation segment.
     candidates
@@ -1092,102 +1079,195 @@ def diagnose_model(command_rad: ArrayLike, angle_rad: ArrayLike, noise_bound_rad
         models it returns are wrapped as y_0 + M(u - y_0). Parameters of position-dependent effects
         (dead-zone edges, saturation limits) are then relative to y_0.
     """
+
+    estimation_fraction: float = ESTIMATION_FRACTION
+    candidates: tuple[str, ...] = EFFECT_NAMES
+    max_effects: int = 3
+    complexity_penalty: float = 0.03
+    min_reduction: float = 0.15
+    consistent_fraction: float = 0.01
+    max_delay_samples: int = 40
+    max_evaluations: int = 40
+    from_operating_point: bool = True
+
+    def __post_init__(self) -> None:
+        if not 0.2 <= self.estimation_fraction <= 0.9:
+            raise InvalidInputError(f"estimation_fraction: expected 0.2 .. 0.9, got {self.estimation_fraction!r}")
+        object.__setattr__(self, "candidates", tuple(self.candidates))
+        unknown = [name for name in self.candidates if name not in EFFECT_NAMES]
+        if unknown:
+            raise InvalidInputError(f"candidates: unknown effect {unknown[0]!r}; expected some of "
+                                    f"{', '.join(EFFECT_NAMES)}")
+
+
+_DIAGNOSE_OPTION_NAMES = tuple(f.name for f in fields(DiagnoseOptions))
+
+
+def diagnose_model(command_rad: ArrayLike, angle_rad: ArrayLike, noise_bound_rad: float,
+                   sample_period_s: float, model: PlantModel | None = None, options: DiagnoseOptions | None = None,
+                   *, progress: Callable[[str], None] | None = None, **option_values: Any) -> DiscrepancyResult:
+    """Run the model-discrepancy workflow of issue 6 (steps 1-5 of the module docstring), one named step
+    each: the checks (:func:`_checked_record`), the move to the operating point (:func:`_operating_point`,
+    :func:`_absolute`), the excitation check (:func:`_excitation`, :func:`_not_excited`), the start model
+    (:func:`_start`), the greedy search (:func:`_search`), the intervals of what was named
+    (:func:`_named_intervals`) and the verdict (:func:`_final_verdict`).
+
+    Parameters
+    ----------
+    command_rad, angle_rad
+        Measured input u_t and output y_t (rad), one record.
+    noise_bound_rad
+        delta: bound on the measurement error, |e_t| <= delta (include the encoder's half count).
+    sample_period_s
+        T.
+    model
+        The user's model; None fits the best low-order linear model (:func:`fit_linear_model`), whose
+        coefficients are then refitted together with every effect.
+    options
+        The settings (:class:`DiagnoseOptions`); or give its fields as keywords (``candidates=...``,
+        ``max_effects=2``, ...), which override those of ``options``.
+    progress
+        Called with one line of text per stage and candidate.
+
+    Raises
+    ------
+    InvalidInputError
+        Signals too short, of different lengths or not varying, a noise bound or period that is not
+        positive, a model of another sample period, or a setting out of range.
+    TypeError
+        A keyword that is no field of :class:`DiagnoseOptions` (the message lists them).
+    """
+    unknown = sorted(set(option_values) - set(_DIAGNOSE_OPTION_NAMES))
+    if unknown:
+        raise TypeError(f"diagnose_model() got an unexpected keyword argument {unknown[0]!r} (the options are "
+                        f"{', '.join(_DIAGNOSE_OPTION_NAMES)})")
+    options = replace(options or DiagnoseOptions(), **option_values)
+    u, y, delta, period = _checked_record(command_rad, angle_rad, noise_bound_rad, sample_period_s, model)
+    operating_point = _operating_point(y, delta) if options.from_operating_point else 0.0
+    if operating_point != 0.0:
+        result = diagnose_model(u - operating_point, y - operating_point, delta, period, model,
+                                replace(options, from_operating_point=False), progress=progress)
+        return _absolute(result, operating_point, period)
+    n_est = int(round(options.estimation_fraction * u.size))
+    say = progress or (lambda _message: None)
+    excitation = _excitation(u, n_est)
+    if excitation["reason"]:
+        say(f"not excited: {excitation['reason']}")
+        return _not_excited(u, y, delta, model, n_est, excitation, options.consistent_fraction)
+    start_model, linear_fit, chain = _start(u, y, period, n_est, model, options.max_evaluations, say)
+    initial = disagreement(start_model, u, y, delta, n_est)
+    found = _search(_Search(chain, initial, [], [], (), initial.residual_rad[n_est:]),
+                    list(_candidate_names(options.candidates, model)), u, y, n_est, delta, period, options, say,
+                    resolve_ties=True)
+    chain, current, steps = found.chain, found.current, found.steps
+    consistent = current.falsified_fraction <= options.consistent_fraction
+    intervals, reduction = _named_intervals(chain, steps, start_model, u, y, delta, current,
+                                            options.max_evaluations, say)
+    verdict, reason = _final_verdict(u, y, initial, current, steps, found.ambiguous_between, consistent, delta,
+                                     options.consistent_fraction)
+    return DiscrepancyResult(
+        steps=tuple(steps), start_model=start_model, final_model=chain.model() if steps else start_model,
+        initial=initial, final=current, consistent=consistent, unexplained=_left_unexplained(current, consistent, delta),
+        estimation_samples=n_est, noise_bound_rad=delta, linear_fit=linear_fit, verdict=verdict,
+        verdict_reason=reason, candidates=tuple(found.tried), ambiguous_between=found.ambiguous_between,
+        parameter_intervals=intervals, gap_reduction=reduction, excitation=excitation,
+    )
+
+
+def _checked_record(command_rad: ArrayLike, angle_rad: ArrayLike, noise_bound_rad: float, sample_period_s: float,
+                    model: PlantModel | None) -> tuple[NDArray[np.float64], NDArray[np.float64], float, float]:
+    """u, y, delta and T of :func:`diagnose_model`, checked (T is the model's own when it has one, so that the
+    blocks added carry exactly the model's period)."""
     u = as_signal("command_rad", command_rad, min_samples=50)
     y = as_signal("angle_rad", angle_rad, min_samples=50)
     same_length(command_rad=u, angle_rad=y)
     delta = positive("noise_bound_rad", noise_bound_rad)
     period = positive("sample_period_s", sample_period_s)
-    if not 0.2 <= estimation_fraction <= 0.9:
-        raise InvalidInputError(f"estimation_fraction: expected 0.2 .. 0.9, got {estimation_fraction!r}")
-    unknown = [name for name in candidates if name not in EFFECT_NAMES]
-    if unknown:
-        raise InvalidInputError(f"candidates: unknown effect {unknown[0]!r}; expected some of {', '.join(EFFECT_NAMES)}")
     if model is not None and not isinstance(model, PlantModel):
         raise InvalidInputError(f"model: expected a PlantModel or None, got {type(model).__name__}")
     if model is not None and model.sample_period_s is not None:
         if abs(model.sample_period_s - period) > 1e-3 * period:
             raise InvalidInputError(
                 f"sample_period_s: the data are sampled every {period:g} s, the model every {model.sample_period_s:g} s")
-        period = model.sample_period_s  # the blocks added must carry exactly the model's period
+        period = model.sample_period_s
     varying("command_rad", u, "record a step or PRBS experiment (configs/experiments/prbs.toml) to compare a "
                               "model with")
-    operating_point = _operating_point(y, delta) if from_operating_point else 0.0
-    if operating_point != 0.0:
-        result = diagnose_model(u - operating_point, y - operating_point, delta, period, model,
-                                estimation_fraction=estimation_fraction, candidates=candidates,
-                                max_effects=max_effects, complexity_penalty=complexity_penalty,
-                                min_reduction=min_reduction, consistent_fraction=consistent_fraction,
-                                max_delay_samples=max_delay_samples, max_evaluations=max_evaluations,
-                                progress=progress, from_operating_point=False)
-        return _absolute(result, operating_point, period)
-    n_est = int(round(estimation_fraction * u.size))
-    say = progress or (lambda _message: None)
-    if model is None:
-        # a fitted linear start model has a free static gain, which absorbs any scale error: the effect is
-        # not identifiable against it (README: a gain error can only be named against a given model)
-        candidates = [name for name in candidates if not EFFECTS[name].needs_given_model]
-    excitation = _excitation(u, n_est)
-    if excitation["reason"]:
-        # not scored: a verdict on a segment that cannot show the effects would be a guess
-        say(f"not excited: {excitation['reason']}")
-        start_model = model if model is not None else PlantModel((Delay(1),))
-        initial = disagreement(start_model, u, y, delta, n_est)
-        return DiscrepancyResult(
-            steps=(), start_model=start_model, final_model=start_model, initial=initial, final=initial,
-            consistent=initial.falsified_fraction <= consistent_fraction,
-            unexplained=f"not judged: {excitation['reason']}", estimation_samples=n_est, noise_bound_rad=delta,
-            linear_fit=None, verdict="not_excited", verdict_reason=str(excitation["reason"]),
-            excitation=excitation,
-        )
+    return u, y, delta, period
 
-    linear_fit = None
+
+def _candidate_names(candidates: Sequence[str], model: PlantModel | None) -> tuple[str, ...]:
+    """The candidates to try: a fitted linear start model has a free static gain, which absorbs any scale
+    error, so an effect that needs a given model is not identifiable against it (README: a gain error can
+    only be named against a given model)."""
     if model is None:
-        linear_fit = fit_linear_model(u, y, period, n_est, max_evaluations=max_evaluations)
-        start_model = PlantModel((linear_fit.block,))
-        say(f"start: linear model of order {linear_fit.order}")
-    else:
-        start_model = model
-    chain = _start_chain(model, linear_fit.block if linear_fit else None, 2)
+        return tuple(name for name in candidates if not EFFECTS[name].needs_given_model)
+    return tuple(candidates)
+
+
+def _not_excited(u: NDArray[np.float64], y: NDArray[np.float64], delta: float, model: PlantModel | None,
+                 n_est: int, excitation: dict[str, Any], consistent_fraction: float) -> DiscrepancyResult:
+    """The result of a record whose segments cannot show the effects (:func:`_excitation`): not scored, a
+    verdict on a segment that cannot show the effects would be a guess."""
+    start_model = model if model is not None else PlantModel((Delay(1),))
     initial = disagreement(start_model, u, y, delta, n_est)
-    settings = {"max_effects": max_effects, "consistent_fraction": consistent_fraction,
-                "complexity_penalty": complexity_penalty, "min_reduction": min_reduction,
-                "max_evaluations": max_evaluations, "max_delay_samples": max_delay_samples}
-    found = _search(_Search(chain, initial, [], [], (), initial.residual_rad[n_est:]), list(candidates), u, y, n_est,
-                    delta, period, settings, say, resolve_ties=True)
-    chain, current, steps, tried_all = found.chain, found.current, found.steps, found.tried
-    ambiguous_between = found.ambiguous_between
-    final_model = chain.model() if steps else start_model
-    consistent = current.falsified_fraction <= consistent_fraction
-    intervals: dict[str, dict[str, tuple[float, float]]] = {}
-    reduction = None
-    if steps:
-        say("cross-validation folds for the parameter intervals")
-        intervals, reduction = _fold_intervals(chain, start_model, u, y, max_evaluations)
-        for step in steps:  # a step's value (fitted when it was added) lies in its interval too
-            for key, value in step.parameters.items():
-                low, high = intervals.get(step.effect, {}).get(key, (value, value))
-                intervals.setdefault(step.effect, {})[key] = (min(low, value), max(high, value))
-        intervals = _resolution_floor(intervals, delta, _final_train(chain), current.simulated_rad)
-    verdict, reason = _verdict(initial, current, steps, ambiguous_between, consistent, delta, consistent_fraction)
-    if verdict == "unexplained":
-        unmeasured = _unmeasured_input(u, y, current.simulated_rad, delta)
-        if unmeasured:
-            verdict, reason = "not_excited", unmeasured
-    if consistent:
-        unexplained = "the model is consistent with the noise bound on the validation segment"
-    else:
-        unexplained = (
-            f"{100 * current.falsified_fraction:.1f} % of validation samples still exceed the noise bound "
-            f"(gap {current.gap_rad:.3g} rad against a bound of {delta:.3g} rad) and none of the candidate "
-            "effects lowers the validated gap further: what is left is unexplained"
-        )
     return DiscrepancyResult(
-        steps=tuple(steps), start_model=start_model, final_model=final_model, initial=initial, final=current,
-        consistent=consistent, unexplained=unexplained, estimation_samples=n_est, noise_bound_rad=delta,
-        linear_fit=linear_fit, verdict=verdict, verdict_reason=reason, candidates=tuple(tried_all),
-        ambiguous_between=ambiguous_between, parameter_intervals=intervals, gap_reduction=reduction,
-        excitation=excitation,
+        steps=(), start_model=start_model, final_model=start_model, initial=initial, final=initial,
+        consistent=initial.falsified_fraction <= consistent_fraction,
+        unexplained=f"not judged: {excitation['reason']}", estimation_samples=n_est, noise_bound_rad=delta,
+        linear_fit=None, verdict="not_excited", verdict_reason=str(excitation["reason"]), excitation=excitation,
     )
+
+
+def _start(u: NDArray[np.float64], y: NDArray[np.float64], period: float, n_est: int, model: PlantModel | None,
+           max_evaluations: int, say: Callable[[str], None]) -> tuple[PlantModel, LinearFit | None, _Chain]:
+    """Step 1: the start model (the given one, or :func:`fit_linear_model` on the estimation segment), how
+    its order was chosen, and the chain the search begins with (a fitted linear block raised to order 2 so
+    that joint fits have two poles to move)."""
+    if model is not None:
+        return model, None, _start_chain(model, None, 2)
+    linear_fit = fit_linear_model(u, y, period, n_est, max_evaluations=max_evaluations)
+    say(f"start: linear model of order {linear_fit.order}")
+    return PlantModel((linear_fit.block,)), linear_fit, _start_chain(None, linear_fit.block, 2)
+
+
+def _named_intervals(chain: _Chain, steps: Sequence[DiscrepancyStep], start_model: PlantModel,
+                     u: NDArray[np.float64], y: NDArray[np.float64], delta: float, current: Disagreement,
+                     max_evaluations: int, say: Callable[[str], None]
+                     ) -> tuple[dict[str, dict[str, tuple[float, float]]], dict[str, Any] | None]:
+    """Parameter intervals of the named effects and the gap reduction's spread (:func:`_fold_intervals`),
+    each containing the value fitted when its step was added, floored by the resolution
+    (:func:`_resolution_floor`); nothing when nothing was named."""
+    if not steps:
+        return {}, None
+    say("cross-validation folds for the parameter intervals")
+    intervals, reduction = _fold_intervals(chain, start_model, u, y, max_evaluations)
+    for step in steps:
+        for key, value in step.parameters.items():
+            low, high = intervals.get(step.effect, {}).get(key, (value, value))
+            intervals.setdefault(step.effect, {})[key] = (min(low, value), max(high, value))
+    return _resolution_floor(intervals, delta, _final_train(chain), current.simulated_rad), reduction
+
+
+def _final_verdict(u: NDArray[np.float64], y: NDArray[np.float64], initial: Disagreement, final: Disagreement,
+                   steps: Sequence[DiscrepancyStep], ambiguous_between: tuple[str, ...], consistent: bool,
+                   delta: float, consistent_fraction: float) -> tuple[str, str]:
+    """:func:`_verdict`, and an unexplained record whose output moves on its own (:func:`_unmeasured_input`)
+    is not excited by the command instead."""
+    verdict, reason = _verdict(initial, final, steps, ambiguous_between, consistent, delta, consistent_fraction)
+    if verdict == "unexplained":
+        unmeasured = _unmeasured_input(u, y, final.simulated_rad, delta)
+        if unmeasured:
+            return "not_excited", unmeasured
+    return verdict, reason
+
+
+def _left_unexplained(current: Disagreement, consistent: bool, delta: float) -> str:
+    """What is left, in words (:attr:`DiscrepancyResult.unexplained`)."""
+    if consistent:
+        return "the model is consistent with the noise bound on the validation segment"
+    return (f"{100 * current.falsified_fraction:.1f} % of validation samples still exceed the noise bound "
+            f"(gap {current.gap_rad:.3g} rad against a bound of {delta:.3g} rad) and none of the candidate "
+            "effects lowers the validated gap further: what is left is unexplained")
 
 
 VALIDATION_BLOCKS = 8
@@ -1335,7 +1415,7 @@ class _Search:
 
 
 def _search(state: _Search, remaining: list[str], u: NDArray[np.float64], y: NDArray[np.float64], n_est: int,
-            delta: float, period: float, settings: dict[str, Any], say: Callable[[str], None],
+            delta: float, period: float, options: DiagnoseOptions, say: Callable[[str], None],
             resolve_ties: bool) -> _Search:
     """Add effects greedily until the model is consistent, nothing helps or ``max_effects`` are in.
 
@@ -1344,9 +1424,9 @@ def _search(state: _Search, remaining: list[str], u: NDArray[np.float64], y: NDA
     tie resolution): if all end in the same set of effects, or one end is clearly better than the others by
     the same rule, that one is taken (two effects at once: whichever goes first, the pair is the answer);
     otherwise the round is ambiguous and no contender is chosen."""
-    max_effects, consistent_fraction = settings["max_effects"], settings["consistent_fraction"]
-    complexity_penalty, min_reduction = settings["complexity_penalty"], settings["min_reduction"]
-    max_evaluations = settings["max_evaluations"]
+    max_effects, consistent_fraction = options.max_effects, options.consistent_fraction
+    complexity_penalty, min_reduction = options.complexity_penalty, options.min_reduction
+    max_evaluations = options.max_evaluations
     chain, current = state.chain, state.current
     steps, tried_all = list(state.steps), list(state.tried)
     remaining = list(remaining)
@@ -1370,7 +1450,7 @@ def _search(state: _Search, remaining: list[str], u: NDArray[np.float64], y: NDA
             if _insert_index(chain, kind) < 0:
                 continue  # a dynamics effect needs linear dynamics or a drive train to go into
             candidate = _try_effect(kind, chain, u, y, n_est, delta, period, current.residual_rad, scores,
-                                    settings["max_delay_samples"], max_evaluations)
+                                    options.max_delay_samples, max_evaluations)
             say(f"  {kind}: validated gap {candidate.gap_rad:.3g} rad")
             vanished = EFFECTS[kind].vanished(candidate.block, delta)
             penalised_gap = candidate.gap_rad * (1.0 + complexity_penalty * EFFECTS[kind].free_parameters)
@@ -1397,7 +1477,7 @@ def _search(state: _Search, remaining: list[str], u: NDArray[np.float64], y: NDA
                 step_state = _add_step(by_kind[kind], chain, current, steps, tried_all, u, y, n_est, delta, scores,
                                        tried, max_evaluations)
                 ends.append(_search(step_state, [n for n in remaining if n != kind], u, y, n_est, delta, period,
-                                    settings, lambda _m: None, resolve_ties=False))
+                                    options, lambda _m: None, resolve_ties=False))
             chosen = _clear_end(ends, complexity_penalty)
             if chosen is None:
                 ambiguous_between = (best.kind, *rivals)
