@@ -219,6 +219,7 @@ class DiscrepancyResult:
     gap_reduction: dict[str, Any] | None = None
     excitation: dict[str, Any] = field(default_factory=dict)
     operating_point_rad: float = 0.0
+    undecided: tuple[CandidateResult, ...] = ()
 
     def __post_init__(self) -> None:
         if self.verdict not in VERDICTS:
@@ -248,7 +249,7 @@ class DiscrepancyResult:
             gap_initial_rad=float(self.initial.gap_rad), gap_final_rad=float(self.final.gap_rad),
             gap_reduction=reduction, falsified_fraction_initial=float(self.initial.falsified_fraction),
             falsified_fraction_final=float(self.final.falsified_fraction), excitation=dict(self.excitation),
-            operating_point_rad=float(self.operating_point_rad))
+            operating_point_rad=float(self.operating_point_rad), undecided=tuple(self.undecided))
 
     def to_dict(self) -> dict[str, Any]:
         """The ``rig diagnose --json`` document, ``self.report().to_dict()`` (:meth:`DiscrepancyReport.to_dict`)."""
@@ -270,9 +271,11 @@ class MissingEffect:
 @dataclass(frozen=True)
 class DiscrepancyReport:
     """What :func:`diagnose_model` found, as the ``rig diagnose --json`` document holds it (kind
-    ``"model_discrepancy"``, version 1): the verdict with its reason, the missing effects with intervals,
-    the candidates with their gaps and uncertainties, the gaps and falsified fractions before and after,
-    the excitation check and the operating point. :meth:`DiscrepancyResult.report` makes one."""
+    ``"model_discrepancy"``, version 2): the verdict with its reason, the missing effects with intervals,
+    the candidates with their gaps, uncertainties and gap reductions, the candidates of the last round whose
+    reduction straddles the acceptance (``undecided``: an ambiguous verdict after the effects named, if any),
+    the gaps and falsified fractions before and after, the excitation check and the operating point.
+    :meth:`DiscrepancyResult.report` makes one."""
 
     verdict: str
     verdict_reason: str
@@ -287,9 +290,13 @@ class DiscrepancyReport:
     falsified_fraction_final: float
     excitation: dict[str, Any]
     operating_point_rad: float
+    undecided: tuple[CandidateResult, ...] = ()
 
     KIND = "model_discrepancy"
-    VERSION = 1
+    VERSION = 2
+    READS = (1, 2)
+    """Version 2 added ``undecided`` and each candidate's ``reduction``, ``reduction_interval`` and
+    ``acceptance``; :meth:`from_dict` reads version 1 too (no undecided candidates, no intervals)."""
 
     def __post_init__(self) -> None:
         if self.verdict not in VERDICTS:
@@ -299,7 +306,7 @@ class DiscrepancyReport:
         """``kind``, ``version`` and the keys of issue 6 and issue 15: ``verdict``, ``verdict_reason``,
         ``noise_bound``, ``missing_effects`` (with ``parameter_intervals``), ``ambiguous_between``,
         ``candidates``, ``gap_initial``, ``gap_final``, ``gap_reduction``, ``falsified_fraction_initial``,
-        ``falsified_fraction_final``, ``excitation``, ``operating_point``."""
+        ``falsified_fraction_final``, ``excitation``, ``operating_point``, ``undecided``."""
         return tagged(self.KIND, self.VERSION, {
             "verdict": self.verdict,
             "verdict_reason": self.verdict_reason,
@@ -324,13 +331,14 @@ class DiscrepancyReport:
             "falsified_fraction_final": float(self.falsified_fraction_final),
             "excitation": dict(self.excitation),
             "operating_point": float(self.operating_point_rad),
+            "undecided": [candidate.to_dict() for candidate in self.undecided],
         })
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any]) -> DiscrepancyReport:
         """Inverse of :meth:`to_dict`; keys a command added beside (``rig diagnose``'s ``import``) are
         ignored. A document of another kind or version is a ResultFormatError naming both."""
-        check_kind(data, cls.KIND, (cls.VERSION,))
+        check_kind(data, cls.KIND, cls.READS)
         with malformed(cls.KIND):
             return cls(
                 verdict=str(data["verdict"]), verdict_reason=str(data["verdict_reason"]),
@@ -345,7 +353,8 @@ class DiscrepancyReport:
                 gap_reduction=dict(data["gap_reduction"]),
                 falsified_fraction_initial=float(data["falsified_fraction_initial"]),
                 falsified_fraction_final=float(data["falsified_fraction_final"]),
-                excitation=dict(data["excitation"]), operating_point_rad=float(data["operating_point"]))
+                excitation=dict(data["excitation"]), operating_point_rad=float(data["operating_point"]),
+                undecided=tuple(CandidateResult.from_dict(c) for c in data.get("undecided", ())))
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -746,11 +755,12 @@ def _try_effect(kind: str, chain: _Chain, u: NDArray[np.float64], y: NDArray[np.
             refit, c_l, c_r = contact
             options += [with_effect(start, refit) for start in entry.contact_start(c_l, c_r)]
     costs = [_rms(_free_run_error(option, u_est, y_est)) for option in options]
-    best = options[int(np.argmin(costs))]
-    best = _refine_delays(best, u_est, y_est)
-    if any(c.kind == "linear" for c in best.components):
-        best = _polish(best, u_est, y_est, max_evaluations, frozenset({"linear"}))
-    best = _polish(best, u_est, y_est, _budget(best, max_evaluations))
+    if entry.placement == "dynamics" and chain.components[index].loop_free:
+        starts = _distinct_loop_starts(options, costs, index, LOOP_POLISHED_STARTS)
+    else:
+        starts = [options[int(np.argmin(costs))]]
+    fits = [_polished_start(start, u_est, y_est, max_evaluations) for start in starts]
+    best = fits[int(np.argmin([_rms(_free_run_error(fit, u_est, y_est)) for fit in fits]))]
     if entry.stick_slip and train is not None:
         best = _scan_static_friction(best, index, kind, u_est, y_est)
     elif entry.stick_slip:
@@ -759,6 +769,41 @@ def _try_effect(kind: str, chain: _Chain, u: NDArray[np.float64], y: NDArray[np.
     error = np.where(np.isfinite(error), error, _BIG)
     block = _build(best.components[index], best.components[index].values)
     return _Candidate(kind, best, _rms(error), block, index, _rms(_free_run_error(best, u_est, y_est)), error)
+
+
+def _polished_start(start: _Chain, u: NDArray[np.float64], y: NDArray[np.float64], max_evaluations: int) -> _Chain:
+    """One start of a candidate fit: its delays re-searched, its linear block polished alone, then everything
+    polished (:func:`_polish`) on the estimation segment (u, y)."""
+    best = _refine_delays(start, u, y)
+    if any(c.kind == "linear" for c in best.components):
+        best = _polish(best, u, y, max_evaluations, frozenset({"linear"}))
+    return _polish(best, u, y, _budget(best, max_evaluations))
+
+
+LOOP_POLISHED_STARTS = 3
+"""A dynamics candidate whose loop is free is polished from this many starts, the best-ranked option of
+each of as many different loop starts (:data:`LOOP_START_FACTORS`), and the fit with the lowest
+estimation error is kept. From the single best-ranked start, the speed-limit fit of two of four repeated
+records of one servo (K-Scale STS3215, sin_time_square, kp 32) ended at the damping cap (zeta = 2, 10 Hz):
+a local minimum, since the loop the other two repetitions reached (3.4-3.6 Hz, zeta 0.70-0.75) fits the
+estimation segment of the first one better (28.5 against 32.7 mrad). Three starts cover the start model's
+loop and one slower and one faster guess at the cost of three polishes."""
+
+
+def _distinct_loop_starts(options: Sequence[_Chain], costs: Sequence[float], index: int,
+                          count: int) -> list[_Chain]:
+    """The ``count`` lowest-cost options whose loops (bandwidth, damping: the first two values of the drive
+    train at ``index``) differ from each other's."""
+    chosen: list[_Chain] = []
+    loops: set[tuple[float, ...]] = set()
+    for i in np.argsort(costs):
+        loop = options[int(i)].components[index].values[:2]
+        if loop not in loops:
+            loops.add(loop)
+            chosen.append(options[int(i)])
+        if len(chosen) == count:
+            break
+    return chosen
 
 
 DYNAMICS_EVALUATIONS = 15
@@ -1163,14 +1208,13 @@ def diagnose_model(command_rad: ArrayLike, angle_rad: ArrayLike, noise_bound_rad
     consistent = current.falsified_fraction <= options.consistent_fraction
     intervals, reduction = _named_intervals(chain, steps, start_model, u, y, delta, current,
                                             options.max_evaluations, say)
-    verdict, reason = _final_verdict(u, y, initial, current, steps, found.ambiguous_between, consistent, delta,
-                                     options.consistent_fraction)
+    verdict, reason = _final_verdict(u, y, initial, current, found, consistent, delta, options)
     return DiscrepancyResult(
         steps=tuple(steps), start_model=start_model, final_model=chain.model() if steps else start_model,
         initial=initial, final=current, consistent=consistent, unexplained=_left_unexplained(current, consistent, delta),
         estimation_samples=n_est, noise_bound_rad=delta, linear_fit=linear_fit, verdict=verdict,
         verdict_reason=reason, candidates=tuple(found.tried), ambiguous_between=found.ambiguous_between,
-        parameter_intervals=intervals, gap_reduction=reduction, excitation=excitation,
+        parameter_intervals=intervals, gap_reduction=reduction, excitation=excitation, undecided=found.undecided,
     )
 
 
@@ -1249,11 +1293,11 @@ def _named_intervals(chain: _Chain, steps: Sequence[DiscrepancyStep], start_mode
 
 
 def _final_verdict(u: NDArray[np.float64], y: NDArray[np.float64], initial: Disagreement, final: Disagreement,
-                   steps: Sequence[DiscrepancyStep], ambiguous_between: tuple[str, ...], consistent: bool,
-                   delta: float, consistent_fraction: float) -> tuple[str, str]:
+                   found: _Search, consistent: bool, delta: float, options: DiagnoseOptions) -> tuple[str, str]:
     """:func:`_verdict`, and an unexplained record whose output moves on its own (:func:`_unmeasured_input`)
     is not excited by the command instead."""
-    verdict, reason = _verdict(initial, final, steps, ambiguous_between, consistent, delta, consistent_fraction)
+    verdict, reason = _verdict(initial, final, found.steps, found.ambiguous_between, consistent, delta,
+                               options.consistent_fraction, found.undecided, options.min_reduction)
     if verdict == "unexplained":
         unmeasured = _unmeasured_input(u, y, final.simulated_rad, delta)
         if unmeasured:
@@ -1346,7 +1390,9 @@ fold's optimum, so a few Gauss-Newton steps move it there; more only cost time."
 class CandidateResult:
     """One candidate tried in one round: its validated gap with an uncertainty (spread over validation
     blocks, :data:`VALIDATION_BLOCKS`), the penalised gap it was ranked by, the fitted parameters, whether
-    it vanished, and whether it would have been kept on its own."""
+    it vanished, whether its penalised gap passes the acceptance (``helps``), and the reduction of the gap
+    with its interval and what that interval says (``acceptance``, :func:`_acceptance`: one of
+    :data:`ACCEPTANCES`; empty, and the reduction NaN, in documents of version 1, which had no interval)."""
 
     round: int
     effect: str
@@ -1356,19 +1402,58 @@ class CandidateResult:
     parameters: dict[str, float]
     vanished: bool
     helps: bool
+    reduction: float = math.nan
+    reduction_interval: tuple[float, float] = (math.nan, math.nan)
+    acceptance: str = ""
 
     def to_dict(self) -> dict[str, Any]:
         return {"round": self.round, "effect": self.effect, "gap": float(self.gap_rad),
                 "gap_uncertainty": float(self.gap_uncertainty_rad), "penalised_gap": float(self.penalised_gap_rad),
                 "parameters": {k: float(v) for k, v in self.parameters.items()}, "vanished": bool(self.vanished),
-                "helps": bool(self.helps)}
+                "helps": bool(self.helps), "reduction": float(self.reduction),
+                "reduction_interval": [float(v) for v in self.reduction_interval], "acceptance": self.acceptance}
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any]) -> CandidateResult:
-        """Inverse of :meth:`to_dict`."""
+        """Inverse of :meth:`to_dict` (a version-1 entry has no reduction or acceptance)."""
+        low, high = data.get("reduction_interval", (math.nan, math.nan))
         return cls(int(data["round"]), str(data["effect"]), float(data["gap"]), float(data["gap_uncertainty"]),
                    float(data["penalised_gap"]), {str(k): float(v) for k, v in data["parameters"].items()},
-                   bool(data["vanished"]), bool(data["helps"]))
+                   bool(data["vanished"]), bool(data["helps"]), float(data.get("reduction", math.nan)),
+                   (float(low), float(high)), str(data.get("acceptance", "")))
+
+
+ACCEPTANCES = ("clear", "undecided", "rejected", "vanished")
+"""What a candidate's gap reduction says against the required ``min_reduction`` (:func:`_acceptance`): its
+whole interval above it (the effect may be named), the interval straddling it (the record cannot tell
+whether the effect is there: reported, not named), the whole interval below it, or the fitted effect does
+nothing (its catalogue ``vanished``)."""
+
+
+def _acceptance(candidate_error: NDArray[np.float64] | None, penalty_factor: float,
+                current_error: NDArray[np.float64] | None, penalised_gap_rad: float, current_gap_rad: float,
+                min_reduction: float) -> tuple[float, tuple[float, float], str]:
+    """The reduction 1 - g_pen / g_before of the validated gap, its interval and its :data:`ACCEPTANCES` word.
+
+    The interval is 1 - exp(L +- h) with L = ln(g_pen / g_before) and h the larger of
+    :data:`AMBIGUITY_SIGMAS` standard errors of the paired per-block log ratios ln(g_pen,k / g_before,k)
+    over the :data:`VALIDATION_BLOCKS` blocks and ln(1 + :data:`AMBIGUITY_MIN_MARGIN`): the same rule that
+    tells two candidates apart (:func:`_within_uncertainty`), here between a candidate and the model without
+    it. A block where either error is zero (a noise-free record) gives no log ratio: then only the minimum
+    margin counts."""
+    if not (penalised_gap_rad > 0 and current_gap_rad > 0):
+        return 1.0, (1.0, 1.0), "clear"
+    log_ratio = math.log(penalised_gap_rad / current_gap_rad)
+    candidate_gaps, current_gaps = _block_gaps(candidate_error), _block_gaps(current_error)
+    standard_error = 0.0
+    if candidate_gaps.size > 1 and current_gaps.size == candidate_gaps.size \
+            and np.all(candidate_gaps > 0) and np.all(current_gaps > 0):
+        ratios = np.log(penalty_factor * candidate_gaps / current_gaps)
+        standard_error = float(np.std(ratios, ddof=1) / math.sqrt(ratios.size))
+    half = max(AMBIGUITY_SIGMAS * standard_error, math.log1p(AMBIGUITY_MIN_MARGIN))
+    low, high = 1.0 - math.exp(log_ratio + half), 1.0 - math.exp(log_ratio - half)
+    word = "clear" if low >= min_reduction else ("rejected" if high < min_reduction else "undecided")
+    return 1.0 - math.exp(log_ratio), (low, high), word
 
 
 def _block_gaps(error: NDArray[np.float64] | None) -> NDArray[np.float64]:
@@ -1412,6 +1497,7 @@ class _Search:
     tried: list[CandidateResult]
     ambiguous_between: tuple[str, ...] = ()
     validation_error_rad: NDArray[np.float64] | None = None
+    undecided: tuple[CandidateResult, ...] = ()
 
 
 def _search(state: _Search, remaining: list[str], u: NDArray[np.float64], y: NDArray[np.float64], n_est: int,
@@ -1453,21 +1539,34 @@ def _search(state: _Search, remaining: list[str], u: NDArray[np.float64], y: NDA
                                     options.max_delay_samples, max_evaluations)
             say(f"  {kind}: validated gap {candidate.gap_rad:.3g} rad")
             vanished = EFFECTS[kind].vanished(candidate.block, delta)
-            penalised_gap = candidate.gap_rad * (1.0 + complexity_penalty * EFFECTS[kind].free_parameters)
+            factor = 1.0 + complexity_penalty * EFFECTS[kind].free_parameters
+            penalised_gap = candidate.gap_rad * factor
+            reduction, interval, word = _acceptance(candidate.validation_error_rad, factor, validation_error,
+                                                    penalised_gap, current.gap_rad, min_reduction)
             tried_all.append(CandidateResult(
                 round=round_index, effect=kind, gap_rad=candidate.gap_rad,
                 gap_uncertainty_rad=_gap_uncertainty(candidate.validation_error_rad),
                 penalised_gap_rad=penalised_gap, parameters=_parameters(kind, candidate.block), vanished=vanished,
-                helps=(not vanished) and penalised_gap <= (1.0 - min_reduction) * current.gap_rad))
+                helps=(not vanished) and penalised_gap <= (1.0 - min_reduction) * current.gap_rad,
+                reduction=reduction, reduction_interval=interval, acceptance="vanished" if vanished else word))
             if not vanished:
                 tried.append(candidate)
+        this_round = {c.effect: c for c in tried_all if c.round == round_index}
         round_index += 1
         if not tried:
             break
         penalised = {c.kind: c.gap_rad * (1.0 + complexity_penalty * EFFECTS[c.kind].free_parameters) for c in tried}
         best = min(tried, key=lambda c: penalised[c.kind])
         best = _prefer_within_family(best, tried, penalised, current.gap_rad)
-        if penalised[best.kind] > (1.0 - min_reduction) * current.gap_rad:
+        if this_round[best.kind].acceptance != "clear":
+            # not clearly above the acceptance: every candidate whose interval reaches it is reported, none named
+            undecided = tuple(sorted((c for c in this_round.values() if c.acceptance in ("clear", "undecided")),
+                                     key=lambda c: c.penalised_gap_rad))
+            if undecided:
+                say(f"undecided: {', '.join(c.effect for c in undecided)} lower the gap by about the required "
+                    f"{100 * min_reduction:.0f} % within their uncertainty")
+                return _Search(chain, current, steps, tried_all, tuple(c.effect for c in undecided), validation_error,
+                               undecided)
             break
         rivals = _rivals(best, tried, penalised, complexity_penalty, (1.0 - min_reduction) * current.gap_rad)
         if rivals and resolve_ties:
@@ -1606,12 +1705,21 @@ def _unmeasured_input(u: NDArray[np.float64], y: NDArray[np.float64], simulated:
 
 def _verdict(initial: Disagreement, final: Disagreement, steps: Sequence[DiscrepancyStep],
              ambiguous_between: tuple[str, ...], consistent: bool, delta: float,
-             consistent_fraction: float) -> tuple[str, str]:
+             consistent_fraction: float, undecided: Sequence[CandidateResult] = (),
+             min_reduction: float = 0.15) -> tuple[str, str]:
     """The verdict of the workflow and the reason in words (module docstring)."""
     if initial.falsified_fraction <= consistent_fraction:
         return "explained", (f"the start model agrees with the data within the noise bound ({delta:.3g} rad) on "
                              f"{100 * (1 - initial.falsified_fraction):.1f} % of validation samples")
     named = ", ".join(step.effect for step in steps)
+    if undecided:
+        before = f"{named} named (gap {initial.gap_rad:.3g} -> {final.gap_rad:.3g} rad); then " if steps else ""
+        words = "; ".join(f"{c.effect} lowers the validated gap by {100 * c.reduction:.0f} % "
+                          f"({100 * c.reduction_interval[0]:.0f} to {100 * c.reduction_interval[1]:.0f} % within "
+                          "its uncertainty)" for c in undecided)
+        return "ambiguous", (f"{before}{words}, against the {100 * min_reduction:.0f} % required: whether "
+                             f"{'it is' if len(undecided) == 1 else 'they are'} there cannot be told from this "
+                             "record, so none is named")
     if ambiguous_between:
         before = f" after {named}" if steps else ""
         return "ambiguous", (f"{' and '.join(ambiguous_between)} fit the validation segment equally well within "

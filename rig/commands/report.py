@@ -97,14 +97,15 @@ def _short(value: Any, limit: int = 80) -> str:
     return text if len(text) <= limit else f"{text[:limit]}... ({len(text)} characters)"
 
 
-def _readers() -> dict[str, tuple[int, Any]]:
-    """kind -> (the version read, the result type's from_dict)."""
+def _readers() -> dict[str, tuple[tuple[int, ...], Any]]:
+    """kind -> (the versions read: the type's ``READS`` if it reads older ones too, else its ``VERSION``; the
+    result type's from_dict)."""
     from identify.hammerstein_subspace import HammersteinModel
     from identify.model_discrepancy import DiscrepancyReport
     from identify.output_backlash_identification import OutputBacklashIdentification
     from rig.runner import RunSummary
 
-    return {cls.KIND: (cls.VERSION, cls.from_dict)
+    return {cls.KIND: (tuple(getattr(cls, "READS", (cls.VERSION,))), cls.from_dict)
             for cls in (OutputBacklashIdentification, HammersteinModel, DiscrepancyReport, RunSummary)}
 
 
@@ -112,7 +113,8 @@ def readable_kinds() -> str:
     """The kinds and versions this command reads, for messages and the help."""
     from rig.batch import BATCH_KIND, BATCH_VERSION
 
-    kinds = [f"{kind} v{version}" for kind, (version, _) in _readers().items()]
+    kinds = [f"{kind} " + " or ".join(f"v{version}" for version in versions)
+             for kind, (versions, _) in _readers().items()]
     return ", ".join([*kinds, f"{BATCH_KIND} v{BATCH_VERSION}"])
 
 
@@ -147,7 +149,7 @@ def _results_of(document: Any, path: Path) -> list[ResultFile]:
             out += [dataclasses.replace(result, entry=name) for result in _results_of(inner[0], path)]
         return out
     readers = _readers()
-    if kind not in readers or readers[kind][0] != version:
+    if kind not in readers or isinstance(version, bool) or version not in readers[kind][0]:
         raise LogFileError(f"{path}: kind {_short(kind, 40)!r} version {_short(version, 20)} cannot be read by this "
                            f"version of rig report, which reads {readable_kinds()}")
     try:
@@ -343,7 +345,7 @@ def _diagnose_section(result: ResultFile, used: set[str]):
     text = (f"{result.name}: verdict {VERDICT_WORDS.get(report.verdict, report.verdict)}"
             f"{': ' + reason if reason else ''}. Missing effects named, in order: {named}. Free-run RMS error on "
             f"the validation segment {gap_initial:.4g} rad before, {gap_final:.4g} rad after.{fractions}"
-            f"{_candidates_text(report)}")
+            f"{_undecided_text(report)}{_candidates_text(report)}")
     labels = ["start model"] + [f"+ {step.effect}" for step in steps]
     gaps = [gap_initial] + [step.gap_after_rad for step in steps]
 
@@ -383,6 +385,18 @@ def _run_summary_section(result: ResultFile):
     text = (f"{result.name}: the summary `rig run --json` printed. Give the log file too to see the signals and "
             "the loop timing.")
     return ReportSection(f"Run: {result.name}", text=text, table_header=("quantity", "value"), table_rows=tuple(rows))
+
+
+def _undecided_text(report) -> str:
+    """The candidates whose gap reduction straddles the acceptance (an ambiguous verdict after the effects
+    named, if any), with their numbers; empty when there are none."""
+    if not report.undecided:
+        return ""
+    after = (f" after {', '.join(step.effect for step in report.missing_effects)}" if report.missing_effects else "")
+    words = "; ".join(f"{c.effect} {100 * c.reduction:.0f} % ({100 * c.reduction_interval[0]:.0f} to "
+                      f"{100 * c.reduction_interval[1]:.0f} %)" for c in report.undecided)
+    return (f" Undecided{after}, not named (gap reduction within its uncertainty around the acceptance): "
+            f"{words}.")
 
 
 def _candidates_text(report) -> str:

@@ -200,7 +200,7 @@ def test_a_saved_result_with_damaged_data_names_the_file_and_the_key(data, capsy
 @pytest.mark.parametrize("document, words", [
     ({"kind": "hammerstein_model", "version": 9}, "kind 'hammerstein_model' version 9 cannot be read"),
     ({"kind": "gearbox_photo", "version": 1}, "kind 'gearbox_photo' version 1 cannot be read"),
-    ({**DIAGNOSE, "version": 2}, "kind 'model_discrepancy' version 2 cannot be read"),
+    ({**DIAGNOSE, "version": 3}, "kind 'model_discrepancy' version 3 cannot be read"),
 ])
 def test_a_kind_or_version_it_cannot_read_is_named(document, words, capsys, tmp_path):
     path = tmp_path / "result.json"
