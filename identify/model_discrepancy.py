@@ -782,22 +782,26 @@ def _polished_start(start: _Chain, u: NDArray[np.float64], y: NDArray[np.float64
 
 LOOP_POLISHED_STARTS = 3
 """A dynamics candidate whose loop is free is polished from this many starts, the best-ranked option of
-each of as many different loop starts (:data:`LOOP_START_FACTORS`), and the fit with the lowest
+each of as many different loops (:data:`LOOP_START_FACTORS`, as the train has them: after the caps of
+:data:`LOOP_DAMPING_RANGE` and :data:`LOOP_BANDWIDTH_NYQUIST_SHARE`), and the fit with the lowest
 estimation error is kept. From the single best-ranked start, the speed-limit fit of two of four repeated
-records of one servo (K-Scale STS3215, sin_time_square, kp 32) ended at the damping cap (zeta = 2, 10 Hz):
-a local minimum, since the loop the other two repetitions reached (3.4-3.6 Hz, zeta 0.70-0.75) fits the
-estimation segment of the first one better (28.5 against 32.7 mrad). Three starts cover the start model's
-loop and one slower and one faster guess at the cost of three polishes."""
+records of one servo (K-Scale STS3215, sin_time_square, kp 32, 100 Hz) stayed at the start model's loop,
+10 Hz at the damping cap zeta = 2 (estimation error 32.7 mrad on the first): a local minimum, since from
+the slower start (half the bandwidth, 0.7 times the damping) the polish reaches 4.0 Hz, zeta 0.79 and
+23.7 mrad on the same segment. At 100 Hz the faster starts are capped to the start loop itself, so three
+different loops are all there are there; elsewhere three polishes cost three times one."""
 
 
 def _distinct_loop_starts(options: Sequence[_Chain], costs: Sequence[float], index: int,
                           count: int) -> list[_Chain]:
-    """The ``count`` lowest-cost options whose loops (bandwidth, damping: the first two values of the drive
-    train at ``index``) differ from each other's."""
+    """The ``count`` lowest-cost options whose loops (bandwidth and damping of the drive train at ``index``,
+    as built: starts beyond a cap are the same loop) differ from each other's."""
     chosen: list[_Chain] = []
-    loops: set[tuple[float, ...]] = set()
+    loops: set[tuple[float, float]] = set()
     for i in np.argsort(costs):
-        loop = options[int(i)].components[index].values[:2]
+        train = _build(options[int(i)].components[index], options[int(i)].components[index].values)
+        assert isinstance(train, DriveTrain)
+        loop = (train.position_loop_bandwidth_hz, train.position_loop_damping_ratio)
         if loop not in loops:
             loops.add(loop)
             chosen.append(options[int(i)])
@@ -1714,10 +1718,10 @@ def _verdict(initial: Disagreement, final: Disagreement, steps: Sequence[Discrep
     named = ", ".join(step.effect for step in steps)
     if undecided:
         before = f"{named} named (gap {initial.gap_rad:.3g} -> {final.gap_rad:.3g} rad); then " if steps else ""
-        words = "; ".join(f"{c.effect} lowers the validated gap by {100 * c.reduction:.0f} % "
-                          f"({100 * c.reduction_interval[0]:.0f} to {100 * c.reduction_interval[1]:.0f} % within "
+        words = "; ".join(f"with {c.effect} the validated gap is {_percent_lower(c.reduction)} (reduction "
+                          f"{100 * c.reduction_interval[0]:.0f} to {100 * c.reduction_interval[1]:.0f} % within "
                           "its uncertainty)" for c in undecided)
-        return "ambiguous", (f"{before}{words}, against the {100 * min_reduction:.0f} % required: whether "
+        return "ambiguous", (f"{before}{words}, against {100 * min_reduction:.0f} % required: whether "
                              f"{'it is' if len(undecided) == 1 else 'they are'} there cannot be told from this "
                              "record, so none is named")
     if ambiguous_between:
@@ -1731,6 +1735,11 @@ def _verdict(initial: Disagreement, final: Disagreement, steps: Sequence[Discrep
         return "named", f"{named} lower the validated gap from {initial.gap_rad:.3g} to {final.gap_rad:.3g} rad; {left}"
     return "unexplained", (f"{100 * initial.falsified_fraction:.1f} % of validation samples are outside the noise "
                            f"bound and no candidate lowers the validated gap ({initial.gap_rad:.3g} rad) enough")
+
+
+def _percent_lower(reduction: float) -> str:
+    """A gap reduction in words: "18 % lower", or "35 % higher" when it grew."""
+    return f"{100 * abs(reduction):.0f} % {'lower' if reduction >= 0 else 'higher'}"
 
 
 JACKKNIFE_T = 3.182

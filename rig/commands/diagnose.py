@@ -251,7 +251,7 @@ def _acceptance_note(candidate) -> str:
         return " (vanished)"
     if candidate.acceptance in ("clear", "undecided"):
         low, high = candidate.reduction_interval
-        return f" ({100 * candidate.reduction:.0f} % lower, {100 * low:.0f} .. {100 * high:.0f} %: {candidate.acceptance})"
+        return f" (reduction {100 * candidate.reduction:.0f} %, {100 * low:.0f} .. {100 * high:.0f} %: {candidate.acceptance})"
     return ""
 
 
@@ -289,8 +289,9 @@ def _print_summary(data: str, model: str | None, noise_bound: float, result, num
               f"({parameters})")
     for candidate in result.undecided:
         low, high = candidate.reduction_interval
-        print(f"undecided     {candidate.effect}: gap {candidate.gap_rad:.4g} rad, {100 * candidate.reduction:.0f} % "
-              f"lower ({100 * low:.0f} .. {100 * high:.0f} % within its uncertainty): not named")
+        print(f"undecided     {candidate.effect}: gap {candidate.gap_rad:.4g} rad, reduction "
+              f"{100 * candidate.reduction:.0f} % ({100 * low:.0f} .. {100 * high:.0f} % within its uncertainty): "
+              "not named")
     if not result.steps:
         print("no missing effect found" if result.verdict != "ambiguous" else
               f"no effect chosen between {', '.join(result.ambiguous_between)}")
