@@ -1491,6 +1491,31 @@ def _rivals(best: _Candidate, tried: Sequence[_Candidate], penalised: dict[str, 
     return tuple(out)
 
 
+def _contenders(best: _Candidate, tried: Sequence[_Candidate], this_round: Mapping[str, CandidateResult],
+                complexity_penalty: float) -> tuple[CandidateResult, ...]:
+    """When the best candidate of a round is not clearly accepted: the best one if its reduction interval
+    reaches the acceptance, with every other candidate whose interval reaches it too and whose penalised gap
+    is within its uncertainty of the best one's (:func:`_within_uncertainty`); a candidate clearly worse than
+    the best is no contender, however wide its own interval. Best first."""
+    if this_round[best.kind].acceptance not in ("clear", "undecided"):
+        return ()
+
+    def scaled(candidate: _Candidate) -> NDArray[np.float64] | None:
+        error = candidate.validation_error_rad
+        factor = 1.0 + complexity_penalty * EFFECTS[candidate.kind].free_parameters
+        return None if error is None else error * factor
+
+    out = [this_round[best.kind]]
+    for other in tried:
+        entry = this_round[other.kind]
+        if other.kind == best.kind or entry.acceptance not in ("clear", "undecided"):
+            continue
+        if _within_uncertainty(this_round[best.kind].penalised_gap_rad, scaled(best), entry.penalised_gap_rad,
+                               scaled(other)):
+            out.append(entry)
+    return tuple(sorted(out, key=lambda c: c.penalised_gap_rad))
+
+
 @dataclass
 class _Search:
     """The state of the greedy search of step 4 (the model so far, its disagreement, the effects added)."""
@@ -1563,9 +1588,9 @@ def _search(state: _Search, remaining: list[str], u: NDArray[np.float64], y: NDA
         best = min(tried, key=lambda c: penalised[c.kind])
         best = _prefer_within_family(best, tried, penalised, current.gap_rad)
         if this_round[best.kind].acceptance != "clear":
-            # not clearly above the acceptance: every candidate whose interval reaches it is reported, none named
-            undecided = tuple(sorted((c for c in this_round.values() if c.acceptance in ("clear", "undecided")),
-                                     key=lambda c: c.penalised_gap_rad))
+            # not clearly above the acceptance: it and every rival within its uncertainty whose interval reaches
+            # the acceptance too are reported (:func:`_contenders`), none named
+            undecided = _contenders(best, tried, this_round, complexity_penalty)
             if undecided:
                 say(f"undecided: {', '.join(c.effect for c in undecided)} lower the gap by about the required "
                     f"{100 * min_reduction:.0f} % within their uncertainty")
