@@ -80,6 +80,7 @@ __all__ = [
     "MissingEffect",
     "LinearFit",
     "EFFECT_NAMES",
+    "CandidateResult",
     "DiagnoseOptions",
     "diagnose_model",
     "disagreement",
