@@ -210,7 +210,7 @@ def _import_raw_can(path: Path, config: Any) -> ExperimentRecord:
         raise LogFileError(f"{path}: no RIG_SETPOINT frame (0x{codec.frame_ids['RIG_SETPOINT']:03X}) in {frames} "
                            f"frames: not a capture of a run on the raw-CAN rig of {config.source}")
     from rig import __version__
-    from rig.commands.run import rig_config_metadata
+    from rig.log_metadata import rig_config_metadata
 
     metadata = ExperimentMetadata(
         sample_period_s=period, source=config.name, transport=config.url, encoder_bits=encoder.bits,
@@ -395,7 +395,7 @@ def _import_canopen(path: Path, config: Any) -> ExperimentRecord:
             row.command_rad = rows[-1].command_rad if rows else 0.0
         rows.append(row)
     from rig import __version__
-    from rig.commands.run import rig_config_metadata
+    from rig.log_metadata import rig_config_metadata
 
     metadata = ExperimentMetadata(
         sample_period_s=period, source=config.name, transport=config.url, encoder_bits=encoder.bits,
