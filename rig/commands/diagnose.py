@@ -292,7 +292,9 @@ def _print_summary(data: str, model: str | None, noise_bound: float, result, num
         print(f"undecided     {candidate.effect}: gap {candidate.gap_rad:.4g} rad, reduction "
               f"{100 * candidate.reduction:.0f} % ({100 * low:.0f} .. {100 * high:.0f} % within its uncertainty): "
               "not named")
-    if not result.steps:
+    if not result.steps and result.undecided:
+        print(f"no effect named ({', '.join(c.effect for c in result.undecided)} undecided)")
+    elif not result.steps:
         print("no missing effect found" if result.verdict != "ambiguous" else
               f"no effect chosen between {', '.join(result.ambiguous_between)}")
     elif result.verdict == "ambiguous" and not result.undecided:
