@@ -19,7 +19,9 @@ Format ``rig-log v1`` (a CSV file with a commented header)::
   torn last line is dropped on reading with a warning. ``close()`` flushes and fsyncs.
 * Floats are written with ``repr`` (shortest exact round trip).
 * What is only known at the end of a run (the damaged frames the transport discarded, what the controlled
-  stop did) follows the last sample as one comment line ``# summary {JSON}``
+  stop did, who owned the sample clock and how the run kept it: ``sample_clock`` ``"device"`` with
+  ``min_lead_s``, or ``"host"`` with ``send_lateness_p50_s``, ``_p99_s``, ``_max_s``; see
+  :class:`rig.runner.RunSummary`) follows the last sample as one comment line ``# summary {JSON}``
   (:meth:`LogWriter.write_summary`); :func:`read_log` puts it in the metadata's ``extra["summary"]``. A
   log of a killed run has no summary line; comment-aware readers (pandas, numpy, MATLAB above) skip it.
 

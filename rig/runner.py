@@ -46,7 +46,7 @@ from rig.protocols.errors import DeviceFault, TransportError
 from rig.sample_ledger import SampleLedger
 from rig.transports.base import CommandRefused, Setpoint, Transport
 
-__all__ = ["RunSummary", "SampleSink", "run_experiment", "wait_until"]
+__all__ = ["RunSummary", "SampleSink", "run_experiment", "send_lateness_quantiles", "wait_until"]
 
 
 _FAULT_STATES = (DriveState.FAULT, DriveState.FAULT_REACTION_ACTIVE)
@@ -149,7 +149,8 @@ class RunSummary:
     rate_hz
         Achieved rate: samples / (time of the last send - time of the first send) * (samples - 1) / samples.
     send_lateness_s
-        Per sample, actual send time minus its deadline t_k (the loop's timing jitter).
+        Host-paced links: per sample, actual send time minus its deadline t_k (the loop's timing jitter);
+        empty on device-clocked links, where the device's clock fixes the instants.
     cpu_s, wall_s
         Process CPU time and wall time of the streaming loop.
     not_followed
@@ -165,8 +166,12 @@ class RunSummary:
     log
         The log file the samples went to, when the caller knows it (the runner writes to a
         :class:`SampleSink`; ``rig run`` sets it with :func:`dataclasses.replace`).
+    send_lateness_p50_s, send_lateness_p99_s, send_lateness_max_s
+        Host-paced links: the median, 99th percentile and largest of ``send_lateness_s``
+        (:func:`send_lateness_quantiles`), what judges the host's timing (a LATE sample is one above
+        ``late_tolerance_s``); nan on device-clocked links, judged by ``held`` and ``min_lead_s``.
 
-    The summary serialises itself (:meth:`to_dict`, :meth:`from_dict`; kind ``"run_summary"``, version 1,
+    The summary serialises itself (:meth:`to_dict`, :meth:`from_dict`; kind ``"run_summary"``, version 2,
     the conventions of :mod:`identify.result_format`): that document is what ``rig run --json`` prints.
     """
 
@@ -186,24 +191,34 @@ class RunSummary:
     stop: str = ""
     warnings: tuple[str, ...] = ()
     log: str | None = None
+    send_lateness_p50_s: float = math.nan
+    send_lateness_p99_s: float = math.nan
+    send_lateness_max_s: float = math.nan
 
     KIND: ClassVar[str] = "run_summary"
-    VERSION: ClassVar[int] = 1
+    VERSION: ClassVar[int] = 2
+    READS: ClassVar[tuple[int, ...]] = (1, 2)
+    """Versions :meth:`from_dict` reads: version 1 (before the send lateness was added) has no
+    ``send_lateness_*`` keys, read as nan (not measured)."""
     SAVED: ClassVar[tuple[str, ...]] = (
         "samples", "lost", "late", "rate_hz", "held", "min_lead_s", "not_followed", "duplicate", "frame_errors",
-        "warnings", "stop", "stale", "cpu_s", "wall_s")
+        "warnings", "stop", "stale", "cpu_s", "wall_s", "send_lateness_p50_s", "send_lateness_p99_s",
+        "send_lateness_max_s")
     """The fields in the document after ``kind``, ``version`` and ``log``, in this order (the first twelve
-    keys are those ``rig run --json`` always printed)."""
+    keys are those ``rig run --json`` always printed; version 2 added the last three)."""
+    MAYBE_NAN: ClassVar[tuple[str, ...]] = ("min_lead_s", "send_lateness_p50_s", "send_lateness_p99_s",
+                                            "send_lateness_max_s")
+    """The times that are nan when the link does not measure them: null in the document."""
 
     def to_dict(self) -> dict[str, Any]:
-        """``{"kind": "run_summary", "version": 1, "log": ..., "samples": ..., ...}`` (:attr:`SAVED`), plain
-        JSON values: ``min_lead_s`` is null when the link is host-paced (NaN in the summary), ``warnings`` a
-        list. The per-sample ``send_lateness_s`` is not written (it grows with the run: 8 bytes a sample);
-        :meth:`from_dict` gives an empty array for it."""
+        """``{"kind": "run_summary", "version": 2, "log": ..., "samples": ..., ...}`` (:attr:`SAVED`), plain
+        JSON values: ``min_lead_s`` is null when the link is host-paced and the ``send_lateness_*`` when it is
+        device-clocked (nan in the summary), ``warnings`` a list. The per-sample ``send_lateness_s`` is not
+        written (it grows with the run: 8 bytes a sample); :meth:`from_dict` gives an empty array for it."""
         values: dict[str, Any] = {"log": self.log}
         for name in self.SAVED:
             value = getattr(self, name)
-            if name == "min_lead_s":
+            if name in self.MAYBE_NAN:
                 value = None if math.isnan(value) else float(value)
             elif name == "warnings":
                 value = list(value)
@@ -214,7 +229,7 @@ class RunSummary:
     def from_dict(cls, data: Mapping[str, Any]) -> RunSummary:
         """Inverse of :meth:`to_dict`; a document of another kind or version is a ResultFormatError naming
         both, a missing or malformed key is one naming the key."""
-        check_kind(data, cls.KIND, (cls.VERSION,))
+        check_kind(data, cls.KIND, cls.READS)
         with malformed(cls.KIND):
             counts = {}
             for name in ("samples", "lost", "late", "held", "not_followed", "duplicate", "frame_errors", "stale"):
@@ -223,9 +238,10 @@ class RunSummary:
                     raise ValueError(f"{name} is {value!r}, expected an integer >= 0")
                 counts[name] = value
             seconds = {}
-            for name in ("rate_hz", "cpu_s", "wall_s", "min_lead_s"):
+            lateness = ("send_lateness_p50_s", "send_lateness_p99_s", "send_lateness_max_s")
+            for name in ("rate_hz", "cpu_s", "wall_s", "min_lead_s", *(lateness if data["version"] >= 2 else ())):
                 value = data[name]
-                if value is None and name == "min_lead_s":
+                if value is None and name in cls.MAYBE_NAN:
                     value = math.nan
                 if isinstance(value, bool) or not isinstance(value, (int, float)):
                     raise ValueError(f"{name} is {value!r}, expected a number")
@@ -242,13 +258,29 @@ class RunSummary:
                        log=log)
 
 
-def _write_summary(sink: SampleSink, transport: Transport, failure: BaseException | None) -> None:
-    """Hand the sink what is known only at the end (``frame_errors``, ``stop``), if it takes it."""
+def send_lateness_quantiles(send_lateness_s: NDArray[np.float64]) -> dict[str, float]:
+    """The median, 99th percentile and largest send lateness (``send_lateness_p50_s``, ``_p99_s``, ``_max_s``
+    of :class:`RunSummary`; linear interpolation between samples, :func:`numpy.quantile`); nan for no
+    sample."""
+    if send_lateness_s.size == 0:
+        return {"send_lateness_p50_s": math.nan, "send_lateness_p99_s": math.nan, "send_lateness_max_s": math.nan}
+    p50, p99 = np.quantile(send_lateness_s, (0.5, 0.99))
+    return {"send_lateness_p50_s": float(p50), "send_lateness_p99_s": float(p99),
+            "send_lateness_max_s": float(np.max(send_lateness_s))}
+
+
+def _write_summary(sink: SampleSink, transport: Transport, failure: BaseException | None,
+                   timing: Mapping[str, Any] | None = None) -> None:
+    """Hand the sink what is known only at the end (``frame_errors``, ``stop`` and, once the run started, its
+    ``timing``: ``sample_clock`` ``"host"`` with the send lateness quantiles, or ``"device"`` with
+    ``min_lead_s``; nan as None), if it takes it."""
     write_summary = getattr(sink, "write_summary", None)
     if write_summary is None:
         return
+    known = {name: None if isinstance(value, float) and math.isnan(value) else value
+             for name, value in (timing or {}).items()}
     try:
-        write_summary({"frame_errors": transport.frame_errors, "stop": str(transport.stop_report or "")})
+        write_summary({"frame_errors": transport.frame_errors, "stop": str(transport.stop_report or ""), **known})
     except Exception:
         if failure is None:
             raise  # otherwise what ended the run is the error to report, not this one
@@ -422,7 +454,8 @@ def run_experiment(transport: Transport, command_rad: ArrayLike, sink: SampleSin
         finally:
             try:
                 ledger.write_final(sent_count - 1 + pending_cycles, sink)
-                _write_summary(sink, transport, failure)
+                quantiles = send_lateness_quantiles(lateness[:sent_count])
+                _write_summary(sink, transport, failure, {"sample_clock": "host", **quantiles})
             finally:
                 sink.close()
     counts = ledger.counts
@@ -434,7 +467,7 @@ def run_experiment(transport: Transport, command_rad: ArrayLike, sink: SampleSin
                       stale=counts["stale"], frame_errors=transport.frame_errors, rate_hz=rate,
                       send_lateness_s=lateness[:sent_count], cpu_s=time.process_time() - cpu_start, wall_s=wall,
                       not_followed=counts["not_followed"], stop=str(transport.stop_report or ""),
-                      warnings=tuple(transport.warnings))
+                      warnings=tuple(transport.warnings), **quantiles)
 
 
 def _run_device_clocked(transport: Transport, command: NDArray[np.float64], sink: SampleSink, *,
@@ -525,7 +558,8 @@ def _run_device_clocked(transport: Transport, command: NDArray[np.float64], sink
                     ledger.write_final(last + pending_cycles, sink)
                 else:
                     ledger.write_final(total + pending_cycles, sink)
-                _write_summary(sink, transport, failure)
+                timing = {"sample_clock": "device", "min_lead_s": transport.min_lead_s}
+                _write_summary(sink, transport, failure, timing)
             finally:
                 sink.close()
     answered = ledger.written - ledger.counts["lost"]

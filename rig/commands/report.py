@@ -37,13 +37,16 @@ __all__ = ["ResultFile", "read_result_file", "read_result_files", "readable_kind
 DESCRIPTION = """\
 Write a static HTML report (index.html and PNG figures) from result files:
 
-  experiment logs (rig-log v1) or CSV files with columns t,u,y     signals and sample-period jitter
+  experiment logs (rig-log v1) or CSV files with columns t,u,y     signals and timing (device-clocked:
+                                                                   HELD samples, smallest lead; else the
+                                                                   period jitter, send lateness)
   JSON of `rig identify output-backlash --json` or --save FILE    intervals side by side (one file per
     (kind output_backlash)                                         method), Bode of the box, polygons,
                                                                    backlash band, inner-signal bounds
   JSON of `rig identify hammerstein --json` (kind hammerstein_model)  poles, borders, singular values
   JSON of `rig diagnose --json` (kind model_discrepancy)           verdict, missing effects, gap closed
-  JSON of `rig run --json` (kind run_summary)                      samples, lost, late/held, stop
+  JSON of `rig run --json` (kind run_summary)                      samples, lost, late/held, smallest
+                                                                   lead or send lateness, stop
   JSON of any of these commands given several files (kind batch)  every result in it
 
 Result JSON is read by its "kind" and "version" keys; a kind or version this version cannot read is
@@ -98,14 +101,14 @@ def _short(value: Any, limit: int = 80) -> str:
 
 
 def _readers() -> dict[str, tuple[tuple[int, ...], Any]]:
-    """kind -> (the versions read: the type's ``READS`` if it reads older ones too, else its ``VERSION``; the
-    result type's from_dict)."""
+    """kind -> (the versions read, the result type's from_dict); a type that reads older versions lists them in
+    ``READS`` (the run summary, the model discrepancy), the others read their ``VERSION``."""
     from identify.hammerstein_subspace import HammersteinModel
     from identify.model_discrepancy import DiscrepancyReport
     from identify.output_backlash_identification import OutputBacklashIdentification
     from rig.runner import RunSummary
 
-    return {cls.KIND: (tuple(getattr(cls, "READS", (cls.VERSION,))), cls.from_dict)
+    return {cls.KIND: (getattr(cls, "READS", (cls.VERSION,)), cls.from_dict)
             for cls in (OutputBacklashIdentification, HammersteinModel, DiscrepancyReport, RunSummary)}
 
 
@@ -113,8 +116,7 @@ def readable_kinds() -> str:
     """The kinds and versions this command reads, for messages and the help."""
     from rig.batch import BATCH_KIND, BATCH_VERSION
 
-    kinds = [f"{kind} " + " or ".join(f"v{version}" for version in versions)
-             for kind, (versions, _) in _readers().items()]
+    kinds = [f"{kind} v{'/'.join(str(v) for v in versions)}" for kind, (versions, _) in _readers().items()]
     return ", ".join([*kinds, f"{BATCH_KIND} v{BATCH_VERSION}"])
 
 
@@ -228,19 +230,47 @@ def read_result_file(path: str | Path) -> ResultFile:
 
 
 def _experiment_section(result: ResultFile, used: set[str]):
-    import numpy as np
-
     from rig.plots.experiment import signal_figure, timing_figure
     from rig.report import ReportSection
 
     record = result.content
     slug = _unique(result.slug, used)
-    jitter = np.diff(record.time_s) - record.sample_period_s
     text = (f"{result.path.name}: {len(record)} samples at a nominal period of {record.sample_period_s * 1e3:g} ms "
-            f"({record.metadata.transport or 'unknown transport'}); {record.lost_count} lost samples; largest period "
-            f"deviation {float(np.max(np.abs(jitter))) * 1e6 if jitter.size else 0.0:.0f} us.")
+            f"({record.metadata.transport or 'unknown transport'}); {record.lost_count} lost samples; "
+            f"{_timing_text(record)}.")
     return ReportSection(f"Experiment: {result.path.name}", text=text,
                          figures=(signal_figure(record, f"signals_{slug}"), timing_figure(record, f"timing_{slug}")))
+
+
+def _timing_text(record) -> str:
+    """What the log says of its timing. Device-clocked (the run's summary line says ``sample_clock``
+    ``"device"``, or, in a log without it, the time column is the nominal grid k·T): the HELD count and the
+    smallest lead the run measured, since the time column carries no jitter. Otherwise (host-paced, or data
+    of another tool): the largest deviation of a period from T in the measured time column, and the send
+    lateness quantiles when the run recorded them."""
+    import math
+
+    import numpy as np
+
+    from identify.experiment_record import SampleFlag
+    from rig.plots.experiment import time_column_is_nominal
+
+    summary = record.metadata.extra.get("summary", {})
+    clock = summary.get("sample_clock")
+    if clock == "device" or (clock is None and time_column_is_nominal(record)):
+        lead = summary.get("min_lead_s")
+        lead_text = (f"smallest lead of a setpoint over its instant {lead * 1e3:.3g} ms" if lead is not None
+                     else "the smallest lead is not in this log")
+        return (f"device-clocked (the time column is the device's sample instants k·T, no jitter to measure): "
+                f"{record.count_flag(SampleFlag.HELD)} HELD samples (setpoints that missed their instant), "
+                f"{lead_text}")
+    jitter_s = np.diff(record.time_s) - record.sample_period_s
+    largest_us = float(np.max(np.abs(jitter_s))) * 1e6 if jitter_s.size else 0.0
+    text = f"{'host-paced: ' if clock == 'host' else ''}largest period deviation {largest_us:.0f} us in the time column"
+    quantiles = [(name, summary.get(f"send_lateness_{name}_s")) for name in ("p50", "p99", "max")]
+    if all(value is not None and math.isfinite(value) for _, value in quantiles):
+        text += ", send lateness " + ", ".join(f"{name} {value * 1e6:.0f} us" for name, value in quantiles)
+    return text
 
 
 def _set_membership_section(results: list[ResultFile], sample_period_s: float | None, used: set[str]):
@@ -379,6 +409,10 @@ def _run_summary_section(result: ResultFile):
             ("late", str(summary.late)), ("duplicate", str(summary.duplicate))]
     if not math.isnan(summary.min_lead_s):  # device-clocked: a late setpoint is a HELD sample
         rows += [("held", str(summary.held)), ("smallest lead [ms]", f"{1e3 * summary.min_lead_s:.3g}")]
+    if not math.isnan(summary.send_lateness_max_s):  # host-paced: the loop's own timing
+        rows += [(f"send lateness {name} [us]", f"{1e6 * value:.0f}") for name, value in
+                 (("p50", summary.send_lateness_p50_s), ("p99", summary.send_lateness_p99_s),
+                  ("max", summary.send_lateness_max_s))]
     rows += [("not followed", str(summary.not_followed)), ("frame errors", str(summary.frame_errors)),
              ("achieved rate [Hz]", f"{summary.rate_hz:.6g}"), ("stop", summary.stop or "-")]
     rows += [("warning", warning) for warning in summary.warnings]

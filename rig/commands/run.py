@@ -57,9 +57,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                              "matplotlib window when there is a display, else a text plot on stderr; the view "
                              "drops frames when it falls behind, never samples")
     parser.add_argument("--json", action="store_true",
-                        help='print the run summary as JSON: {"kind": "run_summary", "version": 1, "log", "samples", '
+                        help='print the run summary as JSON: {"kind": "run_summary", "version": 2, "log", "samples", '
                              '"lost", "late", "rate_hz", "held", "min_lead_s", "not_followed", "duplicate", '
-                             '"frame_errors", "warnings", "stop", "stale", "cpu_s", "wall_s"} (rig report reads it)')
+                             '"frame_errors", "warnings", "stop", "stale", "cpu_s", "wall_s", "send_lateness_p50_s", '
+                             '"send_lateness_p99_s", "send_lateness_max_s"} (rig report reads it)')
     parser.set_defaults(handler=run)
 
 
@@ -206,6 +207,9 @@ def run(args: argparse.Namespace) -> int:
         print(f"lost        {summary.lost}")
         if math.isnan(summary.min_lead_s):
             print(f"late        {summary.late}")
+            print(f"send lateness p50 {1e6 * summary.send_lateness_p50_s:.0f} us, p99 "
+                  f"{1e6 * summary.send_lateness_p99_s:.0f} us, max {1e6 * summary.send_lateness_max_s:.0f} us "
+                  "(each setpoint's send after its deadline)")
         else:  # the device owns the clock: a late setpoint is a HELD sample, logged with the command applied
             print(f"held        {summary.held} (setpoints that missed their instant; smallest lead "
                   f"{1e3 * summary.min_lead_s:.3g} ms)")

@@ -51,30 +51,32 @@ ANY_UNIT = {
 }
 
 
-def _public_callables():
+def _public_objects():
+    """(module name, name, object) of every name in an identify module's ``__all__`` defined there."""
     for info in pkgutil.iter_modules(identify.__path__):
         module = importlib.import_module(f"identify.{info.name}")
         for name in getattr(module, "__all__", ()):
             obj = getattr(module, name)
-            if getattr(obj, "__module__", None) != module.__name__:
-                continue
-            if inspect.isfunction(obj):
-                yield f"{info.name}.{name}", name, obj
-            elif inspect.isclass(obj):
-                for attribute, value in vars(obj).items():
-                    function = getattr(value, "__func__", value)
-                    if inspect.isfunction(function) and not attribute.startswith("_"):
-                        yield f"{info.name}.{name}.{attribute}", attribute, function
+            if getattr(obj, "__module__", None) == module.__name__:
+                yield info.name, name, obj
+
+
+def _public_callables():
+    for module_name, name, obj in _public_objects():
+        if inspect.isfunction(obj):
+            yield f"{module_name}.{name}", name, obj
+        elif inspect.isclass(obj):
+            for attribute, value in vars(obj).items():
+                function = getattr(value, "__func__", value)
+                if inspect.isfunction(function) and not attribute.startswith("_"):
+                    yield f"{module_name}.{name}.{attribute}", attribute, function
 
 
 def _constructors():
     """The public result and block types built from fields: their constructor's parameters are public names."""
-    for info in pkgutil.iter_modules(identify.__path__):
-        module = importlib.import_module(f"identify.{info.name}")
-        for name in getattr(module, "__all__", ()):
-            obj = getattr(module, name)
-            if inspect.isclass(obj) and dataclasses.is_dataclass(obj) and obj.__module__ == module.__name__:
-                yield f"{info.name}.{name}", obj
+    for module_name, name, obj in _public_objects():
+        if inspect.isclass(obj) and dataclasses.is_dataclass(obj):
+            yield f"{module_name}.{name}", obj
 
 
 def _number_parameters():

@@ -148,6 +148,11 @@ def test_the_driver_runs_a_v2_device_written_from_the_spec(tmp_path, capsys, no_
     assert np.all(np.abs(log.angle_rad - log.command_rad) <= count_rad) and -0.002 < log.angle_rad[0] < 0
     assert "ends SWITCH ON DISABLED" in log.metadata.extra["summary"]["stop"]
     assert device.controlwords == [0x0006, 0x0007, 0x000F, 0x0002, 0x0000] and device.state == SWITCH_ON_DISABLED
+    # device-clocked: judged by held and the smallest lead, which the log's summary line keeps too; the host's
+    # send lateness is not measured
+    assert result["version"] == 2 and result["send_lateness_max_s"] is None
+    assert log.metadata.extra["summary"]["sample_clock"] == "device"
+    assert log.metadata.extra["summary"]["min_lead_s"] == result["min_lead_s"]
 
 
 def test_setpoints_lost_on_the_line_are_held_ticks_logging_the_command_applied(tmp_path, capsys, no_leaks):
@@ -214,6 +219,11 @@ def test_a_v1_device_is_driven_the_v1_way_and_the_summary_says_so(tmp_path, caps
     log = read_log(tmp_path / "run.csv")
     assert log.metadata.extra["summary"]["frame_errors"] == 0
     assert "ends SWITCH ON DISABLED" in log.metadata.extra["summary"]["stop"]
+    # host-paced: judged by the send lateness after each deadline, in the summary and the log's summary line
+    lateness = [result[f"send_lateness_{name}_s"] for name in ("p50", "p99", "max")]
+    assert 0.0 <= lateness[0] <= lateness[1] <= lateness[2]
+    assert log.metadata.extra["summary"]["sample_clock"] == "host"
+    assert [log.metadata.extra["summary"][f"send_lateness_{name}_s"] for name in ("p50", "p99", "max")] == lateness
     _assert_v1_rows_are_the_devices_feedback(log, device, result)  # every sample under its own seq
     # the encoder reads the drive through a fixed gain: within one count of the command; the first
     # reading (65525 counts, a load just below zero) is -0.001 rad, not near 2 pi
