@@ -332,7 +332,7 @@ def test_an_effect_whose_gap_reduction_straddles_the_acceptance_is_undecided_not
 
 def test_a_version_1_document_is_still_read():
     record = hidden_effect_record(("backlash",), 11)
-    document = json.loads(json.dumps(run(record).to_dict()))
+    document = json.loads(json.dumps(run(record, candidates=("backlash",)).to_dict()))
     document["version"] = 1
     del document["undecided"]
     for candidate in document["candidates"]:
