@@ -1216,7 +1216,8 @@ def diagnose_model(command_rad: ArrayLike, angle_rad: ArrayLike, noise_bound_rad
     verdict, reason = _final_verdict(u, y, initial, current, found, consistent, delta, options)
     return DiscrepancyResult(
         steps=tuple(steps), start_model=start_model, final_model=chain.model() if steps else start_model,
-        initial=initial, final=current, consistent=consistent, unexplained=_left_unexplained(current, consistent, delta),
+        initial=initial, final=current, consistent=consistent,
+        unexplained=_left_unexplained(current, consistent, delta),
         estimation_samples=n_est, noise_bound_rad=delta, linear_fit=linear_fit, verdict=verdict,
         verdict_reason=reason, candidates=tuple(found.tried), ambiguous_between=found.ambiguous_between,
         parameter_intervals=intervals, gap_reduction=reduction, excitation=excitation, undecided=found.undecided,

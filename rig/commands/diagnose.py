@@ -251,7 +251,8 @@ def _acceptance_note(candidate) -> str:
         return " (vanished)"
     if candidate.acceptance in ("clear", "undecided"):
         low, high = candidate.reduction_interval
-        return f" (reduction {100 * candidate.reduction:.0f} %, {100 * low:.0f} .. {100 * high:.0f} %: {candidate.acceptance})"
+        return (f" (reduction {100 * candidate.reduction:.0f} %, {100 * low:.0f} .. {100 * high:.0f} %: "
+                f"{candidate.acceptance})")
     return ""
 
 
