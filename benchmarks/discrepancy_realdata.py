@@ -48,7 +48,7 @@ def diagnose_one(path: str, noise_bound_rad: float) -> dict:
 
     options = ImportOptions(columns={"t": "timestamp", "u": "goal_position", "y": "position"}, valid="torque_enable")
     record, imported = read_measurement(path, options)
-    started = time.perf_counter()
+    started = time.process_time()
     result = diagnose_model(record.command_rad, record.angle_rad, noise_bound_rad, record.metadata.sample_period_s)
     document = result.to_dict()
     return {"file": Path(path).name, "verdict": result.verdict, "reason": result.verdict_reason,
@@ -56,25 +56,40 @@ def diagnose_one(path: str, noise_bound_rad: float) -> dict:
             "intervals": {effect: dict(values) for effect, values in result.parameter_intervals.items()},
             "gap_initial": document["gap_initial"], "gap_final": document["gap_final"],
             "falsified_final": document["falsified_fraction_final"], "spikes": imported.spikes,
-            "samples": int(record.command_rad.size), "seconds": time.perf_counter() - started}
+            "undecided": tuple((c.effect, c.reduction, *c.reduction_interval) for c in result.undecided),
+            "samples": int(record.command_rad.size), "cpu_s": time.process_time() - started}
 
 
 def _overlap(intervals: list[tuple[float, float]]) -> bool:
     return max(low for low, _ in intervals) <= min(high for _, high in intervals)
 
 
+def answer(run: dict) -> str:
+    """The named effects, then the ambiguous ones (``a|b``) if the verdict is ambiguous: ``rate_limit; ? gravity``."""
+    named = "+".join(run["effects"])
+    ambiguous = "|".join(run["ambiguous"])
+    return (named + (f"; ? {ambiguous}" if ambiguous else "")).strip("; ") or "-"
+
+
 def agree(runs: list[dict]) -> tuple[bool, str]:
-    """Same verdict, same named effects (or the same ambiguous set), overlapping intervals."""
+    """Issue 15's agreement: same verdict, same named effects, overlapping intervals of every named parameter.
+    (Which candidates an ambiguous verdict lists is not a named effect: :func:`same_contenders` says whether
+    those agree too.)"""
     verdicts = {run["verdict"] for run in runs}
     if len(verdicts) > 1:
         return False, "verdicts differ"
-    if len({run["effects"] for run in runs}) > 1 or len({frozenset(run["ambiguous"]) for run in runs}) > 1:
+    if len({run["effects"] for run in runs}) > 1:
         return False, "named effects differ"
     for effect in runs[0]["effects"]:
         for key in runs[0]["intervals"].get(effect, {}):
             if not _overlap([tuple(run["intervals"][effect][key]) for run in runs]):
                 return False, f"{effect} {key} intervals do not overlap"
     return True, ""
+
+
+def same_contenders(runs: list[dict]) -> bool:
+    """The stricter reading: the ambiguous candidates listed are the same set in every repetition too."""
+    return len({frozenset(run["ambiguous"]) for run in runs}) == 1
 
 
 def kscale(noise_bound_rad: float, jobs: int, trajectories: set[str] | None = None) -> None:
@@ -87,7 +102,9 @@ def kscale(noise_bound_rad: float, jobs: int, trajectories: set[str] | None = No
                                            [noise_bound_rad] * len(rows))):
             runs.append(run)  # one line per record as it is done (a long run can be read while it goes on)
             print(f"  {row['trajectory']} kp {row['kp']} {run['file']}: {run['verdict']} "
-                  f"{'+'.join(run['effects'] or run['ambiguous']) or '-'} ({run['seconds']:.0f} s)", flush=True)
+                  f"{answer(run)} ({run['cpu_s']:.0f} s CPU)"
+                  + "".join(f"; {name} {100 * r:.0f} % [{100 * low:.0f}, {100 * high:.0f}]"
+                            for name, r, low, high in run["undecided"]), flush=True)
     elapsed = time.perf_counter() - started
     groups: dict[tuple[str, str], list[dict]] = defaultdict(list)
     for row, run in zip(rows, runs):
@@ -95,15 +112,17 @@ def kscale(noise_bound_rad: float, jobs: int, trajectories: set[str] | None = No
     print(f"\nK-Scale STS3215: {len(runs)} records, noise bound {noise_bound_rad:.4g} rad "
           f"({noise_bound_rad / COUNT_RAD:.2g} counts), fitted linear start model; {elapsed:.0f} s with {jobs} "
           "process(es)")
-    print("| trajectory | kp | verdicts (4 repetitions) | named | parameter intervals | gap initial -> final [mrad] | spikes | agree |")
-    print("|---|---|---|---|---|---|---|---|")
-    agreed = 0
+    print("| trajectory | kp | verdicts (4 repetitions) | named; ? ambiguous | parameter intervals | "
+          "gap initial -> final [mrad] | spikes | agree | same ambiguous set |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    agreed = strict = 0
     reasons: dict[str, str] = {}
     for (trajectory, kp), group in groups.items():
         ok, why = agree(group)
         agreed += ok
+        strict += ok and same_contenders(group)
         verdicts = " / ".join(run["verdict"] for run in group)
-        named = " / ".join("+".join(run["effects"] or run["ambiguous"]) or "-" for run in group)
+        named = " / ".join(answer(run) for run in group)
         intervals = "; ".join(
             f"{effect} {key} " + " ".join(f"[{low:.3g}, {high:.3g}]" for low, high in
                                           (run["intervals"][effect][key] for run in group))
@@ -112,9 +131,10 @@ def kscale(noise_bound_rad: float, jobs: int, trajectories: set[str] | None = No
         gaps = " / ".join(f"{1e3 * run['gap_initial']:.3g}->{1e3 * run['gap_final']:.3g}" for run in group)
         spikes = sum(run["spikes"] for run in group)
         print(f"| {trajectory} | {kp} | {verdicts} | {named} | {intervals} | {gaps} | {spikes} | "
-              f"{'yes' if ok else 'no: ' + why} |")
+              f"{'yes' if ok else 'no: ' + why} | {'yes' if same_contenders(group) else 'no'} |")
         reasons.setdefault(group[0]["verdict"], f"{trajectory} kp {kp}: {group[0]['reason']}")
-    print(f"\nagreement: {agreed} of {len(groups)} configurations ({100 * agreed / len(groups):.0f} %)")
+    print(f"\nagreement: {agreed} of {len(groups)} configurations ({100 * agreed / len(groups):.0f} %); with the same "
+          f"ambiguous candidates too: {strict} of {len(groups)}")
     print("one reason per verdict, in the workflow's words:")
     for verdict, reason in reasons.items():
         print(f"- {verdict}: {reason}")

@@ -31,9 +31,11 @@ from identify.effect_catalogue import EFFECT_NAMES, effect
 from identify.model_discrepancy import diagnose_model
 
 TRUE_EFFECTS = ("none", *EFFECT_NAMES)  # every effect of the catalogue
-PAIRS = ("gravity+rate_limit", "load_friction+gravity", "backlash+gravity", "delay+torque_limit")
+PAIRS = ("gravity+rate_limit", "load_friction+gravity", "backlash+gravity", "delay+torque_limit",
+         "shaft_play+load_friction")
 """Default rows of two effects at once: the servo with an arm (weight and speed limit, friction and weight),
-an output play behind a drive with an arm, a lag before a torque-limited drive."""
+an output play behind a drive with an arm, a lag before a torque-limited drive, a gear's play with friction
+on the load it drives."""
 EMPS = next((parent / "shared" / "realdata" for parent in Path(__file__).resolve().parents
              if (parent / "shared" / "realdata").is_dir()),
             Path(__file__).resolve().parents[2] / "shared" / "realdata") / "emps" / "DATA_EMPS.mat"
@@ -77,7 +79,8 @@ def confusion(cases: int, start: str, effects: tuple[str, ...], first_seed: int,
     elapsed = time.perf_counter() - started
     short = {name: name[:5] for name in columns} | {"dead_zone": "deadz", "coulomb_friction": "fric", "offset": "offs",
                                                     "gain_error": "gain", "load_friction": "lfric", "gravity": "grav",
-                                                    "rate_limit": "rate", "torque_limit": "torq"}
+                                                    "rate_limit": "rate", "torque_limit": "torq",
+                                                    "shaft_play": "play"}
     print(f"\nstart model: {start}; {cases} cases per row (seeds {first_seed}..{first_seed + cases - 1}); "
           f"{elapsed:.0f} s in all with {jobs} process(es)")
     print("| true \\ named | " + " | ".join(short[c] for c in columns)

@@ -13,7 +13,9 @@ train of the same response (:func:`identify.model_discrepancy.rigid_train_like`)
 the load whose Coulomb part holds the loop within 8-25 mrad (breakaway 1-1.5 times it, viscous up to a
 fifth of the loop's damping); an arm whose weight sags the loop by 10-40 mrad when horizontal, hanging
 within +-0.5 rad of zero; a speed limit at 40-70 % and a torque limit at 30-60 % of the peak speed or
-acceleration that both segments reach. Several dynamics effects go into the one train.
+acceleration that both segments reach; a play of 20-60 mrad (total width) between the motor and the load
+inertia, closed by the catalogue's contact shaft (``PLAY_CONTACT_FREQUENCY_RATIO``). Several dynamics
+effects go into the one train.
 """
 
 from __future__ import annotations

@@ -63,7 +63,10 @@ of each half kick, the load friction implicitly inside each half kick. The sub-s
 :data:`SUBSTEP_PHASE_RAD` where omega_max is the fastest rate of the linearised train (the shaft's
 two-mass mode, the velocity loop acting on the motor alone while the play is open, the position loop, the
 pendulum, and the damping rates), i.e. ``ceil(T omega_max / SUBSTEP_PHASE_RAD)`` sub-steps per sample, with
-SUBSTEP_PHASE_RAD = 0.04 (its docstring says why).
+SUBSTEP_PHASE_RAD = 0.04 (its docstring says why). The per-sample recurrence is one function compiled with
+numba (``_run_kernel``, cached on disk): ``apply``, ``simulate`` and ``step`` all run it, so stepping gives
+``apply`` bit for bit; IEEE arithmetic without fast-math, so a run is deterministic and equal to the pure
+Python recurrence it replaced (``tests/identify/drive_train_reference.py``).
 """
 
 from __future__ import annotations
@@ -71,6 +74,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
@@ -368,9 +372,7 @@ class DriveTrain:
 
     def apply(self, signal: ArrayLike) -> NDArray[np.float64]:
         """Run a whole command (load rad) from rest; the same numbers as stepping :meth:`stepper`."""
-        command = as_signal("signal", signal)
-        step = self.stepper().step
-        return np.array([step(r) for r in command.tolist()], dtype=float)
+        return self.stepper().run(as_signal("signal", signal))[:, 0].copy()
 
     def stepper(self) -> DriveTrainStepper:
         """A fresh stepper at rest at ``initial_angle_rad``."""
@@ -379,21 +381,18 @@ class DriveTrain:
     def simulate(self, command_rad: ArrayLike) -> DriveTrainTrajectory:
         """Run a whole command from rest and return every state and torque at the sample instants."""
         command = as_signal("command_rad", command_rad)
-        stepper = self.stepper()
-        count = command.size
-        columns = {name: np.empty(count) for name in DriveTrainTrajectory.COLUMNS}
-        stuck = np.empty(count, dtype=bool)
-        for index, r in enumerate(command.tolist()):
-            columns["load_velocity_rad_per_s"][index] = stepper.load_velocity_rad_per_s
-            columns["motor_angle_rad"][index] = stepper.motor_angle_rad
-            columns["motor_velocity_rad_per_s"][index] = stepper.motor_velocity_rad_per_s
-            stuck[index] = stepper.stuck
-            columns["load_angle_rad"][index] = stepper.step(r)
-            columns["motor_torque_nm"][index] = stepper.motor_torque_nm
-            columns["shaft_torque_nm"][index] = stepper.shaft_torque_nm
-            columns["friction_torque_nm"][index] = stepper.friction_torque_nm
-        return DriveTrainTrajectory(time_s=np.arange(count) * self.sample_period_s, command_rad=command,
-                                    stuck=stuck, **columns)
+        record = self.stepper().run(command)
+        column = {name: record[:, index] for index, name in enumerate(RECORD_COLUMNS)}
+        ratio = self.gear_ratio
+        return DriveTrainTrajectory(
+            time_s=np.arange(command.size) * self.sample_period_s, command_rad=command,
+            load_angle_rad=column["load_angle_rad"].copy(),
+            load_velocity_rad_per_s=column["load_velocity_rad_per_s"].copy(),
+            motor_angle_rad=column["motor_angle_referred_rad"] * ratio,
+            motor_velocity_rad_per_s=column["motor_velocity_referred_rad_per_s"] * ratio,
+            motor_torque_nm=column["drive_torque_nm"] / ratio, shaft_torque_nm=column["shaft_torque_nm"].copy(),
+            friction_torque_nm=column["friction_torque_nm"].copy(), stuck=column["stuck"] != 0.0,
+        )
 
     def energy_j(self, trajectory: DriveTrainTrajectory) -> NDArray[np.float64]:
         """Kinetic + shaft + gravity energy at each sample: 1/2 J_m w_m^2 + 1/2 J_l w^2 + 1/2 k dz(Delta)^2
@@ -453,56 +452,72 @@ class DriveTrainTrajectory:
 
 
 class DriveTrainStepper:
-    """Advances a :class:`DriveTrain` one sample per :meth:`step` (Störmer-Verlet sub-steps)."""
+    """Advances a :class:`DriveTrain` one sample per :meth:`step` (Störmer-Verlet sub-steps, compiled)."""
 
-    __slots__ = ("_constants", "_substeps", "_h", "phi", "omega_phi", "theta", "omega", "integral",
-                 "previous_command", "stuck", "_drive_torque", "_shaft_torque", "_friction_torque", "_ratio",
-                 "samples", "_rigid")
+    __slots__ = ("_constants", "_substeps", "_ratio", "_state", "_command", "_record", "samples")
 
     def __init__(self, train: DriveTrain) -> None:
         self._ratio = train.gear_ratio
-        self._rigid = (train.rigid, train.total_inertia_kg_m2, train.load_inertia_kg_m2 / train.total_inertia_kg_m2)
         self._substeps = train.substeps_per_sample
-        self._h = train.sample_period_s / self._substeps
-        ratio = train.gear_ratio
-        self._constants = (
-            train.reflected_motor_inertia_kg_m2,
-            train.load_inertia_kg_m2,
-            train.shaft_stiffness_nm_per_rad,
-            train.shaft_damping_nm_s_per_rad,
-            0.5 * train.play_rad,
-            train.motor_viscous_damping_nm_s_per_rad * ratio * ratio,
-            train.coulomb_friction_nm,
-            train.static_friction_nm,
-            train.viscous_friction_nm_s_per_rad,
-            train.gravity_torque_nm,
-            train.hanging_angle_rad,
-            train.drive_enabled,
-            train.position_feedback == "load",
-            train.position_gain_per_s,
-            train.position_integral_gain_per_s,
-            train.velocity_feedforward,
-            train.velocity_gain_nm_s_per_rad,
-            train.motor_speed_limit_rad_per_s / ratio,
-            train.motor_torque_limit_nm * ratio,
-            train.sample_period_s,
-        )
+        self._constants = _kernel_constants(train)
+        self._state = np.empty(_STATE_SIZE)
+        self._command = np.empty(1)
+        self._record = np.zeros((1, _RECORD_SIZE))
         self.reset(train.initial_angle_rad)
 
     def reset(self, angle_rad: float) -> None:
         """Back to rest at ``angle_rad`` (load and referred motor angle), play centred, integrator empty."""
-        angle = _finite("angle_rad", angle_rad)
-        self.phi = angle
-        self.omega_phi = 0.0
-        self.theta = angle
-        self.omega = 0.0
-        self.integral = 0.0
-        self.previous_command = angle
-        self.stuck = True
-        self._drive_torque = 0.0
-        self._shaft_torque = 0.0
-        self._friction_torque = 0.0
+        self._state[:] = _rest_state(_finite("angle_rad", angle_rad))
+        self._record[:] = 0.0
         self.samples = 0
+
+    def run(self, command_rad: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Advance over a whole (finite) command; one row of :data:`RECORD_COLUMNS` per sample."""
+        record = np.empty((command_rad.size, _RECORD_SIZE))
+        # a fresh writable copy: one compiled signature (a read-only input would compile a second one)
+        _run_kernel(self._state, self._constants, self._substeps, np.array(command_rad, dtype=np.float64), record)
+        if command_rad.size:
+            self._record[0] = record[-1]
+        self.samples += command_rad.size
+        return record
+
+    # the states (phi, omega_phi: the motor angle and rate referred to the load side, / N)
+    @property
+    def phi(self) -> float:
+        return float(self._state[_PHI])
+
+    @phi.setter
+    def phi(self, value: float) -> None:
+        self._state[_PHI] = value
+
+    @property
+    def omega_phi(self) -> float:
+        return float(self._state[_OMEGA_PHI])
+
+    @omega_phi.setter
+    def omega_phi(self, value: float) -> None:
+        self._state[_OMEGA_PHI] = value
+
+    @property
+    def theta(self) -> float:
+        return float(self._state[_THETA])
+
+    @theta.setter
+    def theta(self, value: float) -> None:
+        self._state[_THETA] = value
+
+    @property
+    def omega(self) -> float:
+        return float(self._state[_OMEGA])
+
+    @omega.setter
+    def omega(self, value: float) -> None:
+        self._state[_OMEGA] = value
+
+    @property
+    def stuck(self) -> bool:
+        """True while the load sticks (Karnopp)."""
+        return bool(self._state[_STUCK])
 
     # states and torques in the units of the motor shaft / load
     @property
@@ -524,150 +539,183 @@ class DriveTrainStepper:
     @property
     def motor_torque_nm(self) -> float:
         """The drive's torque at the motor shaft at the start of the last sample."""
-        return self._drive_torque / self._ratio
+        return float(self._record[0, RECORD_COLUMNS.index("drive_torque_nm")]) / self._ratio
 
     @property
     def shaft_torque_nm(self) -> float:
         """The shaft's torque on the load at the start of the last sample."""
-        return self._shaft_torque
+        return float(self._record[0, RECORD_COLUMNS.index("shaft_torque_nm")])
 
     @property
     def friction_torque_nm(self) -> float:
         """The load's friction torque over the first half sub-step of the last sample."""
-        return self._friction_torque
+        return float(self._record[0, RECORD_COLUMNS.index("friction_torque_nm")])
 
     def step(self, x: float) -> float:
         """Hold command ``x`` (load rad) over one sample; return the load angle at the sample's start."""
         r = float(x)
         if not math.isfinite(r):
             raise InvalidInputError(f"x: sample {self.samples} is {x!r}; expected a finite angle in rad")
-        if self._rigid[0]:
-            return self._step_rigid(r)
-        (motor_inertia, load_inertia, stiffness, damping, half_play, motor_damping, coulomb, static, viscous,
-         gravity, hanging, drive_on, load_feedback, kp, ki, feedforward, kv, speed_limit, torque_limit,
-         period) = self._constants
-        h = self._h
-        kick = 0.5 * h
-        phi, omega_phi, theta, omega = self.phi, self.omega_phi, self.theta, self.omega
-        integral, stuck = self.integral, self.stuck
-        start = theta
-        rate = feedforward * (r - self.previous_command) / period
-        self.previous_command = r
-        sin = math.sin
+        self._command[0] = r
+        _run_kernel(self._state, self._constants, self._substeps, self._command, self._record)
+        self.samples += 1
+        return float(self._record[0, 0])
 
-        for substep in range(self._substeps):
+
+# -- the compiled recurrence ----------------------------------------------------------------------------------
+
+RECORD_COLUMNS = ("load_angle_rad", "load_velocity_rad_per_s", "motor_angle_referred_rad",
+                  "motor_velocity_referred_rad_per_s", "stuck", "drive_torque_nm", "shaft_torque_nm",
+                  "friction_torque_nm")
+"""One row per sample of :func:`_run_kernel`: the states at the sample's start (the motor's referred to the
+load side, angle / N), then the torques of its first half sub-step at the load side."""
+
+_RECORD_SIZE = len(RECORD_COLUMNS)
+_PHI, _OMEGA_PHI, _THETA, _OMEGA, _INTEGRAL, _PREVIOUS_COMMAND, _STUCK = range(7)
+_STATE_SIZE = 7
+
+
+def _rest_state(angle_rad: float) -> NDArray[np.float64]:
+    """At rest at ``angle_rad``, play centred, integrator empty, load stuck (the kernel's state layout)."""
+    state = np.zeros(_STATE_SIZE)
+    state[[_PHI, _THETA, _PREVIOUS_COMMAND]] = angle_rad
+    state[_STUCK] = 1.0
+    return state
+
+
+def _kernel_constants(train: DriveTrain) -> NDArray[np.float64]:
+    """The train's constants at the load side, in the order :func:`_run_kernel` unpacks them."""
+    ratio = train.gear_ratio
+    return np.array([
+        train.reflected_motor_inertia_kg_m2,
+        train.load_inertia_kg_m2,
+        train.total_inertia_kg_m2,
+        train.shaft_stiffness_nm_per_rad,
+        train.shaft_damping_nm_s_per_rad,
+        0.5 * train.play_rad,
+        train.motor_viscous_damping_nm_s_per_rad * ratio * ratio,
+        train.coulomb_friction_nm,
+        train.static_friction_nm,
+        train.viscous_friction_nm_s_per_rad,
+        train.gravity_torque_nm,
+        train.hanging_angle_rad,
+        float(train.drive_enabled),
+        float(train.position_feedback == "load"),
+        float(train.rigid),
+        train.position_gain_per_s,
+        train.position_integral_gain_per_s,
+        train.velocity_feedforward,
+        train.velocity_gain_nm_s_per_rad,
+        train.motor_speed_limit_rad_per_s / ratio,
+        train.motor_torque_limit_nm * ratio,
+        train.sample_period_s,
+    ])
+
+
+@numba.njit(cache=True)
+def _drive_torque(error, velocity, rate, integral, kp, ki, kv, speed_limit, torque_limit):
+    """The drive's cascade (module docstring): v_ref = clip(K_p (e + K_i int e) + f dr/dt, +-Omega/N),
+    tau = clip(K_v (v_ref - velocity), +-N tau_max). Returns tau and whether either limit clipped."""
+    reference = kp * (error + ki * integral) + rate
+    clipped = False
+    if reference > speed_limit:
+        reference, clipped = speed_limit, True
+    elif reference < -speed_limit:
+        reference, clipped = -speed_limit, True
+    drive = kv * (reference - velocity)
+    if drive > torque_limit:
+        drive, clipped = torque_limit, True
+    elif drive < -torque_limit:
+        drive, clipped = -torque_limit, True
+    return drive, clipped
+
+
+@numba.njit(cache=True)
+def _shaft_torque(twist, twist_rate, stiffness, damping, half_play):
+    """Dead-zone shaft (Nordin and Gutman 2002) with ElastoBacklash's damping rule (module docstring)."""
+    if half_play == 0.0:
+        return stiffness * twist + damping * twist_rate
+    if twist > half_play:
+        spring = stiffness * (twist - half_play)
+        damper = damping * twist_rate
+        return 0.0 if spring + damper <= 0.0 else spring + (spring if spring < damper else damper)
+    if twist < -half_play:
+        spring = stiffness * (twist + half_play)
+        damper = damping * twist_rate
+        return 0.0 if spring + damper >= 0.0 else spring + (spring if spring > damper else damper)
+    return 0.0
+
+
+@numba.njit(cache=True)
+def _load_half_kick(omega, external, stuck, inertia, kick, coulomb, static, viscous):
+    """One half kick of the load's velocity under the external torque with Karnopp's stick test and an
+    implicit Coulomb/viscous step (module docstring). Returns omega, the friction torque and stuck."""
+    momentum = inertia * omega + kick * external
+    if stuck and -static <= external <= static:
+        return omega, external, True  # sticks: friction balances the load (omega is 0)
+    if -kick * coulomb <= momentum <= kick * coulomb:
+        return 0.0, momentum / kick, True  # sliding friction stops the load within this half kick
+    sliding = coulomb if momentum > 0.0 else -coulomb
+    omega = (momentum - kick * sliding) / (inertia + kick * viscous)
+    return omega, sliding + viscous * omega, False
+
+
+@numba.njit(cache=True)
+def _run_kernel(state, constants, substeps, commands, record):
+    """Advance ``state`` (layout of :func:`_rest_state`) over ``commands`` (load rad, held per sample) by
+    ``substeps`` Störmer-Verlet sub-steps per sample, writing one row of :data:`RECORD_COLUMNS` per sample.
+    A rigid train (:attr:`DriveTrain.rigid`) is the one inertia J = N^2 J_m + J_l with the same drive,
+    friction and gravity; the motor follows the load and the shaft torque is the share of the net torques
+    that passes the gear (J_l / J of the drive's, J_m' / J of the load's)."""
+    (motor_inertia, load_inertia, rigid_inertia, stiffness, damping, half_play, motor_damping, coulomb, static,
+     viscous, gravity, hanging, drive_on, load_feedback, rigid, kp, ki, feedforward, kv, speed_limit,
+     torque_limit, period) = (constants[0], constants[1], constants[2], constants[3], constants[4], constants[5],
+                              constants[6], constants[7], constants[8], constants[9], constants[10], constants[11],
+                              constants[12] != 0.0, constants[13] != 0.0, constants[14] != 0.0, constants[15],
+                              constants[16], constants[17], constants[18], constants[19], constants[20],
+                              constants[21])
+    load_share = load_inertia / rigid_inertia
+    h = period / substeps
+    kick = 0.5 * h
+    phi, omega_phi, theta, omega = state[0], state[1], state[2], state[3]
+    integral, previous, stuck = state[4], state[5], state[6] != 0.0
+    for sample in range(commands.size):
+        r = commands[sample]
+        record[sample, 0], record[sample, 1], record[sample, 2], record[sample, 3] = theta, omega, phi, omega_phi
+        record[sample, 4] = 1.0 if stuck else 0.0
+        rate = feedforward * (r - previous) / period
+        previous = r
+        for substep in range(substeps):
             integrating = True
-            for half in (0, 1):
-                # shaft torque: dead zone with Modelica ElastoBacklash's damping rule
-                twist = phi - theta
-                twist_rate = omega_phi - omega
-                if half_play == 0.0:
-                    shaft = stiffness * twist + damping * twist_rate
-                elif twist > half_play:
-                    spring = stiffness * (twist - half_play)
-                    damper = damping * twist_rate
-                    shaft = 0.0 if spring + damper <= 0.0 else spring + (spring if spring < damper else damper)
-                elif twist < -half_play:
-                    spring = stiffness * (twist + half_play)
-                    damper = damping * twist_rate
-                    shaft = 0.0 if spring + damper >= 0.0 else spring + (spring if spring > damper else damper)
-                else:
+            for half in range(2):
+                feedback = theta if load_feedback or rigid else phi
+                drive, clipped = 0.0, False
+                if drive_on:
+                    drive, clipped = _drive_torque(r - feedback, omega if rigid else omega_phi, rate, integral, kp, ki,
+                                                   kv, speed_limit, torque_limit)
+                if clipped:
+                    integrating = False
+                if rigid:
+                    weight = gravity * math.sin(theta - hanging)
+                    omega, friction, stuck = _load_half_kick(omega, drive - motor_damping * omega - weight, stuck,
+                                                             rigid_inertia, kick, coulomb, static, viscous)
                     shaft = 0.0
-                # the drive: P(I) position loop -> velocity reference -> P velocity loop -> torque
-                if drive_on:
-                    error = r - (theta if load_feedback else phi)
-                    reference = kp * (error + ki * integral) + rate
-                    if reference > speed_limit:
-                        reference, integrating = speed_limit, False
-                    elif reference < -speed_limit:
-                        reference, integrating = -speed_limit, False
-                    drive = kv * (reference - omega_phi)
-                    if drive > torque_limit:
-                        drive, integrating = torque_limit, False
-                    elif drive < -torque_limit:
-                        drive, integrating = -torque_limit, False
+                    if substep == 0 and half == 0:
+                        shaft = load_share * (drive - motor_damping * omega) + (1.0 - load_share) * (friction + weight)
                 else:
-                    drive = 0.0
-                omega_phi += kick * (drive - shaft - motor_damping * omega_phi) / motor_inertia
-                # the load: implicit Coulomb/viscous step with Karnopp's stick test
-                external = shaft - gravity * sin(theta - hanging)
-                momentum = load_inertia * omega + kick * external
-                if stuck and -static <= external <= static:
-                    friction = external  # sticks: friction balances the load (omega is 0)
-                elif -kick * coulomb <= momentum <= kick * coulomb:
-                    friction = momentum / kick  # sliding friction stops the load within this half kick
-                    omega = 0.0
-                    stuck = True
-                else:
-                    sliding = coulomb if momentum > 0.0 else -coulomb
-                    omega = (momentum - kick * sliding) / (load_inertia + kick * viscous)
-                    friction = sliding + viscous * omega
-                    stuck = False
+                    shaft = _shaft_torque(phi - theta, omega_phi - omega, stiffness, damping, half_play)
+                    omega_phi += kick * (drive - shaft - motor_damping * omega_phi) / motor_inertia
+                    omega, friction, stuck = _load_half_kick(omega, shaft - gravity * math.sin(theta - hanging), stuck,
+                                                             load_inertia, kick, coulomb, static, viscous)
                 if substep == 0 and half == 0:
-                    self._drive_torque, self._shaft_torque, self._friction_torque = drive, shaft, friction
-                if half == 0:
-                    phi += h * omega_phi
-                    theta += h * omega
-            if drive_on and integrating and ki != 0.0:
-                integral += h * (r - (theta if load_feedback else phi))
-
-        self.phi, self.omega_phi, self.theta, self.omega = phi, omega_phi, theta, omega
-        self.integral, self.stuck = integral, stuck
-        self.samples += 1
-        return start
-
-    def _step_rigid(self, r: float) -> float:
-        """:meth:`step` of a rigid train (:attr:`DriveTrain.rigid`): the same drive, friction and gravity
-        on the one inertia J = N^2 J_m + J_l, the same Störmer-Verlet sub-steps; the motor follows the load."""
-        (_, _, _, _, _, motor_damping, coulomb, static, viscous, gravity, hanging, drive_on, _, kp, ki,
-         feedforward, kv, speed_limit, torque_limit, period) = self._constants
-        _, inertia, load_share = self._rigid
-        h = self._h
-        kick = 0.5 * h
-        theta, omega, integral, stuck = self.theta, self.omega, self.integral, self.stuck
-        start = theta
-        rate = feedforward * (r - self.previous_command) / period
-        self.previous_command = r
-        sin = math.sin
-        for substep in range(self._substeps):
-            integrating = True
-            for half in (0, 1):
-                if drive_on:
-                    reference = kp * (r - theta + ki * integral) + rate
-                    if reference > speed_limit:
-                        reference, integrating = speed_limit, False
-                    elif reference < -speed_limit:
-                        reference, integrating = -speed_limit, False
-                    drive = kv * (reference - omega)
-                    if drive > torque_limit:
-                        drive, integrating = torque_limit, False
-                    elif drive < -torque_limit:
-                        drive, integrating = -torque_limit, False
-                else:
-                    drive = 0.0
-                weight = gravity * sin(theta - hanging)
-                external = drive - motor_damping * omega - weight
-                momentum = inertia * omega + kick * external
-                if stuck and -static <= external <= static:
-                    friction = external
-                elif -kick * coulomb <= momentum <= kick * coulomb:
-                    friction = momentum / kick
-                    omega = 0.0
-                    stuck = True
-                else:
-                    sliding = coulomb if momentum > 0.0 else -coulomb
-                    omega = (momentum - kick * sliding) / (inertia + kick * viscous)
-                    friction = sliding + viscous * omega
-                    stuck = False
-                if substep == 0 and half == 0:
-                    # the torque through the gear: J_l / J of the drive's net torque, J_m' / J of the load's
-                    shaft = load_share * (drive - motor_damping * omega) + (1.0 - load_share) * (friction + weight)
-                    self._drive_torque, self._shaft_torque, self._friction_torque = drive, shaft, friction
+                    record[sample, 5], record[sample, 6], record[sample, 7] = drive, shaft, friction
                 if half == 0:
                     theta += h * omega
+                    if not rigid:
+                        phi += h * omega_phi
             if drive_on and integrating and ki != 0.0:
-                integral += h * (r - theta)
-        self.phi, self.omega_phi, self.theta, self.omega = theta, omega, theta, omega
-        self.integral, self.stuck = integral, stuck
-        self.samples += 1
-        return start
+                integral += h * (r - (theta if load_feedback or rigid else phi))
+        if rigid:
+            phi, omega_phi = theta, omega
+    state[0], state[1], state[2], state[3] = phi, omega_phi, theta, omega
+    state[4], state[5], state[6] = integral, previous, 1.0 if stuck else 0.0

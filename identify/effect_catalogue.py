@@ -17,7 +17,8 @@ Placement (``Effect.placement``):
 * ``"output"``: after the last linear component or resonance (a play or friction after the drive, a mode);
 * ``"end"``: at the very end (what the encoder reads: offset, scale);
 * ``"dynamics"``: inside the drive's dynamics, as fields of a :class:`~identify.drive_train.DriveTrain`
-  (friction on the load's motion, gravity, the drive's rate and torque limits). Such an effect is realised
+  (friction on the load's motion, gravity, the drive's rate and torque limits, play between the motor and
+  the load inertia). Such an effect is realised
   by merging its fields into the model's drive train, if the model has one (a given model with a
   ``drive_train`` block, or a chain where another dynamics effect was already added), or else by replacing
   the model's linear dynamics with the rigid drive train of the same response
@@ -470,6 +471,37 @@ def _random_torque_limit(rng: np.random.Generator, u: NDArray[np.float64], f: fl
 
 
 
+PLAY_CONTACT_FREQUENCY_RATIO = 8.0
+PLAY_CONTACT_DAMPING_RATIO = 0.5
+"""The shaft that closes the play of ``shaft_play`` in a rigid train: its two-mass mode in contact is this
+many times the position loop's omega_n, with this damping ratio. Positions sampled at a few times the loop's
+bandwidth cannot resolve a contact mode that far above it (a stiffer contact only costs sub-steps: 8 omega_n
+at 30 Hz and 1 kHz is 38 per sample), and zeta = 0.5 lets an impact rebound by exp(-pi zeta / sqrt(1 -
+zeta^2)) = 16 % of its closing speed. A train with its own finite shaft keeps its stiffness and damping."""
+
+
+def _play_fields(v: Sequence[float], train: DriveTrain) -> dict[str, Any]:
+    # the dead-zone shaft of Nordin and Gutman (2002) between the two inertias, |v0| its total width
+    fields: dict[str, Any] = {"play_rad": abs(v[0])}
+    if train.rigid:
+        compliance = 1.0 / train.reflected_motor_inertia_kg_m2 + 1.0 / train.load_inertia_kg_m2
+        contact = PLAY_CONTACT_FREQUENCY_RATIO * train.natural_frequency_rad_per_s
+        fields["shaft_stiffness_nm_per_rad"] = contact**2 / compliance
+        fields["shaft_damping_nm_s_per_rad"] = 2.0 * PLAY_CONTACT_DAMPING_RATIO * contact / compliance
+    return fields
+
+
+def _shaft_play_guesses(context: GuessContext) -> list[tuple[float, ...]]:
+    # total widths from the noise bound to twice the residual's amplitude (a play of width b leaves the load
+    # up to b / 2 either side of the motor)
+    return [(b,) for b in np.geomspace(context.noise_bound_rad, 2.0 * context.residual_amplitude_rad, 8)]
+
+
+def _random_shaft_play(rng: np.random.Generator, u: NDArray[np.float64], f: float, period: float) -> Block:
+    # a total play of 20-60 mrad at the load (output backlash's hidden half-widths are 10-40 mrad a side)
+    return _train_builder(_play_fields)((rng.uniform(0.02, 0.06),), period)
+
+
 def _torque_resolution(train: DriveTrain, keys: Sequence[str], resolution_rad: float) -> dict[str, float]:
     """A torque per inertia shows as a static error T / (J omega_n^2) known within +-e: +-e omega_n^2."""
     return {key: resolution_rad * _loop_stiffness_per_inertia(train) for key in keys}
@@ -692,6 +724,22 @@ EFFECTS: dict[str, Effect] = {effect.name: effect for effect in (
         signature="the lag of an acceleration limit (the double sum of the model's excess acceleration)",
         train_fields=_torque_fields,
         resolution=lambda train, y_hat, e: {"torque_limit_per_inertia_rad_per_s2": _limit_resolution(train, y_hat, e, 2)},
+    ),
+    Effect(
+        name="shaft_play", block_class=DriveTrain, toml_type="drive_train",
+        toml_keys=(TomlKey("play_rad"), TomlKey("shaft_stiffness_nm_per_rad"), TomlKey("shaft_damping_nm_s_per_rad")),
+        takes_sample_period=True,
+        parameters=(Parameter("play_rad", "rad", "total width of the play between the motor and the load inertia",
+                              lower=0.0),),
+        placement="dynamics", free_parameters=1, build=_train_builder(_play_fields),
+        report=lambda b: {"play_rad": b.play_rad},
+        guesses=_shaft_play_guesses,
+        vanished=lambda b, delta: b.play_rad < delta,  # as backlash: a play narrower than the noise bound
+        random_block=_random_shaft_play,
+        signature="at a reversal the load coasts on through the play while the drive turns back, then is "
+                  "caught with a bounce (output backlash instead holds the output still)",
+        needs_reversals=True,
+        train_fields=_play_fields,
     ),
 )}
 """Every effect, by its diagnose name, in the order the workflow tries them."""

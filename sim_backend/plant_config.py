@@ -324,8 +324,8 @@ BLOCK_TYPES: dict[str, tuple[type, Callable[[ConfigTable, float], Block]]] = {
 }
 """``type`` in a ``[[blocks]]`` table -> (block class, reader): the linear and Hammerstein blocks, then every
 effect of the catalogue (:data:`identify.effect_catalogue.EFFECTS`) under its ``toml_type``; the catalogue's
-dynamics effects (friction on the load, gravity, rate and torque limits) are keys of the one ``drive_train``
-table."""
+dynamics effects (friction on the load, gravity, rate and torque limits, shaft play) are keys of the one
+``drive_train`` table."""
 
 
 # ----------------------------------------------------------------------------------------------------------

@@ -237,11 +237,23 @@ def _document(outcome, black_box: dict | None = None) -> dict:
 VERDICT_WORDS = {
     "explained": "EXPLAINED: the start model already agrees with the data",
     "named": "NAMED: missing effects found",
-    "ambiguous": "AMBIGUOUS: candidates fit equally well, none is chosen",
+    "ambiguous": "AMBIGUOUS: the data cannot decide between candidates, or whether one is there; none is chosen",
     "unexplained": "UNEXPLAINED: no candidate effect helps",
     "not_excited": "NOT EXCITED: the data cannot show the effects",
 }
 """The verdict of :data:`identify.model_discrepancy.VERDICTS` in words (text output and report)."""
+
+
+def _acceptance_note(candidate) -> str:
+    """What a candidate's gap reduction said (``identify.model_discrepancy.ACCEPTANCES``), for the candidates
+    line: vanished, or the reduction with its interval when it reaches the acceptance."""
+    if candidate.vanished:
+        return " (vanished)"
+    if candidate.acceptance in ("clear", "undecided"):
+        low, high = candidate.reduction_interval
+        return (f" (reduction {100 * candidate.reduction:.0f} %, {100 * low:.0f} .. {100 * high:.0f} %: "
+                f"{candidate.acceptance})")
+    return ""
 
 
 def _print_summary(data: str, model: str | None, noise_bound: float, result, num_samples: int, index,
@@ -268,8 +280,7 @@ def _print_summary(data: str, model: str | None, noise_bound: float, result, num
     for round_index in rounds:
         tried = sorted((c for c in result.candidates if c.round == round_index), key=lambda c: c.penalised_gap_rad)
         print(f"candidates {round_index + 1}  " + "; ".join(
-            f"{c.effect} {c.gap_rad:.3g} +- {c.gap_uncertainty_rad:.2g}" + (" (vanished)" if c.vanished else "")
-            for c in tried) + " rad")
+            f"{c.effect} {c.gap_rad:.3g} +- {c.gap_uncertainty_rad:.2g}" + _acceptance_note(c) for c in tried) + " rad")
     for number, step in enumerate(result.steps, 1):
         intervals = result.parameter_intervals.get(step.effect, {})
         parameters = ", ".join(
@@ -277,9 +288,18 @@ def _print_summary(data: str, model: str | None, noise_bound: float, result, num
             for k, v in step.parameters.items())
         print(f"step {number}: {step.effect:<17} gap {step.gap_before_rad:.4g} -> {step.gap_after_rad:.4g} rad  "
               f"({parameters})")
-    if not result.steps:
+    for candidate in result.undecided:
+        low, high = candidate.reduction_interval
+        print(f"undecided     {candidate.effect}: gap {candidate.gap_rad:.4g} rad, reduction "
+              f"{100 * candidate.reduction:.0f} % ({100 * low:.0f} .. {100 * high:.0f} % within its uncertainty): "
+              "not named")
+    if not result.steps and result.undecided:
+        print(f"no effect named ({', '.join(c.effect for c in result.undecided)} undecided)")
+    elif not result.steps:
         print("no missing effect found" if result.verdict != "ambiguous" else
               f"no effect chosen between {', '.join(result.ambiguous_between)}")
+    elif result.verdict == "ambiguous" and not result.undecided:
+        print(f"then          no effect chosen between {', '.join(result.ambiguous_between)}")
     print(f"final gap     {result.final.gap_rad:.4g} rad, {100 * result.final.falsified_fraction:.1f} % falsified")
     if result.steps and result.gap_reduction:
         print(f"gap reduction {100 * result.gap_reduction_fraction:.1f} % on the validation segment, "

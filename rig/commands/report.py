@@ -102,7 +102,7 @@ def _short(value: Any, limit: int = 80) -> str:
 
 def _readers() -> dict[str, tuple[tuple[int, ...], Any]]:
     """kind -> (the versions read, the result type's from_dict); a type that reads older versions lists them in
-    ``READS`` (the run summary), the others read their ``VERSION``."""
+    ``READS`` (the run summary, the model discrepancy), the others read their ``VERSION``."""
     from identify.hammerstein_subspace import HammersteinModel
     from identify.model_discrepancy import DiscrepancyReport
     from identify.output_backlash_identification import OutputBacklashIdentification
@@ -374,7 +374,7 @@ def _diagnose_section(result: ResultFile, used: set[str]):
     text = (f"{result.name}: verdict {VERDICT_WORDS.get(report.verdict, report.verdict)}"
             f"{': ' + reason if reason else ''}. Missing effects named, in order: {named}. Free-run RMS error on "
             f"the validation segment {gap_initial:.4g} rad before, {gap_final:.4g} rad after.{fractions}"
-            f"{_candidates_text(report)}")
+            f"{_undecided_text(report)}{_candidates_text(report)}")
     labels = ["start model"] + [f"+ {step.effect}" for step in steps]
     gaps = [gap_initial] + [step.gap_after_rad for step in steps]
 
@@ -418,6 +418,18 @@ def _run_summary_section(result: ResultFile):
     text = (f"{result.name}: the summary `rig run --json` printed. Give the log file too to see the signals and "
             "the loop timing.")
     return ReportSection(f"Run: {result.name}", text=text, table_header=("quantity", "value"), table_rows=tuple(rows))
+
+
+def _undecided_text(report) -> str:
+    """The candidates whose gap reduction straddles the acceptance (an ambiguous verdict after the effects
+    named, if any), with their numbers; empty when there are none."""
+    if not report.undecided:
+        return ""
+    after = (f" after {', '.join(step.effect for step in report.missing_effects)}" if report.missing_effects else "")
+    words = "; ".join(f"{c.effect} {100 * c.reduction:.0f} % ({100 * c.reduction_interval[0]:.0f} to "
+                      f"{100 * c.reduction_interval[1]:.0f} %)" for c in report.undecided)
+    return (f" Undecided{after}, not named (gap reduction within its uncertainty around the acceptance): "
+            f"{words}.")
 
 
 def _candidates_text(report) -> str:

@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from drive_train_reference import reference_load_angle_rad
 
 from identify.drive_train import DriveTrain
 from identify.plant_blocks import Delay, OutputOffset, PlantModel
@@ -309,3 +310,32 @@ def test_angles_see_only_torques_per_inertia_and_load_side_quantities():
                                  motor_speed_limit_rad_per_s=ratio * train.motor_speed_limit_rad_per_s,
                                  motor_torque_limit_nm=train.motor_torque_limit_nm / ratio)
     np.testing.assert_allclose(geared.apply(command), y, rtol=0, atol=1e-12)
+
+
+# the trains of the tests above (and their rigid form), against the pure-Python recurrence the compiled kernel
+# replaced (tests/identify/drive_train_reference.py)
+REFERENCE_CASES = {
+    "stiff": dict(STIFF),
+    "load feedback with gravity": dict(STIFF, pendulum_mass_kg=0.5, pendulum_length_m=0.1,
+                                       viscous_friction_nm_s_per_rad=0.05, position_feedback="load"),
+    "free pendulum": dict(STIFF, pendulum_mass_kg=0.5, pendulum_length_m=0.1, drive_enabled=False,
+                          initial_angle_rad=0.02),
+    "stiction": dict(STIFF, shaft_stiffness_nm_per_rad=50.0, shaft_damping_nm_s_per_rad=0.2, velocity_feedforward=1.0,
+                     coulomb_friction_nm=0.1, static_friction_nm=0.15),
+    "limits": dict(STIFF, motor_speed_limit_rad_per_s=20.0, motor_torque_limit_nm=0.05),
+    "rigid with everything": dict(STIFF, shaft_stiffness_nm_per_rad=math.inf, velocity_feedforward=0.5,
+                                  position_integral_gain_per_s=2.0, motor_speed_limit_rad_per_s=30.0,
+                                  motor_torque_limit_nm=0.08, motor_viscous_damping_nm_s_per_rad=1e-5,
+                                  coulomb_friction_nm=0.05, static_friction_nm=0.08, viscous_friction_nm_s_per_rad=0.01,
+                                  pendulum_mass_kg=0.5, pendulum_length_m=0.1, hanging_angle_rad=0.1),
+}
+
+
+@pytest.mark.parametrize("case", [*REFERENCE_CASES, "everything"])
+def test_the_compiled_recurrence_gives_the_pure_python_one_within_1e_12(case):
+    train = _everything() if case == "everything" else DriveTrain(**REFERENCE_CASES[case])
+    rng = np.random.default_rng(15)
+    command = np.cumsum(rng.normal(0.0, 0.01, 1200)) + np.where(np.arange(1200) % 400 < 200, 0.5, -0.5)
+    reference = reference_load_angle_rad(train, command)
+    assert np.ptp(reference) > 0.03  # the case moves (the free pendulum swings by +-0.02 rad)
+    np.testing.assert_allclose(train.apply(command), reference, rtol=1e-12, atol=1e-12 * np.max(np.abs(reference)))

@@ -35,7 +35,7 @@ DIMENSIONLESS = {
     # ratios, fractions, gains and slopes (rad per rad): a dimensionless quantity carries no suffix (rule 3)
     "m_l", "m_r", "slope", "gain", "gear_ratio", "velocity_feedforward", "damping_ratio",
     "position_loop_damping_ratio", "filter_pole", "reference_pole", "pole_tolerance", "complexity_penalty",
-    "min_reduction", "consistent_fraction", "estimation_fraction", "falsified_fraction",
+    "min_reduction", "reduction", "consistent_fraction", "estimation_fraction", "falsified_fraction",
     "falsified_fraction_before", "falsified_fraction_after", "falsified_fraction_initial",
     "falsified_fraction_final", "required_noise_scale", "score",
     # the LP of linear_block_bounds works on θ = [a, b], dimensionless coefficients

@@ -16,7 +16,7 @@ import pytest
 from identify.cyclic_excitation import cyclic_random_excitation
 from identify.excitation_design import filtered_staircase, prbs_sequence, staircase_steady_state_indices
 from identify.experiment_record import ExperimentMetadata, ExperimentRecord
-from identify.model_discrepancy import DiscrepancyReport, MissingEffect
+from identify.model_discrepancy import CandidateResult, DiscrepancyReport, MissingEffect
 from identify.output_backlash_identification import bound_output_backlash_system
 from identify.plant_blocks import LinearBlock, OutputBacklash, PlantModel, pouliquen2013_backlash
 from rig import exit_codes
@@ -141,7 +141,7 @@ def test_foreign_files_are_refused_with_the_file_and_what_was_expected(data, cap
     assert main(["report", str(other_json), "--out", str(tmp_path / "r")]) == exit_codes.BAD_INPUT
     error = capsys.readouterr().err
     assert f"{other_json}: JSON without a 'kind' key (keys [name, speed])" in error
-    assert "output_backlash v1, hammerstein_model v1, model_discrepancy v1, run_summary v1/2, batch v1" in error
+    assert "output_backlash v1, hammerstein_model v1, model_discrepancy v1/2, run_summary v1/2, batch v1" in error
 
     binary = tmp_path / "figure.png"
     binary.write_bytes(b"\x89PNG\r\n\x1a\n\x00\x00\xff\xfe")
@@ -200,7 +200,7 @@ def test_a_saved_result_with_damaged_data_names_the_file_and_the_key(data, capsy
 @pytest.mark.parametrize("document, words", [
     ({"kind": "hammerstein_model", "version": 9}, "kind 'hammerstein_model' version 9 cannot be read"),
     ({"kind": "gearbox_photo", "version": 1}, "kind 'gearbox_photo' version 1 cannot be read"),
-    ({**DIAGNOSE, "version": 2}, "kind 'model_discrepancy' version 2 cannot be read"),
+    ({**DIAGNOSE, "version": 3}, "kind 'model_discrepancy' version 3 cannot be read"),
 ])
 def test_a_kind_or_version_it_cannot_read_is_named(document, words, capsys, tmp_path):
     path = tmp_path / "result.json"
@@ -217,6 +217,12 @@ def test_a_kind_or_version_it_cannot_read_is_named(document, words, capsys, tmp_
       "ambiguous_between": ("delay", "resonance")}, "AMBIGUOUS"),
     ({"verdict": "explained", "missing_effects": (), "falsified_fraction_initial": 0.0,
       "falsified_fraction_final": 0.0}, "EXPLAINED"),
+    ({"verdict": "ambiguous", "verdict_reason": "backlash named; then gravity cannot be told",
+      "ambiguous_between": ("gravity",),
+      "undecided": (CandidateResult(1, "gravity", 0.0017, 2e-4, 0.0018, {"gravity_per_inertia_rad_per_s2": 11.0},
+                                    False, True, 0.1, (0.04, 0.22), "undecided"),)},
+     "Undecided after backlash, not named (gap reduction within its uncertainty around the acceptance): "
+     "gravity 10 % (4 to 22 %)"),
 ])
 def test_the_report_states_the_verdict_of_the_diagnosis(changes, words, tmp_path):
     path = tmp_path / "diagnose.json"
