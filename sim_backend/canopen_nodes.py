@@ -181,7 +181,7 @@ class SimulatedCanOpenRig:
         Sample numbers (SYNCs counted from 0 in OPERATION ENABLED) after which the encoder sends no TPDO
         (the plant still steps): injected frame loss.
     silent_drive_seqs
-        The same for the drive's TPDOs (e.g. ``range(50, 10**9)``: a drive that goes silent at sample 50 while
+        The same for the drive's TPDOs (e.g. ``range(50, 100_000)``: a drive that goes silent at sample 50 while
         its heartbeat goes on).
     fault_at_seq, fault_code
         At that sample the drive faults instead of moving (once): EMCY with ``fault_code``, 0x603F =
