@@ -250,3 +250,20 @@ def test_the_feedback_watchdog_stops_a_silent_drive_and_the_drive_ends_disabled(
     assert "stopping at sample" in str(caught.value)
     assert controlwords[-2:] == [cia402.CONTROLWORD_QUICK_STOP, cia402.CONTROLWORD_DISABLE_VOLTAGE]
     assert state is cia402.DriveState.SWITCH_ON_DISABLED
+
+
+def test_an_encoder_tpdo_delayed_past_two_syncs_costs_exactly_its_sample_and_the_one_it_lands_in(tmp_path):
+    """The encoder's answer to SYNC 100 goes on the bus 2.4 periods late, after SYNCs 101 and 102: the master
+    files a TPDO under the last SYNC before it on the bus, so sample 100 has no encoder value (LOST) and
+    sample 102 two (DUPLICATE: unusable, never silently wrong); every other sample is the plant's answer."""
+    period_s = 1e-3
+    with _clocked_rig(tmp_path, mode="csp", delayed_tpdo=(2.4 * period_s, 100)) as (bus, transport, rig, clock):
+        summary, sink, _ = _run(bus, transport, clock, _command(300))
+    flags = _flags(sink)
+    assert np.flatnonzero(flags & SampleFlag.LOST).tolist() == [100]
+    assert np.flatnonzero(flags & SampleFlag.DUPLICATE).tolist() == [102]
+    assert not np.any(flags & SampleFlag.AMBIGUOUS) and summary.lost == 1 and summary.duplicate == 1
+    clean = (flags & (SampleFlag.LOST | SampleFlag.DUPLICATE)) == 0
+    command = np.array([row[1] for row in sink.rows])
+    expected = _gearbox(1000.0, tmp_path).simulate(command).measured_angle_rad
+    np.testing.assert_array_equal(np.array([row[2] for row in sink.rows])[clean], expected[clean])
