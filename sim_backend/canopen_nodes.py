@@ -754,7 +754,8 @@ class SimulatedCanOpenRig:
                     tpdo.history.append(self._latch_locked(node, tpdo))
                     payload = tpdo.history.popleft()
                     tpdo.count += 1
-                    if tpdo.count % tpdo.every or (silent and node is self.encoder) or (silent_drive and node is self.drive):
+                    muted = silent if node is self.encoder else silent_drive
+                    if tpdo.count % tpdo.every or muted:
                         continue
                     frames.append((node, can.Message(arbitration_id=tpdo.cob_id, data=payload, is_extended_id=False)))
         wire_time = timestamp + frame_bits(len(data)) / self.bitrate
