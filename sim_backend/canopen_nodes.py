@@ -31,7 +31,7 @@ from __future__ import annotations
 import collections
 import threading
 import time
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from pathlib import Path
 
 import can
@@ -81,10 +81,10 @@ class _FrameCounter(can.Listener):
     """Counts the bits of every frame on the bus, received or sent by the simulated nodes (worst-case
     bit stuffing)."""
 
-    def __init__(self) -> None:
+    def __init__(self, clock: Callable[[], float]) -> None:
         self.frames = 0
         self.bits = 0
-        self.started = time.perf_counter()
+        self.started = clock()
         self._lock = threading.Lock()
 
     def on_message_received(self, msg: can.Message) -> None:
@@ -180,6 +180,9 @@ class SimulatedCanOpenRig:
     silent_seqs
         Sample numbers (SYNCs counted from 0 in OPERATION ENABLED) after which the encoder sends no TPDO
         (the plant still steps): injected frame loss.
+    silent_drive_seqs
+        The same for the drive's TPDOs (e.g. ``range(50, 100_000)``: a drive that goes silent at sample 50 while
+        its heartbeat goes on).
     fault_at_seq, fault_code
         At that sample the drive faults instead of moving (once): EMCY with ``fault_code``, 0x603F =
         ``fault_code``, 0x1001, FAULT state.
@@ -197,6 +200,10 @@ class SimulatedCanOpenRig:
     refuse_sdo_index
         The drive aborts every SDO write to this object (abort code 0x06090030, value range exceeded), as a
         drive that does not support a mode or mapping the master configures.
+    clock
+        The devices' clock in seconds (:func:`time.monotonic`): every timed behaviour (a slow fault reset or
+        mode switch, the SYNC watchdog, a delayed TPDO, the bus load) reads it. A scripted test passes a
+        simulated clock together with a bus on it (:meth:`start`).
     hold_plant_until_first_target
         True (for the driver's tests and the simulated rigs of ``rig run``): the gearbox stays exactly at
         rest from enabling until the first target (RPDO) arrives, so that a run's samples do not depend on
@@ -214,8 +221,10 @@ class SimulatedCanOpenRig:
                  fault_at_seq: int | None = None, fault_code: int = 0x7500, stop_heartbeat_at_seq: int | None = None,
                  disable_at_seq: int | None = None, refuse_sdo_index: int | None = None,
                  delayed_tpdo: tuple[float, int] | None = None,
-                 error_frame_at: tuple[int, int] | None = None, hold_plant_until_first_target: bool = True) -> None:
+                 error_frame_at: tuple[int, int] | None = None, hold_plant_until_first_target: bool = True,
+                 silent_drive_seqs: Iterable[int] = (), clock: Callable[[], float] = time.monotonic) -> None:
         self.gearbox = gearbox
+        self.clock = clock
         self.hold_plant_until_first_target = bool(hold_plant_until_first_target)
         self.channel = channel
         self.drive_scaling = cia402.DriveScaling(int(drive_counts_per_revolution))
@@ -232,6 +241,7 @@ class SimulatedCanOpenRig:
                 f"encoder: a CiA 406 position value (0x6004) is UNSIGNED32; {encoder.bits}+{encoder.multi_turn_bits} "
                 "bits do not fit")
         self.silent_seqs = frozenset(silent_seqs)
+        self.silent_drive_seqs = frozenset(silent_drive_seqs)
         self.fault_at_seq = fault_at_seq
         self.fault_code = fault_code
         self.stop_heartbeat_at_seq = stop_heartbeat_at_seq
@@ -255,10 +265,11 @@ class SimulatedCanOpenRig:
         self.ip_buffer_enabled = False
         self.ip_underruns = 0  # SYNCs in ip mode that found the buffer empty (the drive held)
         self.ip_overruns = 0  # records that found the buffer full (dropped)
+        self.ip_levels: list[int] = []  # the records each SYNC in ip mode found in the buffer, before taking one
         self.syncs = 0
         self.homed = False
         self.faults: list[int] = []  # error codes of every fault the drive entered, in order
-        self._counter = _FrameCounter()
+        self._counter = _FrameCounter(clock)
         self._lock = threading.RLock()
         self._operational: set[int] = set()
         self._tpdos: dict[int, list[_Tpdo]] = {}
@@ -274,13 +285,25 @@ class SimulatedCanOpenRig:
         self._one_shots: set[str] = set()
         self._clock: threading.Thread | None = None
         self._clock_stop = threading.Event()
+        self._scripted = False  # started on a scripted bus: no threads, the bus calls next_event_s/run_due
+        self._next_tick_s = 0.0  # scripted: when the drive's clock ticks next (CLOCK_TICK_S)
+        self._late_frames: list[tuple[float, can.Message]] = []  # scripted: delayed TPDOs, (when due, frame)
 
     # -- lifecycle ------------------------------------------------------------------------------------------
 
-    def start(self) -> SimulatedCanOpenRig:
-        self.network = canopen.Network(_WireTimeBus(self.channel, self._counter))
-        self.network.NOTIFIER_CYCLE = NOTIFIER_CYCLE_S
-        self.network.connect()
+    def start(self, bus: object | None = None) -> SimulatedCanOpenRig:
+        """Join the bus: python-can's ``virtual`` channel :attr:`channel` with a notifier thread (default),
+        or a scripted ``bus`` on the devices' :attr:`clock`, which feeds the network itself (``bus.join(network)``)
+        and calls :meth:`next_event_s` / :meth:`run_due` instead of the drive's clock thread
+        (``tests/transports/clocked_canopen.py``). The bus must offer ``send_at(message, wire_time)``."""
+        self._scripted = bus is not None
+        if bus is None:
+            self.network = canopen.Network(_WireTimeBus(self.channel, self._counter))
+            self.network.NOTIFIER_CYCLE = NOTIFIER_CYCLE_S
+            self.network.connect()
+        else:
+            self.network = canopen.Network(bus)
+            bus.join(self.network)
         self.network.notifier.add_listener(self._counter)
         for node in (self.drive, self.encoder):
             self.network.add_node(node)
@@ -307,7 +330,8 @@ class SimulatedCanOpenRig:
         for node in (self.drive, self.encoder):
             node.nmt.state = "PRE-OPERATIONAL"  # boot-up message, heartbeat per 0x1017
         self._started = True
-        if behaviour.needs_clock:
+        self._next_tick_s = self.clock() + CLOCK_TICK_S
+        if behaviour.needs_clock and not self._scripted:
             self._clock_stop.clear()
             self._clock = threading.Thread(target=self._run_clock, name="sim-canopen-drive-clock", daemon=True)
             self._clock.start()
@@ -328,6 +352,29 @@ class SimulatedCanOpenRig:
         self.network.disconnect()
         self.network = None
 
+    def next_event_s(self) -> float:
+        """Scripted bus: when the devices next do something no frame triggers (a tick of the drive's clock,
+        :data:`CLOCK_TICK_S`, where its behaviour has timed transitions; a delayed TPDO); inf for nothing."""
+        with self._lock:
+            due = [when for when, _ in self._late_frames]
+            if self.drive_behaviour.needs_clock and self._started:
+                due.append(self._next_tick_s)
+            return min(due, default=float("inf"))
+
+    def run_due(self) -> None:
+        """Scripted bus: do what is due by :attr:`clock`'s time (the drive's clock thread's work, delayed
+        TPDOs)."""
+        now = self.clock()
+        with self._lock:
+            if self.drive_behaviour.needs_clock and self._started and now >= self._next_tick_s:
+                self._advance_locked(now)
+                while self._next_tick_s <= now:
+                    self._next_tick_s += CLOCK_TICK_S
+            due = [frame for when, frame in self._late_frames if when <= now]
+            self._late_frames = [(when, frame) for when, frame in self._late_frames if when > now]
+        for frame in due:
+            self.network.bus.send_at(frame, now)
+
     def __enter__(self) -> SimulatedCanOpenRig:
         return self.start()
 
@@ -336,7 +383,7 @@ class SimulatedCanOpenRig:
 
     def bus_load(self) -> float:
         """Fraction of the bit rate used by every frame seen since start (worst-case bit stuffing)."""
-        elapsed = time.perf_counter() - self._counter.started
+        elapsed = self.clock() - self._counter.started
         return self._counter.bits / (elapsed * self.bitrate) if elapsed > 0 else 0.0
 
     @property
@@ -363,11 +410,11 @@ class SimulatedCanOpenRig:
     def _on_drive_read(self, index: int, subindex: int, od: object) -> int | None:
         if index == 0x6041:
             with self._lock:
-                self._advance_locked(time.monotonic())
+                self._advance_locked(self.clock())
                 return self._statusword_locked()
         if index == 0x6061:
             with self._lock:
-                self._advance_locked(time.monotonic())
+                self._advance_locked(self.clock())
                 return self._mode_display
         return None
 
@@ -381,12 +428,12 @@ class SimulatedCanOpenRig:
             with self._lock:
                 delay_s = self.drive_behaviour.mode_switch_delay_s
                 if delay_s > 0:
-                    self._mode_pending = (mode, time.monotonic() + delay_s)
+                    self._mode_pending = (mode, self.clock() + delay_s)
                 else:
                     self._mode_display, self._mode_pending = mode, None
         elif index == 0x6040:
             with self._lock:
-                self._on_controlword(int.from_bytes(data, "little"), time.monotonic())
+                self._on_controlword(int.from_bytes(data, "little"), self.clock())
         elif index == 0x60C4 and subindex == 6:  # buffer clear: 0 clears and disables, 1 enables (CiA 402)
             with self._lock:
                 self.ip_buffer.clear()
@@ -596,7 +643,7 @@ class SimulatedCanOpenRig:
     def _run_clock(self) -> None:
         while not self._clock_stop.wait(CLOCK_TICK_S):
             with self._lock:
-                self._advance_locked(time.monotonic())
+                self._advance_locked(self.clock())
 
     # -- the cycle -------------------------------------------------------------------------------------------
 
@@ -625,6 +672,7 @@ class SimulatedCanOpenRig:
         interpolated position mode the target is the next record of the FIFO; an empty FIFO holds the last
         one (an underrun)."""
         if self._ip_active():
+            self.ip_levels.append(len(self.ip_buffer))
             if self.ip_buffer:
                 self._store(self.drive, 0x607A, self.ip_buffer.popleft(), 4, signed=True)
             else:
@@ -663,7 +711,7 @@ class SimulatedCanOpenRig:
         return b"".join(node.get_data(index, subindex)[:size] for index, subindex, size in tpdo.entries)
 
     def _on_sync(self, can_id: int, data: bytes, timestamp: float) -> None:
-        now = time.monotonic()
+        now = self.clock()
         frames: list[tuple[canopen.LocalNode, can.Message]] = []
         with self._lock:
             self._sync_times.append(now)
@@ -675,7 +723,8 @@ class SimulatedCanOpenRig:
                     if not tpdo.primed:
                         tpdo.history.extend([self._latch_locked(node, tpdo)] * latency)
                         tpdo.primed = True
-            silent, delay_s = False, None
+            silent = silent_drive = False
+            delay_s = None
             if self.state is not cia402.DriveState.OPERATION_ENABLED:
                 self.streaming = False
             if (self.state is cia402.DriveState.OPERATION_ENABLED and self.drive.id in self._operational
@@ -692,6 +741,7 @@ class SimulatedCanOpenRig:
                     for node in (self.drive, self.encoder):
                         node.nmt.stop_heartbeat()
                 silent = number in self.silent_seqs
+                silent_drive = number in self.silent_drive_seqs
                 delay_s = self.delayed_tpdo[0] if self.delayed_tpdo and number == self.delayed_tpdo[1] else None
                 if self.error_frame_at is not None and number == self.error_frame_at[1]:
                     self.network.bus.send(can.Message(arbitration_id=self.error_frame_at[0], is_error_frame=True,
@@ -704,13 +754,18 @@ class SimulatedCanOpenRig:
                     tpdo.history.append(self._latch_locked(node, tpdo))
                     payload = tpdo.history.popleft()
                     tpdo.count += 1
-                    if tpdo.count % tpdo.every or (silent and node is self.encoder):
+                    muted = silent if node is self.encoder else silent_drive
+                    if tpdo.count % tpdo.every or muted:
                         continue
                     frames.append((node, can.Message(arbitration_id=tpdo.cob_id, data=payload, is_extended_id=False)))
         wire_time = timestamp + frame_bits(len(data)) / self.bitrate
         bus = self.network.bus
         for node, frame in frames:
             wire_time += frame_bits(len(frame.data)) / self.bitrate
+            if delay_s is not None and node is self.encoder and self._scripted:
+                with self._lock:
+                    self._late_frames.append((self.clock() + delay_s, frame))
+                continue
             if delay_s is not None and node is self.encoder:
                 # the bus, not self.network: a late frame after close() finds the bus shut down and is dropped
                 late = threading.Timer(delay_s, lambda frame=frame: bus.send_at(frame, time.time()))

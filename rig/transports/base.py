@@ -320,7 +320,8 @@ class Transport(ABC):
         self._enabling_sent = True
         try:
             cia402.bring_to_operation_enabled(self._write_controlword, self._read_statusword, self.drive_label,
-                                              timing=self.timing, read_fault_code=self._read_error_code)
+                                              timing=self.timing, read_fault_code=self._read_error_code,
+                                              clock=self._pause_clock, sleep=self._pause)
             moved_to = self._after_enabled()
             if moved_to is not None:
                 self.initial_position_rad = float(moved_to)
@@ -367,7 +368,8 @@ class Transport(ABC):
             except Exception:  # noqa: BLE001 - the stop is attempted anyway
                 logger.debug("%s: before the stop", self.name, exc_info=True)
             self.stop_report = cia402.quick_stop_then_disable(self._write_controlword, self._read_statusword,
-                                                              timing=self.timing)
+                                                              timing=self.timing, clock=self._pause_clock,
+                                                              sleep=self._pause)
             logger.info("%s: %s", self.drive_label, self.stop_report)
             self._release()
             self._state = "stopped"
@@ -484,6 +486,15 @@ class Transport(ABC):
 
     def _after_enabled(self) -> float | None:
         return None
+
+    def _pause(self, seconds: float) -> None:
+        """The host waits ``seconds`` between the polls of the bring-up and the stop (a backend whose
+        scripted tests run the devices on a simulated clock lets them live through the pause)."""
+        time.sleep(seconds)
+
+    def _pause_clock(self) -> float:
+        """The clock the bring-up's and the stop's deadlines are read on: the one :meth:`_pause` lets pass."""
+        return time.monotonic()
 
     def _before_stop(self) -> None:
         return None

@@ -238,6 +238,7 @@ class CanOpenTransport(Transport):
         self._last_target_counts = 0
         self._watching = False  # from OPERATION ENABLED on: a FAULT statusword or a heartbeat not OPERATIONAL stops the run
         self._heartbeats: dict[int, tuple[float, int]] = {}  # node-ID -> (host receive time, NMT state)
+        self._heartbeat_count: dict[int, int] = {}  # node-ID -> heartbeats received (_await_heartbeats)
         # the bus order of SYNCs and RPDOs, as the interface echoes them (see "Streaming" in the docstring)
         self._echo_probe = threading.Event()
         self._sync_task: Any = None
@@ -289,10 +290,7 @@ class CanOpenTransport(Transport):
         except ImportError as err:  # pragma: no cover - canopen is a dependency
             raise TransportError("the canopen transport needs the canopen package: pip install canopen") from err
         with self._translated_errors("start-up"):
-            self.network = canopen.Network()
-            self.network.connect(interface=self.interface, channel=self.channel, bitrate=self.bitrate,
-                                 receive_own_messages=True,  # SYNC echoes: see the module docstring
-                                 can_filters=None if self.trace_path is not None else self._receive_filters())
+            self.network = self._join_bus(canopen)
             self.network.sync.cob_id = SYNC_COB_ID
             self.network.subscribe(SYNC_COB_ID, self._on_sync_echo)
             self.network.notifier.add_listener(_ErrorFrameListener(self._on_error_frame))
@@ -306,6 +304,44 @@ class CanOpenTransport(Transport):
             for node in (self._drive, self._encoder):
                 node.sdo.RESPONSE_TIMEOUT = self.sdo_timeout_s
                 self.network.subscribe(0x700 + node.id, self._on_heartbeat)
+
+    def _join_bus(self, canopen: Any) -> Any:
+        """A ``canopen.Network`` connected to the configured interface, receiving its own frames (the SYNC
+        and RPDO echoes, see the module docstring), with python-can's notifier thread feeding it. The seam a
+        scripted test replaces with a bus on a simulated clock (``tests/transports/clocked_canopen.py``)."""
+        network = canopen.Network()
+        network.connect(interface=self.interface, channel=self.channel, bitrate=self.bitrate,
+                        receive_own_messages=True,
+                        can_filters=None if self.trace_path is not None else self._receive_filters())
+        return network
+
+    def _wait_for(self, ready: Any, timeout_s: float) -> bool:
+        """Wait on the host's clock, up to ``timeout_s``, until ``ready()`` (evaluated with the lock held)
+        is true; whether it is. Every wait of the master for the bus goes through here (the receive thread
+        notifies :attr:`_arrived` on every SYNC, TPDO sample, heartbeat and fault), so a scripted test can
+        move a simulated clock instead of blocking."""
+        with self._arrived:
+            return self._arrived.wait_for(ready, timeout_s)
+
+    def _pause_clock(self) -> float:
+        return self.clock()  # the bring-up's deadlines on the link's clock, which _pause lets pass
+
+    def _await_heartbeats(self, timeout_s: float) -> None:
+        """Wait for a heartbeat from each node received after this call (both have just been told to go
+        OPERATIONAL; CiA 301 0x1017 heartbeat producer), at most ``timeout_s``."""
+        nodes = {"drive": self.drive_node_id, "encoder": self.encoder_node_id}
+        with self._lock:
+            seen = {node_id: self._heartbeat_count.get(node_id, 0) for node_id in nodes.values()}
+
+        def heard() -> bool:
+            return all(self._heartbeat_count.get(node_id, 0) > count for node_id, count in seen.items())
+
+        if not self._wait_for(heard, timeout_s):
+            silent = [f"{role} {node_id}" for role, node_id in nodes.items()
+                      if self._heartbeat_count.get(node_id, 0) <= seen[node_id]]
+            raise TransportError(f"{self.name}: no heartbeat (0x700 + node-ID) from {', '.join(silent)} within "
+                                 f"{timeout_s:g} s of NMT start (0x1017 = {self.heartbeat_ms} ms was written); check "
+                                 "that the node is powered and on the bus")
 
     def _prepare(self) -> float:
         """Steps 1-4 of the module docstring up to, not including, the first enabling controlword."""
@@ -338,8 +374,7 @@ class CanOpenTransport(Transport):
             for role, node in (("drive", drive), ("encoder", encoder)):
                 node.emcy.add_callback(lambda entry, role=role, node_id=node.id: self._on_emcy(role, node_id, entry))
                 node.nmt.state = "OPERATIONAL"
-            for node in (drive, encoder):
-                node.nmt.wait_for_heartbeat(timeout=max(3 * self.heartbeat_ms / 1000, 0.5))
+            self._await_heartbeats(max(3 * self.heartbeat_ms / 1000, 0.5))
             self._wait_for_mode(drive)
             return self._hold_at_actual_position(drive)
 
@@ -378,12 +413,12 @@ class CanOpenTransport(Transport):
         the first sample's TPDOs were latched after it even from a drive that answers a SYNC later than
         configured: such a drive is then caught by its 0x6062 (the latency check), not mistaken for one
         that dropped out of OPERATION ENABLED."""
-        with self._arrived:
+        with self._lock:
             target = self._sync_count + SYNCS_BEFORE_STREAMING
-            timeout_s = SYNC_ECHO_TIMEOUT_S + 10 * SYNCS_BEFORE_STREAMING * self.sample_period_s
-            if not self._arrived.wait_for(lambda: self._sync_count >= target, timeout_s):
-                raise TransportError(f"{self.name}: SYNC stopped after the drive was enabled (none for "
-                                     f"{timeout_s:g} s); check the SYNC producer")
+        timeout_s = SYNC_ECHO_TIMEOUT_S + 10 * SYNCS_BEFORE_STREAMING * self.sample_period_s
+        if not self._wait_for(lambda: self._sync_count >= target, timeout_s):
+            raise TransportError(f"{self.name}: SYNC stopped after the drive was enabled (none for "
+                                 f"{timeout_s:g} s); check the SYNC producer")
 
     def _before_stop(self) -> None:
         """A drive whose heartbeat says STOPPED (CiA 301 0x1029 error behaviour) answers no SDO: bring it to
@@ -496,18 +531,18 @@ class CanOpenTransport(Transport):
     def _wait_for_mode(self, drive: Any) -> None:
         """The mode handshake: 0x6061 (modes of operation display) must show the mode written to 0x6060
         within ``mode_switch_timeout_s``; until then the drive still runs the old mode."""
-        deadline = time.monotonic() + self.mode_switch_timeout_s
+        deadline = self.clock() + self.mode_switch_timeout_s
         while True:
             shown = drive.sdo[0x6061].raw
             shown = shown - 256 if shown > 127 else shown  # INTEGER8
             if shown == self._mode:
                 return
-            if time.monotonic() > deadline:
+            if self.clock() > deadline:
                 raise DeviceFault(self.drive_label, None, (
                     f"did not take mode {self._mode} ({_MODE_NAMES.get(self._mode, 'unknown')}) within "
                     f"{self.mode_switch_timeout_s:g} s: 0x6061 (modes of operation display) still shows {shown}; "
                     "a drive that switches slowly needs a larger mode_switch_timeout_s"))
-            time.sleep(self.timing.poll_interval_s)
+            self._pause(self.timing.poll_interval_s)
 
     def _hold_at_actual_position(self, drive: Any) -> float:
         """Write the actual position (0x6064) into the target (0x607A), so that enabling, or switching to
@@ -555,7 +590,7 @@ class CanOpenTransport(Transport):
         now until after the stop) and wait for the first SYNC on the bus: the master numbers the samples by
         the SYNCs it sees, and files each TPDO by its bus timestamp between two of them, so it needs its
         own frames echoed back (or the external producer's SYNC)."""
-        if not self._echo_probe.wait(SYNC_ECHO_TIMEOUT_S + 10 * self.sample_period_s):
+        if not self._wait_for(self._echo_probe.is_set, SYNC_ECHO_TIMEOUT_S + 10 * self.sample_period_s):
             if self.sync_producer == "external":
                 raise TransportError(
                     f"{self.name}: no SYNC (COB-ID 0x{SYNC_COB_ID:02X}) from the external producer within "
@@ -577,7 +612,7 @@ class CanOpenTransport(Transport):
         error), at most ``homing_timeout_s``."""
         drive.sdo[0x6098].raw = self.homing_method
         drive.sdo[0x6040].raw = cia402.CONTROLWORD_START_HOMING
-        deadline = time.monotonic() + self.homing_timeout_s
+        deadline = self.clock() + self.homing_timeout_s
         while True:
             statusword = drive.sdo[0x6041].raw
             if statusword & cia402.STATUSWORD_HOMING_ERROR:
@@ -585,10 +620,10 @@ class CanOpenTransport(Transport):
                                   f"homing (method {self.homing_method}) failed: statusword 0x{statusword:04X}")
             if statusword & cia402.STATUSWORD_HOMING_ATTAINED:
                 break
-            if time.monotonic() > deadline:
+            if self.clock() > deadline:
                 raise DeviceFault(self.drive_label, None,
                                   f"homing did not finish within {self.homing_timeout_s:g} s (homing_timeout_s)")
-            time.sleep(max(self.timing.poll_interval_s, 0.01))
+            self._pause(max(self.timing.poll_interval_s, 0.01))
         drive.sdo[0x6040].raw = cia402.CONTROLWORD_ENABLE_OPERATION
 
     def _map_pdo(self, pdos: Any, role: str, needed: list[tuple[int, int, int]], cob_id: int,
@@ -696,7 +731,7 @@ class CanOpenTransport(Transport):
         with self._lock:
             self._queue[setpoint.seq] = self.drive.counts_from_rad(setpoint.position_rad)
             if self._origin is not None:  # the lead counts once the drive's clock runs the samples (before it,
-                self._queued_at[setpoint.seq] = time.perf_counter()  # the first setpoint is just ahead by design)
+                self._queued_at[setpoint.seq] = self.clock()  # the first setpoint is just ahead by design)
             if self.mode == "ip_buffer":
                 self._top_up_ip_buffer()
                 return
@@ -713,9 +748,8 @@ class CanOpenTransport(Transport):
                 self._queued_at.pop(setpoint.seq, None)
 
     def _recv_internal(self, timeout_s: float) -> FeedbackSample | None:
-        with self._arrived:
-            if not self._ready and self._emcy is None:
-                self._arrived.wait(timeout_s)
+        self._wait_for(lambda: self._ready or self._emcy is not None or self._fault is not None, timeout_s)
+        with self._lock:
             if self._emcy is None and self._ready:
                 return self._ready.popleft()
         self._raise_device_fault()
@@ -778,7 +812,10 @@ class CanOpenTransport(Transport):
         if not data:
             return
         node_id, state = can_id - 0x700, data[0] & 0x7F
-        self._heartbeats[node_id] = (time.monotonic(), state)
+        with self._arrived:
+            self._heartbeats[node_id] = (self.clock(), state)
+            self._heartbeat_count[node_id] = self._heartbeat_count.get(node_id, 0) + 1
+            self._arrived.notify_all()  # (wakes _await_heartbeats)
         if self._watching and state != _NMT_OPERATIONAL and self._emcy is None:  # an EMCY names the cause better
             role = "drive" if node_id == self.drive_node_id else "encoder"
             self._report_fault(DeviceFault(f"{self.name} {role} {node_id}", None, (
@@ -836,7 +873,7 @@ class CanOpenTransport(Transport):
             self._applied[sample] = (counts, in_force_sample != sample)
             queued = self._queued_at.pop(sample, None)
             if queued is not None:
-                self._min_lead_s = min(self._min_lead_s, time.perf_counter() - queued)
+                self._min_lead_s = min(self._min_lead_s, self.clock() - queued)
         if self._origin is None:
             if 0 in self._queue:
                 self._origin = count + 1
@@ -863,7 +900,7 @@ class CanOpenTransport(Transport):
             self._in_force = self._ip_buffer.popleft()
             queued = self._queued_at.pop(self._in_force[0], None)
             if queued is not None:
-                self._min_lead_s = min(self._min_lead_s, time.perf_counter() - queued)
+                self._min_lead_s = min(self._min_lead_s, self.clock() - queued)
             if self._dry_since is not None:  # the buffer ran dry for these instants: a negative lead
                 self._min_lead_s = min(self._min_lead_s, -(count - self._dry_since) * self.sample_period_s)
                 self._dry_since = None
@@ -915,7 +952,7 @@ class CanOpenTransport(Transport):
         """A TPDO waits until the SYNC after it has been seen: only then is the bus order around it known
         (a device can answer before the interface hands the master the echo of the SYNC it answers)."""
         with self._arrived:
-            self._unfiled.append((part, value, timestamp, time.perf_counter()))
+            self._unfiled.append((part, value, timestamp, self.clock()))
 
     def _file_locked(self, part: str, value: Any, timestamp: float, received: float) -> None:
         """File one TPDO under the sample of the SYNC it answers."""
@@ -1028,7 +1065,7 @@ class CanOpenTransport(Transport):
         self.raise_fault()
 
     def _check_heartbeats(self) -> None:
-        now = time.monotonic()
+        now = self.clock()
         for role, node_id in (("drive", self.drive_node_id), ("encoder", self.encoder_node_id)):
             last = self._heartbeats.get(node_id)
             if last is not None and now - last[0] > self.heartbeat_timeout_s:

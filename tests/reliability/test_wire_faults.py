@@ -23,8 +23,10 @@ from rig.cli import main
 from rig.log_file import read_log
 from rig.protocols.errors import LogFileError
 from rig.protocols.cia402 import DriveState
+from rig.rig_config import load_rig_config
 from rig.runner import run_experiment
 from sim_backend.faults import FaultPlan, parse_fault_spec
+from sim_backend.plant_config import load_plant_config
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "transports"))
 from sim_rigs import ROOT, ListSink, excitation, no_leaks, simulated, write_test_config  # noqa: E402, F401
@@ -121,7 +123,6 @@ def test_line_noise_is_resynchronised_and_costs_only_the_damaged_samples(tmp_pat
 def test_a_baud_rate_that_cannot_carry_the_sample_rate_is_refused_at_config_load(tmp_path, capsys):
     """The finding: 115200 baud at 1 kHz was accepted and ended at sample 61 with exit 3."""
     from rig.protocols.errors import ConfigError
-    from rig.rig_config import load_rig_config
 
     config = tmp_path / "slow_serial.toml"
     template = (ROOT / "configs" / "rig_serial.toml").read_text()
@@ -206,8 +207,16 @@ def test_a_device_that_answers_late_gives_late_samples_with_real_values(tmp_path
     log = read_log(out)
     kept = np.flatnonzero(~(log.flags & SampleFlag.LOST).astype(bool))
     late_kept = kept[kept > 101]
-    assert np.all(log.flags[late_kept] & SampleFlag.LATE)  # the value is real, its time is not
-    assert late_kept.size >= 0.9 * (TEST_SAMPLES - 102)
+    # every answer after the lag began came after the next cycle's deadline (8 ms > 5 ms from a setpoint
+    # sent at or after its deadline): LATE whatever the load. How many arrive within the pending window of
+    # 4 cycles depends on how the loaded host runs the device's thread, so the count is not asserted (it was
+    # ">= 90 %" and failed under load), only that answers come and that each is the plant's real answer
+    assert late_kept.size > 0 and np.all(log.flags[late_kept] & SampleFlag.LATE)
+    config = load_rig_config(write_test_config("serial", tmp_path))
+    expected = load_plant_config(config.simulation.plant_path).gearbox(seed=config.simulation.seed).simulate(
+        log.command_rad)
+    np.testing.assert_array_equal(log.angle_rad[kept], expected.measured_angle_rad[kept])
+    assert result["lost"] == TEST_SAMPLES - kept.size
 
 
 def test_a_v2_device_that_answers_late_still_gives_samples_at_its_own_instants(tmp_path, capsys, no_leaks):
@@ -228,18 +237,23 @@ def test_a_device_answering_later_than_the_pending_window_is_stopped_by_the_watc
 
 def test_a_can_frame_delayed_past_later_syncs_costs_two_flagged_samples_never_a_silent_wrong_one(tmp_path, capsys,
                                                                                                  no_leaks):
+    """``rig run --sim-faults delay=12@100`` on the threaded simulated rig: which later SYNC the late frame
+    follows depends on how the loaded host runs the SYNC thread and the 12 ms timer, so only what holds
+    under any load is asserted here: no row is silently wrong (every row not flagged LOST, DUPLICATE or
+    AMBIGUOUS is the plant's answer to its command) and the summary counts the flags. The exact cost (sample
+    100 LOST, the one it lands in DUPLICATE) is asserted SYNC by SYNC on the simulated clock in
+    ``tests/transports/test_canopen_clocked.py``."""
     code, result, err, out = _rig_run("canopen", tmp_path, "delay=12@100", capsys)  # 12 ms: after ~2 later SYNCs
     assert code == exit_codes.SUCCESS, err
     log = read_log(out)
-    assert log.flags[100] & SampleFlag.LOST  # its answer never came in its window
-    landed = np.flatnonzero(log.flags & SampleFlag.DUPLICATE)
-    in_window = landed[(landed >= 101) & (landed <= 106)]
-    assert in_window.size == 1  # the sample the late frame was filed under is unusable
-    # a busy host can bunch the thread-driven SYNCs of the virtual bus: the samples around two SYNCs closer
-    # than one cycle are flagged AMBIGUOUS, and any answer filed twice there is unusable too, never silent
-    others = np.setdiff1d(landed, in_window)
-    assert np.all(log.flags[others] & SampleFlag.AMBIGUOUS)
+    unusable = SampleFlag.LOST | SampleFlag.DUPLICATE | SampleFlag.AMBIGUOUS
+    clean = (log.flags & unusable) == 0
+    config = load_rig_config(write_test_config("canopen", tmp_path))
+    expected = load_plant_config(config.simulation.plant_path).gearbox(seed=config.simulation.seed).simulate(
+        log.command_rad)
+    np.testing.assert_array_equal(log.angle_rad[clean], expected.measured_angle_rad[clean])
     assert result["lost"] == np.count_nonzero(log.flags & SampleFlag.LOST)
+    assert result["duplicate"] == np.count_nonzero(log.flags & SampleFlag.DUPLICATE)
 
 
 @pytest.mark.parametrize("kind", ["canopen", "can"])

@@ -5,6 +5,7 @@ an error naming the frame."""
 from __future__ import annotations
 
 import json
+import sys
 from pathlib import Path
 
 import can
@@ -18,6 +19,8 @@ from rig.log_file import read_log
 from rig.protocols.errors import LogFileError
 from rig.rig_config import load_rig_config
 from rig.trace_import import import_trace
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "transports"))  # the clocked bus
 
 CONFIGS = Path(__file__).resolve().parents[2] / "configs"
 RATE_HZ = 200.0  # as the transport tests: a modest rate that a loaded CI host keeps
@@ -85,19 +88,57 @@ def test_the_trace_of_a_run_imports_as_the_runs_log(kind, suffix, tmp_path, caps
 
 
 @pytest.mark.parametrize("mode", ["ip_buffer", "csp"])
-def test_a_canopen_trace_with_held_samples_imports_as_the_runs_log(mode, tmp_path, capsys):
+def test_a_canopen_trace_with_held_samples_imports_as_the_runs_log(mode, tmp_path):
     """A host stall longer than the lead: the drive held earlier targets (CSP) or ran out of records
-    (interpolated position), and the trace shows which."""
-    trace = tmp_path / "run.blf"
-    log = _run(tmp_path, trace, 0.6, "canopen", "--sim-faults", "stall=150@10", mode=mode)  # lead 100 ms
-    assert json.loads(capsys.readouterr().out)["held"] > 0
-    record = import_trace(trace, load_rig_config(tmp_path / "sim_canopen.toml"))
-    imported = tmp_path / "imported.csv"
-    from rig.log_file import write_log
+    (interpolated position), and the trace shows which. On the simulated clock (:mod:`clocked_canopen`), so
+    the stall holds exactly the instants beyond the lead whatever the machine's load: 30.5 periods of stall
+    at 200 Hz with the 20-period lead of 100 ms hold 11."""
+    from rig.runner import run_experiment
+    from rig.transports import parse_transport_url
+    from rig.transports.canopen_link import CanOpenTransport
+    from sim_backend.canopen_nodes import SimulatedCanOpenRig
+    from sim_backend.plant_config import load_plant_config
 
-    write_log(imported, record)
-    assert record.count_flag(SampleFlag.HELD) > 0
-    _assert_same_samples(log, imported, ignore_late=False)
+    from clocked_canopen import ClockedCanBus
+    from clocked_line import SimulatedClock
+    from sim_rigs import ListSink
+
+    config = load_rig_config(_config(tmp_path, "canopen", mode))
+    trace, stall_s, period_s = tmp_path / "run.blf", 0.1525, 1 / RATE_HZ
+    clock = SimulatedClock(100.0)
+    bus = ClockedCanBus(clock)
+    rig = SimulatedCanOpenRig(load_plant_config(config.simulation.plant_path).gearbox(seed=config.simulation.seed),
+                              channel="clocked", clock=clock)
+    _, where = parse_transport_url(config.url)
+    transport = CanOpenTransport(**where, **config.transport_options(), clock=clock, trace_path=str(trace))
+    bus.master(transport)
+    bus.devices(rig)
+    stalled, sink = [], ListSink()
+
+    def stall(done: int, _held: int) -> None:
+        if done >= 10 and not stalled:
+            stalled.append(transport.device_sample)
+            bus.stall(stall_s)
+
+    try:
+        command = 0.5 * np.sin(2 * np.pi * np.arange(120) / 40)
+        summary = run_experiment(transport, command, sink, feedback_timeout_s=config.feedback_timeout_s,
+                                 late_tolerance_s=config.late_tolerance_s, clock=clock, progress=stall)
+    finally:
+        transport.close()
+        rig.close()
+    flags = np.array([row[4] for row in sink.rows])
+    (heard,) = stalled  # the runner had queued up to this instant's predecessor + the lead
+    lead = transport.lead_samples
+    expected_held = list(range(heard + lead, heard + int(stall_s / period_s) + 1))
+    assert lead == 20 and len(expected_held) == 11 and summary.held == 11
+    assert np.flatnonzero(flags & SampleFlag.HELD).tolist() == expected_held
+    record = import_trace(trace, config)
+    np.testing.assert_allclose(record.time_s, [row[0] for row in sink.rows], rtol=0, atol=1e-12)
+    np.testing.assert_array_equal(record.command_rad, [row[1] for row in sink.rows])
+    np.testing.assert_array_equal(record.angle_rad, [row[2] for row in sink.rows])
+    np.testing.assert_array_equal(record.encoder_counts, [row[3] for row in sink.rows])
+    np.testing.assert_array_equal(record.flags, flags)  # every flag, LATE too: the trace has the SYNCs
 
 
 @pytest.mark.parametrize("seconds, stall_ms", [(0.8, 400), (2.4, 1700)], ids=["hold", "hold-past-254-ticks"])

@@ -1,0 +1,269 @@
+"""The CANopen master against the simulated CiA 402 drive and CiA 406 encoder, SYNC by SYNC on a simulated
+clock (:mod:`clocked_canopen`: no thread, no sleep; nothing here depends on how busy the machine is).
+
+The expectations are CiA 301 / CiA 402 semantics, not what the code happens to give: SYNC k is the sample
+instant k (the master's cyclic task, exactly every period); in cyclic synchronous position (0x6060 = 8) the
+drive applies at SYNC k the target 0x607A last received before it; in interpolated position (0x6060 = 7) it
+takes one interpolation data record (0x60C1) from its FIFO (0x60C4) per SYNC, and an empty FIFO holds the
+last one (an underrun); a synchronous TPDO answers its SYNC, possibly one SYNC later (0x1800:2 = 1 on a
+device that sends what it latched at the previous SYNC: legal, and configured on the master)."""
+
+from __future__ import annotations
+
+import contextlib
+import math
+
+import numpy as np
+import pytest
+
+from identify.experiment_record import SampleFlag
+from rig.protocols import cia402
+from rig.protocols.cia402 import BringUpTiming, DriveScaling
+from rig.protocols.errors import TransportError
+from rig.runner import run_experiment
+from rig.transports.canopen_link import CanOpenTransport
+from sim_backend.canopen_behaviour import DriveBehaviour, EncoderBehaviour
+from sim_backend.canopen_nodes import SimulatedCanOpenRig
+from sim_backend.plant_config import load_plant_config
+
+from clocked_canopen import ClockedCanBus
+from clocked_line import SimulatedClock
+from sim_rigs import CONFIGS, ListSink
+
+DRIVE = DriveScaling(1 << 17)
+LEAD_S = 0.1  # the master's default lead
+BUFFER_RECORDS = 64  # the simulated drive's 0x60C4:1/2 (configs/eds/sim_drive_cia402.eds)
+
+
+def _gearbox(rate_hz: float, directory):
+    text = (CONFIGS / "plants" / "precision_gearbox.toml").read_text()
+    text = text.replace("sample_period_s = 0.001", f"sample_period_s = {1 / rate_hz!r}")
+    path = directory / f"plant_{rate_hz:g}.toml"
+    path.write_text(text)
+    return load_plant_config(path).gearbox(seed=4)
+
+
+@contextlib.contextmanager
+def _clocked_rig(tmp_path, *, rate_hz: float = 1000.0, mode: str = "ip_buffer", drive_behaviour=None,
+                 encoder_behaviour=None, transport_options=None, **faults):
+    """(bus, transport, rig, clock): the master and the simulated nodes on one :class:`ClockedCanBus`."""
+    clock = SimulatedClock(100.0)
+    bus = ClockedCanBus(clock)
+    gearbox = _gearbox(rate_hz, tmp_path)
+    rig = SimulatedCanOpenRig(gearbox, channel="clocked", clock=clock, drive_behaviour=drive_behaviour,
+                              encoder_behaviour=encoder_behaviour, **faults)
+    transport = CanOpenTransport("virtual", "clocked", encoder=gearbox.encoder, sample_period_s=1 / rate_hz,
+                                 drive=DRIVE, timing=BringUpTiming(), mode=mode, lead_s=LEAD_S, name="clocked",
+                                 clock=clock, **(transport_options or {}))
+    bus.master(transport)
+    bus.devices(rig)
+    try:
+        yield bus, transport, rig, clock
+    finally:
+        transport.close()
+        rig.close()
+
+
+def _command(num_samples: int) -> np.ndarray:
+    return 0.2 * np.sin(2 * np.pi * np.arange(num_samples) / 250)
+
+
+def _run(bus, transport, clock, command, *, stall_at=None, stall_s=0.0, feedback_timeout_s=0.5):
+    stalled = []
+
+    def progress(done: int, _held: int) -> None:
+        if stall_at is not None and done >= stall_at and not stalled:
+            stalled.append((clock(), transport.device_sample))
+            bus.stall(stall_s)
+
+    sink = ListSink()
+    summary = run_experiment(transport, command, sink, feedback_timeout_s=feedback_timeout_s, clock=clock,
+                             progress=progress)
+    return summary, sink, stalled
+
+
+def _flags(sink) -> np.ndarray:
+    return np.array([row[4] for row in sink.rows])
+
+
+def _answered_rows_equal_the_offline_simulation(sink, rate_hz: float, tmp_path) -> None:
+    """The logged angles are the plant's response to the logged commands (the commands really applied)."""
+    command = np.array([row[1] for row in sink.rows])
+    angle = np.array([row[2] for row in sink.rows])
+    answered = (_flags(sink) & SampleFlag.LOST) == 0
+    expected = _gearbox(rate_hz, tmp_path).simulate(command).measured_angle_rad
+    np.testing.assert_array_equal(angle[answered], expected[answered])
+
+
+def _sync_times(bus) -> list[float]:
+    return [when for when, cob_id, _ in bus.frames if cob_id == 0x80]
+
+
+def _stall_instants(stalled, stall_s: float, period_s: float) -> tuple[int, int]:
+    """The instant the host had heard of when it stalled (it had queued up to that one's predecessor + the
+    lead: the runner tops up before it waits; the stall starts at that SYNC's time) and the last instant
+    whose SYNC fell in the stall."""
+    (_, heard), = stalled
+    return heard, heard + math.floor(stall_s / period_s + 1e-9)
+
+
+# -- start-up and the lead -------------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("rate_hz", [1000.0, 2000.0])
+def test_the_fifo_is_filled_to_its_capacity_and_the_lead_is_kept_sync_by_sync(rate_hz, tmp_path):
+    """Interpolated position (0x6060 = 7): the lead of 100 ms is 100 records at 1 kHz and 200 at 2 kHz, more
+    than the drive's FIFO takes, so the FIFO stands at its capacity (0x60C4:2) less the master's margin at
+    every SYNC, the rest waiting in the host's queue; each SYNC takes one record; nothing is held."""
+    from rig.transports.canopen_link import IP_BUFFER_MARGIN_RECORDS
+
+    samples = 400
+    with _clocked_rig(tmp_path, rate_hz=rate_hz) as (bus, transport, rig, clock):
+        summary, sink, _ = _run(bus, transport, clock, _command(samples))
+        levels, capacity = rig.ip_levels, transport._ip_capacity
+    period_s = 1 / rate_hz
+    lead = round(LEAD_S * rate_hz)
+    assert transport.mode == "ip_buffer" and capacity == BUFFER_RECORDS and transport.lead_samples == lead
+    assert summary.samples == samples and summary.lost == summary.held == summary.late == 0
+    full = capacity - IP_BUFFER_MARGIN_RECORDS
+    assert levels[:samples] == [min(full, samples - k) for k in range(samples)]
+    assert levels[samples:] and not any(levels[samples:])  # after the last record: empty, the drive holds it
+    assert math.isclose(summary.min_lead_s, LEAD_S, abs_tol=1e-9)  # every record queued exactly the lead ahead
+    syncs = np.array(_sync_times(bus))  # the master's cyclic SYNC: exactly every period
+    np.testing.assert_allclose(np.diff(syncs), period_s, rtol=0, atol=1e-9)
+    commands = [row[1] for row in sink.rows]
+    assert commands == [DRIVE.quantize_rad(value) for value in _command(samples)]
+    assert [row[0] for row in sink.rows] == pytest.approx([k * period_s for k in range(samples)])
+    _answered_rows_equal_the_offline_simulation(sink, rate_hz, tmp_path)
+
+
+@pytest.mark.parametrize("rate_hz", [1000.0, 2000.0])
+def test_in_csp_each_target_is_on_the_bus_between_the_sync_before_and_its_own(rate_hz, tmp_path):
+    """Cyclic synchronous position (0x6060 = 8, forced): target k is received after SYNC k-1 and before
+    SYNC k (CiA 402: the drive applies at each SYNC the last target received), so the lead on the bus is
+    one period whatever the host's queue holds; the host's lead is the configured one."""
+    samples = 300
+    with _clocked_rig(tmp_path, rate_hz=rate_hz, mode="csp") as (bus, transport, rig, clock):
+        summary, sink, _ = _run(bus, transport, clock, _command(samples))
+    assert transport.mode == "csp" and summary.samples == samples and summary.lost == summary.held == 0
+    assert math.isclose(summary.min_lead_s, LEAD_S, abs_tol=1e-9)
+    expected = [DRIVE.counts_from_rad(value) for value in _command(samples)]
+    between, targets = 0, {}  # SYNCs seen since the first target; target counts by the SYNC they precede
+    for _, cob_id, data in bus.frames:
+        if cob_id == 0x80 and targets:
+            between += 1
+        elif cob_id == 0x201:
+            assert between not in targets, f"two targets before SYNC {between}"
+            targets[between] = int.from_bytes(data, "little", signed=True)
+    assert [targets.get(k) for k in range(samples)] == expected
+    _answered_rows_equal_the_offline_simulation(sink, rate_hz, tmp_path)
+
+
+# -- host stalls -------------------------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("mode", ["ip_buffer", "csp"])
+def test_a_host_stall_shorter_than_the_lead_holds_nothing(mode, tmp_path):
+    stall_s = 0.0655  # 65.5 periods at 1 kHz, within the 100-period lead
+    with _clocked_rig(tmp_path, mode=mode) as (bus, transport, rig, clock):
+        summary, sink, stalled = _run(bus, transport, clock, _command(400), stall_at=150, stall_s=stall_s)
+    assert stalled and summary.samples == 400 and summary.lost == summary.held == summary.late == 0
+    # the first setpoint queued after the stall had the lead less the stall
+    assert math.isclose(summary.min_lead_s, LEAD_S - stall_s, abs_tol=1e-9)
+    assert [row[1] for row in sink.rows] == [DRIVE.quantize_rad(value) for value in _command(400)]
+    _answered_rows_equal_the_offline_simulation(sink, 1000.0, tmp_path)
+
+
+@pytest.mark.parametrize("mode", ["ip_buffer", "csp"])
+def test_a_host_stall_longer_than_the_lead_holds_exactly_the_instants_beyond_it(mode, tmp_path):
+    """150.5 periods of stall with a 100-period lead: the setpoints the host had queued cover the instants
+    up to the one it had heard of plus the lead less one; every later instant in the stall is HELD (in
+    interpolated position each is a SYNC that found the FIFO empty: an underrun), nothing is lost, and the
+    lead is kept again after it."""
+    period_s, stall_s, samples = 1e-3, 0.1505, 500
+    lead = round(LEAD_S / period_s)
+    command = _command(samples)
+    with _clocked_rig(tmp_path, mode=mode) as (bus, transport, rig, clock):
+        summary, sink, stalled = _run(bus, transport, clock, command, stall_at=150, stall_s=stall_s)
+        levels = rig.ip_levels
+    heard, last_in_stall = _stall_instants(stalled, stall_s, period_s)
+    expected_held = list(range(heard + lead, last_in_stall + 1))
+    held = np.flatnonzero(_flags(sink) & SampleFlag.HELD).tolist()
+    assert len(expected_held) == 51 and held == expected_held
+    assert summary.held == len(held) and summary.lost == 0 and summary.samples == samples
+    commands = [row[1] for row in sink.rows]
+    assert commands[held[0]:held[-1] + 1] == [commands[held[0] - 1]] * len(held)  # the last target, held
+    if mode == "ip_buffer":  # the drive's own account: exactly these SYNCs found its FIFO empty
+        assert [k for k in range(samples) if levels[k] == 0] == held
+        # after the underrun the drive takes the later records at later instants, each logged as applied
+        assert commands[held[-1] + 1:] == [DRIVE.quantize_rad(v) for v in command[held[0]:samples - len(held)]]
+    else:  # CSP: a target that missed its SYNC is dropped; from the next SYNC on the targets are in time
+        assert commands[held[-1] + 1:] == [DRIVE.quantize_rad(v) for v in command[held[-1] + 1:]]
+    # the smallest lead is negative: the first setpoint queued after the stall came after its instant, by
+    # the stall less the lead (the master measures it in whole periods, so up to one period more)
+    assert LEAD_S - stall_s - period_s - 1e-9 <= summary.min_lead_s <= LEAD_S - stall_s + 1e-9
+    _answered_rows_equal_the_offline_simulation(sink, 1000.0, tmp_path)
+
+
+# -- devices that answer late, devices that fall silent --------------------------------------------------------
+
+def test_a_drive_answering_each_sync_one_sync_late_is_no_drop_out(tmp_path):
+    """TPDOs that carry, after SYNC k+1, what was latched at SYNC k (legal, CiA 301; configured on the
+    master): every sample is filed under its own instant, none lost or held, no fault."""
+    late = {"drive_tpdo_latency_cycles": 1, "encoder_tpdo_latency_cycles": 1}
+    with _clocked_rig(tmp_path, mode="csp", drive_behaviour=DriveBehaviour(tpdo_latency_cycles=1),
+                      encoder_behaviour=EncoderBehaviour(tpdo_latency_cycles=1), transport_options=late) as (
+                          bus, transport, rig, clock):
+        summary, sink, _ = _run(bus, transport, clock, _command(300))
+        state = rig.state
+    assert summary.samples == 300 and summary.lost == summary.held == summary.duplicate == summary.late == 0
+    assert summary.stop.endswith("ends SWITCH ON DISABLED") and state is cia402.DriveState.SWITCH_ON_DISABLED
+    _answered_rows_equal_the_offline_simulation(sink, 1000.0, tmp_path)
+
+
+def test_a_drive_answering_later_than_configured_is_named_as_such_not_as_a_drop_out(tmp_path):
+    from rig.protocols.errors import DeviceFault
+
+    with _clocked_rig(tmp_path, mode="csp", drive_behaviour=DriveBehaviour(tpdo_latency_cycles=1)) as (
+            bus, transport, rig, clock):
+        with pytest.raises(DeviceFault, match=r"set drive_tpdo_latency_cycles = 1") as caught:
+            _run(bus, transport, clock, _command(300))
+        state = rig.state
+    assert "left OPERATION ENABLED" not in str(caught.value)
+    assert state is cia402.DriveState.SWITCH_ON_DISABLED
+
+
+def test_the_feedback_watchdog_stops_a_silent_drive_and_the_drive_ends_disabled(tmp_path):
+    """The drive's TPDOs stop after sample 100 (its heartbeat goes on): the runner's watchdog stops the run
+    once nothing has come for feedback_timeout_s and the grace after it, on the simulated clock; the stop
+    is the one teardown: quick stop, then disable."""
+    from rig.runner import WATCHDOG_GRACE
+
+    timeout_s = 0.2
+    with _clocked_rig(tmp_path, mode="csp", silent_drive_seqs=range(100, 100_000)) as (bus, transport, rig, clock):
+        with pytest.raises(TransportError, match=r"no feedback for ([0-9.]+) s \(watchdog 0.2 s\)") as caught:
+            _run(bus, transport, clock, _command(2000), feedback_timeout_s=timeout_s)
+        state, controlwords = rig.state, rig.controlwords
+    last_tpdo = max(i for i, (_, cob_id, _) in enumerate(bus.frames) if cob_id == 0x181)
+    fed_s = next(when for when, cob_id, _ in bus.frames[last_tpdo:] if cob_id == 0x80)  # its sample filed
+    quick_stop_s = next(when for when, cob_id, data in bus.frames if cob_id == 0x601 and data[1:3] == b"\x40\x60"
+                        and int.from_bytes(data[4:6], "little") == cia402.CONTROLWORD_QUICK_STOP)
+    assert (1 + WATCHDOG_GRACE) * timeout_s < quick_stop_s - fed_s <= (1 + WATCHDOG_GRACE) * timeout_s + 2e-3
+    assert "stopping at sample" in str(caught.value)
+    assert controlwords[-2:] == [cia402.CONTROLWORD_QUICK_STOP, cia402.CONTROLWORD_DISABLE_VOLTAGE]
+    assert state is cia402.DriveState.SWITCH_ON_DISABLED
+
+
+def test_an_encoder_tpdo_delayed_past_two_syncs_costs_exactly_its_sample_and_the_one_it_lands_in(tmp_path):
+    """The encoder's answer to SYNC 100 goes on the bus 2.4 periods late, after SYNCs 101 and 102: the master
+    files a TPDO under the last SYNC before it on the bus, so sample 100 has no encoder value (LOST) and
+    sample 102 two (DUPLICATE: unusable, never silently wrong); every other sample is the plant's answer."""
+    period_s = 1e-3
+    with _clocked_rig(tmp_path, mode="csp", delayed_tpdo=(2.4 * period_s, 100)) as (bus, transport, rig, clock):
+        summary, sink, _ = _run(bus, transport, clock, _command(300))
+    flags = _flags(sink)
+    assert np.flatnonzero(flags & SampleFlag.LOST).tolist() == [100]
+    assert np.flatnonzero(flags & SampleFlag.DUPLICATE).tolist() == [102]
+    assert not np.any(flags & SampleFlag.AMBIGUOUS) and summary.lost == 1 and summary.duplicate == 1
+    clean = (flags & (SampleFlag.LOST | SampleFlag.DUPLICATE)) == 0
+    command = np.array([row[1] for row in sink.rows])
+    expected = _gearbox(1000.0, tmp_path).simulate(command).measured_angle_rad
+    np.testing.assert_array_equal(np.array([row[2] for row in sink.rows])[clean], expected[clean])
