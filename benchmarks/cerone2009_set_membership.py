@@ -116,7 +116,8 @@ def _pool_cpu_s(pool: ProcessPoolExecutor | None) -> float:
 
 
 def scaling(args: argparse.Namespace) -> None:
-    plant = PlantModel((LinearBlock((0.5, 0.7), (0.0, 1.4, 0.8), 1.0), OutputBacklash(**GAMMA)))
+    backlash = OutputBacklash(GAMMA["m_l"], GAMMA["c_l"], GAMMA["m_r"], GAMMA["c_r"])
+    plant = PlantModel((LinearBlock((0.5, 0.7), (0.0, 1.4, 0.8), 1.0), backlash))
     staircase = filtered_staircase(list(np.linspace(0.6, 3.0, 50)), 0.8125, 100)
     steady = staircase_steady_state_indices(50, 100)
     steady_w = plant.simulate(staircase)[steady]
@@ -196,7 +197,8 @@ def main() -> None:
         scaling(args)
         return
 
-    plant = PlantModel((LinearBlock((0.5, 0.7), (0.0, 1.4, 0.8), 1.0), OutputBacklash(**GAMMA)))
+    backlash = OutputBacklash(GAMMA["m_l"], GAMMA["c_l"], GAMMA["m_r"], GAMMA["c_r"])
+    plant = PlantModel((LinearBlock((0.5, 0.7), (0.0, 1.4, 0.8), 1.0), backlash))
     staircase = filtered_staircase(list(np.linspace(0.6, 3.0, 50)), 0.8125, 100)
     steady = staircase_steady_state_indices(50, 100)
     steady_w = plant.simulate(staircase)[steady]

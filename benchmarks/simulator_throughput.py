@@ -46,7 +46,7 @@ def all_effects_plant() -> PlantModel:
         Delay(2),
         LinearBlock(a=(0.5, 0.7), b=(0.0, 1.4, 0.8), sample_period_s=PERIOD_S),
         Resonance(frequency_hz=120.0, damping_ratio=0.03, sample_period_s=PERIOD_S),
-        OutputBacklash(m_l=0.248, c_l=0.0698, m_r=0.252, c_r=0.0349),
+        OutputBacklash(m_l=0.248, c_l_rad=0.0698, m_r=0.252, c_r_rad=0.0349),
         CoulombFriction(breakaway_torque_nm=0.3, coulomb_torque_nm=0.2, stiffness_nm_per_rad=2000.0),
         OutputOffset(offset_rad=0.002, drift_rad_per_s=1e-5, sample_period_s=PERIOD_S),
     ))

@@ -24,7 +24,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from identify.experiment_record import SampleFlag  # noqa: E402
-from rig.commands.run import experiment_log_metadata  # noqa: E402
+from rig.log_metadata import experiment_log_metadata  # noqa: E402
 from rig.transports.simulated import simulated_rig  # noqa: E402
 from rig.experiment_config import load_experiment_config  # noqa: E402
 from rig.log_file import LogWriter, read_log  # noqa: E402

@@ -280,7 +280,7 @@ def _gain_guesses(context: GuessContext) -> list[tuple[float, ...]]:
 
 
 def _build_backlash(v: Sequence[float], period: float) -> Block:
-    return OutputBacklash(m_l=1.0, c_l=max(abs(v[0]), 1e-12), m_r=1.0, c_r=max(abs(v[1]), 1e-12))
+    return OutputBacklash(m_l=1.0, c_l_rad=max(abs(v[0]), 1e-12), m_r=1.0, c_r_rad=max(abs(v[1]), 1e-12))
 
 
 def _build_saturation(v: Sequence[float], period: float) -> Block:
@@ -539,16 +539,17 @@ def _static_error(train: DriveTrain, torque_per_inertia: float) -> float:
 EFFECTS: dict[str, Effect] = {effect.name: effect for effect in (
     Effect(
         name="backlash", block_class=OutputBacklash, toml_type="output_backlash",
-        toml_keys=(TomlKey("m_l"), TomlKey("c_l"), TomlKey("m_r"), TomlKey("c_r"), TomlKey("initial_output", default=0.0)),
+        toml_keys=(TomlKey("m_l"), TomlKey("c_l_rad"), TomlKey("m_r"), TomlKey("c_r_rad"),
+                   TomlKey("initial_output_rad", default=0.0)),
         takes_sample_period=False,
         parameters=(Parameter("c_l_rad", "rad", "left half-width of the play", lower=0.0),
                     Parameter("c_r_rad", "rad", "right half-width of the play", lower=0.0)),
         placement="output", free_parameters=2, build=_build_backlash,
-        report=lambda b: {"c_l_rad": b.c_l, "c_r_rad": b.c_r},
+        report=lambda b: {"c_l_rad": b.c_l_rad, "c_r_rad": b.c_r_rad},
         guesses=_backlash_guesses,
-        vanished=lambda b, delta: b.c_l + b.c_r < delta,
-        random_block=lambda rng, u, f, period: OutputBacklash(m_l=1.0, c_l=rng.uniform(0.01, 0.04), m_r=1.0,
-                                                      c_r=rng.uniform(0.01, 0.04)),
+        vanished=lambda b, delta: b.c_l_rad + b.c_r_rad < delta,
+        random_block=lambda rng, u, f, period: OutputBacklash(m_l=1.0, c_l_rad=rng.uniform(0.01, 0.04), m_r=1.0,
+                                                      c_r_rad=rng.uniform(0.01, 0.04)),
         signature="a residual that changes sign where the model's motion reverses (r ~ c s_t, s_t the last "
                   "direction of y^)",
         family="hysteresis", needs_reversals=True,

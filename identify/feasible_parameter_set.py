@@ -138,20 +138,22 @@ class BacklashSidePolygon:
                    np.asarray(data["sample_indices"], dtype=np.int64).reshape(-1), floats("steady_input_rad"),
                    floats("strip_lower_rad"), floats("strip_upper_rad"))
 
-    def side_line(self, slope: float, slope_times_deadband: float, x_rad: ArrayLike) -> NDArray[np.float64]:
-        """w = m x - p on the right side (eq. (11)), w = m x + p on the left (eq. (12))."""
+    def side_line(self, slope: float, slope_times_deadband_rad: float, x_rad: ArrayLike) -> NDArray[np.float64]:
+        """w = m x - p on the right side (eq. (11)), w = m x + p on the left (eq. (12)); the slope m is
+        dimensionless, p = m·c and w in rad."""
         x = np.asarray(x_rad, dtype=float)
-        return slope * x + (-slope_times_deadband if self.side == "right" else slope_times_deadband)
+        return slope * x + (-slope_times_deadband_rad if self.side == "right" else slope_times_deadband_rad)
 
-    def contains(self, slope: float, slope_times_deadband: float) -> bool:
+    def contains(self, slope: float, slope_times_deadband_rad: float) -> bool:
         """Whether (m, p = m·c) lies in this side of D_γ: m > 0, p >= 0 and every strip
         lo_k <= m ū_k ∓ p <= hi_k (eqs. (16)-(17)), up to rounding (1e-12 relative)."""
         if self.is_empty:
             return False
-        value = self.side_line(slope, slope_times_deadband, self.steady_input_rad)
+        value = self.side_line(slope, slope_times_deadband_rad, self.steady_input_rad)
         tolerance = 1e-12 * max(1.0, float(np.max(np.abs(value)))) if value.size else 0.0
         return bool(np.all(self.strip_lower_rad - tolerance <= value)
-                    and np.all(value <= self.strip_upper_rad + tolerance) and slope > 0 and slope_times_deadband >= 0)
+                    and np.all(value <= self.strip_upper_rad + tolerance)
+                    and slope > 0 and slope_times_deadband_rad >= 0)
 
     def output_band(self, x_rad: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Lowest and highest w over every line of this side at each x: w is linear in (m, p), so over the
@@ -211,10 +213,11 @@ class BacklashFeasibleSet:
         assert self.m_l and self.c_l and self.m_r and self.c_r
         return {"m_l": self.m_l, "c_l": self.c_l, "m_r": self.m_r, "c_r": self.c_r}
 
-    def contains(self, m_l: float, c_l: float, m_r: float, c_r: float) -> dict[str, bool]:
+    def contains(self, m_l: float, c_l_rad: float, m_r: float, c_r_rad: float) -> dict[str, bool]:
         """Per side (``left``, ``right``), whether the backlash (m, c) lies in D_γ (eqs. (14)-(17)); both
-        False for an empty set."""
-        return {"left": self.left.contains(m_l, m_l * c_l), "right": self.right.contains(m_r, m_r * c_r)}
+        False for an empty set. The slopes are dimensionless, the half-widths in rad (the fields of
+        :class:`identify.plant_blocks.OutputBacklash`)."""
+        return {"left": self.left.contains(m_l, m_l * c_l_rad), "right": self.right.contains(m_r, m_r * c_r_rad)}
 
     KIND = "backlash_feasible_set"
     VERSION = 1

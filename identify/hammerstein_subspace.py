@@ -67,6 +67,7 @@ from identify.validation import InvalidInputError, as_signal, positive, renamed_
 __all__ = [
     "HammersteinModel",
     "HammersteinOptions",
+    "NodePlay",
     "RefinementReport",
     "identify_hammerstein",
     "pi_moesp_observability",
@@ -90,7 +91,7 @@ class RefinementReport:
 
     Attributes
     ----------
-    rms_before, rms_after
+    rms_before_rad, rms_after_rad
         Root mean square output error on the identification data before (subspace estimate) and after.
     evaluations
         Number of residual evaluations of :func:`scipy.optimize.least_squares`.
@@ -103,12 +104,56 @@ class RefinementReport:
         decrease or the refined G is unstable).
     """
 
-    rms_before: float
-    rms_after: float
+    rms_before_rad: float
+    rms_after_rad: float
     evaluations: int
     converged: bool
     message: str
     applied: bool
+
+
+@dataclass(frozen=True)
+class NodePlay:
+    """The play seen at the output, read at the nodes: the gap P_d(u_i) - P_a(u_i) at each ascending node
+    u_i, with P_d interpolated there (eq. (3); :meth:`HammersteinModel.play_at_nodes`).
+
+    On Table I cycles a play between two parallel lines gives the same gap at every interior node (the paths
+    meet at u_min and u_max), so the median over the interior nodes is its estimate and their spread the
+    only uncertainty the subspace method offers (it gives no interval); for curved borders the gap varies
+    with u and the median is only a typical value.
+
+    Attributes
+    ----------
+    nodes_rad
+        The ascending nodes u_i.
+    gaps_rad
+        P_d(u_i) - P_a(u_i) at each of them.
+    """
+
+    nodes_rad: NDArray[np.float64]
+    gaps_rad: NDArray[np.float64]
+
+    @property
+    def interior_gaps_rad(self) -> NDArray[np.float64]:
+        """The gaps without the end nodes, where both paths meet (all of them for two nodes)."""
+        return self.gaps_rad[1:-1] if self.gaps_rad.size > 2 else self.gaps_rad
+
+    @property
+    def median_rad(self) -> float:
+        return float(np.median(self.interior_gaps_rad))
+
+    @property
+    def lowest_rad(self) -> float:
+        return float(np.min(self.interior_gaps_rad))
+
+    @property
+    def highest_rad(self) -> float:
+        return float(np.max(self.interior_gaps_rad))
+
+    def describe(self) -> str:
+        """The estimate with its spread, as the demo's table and the border figure's caption both state it."""
+        return (f"{self.median_rad:.4g} (median gap P_d - P_a at {self.interior_gaps_rad.size} interior nodes; "
+                f"spread {self.lowest_rad:.3g}..{self.highest_rad:.3g}) rad")
 
 
 def _frozen(name: str, values: ArrayLike, shape: tuple[int, ...]) -> NDArray[np.float64]:
@@ -148,9 +193,9 @@ class HammersteinModel:
         x(0) estimated with B and D (used for the fit diagnostics only; :meth:`simulate` starts at rest).
     fit_percent
         100 (1 - |y - y_model| / |y - mean(y)|) on the identification data (simulation, not prediction).
-    residual_rms
+    residual_rms_rad
         RMS of y - y_model on the identification data.
-    mu0_hold
+    mu0_hold_rad
         The paper's μ0: the output mean over the hold (None if ``mu0_rad`` was given).
     refinement
         Report of the output-error refinement, or None if it was not run.
@@ -172,8 +217,8 @@ class HammersteinModel:
     split: str
     initial_state: NDArray[np.float64]
     fit_percent: float
-    residual_rms: float
-    mu0_hold: float | None = None
+    residual_rms_rad: float
+    mu0_hold_rad: float | None = None
     refinement: RefinementReport | None = None
     ascending_border: PiecewiseLinearBorder = field(init=False)
     descending_border: PiecewiseLinearBorder = field(init=False)
@@ -233,13 +278,17 @@ class HammersteinModel:
             return float("nan")
         return float(np.max(np.min(np.abs(truth[:, None] - estimated[None, :]), axis=1)))
 
+    def play_at_nodes(self) -> NodePlay:
+        """The gaps P_d(u_i) - P_a(u_i) at the ascending nodes (eq. (3)): the play seen at the output."""
+        nodes_rad = np.asarray(self.ascending_border.nodes_u, dtype=float)
+        gaps_rad = (np.interp(nodes_rad, self.descending_border.nodes_u, self.descending_border.values)
+                    - np.asarray(self.ascending_border.values, dtype=float))
+        return NodePlay(nodes_rad, gaps_rad)
+
     @property
     def largest_play_rad(self) -> float:
-        """max over the ascending nodes of P_d(u) - P_a(u): the play seen at the output."""
-        u = np.asarray(self.ascending_border.nodes_u)
-        gap = (np.interp(u, self.descending_border.nodes_u, self.descending_border.values)
-               - np.asarray(self.ascending_border.values))
-        return float(np.max(gap))
+        """max over the ascending nodes of P_d(u) - P_a(u) (:meth:`play_at_nodes`)."""
+        return float(np.max(self.play_at_nodes().gaps_rad))
 
     @property
     def transfer_function(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
@@ -272,7 +321,7 @@ class HammersteinModel:
         if nonlinearity == "paths":
             return self.mu0 + lifted_input(signal, self.nodes, initial_direction=initial_direction) @ self.mu
         if nonlinearity == "backlash":
-            block = InputBacklash(self.ascending_border, self.descending_border, initial_output=self.mu0)
+            block = InputBacklash(self.ascending_border, self.descending_border, initial_output_rad=self.mu0)
             return block.apply(signal)
         raise InvalidInputError(f"nonlinearity: expected 'paths' or 'backlash', got {nonlinearity!r}")
 
@@ -314,9 +363,9 @@ class HammersteinModel:
             "past_horizon": self.past_horizon,
             "future_horizon": self.future_horizon,
             "fit_percent": self.fit_percent,
-            "residual_rms": self.residual_rms,
+            "residual_rms": self.residual_rms_rad,
             "refinement": None if self.refinement is None else {
-                "rms_before": self.refinement.rms_before, "rms_after": self.refinement.rms_after,
+                "rms_before": self.refinement.rms_before_rad, "rms_after": self.refinement.rms_after_rad,
                 "applied": self.refinement.applied, "evaluations": self.refinement.evaluations,
                 "converged": self.refinement.converged, "message": self.refinement.message,
             },
@@ -325,7 +374,7 @@ class HammersteinModel:
             "mu_descending": self.mu_descending.tolist(),
             "num_columns": self.num_columns,
             "initial_state": self.initial_state.tolist(),
-            "mu0_hold": self.mu0_hold,
+            "mu0_hold": self.mu0_hold_rad,
         })
 
     @classmethod
@@ -362,7 +411,7 @@ class HammersteinModel:
                        past_horizon=int(data["past_horizon"]), future_horizon=int(data["future_horizon"]),
                        num_columns=int(data["num_columns"]), split=str(data["split"]),
                        initial_state=data["initial_state"], fit_percent=float(data["fit_percent"]),
-                       residual_rms=float(data["residual_rms"]), mu0_hold=None if hold is None else float(hold),
+                       residual_rms_rad=float(data["residual_rms"]), mu0_hold_rad=None if hold is None else float(hold),
                        refinement=refinement)
 
 
@@ -680,11 +729,12 @@ def _refine(z: NDArray, y: NDArray, numerator: NDArray, denominator: NDArray, mu
     before = residual(start)
     solution = scipy.optimize.least_squares(residual, start, method="trf", x_scale="jac")
     a, b_full, mu_new, mu0_new, zi = unpack(solution.x)
-    rms_before = float(np.sqrt(np.mean(before**2)))
-    rms_after = float(np.sqrt(np.mean(solution.fun**2)))
-    applied = rms_after < rms_before and bool(np.all(np.abs(np.roots(a)) < 1.0))
+    rms_before_rad = float(np.sqrt(np.mean(before**2)))
+    rms_after_rad = float(np.sqrt(np.mean(solution.fun**2)))
+    applied = rms_after_rad < rms_before_rad and bool(np.all(np.abs(np.roots(a)) < 1.0))
     report = RefinementReport(
-        rms_before=rms_before, rms_after=rms_after if applied else rms_before, evaluations=int(solution.nfev),
+        rms_before_rad=rms_before_rad, rms_after_rad=rms_after_rad if applied else rms_before_rad,
+        evaluations=int(solution.nfev),
         converged=bool(solution.success), message=str(solution.message), applied=applied,
     )
     if not applied:
@@ -825,7 +875,7 @@ def identify_hammerstein(
     nodes = _path_nodes(nodes)
     p, f = options.past_horizon, options.future_horizon
 
-    mu0_start, mu0_hold = _start_offset(u_signal, y_signal, nodes, options)
+    mu0_start, mu0_hold_rad = _start_offset(u_signal, y_signal, nodes, options)
     m = nodes.num_lifted_inputs
     j = N - p - f + 1
     needed_columns = (p + f) * m + f
@@ -862,7 +912,7 @@ def identify_hammerstein(
         mu_ascending=mu[:num_a], mu_descending=mu[num_a:],
         singular_values=singular_values, order=n, past_horizon=p, future_horizon=f, num_columns=j,
         split=options.split, initial_state=x0, fit_percent=float(fit),
-        residual_rms=float(np.sqrt(np.mean(residual**2))), mu0_hold=mu0_hold, refinement=refinement,
+        residual_rms_rad=float(np.sqrt(np.mean(residual**2))), mu0_hold_rad=mu0_hold_rad, refinement=refinement,
     )
 
 
@@ -902,8 +952,8 @@ def _start_offset(u: NDArray[np.float64], y: NDArray[np.float64], nodes: PathNod
             f"hold_samples: sample {k} of the hold is u = {float(u[k])}, expected u_min = {nodes.u_min}; "
             "shorten hold_samples or give mu0_rad"
         )
-    mu0_hold = float(np.mean(y[:K]))
-    return mu0_hold, mu0_hold
+    mu0_hold_rad = float(np.mean(y[:K]))
+    return mu0_hold_rad, mu0_hold_rad
 
 
 def _observability(z: NDArray[np.float64], y_bar: NDArray[np.float64], p: int,
@@ -991,7 +1041,7 @@ def _refined_model(z: NDArray, y: NDArray, numerator: NDArray, denominator: NDAr
     numerator, denominator, mu, mu0, zi, refinement = _refine(
         z, y, numerator, denominator, mu, mu0, free_response, feedthrough)
     logger.info("output-error refinement %s: RMS %.6g -> %.6g rad after %d evaluations (%s)",
-                "applied" if refinement.applied else "not applied", refinement.rms_before, refinement.rms_after,
+                "applied" if refinement.applied else "not applied", refinement.rms_before_rad, refinement.rms_after_rad,
                 refinement.evaluations, refinement.message)
     if refinement.applied:
         n = A.shape[0]

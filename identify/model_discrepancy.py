@@ -974,7 +974,7 @@ def _contact_branch_start(chain: _Chain, u: NDArray[np.float64], y: NDArray[np.f
     c_l = c_r = play_rad
     for round_index in range(rounds):
         x = block.apply(inner)
-        w = OutputBacklash(m_l=1.0, c_l=max(c_l, 1e-9), m_r=1.0, c_r=max(c_r, 1e-9)).apply(x)
+        w = OutputBacklash(m_l=1.0, c_l_rad=max(c_l, 1e-9), m_r=1.0, c_r_rad=max(c_r, 1e-9)).apply(x)
         right = np.abs(w - (x - c_r)) < 1e-12
         left = np.abs(w - (x + c_l)) < 1e-12
         if np.any(right):

@@ -282,32 +282,32 @@ class OutputBacklash:
         w_t = w_{t-1}          if z_l < x_t < z_r,
 
     with z_l = w_{t-1}/m_l - c_l and z_r = w_{t-1}/m_r + c_r (eq. (3)). The cases are tested in this
-    order. ``initial_output`` is w_{-1}.
+    order. ``initial_output_rad`` is w_{-1}.
 
     Parameters
     ----------
-    m_l, c_l, m_r, c_r
-        Slopes (> 0) and dead-band half-widths (> 0, in rad of x) of the left and right lines;
-        gamma = [m_l c_l m_r c_r] in eq. (6).
-    initial_output
+    m_l, c_l_rad, m_r, c_r_rad
+        Slopes (> 0, dimensionless: rad of w per rad of x) and dead-band half-widths (> 0, in rad of x) of
+        the left and right lines; gamma = [m_l c_l m_r c_r] in eq. (6).
+    initial_output_rad
         w_{-1}, the output the gearbox rests at before the first sample.
     """
 
     m_l: float
-    c_l: float
+    c_l_rad: float
     m_r: float
-    c_r: float
-    initial_output: float = 0.0
+    c_r_rad: float
+    initial_output_rad: float = 0.0
 
     def __post_init__(self) -> None:
-        for name in ("m_l", "c_l", "m_r", "c_r"):
+        for name in ("m_l", "c_l_rad", "m_r", "c_r_rad"):
             object.__setattr__(self, name, positive(name, getattr(self, name)))
-        object.__setattr__(self, "initial_output", _finite("initial_output", self.initial_output))
+        object.__setattr__(self, "initial_output_rad", _finite("initial_output_rad", self.initial_output_rad))
 
     def apply(self, signal: ArrayLike) -> NDArray[np.float64]:
         x = as_signal("signal", signal)
-        m_l, c_l, m_r, c_r = self.m_l, self.c_l, self.m_r, self.c_r
-        w = self.initial_output
+        m_l, c_l, m_r, c_r = self.m_l, self.c_l_rad, self.m_r, self.c_r_rad
+        w = self.initial_output_rad
         out = []
         append = out.append
         for x_t in x.tolist():
@@ -326,8 +326,8 @@ class _OutputBacklashStepper:
     __slots__ = ("m_l", "c_l", "m_r", "c_r", "w")
 
     def __init__(self, block: OutputBacklash) -> None:
-        self.m_l, self.c_l, self.m_r, self.c_r = block.m_l, block.c_l, block.m_r, block.c_r
-        self.w = block.initial_output
+        self.m_l, self.c_l, self.m_r, self.c_r = block.m_l, block.c_l_rad, block.m_r, block.c_r_rad
+        self.w = block.initial_output_rad
 
     def step(self, x: float) -> float:
         x = float(x)
@@ -400,37 +400,39 @@ class PiecewiseLinearBorder:
 
 @dataclass(frozen=True)
 class ArctanBorder:
-    """h(u) = arctan(u + ``input_shift``) + ``output_shift`` for lower_input < u <= upper_input,
-    ``lower_value`` for u <= lower_input and ``upper_value`` for u > upper_input.
+    """h(u) = arctan(u + ``input_shift_rad``) + ``output_shift_rad`` for ``lower_input_rad`` < u <=
+    ``upper_input_rad``, ``lower_value_rad`` for u <= ``lower_input_rad`` and ``upper_value_rad`` for
+    u > ``upper_input_rad`` (u and h in rad, as the borders of :class:`InputBacklash`).
 
     The borders of the simulation study, Section IV of Pouliquen et al. (2013); see
     :func:`pouliquen2013_backlash` and :func:`pouliquen2013_switch`. With the default infinite limits
     the border is the plain shifted arctangent.
     """
 
-    input_shift: float
-    output_shift: float = 0.0
-    lower_input: float = -math.inf
-    upper_input: float = math.inf
-    lower_value: float = 0.0
-    upper_value: float = 0.0
+    input_shift_rad: float
+    output_shift_rad: float = 0.0
+    lower_input_rad: float = -math.inf
+    upper_input_rad: float = math.inf
+    lower_value_rad: float = 0.0
+    upper_value_rad: float = 0.0
 
     def __post_init__(self) -> None:
-        for name in ("input_shift", "output_shift", "lower_value", "upper_value"):
+        for name in ("input_shift_rad", "output_shift_rad", "lower_value_rad", "upper_value_rad"):
             object.__setattr__(self, name, _finite(name, getattr(self, name)))
-        lower, upper = float(self.lower_input), float(self.upper_input)
+        lower, upper = float(self.lower_input_rad), float(self.upper_input_rad)
         if math.isnan(lower) or math.isnan(upper) or not lower < upper:
-            raise InvalidInputError(f"lower_input, upper_input: expected lower < upper, got {lower!r}, {upper!r}")
-        object.__setattr__(self, "lower_input", lower)
-        object.__setattr__(self, "upper_input", upper)
+            raise InvalidInputError(
+                f"lower_input_rad, upper_input_rad: expected lower < upper, got {lower!r}, {upper!r}")
+        object.__setattr__(self, "lower_input_rad", lower)
+        object.__setattr__(self, "upper_input_rad", upper)
 
     def __call__(self, u: float) -> float:
         u = float(u)
-        if u <= self.lower_input:
-            return self.lower_value
-        if u > self.upper_input:
-            return self.upper_value
-        return math.atan(u + self.input_shift) + self.output_shift
+        if u <= self.lower_input_rad:
+            return self.lower_value_rad
+        if u > self.upper_input_rad:
+            return self.upper_value_rad
+        return math.atan(u + self.input_shift_rad) + self.output_shift_rad
 
     def evaluate_list(self, input_rad: list[float]) -> list[float]:
         """The border at each input value (a list in, a list out: the per-sample steppers use it)."""
@@ -440,7 +442,8 @@ class ArctanBorder:
 def pouliquen2013_backlash() -> InputBacklash:
     """The backlash of Section IV.B of Pouliquen et al. (2013): H_a(u) = arctan(u - 1) (ascending),
     H_d(u) = arctan(u + 1) (descending)."""
-    return InputBacklash(ascending=ArctanBorder(input_shift=-1.0), descending=ArctanBorder(input_shift=1.0))
+    return InputBacklash(ascending=ArctanBorder(input_shift_rad=-1.0),
+                         descending=ArctanBorder(input_shift_rad=1.0))
 
 
 def pouliquen2013_switch() -> InputSwitch:
@@ -449,10 +452,10 @@ def pouliquen2013_switch() -> InputSwitch:
     (as printed; the two arctangent branches meet at +-2 with value +-1.017, so each border has a jump of
     0.017 there)."""
     h0 = 0.5 * (math.atan(3.0) - math.atan(1.0))
-    limits = {"lower_input": -2.0, "upper_input": 2.0, "lower_value": -1.0, "upper_value": 1.0}
+    limits = {"lower_input_rad": -2.0, "upper_input_rad": 2.0, "lower_value_rad": -1.0, "upper_value_rad": 1.0}
     return InputSwitch(
-        ascending=ArctanBorder(input_shift=-1.0, output_shift=h0, **limits),
-        descending=ArctanBorder(input_shift=1.0, output_shift=-h0, **limits),
+        ascending=ArctanBorder(input_shift_rad=-1.0, output_shift_rad=h0, **limits),
+        descending=ArctanBorder(input_shift_rad=1.0, output_shift_rad=-h0, **limits),
     )
 
 
@@ -476,25 +479,27 @@ class InputBacklash:
     Parameters
     ----------
     ascending, descending
-        Borders H_a and H_d (callables rad -> output; :class:`PiecewiseLinearBorder` for a node table).
-    initial_output
-        v_{-1}.
+        Borders H_a and H_d (callables rad -> rad; :class:`PiecewiseLinearBorder` for a node table). The
+        output v is the linear block's input; with the linear block normalised to unit static gain (A.2 of
+        Pouliquen et al. 2013) it is in rad of the plant output, so the borders' values are in rad.
+    initial_output_rad
+        v_{-1}, in the borders' unit (rad).
     """
 
     ascending: Border
     descending: Border
-    initial_output: float = 0.0
+    initial_output_rad: float = 0.0
 
     def __post_init__(self) -> None:
         _check_border("ascending", self.ascending)
         _check_border("descending", self.descending)
-        object.__setattr__(self, "initial_output", _finite("initial_output", self.initial_output))
+        object.__setattr__(self, "initial_output_rad", _finite("initial_output_rad", self.initial_output_rad))
 
     def apply(self, signal: ArrayLike) -> NDArray[np.float64]:
         u = as_signal("signal", signal).tolist()
         lows = _evaluate_border(self.ascending, u, "ascending")
         highs = _evaluate_border(self.descending, u, "descending")
-        v = self.initial_output
+        v = self.initial_output_rad
         out = []
         append = out.append
         for low, high in zip(lows, highs):
@@ -515,7 +520,7 @@ class _InputBacklashStepper:
     def __init__(self, block: InputBacklash) -> None:
         self.ascending = block.ascending
         self.descending = block.descending
-        self.v = block.initial_output
+        self.v = block.initial_output_rad
 
     def step(self, x: float) -> float:
         x = float(x)
@@ -542,8 +547,8 @@ class InputSwitch:
     Parameters
     ----------
     ascending, descending
-        Borders H_a and H_d (callables rad -> output).
-    initial_input
+        Borders H_a and H_d (callables rad -> rad, as for :class:`InputBacklash`).
+    initial_input_rad
         u_{-1} (the rest position).
     initial_ascending
         delta_{-1}.
@@ -551,20 +556,20 @@ class InputSwitch:
 
     ascending: Border
     descending: Border
-    initial_input: float = 0.0
+    initial_input_rad: float = 0.0
     initial_ascending: bool = True
 
     def __post_init__(self) -> None:
         _check_border("ascending", self.ascending)
         _check_border("descending", self.descending)
-        object.__setattr__(self, "initial_input", _finite("initial_input", self.initial_input))
+        object.__setattr__(self, "initial_input_rad", _finite("initial_input_rad", self.initial_input_rad))
         object.__setattr__(self, "initial_ascending", bool(self.initial_ascending))
 
     def apply(self, signal: ArrayLike) -> NDArray[np.float64]:
         u = as_signal("signal", signal).tolist()
         ups = _evaluate_border(self.ascending, u, "ascending")
         downs = _evaluate_border(self.descending, u, "descending")
-        previous = self.initial_input
+        previous = self.initial_input_rad
         ascending = self.initial_ascending
         out = []
         append = out.append
@@ -587,7 +592,7 @@ class _InputSwitchStepper:
     def __init__(self, block: InputSwitch) -> None:
         self.ascending = block.ascending
         self.descending = block.descending
-        self.previous = block.initial_input
+        self.previous = block.initial_input_rad
         self.rising = block.initial_ascending
 
     def step(self, x: float) -> float:

@@ -95,9 +95,9 @@ class SimulatedRigSession:
     def _run_once(self, name: str, command_rad: NDArray[np.float64], *, keep_log: bool) -> ExperimentRecord:
         import tempfile
 
-        from rig.commands.run import experiment_log_metadata
         from rig.experiment_config import Excitation
         from rig.log_file import LogWriter, read_log
+        from rig.log_metadata import experiment_log_metadata
         from rig.runner import run_experiment
         from rig.transports import open_transport
         from rig.transports.simulated import simulated_rig

@@ -16,7 +16,6 @@ from numpy.typing import NDArray
 
 from identify.experiment_record import ExperimentRecord
 from identify.plant_blocks import Delay, LinearBlock, OutputBacklash, PlantModel, Resonance
-from rig.plots.hammerstein import play_at_nodes
 from rig.report import format_interval
 
 __all__ = ["FULL_PLAN", "QUICK_PLAN", "SUMMARY_HEADER", "DemoOutcome", "DemoPlan", "DemoRun", "TrueGearbox",
@@ -70,13 +69,13 @@ class TrueGearbox:
     @property
     def play_rad(self) -> float:
         """Total play seen at the load, m_l c_l + m_r c_r: the gap between the two backlash lines."""
-        return self.backlash.m_l * self.backlash.c_l + self.backlash.m_r * self.backlash.c_r
+        return self.backlash.m_l * self.backlash.c_l_rad + self.backlash.m_r * self.backlash.c_r_rad
 
     @property
     def backlash_values(self) -> dict[str, float]:
         """γ = (m_l, c_l, m_r, c_r) by name, as the bounds name them."""
         backlash = self.backlash
-        return {"m_l": backlash.m_l, "c_l": backlash.c_l, "m_r": backlash.m_r, "c_r": backlash.c_r}
+        return {"m_l": backlash.m_l, "c_l": backlash.c_l_rad, "m_r": backlash.m_r, "c_r": backlash.c_r_rad}
 
     def nominal_without_backlash(self) -> PlantModel:
         """The plant with its play replaced by the bare gear ratio: the model a user would start from."""
@@ -159,7 +158,8 @@ class DemoOutcome:
         result = self.set_membership[method]
         if result.backlash.is_empty:
             return {}
-        return result.backlash.contains(**self.truth.backlash_values)
+        truth = self.truth.backlash
+        return result.backlash.contains(truth.m_l, truth.c_l_rad, truth.m_r, truth.c_r_rad)
 
 
 def _membership_text(sides: dict[str, bool]) -> str:
@@ -179,9 +179,9 @@ def summary_rows(outcome: DemoOutcome) -> list[tuple[str, str, str, str]]:
     """(quantity, true, paper method, coupled method or estimate) rows of the demo's summary table.
 
     Every verdict here is the one the figures draw: the backlash membership row is
-    :meth:`DemoOutcome.truth_in_backlash_set`, the Hammerstein play :func:`rig.plots.hammerstein.play_at_nodes`
-    (as the borders figure quotes it), the discrepancy's play the sum of the fitted c with their
-    cross-validated intervals.
+    :meth:`DemoOutcome.truth_in_backlash_set`, the Hammerstein play
+    :meth:`identify.hammerstein_subspace.HammersteinModel.play_at_nodes` (as the borders figure quotes it), the
+    discrepancy's play the sum of the fitted c with their cross-validated intervals.
     """
     truth = outcome.truth
     rows: list[tuple[str, str, str, str]] = []
@@ -196,7 +196,7 @@ def summary_rows(outcome: DemoOutcome) -> list[tuple[str, str, str, str]]:
         rows.append((f"linear {name}", f"{value:.5g}", _interval_cell(paper, "linear", name),
                      _interval_cell(coupled, "linear", name)))
     model = outcome.hammerstein
-    rows.append(("Hammerstein play [rad]", f"{truth.play_rad:.4g}", "-", play_at_nodes(model).describe()))
+    rows.append(("Hammerstein play [rad]", f"{truth.play_rad:.4g}", "-", model.play_at_nodes().describe()))
     true_poles = np.sort_complex(np.roots(np.r_[1.0, truth.linear.a]))
     dominant = true_poles[np.argmax(np.abs(true_poles))]
     rows.append(("Hammerstein slowest pole |p|", f"{abs(dominant):.4f}", "-",

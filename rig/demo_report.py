@@ -25,16 +25,16 @@ def demo_report_sections(outcome: DemoOutcome) -> list[ReportSection]:
     # On Table I cycles an output play acts like input borders: ascending from rest at u_min the load holds
     # until the play is taken up, descending from u_max likewise (unit static gain of the linear part).
     def ascending(u: float) -> float:
-        return max(backlash.m_l * (u_min + backlash.c_l), backlash.m_r * (u - backlash.c_r))
+        return max(backlash.m_l * (u_min + backlash.c_l_rad), backlash.m_r * (u - backlash.c_r_rad))
 
     def descending(u: float) -> float:
-        return min(backlash.m_r * (u_max - backlash.c_r), backlash.m_l * (u + backlash.c_l))
+        return min(backlash.m_r * (u_max - backlash.c_r_rad), backlash.m_l * (u + backlash.c_l_rad))
     experiments = [name for name in ("staircase", "prbs", "cyclic") if name in runs]
     sections = [
         ReportSection(
             "Summary",
-            text=(f"The simulated precision gearbox (1:4, play c_l = {truth.backlash.c_l:.4g} rad and "
-                  f"c_r = {truth.backlash.c_r:.4g} rad on the motor side, friction, a torsion mode, 12-bit load "
+            text=(f"The simulated precision gearbox (1:4, play c_l = {truth.backlash.c_l_rad:.4g} rad and "
+                  f"c_r = {truth.backlash.c_r_rad:.4g} rad on the motor side, friction, a torsion mode, 12-bit load "
                   f"encoder) was driven over the {outcome.transport} transport. Set-membership bounds are "
                   f"guaranteed for the noise bound {outcome.noise_bound_rad:.3g} rad when the model structure "
                   "holds (a linear block, then an output backlash, reached at steady state without an overshoot of "

@@ -27,10 +27,12 @@ arrives for ``feedback_timeout_s``; any error, device fault or Ctrl-C ends with 
 
 from __future__ import annotations
 
+import contextlib
+import gc
 import math
 import sys
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass
 from typing import Any, ClassVar, Protocol
 
@@ -98,6 +100,24 @@ def wait_until(deadline: float, clock: Callable[[], float] = time.perf_counter) 
         time.sleep(remaining - WAKE_MARGIN_S)
     while clock() < deadline:
         time.sleep(0)  # releases the interpreter lock, so receive threads still run
+
+
+@contextlib.contextmanager
+def frozen_heap() -> Iterator[None]:
+    """For the length of a run, the objects alive at its start (the imported modules, the transport, the
+    command) sit in the garbage collector's permanent generation (:func:`gc.freeze`); :func:`gc.unfreeze` on
+    exit returns them to the oldest generation (garbage among them is freed by a later collection).
+
+    Without it a full (generation 2) collection during the run scans every one of them: about 120 000
+    objects in the driver's process, 85 ms of CPU measured on the 2-core test machine, during which neither
+    the runner nor a simulated device in the same process runs; with the core shared with another process
+    that is the ~205 ms starvation that HELD a serial 2 kHz run (BENCHMARKS.md, issue 14). Collections during
+    the run then scan only the objects the run itself made."""
+    gc.freeze()
+    try:
+        yield
+    finally:
+        gc.unfreeze()
 
 
 class SampleSink(Protocol):
@@ -266,13 +286,14 @@ def check_command(transport: Transport, command_rad: NDArray[np.float64]) -> Non
         previous = quantized
 
 
+@frozen_heap()
 def run_experiment(transport: Transport, command_rad: ArrayLike, sink: SampleSink, *,
                    feedback_timeout_s: float = 0.1, late_tolerance_s: float | None = None,
                    pending_cycles: int = PENDING_CYCLES,
                    progress: Callable[[int, int], None] | None = None,
                    clock: Callable[[], float] = time.perf_counter) -> RunSummary:
     """Open ``transport``, stream ``command_rad`` at its sample period into the rig, write every sample to
-    ``sink``, and stop and close everything whatever happens.
+    ``sink``, and stop and close everything whatever happens (with the heap frozen: :func:`frozen_heap`).
 
     Parameters
     ----------

@@ -9,7 +9,8 @@ Raw CAN (``configs/raw_can.dbc`` or the config's ``dbc``):
 * sample k is the k-th RIG_SETPOINT (its ``seq``, unwrapped from 16 bits, must count up from the first one);
   ``time_s = k * sample_period_s`` and ``command_rad`` is its ``target_counts`` in radians (the drive's scaling),
   which is what the runner logs (the command as the drive receives it);
-* its reading is the RIG_FEEDBACK + RIG_DRIVE_FEEDBACK pair with the same ``seq``, decoded as the transport
+* its reading is the RIG_FEEDBACK + RIG_DRIVE_FEEDBACK (v1, v2) or RIG_DRIVE_TICK (v3) pair with the same
+  ``seq``, decoded as the transport
   decodes it (signed counts, the angle continuous with the previous reading), filed as the runner files it:
   only while at most ``PENDING_CYCLES`` later setpoints have been sent (else it is stale and the sample LOST),
   a second copy marks DUPLICATE, a fault state in its statusword FAULT; a RIG_FAULT frame marks the sample
@@ -17,10 +18,12 @@ Raw CAN (``configs/raw_can.dbc`` or the config's ``dbc``):
 * LATE is judged from the trace's time stamps against the first setpoint's (``t0 + k T`` plus the config's
   ``late_tolerance_s`` for a setpoint; ``t0 + (k+1) T`` for its reading): the trace's clock, not the host's
   monotonic clock of the run, so a LATE flag near the tolerance may differ from the run's own log;
-* protocol v2 (the device owns the clock: RIG_START, and a RIG_TICK_APPLIED with each tick): a setpoint's
-  seq is its tick, every reading of a tick of the run is filed (no pending window: the device, not the
-  host, decides the instant), the command logged is the tick's ``applied_counts`` and a HELD tick is
-  flagged HELD; LATE is not judged (the ticks carry no instant of their own).
+* protocols v2 and v3 (the device owns the clock: RIG_START, and a RIG_TICK_APPLIED or RIG_DRIVE_TICK with
+  each tick): a setpoint's seq is its tick, every reading of a tick of the run is filed (no pending window:
+  the device, not the host, decides the instant), the command logged is the target in force at the tick
+  (v2: ``applied_counts``; v3: the setpoint of tick k - ``applied_age``, for 255 the target of the tick
+  before, before any setpoint the ``actual_counts`` of the RIG_STATUS answering RIG_START, as the DBC says)
+  and a HELD tick is flagged HELD; LATE is not judged (the ticks carry no instant of their own).
 
 CANopen (SYNC + drive RPDO1 + TPDOs, the mapping :mod:`rig.transports.canopen_link` sets up: drive TPDO1
 0x6041 + 0x6064 at 0x180 + node, drive TPDO2 0x6062 at 0x280 + node where the drive sends it, encoder TPDO1
@@ -132,9 +135,29 @@ def _import_raw_can(path: Path, config: Any) -> ExperimentRecord:
     received: set[int] = set()
     parts: dict[int, dict[str, Any]] = {}
     last_seq, first_seq, t0 = 0, None, None
-    device_clocked = False  # protocol v2: RIG_START / RIG_TICK_APPLIED seen
+    device_clocked = False  # protocol v2/v3: RIG_START / RIG_TICK_APPLIED / RIG_DRIVE_TICK seen
+    sent_counts: list[int] = []  # row -> the target_counts of its RIG_SETPOINT
+    start_seq, in_force = None, None  # v3: RIG_START's request number; (row, counts) of the target in force
+    applied: dict[int, tuple[int | None, bool]] = {}  # v2/v3: row -> (target counts in force, HELD), first copy
+    early: dict[int, list[tuple[float, int, int, float]]] = {}  # v2/v3: readings of ticks ahead of their setpoint
     last_angle: float | None = None
     frame_errors = frames = 0
+
+    def file_reading(k: int, reading: tuple[float, int, int, float]) -> None:
+        """Reading ``(angle, counts, statusword, time stamp)`` of sample k, filed as the runner files it."""
+        angle, counts, statusword, stamp = reading
+        row = rows[k]
+        if k in received:
+            row.flags |= _DUPLICATE
+            return
+        received.add(k)
+        row.angle_rad, row.counts = angle, counts
+        row.flags &= ~_LOST
+        if state_from_statusword_or_none(statusword) in _FAULT_STATES:
+            row.flags |= _FAULT
+        if stamp - t0 > (k + 1) * period:
+            row.flags |= _LATE
+
     for index, message in _frames(path):
         frames += 1
         if message.is_error_frame:
@@ -163,6 +186,7 @@ def _import_raw_can(path: Path, config: Any) -> ExperimentRecord:
                 last_seq = seq
             k = last_seq - first_seq
             row = _Row(drive.rad_from_counts(signals["target_counts"]))
+            sent_counts.append(signals["target_counts"])
             if message.timestamp - t0 > k * period + tolerance:
                 row.flags |= _LATE
             rows.append(row)
@@ -170,18 +194,28 @@ def _import_raw_can(path: Path, config: Any) -> ExperimentRecord:
             if rows:
                 rows[-1].flags |= _FAULT
         elif name == "RIG_START":
+            device_clocked, start_seq = True, signals["seq"]
+        elif name == "RIG_STATUS" and start_seq is not None and signals["seq"] == start_seq:
+            in_force, start_seq = (-1, signals["actual_counts"]), None  # before any setpoint: the enable position
+        elif name == "RIG_DRIVE_TICK" and first_seq is not None:
             device_clocked = True
+            k = unwrap_seq(signals["seq"], last_seq) - first_seq
+            age = signals["applied_age"]
+            if age < 255:
+                counts = sent_counts[k - age] if 0 <= k - age < len(sent_counts) else None
+            else:  # 255: the target of the tick before, which the latest tick read (within 255) still had
+                counts = in_force[1] if in_force is not None and in_force[0] >= k - 255 else None
+            if counts is not None and (in_force is None or k > in_force[0]):
+                in_force = (k, counts)
+            applied.setdefault(k, (counts, age > 0))
         elif name == "RIG_TICK_APPLIED" and first_seq is not None:
             device_clocked = True
             k = unwrap_seq(signals["seq"], last_seq) - first_seq
-            if 0 <= k < len(rows):
-                rows[k].command_rad = drive.rad_from_counts(signals["applied_counts"])
-                if signals["tick_flags"] & 1:
-                    rows[k].flags |= _HELD
-        elif name in ("RIG_FEEDBACK", "RIG_DRIVE_FEEDBACK") and first_seq is not None:
+            applied.setdefault(k, (signals["applied_counts"], bool(signals["tick_flags"] & 1)))
+        if name in ("RIG_FEEDBACK", "RIG_DRIVE_FEEDBACK", "RIG_DRIVE_TICK") and first_seq is not None:
             seq = unwrap_seq(signals["seq"], last_seq)
             pair = parts.setdefault(seq, {})
-            pair[name] = signals
+            pair["RIG_FEEDBACK" if name == "RIG_FEEDBACK" else "drive"] = signals
             if len(pair) < 2:
                 continue
             del parts[seq]
@@ -190,19 +224,23 @@ def _import_raw_can(path: Path, config: Any) -> ExperimentRecord:
             angle = encoder.rad_from_counts(counts, near_rad=0.0 if last_angle is None else last_angle)
             last_angle = angle
             k = seq - first_seq
+            reading = (angle, counts, pair["RIG_FEEDBACK"]["statusword"], message.timestamp)
+            if device_clocked and k >= len(rows):  # a tick (HELD) before its setpoint was sent, if it ever is
+                early.setdefault(k, []).append(reading)
+                continue
             if not 0 <= k < len(rows) or (not device_clocked and k < len(rows) - 1 - PENDING_CYCLES):
                 continue  # answers no setpoint of the run, or came after its sample was written (LOST)
-            row = rows[k]
-            if k in received:
-                row.flags |= _DUPLICATE
-                continue
-            received.add(k)
-            row.angle_rad, row.counts = angle, counts
-            row.flags &= ~_LOST
-            if state_from_statusword_or_none(pair["RIG_FEEDBACK"]["statusword"]) in _FAULT_STATES:
-                row.flags |= _FAULT
-            if message.timestamp - t0 > (k + 1) * period:
-                row.flags |= _LATE
+            file_reading(k, reading)
+    for k, readings in early.items():
+        for reading in readings:
+            if k < len(rows):
+                file_reading(k, reading)
+    for k, (counts, held) in applied.items():  # a HELD tick comes before its late setpoint (if that is sent)
+        if 0 <= k < len(rows):
+            if counts is not None:
+                rows[k].command_rad = drive.rad_from_counts(counts)
+            if held:
+                rows[k].flags |= _HELD
     if frames == 0:
         raise LogFileError(f"{path}: no CAN frame could be read from it: the trace is empty, damaged, or not a "
                            f"{path.suffix} file (python-can's reader for {path.suffix} found nothing)")
@@ -210,7 +248,7 @@ def _import_raw_can(path: Path, config: Any) -> ExperimentRecord:
         raise LogFileError(f"{path}: no RIG_SETPOINT frame (0x{codec.frame_ids['RIG_SETPOINT']:03X}) in {frames} "
                            f"frames: not a capture of a run on the raw-CAN rig of {config.source}")
     from rig import __version__
-    from rig.commands.run import rig_config_metadata
+    from rig.log_metadata import rig_config_metadata
 
     metadata = ExperimentMetadata(
         sample_period_s=period, source=config.name, transport=config.url, encoder_bits=encoder.bits,
@@ -395,7 +433,7 @@ def _import_canopen(path: Path, config: Any) -> ExperimentRecord:
             row.command_rad = rows[-1].command_rad if rows else 0.0
         rows.append(row)
     from rig import __version__
-    from rig.commands.run import rig_config_metadata
+    from rig.log_metadata import rig_config_metadata
 
     metadata = ExperimentMetadata(
         sample_period_s=period, source=config.name, transport=config.url, encoder_bits=encoder.bits,

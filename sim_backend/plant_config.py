@@ -37,8 +37,8 @@ its name (see ``DRIVE_TRAIN_KEYS``); the sample period is the file's. Only ``gea
 effects in: friction on the load, gravity, rate and torque limits).
 
 Input backlash and switch borders are inline tables: ``{ kind = "table", nodes_u = [...], values = [...] }``
-or ``{ kind = "arctan", input_shift = -1.0, output_shift = 0.0, lower_input = -2.0, upper_input = 2.0,
-lower_value = -1.0, upper_value = 1.0 }`` (the limits are optional).
+or ``{ kind = "arctan", input_shift_rad = -1.0, output_shift_rad = 0.0, lower_input_rad = -2.0,
+upper_input_rad = 2.0, lower_value_rad = -1.0, upper_value_rad = 1.0 }`` (the limits are optional).
 """
 
 from __future__ import annotations
@@ -224,12 +224,14 @@ def _parse_border(table: ConfigTable, key: str) -> Any:
     else:
         result = _build(
             border, ArctanBorder,
-            input_shift=border.number("input_shift"),
-            output_shift=border.number("output_shift", 0.0),
-            lower_input=border.number("lower_input", -math.inf) if border.has("lower_input") else -math.inf,
-            upper_input=border.number("upper_input", math.inf) if border.has("upper_input") else math.inf,
-            lower_value=border.number("lower_value", 0.0),
-            upper_value=border.number("upper_value", 0.0),
+            input_shift_rad=border.number("input_shift_rad"),
+            output_shift_rad=border.number("output_shift_rad", 0.0),
+            lower_input_rad=(border.number("lower_input_rad", -math.inf) if border.has("lower_input_rad")
+                             else -math.inf),
+            upper_input_rad=(border.number("upper_input_rad", math.inf) if border.has("upper_input_rad")
+                             else math.inf),
+            lower_value_rad=border.number("lower_value_rad", 0.0),
+            upper_value_rad=border.number("upper_value_rad", 0.0),
         )
     border.finish()
     return result
@@ -259,12 +261,13 @@ def _read_state_space(t: ConfigTable, period: float) -> LinearBlock:
 
 def _read_input_backlash(t: ConfigTable, period: float) -> InputBacklash:
     return _build(t, InputBacklash, ascending=_parse_border(t, "ascending"), descending=_parse_border(t, "descending"),
-                  initial_output=t.number("initial_output", 0.0))
+                  initial_output_rad=t.number("initial_output_rad", 0.0))
 
 
 def _read_input_switch(t: ConfigTable, period: float) -> InputSwitch:
     return _build(t, InputSwitch, ascending=_parse_border(t, "ascending"), descending=_parse_border(t, "descending"),
-                  initial_input=t.number("initial_input", 0.0), initial_ascending=t.boolean("initial_ascending", True))
+                  initial_input_rad=t.number("initial_input_rad", 0.0),
+                  initial_ascending=t.boolean("initial_ascending", True))
 
 
 def _effect_reader(entry: Effect) -> Callable[[ConfigTable, float], Block]:
@@ -353,11 +356,12 @@ def _border_fields(border: Any, key: str) -> dict[str, Any]:
     if isinstance(border, PiecewiseLinearBorder):
         return {"kind": "table", "nodes_u": list(border.nodes_u), "values": list(border.values)}
     if isinstance(border, ArctanBorder):
-        fields: dict[str, Any] = {"kind": "arctan", "input_shift": border.input_shift, "output_shift": border.output_shift}
-        if math.isfinite(border.lower_input):
-            fields.update(lower_input=border.lower_input, lower_value=border.lower_value)
-        if math.isfinite(border.upper_input):
-            fields.update(upper_input=border.upper_input, upper_value=border.upper_value)
+        fields: dict[str, Any] = {"kind": "arctan", "input_shift_rad": border.input_shift_rad,
+                                  "output_shift_rad": border.output_shift_rad}
+        if math.isfinite(border.lower_input_rad):
+            fields.update(lower_input_rad=border.lower_input_rad, lower_value_rad=border.lower_value_rad)
+        if math.isfinite(border.upper_input_rad):
+            fields.update(upper_input_rad=border.upper_input_rad, upper_value_rad=border.upper_value_rad)
         return fields
     raise InvalidInputError(
         f"{key}: a {type(border).__name__} border cannot be written to TOML; use PiecewiseLinearBorder or ArctanBorder"
@@ -369,11 +373,12 @@ def _block_fields(block: Block) -> dict[str, Any]:
         return {"type": "linear", "a": list(block.a), "b": list(block.b)}
     if isinstance(block, InputBacklash):
         return {"type": "input_backlash", "ascending": _border_fields(block.ascending, "ascending"),
-                "descending": _border_fields(block.descending, "descending"), "initial_output": block.initial_output}
+                "descending": _border_fields(block.descending, "descending"),
+                "initial_output_rad": block.initial_output_rad}
     if isinstance(block, InputSwitch):
         return {"type": "input_switch", "ascending": _border_fields(block.ascending, "ascending"),
-                "descending": _border_fields(block.descending, "descending"), "initial_input": block.initial_input,
-                "initial_ascending": block.initial_ascending}
+                "descending": _border_fields(block.descending, "descending"),
+                "initial_input_rad": block.initial_input_rad, "initial_ascending": block.initial_ascending}
     entry = effect_for_block(block)
     if entry is not None:
         return entry.toml_fields(block)

@@ -1,12 +1,13 @@
 """A simulated rig on the raw-CAN protocol of ``configs/raw_can.dbc``: a responder on a python-can bus
 (the ``virtual`` interface in tests) around a simulated gearbox.
 
-Protocol v2 (the default, ``protocol_version=2``; the DBC's comments on RIG_HELLO, RIG_START, RIG_DEVICE_INFO
-and RIG_TICK_APPLIED, and the serial spec's section 16, which it mirrors): after RIG_HELLO the device buffers
-RIG_SETPOINTs by tick number and, from RIG_START on, ticks at the plant's sample period on a thread of its
-own: tick k applies setpoint k (or holds the previous target, flagged HELD), steps the gearbox once and sends
-RIG_FEEDBACK, RIG_DRIVE_FEEDBACK and RIG_TICK_APPLIED for k. The gearbox stands still before tick 0, so a run
-equals the offline simulation of the commands applied, which the host logs.
+Protocol v3 (the default, ``protocol_version=3``) and v2 (the DBC's comments on RIG_HELLO, RIG_START,
+RIG_DEVICE_INFO, RIG_TICK_APPLIED and RIG_DRIVE_TICK, and the serial spec's section 16, which they mirror):
+after RIG_HELLO the device buffers RIG_SETPOINTs by tick number and, from RIG_START on, ticks at the plant's
+sample period on a thread of its own: tick k applies setpoint k (or holds the previous target, flagged HELD),
+steps the gearbox once and sends, in v3, RIG_FEEDBACK and RIG_DRIVE_TICK for k (the target in force as the
+age of the setpoint applied), in v2 RIG_FEEDBACK, RIG_DRIVE_FEEDBACK and RIG_TICK_APPLIED. The gearbox stands
+still before tick 0, so a run equals the offline simulation of the commands applied, which the host logs.
 
 Protocol v1 (``protocol_version=1``, or without RIG_HELLO): each RIG_SETPOINT received in OPERATION ENABLED
 advances the gearbox exactly one sample and is answered by RIG_FEEDBACK and RIG_DRIVE_FEEDBACK with the
@@ -57,9 +58,9 @@ class SimulatedRawCanDevice(can.Listener):
         This many RIG_STATUS answers from the transition to OPERATION ENABLED on are lost; the host sends
         the request again with the same ``seq``, which the device answers without applying it twice.
     protocol_version, buffer_capacity, sample_period_s
-        2 (default): answers RIG_HELLO and ticks on its own clock in v2 mode, buffering ``buffer_capacity``
-        setpoints, every ``sample_period_s`` (default: the gearbox's); 1: a v1 device, which ignores RIG_HELLO
-        and RIG_START. In v2 mode the sample numbers of the fault options are tick numbers.
+        3 (default) or 2: answers RIG_HELLO and ticks on its own clock in v3 (or v2) mode, buffering
+        ``buffer_capacity`` setpoints, every ``sample_period_s`` (default: the gearbox's); 1: a v1 device, which
+        ignores RIG_HELLO and RIG_START. In v2/v3 mode the sample numbers of the fault options are tick numbers.
     clock
         The device's clock in seconds (``time.perf_counter``). The threads of :meth:`start` wait on the wall
         clock; for a simulated clock use :meth:`start_scripted` instead (no thread), hand it the host's frames
@@ -70,10 +71,10 @@ class SimulatedRawCanDevice(can.Listener):
                  dbc_path: str = str(DEFAULT_DBC), bitrate: int = 1_000_000, silent_seqs: Iterable[int] = (),
                  fault_at_seq: int | None = None, fault_code: int = 0x7500,
                  disable_at_seq: int | None = None, error_frame_at: tuple[int, int] | None = None,
-                 lost_status_after_enable: int = 0, protocol_version: int = 2, buffer_capacity: int = 255,
+                 lost_status_after_enable: int = 0, protocol_version: int = 3, buffer_capacity: int = 255,
                  sample_period_s: float | None = None, clock: Callable[[], float] = time.perf_counter) -> None:
-        if protocol_version not in (1, 2):
-            raise ValueError(f"protocol_version: expected 1 or 2, got {protocol_version!r}")
+        if protocol_version not in (1, 2, 3):
+            raise ValueError(f"protocol_version: expected 1, 2 or 3, got {protocol_version!r}")
         if not 1 <= int(buffer_capacity) <= 255:
             raise ValueError(f"buffer_capacity: expected 1..255 setpoints, got {buffer_capacity!r}")
         self._clock = clock
@@ -85,6 +86,7 @@ class SimulatedRawCanDevice(can.Listener):
         self.held_ticks = 0
         self.dropped_setpoints = 0
         self.target_counts = 0
+        self._applied_tick: int | None = None  # the tick whose setpoint is in force (None: the enable position)
         self._ticking_since: float | None = None
         self._last_start_seq: int | None = None
         self._stop = threading.Event()
@@ -213,6 +215,7 @@ class SimulatedRawCanDevice(can.Listener):
             if (signals["seq"] != self._last_start_seq and self.mode >= 2 and self._ticking_since is None
                     and self.state is cia402.DriveState.OPERATION_ENABLED):
                 self._ticking_since = self._clock()  # tick 0 is now
+                self._applied_tick = None  # the target in force is the position held since enabling
             self._last_start_seq = signals["seq"]
             self._status(signals["seq"])
         elif name == "RIG_SETPOINT" and self.mode >= 2:
@@ -303,22 +306,35 @@ class SimulatedRawCanDevice(can.Listener):
                 self._send("RIG_FAULT", error_code=self.fault_code)
                 return
             if self.disable_at_seq is not None and k == self.disable_at_seq:
+                mode = self.mode
                 self.state = cia402.DriveState.SWITCH_ON_DISABLED
                 self._end_session()
-                self._tick_frames(k, cia402.statusword_for(self.state), 0)
+                self._tick_frames(k, mode, cia402.statusword_for(self.state), False)
                 return
             held = k not in self.buffer
-            self.target_counts = self.target_counts if held else self.buffer.pop(k)
+            if not held:
+                self.target_counts, self._applied_tick = self.buffer.pop(k), k
             sample = self.gearbox.step(self.drive.rad_from_counts(self.target_counts))
             self.encoder_counts = sample.encoder_counts
             self.actual_counts = self.target_counts
             self.setpoints += 1
             self.held_ticks += held
             if (k & 0xFFFF) not in self.silent_seqs:
-                self._tick_frames(k, cia402.statusword_for(self.state, target_reached=True), 1 if held else 0)
+                self._tick_frames(k, self.mode, cia402.statusword_for(self.state, target_reached=True), held)
 
-    def _tick_frames(self, k: int, statusword: int, flags: int) -> None:
+    def _tick_frames(self, k: int, mode: int, statusword: int, held: bool) -> None:
+        """The frames of tick k: RIG_FEEDBACK, then (v3) RIG_DRIVE_TICK or (v2) RIG_DRIVE_FEEDBACK and
+        RIG_TICK_APPLIED (the DBC's comments on RIG_DRIVE_TICK and RIG_TICK_APPLIED)."""
         self._send("RIG_FEEDBACK", seq=k, statusword=statusword, encoder_counts=self.encoder_counts & 0xFFFFFFFF)
+        if mode >= 3:
+            self._send("RIG_DRIVE_TICK", seq=k, actual_counts=self.actual_counts, buffer_level=len(self.buffer),
+                       applied_age=self._applied_age(k))
+            return
         self._send("RIG_DRIVE_FEEDBACK", seq=k, actual_counts=self.actual_counts)
-        self._send("RIG_TICK_APPLIED", seq=k, applied_counts=self.target_counts, tick_flags=flags,
+        self._send("RIG_TICK_APPLIED", seq=k, applied_counts=self.target_counts, tick_flags=1 if held else 0,
                    buffer_level=len(self.buffer))
+
+    def _applied_age(self, k: int) -> int:
+        """RIG_DRIVE_TICK's ``applied_age`` at tick k: k - (the tick whose setpoint is in force), 255 when that
+        is 255 or more ticks ago or no setpoint was applied since RIG_START (the DBC's comment)."""
+        return 255 if self._applied_tick is None else min(k - self._applied_tick, 255)

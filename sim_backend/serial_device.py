@@ -1,7 +1,10 @@
 """A simulated rig behind a serial port: the device side of ``docs/serial_protocol.md`` on a pty pair.
 
 The host opens :attr:`SimulatedSerialDevice.port` (``/dev/pts/N``) with pyserial as it would open
-``/dev/ttyUSB0``.
+``/dev/ttyUSB0``. ``rig run`` starts the device as threads of its own process; ``python -m
+sim_backend.serial_device PLANT.toml`` (:func:`serial_device_process`) runs it in a process of its own, as a
+real device is a microcontroller with its own clock (the benchmark does, so that a pause of the driver
+does not stop the device's clock).
 
 Protocol v2 (the default, ``protocol_version=2``; spec section 16): a HELLO puts the device in v2 mode; it
 queues SETPOINTs by tick number in a buffer of ``buffer_capacity`` setpoints and, from START on, ticks at
@@ -17,6 +20,7 @@ simulated gearbox exactly one sample and is answered by one FEEDBACK frame with 
 from __future__ import annotations
 
 import collections
+import contextlib
 import math
 import os
 import random
@@ -24,7 +28,7 @@ import select
 import threading
 import time
 import tty
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
 
 from rig.protocols import cia402
 from rig.protocols.serial_frames import (
@@ -32,7 +36,7 @@ from rig.protocols.serial_frames import (
 )
 from sim_backend.plant import SimulatedGearbox
 
-__all__ = ["SimulatedSerialDevice"]
+__all__ = ["SimulatedSerialDevice", "serial_device_process"]
 
 
 class SimulatedSerialDevice:
@@ -96,7 +100,8 @@ class SimulatedSerialDevice:
         2 (default): the device answers HELLO and runs its own tick clock in v2 mode; 1: a v1 device, which
         drops HELLO and START as unknown types.
     buffer_capacity
-        Setpoints the device's buffer holds (v2), reported in DEVICE_INFO.
+        Setpoints the device's buffer holds (v2), reported in DEVICE_INFO: 1024 (6 KB) by default, so that the
+        transport's default 250 ms lead fits at 2 kHz (500 setpoints) with room to spare.
     sample_period_s
         The device's tick period (default: the gearbox's sample period), reported in DEVICE_INFO.
     clock
@@ -113,7 +118,7 @@ class SimulatedSerialDevice:
                  status_delay_s: float = 0.0, fault_reset_delay_s: float = 0.0, boot_fault_code: int | None = None,
                  lost_status_after_enable: int = 0, boot_banner: bytes = b"", copy_target_at_enable: bool = True,
                  following_error_counts: int | None = None, initial_actual_counts: int = 0,
-                 fault_frame_lost: bool = False, protocol_version: int = PROTOCOL_VERSION, buffer_capacity: int = 256,
+                 fault_frame_lost: bool = False, protocol_version: int = PROTOCOL_VERSION, buffer_capacity: int = 1024,
                  sample_period_s: float | None = None, clock: Callable[[], float] = time.perf_counter) -> None:
         if protocol_version not in (1, 2):
             raise ValueError(f"protocol_version: expected 1 or 2, got {protocol_version!r}")
@@ -525,3 +530,61 @@ class SimulatedSerialDevice:
             return b""
         return encode_frame(MessageType.FEEDBACK, message.seq, self._statusword() | cia402.STATUSWORD_TARGET_REACHED,
                             self.actual_counts, sample.encoder_counts & 0xFFFFFFFF)
+
+
+@contextlib.contextmanager
+def serial_device_process(plant_path: str | os.PathLike, *, seed: int | None = None,
+                          sample_period_s: float | None = None, drive_counts_per_revolution: int = 1 << 17,
+                          buffer_capacity: int = 1024) -> Iterator[str]:
+    """Run :func:`main` (the simulated serial rig on ``plant_path``) in a child process; yield its pty path,
+    and end the child on exit (it serves until its stdin closes)."""
+    import subprocess
+    import sys
+
+    command = [sys.executable, "-m", "sim_backend.serial_device", str(plant_path),
+               "--drive-counts-per-revolution", str(drive_counts_per_revolution), "--buffer-capacity", str(buffer_capacity)]
+    if seed is not None:
+        command += ["--seed", str(seed)]
+    if sample_period_s is not None:
+        command += ["--sample-period-s", repr(float(sample_period_s))]
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    child = subprocess.Popen(command, cwd=root, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+    try:
+        port = child.stdout.readline().strip()
+        if not port:
+            raise RuntimeError(f"{' '.join(command)} ended without naming its pty (exit code {child.wait()})")
+        yield port
+    finally:
+        child.stdin.close()
+        child.stdout.close()
+        child.wait(timeout=10)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m sim_backend.serial_device PLANT.toml [options]``: the simulated serial rig in a process of its
+    own, as a real device is a microcontroller of its own: its tick thread shares neither the GIL nor the garbage
+    collector's pauses with the driver. Writes the pty path (``/dev/pts/N``) as one line on stdout, then serves
+    until its stdin closes (the parent ended or closed the pipe). Used by ``benchmarks/transport_timing.py``."""
+    import argparse
+    import sys
+
+    from sim_backend.plant_config import load_plant_config
+
+    parser = argparse.ArgumentParser(prog="python -m sim_backend.serial_device", description=main.__doc__.split("\n")[0])
+    parser.add_argument("plant", help="plant TOML (configs/plants/*.toml)")
+    parser.add_argument("--seed", type=int, default=None, help="the plant's noise seed (default: the plant's)")
+    parser.add_argument("--sample-period-s", type=float, default=None, help="tick period (default: the plant's)")
+    parser.add_argument("--drive-counts-per-revolution", type=int, default=1 << 17)
+    parser.add_argument("--buffer-capacity", type=int, default=1024, help="setpoints buffered (v2)")
+    args = parser.parse_args(argv)
+    gearbox = load_plant_config(args.plant).gearbox(seed=args.seed)
+    with SimulatedSerialDevice(gearbox, drive_counts_per_revolution=args.drive_counts_per_revolution,
+                               buffer_capacity=args.buffer_capacity, sample_period_s=args.sample_period_s) as device:
+        sys.stdout.write(device.port + "\n")
+        sys.stdout.flush()
+        sys.stdin.read()  # until the parent closes the pipe
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -193,13 +193,13 @@ def _print_table(model, path: Path, hold: int | None) -> None:
               "grows without bound in a free run. Try a lower --order, longer or more cyclic data, or --refine")
     print("G(q^-1)          num " + " ".join(f"{c:+.6g}" for c in numerator))
     print("                 den " + " ".join(f"{c:+.6g}" for c in denominator))
-    mu0_source = f"hold of {hold} samples, re-estimated" if model.mu0_hold is not None else "given/estimated"
+    mu0_source = f"hold of {hold} samples, re-estimated" if model.mu0_hold_rad is not None else "given/estimated"
     print(f"mu0              {model.mu0:.6g}   ({mu0_source})")
-    print(f"fit              {model.fit_percent:.2f} %   residual RMS {model.residual_rms:.4g}")
+    print(f"fit              {model.fit_percent:.2f} %   residual RMS {model.residual_rms_rad:.4g}")
     if model.refinement is not None:
         r = model.refinement
         outcome = "applied" if r.applied else "not applied: no improvement or unstable, subspace estimate kept"
-        print(f"refinement       output-error RMS {r.rms_before:.4g} -> {r.rms_after:.4g} "
+        print(f"refinement       output-error RMS {r.rms_before_rad:.4g} -> {r.rms_after_rad:.4g} "
               f"({r.evaluations} evaluations, {outcome})")
     print()
     asc, desc = model.ascending_border, model.descending_border

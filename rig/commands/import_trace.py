@@ -12,8 +12,9 @@ DESCRIPTION = """\
 Decode a CAN trace of a run into a rig-log v1 file, every sample accounted for, by the transport of RIG.toml:
 
   can://      sample k is the k-th RIG_SETPOINT (configs/raw_can.dbc or the config's dbc), its reading the
-              RIG_FEEDBACK + RIG_DRIVE_FEEDBACK pair with the same sequence number (LOST where it is missing
-              or came more than 4 setpoints late, DUPLICATE, FAULT); LATE from the trace's time stamps
+              RIG_FEEDBACK + RIG_DRIVE_FEEDBACK (v3: RIG_DRIVE_TICK) pair with the same sequence number (LOST
+              where it is missing or came more than 4 setpoints late, DUPLICATE, FAULT; on a device-clocked rig
+              HELD with the target in force); LATE from the trace's time stamps (host-paced rigs)
   canopen://  sample 0's SYNC is the one after the first drive RPDO1; each TPDO is filed under the last SYNC
               before its time stamp (the mapping the driver sets up, node-IDs from the config); HELD where
               the RPDO1 in force at a SYNC is an earlier sample's, LATE where the SYNC spacing is off

@@ -310,7 +310,7 @@ def _hammerstein_section(result: ResultFile, sample_period_s: float | None, used
     rows.append(("stable", "yes" if model.stable else
                  f"NO: a pole has |p| = {float(np.max(np.abs(model.poles))):.4g} >= 1"))
     rows += [("mu0 = H[u_min] [rad]", f"{model.mu0:.6g}"), ("simulation fit [%]", f"{model.fit_percent:.6g}"),
-             ("residual RMS [rad]", f"{model.residual_rms:.6g}"), ("B and mu estimated", model.split)]
+             ("residual RMS [rad]", f"{model.residual_rms_rad:.6g}"), ("B and mu estimated", model.split)]
     text = (f"{result.name}: Hammerstein model with input backlash or switch identified by subspace "
             "(Pouliquen et al. 2013).")
     return ReportSection(f"Hammerstein model: {result.name}", text=text, table_header=("quantity", "value"),

@@ -19,7 +19,7 @@ from typing import Any
 
 from rig import exit_codes
 
-__all__ = ["DEFAULT_CONFIG", "experiment_log_metadata", "load_command_file", "register", "rig_config_metadata", "run"]
+__all__ = ["DEFAULT_CONFIG", "load_command_file", "register", "run"]
 
 DEFAULT_CONFIG = Path(__file__).resolve().parents[2] / "configs" / "sim_canopen.toml"
 
@@ -61,45 +61,6 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                              '"lost", "late", "rate_hz", "held", "min_lead_s", "not_followed", "duplicate", '
                              '"frame_errors", "warnings", "stop", "stale", "cpu_s", "wall_s"} (rig report reads it)')
     parser.set_defaults(handler=run)
-
-
-def rig_config_metadata(config: Any) -> dict[str, Any]:
-    """The rig config as a log's metadata records it (``config["rig"]``): file, name, URL, rate, transport
-    options, drive scaling, limits and encoder."""
-    return {"file": config.source, "name": config.name, "url": config.url, "sample_rate_hz": config.sample_rate_hz,
-            "options": config.options, "drive_counts_per_revolution": config.drive.counts_per_revolution,
-            "limits": {"position_min_rad": config.limits.position_min_rad,
-                       "position_max_rad": config.limits.position_max_rad,
-                       "rate_max_rad_per_s": config.limits.rate_max_rad_per_s},
-            "encoder": {"bits": config.encoder.bits, "multi_turn_bits": config.encoder.multi_turn_bits,
-                        "signed": config.encoder.signed, "direction": config.encoder.direction,
-                        "offset_counts": config.encoder.offset_counts}}
-
-
-def experiment_log_metadata(config: Any, excitation: Any, gearbox: Any, num_samples: int,
-                            sim_faults: dict[str, Any] | None = None) -> Any:
-    """The metadata of a log of ``num_samples`` samples of ``excitation`` on the rig of ``config`` (and the
-    simulated ``gearbox``, if any, with the ``--sim-faults`` SPEC and seed it injected)."""
-    from identify import __version__
-    from identify.experiment_record import ExperimentMetadata
-
-    rig_config = rig_config_metadata(config)
-    values: dict[str, Any] = {}
-    if gearbox is not None:
-        from sim_backend.plant_config import describe_noise
-
-        values = {"noise_kind": gearbox.noise.kind,
-                  "noise_bound_rad": gearbox.noise.noise_bound_rad + gearbox.encoder.quantization_bound_rad,
-                  "seed": gearbox.seed}
-        rig_config["simulation"] = {"plant": str(config.simulation.plant_path), "noise": describe_noise(gearbox.noise)}
-        if sim_faults is not None:
-            rig_config["simulation"]["faults"] = sim_faults
-    return ExperimentMetadata(
-        sample_period_s=config.sample_period_s, source=config.name, transport=config.url,
-        encoder_bits=config.encoder.bits, excitation=excitation.name, excitation_seed=excitation.seed,
-        config={"rig": rig_config, "excitation": excitation.metadata(), "num_samples": num_samples,
-                "excitation_samples": int(excitation.command_rad.size)},  # cut or repeated cyclically to num_samples
-        software_version=__version__, **values)
 
 
 def load_command_file(path: str | Path, sample_period_s: float) -> Any:
@@ -157,6 +118,7 @@ def run(args: argparse.Namespace) -> int:
 
     from rig.experiment_config import load_experiment_config
     from rig.log_file import LogWriter
+    from rig.log_metadata import experiment_log_metadata
     from rig.output_paths import check_output_file
     from rig.rig_config import load_rig_config
     from rig.runner import run_experiment

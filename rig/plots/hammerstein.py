@@ -21,8 +21,7 @@ from numpy.typing import ArrayLike, NDArray
 from identify.hammerstein_subspace import HammersteinModel
 from rig.report import ReportFigure
 
-__all__ = ["HammersteinSource", "NodePlay", "borders_figure", "hammerstein_figures", "play_at_nodes", "poles_figure",
-           "singular_values_figure"]
+__all__ = ["HammersteinSource", "borders_figure", "hammerstein_figures", "poles_figure", "singular_values_figure"]
 
 HammersteinSource = HammersteinModel
 """What the figures draw: the model itself, never its JSON."""
@@ -40,51 +39,6 @@ class _ModelView:
     descending_h: NDArray[np.float64]
     singular_values: NDArray[np.float64]
     fit_percent: float | None
-
-
-@dataclass(frozen=True)
-class NodePlay:
-    """The play seen at the output, read at the nodes: the gap P_d(u_i) - P_a(u_i) at each ascending node
-    (P_d interpolated there, as :attr:`HammersteinModel.largest_play_rad` reads it).
-
-    On Table I cycles a play between two parallel lines gives the same gap at every interior node (the paths
-    meet at u_min and u_max), so the median over the interior nodes is its estimate and their spread the
-    only uncertainty the subspace method offers (it gives no interval); for curved borders the gap varies
-    with u and the median is only a typical value. Belongs with ``largest_play_rad`` in
-    :mod:`identify.hammerstein_subspace`; it is here until that module takes it.
-    """
-
-    nodes_u: NDArray[np.float64]
-    gaps_rad: NDArray[np.float64]
-
-    @property
-    def interior_gaps_rad(self) -> NDArray[np.float64]:
-        return self.gaps_rad[1:-1] if self.gaps_rad.size > 2 else self.gaps_rad
-
-    @property
-    def median_rad(self) -> float:
-        return float(np.median(self.interior_gaps_rad))
-
-    @property
-    def lowest_rad(self) -> float:
-        return float(np.min(self.interior_gaps_rad))
-
-    @property
-    def highest_rad(self) -> float:
-        return float(np.max(self.interior_gaps_rad))
-
-    def describe(self) -> str:
-        """The estimate with its spread, as the table and the caption both print it."""
-        return (f"{self.median_rad:.4g} (median gap P_d - P_a at {self.interior_gaps_rad.size} interior nodes; "
-                f"spread {self.lowest_rad:.3g}..{self.highest_rad:.3g}) rad")
-
-
-def play_at_nodes(model: HammersteinModel) -> NodePlay:
-    """The gaps P_d - P_a of ``model`` at its ascending nodes (:class:`NodePlay`)."""
-    nodes_u = np.asarray(model.ascending_border.nodes_u, dtype=float)
-    gaps = (np.interp(nodes_u, model.descending_border.nodes_u, model.descending_border.values)
-            - np.asarray(model.ascending_border.values, dtype=float))
-    return NodePlay(nodes_u, gaps)
 
 
 def _view(model: HammersteinModel) -> _ModelView:
@@ -169,7 +123,7 @@ def borders_figure(model: HammersteinSource, name: str, *, true_ascending: Calla
     view = _view(model)
     notes = [f"{view.ascending_u.size} ascending and {view.descending_u.size} descending nodes on "
              f"[{view.ascending_u[0]:.4g}, {view.ascending_u[-1]:.4g}] rad"]
-    play = play_at_nodes(model)
+    play = model.play_at_nodes()
     notes.append(f"the play seen at the output {play.describe()}; the subspace method gives no interval")
     errors = []
     for label, nodes_u, nodes_h, border in (("ascending", view.ascending_u, view.ascending_h, true_ascending),

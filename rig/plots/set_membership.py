@@ -84,7 +84,8 @@ def _true_backlash(true_backlash: Any) -> dict[str, float] | None:
         return None
     if isinstance(true_backlash, Mapping):
         return {name: float(true_backlash[name]) for name in _BACKLASH_ORDER}
-    return {name: float(getattr(true_backlash, name)) for name in _BACKLASH_ORDER}
+    fields = {"m_l": "m_l", "c_l": "c_l_rad", "m_r": "m_r", "c_r": "c_r_rad"}  # OutputBacklash's field names
+    return {name: float(getattr(true_backlash, fields[name])) for name in _BACKLASH_ORDER}
 
 
 def _central_line(polygon: BacklashSidePolygon) -> tuple[float, float]:
@@ -189,7 +190,8 @@ def backlash_characteristic_figure(result: OutputBacklashIdentification | Backla
     else:
         truth_text = ""
         if truth is not None:
-            inside = [side for side, holds in backlash.contains(**truth).items() if holds]
+            membership = backlash.contains(truth["m_l"], truth["c_l"], truth["m_r"], truth["c_r"])
+            inside = [side for side, holds in membership.items() if holds]
             truth_text = (f" The true lines (dashed) are inside the band on {len(inside)} of 2 sides"
                           f"{' (' + ', '.join(inside) + ')' if inside else ''}.")
         state = (f"Band width at the largest amplitude: left {widths_mrad.get('left', float('nan')):.3g} mrad, "

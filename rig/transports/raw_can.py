@@ -6,12 +6,16 @@ every answer is attributed to its sample exactly. Bring-up walks the CiA 402 sta
 RIG_CONTROL frames (each answered by RIG_STATUS); RIG_FAULT from the device stops the run.
 The receive side runs in the caller's thread (``bus.recv``): no background threads.
 
-Protocol v2 (the DBC's comments on RIG_HELLO, RIG_START, RIG_DEVICE_INFO, RIG_TICK_APPLIED; the serial
-spec's section 16, which it mirrors): the device owns the sample clock. :meth:`_prepare` sends RIG_HELLO; a
-device answering RIG_DEVICE_INFO with version 2 buffers RIG_SETPOINTs by tick number, ticks from RIG_START
-on at its own period, and reports each tick k with RIG_FEEDBACK, RIG_DRIVE_FEEDBACK and RIG_TICK_APPLIED
-(the target in force, HELD, the buffer level). A device that does not answer (a v1 device), or a DBC without
-the v2 frames, is driven host-paced, the v1 way, unless ``protocol = "v2"``.
+Protocols v3 and v2 (the DBC's comments on RIG_HELLO, RIG_START, RIG_DEVICE_INFO, RIG_DRIVE_TICK,
+RIG_TICK_APPLIED; the serial spec's section 16, which they mirror): the device owns the sample clock.
+:meth:`_prepare` sends RIG_HELLO with the highest version the DBC has the frames for (3); a device answering
+RIG_DEVICE_INFO with version 3 or 2 buffers RIG_SETPOINTs by tick number, ticks from RIG_START on at its own
+period, and reports each tick k: in v3 with RIG_FEEDBACK and RIG_DRIVE_TICK (the drive position, the buffer
+level and ``applied_age``, from which the host takes the target in force out of the setpoints it sent: 2
+frames a tick, 394 bit with the setpoint, so 1 Mbit/s carries 2538 Hz), in v2 with RIG_FEEDBACK,
+RIG_DRIVE_FEEDBACK and RIG_TICK_APPLIED (512 bit: 1953 Hz; a v2 device is refused above the rate its bus
+carries). A device that does not answer (a v1 device), or a DBC without the v2/v3 frames, is driven
+host-paced, the v1 way, unless ``protocol = "v2"``.
 """
 
 from __future__ import annotations
@@ -21,17 +25,22 @@ import time
 from typing import Any
 
 from rig.protocols import cia402
-from rig.protocols.can_bus_load import bus_load
+from rig.protocols.can_bus_load import BusLoad, bus_load
 from rig.protocols.can_error_frames import describe_error_frame, is_bus_off
 from rig.protocols.errors import ConfigError, DeviceFault, TransportError
 from rig.protocols.raw_can_frames import DEFAULT_DBC, RawCanCodec
 from rig.protocols.serial_frames import unwrap_seq
 from rig.transports.base import FeedbackSample, Setpoint, Transport, check_trace_path
+from rig.transports.serial_link import DEFAULT_LEAD_S
 
 __all__ = ["RawCanTransport"]
 
 _PROTOCOLS = ("auto", "v1", "v2")
-_V2_MESSAGES = ("RIG_HELLO", "RIG_START", "RIG_DEVICE_INFO", "RIG_TICK_APPLIED")
+_CLOCKED_MESSAGES = ("RIG_HELLO", "RIG_START", "RIG_DEVICE_INFO")  # the handshake of v2 and v3
+_TICK_FRAMES = {1: ("RIG_FEEDBACK", "RIG_DRIVE_FEEDBACK"),  # per sample (v1) or per tick (v2, v3), by version
+                2: ("RIG_FEEDBACK", "RIG_DRIVE_FEEDBACK", "RIG_TICK_APPLIED"),
+                3: ("RIG_FEEDBACK", "RIG_DRIVE_TICK")}
+_AGE_UNKNOWN = 255  # RIG_DRIVE_TICK applied_age: the target of tick k-1 (DBC comment on RIG_DRIVE_TICK)
 _FAULT_STATES = (cia402.DriveState.FAULT, cia402.DriveState.FAULT_REACTION_ACTIVE)
 
 
@@ -43,7 +52,9 @@ class RawCanTransport(Transport):
     interface, channel
         python-can interface name and channel (from ``can://INTERFACE/CHANNEL``).
     bitrate
-        Bus bit rate; the cycle's three frames must fit at the sample rate (:class:`ConfigError` if not).
+        Bus bit rate; a cycle's frames (RIG_SETPOINT and the device's: 3 frames in v1 and v3, 4 in v2) must fit
+        at the sample rate (:class:`ConfigError` if not: at config load for the best version the DBC has, after
+        the handshake for the version the device speaks).
     dbc
         The DBC file with the frame layout (``configs/raw_can.dbc`` by default).
     reply_timeout_s
@@ -55,15 +66,18 @@ class RawCanTransport(Transport):
         Write every frame sent and received to this file with python-can's writers (``.blf``, ``.asc``,
         ``.log``, ``.csv``, ``.trc``; not ``.db``).
     protocol
-        ``"auto"`` (default): v2 if the device answers RIG_HELLO, else v1 (host-paced, with a warning); ``"v2"``:
-        refuse a device that does not; ``"v1"``: send no RIG_HELLO.
+        ``"auto"`` (default): v3 or v2 (the device's clock) if the device answers RIG_HELLO, else v1 (host-paced,
+        with a warning); ``"v2"``: refuse a device that does not own the clock (v2 or v3 is accepted);
+        ``"v1"``: send no RIG_HELLO.
     lead_s
-        v2: how far ahead of the device's ticks setpoints are queued (default 100 ms, as Klipper schedules ahead), at most its buffer.
+        v2/v3: how far ahead of the device's ticks setpoints are queued, at most its buffer (RIG_DEVICE_INFO: at
+        most 255 setpoints, 127.5 ms at 2 kHz). Default: serial's :data:`~rig.transports.serial_link.DEFAULT_LEAD_S`
+        (250 ms; why: see there), the protocol this one mirrors.
     """
 
     def __init__(self, interface: str, channel: str, *, bitrate: int = 1_000_000, dbc: str = str(DEFAULT_DBC),
                  reply_timeout_s: float = 0.5, reply_retries: int = 3, trace_path: str | None = None,
-                 protocol: str = "auto", lead_s: float = 0.1, **kwargs: Any) -> None:
+                 protocol: str = "auto", lead_s: float = DEFAULT_LEAD_S, **kwargs: Any) -> None:
         super().__init__(**kwargs)
         if protocol not in _PROTOCOLS:
             raise ConfigError("<transport>", "protocol", f"expected one of {', '.join(map(repr, _PROTOCOLS))}, got {protocol!r}")
@@ -81,17 +95,21 @@ class RawCanTransport(Transport):
         except ValueError as err:
             raise ConfigError("<transport>", "dbc", str(err)) from err
         lengths = self.codec.lengths
-        self.speaks_v2 = protocol != "v1" and all(name in lengths for name in _V2_MESSAGES)
-        cycle = ["RIG_SETPOINT", "RIG_FEEDBACK", "RIG_DRIVE_FEEDBACK"] + (["RIG_TICK_APPLIED"] if self.speaks_v2 else [])
-        self.load = bus_load(tuple(lengths[name] for name in cycle), 1.0 / self.sample_period_s, self.bitrate)
+        handshake = protocol != "v1" and all(name in lengths for name in _CLOCKED_MESSAGES)
+        # the highest version the DBC has the frames of: what RIG_HELLO asks for
+        self.max_version = max([1] + [version for version in (2, 3) if handshake
+                                      and all(name in lengths for name in _TICK_FRAMES[version])])
+        self.speaks_v2 = self.max_version >= 2
+        self.load = self._cycle_load(self.max_version)
         if self.load.load > 1.0:
             raise ConfigError("<transport>", "bitrate", (
                 f"{self.bitrate} bit/s cannot carry {1 / self.sample_period_s:g} Hz: one cycle takes "
                 f"{self.load.bits_per_cycle} bit ({100 * self.load.load:.0f}% load); the limit is "
-                f"{self.load.max_rate_hz:.0f} Hz" + (" (protocol v2, 4 frames a cycle; protocol = \"v1\" needs 3)"
-                                                     if self.speaks_v2 else "")))
+                f"{self.load.max_rate_hz:.0f} Hz (protocol v{self.max_version}, {len(_TICK_FRAMES[self.max_version]) + 1} "
+                "frames a cycle)"))
         if protocol == "v2" and not self.speaks_v2:
-            raise ConfigError("<transport>", "dbc", f"protocol = \"v2\" needs the frames {', '.join(_V2_MESSAGES)} in {dbc}")
+            raise ConfigError("<transport>", "dbc", f"protocol = \"v2\" needs the frames {', '.join(_CLOCKED_MESSAGES)} "
+                              f"and {' or '.join(', '.join(_TICK_FRAMES[v][1:]) for v in (3, 2))} in {dbc}")
         self.trace_path = check_trace_path(trace_path)
         self._trace = None
         self._bus = None
@@ -108,6 +126,8 @@ class RawCanTransport(Transport):
         self._tick_origin_s = math.inf
         self._queued_at: dict[int, float] = {}
         self._min_lead_s = math.inf
+        self._sent_counts: dict[int, int] = {}  # v3: tick -> target_counts sent for it (applied_age looks back)
+        self._in_force: tuple[int, int] | None = None  # v3: (tick, target counts in force) of the latest tick filed
         self._fault_sample: int | None = None
         self._pending_fault: DeviceFault | None = None  # v2: RIG_FAULT, until the faulted tick's frames are in
         self._info: dict[int, dict[str, int]] = {}
@@ -117,6 +137,11 @@ class RawCanTransport(Transport):
         if self.version < 2:
             return 0
         return self._samples_ahead(self.lead_s, self.buffer_capacity)
+
+    def _cycle_load(self, version: int) -> BusLoad:
+        """The bus load of one cycle (RIG_SETPOINT and the device's frames of ``version``) at the sample rate."""
+        names = ("RIG_SETPOINT",) + _TICK_FRAMES[version]
+        return bus_load(tuple(self.codec.lengths[name] for name in names), 1.0 / self.sample_period_s, self.bitrate)
 
     # -- seam ----------------------------------------------------------------------------------------------
 
@@ -138,6 +163,7 @@ class RawCanTransport(Transport):
     def _prepare(self) -> float:
         position = self.drive.rad_from_counts(self._request_reply("RIG_STATUS_REQUEST")["actual_counts"])
         self._negotiate()
+        self.load = self._cycle_load(self.version)  # the frames this device really sends
         return position
 
     def _negotiate(self) -> None:
@@ -146,7 +172,7 @@ class RawCanTransport(Transport):
         if not self.speaks_v2:
             return
         try:
-            info = self._request_reply("RIG_HELLO", answer="RIG_DEVICE_INFO", attempts=2, version=2)
+            info = self._request_reply("RIG_HELLO", answer="RIG_DEVICE_INFO", attempts=2, version=self.max_version)
         except TransportError:
             if self.protocol == "v2":
                 raise TransportError(f"{self.name}: no RIG_DEVICE_INFO answer to RIG_HELLO: the device speaks only "
@@ -155,20 +181,28 @@ class RawCanTransport(Transport):
                                "host's timing decides the sample instants)")
             return
         version, capacity, period_ns = info["version"], info["buffer_capacity"], info["sample_period_ns"]
-        if version > 2 or version < 1:
-            raise TransportError(f"{self.name}: RIG_DEVICE_INFO says protocol version {version}; the host asked for 2")
+        if version > self.max_version or version < 1:
+            raise TransportError(f"{self.name}: RIG_DEVICE_INFO says protocol version {version}; the host asked for "
+                                 f"at most {self.max_version}")
         if version < 2:
             if self.protocol == "v2":
                 raise TransportError(f"{self.name}: the device answers RIG_HELLO with version {version}; "
-                                     "protocol = \"v2\" needs 2")
+                                     "protocol = \"v2\" needs 2 or 3")
             return
+        load = self._cycle_load(version)
+        if load.load > 1.0:
+            raise ConfigError("<transport>", "sample_rate_hz", (
+                f"{1 / self.sample_period_s:g} Hz, but the device speaks raw-CAN protocol v{version} "
+                f"({len(_TICK_FRAMES[version])} frames a tick, {load.bits_per_cycle} bit a cycle with the setpoint): "
+                f"{self.bitrate} bit/s carries at most {load.max_rate_hz:.0f} Hz; lower sample_rate_hz to that, or "
+                f"update the device to protocol v{self.max_version} (configs/raw_can.dbc, RIG_DRIVE_TICK)"))
         if not math.isclose(period_ns * 1e-9, self.sample_period_s, rel_tol=1e-6, abs_tol=1e-9):
             raise ConfigError("<transport>", "sample_rate_hz", (
                 f"{1 / self.sample_period_s:g} Hz, but the device ticks every {period_ns} ns (RIG_DEVICE_INFO): set "
                 "sample_rate_hz to the device's rate"))
         if capacity < 1:
             raise TransportError(f"{self.name}: RIG_DEVICE_INFO reports a setpoint buffer of {capacity}")
-        self.version, self.buffer_capacity = 2, int(capacity)
+        self.version, self.buffer_capacity = int(version), int(capacity)
 
     def _write_controlword(self, controlword: int) -> None:
         self._request_reply("RIG_CONTROL", controlword=controlword)
@@ -177,9 +211,11 @@ class RawCanTransport(Transport):
         return self._request_reply("RIG_STATUS_REQUEST")["statusword"]
 
     def _send(self, setpoint: Setpoint) -> None:
-        self._transmit(self.codec.encode("RIG_SETPOINT", seq=setpoint.seq,
-                                         target_counts=self.drive.counts_from_rad(setpoint.position_rad)))
+        counts = self.drive.counts_from_rad(setpoint.position_rad)
+        self._transmit(self.codec.encode("RIG_SETPOINT", seq=setpoint.seq, target_counts=counts))
         self._last_seq = setpoint.seq
+        if self.version >= 3:
+            self._sent_counts[setpoint.seq] = counts
         if self.version >= 2:
             now = self.clock()
             self._queued_any = True
@@ -191,7 +227,8 @@ class RawCanTransport(Transport):
     def _recv_internal(self, timeout_s: float) -> FeedbackSample | None:
         if self.version >= 2 and not self._started and self._queued_any:
             self._started = True
-            self._request_reply("RIG_START")  # the device's tick 0: the setpoints queued so far are its lead
+            status = self._request_reply("RIG_START")  # the device's tick 0: the setpoints queued so far are its lead
+            self._in_force = (-1, status["actual_counts"])  # before any setpoint: the position held since enabling
         deadline = self.clock() + timeout_s
         while True:
             sample = self._receive_one(max(deadline - self.clock(), 0.0))
@@ -269,19 +306,24 @@ class RawCanTransport(Transport):
                 self._pending_fault = fault
             else:
                 self._report_fault(fault)
-        elif name in ("RIG_FEEDBACK", "RIG_DRIVE_FEEDBACK") or (name == "RIG_TICK_APPLIED" and self.version >= 2):
+        elif name in _TICK_FRAMES[self.version]:
             v2 = self.version >= 2
             seq = unwrap_seq(signals["seq"], self._device_sample + 1 if v2 else self._last_seq)
             parts = self._parts.setdefault(seq, {})
             parts[name] = signals
-            if len(parts) == (3 if v2 else 2):
+            if len(parts) == len(_TICK_FRAMES[self.version]):
                 del self._parts[seq]
-                feedback, drive = parts["RIG_FEEDBACK"], parts["RIG_DRIVE_FEEDBACK"]
+                feedback = parts["RIG_FEEDBACK"]
+                drive = parts["RIG_DRIVE_TICK" if self.version >= 3 else "RIG_DRIVE_FEEDBACK"]
                 raw = feedback["encoder_counts"]
                 counts = raw - (1 << 32) if self.encoder.signed and raw >= 1 << 31 else raw
                 received = self.clock()
                 held, applied = False, None
-                if v2:
+                if self.version >= 3:
+                    held, applied_counts = drive["applied_age"] > 0, self._target_in_force(seq, drive["applied_age"])
+                    applied = None if applied_counts is None else self.drive.rad_from_counts(applied_counts)
+                    self._account_tick(seq, held, received)
+                elif v2:
                     tick = parts["RIG_TICK_APPLIED"]
                     held, applied = bool(tick["tick_flags"] & 1), self.drive.rad_from_counts(tick["applied_counts"])
                     self._account_tick(seq, held, received)
@@ -320,6 +362,21 @@ class RawCanTransport(Transport):
             f"the drive reports FAULT in its statusword 0x{statusword:04X} at sample {seq} (no RIG_FAULT frame "
             "came with the error code: lost on the bus?)")))
 
+    def _target_in_force(self, k: int, age: int) -> int | None:
+        """v3: the target counts in force at tick k from RIG_DRIVE_TICK's ``applied_age`` (DBC comment): the
+        setpoint sent for tick k - age, or for age 255 the target of the latest tick filed if no setpoint can
+        have been applied since (it is at most 255 ticks back; the position at START before any). None: not
+        known (every tick of a hold longer than 254 ticks lost on the bus): the sample stays HELD."""
+        if age < _AGE_UNKNOWN:
+            counts = self._sent_counts.get(k - age)
+        elif self._in_force is not None and self._in_force[0] >= k - _AGE_UNKNOWN:
+            counts = self._in_force[1]
+        else:
+            counts = None
+        if counts is not None and (self._in_force is None or k > self._in_force[0]):
+            self._in_force = (k, counts)
+        return counts
+
     def _account_tick(self, k: int, held: bool, received_s: float) -> None:
         """Tick k's lead (as on serial v2: tick 0's host time estimated from the earliest arrival) and the
         device's position in its clock."""
@@ -333,6 +390,9 @@ class RawCanTransport(Transport):
             if len(self._queued_at) > 4 * max(self.buffer_capacity, 16):
                 for old in [seq for seq in self._queued_at if seq < k]:
                     del self._queued_at[old]
+            if len(self._sent_counts) > 4 * max(self.buffer_capacity, _AGE_UNKNOWN):  # applied_age looks 254 back
+                for old in [seq for seq in self._sent_counts if seq < k - _AGE_UNKNOWN]:
+                    del self._sent_counts[old]
             self._device_sample = k
 
     def _request_reply(self, name: str, *, answer: str = "RIG_STATUS", attempts: int | None = None,

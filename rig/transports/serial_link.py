@@ -36,11 +36,13 @@ from rig.protocols.serial_frames import (
 )
 from rig.transports.base import FeedbackSample, Setpoint, Transport
 
-__all__ = ["MAX_REPLY_TIMEOUT_S", "SerialTransport"]
+__all__ = ["DEFAULT_LEAD_S", "MAX_REPLY_TIMEOUT_S", "SerialTransport"]
 
 MAX_REPLY_TIMEOUT_S = 1.0
 """The host never waits longer than this for an answer before it sends again: the spec promises the
 device a frame at least this often while it is enabled and waiting for the first SETPOINT."""
+DEFAULT_LEAD_S = 0.25
+"""v2: the default lead (``lead_s``), longer than the ~205 ms starvation measured under load (see SerialTransport)."""
 _FAULT_STATES = (cia402.DriveState.FAULT, cia402.DriveState.FAULT_REACTION_ACTIVE)
 _ANSWER_TO = {MessageType.CONTROL: MessageType.STATUS, MessageType.STATUS_REQUEST: MessageType.STATUS,
               MessageType.ERROR_REQUEST: MessageType.ERROR, MessageType.HELLO: MessageType.DEVICE_INFO,
@@ -71,14 +73,16 @@ class SerialTransport(Transport):
         ``"auto"`` (default): protocol v2 if the device answers HELLO, else v1 (host-paced, with a warning);
         ``"v2"``: refuse a device that does not speak v2; ``"v1"``: send no HELLO, drive it host-paced.
     lead_s
-        v2: how far ahead of the device's ticks setpoints are queued (default 100 ms, as Klipper schedules ahead), as
-        ``ceil(lead_s / T)`` setpoints, at most the device's buffer capacity.
+        v2: how far ahead of the device's ticks setpoints are queued, as ``ceil(lead_s / T)`` setpoints, at most
+        the device's buffer capacity. Default :data:`DEFAULT_LEAD_S` (250 ms): Klipper schedules 100 ms or more
+        ahead; the longest host starvation measured on the 2-core test machine with both cores busy was about
+        205 ms (BENCHMARKS.md, issue 14), and a serial device's buffer is cheap (6 bytes a setpoint, spec 16.5).
     **kwargs
         See :class:`~rig.transports.base.Transport`.
     """
 
     def __init__(self, port: str, *, baudrate: int = 2_000_000, reply_timeout_s: float = 0.5, reply_retries: int = 3,
-                 protocol: str = "auto", lead_s: float = 0.1, **kwargs) -> None:
+                 protocol: str = "auto", lead_s: float = DEFAULT_LEAD_S, **kwargs) -> None:
         super().__init__(**kwargs)
         if protocol not in PROTOCOLS:
             raise ConfigError("<transport>", "protocol", f"expected one of {', '.join(map(repr, PROTOCOLS))}, got {protocol!r}")

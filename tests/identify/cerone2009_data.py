@@ -12,7 +12,7 @@ from identify.plant_blocks import LinearBlock, OutputBacklash, PlantModel
 GAMMA = {"m_l": 0.248, "c_l": 0.0698, "m_r": 0.252, "c_r": 0.0349}
 THETA = {"a1": 0.5, "a2": 0.7, "b1": 1.4, "b2": 0.8}
 LINEAR = LinearBlock((0.5, 0.7), (0.0, 1.4, 0.8), 1.0)
-PLANT = PlantModel((LINEAR, OutputBacklash(**GAMMA)))
+PLANT = PlantModel((LINEAR, OutputBacklash(GAMMA["m_l"], GAMMA["c_l"], GAMMA["m_r"], GAMMA["c_r"])))
 AMPLITUDES = np.linspace(0.6, 3.0, 50)
 HALF_WAVE = 100
 _STAIRCASE = filtered_staircase(list(AMPLITUDES), 0.8125, HALF_WAVE)

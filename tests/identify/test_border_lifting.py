@@ -47,9 +47,9 @@ def test_lifted_input_reproduces_eq4_for_a_switch_and_a_backlash_on_the_cyclic_e
     ascending = PiecewiseLinearBorder(nodes.ascending, (-1.0, -0.8, -0.5, -0.2, 1.0))
     descending = PiecewiseLinearBorder(nodes.descending, (-1.0, -0.3, 0.6, 0.9, 0.97, 1.0))
     if kind == "switch":
-        block = InputSwitch(ascending, descending, initial_input=-3.0, initial_ascending=False)
+        block = InputSwitch(ascending, descending, initial_input_rad=-3.0, initial_ascending=False)
     else:
-        block = InputBacklash(ascending, descending, initial_output=-1.0)
+        block = InputBacklash(ascending, descending, initial_output_rad=-1.0)
     u = cyclic_random_excitation(2000, -3.0, 3.0, 5, rng=4)
     slopes_a = np.diff(ascending.values) / np.diff(nodes.ascending)
     slopes_d = np.diff(descending.values) / np.diff(nodes.descending)
@@ -117,7 +117,7 @@ def test_any_node_placement_reproduces_a_piecewise_linear_switch(interior_a, int
     values_d = np.concatenate(([0.3], rng.normal(size=len(nodes.descending) - 1)))
     switch = InputSwitch(PiecewiseLinearBorder(nodes.ascending, tuple(values_a)),
                          PiecewiseLinearBorder(nodes.descending, tuple(values_d)),
-                         initial_input=-1.0, initial_ascending=False)
+                         initial_input_rad=-1.0, initial_ascending=False)
     u = cyclic_random_excitation(400, -1.0, 1.0, 3, rng=rng)
     mu = np.concatenate((np.diff(values_a) / np.diff(nodes.ascending), np.diff(values_d) / np.diff(nodes.descending)))
     assert np.allclose(0.3 + lifted_input(u, nodes) @ mu, switch.apply(u), atol=1e-9)

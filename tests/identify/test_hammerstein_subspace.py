@@ -12,7 +12,8 @@ import scipy.signal
 
 from identify.border_lifting import PathNodes, lifted_input
 from identify.cyclic_excitation import cyclic_random_excitation
-from identify.hammerstein_subspace import HammersteinModel, HammersteinOptions, identify_hammerstein, pi_moesp_observability
+from identify.hammerstein_subspace import (HammersteinModel, HammersteinOptions, NodePlay, identify_hammerstein,
+                                          pi_moesp_observability)
 from identify.plant_blocks import (
     InputBacklash,
     InputSwitch,
@@ -40,8 +41,8 @@ def exact_plant(kind: str) -> PlantModel:
     ascending = PiecewiseLinearBorder(tuple(X), tuple(H_A))
     descending = PiecewiseLinearBorder(tuple(X), tuple(H_D))
     if kind == "switch":
-        return PlantModel((InputSwitch(ascending, descending, initial_input=-3.0, initial_ascending=False), G))
-    return PlantModel((InputBacklash(ascending, descending, initial_output=-1.0), G))
+        return PlantModel((InputSwitch(ascending, descending, initial_input_rad=-3.0, initial_ascending=False), G))
+    return PlantModel((InputBacklash(ascending, descending, initial_output_rad=-1.0), G))
 
 
 def paper_noise(y0: np.ndarray, snr_db: float, rng: np.random.Generator) -> np.ndarray:
@@ -175,9 +176,9 @@ def test_mu0_from_hold_given_or_estimated(excitation) -> None:
     y = exact_plant("switch").simulate(excitation) + 0.25  # offset: μ0 = -0.75
     y_noisy = y + 0.05 * np.random.default_rng(8).standard_normal(y.size)
     paper = identify_hammerstein(excitation, y_noisy, NODES, hold_samples=HOLD, estimate_offset=False)
-    assert paper.mu0 == pytest.approx(np.mean(y_noisy[:HOLD]), abs=1e-12) == paper.mu0_hold
+    assert paper.mu0 == pytest.approx(np.mean(y_noisy[:HOLD]), abs=1e-12) == paper.mu0_hold_rad
     given = identify_hammerstein(excitation[HOLD:], y[HOLD:], NODES, mu0_rad=-0.75)
-    assert given.mu0 == pytest.approx(-0.75, abs=1e-9) and given.mu0_hold is None
+    assert given.mu0 == pytest.approx(-0.75, abs=1e-9) and given.mu0_hold_rad is None
     assert given.ascending_border.values[0] == given.mu0
     estimated = identify_hammerstein(excitation[HOLD:], y[HOLD:], NODES)  # no hold, no μ0
     assert estimated.mu0 == pytest.approx(-0.75, abs=1e-9)
@@ -189,8 +190,8 @@ def test_refinement_does_not_increase_the_output_error() -> None:
     y0 = PlantModel((pouliquen2013_switch(), G)).simulate(u)
     model = identify_hammerstein(u, y0 + paper_noise(y0, 20.0, rng), NODES, hold_samples=HOLD, refine=True)
     report = model.refinement
-    assert report is not None and report.applied and report.rms_after < report.rms_before
-    assert model.residual_rms == pytest.approx(report.rms_after, rel=1e-6)
+    assert report is not None and report.applied and report.rms_after_rad < report.rms_before_rad
+    assert model.residual_rms_rad == pytest.approx(report.rms_after_rad, rel=1e-6)
     assert model.static_gain == pytest.approx(1.0, abs=1e-9)
     assert np.max(np.abs(np.sort_complex(model.poles) - TRUE_POLES)) < 0.015
 
@@ -273,7 +274,7 @@ def test_an_unstable_identified_model_says_so_in_json_and_text(capsys) -> None:
     growing = LinearBlock(a=(-1.004,), b=(0.0, 0.05), sample_period_s=G.sample_period_s)
     ascending = PiecewiseLinearBorder(tuple(X), tuple(H_A))
     descending = PiecewiseLinearBorder(tuple(X), tuple(H_D))
-    y = PlantModel((InputBacklash(ascending, descending, initial_output=-1.0), growing)).simulate(u)
+    y = PlantModel((InputBacklash(ascending, descending, initial_output_rad=-1.0), growing)).simulate(u)
     model = identify_hammerstein(u, y, NODES, hold_samples=HOLD, order=1)
     assert abs(model.poles[0]) == pytest.approx(1.004, abs=1e-6)
     assert model.stable is False and model.to_dict()["stable"] is False
@@ -297,6 +298,22 @@ def test_the_numbers_the_pole_and_border_figures_show(excitation) -> None:
     natural = model.natural_frequencies_hz(0.01)
     assert natural.size == 1 and natural[0] == pytest.approx(abs(np.log(TRUE_POLES[0])) / (2 * np.pi * 0.01))
     assert model.largest_play_rad == pytest.approx(float(np.max(np.asarray(H_D) - np.asarray(H_A))), abs=1e-9)
+
+
+def test_the_play_at_the_nodes_is_the_gap_between_the_paths(excitation) -> None:
+    # borders on shared nodes: the gap at node i is H_D[i] - H_A[i], the end nodes (where the paths meet) are
+    # left out of the median and the spread
+    y = exact_plant("backlash").simulate(excitation)
+    play = identify_hammerstein(excitation, y, NODES, hold_samples=HOLD).play_at_nodes()
+    np.testing.assert_allclose(play.nodes_rad, X)
+    np.testing.assert_allclose(play.gaps_rad, H_D - H_A, atol=1e-9)
+    interior = (H_D - H_A)[1:-1]
+    assert play.median_rad == pytest.approx(float(np.median(interior)), abs=1e-9)
+    assert (play.lowest_rad, play.highest_rad) == pytest.approx((interior.min(), interior.max()), abs=1e-9)
+    assert f"{play.median_rad:.4g}" in play.describe() and f"{interior.size} interior nodes" in play.describe()
+    # two nodes: nothing is interior, both gaps count
+    two = NodePlay(np.array([0.0, 1.0]), np.array([0.1, 0.3]))
+    assert two.median_rad == pytest.approx(0.2) and two.lowest_rad == 0.1
 
 
 def test_the_options_object_and_the_keywords_are_one_call(excitation) -> None:

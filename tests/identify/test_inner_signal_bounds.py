@@ -52,7 +52,8 @@ def test_band_bound_stays_valid_where_the_backlash_lines_cross() -> None:
     u = np.random.default_rng(0).choice([-1.0, 1.0], size=400)
     linear = LinearBlock((0.5, 0.7), (0.0, 1.4, 0.8), 1.0)
     x = linear.apply(u)
-    y = PlantModel((linear, OutputBacklash(**gamma))).simulate(u) + np.random.default_rng(1).uniform(-1e-4, 1e-4, 400)
+    backlash = OutputBacklash(gamma["m_l"], gamma["c_l"], gamma["m_r"], gamma["c_r"])
+    y = PlantModel((linear, backlash)).simulate(u) + np.random.default_rng(1).uniform(-1e-4, 1e-4, 400)
     bounds = bound_inner_signal(y, 1e-4, fps)
     assert np.all(bounds.lower_rad <= x) and np.all(x <= bounds.upper_rad)
     w = y

@@ -57,9 +57,10 @@ def test_the_envelope_of_the_identified_box_contains_the_true_model_and_the_coup
 
 def test_a_side_of_the_backlash_set_contains_the_true_backlash_and_not_a_wrong_one(results):
     backlash = results["coupled"].backlash
-    assert backlash.contains(**TRUTH) == {"left": True, "right": True}
+    m_l, c_l, m_r, c_r = TRUTH["m_l"], TRUTH["c_l"], TRUTH["m_r"], TRUTH["c_r"]
+    assert backlash.contains(m_l, c_l, m_r, c_r) == {"left": True, "right": True}
     # twice the right dead band is outside D_γ^r, the left side is unchanged
-    assert backlash.contains(**{**TRUTH, "c_r": 2 * TRUTH["c_r"]}) == {"left": True, "right": False}
+    assert backlash.contains(m_l, c_l, m_r, c_r_rad=2 * c_r) == {"left": True, "right": False}
     # the band of lines over a side holds the true line at every input
     x = np.linspace(0.0, 3.0, 50)
     low, high = backlash.right.output_band(x)

@@ -200,7 +200,7 @@ def test_a_named_effect_carries_parameter_intervals_containing_its_fit_and_a_gap
     assert DiscrepancyReport.from_dict(json.loads(json.dumps(document))) == result.report()
     (entry,) = document["missing_effects"]
     truth = record.true_model.blocks[1]
-    for key, true_value in (("c_l_rad", truth.c_l), ("c_r_rad", truth.c_r)):
+    for key, true_value in (("c_l_rad", truth.c_l_rad), ("c_r_rad", truth.c_r_rad)):
         low, high = entry["parameter_intervals"][key]
         assert low <= entry["parameters"][key] <= high
         # the interval contains the truth and is no wider than the encoder's resolution (+-delta) plus a

@@ -30,7 +30,7 @@ from identify.plant_blocks import (
 from identify.validation import InvalidInputError
 
 CERONE_LINEAR = LinearBlock(a=(0.5, 0.7), b=(0.0, 1.4, 0.8), sample_period_s=1e-3)
-CERONE_BACKLASH = OutputBacklash(m_l=0.248, c_l=0.0698, m_r=0.252, c_r=0.0349)
+CERONE_BACKLASH = OutputBacklash(m_l=0.248, c_l_rad=0.0698, m_r=0.252, c_r_rad=0.0349)
 
 
 def run_stepper(block, signal):
@@ -116,9 +116,9 @@ def test_output_backlash_every_sample_satisfies_one_case_of_eq_2():
 
 def test_output_backlash_starts_from_initial_output_and_rejects_non_positive_parameters():
     assert CERONE_BACKLASH.apply([0.0, 0.01])[0] == 0.0  # inside the band around w_{-1} = 0
-    held = OutputBacklash(0.25, 0.05, 0.25, 0.05, initial_output=0.1).apply([0.4, 0.42])
+    held = OutputBacklash(0.25, 0.05, 0.25, 0.05, initial_output_rad=0.1).apply([0.4, 0.42])
     assert held[0] == 0.1 and held[1] == 0.1  # z_l = 0.35 < 0.4, 0.42 < z_r = 0.45
-    with pytest.raises(InvalidInputError, match="c_l"):
+    with pytest.raises(InvalidInputError, match="c_l_rad"):
         OutputBacklash(0.25, 0.0, 0.25, 0.05)
 
 
@@ -187,7 +187,7 @@ def test_borders_are_validated():
     with pytest.raises(InvalidInputError, match="descending: the border returned nan"):
         InputBacklash(math.atan, lambda v: float("nan")).apply([0.0])
     assert PiecewiseLinearBorder((0.0, 1.0), (0.0, 2.0))(5.0) == 2.0
-    assert ArctanBorder(input_shift=0.0)(1.0) == pytest.approx(math.pi / 4)
+    assert ArctanBorder(input_shift_rad=0.0)(1.0) == pytest.approx(math.pi / 4)
 
 
 # --- static blocks, delay, offset, resonance -------------------------------------------------------------

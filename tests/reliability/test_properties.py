@@ -364,8 +364,8 @@ def dump_toml(document: dict) -> str:
 _KEYS = ["name", "description", "sample_period_s", "sample_rate_hz", "seed", "encoder", "bits", "multi_turn_bits",
          "signed", "direction", "offset_counts", "noise", "kind", "bound_rad", "std_rad", "snr_db", "numerator",
          "denominator", "blocks", "type", "enabled", "a", "b", "A", "B", "C", "D", "samples", "lower_rad",
-         "upper_rad", "left_rad", "right_rad", "m_l", "c_l", "m_r", "c_r", "ascending", "descending", "nodes_u",
-         "values", "input_shift", "frequency_hz", "damping_ratio", "offset_rad", "gain", "breakaway_torque_nm",
+         "upper_rad", "left_rad", "right_rad", "m_l", "c_l_rad", "m_r", "c_r_rad", "ascending", "descending", "nodes_u",
+         "values", "input_shift_rad", "frequency_hz", "damping_ratio", "offset_rad", "gain", "breakaway_torque_nm",
          "coulomb_torque_nm", "stiffness_nm_per_rad", "transport", "url", "drive", "counts_per_revolution",
          "limits", "position_min_rad", "position_max_rad", "rate_max_rad_per_s", "watchdog", "feedback_timeout_s",
          "late_tolerance_s", "simulation", "plant", "baudrate", "reply_timeout_s"]

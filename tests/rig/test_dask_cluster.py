@@ -116,7 +116,7 @@ def data_dir(tmp_path_factory):
     for name, gain in (("cyclic_a", 1.0), ("cyclic_b", 2.0)):
         plant = PlantModel((InputBacklash(PiecewiseLinearBorder(nodes, (-1.0, -0.9, -0.7, -0.4, 0.0, 0.4, 0.8, 1.0)),
                                           PiecewiseLinearBorder(nodes, (-1.0, -0.6, -0.2, 0.2, 0.5, 0.75, 0.9, 1.0)),
-                                          initial_output=-1.0),
+                                          initial_output_rad=-1.0),
                             LinearBlock(a=(-1.8858, 0.9048), b=(0.0, gain * 0.1994, -gain * 0.1804),
                                         sample_period_s=0.01)))
         y = plant.simulate(u) + 0.5

@@ -135,7 +135,8 @@ def test_the_staircase_pole_keeps_the_true_backlash_in_the_exact_set_where_the_s
         load = plant_config.plant.simulate(staircase)[steady]
         backlash_set = bound_backlash_parameters(staircase[steady], load, noise_bound,
                                                  filter_step_amplitude_rad=QUICK_PLAN.filter_step_amplitude_rad)
-        inside[pole] = backlash_set.contains(**truth.backlash_values)
+        gearbox = truth.backlash
+        inside[pole] = backlash_set.contains(gearbox.m_l, gearbox.c_l_rad, gearbox.m_r, gearbox.c_r_rad)
     assert inside[chosen] == {"left": True, "right": True}
     assert not all(inside[fastest].values()), inside[fastest]
 

@@ -55,8 +55,8 @@ def test_json_names_the_hidden_backlash_and_writes_the_report(files, capsys):
     assert [entry["effect"] for entry in document["missing_effects"]] == ["backlash"]
     truth = record.true_model.blocks[1]
     parameters = document["missing_effects"][0]["parameters"]
-    assert parameters["c_l_rad"] == pytest.approx(truth.c_l, abs=1e-3)
-    assert parameters["c_r_rad"] == pytest.approx(truth.c_r, abs=1e-3)
+    assert parameters["c_l_rad"] == pytest.approx(truth.c_l_rad, abs=1e-3)
+    assert parameters["c_r_rad"] == pytest.approx(truth.c_r_rad, abs=1e-3)
     assert document["gap_final"] <= 0.05 * document["gap_initial"]
     index = report / "index.html"
     assert index.is_file() and missing_images(index) == []

@@ -42,7 +42,7 @@ HIDDEN = {
                   {"left_rad": -0.06, "right_rad": 0.08}),
     # an effect after the output of the C servo as FMI 3.0 co-simulation (the same model, about three times
     # faster per sample)
-    "backlash": (lambda fmu: PlantModel((fmu, OutputBacklash(m_l=1.0, c_l=0.03, m_r=1.0, c_r=0.02))),
+    "backlash": (lambda fmu: PlantModel((fmu, OutputBacklash(m_l=1.0, c_l_rad=0.03, m_r=1.0, c_r_rad=0.02))),
                  {"c_l_rad": 0.03, "c_r_rad": 0.02}),
 }
 

@@ -24,7 +24,7 @@ HOLD = 100
 def data() -> tuple[np.ndarray, np.ndarray]:
     u = cyclic_random_excitation(HOLD + 2500, -3.0, 3.0, HOLD, rng=3)
     plant = PlantModel((InputBacklash(PiecewiseLinearBorder(NODES, H_A), PiecewiseLinearBorder(NODES, H_D),
-                                      initial_output=-1.0), G))
+                                      initial_output_rad=-1.0), G))
     return u, plant.simulate(u) + 0.5  # offset: mu0 = -0.5
 
 

@@ -100,6 +100,24 @@ def test_a_canopen_trace_with_held_samples_imports_as_the_runs_log(mode, tmp_pat
     _assert_same_samples(log, imported, ignore_late=False)
 
 
+@pytest.mark.parametrize("seconds, stall_ms", [(0.8, 400), (2.4, 1700)], ids=["hold", "hold-past-254-ticks"])
+def test_a_raw_can_v3_trace_with_held_samples_imports_as_the_runs_log(seconds, stall_ms, tmp_path, capsys):
+    """RIG_DRIVE_TICK's applied_age names the setpoint in force (DBC); past 254 ticks (1.27 s at 200 Hz) it is
+    255 and the import, as the host, takes the target of the tick before."""
+    trace = tmp_path / "run.blf"
+    log = _run(tmp_path, trace, seconds, "can", "--sim-faults", f"stall={stall_ms}@10")  # lead 250 ms: 50 ticks
+    held = json.loads(capsys.readouterr().out)["held"]
+    assert held > (254 if stall_ms > 1600 else 0)
+    assert any(frame.arbitration_id == 0x193 for frame in can.BLFReader(str(trace)))  # v3: RIG_DRIVE_TICK
+    record = import_trace(trace, load_rig_config(tmp_path / "sim_can.toml"))
+    imported = tmp_path / "imported.csv"
+    from rig.log_file import write_log
+
+    write_log(imported, record)
+    assert record.count_flag(SampleFlag.HELD) == held
+    _assert_same_samples(log, imported)
+
+
 def test_a_missing_feedback_frame_is_a_lost_sample(tmp_path):
     log = _run(tmp_path, tmp_path / "run.blf")
     frames = list(can.BLFReader(str(tmp_path / "run.blf")))

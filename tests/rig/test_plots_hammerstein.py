@@ -12,8 +12,7 @@ from identify.border_lifting import PathNodes
 from identify.cyclic_excitation import cyclic_random_excitation
 from identify.hammerstein_subspace import HammersteinModel, identify_hammerstein
 from identify.plant_blocks import LinearBlock, PlantModel, pouliquen2013_backlash
-from rig.plots.hammerstein import (borders_figure, hammerstein_figures, play_at_nodes, poles_figure,
-                                  singular_values_figure)
+from rig.plots.hammerstein import borders_figure, hammerstein_figures, poles_figure, singular_values_figure
 from rig.report import ReportSection, missing_images, write_report
 
 G = LinearBlock(a=(-1.8858, 0.9048), b=(0.0, 0.1994, -0.1804), sample_period_s=0.01)
@@ -81,11 +80,11 @@ def test_borders_figure_draws_the_paths_and_their_gap_against_the_truth(model):
     assert np.max(np.abs(lines["ascending path P_a"].get_ydata() - true_at_nodes)) < 0.1
     gaps = {line.get_label(): line for line in gap_axes.get_lines()}
     gap = np.asarray(gaps["P_d - P_a at the nodes"].get_ydata()) * 1e-3
-    play = play_at_nodes(model)
+    play = model.play_at_nodes()
     np.testing.assert_allclose(gap, play.gaps_rad)
     assert float(np.max(gap)) == pytest.approx(model.largest_play_rad)  # the same reading as identify's
     assert play.lowest_rad <= play.median_rad <= play.highest_rad
-    true_gaps = np.array([true_descending(float(u)) - true_ascending(float(u)) for u in play.nodes_u])
+    true_gaps = np.array([true_descending(float(u)) - true_ascending(float(u)) for u in play.nodes_rad])
     np.testing.assert_allclose(play.gaps_rad, true_gaps, atol=0.1)
     # The play at the output: the true paths are arctan(u + 1) - arctan(u - 1) apart at u = 0, i.e. 1.57 rad.
     true_gap = gaps["true gap"]

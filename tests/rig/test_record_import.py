@@ -132,7 +132,7 @@ def test_identify_hammerstein_reads_json_records_in_degrees(tmp_path, capsys):
     u = cyclic_random_excitation(100 + 1500, -3.0, 3.0, 100, rng=1)
     nodes = (-3.0, -1.0, 1.0, 3.0)
     plant = PlantModel((InputBacklash(PiecewiseLinearBorder(nodes, (-1.0, -0.8, 0.6, 1.0)),
-                                      PiecewiseLinearBorder(nodes, (-1.0, -0.4, 0.9, 1.0)), initial_output=-1.0),
+                                      PiecewiseLinearBorder(nodes, (-1.0, -0.4, 0.9, 1.0)), initial_output_rad=-1.0),
                         LinearBlock(a=(-1.8858, 0.9048), b=(0.0, 0.1994, -0.1804), sample_period_s=0.01)))
     y = plant.simulate(u)
     entries = [{"time": 0.01 * k, "cmd": float(np.degrees(a)), "pos": float(np.degrees(b))}

@@ -39,7 +39,7 @@ def test_cerone_config_holds_the_paper_parameters():
     linear, backlash = config.plant.blocks
     assert linear == LinearBlock(a=(0.5, 0.7), b=(0.0, 1.4, 0.8), sample_period_s=1e-3)
     assert linear.static_gain == pytest.approx(1.0)
-    assert backlash == OutputBacklash(m_l=0.248, c_l=0.0698, m_r=0.252, c_r=0.0349)
+    assert backlash == OutputBacklash(m_l=0.248, c_l_rad=0.0698, m_r=0.252, c_r_rad=0.0349)
     # the paper's error model: eta ~ U[-d, d], d = one count of a 12-bit encoder; a 32-bit encoder reads it
     assert isinstance(config.noise, BoundedUniformNoise) and config.noise.bound_rad == pytest.approx(2 * math.pi / 4096)
     assert config.encoder.bits == 32
@@ -92,11 +92,13 @@ def test_a_fitted_gain_error_block_round_trips_and_scales_the_output():
     ("", ("sample_period_s = 0.001", ""), "sample_period_s", "required"),
     ("", ('type = "linear"', 'type = "lenear"'), "blocks[0].type", "expected one of"),
     ("", ("a = [0.5, 0.7]", 'a = "0.5"'), "blocks[0].a", "list of finite numbers"),
-    ("[[blocks]]\ntype = \"output_backlash\"\nm_l = -0.2\nc_l = 0.1\nm_r = 0.2\nc_r = 0.1\n", None, "blocks[1].m_l", "> 0"),
+    ("[[blocks]]\ntype = \"output_backlash\"\nm_l = -0.2\nc_l_rad = 0.1\nm_r = 0.2\nc_r_rad = 0.1\n", None,
+     "blocks[1].m_l", "> 0"),
     ("[[blocks]]\ntype = \"delay\"\nsamples = 2\nsample = 3\n", None, "blocks[1].sample", "unknown key"),
     ("[noise]\nkind = \"gaussian\"\n", None, "noise.std_rad", "exactly one of std_rad and snr_db"),
     ("[[blocks]]\ntype = \"input_backlash\"\nascending = { kind = \"table\", nodes_u = [1.0, 0.0], values = [0.0, 1.0] }\n"
-     "descending = { kind = \"arctan\", input_shift = 1.0 }\n", None, "blocks[1].ascending.nodes_u", "strictly increasing"),
+     "descending = { kind = \"arctan\", input_shift_rad = 1.0 }\n", None, "blocks[1].ascending.nodes_u",
+     "strictly increasing"),
     ("[[blocks]]\ntype = \"resonance\"\nfrequency_hz = 900.0\ndamping_ratio = 0.05\n", None, "blocks[1].frequency_hz", "Nyquist"),
 ])
 def test_config_errors_name_file_and_key(tmp_path, extra, replace, key, problem):

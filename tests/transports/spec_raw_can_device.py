@@ -1,8 +1,9 @@
 """A minimal raw-CAN rig device written only from ``configs/raw_can.dbc`` (its frames, signals and comments)
 and ``docs/serial_protocol.md`` (the CiA 402 state machine of section 5, the request rules of section 6 and
-protocol v2 of section 16, which the DBC's v2 comments refer to): it imports nothing from ``rig`` or
+protocol v2 of section 16, which the DBC's v2/v3 comments refer to): it imports nothing from ``rig`` or
 ``sim_backend``. The protocol logic is the serial spec device's (:class:`SpecSerialDevice`, the same spec
-sections); only the wire differs: CAN frames laid out as the DBC says instead of COBS frames.
+sections); only the wire differs: CAN frames laid out as the DBC says instead of COBS frames. Raw-CAN v3
+is serial v2's protocol with other tick frames (the DBC's comments on RIG_HELLO and RIG_DEVICE_INFO).
 
 Frames (DBC ``BO_`` lines; every signal little-endian, ``@1``; ``+`` unsigned, ``-`` signed; all byte-aligned):
 
@@ -11,20 +12,26 @@ id    name                DLC  signals (start bit | length)
 ====  ==================  ===  ====================================================================
 256   RIG_CONTROL         4    seq 0|16, controlword 16|16
 257   RIG_STATUS_REQUEST  2    seq 0|16
-258   RIG_HELLO           3    seq 0|16, version 16|8                                   (v2)
-259   RIG_START           2    seq 0|16                                                 (v2)
+258   RIG_HELLO           3    seq 0|16, version 16|8                                   (v2, v3)
+259   RIG_START           2    seq 0|16                                                 (v2, v3)
 272   RIG_SETPOINT        6    seq 0|16, target_counts 16|32 signed
 384   RIG_STATUS          8    seq 0|16, statusword 16|16, actual_counts 32|32 signed
-385   RIG_DEVICE_INFO     8    seq 0|16, version 16|8, buffer_capacity 24|8, sample_period_ns 32|32  (v2)
+385   RIG_DEVICE_INFO     8    seq 0|16, version 16|8, buffer_capacity 24|8, sample_period_ns 32|32  (v2, v3)
 400   RIG_FEEDBACK        8    seq 0|16, statusword 16|16, encoder_counts 32|32
 401   RIG_DRIVE_FEEDBACK  6    seq 0|16, actual_counts 16|32 signed
 402   RIG_TICK_APPLIED    8    seq 0|16, applied_counts 16|32 signed, tick_flags 48|8, buffer_level 56|8  (v2)
+403   RIG_DRIVE_TICK      8    seq 0|16, actual_counts 16|32 signed, buffer_level 48|8, applied_age 56|8  (v3)
 416   RIG_FAULT           2    error_code 0|16
 ====  ==================  ===  ====================================================================
 
 What the DBC does not say, taken from the serial spec it points to: the link watchdog (section 10 and
 16.4; on expiry an unprompted RIG_STATUS with seq 0, as serial's STATUS seq 0) and the buffer rules of
 section 16.3. The raw-CAN protocol has no ERROR_REQUEST: the error code travels only in RIG_FAULT.
+
+A tick (DBC comments on RIG_DEVICE_INFO, RIG_TICK_APPLIED and RIG_DRIVE_TICK): in v2 RIG_FEEDBACK,
+RIG_DRIVE_FEEDBACK and RIG_TICK_APPLIED; in v3 RIG_FEEDBACK and RIG_DRIVE_TICK, whose ``applied_age`` is 0 when
+setpoint k was applied, k - j while the setpoint of tick j (the last one applied) is held, and 255 when that
+is 255 or more ticks back or no setpoint was applied since RIG_START.
 """
 
 from __future__ import annotations
@@ -33,15 +40,17 @@ import struct
 from collections.abc import Callable
 
 from spec_serial_device import (
-    CONTROL, DEVICE_INFO, FAULT, FEEDBACK, HELLO, SETPOINT, START, STATUS, STATUS_REQUEST, TICK, SpecSerialDevice,
+    CONTROL, DEVICE_INFO, FAULT, FEEDBACK, HELLO, SETPOINT, START, STATUS, STATUS_REQUEST, TICK, TICK_HELD,
+    SpecSerialDevice,
 )
 
 # host -> device: arbitration id -> (message, struct layout of the DBC's signals)
 HOST_FRAMES = {256: (CONTROL, "<HH"), 257: (STATUS_REQUEST, "<H"), 272: (SETPOINT, "<Hi")}
 HOST_FRAMES_V2 = HOST_FRAMES | {258: (HELLO, "<HB"), 259: (START, "<H")}
-RIG_STATUS, RIG_DEVICE_INFO, RIG_FEEDBACK, RIG_DRIVE_FEEDBACK, RIG_TICK_APPLIED, RIG_FAULT = (
-    384, 385, 400, 401, 402, 416)
-TICK_FRAMES = (RIG_FEEDBACK, RIG_DRIVE_FEEDBACK, RIG_TICK_APPLIED)
+RIG_STATUS, RIG_DEVICE_INFO, RIG_FEEDBACK, RIG_DRIVE_FEEDBACK, RIG_TICK_APPLIED, RIG_DRIVE_TICK, RIG_FAULT = (
+    384, 385, 400, 401, 402, 403, 416)
+TICK_FRAMES = {2: (RIG_FEEDBACK, RIG_DRIVE_FEEDBACK, RIG_TICK_APPLIED), 3: (RIG_FEEDBACK, RIG_DRIVE_TICK)}
+AGE_OLD = 255  # RIG_DRIVE_TICK applied_age: 255 or more ticks back, or no setpoint applied since RIG_START
 
 
 class SpecRawCanDevice(SpecSerialDevice):
@@ -52,20 +61,30 @@ class SpecRawCanDevice(SpecSerialDevice):
     ----------
     channel
         The virtual bus the host's ``can://virtual/<channel>`` opens.
+    protocol_version
+        The highest version the device speaks: 3 (default), 2 or 1 (``RIG_DEVICE_INFO`` answers the lower of
+        it and the host's).
     tick_frame_order
-        The order in which the three frames of a v2 tick leave (the DBC names them, not their order).
+        The order in which the frames of a tick leave (the DBC names them, not their order): an order of
+        :data:`TICK_FRAMES` of ``protocol_version`` (default: as the DBC lists them).
     **options
         As :class:`SpecSerialDevice` (``buffer_capacity`` at most 255: one byte in RIG_DEVICE_INFO).
     """
 
-    def __init__(self, *, channel: str = "", tick_frame_order: tuple[int, int, int] = TICK_FRAMES,
+    def __init__(self, *, channel: str = "", protocol_version: int = 3, tick_frame_order: tuple[int, ...] | None = None,
                  output: Callable[[int, bytes], object] | None = None, **options) -> None:
-        if sorted(tick_frame_order) != sorted(TICK_FRAMES):
-            raise ValueError(f"tick_frame_order: expected an order of {TICK_FRAMES}, got {tick_frame_order}")
-        self.channel, self.tick_frame_order = channel, tuple(tick_frame_order)
+        frames = TICK_FRAMES.get(protocol_version, ())
+        order = frames if tick_frame_order is None else tuple(tick_frame_order)
+        if sorted(order) != sorted(frames):
+            raise ValueError(f"tick_frame_order: expected an order of {frames}, got {tick_frame_order}")
+        self.channel, self.tick_frame_order = channel, order
         self._bus = None
         self._frame_output = output
-        super().__init__(output=(lambda data: None) if output is not None else None, **options)
+        self._applied_tick: int | None = None  # v3: the tick whose setpoint is in force (None: none since START)
+        self._tick_sent = 0  # the next tick to send, counted from the session's START
+        self._session_mode = 2  # the protocol of the session START began (its tick frames)
+        super().__init__(output=(lambda data: None) if output is not None else None,
+                         protocol_version=protocol_version, **options)
         if not 1 <= self.buffer_capacity <= 255:
             raise ValueError(f"buffer_capacity: RIG_DEVICE_INFO carries 1..255, got {self.buffer_capacity}")
         self._host_frames = HOST_FRAMES_V2 if self.protocol_version >= 2 else HOST_FRAMES
@@ -98,6 +117,12 @@ class SpecRawCanDevice(SpecSerialDevice):
             else:
                 self.run_due()
 
+    def _start(self, seq: int) -> None:
+        sessions = self.sessions
+        super()._start(seq)
+        if self.sessions != sessions:  # tick 0 of a new session: no setpoint applied yet (RIG_DRIVE_TICK, 255)
+            self._applied_tick, self._tick_sent, self._session_mode = None, 0, self.mode
+
     def feed_frame(self, arbitration_id: int, data: bytes) -> None:
         """One CAN frame from the host, received now; a frame of an unknown id or of another length than
         the DBC's is dropped (and not answered); then whatever is due by now."""
@@ -121,12 +146,19 @@ class SpecRawCanDevice(SpecSerialDevice):
             statusword, actual, encoder = fields
             out(RIG_FEEDBACK, struct.pack("<HHI", seq, statusword, encoder))
             out(RIG_DRIVE_FEEDBACK, struct.pack("<Hi", seq, actual))
-        elif kind == TICK:  # v2: the three frames of tick seq (DBC comment of RIG_TICK_APPLIED)
+        elif kind == TICK:  # the frames of tick seq (DBC comments of RIG_TICK_APPLIED, v2, RIG_DRIVE_TICK, v3)
             statusword, actual, encoder, applied, flags, level = fields
+            k, self._tick_sent = self._tick_sent, self._tick_sent + 1  # ticks go out in order from START's 0
+            if not flags & TICK_HELD:
+                self._applied_tick = k
+            age = AGE_OLD if self._applied_tick is None else min(k - self._applied_tick, AGE_OLD)
             frames = {RIG_FEEDBACK: struct.pack("<HHI", seq, statusword, encoder),
                       RIG_DRIVE_FEEDBACK: struct.pack("<Hi", seq, actual),
-                      RIG_TICK_APPLIED: struct.pack("<HiBB", seq, applied, flags, min(level, 255))}
-            for arbitration_id in self.tick_frame_order:
+                      RIG_TICK_APPLIED: struct.pack("<HiBB", seq, applied, flags, min(level, 255)),
+                      RIG_DRIVE_TICK: struct.pack("<HiBB", seq, actual, min(level, 255), age)}
+            mode_frames = TICK_FRAMES[self._session_mode]  # a faulted tick is sent after its session ended
+            ids = [i for i in self.tick_frame_order if i in mode_frames]
+            for arbitration_id in ids + [i for i in mode_frames if i not in ids]:
                 out(arbitration_id, frames[arbitration_id])
         else:
             raise AssertionError(f"no raw-CAN frame carries message type 0x{kind:02X}")  # ERROR: none in the DBC

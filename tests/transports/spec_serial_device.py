@@ -352,13 +352,13 @@ class SpecSerialDevice:
             self.requests.append((kind, seq))
             self._start(seq)
         elif kind == SETPOINT and self.state == OPERATION_ENABLED:
-            if self.mode == 2:
+            if self.mode >= 2:
                 self._queue_setpoint(seq, fields[0])
             else:
                 self._setpoint(seq, fields[0])
 
     def _restart_watchdog(self) -> None:
-        if self.mode == 2:  # section 16.4
+        if self.mode >= 2:  # section 16.4
             timeout_s = self.watchdog_ticking_s if self._next_tick is not None else WATCHDOG_BEFORE_FIRST_SETPOINT_S
         else:  # section 10
             timeout_s = self.watchdog_streaming_s if self._streaming else WATCHDOG_BEFORE_FIRST_SETPOINT_S
@@ -432,7 +432,7 @@ class SpecSerialDevice:
         """Section 16.3: in v2 mode, OPERATION ENABLED and not ticking, tick 0 is now; once per request number."""
         if seq != self.last_applied_request:
             self.last_applied_request = seq
-            if self.mode == 2 and self.state == OPERATION_ENABLED and self._next_tick is None:
+            if self.mode >= 2 and self.state == OPERATION_ENABLED and self._next_tick is None:
                 self._tick0_s, self._next_tick = self._clock(), 0
                 self.sessions += 1
                 self._restart_watchdog()  # the bound after START (section 16.4)

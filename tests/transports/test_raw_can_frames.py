@@ -64,7 +64,8 @@ def test_can_trace_records_every_setpoint_frame(kind, tmp_path, capsys, no_leaks
     # the device answers each of its ticks, from RIG_START to the stop (at least one per setpoint)
     assert answers > 20 if kind == "canopen" else answers >= 20
     if kind == "can":
-        assert sum(frame.arbitration_id == 0x192 for frame in frames) == answers  # RIG_TICK_APPLIED with each
+        assert sum(frame.arbitration_id == 0x193 for frame in frames) == answers  # v3: RIG_DRIVE_TICK with each
+        assert not any(frame.arbitration_id in (0x191, 0x192) for frame in frames)  # no v2 tick frames
 
 
 def test_sqlite_traces_and_serial_traces_are_refused(tmp_path, capsys):
@@ -110,6 +111,37 @@ def test_scripted_v2_exchange_with_the_simulated_responder(tmp_path):
     assert tx("RIG_SETPOINT", seq=2, target_counts=3000) == [] and device.dropped_setpoints == 1  # too late
     tx("RIG_CONTROL", seq=6, controlword=0x02)  # quick stop: the session ends
     assert device.mode == 1 and device.buffer == {}
+
+
+def test_scripted_v3_exchange_reports_the_target_in_force_by_its_age(tmp_path):
+    """Protocol v3 (the DBC's RIG_DRIVE_TICK): two frames a tick; applied_age 0 for setpoint k applied, k - j
+    while the setpoint of tick j is held, 255 before any setpoint of the session was applied."""
+    gearbox = load_plant_config(write_test_plant(tmp_path)).gearbox(seed=2)
+    device = SimulatedRawCanDevice(gearbox, channel="unused", buffer_capacity=8)
+    answers: list[tuple[str, dict]] = []
+    device._send = lambda name, **signals: answers.append((name, signals))
+
+    def tx(name, **signals):
+        answers.clear()
+        device.on_message_received(CODEC.encode(name, **signals))
+        return list(answers)
+
+    assert tx("RIG_HELLO", seq=1, version=3)[0][1]["version"] == 3
+    for seq, word in enumerate((0x06, 0x07, 0x0F), start=2):
+        tx("RIG_CONTROL", seq=seq, controlword=word)
+    tx("RIG_SETPOINT", seq=1, target_counts=2000), tx("RIG_SETPOINT", seq=2, target_counts=3000)
+    tx("RIG_START", seq=5)
+    answers.clear()
+    for _ in range(5):
+        device.tick()
+    assert [name for name, _ in answers] == ["RIG_FEEDBACK", "RIG_DRIVE_TICK"] * 5
+    assert [signals for name, signals in answers if name == "RIG_DRIVE_TICK"] == [
+        {"seq": 0, "actual_counts": 0, "buffer_level": 2, "applied_age": 255},  # HELD before any setpoint
+        {"seq": 1, "actual_counts": 2000, "buffer_level": 1, "applied_age": 0},
+        {"seq": 2, "actual_counts": 3000, "buffer_level": 0, "applied_age": 0},
+        {"seq": 3, "actual_counts": 3000, "buffer_level": 0, "applied_age": 1},  # HELD: setpoint 2 in force
+        {"seq": 4, "actual_counts": 3000, "buffer_level": 0, "applied_age": 2}]
+    assert device.held_ticks == 3
 
 
 def test_a_v1_raw_can_device_is_driven_host_paced(tmp_path, no_leaks):

@@ -141,3 +141,15 @@ def test_the_watchdog_fires_only_after_the_host_has_listened_through_the_silence
     assert not watchdog.expired(10.45)  # overdue again: listening
     assert watchdog.expired(10.45 + 1.1 * WATCHDOG_GRACE * 0.1)  # a silent device: stopped
     assert "no feedback for 0.16 s (watchdog 0.1 s)" in watchdog.message("rig", 10.5)
+
+
+def test_a_run_streams_with_the_heap_frozen_and_unfreezes_it(tmp_path, no_leaks):
+    """The objects alive before the run are out of the collector's reach while it streams (a full collection
+    of them was an 85 ms pause of the runner), and back in it afterwards."""
+    import gc
+
+    frozen: list[int] = []
+    with simulated("can", tmp_path) as (config, transport, _, _):
+        run_experiment(transport, excitation(20), ListSink(), feedback_timeout_s=config.feedback_timeout_s,
+                       progress=lambda done, _late: frozen.append(gc.get_freeze_count()))
+    assert frozen and min(frozen) > 1000 and gc.get_freeze_count() == 0

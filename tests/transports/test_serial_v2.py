@@ -240,10 +240,33 @@ def test_a_v1_simulated_device_is_driven_host_paced_and_equals_the_offline_simul
 def test_a_v2_run_reports_its_lead_and_every_row_is_a_tick(tmp_path, no_leaks):
     sink = ListSink()
     with simulated("serial", tmp_path) as (config, transport, _, device):
-        summary = run_experiment(transport, excitation(40), sink, feedback_timeout_s=config.feedback_timeout_s,
+        # more samples than the default lead (250 ms, 50 at the test's 200 Hz): some setpoints go after START
+        summary = run_experiment(transport, excitation(80), sink, feedback_timeout_s=config.feedback_timeout_s,
                                  late_tolerance_s=config.late_tolerance_s)
-        assert transport.version == 2 and device.ticks >= 40 and device.state is DriveState.SWITCH_ON_DISABLED
+        assert transport.lead_samples == 50
+        assert transport.version == 2 and device.ticks >= 80 and device.state is DriveState.SWITCH_ON_DISABLED
     flags = np.array([row[4] for row in sink.rows])
-    assert len(sink.rows) == 40 and summary.held == np.count_nonzero(flags & SampleFlag.HELD)
+    assert len(sink.rows) == 80 and summary.held == np.count_nonzero(flags & SampleFlag.HELD)
     assert summary.lost == np.count_nonzero(flags & SampleFlag.LOST) and not summary.warnings
     assert not math.isnan(summary.min_lead_s)
+
+
+def test_the_simulated_serial_device_in_a_process_of_its_own_serves_a_run(tmp_path, no_leaks):
+    """``python -m sim_backend.serial_device`` (the benchmark's device: its own GIL and clock, as a real
+    microcontroller): a v2 run, and the log equals the offline simulation of the commands the device applied."""
+    from rig.rig_config import load_rig_config
+    from rig.transports import open_transport
+    from sim_backend.serial_device import serial_device_process
+    from sim_rigs import write_test_config
+
+    config = load_rig_config(write_test_config("serial", tmp_path))
+    sink = ListSink()
+    with serial_device_process(config.simulation.plant_path, seed=config.simulation.seed,
+                               drive_counts_per_revolution=config.drive.counts_per_revolution) as port:
+        transport = open_transport(f"serial://{port}", **config.transport_options())
+        summary = run_experiment(transport, excitation(80), sink, feedback_timeout_s=2.0,
+                                 late_tolerance_s=config.late_tolerance_s)
+    assert transport.version == 2 and summary.samples == 80 and summary.lost == 0
+    _, commands, angles, _, _ = (np.array(column, dtype=float) for column in zip(*sink.rows))
+    gearbox = load_plant_config(config.simulation.plant_path).gearbox(seed=config.simulation.seed)
+    np.testing.assert_array_equal(angles, gearbox.simulate(commands).measured_angle_rad)

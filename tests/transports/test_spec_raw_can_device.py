@@ -18,7 +18,7 @@ from rig.log_file import read_log
 from rig.protocols.cia402 import DriveScaling
 
 from sim_rigs import no_leaks  # noqa: F401  (a fixture)
-from spec_raw_can_device import RIG_DRIVE_FEEDBACK, RIG_FEEDBACK, RIG_TICK_APPLIED, SpecRawCanDevice
+from spec_raw_can_device import RIG_DRIVE_FEEDBACK, RIG_DRIVE_TICK, RIG_FEEDBACK, RIG_TICK_APPLIED, SpecRawCanDevice
 from spec_serial_device import HELLO, START, SWITCH_ON_DISABLED
 
 RATE_HZ = 200.0
@@ -98,14 +98,15 @@ def _assert_rows_are_the_devices_ticks(log, device: SpecRawCanDevice) -> None:
     assert not np.any(log.flags & SampleFlag.LOST)
 
 
-@pytest.mark.parametrize("order", [(RIG_FEEDBACK, RIG_DRIVE_FEEDBACK, RIG_TICK_APPLIED),
-                                   (RIG_TICK_APPLIED, RIG_DRIVE_FEEDBACK, RIG_FEEDBACK),
-                                   (RIG_DRIVE_FEEDBACK, RIG_TICK_APPLIED, RIG_FEEDBACK)],
-                         ids=["feedback-first", "applied-first", "drive-first"])
-def test_the_driver_runs_a_v2_raw_can_device_written_from_the_dbc(tmp_path, capsys, no_leaks, device, order):
-    """v2: every sample is the device's tick with the command it applied, nothing lost, whatever order the
-    three frames of a tick come in (the DBC did not fix it); the drive ends disabled."""
-    spec = device(tick_frame_order=order, lost_status_after_enable=1)
+@pytest.mark.parametrize("version, order", [(3, (RIG_FEEDBACK, RIG_DRIVE_TICK)), (3, (RIG_DRIVE_TICK, RIG_FEEDBACK)),
+                                            (2, (RIG_FEEDBACK, RIG_DRIVE_FEEDBACK, RIG_TICK_APPLIED)),
+                                            (2, (RIG_TICK_APPLIED, RIG_DRIVE_FEEDBACK, RIG_FEEDBACK))],
+                         ids=["v3-feedback-first", "v3-drive-first", "v2-feedback-first", "v2-applied-first"])
+def test_the_driver_runs_a_clocked_raw_can_device_written_from_the_dbc(tmp_path, capsys, no_leaks, device, version,
+                                                                       order):
+    """v3 and v2: every sample is the device's tick with the command it applied, nothing lost, whatever order
+    the frames of a tick come in (the DBC did not fix it); the drive ends disabled."""
+    spec = device(protocol_version=version, tick_frame_order=order, lost_status_after_enable=1)
     code, result, err = _run(tmp_path, spec, capsys, transport=f'lead_s = {LEAD_S}\nprotocol = "v2"')
     spec.close()
     assert code == exit_codes.SUCCESS, err

@@ -1,10 +1,11 @@
-"""Raw-CAN protocol v2 tick by tick on a simulated clock (no bus thread, no sleep): the real
+"""Raw-CAN protocols v3 (the default) and v2 tick by tick on a simulated clock (no bus thread, no sleep): the real
 :class:`~rig.transports.raw_can.RawCanTransport` and runner drive the raw-CAN device written only from
 ``configs/raw_can.dbc`` and the spec (:mod:`spec_raw_can_device`) through :class:`clocked_line.ClockedBus`."""
 
 from __future__ import annotations
 
 import math
+import struct
 
 import numpy as np
 import pytest
@@ -12,13 +13,15 @@ import pytest
 from identify.experiment_record import SampleFlag
 from rig.protocols.cia402 import BringUpTiming, DriveScaling
 from rig.protocols.encoder_counts import EncoderResolution
-from rig.protocols.errors import DeviceFault
+from rig.protocols.errors import ConfigError, DeviceFault
 from rig.runner import run_experiment
 from rig.transports.raw_can import RawCanTransport
 
 from clocked_line import ClockedBus, SimulatedClock
 from sim_rigs import ListSink
-from spec_raw_can_device import RIG_TICK_APPLIED, SpecRawCanDevice
+from spec_raw_can_device import (
+    AGE_OLD, RIG_DRIVE_FEEDBACK, RIG_DRIVE_TICK, RIG_FEEDBACK, RIG_TICK_APPLIED, SpecRawCanDevice,
+)
 from spec_serial_device import SWITCH_ON_DISABLED
 
 PERIOD_S = 0.005
@@ -29,14 +32,14 @@ LEAD = 10  # the default 50 ms lead here at 5 ms
 
 @pytest.fixture
 def rig():
-    def make(**device_options):
+    def make(period_s=PERIOD_S, **device_options):
         clock = SimulatedClock(500.0)
         bus: ClockedBus | None = None
         device = SpecRawCanDevice(clock=clock, output=lambda arbitration_id, data: bus.device_sends(arbitration_id,
                                                                                                    data),
-                                  **device_options)
+                                  sample_period_ns=round(period_s * 1e9), **device_options)
         transport = RawCanTransport("virtual", "clocked", encoder=EncoderResolution(bits=16),
-                                    sample_period_s=PERIOD_S, drive=DRIVE, timing=BringUpTiming(poll_interval_s=0.0),
+                                    sample_period_s=period_s, drive=DRIVE, timing=BringUpTiming(poll_interval_s=0.0),
                                     reply_timeout_s=0.3, lead_s=LEAD * PERIOD_S, name="clocked", clock=clock)
         bus = ClockedBus(transport, clock, device)
         return bus, transport, device, clock
@@ -44,7 +47,13 @@ def rig():
     return make
 
 
-def _run(bus: ClockedBus, transport, clock, *, stall_at=None, stall_s=0.0, feedback_timeout_s=0.5):
+def _drive_ticks(bus: ClockedBus) -> dict[int, tuple[int, int, int]]:
+    """The RIG_DRIVE_TICK frames the host received (DBC: seq, actual_counts, buffer_level, applied_age), by seq."""
+    return {seq: (actual, level, age) for arbitration_id, data in bus.to_host if arbitration_id == RIG_DRIVE_TICK
+            for seq, actual, level, age in [struct.unpack("<HiBB", data)]}
+
+
+def _run(bus: ClockedBus, transport, clock, *, stall_at=None, stall_s=0.0, feedback_timeout_s=0.5, samples=SAMPLES):
     stalled = []
 
     def progress(done: int, _held: int) -> None:
@@ -53,7 +62,7 @@ def _run(bus: ClockedBus, transport, clock, *, stall_at=None, stall_s=0.0, feedb
             bus.stall(stall_s)
 
     sink = ListSink()
-    command = 0.2 * np.sin(2 * np.pi * np.arange(SAMPLES) / 50)
+    command = 0.2 * np.sin(2 * np.pi * np.arange(samples) / 50)
     summary = run_experiment(transport, command, sink, feedback_timeout_s=feedback_timeout_s, clock=clock,
                              progress=progress)
     return summary, sink, command, stalled
@@ -68,7 +77,10 @@ def test_the_raw_can_host_keeps_the_lead_tick_by_tick(rig):
     assert math.isclose(summary.min_lead_s, LEAD * PERIOD_S, rel_tol=1e-9)
     assert [row[1] for row in sink.rows] == [DRIVE.quantize_rad(value) for value in command]
     assert [row[3] for row in sink.rows] == [device.ticks[k].encoder_counts for k in range(SAMPLES)]
-    assert sum(arbitration_id == RIG_TICK_APPLIED for arbitration_id, _ in bus.to_host) >= SAMPLES
+    ticks = _drive_ticks(bus)  # v3: two frames a tick, the buffer level and applied_age in RIG_DRIVE_TICK
+    assert [ticks[k][1] for k in range(SAMPLES)] == [min(LEAD - 1, SAMPLES - 1 - k) for k in range(SAMPLES)]
+    assert [ticks[k][2] for k in range(SAMPLES)] == [0] * SAMPLES
+    assert not any(arbitration_id in (RIG_DRIVE_FEEDBACK, RIG_TICK_APPLIED) for arbitration_id, _ in bus.to_host)
     assert device.state == SWITCH_ON_DISABLED and device.controlwords == [0x0006, 0x0007, 0x000F, 0x0002, 0x0000]
 
 
@@ -82,6 +94,36 @@ def test_a_raw_can_host_stall_longer_than_the_lead_holds_exactly_the_ticks_it_ou
     assert held == list(range(heard + LEAD, last_in_stall + 1)) and summary.held == 11 and summary.lost == 0
     assert [row[1] for row in sink.rows][held[0]:held[-1] + 1] == [sink.rows[held[0] - 1][1]] * 11
     assert sorted(device.dropped_setpoints) == held
+    ticks = _drive_ticks(bus)  # the age counts up through the hold from the last setpoint applied; levels exact
+    assert [ticks[k][2] for k in held] == list(range(1, 12))
+    assert [ticks[k][1] for k in held] == [0] * 11 and ticks[held[0] - 1][1] == LEAD - 1 - (held[0] - 1 - heard)
+
+
+@pytest.mark.parametrize("stall_s", [1.4, 0.9])
+def test_a_raw_can_v3_hold_past_254_ticks_logs_the_target_of_the_tick_before(rig, stall_s):
+    """applied_age saturates at 255 (DBC): the host takes the target of the tick before, so a hold longer than
+    254 ticks (1.4 s at 5 ms, less the lead) still logs the command applied, and the data stay true."""
+    bus, transport, device, clock = rig(watchdog_ticking_s=5.0)
+    summary, sink, _, _ = _run(bus, transport, clock, stall_at=40, stall_s=stall_s, feedback_timeout_s=5.0,
+                               samples=500)
+    held = np.flatnonzero(np.array([row[4] for row in sink.rows]) & SampleFlag.HELD)
+    held_count = round(stall_s / PERIOD_S) - LEAD + 1
+    assert summary.held == held.size == held_count and summary.lost == 0 and np.all(np.diff(held) == 1)
+    assert (held_count > AGE_OLD) == (stall_s > 1.3)
+    assert [row[1] for row in sink.rows][held[0]:held[-1] + 1] == [sink.rows[held[0] - 1][1]] * held_count
+    assert [sink.rows[k][1] for k in held] == [DRIVE.rad_from_counts(device.ticks[k].applied_counts) for k in held]
+    ages = [_drive_ticks(bus)[k & 0xFFFF][2] for k in held]
+    assert ages == [min(age, AGE_OLD) for age in range(1, held_count + 1)]
+
+
+def test_a_v2_raw_can_device_is_still_driven_with_its_three_tick_frames(rig):
+    bus, transport, device, clock = rig(protocol_version=2)
+    summary, sink, _, _ = _run(bus, transport, clock, stall_at=80, stall_s=0.1025)
+    assert transport.version == 2 and summary.samples == SAMPLES and summary.lost == 0 and summary.held == 11
+    assert sum(arbitration_id == RIG_TICK_APPLIED for arbitration_id, _ in bus.to_host) >= SAMPLES
+    assert not any(arbitration_id == RIG_DRIVE_TICK for arbitration_id, _ in bus.to_host)
+    held = np.flatnonzero(np.array([row[4] for row in sink.rows]) & SampleFlag.HELD)
+    assert [sink.rows[k][1] for k in held] == [DRIVE.rad_from_counts(device.ticks[k].applied_counts) for k in held]
 
 
 def test_the_raw_can_v2_watchdog_rides_through_a_stall_and_is_heard_when_it_stops_the_drive(rig):
@@ -142,3 +184,16 @@ def test_a_raw_can_fault_during_a_host_stall_ends_the_log_with_the_faulted_tick(
     assert len(sink.rows) == fault_at + 1 and flags[fault_at] & SampleFlag.FAULT
     assert not np.any(flags[:fault_at] & (SampleFlag.FAULT | SampleFlag.LOST))
     assert [row[3] for row in sink.rows[:fault_at]] == [device.ticks[k].encoder_counts for k in range(fault_at)]
+
+
+def test_at_2_khz_a_v3_device_is_driven_and_a_v2_device_is_refused_naming_its_limit(rig):
+    """1 Mbit/s: a v3 cycle is 394 bit (2538 Hz), a v2 cycle 512 bit (1953 Hz): the v2 device is refused after
+    the handshake, before anything enabled it."""
+    bus, transport, device, clock = rig(period_s=0.0005)
+    summary, *_ = _run(bus, transport, clock)
+    assert transport.version == 3 and summary.samples == SAMPLES and summary.lost == summary.held == 0
+    assert transport.load.bits_per_cycle == 394 and round(transport.load.max_rate_hz) == 2538
+    bus, transport, device, clock = rig(period_s=0.0005, protocol_version=2)
+    with pytest.raises(ConfigError, match=r"device speaks raw-CAN protocol v2 \(3 frames a tick, 512 bit.*at most 1953 Hz"):
+        _run(bus, transport, clock)
+    assert device.controlwords == []
