@@ -88,7 +88,8 @@ def diagnosis(record: str, profile: bool) -> None:
     if profiler:
         profiler.disable()
     cpu_s = time.process_time() - started
-    print(f"\n{record}: verdict {run['verdict']} {'+'.join(run['effects']) or '-'}, gap {1e3 * run['gap_initial']:.3g} -> "
+    named = "+".join(run["effects"]) or "-"
+    print(f"\n{record}: verdict {run['verdict']} {named}, gap {1e3 * run['gap_initial']:.3g} -> "
           f"{1e3 * run['gap_final']:.3g} mrad; {cpu_s:.1f} CPU s")
     if profiler:
         pstats.Stats(profiler).sort_stats("tottime").print_stats(12)

@@ -20,6 +20,8 @@ Run:  nice -n 10 .venv/bin/python benchmarks/model_discrepancy_confusion.py --ca
 from __future__ import annotations
 
 import argparse
+import json
+import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
@@ -64,25 +66,32 @@ def run_case(effects: tuple[str, ...], seed: int, start: str) -> dict:
 def _run_rows(rows: tuple[tuple[str, ...], ...], cases: int, start: str, first_seed: int,
               jobs: int) -> dict[tuple[str, ...], list[dict]]:
     tasks = [(row, first_seed + case) for row in rows for case in range(cases)]
-    with ProcessPoolExecutor(max_workers=jobs) as pool:
-        results = list(pool.map(run_case, [t[0] for t in tasks], [t[1] for t in tasks], [start] * len(tasks)))
     out: dict[tuple[str, ...], list[dict]] = {row: [] for row in rows}
-    for (row, _), result in zip(tasks, results):
-        out[row].append(result)
+    with ProcessPoolExecutor(max_workers=jobs) as pool:
+        results = pool.map(run_case, [t[0] for t in tasks], [t[1] for t in tasks], [start] * len(tasks))
+        for (row, seed), result in zip(tasks, results):  # one line per case as it is done, on stderr
+            out[row].append(result)
+            print(f"  {'+'.join(row) or 'none'} seed {seed}: {result['verdict']} {'+'.join(result['named']) or '-'} "
+                  f"({result['seconds']:.0f} s) " + json.dumps({"row": list(row), "seed": seed, **result}),
+                  file=sys.stderr, flush=True)
     return out
 
 
 def confusion(cases: int, start: str, effects: tuple[str, ...], first_seed: int, jobs: int) -> None:
-    columns = (*TRUE_EFFECTS, "ambiguous", "other")
     started = time.perf_counter()
     runs = _run_rows(tuple(() if row == "none" else (row,) for row in effects), cases, start, first_seed, jobs)
-    elapsed = time.perf_counter() - started
+    print(f"\nstart model: {start}; {cases} cases per row (seeds {first_seed}..{first_seed + cases - 1}); "
+          f"{time.perf_counter() - started:.0f} s in all with {jobs} process(es)")
+    confusion_table(runs, effects)
+
+
+def confusion_table(runs: dict[tuple[str, ...], list[dict]], effects: tuple[str, ...]) -> None:
+    """The confusion matrix of single-effect rows (``effects``: names, "none" for the clean records)."""
+    columns = (*TRUE_EFFECTS, "ambiguous", "other")
     short = {name: name[:5] for name in columns} | {"dead_zone": "deadz", "coulomb_friction": "fric", "offset": "offs",
                                                     "gain_error": "gain", "load_friction": "lfric", "gravity": "grav",
                                                     "rate_limit": "rate", "torque_limit": "torq",
                                                     "shaft_play": "play"}
-    print(f"\nstart model: {start}; {cases} cases per row (seeds {first_seed}..{first_seed + cases - 1}); "
-          f"{elapsed:.0f} s in all with {jobs} process(es)")
     print("| true \\ named | " + " | ".join(short[c] for c in columns)
           + " | correct | more named | median gap reduction | truth in interval | median s |")
     print("|---" * (len(columns) + 6) + "|")
@@ -113,6 +122,11 @@ def pairs(cases: int, start: str, rows: tuple[tuple[str, ...], ...], first_seed:
     runs = _run_rows(rows, cases, start, first_seed, jobs)
     print(f"\ntwo effects at once, start model: {start}; {cases} cases per row (seeds {first_seed}.."
           f"{first_seed + cases - 1}); {time.perf_counter() - started:.0f} s in all with {jobs} process(es)")
+    pairs_table(runs, rows)
+
+
+def pairs_table(runs: dict[tuple[str, ...], list[dict]], rows: tuple[tuple[str, ...], ...]) -> None:
+    """The rows of two effects at once."""
     print("| true effects | both named, nothing else | named sets (count) | ambiguous | median gap reduction | "
           "truth in interval | median s |")
     print("|---|---|---|---|---|---|---|")
@@ -130,6 +144,23 @@ def pairs(cases: int, start: str, rows: tuple[tuple[str, ...], ...], first_seed:
               + f"{100 * np.median([r['reduction'] for r in results]):.1f} % | "
               + (f"{covered[0]} of {covered[1]}" if covered[1] else "-")
               + f" | {np.median([r['seconds'] for r in results]):.1f} |")
+
+
+def tables_from_log(path: Path) -> None:
+    """The tables of the cases a run logged on stderr (one JSON object per line after the case's summary),
+    e.g. of a run stopped before its end: rows with the cases they have."""
+    runs: dict[tuple[str, ...], list[dict]] = {}
+    for line in path.read_text().splitlines():
+        if "{" in line:
+            case = json.loads(line[line.index("{"):])
+            runs.setdefault(tuple(case["row"]), []).append(case)
+    print(f"\nfrom {path.name}: {sum(len(v) for v in runs.values())} cases")
+    singles = tuple("+".join(row) or "none" for row in runs if len(row) < 2)
+    if singles:
+        confusion_table(runs, singles)
+    doubles = tuple(row for row in runs if len(row) == 2)
+    if doubles:
+        pairs_table(runs, doubles)
 
 
 def emps(decimate: int, noise_bound_m: float) -> None:
@@ -174,9 +205,14 @@ def main() -> None:
     parser.add_argument("--first-seed", type=int, default=1000)
     parser.add_argument("--emps-only", action="store_true")
     parser.add_argument("--no-emps", action="store_true")
+    parser.add_argument("--from-log", type=Path, metavar="FILE",
+                        help="print the tables of the cases logged (stderr) by an earlier run, and nothing else")
     parser.add_argument("--emps-decimate", type=int, default=5)
     parser.add_argument("--emps-noise-bound", type=float, default=1e-6, metavar="M")
     args = parser.parse_args()
+    if args.from_log is not None:
+        tables_from_log(args.from_log)
+        return
     if args.effects is not None:
         effects = tuple(e for e in args.effects.split(",") if e)
     else:

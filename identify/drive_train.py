@@ -83,6 +83,7 @@ from identify.validation import InvalidInputError, as_signal
 __all__ = [
     "MAX_SUBSTEPS_PER_SAMPLE",
     "POSITION_FEEDBACK",
+    "RECORD_COLUMNS",
     "SUBSTEP_PHASE_RAD",
     "DriveTrain",
     "DriveTrainStepper",
