@@ -1488,12 +1488,8 @@ def bound_linear_block(input_rad: ArrayLike, inner_lower_rad: ArrayLike, inner_u
     progress
         ``progress(stage, done, total)``, called as windows finish (for long records).
     """
-    if method not in LINEAR_BOUND_METHODS:
-        raise InvalidInputError(f"method: expected one of {', '.join(LINEAR_BOUND_METHODS)}, got {method!r}")
-    for name, value, least in (("window_samples", window_samples, 20), ("joint_samples", joint_samples, 20),
-                               ("partition_samples", partition_samples, 0), ("moment_samples", moment_samples, 0)):
-        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < least:
-            raise InvalidInputError(f"{name}: expected an integer >= {least}, got {value!r}")
+    _check_settings(method, window_samples=window_samples, joint_samples=joint_samples,
+                    partition_samples=partition_samples, moment_samples=moment_samples)
     orders = LinearModelOrders(na, nk, nb)
     data = _prepare(input_rad, inner_lower_rad, inner_upper_rad, orders, shared_backlash)
     counter = _Counter()
@@ -1507,17 +1503,11 @@ def bound_linear_block(input_rad: ArrayLike, inner_lower_rad: ArrayLike, inner_u
     moment_notes: list[str] = []
     windowing = f"all {data.u.size} samples in one relaxation per orthant"
     if method == "coupled":
-        low, high, rounds, points, plan = _coupled_bounds(
-            data, low, high, counter, max_tightening_rounds, tightening_tolerance,
-            map if map_windows is None else map_windows, progress, window_samples, joint_samples)
-        windowing = _describe(plan, data.u.size, window_samples, joint_samples)
-        if not np.any(np.isnan(low)) and na and data.u.size <= partition_samples:
-            low, high, cell_points, cells = _partitioned_bounds(data, low, high, counter, progress=progress)
-            points = [new if new is not None else old for new, old in zip(cell_points, points)] if points else cell_points
-            windowing += f", then the box of a partitioned into cells ({cells} solved)"
-        if not np.any(np.isnan(low)) and na and data.u.size <= moment_samples:
-            low, high, sdp_s = _moment_bounds(data, low, high, counter, moment_notes)
-            windowing += f", then cuts from the moment (SDP) relaxation ({sdp_s:.1f} s in cvxpy)"
+        low, high, rounds, points, windowing = _coupled_stages(
+            data, low, high, counter, moment_notes, max_tightening_rounds=max_tightening_rounds,
+            tightening_tolerance=tightening_tolerance, map_windows=map if map_windows is None else map_windows,
+            progress=progress, window_samples=window_samples, joint_samples=joint_samples,
+            partition_samples=partition_samples, moment_samples=moment_samples)
         if np.any(np.isnan(low)):
             return LinearBlockBounds(method=method, orders=orders, intervals={}, explanation=_explain(data, counter),
                                      num_linear_programs=counter.solves, num_tightening_rounds=rounds,
@@ -1529,17 +1519,60 @@ def bound_linear_block(input_rad: ArrayLike, inner_lower_rad: ArrayLike, inner_u
             inner = ({n: float(v) for n, v in zip(names, inner_low)}, {n: float(v) for n, v in zip(names, inner_high)},
                      None if witness is None else {n: float(v) for n, v in zip(names, witness)})
     notes = _fallback_notes(names, counter) + tuple(moment_notes)
+    return LinearBlockBounds(method=method, orders=orders, intervals=_intervals_of_box(orders, low, high),
+                             inner_lower=inner[0], inner_upper=inner[1], inner_point=inner[2],
+                             num_linear_programs=counter.solves, num_tightening_rounds=rounds,
+                             feasible_orthants=tuple(feasible), max_certificate_gap=counter.max_gap, notes=notes,
+                             windowing=windowing)
+
+
+def _check_settings(method: str, **sample_counts: int) -> None:
+    """Refuse an unknown method or a window, joint, partition or moment length that is no integer above its
+    least useful value (20 samples for windows and joint parts, 0 = off for the partition and the moments)."""
+    if method not in LINEAR_BOUND_METHODS:
+        raise InvalidInputError(f"method: expected one of {', '.join(LINEAR_BOUND_METHODS)}, got {method!r}")
+    least = {"window_samples": 20, "joint_samples": 20, "partition_samples": 0, "moment_samples": 0}
+    for name, value in sample_counts.items():
+        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < least[name]:
+            raise InvalidInputError(f"{name}: expected an integer >= {least[name]}, got {value!r}")
+
+
+def _coupled_stages(data: _Data, low: NDArray[np.float64], high: NDArray[np.float64], counter: _Counter,
+                    moment_notes: list[str], *, max_tightening_rounds: int, tightening_tolerance: float,
+                    map_windows: MapFunction, progress: Progress | None, window_samples: int, joint_samples: int,
+                    partition_samples: int, moment_samples: int
+                    ) -> tuple[NDArray[np.float64], NDArray[np.float64], int, list[Any], str]:
+    """The coupled method's stages after the paper's bounds: the McCormick relaxation with iterated tightening
+    over windows and joint parts (:func:`_coupled_bounds`), then on short records the partition of the box of
+    a (:func:`_partitioned_bounds`) and the moment cuts (:func:`_moment_bounds`). Returns the box (NaN where
+    the set is empty), the rounds, the feasible points found, and the windowing in words."""
+    na = data.orders.na
+    low, high, rounds, points, plan = _coupled_bounds(data, low, high, counter, max_tightening_rounds,
+                                                      tightening_tolerance, map_windows, progress, window_samples,
+                                                      joint_samples)
+    windowing = _describe(plan, data.u.size, window_samples, joint_samples)
+    if not np.any(np.isnan(low)) and na and data.u.size <= partition_samples:
+        low, high, cell_points, cells = _partitioned_bounds(data, low, high, counter, progress=progress)
+        points = [new if new is not None else old for new, old in zip(cell_points, points)] if points else cell_points
+        windowing += f", then the box of a partitioned into cells ({cells} solved)"
+    if not np.any(np.isnan(low)) and na and data.u.size <= moment_samples:
+        low, high, sdp_s = _moment_bounds(data, low, high, counter, moment_notes)
+        windowing += f", then cuts from the moment (SDP) relaxation ({sdp_s:.1f} s in cvxpy)"
+    return low, high, rounds, points, windowing
+
+
+def _intervals_of_box(orders: LinearModelOrders, low: NDArray[np.float64],
+                      high: NDArray[np.float64]) -> dict[str, ParameterInterval]:
+    """The box as named intervals; a bound of b at the artificial box ±_B_BOX is reported infinite (no
+    information about that coefficient)."""
     intervals = {}
-    for k, name in enumerate(names):
+    for k, name in enumerate(orders.parameter_names):
         lo, hi = float(low[k]), float(high[k])
         if k >= orders.na:
             lo = -math.inf if lo <= -_B_BOX * (1 - 1e-9) else lo
             hi = math.inf if hi >= _B_BOX * (1 - 1e-9) else hi
         intervals[name] = ParameterInterval(lo, hi)
-    return LinearBlockBounds(method=method, orders=orders, intervals=intervals, inner_lower=inner[0],
-                             inner_upper=inner[1], inner_point=inner[2], num_linear_programs=counter.solves,
-                             num_tightening_rounds=rounds, feasible_orthants=tuple(feasible),
-                             max_certificate_gap=counter.max_gap, notes=notes, windowing=windowing)
+    return intervals
 
 
 def _describe(plan: _WindowPlan, num_samples: int, window: int, joint_samples: int) -> str:
