@@ -48,7 +48,6 @@ Example
 from __future__ import annotations
 
 from collections.abc import Mapping
-import dataclasses
 import logging
 from dataclasses import dataclass, field
 from typing import Any, Literal
@@ -62,7 +61,8 @@ from numpy.typing import ArrayLike, NDArray
 from identify.border_lifting import PathNodes, check_cyclic_input, lifted_input
 from identify.plant_blocks import InputBacklash, PiecewiseLinearBorder
 from identify.result_format import check_kind, malformed, tagged
-from identify.validation import InvalidInputError, as_signal, positive, renamed_parameters, same_length, varying
+from identify.validation import (InvalidInputError, as_signal, positive, renamed_parameters, same_length, varying,
+                                 with_options)
 
 __all__ = [
     "HammersteinModel",
@@ -821,9 +821,6 @@ class HammersteinOptions:
             raise InvalidInputError("hold_samples, mu0_rad: give one of them, or set estimate_offset=True")
 
 
-_OPTION_NAMES = tuple(f.name for f in dataclasses.fields(HammersteinOptions))
-
-
 @renamed_parameters(u="input_rad", y="output_rad")
 def identify_hammerstein(
     input_rad: ArrayLike,
@@ -863,11 +860,7 @@ def identify_hammerstein(
     TypeError
         A keyword that is no field of :class:`HammersteinOptions` (the message lists them).
     """
-    unknown = sorted(set(option_values) - set(_OPTION_NAMES))
-    if unknown:
-        raise TypeError(f"identify_hammerstein() got an unexpected keyword argument {unknown[0]!r} (the options "
-                        f"are {', '.join(_OPTION_NAMES)})")
-    options = dataclasses.replace(options or HammersteinOptions(), **option_values)
+    options = with_options("identify_hammerstein", options, HammersteinOptions, option_values)
     u_signal = varying("input_rad", as_signal("input_rad", input_rad), "use the cyclic random excitation of "
                        "identify.cyclic_excitation (configs/experiments/hammerstein_cyclic.toml)")
     y_signal = as_signal("output_rad", output_rad)

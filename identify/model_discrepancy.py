@@ -37,7 +37,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field, fields, replace
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -60,7 +60,7 @@ from identify.plant_blocks import (
     Resonance,
 )
 from identify.result_format import check_kind, malformed, tagged
-from identify.validation import InvalidInputError, as_signal, positive, same_length, varying
+from identify.validation import InvalidInputError, as_signal, positive, same_length, varying, with_options
 
 VERDICTS = ("explained", "named", "ambiguous", "unexplained", "not_excited")
 """The verdicts: the start model already agrees within the noise bound; effects were found (named); two or
@@ -1150,9 +1150,6 @@ class DiagnoseOptions:
                                     f"{', '.join(EFFECT_NAMES)}")
 
 
-_DIAGNOSE_OPTION_NAMES = tuple(f.name for f in fields(DiagnoseOptions))
-
-
 def diagnose_model(command_rad: ArrayLike, angle_rad: ArrayLike, noise_bound_rad: float,
                    sample_period_s: float, model: PlantModel | None = None, options: DiagnoseOptions | None = None,
                    *, progress: Callable[[str], None] | None = None, **option_values: Any) -> DiscrepancyResult:
@@ -1187,11 +1184,7 @@ def diagnose_model(command_rad: ArrayLike, angle_rad: ArrayLike, noise_bound_rad
     TypeError
         A keyword that is no field of :class:`DiagnoseOptions` (the message lists them).
     """
-    unknown = sorted(set(option_values) - set(_DIAGNOSE_OPTION_NAMES))
-    if unknown:
-        raise TypeError(f"diagnose_model() got an unexpected keyword argument {unknown[0]!r} (the options are "
-                        f"{', '.join(_DIAGNOSE_OPTION_NAMES)})")
-    options = replace(options or DiagnoseOptions(), **option_values)
+    options = with_options("diagnose_model", options, DiagnoseOptions, option_values)
     u, y, delta, period = _checked_record(command_rad, angle_rad, noise_bound_rad, sample_period_s, model)
     operating_point = _operating_point(y, delta) if options.from_operating_point else 0.0
     if operating_point != 0.0:

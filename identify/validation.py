@@ -7,9 +7,10 @@ traceback from inside numpy or scipy.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from typing import Any, TypeVar
 
 import numpy as np
@@ -20,6 +21,23 @@ F = TypeVar("F", bound=Callable[..., Any])
 
 class InvalidInputError(ValueError):
     """An argument given to an identification routine cannot be used as it is."""
+
+
+OptionsT = TypeVar("OptionsT")
+
+
+def with_options(function_name: str, options: OptionsT | None, defaults: Callable[[], OptionsT],
+                 option_values: Mapping[str, Any]) -> OptionsT:
+    """The settings of a function that takes an options dataclass or its fields as keywords: ``options``
+    (or ``defaults()``) with ``option_values`` replacing fields. A keyword that is no field raises the
+    TypeError Python gives for an unexpected keyword, listing the fields."""
+    base = options if options is not None else defaults()
+    names = [field.name for field in dataclasses.fields(base)]  # type: ignore[arg-type]
+    unknown = sorted(set(option_values) - set(names))
+    if unknown:
+        raise TypeError(f"{function_name}() got an unexpected keyword argument {unknown[0]!r} (the options are "
+                        f"{', '.join(names)})")
+    return dataclasses.replace(base, **option_values)  # type: ignore[type-var]
 
 
 def as_signal(name: str, values: ArrayLike, *, min_samples: int = 1) -> NDArray[np.float64]:

@@ -341,3 +341,10 @@ def test_a_version_1_document_is_still_read():
     report = DiscrepancyReport.from_dict(document)
     assert report.undecided == () and report.missing_effects[0].effect == "backlash"
     assert all(c.acceptance == "" for c in report.candidates)
+
+
+def test_a_keyword_that_is_no_option_is_refused_with_the_options_listed():
+    command = np.sin(np.linspace(0.0, 20.0, 400))
+    with pytest.raises(TypeError, match=r"diagnose_model\(\) got an unexpected keyword argument 'max_effect' "
+                                        r"\(the options are estimation_fraction, candidates, max_effects, "):
+        diagnose_model(command, command, 1e-3, 0.01, max_effect=2)
