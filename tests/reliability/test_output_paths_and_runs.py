@@ -252,7 +252,9 @@ def test_a_second_signal_speaks_of_a_drive_only_where_there_is_one(capsys):
                     os.kill(os.getpid(), signal.SIGTERM)  # while "stopping"
                     time.sleep(0.05)
         err = capsys.readouterr().err
-        assert (expected in err) if expected else err == ""
+        # without a drive no line may speak of one (other lines on this worker's stderr, e.g. a warning of an
+        # earlier test's leftover thread, are not this handler's)
+        assert (expected in err) if expected else "drive" not in err.lower()
 
 
 def test_ctrl_c_on_diagnose_jobs_2_gives_one_message_and_no_drive_text(tmp_path):
