@@ -242,6 +242,19 @@ def test_jobs_are_capped_at_the_files_and_the_cores(monkeypatch):
 def test_a_second_signal_speaks_of_a_drive_only_where_there_is_one(capsys):
     if sys.platform == "win32":
         pytest.skip("POSIX signals")
+    # start from Python's own handlers: an earlier test on this worker may have left SIGTERM ignored, which
+    # signals_as_interrupts rightly keeps (a nohup'd command), and then no second signal would arrive
+    previous = {number: signal.getsignal(number) for number in (signal.SIGINT, signal.SIGTERM)}
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    try:
+        _second_signal_messages(capsys)
+    finally:
+        for number, handler in previous.items():
+            signal.signal(number, handler)
+
+
+def _second_signal_messages(capsys):
     for drives, expected in ((False, ""), (True, "leaves the drive as it is")):
         with pytest.raises(KeyboardInterrupt):
             with signals_as_interrupts(drives):
