@@ -26,22 +26,10 @@ from identify.plant_blocks import InputBacklash, LinearBlock, OutputBacklash, Pi
 from rig import exit_codes
 from rig.cli import main
 from rig.report import missing_images
+from nominal_model import NOMINAL_TOML
 
 START_TIMEOUT_S = 120.0
 """Generous: a scheduler and two workers start in a few seconds on an idle machine, much later on a busy one."""
-
-NOMINAL_TOML = """name = "nominal"
-sample_period_s = 0.001
-[encoder]
-bits = 12
-[noise]
-kind = "uniform"
-bound_rad = 0.0002
-[[blocks]]
-type = "linear"
-a = [-1.73691838, 0.76805512]
-b = [0.0, 0.01625312, 0.01488362]
-"""
 
 
 def _stop(process: subprocess.Popen) -> None:

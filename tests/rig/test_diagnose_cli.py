@@ -15,19 +15,7 @@ from rig.cli import main
 from rig.plots.discrepancy import comparison_figure, signature_figure, windows_figure
 from rig.report import missing_images
 from plot_checks import unlabelled_axes
-
-NOMINAL_TOML = """name = "nominal"
-sample_period_s = 0.001
-[encoder]
-bits = 12
-[noise]
-kind = "uniform"
-bound_rad = 0.0002
-[[blocks]]
-type = "linear"
-a = [-1.73691838, 0.76805512]
-b = [0.0, 0.01625312, 0.01488362]
-"""
+from nominal_model import NOMINAL_TOML
 
 
 @pytest.fixture(scope="module")
