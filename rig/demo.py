@@ -44,7 +44,8 @@ CONFIG_DIR = Path(__file__).resolve().parents[1] / "configs"
 TRANSPORTS = ("canopen", "can", "serial")
 SIMULATED_RIG_PENDING_CYCLES = 100
 """The simulated devices share the driver's process: when the host stalls they stall too, so their
-feedback arrives late but is never really lost; file it up to 100 ms late (flagged LATE)."""
+feedback arrives late but is never really lost; file it up to 100 cycles after its instant (a later answer
+finds its row final: LOST)."""
 
 
 class SimulatedRigSession:

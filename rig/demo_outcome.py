@@ -113,8 +113,12 @@ def true_gearbox(plant: PlantModel) -> TrueGearbox:
 class DemoRun:
     """One experiment streamed over the wire.
 
-    ``held`` and ``min_lead_s`` are those of :class:`rig.runner.RunSummary` (device-clocked links);
-    ``lead_s`` is how far ahead of the device's sample instants the setpoints were queued (0: host-paced).
+    ``late``, ``held`` and ``min_lead_s`` are those of :class:`rig.runner.RunSummary`: ``late`` counts the
+    samples flagged HELD or LATE. On a device-clocked link a LATE sample is one whose instant was off the
+    period by more than the late tolerance (over CANopen: the spacing of the SYNCs on the bus, which on the
+    simulated rig come from a host thread and jitter with the machine's load); its value is exact, its time
+    k T is not. ``lead_s`` is how far ahead of the device's sample instants the setpoints were queued (0:
+    host-paced).
     """
 
     name: str
@@ -234,8 +238,9 @@ def format_summary(outcome: DemoOutcome) -> str:
     late = sum(run.late for run in runs.values())
     held = sum(run.held for run in runs.values())
     lines.append("")
-    lines.append(f"{len(runs)} experiments over {outcome.transport}: {samples} samples, {lost} lost, {late} late, "
-                 f"{held} held; noise bound {outcome.noise_bound_rad:.3g} rad")
+    lines.append(f"{len(runs)} experiments over {outcome.transport}: {samples} samples, {lost} lost, {held} held, "
+                 f"{late} late (held, or sampled at an instant off the period: values exact, time column nominal); "
+                 f"noise bound {outcome.noise_bound_rad:.3g} rad")
     lines.append(f"staircase filter pole a = {outcome.filter_pole:.4g}: {outcome.filter_pole_reason}")
     if outcome.retries:
         lines.append("repeated after lost or held samples (busy host): "
