@@ -491,9 +491,9 @@ def _run_device_clocked(transport: Transport, command: NDArray[np.float64], sink
     # the device, not the host, fixes each instant: a row can wait for an answer as long as the lead lasts
     # (an answer that a busy host reads late is still filed under its instant, never LOST)
     pending_cycles = max(pending_cycles, transport.lead_samples)
-    ledger = SampleLedger(period, pending_cycles, late_tolerance_s)
     values = command.tolist()
     total = len(values)
+    ledger = SampleLedger(period, pending_cycles, late_tolerance_s, num_samples=total)
     cpu_start, wall_start = time.process_time(), clock()
     first_answer = last_answer = math.nan
     failure: BaseException | None = None

@@ -61,11 +61,16 @@ class SampleLedger:
     late_tolerance_s
         A sample whose instant was further than this off the period is flagged LATE (its value is real,
         its time not exactly k T).
+    num_samples
+        The run's samples: rows 0 to ``num_samples - 1``. The device goes on sampling after the last one
+        until the run stops it; those answers belong to no sample of the run and are dropped, not counted
+        stale (stale is an answer that came too late for its sample, or answers a setpoint never sent).
     """
 
     sample_period_s: float
     pending_cycles: int
     late_tolerance_s: float = float("inf")
+    num_samples: int = 1 << 62
     counts: dict[str, int] = field(default_factory=lambda: dict.fromkeys(
         ("lost", "held", "late", "duplicate", "stale", "not_followed"), 0))
     _rows: dict[int, LedgerRow] = field(default_factory=dict)
@@ -107,6 +112,8 @@ class SampleLedger:
         A sample for a number beyond the last row opened is kept until its row opens: the device passed that
         instant before the host had queued its setpoint (a host stall longer than the lead, on a link that
         hears of the device's instants only when the host reads; the sample says HELD)."""
+        if sample.seq >= self.num_samples:  # the device sampling on after the run's last sample
+            return state_from_statusword_or_none(sample.statusword)
         row = self._rows.get(sample.seq)
         if row is None and sample.seq > self.last_opened:
             if len(self._early) < _MAX_EARLY and sample.seq not in self._early:

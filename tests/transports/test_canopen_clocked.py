@@ -123,7 +123,7 @@ def test_the_fifo_is_filled_to_its_capacity_and_the_lead_is_kept_sync_by_sync(ra
     period_s = 1 / rate_hz
     lead = round(LEAD_S * rate_hz)
     assert transport.mode == "ip_buffer" and capacity == BUFFER_RECORDS and transport.lead_samples == lead
-    assert summary.samples == samples and summary.lost == summary.held == summary.late == 0
+    assert summary.samples == samples and summary.lost == summary.held == summary.late == summary.stale == 0
     full = capacity - IP_BUFFER_MARGIN_RECORDS
     assert levels[:samples] == [min(full, samples - k) for k in range(samples)]
     assert levels[samples:] and not any(levels[samples:])  # after the last record: empty, the drive holds it

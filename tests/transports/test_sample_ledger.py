@@ -64,6 +64,20 @@ def test_a_second_answer_marks_the_sample_duplicate_and_an_answer_to_no_open_row
     assert row[4] == int(SampleFlag.DUPLICATE)
 
 
+def test_the_devices_samples_after_the_runs_last_are_dropped_not_stale():
+    """A device samples on after the last setpoint until the run stops it: those answers belong to no sample
+    of the run (not stale, which means too late for its sample); one for an unopened row within the run is."""
+    ledger = SampleLedger(sample_period_s=0.001, pending_cycles=1, num_samples=2)
+    ledger.open_row(0, 0.0)
+    ledger.file(_feedback(1))  # before its row opens (counted until it does)
+    ledger.open_row(1, 0.0)
+    for seq in (2, 3, 4):
+        ledger.file(_feedback(seq))
+    assert ledger.counts["stale"] == 0
+    ledger.file(_feedback(0))
+    assert [row[0] for row in _release_all(ledger, device_sample=5)] == [0, 1]
+
+
 @pytest.mark.parametrize(("fields", "flag"), [
     ({"target_ignored": True}, SampleFlag.NOT_FOLLOWED),
     ({"ambiguous": True}, SampleFlag.AMBIGUOUS),

@@ -80,7 +80,7 @@ def test_the_host_keeps_the_lead_and_every_row_is_the_devices_tick(rig):
     line, transport, device, clock = rig()
     command = _command()
     summary, sink, _ = _run(line, transport, clock, command)
-    assert summary.samples == SAMPLES and summary.lost == summary.held == summary.late == summary.duplicate == 0
+    assert summary.samples == SAMPLES and summary.lost == summary.held == summary.late == summary.duplicate == summary.stale == 0
     assert transport.lead_samples == LEAD and device.sessions == 1
     # tick k found setpoint k and left k+1 .. k+LEAD-1 queued: the host topped the buffer up every tick, and
     # after the last setpoint the level runs down
