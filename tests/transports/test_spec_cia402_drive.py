@@ -1,0 +1,199 @@
+"""The real CANopen master (:class:`rig.transports.canopen_link.CanOpenTransport` through
+:func:`rig.runner.run_experiment`) against a CiA 402 drive and a CiA 406 encoder written only from the
+standards (:mod:`spec_cia402_drive`, which imports nothing of ours), on python-can's ``virtual`` bus with
+the devices answering on their own notifier thread. If one of these fails, the standards and the master
+disagree, and the standards are what a drive vendor has.
+
+What the drive implements, by standard clause and object, and where its choice differs from our simulated
+drive (``sim_backend/canopen_nodes.py``):
+
+* CiA 301 NMT: boot-up to PRE-OPERATIONAL, PDOs only in OPERATIONAL; heartbeat producer from 0x1017
+  (canopen's ``NmtSlave``).
+* CiA 301 PDOs, read from 0x1400/0x1600 and 0x1800-0x1803/0x1A00-0x1A03 when the node enters OPERATIONAL:
+  TPDOs by their transmission type in 0x18xx:2 (1..240: after every n-th SYNC; 0: at a SYNC when the data
+  changed). The RPDO is synchronous (transmission type 0..240): its data are taken up at the next SYNC
+  (CiA 301 7.2.2), where the simulated drive takes them up on reception.
+* CiA 301 EMCY and 0x1001: on a fault, and the error reset (0x0000) once it is cleared, always sent (the
+  simulated drive sends it only as a configured behaviour).
+* CiA 402 state machine strictly by the transition table: a controlword that codes no transition from the
+  current state does nothing; "switch on + enable operation" from READY TO SWITCH ON does 3 and 4; fault
+  reset on the rising edge of bit 7 only, in FAULT only (15), and it takes ``fault_reset_s``; a fault goes
+  through FAULT REACTION ACTIVE (13) for ``fault_reaction_s`` before FAULT (14), where the simulated drive
+  goes to FAULT at once.
+* CiA 402 quick stop option code 0x605A = 2 (ramp, then SWITCH ON DISABLED by itself) or 6 (ramp, then stay
+  in QUICK STOP ACTIVE with bit 10 set, 16 back to OPERATION ENABLED possible); the simulated drive by default
+  stays in QUICK STOP ACTIVE until disable voltage.
+* CiA 402 modes of operation 0x6060/0x6061: 0x6061 follows 0x6060 ``mode_switch_s`` later (the simulated
+  drive at once); 0x6502 = pp, ip, csp (no homing).
+* No copy of the actual position into 0x607A on enable (the simulated drive copies it): 0x607A holds a stale
+  value from power-on, so a master that did not set the target to the actual position would move the motor.
+* Cyclic synchronous position (0x6060 = 8): the demand 0x6062 at SYNC k is the target 0x607A in force.
+* Interpolated position (0x6060 = 7), linear (0x60C0 = 0, the only one accepted): the record taken at SYNC k
+  is the END point of the segment k..k+1, so the demand 0x6062 (and the actual position) at SYNC k is the
+  record taken at SYNC k - 1; the simulated drive's demand at SYNC k is the record it took there. Buffer
+  0x60C4: sub 1 maximum (32 here, 64 there), sub 2 actual size (24 by default, writable up to sub 1), sub 3
+  0 = FIFO (the only one accepted), sub 6 buffer clear (0 clears and disables access, 1 enables). Records
+  written while access is disabled, or into a full buffer, are discarded (whatever the mode; the simulated
+  drive takes them only in mode 7). Records are consumed only with controlword bit 4 and statusword bit 12
+  set; bit 4 low pauses; an underrun holds the last record.
+
+These runs use real threads and real time, so they assert accounting (every sample filed, the command the
+log says was applied equal to the command the drive took up at that SYNC, the encoder counts those it
+latched there), never timing; the watchdogs are seconds long (``test_spec_serial_device.py`` says why).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from identify.experiment_record import SampleFlag
+from rig.protocols.cia402 import BringUpTiming, DriveScaling
+from rig.protocols.encoder_counts import EncoderResolution
+from rig.protocols.errors import DeviceFault
+from rig.runner import run_experiment
+from rig.transports.canopen_link import CanOpenTransport
+
+from sim_rigs import ListSink, no_leaks  # noqa: F401  (a fixture)
+from spec_cia402_drive import (
+    EMCY_FOLLOWING_ERROR, FAULT, QUICK_STOP_ACTIVE, SWITCH_ON_DISABLED, SpecCia402Rig,
+)
+
+RATE_HZ = 200.0
+SAMPLES = 120
+DRIVE = DriveScaling(1 << 17)
+WATCHDOG_S = 3.0
+START_COUNTS = 12_345  # the drive's position at power-on
+DISABLED_STATES = (SWITCH_ON_DISABLED, FAULT)  # the power stage off; QUICK STOP ACTIVE is not
+
+
+def _transport(rig: SpecCia402Rig, mode: str) -> CanOpenTransport:
+    return CanOpenTransport("virtual", rig.channel, mode=mode, heartbeat_ms=100, heartbeat_timeout_s=WATCHDOG_S,
+                            sdo_timeout_s=1.0, encoder=EncoderResolution(bits=14, multi_turn_bits=4),
+                            sample_period_s=1 / RATE_HZ, drive=DRIVE, timing=BringUpTiming(), name="spec402")
+
+
+def _command() -> np.ndarray:
+    """Held random levels around the drive's position at power-on (every target changes every 4 samples)."""
+    start_rad = DRIVE.rad_from_counts(START_COUNTS)
+    rng = np.random.default_rng(7)
+    return start_rad + np.repeat(rng.uniform(-0.5, 0.5, SAMPLES // 4), 4)
+
+
+def _run(rig: SpecCia402Rig, mode: str, sink=None, progress=None):
+    sink = ListSink() if sink is None else sink
+    transport = _transport(rig, mode)
+    try:
+        summary = run_experiment(transport, _command(), sink, feedback_timeout_s=WATCHDOG_S, progress=progress)
+    finally:
+        transport.close()
+    return transport, summary, sink
+
+
+def _streamed_cycles(rig: SpecCia402Rig, mode: str) -> list:
+    """The drive's SYNCs from sample 0 on: interpolated position, from the SYNC that took the first record;
+    CSP, from the first SYNC after the first RPDO."""
+    if mode == "csp":
+        first = next(i for i, cycle in enumerate(rig.cycles) if cycle.rpdos > 0)
+    else:
+        first = next(i for i, cycle in enumerate(rig.cycles) if cycle.record_taken)
+    before = rig.cycles[:first]
+    assert before, "the master streams only after a few SYNCs in OPERATION ENABLED"
+    assert {cycle.demand_counts for cycle in before} == {rig.enable_positions[0]}  # no motion at enable
+    return rig.cycles[first:]
+
+
+def _assert_log_is_what_the_drive_did(rig: SpecCia402Rig, mode: str, summary, sink) -> None:
+    cycles = _streamed_cycles(rig, mode)
+    _, command, _, counts, flags = (np.array(column, dtype=object) for column in zip(*sink.rows))
+    flags = flags.astype(int)
+    assert len(sink.rows) == SAMPLES and summary.lost == 0 and not np.any(flags & SampleFlag.LOST)
+    assert not np.any(flags & (SampleFlag.AMBIGUOUS | SampleFlag.DUPLICATE | SampleFlag.NOT_FOLLOWED))
+    assert len(cycles) >= SAMPLES
+    applied = [DRIVE.rad_from_counts(cycle.in_force_counts) for cycle in cycles[:SAMPLES]]
+    assert command.astype(float).tolist() == applied  # the command the drive took up at each sample's SYNC
+    assert counts.astype(int).tolist() == [cycle.encoder_counts for cycle in cycles[:SAMPLES]]
+    held = (flags & SampleFlag.HELD) != 0
+    assert summary.held == np.count_nonzero(held)
+    if mode != "csp":  # interpolated position: HELD exactly where the buffer was empty at the SYNC
+        assert held.tolist() == [not cycle.record_taken for cycle in cycles[:SAMPLES]]
+    sent = DRIVE.rad_from_counts(np.array([DRIVE.counts_from_rad(value) for value in _command()])).tolist()
+    assert [c for c, h, s in zip(command.astype(float).tolist(), held, sent) if not h] == [
+        s for s, h in zip(sent, held) if not h]  # a sample not HELD had its own setpoint applied
+
+
+def _assert_stopped(rig: SpecCia402Rig, quick_stopped: bool = True) -> None:
+    assert rig.state in DISABLED_STATES
+    if quick_stopped:
+        assert 11 in rig.transitions[rig.transitions.index(4) if 4 in rig.transitions else 0:]
+    assert rig.nmt_states == ("PRE-OPERATIONAL", "PRE-OPERATIONAL")
+
+
+@pytest.mark.parametrize("mode, quick_stop_option", [("auto", 2), ("ip_buffer", 6), ("csp", 2), ("csp", 6)])
+def test_a_clean_run_logs_what_the_standard_drive_applied(tmp_path, no_leaks, mode, quick_stop_option):
+    with SpecCia402Rig(f"spec402_{tmp_path.name}", start_position_counts=START_COUNTS, quick_stop_option=quick_stop_option) as rig:
+        transport, summary, sink = _run(rig, mode)
+        assert rig.records_discarded == 0
+    assert transport.mode == ("csp" if mode == "csp" else "ip_buffer")  # auto: the drive has a buffer
+    assert rig.mode_display == (8 if mode == "csp" else 7)
+    _assert_log_is_what_the_drive_did(rig, mode, summary, sink)
+    _assert_stopped(rig)
+    assert transport.stop_report.disabled
+    if quick_stop_option == 6:  # stayed in QUICK STOP ACTIVE until the master's disable voltage (12)
+        assert rig.transitions[-2:] == [11, 12] and rig.state == SWITCH_ON_DISABLED
+
+
+def test_the_interpolation_lag_of_a_standard_drive_is_not_a_tpdo_latency(tmp_path, no_leaks):
+    """CiA 402 linear interpolation: the demand 0x6062 at SYNC k is the record taken at SYNC k - 1 (the
+    segment's start), so in interpolated position every changed record shows in 0x6062 one sample late. The
+    drive's TPDOs answer their own SYNC (latency 0): a master that reads the lag as a TPDO latency refuses a
+    legal drive (or, told drive_tpdo_latency_cycles = 1, files its statusword one sample early)."""
+    with SpecCia402Rig(f"spec402_{tmp_path.name}", start_position_counts=START_COUNTS) as rig:
+        transport, summary, sink = _run(rig, "ip_buffer")
+    cycles = _streamed_cycles(rig, "ip_buffer")
+    assert [cycle.demand_counts for cycle in cycles[1:SAMPLES]] == [cycle.in_force_counts for cycle in cycles[:SAMPLES - 1]]
+    assert summary.samples == SAMPLES and not any("latency" in warning for warning in transport.warnings)
+    _assert_log_is_what_the_drive_did(rig, "ip_buffer", summary, sink)
+
+
+@pytest.mark.parametrize("mode", ["ip_buffer", "csp"])
+def test_a_drive_fault_mid_run_stops_the_run_and_the_drive_ends_disabled(tmp_path, no_leaks, mode):
+    """A following error (IP: at record 40; CSP: injected after 40 samples): FAULT REACTION ACTIVE, EMCY
+    0x8611, then FAULT; the master stops naming the code; the drive's controlwords in FAULT do nothing."""
+    def fault_at_40(done: int, late: int) -> None:
+        if mode == "csp" and done == 40:
+            rig.fault(EMCY_FOLLOWING_ERROR)
+
+    with SpecCia402Rig(f"spec402_{tmp_path.name}", start_position_counts=START_COUNTS, following_error_at_record=40 if mode != "csp" else None) as rig:
+        with pytest.raises(DeviceFault, match="0x8611"):
+            _run(rig, mode, progress=fault_at_40)
+    assert rig.faults == [EMCY_FOLLOWING_ERROR] and rig.state == FAULT
+    _assert_stopped(rig, quick_stopped=False)
+
+
+def test_an_encoder_emcy_mid_run_stops_the_run_and_the_drive_ends_disabled(tmp_path, no_leaks):
+    def emcy_at_40(done: int, late: int) -> None:
+        if done == 40:
+            rig.encoder_emcy(0x5000)  # CiA 301: device hardware
+
+    with SpecCia402Rig(f"spec402_{tmp_path.name}", start_position_counts=START_COUNTS) as rig:
+        with pytest.raises(DeviceFault, match="0x5000"):
+            _run(rig, "auto", progress=emcy_at_40)
+    _assert_stopped(rig)
+    assert rig.state == SWITCH_ON_DISABLED and rig.state != QUICK_STOP_ACTIVE
+
+
+class _FailingSink(ListSink):
+    def append(self, *row, **columns) -> None:
+        if len(self.rows) == 30:
+            raise OSError("disk full (injected)")
+        super().append(*row, **columns)
+
+
+@pytest.mark.parametrize("mode", ["auto", "csp"])
+def test_the_host_failing_mid_run_leaves_the_drive_disabled(tmp_path, no_leaks, mode):
+    with SpecCia402Rig(f"spec402_{tmp_path.name}", start_position_counts=START_COUNTS, quick_stop_option=6) as rig:
+        with pytest.raises(OSError, match="disk full"):
+            _run(rig, mode, sink=_FailingSink())
+    _assert_stopped(rig)
+    assert rig.transitions[-2:] == [11, 12]
