@@ -43,12 +43,13 @@ PROFILE_POSITION, INTERPOLATED_POSITION, CYCLIC_SYNCHRONOUS_POSITION = 1, 7, 8
 SUPPORTED_MODES = 1 << 0 | 1 << 6 | 1 << 7  # 0x6502: pp, ip, csp (no homing: another legal choice)
 
 # CiA 402 states and their statusword bits 0-3, 5, 6 (table "state coding")
-NOT_READY, SWITCH_ON_DISABLED, READY_TO_SWITCH_ON, SWITCHED_ON = "NOT READY", "SWITCH ON DISABLED", "READY", "SWITCHED ON"
+NOT_READY, SWITCH_ON_DISABLED, READY_TO_SWITCH_ON, SWITCHED_ON = (
+    "NOT READY TO SWITCH ON", "SWITCH ON DISABLED", "READY TO SWITCH ON", "SWITCHED ON")
 OPERATION_ENABLED, QUICK_STOP_ACTIVE = "OPERATION ENABLED", "QUICK STOP ACTIVE"
 FAULT_REACTION_ACTIVE, FAULT = "FAULT REACTION ACTIVE", "FAULT"
 STATE_BITS = {NOT_READY: 0x00, SWITCH_ON_DISABLED: 0x40, READY_TO_SWITCH_ON: 0x21, SWITCHED_ON: 0x23,
               OPERATION_ENABLED: 0x27, QUICK_STOP_ACTIVE: 0x07, FAULT_REACTION_ACTIVE: 0x0F, FAULT: 0x08}
-VOLTAGE_ENABLED, WARNING, REMOTE, TARGET_REACHED = 0x0010, 0x0080, 0x0200, 0x0400
+VOLTAGE_ENABLED, REMOTE, TARGET_REACHED = 0x0010, 0x0200, 0x0400
 MODE_BIT_12, MODE_BIT_13 = 0x1000, 0x2000  # ip: ip mode active; csp: target used / following error
 
 # CiA 402 controlword commands (table "device control commands": bits 7, 3, 2, 1, 0)
@@ -197,6 +198,7 @@ class SpecCia402Rig:
         self.error_code = 0
         self.error_register = 0
         self.faults: list[int] = []
+        self._following_error = False  # statusword bit 13 in CSP, until the fault is reset
         self._state_due: tuple[str, float] | None = None  # a timed transition: (state, when)
         self._reset_due: float | None = None
         self.buffer: collections.deque[int] = collections.deque()
@@ -380,6 +382,7 @@ class SpecCia402Rig:
         if self._state == FAULT and self._reset_due is not None and now >= self._reset_due:
             self._reset_due = None
             self.error_code = self.error_register = 0
+            self._following_error = False
             self._enter(SWITCH_ON_DISABLED, 15)
             self.drive.emcy.send(EMCY_ERROR_RESET, register=0)  # CiA 301: the error is gone
 
@@ -390,6 +393,7 @@ class SpecCia402Rig:
                 return
             self.faults.append(code)
             self.error_code, self.error_register = code, ERROR_REGISTER_GENERIC
+            self._following_error = code == EMCY_FOLLOWING_ERROR
             self._enter(FAULT_REACTION_ACTIVE, 13)
             self._state_due = (FAULT, time.monotonic() + self.fault_reaction_s)
             self.drive.emcy.send(code, register=self.error_register)
@@ -415,8 +419,11 @@ class SpecCia402Rig:
                 word |= MODE_BIT_12
             if self._ip_active() and not self.buffer and self._segment_end in (None, self.position_counts):
                 word |= TARGET_REACHED
-        elif self.mode_display == CYCLIC_SYNCHRONOUS_POSITION and self._state == OPERATION_ENABLED:
-            word |= MODE_BIT_12  # the target is used as the position control's input
+        elif self.mode_display == CYCLIC_SYNCHRONOUS_POSITION:
+            if self._state == OPERATION_ENABLED:
+                word |= MODE_BIT_12  # the target is used as the position control's input
+            if self._following_error:
+                word |= MODE_BIT_13
         return word
 
     # -- NMT and PDOs (CiA 301) ------------------------------------------------------------------------------
