@@ -144,7 +144,11 @@ class CanOpenTransport(Transport):
         the values latched at the previous SYNC, or whose answer takes longer than a period). The drive's is
         checked while streaming where its EDS has 0x6062 (position demand value) and a second TPDO: the
         master maps 0x6062 there, and a demand value that is the previous sample's target stops the run
-        saying what to set; an encoder has no such object, so its latency can only be configured.
+        saying what to set; an encoder has no such object, so its latency can only be configured. In
+        interpolated position a drive that takes each record as the end point of the segment to the next SYNC
+        (CiA 402 linear interpolation: its 0x6062 at SYNC k is record k - 1) looks exactly like one that
+        answers a SYNC late; ``drive_tpdo_latency_cycles = 1`` files its commands and the encoder right
+        there too (its statusword then lands one sample early).
     emcy_warning_codes
         EMCY codes that are warnings, logged and ridden through: comma-separated hex prefixes of the code
         (``"0x4"``, the default, is every temperature code 0x4xxx of CiA 301 Table 21; ``"0x4210,0xFF"``
@@ -1005,6 +1009,19 @@ class CanOpenTransport(Transport):
                 if self._latency_evidence < LATENCY_EVIDENCE_SAMPLES:
                     return
                 configured = self.latency_cycles["drive"]
+                if self.mode == "ip_buffer" and late == 1:
+                    # CiA 402 linear interpolation leaves open which end of a segment a record is; on the bus a
+                    # drive that takes record k as the end point of the segment k..k+1 (0x6062 at SYNC k is
+                    # record k - 1, the segment's start) sends what a late one sends, and the same setting
+                    # files both right (the encoder's latency is its own)
+                    self._report_fault(DeviceFault(self.drive_label, None, (
+                        f"its position demand value 0x6062 at sample {seq} is the record of sample {seq - 1} "
+                        f"({LATENCY_EVIDENCE_SAMPLES} samples in a row): either it answers SYNC k after SYNC k + "
+                        f"{configured + 1}, or it takes each interpolation record as the end point of the segment "
+                        "to the next SYNC (CiA 402 linear interpolation, 0x6062 showing the segment's start); the "
+                        f"two look the same on the bus, and drive_tpdo_latency_cycles = {configured + 1} serves "
+                        "both (set encoder_tpdo_latency_cycles only for an encoder that answers late)")))
+                    return
                 self._report_fault(DeviceFault(self.drive_label, None, (
                     f"answers SYNC k after SYNC k + {configured + late}: its position demand value 0x6062 at sample "
                     f"{seq} is the target of sample {seq - late} ({LATENCY_EVIDENCE_SAMPLES} samples in a row); set "
