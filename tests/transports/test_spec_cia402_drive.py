@@ -44,6 +44,8 @@ latched there), never timing; the watchdogs are seconds long (``test_spec_serial
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 import pytest
 
@@ -55,9 +57,7 @@ from rig.runner import run_experiment
 from rig.transports.canopen_link import CanOpenTransport
 
 from sim_rigs import ListSink, no_leaks  # noqa: F401  (a fixture)
-from spec_cia402_drive import (
-    EMCY_FOLLOWING_ERROR, FAULT, QUICK_STOP_ACTIVE, SWITCH_ON_DISABLED, SpecCia402Rig,
-)
+from spec_cia402_drive import EMCY_FOLLOWING_ERROR, FAULT, SWITCH_ON_DISABLED, SpecCia402Rig
 
 RATE_HZ = 200.0
 SAMPLES = 120
@@ -129,23 +129,32 @@ def _assert_log_is_what_the_drive_did(rig: SpecCia402Rig, mode: str, summary, si
         s for s, h in zip(sent, held) if not h]  # a sample not HELD had its own setpoint applied
 
 
+def _rig(tmp_path, **options) -> SpecCia402Rig:
+    return SpecCia402Rig(f"spec402_{tmp_path.name}", start_position_counts=START_COUNTS, **options)
+
+
 def _assert_stopped(rig: SpecCia402Rig, quick_stopped: bool = True) -> None:
     """The drive's power stage off (a faulted drive stays in FAULT: its controlwords do nothing there),
-    after a quick stop (transition 11) unless it faulted, and both nodes PRE-OPERATIONAL."""
+    after a quick stop (transition 11) unless it faulted, and both nodes PRE-OPERATIONAL. Called with the
+    rig still on the bus: NMT is unconfirmed (CiA 301), and the nodes take the master's last command on
+    their own receive thread, which a loaded host may run a moment later (bounded wait)."""
+    deadline = time.monotonic() + WATCHDOG_S
+    while "OPERATIONAL" in rig.nmt_states and time.monotonic() < deadline:
+        time.sleep(0.005)
+    assert rig.nmt_states == ("PRE-OPERATIONAL", "PRE-OPERATIONAL")
     assert rig.state in DISABLED_STATES
     assert (11 in rig.transitions) == quick_stopped
-    assert rig.nmt_states == ("PRE-OPERATIONAL", "PRE-OPERATIONAL")
 
 
 @pytest.mark.parametrize("mode, quick_stop_option", [("auto", 2), ("ip_buffer", 6), ("csp", 2), ("csp", 6)])
 def test_a_clean_run_logs_what_the_standard_drive_applied(tmp_path, no_leaks, mode, quick_stop_option):
-    with SpecCia402Rig(f"spec402_{tmp_path.name}", start_position_counts=START_COUNTS, quick_stop_option=quick_stop_option) as rig:
+    with _rig(tmp_path, quick_stop_option=quick_stop_option) as rig:
         transport, summary, sink = _run(rig, mode)
-        assert rig.records_discarded == 0
+        _assert_stopped(rig)
+    assert rig.records_discarded == 0
     assert transport.mode == ("csp" if mode == "csp" else "ip_buffer")  # auto: the drive has a buffer
     assert rig.mode_display == (8 if mode == "csp" else 7)
     _assert_log_is_what_the_drive_did(rig, mode, summary, sink)
-    _assert_stopped(rig)
     assert transport.stop_report.disabled
     if quick_stop_option == 6:  # stayed in QUICK STOP ACTIVE until the master's disable voltage (12)
         assert rig.transitions[-2:] == [11, 12] and rig.state == SWITCH_ON_DISABLED
@@ -157,13 +166,13 @@ def test_the_interpolation_lag_looks_like_a_tpdo_latency_and_the_master_says_bot
     their own SYNC. On the bus that is what a drive that jumps to each record and answers one SYNC late
     sends too, so the master cannot tell them apart: by default it stops after 3 such samples, naming both
     causes and the setting that serves both (drive_tpdo_latency_cycles = 1; the encoder keeps its own)."""
-    with SpecCia402Rig(f"spec402_{tmp_path.name}", start_position_counts=START_COUNTS) as rig:
+    with _rig(tmp_path) as rig:
         with pytest.raises(DeviceFault, match=(r"end point of the segment .* drive_tpdo_latency_cycles = 1 "
                                                r"serves both")):
             _run(rig, "auto", drive_tpdo_latency_cycles=0)
+        _assert_stopped(rig)
     cycles = _streamed_cycles(rig, "auto")
     assert [cycle.demand_counts for cycle in cycles[1:]] == [cycle.in_force_counts for cycle in cycles[:-1]]
-    _assert_stopped(rig)
 
 
 @pytest.mark.parametrize("mode", ["ip_buffer", "csp"])
@@ -174,11 +183,11 @@ def test_a_drive_fault_mid_run_stops_the_run_and_the_drive_ends_disabled(tmp_pat
         if mode == "csp" and done == 40:
             rig.fault(EMCY_FOLLOWING_ERROR)
 
-    with SpecCia402Rig(f"spec402_{tmp_path.name}", start_position_counts=START_COUNTS, following_error_at_record=40 if mode != "csp" else None) as rig:
+    with _rig(tmp_path, following_error_at_record=None if mode == "csp" else 40) as rig:
         with pytest.raises(DeviceFault, match="0x8611"):
             _run(rig, mode, progress=fault_at_40)
+        _assert_stopped(rig, quick_stopped=False)
     assert rig.faults == [EMCY_FOLLOWING_ERROR] and rig.state == FAULT
-    _assert_stopped(rig, quick_stopped=False)
 
 
 def test_an_encoder_emcy_mid_run_stops_the_run_and_the_drive_ends_disabled(tmp_path, no_leaks):
@@ -186,11 +195,11 @@ def test_an_encoder_emcy_mid_run_stops_the_run_and_the_drive_ends_disabled(tmp_p
         if done == 40:
             rig.encoder_emcy(0x5000)  # CiA 301: device hardware
 
-    with SpecCia402Rig(f"spec402_{tmp_path.name}", start_position_counts=START_COUNTS) as rig:
+    with _rig(tmp_path) as rig:
         with pytest.raises(DeviceFault, match="0x5000"):
             _run(rig, "auto", progress=emcy_at_40)
-    _assert_stopped(rig)
-    assert rig.state == SWITCH_ON_DISABLED and rig.state != QUICK_STOP_ACTIVE
+        _assert_stopped(rig)
+    assert rig.state == SWITCH_ON_DISABLED  # option 2: the quick stop ends there by itself
 
 
 class _FailingSink(ListSink):
@@ -202,11 +211,11 @@ class _FailingSink(ListSink):
 
 @pytest.mark.parametrize("mode", ["auto", "csp"])
 def test_the_host_failing_mid_run_leaves_the_drive_disabled(tmp_path, no_leaks, mode):
-    with SpecCia402Rig(f"spec402_{tmp_path.name}", start_position_counts=START_COUNTS, quick_stop_option=6) as rig:
+    with _rig(tmp_path, quick_stop_option=6) as rig:
         with pytest.raises(OSError, match="disk full"):
             _run(rig, mode, sink=_FailingSink())
-    _assert_stopped(rig)
-    assert rig.transitions[-2:] == [11, 12]
+        _assert_stopped(rig)
+    assert rig.transitions[-2:] == [11, 12]  # option 6: QUICK STOP ACTIVE until the master's disable voltage
 
 
 def _rig_config(tmp_path, channel: str, mode: str) -> str:
@@ -251,9 +260,9 @@ def test_the_trace_of_a_run_against_the_standard_drive_imports_as_its_log(tmp_pa
     from rig.trace_import import import_trace
     from rig.transports import parse_transport_url
 
-    channel, trace, sink = f"spec402_{tmp_path.name}", tmp_path / "run.blf", ListSink()
-    config = load_rig_config(_rig_config(tmp_path, channel, mode))
-    with SpecCia402Rig(channel, start_position_counts=START_COUNTS) as rig:
+    trace, sink = tmp_path / "run.blf", ListSink()
+    with _rig(tmp_path) as rig:
+        config = load_rig_config(_rig_config(tmp_path, rig.channel, mode))
         transport = CanOpenTransport(**parse_transport_url(config.url)[1], **config.transport_options(),
                                      trace_path=str(trace))
         try:
@@ -266,3 +275,15 @@ def test_the_trace_of_a_run_against_the_standard_drive_imports_as_its_log(tmp_pa
     np.testing.assert_array_equal(record.command_rad, [row[1] for row in sink.rows])
     np.testing.assert_array_equal(record.encoder_counts, [row[3] for row in sink.rows])
     np.testing.assert_array_equal(record.flags & ~np.uint8(SampleFlag.LATE), flags & ~np.uint8(SampleFlag.LATE))
+
+
+def test_a_drive_found_in_fault_is_reset_on_a_rising_edge_and_streams(tmp_path, no_leaks):
+    """The drive faulted before the master came (FAULT REACTION ACTIVE, then FAULT): the bring-up's fault
+    reset (a rising edge of bit 7, transition 15, which this drive takes ``fault_reset_s`` to complete) clears
+    it, and the run is clean."""
+    with _rig(tmp_path, fault_reset_s=0.05) as rig:
+        rig.fault(0x2310)  # CiA 301: continuous over-current
+        transport, summary, sink = _run(rig, "csp")
+        _assert_stopped(rig)
+    assert rig.faults == [0x2310] and rig.transitions[:3] == [13, 14, 15]
+    _assert_log_is_what_the_drive_did(rig, "csp", summary, sink)
