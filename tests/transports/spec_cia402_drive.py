@@ -53,7 +53,8 @@ VOLTAGE_ENABLED, REMOTE, TARGET_REACHED = 0x0010, 0x0200, 0x0400
 MODE_BIT_12, MODE_BIT_13 = 0x1000, 0x2000  # ip: ip mode active; csp: target used / following error
 
 # CiA 402 controlword commands (table "device control commands": bits 7, 3, 2, 1, 0)
-SHUTDOWN, SWITCH_ON, ENABLE, DISABLE_VOLTAGE, QUICK_STOP = "shutdown", "switch on", "enable", "disable voltage", "quick stop"
+SHUTDOWN, SWITCH_ON, ENABLE = "shutdown", "switch on", "enable"
+DISABLE_VOLTAGE, QUICK_STOP = "disable voltage", "quick stop"
 # (state, command) -> (new state, transition number); anything else does nothing
 TRANSITIONS = {
     (SWITCH_ON_DISABLED, SHUTDOWN): (READY_TO_SWITCH_ON, 2),
@@ -173,7 +174,8 @@ class SpecCia402Rig:
                  buffer_max_records: int = 32, buffer_records: int = 24, encoder_bits: int = 14,
                  encoder_multi_turn_bits: int = 4, drive_counts_per_revolution: int = 1 << 17,
                  following_error_at_record: int | None = None, mode_switch_s: float = 0.005,
-                 fault_reaction_s: float = 0.005, fault_reset_s: float = 0.005, quick_stop_ramp_s: float = 0.01) -> None:
+                 fault_reaction_s: float = 0.005, fault_reset_s: float = 0.005,
+                 quick_stop_ramp_s: float = 0.01) -> None:
         if quick_stop_option not in (2, 6):
             raise ValueError(f"quick_stop_option: this drive implements 2 and 6, got {quick_stop_option}")
         self.channel = channel
@@ -266,16 +268,17 @@ class SpecCia402Rig:
     # -- object dictionary ------------------------------------------------------------------------------------
 
     @staticmethod
-    def _store(node: canopen.LocalNode, index: int, subindex: int, value: int) -> None:
+    def _entry(node: canopen.LocalNode, index: int, subindex: int) -> canopen.objectdictionary.ODVariable:
+        """The dictionary entry of index:subindex (a variable, or a sub-entry of an array or record)."""
         obj = node.object_dictionary[index]
-        obj = obj[subindex] if subindex or not isinstance(obj, canopen.objectdictionary.ODVariable) else obj
-        node.data_store.setdefault(index, {})[subindex] = obj.encode_raw(value)
+        return obj if isinstance(obj, canopen.objectdictionary.ODVariable) else obj[subindex]
 
-    @staticmethod
-    def _value(node: canopen.LocalNode, index: int, subindex: int = 0) -> int:
-        obj = node.object_dictionary[index]
-        obj = obj[subindex] if not isinstance(obj, canopen.objectdictionary.ODVariable) else obj
-        return obj.decode_raw(node.get_data(index, subindex))
+    def _store(self, node: canopen.LocalNode, index: int, subindex: int, value: int) -> None:
+        """Set an object the device owns (no write callback: not a write from the bus)."""
+        node.data_store.setdefault(index, {})[subindex] = self._entry(node, index, subindex).encode_raw(value)
+
+    def _value(self, node: canopen.LocalNode, index: int, subindex: int = 0) -> int:
+        return self._entry(node, index, subindex).decode_raw(node.get_data(index, subindex))
 
     def _on_drive_read(self, index: int, subindex: int, od: object) -> int | None:
         """The objects the drive's own state owns; everything else is what was written (or the EDS default)."""

@@ -12,7 +12,8 @@ drive (``sim_backend/canopen_nodes.py``):
 * CiA 301 PDOs, read from 0x1400/0x1600 and 0x1800-0x1803/0x1A00-0x1A03 when the node enters OPERATIONAL:
   TPDOs by their transmission type in 0x18xx:2 (1..240: after every n-th SYNC; 0: at a SYNC when the data
   changed). The RPDO is synchronous (transmission type 0..240): its data are taken up at the next SYNC
-  (CiA 301 7.2.2), where the simulated drive takes them up on reception.
+  (CiA 301's synchronous RPDO), where the simulated drive takes them up on reception. TPDOs carry the wire
+  time a bus with hardware time stamps gives them (the SYNC's time stamp plus the bits since).
 * CiA 301 EMCY and 0x1001: on a fault, and the error reset (0x0000) once it is cleared, always sent (the
   simulated drive sends it only as a configured behaviour).
 * CiA 402 state machine strictly by the transition table: a controlword that codes no transition from the
@@ -35,7 +36,13 @@ drive (``sim_backend/canopen_nodes.py``):
   0 = FIFO (the only one accepted), sub 6 buffer clear (0 clears and disables access, 1 enables). Records
   written while access is disabled, or into a full buffer, are discarded (whatever the mode; the simulated
   drive takes them only in mode 7). Records are consumed only with controlword bit 4 and statusword bit 12
-  set; bit 4 low pauses; an underrun holds the last record.
+  set; bit 4 low pauses (the master never clears it mid-run, so no test here reaches that branch); an
+  underrun holds the last record. On the bus this lag is exactly what a drive that jumps to each record and
+  answers one SYNC late sends (``sim_backend``'s "TPDOs one SYNC late"), so the master is told
+  ``drive_tpdo_latency_cycles = 1`` for these runs; untold, it stops naming both causes
+  (:func:`test_the_interpolation_lag_looks_like_a_tpdo_latency_and_the_master_says_both`).
+* CiA 406 encoder: position value 0x6004 (UNSIGNED32; the load, gear ratio 1), 0x6001 measuring units per
+  revolution, 0x6002 total measuring range, 0x6000 code sequence; its TPDO as the drive's.
 
 These runs use real threads and real time, so they assert accounting (every sample filed, the command the
 log says was applied equal to the command the drive took up at that SYNC, the encoder counts those it
