@@ -104,21 +104,24 @@ def _run(rig: SpecCia402Rig, mode: str, sink=None, progress=None, **options):
     return transport, summary, sink
 
 
-def _streamed_cycles(rig: SpecCia402Rig, mode: str) -> list:
-    """The drive's SYNCs from sample 0 on: interpolated position, from the SYNC that took the first record;
-    CSP, from the first SYNC after the first RPDO."""
-    if mode == "csp":
-        first = next(i for i, cycle in enumerate(rig.cycles) if cycle.rpdos > 0)
-    else:
+def _streamed_cycles(rig: SpecCia402Rig, origin_sync: int | None = None) -> list:
+    """The drive's SYNCs from sample 0 on. ``origin_sync``: the number of sample 0's SYNC, as the master
+    counts them (from the first SYNC on the bus, as the drive does); a CSP target that reached the bus after
+    its SYNC is logged HELD, and the drive takes it up one SYNC later, so only the master's count says which
+    SYNC is sample 0. None: the SYNC that took the first interpolation record."""
+    if origin_sync is None:
         first = next(i for i, cycle in enumerate(rig.cycles) if cycle.record_taken)
+    else:
+        first = next(i for i, cycle in enumerate(rig.cycles) if cycle.sync == origin_sync)
     before = rig.cycles[:first]
     assert before, "the master streams only after a few SYNCs in OPERATION ENABLED"
     assert {cycle.demand_counts for cycle in before} == {rig.enable_positions[0]}  # no motion at enable
     return rig.cycles[first:]
 
 
-def _assert_log_is_what_the_drive_did(rig: SpecCia402Rig, mode: str, summary, sink) -> None:
-    cycles = _streamed_cycles(rig, mode)
+def _assert_log_is_what_the_drive_did(rig: SpecCia402Rig, transport: CanOpenTransport, summary, sink) -> None:
+    mode = transport.mode
+    cycles = _streamed_cycles(rig, transport._origin)
     _, command, _, counts, flags = (np.array(column, dtype=object) for column in zip(*sink.rows))
     flags = flags.astype(int)
     assert len(sink.rows) == SAMPLES and summary.lost == 0 and not np.any(flags & SampleFlag.LOST)
@@ -161,7 +164,7 @@ def test_a_clean_run_logs_what_the_standard_drive_applied(tmp_path, no_leaks, mo
     assert rig.records_discarded == 0
     assert transport.mode == ("csp" if mode == "csp" else "ip_buffer")  # auto: the drive has a buffer
     assert rig.mode_display == (8 if mode == "csp" else 7)
-    _assert_log_is_what_the_drive_did(rig, mode, summary, sink)
+    _assert_log_is_what_the_drive_did(rig, transport, summary, sink)
     assert transport.stop_report.disabled
     if quick_stop_option == 6:  # stayed in QUICK STOP ACTIVE until the master's disable voltage (12)
         assert rig.transitions[-2:] == [11, 12] and rig.state == SWITCH_ON_DISABLED
@@ -178,7 +181,7 @@ def test_the_interpolation_lag_looks_like_a_tpdo_latency_and_the_master_says_bot
                                                r"serves both")):
             _run(rig, "auto", drive_tpdo_latency_cycles=0)
         _assert_stopped(rig)
-    cycles = _streamed_cycles(rig, "auto")
+    cycles = _streamed_cycles(rig)
     assert [cycle.demand_counts for cycle in cycles[1:]] == [cycle.in_force_counts for cycle in cycles[:-1]]
 
 
@@ -276,7 +279,7 @@ def test_the_trace_of_a_run_against_the_standard_drive_imports_as_its_log(tmp_pa
             summary = run_experiment(transport, _command(), sink, feedback_timeout_s=WATCHDOG_S)
         finally:
             transport.close()
-    _assert_log_is_what_the_drive_did(rig, mode, summary, sink)
+    _assert_log_is_what_the_drive_did(rig, transport, summary, sink)
     record = import_trace(trace, config)
     flags = np.array([row[4] for row in sink.rows])
     np.testing.assert_array_equal(record.command_rad, [row[1] for row in sink.rows])
@@ -293,4 +296,4 @@ def test_a_drive_found_in_fault_is_reset_on_a_rising_edge_and_streams(tmp_path, 
         transport, summary, sink = _run(rig, "csp")
         _assert_stopped(rig)
     assert rig.faults == [0x2310] and rig.transitions[:3] == [13, 14, 15]
-    _assert_log_is_what_the_drive_did(rig, "csp", summary, sink)
+    _assert_log_is_what_the_drive_did(rig, transport, summary, sink)
