@@ -336,13 +336,18 @@ def test_a_pass_re_solves_only_the_bounds_still_moving_that_a_task_could_decide(
     assert _moving(np.array([-0.1, 9.0]), np.array([1.1, 11.0]), low, high, 0.02, 1).tolist() == [True] * 4
     assert _moving(np.array([0.0, 9.0]), np.array([1.0, 11.0]), low, high, 0.02, 1).tolist() == [False, False,
                                                                                                   True, False]
-    chosen, wanted = tasks.candidates(low, high, moving, np.full(4, 0.2))
+    chosen, wanted = tasks.candidates(low, high, moving, np.full(4, 0.2), np.full(4, 0.1))
     assert chosen == [0, 1]
     # task 0: low_0 (it decides it), low_1 (9.9 plus its last gain of 0.9 reaches 10); its high_0 (1.5) lies
     # beyond the margin of 0.2
     assert wanted[0].tolist() == [True, False, True, False]
     # task 1 was solved once, so any gain is possible: low_0 (within the margin), high_0 and low_1 (it decides)
     assert wanted[1].tolist() == [True, True, True, False]
+    # a pass later task 0 gained 0.05 on low_1 (9.95, enough to reach 10 if it gained as much again), but the
+    # intersection advanced a tenth as far as the pass before: task 0 is expected to gain a fifth of that
+    tasks.record(0, np.array([0.0, 9.95]), np.array([1.5, 11.0]), np.array([False, False, True, False]))
+    chosen, wanted = tasks.candidates(low, high, moving, np.full(4, 0.5), np.full(4, 0.01))
+    assert chosen == [0, 1] and wanted[0].tolist() == [True, False, False, False]
 
 
 def test_the_passes_over_the_parts_iterate_to_a_fixed_point_that_one_pass_contains(monkeypatch) -> None:
