@@ -459,3 +459,20 @@ def test_linear_block_bounds_are_built_from_keywords() -> None:
     assert LinearBlockBounds.from_dict(bounds.to_dict()) == bounds
     with pytest.raises(TypeError):
         LinearBlockBounds("paper", orders, {})  # type: ignore[misc]
+
+
+def test_the_widened_relaxation_of_a_sliver_cell_contains_its_set_and_little_more() -> None:
+    # a cell of the partition whose relaxation HiGHS calls infeasible without a certificate is bounded on the
+    # LP with every row widened by _WIDENING (1 + |bound|): a superset, so its bounds hold (issue 19)
+    import scipy.sparse as sp
+
+    from identify.linear_block_bounds import _LP, _WIDENING, _bounds_over, _Counter, _widened
+
+    # x0 + x1 = 1 (equality), 0.2 <= x0 - x1 <= 0.4 (ranged), x0 <= 0.69 (inequality), box [0, 1]^2
+    lp = _LP(sp.csr_matrix([[1.0, 0.0]]), np.array([0.69]), sp.csr_matrix([[1.0, 1.0]]), np.array([1.0]),
+             np.zeros(2), np.ones(2), sp.csr_matrix([[1.0, -1.0]]), np.array([0.2]), np.array([0.4]))
+    low, high, _ = _bounds_over(lp, 2, _Counter())
+    wide_low, wide_high, _ = _bounds_over(_widened(lp), 2, _Counter())
+    assert np.allclose([low[0], high[0], low[1], high[1]], [0.6, 0.69, 0.31, 0.4])
+    assert np.all(wide_low <= low) and np.all(wide_high >= high)
+    assert np.all(low - wide_low <= 4 * _WIDENING) and np.all(wide_high - high <= 4 * _WIDENING)
