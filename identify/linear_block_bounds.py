@@ -38,6 +38,9 @@ relaxation, from a box inside the one it started from before, and never wider. L
 jointly in overlapping parts of ``joint_samples`` samples, one round each, whose boxes are intersected and fed
 back for further passes over the parts (a fixed point like the windows'): about linear in N, but
 wider than one relaxation over everything would be (bounded-error information is spread over the record).
+After the first pass, a pass over the windows or parts solves, per task, only the bounds still moving that the
+task may still decide (:class:`_TaskBounds`); the paper method's orthant LPs of such records are solved by row
+generation (:func:`_row_generated_bounds`), so that the windows start within about a second.
 Within one LP, the bounds of the parameters are solved on one HiGHS model whose objective changes, each
 solve starting from the previous optimal basis.
 
