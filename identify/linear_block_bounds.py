@@ -1364,7 +1364,9 @@ class _TaskBounds:
         if self.advance is not None:
             ratio = np.clip(2.0 * advance / np.maximum(self.advance, 1e-300), 0.0, 1.0)
         self.advance = np.maximum(advance, 0.0)
-        gained = np.where(np.isfinite(self.before), (self.own - self.before) * ratio, math.inf)
+        solved_twice = np.isfinite(self.before)
+        gained = np.full(self.own.shape, math.inf)
+        gained[solved_twice] = ((self.own - np.where(solved_twice, self.before, self.own)) * ratio)[solved_twice]
         chosen = moving & (self.own > best - margin) & (self.own + gained >= best)
         rows = np.flatnonzero(chosen.any(axis=1))
         return [int(row) for row in rows], [chosen[row] for row in rows]
