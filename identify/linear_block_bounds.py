@@ -1365,8 +1365,10 @@ class _TaskBounds:
             ratio = np.clip(2.0 * advance / np.maximum(self.advance, 1e-300), 0.0, 1.0)
         self.advance = np.maximum(advance, 0.0)
         solved_twice = np.isfinite(self.before)
-        gained = np.full(self.own.shape, math.inf)
-        gained[solved_twice] = ((self.own - np.where(solved_twice, self.before, self.own)) * ratio)[solved_twice]
+        gained = np.where(np.isfinite(self.own), math.inf, 0.0)  # never solved (own -inf): never chosen
+        last_gain = np.zeros(self.own.shape)
+        last_gain[solved_twice] = self.own[solved_twice] - self.before[solved_twice]
+        gained[solved_twice] = (last_gain * ratio)[solved_twice]
         chosen = moving & (self.own > best - margin) & (self.own + gained >= best)
         rows = np.flatnonzero(chosen.any(axis=1))
         return [int(row) for row in rows], [chosen[row] for row in rows]
