@@ -1307,12 +1307,7 @@ def _coupled_bounds(data: _Data, low: NDArray[np.float64], high: NDArray[np.floa
         # The next pass re-solves, per part, only the bounds still moving whose own bound lies within this
         # pass's gain in width of the intersection and could reach it: a part's relaxation tightens with the
         # box (its envelopes are about r_i Δx_s), so a part further off is not expected to decide.
-        # A chosen part solves all its bounds, in the usual order: its first (cold) solve is most of its time
-        # anyway, and with only the wanted bounds (other first objectives, other sequences of warm solves) a
-        # worker died in HiGHS 1.16 (a segfault, the HEkkDualRHS::chooseNormal recursion of issue 19) on
-        # N = 100 000, 8 bits, run 0, in the third pass, in one process and in a pool alike.
-        active_parts, _ = part_bounds.candidates(low, high, moving, np.repeat(gain, 2), advance)
-        part_wanted = [None] * len(active_parts)
+        active_parts, part_wanted = part_bounds.candidates(low, high, moving, np.repeat(gain, 2), advance)
         if not active_parts:
             break
     return low, high, rounds, points, _WindowPlan(tuple(segments), len(chunks), passes, chunk_passes, all_parts,
