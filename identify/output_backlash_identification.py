@@ -21,8 +21,8 @@ from numpy.typing import ArrayLike
 
 from identify.feasible_parameter_set import BacklashFeasibleSet, ParameterInterval, bound_backlash_parameters
 from identify.inner_signal_bounds import InnerSignalBounds, bound_inner_signal, shared_backlash_constraints
-from identify.linear_block_bounds import (DEFAULT_JOINT_SAMPLES, DEFAULT_PARTITION_SAMPLES, DEFAULT_WINDOW_SAMPLES,
-                                          LINEAR_BOUND_METHODS, LinearBlockBounds, LinearModelOrders, MapFunction, Progress,
+from identify.linear_block_bounds import (DEFAULT_JOINT_SAMPLES, DEFAULT_MOMENT_SAMPLES, DEFAULT_PARTITION_SAMPLES,
+                                          DEFAULT_WINDOW_SAMPLES, LINEAR_BOUND_METHODS, LinearBlockBounds, LinearModelOrders, MapFunction, Progress,
                                           bound_linear_block)
 from identify.result_format import check_kind, malformed, number, tagged
 from identify.validation import InvalidInputError, as_signal, same_length
@@ -122,6 +122,7 @@ def bound_output_backlash_system(steady_input_rad: ArrayLike, steady_output_rad:
                                  verify_inner: bool = True, window_samples: int = DEFAULT_WINDOW_SAMPLES,
                                  joint_samples: int = DEFAULT_JOINT_SAMPLES,
                                  partition_samples: int = DEFAULT_PARTITION_SAMPLES,
+                                 moment_samples: int = DEFAULT_MOMENT_SAMPLES,
                                  map_windows: MapFunction | None = None,
                                  progress: Progress | None = None) -> OutputBacklashIdentification:
     """Bound the parameters of a linear system with output backlash (Cerone et al. 2009, Sections 3-5).
@@ -142,9 +143,10 @@ def bound_output_backlash_system(steady_input_rad: ArrayLike, steady_output_rad:
         r̄_F of the filter-pole search if known (α terms of eqs. (14)-(15)).
     verify_inner
         Coupled method: also compute verified inner values (see :func:`identify.linear_block_bounds.bound_linear_block`).
-    window_samples, joint_samples, partition_samples, map_windows, progress
+    window_samples, joint_samples, partition_samples, moment_samples, map_windows, progress
         Coupled method: the windowing of long records, the length up to which the box of a is partitioned
-        (the final tightening of short records), a ``map`` that may run the windows in other processes
+        (the final tightening of short records), the length up to which the moment (SDP) cuts follow (0: off),
+        a ``map`` that may run the windows in other processes
         (``executor.map``) and a ``progress(stage, done, total)`` callback; see
         :func:`identify.linear_block_bounds.bound_linear_block`.
 
@@ -180,5 +182,5 @@ def bound_output_backlash_system(steady_input_rad: ArrayLike, steady_output_rad:
     linear = bound_linear_block(u, inner.lower_rad, inner.upper_rad, na=na, nk=nk, nb=nb, method=method,
                                 shared_backlash=shared, verify_inner=verify_inner, window_samples=window_samples,
                                 joint_samples=joint_samples, partition_samples=partition_samples,
-                                map_windows=map_windows, progress=progress)
+                                moment_samples=moment_samples, map_windows=map_windows, progress=progress)
     return OutputBacklashIdentification(backlash, inner, linear, noise, method)

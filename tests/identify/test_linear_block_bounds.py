@@ -300,6 +300,56 @@ def test_parts_of_a_long_record_run_through_a_map_and_give_the_same_bounds() -> 
         assert paper.linear_intervals[name].lower <= interval.lower and interval.upper <= paper.linear_intervals[name].upper
 
 
+def test_row_generation_gives_the_paper_bounds_of_the_whole_orthant_lps(monkeypatch) -> None:
+    # Long records bound each orthant's LP on a growing subset of its rows (issue 19: the whole LPs of a
+    # 100 000-sample record took 8.5 CPU-s in one process before the windows could start); here the subset
+    # starts at 300 of the 1796 rows of a 900-sample record and must end at the whole LP's bounds.
+    import identify.linear_block_bounds as module
+
+    data, paper = _run(10, 63, "paper", num_samples=900)
+    inner = paper.inner_signal
+    problem = module._prepare(data.input_rad, inner.lower_rad, inner.upper_rad, module.LinearModelOrders(2, 1, 2))
+    whole_low, whole_high, whole_orthants = module._paper_bounds(problem, module._Counter())
+    monkeypatch.setattr(module, "_PAPER_ROWS", 300)
+    monkeypatch.setattr(module, "_PAPER_ROWS_ADDED", 20)
+    counter = module._Counter()
+    low, high, orthants = module._paper_bounds(problem, counter)
+    assert orthants == whole_orthants
+    assert counter.solves > 8 * len(whole_orthants)  # several turns of the row generation ran
+    scale = 1e-8 * (1.0 + np.abs(whole_high))  # the certificates of different LPs differ by their rounding
+    assert np.all(np.abs(low - whole_low) <= scale) and np.all(np.abs(high - whole_high) <= scale)
+
+
+def test_a_pass_re_solves_only_the_bounds_still_moving_that_a_task_could_decide() -> None:
+    from identify.linear_block_bounds import _moving, _TaskBounds
+
+    low, high = np.array([0.0, 10.0]), np.array([1.0, 11.0])
+    tasks = _TaskBounds(3, 2)
+    tasks.record(0, np.array([-0.5, 9.0]), np.array([2.0, 12.0]), None)  # an earlier solve of task 0
+    tasks.record(0, np.array([0.0, 9.9]), np.array([1.5, 11.0]), None)  # decides low_0 and high_1
+    tasks.record(1, np.array([-0.05, 10.0]), np.array([1.0, 11.5]), None)  # once: decides low_1 and high_0
+    tasks.record(2, np.array([-3.0, 5.0]), np.array([4.0, 16.0]), None)  # far from every bound
+    # with no a (na = 0) the upper bound of the second parameter is left out: it did not move in the last pass
+    moving = _moving(np.array([-0.1, 9.0]), np.array([1.1, 11.0]), low, high, 0.02, 0)
+    assert moving.tolist() == [True, True, True, False]
+    # while the box of a (the first parameter, na = 1) moves, every bound is solved again
+    assert _moving(np.array([-0.1, 9.0]), np.array([1.1, 11.0]), low, high, 0.02, 1).tolist() == [True] * 4
+    assert _moving(np.array([0.0, 9.0]), np.array([1.0, 11.0]), low, high, 0.02, 1).tolist() == [False, False,
+                                                                                                  True, False]
+    chosen, wanted = tasks.candidates(low, high, moving, np.full(4, 0.2), np.full(4, 0.1))
+    assert chosen == [0, 1]
+    # task 0: low_0 (it decides it), low_1 (9.9 plus its last gain of 0.9 reaches 10); its high_0 (1.5) lies
+    # beyond the margin of 0.2
+    assert wanted[0].tolist() == [True, False, True, False]
+    # task 1 was solved once, so any gain is possible: low_0 (within the margin), high_0 and low_1 (it decides)
+    assert wanted[1].tolist() == [True, True, True, False]
+    # a pass later task 0 gained 0.05 on low_1 (9.95, enough to reach 10 if it gained as much again), but the
+    # intersection advanced a tenth as far as the pass before: task 0 is expected to gain a fifth of that
+    tasks.record(0, np.array([0.0, 9.95]), np.array([1.5, 11.0]), np.array([False, False, True, False]))
+    chosen, wanted = tasks.candidates(low, high, moving, np.full(4, 0.5), np.full(4, 0.01))
+    assert chosen == [0, 1] and wanted[0].tolist() == [True, False, False, False]
+
+
 def test_the_passes_over_the_parts_iterate_to_a_fixed_point_that_one_pass_contains(monkeypatch) -> None:
     # Issue 19: the parts of a long record are solved one round each per pass, every pass from the
     # intersection of the previous one, until a pass shrinks no interval by the tightening tolerance. More
@@ -409,3 +459,20 @@ def test_linear_block_bounds_are_built_from_keywords() -> None:
     assert LinearBlockBounds.from_dict(bounds.to_dict()) == bounds
     with pytest.raises(TypeError):
         LinearBlockBounds("paper", orders, {})  # type: ignore[misc]
+
+
+def test_the_widened_relaxation_of_a_sliver_cell_contains_its_set_and_little_more() -> None:
+    # a cell of the partition whose relaxation HiGHS calls infeasible without a certificate is bounded on the
+    # LP with every row widened by _WIDENING (1 + |bound|): a superset, so its bounds hold (issue 19)
+    import scipy.sparse as sp
+
+    from identify.linear_block_bounds import _LP, _WIDENING, _bounds_over, _Counter, _widened
+
+    # x0 + x1 = 1 (equality), 0.2 <= x0 - x1 <= 0.4 (ranged), x0 <= 0.69 (inequality), box [0, 1]^2
+    lp = _LP(sp.csr_matrix([[1.0, 0.0]]), np.array([0.69]), sp.csr_matrix([[1.0, 1.0]]), np.array([1.0]),
+             np.zeros(2), np.ones(2), sp.csr_matrix([[1.0, -1.0]]), np.array([0.2]), np.array([0.4]))
+    low, high, _ = _bounds_over(lp, 2, _Counter())
+    wide_low, wide_high, _ = _bounds_over(_widened(lp), 2, _Counter())
+    assert np.allclose([low[0], high[0], low[1], high[1]], [0.6, 0.69, 0.31, 0.4])
+    assert np.all(wide_low <= low) and np.all(wide_high >= high)
+    assert np.all(low - wide_low <= 4 * _WIDENING) and np.all(wide_high - high <= 4 * _WIDENING)

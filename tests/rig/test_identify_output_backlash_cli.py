@@ -167,3 +167,23 @@ def test_windows_of_one_record_run_in_worker_processes_with_the_same_bounds(long
     assert json.loads(capsys.readouterr().out) == serial
     assert main(_args(long_files, "--jobs", "-1")) == exit_codes.BAD_INPUT
     assert "--jobs: expected 0 (all cores)" in capsys.readouterr().err
+
+
+def test_moment_samples_adds_the_moment_cuts_says_so_and_never_widens_a_bound(files, capsys) -> None:
+    assert main(_args(files, "--partition-samples", "0", "--json")) == exit_codes.SUCCESS
+    plain = json.loads(capsys.readouterr().out)
+    assert "moment" not in plain["linear_bounds"]["windowing"]  # off by default
+    assert main(_args(files, "--partition-samples", "0", "--moment-samples", "100")) == exit_codes.SUCCESS
+    table = capsys.readouterr().out
+    assert "method coupled" in table
+    assert "windowing          all 100 samples in one McCormick relaxation, then cuts from the moment (SDP)" in table
+    rows: dict[str, list[str]] = {}
+    for line in table.splitlines():  # the first row of each name: the outer bounds (the verified inner values follow)
+        if line.split()[:1] in (["a1"], ["a2"], ["b1"], ["b2"]):
+            rows.setdefault(line.split()[0], line.split()[1:3])
+    for name, bounds in plain["linear"].items():
+        lower, upper = (float(value) for value in rows[name])
+        # the table prints 8 significant digits
+        assert bounds["lower"] - 1e-7 <= lower <= upper <= bounds["upper"] + 1e-7
+    assert main(_args(files, "--moment-samples", "-1")) == exit_codes.BAD_INPUT
+    assert "moment_samples: expected an integer >= 0, got -1" in capsys.readouterr().err
