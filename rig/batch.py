@@ -64,9 +64,13 @@ def _guarded(function: Callable[[str], Any], path: str) -> FileOutcome:
 
 
 @contextlib.contextmanager
-def executor_for(jobs: int, scheduler: str | None = None) -> Iterator[Executor | None]:
+def executor_for(jobs: int, scheduler: str | None = None, *, isolated: bool = False) -> Iterator[Executor | None]:
     """A process pool of ``jobs`` workers (0: one per core), the executor of the Dask scheduler at
-    ``scheduler``, or None for one job in this process."""
+    ``scheduler``, or None for one job in this process; ``isolated``: a pool of one worker for one job
+    too, for tasks whose native code may crash the process running them (HiGHS 1.16 can overflow its
+    stack on a bounding LP: BENCHMARKS.md, "Record length"), so that a crash costs the tasks of that worker,
+    which the caller survives, not the command. A pool starts its worker at the first task: a caller that
+    maps nothing pays nothing."""
     if scheduler is not None:
         try:
             from dask.distributed import Client
@@ -83,7 +87,7 @@ def executor_for(jobs: int, scheduler: str | None = None) -> Iterator[Executor |
             yield client.get_executor()
         return
     workers = usable_cores() if jobs == 0 else jobs
-    if workers == 1:
+    if workers == 1 and not isolated:
         yield None
         return
     pool = ProcessPoolExecutor(max_workers=workers, initializer=_worker_start)

@@ -315,7 +315,9 @@ def _run_one(args: argparse.Namespace, steady: str, dynamic: str) -> int:
     from rig.batch import executor_for, map_callable
 
     options = {key: getattr(args, key) for key in _OPTIONS}
-    with executor_for(args.jobs, args.scheduler) as executor:
+    # the windows and parts of a long record run in worker processes even with --jobs 1: a crash inside
+    # HiGHS then loses that worker's windows (valid, looser bounds with a note), not the command
+    with executor_for(args.jobs, args.scheduler, isolated=True) as executor:
         result, steady_u, steady_y, u, y = _bound(steady, dynamic, options, map_callable(executor),
                                                   _ProgressLine(sys.stderr))
     document = _document(result, args.method)

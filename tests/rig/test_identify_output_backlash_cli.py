@@ -169,6 +169,36 @@ def test_windows_of_one_record_run_in_worker_processes_with_the_same_bounds(long
     assert "--jobs: expected 0 (all cores)" in capsys.readouterr().err
 
 
+def _window_task_that_dies_in_the_joint_parts(task):
+    """A worker dying as in a HiGHS stack overflow (BENCHMARKS.md, "Record length, session 4"), by SIGKILL."""
+    import os
+    import signal
+
+    import identify.linear_block_bounds as module
+
+    if task[0] == "joint":
+        os.kill(os.getpid(), signal.SIGKILL)
+    return module._ORIGINAL_WINDOW_TASK(task)
+
+
+def test_a_solver_crash_with_one_job_costs_the_worker_not_the_command(long_files, capsys, monkeypatch) -> None:
+    """With --jobs 1 (the default) the windows and parts still run in a worker process: a crash inside HiGHS
+    kills that worker, and the command ends with valid, looser bounds and a note saying why."""
+    import identify.linear_block_bounds as module
+
+    options = ("--joint-samples", "400", "--partition-samples", "0", "--json")
+    assert main(_args(long_files, *options)) == exit_codes.SUCCESS
+    whole = json.loads(capsys.readouterr().out)
+    monkeypatch.setattr(module, "_ORIGINAL_WINDOW_TASK", module._window_task, raising=False)
+    monkeypatch.setattr(module, "_window_task", _window_task_that_dies_in_the_joint_parts)
+    assert main(_args(long_files, *options)) == exit_codes.SUCCESS
+    crashed = json.loads(capsys.readouterr().out)
+    assert len(crashed["notes"]) == 1 and "BrokenProcessPool" in crashed["notes"][0]
+    for name, interval in whole["linear"].items():
+        looser = crashed["linear"][name]
+        assert looser["lower"] <= interval["lower"] and interval["upper"] <= looser["upper"]
+
+
 def test_moment_samples_adds_the_moment_cuts_says_so_and_never_widens_a_bound(files, capsys) -> None:
     assert main(_args(files, "--partition-samples", "0", "--json")) == exit_codes.SUCCESS
     plain = json.loads(capsys.readouterr().out)
