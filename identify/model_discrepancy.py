@@ -272,7 +272,7 @@ class MissingEffect:
 @dataclass(frozen=True)
 class DiscrepancyReport:
     """What :func:`diagnose_model` found, as the ``rig diagnose --json`` document holds it (kind
-    ``"model_discrepancy"``, version 2): the verdict with its reason, the missing effects with intervals,
+    ``"model_discrepancy"``, version 3): the verdict with its reason, the missing effects with intervals,
     the candidates with their gaps, uncertainties and gap reductions, the candidates of the last round whose
     reduction straddles the acceptance (``undecided``: an ambiguous verdict after the effects named, if any),
     the gaps and falsified fractions before and after, the excitation check and the operating point.
@@ -294,10 +294,13 @@ class DiscrepancyReport:
     undecided: tuple[CandidateResult, ...] = ()
 
     KIND = "model_discrepancy"
-    VERSION = 2
-    READS = (1, 2)
+    VERSION = 3
+    READS = (1, 2, 3)
     """Version 2 added ``undecided`` and each candidate's ``reduction``, ``reduction_interval`` and
-    ``acceptance``; :meth:`from_dict` reads version 1 too (no undecided candidates, no intervals)."""
+    ``acceptance``; version 3 each candidate's ``validation_interval``, ``fold_reductions`` and
+    ``refit_interval`` (the interval judged, ``reduction_interval``, is then their union:
+    :func:`_with_refits`). :meth:`from_dict` reads versions 1 and 2 too (no undecided candidates, no
+    intervals; no refits)."""
 
     def __post_init__(self) -> None:
         if self.verdict not in VERDICTS:
@@ -1385,13 +1388,44 @@ FOLD_EVALUATIONS = 8
 fold's optimum, so a few Gauss-Newton steps move it there; more only cost time."""
 
 
+def _fold_refit(chain: _Chain, u: NDArray[np.float64], y: NDArray[np.float64], part: NDArray[np.intp],
+                max_evaluations: int) -> tuple[_Chain, NDArray[np.float64]]:
+    """``chain`` refitted from its fitted values (delays re-searched, then at most :data:`FOLD_EVALUATIONS`
+    evaluations) with the samples ``part`` left out of the cost (the free run still covers the whole record),
+    and its free-run error on ``part``: one fold of a contiguous K-fold cross-validation."""
+    keep = np.ones(u.size, dtype=bool)
+    keep[part] = False
+    refit = _polish(_refine_delays(chain, u, y, samples=keep), u, y, min(max_evaluations, FOLD_EVALUATIONS),
+                    samples=keep)
+    return refit, _free_run_error(refit, u, y)[part]
+
+
+def _fold_parts(samples: int) -> list[NDArray[np.intp]]:
+    """The :data:`FOLDS` contiguous folds of a record (contiguous: a free-run error is correlated over
+    neighbouring samples, so interleaved folds would leave out nothing the refit does not see)."""
+    return np.array_split(np.arange(samples), FOLDS)
+
+
+def _held_out_errors(chain: _Chain, u: NDArray[np.float64], y: NDArray[np.float64],
+                     max_evaluations: int) -> tuple[NDArray[np.float64], ...]:
+    """The free-run error on each fold of ``chain`` refitted without it (:func:`_fold_refit`)."""
+    return tuple(_fold_refit(chain, u, y, part, max_evaluations)[1] for part in _fold_parts(u.size))
+
+
 @dataclass(frozen=True)
 class CandidateResult:
     """One candidate tried in one round: its validated gap with an uncertainty (spread over validation
     blocks, :data:`VALIDATION_BLOCKS`), the penalised gap it was ranked by, the fitted parameters, whether
     it vanished, whether its penalised gap passes the acceptance (``helps``), and the reduction of the gap
     with its interval and what that interval says (``acceptance``, :func:`_acceptance`: one of
-    :data:`ACCEPTANCES`; empty, and the reduction NaN, in documents of version 1, which had no interval)."""
+    :data:`ACCEPTANCES`; empty, and the reduction NaN, in documents of version 1, which had no interval).
+
+    ``reduction_interval`` is the interval judged: the union of ``validation_interval`` (the spread over the
+    validation blocks) and, for the candidates the acceptance weighs (:func:`_judged_by_refits`: a round's
+    best candidate and its peers), ``refit_interval`` (the spread of the penalised reductions
+    ``fold_reductions`` of :data:`FOLDS` cross-validation refits over the whole record,
+    :func:`_refit_reduction`). For the other candidates, and in documents of version 2, ``refit_interval``
+    is NaN, ``fold_reductions`` empty and the interval judged the validation one."""
 
     round: int
     effect: str
@@ -1404,22 +1438,32 @@ class CandidateResult:
     reduction: float = math.nan
     reduction_interval: tuple[float, float] = (math.nan, math.nan)
     acceptance: str = ""
+    validation_interval: tuple[float, float] = (math.nan, math.nan)
+    fold_reductions: tuple[float, ...] = ()
+    refit_interval: tuple[float, float] = (math.nan, math.nan)
 
     def to_dict(self) -> dict[str, Any]:
         return {"round": self.round, "effect": self.effect, "gap": float(self.gap_rad),
                 "gap_uncertainty": float(self.gap_uncertainty_rad), "penalised_gap": float(self.penalised_gap_rad),
                 "parameters": {k: float(v) for k, v in self.parameters.items()}, "vanished": bool(self.vanished),
                 "helps": bool(self.helps), "reduction": float(self.reduction),
-                "reduction_interval": [float(v) for v in self.reduction_interval], "acceptance": self.acceptance}
+                "reduction_interval": [float(v) for v in self.reduction_interval], "acceptance": self.acceptance,
+                "validation_interval": [float(v) for v in self.validation_interval],
+                "fold_reductions": [float(v) for v in self.fold_reductions],
+                "refit_interval": [float(v) for v in self.refit_interval]}
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any]) -> CandidateResult:
-        """Inverse of :meth:`to_dict` (a version-1 entry has no reduction or acceptance)."""
+        """Inverse of :meth:`to_dict` (a version-1 entry has no reduction or acceptance; a version-2 entry no
+        refits, its interval is the validation one)."""
         low, high = data.get("reduction_interval", (math.nan, math.nan))
+        v_low, v_high = data.get("validation_interval", (low, high))
+        r_low, r_high = data.get("refit_interval", (math.nan, math.nan))
         return cls(int(data["round"]), str(data["effect"]), float(data["gap"]), float(data["gap_uncertainty"]),
                    float(data["penalised_gap"]), {str(k): float(v) for k, v in data["parameters"].items()},
                    bool(data["vanished"]), bool(data["helps"]), float(data.get("reduction", math.nan)),
-                   (float(low), float(high)), str(data.get("acceptance", "")))
+                   (float(low), float(high)), str(data.get("acceptance", "")), (float(v_low), float(v_high)),
+                   tuple(float(v) for v in data.get("fold_reductions", ())), (float(r_low), float(r_high)))
 
 
 ACCEPTANCES = ("clear", "undecided", "rejected", "vanished")
@@ -1432,27 +1476,88 @@ nothing (its catalogue ``vanished``)."""
 def _acceptance(candidate_error: NDArray[np.float64] | None, penalty_factor: float,
                 current_error: NDArray[np.float64] | None, penalised_gap_rad: float, current_gap_rad: float,
                 min_reduction: float) -> tuple[float, tuple[float, float], str]:
-    """The reduction 1 - g_pen / g_before of the validated gap, its interval and its :data:`ACCEPTANCES` word.
+    """The reduction 1 - g_pen / g_before of the validated gap, its interval over the validation blocks and
+    its :data:`ACCEPTANCES` word (:func:`_accepted`).
 
     The interval is 1 - exp(L +- h) with L = ln(g_pen / g_before) and h the larger of
     :data:`AMBIGUITY_SIGMAS` standard errors of the paired per-block log ratios ln(g_pen,k / g_before,k)
-    over the :data:`VALIDATION_BLOCKS` blocks and ln(1 + :data:`AMBIGUITY_MIN_MARGIN`): the same rule that
-    tells two candidates apart (:func:`_within_uncertainty`), here between a candidate and the model without
-    it. A block where either error is zero (a noise-free record) gives no log ratio: then only the minimum
-    margin counts."""
+    over the :data:`VALIDATION_BLOCKS` blocks and ln(1 + :data:`AMBIGUITY_MIN_MARGIN`) (:func:`_ratio_interval`):
+    the same rule that tells two candidates apart (:func:`_within_uncertainty`), here between a candidate and
+    the model without it. A block where either error is zero (a noise-free record) gives no log ratio: then
+    only the minimum margin counts. The acceptance of the candidates that could be named widens this
+    interval by their refits' (:func:`_judged_by_refits`)."""
     if not (penalised_gap_rad > 0 and current_gap_rad > 0):
         return 1.0, (1.0, 1.0), "clear"
     log_ratio = math.log(penalised_gap_rad / current_gap_rad)
     candidate_gaps, current_gaps = _block_gaps(candidate_error), _block_gaps(current_error)
-    standard_error = 0.0
+    ratios = np.zeros(0)
     if candidate_gaps.size > 1 and current_gaps.size == candidate_gaps.size \
             and np.all(candidate_gaps > 0) and np.all(current_gaps > 0):
         ratios = np.log(penalty_factor * candidate_gaps / current_gaps)
-        standard_error = float(np.std(ratios, ddof=1) / math.sqrt(ratios.size))
-    half = max(AMBIGUITY_SIGMAS * standard_error, math.log1p(AMBIGUITY_MIN_MARGIN))
-    low, high = 1.0 - math.exp(log_ratio + half), 1.0 - math.exp(log_ratio - half)
-    word = "clear" if low >= min_reduction else ("rejected" if high < min_reduction else "undecided")
-    return 1.0 - math.exp(log_ratio), (low, high), word
+    interval = _ratio_interval(log_ratio, ratios, AMBIGUITY_SIGMAS)
+    return 1.0 - math.exp(log_ratio), interval, _accepted(interval, min_reduction)
+
+
+def _ratio_interval(log_ratio: float, part_log_ratios: NDArray[np.float64], t_value: float) -> tuple[float, float]:
+    """The reduction interval 1 - exp(L +- h) of a gap ratio exp(L), with h = max(t SE, ln(1 +
+    :data:`AMBIGUITY_MIN_MARGIN`)) and SE the standard error sd / sqrt(n) of the n paired per-part log ratios
+    (validation blocks or cross-validation folds; fewer than two: only the margin)."""
+    standard_error = 0.0
+    if part_log_ratios.size > 1:
+        standard_error = float(np.std(part_log_ratios, ddof=1) / math.sqrt(part_log_ratios.size))
+    half = max(t_value * standard_error, math.log1p(AMBIGUITY_MIN_MARGIN))
+    return 1.0 - math.exp(log_ratio + half), 1.0 - math.exp(log_ratio - half)
+
+
+def _accepted(interval: tuple[float, float], min_reduction: float) -> str:
+    """The :data:`ACCEPTANCES` word of a reduction interval against ``min_reduction``: ``clear`` when all of
+    it lies at or above, ``rejected`` when all of it lies below, else ``undecided``."""
+    low, high = interval
+    return "clear" if low >= min_reduction else ("rejected" if high < min_reduction else "undecided")
+
+
+def _refit_reduction(candidate_folds: Sequence[NDArray[np.float64]], baseline_folds: Sequence[NDArray[np.float64]],
+                     penalty_factor: float) -> tuple[tuple[float, ...], tuple[float, float]]:
+    """The penalised gap reductions 1 - f g_cand,k / g_base,k of :data:`FOLDS` cross-validation refits
+    (:func:`_held_out_errors`: fold k held out, both models refitted on the rest of the record) and their
+    interval.
+
+    The interval is :func:`_ratio_interval` around L = ln(f g_cand / g_base) of the errors of all folds
+    pooled, with the paired per-fold log ratios ln(f g_cand,k / g_base,k) and :data:`JACKKNIFE_T` (Student's
+    t at 97.5 % for FOLDS - 1 degrees of freedom): a t-interval of the mean over the folds. It holds what the
+    validation blocks cannot show: how much both refits move from one stretch of the record to another, and
+    how the gap behaves where the estimation segment was (on a chirp the estimation segment holds the low
+    frequencies, the validation segment the high ones). The folds' training sets overlap, so their
+    estimates are positively correlated and this t-interval, if anything, is too narrow (Bengio and
+    Grandvalet 2004: no unbiased estimator of the variance of K-fold cross-validation exists): it is a
+    lower bound on the refit variation, never used alone (:func:`_judged_by_refits` takes its union with the
+    validation interval). A fold where either gap is zero gives no ratio: then only the margin counts."""
+    candidate_gaps = np.array([_rms(e) for e in candidate_folds])
+    baseline_gaps = np.array([_rms(e) for e in baseline_folds])
+    pooled_candidate = _rms(np.concatenate(candidate_folds)) if candidate_folds else 0.0
+    pooled_baseline = _rms(np.concatenate(baseline_folds)) if baseline_folds else 0.0
+    if not (pooled_candidate > 0 and pooled_baseline > 0):
+        return (), (math.nan, math.nan)
+    usable = (candidate_gaps > 0) & (baseline_gaps > 0)
+    ratios = np.log(penalty_factor * candidate_gaps[usable] / baseline_gaps[usable])
+    folds = tuple(float(1.0 - math.exp(r)) for r in ratios)
+    interval = _ratio_interval(math.log(penalty_factor * pooled_candidate / pooled_baseline), ratios, JACKKNIFE_T)
+    return folds, interval
+
+
+def _with_refits(entry: CandidateResult, fold_reductions: tuple[float, ...], refit_interval: tuple[float, float],
+                 min_reduction: float) -> CandidateResult:
+    """``entry`` judged on the union of its validation interval and its refit interval
+    (:func:`_refit_reduction`): never narrower than either, so a candidate is named only when the validation
+    blocks and the refits both put its reduction clearly above ``min_reduction``, and rejected only when both
+    put it clearly below. A vanished candidate stays vanished."""
+    validation = entry.validation_interval
+    interval = validation
+    if math.isfinite(refit_interval[0]) and math.isfinite(refit_interval[1]):
+        interval = (min(validation[0], refit_interval[0]), max(validation[1], refit_interval[1]))
+    word = entry.acceptance if entry.acceptance == "vanished" else _accepted(interval, min_reduction)
+    return replace(entry, reduction_interval=interval, acceptance=word, fold_reductions=fold_reductions,
+                   refit_interval=refit_interval)
 
 
 def _block_gaps(error: NDArray[np.float64] | None) -> NDArray[np.float64]:
@@ -1486,29 +1591,61 @@ def _rivals(best: _Candidate, tried: Sequence[_Candidate], penalised: dict[str, 
     return tuple(out)
 
 
+def _peers(best: _Candidate, tried: Sequence[_Candidate], complexity_penalty: float) -> list[_Candidate]:
+    """The other candidates of a round whose penalised gap is within its uncertainty of ``best``'s
+    (:func:`_within_uncertainty` on the penalised validation errors)."""
+    def factor(candidate: _Candidate) -> float:
+        return 1.0 + complexity_penalty * EFFECTS[candidate.kind].free_parameters
+
+    def scaled(candidate: _Candidate) -> NDArray[np.float64] | None:
+        error = candidate.validation_error_rad
+        return None if error is None else error * factor(candidate)
+
+    return [other for other in tried if other.kind != best.kind
+            and _within_uncertainty(best.gap_rad * factor(best), scaled(best), other.gap_rad * factor(other),
+                                    scaled(other))]
+
+
 def _contenders(best: _Candidate, tried: Sequence[_Candidate], this_round: Mapping[str, CandidateResult],
                 complexity_penalty: float) -> tuple[CandidateResult, ...]:
     """When the best candidate of a round is not clearly accepted: the best one if its reduction interval
     reaches the acceptance, with every other candidate whose interval reaches it too and whose penalised gap
-    is within its uncertainty of the best one's (:func:`_within_uncertainty`); a candidate clearly worse than
-    the best is no contender, however wide its own interval. Best first."""
+    is within its uncertainty of the best one's (:func:`_peers`); a candidate clearly worse than the best is
+    no contender, however wide its own interval. Best first."""
     if this_round[best.kind].acceptance not in ("clear", "undecided"):
         return ()
-
-    def scaled(candidate: _Candidate) -> NDArray[np.float64] | None:
-        error = candidate.validation_error_rad
-        factor = 1.0 + complexity_penalty * EFFECTS[candidate.kind].free_parameters
-        return None if error is None else error * factor
-
-    out = [this_round[best.kind]]
-    for other in tried:
-        entry = this_round[other.kind]
-        if other.kind == best.kind or entry.acceptance not in ("clear", "undecided"):
-            continue
-        if _within_uncertainty(this_round[best.kind].penalised_gap_rad, scaled(best), entry.penalised_gap_rad,
-                               scaled(other)):
-            out.append(entry)
+    out = [this_round[best.kind]] + [this_round[other.kind] for other in _peers(best, tried, complexity_penalty)
+                                     if this_round[other.kind].acceptance in ("clear", "undecided")]
     return tuple(sorted(out, key=lambda c: c.penalised_gap_rad))
+
+
+def _judged_by_refits(best: _Candidate, tried: Sequence[_Candidate], this_round: Mapping[str, CandidateResult],
+                      baseline: _Chain, u: NDArray[np.float64], y: NDArray[np.float64],
+                      options: DiagnoseOptions) -> dict[str, CandidateResult]:
+    """The round's entries with the acceptance of the candidates that could be named judged on the refits too
+    (:func:`_held_out_errors`, :func:`_refit_reduction`, :func:`_with_refits`): the model so far
+    (``baseline``) and each such candidate refitted with each of the :data:`FOLDS` folds of the whole record
+    left out, both measured on the fold left out.
+
+    Which candidates get refits (the cost: :data:`FOLDS` refits of the baseline per round, and as many per
+    candidate judged): the best one always, since only it can be named; its peers (:func:`_peers`) only when
+    the best one is then undecided, since only then are they listed as contenders (:func:`_contenders`). A
+    candidate clearly worse than the best is never named nor listed, so its refits could change nothing and
+    are not made; its entry keeps the validation interval alone."""
+    out = dict(this_round)
+    baseline_folds = _held_out_errors(baseline, u, y, options.max_evaluations)
+
+    def judge(candidate: _Candidate) -> None:
+        factor = 1.0 + options.complexity_penalty * EFFECTS[candidate.kind].free_parameters
+        folds, interval = _refit_reduction(_held_out_errors(candidate.chain, u, y, options.max_evaluations),
+                                           baseline_folds, factor)
+        out[candidate.kind] = _with_refits(this_round[candidate.kind], folds, interval, options.min_reduction)
+
+    judge(best)
+    if out[best.kind].acceptance == "undecided":
+        for other in _peers(best, tried, options.complexity_penalty):
+            judge(other)
+    return out
 
 
 @dataclass
@@ -1572,7 +1709,8 @@ def _search(state: _Search, remaining: list[str], u: NDArray[np.float64], y: NDA
                 gap_uncertainty_rad=_gap_uncertainty(candidate.validation_error_rad),
                 penalised_gap_rad=penalised_gap, parameters=_parameters(kind, candidate.block), vanished=vanished,
                 helps=(not vanished) and penalised_gap <= (1.0 - min_reduction) * current.gap_rad,
-                reduction=reduction, reduction_interval=interval, acceptance="vanished" if vanished else word))
+                reduction=reduction, reduction_interval=interval, acceptance="vanished" if vanished else word,
+                validation_interval=interval))
             if not vanished:
                 tried.append(candidate)
         this_round = {c.effect: c for c in tried_all if c.round == round_index}
@@ -1582,6 +1720,11 @@ def _search(state: _Search, remaining: list[str], u: NDArray[np.float64], y: NDA
         penalised = {c.kind: c.gap_rad * (1.0 + complexity_penalty * EFFECTS[c.kind].free_parameters) for c in tried}
         best = min(tried, key=lambda c: penalised[c.kind])
         best = _prefer_within_family(best, tried, penalised, current.gap_rad)
+        this_round = _judged_by_refits(best, tried, this_round, chain, u, y, options)
+        tried_all = [this_round[c.effect] if c.round == round_index - 1 else c for c in tried_all]
+        say(f"  {best.kind}: gap reduction {100 * this_round[best.kind].reduction:.0f} %, "
+            f"{100 * this_round[best.kind].reduction_interval[0]:.0f} .. "
+            f"{100 * this_round[best.kind].reduction_interval[1]:.0f} % over validation blocks and refits")
         if this_round[best.kind].acceptance != "clear":
             # not clearly above the acceptance: it and every rival within its uncertainty whose interval reaches
             # the acceptance too are reported (:func:`_contenders`), none named
@@ -1849,13 +1992,9 @@ def _fold_intervals(chain: _Chain, start_model: PlantModel, u: NDArray[np.float6
 
     collect(chain)
     reductions = []
-    for part in np.array_split(np.arange(u.size), FOLDS):
-        keep = np.ones(u.size, dtype=bool)
-        keep[part] = False
-        refit = _polish(_refine_delays(chain, u, y, samples=keep), u, y, min(max_evaluations, FOLD_EVALUATIONS),
-                        samples=keep)
+    for part in _fold_parts(u.size):
+        refit, held_out = _fold_refit(chain, u, y, part, max_evaluations)
         collect(refit)
-        held_out = _free_run_error(refit, u, y)[part]
         start_gap = _rms((y - start_simulated)[part])
         if start_gap > 0.0:
             reductions.append(1.0 - _rms(held_out) / start_gap)

@@ -196,7 +196,7 @@ def test_a_named_effect_carries_parameter_intervals_containing_its_fit_and_a_gap
     result = run(record)
     assert result.verdict == "named"
     document = result.to_dict()
-    assert document["kind"] == "model_discrepancy" and document["version"] == 2
+    assert document["kind"] == "model_discrepancy" and document["version"] == 3
     assert DiscrepancyReport.from_dict(json.loads(json.dumps(document))) == result.report()
     (entry,) = document["missing_effects"]
     truth = record.true_model.blocks[1]
