@@ -1548,46 +1548,49 @@ def _refit_reduction(candidate_folds: Sequence[NDArray[np.float64]], baseline_fo
     (:func:`_held_out_errors`: fold k held out, both models refitted on the rest of the record, measured on
     fold k), and the interval of the cross-validated reduction over the whole record.
 
-    The estimate is the pooled ratio L = ln(f g_cand / g_base), g the RMS of the held-out errors of all
+    The estimate is the pooled reduction R = 1 - f g_cand / g_base, g the RMS of the held-out errors of all
     folds together (every sample of the record scored by a fit that did not see it). Its interval is
-    :func:`_ratio_interval` with the delete-a-group jackknife standard error of L over the folds
-    (:func:`_jackknife_standard_error` of the L_(k) with fold k left out of both pooled gaps; Efron and
-    Tibshirani 1993, ch. 11, the jackknife of a ratio estimator) and Student's t at :data:`REFIT_CONFIDENCE`
-    for one degree of freedom fewer than the folds. It holds what the
-    validation blocks cannot show: how much the refits move from one stretch of the record to another, and
-    how the gap behaves where the estimation segment was (on a chirp the estimation segment holds the low
+    R +- t SE_jack, SE_jack the delete-a-group jackknife standard error over the folds
+    (:func:`_jackknife_standard_error` of the R_(k) with fold k left out of both pooled gaps; Efron and
+    Tibshirani 1993, ch. 11, the jackknife of a ratio estimator) and t Student's quantile at
+    :data:`REFIT_CONFIDENCE` for one degree of freedom fewer than the folds, clipped at 100 %. It holds what
+    the validation blocks cannot show: how much the refits move from one stretch of the record to another,
+    and how the gap behaves where the estimation segment was (on a chirp the estimation segment holds the low
     frequencies, the validation segment the high ones).
 
     Why not a t-interval of the per-fold ratios: an effect acts where the record excites it, so the
     per-fold ratios differ systematically along the record, the same way in every repetition of the
-    experiment, and an unweighted mean of four of them treats a fold where the effect has nothing to do as
-    a quarter of the evidence. On the K-Scale sin_time_square records the rate limit's per-fold reductions
-    were 89, 71, -3 and 47 % (the third fold, slow, never reaches the limit): a t-interval of -134 to 89 %
-    around a pooled 49 %, where leaving out any one fold moves the pooled reduction only to 44-56 %. The
-    folds' training sets overlap, so their estimates are correlated and no unbiased estimator of the
-    variance of K-fold cross-validation exists (Bengio and Grandvalet 2004); the interval is never used
-    alone (:func:`_with_refits` takes its union with the validation interval). A fold where either gap is
-    zero gives no per-fold reduction; no interval (None) when a pooled gap is zero."""
+    experiment, and an unweighted mean of a few of them treats a fold where the effect has nothing to do as
+    a full share of the evidence. On the K-Scale sin_time_square records (4 folds) the rate limit's per-fold
+    reductions were 89, 71, -3 and 47 % (the third fold, slow, never reaches the limit): a t-interval of -134
+    to 89 % around a pooled 49 %, where leaving out any one fold moves the pooled reduction only to 44-56 %.
+    Why on the scale of R and not of ln(g_cand / g_base) (the scale of the validation interval,
+    :func:`_acceptance`): the decision is at R = ``min_reduction``, where the two scales agree to first order;
+    when a candidate leaves only noise (g_cand / g_base -> 0) the log scale magnifies the relative spread of
+    a noise-level residual between folds (a hidden drifting offset: fold reductions 87 to 99 %, a log-scale
+    interval reaching down to 14 %). The folds' training sets overlap, so their estimates are correlated and
+    no unbiased estimator of the variance of K-fold cross-validation exists (Bengio and Grandvalet 2004); the
+    interval is never used alone (:func:`_with_refits` takes its union with the validation interval). No
+    interval (None) when the baseline's gap on a fold is zero (a noise-free record)."""
     candidate_gaps = np.array([_rms(e) for e in candidate_folds])
     baseline_gaps = np.array([_rms(e) for e in baseline_folds])
 
-    def pooled_log_ratio(left_out: int | None) -> float:
+    def pooled_reduction(left_out: int | None) -> float:
         kept = [k for k in range(len(candidate_folds)) if k != left_out]
         candidate = _rms(np.concatenate([candidate_folds[k] for k in kept])) if kept else 0.0
         baseline = _rms(np.concatenate([baseline_folds[k] for k in kept])) if kept else 0.0
-        return math.log(penalty_factor * candidate / baseline) if candidate > 0 and baseline > 0 else math.nan
+        return 1.0 - penalty_factor * candidate / baseline if baseline > 0 else math.nan
 
-    log_ratio = pooled_log_ratio(None)
-    if not math.isfinite(log_ratio):
+    reduction = pooled_reduction(None)
+    if not math.isfinite(reduction) or not np.all(baseline_gaps > 0):
         return (), None
-    usable = (candidate_gaps > 0) & (baseline_gaps > 0)
-    folds = tuple(float(1.0 - penalty_factor * c / b) for c, b in zip(candidate_gaps[usable], baseline_gaps[usable]))
-    left_out = np.array([pooled_log_ratio(k) for k in range(len(candidate_folds))])
-    usable_left_out = left_out[np.isfinite(left_out)]
-    if usable_left_out.size < 2:
-        return folds, _ratio_interval(log_ratio, 0.0, 0.0)
-    t_value = float(stats.t.ppf(0.5 + REFIT_CONFIDENCE / 2.0, usable_left_out.size - 1))
-    return folds, _ratio_interval(log_ratio, _jackknife_standard_error(usable_left_out), t_value)
+    folds = tuple(float(1.0 - penalty_factor * c / b) for c, b in zip(candidate_gaps, baseline_gaps))
+    left_out = np.array([pooled_reduction(k) for k in range(len(candidate_folds))])
+    if left_out.size < 2:
+        return folds, (reduction, reduction)
+    t_value = float(stats.t.ppf(0.5 + REFIT_CONFIDENCE / 2.0, left_out.size - 1))
+    half = t_value * _jackknife_standard_error(left_out)
+    return folds, (reduction - half, min(1.0, reduction + half))
 
 
 def _with_refits(entry: CandidateResult, fold_reductions: tuple[float, ...],
