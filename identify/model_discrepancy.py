@@ -30,7 +30,9 @@ The effects themselves (blocks, parameters, placement, guesses, "vanished") come
 :mod:`identify.effect_catalogue`.
 
 The start model and all fits use only the estimation segment; every number quoted as a gap is measured on
-the validation segment, which the fits never see.
+the validation segment, which the fits never see. The acceptance also asks refits of the whole record with
+one of :data:`REFIT_FOLDS` folds left out at a time, each scored on the fold it did not see
+(:func:`_judged_by_refits`): a candidate is named only when both say its gap reduction is clearly enough.
 """
 
 from __future__ import annotations
