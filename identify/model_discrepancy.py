@@ -1557,7 +1557,7 @@ def _refit_reduction(candidate_folds: Sequence[NDArray[np.float64]], baseline_fo
     (:func:`_jackknife_standard_error` of the R_(k) with fold k left out of both pooled gaps; Efron and
     Tibshirani 1993, ch. 11, the jackknife of a ratio estimator) and t Student's quantile at
     :data:`REFIT_CONFIDENCE` for one degree of freedom fewer than the folds, clipped to the range of the
-    per-fold reductions R_k: the pooled squared ratio is the b_k^2-weighted mean of the per-fold squared
+    per-fold reductions R_k: the pooled squared ratio is the (n_k b_k^2)-weighted mean of the per-fold squared
     ratios, so the reduction over any stretch made of these folds lies within [min R_k, max R_k], and a
     symmetric t SE beyond it is no possible value (one refit that runs astray on its fold, -493 % against
     -3 % on the seven others, made the jackknife reach +100 % without the clip). It holds what
