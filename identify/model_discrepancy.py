@@ -1575,13 +1575,44 @@ def _search(state: _Search, remaining: list[str], u: NDArray[np.float64], y: NDA
                 reduction=reduction, reduction_interval=interval, acceptance="vanished" if vanished else word))
             if not vanished:
                 tried.append(candidate)
-        this_round = {c.effect: c for c in tried_all if c.round == round_index}
-        round_index += 1
         if not tried:
             break
         penalised = {c.kind: c.gap_rad * (1.0 + complexity_penalty * EFFECTS[c.kind].free_parameters) for c in tried}
         best = min(tried, key=lambda c: penalised[c.kind])
         best = _prefer_within_family(best, tried, penalised, current.gap_rad)
+        twin = EFFECTS[best.kind].inner_twin
+        if twin and all(name in remaining for name in twin) and _insert_index(chain, twin[0]) >= 0:
+            parts = _compound(twin, tried, chain, u, y, n_est, delta, period, options)
+            pair = parts[-1]
+            factor = 1.0 + complexity_penalty * sum(EFFECTS[name].free_parameters for name in twin)
+            pair_penalised = pair.gap_rad * factor
+            reduction, interval, word = _acceptance(pair.validation_error_rad, factor, validation_error,
+                                                    pair_penalised, current.gap_rad, min_reduction)
+            pair_name = "+".join(twin)
+            say(f"  {pair_name} (the inner twin of {best.kind}): validated gap {pair.gap_rad:.3g} rad")
+            tried_all.append(CandidateResult(
+                round=round_index, effect=pair_name, gap_rad=pair.gap_rad,
+                gap_uncertainty_rad=_gap_uncertainty(pair.validation_error_rad), penalised_gap_rad=pair_penalised,
+                parameters={key: value for name in twin for key, value in _parameters(name, pair.block).items()},
+                vanished=False, helps=pair_penalised <= (1.0 - min_reduction) * current.gap_rad,
+                reduction=reduction, reduction_interval=interval, acceptance=word))
+            judged = _twin_judgement(best, penalised[best.kind], pair, pair_penalised, complexity_penalty)
+            if judged == "twin" and word == "clear":
+                state = _add_compound(parts, chain, current, steps, tried_all, u, y, n_est, delta, scores, tried,
+                                      max_evaluations)
+                say(f"added {pair_name}: gap {current.gap_rad:.3g} -> {state.current.gap_rad:.3g} rad")
+                chain, current, steps = state.chain, state.current, state.steps
+                validation_error = state.validation_error_rad
+                remaining = [name for name in remaining if name not in twin]
+                round_index += 1
+                continue
+            if judged == "tie" and "clear" in (word, next(c.acceptance for c in tried_all
+                                                          if c.round == round_index and c.effect == best.kind)):
+                ambiguous_between = (best.kind, pair_name)
+                say(f"ambiguous: {' and '.join(ambiguous_between)} fit equally well within their uncertainty")
+                return _Search(chain, current, steps, tried_all, ambiguous_between, validation_error)
+        this_round = {c.effect: c for c in tried_all if c.round == round_index}
+        round_index += 1
         if this_round[best.kind].acceptance != "clear":
             # not clearly above the acceptance: it and every rival within its uncertainty whose interval reaches
             # the acceptance too are reported (:func:`_contenders`), none named
@@ -1637,6 +1668,59 @@ def _add_step(best: _Candidate, chain: _Chain, current: Disagreement, steps: lis
         model=best.chain.model(),
     )
     return _Search(best.chain, after, [*steps, step], list(tried_all), (), after.residual_rad[n_est:])
+
+
+def _compound(kinds: Sequence[str], tried: Sequence[_Candidate], chain: _Chain, u: NDArray[np.float64],
+              y: NDArray[np.float64], n_est: int, delta: float, period: float,
+              options: DiagnoseOptions) -> list[_Candidate]:
+    """Dynamics effects ``kinds`` merged into one drive train (an inner twin, catalogue ``inner_twin``): the
+    first as fitted in this round (refitted if it vanished), each further one fitted through the ones before
+    (:func:`_try_effect` from the chain so far, its guesses from that chain's residual), the values of all
+    of them free in its polish. Returns the candidate after each effect; the last one is the compound."""
+    by_kind = {c.kind: c for c in tried}
+    parts: list[_Candidate] = []
+    for kind in kinds:
+        if not parts and kind in by_kind:
+            parts.append(by_kind[kind])
+            continue
+        base = parts[-1].chain if parts else chain
+        simulated = base.model().simulate(u)
+        parts.append(_try_effect(kind, base, u, y, n_est, delta, period, y - simulated,
+                                 signature_scores(u, y, simulated, delta, period), options.max_delay_samples,
+                                 options.max_evaluations))
+    return parts
+
+
+def _twin_judgement(best: _Candidate, best_penalised_rad: float, pair: _Candidate, pair_penalised_rad: float,
+                    complexity_penalty: float) -> str:
+    """The round's best candidate against its inner twin, each by its penalised gap and scaled validation
+    error, by the rule that tells two candidates apart (:func:`_within_uncertainty`): ``"twin"`` when the
+    twin is clearly better, ``"tie"`` within their uncertainty, ``"best"`` when the twin is clearly worse."""
+    pair_factor = pair_penalised_rad / pair.gap_rad if pair.gap_rad > 0 else 1.0
+    best_error = None if best.validation_error_rad is None else best.validation_error_rad * (
+        1.0 + complexity_penalty * EFFECTS[best.kind].free_parameters)
+    pair_error = None if pair.validation_error_rad is None else pair.validation_error_rad * pair_factor
+    if pair_penalised_rad < best_penalised_rad:
+        tie = _within_uncertainty(pair_penalised_rad, pair_error, best_penalised_rad, best_error)
+        return "tie" if tie else "twin"
+    return "tie" if _within_uncertainty(best_penalised_rad, best_error, pair_penalised_rad, pair_error) else "best"
+
+
+def _add_compound(parts: Sequence[_Candidate], chain: _Chain, current: Disagreement, steps: list[DiscrepancyStep],
+                  tried_all: list[CandidateResult], u: NDArray[np.float64], y: NDArray[np.float64], n_est: int,
+                  delta: float, scores: dict[str, SignatureScore], tried: Sequence[_Candidate],
+                  max_evaluations: int) -> _Search:
+    """:func:`_add_step` for each effect of a compound (:func:`_compound`) in turn; every step reports its
+    parameters as the compound's final fit has them (they were refitted together)."""
+    state = _Search(chain, current, list(steps), list(tried_all))
+    for part in parts:
+        state = _add_step(part, state.chain, state.current, state.steps, state.tried, u, y, n_est, delta, scores,
+                          tried, max_evaluations)
+    final = state.chain.components[parts[-1].index]
+    block = _build(final, final.values)
+    fixed = [replace(step, parameters=_parameters(step.effect, block)) if i >= len(steps) else step
+             for i, step in enumerate(state.steps)]
+    return _Search(state.chain, state.current, fixed, state.tried, (), state.validation_error_rad)
 
 
 def _clear_end(ends: Sequence[_Search], complexity_penalty: float) -> _Search | None:
