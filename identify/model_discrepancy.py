@@ -1608,6 +1608,17 @@ def _search(state: _Search, remaining: list[str], u: NDArray[np.float64], y: NDA
                 continue
             if judged == "tie" and "clear" in (word, next(c.acceptance for c in tried_all
                                                           if c.round == round_index and c.effect == best.kind)):
+                if resolve_ties:  # as for rivals: each explanation followed to the end of its own search
+                    ends = [_search(_add_step(best, chain, current, steps, tried_all, u, y, n_est, delta, scores, tried,
+                                              max_evaluations), [n for n in remaining if n != best.kind], u, y, n_est,
+                                    delta, period, options, lambda _m: None, resolve_ties=False),
+                            _search(_add_compound(parts, chain, current, steps, tried_all, u, y, n_est, delta, scores,
+                                                  tried, max_evaluations), [n for n in remaining if n not in twin],
+                                    u, y, n_est, delta, period, options, lambda _m: None, resolve_ties=False)]
+                    chosen = _clear_end(ends, complexity_penalty)
+                    if chosen is not None:
+                        say(f"the tie resolves when followed to the end: {', '.join(s.effect for s in chosen.steps)}")
+                        return chosen
                 ambiguous_between = (best.kind, pair_name)
                 say(f"ambiguous: {' and '.join(ambiguous_between)} fit equally well within their uncertainty")
                 return _Search(chain, current, steps, tried_all, ambiguous_between, validation_error)
@@ -1617,6 +1628,20 @@ def _search(state: _Search, remaining: list[str], u: NDArray[np.float64], y: NDA
             # not clearly above the acceptance: it and every rival within its uncertainty whose interval reaches
             # the acceptance too are reported (:func:`_contenders`), none named
             undecided = _contenders(best, tried, this_round, complexity_penalty)
+            if undecided and resolve_ties:
+                by_kind = {c.kind: c for c in tried}
+                followed = _one_per_family([by_kind[c.effect] for c in undecided if c.effect in by_kind], tried,
+                                           penalised, current.gap_rad)
+                ends = [_search(_add_step(candidate, chain, current, steps, tried_all, u, y, n_est, delta, scores,
+                                          tried, max_evaluations),
+                                [n for n in remaining if n != candidate.kind], u, y, n_est, delta, period, options,
+                                lambda _m: None, resolve_ties=False) for candidate in followed]
+                ends = [end for end in ends if _clearly_better_end(end, len(steps), current, validation_error, options)]
+                if ends:
+                    chosen = _clear_end(ends, complexity_penalty)
+                    if chosen is not None:
+                        say(f"undecided alone, clear together: {', '.join(s.effect for s in chosen.steps)}")
+                        return chosen
             if undecided:
                 say(f"undecided: {', '.join(c.effect for c in undecided)} lower the gap by about the required "
                     f"{100 * min_reduction:.0f} % within their uncertainty")
@@ -1668,6 +1693,38 @@ def _add_step(best: _Candidate, chain: _Chain, current: Disagreement, steps: lis
         model=best.chain.model(),
     )
     return _Search(best.chain, after, [*steps, step], list(tried_all), (), after.residual_rad[n_est:])
+
+
+def _one_per_family(candidates: Sequence[_Candidate], tried: Sequence[_Candidate], penalised: dict[str, float],
+                    gap_before_rad: float) -> list[_Candidate]:
+    """``candidates`` with the members of one catalogue family reduced to the one :func:`_prefer_within_family`
+    picks from the lowest-penalised of them (the family rule decides between equivalent maps, as it does
+    for a round's best candidate)."""
+    out: list[_Candidate] = []
+    families: set[str] = set()
+    for candidate in sorted(candidates, key=lambda c: penalised[c.kind]):
+        family = EFFECTS[candidate.kind].family
+        if family is None:
+            out.append(candidate)
+        elif family not in families:
+            families.add(family)
+            out.append(_prefer_within_family(candidate, tried, penalised, gap_before_rad))
+    return out
+
+
+def _clearly_better_end(end: _Search, steps_before: int, current: Disagreement,
+                        current_error: NDArray[np.float64] | None, options: DiagnoseOptions) -> bool:
+    """Whether a search followed from an undecided candidate (:func:`_search`) ends with at least two effects
+    more than ``steps_before`` that together lower the validated gap clearly by the acceptance
+    (:func:`_acceptance` on the end's penalised gap, all its added parameters counted, against ``current``):
+    two effects at once, neither of which alone explains enough of the record to be told from no effect."""
+    added = end.steps[steps_before:]
+    if len(added) < 2:
+        return False
+    factor = 1.0 + options.complexity_penalty * sum(EFFECTS[s.effect].free_parameters for s in added)
+    _, _, word = _acceptance(end.validation_error_rad, factor, current_error, end.current.gap_rad * factor,
+                             current.gap_rad, options.min_reduction)
+    return word == "clear"
 
 
 def _compound(kinds: Sequence[str], tried: Sequence[_Candidate], chain: _Chain, u: NDArray[np.float64],
