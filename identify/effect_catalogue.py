@@ -184,6 +184,18 @@ class Effect:
         signature from inside the drive (:data:`HYSTERESIS_INNER_TWIN`); whenever this effect wins a round of
         the search, the twin is tried too, as one compound explanation (``_compound`` in
         :mod:`identify.model_discrepancy`).
+    hysteresis_width
+        For a hysteresis: fitted block -> the total width of the loop it draws between input and output (rad),
+        the start of the play of its inner twin (:attr:`width_starts`).
+    width_starts
+        For a member of an inner twin: (the total width w of the output hysteresis fitted to the same record,
+        the drive train) -> starts of its free values (the first is used when it is not the last member
+        fitted). The hysteresis of the twin is the play b plus the friction's static error 2 T_c / (J
+        omega_n^2) (the drive stops that short of the command either way), so half of w goes to each:
+        b = w / 2, T_c / J = omega_n^2 w / 4. Started from the friction fit alone, the play stays closed: on a
+        hidden shaft_play + load_friction record (seed 1012, play 44.3 mrad, T_c / J 603 rad/s^2) the friction
+        alone fitted 1490 rad/s^2 and the play through it polished to 0 (gap 8.7 mrad), while from a play at
+        the backlash's width (87.6 mrad) the polish reached 43.9 mrad and 611 rad/s^2 (gap 0.59 mrad).
     resolution
         Dynamics effects: (fitted train, its free run y^, the angle resolution e) -> half-widths by which
         the parameters' intervals are widened: what an angle known only within +-e leaves unresolved of a
@@ -214,6 +226,8 @@ class Effect:
     train_fields: Callable[[Sequence[float], DriveTrain], dict[str, Any]] | None = None
     resolution: Callable[[DriveTrain, NDArray[np.float64], float], dict[str, float]] | None = None
     inner_twin: tuple[str, ...] = ()
+    hysteresis_width: Callable[[Any], float] | None = None
+    width_starts: Callable[[float, DriveTrain], list[tuple[float, ...]]] | None = None
 
     def in_train(self, values: Sequence[float], train: DriveTrain) -> DriveTrain:
         """``train`` with this dynamics effect's fields set from its free ``values``."""
@@ -401,8 +415,21 @@ def _load_friction_guesses(context: GuessContext) -> list[tuple[float, ...]]:
     # amplitude; breakaway 1 or 1.5 times it; a little viscous friction (2 % of the loop's damping
     # 2 zeta omega_n: a start at exactly 0 would not move in the scaled polish)
     assert context.train is not None
-    viscous = 0.02 * 2.0 * context.train.position_loop_damping_ratio * context.train.natural_frequency_rad_per_s
+    viscous = _viscous_guess(context.train)
     return [(c, excess * c, viscous) for c in _band_levels(context, 6) for excess in (0.01, 0.5)]
+
+
+def _viscous_guess(train: DriveTrain) -> float:
+    """d_v / J of 2 % of the loop's damping 2 zeta omega_n (a start at exactly 0 would not move in the scaled
+    polish)."""
+    return 0.02 * 2.0 * train.position_loop_damping_ratio * train.natural_frequency_rad_per_s
+
+
+def _friction_width_starts(width_rad: float, train: DriveTrain) -> list[tuple[float, ...]]:
+    # half the twin's hysteresis is the friction's static error 2 T_c / (J omega_n^2) (Effect.width_starts);
+    # and a breakaway excess of 1 % as in the guesses
+    coulomb = 0.25 * width_rad * _loop_stiffness_per_inertia(train)
+    return [(coulomb, 0.01 * coulomb, _viscous_guess(train))]
 
 
 def _gravity_guesses(context: GuessContext) -> list[tuple[float, ...]]:
@@ -571,6 +598,7 @@ EFFECTS: dict[str, Effect] = {effect.name: effect for effect in (
                   "direction of y^)",
         family="hysteresis", needs_reversals=True,
         contact_start=lambda c_l, c_r: [(c_l, c_r)], inner_twin=HYSTERESIS_INNER_TWIN,
+        hysteresis_width=lambda b: b.c_l_rad + b.c_r_rad,
     ),
     Effect(
         name="dead_zone", block_class=DeadZone, toml_type="dead_zone",
@@ -627,6 +655,7 @@ EFFECTS: dict[str, Effect] = {effect.name: effect for effect in (
         family="hysteresis", needs_reversals=True,
         contact_start=lambda c_l, c_r: [(ratio * 0.5 * (c_l + c_r), 0.5 * (c_l + c_r)) for ratio in (1.0, 1.5, 2.0)],
         stick_slip=True, inner_twin=HYSTERESIS_INNER_TWIN,
+        hysteresis_width=lambda b: 2.0 * b.sliding_deflection_rad,  # the output lags by +-the sliding twist
     ),
     Effect(
         name="resonance", block_class=Resonance, toml_type="resonance",
@@ -692,6 +721,7 @@ EFFECTS: dict[str, Effect] = {effect.name: effect for effect in (
         signature="a lag against the model's motion (r ~ -c sign(v^)), the load left short where it stops",
         train_fields=_friction_fields,
         stick_slip=True,
+        width_starts=_friction_width_starts,
         resolution=lambda train, y_hat, e: _torque_resolution(
             train, ("coulomb_per_inertia_rad_per_s2", "static_per_inertia_rad_per_s2"), e),
     ),
@@ -757,6 +787,7 @@ EFFECTS: dict[str, Effect] = {effect.name: effect for effect in (
                   "caught with a bounce (output backlash instead holds the output still)",
         needs_reversals=True,
         train_fields=_play_fields,
+        width_starts=lambda width, train: [(0.5 * width,), (width,)],
     ),
 )}
 """Every effect, by its diagnose name, in the order the workflow tries them."""
@@ -804,6 +835,8 @@ def _check() -> None:
             raise AssertionError(f"{entry.name}: free_parameters")
         if (entry.placement == "dynamics") != (entry.train_fields is not None):
             raise AssertionError(f"{entry.name}: a dynamics effect, and only one, has train_fields")
+        if entry.inner_twin and entry.hysteresis_width is None:
+            raise AssertionError(f"{entry.name}: an effect with an inner twin gives its hysteresis width")
         if any(EFFECTS[name].placement != "dynamics" for name in entry.inner_twin):
             raise AssertionError(f"{entry.name}: an inner twin is made of dynamics effects (one drive train)")
 

@@ -720,7 +720,12 @@ class _Candidate:
 
 def _try_effect(kind: str, chain: _Chain, u: NDArray[np.float64], y: NDArray[np.float64], n_est: int,
                 delta: float, period: float, residual: NDArray[np.float64], scores: dict[str, SignatureScore],
-                max_delay_samples: int, max_evaluations: int) -> _Candidate:
+                max_delay_samples: int, max_evaluations: int,
+                forced_starts: Sequence[tuple[float, ...]] = ()) -> _Candidate:
+    """The candidate of effect ``kind`` added to ``chain``: its catalogue guesses (and, for a dynamics effect
+    with a free loop, the loop starts) ranked by the estimation error, the best polished, and each of
+    ``forced_starts`` (values of the effect, unranked) polished too; the fit with the lowest estimation error
+    is kept."""
     index = _insert_index(chain, kind)
     u_est, y_est = u[:n_est], y[:n_est]
     entry = effect(kind)
@@ -731,9 +736,7 @@ def _try_effect(kind: str, chain: _Chain, u: NDArray[np.float64], y: NDArray[np.
     def with_effect(values: tuple[float, ...], base: _Chain = chain) -> _Chain:
         components = list(base.components)
         if entry.placement == "dynamics":  # merged into the drive train
-            holder = components[index]
-            components[index] = replace(holder, values=holder.values + tuple(float(v) for v in values),
-                                        effects=holder.effects + (kind,))
+            return _merged(base, index, kind, values)
         else:
             components.insert(index, _Component(kind, tuple(float(v) for v in values), sample_period_s=period))
         return _Chain(components)
@@ -760,6 +763,7 @@ def _try_effect(kind: str, chain: _Chain, u: NDArray[np.float64], y: NDArray[np.
         starts = _distinct_loop_starts(options, costs, index, LOOP_POLISHED_STARTS)
     else:
         starts = [options[int(np.argmin(costs))]]
+    starts += [with_effect(tuple(values)) for values in forced_starts]
     fits = [_polished_start(start, u_est, y_est, max_evaluations) for start in starts]
     best = fits[int(np.argmin([_rms(_free_run_error(fit, u_est, y_est)) for fit in fits]))]
     if entry.stick_slip and train is not None:
@@ -770,6 +774,16 @@ def _try_effect(kind: str, chain: _Chain, u: NDArray[np.float64], y: NDArray[np.
     error = np.where(np.isfinite(error), error, _BIG)
     block = _build(best.components[index], best.components[index].values)
     return _Candidate(kind, best, _rms(error), block, index, _rms(_free_run_error(best, u_est, y_est)), error)
+
+
+def _merged(chain: _Chain, index: int, kind: str, values: Sequence[float]) -> _Chain:
+    """``chain`` with dynamics effect ``kind`` of free ``values`` merged into its drive-train component at
+    ``index`` (:func:`_dynamics_chain` made it one)."""
+    components = list(chain.components)
+    holder = components[index]
+    components[index] = replace(holder, values=holder.values + tuple(float(v) for v in values),
+                                effects=holder.effects + (kind,))
+    return _Chain(components)
 
 
 def _polished_start(start: _Chain, u: NDArray[np.float64], y: NDArray[np.float64], max_evaluations: int) -> _Chain:
@@ -1582,7 +1596,7 @@ def _search(state: _Search, remaining: list[str], u: NDArray[np.float64], y: NDA
         best = _prefer_within_family(best, tried, penalised, current.gap_rad)
         twin = EFFECTS[best.kind].inner_twin
         if twin and all(name in remaining for name in twin) and _insert_index(chain, twin[0]) >= 0:
-            parts = _compound(twin, tried, chain, u, y, n_est, delta, period, options)
+            parts = _compound(twin, best, tried, chain, u, y, n_est, delta, period, options)
             pair = parts[-1]
             factor = 1.0 + complexity_penalty * sum(EFFECTS[name].free_parameters for name in twin)
             pair_penalised = pair.gap_rad * factor
@@ -1727,24 +1741,38 @@ def _clearly_better_end(end: _Search, steps_before: int, current: Disagreement,
     return word == "clear"
 
 
-def _compound(kinds: Sequence[str], tried: Sequence[_Candidate], chain: _Chain, u: NDArray[np.float64],
-              y: NDArray[np.float64], n_est: int, delta: float, period: float,
+def _compound(kinds: Sequence[str], hysteresis: _Candidate, tried: Sequence[_Candidate], chain: _Chain,
+              u: NDArray[np.float64], y: NDArray[np.float64], n_est: int, delta: float, period: float,
               options: DiagnoseOptions) -> list[_Candidate]:
-    """Dynamics effects ``kinds`` merged into one drive train (an inner twin, catalogue ``inner_twin``): the
-    first as fitted in this round (refitted if it vanished), each further one fitted through the ones before
-    (:func:`_try_effect` from the chain so far, its guesses from that chain's residual), the values of all
-    of them free in its polish. Returns the candidate after each effect; the last one is the compound."""
+    """Dynamics effects ``kinds`` merged into one drive train (the inner twin of the fitted ``hysteresis``,
+    catalogue ``inner_twin``): the first as fitted in this round (refitted if it vanished), each further one
+    fitted through the ones before (:func:`_try_effect` from the chain so far, its guesses from that chain's
+    residual), the values of all of them free in its polish; and all of them started from the hysteresis'
+    width (catalogue ``width_starts``). Returns the candidate after each effect; the last one is the compound,
+    whichever of the two fits the estimation segment better."""
     by_kind = {c.kind: c for c in tried}
+
+    def fitted(kind: str, base: _Chain, forced: Sequence[tuple[float, ...]] = ()) -> _Candidate:
+        simulated = base.model().simulate(u)
+        return _try_effect(kind, base, u, y, n_est, delta, period, y - simulated,
+                           signature_scores(u, y, simulated, delta, period), options.max_delay_samples,
+                           options.max_evaluations, forced)
+
     parts: list[_Candidate] = []
     for kind in kinds:
-        if not parts and kind in by_kind:
-            parts.append(by_kind[kind])
-            continue
-        base = parts[-1].chain if parts else chain
-        simulated = base.model().simulate(u)
-        parts.append(_try_effect(kind, base, u, y, n_est, delta, period, y - simulated,
-                                 signature_scores(u, y, simulated, delta, period), options.max_delay_samples,
-                                 options.max_evaluations))
+        parts.append(by_kind[kind] if not parts and kind in by_kind else fitted(kind, parts[-1].chain if parts else chain))
+    width_of = EFFECTS[hysteresis.kind].hysteresis_width
+    width = width_of(hysteresis.block) if width_of is not None else 0.0
+    if width > 0 and all(EFFECTS[kind].width_starts is not None for kind in kinds):
+        # the whole twin started from the hysteresis' width (catalogue width_starts), the last effect polished
+        # with all of them free; kept if it fits the estimation segment better than the sequential fit
+        index = _insert_index(chain, kinds[0])
+        base, train = _dynamics_chain(chain, index, u[:n_est])
+        for kind in kinds[:-1]:
+            base = _merged(base, index, kind, EFFECTS[kind].width_starts(width, train)[0])
+        joint = fitted(kinds[-1], base, EFFECTS[kinds[-1]].width_starts(width, train))
+        if joint.estimation_rms_rad < parts[-1].estimation_rms_rad:
+            parts[-1] = joint
     return parts
 
 
