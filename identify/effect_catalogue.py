@@ -184,9 +184,11 @@ class Effect:
         signature from inside the drive (:data:`HYSTERESIS_INNER_TWIN`); whenever this effect wins a round of
         the search, the twin is tried too, as one compound explanation (``_compound`` in
         :mod:`identify.model_discrepancy`).
-    hysteresis_width
-        For a hysteresis: fitted block -> the total width of the loop it draws between input and output (rad),
-        the start of the play of its inner twin (:attr:`width_starts`).
+    half_widths
+        For a hysteresis: fitted block -> the half-widths (c_l, c_r) of the loop it draws between input and
+        output (rad; backlash: its own, friction: the sliding twist either way). They start the other
+        members of its family (:attr:`contact_start`) when the family is decided again with the whole model,
+        and their sum w starts the play of its inner twin (:attr:`width_starts`).
     width_starts
         For a member of an inner twin: (the total width w of the output hysteresis fitted to the same record,
         the drive train) -> starts of its free values (the first is used when it is not the last member
@@ -226,7 +228,7 @@ class Effect:
     train_fields: Callable[[Sequence[float], DriveTrain], dict[str, Any]] | None = None
     resolution: Callable[[DriveTrain, NDArray[np.float64], float], dict[str, float]] | None = None
     inner_twin: tuple[str, ...] = ()
-    hysteresis_width: Callable[[Any], float] | None = None
+    half_widths: Callable[[Any], tuple[float, float]] | None = None
     width_starts: Callable[[float, DriveTrain], list[tuple[float, ...]]] | None = None
 
     def in_train(self, values: Sequence[float], train: DriveTrain) -> DriveTrain:
@@ -598,7 +600,7 @@ EFFECTS: dict[str, Effect] = {effect.name: effect for effect in (
                   "direction of y^)",
         family="hysteresis", needs_reversals=True,
         contact_start=lambda c_l, c_r: [(c_l, c_r)], inner_twin=HYSTERESIS_INNER_TWIN,
-        hysteresis_width=lambda b: b.c_l_rad + b.c_r_rad,
+        half_widths=lambda b: (b.c_l_rad, b.c_r_rad),
     ),
     Effect(
         name="dead_zone", block_class=DeadZone, toml_type="dead_zone",
@@ -655,7 +657,7 @@ EFFECTS: dict[str, Effect] = {effect.name: effect for effect in (
         family="hysteresis", needs_reversals=True,
         contact_start=lambda c_l, c_r: [(ratio * 0.5 * (c_l + c_r), 0.5 * (c_l + c_r)) for ratio in (1.0, 1.5, 2.0)],
         stick_slip=True, inner_twin=HYSTERESIS_INNER_TWIN,
-        hysteresis_width=lambda b: 2.0 * b.sliding_deflection_rad,  # the output lags by +-the sliding twist
+        half_widths=lambda b: (b.sliding_deflection_rad, b.sliding_deflection_rad),  # the output lags by +-it
     ),
     Effect(
         name="resonance", block_class=Resonance, toml_type="resonance",
@@ -835,8 +837,8 @@ def _check() -> None:
             raise AssertionError(f"{entry.name}: free_parameters")
         if (entry.placement == "dynamics") != (entry.train_fields is not None):
             raise AssertionError(f"{entry.name}: a dynamics effect, and only one, has train_fields")
-        if entry.inner_twin and entry.hysteresis_width is None:
-            raise AssertionError(f"{entry.name}: an effect with an inner twin gives its hysteresis width")
+        if entry.inner_twin and entry.half_widths is None:
+            raise AssertionError(f"{entry.name}: an effect with an inner twin gives its hysteresis' half-widths")
         if any(EFFECTS[name].placement != "dynamics" for name in entry.inner_twin):
             raise AssertionError(f"{entry.name}: an inner twin is made of dynamics effects (one drive train)")
 
