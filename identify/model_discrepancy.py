@@ -1793,6 +1793,8 @@ def _search(state: _Search, remaining: list[str], u: NDArray[np.float64], y: NDA
                 validation_interval=interval))
             if not vanished:
                 tried.append(candidate)
+        this_round = {c.effect: c for c in tried_all if c.round == round_index}
+        round_index += 1
         if not tried:
             break
         penalised = {c.kind: c.gap_rad * (1.0 + complexity_penalty * EFFECTS[c.kind].free_parameters) for c in tried}
