@@ -63,7 +63,8 @@ if TYPE_CHECKING:
     from identify.effect_signatures import SignatureScore
 
 __all__ = ["DYNAMICS_EFFECTS", "EFFECTS", "EFFECT_NAMES", "HYSTERESIS_INNER_TWIN", "PLACEMENTS", "Effect",
-           "GuessContext", "Parameter", "TomlKey", "effect", "effect_for_block", "effect_for_toml_type", "reference_train"]
+           "GuessContext", "Parameter", "TomlKey", "effect", "effect_for_block", "effect_for_toml_type",
+           "reference_train"]
 
 NEGLIGIBLE_GAIN_ERROR = 1.0e-3
 """A fitted gain within this of 1 is no gain error: a 0.1 % scale error is below what the workflow resolves

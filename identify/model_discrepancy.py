@@ -1750,7 +1750,14 @@ def _search(state: _Search, remaining: list[str], u: NDArray[np.float64], y: NDA
     ``resolve_ties`` holds, each contender is followed to the end of its own greedy search (without further
     tie resolution): if all end in the same set of effects, or one end is clearly better than the others by
     the same rule, that one is taken (two effects at once: whichever goes first, the pair is the answer);
-    otherwise the round is ambiguous and no contender is chosen."""
+    otherwise the round is ambiguous and no contender is chosen.
+
+    When the best candidate is a hysteresis with an inner twin (catalogue ``inner_twin``), the twin is fitted
+    as one compound candidate (:func:`_compound`) and judged against it (:func:`_twin_judgement`): clearly
+    better and clearly accepted, both its effects are added; within their uncertainty, both are followed to
+    the end as above. When the best candidate is undecided and ``resolve_ties`` holds, its contenders are
+    followed to the end too, and an end whose added effects together clear the acceptance
+    (:func:`_clearly_better_end`) is taken."""
     max_effects, consistent_fraction = options.max_effects, options.consistent_fraction
     complexity_penalty, min_reduction = options.complexity_penalty, options.min_reduction
     max_evaluations = options.max_evaluations
@@ -2040,7 +2047,10 @@ def _compound(kinds: Sequence[str], hysteresis: _Candidate, tried: Sequence[_Can
 
     parts: list[_Candidate] = []
     for kind in kinds:
-        parts.append(by_kind[kind] if not parts and kind in by_kind else fitted(kind, parts[-1].chain if parts else chain))
+        if not parts and kind in by_kind:
+            parts.append(by_kind[kind])
+        else:
+            parts.append(fitted(kind, parts[-1].chain if parts else chain))
     half_widths = EFFECTS[hysteresis.kind].half_widths
     width = sum(half_widths(hysteresis.block)) if half_widths is not None else 0.0
     if width > 0 and all(EFFECTS[kind].width_starts is not None for kind in kinds):
