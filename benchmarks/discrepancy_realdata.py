@@ -102,16 +102,17 @@ def kscale(noise_bound_rad: float, jobs: int, trajectories: set[str] | None = No
                                            [noise_bound_rad] * len(rows))):
             runs.append(run)  # one line per record as it is done (a long run can be read while it goes on)
             print(f"  {row['trajectory']} kp {row['kp']} {run['file']}: {run['verdict']} "
-                  f"{answer(run)} ({run['cpu_s']:.0f} s CPU)"
+                  f"{answer(run)} ({run['cpu_s']:.1f} s CPU)"
                   + "".join(f"; {name} {100 * r:.0f} % [{100 * low:.0f}, {100 * high:.0f}]"
                             for name, r, low, high in run["undecided"]), flush=True)
     elapsed = time.perf_counter() - started
+    cpu = [run["cpu_s"] for run in runs]
     groups: dict[tuple[str, str], list[dict]] = defaultdict(list)
     for row, run in zip(rows, runs):
         groups[(row["trajectory"], row["kp"])].append(run)
     print(f"\nK-Scale STS3215: {len(runs)} records, noise bound {noise_bound_rad:.4g} rad "
           f"({noise_bound_rad / COUNT_RAD:.2g} counts), fitted linear start model; {elapsed:.0f} s with {jobs} "
-          "process(es)")
+          f"process(es); CPU per record {min(cpu):.1f}-{max(cpu):.1f} s, {sum(cpu):.0f} s in all")
     print("| trajectory | kp | verdicts (4 repetitions) | named; ? ambiguous | parameter intervals | "
           "gap initial -> final [mrad] | spikes | agree | same ambiguous set |")
     print("|---|---|---|---|---|---|---|---|---|")

@@ -290,9 +290,10 @@ def _print_summary(data: str, model: str | None, noise_bound: float, result, num
               f"({parameters})")
     for candidate in result.undecided:
         low, high = candidate.reduction_interval
+        parts = candidate.interval_parts()
         print(f"undecided     {candidate.effect}: gap {candidate.gap_rad:.4g} rad, reduction "
-              f"{100 * candidate.reduction:.0f} % ({100 * low:.0f} .. {100 * high:.0f} % within its uncertainty): "
-              "not named")
+              f"{100 * candidate.reduction:.0f} % ({100 * low:.0f} .. {100 * high:.0f} % within its uncertainty"
+              f"{': ' + parts if parts else ''}): not named")
     if not result.steps and result.undecided:
         print(f"no effect named ({', '.join(c.effect for c in result.undecided)} undecided)")
     elif not result.steps:

@@ -5,6 +5,7 @@ random realistic parameters, read by a 12-bit encoder; the workflow sees only th
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -13,7 +14,16 @@ from identify.discrepancy_cases import NOMINAL_LINEAR, hidden_effect_record
 from identify.border_lifting import direction_signal
 from identify.effect_catalogue import EFFECTS
 from identify.effect_signatures import EFFECT_NAMES, signature_scores
-from identify.model_discrepancy import DiscrepancyReport, diagnose_model, disagreement, fit_linear_model
+from identify.model_discrepancy import (
+    REFIT_FOLDS,
+    CandidateResult,
+    DiscrepancyReport,
+    _refit_reduction,
+    _with_refits,
+    diagnose_model,
+    disagreement,
+    fit_linear_model,
+)
 from identify.plant_blocks import DeadZone, Delay, LinearBlock, OutputGain, PlantModel
 from identify.validation import InvalidInputError
 
@@ -196,7 +206,7 @@ def test_a_named_effect_carries_parameter_intervals_containing_its_fit_and_a_gap
     result = run(record)
     assert result.verdict == "named"
     document = result.to_dict()
-    assert document["kind"] == "model_discrepancy" and document["version"] == 2
+    assert document["kind"] == "model_discrepancy" and document["version"] == 3
     assert DiscrepancyReport.from_dict(json.loads(json.dumps(document))) == result.report()
     (entry,) = document["missing_effects"]
     truth = record.true_model.blocks[1]
@@ -210,7 +220,8 @@ def test_a_named_effect_carries_parameter_intervals_containing_its_fit_and_a_gap
     reduction = document["gap_reduction"]
     assert len(reduction["folds"]) == 4 and 0.9 < reduction["low"] <= reduction["high"] <= 1.0
     tried = {c["effect"] for c in document["candidates"] if c["round"] == 0}
-    assert tried == set(EFFECT_NAMES)
+    # every effect, and the inner twin of the hysteresis that won the round (tried as one compound candidate)
+    assert tried == set(EFFECT_NAMES) | {"+".join(EFFECTS["backlash"].inner_twin)}
     assert all(c["gap"] > 0 and c["gap_uncertainty"] >= 0 for c in document["candidates"])
 
 
@@ -328,6 +339,60 @@ def test_an_effect_whose_gap_reduction_straddles_the_acceptance_is_undecided_not
     else:
         assert candidate.acceptance == ("clear" if verdict == "named" else "rejected")
         assert result.undecided == ()
+
+
+def test_a_clear_effect_is_named_with_its_reduction_clear_over_validation_blocks_and_refits():
+    record = hidden_effect_record(("backlash",), 11)
+    result = run(record, candidates=("backlash",))
+    assert result.missing_effects == ("backlash",)
+    (candidate,) = result.candidates
+    assert candidate.acceptance == "clear" and len(candidate.fold_reductions) == REFIT_FOLDS
+    low, high = candidate.reduction_interval
+    assert low >= 0.15 and min(candidate.fold_reductions) >= 0.15
+    for part in (candidate.validation_interval, candidate.refit_interval):
+        assert low <= part[0] <= part[1] <= high  # the interval judged is the union of both
+    document = json.loads(json.dumps(result.to_dict()))
+    assert document["version"] == 3 and len(document["candidates"][0]["fold_reductions"]) == REFIT_FOLDS
+    assert DiscrepancyReport.from_dict(document) == result.report()
+
+
+def _fold_errors(gaps_rad, samples=50, seed=0):
+    rng = np.random.default_rng(seed)
+    return [gap * np.sign(rng.standard_normal(samples)) for gap in gaps_rad]
+
+
+def test_a_reduction_the_refits_put_on_both_sides_of_the_acceptance_is_undecided():
+    # the validation blocks alone say 30-40 %: clear; the folds say 60, 50, 0 and 10 %: pooled 25 %, but
+    # leaving out one fold moves it from 17 to 36 %, so the jackknife interval reaches below 15 %
+    entry = CandidateResult(0, "offset", 0.65, 0.01, 0.65, {"offset_rad": 0.1}, False, True, 0.35, (0.30, 0.40),
+                            "clear", (0.30, 0.40))
+    baseline = _fold_errors([1.0, 1.0, 1.0, 1.0])
+    folds, refit = _refit_reduction(_fold_errors([0.4, 0.5, 1.0, 0.9]), baseline, 1.0)
+    assert folds == pytest.approx((0.6, 0.5, 0.0, 0.1))
+    assert refit[0] < 0.15 < refit[1]
+    judged = _with_refits(entry, folds, refit, 0.15)
+    assert judged.acceptance == "undecided" and judged.reduction_interval == (refit[0], max(0.40, refit[1]))
+    # the same refits all near 35 %: the union stays clear
+    steady, interval = _refit_reduction(_fold_errors([0.64, 0.66, 0.65, 0.65]), baseline, 1.0)
+    assert _with_refits(entry, steady, interval, 0.15).acceptance == "clear"
+    # and refits all near 0 % against a validation interval straddling the acceptance: undecided, not rejected
+    none, interval = _refit_reduction(_fold_errors([1.0, 1.01, 0.99, 1.0]), baseline, 1.0)
+    straddling = replace(entry, validation_interval=(0.05, 0.25), acceptance="undecided")
+    assert _with_refits(straddling, none, interval, 0.15).acceptance == "undecided"
+    assert _with_refits(replace(entry, validation_interval=(0.02, 0.10)), none, interval, 0.15).acceptance \
+        == "rejected"
+
+
+def test_a_version_2_document_is_still_read():
+    record = hidden_effect_record(("backlash",), 11)
+    document = json.loads(json.dumps(run(record, candidates=("backlash",)).to_dict()))
+    document["version"] = 2
+    for candidate in document["candidates"]:
+        for key in ("validation_interval", "fold_reductions", "refit_interval"):
+            del candidate[key]
+    (candidate,) = DiscrepancyReport.from_dict(document).candidates
+    assert candidate.refit_interval is None and candidate.fold_reductions == ()
+    assert candidate.validation_interval == candidate.reduction_interval
 
 
 def test_a_version_1_document_is_still_read():
