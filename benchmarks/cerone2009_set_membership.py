@@ -29,7 +29,6 @@ import math
 import os
 import resource
 import time
-from concurrent.futures import ProcessPoolExecutor
 from functools import partial
 
 import numpy as np
@@ -39,6 +38,7 @@ from identify.feasible_parameter_set import bound_backlash_parameters
 from identify.inner_signal_bounds import bound_inner_signal, shared_backlash_constraints
 from identify.linear_block_bounds import DEFAULT_PARTITION_SAMPLES, bound_linear_block
 from identify.plant_blocks import LinearBlock, OutputBacklash, PlantModel
+from rig.batch import RenewingProcessPool
 
 GAMMA = {"m_l": 0.248, "c_l": 0.0698, "m_r": 0.252, "c_r": 0.0349}
 THETA = {"a1": 0.5, "a2": 0.7, "b1": 1.4, "b2": 0.8}
@@ -100,12 +100,13 @@ def _peak_mib() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
-def _pool_cpu_s(pool: ProcessPoolExecutor | None) -> float:
-    """CPU seconds of the live worker processes (RUSAGE_CHILDREN counts them only once they exit)."""
+def _pool_cpu_s(pool: RenewingProcessPool | None) -> float:
+    """CPU seconds of the live worker processes (RUSAGE_CHILDREN counts them only once they exit; a worker that
+    died is not counted)."""
     if pool is None:
         return 0.0
     total = 0.0
-    for pid in list(getattr(pool, "_processes", {}) or {}):
+    for pid in (process.pid for process in pool.processes()):
         try:
             with open(f"/proc/{pid}/stat") as stat:
                 fields = stat.read().rsplit(")", 1)[1].split()
@@ -121,7 +122,8 @@ def scaling(args: argparse.Namespace) -> None:
     staircase = filtered_staircase(list(np.linspace(0.6, 3.0, 50)), 0.8125, 100)
     steady = staircase_steady_state_indices(50, 100)
     steady_w = plant.simulate(staircase)[steady]
-    pool = ProcessPoolExecutor(args.jobs) if args.jobs > 1 else None
+    # the pool of `rig identify output-backlash --jobs N`: a lost worker's tasks are solved again on a new pool
+    pool = RenewingProcessPool(args.jobs) if args.jobs > 1 else None
     map_windows = map if pool is None else partial(pool.map, chunksize=4)
     print(f"Coupled bounds against the record length: seed {args.seed}, run r of (N, n_bit) from "
           f"default_rng([{args.seed}, N, n_bit, r]); {args.jobs} process(es) for the windows, joint_samples "
@@ -156,11 +158,6 @@ def scaling(args: argparse.Namespace) -> None:
                 if linear.inner_lower is not None:
                     ratio = max((linear.intervals[k].upper - linear.intervals[k].lower)
                                 / max(linear.inner_upper[k] - linear.inner_lower[k], 1e-300) for k in THETA)
-                if pool is not None and any("BrokenProcessPool" in note for note in linear.notes):
-                    # a worker died (the run's bounds stay valid, with a note): the next runs get a new pool
-                    pool.shutdown(wait=False)
-                    pool = ProcessPoolExecutor(args.jobs)
-                    map_windows = partial(pool.map, chunksize=4)
                 rows.append({"wall": wall, "cpu": cpu, "half": [linear.intervals[k].half_width for k in THETA],
                              "in": all(linear.intervals[k].contains(v) for k, v in THETA.items()), "ratio": ratio,
                              "windowing": linear.windowing, "notes": linear.notes})

@@ -367,7 +367,7 @@ class _Counter:
 class _Solver:
     """One HiGHS model of an :class:`_LP`, re-solved for many objectives from the previous basis."""
 
-    def __init__(self, lp: _LP, presolve: str = "on") -> None:
+    def __init__(self, lp: _LP, presolve: str = "on", settings: Mapping[str, Any] | None = None) -> None:
         # highspy.Highs() prints a banner (it would break ``--json`` output): the adapter gives a quiet instance.
         from identify.highs_solver import HighsLp, HighsModelStatus, MatrixFormat, quiet_highs
 
@@ -390,6 +390,10 @@ class _Solver:
         for option, value in _DEFAULT_SETTINGS.items():
             self.highs.setOptionValue(option, value)
         self.highs.setOptionValue("presolve", presolve)
+        # fixed settings for every solve (no switch to the primal simplex warm start after the first)
+        self.fixed_settings = dict(settings or {})
+        for option, value in self.fixed_settings.items():
+            self.highs.setOptionValue(option, value)
         # A bounded time per attempt: a warm start that stalls on a long record's LP (issue 19: one part of a
         # 100 000-sample record kept a worker busy for over 15 minutes) goes on to the recovery settings and,
         # at worst, to the fallback bound, instead of holding up the whole record.
@@ -431,10 +435,10 @@ class _Solver:
                 status = highs.getModelStatus()
                 if status in (self._status.kOptimal, self._status.kInfeasible):
                     break
-            for option, value in _DEFAULT_SETTINGS.items():
+            for option, value in {**_DEFAULT_SETTINGS, **self.fixed_settings}.items():
                 highs.setOptionValue(option, value)
             self.warm = False
-        if status == self._status.kOptimal and not self.warm:
+        if status == self._status.kOptimal and not self.warm and not self.fixed_settings:
             # The optimal basis stays primal feasible when only the objective changes, so primal simplex
             # without presolve continues from it for the next objectives.
             highs.setOptionValue("simplex_strategy", 4)
@@ -578,7 +582,7 @@ def _orthant_lp(data: _Data, signs: tuple[int, ...]) -> _LP:
     return _LP(sp.csr_matrix(A_ub), b_ub, A_eq, b_eq, lower, upper)
 
 
-def _bounds_over(lp: _LP, p: int, counter: _Counter, wanted: NDArray[np.bool_] | None = None
+def _bounds_over(lp: _LP, p: int, counter: _Counter, wanted: NDArray[np.bool_] | None = None, retry: bool = False
                  ) -> tuple[NDArray[np.float64], NDArray[np.float64], list[NDArray[np.float64] | None]]:
     """Certified min and max of each of the first p variables, with the minimisers/maximisers
     (``points[2k]`` minimises and ``points[2k + 1]`` maximises variable k), on one HiGHS model whose
@@ -586,14 +590,15 @@ def _bounds_over(lp: _LP, p: int, counter: _Counter, wanted: NDArray[np.bool_] |
 
     ``wanted`` (2p booleans in the order of ``points``; all by default) names the bounds to solve: the others
     are the LP's own column bounds (the caller's box, valid for every point of the set) with point None, so a
-    caller that needs only the bounds still moving saves their LPs (:func:`_coupled_bounds`).
+    caller that needs only the bounds still moving saves their LPs (:func:`_coupled_bounds`). ``retry``: every
+    solve by :data:`RETRY_SETTINGS` (a task solved again after a crash, :class:`_GuardedMap`).
 
     A bound whose LP HiGHS cannot solve (after the recovery settings of :meth:`_Solver.minimize`) is the
     LP's own column bound for that variable, which holds for every point of the set (the caller's current
     box); it is recorded in ``counter.fallbacks`` and its point is None."""
     lows, highs = lp.lower[:p].copy(), lp.upper[:p].copy()
     points: list[NDArray[np.float64] | None] = [None] * (2 * p)
-    solver = _Solver(lp)
+    solver = _Solver(lp, settings=RETRY_SETTINGS if retry else None)
     for index in range(2 * p):
         if wanted is not None and not wanted[index]:
             continue
@@ -803,7 +808,7 @@ def _with_shared_backlash(lp: _LP, data: _Data, p: int) -> _LP:
 def _tighten(data: _Data, low: NDArray[np.float64], high: NDArray[np.float64], counter: _Counter, max_rounds: int,
              relative_improvement: float, full_last_round: bool,
              relaxation: Callable[[_Data, NDArray[np.float64], NDArray[np.float64]], _LP] | None = None,
-             full_rounds: bool = False, wanted: NDArray[np.bool_] | None = None
+             full_rounds: bool = False, wanted: NDArray[np.bool_] | None = None, retry: bool = False
              ) -> tuple[NDArray[np.float64], NDArray[np.float64], int, list[NDArray[np.float64]], bool]:
     """Rounds of the McCormick relaxation: LPs over a only tighten the box of a (which sets the envelopes)
     until no a-interval shrinks by more than ``relative_improvement`` or ``max_rounds`` relaxations were
@@ -811,7 +816,7 @@ def _tighten(data: _Data, low: NDArray[np.float64], high: NDArray[np.float64], c
     does (the bounds of b then tighten each other through the unit-gain row). Returns the box, the rounds,
     the extreme points of the last round and whether the relaxation was proven empty. ``relaxation`` builds
     the LP from (data, low, high); McCormick (:func:`_coupled_lp`) by default. ``wanted`` (2p booleans, see
-    :func:`_bounds_over`) limits every round to those bounds."""
+    :func:`_bounds_over`) limits every round to those bounds, ``retry`` is passed on to it."""
     relaxation = _coupled_lp if relaxation is None else relaxation
     p, na = data.orders.num_parameters, data.orders.na
     rounds = 0
@@ -821,7 +826,8 @@ def _tighten(data: _Data, low: NDArray[np.float64], high: NDArray[np.float64], c
         final = converged or rounds >= max_rounds
         lp = relaxation(data, low, high)
         count = p if (full_rounds or (final and full_last_round)) else na
-        new_low, new_high, points = _bounds_over(lp, count, counter, None if wanted is None else wanted[: 2 * count])
+        new_low, new_high, points = _bounds_over(lp, count, counter, None if wanted is None else wanted[: 2 * count],
+                                                 retry)
         if not np.all(np.isfinite(new_low)):
             if _proven_infeasible(lp, counter):
                 return low, high, rounds, [], True
@@ -912,27 +918,28 @@ def _restrict(data: _Data, segments: Sequence[tuple[int, int]]) -> _Data:
 
 
 def _window_task(task: tuple[str, _Data, NDArray[np.float64], NDArray[np.float64], NDArray[np.float64] | None,
-                             NDArray[np.bool_] | None]) -> tuple[Any, _Counter]:
+                             NDArray[np.bool_] | None, bool]) -> tuple[Any, _Counter]:
     """One window's work, in this or another process (module level, plain data in and out).
 
-    ``("bounds", window, low, high, None, wanted)``: certified bounds on the window's interval relaxation over
-    the box. ``("joint", part, low, high, [max_rounds, tolerance], wanted)``: the rounds of the interval
-    relaxation on a part of the record (:func:`_tighten`): its box, rounds, the θ of its extreme points and
-    whether it is proven empty. ``wanted`` (2p booleans, None: all) names the bounds to solve
-    (:func:`_bounds_over`); the others come back as the box given."""
-    kind, window, low, high, settings, wanted = task
+    ``("bounds", window, low, high, None, wanted, retry)``: certified bounds on the window's interval
+    relaxation over the box. ``("joint", part, low, high, [max_rounds, tolerance], wanted, retry)``: the
+    rounds of the interval relaxation on a part of the record (:func:`_tighten`): its box, rounds, the θ of its
+    extreme points and whether it is proven empty. ``wanted`` (2p booleans, None: all) names the bounds to solve
+    (:func:`_bounds_over`); the others come back as the box given. ``retry``: solved by :data:`RETRY_SETTINGS`
+    (a task solved again after its worker died, :class:`_GuardedMap`)."""
+    kind, window, low, high, settings, wanted, retry = task
     counter = _Counter()
     if kind == "joint":
         assert settings is not None
         counter.stage = f"joint relaxation of {window.u.size} samples"
         max_rounds, tolerance = int(settings[0]), float(settings[1])
         low, high, used, extreme, empty = _tighten(window, low, high, counter, max_rounds, tolerance, True,
-                                                   _FULL_DATA_RELAXATION, wanted=wanted)
+                                                   _FULL_DATA_RELAXATION, wanted=wanted, retry=retry)
         return (low, high, used, [None if x is None else x[: window.orders.num_parameters] for x in extreme],
                 empty), counter
     counter.stage = "window relaxation"
     new_low, new_high, _ = _bounds_over(_FULL_DATA_RELAXATION(window, low, high), window.orders.num_parameters,
-                                        counter, wanted)
+                                        counter, wanted, retry)
     return (new_low, new_high), counter
 
 
@@ -1140,14 +1147,25 @@ def _moment_bounds(data: _Data, low: NDArray[np.float64], high: NDArray[np.float
     return np.maximum(low, new_low), np.minimum(high, new_high), cuts.sdp_s
 
 
+RETRY_SETTINGS = {"solver": "ipm", "run_crossover": "off", "presolve": "on"}
+"""HiGHS settings for every solve of a task a dead worker left unfinished, solved once more
+(:class:`_GuardedMap`): the interior-point method without crossover (its duals are all the certificate of
+:meth:`_Solver.minimize` needs). The worker deaths met so far were HiGHS 1.16 overflowing its stack in the dual
+simplex (``HEkkDualRHS::chooseNormal``), which the interior-point method does not run; the solver is
+deterministic, so the same task by the dual simplex would die again (and did, with presolve off: N = 100 000,
+8 bits, run 0, BENCHMARKS.md "Record length, session 4"). It costs about 3 times the simplex on a part."""
+
+
 class _GuardedMap:
     """``map_windows(_window_task, tasks)`` that survives the loss of the processes running it.
 
     A worker process that dies (a segfault inside HiGHS, the out-of-memory killer) breaks a process pool
-    (``BrokenProcessPool``, a ``BrokenExecutor``) and a Dask cluster reports ``KilledWorker``. Every window's
-    and part's box contains the feasible set, so the results that did arrive still give a valid bound: the
-    map stops there, the failure is recorded for the notes, and every later stage gets no results (it keeps
-    the box it was given) instead of the user getting a traceback."""
+    (``BrokenProcessPool``, a ``BrokenExecutor``) and a Dask cluster reports ``KilledWorker``. The tasks that
+    did not finish are solved once more, each in its own map call and by :data:`RETRY_SETTINGS` (a pool that
+    starts anew after a lost worker, ``rig.batch``'s, or a Dask cluster, takes them; a broken pool refuses them
+    at once). If that fails too, every window's and part's box still contains the feasible set, so the results
+    that did arrive give a valid bound: the map stops there, the failure is recorded for the notes, and every
+    later stage gets no results (it keeps the box it was given) instead of the user getting a traceback."""
 
     def __init__(self, map_windows: MapFunction, counter: _Counter) -> None:
         self._map = map_windows
@@ -1160,20 +1178,40 @@ class _GuardedMap:
         cannot leave a core idle on a few long tasks."""
         if self.failure is not None:
             return
+        tasks = list(tasks)
+        finished = 0
         try:
-            if one_per_call:
-                pending = [self._map(_window_task, [task]) for task in tasks]
-                outcomes: Iterable[Any] = (outcome for batch in pending for outcome in batch)
-            else:
-                outcomes = self._map(_window_task, tasks)
-            for result, done in outcomes:
-                self._counter.merge(done)
+            for result in self._outcomes(tasks, one_per_call):
+                finished += 1
                 yield result
+            return
         except Exception as error:  # noqa: BLE001 - only the executor's own failures, re-raised otherwise
-            if not (isinstance(error, BrokenExecutor) or type(error).__name__ == "KilledWorker"):
-                raise
-            self.failure = f"{type(error).__name__}: {error}".rstrip(": ")
-            self._counter.lost_stages.append((stage, self.failure))
+            first = self._lost_worker(error)
+        _LOG.warning("%s: %s; solving its %d unfinished task(s) again by the interior-point method", stage, first,
+                     len(tasks) - finished)
+        try:
+            yield from self._outcomes([(*task[:-1], True) for task in tasks[finished:]], True)
+        except Exception as error:  # noqa: BLE001 - as above
+            self._lost_worker(error)
+            self.failure = first
+            self._counter.lost_stages.append((stage, first))
+
+    def _outcomes(self, tasks: list[Any], one_per_call: bool) -> Iterable[Any]:
+        if one_per_call:
+            pending = [self._map(_window_task, [task]) for task in tasks]
+            outcomes: Iterable[Any] = (outcome for batch in pending for outcome in batch)
+        else:
+            outcomes = self._map(_window_task, tasks)
+        for result, done in outcomes:
+            self._counter.merge(done)
+            yield result
+
+    @staticmethod
+    def _lost_worker(error: Exception) -> str:
+        """The message of an executor's lost worker; any other error is raised again."""
+        if not (isinstance(error, BrokenExecutor) or type(error).__name__ == "KilledWorker"):
+            raise error
+        return f"{type(error).__name__}: {error}".rstrip(": ")
 
 
 def _coupled_bounds(data: _Data, low: NDArray[np.float64], high: NDArray[np.float64], counter: _Counter,
@@ -1218,7 +1256,7 @@ def _coupled_bounds(data: _Data, low: NDArray[np.float64], high: NDArray[np.floa
     for passes in range(1, max(max_rounds, 1) + 1):
         label = f"window pass {passes}"
         new_low, new_high = low.copy(), high.copy()
-        tasks = (("bounds", windows[k], low, high, None, mask) for k, mask in zip(active, wanted))
+        tasks = (("bounds", windows[k], low, high, None, mask, False) for k, mask in zip(active, wanted))
         for count, (k, mask, (lows, highs)) in enumerate(zip(active, wanted, guarded.results(tasks, label))):
             own.record(k, lows, highs, mask)
             new_low, new_high = np.maximum(new_low, lows), np.minimum(new_high, highs)
@@ -1273,7 +1311,7 @@ def _coupled_bounds(data: _Data, low: NDArray[np.float64], high: NDArray[np.floa
         last_pass_parts = len(active_parts)
         new_low, new_high = low.copy(), high.copy()
         best_low, best_high = np.full(p, -math.inf), np.full(p, math.inf)
-        tasks = (("joint", _restrict(data, [chunks[c]]), low, high, settings, mask)
+        tasks = (("joint", _restrict(data, [chunks[c]]), low, high, settings, mask, False)
                  for c, mask in zip(active_parts, part_wanted))
         if progress is not None:
             progress(label, 0, len(active_parts))

@@ -19,7 +19,7 @@ import functools
 import os
 import tempfile
 from collections.abc import Callable, Iterator, Mapping, Sequence
-from concurrent.futures import Executor, ProcessPoolExecutor
+from concurrent.futures import BrokenExecutor, Executor, Future, ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -90,20 +90,62 @@ def executor_for(jobs: int, scheduler: str | None = None, *, isolated: bool = Fa
     if workers == 1 and not isolated:
         yield None
         return
-    pool = ProcessPoolExecutor(max_workers=workers, initializer=_worker_start)
+    pool = RenewingProcessPool(workers)
     try:
         yield pool
     except BaseException:
         # Ctrl-C or an error: do not wait minutes for the files in progress; the workers ignore SIGINT (the
         # main process alone reports it) and end at SIGTERM without a word
-        workers = list((getattr(pool, "_processes", None) or {}).values())  # shutdown() forgets them
+        processes = pool.processes()  # shutdown() forgets them
         pool.shutdown(wait=False, cancel_futures=True)
-        for process in workers:
+        for process in processes:
             with contextlib.suppress(Exception):
                 process.terminate()
         raise
     else:
         pool.shutdown(wait=True)
+
+
+class RenewingProcessPool(Executor):
+    """A local process pool that starts a new one when a worker died: a ``ProcessPoolExecutor`` whose worker
+    was killed (a crash in native code, the out-of-memory killer) fails the tasks it held with
+    ``BrokenProcessPool`` and refuses every later one; this one fails the same tasks, then takes new ones on a
+    fresh pool, so that a caller may solve them again (:class:`identify.linear_block_bounds._GuardedMap`
+    retries a lost window once)."""
+
+    def __init__(self, workers: int) -> None:
+        self.workers = workers
+        self._pool = self._new()
+
+    def _new(self) -> ProcessPoolExecutor:
+        return ProcessPoolExecutor(max_workers=self.workers, initializer=_worker_start)
+
+    def _renewed(self) -> ProcessPoolExecutor:
+        self._pool.shutdown(wait=False, cancel_futures=True)
+        self._pool = self._new()
+        return self._pool
+
+    def submit(self, fn: Callable[..., Any], /, *args: Any, **kwargs: Any) -> Future:
+        try:
+            return self._pool.submit(fn, *args, **kwargs)
+        except BrokenExecutor:
+            return self._renewed().submit(fn, *args, **kwargs)
+
+    def map(self, fn: Callable[..., Any], *iterables: Any, timeout: float | None = None,
+            chunksize: int = 1) -> Iterator[Any]:
+        """``ProcessPoolExecutor.map`` (tasks sent in chunks) on the current pool, or on a new one if it broke
+        (``iterables`` must be sequences then: the refused first chunk was taken from them)."""
+        try:
+            return self._pool.map(fn, *iterables, timeout=timeout, chunksize=chunksize)
+        except BrokenExecutor:
+            return self._renewed().map(fn, *iterables, timeout=timeout, chunksize=chunksize)
+
+    def shutdown(self, wait: bool = True, *, cancel_futures: bool = False) -> None:
+        self._pool.shutdown(wait=wait, cancel_futures=cancel_futures)
+
+    def processes(self) -> list[Any]:
+        """The current pool's worker processes."""
+        return list((getattr(self._pool, "_processes", None) or {}).values())
 
 
 def usable_cores() -> int:
@@ -152,7 +194,7 @@ def map_callable(executor: Executor | None, chunksize: int = 4) -> Callable[...,
     nothing of ``rig``). Local processes get the tasks in chunks (small tasks cost less to send)."""
     if executor is None:
         return map
-    if isinstance(executor, ProcessPoolExecutor):
+    if isinstance(executor, (ProcessPoolExecutor, RenewingProcessPool)):
         return functools.partial(executor.map, chunksize=chunksize)
     return executor.map
 

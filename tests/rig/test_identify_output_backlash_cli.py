@@ -199,6 +199,39 @@ def test_a_solver_crash_with_one_job_costs_the_worker_not_the_command(long_files
         assert looser["lower"] <= interval["lower"] and interval["upper"] <= looser["upper"]
 
 
+def _window_task_that_dies_in_the_joint_parts_by_the_simplex(task):
+    """A worker dying in a joint part's dual simplex solve, as HiGHS 1.16 did on N = 100 000, 8 bits."""
+    import os
+    import signal
+
+    import identify.linear_block_bounds as module
+
+    if task[0] == "joint" and not task[-1]:  # not a retry
+        os.kill(os.getpid(), signal.SIGKILL)
+    return module._ORIGINAL_WINDOW_TASK(task)
+
+
+def test_the_tasks_a_dead_worker_left_are_solved_again_by_the_interior_point_method(long_files, capsys,
+                                                                                      monkeypatch) -> None:
+    """The pool starts anew after the lost worker (rig.batch.RenewingProcessPool) and the unfinished parts are
+    solved once more by the interior-point method: the bounds are the method's (no note), not the looser ones."""
+    import identify.linear_block_bounds as module
+
+    options = ("--joint-samples", "400", "--partition-samples", "0", "--json")
+    assert main(_args(long_files, *options)) == exit_codes.SUCCESS
+    whole = json.loads(capsys.readouterr().out)
+    monkeypatch.setattr(module, "_ORIGINAL_WINDOW_TASK", module._window_task, raising=False)
+    monkeypatch.setattr(module, "_window_task", _window_task_that_dies_in_the_joint_parts_by_the_simplex)
+    assert main(_args(long_files, *options)) == exit_codes.SUCCESS
+    retried = json.loads(capsys.readouterr().out)
+    assert "notes" not in retried
+    for name, interval in whole["linear"].items():
+        again = retried["linear"][name]
+        width = interval["upper"] - interval["lower"]  # the interior point's certificate differs by its rounding
+        assert again["lower"] == pytest.approx(interval["lower"], abs=1e-3 * width)
+        assert again["upper"] == pytest.approx(interval["upper"], abs=1e-3 * width)
+
+
 def test_moment_samples_adds_the_moment_cuts_says_so_and_never_widens_a_bound(files, capsys) -> None:
     assert main(_args(files, "--partition-samples", "0", "--json")) == exit_codes.SUCCESS
     plain = json.loads(capsys.readouterr().out)
