@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import json
 
 import numpy as np
@@ -169,14 +170,16 @@ def test_windows_of_one_record_run_in_worker_processes_with_the_same_bounds(long
     assert "--jobs: expected 0 (all cores)" in capsys.readouterr().err
 
 
-def _window_task_that_dies_in_the_joint_parts(task):
-    """A worker dying as in a HiGHS stack overflow (BENCHMARKS.md, "Record length, session 4"), by SIGKILL."""
+def _window_task_that_dies_in_the_joint_parts(task, retries_too: bool):
+    """A worker dying as in a HiGHS stack overflow in the dual simplex (BENCHMARKS.md, "Record length, session
+    4"), by SIGKILL: in every joint part, or (``retries_too`` False) only in those not solved again by the
+    interior-point method."""
     import os
     import signal
 
     import identify.linear_block_bounds as module
 
-    if task[0] == "joint":
+    if task[0] == "joint" and (retries_too or not task[-1]):
         os.kill(os.getpid(), signal.SIGKILL)
     return module._ORIGINAL_WINDOW_TASK(task)
 
@@ -190,25 +193,14 @@ def test_a_solver_crash_with_one_job_costs_the_worker_not_the_command(long_files
     assert main(_args(long_files, *options)) == exit_codes.SUCCESS
     whole = json.loads(capsys.readouterr().out)
     monkeypatch.setattr(module, "_ORIGINAL_WINDOW_TASK", module._window_task, raising=False)
-    monkeypatch.setattr(module, "_window_task", _window_task_that_dies_in_the_joint_parts)
+    monkeypatch.setattr(module, "_window_task", functools.partial(_window_task_that_dies_in_the_joint_parts,
+                                                                 retries_too=True))
     assert main(_args(long_files, *options)) == exit_codes.SUCCESS
     crashed = json.loads(capsys.readouterr().out)
     assert len(crashed["notes"]) == 1 and "BrokenProcessPool" in crashed["notes"][0]
     for name, interval in whole["linear"].items():
         looser = crashed["linear"][name]
         assert looser["lower"] <= interval["lower"] and interval["upper"] <= looser["upper"]
-
-
-def _window_task_that_dies_in_the_joint_parts_by_the_simplex(task):
-    """A worker dying in a joint part's dual simplex solve, as HiGHS 1.16 did on N = 100 000, 8 bits."""
-    import os
-    import signal
-
-    import identify.linear_block_bounds as module
-
-    if task[0] == "joint" and not task[-1]:  # not a retry
-        os.kill(os.getpid(), signal.SIGKILL)
-    return module._ORIGINAL_WINDOW_TASK(task)
 
 
 def test_the_tasks_a_dead_worker_left_are_solved_again_by_the_interior_point_method(long_files, capsys,
@@ -221,7 +213,8 @@ def test_the_tasks_a_dead_worker_left_are_solved_again_by_the_interior_point_met
     assert main(_args(long_files, *options)) == exit_codes.SUCCESS
     whole = json.loads(capsys.readouterr().out)
     monkeypatch.setattr(module, "_ORIGINAL_WINDOW_TASK", module._window_task, raising=False)
-    monkeypatch.setattr(module, "_window_task", _window_task_that_dies_in_the_joint_parts_by_the_simplex)
+    monkeypatch.setattr(module, "_window_task", functools.partial(_window_task_that_dies_in_the_joint_parts,
+                                                                 retries_too=False))
     assert main(_args(long_files, *options)) == exit_codes.SUCCESS
     retried = json.loads(capsys.readouterr().out)
     assert "notes" not in retried
