@@ -69,8 +69,9 @@ def executor_for(jobs: int, scheduler: str | None = None, *, isolated: bool = Fa
     ``scheduler``, or None for one job in this process; ``isolated``: a pool of one worker for one job
     too, for tasks whose native code may crash the process running them (HiGHS 1.16 can overflow its
     stack on a bounding LP: BENCHMARKS.md, "Record length"), so that a crash costs the tasks of that worker,
-    which the caller survives, not the command. A pool starts its worker at the first task: a caller that
-    maps nothing pays nothing."""
+    which the caller survives, not the command. A local pool starts anew after a lost worker
+    (:class:`RenewingProcessPool`), and it starts its workers at the first task: a caller that maps nothing
+    pays nothing."""
     if scheduler is not None:
         try:
             from dask.distributed import Client
