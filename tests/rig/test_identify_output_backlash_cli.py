@@ -184,9 +184,9 @@ def _window_task_that_dies_in_the_joint_parts(task, retries_too: bool):
     return module._ORIGINAL_WINDOW_TASK(task)
 
 
-def test_a_solver_crash_with_one_job_costs_the_worker_not_the_command(long_files, capsys, monkeypatch) -> None:
-    """With --jobs 1 (the default) the windows and parts still run in a worker process: a crash inside HiGHS
-    kills that worker, and the command ends with valid, looser bounds and a note saying why."""
+def _bounds_without_and_with_dying_workers(long_files, capsys, monkeypatch, retries_too: bool) -> tuple[dict, dict]:
+    """The ``--json`` documents of a long record (--jobs 1, the default) bounded as it is and with the worker
+    of every joint part killed (:func:`_window_task_that_dies_in_the_joint_parts`)."""
     import identify.linear_block_bounds as module
 
     options = ("--joint-samples", "400", "--partition-samples", "0", "--json")
@@ -194,9 +194,15 @@ def test_a_solver_crash_with_one_job_costs_the_worker_not_the_command(long_files
     whole = json.loads(capsys.readouterr().out)
     monkeypatch.setattr(module, "_ORIGINAL_WINDOW_TASK", module._window_task, raising=False)
     monkeypatch.setattr(module, "_window_task", functools.partial(_window_task_that_dies_in_the_joint_parts,
-                                                                 retries_too=True))
+                                                                 retries_too=retries_too))
     assert main(_args(long_files, *options)) == exit_codes.SUCCESS
-    crashed = json.loads(capsys.readouterr().out)
+    return whole, json.loads(capsys.readouterr().out)
+
+
+def test_a_solver_crash_with_one_job_costs_the_worker_not_the_command(long_files, capsys, monkeypatch) -> None:
+    """With --jobs 1 (the default) the windows and parts still run in a worker process: a crash inside HiGHS
+    kills that worker (and the retry's), and the command ends with valid, looser bounds and a note saying why."""
+    whole, crashed = _bounds_without_and_with_dying_workers(long_files, capsys, monkeypatch, retries_too=True)
     assert len(crashed["notes"]) == 1 and "BrokenProcessPool" in crashed["notes"][0]
     for name, interval in whole["linear"].items():
         looser = crashed["linear"][name]
@@ -207,16 +213,7 @@ def test_the_tasks_a_dead_worker_left_are_solved_again_by_the_interior_point_met
                                                                                       monkeypatch) -> None:
     """The pool starts anew after the lost worker (rig.batch.RenewingProcessPool) and the unfinished parts are
     solved once more by the interior-point method: the bounds are the method's (no note), not the looser ones."""
-    import identify.linear_block_bounds as module
-
-    options = ("--joint-samples", "400", "--partition-samples", "0", "--json")
-    assert main(_args(long_files, *options)) == exit_codes.SUCCESS
-    whole = json.loads(capsys.readouterr().out)
-    monkeypatch.setattr(module, "_ORIGINAL_WINDOW_TASK", module._window_task, raising=False)
-    monkeypatch.setattr(module, "_window_task", functools.partial(_window_task_that_dies_in_the_joint_parts,
-                                                                 retries_too=False))
-    assert main(_args(long_files, *options)) == exit_codes.SUCCESS
-    retried = json.loads(capsys.readouterr().out)
+    whole, retried = _bounds_without_and_with_dying_workers(long_files, capsys, monkeypatch, retries_too=False)
     assert "notes" not in retried
     for name, interval in whole["linear"].items():
         again = retried["linear"][name]
