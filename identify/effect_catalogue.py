@@ -203,6 +203,11 @@ class Effect:
         Dynamics effects: (fitted train, its free run y^, the angle resolution e) -> half-widths by which
         the parameters' intervals are widened: what an angle known only within +-e leaves unresolved of a
         torque or a limit (the fold refits all see the same quantised levels and cannot show it).
+    loop_damping_value
+        Dynamics effects: the index of the free value that is a viscous damping per inertia d / J (1/s) on
+        the load's speed, which adds to the velocity loop's own K_v / J = 2 zeta omega_n: when the loop is
+        fitted too, the record shows mainly their sum, and the parameter's interval is walked along that
+        trade (``_loop_traded_intervals`` in :mod:`identify.model_discrepancy`).
     """
 
     name: str
@@ -231,6 +236,7 @@ class Effect:
     inner_twin: tuple[str, ...] = ()
     half_widths: Callable[[Any], tuple[float, float]] | None = None
     width_starts: Callable[[float, DriveTrain], list[tuple[float, ...]]] | None = None
+    loop_damping_value: int | None = None
 
     def in_train(self, values: Sequence[float], train: DriveTrain) -> DriveTrain:
         """``train`` with this dynamics effect's fields set from its free ``values``."""
@@ -727,6 +733,7 @@ EFFECTS: dict[str, Effect] = {effect.name: effect for effect in (
         width_starts=_friction_width_starts,
         resolution=lambda train, y_hat, e: _torque_resolution(
             train, ("coulomb_per_inertia_rad_per_s2", "static_per_inertia_rad_per_s2"), e),
+        loop_damping_value=2,  # d_v / J
     ),
     Effect(
         name="gravity", block_class=DriveTrain, toml_type="drive_train",

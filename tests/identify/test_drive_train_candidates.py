@@ -167,3 +167,15 @@ def test_the_breakaway_of_a_friction_is_refitted_when_a_play_is_fitted_through_i
     assert step.parameters["static_per_inertia_rad_per_s2"] == pytest.approx(truth, rel=0.1)
     low, high = result.parameter_intervals["load_friction"]["static_per_inertia_rad_per_s2"]
     assert low <= truth <= high
+
+
+def test_from_a_fitted_start_a_loads_viscous_friction_is_given_the_range_the_loops_damping_can_trade():
+    # with the loop fitted too, the record shows mainly K_v / J + d_v / J: the fit put it all in the loop
+    # (seed 1004: d_v / J 0.002 against the truth's 41.5 1/s) and the fold refits, started there, gave [0, 0.04]
+    record = hidden_effect_record(("load_friction",), 1004)
+    result = diagnose_model(record.command_rad, record.angle_rad, record.noise_bound_rad, record.sample_period_s)
+    assert result.missing_effects == ("load_friction",)
+    (train,) = record.true_model.blocks
+    for key, value in effect("load_friction").report(train).items():
+        low, high = result.parameter_intervals["load_friction"][key]
+        assert low <= value <= high, f"{key}: truth {value:g} outside [{low:g}, {high:g}]"
