@@ -1806,6 +1806,21 @@ def _search(state: _Search, remaining: list[str], u: NDArray[np.float64], y: NDA
     remaining = list(remaining)
     round_index = len(steps)
     validation_error = state.validation_error_rad
+
+    def to_end(followed: _Search, rest: list[str]) -> _Search:
+        # a contender's own search to its end, without tie resolution, with a family member named before its
+        # last step decided again with every effect in (as the final model's are, :func:`_family_rechecked`);
+        # when that renames one, the search goes on from the renamed model (what it left undecided was judged
+        # against the other member's)
+        end = _search(followed, rest, u, y, n_est, delta, period, options, lambda _m: None, resolve_ties=False)
+        rechecked = _family_rechecked(end, options.candidates, u, y, n_est, delta, options, lambda _m: None)
+        named = [step.effect for step in rechecked.steps]
+        if named == [step.effect for step in end.steps]:
+            return end
+        return _search(_Search(rechecked.chain, rechecked.current, rechecked.steps, rechecked.tried, (),
+                               rechecked.validation_error_rad), [n for n in rest if n not in named], u, y, n_est,
+                       delta, period, options, lambda _m: None, resolve_ties=False)
+
     while len(steps) < max_effects and current.falsified_fraction > consistent_fraction and remaining:
         if steps and chain.vector().size:
             # the same structure refitted at least as long as the candidates will be: the baseline they must
@@ -1882,12 +1897,10 @@ def _search(state: _Search, remaining: list[str], u: NDArray[np.float64], y: NDA
                 continue
             if judged == "tie" and "clear" in (word, this_round[best.kind].acceptance):
                 if resolve_ties:  # as for rivals: each explanation followed to the end of its own search
-                    ends = [_search(_add_step(best, chain, current, steps, tried_all, u, y, n_est, delta, scores, tried,
-                                              max_evaluations), [n for n in remaining if n != best.kind], u, y, n_est,
-                                    delta, period, options, lambda _m: None, resolve_ties=False),
-                            _search(_add_compound(parts, chain, current, steps, tried_all, u, y, n_est, delta, scores,
-                                                  tried, max_evaluations), [n for n in remaining if n not in twin],
-                                    u, y, n_est, delta, period, options, lambda _m: None, resolve_ties=False)]
+                    ends = [to_end(_add_step(best, chain, current, steps, tried_all, u, y, n_est, delta, scores, tried,
+                                             max_evaluations), [n for n in remaining if n != best.kind]),
+                            to_end(_add_compound(parts, chain, current, steps, tried_all, u, y, n_est, delta, scores,
+                                                 tried, max_evaluations), [n for n in remaining if n not in twin])]
                     chosen = _clear_end(ends, complexity_penalty)
                     if chosen is not None:
                         say(f"the tie resolves when followed to the end: {', '.join(s.effect for s in chosen.steps)}")
@@ -1903,10 +1916,9 @@ def _search(state: _Search, remaining: list[str], u: NDArray[np.float64], y: NDA
                 by_kind = {c.kind: c for c in tried}
                 followed = _one_per_family([by_kind[c.effect] for c in undecided if c.effect in by_kind], tried,
                                            penalised, current.gap_rad)
-                ends = [_search(_add_step(candidate, chain, current, steps, tried_all, u, y, n_est, delta, scores,
-                                          tried, max_evaluations),
-                                [n for n in remaining if n != candidate.kind], u, y, n_est, delta, period, options,
-                                lambda _m: None, resolve_ties=False) for candidate in followed]
+                ends = [to_end(_add_step(candidate, chain, current, steps, tried_all, u, y, n_est, delta, scores,
+                                         tried, max_evaluations), [n for n in remaining if n != candidate.kind])
+                        for candidate in followed]
                 ends = [end for end in ends
                         if _clearly_better_end(end, len(steps), current, validation_error, baseline_folds, u, y,
                                                options)]
@@ -1928,8 +1940,7 @@ def _search(state: _Search, remaining: list[str], u: NDArray[np.float64], y: NDA
             for kind in (best.kind, *rivals):
                 step_state = _add_step(by_kind[kind], chain, current, steps, tried_all, u, y, n_est, delta, scores,
                                        tried, max_evaluations)
-                ends.append(_search(step_state, [n for n in remaining if n != kind], u, y, n_est, delta, period,
-                                    options, lambda _m: None, resolve_ties=False))
+                ends.append(to_end(step_state, [n for n in remaining if n != kind]))
             chosen = _clear_end(ends, complexity_penalty)
             if chosen is None:
                 ambiguous_between = (best.kind, *rivals)
