@@ -1877,13 +1877,18 @@ def _search(state: _Search, remaining: list[str], u: NDArray[np.float64], y: NDA
                                                     pair_penalised, current.gap_rad, min_reduction)
             pair_name = "+".join(twin)
             say(f"  {pair_name} (the inner twin of {best.kind}): validated gap {pair.gap_rad:.3g} rad")
+            # a twin with a member that vanished in its fit is the other member alone, a candidate of its own
+            pair_vanished = any(EFFECTS[name].vanished(pair.block, delta) for name in twin)
             tried_all.append(CandidateResult(
                 round=round_index - 1, effect=pair_name, gap_rad=pair.gap_rad,
                 gap_uncertainty_rad=_gap_uncertainty(pair.validation_error_rad), penalised_gap_rad=pair_penalised,
                 parameters={key: value for name in twin for key, value in _parameters(name, pair.block).items()},
-                vanished=False, helps=pair_penalised <= (1.0 - min_reduction) * current.gap_rad,
-                reduction=reduction, reduction_interval=interval, acceptance=word, validation_interval=interval))
-            judged = _twin_judgement(best, penalised[best.kind], pair, pair_penalised, complexity_penalty)
+                vanished=pair_vanished,
+                helps=not pair_vanished and pair_penalised <= (1.0 - min_reduction) * current.gap_rad,
+                reduction=reduction, reduction_interval=interval, acceptance="vanished" if pair_vanished else word,
+                validation_interval=interval))
+            judged = "best" if pair_vanished else _twin_judgement(best, penalised[best.kind], pair, pair_penalised,
+                                                                  complexity_penalty)
             if judged != "best":  # the pair may be named or listed: judged on its refits too, as a single effect is
                 tried_all.append(_refit_judged(tried_all.pop(), pair.chain, factor, baseline_folds, u, y, options))
                 word = tried_all[-1].acceptance
