@@ -46,21 +46,25 @@ EMPS = next((parent / "shared" / "realdata" for parent in Path(__file__).resolve
 
 def run_case(effects: tuple[str, ...], seed: int, start: str) -> dict:
     """One hidden-effect record diagnosed: the named effects, the verdict, the gap reduction, and per named
-    true effect how many of its parameter intervals hold the truth."""
+    true effect how many of its parameter intervals hold the truth (``missed``: the others, with the truth
+    and the interval, in the case's line on stderr)."""
     record = hidden_effect_record(effects, seed)
     started = time.perf_counter()
     result = diagnose_model(record.command_rad, record.angle_rad, record.noise_bound_rad,
                             record.sample_period_s, record.nominal_model if start == "given" else None)
-    covered = [0, 0]
+    covered, missed = [0, 0], []
     for name in set(effects) & set(result.missing_effects):
         entry = effect(name)
         truth = entry.report(next(b for b in record.true_model.blocks if isinstance(b, entry.block_class)))
         for key, (low, high) in result.parameter_intervals.get(name, {}).items():
-            covered[0] += low <= truth[key] <= high
+            inside = low <= truth[key] <= high
+            covered[0] += inside
             covered[1] += 1
+            if not inside:
+                missed.append(f"{name}.{key}: truth {truth[key]:.4g} outside [{low:.4g}, {high:.4g}]")
     return {"named": tuple(result.missing_effects), "verdict": result.verdict,
             "reduction": 1.0 - result.final.gap_rad / result.initial.gap_rad if result.initial.gap_rad > 0 else 0.0,
-            "covered": covered, "seconds": time.perf_counter() - started}
+            "covered": covered, "missed": missed, "seconds": time.perf_counter() - started}
 
 
 def _run_rows(rows: tuple[tuple[str, ...], ...], cases: int, start: str, first_seed: int,
