@@ -18,7 +18,16 @@ import pytest
 from identify.discrepancy_cases import hidden_effect_record, step_excitation
 from identify.drive_train import DriveTrain
 from identify.effect_catalogue import DYNAMICS_EFFECTS, effect, reference_train
-from identify.model_discrepancy import diagnose_model, rigid_train_like
+from identify.effect_signatures import signature_scores
+from identify.model_discrepancy import (
+    ESTIMATION_FRACTION,
+    _Chain,
+    _Component,
+    _try_effect,
+    diagnose_model,
+    disagreement,
+    rigid_train_like,
+)
 from identify.plant_blocks import LinearBlock, PlantModel
 from identify.validation import InvalidInputError
 from sim_backend.plant_config import plant_config_from_toml_text, plant_config_to_toml
@@ -179,3 +188,26 @@ def test_from_a_fitted_start_a_loads_viscous_friction_is_given_the_range_the_loo
     for key, value in effect("load_friction").report(train).items():
         low, high = result.parameter_intervals["load_friction"][key]
         assert low <= value <= high, f"{key}: truth {value:g} outside [{low:g}, {high:g}]"
+
+
+def test_a_torque_limit_fitted_after_a_too_long_delay_moves_the_delay_to_the_truth():
+    # round 1 names the delay alone at 13 samples (the truth 10: the missing torque limit lags too); fitted at
+    # 13 samples the limit takes 12 300 rad/s^2 (2.2 times the truth) and leaves 9.1 mrad, and re-searching
+    # the delay at that limit keeps 13. The fit must reach what the truth leaves, from the guesses as from
+    # the truth
+    record = hidden_effect_record(("delay", "torque_limit"), 1004)
+    u, y, delta = record.command_rad, record.angle_rad, record.noise_bound_rad
+    n_est = int(round(ESTIMATION_FRACTION * u.size))
+    true_delay, true_train = record.true_model.blocks
+    truth = effect("torque_limit").report(true_train)["torque_limit_per_inertia_rad_per_s2"]
+    truth_gap = float(np.sqrt(np.mean((y - record.true_model.simulate(u))[n_est:] ** 2)))
+    chain = _Chain([_Component("delay", (13.0,)), _Component("fixed", block=record.nominal_model.blocks[0])])
+    start = disagreement(chain.model(), u, y, delta, n_est)
+    scores = signature_scores(u, y, start.simulated_rad, delta, record.sample_period_s)
+    for forced in ((), ((truth,),)):
+        fit = _try_effect("torque_limit", chain, u, y, n_est, delta, record.sample_period_s, start.residual_rad,
+                          scores, 40, 40, forced)
+        assert fit.chain.components[0].values == (float(true_delay.samples),), forced
+        fitted = effect("torque_limit").report(fit.block)["torque_limit_per_inertia_rad_per_s2"]
+        assert abs(fitted / truth - 1.0) < 0.02, (forced, fitted, truth)
+        assert fit.gap_rad < 1.05 * truth_gap, (forced, fit.gap_rad, truth_gap)
