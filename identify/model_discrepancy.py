@@ -730,7 +730,14 @@ def _try_effect(kind: str, chain: _Chain, u: NDArray[np.float64], y: NDArray[np.
     """The candidate of effect ``kind`` added to ``chain``: its catalogue guesses (and, for a dynamics effect
     with a free loop, the loop starts) ranked by the estimation error, the best polished, and each of
     ``forced_starts`` (values of the effect, unranked) polished too; the fit with the lowest estimation error
-    is kept."""
+    is kept.
+
+    A hysteresis after the linear block (catalogue ``contact_start``) also polishes the best of its
+    contact-branch starts (:func:`_contact_branch_start`), whether or not it ranks above the best guess: the
+    two lead to different minima. From a fitted start on a hidden asymmetric backlash (seed 1016, c_l 34.8,
+    c_r 39.6 mrad) the contact-branch starts ranked first and polished to a one-sided play (c_r = 0, 20.9 mrad
+    validated) while the best guess polishes to the truth (0.61 mrad); elsewhere the contact-branch start is
+    the better one. A stick-slip fit ends in :func:`_stick_slip_fit`."""
     index = _insert_index(chain, kind)
     u_est, y_est = u[:n_est], y[:n_est]
     entry = effect(kind)
@@ -758,23 +765,25 @@ def _try_effect(kind: str, chain: _Chain, u: NDArray[np.float64], y: NDArray[np.
             ranked = [options[i] for i in np.argsort(costs)[:LOOP_START_GUESSES]]
             options = [_with_loop(option, index, loop) for option in ranked for loop in _loop_starts(train)]
     options = [_refit_last_linear(option, u_est, y_est) for option in options]
-    if entry.contact_start is not None:
-        plays = np.geomspace(delta, max(float(np.max(np.abs(residual))), 4.0 * delta), 4)
-        for contact in filter(None, (_contact_branch_start(chain, u_est, y_est, play) for play in plays)):
-            refit, c_l, c_r = contact
-            options += [with_effect(start, refit) for start in entry.contact_start(c_l, c_r)]
     costs = [_rms(_free_run_error(option, u_est, y_est)) for option in options]
     if entry.placement == "dynamics" and chain.components[index].loop_free:
         starts = _distinct_loop_starts(options, costs, index, LOOP_POLISHED_STARTS)
     else:
         starts = [options[int(np.argmin(costs))]]
+    if entry.contact_start is not None:
+        plays = np.geomspace(delta, max(float(np.max(np.abs(residual))), 4.0 * delta), 4)
+        contacts = [with_effect(start, refit) for refit, c_l, c_r in
+                    filter(None, (_contact_branch_start(chain, u_est, y_est, play) for play in plays))
+                    for start in entry.contact_start(c_l, c_r)]
+        if contacts:
+            starts.append(contacts[int(np.argmin([_rms(_free_run_error(c, u_est, y_est)) for c in contacts]))])
     starts += [with_effect(tuple(values)) for values in forced_starts]
     fits = [_polished_start(start, u_est, y_est, max_evaluations) for start in starts]
+    if entry.stick_slip and train is None:
+        fits = [_stick_slip_fit(fit, index, u_est, y_est, max_evaluations) for fit in fits]
     best = fits[int(np.argmin([_rms(_free_run_error(fit, u_est, y_est)) for fit in fits]))]
     if entry.stick_slip and train is not None:
         best = _scan_static_friction(best, index, kind, u_est, y_est)
-    elif entry.stick_slip:
-        best = _scan_breakaway(best, index, u_est, y_est)
     return _judged(kind, best, index, u, y, n_est)
 
 
@@ -958,6 +967,37 @@ def _scan_breakaway(chain: _Chain, index: int, u: NDArray[np.float64], y: NDArra
     options = [chain, *(with_ratio(ratio) for ratio in np.linspace(1.0, 3.0, 41))]
     costs = [_rms(_free_run_error(option, u, y)) for option in options]
     return options[int(np.argmin(costs))]
+
+
+STICK_SLIP_ROUNDS = 4
+"""A stick-slip fit after the linear block (:func:`_stick_slip_fit`) scans the breakaway and polishes the
+rest at most this many times."""
+
+STICK_SLIP_MIN_GAIN = 0.01
+"""... and stops when a round lowers the estimation error by less than this fraction."""
+
+
+def _stick_slip_fit(chain: _Chain, index: int, u: NDArray[np.float64], y: NDArray[np.float64],
+                    max_evaluations: int) -> _Chain:
+    """A polished stick-slip fit (friction after the linear block at ``index``) finished by alternating the
+    breakaway scan (:func:`_scan_breakaway`) with a polish of everything else (:func:`_polished_start`) while
+    the estimation error falls (:data:`STICK_SLIP_ROUNDS`, :data:`STICK_SLIP_MIN_GAIN`).
+
+    The polish cannot move the breakaway (the free run is piecewise constant in it), and the scan holds the
+    linear block and the sliding twist where the previous breakaway left them; after a new breakaway both
+    move again. From a fitted start the linear block has absorbed part of the friction, and one polish and
+    one scan stopped short: hidden Coulomb friction, seed 1004 (breakaway 17.2, sliding 7.1 mrad), ended at
+    4.2 mrad validated and load friction was named; three rounds reach 0.51 mrad (the noise level) at
+    17.2 and 7.2 mrad; seed 1000 went from 4.1 to 0.67 mrad."""
+    best = _scan_breakaway(chain, index, u, y)
+    cost = _rms(_free_run_error(best, u, y))
+    for _ in range(STICK_SLIP_ROUNDS - 1):
+        option = _scan_breakaway(_polished_start(best, u, y, max_evaluations), index, u, y)
+        option_cost = _rms(_free_run_error(option, u, y))
+        if option_cost > (1.0 - STICK_SLIP_MIN_GAIN) * cost:
+            break
+        best, cost = option, option_cost
+    return best
 
 
 def _scan_static_friction(chain: _Chain, index: int, kind: str, u: NDArray[np.float64],
@@ -1959,7 +1999,7 @@ def _family_rechecked(found: _Search, candidates: Sequence[str], u: NDArray[np.f
             costs = [_rms(_free_run_error(option, u[:n_est], y[:n_est])) for option in swapped]
             refit = _polished_start(swapped[int(np.argmin(costs))], u[:n_est], y[:n_est], options.max_evaluations)
             if EFFECTS[other].stick_slip:
-                refit = _scan_breakaway(refit, index, u[:n_est], y[:n_est])
+                refit = _stick_slip_fit(refit, index, u[:n_est], y[:n_est], options.max_evaluations)
             fits.append(_judged(other, refit, index, u, y, n_est))
         penalised = {c.kind: c.gap_rad * (1.0 + options.complexity_penalty * EFFECTS[c.kind].free_parameters)
                      for c in fits}
