@@ -105,6 +105,14 @@ _DEFAULT_SETTINGS = {"solver": "simplex", "simplex_strategy": 1, "presolve": "on
 (``simplex_dual_edge_weight_strategy`` 1) made one 3000-sample part's 8 LPs 3-28 % faster, but with it a worker
 segfaulted inside HiGHS 1.16 (a stack overflow, like the ``HEkkDualRHS::chooseNormal`` recursion of issue 19) on
 N = 100 000, 8 bits, run 0, which this setting had solved: not used (BENCHMARKS.md)."""
+_PART_FIRST_SOLVE = {"presolve": "off", "simplex_dual_edge_weight_strategy": 0}
+"""The first solve of a joint part's interval relaxation (:func:`_window_task`): dual simplex without presolve
+and with Dantzig pricing. With :data:`_DEFAULT_SETTINGS`, at N = 100 000, 8 bits, run 0, 19 of the first 68
+parts failed their first solve twice ("excessive primal values" after the postsolve, then the same from scratch)
+before the dual simplex without presolve solved them, and one part crashed its worker (the stack overflow in
+``HEkkDualRHS::chooseNormal``, from primal values near 1e166); with these options none of its 170 parts failed
+or crashed, and they took 61 instead of 141 CPU-s, for the same bounds (BENCHMARKS.md, "Record length, session
+5"). Not used for the other LPs: for every LP of N = 100 records they made the bound 3-6 times slower."""
 _RECOVERY_SETTINGS = (
     {"solver": "simplex", "simplex_strategy": 1, "presolve": "on"},
     {"solver": "simplex", "simplex_strategy": 1, "presolve": "off"},
@@ -367,7 +375,11 @@ class _Counter:
 class _Solver:
     """One HiGHS model of an :class:`_LP`, re-solved for many objectives from the previous basis."""
 
-    def __init__(self, lp: _LP, presolve: str = "on", settings: Mapping[str, Any] | None = None) -> None:
+    def __init__(self, lp: _LP, settings: Mapping[str, Any] | None = None,
+                 first_solve: Mapping[str, Any] | None = None) -> None:
+        """``settings``: HiGHS options for every solve (no switch to the primal simplex warm start after the
+        first); ``first_solve``: options of the model's first solve (and of a solve after a recovery), on top of
+        :data:`_DEFAULT_SETTINGS`."""
         # highspy.Highs() prints a banner (it would break ``--json`` output): the adapter gives a quiet instance.
         from identify.highs_solver import HighsLp, HighsModelStatus, MatrixFormat, quiet_highs
 
@@ -387,13 +399,9 @@ class _Solver:
         model.a_matrix_.index_ = A.indices.astype(np.int32)
         model.a_matrix_.value_ = A.data.astype(float)
         self.highs = quiet_highs()
-        for option, value in _DEFAULT_SETTINGS.items():
-            self.highs.setOptionValue(option, value)
-        self.highs.setOptionValue("presolve", presolve)
-        # fixed settings for every solve (no switch to the primal simplex warm start after the first)
         self.fixed_settings = dict(settings or {})
-        for option, value in self.fixed_settings.items():
-            self.highs.setOptionValue(option, value)
+        self.base_settings = {**_DEFAULT_SETTINGS, **(first_solve or {}), **self.fixed_settings}
+        self._set(self.base_settings)
         # A bounded time per attempt: a warm start that stalls on a long record's LP (issue 19: one part of a
         # 100 000-sample record kept a worker busy for over 15 minutes) goes on to the recovery settings and,
         # at worst, to the fallback bound, instead of holding up the whole record.
@@ -404,6 +412,11 @@ class _Solver:
         self._status = HighsModelStatus
         self.columns = np.arange(A.shape[1], dtype=np.int32)
         self.warm = False
+        self.solved = False
+
+    def _set(self, settings: Mapping[str, Any]) -> None:
+        for option, value in settings.items():
+            self.highs.setOptionValue(option, value)
 
     def _run(self) -> None:
         self.highs.setOptionValue("time_limit", self.highs.getRunTime() + self.time_limit_s)
@@ -426,18 +439,23 @@ class _Solver:
             # Recover from a stalled warm start or a numerically poor basis (the chained equations can make
             # a basis very ill-conditioned): solve again from scratch, by dual simplex with and without
             # presolve, then by the interior-point method without crossover (its duals are all the
-            # certificate needs).
-            for settings in _RECOVERY_SETTINGS:
+            # certificate needs). HiGHS is deterministic: settings that failed from scratch (the model's
+            # first solve has no basis to drop) are not tried again.
+            tried = [] if self.solved else [self.base_settings]
+            for recovery in _RECOVERY_SETTINGS:
+                settings = {**self.base_settings, **recovery}
+                if settings in tried:
+                    continue
+                tried.append(settings)
                 highs.clearSolver()
-                for option, value in settings.items():
-                    highs.setOptionValue(option, value)
+                self._set(settings)
                 self._run()
                 status = highs.getModelStatus()
                 if status in (self._status.kOptimal, self._status.kInfeasible):
                     break
-            for option, value in {**_DEFAULT_SETTINGS, **self.fixed_settings}.items():
-                highs.setOptionValue(option, value)
+            self._set(self.base_settings)
             self.warm = False
+        self.solved = True
         if status == self._status.kOptimal and not self.warm and not self.fixed_settings:
             # The optimal basis stays primal feasible when only the objective changes, so primal simplex
             # without presolve continues from it for the next objectives.
@@ -582,7 +600,8 @@ def _orthant_lp(data: _Data, signs: tuple[int, ...]) -> _LP:
     return _LP(sp.csr_matrix(A_ub), b_ub, A_eq, b_eq, lower, upper)
 
 
-def _bounds_over(lp: _LP, p: int, counter: _Counter, wanted: NDArray[np.bool_] | None = None, retry: bool = False
+def _bounds_over(lp: _LP, p: int, counter: _Counter, wanted: NDArray[np.bool_] | None = None, retry: bool = False,
+                 first_solve: Mapping[str, Any] | None = None
                  ) -> tuple[NDArray[np.float64], NDArray[np.float64], list[NDArray[np.float64] | None]]:
     """Certified min and max of each of the first p variables, with the minimisers/maximisers
     (``points[2k]`` minimises and ``points[2k + 1]`` maximises variable k), on one HiGHS model whose
@@ -591,14 +610,15 @@ def _bounds_over(lp: _LP, p: int, counter: _Counter, wanted: NDArray[np.bool_] |
     ``wanted`` (2p booleans in the order of ``points``; all by default) names the bounds to solve: the others
     are the LP's own column bounds (the caller's box, valid for every point of the set) with point None, so a
     caller that needs only the bounds still moving saves their LPs (:func:`_coupled_bounds`). ``retry``: every
-    solve by :data:`RETRY_SETTINGS` (a task solved again after a crash, :class:`_GuardedMap`).
+    solve by :data:`RETRY_SETTINGS` (a task solved again after a crash, :class:`_GuardedMap`). ``first_solve``:
+    HiGHS options of the model's first solve (:class:`_Solver`).
 
     A bound whose LP HiGHS cannot solve (after the recovery settings of :meth:`_Solver.minimize`) is the
     LP's own column bound for that variable, which holds for every point of the set (the caller's current
     box); it is recorded in ``counter.fallbacks`` and its point is None."""
     lows, highs = lp.lower[:p].copy(), lp.upper[:p].copy()
     points: list[NDArray[np.float64] | None] = [None] * (2 * p)
-    solver = _Solver(lp, settings=RETRY_SETTINGS if retry else None)
+    solver = _Solver(lp, settings=RETRY_SETTINGS if retry else None, first_solve=first_solve)
     for index in range(2 * p):
         if wanted is not None and not wanted[index]:
             continue
@@ -808,7 +828,8 @@ def _with_shared_backlash(lp: _LP, data: _Data, p: int) -> _LP:
 def _tighten(data: _Data, low: NDArray[np.float64], high: NDArray[np.float64], counter: _Counter, max_rounds: int,
              relative_improvement: float, full_last_round: bool,
              relaxation: Callable[[_Data, NDArray[np.float64], NDArray[np.float64]], _LP] | None = None,
-             full_rounds: bool = False, wanted: NDArray[np.bool_] | None = None, retry: bool = False
+             full_rounds: bool = False, wanted: NDArray[np.bool_] | None = None, retry: bool = False,
+             first_solve: Mapping[str, Any] | None = None
              ) -> tuple[NDArray[np.float64], NDArray[np.float64], int, list[NDArray[np.float64]], bool]:
     """Rounds of the McCormick relaxation: LPs over a only tighten the box of a (which sets the envelopes)
     until no a-interval shrinks by more than ``relative_improvement`` or ``max_rounds`` relaxations were
@@ -816,7 +837,7 @@ def _tighten(data: _Data, low: NDArray[np.float64], high: NDArray[np.float64], c
     does (the bounds of b then tighten each other through the unit-gain row). Returns the box, the rounds,
     the extreme points of the last round and whether the relaxation was proven empty. ``relaxation`` builds
     the LP from (data, low, high); McCormick (:func:`_coupled_lp`) by default. ``wanted`` (2p booleans, see
-    :func:`_bounds_over`) limits every round to those bounds, ``retry`` is passed on to it."""
+    :func:`_bounds_over`) limits every round to those bounds, ``retry`` and ``first_solve`` are passed on to it."""
     relaxation = _coupled_lp if relaxation is None else relaxation
     p, na = data.orders.num_parameters, data.orders.na
     rounds = 0
@@ -827,7 +848,7 @@ def _tighten(data: _Data, low: NDArray[np.float64], high: NDArray[np.float64], c
         lp = relaxation(data, low, high)
         count = p if (full_rounds or (final and full_last_round)) else na
         new_low, new_high, points = _bounds_over(lp, count, counter, None if wanted is None else wanted[: 2 * count],
-                                                 retry)
+                                                 retry, first_solve)
         if not np.all(np.isfinite(new_low)):
             if _proven_infeasible(lp, counter):
                 return low, high, rounds, [], True
@@ -934,7 +955,8 @@ def _window_task(task: tuple[str, _Data, NDArray[np.float64], NDArray[np.float64
         counter.stage = f"joint relaxation of {window.u.size} samples"
         max_rounds, tolerance = int(settings[0]), float(settings[1])
         low, high, used, extreme, empty = _tighten(window, low, high, counter, max_rounds, tolerance, True,
-                                                   _FULL_DATA_RELAXATION, wanted=wanted, retry=retry)
+                                                   _FULL_DATA_RELAXATION, wanted=wanted, retry=retry,
+                                                   first_solve=_PART_FIRST_SOLVE)
         return (low, high, used, [None if x is None else x[: window.orders.num_parameters] for x in extreme],
                 empty), counter
     counter.stage = "window relaxation"
@@ -966,6 +988,8 @@ class _SubBox:
     low: NDArray[np.float64]
     high: NDArray[np.float64]
     points: tuple[NDArray[np.float64] | None, ...]
+    depth: int = 0
+    """Halvings from the whole box of a to this cell."""
 
 
 def _partitioned_bounds(data: _Data, low: NDArray[np.float64], high: NDArray[np.float64], counter: _Counter,
@@ -988,7 +1012,7 @@ def _partitioned_bounds(data: _Data, low: NDArray[np.float64], high: NDArray[np.
     relaxation = _interval_lp
     counter.stage = f"partition of the box of a ({data.u.size} samples)"
 
-    def solve(a_low: NDArray[np.float64], a_high: NDArray[np.float64]) -> _SubBox | None:
+    def solve(a_low: NDArray[np.float64], a_high: NDArray[np.float64], depth: int) -> _SubBox | None:
         cell_low, cell_high = low.copy(), high.copy()
         cell_low[:na], cell_high[:na] = a_low, a_high
         box_low, box_high, _, points, empty = _tighten(data, cell_low, cell_high, counter, 3, 0.05, True, relaxation,
@@ -1008,26 +1032,26 @@ def _partitioned_bounds(data: _Data, low: NDArray[np.float64], high: NDArray[np.
             else:
                 box_low, box_high = np.maximum(box_low, wide_low), np.minimum(box_high, wide_high)
             points = [None] * (2 * p)
-        return _SubBox(a_low, a_high, box_low, box_high, tuple(None if x is None else x[:p] for x in points))
+        return _SubBox(a_low, a_high, box_low, box_high, tuple(None if x is None else x[:p] for x in points), depth)
 
     def hull(cells: list[_SubBox]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         return (np.min([c.low for c in cells], axis=0), np.max([c.high for c in cells], axis=0))
 
-    def halves(cell: _SubBox) -> list[tuple[NDArray[np.float64], NDArray[np.float64]]]:
+    def halves(cell: _SubBox) -> list[tuple[NDArray[np.float64], NDArray[np.float64], int]]:
         i = int(np.argmax((cell.a_high - cell.a_low) / np.maximum(high[:na] - low[:na], 1e-300)))
         middle = 0.5 * (cell.a_low[i] + cell.a_high[i])
         left_high, right_low = cell.a_high.copy(), cell.a_low.copy()
         left_high[i], right_low[i] = middle, middle
-        return [(cell.a_low, left_high), (right_low, cell.a_high)]
+        return [(cell.a_low, left_high, cell.depth + 1), (right_low, cell.a_high, cell.depth + 1)]
 
     solved = 0
     cells: list[_SubBox] = []
     pending = halves(_SubBox(low[:na], high[:na], low, high, ()))
     current_low, current_high = low.copy(), high.copy()
     while True:
-        for a_low, a_high in pending:
+        for a_low, a_high, depth in pending:
             solved += 1
-            cell = solve(a_low, a_high)
+            cell = solve(a_low, a_high, depth)
             if cell is not None:
                 cells.append(cell)
             if progress is not None:
@@ -1039,9 +1063,15 @@ def _partitioned_bounds(data: _Data, low: NDArray[np.float64], high: NDArray[np.
         moved = np.max(((current_high - current_low) - (new_high - new_low))
                        / np.maximum(current_high - current_low, 1e-300))
         current_low, current_high = new_low, new_high
+        _LOG.debug("partition: %d cell(s) solved, the hull moved a bound by %.3g of its width, half-widths %s",
+                   solved, moved, 0.5 * (current_high - current_low))
         deciding = sorted({int(np.argmin([c.low[k] for c in cells])) for k in range(p)}
                           | {int(np.argmax([c.high[k] for c in cells])) for k in range(p)})
-        if (moved < relative_improvement and solved > 2 * na) or solved + 2 * len(deciding) > max_boxes:
+        # The stopping rule applies once the cells just solved were halved twice along every a_i: one halving
+        # leaves a bound to the other axes, so the first refinements may move the hull by little before the
+        # next ones move it by much (N = 100, 8 bits, run 9: b1 0.7 % and 0.3 %, then 3.6 %; issue 19).
+        settled = min(depth for _, _, depth in pending) >= 2 * na
+        if (moved < relative_improvement and settled) or solved + 2 * len(deciding) > max_boxes:
             break
         # a cell is replaced by its halves only once they are solved (in the next turn of the loop)
         pending = [half for index in deciding for half in halves(cells[index])]
@@ -1535,7 +1565,7 @@ def _inner_values(data: _Data, low: NDArray[np.float64], high: NDArray[np.float6
         cost[k] = direction
         try:
             # with a fixed the chained equations are solved best without presolve
-            _, x = _Solver(lp, presolve="off").minimize(cost, counter)
+            _, x = _Solver(lp, first_solve={"presolve": "off"}).minimize(cost, counter)
         except RuntimeError:
             return None  # a diagnostic only: the outer bounds do not depend on it
         return x
