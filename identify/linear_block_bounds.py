@@ -105,14 +105,6 @@ _DEFAULT_SETTINGS = {"solver": "simplex", "simplex_strategy": 1, "presolve": "on
 (``simplex_dual_edge_weight_strategy`` 1) made one 3000-sample part's 8 LPs 3-28 % faster, but with it a worker
 segfaulted inside HiGHS 1.16 (a stack overflow, like the ``HEkkDualRHS::chooseNormal`` recursion of issue 19) on
 N = 100 000, 8 bits, run 0, which this setting had solved: not used (BENCHMARKS.md)."""
-_PART_FIRST_SOLVE = {"presolve": "off", "simplex_dual_edge_weight_strategy": 0}
-"""The first solve of a joint part's interval relaxation (:func:`_window_task`): dual simplex without presolve
-and with Dantzig pricing. With :data:`_DEFAULT_SETTINGS`, at N = 100 000, 8 bits, run 0, 19 of the first 68
-parts failed their first solve twice ("excessive primal values" after the postsolve, then the same from scratch)
-before the dual simplex without presolve solved them, and one part crashed its worker (the stack overflow in
-``HEkkDualRHS::chooseNormal``, from primal values near 1e166); with these options none of its 170 parts failed
-or crashed, and they took 61 instead of 141 CPU-s, for the same bounds (BENCHMARKS.md, "Record length, session
-5"). Not used for the other LPs: for every LP of N = 100 records they made the bound 3-6 times slower."""
 _RECOVERY_SETTINGS = (
     {"solver": "simplex", "simplex_strategy": 1, "presolve": "on"},
     {"solver": "simplex", "simplex_strategy": 1, "presolve": "off"},
@@ -600,8 +592,7 @@ def _orthant_lp(data: _Data, signs: tuple[int, ...]) -> _LP:
     return _LP(sp.csr_matrix(A_ub), b_ub, A_eq, b_eq, lower, upper)
 
 
-def _bounds_over(lp: _LP, p: int, counter: _Counter, wanted: NDArray[np.bool_] | None = None, retry: bool = False,
-                 first_solve: Mapping[str, Any] | None = None
+def _bounds_over(lp: _LP, p: int, counter: _Counter, wanted: NDArray[np.bool_] | None = None, retry: bool = False
                  ) -> tuple[NDArray[np.float64], NDArray[np.float64], list[NDArray[np.float64] | None]]:
     """Certified min and max of each of the first p variables, with the minimisers/maximisers
     (``points[2k]`` minimises and ``points[2k + 1]`` maximises variable k), on one HiGHS model whose
@@ -610,15 +601,14 @@ def _bounds_over(lp: _LP, p: int, counter: _Counter, wanted: NDArray[np.bool_] |
     ``wanted`` (2p booleans in the order of ``points``; all by default) names the bounds to solve: the others
     are the LP's own column bounds (the caller's box, valid for every point of the set) with point None, so a
     caller that needs only the bounds still moving saves their LPs (:func:`_coupled_bounds`). ``retry``: every
-    solve by :data:`RETRY_SETTINGS` (a task solved again after a crash, :class:`_GuardedMap`). ``first_solve``:
-    HiGHS options of the model's first solve (:class:`_Solver`).
+    solve by :data:`RETRY_SETTINGS` (a task solved again after a crash, :class:`_GuardedMap`).
 
     A bound whose LP HiGHS cannot solve (after the recovery settings of :meth:`_Solver.minimize`) is the
     LP's own column bound for that variable, which holds for every point of the set (the caller's current
     box); it is recorded in ``counter.fallbacks`` and its point is None."""
     lows, highs = lp.lower[:p].copy(), lp.upper[:p].copy()
     points: list[NDArray[np.float64] | None] = [None] * (2 * p)
-    solver = _Solver(lp, settings=RETRY_SETTINGS if retry else None, first_solve=first_solve)
+    solver = _Solver(lp, settings=RETRY_SETTINGS if retry else None)
     for index in range(2 * p):
         if wanted is not None and not wanted[index]:
             continue
@@ -828,8 +818,7 @@ def _with_shared_backlash(lp: _LP, data: _Data, p: int) -> _LP:
 def _tighten(data: _Data, low: NDArray[np.float64], high: NDArray[np.float64], counter: _Counter, max_rounds: int,
              relative_improvement: float, full_last_round: bool,
              relaxation: Callable[[_Data, NDArray[np.float64], NDArray[np.float64]], _LP] | None = None,
-             full_rounds: bool = False, wanted: NDArray[np.bool_] | None = None, retry: bool = False,
-             first_solve: Mapping[str, Any] | None = None
+             full_rounds: bool = False, wanted: NDArray[np.bool_] | None = None, retry: bool = False
              ) -> tuple[NDArray[np.float64], NDArray[np.float64], int, list[NDArray[np.float64]], bool]:
     """Rounds of the McCormick relaxation: LPs over a only tighten the box of a (which sets the envelopes)
     until no a-interval shrinks by more than ``relative_improvement`` or ``max_rounds`` relaxations were
@@ -837,7 +826,7 @@ def _tighten(data: _Data, low: NDArray[np.float64], high: NDArray[np.float64], c
     does (the bounds of b then tighten each other through the unit-gain row). Returns the box, the rounds,
     the extreme points of the last round and whether the relaxation was proven empty. ``relaxation`` builds
     the LP from (data, low, high); McCormick (:func:`_coupled_lp`) by default. ``wanted`` (2p booleans, see
-    :func:`_bounds_over`) limits every round to those bounds, ``retry`` and ``first_solve`` are passed on to it."""
+    :func:`_bounds_over`) limits every round to those bounds, ``retry`` is passed on to it."""
     relaxation = _coupled_lp if relaxation is None else relaxation
     p, na = data.orders.num_parameters, data.orders.na
     rounds = 0
@@ -848,7 +837,7 @@ def _tighten(data: _Data, low: NDArray[np.float64], high: NDArray[np.float64], c
         lp = relaxation(data, low, high)
         count = p if (full_rounds or (final and full_last_round)) else na
         new_low, new_high, points = _bounds_over(lp, count, counter, None if wanted is None else wanted[: 2 * count],
-                                                 retry, first_solve)
+                                                 retry)
         if not np.all(np.isfinite(new_low)):
             if _proven_infeasible(lp, counter):
                 return low, high, rounds, [], True
@@ -955,8 +944,7 @@ def _window_task(task: tuple[str, _Data, NDArray[np.float64], NDArray[np.float64
         counter.stage = f"joint relaxation of {window.u.size} samples"
         max_rounds, tolerance = int(settings[0]), float(settings[1])
         low, high, used, extreme, empty = _tighten(window, low, high, counter, max_rounds, tolerance, True,
-                                                   _FULL_DATA_RELAXATION, wanted=wanted, retry=retry,
-                                                   first_solve=_PART_FIRST_SOLVE)
+                                                   _FULL_DATA_RELAXATION, wanted=wanted, retry=retry)
         return (low, high, used, [None if x is None else x[: window.orders.num_parameters] for x in extreme],
                 empty), counter
     counter.stage = "window relaxation"
@@ -1067,11 +1055,15 @@ def _partitioned_bounds(data: _Data, low: NDArray[np.float64], high: NDArray[np.
                    solved, moved, 0.5 * (current_high - current_low))
         deciding = sorted({int(np.argmin([c.low[k] for c in cells])) for k in range(p)}
                           | {int(np.argmax([c.high[k] for c in cells])) for k in range(p)})
-        # The stopping rule applies once the cells just solved were halved twice along every a_i: one halving
-        # leaves a bound to the other axes, so the first refinements may move the hull by little before the
-        # next ones move it by much (N = 100, 8 bits, run 9: b1 0.7 % and 0.3 %, then 3.6 %; issue 19).
+        # A refinement that moves the hull by under a tenth of ``relative_improvement`` ends the partition (the
+        # relaxation is about tight: 1e-4 of the width at 15 bits); one that moves it by less than
+        # ``relative_improvement`` ends it only once the cells just solved were halved twice along every a_i:
+        # one halving leaves a bound to the other axes, so the first refinements may move the hull by little
+        # before the next ones move it by much (N = 100, 8 bits, run 9: b1 0.7 % and 0.3 %, then 3.6 %; issue 19).
+        # Waiting for the two halvings at every move below the tolerance made N = 1000, 15 bits 5 times slower.
         settled = min(depth for _, _, depth in pending) >= 2 * na
-        if (moved < relative_improvement and settled) or solved + 2 * len(deciding) > max_boxes:
+        if ((moved < 0.1 * relative_improvement and solved > 2 * na) or (moved < relative_improvement and settled)
+                or solved + 2 * len(deciding) > max_boxes):
             break
         # a cell is replaced by its halves only once they are solved (in the next turn of the loop)
         pending = [half for index in deciding for half in halves(cells[index])]
