@@ -367,7 +367,11 @@ class _Counter:
 class _Solver:
     """One HiGHS model of an :class:`_LP`, re-solved for many objectives from the previous basis."""
 
-    def __init__(self, lp: _LP, presolve: str = "on", settings: Mapping[str, Any] | None = None) -> None:
+    def __init__(self, lp: _LP, settings: Mapping[str, Any] | None = None,
+                 first_solve: Mapping[str, Any] | None = None) -> None:
+        """``settings``: HiGHS options for every solve (no switch to the primal simplex warm start after the
+        first); ``first_solve``: options of the model's first solve (and of a solve after a recovery), on top of
+        :data:`_DEFAULT_SETTINGS`."""
         # highspy.Highs() prints a banner (it would break ``--json`` output): the adapter gives a quiet instance.
         from identify.highs_solver import HighsLp, HighsModelStatus, MatrixFormat, quiet_highs
 
@@ -387,13 +391,9 @@ class _Solver:
         model.a_matrix_.index_ = A.indices.astype(np.int32)
         model.a_matrix_.value_ = A.data.astype(float)
         self.highs = quiet_highs()
-        for option, value in _DEFAULT_SETTINGS.items():
-            self.highs.setOptionValue(option, value)
-        self.highs.setOptionValue("presolve", presolve)
-        # fixed settings for every solve (no switch to the primal simplex warm start after the first)
         self.fixed_settings = dict(settings or {})
-        for option, value in self.fixed_settings.items():
-            self.highs.setOptionValue(option, value)
+        self.base_settings = {**_DEFAULT_SETTINGS, **(first_solve or {}), **self.fixed_settings}
+        self._set(self.base_settings)
         # A bounded time per attempt: a warm start that stalls on a long record's LP (issue 19: one part of a
         # 100 000-sample record kept a worker busy for over 15 minutes) goes on to the recovery settings and,
         # at worst, to the fallback bound, instead of holding up the whole record.
@@ -404,6 +404,11 @@ class _Solver:
         self._status = HighsModelStatus
         self.columns = np.arange(A.shape[1], dtype=np.int32)
         self.warm = False
+        self.solved = False
+
+    def _set(self, settings: Mapping[str, Any]) -> None:
+        for option, value in settings.items():
+            self.highs.setOptionValue(option, value)
 
     def _run(self) -> None:
         self.highs.setOptionValue("time_limit", self.highs.getRunTime() + self.time_limit_s)
@@ -426,18 +431,23 @@ class _Solver:
             # Recover from a stalled warm start or a numerically poor basis (the chained equations can make
             # a basis very ill-conditioned): solve again from scratch, by dual simplex with and without
             # presolve, then by the interior-point method without crossover (its duals are all the
-            # certificate needs).
-            for settings in _RECOVERY_SETTINGS:
+            # certificate needs). HiGHS is deterministic: settings that failed from scratch (the model's
+            # first solve has no basis to drop) are not tried again.
+            tried = [] if self.solved else [self.base_settings]
+            for recovery in _RECOVERY_SETTINGS:
+                settings = {**self.base_settings, **recovery}
+                if settings in tried:
+                    continue
+                tried.append(settings)
                 highs.clearSolver()
-                for option, value in settings.items():
-                    highs.setOptionValue(option, value)
+                self._set(settings)
                 self._run()
                 status = highs.getModelStatus()
                 if status in (self._status.kOptimal, self._status.kInfeasible):
                     break
-            for option, value in {**_DEFAULT_SETTINGS, **self.fixed_settings}.items():
-                highs.setOptionValue(option, value)
+            self._set(self.base_settings)
             self.warm = False
+        self.solved = True
         if status == self._status.kOptimal and not self.warm and not self.fixed_settings:
             # The optimal basis stays primal feasible when only the objective changes, so primal simplex
             # without presolve continues from it for the next objectives.
@@ -966,6 +976,8 @@ class _SubBox:
     low: NDArray[np.float64]
     high: NDArray[np.float64]
     points: tuple[NDArray[np.float64] | None, ...]
+    depth: int = 0
+    """Halvings from the whole box of a to this cell."""
 
 
 def _partitioned_bounds(data: _Data, low: NDArray[np.float64], high: NDArray[np.float64], counter: _Counter,
@@ -988,7 +1000,7 @@ def _partitioned_bounds(data: _Data, low: NDArray[np.float64], high: NDArray[np.
     relaxation = _interval_lp
     counter.stage = f"partition of the box of a ({data.u.size} samples)"
 
-    def solve(a_low: NDArray[np.float64], a_high: NDArray[np.float64]) -> _SubBox | None:
+    def solve(a_low: NDArray[np.float64], a_high: NDArray[np.float64], depth: int) -> _SubBox | None:
         cell_low, cell_high = low.copy(), high.copy()
         cell_low[:na], cell_high[:na] = a_low, a_high
         box_low, box_high, _, points, empty = _tighten(data, cell_low, cell_high, counter, 3, 0.05, True, relaxation,
@@ -1008,26 +1020,26 @@ def _partitioned_bounds(data: _Data, low: NDArray[np.float64], high: NDArray[np.
             else:
                 box_low, box_high = np.maximum(box_low, wide_low), np.minimum(box_high, wide_high)
             points = [None] * (2 * p)
-        return _SubBox(a_low, a_high, box_low, box_high, tuple(None if x is None else x[:p] for x in points))
+        return _SubBox(a_low, a_high, box_low, box_high, tuple(None if x is None else x[:p] for x in points), depth)
 
     def hull(cells: list[_SubBox]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         return (np.min([c.low for c in cells], axis=0), np.max([c.high for c in cells], axis=0))
 
-    def halves(cell: _SubBox) -> list[tuple[NDArray[np.float64], NDArray[np.float64]]]:
+    def halves(cell: _SubBox) -> list[tuple[NDArray[np.float64], NDArray[np.float64], int]]:
         i = int(np.argmax((cell.a_high - cell.a_low) / np.maximum(high[:na] - low[:na], 1e-300)))
         middle = 0.5 * (cell.a_low[i] + cell.a_high[i])
         left_high, right_low = cell.a_high.copy(), cell.a_low.copy()
         left_high[i], right_low[i] = middle, middle
-        return [(cell.a_low, left_high), (right_low, cell.a_high)]
+        return [(cell.a_low, left_high, cell.depth + 1), (right_low, cell.a_high, cell.depth + 1)]
 
     solved = 0
     cells: list[_SubBox] = []
     pending = halves(_SubBox(low[:na], high[:na], low, high, ()))
     current_low, current_high = low.copy(), high.copy()
     while True:
-        for a_low, a_high in pending:
+        for a_low, a_high, depth in pending:
             solved += 1
-            cell = solve(a_low, a_high)
+            cell = solve(a_low, a_high, depth)
             if cell is not None:
                 cells.append(cell)
             if progress is not None:
@@ -1039,9 +1051,19 @@ def _partitioned_bounds(data: _Data, low: NDArray[np.float64], high: NDArray[np.
         moved = np.max(((current_high - current_low) - (new_high - new_low))
                        / np.maximum(current_high - current_low, 1e-300))
         current_low, current_high = new_low, new_high
+        _LOG.debug("partition: %d cell(s) solved, the hull moved a bound by %.3g of its width, half-widths %s",
+                   solved, moved, 0.5 * (current_high - current_low))
         deciding = sorted({int(np.argmin([c.low[k] for c in cells])) for k in range(p)}
                           | {int(np.argmax([c.high[k] for c in cells])) for k in range(p)})
-        if (moved < relative_improvement and solved > 2 * na) or solved + 2 * len(deciding) > max_boxes:
+        # A refinement that moves the hull by under a tenth of ``relative_improvement`` ends the partition (the
+        # relaxation is about tight: 1e-4 of the width at 15 bits); one that moves it by less than
+        # ``relative_improvement`` ends it only once the cells just solved were halved twice along every a_i:
+        # one halving leaves a bound to the other axes, so the first refinements may move the hull by little
+        # before the next ones move it by much (N = 100, 8 bits, run 9: b1 0.7 % and 0.3 %, then 3.6 %; issue 19).
+        # Waiting for the two halvings at every move below the tolerance made N = 1000, 15 bits 5 times slower.
+        settled = min(depth for _, _, depth in pending) >= 2 * na
+        if ((moved < 0.1 * relative_improvement and solved > 2 * na) or (moved < relative_improvement and settled)
+                or solved + 2 * len(deciding) > max_boxes):
             break
         # a cell is replaced by its halves only once they are solved (in the next turn of the loop)
         pending = [half for index in deciding for half in halves(cells[index])]
@@ -1535,7 +1557,7 @@ def _inner_values(data: _Data, low: NDArray[np.float64], high: NDArray[np.float6
         cost[k] = direction
         try:
             # with a fixed the chained equations are solved best without presolve
-            _, x = _Solver(lp, presolve="off").minimize(cost, counter)
+            _, x = _Solver(lp, first_solve={"presolve": "off"}).minimize(cost, counter)
         except RuntimeError:
             return None  # a diagnostic only: the outer bounds do not depend on it
         return x
