@@ -1192,7 +1192,7 @@ def _walk_delays(chain: _Chain, u: NDArray[np.float64], y: NDArray[np.float64], 
 
     def at(option: _Chain, index: int, samples: int) -> _Chain:
         components = list(option.components)
-        components[index] = _Component(components[index].kind, (float(samples),))
+        components[index] = replace(components[index], values=(float(samples),))
         return _polish(_Chain(components), u, y, max_evaluations)
 
     for index, component in enumerate(chain.components):
