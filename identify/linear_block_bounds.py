@@ -1288,12 +1288,9 @@ def _coupled_bounds(data: _Data, low: NDArray[np.float64], high: NDArray[np.floa
             # every window is a valid relaxation, so disjoint boxes prove the set empty only up to solver
             # tolerances: let the joint relaxation below decide
             break
-        moving = _moving(low, high, new_low, new_high, relative_improvement, na)
-        advance = _as_lower_bounds(new_low, new_high) - _as_lower_bounds(low, high)
+        moving, advance = _pass_result(f"window pass {passes}", wanted, p, low, high, new_low, new_high,
+                                       relative_improvement, na)
         low, high = new_low, new_high
-        _LOG.debug("window pass %d over %d window(s), %d LPs: moving bounds %s, half-widths %s", passes,
-                   len(active), sum(p * 2 if mask is None else int(mask.sum()) for mask in wanted),
-                   moving.astype(int), 0.5 * (high - low))
         if not moving.any():
             break
         # The next pass re-bounds, per window, only the bounds still moving for which the window's own bound
@@ -1355,13 +1352,10 @@ def _coupled_bounds(data: _Data, low: NDArray[np.float64], high: NDArray[np.floa
             if progress is not None:
                 progress(label, k + 1, len(active_parts))
         new_high = np.maximum(new_high, new_low)
-        moving = _moving(low, high, new_low, new_high, relative_improvement, na)
-        advance = _as_lower_bounds(new_low, new_high) - _as_lower_bounds(low, high)
+        moving, advance = _pass_result(f"joint pass {chunk_passes}", part_wanted, p, low, high, new_low,
+                                       new_high, relative_improvement, na)
         gain = (high - low) - (new_high - new_low)
         low, high = new_low, new_high
-        _LOG.debug("joint pass %d over %d part(s), %d LPs: moving bounds %s, half-widths %s", chunk_passes,
-                   len(active_parts), sum(p * 2 if mask is None else int(mask.sum()) for mask in part_wanted),
-                   moving.astype(int), 0.5 * (high - low))
         if not moving.any():
             break
         # The next pass re-solves, per part, only the bounds still moving whose own bound lies within this
@@ -1378,6 +1372,20 @@ def _as_lower_bounds(low: NDArray[np.float64], high: NDArray[np.float64]) -> NDA
     """The box as 2p lower bounds, larger = tighter: [low_0, -high_0, low_1, -high_1, ...] (the order of the
     extreme points of :func:`_bounds_over`)."""
     return np.stack([low, -high], axis=-1).reshape(*np.shape(low)[:-1], -1)
+
+
+def _pass_result(label: str, wanted: Sequence[NDArray[np.bool_] | None], p: int, low: NDArray[np.float64],
+                 high: NDArray[np.float64], new_low: NDArray[np.float64], new_high: NDArray[np.float64],
+                 relative_improvement: float, na: int) -> tuple[NDArray[np.bool_], NDArray[np.float64]]:
+    """After a pass over windows or parts (``wanted``: each task's selected bounds, None for all 2p) from the
+    box [low, high] to [new_low, new_high]: the bounds still moving (:func:`_moving`) and the advance of each
+    of the 2p lower bounds (:func:`_as_lower_bounds`), logged with the pass's ``label``."""
+    moving = _moving(low, high, new_low, new_high, relative_improvement, na)
+    advance = _as_lower_bounds(new_low, new_high) - _as_lower_bounds(low, high)
+    _LOG.debug("%s over %d task(s), %d LPs: moving bounds %s, half-widths %s", label, len(wanted),
+               sum(p * 2 if mask is None else int(mask.sum()) for mask in wanted), moving.astype(int),
+               0.5 * (new_high - new_low))
+    return moving, advance
 
 
 def _moving(low: NDArray[np.float64], high: NDArray[np.float64], new_low: NDArray[np.float64],
