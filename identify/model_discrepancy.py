@@ -1331,6 +1331,7 @@ def diagnose_model(command_rad: ArrayLike, angle_rad: ArrayLike, noise_bound_rad
     consistent = current.falsified_fraction <= options.consistent_fraction
     intervals, reduction = _named_intervals(chain, steps, start_model, u, y, delta, current,
                                             options.max_evaluations, say)
+    steps = _with_final_parameters(steps, chain)
     verdict, reason = _final_verdict(u, y, initial, current, found, consistent, delta, options)
     return DiscrepancyResult(
         steps=tuple(steps), start_model=start_model, final_model=chain.model() if steps else start_model,
@@ -1415,6 +1416,15 @@ def _named_intervals(chain: _Chain, steps: Sequence[DiscrepancyStep], start_mode
             low, high = intervals.get(step.effect, {}).get(key, (value, value))
             intervals.setdefault(step.effect, {})[key] = (min(low, value), max(high, value))
     return _resolution_floor(intervals, delta, _final_train(chain), current.simulated_rad), reduction
+
+
+def _with_final_parameters(steps: Sequence[DiscrepancyStep], chain: _Chain) -> list[DiscrepancyStep]:
+    """Every step with its effect's parameters as the final model has them. A step keeps what it fitted when it
+    was added until a later step refits it with the rest (a delay fitted 13 samples long before the torque
+    limit that also lagged was named, 10 after it); the report gives the values of the model it hands over,
+    and the intervals (:func:`_named_intervals`) hold both."""
+    final = _effect_parameters(chain)
+    return [replace(step, parameters=final[step.effect]) if step.effect in final else step for step in steps]
 
 
 def _final_verdict(u: NDArray[np.float64], y: NDArray[np.float64], initial: Disagreement, final: Disagreement,
@@ -2403,6 +2413,16 @@ and a 12-bit encoder with little dither biases such levels by up to half a count
 same samples reveals. Its interval is widened by this on each side."""
 
 
+def _effect_parameters(chain: _Chain) -> dict[str, dict[str, float]]:
+    """The public parameters of every effect of a fitted chain (those inside a drive train included)."""
+    out: dict[str, dict[str, float]] = {}
+    for component in chain.components:
+        kinds = component.effects if component.kind == "drive_train" else (component.kind,)
+        for kind in (k for k in kinds if k in EFFECTS):
+            out[kind] = _parameters(kind, _build(component, component.values))
+    return out
+
+
 def _final_train(chain: _Chain) -> DriveTrain | None:
     """The drive train of a fitted chain, if it has one."""
     for component in chain.components:
@@ -2507,12 +2527,9 @@ def _fold_intervals(chain: _Chain, start_model: PlantModel, u: NDArray[np.float6
     values: dict[str, dict[str, list[float]]] = {}
 
     def collect(fitted: _Chain) -> None:
-        for component in fitted.components:
-            kinds = component.effects if component.kind == "drive_train" else (component.kind,)
-            for kind in (k for k in kinds if k in EFFECTS):
-                block = _build(component, component.values)
-                for key, value in _parameters(kind, block).items():
-                    values.setdefault(kind, {}).setdefault(key, []).append(value)
+        for kind, parameters in _effect_parameters(fitted).items():
+            for key, value in parameters.items():
+                values.setdefault(kind, {}).setdefault(key, []).append(value)
 
     collect(chain)
     reductions = []

@@ -211,3 +211,21 @@ def test_a_torque_limit_fitted_after_a_too_long_delay_moves_the_delay_to_the_tru
         fitted = effect("torque_limit").report(fit.block)["torque_limit_per_inertia_rad_per_s2"]
         assert abs(fitted / truth - 1.0) < 0.02, (forced, fitted, truth)
         assert fit.gap_rad < 1.05 * truth_gap, (forced, fit.gap_rad, truth_gap)
+
+
+def test_each_named_effect_reports_the_parameters_of_the_final_model_it_hands_over():
+    # seed 1004: round 1 names the delay at 13 samples, and fitting the torque limit moves it to the truth, 10;
+    # the report said 13 while the final model (the one a user writes out as plant TOML) had 10
+    record = hidden_effect_record(("delay", "torque_limit"), 1004)
+    result = diagnose_model(record.command_rad, record.angle_rad, record.noise_bound_rad, record.sample_period_s,
+                            record.nominal_model)
+    assert result.missing_effects == ("delay", "torque_limit")
+    final_delay, final_train = result.final_model.blocks
+    true_delay, _ = record.true_model.blocks
+    blocks = {"delay": final_delay, "torque_limit": final_train}
+    for named in result.report().missing_effects:
+        assert named.parameters == pytest.approx(effect(named.effect).report(blocks[named.effect])), named.effect
+        for key, value in named.parameters.items():
+            low, high = named.parameter_intervals[key]
+            assert low <= value <= high, (named.effect, key)
+    assert result.report().missing_effects[0].parameters["samples"] == true_delay.samples
