@@ -1755,6 +1755,10 @@ def bound_linear_block(input_rad: ArrayLike, inner_lower_rad: ArrayLike, inner_u
     map_windows
         ``map(function, tasks)`` used for the windows, e.g. ``executor.map`` of a process pool or a Dask
         client's executor; the builtin ``map`` (one process) by default. The tasks and results are plain data.
+        HiGHS 1.16 can crash the process solving a bounding LP of a long record (BENCHMARKS.md, "Record
+        length"); run in worker processes, a crash costs only their tasks, which are solved again
+        (:class:`_GuardedMap`). ``rig identify output-backlash`` does so even with ``--jobs 1``; from Python,
+        pass ``executor.map`` of ``rig.batch.executor_for(1, isolated=True)`` for a record of many windows.
     progress
         ``progress(stage, done, total)``, called as windows finish (for long records).
     """
