@@ -384,8 +384,9 @@ class _PartStart:
     """What a part's solves in one pass hand on to the same part's solves in the next (:func:`_coupled_bounds`):
     the part's LP keeps its rows and columns from pass to pass (only the envelopes of the narrower box change),
     so its last optimal basis (HiGHS basis status codes of the columns and rows) is a start for the next
-    pass's first solve, and a presolved first solve that failed on it will likely fail again
-    (:data:`_UNPRESOLVED`). A start only chooses where the simplex begins: the bounds are certified as always."""
+    pass's first solve; a part whose presolved first solve failed hands on no basis (a start from it crashed
+    HiGHS, :meth:`_Solver.minimize`), only that failure, which will likely recur (:data:`_UNPRESOLVED`). A start
+    only chooses where the simplex begins: the bounds are certified as always."""
 
     col_status: NDArray[np.int8] | None = None
     row_status: NDArray[np.int8] | None = None
@@ -402,7 +403,8 @@ class _Solver:
         :data:`_DEFAULT_SETTINGS`; ``start``: the basis and experience of the same part's model in the previous
         pass (ignored with ``settings``)."""
         # highspy.Highs() prints a banner (it would break ``--json`` output): the adapter gives a quiet instance.
-        from identify.highs_solver import HighsBasis, HighsBasisStatus, HighsLp, HighsModelStatus, MatrixFormat, quiet_highs
+        from identify.highs_solver import (HighsBasis, HighsBasisStatus, HighsLp, HighsModelStatus, MatrixFormat,
+                                           quiet_highs)
 
         self.lp = lp
         self.A, self.row_lower, self.row_upper = lp.rows()
@@ -468,10 +470,12 @@ class _Solver:
         """Certified lower bound of min cost^T z (Neumaier-Shcherbina: valid for any dual vector, given the
         finite column boxes) and the solver's minimiser; (inf, None) if the solver reports infeasibility.
 
-        Each solve starts from this model's previous optimal basis. Bases are not carried over from the LP of
-        the previous tightening round (an earlier version did): at N = 100 000, 8 bits, such a re-started solve
-        of a joint part sent HiGHS 1.16 into an unbounded recursion (``HEkkDualRHS::chooseNormal``, a segfault
-        by stack overflow), reproduced in one process; the same part solves in about a second without it."""
+        Each solve starts from this model's previous optimal basis; the first from the basis of the same part's
+        model in the previous pass, if :class:`_PartStart` hands one on. Not from a part whose presolved solve
+        failed: at N = 100 000, 8 bits, such a re-started solve of a joint part sent HiGHS 1.16 into an
+        unbounded recursion (``HEkkDualRHS::chooseNormal``, a segfault by stack overflow), with HiGHS's own
+        pricing and with dual steepest edge alike; the same part solves in about a second from scratch without
+        presolve (:data:`_UNPRESOLVED`)."""
         counter.solves += 1
         highs = self.highs
         highs.changeColsCost(self.columns.size, self.columns, np.asarray(cost, dtype=float))
