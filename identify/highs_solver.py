@@ -13,7 +13,8 @@ from __future__ import annotations
 
 from importlib.metadata import PackageNotFoundError, version
 
-__all__ = ["HighsLp", "HighsModelStatus", "MatrixFormat", "SOLVER_METHODS", "TESTED_HIGHSPY", "quiet_highs"]
+__all__ = ["HighsBasis", "HighsBasisStatus", "HighsLp", "HighsModelStatus", "MatrixFormat", "SOLVER_METHODS",
+           "TESTED_HIGHSPY", "quiet_highs"]
 
 TESTED_HIGHSPY = "1.16.0"
 """The highspy release this adapter was tested with; ``pyproject.toml`` allows ``highspy>=1.7,<1.17`` (the
@@ -32,12 +33,12 @@ def _installed() -> str:
 
 
 try:
-    from highspy._core import HighsLp, HighsModelStatus, MatrixFormat, _Highs
+    from highspy._core import HighsBasis, HighsBasisStatus, HighsLp, HighsModelStatus, MatrixFormat, _Highs
 except ImportError as err:  # pragma: no cover - only with an untested highspy
     raise ImportError(
         f"highspy {_installed()} has no private class highspy._core._Highs (or HighsLp, HighsModelStatus, "
-        f"MatrixFormat), which identify.highs_solver uses to solve LPs without a banner on stdout; it was "
-        f"tested with highspy {TESTED_HIGHSPY}: install it (pip install 'highspy==1.16.0')"
+        f"MatrixFormat, HighsBasis, HighsBasisStatus), which identify.highs_solver uses to solve LPs without a "
+        f"banner on stdout; it was tested with highspy {TESTED_HIGHSPY}: install it (pip install 'highspy==1.16.0')"
     ) from err
 
 

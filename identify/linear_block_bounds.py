@@ -364,16 +364,47 @@ class _Counter:
         self.fallbacks.extend(other.fallbacks)
 
 
+_UNPRESOLVED = {"presolve": "off", "simplex_dual_edge_weight_strategy": 2}
+"""First-solve settings of a part whose presolved first solve failed in an earlier pass (:class:`_PartStart`):
+dual simplex without presolve, with dual steepest-edge pricing that does not switch to Devex. At N = 100 000,
+8 bits, run 0 of the benchmark, 28 % of the parts' presolved first solves ended in "excessive primal values"
+after postsolve, mostly the same parts pass after pass; on them this setting needed no recovery, and on the part
+whose presolved first solve crashed HiGHS 1.16 (the ``chooseNormal`` recursion) it solved in about a second where
+presolve off with HiGHS's own pricing (steepest edge switching to Devex) failed and its recovery crashed. Not the
+default: at 12 bits it is about 40 % slower on the parts than the presolved solve, which fails there on 3 % of
+them (BENCHMARKS.md, "session 10")."""
+
+
+_FROM_BASIS = {"presolve": "off"}
+"""Settings of a first solve that goes on from a given basis (:class:`_PartStart`)."""
+
+
+@dataclass
+class _PartStart:
+    """What a part's solves in one pass hand on to the same part's solves in the next (:func:`_coupled_bounds`):
+    the part's LP keeps its rows and columns from pass to pass (only the envelopes of the narrower box change),
+    so its last optimal basis (HiGHS basis status codes of the columns and rows) is a start for the next
+    pass's first solve; a part whose presolved first solve failed hands on no basis (a start from it crashed
+    HiGHS, :meth:`_Solver.minimize`), only that failure, which will likely recur (:data:`_UNPRESOLVED`). A start
+    only chooses where the simplex begins: the bounds are certified as always."""
+
+    col_status: NDArray[np.int8] | None = None
+    row_status: NDArray[np.int8] | None = None
+    presolve_failed: bool = False
+
+
 class _Solver:
     """One HiGHS model of an :class:`_LP`, re-solved for many objectives from the previous basis."""
 
     def __init__(self, lp: _LP, settings: Mapping[str, Any] | None = None,
-                 first_solve: Mapping[str, Any] | None = None) -> None:
+                 first_solve: Mapping[str, Any] | None = None, start: _PartStart | None = None) -> None:
         """``settings``: HiGHS options for every solve (no switch to the primal simplex warm start after the
         first); ``first_solve``: options of the model's first solve (and of a solve after a recovery), on top of
-        :data:`_DEFAULT_SETTINGS`."""
+        :data:`_DEFAULT_SETTINGS`; ``start``: the basis and experience of the same part's model in the previous
+        pass (ignored with ``settings``)."""
         # highspy.Highs() prints a banner (it would break ``--json`` output): the adapter gives a quiet instance.
-        from identify.highs_solver import HighsLp, HighsModelStatus, MatrixFormat, quiet_highs
+        from identify.highs_solver import (HighsBasis, HighsBasisStatus, HighsLp, HighsModelStatus, MatrixFormat,
+                                           quiet_highs)
 
         self.lp = lp
         self.A, self.row_lower, self.row_upper = lp.rows()
@@ -392,7 +423,10 @@ class _Solver:
         model.a_matrix_.value_ = A.data.astype(float)
         self.highs = quiet_highs()
         self.fixed_settings = dict(settings or {})
-        self.base_settings = {**_DEFAULT_SETTINGS, **(first_solve or {}), **self.fixed_settings}
+        self.presolve_failed = start is not None and start.presolve_failed
+        start = None if self.fixed_settings else start
+        unpresolved = _UNPRESOLVED if self.presolve_failed else {}
+        self.base_settings = {**_DEFAULT_SETTINGS, **(first_solve or {}), **unpresolved, **self.fixed_settings}
         self._set(self.base_settings)
         # A bounded time per attempt: a warm start that stalls on a long record's LP (issue 19: one part of a
         # 100 000-sample record kept a worker busy for over 15 minutes) goes on to the recovery settings and,
@@ -400,11 +434,29 @@ class _Solver:
         # HiGHS counts its time limit over all runs of one model, so each run sets it from the time used so far.
         self.time_limit_s = _TIME_LIMIT_S + 2e-4 * float(A.shape[0])
         self.highs.passModel(model)
+        if (start is not None and start.col_status is not None and start.row_status is not None
+                and start.col_status.size == model.num_col_ and start.row_status.size == model.num_row_):
+            basis = HighsBasis()
+            basis.col_status = [HighsBasisStatus(int(code)) for code in start.col_status]
+            basis.row_status = [HighsBasisStatus(int(code)) for code in start.row_status]
+            basis.valid = True
+            self.highs.setBasis(basis)
+            self._set(_FROM_BASIS)
+        self.from_basis = self.highs.getBasis().valid
 
         self._status = HighsModelStatus
         self.columns = np.arange(A.shape[1], dtype=np.int32)
         self.warm = False
         self.solved = False
+
+    def handoff(self) -> _PartStart:
+        """This model's last basis (none if it has no valid one, e.g. after the interior-point method without
+        crossover) and whether a presolved first solve failed on it, for the same part's next pass."""
+        basis = self.highs.getBasis()
+        if not (self.solved and basis.valid) or self.presolve_failed:
+            return _PartStart(presolve_failed=self.presolve_failed)
+        return _PartStart(np.array([int(code) for code in basis.col_status], dtype=np.int8),
+                          np.array([int(code) for code in basis.row_status], dtype=np.int8), self.presolve_failed)
 
     def _set(self, settings: Mapping[str, Any]) -> None:
         for option, value in settings.items():
@@ -418,22 +470,26 @@ class _Solver:
         """Certified lower bound of min cost^T z (Neumaier-Shcherbina: valid for any dual vector, given the
         finite column boxes) and the solver's minimiser; (inf, None) if the solver reports infeasibility.
 
-        Each solve starts from this model's previous optimal basis. Bases are not carried over from the LP of
-        the previous tightening round (an earlier version did): at N = 100 000, 8 bits, such a re-started solve
-        of a joint part sent HiGHS 1.16 into an unbounded recursion (``HEkkDualRHS::chooseNormal``, a segfault
-        by stack overflow), reproduced in one process; the same part solves in about a second without it."""
+        Each solve starts from this model's previous optimal basis; the first from the basis of the same part's
+        model in the previous pass, if :class:`_PartStart` hands one on. Not from a part whose presolved solve
+        failed: at N = 100 000, 8 bits, such a re-started solve of a joint part sent HiGHS 1.16 into an
+        unbounded recursion (``HEkkDualRHS::chooseNormal``, a segfault by stack overflow), with HiGHS's own
+        pricing and with dual steepest edge alike; the same part solves in about a second from scratch without
+        presolve (:data:`_UNPRESOLVED`)."""
         counter.solves += 1
         highs = self.highs
         highs.changeColsCost(self.columns.size, self.columns, np.asarray(cost, dtype=float))
         self._run()
         status = highs.getModelStatus()
         if status not in (self._status.kOptimal, self._status.kInfeasible):
+            if not (self.solved or self.from_basis) and self.base_settings["presolve"] == "on":
+                self.presolve_failed = True
             # Recover from a stalled warm start or a numerically poor basis (the chained equations can make
             # a basis very ill-conditioned): solve again from scratch, by dual simplex with and without
             # presolve, then by the interior-point method without crossover (its duals are all the
             # certificate needs). HiGHS is deterministic: settings that failed from scratch (the model's
             # first solve has no basis to drop) are not tried again.
-            tried = [] if self.solved else [self.base_settings]
+            tried = [] if (self.solved or self.from_basis) else [self.base_settings]
             for recovery in _RECOVERY_SETTINGS:
                 settings = {**self.base_settings, **recovery}
                 if settings in tried:
@@ -592,7 +648,8 @@ def _orthant_lp(data: _Data, signs: tuple[int, ...]) -> _LP:
     return _LP(sp.csr_matrix(A_ub), b_ub, A_eq, b_eq, lower, upper)
 
 
-def _bounds_over(lp: _LP, p: int, counter: _Counter, wanted: NDArray[np.bool_] | None = None, retry: bool = False
+def _bounds_over(lp: _LP, p: int, counter: _Counter, wanted: NDArray[np.bool_] | None = None, retry: bool = False,
+                 start: _PartStart | None = None
                  ) -> tuple[NDArray[np.float64], NDArray[np.float64], list[NDArray[np.float64] | None]]:
     """Certified min and max of each of the first p variables, with the minimisers/maximisers
     (``points[2k]`` minimises and ``points[2k + 1]`` maximises variable k), on one HiGHS model whose
@@ -601,14 +658,27 @@ def _bounds_over(lp: _LP, p: int, counter: _Counter, wanted: NDArray[np.bool_] |
     ``wanted`` (2p booleans in the order of ``points``; all by default) names the bounds to solve: the others
     are the LP's own column bounds (the caller's box, valid for every point of the set) with point None, so a
     caller that needs only the bounds still moving saves their LPs (:func:`_coupled_bounds`). ``retry``: every
-    solve by :data:`RETRY_SETTINGS` (a task solved again after a crash, :class:`_GuardedMap`).
+    solve by :data:`RETRY_SETTINGS` (a task solved again after a crash, :class:`_GuardedMap`). ``start`` (in and
+    out): the model starts from it (:class:`_PartStart`) and it is overwritten with the model's hand-off.
 
     A bound whose LP HiGHS cannot solve (after the recovery settings of :meth:`_Solver.minimize`) is the
     LP's own column bound for that variable, which holds for every point of the set (the caller's current
     box); it is recorded in ``counter.fallbacks`` and its point is None."""
+    solver = _Solver(lp, settings=RETRY_SETTINGS if retry else None, start=start)
+    try:
+        return _solved_bounds(solver, lp, p, counter, wanted)
+    finally:
+        if start is not None:
+            handoff = solver.handoff()
+            start.col_status, start.row_status, start.presolve_failed = (handoff.col_status, handoff.row_status,
+                                                                         handoff.presolve_failed)
+
+
+def _solved_bounds(solver: _Solver, lp: _LP, p: int, counter: _Counter, wanted: NDArray[np.bool_] | None
+                   ) -> tuple[NDArray[np.float64], NDArray[np.float64], list[NDArray[np.float64] | None]]:
+    """The solves of :func:`_bounds_over` on its model."""
     lows, highs = lp.lower[:p].copy(), lp.upper[:p].copy()
     points: list[NDArray[np.float64] | None] = [None] * (2 * p)
-    solver = _Solver(lp, settings=RETRY_SETTINGS if retry else None)
     for index in range(2 * p):
         if wanted is not None and not wanted[index]:
             continue
@@ -818,7 +888,8 @@ def _with_shared_backlash(lp: _LP, data: _Data, p: int) -> _LP:
 def _tighten(data: _Data, low: NDArray[np.float64], high: NDArray[np.float64], counter: _Counter, max_rounds: int,
              relative_improvement: float, full_last_round: bool,
              relaxation: Callable[[_Data, NDArray[np.float64], NDArray[np.float64]], _LP] | None = None,
-             full_rounds: bool = False, wanted: NDArray[np.bool_] | None = None, retry: bool = False
+             full_rounds: bool = False, wanted: NDArray[np.bool_] | None = None, retry: bool = False,
+             start: _PartStart | None = None
              ) -> tuple[NDArray[np.float64], NDArray[np.float64], int, list[NDArray[np.float64]], bool]:
     """Rounds of the McCormick relaxation: LPs over a only tighten the box of a (which sets the envelopes)
     until no a-interval shrinks by more than ``relative_improvement`` or ``max_rounds`` relaxations were
@@ -826,7 +897,8 @@ def _tighten(data: _Data, low: NDArray[np.float64], high: NDArray[np.float64], c
     does (the bounds of b then tighten each other through the unit-gain row). Returns the box, the rounds,
     the extreme points of the last round and whether the relaxation was proven empty. ``relaxation`` builds
     the LP from (data, low, high); McCormick (:func:`_coupled_lp`) by default. ``wanted`` (2p booleans, see
-    :func:`_bounds_over`) limits every round to those bounds, ``retry`` is passed on to it."""
+    :func:`_bounds_over`) limits every round to those bounds, ``retry`` and ``start`` are passed on to it (a start
+    only to the first round: the model of a later round has another box)."""
     relaxation = _coupled_lp if relaxation is None else relaxation
     p, na = data.orders.num_parameters, data.orders.na
     rounds = 0
@@ -837,7 +909,7 @@ def _tighten(data: _Data, low: NDArray[np.float64], high: NDArray[np.float64], c
         lp = relaxation(data, low, high)
         count = p if (full_rounds or (final and full_last_round)) else na
         new_low, new_high, points = _bounds_over(lp, count, counter, None if wanted is None else wanted[: 2 * count],
-                                                 retry)
+                                                 retry, start if rounds == 1 else None)
         if not np.all(np.isfinite(new_low)):
             if _proven_infeasible(lp, counter):
                 return low, high, rounds, [], True
@@ -928,25 +1000,27 @@ def _restrict(data: _Data, segments: Sequence[tuple[int, int]]) -> _Data:
 
 
 def _window_task(task: tuple[str, _Data, NDArray[np.float64], NDArray[np.float64], NDArray[np.float64] | None,
-                             NDArray[np.bool_] | None, bool]) -> tuple[Any, _Counter]:
+                             NDArray[np.bool_] | None, _PartStart | None, bool]) -> tuple[Any, _Counter]:
     """One window's work, in this or another process (module level, plain data in and out).
 
-    ``("bounds", window, low, high, None, wanted, retry)``: certified bounds on the window's interval
-    relaxation over the box. ``("joint", part, low, high, [max_rounds, tolerance], wanted, retry)``: the
+    ``("bounds", window, low, high, None, wanted, None, retry)``: certified bounds on the window's interval
+    relaxation over the box. ``("joint", part, low, high, [max_rounds, tolerance], wanted, start, retry)``: the
     rounds of the interval relaxation on a part of the record (:func:`_tighten`): its box, rounds, the θ of its
-    extreme points and whether it is proven empty. ``wanted`` (2p booleans, None: all) names the bounds to solve
+    extreme points, whether it is proven empty and the hand-off to the part's next pass, which starts from
+    ``start`` (:class:`_PartStart`; None: from scratch). ``wanted`` (2p booleans, None: all) names the bounds to solve
     (:func:`_bounds_over`); the others come back as the box given. ``retry``: solved by :data:`RETRY_SETTINGS`
     (a task solved again after its worker died, :class:`_GuardedMap`)."""
-    kind, window, low, high, settings, wanted, retry = task
+    kind, window, low, high, settings, wanted, start, retry = task
     counter = _Counter()
     if kind == "joint":
         assert settings is not None
         counter.stage = f"joint relaxation of {window.u.size} samples"
         max_rounds, tolerance = int(settings[0]), float(settings[1])
+        start = _PartStart() if start is None else start
         low, high, used, extreme, empty = _tighten(window, low, high, counter, max_rounds, tolerance, True,
-                                                   _FULL_DATA_RELAXATION, wanted=wanted, retry=retry)
+                                                   _FULL_DATA_RELAXATION, wanted=wanted, retry=retry, start=start)
         return (low, high, used, [None if x is None else x[: window.orders.num_parameters] for x in extreme],
-                empty), counter
+                empty, start), counter
     counter.stage = "window relaxation"
     new_low, new_high, _ = _bounds_over(_FULL_DATA_RELAXATION(window, low, high), window.orders.num_parameters,
                                         counter, wanted, retry)
@@ -1320,7 +1394,7 @@ def _coupled_bounds(data: _Data, low: NDArray[np.float64], high: NDArray[np.floa
     for passes in range(1, max(max_rounds, 1) + 1):
         label = f"window pass {passes}"
         new_low, new_high = low.copy(), high.copy()
-        tasks = (("bounds", windows[k], low, high, None, mask, False) for k, mask in zip(active, wanted))
+        tasks = (("bounds", windows[k], low, high, None, mask, None, False) for k, mask in zip(active, wanted))
         for count, (k, mask, (lows, highs)) in enumerate(zip(active, wanted, guarded.results(tasks, label))):
             own.record(k, lows, highs, mask)
             new_low, new_high = np.maximum(new_low, lows), np.minimum(new_high, highs)
@@ -1365,6 +1439,8 @@ def _coupled_bounds(data: _Data, low: NDArray[np.float64], high: NDArray[np.floa
     # trades only tightness, never validity.
     settings = np.array([max_rounds, 1e-6]) if all_parts == 1 else np.array([_PART_ROUNDS, relative_improvement])
     part_bounds = _TaskBounds(len(chunks), p)
+    # each part's next pass starts from its last basis (and settings) on the same LP, apart from the new box
+    starts: list[_PartStart | None] = [None] * len(chunks)
     active_parts, part_wanted = list(range(len(chunks))), [None] * len(chunks)
     last_pass_parts = 0
     for chunk_passes in range(1, (_PART_PASSES if all_parts > 1 else 1) + 1):
@@ -1372,12 +1448,12 @@ def _coupled_bounds(data: _Data, low: NDArray[np.float64], high: NDArray[np.floa
         last_pass_parts = len(active_parts)
         new_low, new_high = low.copy(), high.copy()
         best_low, best_high = np.full(p, -math.inf), np.full(p, math.inf)
-        tasks = (("joint", _restrict(data, [chunks[c]]), low, high, settings, mask, False)
+        tasks = (("joint", _restrict(data, [chunks[c]]), low, high, settings, mask, starts[c], False)
                  for c, mask in zip(active_parts, part_wanted))
         if progress is not None:
             progress(label, 0, len(active_parts))
         # one part per map call: parts are few and long, so chunks of several would leave a core idle
-        for k, (c, mask, (lows, highs, used, chunk_points, empty)) in enumerate(
+        for k, (c, mask, (lows, highs, used, chunk_points, empty, starts[c])) in enumerate(
                 zip(active_parts, part_wanted, guarded.results(tasks, label, one_per_call=True))):
             part_bounds.record(c, lows, highs, mask)
             if empty:

@@ -10,7 +10,7 @@ import pytest
 import scipy.sparse as sp
 
 from identify import highs_solver
-from identify.highs_solver import HighsLp, HighsModelStatus, MatrixFormat, quiet_highs
+from identify.highs_solver import HighsBasis, HighsBasisStatus, HighsLp, HighsModelStatus, MatrixFormat, quiet_highs
 
 
 def _small_lp() -> HighsLp:
@@ -48,6 +48,19 @@ def test_the_quiet_instance_prints_nothing_and_solves_an_lp_through_every_call_t
     highs.run()
     np.testing.assert_allclose(highs.getSolution().col_value, [0.6, 0.4], atol=1e-9)  # x0 = x1 + 0.2, x0 + x1 = 1
     np.testing.assert_allclose(highs.getSolution().row_dual, [1.5, 0.5], atol=1e-9)
+    # a basis rebuilt from its status codes (a part's hand-off to its next pass, sent between processes)
+    basis = highs.getBasis()
+    codes = [int(status) for status in basis.col_status], [int(status) for status in basis.row_status]
+    rebuilt = HighsBasis()
+    rebuilt.col_status = [HighsBasisStatus(code) for code in codes[0]]
+    rebuilt.row_status = [HighsBasisStatus(code) for code in codes[1]]
+    rebuilt.valid = True
+    highs.clearSolver()
+    highs.setBasis(rebuilt)
+    highs.setOptionValue("simplex_strategy", 1)
+    highs.run()
+    assert highs.getBasis().valid and highs.getInfo().simplex_iteration_count == 0  # already optimal
+    np.testing.assert_allclose(highs.getSolution().col_value, [0.6, 0.4], atol=1e-9)
     highs.clearSolver()
     highs.run()
     assert highs.getModelStatus() == HighsModelStatus.kOptimal

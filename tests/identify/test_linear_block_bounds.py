@@ -397,6 +397,75 @@ def test_the_passes_over_the_parts_iterate_to_a_fixed_point_that_one_pass_contai
     assert narrower >= 1
 
 
+def _long_record_options(seed: int):
+    data, paper = _run(8, seed, "paper", num_samples=900)
+    inner = paper.inner_signal
+    shared = shared_backlash_constraints(data.output_rad, data.noise_bound_rad, paper.backlash, inner)
+    return (data.input_rad, inner.lower_rad, inner.upper_rad), {
+        "na": 2, "nk": 1, "nb": 2, "shared_backlash": shared, "joint_samples": 400, "partition_samples": 0,
+        "verify_inner": False}, paper
+
+
+def test_a_part_starts_its_next_pass_from_its_last_basis_and_gets_the_bounds_of_a_cold_start(monkeypatch) -> None:
+    # Issue 19: a part's LP keeps its rows and columns from pass to pass, so its next pass starts from its last
+    # basis (HiGHS's first solve of a 3000-sample part is most of its time). Only the start differs: the
+    # certified bounds are those of parts solved from scratch, up to the rounding of the certificates.
+    import identify.linear_block_bounds as module
+
+    args, options, paper = _long_record_options(64)
+    starts = []
+    original = module._Solver.__init__
+
+    def spied(self, *a, **k):
+        original(self, *a, **k)
+        starts.append(self.from_basis)
+
+    monkeypatch.setattr(module._Solver, "__init__", spied)
+    handed_on = bound_linear_block(*args, **options)
+    assert sum(starts) >= 3, handed_on.windowing  # at least one later pass of the 3 parts went on from a basis
+    starts.clear()
+    monkeypatch.setattr(module._Solver, "handoff", lambda self: module._PartStart())
+    cold = bound_linear_block(*args, **options)
+    assert not any(starts)
+    assert cold.windowing == handed_on.windowing
+    for name, value in THETA.items():
+        warm, scratch = handed_on.intervals[name], cold.intervals[name]
+        assert warm.contains(value)
+        tolerance = 1e-8 * (1.0 + abs(scratch.upper))
+        assert abs(warm.lower - scratch.lower) <= tolerance and abs(warm.upper - scratch.upper) <= tolerance
+
+
+def test_a_part_whose_presolved_solve_failed_solves_its_next_passes_without_presolve(monkeypatch) -> None:
+    # Issue 19: at N = 100 000, 8 bits, 28 % of the parts' presolved first solves failed ("excessive primal
+    # values" after postsolve), mostly the same parts pass after pass, and one crashed HiGHS. Here every
+    # presolved solve of a part stops at once (a time limit of zero): each part may pay for it once, not in
+    # every pass, and the bounds still contain the truth.
+    import identify.linear_block_bounds as module
+
+    args, options, paper = _long_record_options(62)
+    failed = []
+    original = module._Solver._run
+
+    def presolve_fails_on_parts(self):
+        ranged = self.lp.A_range
+        if ranged is not None and ranged.shape[0] > 300 and self.highs.getOptionValue("presolve")[1] == "on":
+            failed.append(ranged.shape)  # one equation per ranged row: a part of 400 samples, not a window
+            self.highs.setOptionValue("time_limit", 0.0)
+            self.highs.run()
+            return
+        original(self)
+
+    monkeypatch.setattr(module._Solver, "_run", presolve_fails_on_parts)
+    result = bound_linear_block(*args, **options)
+    used = int(result.windowing.split("intersected (")[1].split(" pass")[0])
+    assert used >= 2, result.windowing
+    assert 1 <= len(failed) <= 3  # the 3 parts of 400 samples, once each
+    for name, value in THETA.items():
+        assert result.intervals[name].contains(value)
+        assert paper.linear_intervals[name].lower <= result.intervals[name].lower
+    assert result.notes == ()
+
+
 def _window_task_whose_joint_parts_kill_their_process(task):
     """A worker that dies like the one of issue 19 (segfault inside HiGHS), here by SIGKILL."""
     import os
