@@ -24,6 +24,7 @@ from identify.model_discrepancy import (
     _clear_end,
     _refit_reduction,
     _Search,
+    _acceptance,
     _with_refits,
     _within_uncertainty,
     diagnose_model,
@@ -355,8 +356,8 @@ def test_a_clear_effect_is_named_with_its_reduction_clear_over_validation_blocks
     assert candidate.acceptance == "clear" and len(candidate.fold_reductions) == REFIT_FOLDS
     low, high = candidate.reduction_interval
     assert low >= 0.15 and min(candidate.fold_reductions) >= 0.15
-    for part in (candidate.validation_interval, candidate.refit_interval):
-        assert low <= part[0] <= part[1] <= high  # the interval judged is the union of both
+    assert candidate.reduction_interval == candidate.refit_interval  # the refits measure the size...
+    assert candidate.reduction >= 0.15  # ... and the validation segment shows it too
     document = json.loads(json.dumps(result.to_dict()))
     assert document["version"] == 3 and len(document["candidates"][0]["fold_reductions"]) == REFIT_FOLDS
     assert DiscrepancyReport.from_dict(document) == result.report()
@@ -387,6 +388,48 @@ def test_a_reduction_the_refits_put_on_both_sides_of_the_acceptance_is_undecided
     assert _with_refits(straddling, none, interval, 0.15).acceptance == "undecided"
     assert _with_refits(replace(entry, validation_interval=(0.02, 0.10)), none, interval, 0.15).acceptance \
         == "rejected"
+
+
+def _block_errors(block_gaps_rad, samples=40, seed=0):
+    return np.concatenate(_fold_errors(block_gaps_rad, samples, seed))
+
+
+def test_an_effect_the_record_excites_in_one_validation_block_is_judged_by_its_refits():
+    # a torque limit reached once in the validation segment: one block 50 noise bounds off, removed, the next
+    # one just beyond the bound as the motion settles, and the six others within the noise (as the
+    # hidden-effect record given the model, seed 1006)
+    noise_bound = 1.0
+    current = _block_errors([0.5, 50.0, 1.2, 0.5, 0.5, 0.5, 0.5, 0.5])
+    candidate = _block_errors([0.5] * 8)
+    factor = 1.03
+    penalised, gap = factor * float(np.sqrt(np.mean(candidate ** 2))), float(np.sqrt(np.mean(current ** 2)))
+    reduction, validation, word = _acceptance(candidate, factor, current, penalised, gap, 0.15, noise_bound)
+    assert reduction > 0.95 and validation[0] < 0.15 < validation[1] and word == "undecided"
+    entry = CandidateResult(0, "torque_limit", penalised / factor, 0.0, penalised, {}, False, True, reduction,
+                            validation, word, validation)
+    # the 8 refits over the whole record see the limit in every fold: clear, and their interval is judged
+    baseline = _fold_errors([10.0, 12.0, 9.0, 11.0, 10.0, 13.0, 8.0, 10.0])
+    folds, refit = _refit_reduction(_fold_errors([0.5, 0.6, 0.5, 0.7, 0.5, 0.6, 0.5, 0.5]), baseline, factor)
+    judged = _with_refits(entry, folds, refit, 0.15)
+    assert judged.acceptance == "clear" and judged.reduction_interval == refit and refit[0] > 0.9
+    # refits that straddle the acceptance: the union, undecided
+    straddling, interval = _refit_reduction(_fold_errors([2.0, 12.0, 1.0, 11.0, 2.0, 13.0, 1.0, 10.0]), baseline,
+                                            factor)
+    assert interval[0] < 0.15 < interval[1]
+    assert _with_refits(entry, straddling, interval, 0.15).acceptance == "undecided"
+    # clear refits with a validated reduction under the acceptance: the validation segment does not show it
+    weak = replace(entry, reduction=0.10, validation_interval=(-0.5, 0.6), acceptance="undecided")
+    judged = _with_refits(weak, folds, refit, 0.15)
+    assert judged.acceptance == "undecided" and judged.reduction_interval == (-0.5, max(0.6, refit[1]))
+
+
+def test_a_torque_limit_reached_once_in_the_validation_segment_is_named():
+    record = hidden_effect_record(("torque_limit",), 1006)
+    result = run(record)
+    assert result.verdict == "named" and result.missing_effects == ("torque_limit",), result.verdict_reason
+    entry = next(c for c in result.candidates if c.effect == "torque_limit" and c.acceptance == "clear")
+    assert entry.validation_interval[0] < 0.15 <= entry.reduction  # the block spread alone would not decide
+    assert entry.refit_interval[0] >= 0.15
 
 
 def test_a_version_2_document_is_still_read():
