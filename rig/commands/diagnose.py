@@ -246,13 +246,15 @@ VERDICT_WORDS = {
 
 def _acceptance_note(candidate) -> str:
     """What a candidate's gap reduction said (``identify.model_discrepancy.ACCEPTANCES``), for the candidates
-    line: vanished, or the reduction with its interval when it reaches the acceptance."""
+    line: vanished, or the reduction with the interval judged and its parts when it reaches the acceptance (the
+    validated reduction may lie outside the refits' interval that named the effect)."""
     if candidate.vanished:
         return " (vanished)"
     if candidate.acceptance in ("clear", "undecided"):
         low, high = candidate.reduction_interval
+        parts = candidate.interval_parts()
         return (f" (reduction {100 * candidate.reduction:.0f} %, {100 * low:.0f} .. {100 * high:.0f} %: "
-                f"{candidate.acceptance})")
+                f"{candidate.acceptance}{'; ' + parts if parts else ''})")
     return ""
 
 

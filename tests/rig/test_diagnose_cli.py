@@ -58,6 +58,9 @@ def test_text_output_names_the_effect(files, capsys):
     out = capsys.readouterr().out
     assert "step 1: backlash" in out and "final gap" in out
     assert "verdict       NAMED" in out and "candidates 1" in out and "cross-validation folds" in out
+    # the named candidate's line gives both parts of its interval: which one named it can be read there
+    (line,) = [line for line in out.splitlines() if line.startswith("candidates 1")]
+    assert "clear; validation blocks" in line and "8 refits" in line
 
 
 def test_figures_label_their_axes_with_units(files):
