@@ -1582,8 +1582,8 @@ class CandidateResult:
     (the spread over the validation blocks) and, for the candidates the acceptance weighs
     (:func:`_judged_by_refits`: a round's best candidate and its peers), ``refit_interval`` (the spread of
     the penalised reductions ``fold_reductions`` of :data:`REFIT_FOLDS` cross-validation refits over the
-    whole record, :func:`_refit_reduction`): the refit interval when it is clear and the validated reduction reaches the
-    acceptance, else the union of the two. For the other candidates, and in documents of version 2,
+    whole record, :func:`_refit_reduction`): the refit interval when it and the validated reduction are on the
+    same side of the acceptance, else the union of the two. For the other candidates, and in documents of version 2,
     ``refit_interval`` is None (JSON null), ``fold_reductions`` empty and the interval judged the validation
     one."""
 
@@ -1762,7 +1762,8 @@ def _with_refits(entry: CandidateResult, fold_reductions: tuple[float, ...],
 
 
 def _reduction_judged(validation_reduction: float, validation_interval: tuple[float, float],
-            refit_interval: tuple[float, float] | None, min_reduction: float) -> tuple[tuple[float, float], str]:
+                      refit_interval: tuple[float, float] | None,
+                      min_reduction: float) -> tuple[tuple[float, float], str]:
     """The interval judged and its :data:`ACCEPTANCES` word, from the validated reduction with its interval over
     the validation blocks (:func:`_acceptance`) and the interval of the cross-validation refits
     (:func:`_refit_reduction`, None when not made).
@@ -1782,14 +1783,15 @@ def _reduction_judged(validation_reduction: float, validation_interval: tuple[fl
     67 %, block intervals reaching down to -10 to 13 %, refits 17 to 86 %; 5 of 20 hidden resonances were left
     undecided and nothing named while the union was the rule. The same the other way: after a backlash and a
     gravity named (given the model, seed 1017) a resonance validated at 9 %, blocks -60 to 49 %, refits -15 to
-    12 %, made the verdict ambiguous. A record that excites an effect only in some
-    stretches is the rule in a test rig's steps and chirps, and the refits, made on 8 folds spread over the
-    whole record, see every stretch. The validation reduction stays the check that the effect holds on data no
-    fit saw (the refits' folds overlap, Bengio and Grandvalet 2004)."""
+    12 %, made the verdict ambiguous. A record that excites an effect only in some stretches is the rule in a
+    test rig's steps and chirps, and the refits, made on 8 folds spread over the whole record, see every
+    stretch. The validated reduction stays the check that the effect holds on data no fit saw (the refits'
+    folds overlap, Bengio and Grandvalet 2004)."""
     if refit_interval is None:
         return validation_interval, _accepted(validation_interval, min_reduction)
     by_refits = _accepted(refit_interval, min_reduction)
-    if (by_refits == "clear") == (validation_reduction >= min_reduction) and by_refits != "undecided":
+    validated_above = validation_reduction >= min_reduction
+    if (by_refits == "clear" and validated_above) or (by_refits == "rejected" and not validated_above):
         return refit_interval, by_refits
     union = (min(validation_interval[0], refit_interval[0]), max(validation_interval[1], refit_interval[1]))
     return union, _accepted(union, min_reduction)
@@ -2228,7 +2230,7 @@ def _clearly_better_end(end: _Search, steps_before: int, current: Disagreement,
     ``baseline_folds``): two effects at once, neither of which alone explains enough of the record to be told
     from no effect.
 
-    Both intervals must be clear, the union of the two, not the rule of one candidate (:func:`_reduction_judged`,
+    Both intervals must be clear (their union), not the rule of one candidate (:func:`_reduction_judged`,
     where clear refits and a validated reduction at the acceptance suffice): such an end is the best of
     several searches followed from undecided candidates, and its last step may reach the acceptance by a hair.
     On the K-Scale sin_time_square records at kp 16 one repetition of four ended rate_limit + gravity +
