@@ -421,12 +421,11 @@ def test_an_effect_the_record_excites_in_one_validation_block_is_judged_by_its_r
     weak = replace(entry, reduction=0.10, validation_interval=(-0.5, 0.6), acceptance="undecided")
     judged = _with_refits(weak, folds, refit, 0.15)
     assert judged.acceptance == "undecided" and judged.reduction_interval == (-0.5, max(0.6, refit[1]))
-    # and the other way: refits clearly below the acceptance with a validated reduction below it too reject,
-    # however wide the block interval (a resonance after a backlash and a gravity, given the model, seed 1017)
+    # but refits clearly below the acceptance do not reject alone: the union straddles, undecided (on real
+    # servo records the other way moved repetitions of one experiment between ambiguous and unexplained)
     none, interval = _refit_reduction(_fold_errors([10.0, 12.5, 8.5, 11.0, 10.0, 12.0, 8.0, 10.5]), baseline, factor)
     assert interval[1] < 0.15
-    judged = _with_refits(weak, none, interval, 0.15)
-    assert judged.acceptance == "rejected" and judged.reduction_interval == interval
+    assert _with_refits(weak, none, interval, 0.15).acceptance == "undecided"
 
 
 def test_a_torque_limit_reached_once_in_the_validation_segment_is_named():
