@@ -1783,8 +1783,8 @@ def _reduction_judged(validation_reduction: float, validation_interval: tuple[fl
     67 %, block intervals reaching down to -10 to 13 %, refits 17 to 86 %; 5 of 20 hidden resonances were left
     undecided and nothing named while the union was the rule. A record that excites an effect only in some
     stretches is the rule in a test rig's steps and chirps, and the refits, made on 8 folds spread over the
-    whole record, see every stretch. The validated reduction stays the check that the effect holds on data no fit saw (the refits'
-    folds overlap, Bengio and Grandvalet 2004).
+    whole record, see every stretch. The validated reduction stays the check that the effect holds on data
+    no fit saw (the refits' folds overlap, Bengio and Grandvalet 2004).
 
     Why not the other way too (refits clearly below and a validated reduction below: rejected, however wide
     the block interval): it moves the verdict between ambiguous and unexplained by chance. On the K-Scale
