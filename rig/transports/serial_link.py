@@ -43,6 +43,7 @@ MAX_REPLY_TIMEOUT_S = 1.0
 device a frame at least this often while it is enabled and waiting for the first SETPOINT."""
 DEFAULT_LEAD_S = 0.25
 """v2: the default lead (``lead_s``), longer than the ~205 ms starvation measured under load (see SerialTransport)."""
+_PORT_GONE_HINT = "(the port disappeared: adapter unplugged or device powered off?)"
 _FAULT_STATES = (cia402.DriveState.FAULT, cia402.DriveState.FAULT_REACTION_ACTIVE)
 _ANSWER_TO = {MessageType.CONTROL: MessageType.STATUS, MessageType.STATUS_REQUEST: MessageType.STATUS,
               MessageType.ERROR_REQUEST: MessageType.ERROR, MessageType.HELLO: MessageType.DEVICE_INFO,
@@ -262,7 +263,7 @@ class SerialTransport(Transport):
         try:
             self._serial.write(data)
         except Exception as err:  # serial.SerialException, OSError
-            raise TransportError(f"{self.name}: write to {self.port} failed: {err}") from err
+            raise TransportError(f"{self.name}: write to {self.port} failed: {err} {_PORT_GONE_HINT}") from err
 
     def _poll(self, timeout_s: float) -> bool:
         """Read what is there (waiting up to ``timeout_s`` for the first byte) and dispatch the messages."""
@@ -274,8 +275,7 @@ class SerialTransport(Transport):
                 return False
             data = self._serial.read(self._serial.in_waiting or 1)
         except Exception as err:  # serial.SerialException, OSError, ValueError on a closed port
-            raise TransportError(f"{self.name}: read from {self.port} failed: {err} (the port disappeared: "
-                                 "adapter unplugged or device powered off?)") from err
+            raise TransportError(f"{self.name}: read from {self.port} failed: {err} {_PORT_GONE_HINT}") from err
         received = self.clock()
         errors_before = self._decoder.errors
         before_first_frame = self._valid_frames == 0
