@@ -47,6 +47,7 @@ from sim_backend.canopen_behaviour import (
 )
 from sim_backend.eds_variants import eds_text, is_pdo_parameter, load_eds_text, static_pdo_access, with_entries
 from sim_backend.plant import SimulatedGearbox
+from sim_backend.virtual_bus_order import one_bus_order
 
 __all__ = ["DRIVE_EDS", "EDS_DIRECTORY", "ENCODER_EDS", "SimulatedCanOpenRig", "u32_range"]
 
@@ -99,6 +100,7 @@ class _WireTimeBus(VirtualBus):
     however late the simulated device's thread got to answer."""
 
     def __init__(self, channel: str, counter: _FrameCounter) -> None:
+        one_bus_order()  # every node sees the frames in one order, as on a real bus
         super().__init__(channel=channel, receive_own_messages=False, preserve_timestamps=False)
         self._stamp_lock = threading.Lock()
         self.counter = counter

@@ -28,6 +28,7 @@ from rig.protocols.can_bus_load import frame_bits
 from rig.protocols.raw_can_frames import DEFAULT_DBC, RawCanCodec
 from rig.protocols.serial_frames import unwrap_seq
 from sim_backend.plant import SimulatedGearbox
+from sim_backend.virtual_bus_order import one_bus_order
 
 __all__ = ["SimulatedRawCanDevice"]
 
@@ -120,6 +121,7 @@ class SimulatedRawCanDevice(can.Listener):
         self._state_lock = threading.RLock()  # the notifier and the tick thread share the drive's state
 
     def start(self) -> SimulatedRawCanDevice:
+        one_bus_order()  # every node sees the frames in one order, as on a real bus
         self._bus = can.Bus(interface="virtual", channel=self.channel, receive_own_messages=False)
         self._notifier = can.Notifier(self._bus, [self], timeout=0.05)
         if self.protocol_version >= 2:
