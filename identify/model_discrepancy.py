@@ -799,6 +799,13 @@ def _merged(chain: _Chain, index: int, kind: str, values: Sequence[float]) -> _C
     return _Chain(components)
 
 
+def _baseline_refit(chain: _Chain, u: NDArray[np.float64], y: NDArray[np.float64], max_evaluations: int) -> _Chain:
+    """``chain`` refitted on the estimation segment (u, y) at :data:`_BASELINE_EFFORT` times the candidates'
+    effort: its delays re-searched, then everything polished (the baseline a further effect must beat, and
+    the model without an effect in :func:`_still_needed`)."""
+    return _polish(_refine_delays(chain, u, y), u, y, _budget(chain, _BASELINE_EFFORT * max_evaluations))
+
+
 def _polished_start(start: _Chain, u: NDArray[np.float64], y: NDArray[np.float64], max_evaluations: int) -> _Chain:
     """One start of a candidate fit: its delays re-searched, its linear block polished alone, then everything
     polished (:func:`_polish`) on the estimation segment (u, y)."""
@@ -1968,8 +1975,7 @@ def _search(state: _Search, remaining: list[str], u: NDArray[np.float64], y: NDA
         if steps and chain.vector().size:
             # the same structure refitted at least as long as the candidates will be: the baseline they must
             # beat (a further effect must earn its place by its physics, not by the extra polishing it brings)
-            baseline = _polish(_refine_delays(chain, u[:n_est], y[:n_est]), u[:n_est], y[:n_est],
-                               _budget(chain, _BASELINE_EFFORT * max_evaluations))
+            baseline = _baseline_refit(chain, u[:n_est], y[:n_est], max_evaluations)
             refitted = disagreement(baseline.model(), u, y, delta, n_est)
             if refitted.gap_rad < current.gap_rad:
                 chain, current = baseline, refitted
@@ -2221,8 +2227,8 @@ def _still_needed(found: _Search, u: NDArray[np.float64], y: NDArray[np.float64]
     """The named effects, each checked again with all the others in: a backward pass after the greedy search.
 
     An effect is kept when the final model's penalised gap is at least ``min_reduction`` below that of the
-    same model without it, refitted (:func:`_without_effect`, then polished at the effort of a round's
-    baseline, :data:`_BASELINE_EFFORT`). Otherwise it is dropped, the one whose removal costs least first,
+    same model without it, refitted as a round's baseline is (:func:`_without_effect`,
+    :func:`_baseline_refit`). Otherwise it is dropped, the one whose removal costs least first,
     and the check repeats on what is left until every effect earns its place or one is left (the first
     was accepted against the start model, the rest against the model before them). The greedy search
     adds an effect that helps with what is in at the time; one added later can make it redundant. Hidden
@@ -2244,8 +2250,7 @@ def _still_needed(found: _Search, u: NDArray[np.float64], y: NDArray[np.float64]
             reduced = _without_effect(found.chain, step.effect)
             if reduced is None:
                 continue
-            refit = _polish(_refine_delays(reduced, u[:n_est], y[:n_est]), u[:n_est], y[:n_est],
-                            _budget(reduced, _BASELINE_EFFORT * options.max_evaluations))
+            refit = _baseline_refit(reduced, u[:n_est], y[:n_est], options.max_evaluations)
             without = disagreement(refit.model(), u, y, delta, n_est)
             without_cost = without.gap_rad * (1.0 + options.complexity_penalty
                                               * (free - EFFECTS[step.effect].free_parameters))
