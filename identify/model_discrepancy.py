@@ -38,7 +38,7 @@ one of :data:`REFIT_FOLDS` folds left out at a time, each scored on the fold it 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -1632,6 +1632,17 @@ class CandidateResult:
             parts.append(f"{len(self.fold_reductions)} refits {100 * low:.0f} to {100 * high:.0f} %")
         return ", ".join(parts)
 
+    def interval_text(self) -> str:
+        """The interval of the gap reduction judged, with its parts: "8 to 70 % (validation blocks 8 to 61 %,
+        8 refits 30 to 70 %)"; the verdict, the text output and the report all say it so."""
+        low, high = self.reduction_interval
+        parts = self.interval_parts()
+        return f"{100 * low:.0f} to {100 * high:.0f} %" + (f" ({parts})" if parts else "")
+
+    def reduction_text(self) -> str:
+        """The validated gap reduction and its interval (:meth:`interval_text`): "42 %, 8 to 70 % (...)"."""
+        return f"{100 * self.reduction:.0f} %, {self.interval_text()}"
+
     @classmethod
     def from_dict(cls, data: Mapping[str, Any]) -> CandidateResult:
         """Inverse of :meth:`to_dict` (a version-1 entry has no reduction or acceptance; a version-2 entry no
@@ -1823,6 +1834,12 @@ def _falsifying_blocks(error: NDArray[np.float64] | None, noise_bound_rad: float
     return np.array([bool(np.any(np.abs(part) > noise_bound_rad)) for part in np.array_split(error, VALIDATION_BLOCKS)])
 
 
+def _penalty_factor(effects: Iterable[str], complexity_penalty: float) -> float:
+    """The factor 1 + penalty n by which a model's gap is penalised (module docstring, step 3;
+    :attr:`DiagnoseOptions.complexity_penalty`): n is the free parameters of ``effects`` together."""
+    return 1.0 + complexity_penalty * sum(EFFECTS[name].free_parameters for name in effects)
+
+
 def _gap_uncertainty(error: NDArray[np.float64] | None) -> float:
     gaps = _block_gaps(error)
     return float(np.std(gaps, ddof=1) / math.sqrt(gaps.size)) if gaps.size > 1 else 0.0
@@ -1840,10 +1857,10 @@ def _rivals(best: _Candidate, tried: Sequence[_Candidate], penalised: dict[str, 
             continue
         if family is not None and EFFECTS[other.kind].family == family:
             continue
-        if _within_uncertainty(penalised[best.kind], best.validation_error_rad * (1.0 + complexity_penalty
-                               * EFFECTS[best.kind].free_parameters), penalised[other.kind],
-                               other.validation_error_rad * (1.0 + complexity_penalty
-                                                             * EFFECTS[other.kind].free_parameters)):
+        if _within_uncertainty(penalised[best.kind],
+                               best.validation_error_rad * _penalty_factor([best.kind], complexity_penalty),
+                               penalised[other.kind],
+                               other.validation_error_rad * _penalty_factor([other.kind], complexity_penalty)):
             out.append(other.kind)
     return tuple(out)
 
@@ -1852,7 +1869,7 @@ def _peers(best: _Candidate, tried: Sequence[_Candidate], complexity_penalty: fl
     """The other candidates of a round whose penalised gap is within its uncertainty of ``best``'s
     (:func:`_within_uncertainty` on the penalised validation errors)."""
     def factor(candidate: _Candidate) -> float:
-        return 1.0 + complexity_penalty * EFFECTS[candidate.kind].free_parameters
+        return _penalty_factor([candidate.kind], complexity_penalty)
 
     def scaled(candidate: _Candidate) -> NDArray[np.float64] | None:
         error = candidate.validation_error_rad
@@ -1896,7 +1913,7 @@ def _judged_by_refits(best: _Candidate, tried: Sequence[_Candidate], this_round:
     baseline_folds = _held_out_errors(baseline, u, y, options.max_evaluations)
 
     def judge(candidate: _Candidate) -> None:
-        factor = 1.0 + options.complexity_penalty * EFFECTS[candidate.kind].free_parameters
+        factor = _penalty_factor([candidate.kind], options.complexity_penalty)
         out[candidate.kind] = _refit_judged(this_round[candidate.kind], candidate.chain, factor, baseline_folds, u, y,
                                             options)
 
@@ -1987,7 +2004,7 @@ def _search(state: _Search, remaining: list[str], u: NDArray[np.float64], y: NDA
         def entry(candidate: _Candidate) -> CandidateResult:
             kind = candidate.kind
             vanished = EFFECTS[kind].vanished(candidate.block, delta)
-            factor = 1.0 + complexity_penalty * EFFECTS[kind].free_parameters
+            factor = _penalty_factor([kind], complexity_penalty)
             penalised_gap = candidate.gap_rad * factor
             reduction, interval, word = _acceptance(candidate.validation_error_rad, factor, validation_error,
                                                     penalised_gap, current.gap_rad, min_reduction, delta)
@@ -2021,7 +2038,7 @@ def _search(state: _Search, remaining: list[str], u: NDArray[np.float64], y: NDA
         round_index += 1
         if not tried:
             break
-        penalised = {c.kind: c.gap_rad * (1.0 + complexity_penalty * EFFECTS[c.kind].free_parameters) for c in tried}
+        penalised = {c.kind: c.gap_rad * _penalty_factor([c.kind], complexity_penalty) for c in tried}
         best = min(tried, key=lambda c: penalised[c.kind])
         best = _prefer_within_family(best, tried, penalised, current.gap_rad)
         this_round, baseline_folds = _judged_by_refits(best, tried, this_round, chain, u, y, options)
@@ -2033,7 +2050,7 @@ def _search(state: _Search, remaining: list[str], u: NDArray[np.float64], y: NDA
         if twin and all(name in remaining for name in twin) and _insert_index(chain, twin[0]) >= 0:
             parts = _compound(twin, best, tried, chain, u, y, n_est, delta, period, options)
             pair = parts[-1]
-            factor = 1.0 + complexity_penalty * sum(EFFECTS[name].free_parameters for name in twin)
+            factor = _penalty_factor(twin, complexity_penalty)
             pair_penalised = pair.gap_rad * factor
             reduction, interval, word = _acceptance(pair.validation_error_rad, factor, validation_error,
                                                     pair_penalised, current.gap_rad, min_reduction, delta)
@@ -2183,8 +2200,7 @@ def _family_rechecked(found: _Search, candidates: Sequence[str], u: NDArray[np.f
             fits.append(_judged(other, refit, index, u, y, n_est))
         own = fits[0]
         fits = _with_friction_as_backlash(fits, u, y, n_est)
-        penalised = {c.kind: c.gap_rad * (1.0 + options.complexity_penalty * EFFECTS[c.kind].free_parameters)
-                     for c in fits}
+        penalised = {c.kind: c.gap_rad * _penalty_factor([c.kind], options.complexity_penalty) for c in fits}
         best = _prefer_within_family(min(fits, key=lambda c: penalised[c.kind]), fits, penalised, step.gap_before_rad)
         if best is own:
             continue
@@ -2243,8 +2259,8 @@ def _still_needed(found: _Search, u: NDArray[np.float64], y: NDArray[np.float64]
     final model's, and the one after a dropped step takes its gap before."""
     dropped: dict[str, dict[str, float]] = {}
     while len(found.steps) >= 2:
-        free = sum(EFFECTS[step.effect].free_parameters for step in found.steps)
-        cost = found.current.gap_rad * (1.0 + options.complexity_penalty * free)
+        named = [step.effect for step in found.steps]
+        cost = found.current.gap_rad * _penalty_factor(named, options.complexity_penalty)
         checks = []
         for step in found.steps:
             reduced = _without_effect(found.chain, step.effect)
@@ -2252,8 +2268,8 @@ def _still_needed(found: _Search, u: NDArray[np.float64], y: NDArray[np.float64]
                 continue
             refit = _baseline_refit(reduced, u[:n_est], y[:n_est], options.max_evaluations)
             without = disagreement(refit.model(), u, y, delta, n_est)
-            without_cost = without.gap_rad * (1.0 + options.complexity_penalty
-                                              * (free - EFFECTS[step.effect].free_parameters))
+            others = [name for name in named if name != step.effect]
+            without_cost = without.gap_rad * _penalty_factor(others, options.complexity_penalty)
             reduction = 1.0 - cost / without_cost if without_cost > 0 else 0.0
             if reduction < options.min_reduction:
                 checks.append((without_cost, step, refit, without, reduction))
@@ -2326,7 +2342,7 @@ def _clearly_better_end(end: _Search, steps_before: int, current: Disagreement,
     added = end.steps[steps_before:]
     if len(added) < 2:
         return False
-    factor = 1.0 + options.complexity_penalty * sum(EFFECTS[s.effect].free_parameters for s in added)
+    factor = _penalty_factor([s.effect for s in added], options.complexity_penalty)
     _, _, word = _acceptance(end.validation_error_rad, factor, current_error, end.current.gap_rad * factor,
                              current.gap_rad, options.min_reduction, delta)
     if word != "clear":
@@ -2380,8 +2396,8 @@ def _twin_judgement(best: _Candidate, best_penalised_rad: float, pair: _Candidat
     error, by the rule that tells two candidates apart (:func:`_within_uncertainty`): ``"twin"`` when the
     twin is clearly better, ``"tie"`` within their uncertainty, ``"best"`` when the twin is clearly worse."""
     pair_factor = pair_penalised_rad / pair.gap_rad if pair.gap_rad > 0 else 1.0
-    best_error = None if best.validation_error_rad is None else best.validation_error_rad * (
-        1.0 + complexity_penalty * EFFECTS[best.kind].free_parameters)
+    best_error = None if best.validation_error_rad is None else (
+        best.validation_error_rad * _penalty_factor([best.kind], complexity_penalty))
     pair_error = None if pair.validation_error_rad is None else pair.validation_error_rad * pair_factor
     if pair_penalised_rad < best_penalised_rad:
         tie = _within_uncertainty(pair_penalised_rad, pair_error, best_penalised_rad, best_error)
@@ -2422,8 +2438,7 @@ def _clear_end(ends: Sequence[_Search], complexity_penalty: float, consistent_fr
     level fell on the encoder count, 0.083 mrad) and the two were "within their uncertainty": ambiguous,
     nothing named."""
     def cost(end: _Search) -> float:
-        return end.current.gap_rad * (1.0 + complexity_penalty * sum(EFFECTS[s.effect].free_parameters
-                                                                   for s in end.steps))
+        return end.current.gap_rad * _penalty_factor([s.effect for s in end.steps], complexity_penalty)
 
     def effects(end: _Search) -> frozenset[str]:
         return frozenset(s.effect for s in end.steps)
@@ -2518,10 +2533,8 @@ def _verdict(initial: Disagreement, final: Disagreement, steps: Sequence[Discrep
     named = ", ".join(step.effect for step in steps)
     if undecided:
         before = f"{named} named (gap {initial.gap_rad:.3g} -> {final.gap_rad:.3g} rad); then " if steps else ""
-        words = "; ".join(f"with {c.effect} the validated gap is {_percent_lower(c.reduction)} (reduction "
-                          f"{100 * c.reduction_interval[0]:.0f} to {100 * c.reduction_interval[1]:.0f} % within "
-                          f"its uncertainty{': ' + c.interval_parts() if c.interval_parts() else ''})"
-                          for c in undecided)
+        words = "; ".join(f"with {c.effect} the validated gap is {_percent_lower(c.reduction)}, reduction "
+                          f"{c.interval_text()} within its uncertainty" for c in undecided)
         return "ambiguous", (f"{before}{words}, against {100 * min_reduction:.0f} % required: whether "
                              f"{'it is' if len(undecided) == 1 else 'they are'} there cannot be told from this "
                              "record, so none is named")

@@ -251,10 +251,7 @@ def _acceptance_note(candidate) -> str:
     if candidate.vanished:
         return " (vanished)"
     if candidate.acceptance in ("clear", "undecided"):
-        low, high = candidate.reduction_interval
-        parts = candidate.interval_parts()
-        return (f" (reduction {100 * candidate.reduction:.0f} %, {100 * low:.0f} .. {100 * high:.0f} %: "
-                f"{candidate.acceptance}{'; ' + parts if parts else ''})")
+        return f" ({candidate.acceptance}: reduction {candidate.reduction_text()})"
     return ""
 
 
@@ -291,11 +288,8 @@ def _print_summary(data: str, model: str | None, noise_bound: float, result, num
         print(f"step {number}: {step.effect:<17} gap {step.gap_before_rad:.4g} -> {step.gap_after_rad:.4g} rad  "
               f"({parameters})")
     for candidate in result.undecided:
-        low, high = candidate.reduction_interval
-        parts = candidate.interval_parts()
         print(f"undecided     {candidate.effect}: gap {candidate.gap_rad:.4g} rad, reduction "
-              f"{100 * candidate.reduction:.0f} % ({100 * low:.0f} .. {100 * high:.0f} % within its uncertainty"
-              f"{': ' + parts if parts else ''}): not named")
+              f"{candidate.reduction_text()}, within its uncertainty around the acceptance: not named")
     if not result.steps and result.undecided:
         print(f"no effect named ({', '.join(c.effect for c in result.undecided)} undecided)")
     elif not result.steps:

@@ -426,9 +426,7 @@ def _undecided_text(report) -> str:
     if not report.undecided:
         return ""
     after = (f" after {', '.join(step.effect for step in report.missing_effects)}" if report.missing_effects else "")
-    words = "; ".join(f"{c.effect} {100 * c.reduction:.0f} % ({100 * c.reduction_interval[0]:.0f} to "
-                      f"{100 * c.reduction_interval[1]:.0f} %{': ' + c.interval_parts() if c.interval_parts() else ''})"
-                      for c in report.undecided)
+    words = "; ".join(f"{c.effect} {c.reduction_text()}" for c in report.undecided)
     return (f" Undecided{after}, not named (gap reduction within its uncertainty around the acceptance): "
             f"{words}.")
 

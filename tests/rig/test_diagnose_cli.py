@@ -60,7 +60,7 @@ def test_text_output_names_the_effect(files, capsys):
     assert "verdict       NAMED" in out and "candidates 1" in out and "cross-validation folds" in out
     # the named candidate's line gives both parts of its interval: which one named it can be read there
     (line,) = [line for line in out.splitlines() if line.startswith("candidates 1")]
-    assert "clear; validation blocks" in line and "8 refits" in line
+    assert "(clear: reduction " in line and "(validation blocks " in line and "8 refits" in line
 
 
 def test_figures_label_their_axes_with_units(files):

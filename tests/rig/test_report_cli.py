@@ -222,7 +222,7 @@ def test_a_kind_or_version_it_cannot_read_is_named(document, words, capsys, tmp_
       "undecided": (CandidateResult(1, "gravity", 0.0017, 2e-4, 0.0018, {"gravity_per_inertia_rad_per_s2": 11.0},
                                     False, True, 0.1, (0.04, 0.22), "undecided"),)},
      "Undecided after backlash, not named (gap reduction within its uncertainty around the acceptance): "
-     "gravity 10 % (4 to 22 %)"),
+     "gravity 10 %, 4 to 22 %"),
 ])
 def test_the_report_states_the_verdict_of_the_diagnosis(changes, words, tmp_path):
     path = tmp_path / "diagnose.json"
