@@ -187,12 +187,12 @@ def test_the_breakaway_of_a_friction_is_refitted_when_a_play_is_fitted_through_i
     assert low <= truth <= high
 
 
-@pytest.mark.parametrize("seed", [1004, 1017])
+@pytest.mark.parametrize("seed", [1004, 1012])
 def test_from_a_fitted_start_a_loads_viscous_friction_is_given_the_range_the_loops_damping_can_trade(seed):
     # with the loop fitted too, the record shows mainly K_v / J + d_v / J: the fit put it all in the loop
     # (seed 1004: d_v / J 0.002 against the truth's 41.5 1/s) and the fold refits, started there, gave [0, 0.04];
-    # the traded point alone, without refitting the rest, left the uncertainty before the truth (seed 1017:
-    # 2.0 1/s outside [47.0, 247.2])
+    # the traded point alone, without refitting the rest, left the uncertainty before the truth (seed 1012:
+    # 12.9 1/s outside [0, 9.2])
     record = hidden_effect_record(("load_friction",), seed)
     result = diagnose_model(record.command_rad, record.angle_rad, record.noise_bound_rad, record.sample_period_s)
     assert result.missing_effects == ("load_friction",)
