@@ -7,7 +7,8 @@ nominal linear model (``--start given``) or nothing (``--start fitted``: it fits
 row is the true effect, the column the first effect named ("none" if nothing, "ambig" when the verdict is
 ambiguous: candidates within their uncertainty of each other, none chosen); the gap reduction is
 1 - gap_final / gap_initial. Also counted: cases where more effects than the true one were named, and how
-many fitted parameters of a rightly named effect have an interval that contains the true value.
+many fitted parameters of a rightly named effect have an interval that contains the true value, and the median
+width of those intervals in per cent of the true value.
 
 Rows of two effects at once (``--pairs``, ``a+b``): a case is correct when exactly the two are named (in either
 order); the table gives the named sets.
@@ -52,19 +53,21 @@ def run_case(effects: tuple[str, ...], seed: int, start: str) -> dict:
     started = time.perf_counter()
     result = diagnose_model(record.command_rad, record.angle_rad, record.noise_bound_rad,
                             record.sample_period_s, record.nominal_model if start == "given" else None)
-    covered, missed = [0, 0], []
+    covered, missed, widths = [0, 0], [], []
     for name in set(effects) & set(result.missing_effects):
         entry = effect(name)
         truth = entry.report(next(b for b in record.true_model.blocks if isinstance(b, entry.block_class)))
         for key, (low, high) in result.parameter_intervals.get(name, {}).items():
             inside = low <= truth[key] <= high
+            if truth[key] != 0.0:
+                widths.append((high - low) / abs(truth[key]))
             covered[0] += inside
             covered[1] += 1
             if not inside:
                 missed.append(f"{name}.{key}: truth {truth[key]:.4g} outside [{low:.4g}, {high:.4g}]")
     return {"named": tuple(result.missing_effects), "verdict": result.verdict,
             "reduction": 1.0 - result.final.gap_rad / result.initial.gap_rad if result.initial.gap_rad > 0 else 0.0,
-            "covered": covered, "missed": missed, "seconds": time.perf_counter() - started}
+            "covered": covered, "missed": missed, "widths": widths, "seconds": time.perf_counter() - started}
 
 
 def _run_rows(rows: tuple[tuple[str, ...], ...], cases: int, start: str, first_seed: int,
@@ -97,8 +100,8 @@ def confusion_table(runs: dict[tuple[str, ...], list[dict]], effects: tuple[str,
                                                     "rate_limit": "rate", "torque_limit": "torq",
                                                     "shaft_play": "play"}
     print("| true \\ named | " + " | ".join(short[c] for c in columns)
-          + " | correct | more named | median gap reduction | truth in interval | median s |")
-    print("|---" * (len(columns) + 6) + "|")
+          + " | correct | more named | median gap reduction | truth in interval | median width | median s |")
+    print("|---" * (len(columns) + 7) + "|")
     diagonal = total = inside = intervals = 0
     for row in effects:
         results = runs[() if row == "none" else (row,)]
@@ -115,7 +118,7 @@ def confusion_table(runs: dict[tuple[str, ...], list[dict]], effects: tuple[str,
         print(f"| {row} | " + " | ".join(str(counts[c]) for c in columns)
               + f" | {100 * counts[row] / len(results):.0f} % | {extras} | {median} | "
               + (f"{covered[0]} of {covered[1]}" if covered[1] else "-")
-              + f" | {np.median([r['seconds'] for r in results]):.1f} |")
+              + f" | {_median_width(results)} | {np.median([r['seconds'] for r in results]):.1f} |")
     print(f"\ndiagonal {diagonal} of {total} ({100 * diagonal / total:.1f} %); truth in interval {inside} of "
           f"{intervals} ({100 * inside / max(intervals, 1):.1f} %)")
 
@@ -132,8 +135,8 @@ def pairs(cases: int, start: str, rows: tuple[tuple[str, ...], ...], first_seed:
 def pairs_table(runs: dict[tuple[str, ...], list[dict]], rows: tuple[tuple[str, ...], ...]) -> None:
     """The rows of two effects at once."""
     print("| true effects | both named, nothing else | named sets (count) | ambiguous | median gap reduction | "
-          "truth in interval | median s |")
-    print("|---|---|---|---|---|---|---|")
+          "truth in interval | median width | median s |")
+    print("|---|---|---|---|---|---|---|---|")
     for row in rows:
         results = runs[row]
         right = sum(set(r["named"]) == set(row) for r in results)
@@ -147,7 +150,14 @@ def pairs_table(runs: dict[tuple[str, ...], list[dict]], rows: tuple[tuple[str, 
               + f" | {sum(r['verdict'] == 'ambiguous' for r in results)} | "
               + f"{100 * np.median([r['reduction'] for r in results]):.1f} % | "
               + (f"{covered[0]} of {covered[1]}" if covered[1] else "-")
-              + f" | {np.median([r['seconds'] for r in results]):.1f} |")
+              + f" | {_median_width(results)} | {np.median([r['seconds'] for r in results]):.1f} |")
+
+
+def _median_width(results: list[dict]) -> str:
+    """The median width of the intervals of the rightly named parameters, in per cent of the true value
+    (cases logged before the widths were, none)."""
+    widths = [w for r in results for w in r.get("widths", [])]
+    return f"{100 * np.median(widths):.1f} %" if widths else "-"
 
 
 def tables_from_log(path: Path) -> None:

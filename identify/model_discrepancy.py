@@ -1351,8 +1351,7 @@ def diagnose_model(command_rad: ArrayLike, angle_rad: ArrayLike, noise_bound_rad
     found = _still_needed(found, u, y, n_est, delta, options, say)
     chain, current, steps = found.chain, found.current, found.steps
     consistent = current.falsified_fraction <= options.consistent_fraction
-    intervals, reduction = _named_intervals(chain, steps, start_model, u, y, delta, current,
-                                            options.max_evaluations, say)
+    intervals, reduction = _named_intervals(chain, steps, start_model, u, y, delta, current, options, say)
     steps = _with_final_parameters(steps, chain)
     verdict, reason = _final_verdict(u, y, initial, current, found, consistent, delta, options)
     return DiscrepancyResult(
@@ -1423,16 +1422,20 @@ def _start(u: NDArray[np.float64], y: NDArray[np.float64], period: float, n_est:
 
 def _named_intervals(chain: _Chain, steps: Sequence[DiscrepancyStep], start_model: PlantModel,
                      u: NDArray[np.float64], y: NDArray[np.float64], delta: float, current: Disagreement,
-                     max_evaluations: int, say: Callable[[str], None]
+                     options: DiagnoseOptions, say: Callable[[str], None]
                      ) -> tuple[dict[str, dict[str, tuple[float, float]]], dict[str, Any] | None]:
     """Parameter intervals of the named effects and the gap reduction's spread (:func:`_fold_intervals`),
+    widened along the trade with a fitted loop (:func:`_loop_traded_intervals`) and, when the final model is
+    consistent with the noise bound, to the feasible slice through the fit (:func:`_feasible_intervals`),
     each containing the value fitted when its step was added, floored by the resolution
     (:func:`_resolution_floor`); nothing when nothing was named."""
     if not steps:
         return {}, None
     say("cross-validation folds for the parameter intervals")
-    intervals, reduction = _fold_intervals(chain, start_model, u, y, max_evaluations)
-    intervals = _loop_traded_intervals(chain, u, y, intervals, max_evaluations)
+    intervals, reduction = _fold_intervals(chain, start_model, u, y, options.max_evaluations)
+    intervals = _loop_traded_intervals(chain, u, y, intervals, options.max_evaluations)
+    if current.falsified_fraction <= options.consistent_fraction:
+        intervals = _feasible_intervals(chain, u, y, delta, options.consistent_fraction, intervals)
     for step in steps:
         for key, value in step.parameters.items():
             low, high = intervals.get(step.effect, {}).get(key, (value, value))
@@ -2707,6 +2710,103 @@ def _loop_traded_intervals(chain: _Chain, u: NDArray[np.float64], y: NDArray[np.
                         break
                     low, high = min(low, float(value)), max(high, float(value))
             out[kind][key] = (low, high)
+    return out
+
+
+FEASIBLE_WALK_FIRST_STEP = 1.0e-4
+"""First step of the walk of :func:`_feasible_intervals`, relative to the fitted value (1 for a value of 0);
+each further step doubles it."""
+
+FEASIBLE_WALK_STEPS = 30
+"""Doublings of the walk at most (from 1e-4 of the value to 1e5 times it: a parameter still feasible there is
+not bounded by the record, and its interval says so by its size)."""
+
+FEASIBLE_WALK_BISECTIONS = 5
+"""Bisections between the last feasible and the first infeasible value of the walk (the end to 1/32 of the
+last step)."""
+
+
+def _effect_positions(chain: _Chain) -> dict[str, list[int]]:
+    """Where the free values of each named effect sit in :meth:`_Chain.vector` (those inside a drive train
+    after the loop's two when it is free; a searched effect, the delay, has none)."""
+    out: dict[str, list[int]] = {}
+    for index, component in enumerate(chain.components):
+        if not component.free:
+            continue
+        start = chain.offset(index)
+        if component.kind == "drive_train":
+            k = 2 if component.loop_free else 0
+            for name in component.effects:
+                count = EFFECTS[name].free_parameters
+                out[name] = [start + k + j for j in range(count)]
+                k += count
+        elif component.kind in EFFECTS:
+            out[component.kind] = [start + j for j in range(len(component.values))]
+    return out
+
+
+def _feasible_intervals(chain: _Chain, u: NDArray[np.float64], y: NDArray[np.float64], delta: float,
+                        consistent_fraction: float, intervals: dict[str, dict[str, tuple[float, float]]]
+                        ) -> dict[str, dict[str, tuple[float, float]]]:
+    """The intervals of the named effects widened to the slice of the feasible parameter set through the fit:
+    every value of one free parameter, the others at their fit, with which the final model keeps as many
+    samples of the whole record within +-delta as the fit does (at most max(``consistent_fraction``, the
+    fit's own fraction) of them outside; the set membership of eq. (4) of Cerone et al. 2009, with the
+    model's rate of outliers). Walked from the fit in doubling steps (:data:`FEASIBLE_WALK_FIRST_STEP`), the
+    end bisected; each public parameter's interval takes its values at every feasible point.
+
+    Called only for a final model consistent with the noise bound (a model that does not hold the record has
+    no feasible values). The fold refits measure the spread of the fit, not its bias: where quantised levels
+    or a fitted start that absorbed part of an effect move the fit, the jackknife interval is narrower than
+    what the record resolves. From a fitted start, hidden resonances had intervals like [170.70, 170.93] Hz
+    around a true 170.64 Hz, whose free run has as many samples within the bound as the fit's (the
+    whole-record gap 1.0003 times the fit's); the feasible slice was [169.74, 171.85] Hz (seed 1006). Of 15
+    such misses probed (hidden-effect benchmark, seeds 1000-1019: a fitted resonance's frequency or damping,
+    gravity's hanging angle, a load's viscous friction, an offset's drift, a gain), the slice held the truth
+    in 14; the intervals that held it stayed as they were or grew by a few per cent of the value."""
+    fit_error = _free_run_error(chain, u, y)
+    allowed = max(consistent_fraction, float(np.mean(np.abs(fit_error) > delta)))
+    theta = chain.vector()
+    out = {kind: dict(parameters) for kind, parameters in intervals.items()}
+
+    def feasible_at(position: int, value: float) -> dict[str, dict[str, float]] | None:
+        moved = theta.copy()
+        moved[position] = value
+        option = chain.with_vector(moved)
+        if float(np.mean(np.abs(_free_run_error(option, u, y)) > delta)) > allowed:
+            return None
+        return _effect_parameters(option)
+
+    def take(kind: str, parameters: dict[str, dict[str, float]]) -> None:
+        for key, value in parameters.get(kind, {}).items():
+            if key in out.get(kind, {}):
+                low, high = out[kind][key]
+                out[kind][key] = (min(low, value), max(high, value))
+
+    for kind, positions in _effect_positions(chain).items():
+        if kind not in out:
+            continue
+        for position in positions:
+            fitted = float(theta[position])
+            for sign in (-1.0, 1.0):
+                step = FEASIBLE_WALK_FIRST_STEP * (abs(fitted) or 1.0)
+                good, bad = fitted, None
+                for _ in range(FEASIBLE_WALK_STEPS):
+                    parameters = feasible_at(position, fitted + sign * step)
+                    if parameters is None:
+                        bad = fitted + sign * step
+                        break
+                    good = fitted + sign * step
+                    take(kind, parameters)
+                    step *= 2.0
+                for _ in range(FEASIBLE_WALK_BISECTIONS if bad is not None else 0):
+                    middle = 0.5 * (good + bad)
+                    parameters = feasible_at(position, middle)
+                    if parameters is None:
+                        bad = middle
+                    else:
+                        good = middle
+                        take(kind, parameters)
     return out
 
 

@@ -94,3 +94,21 @@ def test_a_resonance_that_rings_in_one_validation_block_is_named_from_a_fitted_s
     truth = effect("resonance").report(next(b for b in record.true_model.blocks if isinstance(b, entry_class)))
     low, high = result.parameter_intervals["resonance"]["frequency_hz"]
     assert low <= truth["frequency_hz"] <= high
+
+
+@pytest.mark.parametrize("seed", [1006, 1017])
+def test_a_fitted_resonance_gets_every_value_the_record_cannot_exclude_and_no_more_than_a_few_per_cent(seed):
+    # from a fitted start the fit of a resonance is biased by what the fitted linear start absorbed, and the
+    # fold refits, which share that bias, left intervals around it that missed the truth (seed 1006: 170.64 Hz
+    # outside [170.70, 170.93]; seed 1017: 184.85 Hz outside [184.64, 184.82], damping 0.0366 outside
+    # [0.0345, 0.0366]), while the true values keep the free run within the noise bound as often as the fit
+    record = hidden_effect_record(("resonance",), seed)
+    result = diagnose_model(record.command_rad, record.angle_rad, record.noise_bound_rad, record.sample_period_s,
+                            None)
+    assert result.missing_effects == ("resonance",) and result.consistent
+    entry = effect("resonance")
+    truth = entry.report(next(b for b in record.true_model.blocks if isinstance(b, entry.block_class)))
+    for key, value in truth.items():
+        low, high = result.parameter_intervals["resonance"][key]
+        assert low <= value <= high, f"{key}: truth {value:g} outside [{low:g}, {high:g}]"
+        assert high - low < 0.3 * value, f"{key}: [{low:g}, {high:g}] says little about {value:g}"
