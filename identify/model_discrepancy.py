@@ -2671,18 +2671,19 @@ def _loop_traded_intervals(chain: _Chain, u: NDArray[np.float64], y: NDArray[np.
     and 2.0 1/s outside [75.7, 260.8], [0, 9.2] and [47.0, 247.2]), where the refit, loop bandwidth and the
     friction's levels free, fitted the record as well as the fit at every point of the trade."""
     out = {kind: dict(parameters) for kind, parameters in intervals.items()}
+    positions = _effect_positions(chain)
     for index, holder in enumerate(chain.components):
         if holder.kind != "drive_train" or not holder.loop_free:
             continue
         train = _build(holder, holder.values)
         assert isinstance(train, DriveTrain)
         omega_n = train.natural_frequency_rad_per_s
-        offset = 2
         for kind in holder.effects:
             entry = EFFECTS[kind]
-            position, offset = offset + (entry.loop_damping_value or 0), offset + entry.free_parameters
             if entry.loop_damping_value is None or kind not in out:
                 continue
+            held = (positions[kind][entry.loop_damping_value],)
+            position = held[0] - chain.offset(index)
             key = entry.parameters[entry.loop_damping_value].name
             fitted_error = _free_run_error(chain, u, y)
             fitted_gap = _rms(fitted_error)
@@ -2696,7 +2697,6 @@ def _loop_traded_intervals(chain: _Chain, u: NDArray[np.float64], y: NDArray[np.
                 return _Chain(components)
 
             grid = np.linspace(0.0, damping + 2.0 * (zeta - LOOP_DAMPING_RANGE[0]) * omega_n, LOOP_TRADE_POINTS)
-            held = (chain.offset(index) + position,)
 
             def fits_as_well(option: _Chain) -> bool:
                 error = _free_run_error(option, u, y)
