@@ -79,6 +79,7 @@ class SampleLedger:
     _early: dict[int, FeedbackSample] = field(default_factory=dict)
     written: int = 0
     """Rows below this sample number are in the sink."""
+    _first_fault: int | None = None
 
     def open_row(self, seq: int, command_rad: float, *, late: bool = False) -> LedgerRow:
         """The row of setpoint ``seq`` (queued with ``command_rad``), LOST until its feedback is filed (at
@@ -143,6 +144,8 @@ class SampleLedger:
         state = state_from_statusword_or_none(sample.statusword)
         if state in _FAULT_STATES or (state is not None and state is not DriveState.OPERATION_ENABLED):
             row.flags |= _FAULT
+            if self._first_fault is None or row.seq < self._first_fault:
+                self._first_fault = row.seq
         return state
 
     def mark_fault(self, seq: int) -> None:
@@ -183,9 +186,10 @@ class SampleLedger:
 
     @property
     def first_fault(self) -> int | None:
-        """The first sample flagged FAULT still in the ledger."""
-        faulted = [seq for seq in self._order if self._rows[seq].flags & _FAULT]
-        return faulted[0] if faulted else None
+        """The first sample whose statusword showed a fault, also after its row went to the sink (a loaded host
+        can write it final before the fault stops the run: the run then ended one sample later, the stop
+        marked as a second FAULT row)."""
+        return self._first_fault
 
     def __len__(self) -> int:
         return len(self._order)

@@ -112,3 +112,18 @@ def test_a_sample_that_comes_before_its_row_is_filed_when_the_row_opens():
     assert ledger.counts["stale"] == 0
     rows = _release_all(ledger, device_sample=5)
     assert rows[3][2:] == (0.2, 3.0, int(SampleFlag.HELD)) and ledger.counts["lost"] == 0
+
+
+def test_the_first_fault_is_remembered_after_its_row_went_to_the_sink():
+    # a loaded host wrote the fault's row final before the fault stopped the run; the runner then took the
+    # stop's instant as the fault's and logged one sample more, flagged FAULT twice (clean-clone run: 122
+    # samples where the fault came at sample 120)
+    ledger = SampleLedger(sample_period_s=0.001, pending_cycles=1)
+    for seq in range(3):
+        ledger.open_row(seq, 0.0)
+    ledger.file(_feedback(0))
+    ledger.file(_feedback(1, statusword=statusword_for(DriveState.FAULT)))
+    ledger.file(_feedback(2, statusword=statusword_for(DriveState.FAULT)))
+    rows = _release_all(ledger, device_sample=2)
+    assert [row[0] for row in rows] == [0, 1] and rows[1][4] & SampleFlag.FAULT
+    assert ledger.first_fault == 1
