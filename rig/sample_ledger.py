@@ -80,6 +80,7 @@ class SampleLedger:
     written: int = 0
     """Rows below this sample number are in the sink."""
     _first_fault: int | None = None
+    """The first sample filed with a fault in its statusword (:attr:`first_fault`)."""
 
     def open_row(self, seq: int, command_rad: float, *, late: bool = False) -> LedgerRow:
         """The row of setpoint ``seq`` (queued with ``command_rad``), LOST until its feedback is filed (at
