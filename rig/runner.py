@@ -458,6 +458,7 @@ def run_experiment(transport: Transport, command_rad: ArrayLike, sink: SampleSin
                 _write_summary(sink, transport, failure, {"sample_clock": "host", **quantiles})
             finally:
                 sink.close()
+        transport.check_stopped(failure)  # the log is complete; a stop not confirmed outranks every other end
     counts = ledger.counts
     wall = clock() - wall_start
     rate = 0.0
@@ -562,6 +563,7 @@ def _run_device_clocked(transport: Transport, command: NDArray[np.float64], sink
                 _write_summary(sink, transport, failure, timing)
             finally:
                 sink.close()
+        transport.check_stopped(failure)  # the log is complete; a stop not confirmed outranks every other end
     answered = ledger.written - ledger.counts["lost"]
     rate = (answered - 1) / (last_answer - first_answer) if answered > 1 and last_answer > first_answer else 0.0
     held = ledger.counts["held"]

@@ -293,18 +293,27 @@ _STUCK_HINTS = {
 
 @dataclass(frozen=True)
 class StopReport:
-    """What :func:`quick_stop_then_disable` did, for the message of whatever ended the run.
+    """What the controlled stop did (:func:`quick_stop_then_disable`, and the link's escalation where that did
+    not disable the drive), for the message of whatever ended the run.
 
     Attributes
     ----------
     steps
-        One phrase per step, in order ("quick stop sent", "disable failed: ...").
+        One phrase per step, in order ("quick stop sent", "disable failed: ...", "NMT stop sent").
     final_state
         The drive state read after the last step (None if it could not be read).
+    last_seen
+        The last drive state read during the stop (equal to ``final_state`` when that was read; what the
+        drive last said when it then fell silent).
+    escalated
+        The quick stop and disable did not leave the drive seen disabled, and the link went further (CANopen:
+        NMT stop, then NMT reset node, CiA 301 7.2.8.2.1).
     """
 
     steps: tuple[str, ...]
     final_state: DriveState | None
+    last_seen: DriveState | None = None
+    escalated: bool = False
 
     @property
     def disabled(self) -> bool:
@@ -312,10 +321,24 @@ class StopReport:
         return self.final_state is not None and self.final_state not in (DriveState.OPERATION_ENABLED,
                                                                           DriveState.QUICK_STOP_ACTIVE)
 
+    @property
+    def confirmed(self) -> bool:
+        """The stop did what it commands: the drive was seen disabled after the quick stop and the disable,
+        without escalation. Only then may a run end with exit status 0."""
+        return self.disabled and not self.escalated
+
     def __str__(self) -> str:
-        end = ("state unknown (the drive did not answer)" if self.final_state is None
-               else f"ends {self.final_state.name.replace('_', ' ')}")
+        if self.final_state is not None:
+            end = f"ends {_state_text(self.final_state)}"
+        elif self.last_seen is not None:
+            end = f"state unknown (the drive stopped answering; last seen {_state_text(self.last_seen)})"
+        else:
+            end = "state unknown (the drive did not answer)"
         return f"{', then '.join(self.steps)}; {end}"
+
+
+def _state_text(state: DriveState) -> str:
+    return state.name.replace("_", " ")
 
 
 def quick_stop_then_disable(write_controlword: Callable[[int], None], read_statusword: Callable[[], int], *,
@@ -323,19 +346,28 @@ def quick_stop_then_disable(write_controlword: Callable[[int], None], read_statu
                             sleep: Callable[[float], None] = time.sleep) -> StopReport:
     """The controlled stop: quick stop (controlword 0x0002, transition 11), wait until the motor is at rest
     (QUICK STOP ACTIVE with statusword bit 10, or the drive went on to SWITCH ON DISABLED by its 0x605A
-    option) at most ``timing.quick_stop_timeout_s``, then disable voltage (0x0000, transition 12/9/7).
+    option) at most ``timing.quick_stop_timeout_s``, then disable voltage (0x0000, transition 12/9/7), then
+    read the state back.
 
     Every step is attempted even when an earlier one failed (a lost answer must not leave the power stage
-    on), and nothing raises: a step's failure is reported in the returned :class:`StopReport`.
+    on), and nothing raises: a step's failure is reported in the returned :class:`StopReport`, whose
+    ``last_seen`` keeps the last state the drive reported.
     """
     steps: list[str] = []
+    seen: list[DriveState] = []
+
+    def read_and_remember() -> int:
+        word = read_statusword()
+        seen.append(state_from_statusword(word))
+        return word
+
     try:
         write_controlword(CONTROLWORD_QUICK_STOP)
         steps.append("quick stop sent")
     except Exception as err:  # noqa: BLE001 - report it and go on to disable
         steps.append(f"quick stop failed ({err})")
     try:
-        _wait_for_state(read_statusword, _at_rest_after_quick_stop, clock() + timing.quick_stop_timeout_s,
+        _wait_for_state(read_and_remember, _at_rest_after_quick_stop, clock() + timing.quick_stop_timeout_s,
                         timing, clock, sleep)
     except Exception:  # noqa: BLE001 - no answer: disable anyway
         pass
@@ -345,10 +377,10 @@ def quick_stop_then_disable(write_controlword: Callable[[int], None], read_statu
     except Exception as err:  # noqa: BLE001
         steps.append(f"disable failed ({err})")
     try:
-        final: DriveState | None = state_from_statusword(read_statusword())
+        final: DriveState | None = state_from_statusword(read_and_remember())
     except Exception:  # noqa: BLE001
         final = None
-    return StopReport(tuple(steps), final)
+    return StopReport(tuple(steps), final, seen[-1] if seen else None)
 
 
 def _at_rest_after_quick_stop(state: DriveState, statusword: int) -> bool:

@@ -68,3 +68,18 @@ class DeviceFault(RigError):
         digits = 8 if code is not None and code > 0xFFFF else 4  # SDO abort codes have 32 bits
         code_text = f" (code 0x{code:0{digits}X}: {error_code_meaning(code)})" if code is not None else ""
         super().__init__(f"{device}{code_text}: {message}")
+
+
+class DriveMayBeEnabled(DeviceFault):
+    """The controlled stop was not confirmed: after quick stop, disable and (where the link has one) its
+    escalation, the drive was not seen disabled. Whatever else ended the run, this is what the user must
+    hear first; ``cause`` is that other error, if any."""
+
+    def __init__(self, device: str, stop: str, last_seen: str | None, cause: BaseException | None = None) -> None:
+        self.stop = stop
+        self.cause = cause
+        seen = f"last seen {last_seen}" if last_seen else "its state was never read back"
+        ended = f"; the run had stopped because: {cause}" if cause is not None else ""
+        super().__init__(device, None, (
+            f"the drive MAY STILL BE ENABLED ({seen}): the stop was not confirmed ({stop}); make it safe at the rig "
+            f"(enable input, safe torque off or mains) before anyone goes near it{ended}"))

@@ -20,6 +20,9 @@ close, context manager) is written once here; a backend implements a small seam:
 ``_before_stop()``
     Make the drive reachable for the stop's controlwords (CANopen: a node that went to NMT STOPPED on a
     fault answers no SDO until it is pre-operational again). Best effort.
+``_stop_harder()``
+    When the quick stop and disable did not leave the drive seen disabled: what more the link can do
+    (CANopen: NMT stop, then NMT reset node). The run then ends with exit status 3 whatever follows.
 ``_release_devices()``
     After the stop: take the devices off the cyclic traffic (CANopen: NMT pre-operational). Best effort.
 ``_send(setpoint)``
@@ -56,7 +59,7 @@ from types import TracebackType
 from rig.protocols import cia402
 from rig.protocols.cia402 import BringUpTiming, DriveScaling, StopReport
 from rig.protocols.encoder_counts import EncoderResolution
-from rig.protocols.errors import ConfigError, RigError, TransportError
+from rig.protocols.errors import ConfigError, DriveMayBeEnabled, RigError, TransportError
 
 logger = logging.getLogger(__name__)
 """Bring-up, stop, device warnings ridden through and damaged frames (``rig -v`` shows them; ``-vv`` the
@@ -367,15 +370,43 @@ class Transport(ABC):
                 self._before_stop()
             except Exception:  # noqa: BLE001 - the stop is attempted anyway
                 logger.debug("%s: before the stop", self.name, exc_info=True)
-            self.stop_report = cia402.quick_stop_then_disable(self._write_controlword, self._read_statusword,
-                                                              timing=self.timing, clock=self._pause_clock,
-                                                              sleep=self._pause)
+            report = cia402.quick_stop_then_disable(self._write_controlword, self._read_statusword,
+                                                    timing=self.timing, clock=self._pause_clock, sleep=self._pause)
+            self.stop_report = report if report.disabled else self._escalate_stop(report)
             logger.info("%s: %s", self.drive_label, self.stop_report)
             self._release()
             self._state = "stopped"
         elif self._state in ("preparing", "prepared"):
             self._release()
         return self.stop_report
+
+    def _escalate_stop(self, report: StopReport) -> StopReport:
+        """The quick stop and disable did not leave the drive seen disabled: take the further steps the link
+        offers (:meth:`_stop_harder`), read the state again, and say so in the report (``escalated``: the run
+        cannot end with exit status 0 whatever the drive says now)."""
+        steps = list(report.steps)
+        try:
+            steps += self._stop_harder()
+        except Exception as err:  # noqa: BLE001 - nothing more can be done; the report says so
+            steps.append(f"escalation failed ({err})")
+        final = None
+        try:
+            final = cia402.state_from_statusword(self._read_statusword())
+        except Exception:  # noqa: BLE001 - a node that was reset or stopped may not answer
+            logger.debug("%s: state after the escalated stop", self.name, exc_info=True)
+        last_seen = final or report.final_state or report.last_seen
+        return StopReport(tuple(steps), final, last_seen, escalated=True)
+
+    def check_stopped(self, cause: BaseException | None = None) -> None:
+        """Raise :class:`~rig.protocols.errors.DriveMayBeEnabled` if the drive was enabled and its stop was
+        not confirmed (:attr:`StopReport.confirmed`); ``cause`` is whatever else ended the run (chained, and
+        named in the message after the warning)."""
+        report = self.stop_report
+        if report is None or report.confirmed:
+            return
+        last = report.last_seen or report.final_state
+        raise DriveMayBeEnabled(self.drive_label, str(report),
+                                None if last is None else last.name.replace("_", " "), cause) from cause
 
     def close(self) -> None:
         """Stop if the drive was enabled, then release the link (idempotent)."""
@@ -501,6 +532,11 @@ class Transport(ABC):
 
     def _release_devices(self) -> None:
         return None
+
+    def _stop_harder(self) -> list[str]:
+        """After a quick stop and disable that did not leave the drive seen disabled: the further steps the
+        link offers, one phrase each for the report (none on a link without them)."""
+        return []
 
     @abstractmethod
     def _send(self, setpoint: Setpoint) -> None: ...

@@ -431,6 +431,28 @@ class CanOpenTransport(Transport):
         if last is not None and last[1] == 0x04 and self._drive is not None:
             self._drive.nmt.state = "PRE-OPERATIONAL"
 
+    def _stop_harder(self) -> list[str]:
+        """The drive was not seen disabled after quick stop and disable: NMT stop (the node leaves
+        OPERATIONAL; a CiA 402 drive reacts as its 0x6007 abort connection option says), then NMT reset node,
+        the last resort CiA 301 (7.2.8.2.1) offers: the node restarts with its power stage off, and answers
+        SDO again once its boot-up message is seen."""
+        if self._drive is None or self.network is None:
+            return []
+        self._watching = False
+        steps = []
+        for command, name in ((0x02, "NMT stop"), (0x81, "NMT reset node")):
+            try:
+                self._drive.nmt.send_command(command)
+                steps.append(f"{name} sent")
+            except Exception as err:  # noqa: BLE001 - the next step is tried anyway
+                steps.append(f"{name} failed ({err})")
+        try:
+            self._drive.nmt.wait_for_bootup(max(2.0, 3 * self.heartbeat_ms / 1000))
+            steps.append("boot-up seen")
+        except Exception:  # noqa: BLE001 - a node that does not restart: the report says the state is unknown
+            steps.append("no boot-up seen")
+        return steps
+
     def _release_devices(self) -> None:
         """NMT pre-operational for both nodes: no more PDOs, SDO still answers."""
         self._watching = False

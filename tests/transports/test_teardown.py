@@ -7,11 +7,13 @@ never ends) and reads the simulated drive's own state machine afterwards.
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 
 from rig.protocols import cia402
 from rig.protocols.cia402 import DriveState
-from rig.protocols.errors import DeviceFault, TransportError
+from rig.protocols.errors import DeviceFault, DriveMayBeEnabled, TransportError
 from rig.runner import run_experiment
 
 from sim_rigs import ListSink, excitation, no_leaks, simulated  # noqa: F401  (no_leaks is a fixture)
@@ -127,3 +129,65 @@ def test_a_failure_before_enabling_sends_no_controlword(tmp_path, no_leaks):
             transport.open()
         assert rig.controlwords == [] and transport.stop_report is None
         assert rig.drive.nmt.state == "PRE-OPERATIONAL"
+
+
+@pytest.mark.parametrize("kind", TRANSPORTS)
+@pytest.mark.parametrize("lost", ["both", "disable"])
+def test_a_stop_the_drive_does_not_answer_is_reported_as_not_confirmed(kind, lost, tmp_path, no_leaks):
+    """The stop's controlwords get no answer (``both``), or only the disable is lost while the quick stop
+    left the drive in QUICK STOP ACTIVE: the run must not end as if the drive were off. The error says
+    first that the drive may still be enabled and what the host last saw; on CANopen the master escalates
+    to NMT stop and NMT reset node (CiA 301's last resort)."""
+    sink = ListSink()
+    with simulated(kind, tmp_path) as (config, transport, _, drive):
+        write = transport._write_controlword
+        stopping = {cia402.CONTROLWORD_DISABLE_VOLTAGE} | (
+            {cia402.CONTROLWORD_QUICK_STOP} if lost == "both" else set())
+
+        def unanswered(controlword):
+            if transport._state == "stopping" and controlword in stopping:
+                raise TransportError("no answer (injected)")
+            write(controlword)
+
+        transport._write_controlword = unanswered
+        # held in QUICK STOP ACTIVE: the state a drive with 0x605A = 5..8 stays in, whatever the simulation's option
+        transport._read_statusword = (lambda read=transport._read_statusword: read()
+                                      if transport._state != "stopping" or lost == "both"
+                                      else cia402.statusword_for(DriveState.QUICK_STOP_ACTIVE))
+        with pytest.raises(DriveMayBeEnabled) as raised:
+            run_experiment(transport, excitation(40), sink, feedback_timeout_s=config.feedback_timeout_s,
+                           late_tolerance_s=config.late_tolerance_s)
+        seen = "OPERATION ENABLED" if lost == "both" else "QUICK STOP ACTIVE"
+        message = str(raised.value)
+        assert message.startswith(f"{transport.drive_label}: the drive MAY STILL BE ENABLED (last seen {seen})")
+        assert transport.stop_report.escalated and not transport.stop_report.confirmed
+        if kind == "canopen":
+            assert "NMT stop sent, then NMT reset node sent" in message
+    assert sink.closed and len(sink.rows) == 40  # the log is complete before the error
+
+
+def test_rig_run_exits_with_a_device_error_when_the_stop_is_not_confirmed(tmp_path, capsys, monkeypatch, no_leaks):
+    """`rig run` never exits 0 unless it saw the drive disabled."""
+    from rig import exit_codes
+    from rig.cli import main
+    from rig.transports.base import Transport
+
+    from sim_rigs import write_test_config
+
+    original = Transport.stop
+
+    def stop_unanswered(self):
+        def lost(controlword):
+            raise TransportError("no answer (injected)")
+        if self._state == "open":
+            self._write_controlword = lost
+        return original(self)
+
+    monkeypatch.setattr(Transport, "stop", stop_unanswered)
+    config = write_test_config("serial", tmp_path)
+    experiment = Path(__file__).resolve().parents[2] / "configs" / "experiments" / "prbs.toml"
+    code = main(["run", str(config), "--experiment", str(experiment), "--out", str(tmp_path / "run.csv"),
+                 "--duration", "0.3"])
+    err = capsys.readouterr().err
+    assert code == exit_codes.DEVICE_FAULT
+    assert err.startswith("rig: device error:") and "MAY STILL BE ENABLED (last seen OPERATION ENABLED)" in err
