@@ -53,6 +53,7 @@ from __future__ import annotations
 
 import collections
 import contextlib
+import struct
 import threading
 import time
 from collections.abc import Iterator
@@ -65,6 +66,7 @@ from rig.protocols.can_bus_load import bus_load
 from rig.protocols.can_error_frames import ERROR_FRAME_FILTERS, describe_error_frame, is_bus_off
 from rig.protocols.errors import ConfigError, DeviceFault, TransportError, error_code_meaning
 from rig.transports.base import FeedbackSample, Setpoint, Transport, check_trace_path
+from rig.transports.interpolation_feed import MIN_IP_BUFFER_RECORDS, InterpolationFeed, Record
 
 __all__ = ["CanOpenTransport", "DEFAULT_DRIVE_EDS", "DEFAULT_ENCODER_EDS"]
 
@@ -79,7 +81,8 @@ LATENCY_EVIDENCE_SAMPLES = 3
 """Samples in a row whose 0x6062 is an earlier sample's target before the run stops for a wrong TPDO
 latency: a wrong latency shows on every sample whose target changed, a target that crossed its SYNC on a
 bus whose receivers see concurrent frames in different orders (python-can's virtual bus) on one."""
-_MODE_NAMES = {cia402.CYCLIC_SYNCHRONOUS_POSITION_MODE: "cyclic synchronous position", cia402.HOMING_MODE: "homing"}
+_MODE_NAMES = {cia402.CYCLIC_SYNCHRONOUS_POSITION_MODE: "cyclic synchronous position", cia402.HOMING_MODE: "homing",
+               cia402.INTERPOLATED_POSITION_MODE: "interpolated position"}
 _NMT_STATES = {0x00: "INITIALISING", 0x04: "STOPPED", 0x05: "OPERATIONAL", 0x7F: "PRE-OPERATIONAL"}
 _NMT_OPERATIONAL = 0x05
 SYNC_COB_ID = 0x80  # CiA 301 default (0x1005); the master produces the SYNC
@@ -236,8 +239,12 @@ class CanOpenTransport(Transport):
         self._encoder_tpdo: PdoLayout | None = None
         self._mode = self._streaming_mode  # the mode of operation last written to 0x6060
         self._ip_capacity = 0  # records the drive's interpolation buffer takes (0x60C4)
-        self._ip_buffer: collections.deque[tuple[int, int]] = collections.deque()  # (sample, counts) in it
-        self._next_record = 0  # the setpoint that goes into the drive's buffer next
+        self._feed: InterpolationFeed | None = None  # interpolated position: queue, records on the bus, the FIFO
+        self._period_written = ""  # 0x60C2 as written, for messages
+        self._rpdo_transmission_type = 1
+        self._ip_enabled_at: int | None = None  # the SYNC count when controlword bit 4 went out
+        self._ip_answered_at: int | None = None  # the SYNC count when the drive confirmed it (SDO response)
+        self._before_origin: list[tuple[str, Any, float, float]] = []  # TPDOs after bit 4, before bit 12 was seen
         self._dry_since: int | None = None  # the SYNC count since which the buffer has been empty
         self._last_target_counts = 0
         self._watching = False  # from OPERATION ENABLED on: a FAULT statusword or a heartbeat not OPERATIONAL stops the run
@@ -353,12 +360,13 @@ class CanOpenTransport(Transport):
             drive, encoder = self._drive, self._encoder
             for node in (drive, encoder):
                 node.nmt.state = "PRE-OPERATIONAL"
-                node.sdo[0x1017].raw = self.heartbeat_ms
-            self._write_cycle_period(drive)
+                self._sdo_write(node, "drive" if node is drive else "encoder", 0x1017, 0, self.heartbeat_ms,
+                                "the producer heartbeat time the master watches")
             self._choose_streaming_mode(drive)
             self._rpdo = self._map_target_rpdo(drive)
             self._check_supported_modes(drive)
-            self._set_mode(drive, self._streaming_mode if self.skip_homing else cia402.HOMING_MODE)
+            self._take_first_mode(drive)
+            self._write_cycle_period(drive)
             self._drive_tpdo = self._map_pdo(drive.tpdo, "drive", [(0x6041, 0, 16), (0x6064, 0, 32)],
                                              0x180 + self.drive_node_id)
             self._encoder_tpdo = self._map_pdo(encoder.tpdo, "encoder", [(0x6004, 0, self._encoder_value_bits())],
@@ -370,6 +378,7 @@ class CanOpenTransport(Transport):
                 self.network.bus.set_filters(self._receive_filters())
             self._check_encoder(encoder)
             self.network.subscribe(self._rpdo.cob_id, self._on_rpdo_echo)
+            self.network.subscribe(0x580 + self.drive_node_id, self._on_drive_sdo_response)
             self._start_sync()
             drive.tpdo[1].add_callback(self._on_drive_tpdo)
             encoder.tpdo[1].add_callback(self._on_encoder_tpdo)
@@ -406,8 +415,9 @@ class CanOpenTransport(Transport):
                 self._set_mode(self._drive, self._streaming_mode)
                 self._wait_for_mode(self._drive)
                 moved_to = self._hold_at_actual_position(self._drive)
-        if self.mode == "ip_buffer":  # controlword bit 4: the drive starts taking records from its buffer
-            self._write_controlword(cia402.CONTROLWORD_ENABLE_INTERPOLATION)
+        if self.mode == "ip_buffer":  # bit 4 (enable ip mode) once the buffer holds the lead: _start_interpolation
+            with self._lock:
+                self._feed = InterpolationFeed(self._ip_capacity, self.lead_samples, self._in_force[1])
         self._await_syncs_in_operation()
         self._watching = True
         return moved_to
@@ -427,6 +437,9 @@ class CanOpenTransport(Transport):
     def _before_stop(self) -> None:
         """A drive whose heartbeat says STOPPED (CiA 301 0x1029 error behaviour) answers no SDO: bring it to
         pre-operational first, so that the quick stop and disable reach it."""
+        if self._feed is not None:
+            with self._lock:
+                self._feed.streaming = False  # no more hold records: the stop ends the stream
         last = self._heartbeats.get(self.drive_node_id)
         if last is not None and last[1] == 0x04 and self._drive is not None:
             self._drive.nmt.state = "PRE-OPERATIONAL"
@@ -483,19 +496,75 @@ class CanOpenTransport(Transport):
     # -- start-up steps ------------------------------------------------------------------------------------
 
     def _write_cycle_period(self, drive: Any) -> None:
-        """The SYNC period the drive interpolates over: 0x1006 (CiA 301, microseconds), else 0x60C2
-        (CiA 402 interpolation time period: sub 1 the value, sub 2 its power of ten)."""
+        """The SYNC period, in every object of the drive that holds it: 0x1006 (CiA 301 communication cycle
+        period, UNSIGNED32 microseconds) and 0x60C2 (CiA 402 interpolation time period: sub 1 the value, sub 2
+        its power of ten in seconds; :func:`interpolation_time_period` fits the value to sub 1's type)."""
         period_us = int(round(self.sample_period_s * 1e6))
         if 0x1006 in drive.object_dictionary:
-            drive.sdo[0x1006].raw = period_us
-        else:
-            drive.sdo[0x60C2][1].raw = period_us
-            drive.sdo[0x60C2][2].raw = -6
+            self._sdo_write(drive, "drive", 0x1006, 0, period_us, "the SYNC period")
+        if 0x60C2 not in drive.object_dictionary:
+            return
+        largest = (1 << {0x05: 8, 0x06: 16, 0x07: 32}.get(drive.object_dictionary[0x60C2][1].data_type, 8)) - 1
+        found = interpolation_time_period(self.sample_period_s, largest)
+        if found is None:
+            problem = (f"a sample period of {self.sample_period_s:g} s has no exact form value x 10^index with the "
+                       f"value in 1..{largest}, as the drive's 0x60C2 (interpolation time period) holds it")
+            if self.mode == "ip_buffer":
+                raise ConfigError("<transport>", "sample_rate_hz", (
+                    f"{problem}; choose a rate whose period it holds (1 ms, 500 us, 250 us, 2 ms ...) or mode = \"csp\""))
+            self._ride_through(f"drive {self.drive_node_id}: 0x60C2 not written: {problem}")
+            return
+        value, index = found
+        self._sdo_write(drive, "drive", 0x60C2, 1, value, "the interpolation time period's value")
+        self._sdo_write(drive, "drive", 0x60C2, 2, index, "the interpolation time period's power of ten")
+        self._period_written = f"0x60C2 (interpolation time period) = {value} x 10^{index} s"
+
+    def _cycle_period_text(self) -> str:
+        return self._period_written or f"0x1006 (communication cycle period) = {int(round(self.sample_period_s * 1e6))} us"
+
+    def _sdo_write(self, node: Any, role: str, index: int, subindex: int, value: int, purpose: str) -> None:
+        """One start-up SDO write; a failure names the node, the object (index:sub and its EDS name), the
+        value, and what to do."""
+        self._sdo(node, role, index, subindex, purpose, value)
+
+    def _sdo_read(self, node: Any, role: str, index: int, subindex: int, purpose: str) -> int:
+        """One start-up SDO read, named as :meth:`_sdo_write` names a write."""
+        return self._sdo(node, role, index, subindex, purpose)
+
+    def _sdo(self, node: Any, role: str, index: int, subindex: int, purpose: str, value: int | None = None) -> int:
+        import canopen
+
+        single = isinstance(node.object_dictionary[index], canopen.objectdictionary.ODVariable)
+        variable = node.sdo[index] if single else node.sdo[index][subindex]
+        name = f" ({variable.od.name})" if variable.od.name else ""
+        where = f"{self.name} {role} {node.id}"
+        what = (f"read of 0x{index:04X}:{subindex:02X}{name}" if value is None
+                else f"write 0x{index:04X}:{subindex:02X}{name} = {value}") + f" ({purpose})"
+        try:
+            if value is None:
+                return variable.raw
+            variable.raw = value
+            return value
+        except canopen.SdoAbortedError as err:
+            raise DeviceFault(where, err.code, (
+                f"refused the start-up {what}: {err}; check the object in the device's manual and its EDS")) from err
+        except canopen.SdoCommunicationError as err:
+            raise TransportError(f"{where}: no answer to the start-up {what}: {err}; check that the node is "
+                                 "powered, on the bus, and at this node-ID") from err
+        except (ValueError, OverflowError, struct.error) as err:  # encoded by the EDS type before anything is sent
+            raise ConfigError("<transport>", "drive_eds" if role == "drive" else "encoder_eds", (
+                f"the EDS's type for the {what} cannot hold the value: {err}")) from err
+
+    def _has_sub(self, node: Any, index: int, subindex: int) -> bool:
+        od = node.object_dictionary
+        return index in od and subindex in getattr(od[index], "subindices", {})
 
     def _supported_modes(self, drive: Any) -> int | None:
         """0x6502 (supported drive modes), where the EDS has it: bit 7 cyclic synchronous position, bit 6
         interpolated position, bit 5 homing."""
-        return drive.sdo[0x6502].raw if 0x6502 in drive.object_dictionary else None
+        if 0x6502 not in drive.object_dictionary:
+            return None
+        return self._sdo_read(drive, "drive", 0x6502, 0, "the drive modes it supports")
 
     def _choose_streaming_mode(self, drive: Any) -> None:
         """Read the interpolation buffer's capacity; with ``mode = "auto"``, fall back from interpolated
@@ -506,7 +575,9 @@ class CanOpenTransport(Transport):
         supported = self._supported_modes(drive)
         can_interpolate = supported is None or bool(supported >> 6 & 1)
         # the buffer's capacity: the smaller of 0x60C4 sub 1 (maximum) and sub 2 (actual buffer size)
-        self._ip_capacity = min(drive.sdo[0x60C4][1].raw, drive.sdo[0x60C4][2].raw) if can_interpolate else 0
+        self._ip_capacity = min(self._sdo_read(drive, "drive", 0x60C4, 1, "the interpolation buffer's capacity"),
+                                self._sdo_read(drive, "drive", 0x60C4, 2, "the interpolation buffer's size")
+                                ) if can_interpolate else 0
         if self._ip_capacity < MIN_IP_BUFFER_RECORDS and self.mode_requested == "auto":
             self._use_mode("csp")
         elif self._ip_capacity < MIN_IP_BUFFER_RECORDS and can_interpolate:
@@ -515,19 +586,31 @@ class CanOpenTransport(Transport):
                 f"needs at least {MIN_IP_BUFFER_RECORDS}: use mode = \"csp\" or \"auto\""))
 
     def _map_target_rpdo(self, drive: Any) -> PdoLayout:
-        """RPDO1 carries the target: 0x60C1:1 (interpolation data record) or 0x607A (target position). With
-        ``mode = "auto"``, a drive whose static RPDO1 cannot carry 0x60C1 streams CSP."""
+        """RPDO1 carries the target: 0x607A (target position), synchronous (CSP: one target per SYNC, the
+        last frame before the SYNC is the one in force), or 0x60C1:1 (interpolation data record),
+        asynchronous (:data:`ASYNCHRONOUS_RPDO`: every record sent reaches the buffer). With ``mode =
+        "auto"``, a drive whose RPDO1 cannot carry records that way streams CSP, with a warning naming why."""
         def mapped() -> PdoLayout:
-            target = (0x60C1, 1) if self.mode == "ip_buffer" else (0x607A, 0)
-            return self._map_pdo(drive.rpdo, "drive", [(*target, 32)], 0x200 + self.drive_node_id)
+            if self.mode == "ip_buffer":
+                return self._map_pdo(drive.rpdo, "drive", [(0x60C1, 1, 32)], 0x200 + self.drive_node_id,
+                                     transmission_type=ASYNCHRONOUS_RPDO)
+            return self._map_pdo(drive.rpdo, "drive", [(0x607A, 0, 32)], 0x200 + self.drive_node_id)
 
         try:
-            return mapped()
-        except DeviceFault:
+            layout = mapped()
+        except DeviceFault as err:
             if self.mode_requested != "auto" or self.mode != "ip_buffer":
                 raise
+            self._fall_back_to_csp(f"{err}")
+            layout = mapped()
+        self._rpdo_transmission_type = ASYNCHRONOUS_RPDO if self.mode == "ip_buffer" else 1
+        return layout
+
+    def _fall_back_to_csp(self, why: str) -> None:
+        """``mode = "auto"``: interpolated position cannot be used on this drive; stream CSP and say why."""
         self._use_mode("csp")
-        return mapped()
+        self._ride_through(f"drive {self.drive_node_id}: interpolated position not used, cyclic synchronous "
+                           f"position instead: {why}")
 
     def _check_supported_modes(self, drive: Any) -> None:
         """The streaming mode, and homing where it is used, against 0x6502 where the EDS has it."""
@@ -546,12 +629,26 @@ class CanOpenTransport(Transport):
         """The interpolation buffer (CiA 402 0x60C4): linear interpolation (0x60C0 = 0 where present),
         cleared and enabled (sub 6: 0, then 1)."""
         if 0x60C0 in drive.object_dictionary:
-            drive.sdo[0x60C0].raw = 0
-        drive.sdo[0x60C4][6].raw = 0
-        drive.sdo[0x60C4][6].raw = 1
+            self._sdo_write(drive, "drive", 0x60C0, 0, 0, "linear interpolation")
+        self._sdo_write(drive, "drive", 0x60C4, 6, 0, "clear the interpolation buffer")
+        self._sdo_write(drive, "drive", 0x60C4, 6, 1, "enable access to the interpolation buffer")
+
+    def _take_first_mode(self, drive: Any) -> None:
+        """0x6060 = the streaming mode (or homing first). With ``mode = "auto"``, a drive that refuses
+        interpolated position (SDO abort on 0x6060 = 7, though its EDS lists the objects) streams CSP, with
+        a warning naming the refusal."""
+        try:
+            self._set_mode(drive, self._streaming_mode if self.skip_homing else cia402.HOMING_MODE)
+        except DeviceFault as err:
+            if not (self.skip_homing and self.mode == "ip_buffer" and self.mode_requested == "auto"
+                    and err.code is not None and err.code > 0xFFFF):
+                raise
+            self._fall_back_to_csp(str(err))
+            self._rpdo = self._map_target_rpdo(drive)
+            self._set_mode(drive, self._streaming_mode)
 
     def _set_mode(self, drive: Any, mode: int) -> None:
-        drive.sdo[0x6060].raw = mode
+        self._sdo_write(drive, "drive", 0x6060, 0, mode, f"mode of operation: {_MODE_NAMES.get(mode, 'unknown')}")
         self._mode = mode
 
     def _wait_for_mode(self, drive: Any) -> None:
@@ -574,8 +671,8 @@ class CanOpenTransport(Transport):
         """Write the actual position (0x6064) into the target (0x607A), so that enabling, or switching to
         cyclic synchronous position, does not move the motor (a standard drive servoes to whatever 0x607A
         holds); return that position in radians."""
-        actual = drive.sdo[0x6064].raw
-        drive.sdo[0x607A].raw = actual
+        actual = self._sdo_read(drive, "drive", 0x6064, 0, "the actual position the target is set to")
+        self._sdo_write(drive, "drive", 0x607A, 0, actual, "the target at the actual position, so that nothing moves")
         with self._lock:
             self._in_force = (-1, actual)  # the drive holds this target until the first RPDO
         return self.drive.rad_from_counts(actual)
@@ -653,12 +750,13 @@ class CanOpenTransport(Transport):
         drive.sdo[0x6040].raw = cia402.CONTROLWORD_ENABLE_OPERATION
 
     def _map_pdo(self, pdos: Any, role: str, needed: list[tuple[int, int, int]], cob_id: int,
-                 number: int = 1) -> PdoLayout:
-        """Map PDO ``number`` of ``pdos`` to the ``needed`` objects ``(index, sub-index, bits)``, synchronous (transmission type
-        1), then read its communication and mapping parameters back from the device: a device with static
-        PDOs refuses the writes (or canopen skips entries its EDS marks read-only), and what the master
-        decodes must be what the device sends. A layout that carries the needed objects is used as it is;
-        one that does not is refused naming the object."""
+                 number: int = 1, transmission_type: int = 1) -> PdoLayout:
+        """Map PDO ``number`` of ``pdos`` to the ``needed`` objects ``(index, sub-index, bits)`` with
+        ``transmission_type`` (1: synchronous, every SYNC), then read its communication and mapping
+        parameters back from the device: a device with static PDOs refuses the writes (or canopen skips
+        entries its EDS marks read-only), and what the master decodes must be what the device sends. A
+        layout that carries the needed objects is used as it is; one that does not is refused naming the
+        object, and the refusal the device gave, if any."""
         import canopen
 
         pdo = pdos[number]
@@ -670,27 +768,30 @@ class CanOpenTransport(Transport):
         for index, subindex, _ in needed:
             pdo.add_variable(index, subindex)
         pdo.cob_id = cob_id
-        pdo.trans_type = 1
+        pdo.trans_type = transmission_type
         pdo.enabled = True
+        refused = ""
         try:
             pdo.save()
-        except canopen.SdoAbortedError:
-            pass  # a static PDO: the read-back below says whether its layout serves
+        except canopen.SdoAbortedError as err:  # a static PDO: the read-back below says whether its layout serves
+            refused = f" (the device refused its configuration: SDO abort 0x{err.code:08X})"
         pdo.read()
         layout = PdoLayout.from_pdo(pdo, where)
         device = f"{self.name} {role} {node_id}"
         if not pdo.enabled:
-            raise DeviceFault(device, None, f"{where} stays disabled after configuration (COB-ID bit 31 set)")
-        if kind.startswith("TPDO") and pdo.trans_type != 1:
+            raise DeviceFault(device, None, f"{where} stays disabled after configuration (COB-ID bit 31 set){refused}")
+        if pdo.trans_type != transmission_type and (kind.startswith("TPDO") or transmission_type != 1):
+            needs = ("1, an answer to every SYNC" if transmission_type == 1 else
+                     f"{transmission_type} (asynchronous: a synchronous RPDO keeps only the last frame before a "
+                     "SYNC, CiA 301, and interpolation records would be lost)")
             raise DeviceFault(device, None, (
-                f"{where} is sent with transmission type {pdo.trans_type} (0x{pdo.com_record.od.index:04X}:02, "
-                "not writable on this device); the master needs 1, an answer to every SYNC: set it with the "
-                "vendor's tool"))
+                f"{where} has transmission type {pdo.trans_type} (0x{pdo.com_record.od.index:04X}:02){refused}; the "
+                f"master needs {needs}: set it with the vendor's tool"))
         for index, _, bits in needed:
             if index not in layout.fields:
                 raise DeviceFault(device, None, (
-                    f"{where} does not map 0x{index:04X} (it maps {layout.describe()}, not writable on this "
-                    "device); the master needs it there"))
+                    f"{where} does not map 0x{index:04X} (it maps {layout.describe()}){refused or ', not writable on this device'}; "
+                    "the master needs it there"))
             if layout.fields[index][1] * 8 < bits:
                 raise DeviceFault(device, None, (
                     f"{where} maps only {layout.fields[index][1] * 8} bits of 0x{index:04X}; the master needs {bits}"))
@@ -755,12 +856,14 @@ class CanOpenTransport(Transport):
         self._raise_device_fault()
         self._check_heartbeats()
         with self._lock:
-            self._queue[setpoint.seq] = self.drive.counts_from_rad(setpoint.position_rad)
+            counts = self.drive.counts_from_rad(setpoint.position_rad)
             if self._origin is not None:  # the lead counts once the drive's clock runs the samples (before it,
                 self._queued_at[setpoint.seq] = self.clock()  # the first setpoint is just ahead by design)
-            if self.mode == "ip_buffer":
-                self._top_up_ip_buffer()
+            if self._feed is not None:
+                self._feed.queue_setpoint(setpoint.seq, counts)
+                self._put_records_on_bus()
                 return
+            self._queue[setpoint.seq] = counts
             if self._origin is None:
                 return
             behind = self._device_sample - setpoint.seq  # >= -1: its slot right after SYNC seq - 1 has passed
@@ -774,6 +877,13 @@ class CanOpenTransport(Transport):
                 self._queued_at.pop(setpoint.seq, None)
 
     def _recv_internal(self, timeout_s: float) -> FeedbackSample | None:
+        if self._feed is not None and self._origin is None:  # interpolated position, before sample 0
+            if self._ip_enabled_at is None:
+                deadline = self.clock() + timeout_s
+                self._wait_for(lambda: self._feed.ready_to_start() or self._emcy is not None
+                               or self._fault is not None, timeout_s)
+                timeout_s = max(deadline - self.clock(), 0.0)
+            self._start_interpolation()
         self._wait_for(lambda: self._ready or self._emcy is not None or self._fault is not None, timeout_s)
         with self._lock:
             if self._emcy is None and self._ready:
@@ -874,9 +984,9 @@ class CanOpenTransport(Transport):
                     self._file_locked(*item)
                 else:
                     self._unfiled.append(item)
-            if self.mode == "ip_buffer":
+            if self._feed is not None:
                 self._take_ip_record(count)
-                self._top_up_ip_buffer()
+                self._put_records_on_bus()
             else:
                 self._record_csp_target(count)
             if self._origin is not None and count >= self._origin:
@@ -912,41 +1022,94 @@ class CanOpenTransport(Transport):
             self._put_target_on_bus(upcoming)
 
     def _take_ip_record(self, count: int) -> None:
-        """Interpolated position at SYNC ``count``: the drive takes the oldest record of its buffer (the
-        master's copy of the buffer follows the bus order of its RPDO echoes); an empty buffer is an
-        underrun: the drive holds the last record and the sample is HELD. Sample 0 is the first SYNC after
-        the first record reached the buffer."""
-        if self._origin is None:
-            if not self._ip_buffer:
-                return
-            self._origin = count
+        """Interpolated position at SYNC ``count`` (from the first SYNC whose statusword showed bit 12, ip
+        mode active: sample 0): the drive takes the oldest record of its buffer (the master's copy of the
+        buffer follows the bus order of its RPDO echoes). A hold record, or an empty buffer (an underrun),
+        leaves the sample HELD at the record before."""
+        if self._origin is None or count < self._origin:
+            return
         sample = count - self._origin
-        held = not self._ip_buffer
-        if not held:
-            self._in_force = self._ip_buffer.popleft()
-            queued = self._queued_at.pop(self._in_force[0], None)
-            if queued is not None:
-                self._min_lead_s = min(self._min_lead_s, self.clock() - queued)
-            if self._dry_since is not None:  # the buffer ran dry for these instants: a negative lead
-                self._min_lead_s = min(self._min_lead_s, -(count - self._dry_since) * self.sample_period_s)
-                self._dry_since = None
-        elif self._dry_since is None:
-            self._dry_since = count  # (after the run's last record the buffer runs dry for good: no lead)
-        self._applied[sample] = (self._in_force[1], held)
+        record = self._feed.take()
+        if record is None or record.sample is None:
+            if self._dry_since is None:
+                self._dry_since = count  # (after the run's last record the buffer runs dry for good: no lead)
+            self._applied[sample] = (self._in_force[1], True)
+            return
+        self._in_force = (record.sample, record.counts)
+        queued = self._queued_at.pop(record.sample, None)
+        if queued is not None:  # (a SYNC replayed once sample 0 was known happened that many periods ago)
+            at = self.clock() - (self._sync_count - count) * self.sample_period_s
+            self._min_lead_s = min(self._min_lead_s, at - queued)
+        if self._dry_since is not None:  # the buffer ran dry for these instants: a negative lead
+            self._min_lead_s = min(self._min_lead_s, -(count - self._dry_since) * self.sample_period_s)
+            self._dry_since = None
+        self._applied[sample] = (record.counts, False)
 
-    def _top_up_ip_buffer(self) -> None:
-        """Interpolated position: put the queued records on the bus, in order, while the drive's buffer
-        (the master's copy of it, plus the records whose echo is due) has room below
-        :data:`IP_BUFFER_MARGIN_RECORDS`. Called with the lock held, from the runner's thread as it queues
-        and from the receive thread at every SYNC: the lead is kept in the host's queue and the drive's
-        buffer together, so a stall of the runner's thread (a log write, a busy desktop) shorter than the
-        lead costs nothing; a pause of the whole process (a garbage collection holds every Python thread)
-        is ridden through for as long as the drive's buffer lasts."""
-        room = self._ip_capacity - IP_BUFFER_MARGIN_RECORDS - len(self._ip_buffer) - len(self._rpdo_sent)
-        while room > 0 and self._next_record in self._queue:
-            self._put_target_on_bus(self._next_record)
-            self._next_record += 1
-            room -= 1
+    def _check_buffer_position(self, buffered: int) -> None:
+        """Before ip mode is enabled: where the drive counts the records of its FIFO in 0x60C4:4 (buffer
+        position), that count must be what the echoes say went in, else the records are not all reaching
+        the buffer and the run stops. CiA 402 defines sub 4 for ring buffers; many FIFO drives leave it at a
+        constant (0 or 1): a value that is not a count is only noted, and the records are then checked each
+        sample against 0x6062 (position demand value) where the drive has it."""
+        if not self._has_sub(self._drive, 0x60C4, 4):
+            return
+        try:
+            with self._translated_errors("interpolation buffer position (0x60C4:4)"):
+                in_drive = self._drive.sdo[0x60C4][4].raw
+        except DeviceFault as err:  # write-only or not implemented on this drive: nothing to learn from it
+            self._ride_through(f"drive {self.drive_node_id}: 0x60C4:4 not readable ({err})")
+            return
+        if in_drive == buffered:
+            return
+        if 1 < in_drive < buffered:
+            raise DeviceFault(self.drive_label, None, (
+                f"holds {in_drive} records in its interpolation buffer (0x60C4:4 buffer position) after {buffered} "
+                f"were sent on {self._rpdo.where} with transmission type {self._rpdo_transmission_type}: the "
+                "records do not all reach the buffer; use mode = \"csp\""))
+        check = "0x6062 each sample" if self._demand_tpdo is not None else "nothing (no 0x6062 in its TPDOs)"
+        self._ride_through(f"drive {self.drive_node_id}: 0x60C4:4 (buffer position) reads {in_drive} with {buffered} "
+                           f"records sent; not a count of its FIFO, so arrival is checked by {check}")
+
+    def _put_records_on_bus(self) -> None:
+        """Interpolated position: put what :meth:`InterpolationFeed.to_send` says on the bus (queued records
+        while the drive's buffer has room; while streaming, a hold record where the buffer would run dry).
+        Called with the lock held, from the runner's thread as it queues and from the receive thread at
+        every SYNC: the lead is kept in the host's queue and the drive's buffer together, so a stall of the
+        runner's thread shorter than the lead costs nothing, and a pause of the whole process is ridden
+        through for as long as the drive's buffer lasts."""
+        for record in self._feed.to_send():
+            try:
+                self.network.send_message(self._rpdo.cob_id, self._rpdo.pack({index: record.counts
+                                                                             for index in self._rpdo.fields}))
+            except Exception as err:  # noqa: BLE001 - in the notifier thread: report, the runner raises it
+                self._feed.unsent(record)
+                what = "a hold record" if record.sample is None else f"the record of sample {record.sample}"
+                self._report_fault(TransportError(f"{self.name}: sending {what} failed: {err}"))
+                return
+
+    def _start_interpolation(self) -> None:
+        """Interpolated position, before sample 0: once the drive's buffer holds the lead (or every setpoint
+        there is), check that the records really are in it (0x60C4:4 buffer position, where the EDS has it),
+        then set controlword bit 4 (enable ip mode). Sample 0 is the first SYNC whose statusword shows bit 12
+        (:meth:`_file_locked`); a drive that does not show it within :data:`IP_START_SYNCS` SYNCs stops the
+        run, saying so."""
+        with self._lock:
+            enabled_at, ready = self._ip_enabled_at, self._feed.ready_to_start()
+            buffered = self._feed.buffered
+        if enabled_at is not None:
+            if self._sync_count - enabled_at > IP_START_SYNCS:
+                raise DeviceFault(self.drive_label, None, (
+                    f"does not interpolate: statusword bit 12 (ip mode active) still clear {IP_START_SYNCS} SYNCs "
+                    f"after controlword bit 4 (enable ip mode), with {buffered} records in its buffer (0x60C4); "
+                    f"{self._cycle_period_text()} was written; check what the drive needs to start interpolated "
+                    "position (its manual, 0x60C2 interpolation time period), or use mode = \"csp\""))
+            return
+        if not ready:
+            return
+        self._check_buffer_position(buffered)
+        with self._lock:
+            self._ip_enabled_at = self._sync_count
+        self._write_controlword(cia402.CONTROLWORD_ENABLE_INTERPOLATION)
 
     def _put_target_on_bus(self, sample: int) -> None:
         counts = self._queue.pop(sample)
@@ -961,11 +1124,19 @@ class CanOpenTransport(Transport):
         """Our own RPDO back from the interface: CSP: from here on, until the next one, this target is in
         force; interpolated position: this record is in the drive's buffer now."""
         with self._arrived:
-            if self._rpdo_sent:
-                if self.mode == "ip_buffer":
-                    self._ip_buffer.append(self._rpdo_sent.popleft())
-                else:
-                    self._in_force = self._rpdo_sent.popleft()
+            if self._feed is not None:
+                self._feed.echoed()
+                self._arrived.notify_all()  # (wakes _recv_internal waiting to start the interpolation)
+            elif self._rpdo_sent:
+                self._in_force = self._rpdo_sent.popleft()
+
+    def _on_drive_sdo_response(self, can_id: int, data: bytes, timestamp: float) -> None:
+        """An SDO response from the drive, in bus order with the SYNC echoes: the answer to controlword bit 4
+        (enable ip mode) bounds the SYNC at which the drive can first have taken a record
+        (:meth:`_find_ip_origin`)."""
+        with self._lock:
+            if self._ip_enabled_at is not None and self._ip_answered_at is None:
+                self._ip_answered_at = self._sync_count
 
     def _sync_before(self, timestamp: float) -> int | None:
         """The count of the last SYNC on the bus before bus time ``timestamp`` (None: before the first)."""
@@ -983,6 +1154,8 @@ class CanOpenTransport(Transport):
     def _file_locked(self, part: str, value: Any, timestamp: float, received: float) -> None:
         """File one TPDO under the sample of the SYNC it answers."""
         count = self._sync_before(timestamp)
+        if count is not None and self._origin is None and self._ip_enabled_at is not None:
+            self._find_ip_origin(part, value, timestamp, received, count - self.latency_cycles[part])
         if count is None or self._origin is None:
             return  # before streaming (the drive's TPDOs run from NMT operational on)
         seq = count - self.latency_cycles[part] - self._origin
@@ -1011,6 +1184,36 @@ class CanOpenTransport(Transport):
         if len(self._parts) > 512:
             for old in sorted(self._parts)[:256]:
                 del self._parts[old]
+
+    def _find_ip_origin(self, part: str, value: Any, timestamp: float, received: float, answers: int) -> None:
+        """Interpolated position, after controlword bit 4: the first SYNC whose drive statusword shows bit 12
+        (ip mode active) is sample 0, the first at which the drive took a record. Until it is seen, TPDOs are
+        kept; then the records taken at the SYNCs since are replayed, and the kept TPDOs filed."""
+        if answers <= self._ip_enabled_at:
+            return
+        if part != "drive" or not value[0] & cia402.STATUSWORD_IP_MODE_ACTIVE:
+            self._before_origin.append((part, value, timestamp, received))
+            return
+        latest = None if self._ip_answered_at is None else self._ip_answered_at + 1
+        if latest is not None and answers > latest:
+            # the drive took its bit 4 before its SDO answer, so its first record went at SYNC <= latest; a
+            # statusword that says later was sent later than drive_tpdo_latency_cycles says
+            configured = self.latency_cycles["drive"]
+            self._report_fault(DeviceFault(self.drive_label, None, (
+                f"answers SYNC k after SYNC k + {configured + answers - latest} or later: its statusword shows bit 12 "
+                f"(ip mode active) first in the answer filed under SYNC {answers - self._ip_enabled_at} after "
+                f"controlword bit 4, which it had confirmed by SYNC {latest - self._ip_enabled_at}; set "
+                f"drive_tpdo_latency_cycles = {configured + answers - latest} (and check encoder_tpdo_latency_cycles)")))
+            self._arrived.notify_all()
+            return
+        self._origin = answers
+        self._feed.streaming = True
+        for count in range(answers, self._sync_count):  # (this SYNC's own record is taken by the caller)
+            self._take_ip_record(count)
+        self._device_sample = self._sync_count - 1 - answers
+        kept, self._before_origin = self._before_origin, []
+        for item in kept:
+            self._file_locked(*item)
 
     def _check_latency(self, seq: int, demand: int | None) -> None:
         """Compare the drive's 0x6062 for sample ``seq`` with the target in force at its SYNC (``demand``
@@ -1173,13 +1376,14 @@ _DRIVE_OBJECTS = (
 )
 SYNCS_BEFORE_STREAMING = 2
 """SYNCs between OPERATION ENABLED and the first setpoint (:meth:`CanOpenTransport._await_syncs_in_operation`)."""
-MIN_IP_BUFFER_RECORDS = 4
-"""The smallest interpolation buffer (0x60C4) worth streaming into: below it, the margin below leaves no
-lead to speak of (``mode = "auto"`` uses CSP instead)."""
-IP_BUFFER_MARGIN_RECORDS = 2
-"""Records of the drive's buffer the lead leaves free: one RPDO on the bus whose echo the master has not
-seen yet, and one record the drive may already have taken at a SYNC whose echo the master has not seen
-yet. The master's copy of the buffer follows the echoes, so it can trail the drive's by these two."""
+IP_START_SYNCS = 50
+"""SYNCs the drive may take after controlword bit 4 (enable ip mode) before its statusword shows bit 12 (ip
+mode active); a drive that never shows it does not interpolate (0x60C2 not accepted, a drive-internal
+reason), and the run stops saying so."""
+ASYNCHRONOUS_RPDO = 255
+"""RPDO transmission type for interpolation records: event-driven, applied on arrival (CiA 301 7.2.2.2), so
+that every record sent reaches the drive's buffer; a synchronous RPDO (0..240) keeps only the last frame
+received before a SYNC."""
 
 _IP_BUFFER_OBJECTS = (
     (0x60C1, "the interpolation data records (mode = \"ip_buffer\")"),
@@ -1190,6 +1394,22 @@ _ENCODER_OBJECTS = (
     (0x1800, "TPDO1 communication parameter (the position value's PDO)"), (0x1A00, "TPDO1 mapping"),
     (0x6004, "position value"),
 )
+
+
+def interpolation_time_period(period_s: float, largest_value: int) -> tuple[int, int] | None:
+    """``period_s`` as CiA 402's 0x60C2 holds it: (value, index) with value x 10^index s equal to the period
+    (to 1 ppm) and 1 <= value <= ``largest_value`` (255 for the standard's UNSIGNED8 sub 1), the smallest
+    value that does; None where none does (a period of 1/3 ms).
+
+    >>> interpolation_time_period(1e-3, 255), interpolation_time_period(250e-6, 255), interpolation_time_period(1 / 3000, 255)
+    ((1, -3), (250, -6), None)
+    """
+    for index in range(3, -10, -1):
+        value = period_s / 10.0 ** index
+        whole = round(value)
+        if 1 <= whole <= largest_value and abs(value - whole) <= 1e-6 * value:
+            return whole, index
+    return None
 
 
 def _load_object_dictionary(key: str, path: str, node_id: int) -> Any:

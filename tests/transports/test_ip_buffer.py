@@ -152,13 +152,14 @@ def test_the_receive_thread_keeps_the_drives_buffer_full_from_the_hosts_queue():
     queued one on the bus, so the runner's thread may stall for its whole lead without an underrun."""
     from rig.protocols.encoder_counts import EncoderResolution
     from rig.transports import Setpoint
-    from rig.transports.canopen_link import IP_BUFFER_MARGIN_RECORDS, CanOpenTransport, PdoLayout
+    from rig.transports.canopen_link import CanOpenTransport, PdoLayout
+    from rig.transports.interpolation_feed import IP_BUFFER_MARGIN_RECORDS, InterpolationFeed
 
     transport = CanOpenTransport("virtual", "unused", encoder=EncoderResolution(bits=12, signed=True),
                                  sample_period_s=1e-3, mode="ip_buffer", lead_s=0.1)
     transport.network = _RecordingNetwork()
     transport._rpdo = PdoLayout("RPDO1 of drive 1", 0x201, {0x60C1: (0, 4)}, 4)
-    transport._ip_capacity = 64
+    transport._feed = InterpolationFeed(64, transport.lead_samples, 0)
     assert transport.lead_samples == 100  # the lead is the host's: queue and buffer together
     for seq in range(100):
         transport._send(Setpoint(seq, transport.drive.rad_from_counts(seq)))
@@ -166,6 +167,8 @@ def test_the_receive_thread_keeps_the_drives_buffer_full_from_the_hosts_queue():
     assert transport.network.sent == list(range(full))  # in order, up to the margin, the rest queued
     for record in range(full):
         transport._on_rpdo_echo(0x201, b"", 1.0)  # the bus carried them: in the drive's buffer now
+    assert transport._feed.ready_to_start()  # the buffer holds the lead it can: ip mode may be enabled
+    transport._origin, transport._feed.streaming = 1, True  # (bit 12 seen at the first SYNC after bit 4)
     for count in range(1, 39):  # the runner's thread queues nothing more: 38 SYNCs pass
         transport._on_sync_echo(0x80, b"", 1.0 + count * 1e-3)
         transport._on_rpdo_echo(0x201, b"", 1.0 + count * 1e-3 + 2e-4)
