@@ -43,7 +43,6 @@ from pathlib import Path
 
 import can
 import canopen
-from can.interfaces.virtual import VirtualBus
 
 from identify.validation import InvalidInputError
 from rig.protocols import cia402
@@ -52,10 +51,13 @@ from sim_backend.canopen_behaviour import (
     EMCY_ERROR_RESET, EMCY_FOLLOWING_ERROR, EMCY_PARAMETER_ERROR, EMCY_POSITIONING_CONTROLLER, EMCY_SYNC_LOSS,
     DriveBehaviour, EncoderBehaviour, NodeBehaviour, error_register_for,
 )
+from sim_backend.canopen_pdos import (
+    RPDO_COMMUNICATION_INDICES, RpdoReception, RpdoValues, Tpdo, is_rpdo_transmission_type,
+)
 from sim_backend.eds_variants import eds_text, is_pdo_parameter, load_eds_text, static_pdo_access, with_entries
 from sim_backend.interpolation_buffer import InterpolationBuffer, ip_period_matches
 from sim_backend.plant import SimulatedGearbox
-from sim_backend.virtual_bus_order import one_bus_order
+from sim_backend.wire_time_bus import FrameCounter, WireTimeBus
 
 __all__ = ["DRIVE_EDS", "EDS_DIRECTORY", "ENCODER_EDS", "SimulatedCanOpenRig", "u32_range"]
 
@@ -73,9 +75,6 @@ SYNC_RUNNING_DEFAULT_WINDOW_S = 0.3  # without a communication cycle period (0x1
 CLOCK_TICK_S = 0.002  # the drive's own clock, for timed transitions that no frame triggers
 NOTIFIER_CYCLE_S = 0.05  # how often the notifier thread looks up from an idle bus: close() waits that long
 _ENCODER_FIXED_OBJECTS = (0x6000, 0x6001, 0x6002, 0x6003)  # set from the plant's encoder: not changeable
-RPDO_COMMUNICATION_INDICES = range(0x1400, 0x1600)  # CiA 301: RPDO communication parameters
-LAST_SYNCHRONOUS_TRANSMISSION_TYPE = 240  # CiA 301: RPDO types 0..240 act on SYNC; 254, 255 event-driven
-RPDO_EVENT_DRIVEN_TRANSMISSION_TYPES = (254, 255)  # 241..251 reserved; 252, 253 (RTR only) are for TPDOs
 CONTROLWORD_ENABLE_IP_MODE = 0x0010  # bit 4 in interpolated position mode (CiA 402)
 
 
@@ -88,71 +87,6 @@ def u32_range(value: int) -> int:
     if not 0 < value < 1 << 32:
         raise InvalidInputError(f"a CiA 406 range must lie in 1..2**32 counts, got {value}")
     return value
-
-
-class _FrameCounter(can.Listener):
-    """Counts the bits of every frame on the bus, received or sent by the simulated nodes (worst-case
-    bit stuffing)."""
-
-    def __init__(self, clock: Callable[[], float]) -> None:
-        self.frames = 0
-        self.bits = 0
-        self.started = clock()
-        self._lock = threading.Lock()
-
-    def on_message_received(self, msg: can.Message) -> None:
-        with self._lock:  # the notifier thread and the heartbeat threads both count
-            self.frames += 1
-            self.bits += frame_bits(msg.dlc, extended=msg.is_extended_id)
-
-
-class _WireTimeBus(VirtualBus):
-    """python-can's virtual bus, but TPDOs can carry their wire time: the SYNC's timestamp plus the bits
-    on the wire since, at the bus's bit rate, as a real bus with hardware timestamps would show them,
-    however late the simulated device's thread got to answer."""
-
-    def __init__(self, channel: str, counter: _FrameCounter) -> None:
-        one_bus_order()  # every node sees the frames in one order, as on a real bus
-        super().__init__(channel=channel, receive_own_messages=False, preserve_timestamps=False)
-        self._stamp_lock = threading.Lock()
-        self.counter = counter
-
-    def send(self, msg: can.Message, timeout: float | None = None) -> None:
-        with self._stamp_lock:
-            if self._is_shutdown:
-                return  # a heartbeat timer racing the shutdown: a node off the bus sends nothing
-            self.counter.on_message_received(msg)
-            try:
-                super().send(msg, timeout)
-            except can.CanOperationError:
-                if not self._is_shutdown:
-                    raise
-
-    def send_at(self, msg: can.Message, wire_time: float) -> None:
-        with self._stamp_lock:
-            if self._is_shutdown:
-                return
-            self.counter.on_message_received(msg)
-            msg.timestamp = wire_time
-            self.preserve_timestamps = True
-            try:
-                super().send(msg)
-            finally:
-                self.preserve_timestamps = False
-
-
-class _Tpdo:
-    """One synchronous TPDO of a node: what it carries, how often it goes, and what it latched."""
-
-    __slots__ = ("cob_id", "entries", "every", "count", "history", "primed")
-
-    def __init__(self, cob_id: int, entries: list[tuple[int, int, int]], every: int) -> None:
-        self.cob_id = cob_id
-        self.entries = entries  # (index, subindex, bytes)
-        self.every = every  # transmission type n: after every n-th SYNC
-        self.count = 0  # SYNCs since the node became OPERATIONAL
-        self.history: collections.deque[bytes] = collections.deque()
-        self.primed = False
 
 
 def _static_eds_text(text: str, behaviour: NodeBehaviour) -> str:
@@ -278,14 +212,14 @@ class SimulatedCanOpenRig:
                                     "(interpolation time period)")
         self.interpolation = self._interpolation_buffer()
         self._ip_was_active = False  # ip mode active at the last look (_follow_ip_mode)
-        self._rpdo_latched: dict[int, list[tuple[int, int, bytes]]] = {}  # synchronous RPDO -> its last frame
+        self._rpdos = RpdoReception()
         self.syncs = 0
         self.homed = False
         self.faults: list[int] = []  # error codes of every fault the drive entered, in order
-        self._counter = _FrameCounter(clock)
+        self._counter = FrameCounter(clock)
         self._lock = threading.RLock()
         self._operational: set[int] = set()
-        self._tpdos: dict[int, list[_Tpdo]] = {}
+        self._tpdos: dict[int, list[Tpdo]] = {}
         self._started = False
         self._mode_display = self._i8(self.drive, 0x6060) if 0x6060 in self.drive.object_dictionary else 0
         self._mode_pending: tuple[int, float] | None = None
@@ -335,7 +269,7 @@ class SimulatedCanOpenRig:
         (``tests/transports/clocked_canopen.py``). The bus must offer ``send_at(message, wire_time)``."""
         self._scripted = bus is not None
         if bus is None:
-            self.network = canopen.Network(_WireTimeBus(self.channel, self._counter))
+            self.network = canopen.Network(WireTimeBus(self.channel, self._counter))
             self.network.NOTIFIER_CYCLE = NOTIFIER_CYCLE_S
             self.network.connect()
         else:
@@ -464,8 +398,7 @@ class SimulatedCanOpenRig:
         if self.drive_behaviour.static_pdos and is_pdo_parameter(index):
             raise canopen.SdoAbortedError(SDO_ABORT_READ_ONLY)
         value = od.decode_raw(data)  # type: ignore[attr-defined]
-        if index in RPDO_COMMUNICATION_INDICES and subindex == 2 and not (
-                value <= LAST_SYNCHRONOUS_TRANSMISSION_TYPE or value in RPDO_EVENT_DRIVEN_TRANSMISSION_TYPES):
+        if index in RPDO_COMMUNICATION_INDICES and subindex == 2 and not is_rpdo_transmission_type(value):
             raise canopen.SdoAbortedError(SDO_ABORT_VALUE_RANGE)
         with self._lock:
             if index == 0x6060:
@@ -515,7 +448,7 @@ class SimulatedCanOpenRig:
             elif node.nmt.state != "OPERATIONAL" and node.id in self._operational:
                 self._operational.discard(node.id)
                 if node is self.drive:
-                    self._rpdo_latched.clear()  # no PDO is processed outside OPERATIONAL (CiA 301)
+                    self._rpdos.clear()
                 for pdo_map in list(node.rpdo.map.values()):
                     if pdo_map.cob_id and pdo_map.on_message in self.network.subscribers.get(pdo_map.cob_id, ()):
                         self.network.unsubscribe(pdo_map.cob_id, pdo_map.on_message)
@@ -524,7 +457,7 @@ class SimulatedCanOpenRig:
         """Take the PDO mapping the master wrote by SDO (or the EDS default) from the dictionary."""
         node.tpdo.read(from_od=False)
         self._tpdos[node.id] = [
-            _Tpdo(pdo_map.cob_id, [(variable.index, variable.subindex, variable.length // 8) for variable in pdo_map
+            Tpdo(pdo_map.cob_id, [(variable.index, variable.subindex, variable.length // 8) for variable in pdo_map
                                    if variable.length], pdo_map.trans_type)
             for pdo_map in node.tpdo.map.values()
             if pdo_map.enabled and pdo_map.trans_type is not None and 1 <= pdo_map.trans_type <= 240]
@@ -535,30 +468,15 @@ class SimulatedCanOpenRig:
                     pdo_map.add_callback(self._on_rpdo)
 
     def _on_rpdo(self, pdo_map: object) -> None:
-        """An RPDO received (CiA 301, by its transmission type 0x1400 + n sub 2): synchronous (0..240), its
-        data go into the RPDO's one receive buffer, overwriting what an earlier frame left there, and are
-        applied at the next SYNC (:meth:`_apply_latched_rpdos`); event-driven (254, 255), applied now. A
-        frame shorter than the mapping is not processed."""
-        if len(pdo_map.data) * 8 < pdo_map.length:  # type: ignore[attr-defined]
-            return
-        values = [(variable.index, variable.subindex, bytes(variable.get_data()))
-                  for variable in pdo_map if variable.length]  # type: ignore[attr-defined]
+        """An RPDO received: applied now if event-driven, else at the next SYNC (CiA 301, by the transmission
+        type in 0x1400 + n sub 2; :class:`~sim_backend.canopen_pdos.RpdoReception`)."""
         communication = pdo_map.com_record.od.index  # type: ignore[attr-defined]
         with self._lock:
-            transmission_type = int.from_bytes(self.drive.get_data(communication, 2), "little")
-            if transmission_type <= LAST_SYNCHRONOUS_TRANSMISSION_TYPE:
-                self._rpdo_latched[communication] = values
-            else:
+            values = self._rpdos.receive(pdo_map, int.from_bytes(self.drive.get_data(communication, 2), "little"))
+            if values is not None:
                 self._apply_rpdo(values)
 
-    def _apply_latched_rpdos(self) -> None:
-        """At a SYNC, before the drive's cycle: the data each synchronous RPDO received since the last SYNC
-        (its last frame), written to the mapped objects, once."""
-        latched, self._rpdo_latched = self._rpdo_latched, {}
-        for values in latched.values():
-            self._apply_rpdo(values)
-
-    def _apply_rpdo(self, values: list[tuple[int, int, bytes]]) -> None:
+    def _apply_rpdo(self, values: RpdoValues) -> None:
         """RPDO data written to the mapped objects (the write hooks act on them: a controlword, a record
         into the interpolation buffer); a value the drive refuses is not written."""
         for index, subindex, data in values:
@@ -794,7 +712,7 @@ class SimulatedCanOpenRig:
                 self._store(node, 0x1001, fault, 1)
                 node.emcy.send(EMCY_ERROR_RESET, register=fault)
 
-    def _latch_locked(self, node: canopen.LocalNode, tpdo: _Tpdo) -> bytes:
+    def _latch_locked(self, node: canopen.LocalNode, tpdo: Tpdo) -> bytes:
         return b"".join(node.get_data(index, subindex)[:size] for index, subindex, size in tpdo.entries)
 
     def _on_sync(self, can_id: int, data: bytes, timestamp: float) -> None:
@@ -803,7 +721,8 @@ class SimulatedCanOpenRig:
         with self._lock:
             self._sync_times.append(now)
             self._advance_locked(now)
-            self._apply_latched_rpdos()
+            for values in self._rpdos.take_latched():  # synchronous RPDOs: before this SYNC's cycle
+                self._apply_rpdo(values)
             behaviours = {self.drive.id: self.drive_behaviour, self.encoder.id: self.encoder_behaviour}
             for node in (self.drive, self.encoder):  # what a late-answering device sends first
                 latency = behaviours[node.id].tpdo_latency_cycles
