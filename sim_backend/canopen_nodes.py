@@ -3,7 +3,7 @@
 gearbox.
 
 ``LocalNode`` gives us the object dictionary (from the EDS files in ``configs/eds``), the SDO server and
-NMT commands. This module adds what it lacks for a cyclic synchronous position (CSP) rig:
+NMT commands. This module adds what it lacks for a cyclic synchronous or interpolated position rig:
 
 * PDO mapping taken from the object dictionary when the node enters OPERATIONAL (after the master has
   configured 0x1400/0x1600/0x1800/0x1A00 by SDO), TPDOs sent on SYNC (transmission type n: after every n-th
@@ -19,9 +19,8 @@ NMT commands. This module adds what it lacks for a cyclic synchronous position (
   FIFO of interpolation data records 0x60C1:1 configured by 0x60C4
   (:class:`~sim_backend.interpolation_buffer.InterpolationBuffer`); with ip mode active each SYNC takes
   the oldest record as its target;
-* the plant: on each SYNC in OPERATION ENABLED, from the first target (RPDO) on, the drive applies its
-  target (0x607A) and the gearbox
-  advances exactly one sample; the position demand value 0x6062 is the target it applied, the actual
+* the plant: on each SYNC in OPERATION ENABLED, from the first target (RPDO, or a record with ip mode
+  active) on, the drive applies its target (0x607A) and the gearbox advances exactly one sample; the position demand value 0x6062 is the target it applied, the actual
   position 0x6064 follows it (an ideal drive); the encoder's position value (0x6004) is the gearbox's
   encoder reading;
 * EMCY, 0x603F and the error register 0x1001 on a fault, heartbeats (0x1017) from both nodes;
@@ -29,7 +28,8 @@ NMT commands. This module adds what it lacks for a cyclic synchronous position (
   gearbox's EncoderResolution;
 * the legal behaviours of real devices, switched on by :class:`~sim_backend.canopen_behaviour.DriveBehaviour`
   and :class:`~sim_backend.canopen_behaviour.EncoderBehaviour` (slow fault reset, slow mode switch, enable
-  only with SYNC, SYNC watchdog, TPDO latency, static PDOs, quick stop options, NMT state on fault, ...);
+  only with SYNC, SYNC watchdog, TPDO latency, static PDOs, quick stop options, NMT state on fault, an
+  empty interpolation buffer that faults, 0x60C2 required, ...);
 * a count of every frame on the bus, for the bus load against the configured bit rate.
 """
 
@@ -154,11 +154,12 @@ class SimulatedCanOpenRig:
         simulated clock together with a bus on it (:meth:`start`).
     hold_plant_until_first_target
         True (for the driver's tests and the simulated rigs of ``rig run``): the gearbox stays exactly at
-        rest from enabling until the first target (RPDO) arrives, so that a run's samples do not depend on
-        how many SYNCs the host let pass between enabling and its first setpoint (a real gearbox at rest
-        with its target at the actual position does not move either; only the simulated noise would be
-        drawn). False: the drive acts on every SYNC in OPERATION ENABLED, as a device-level test of a stale
-        target at enable needs.
+        rest from enabling until the first target (RPDO) is applied or ip mode is active with a record in
+        the buffer, so that a run's samples do not depend on how many SYNCs the host let pass between
+        enabling and its first setpoint (a real gearbox at rest with its target at the actual position does
+        not move either; only the simulated noise would be drawn). An empty buffer with ip mode active still
+        faults a drive whose ``ip_underflow`` says so. False: the drive acts on every SYNC in OPERATION
+        ENABLED, as a device-level test of a stale target at enable needs.
     """
 
     def __init__(self, gearbox: SimulatedGearbox, *, channel: str,
@@ -458,7 +459,7 @@ class SimulatedCanOpenRig:
         node.tpdo.read(from_od=False)
         self._tpdos[node.id] = [
             Tpdo(pdo_map.cob_id, [(variable.index, variable.subindex, variable.length // 8) for variable in pdo_map
-                                   if variable.length], pdo_map.trans_type)
+                                  if variable.length], pdo_map.trans_type)
             for pdo_map in node.tpdo.map.values()
             if pdo_map.enabled and pdo_map.trans_type is not None and 1 <= pdo_map.trans_type <= 240]
         if node is self.drive:

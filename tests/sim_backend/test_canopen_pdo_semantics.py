@@ -355,6 +355,26 @@ def test_a_drive_that_requires_the_ip_period_checks_0x60c2_when_ip_mode_is_enabl
             assert m.rig.faults == []
 
 
+def test_ip_mode_that_becomes_active_by_the_drives_own_clock_is_checked_too(no_leaks):
+    """Bit 4 already set when 0x6061 turns to 7 after a slow mode switch: ip mode becomes active at that
+    instant of the drive's clock, with no frame to trigger it (scripted: ``next_event_s``/``run_due``)."""
+    delay_s = 0.01
+    behaviour = DriveBehaviour(requires_ip_period=True, mode_switch_delay_s=delay_s)
+    with clocked_drive(drive_behaviour=behaviour) as m:
+        m.drive.nmt.state = "PRE-OPERATIONAL"
+        m.drive.sdo[0x60C2][1].raw = 2  # 2 ms
+        m.drive.sdo[0x1006].raw = 1000  # against a 1 ms SYNC
+        m.drive.sdo[0x6060].raw = CSP
+        m.bus.stall(2 * delay_s)
+        m.ip_mode_set_up(mode=CSP)
+        m.drive.sdo[0x6040].raw = 0x1F  # bit 4 in CSP: nothing
+        m.drive.sdo[0x6060].raw = IP_MODE
+        assert m.rig.faults == []
+        m.bus.stall(2 * delay_s)  # no SDO, no SYNC: only the drive's clock
+        assert m.rig.faults == [EMCY_PARAMETER_ERROR] and m.emcy_codes() == [EMCY_PARAMETER_ERROR]
+        assert is_state(m.statusword(), FAULT)
+
+
 def test_without_0x1006_in_the_eds_0x60c2_is_the_only_period(tmp_path, no_leaks):
     eds = eds_without(DRIVE_EDS, [0x1006], tmp_path / "drive_without_1006.eds")
     with clocked_drive(drive_eds=eds, drive_behaviour=DriveBehaviour(requires_ip_period=True)) as m:
