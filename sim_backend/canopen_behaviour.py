@@ -14,14 +14,21 @@ from dataclasses import dataclass, fields
 from identify.validation import InvalidInputError
 
 __all__ = [
-    "DriveBehaviour", "EMCY_ERROR_RESET", "EMCY_FOLLOWING_ERROR", "EMCY_SYNC_LOSS", "EMCY_TEMPERATURE_WARNING",
-    "EncoderBehaviour", "NodeBehaviour", "OPTIONAL_OBJECTS_MISSING", "error_register_for", "real_variety",
+    "DriveBehaviour", "EMCY_ERROR_RESET", "EMCY_FOLLOWING_ERROR", "EMCY_PARAMETER_ERROR", "EMCY_POSITIONING_CONTROLLER",
+    "EMCY_SYNC_LOSS", "EMCY_TEMPERATURE_WARNING", "EncoderBehaviour", "IP_UNDERFLOW", "NodeBehaviour",
+    "OPTIONAL_OBJECTS_MISSING", "error_register_for", "real_variety",
 ]
 
 EMCY_ERROR_RESET = 0x0000  # CiA 301: "error reset or no error"
 EMCY_FOLLOWING_ERROR = 0x8611  # CiA 402: following error
 EMCY_SYNC_LOSS = 0x8700  # CiA 301/402: sync controller (SYNC lost)
 EMCY_TEMPERATURE_WARNING = 0x4210  # CiA 301: temperature device (excess temperature, here a warning)
+EMCY_POSITIONING_CONTROLLER = 0x8600  # CiA 402: positioning controller (here an empty interpolation buffer)
+EMCY_PARAMETER_ERROR = 0x6320  # CiA 301: parameter error (here 0x60C2 unset or not the SYNC period)
+
+IP_UNDERFLOW = ("hold", "fault", "fault_after_first")
+"""What a drive does at a SYNC with ip mode active and an empty interpolation buffer (see
+:attr:`DriveBehaviour.ip_underflow`)."""
 
 NMT_ON_FAULT = (None, "pre-operational", "stopped")
 
@@ -129,7 +136,8 @@ class NodeBehaviour:
 
 @dataclass(frozen=True)
 class DriveBehaviour(NodeBehaviour):
-    """Legal behaviours of a CiA 402 drive in cyclic synchronous position mode (CSP, 0x6060 = 8)."""
+    """Legal behaviours of a CiA 402 drive in cyclic synchronous position mode (CSP, 0x6060 = 8) and
+    interpolated position mode (0x6060 = 7)."""
 
     copy_target_on_enable: bool = True
     """True: on entering OPERATION ENABLED the drive sets its target 0x607A to the actual position 0x6064
@@ -187,9 +195,26 @@ class DriveBehaviour(NodeBehaviour):
     """When a fault reset completes, the drive sends EMCY 0x0000 ("error reset", CiA 301) with the
     error register 0x1001 it now holds."""
 
+    ip_underflow: str = "hold"
+    """Interpolated position mode (0x6060 = 7): what the drive does at a SYNC with ip mode active
+    (controlword bit 4, statusword bit 12) when its interpolation buffer (0x60C4) is empty. "hold": it holds
+    the last position (an underrun, counted; the forgiving drive). "fault": it faults with EMCY 0x8600
+    (positioning controller) and 0x603F = 0x8600, as maxon EPOS drives do; a master that sets bit 4 on an
+    empty buffer faults at the first SYNC. "fault_after_first": it holds until it has taken a record since
+    ip mode became active, and faults on an empty buffer from then on."""
+
+    requires_ip_period: bool = False
+    """Enabling ip mode (controlword bit 4 in OPERATION ENABLED with 0x6061 = 7) needs the interpolation
+    time period 0x60C2 (CiA 402: sub 1 value, sub 2 index, value * 10**index seconds): with 0x60C2 = 0,
+    or where the EDS has 0x1006 and it is written (non-zero) with a period other than 0x1006's, the drive
+    faults with EMCY 0x6320 (parameter error) and 0x603F = 0x6320. Where the EDS has no 0x1006, 0x60C2 is
+    the only period. False: the drive takes one record per SYNC whatever 0x60C2 says."""
+
     def __post_init__(self) -> None:
         super().__post_init__()
-        for field in ("copy_target_on_enable", "enable_requires_sync", "emcy_error_reset"):
+        _check("DriveBehaviour.ip_underflow", self.ip_underflow in IP_UNDERFLOW,
+               "'hold', 'fault' or 'fault_after_first'", self.ip_underflow)
+        for field in ("copy_target_on_enable", "enable_requires_sync", "emcy_error_reset", "requires_ip_period"):
             value = getattr(self, field)
             _check(f"DriveBehaviour.{field}", isinstance(value, bool), "true or false", value)
         if self.following_error_window_counts is not None:

@@ -3,18 +3,24 @@
 gearbox.
 
 ``LocalNode`` gives us the object dictionary (from the EDS files in ``configs/eds``), the SDO server and
-NMT commands. This module adds what it lacks for a cyclic synchronous position (CSP) rig:
+NMT commands. This module adds what it lacks for a cyclic synchronous or interpolated position rig:
 
 * PDO mapping taken from the object dictionary when the node enters OPERATIONAL (after the master has
-  configured 0x1400/0x1600/0x1800/0x1A00 by SDO), RPDOs written into the dictionary, TPDOs sent on SYNC
-  (transmission type n: after every n-th SYNC), and no PDO traffic outside OPERATIONAL (NMT gating; no SDO
-  in STOPPED either);
+  configured 0x1400/0x1600/0x1800/0x1A00 by SDO), TPDOs sent on SYNC (transmission type n: after every n-th
+  SYNC), and no PDO traffic outside OPERATIONAL (NMT gating; no SDO in STOPPED either);
+* RPDOs as CiA 301 has them (0x1400 + n sub 2): a synchronous RPDO (transmission type 0..240) has one
+  receive buffer, a frame overwrites the one before, and the data are written into the dictionary at the
+  next SYNC, before that SYNC's cycle uses them; an event-driven one (254, 255) at once; other types are
+  refused by SDO (abort 0x06090030);
 * the CiA 402 state machine on 0x6040/0x6041 (:mod:`rig.protocols.cia402`), by default with the target
   set to the actual position on enable (no jump); statusword bit 12 in CSP = "drive follows the command
-  value";
-* the plant: on each SYNC in OPERATION ENABLED, from the first target (RPDO) on, the drive applies its
-  target (0x607A) and the gearbox
-  advances exactly one sample; the position demand value 0x6062 is the target it applied, the actual
+  value", in interpolated position = "ip mode active" (controlword bit 4 in OPERATION ENABLED);
+* interpolated position mode (0x6060 = 7): 0x60C0 (linear only), 0x60C2 interpolation time period and the
+  FIFO of interpolation data records 0x60C1:1 configured by 0x60C4
+  (:class:`~sim_backend.interpolation_buffer.InterpolationBuffer`); with ip mode active each SYNC takes
+  the oldest record as its target;
+* the plant: on each SYNC in OPERATION ENABLED, from the first target (RPDO, or a record with ip mode
+  active) on, the drive applies its target (0x607A) and the gearbox advances exactly one sample; the position demand value 0x6062 is the target it applied, the actual
   position 0x6064 follows it (an ideal drive); the encoder's position value (0x6004) is the gearbox's
   encoder reading;
 * EMCY, 0x603F and the error register 0x1001 on a fault, heartbeats (0x1017) from both nodes;
@@ -22,7 +28,8 @@ NMT commands. This module adds what it lacks for a cyclic synchronous position (
   gearbox's EncoderResolution;
 * the legal behaviours of real devices, switched on by :class:`~sim_backend.canopen_behaviour.DriveBehaviour`
   and :class:`~sim_backend.canopen_behaviour.EncoderBehaviour` (slow fault reset, slow mode switch, enable
-  only with SYNC, SYNC watchdog, TPDO latency, static PDOs, quick stop options, NMT state on fault, ...);
+  only with SYNC, SYNC watchdog, TPDO latency, static PDOs, quick stop options, NMT state on fault, an
+  empty interpolation buffer that faults, 0x60C2 required, ...);
 * a count of every frame on the bus, for the bus load against the configured bit rate.
 """
 
@@ -36,18 +43,21 @@ from pathlib import Path
 
 import can
 import canopen
-from can.interfaces.virtual import VirtualBus
 
 from identify.validation import InvalidInputError
 from rig.protocols import cia402
 from rig.protocols.can_bus_load import frame_bits
 from sim_backend.canopen_behaviour import (
-    EMCY_ERROR_RESET, EMCY_FOLLOWING_ERROR, EMCY_SYNC_LOSS, DriveBehaviour, EncoderBehaviour, NodeBehaviour,
-    error_register_for,
+    EMCY_ERROR_RESET, EMCY_FOLLOWING_ERROR, EMCY_PARAMETER_ERROR, EMCY_POSITIONING_CONTROLLER, EMCY_SYNC_LOSS,
+    DriveBehaviour, EncoderBehaviour, NodeBehaviour, error_register_for,
+)
+from sim_backend.canopen_pdos import (
+    RPDO_COMMUNICATION_INDICES, RpdoReception, RpdoValues, Tpdo, is_rpdo_transmission_type,
 )
 from sim_backend.eds_variants import eds_text, is_pdo_parameter, load_eds_text, static_pdo_access, with_entries
+from sim_backend.interpolation_buffer import InterpolationBuffer, ip_period_matches
 from sim_backend.plant import SimulatedGearbox
-from sim_backend.virtual_bus_order import one_bus_order
+from sim_backend.wire_time_bus import FrameCounter, WireTimeBus
 
 __all__ = ["DRIVE_EDS", "EDS_DIRECTORY", "ENCODER_EDS", "SimulatedCanOpenRig", "u32_range"]
 
@@ -65,6 +75,7 @@ SYNC_RUNNING_DEFAULT_WINDOW_S = 0.3  # without a communication cycle period (0x1
 CLOCK_TICK_S = 0.002  # the drive's own clock, for timed transitions that no frame triggers
 NOTIFIER_CYCLE_S = 0.05  # how often the notifier thread looks up from an idle bus: close() waits that long
 _ENCODER_FIXED_OBJECTS = (0x6000, 0x6001, 0x6002, 0x6003)  # set from the plant's encoder: not changeable
+CONTROLWORD_ENABLE_IP_MODE = 0x0010  # bit 4 in interpolated position mode (CiA 402)
 
 
 def u32_range(value: int) -> int:
@@ -76,71 +87,6 @@ def u32_range(value: int) -> int:
     if not 0 < value < 1 << 32:
         raise InvalidInputError(f"a CiA 406 range must lie in 1..2**32 counts, got {value}")
     return value
-
-
-class _FrameCounter(can.Listener):
-    """Counts the bits of every frame on the bus, received or sent by the simulated nodes (worst-case
-    bit stuffing)."""
-
-    def __init__(self, clock: Callable[[], float]) -> None:
-        self.frames = 0
-        self.bits = 0
-        self.started = clock()
-        self._lock = threading.Lock()
-
-    def on_message_received(self, msg: can.Message) -> None:
-        with self._lock:  # the notifier thread and the heartbeat threads both count
-            self.frames += 1
-            self.bits += frame_bits(msg.dlc, extended=msg.is_extended_id)
-
-
-class _WireTimeBus(VirtualBus):
-    """python-can's virtual bus, but TPDOs can carry their wire time: the SYNC's timestamp plus the bits
-    on the wire since, at the bus's bit rate, as a real bus with hardware timestamps would show them,
-    however late the simulated device's thread got to answer."""
-
-    def __init__(self, channel: str, counter: _FrameCounter) -> None:
-        one_bus_order()  # every node sees the frames in one order, as on a real bus
-        super().__init__(channel=channel, receive_own_messages=False, preserve_timestamps=False)
-        self._stamp_lock = threading.Lock()
-        self.counter = counter
-
-    def send(self, msg: can.Message, timeout: float | None = None) -> None:
-        with self._stamp_lock:
-            if self._is_shutdown:
-                return  # a heartbeat timer racing the shutdown: a node off the bus sends nothing
-            self.counter.on_message_received(msg)
-            try:
-                super().send(msg, timeout)
-            except can.CanOperationError:
-                if not self._is_shutdown:
-                    raise
-
-    def send_at(self, msg: can.Message, wire_time: float) -> None:
-        with self._stamp_lock:
-            if self._is_shutdown:
-                return
-            self.counter.on_message_received(msg)
-            msg.timestamp = wire_time
-            self.preserve_timestamps = True
-            try:
-                super().send(msg)
-            finally:
-                self.preserve_timestamps = False
-
-
-class _Tpdo:
-    """One synchronous TPDO of a node: what it carries, how often it goes, and what it latched."""
-
-    __slots__ = ("cob_id", "entries", "every", "count", "history", "primed")
-
-    def __init__(self, cob_id: int, entries: list[tuple[int, int, int]], every: int) -> None:
-        self.cob_id = cob_id
-        self.entries = entries  # (index, subindex, bytes)
-        self.every = every  # transmission type n: after every n-th SYNC
-        self.count = 0  # SYNCs since the node became OPERATIONAL
-        self.history: collections.deque[bytes] = collections.deque()
-        self.primed = False
 
 
 def _static_eds_text(text: str, behaviour: NodeBehaviour) -> str:
@@ -208,11 +154,12 @@ class SimulatedCanOpenRig:
         simulated clock together with a bus on it (:meth:`start`).
     hold_plant_until_first_target
         True (for the driver's tests and the simulated rigs of ``rig run``): the gearbox stays exactly at
-        rest from enabling until the first target (RPDO) arrives, so that a run's samples do not depend on
-        how many SYNCs the host let pass between enabling and its first setpoint (a real gearbox at rest
-        with its target at the actual position does not move either; only the simulated noise would be
-        drawn). False: the drive acts on every SYNC in OPERATION ENABLED, as a device-level test of a stale
-        target at enable needs.
+        rest from enabling until the first target (RPDO) is applied or ip mode is active with a record in
+        the buffer, so that a run's samples do not depend on how many SYNCs the host let pass between
+        enabling and its first setpoint (a real gearbox at rest with its target at the actual position does
+        not move either; only the simulated noise would be drawn). An empty buffer with ip mode active still
+        faults a drive whose ``ip_underflow`` says so. False: the drive acts on every SYNC in OPERATION
+        ENABLED, as a device-level test of a stale target at enable needs.
     """
 
     def __init__(self, gearbox: SimulatedGearbox, *, channel: str,
@@ -261,20 +208,19 @@ class SimulatedCanOpenRig:
         self.controlwords: list[int] = []
         self.setpoints = 0  # SYNCs sampled since the first target (RPDO) in OPERATION ENABLED
         self.streaming = False  # the plant holds exactly at rest until the first target arrives
-        # interpolated position mode (0x6060 = 7): the FIFO of interpolation data records (0x60C1:1) that
-        # RPDOs fill and each SYNC takes one from, enabled by 0x60C4:6 = 1 and controlword bit 4
-        self.ip_buffer: collections.deque[int] = collections.deque()
-        self.ip_buffer_enabled = False
-        self.ip_underruns = 0  # SYNCs in ip mode that found the buffer empty (the drive held)
-        self.ip_overruns = 0  # records that found the buffer full (dropped)
-        self.ip_levels: list[int] = []  # the records each SYNC in ip mode found in the buffer, before taking one
+        if self.drive_behaviour.requires_ip_period and 0x60C2 not in self.drive.object_dictionary:
+            raise InvalidInputError("drive_behaviour.requires_ip_period: the drive's EDS has no 0x60C2 "
+                                    "(interpolation time period)")
+        self.interpolation = self._interpolation_buffer()
+        self._ip_was_active = False  # ip mode active at the last look (_follow_ip_mode)
+        self._rpdos = RpdoReception()
         self.syncs = 0
         self.homed = False
         self.faults: list[int] = []  # error codes of every fault the drive entered, in order
-        self._counter = _FrameCounter(clock)
+        self._counter = FrameCounter(clock)
         self._lock = threading.RLock()
         self._operational: set[int] = set()
-        self._tpdos: dict[int, list[_Tpdo]] = {}
+        self._tpdos: dict[int, list[Tpdo]] = {}
         self._started = False
         self._mode_display = self._i8(self.drive, 0x6060) if 0x6060 in self.drive.object_dictionary else 0
         self._mode_pending: tuple[int, float] | None = None
@@ -291,6 +237,30 @@ class SimulatedCanOpenRig:
         self._next_tick_s = 0.0  # scripted: when the drive's clock ticks next (CLOCK_TICK_S)
         self._late_frames: list[tuple[float, can.Message]] = []  # scripted: delayed TPDOs, (when due, frame)
 
+    def _interpolation_buffer(self) -> InterpolationBuffer:
+        """The FIFO of 0x60C4; a drive without 0x60C4 has the one-record buffer of CiA 402, always open."""
+        if 0x60C4 not in self.drive.object_dictionary:
+            buffer = InterpolationBuffer(1, 1)
+            buffer.clear(enable_access=True)
+            return buffer
+        max_records, size_records = (int.from_bytes(self.drive.get_data(0x60C4, sub), "little") for sub in (1, 2))
+        return InterpolationBuffer(max_records, size_records)
+
+    @property
+    def ip_underruns(self) -> int:
+        """SYNCs with ip mode active that found the interpolation buffer empty."""
+        return self.interpolation.underflows
+
+    @property
+    def ip_overruns(self) -> int:
+        """Interpolation data records that found the buffer full (discarded)."""
+        return self.interpolation.overflows
+
+    @property
+    def ip_levels(self) -> list[int]:
+        """The records each SYNC with ip mode active found in the buffer, before taking one."""
+        return self.interpolation.levels
+
     # -- lifecycle ------------------------------------------------------------------------------------------
 
     def start(self, bus: object | None = None) -> SimulatedCanOpenRig:
@@ -300,7 +270,7 @@ class SimulatedCanOpenRig:
         (``tests/transports/clocked_canopen.py``). The bus must offer ``send_at(message, wire_time)``."""
         self._scripted = bus is not None
         if bus is None:
-            self.network = canopen.Network(_WireTimeBus(self.channel, self._counter))
+            self.network = canopen.Network(WireTimeBus(self.channel, self._counter))
             self.network.NOTIFIER_CYCLE = NOTIFIER_CYCLE_S
             self.network.connect()
         else:
@@ -418,6 +388,9 @@ class SimulatedCanOpenRig:
             with self._lock:
                 self._advance_locked(self.clock())
                 return self._mode_display
+        if (index, subindex) == (0x60C4, 4):  # buffer position: with a FIFO, the records held (CiA 402)
+            with self._lock:
+                return len(self.interpolation)
         return None
 
     def _on_drive_write(self, index: int, subindex: int, od: object, data: bytes) -> None:
@@ -425,21 +398,26 @@ class SimulatedCanOpenRig:
             raise canopen.SdoAbortedError(SDO_ABORT_VALUE_RANGE)
         if self.drive_behaviour.static_pdos and is_pdo_parameter(index):
             raise canopen.SdoAbortedError(SDO_ABORT_READ_ONLY)
-        if index == 0x6060:
-            mode = int.from_bytes(data, "little", signed=True)
-            with self._lock:
+        value = od.decode_raw(data)  # type: ignore[attr-defined]
+        if index in RPDO_COMMUNICATION_INDICES and subindex == 2 and not is_rpdo_transmission_type(value):
+            raise canopen.SdoAbortedError(SDO_ABORT_VALUE_RANGE)
+        with self._lock:
+            if index == 0x6060:
                 delay_s = self.drive_behaviour.mode_switch_delay_s
                 if delay_s > 0:
-                    self._mode_pending = (mode, self.clock() + delay_s)
+                    self._mode_pending = (value, self.clock() + delay_s)
                 else:
-                    self._mode_display, self._mode_pending = mode, None
-        elif index == 0x6040:
-            with self._lock:
-                self._on_controlword(int.from_bytes(data, "little"), self.clock())
-        elif index == 0x60C4 and subindex == 6:  # buffer clear: 0 clears and disables, 1 enables (CiA 402)
-            with self._lock:
-                self.ip_buffer.clear()
-                self.ip_buffer_enabled = int.from_bytes(data, "little") == 1
+                    self._mode_display, self._mode_pending = value, None
+                    self._follow_ip_mode()
+            elif index == 0x6040:
+                self._on_controlword(value, self.clock())
+                self._follow_ip_mode()
+            elif index == 0x60C0 and value != 0:  # interpolation sub-mode: linear (0) only
+                raise canopen.SdoAbortedError(SDO_ABORT_VALUE_RANGE)
+            elif (index, subindex) == (0x60C1, 1):  # each record applied, by SDO or RPDO, goes to the buffer
+                self.interpolation.append(value)
+            elif index == 0x60C4:
+                self.interpolation.configure(subindex, value)
 
     def _on_encoder_write(self, index: int, subindex: int, od: object, data: bytes) -> None:
         if self.encoder_behaviour.static_pdos and is_pdo_parameter(index):
@@ -470,6 +448,8 @@ class SimulatedCanOpenRig:
                 self._configure_pdos(node)
             elif node.nmt.state != "OPERATIONAL" and node.id in self._operational:
                 self._operational.discard(node.id)
+                if node is self.drive:
+                    self._rpdos.clear()
                 for pdo_map in list(node.rpdo.map.values()):
                     if pdo_map.cob_id and pdo_map.on_message in self.network.subscribers.get(pdo_map.cob_id, ()):
                         self.network.unsubscribe(pdo_map.cob_id, pdo_map.on_message)
@@ -478,8 +458,8 @@ class SimulatedCanOpenRig:
         """Take the PDO mapping the master wrote by SDO (or the EDS default) from the dictionary."""
         node.tpdo.read(from_od=False)
         self._tpdos[node.id] = [
-            _Tpdo(pdo_map.cob_id, [(variable.index, variable.subindex, variable.length // 8) for variable in pdo_map
-                                   if variable.length], pdo_map.trans_type)
+            Tpdo(pdo_map.cob_id, [(variable.index, variable.subindex, variable.length // 8) for variable in pdo_map
+                                  if variable.length], pdo_map.trans_type)
             for pdo_map in node.tpdo.map.values()
             if pdo_map.enabled and pdo_map.trans_type is not None and 1 <= pdo_map.trans_type <= 240]
         if node is self.drive:
@@ -489,13 +469,23 @@ class SimulatedCanOpenRig:
                     pdo_map.add_callback(self._on_rpdo)
 
     def _on_rpdo(self, pdo_map: object) -> None:
-        for variable in pdo_map:  # type: ignore[attr-defined]
-            if variable.length:
-                self.drive.set_data(variable.index, variable.subindex, variable.get_data())
-                if (variable.index, variable.subindex) == (0x60C1, 1):
-                    self._push_ip_record(int.from_bytes(variable.get_data(), "little", signed=True))
+        """An RPDO received: applied now if event-driven, else at the next SYNC (CiA 301, by the transmission
+        type in 0x1400 + n sub 2; :class:`~sim_backend.canopen_pdos.RpdoReception`)."""
+        communication = pdo_map.com_record.od.index  # type: ignore[attr-defined]
         with self._lock:
-            self.streaming = self.streaming or self.state is cia402.DriveState.OPERATION_ENABLED
+            values = self._rpdos.receive(pdo_map, int.from_bytes(self.drive.get_data(communication, 2), "little"))
+            if values is not None:
+                self._apply_rpdo(values)
+
+    def _apply_rpdo(self, values: RpdoValues) -> None:
+        """RPDO data written to the mapped objects (the write hooks act on them: a controlword, a record
+        into the interpolation buffer); a value the drive refuses is not written."""
+        for index, subindex, data in values:
+            try:
+                self.drive.set_data(index, subindex, data)
+            except canopen.SdoAbortedError:
+                continue
+        self.streaming = self.streaming or self.state is cia402.DriveState.OPERATION_ENABLED
 
     @staticmethod
     def _store(node: canopen.LocalNode, index: int, value: int, size: int, *, signed: bool = False) -> None:
@@ -596,6 +586,21 @@ class SimulatedCanOpenRig:
             last_sync = self._sync_times[-1] if self._sync_times else -float("inf")
             if now - max(last_sync, self._enabled_at) > behaviour.sync_loss_timeout_s:
                 self._fault_locked(EMCY_SYNC_LOSS)
+        self._follow_ip_mode()
+
+    def _follow_ip_mode(self) -> None:
+        """Where ip mode has just become active (CiA 402: controlword bit 4 in OPERATION ENABLED with
+        0x6061 = 7; statusword bit 12): count the records taken afresh and, for a drive that
+        ``requires_ip_period``, check 0x60C2 (EMCY 0x6320 on a missing or wrong period)."""
+        active = self._ip_active()
+        if active and not self._ip_was_active:
+            self.interpolation.start_ip_mode()
+            if self.drive_behaviour.requires_ip_period and not ip_period_matches(
+                    int.from_bytes(self.drive.get_data(0x60C2, 1), "little"),
+                    int.from_bytes(self.drive.get_data(0x60C2, 2), "little", signed=True), self._u(self.drive, 0x1006)):
+                self._fault_locked(EMCY_PARAMETER_ERROR)
+                active = False
+        self._ip_was_active = active
 
     def _fault_locked(self, code: int) -> None:
         if self.state is cia402.DriveState.FAULT:
@@ -655,30 +660,29 @@ class SimulatedCanOpenRig:
             return True
         return False
 
-    def _push_ip_record(self, counts: int) -> None:
-        """An interpolation data record into the FIFO (0x60C4:2 actual buffer size records at most)."""
-        with self._lock:
-            if self._mode_display != cia402.INTERPOLATED_POSITION_MODE or not self.ip_buffer_enabled:
-                return
-            if len(self.ip_buffer) >= int.from_bytes(self.drive.get_data(0x60C4, 2), "little"):
-                self.ip_overruns += 1
-                return
-            self.ip_buffer.append(counts)
-
     def _ip_active(self) -> bool:
         return (self._mode_display == cia402.INTERPOLATED_POSITION_MODE
-                and self.state is cia402.DriveState.OPERATION_ENABLED and bool(self.controlword & 0x0010))
+                and self.state is cia402.DriveState.OPERATION_ENABLED
+                and bool(self.controlword & CONTROLWORD_ENABLE_IP_MODE))
+
+    def _plant_runs(self) -> bool:
+        """Whether this SYNC in OPERATION ENABLED is a sample: from the first target on (an RPDO applied in
+        OPERATION ENABLED, or a record in the buffer with ip mode active), or always where the plant is not
+        held until the first target."""
+        self.streaming = self.streaming or (self._ip_active() and len(self.interpolation) > 0)
+        return self.streaming or not self.hold_plant_until_first_target
 
     def _step_locked(self) -> None:
-        """One SYNC in OPERATION ENABLED: apply the target (or hold), step the plant, latch the values. In
-        interpolated position mode the target is the next record of the FIFO; an empty FIFO holds the last
-        one (an underrun)."""
+        """One SYNC in OPERATION ENABLED: apply the target (or hold), step the plant, latch the values. With
+        ip mode active the target is the oldest record of the FIFO; on an empty FIFO the drive holds the last
+        one (an underrun) or faults with 0x8600 (``ip_underflow``)."""
         if self._ip_active():
-            self.ip_levels.append(len(self.ip_buffer))
-            if self.ip_buffer:
-                self._store(self.drive, 0x607A, self.ip_buffer.popleft(), 4, signed=True)
-            else:
-                self.ip_underruns += 1
+            record = self.interpolation.take()
+            if record is not None:
+                self._store(self.drive, 0x607A, record, 4, signed=True)
+            elif self.interpolation.underflow_faults(self.drive_behaviour.ip_underflow):
+                self._fault_locked(EMCY_POSITIONING_CONTROLLER)
+                return
         target = self._i32(self.drive, 0x607A)
         actual = self._i32(self.drive, 0x6064)
         follows = self._mode_display == cia402.CYCLIC_SYNCHRONOUS_POSITION_MODE or self._ip_active()
@@ -709,7 +713,7 @@ class SimulatedCanOpenRig:
                 self._store(node, 0x1001, fault, 1)
                 node.emcy.send(EMCY_ERROR_RESET, register=fault)
 
-    def _latch_locked(self, node: canopen.LocalNode, tpdo: _Tpdo) -> bytes:
+    def _latch_locked(self, node: canopen.LocalNode, tpdo: Tpdo) -> bytes:
         return b"".join(node.get_data(index, subindex)[:size] for index, subindex, size in tpdo.entries)
 
     def _on_sync(self, can_id: int, data: bytes, timestamp: float) -> None:
@@ -718,6 +722,8 @@ class SimulatedCanOpenRig:
         with self._lock:
             self._sync_times.append(now)
             self._advance_locked(now)
+            for values in self._rpdos.take_latched():  # synchronous RPDOs: before this SYNC's cycle
+                self._apply_rpdo(values)
             behaviours = {self.drive.id: self.drive_behaviour, self.encoder.id: self.encoder_behaviour}
             for node in (self.drive, self.encoder):  # what a late-answering device sends first
                 latency = behaviours[node.id].tpdo_latency_cycles
@@ -729,8 +735,11 @@ class SimulatedCanOpenRig:
             delay_s = None
             if self.state is not cia402.DriveState.OPERATION_ENABLED:
                 self.streaming = False
-            if (self.state is cia402.DriveState.OPERATION_ENABLED and self.drive.id in self._operational
-                    and (self.streaming or not self.hold_plant_until_first_target)):
+            enabled = self.state is cia402.DriveState.OPERATION_ENABLED and self.drive.id in self._operational
+            if enabled and not self._plant_runs():
+                if self._ip_active() and self.interpolation.underflow_faults(self.drive_behaviour.ip_underflow):
+                    self._fault_locked(EMCY_POSITIONING_CONTROLLER)
+            elif enabled:
                 number = self.setpoints
                 if self._once("fault", self.fault_at_seq is not None and number == self.fault_at_seq):
                     self._fault_locked(self.fault_code)

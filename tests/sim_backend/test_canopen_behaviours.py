@@ -171,8 +171,7 @@ def test_tpdos_carry_the_values_latched_latency_syncs_earlier(latency, no_leaks)
         seen, counts = [], []
         for target in targets:
             drive.rpdo[1][0x607A].raw = target
-            drive.rpdo[1].transmit()
-            wait_until(lambda target=target: drive.sdo[0x607A].raw == target, "RPDO applied")
+            drive.rpdo[1].transmit()  # synchronous (0x1400:2 = 1): the SYNC behind it in bus order applies it
             b.syncs(1)
             seen.append(answers.get(timeout=2.0))
             counts.append(encoder_answers.get(timeout=2.0)[0x6004])
@@ -368,7 +367,7 @@ def test_eds_variants_without_optional_objects_load_and_run(tmp_path, no_leaks):
     assert not {0x1006, 0x603F, 0x6098, 0x6502} & set(drive_od.indices) and 0x6041 in drive_od
     assert not {0x6501, 0x6002} & set(encoder_od.indices) and 0x6004 in encoder_od
     text = drive_eds.read_text()
-    assert "0x603F" not in text and "SupportedObjects=20" in text  # the object list renumbered (24 optional objects, 4 dropped)
+    assert "0x603F" not in text and "SupportedObjects=21" in text  # the object list renumbered (25 optional objects, 4 dropped)
     with bench(drive_eds=drive_eds, encoder_eds=encoder_eds,
                drive_behaviour=DriveBehaviour(enable_requires_sync=True)) as b:
         with pytest.raises(canopen.SdoAbortedError) as missing:
