@@ -35,9 +35,10 @@ CANopen (SYNC + drive RPDO1 + TPDOs, the mapping :mod:`rig.transports.canopen_li
 * cyclic synchronous position (8): sample 0's SYNC is the one after the first RPDO1; sample s's target is
   the RPDO1 sent after SYNC s - 1; the target in force at SYNC s is the last RPDO1 before it (HELD, with
   that command, when it is not sample s's own);
-* interpolated position (7): RPDO1 k is setpoint k, a record into the drive's buffer; sample 0's SYNC is
-  the first one after the first record, and each SYNC takes the oldest record of the buffer (an empty
-  buffer holds the last one: HELD, with that command);
+* interpolated position (7): RPDO1 k is setpoint k, a record into the drive's buffer, and RPDO2 a hold
+  record (:mod:`rig.transports.interpolation_feed`); sample 0's SYNC is the first after the first record
+  whose drive statusword shows bit 12 (ip mode active), and each SYNC from it takes the oldest record of
+  the buffer (a hold record, or an empty buffer, holds the last one: HELD, with that command);
 * each TPDO is filed under the last SYNC before its time stamp (minus its latency in cycles), as the
   transport files it; a complete set is the reading (DUPLICATE for a second one, AMBIGUOUS when SYNCs came
   closer than one cycle's bus time or the drive's 0x6062 is not the target in force, NOT_FOLLOWED, FAULT);
@@ -282,6 +283,25 @@ def _streams_interpolated_position(path: Path, link: Any, mode_written: int | No
     return link.mode == "ip_buffer"
 
 
+def _first_sync_in_ip_mode(frames: list[tuple[float, int, Any]], sync_id: int, rpdo_id: int, status_id: int,
+                           latency: int) -> int | None:
+    """The count of the first SYNC after the first RPDO1 whose drive statusword (TPDO1, filed as the
+    transport files it, ``latency`` cycles back) shows bit 12 (ip mode active): sample 0 in interpolated
+    position; None if there is none."""
+    syncs = first_record = 0
+    for _, _, message in frames:
+        cob = message.arbitration_id
+        if cob == sync_id:
+            syncs += 1
+        elif cob == rpdo_id and not first_record:
+            first_record = syncs or -1
+        elif cob == status_id and first_record and len(message.data) >= 2:
+            answers = syncs - latency
+            if answers > max(first_record, 0) and int.from_bytes(bytes(message.data[:2]), "little") & (1 << 12):
+                return answers
+    return None
+
+
 def _import_canopen(path: Path, config: Any) -> ExperimentRecord:
     """SYNC + RPDO1 + TPDOs (the mapping the transport sets up: drive TPDO1 0x6041 + 0x6064, drive TPDO2
     0x6062 where the EDS has it, encoder TPDO1 0x6004), each TPDO filed under the last SYNC before its time
@@ -292,13 +312,14 @@ def _import_canopen(path: Path, config: Any) -> ExperimentRecord:
     link = transport_class("canopen")(**parse_transport_url(config.url)[1], **config.transport_options())
     drive_node, encoder_node = link.drive_node_id, link.encoder_node_id
     ids = {0x180 + drive_node: "drive", 0x280 + drive_node: "demand", 0x180 + encoder_node: "encoder"}
-    rpdo_id, sdo_request_id = 0x200 + drive_node, 0x600 + drive_node
+    rpdo_id, hold_id, sdo_request_id = 0x200 + drive_node, 0x300 + drive_node, 0x600 + drive_node
     period, tolerance = config.sample_period_s, config.late_tolerance_s
     encoder, drive = config.encoder, config.drive
     frames = sorted(((message.timestamp, index, message) for index, message in _frames(path)
                      if not message.is_error_frame), key=lambda item: (item[0], item[1]))
     frame_errors = 0
     has_demand = any(message.arbitration_id == 0x280 + drive_node for _, _, message in frames)
+    ip_origin = _first_sync_in_ip_mode(frames, SYNC_COB_ID, rpdo_id, 0x180 + drive_node, link.latency_cycles["drive"])
     syncs: list[float] = []
     origin: int | None = None
     in_force: tuple[int, int] = (-1, 0)
@@ -342,13 +363,14 @@ def _import_canopen(path: Path, config: Any) -> ExperimentRecord:
                     file(*item)
                 else:
                     unfiled.append(item)
-            if interpolating and origin is None and buffer:
+            if interpolating and origin is None and count == ip_origin:
                 origin = count
             if origin is not None and count >= origin:
                 sample = count - origin
                 if interpolating:
-                    held = not buffer
-                    in_force = in_force if held else buffer.popleft()
+                    record = buffer.popleft() if buffer else None
+                    held = record is None or record[0] is None
+                    in_force = in_force if record is None else (in_force[0] if held else record[0], record[1])
                 else:
                     held = in_force[0] != sample
                 applied[sample] = (in_force[1], held)
@@ -358,6 +380,11 @@ def _import_canopen(path: Path, config: Any) -> ExperimentRecord:
             data = bytes(message.data)  # an expedited SDO download (CiA 301 7.2.4.3.3) of 0x6060 sub 0
             if len(data) == 8 and data[0] & 0xE0 == 0x20 and data[1:4] == bytes((0x60, 0x60, 0)):
                 mode_written = int.from_bytes(data[4:5], "little", signed=True)
+        elif cob == hold_id and interpolating:
+            if len(message.data) != 4:
+                frame_errors += 1
+                continue
+            buffer.append((None, int.from_bytes(bytes(message.data), "little", signed=True)))
         elif cob == rpdo_id:
             if len(message.data) != 4:
                 frame_errors += 1

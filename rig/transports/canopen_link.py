@@ -234,6 +234,7 @@ class CanOpenTransport(Transport):
         self._drive = None
         self._encoder = None
         self._rpdo: PdoLayout | None = None
+        self._hold_rpdo: PdoLayout | None = None  # interpolated position: RPDO2, the hold records
         self._drive_tpdo: PdoLayout | None = None
         self._demand_tpdo: PdoLayout | None = None
         self._encoder_tpdo: PdoLayout | None = None
@@ -367,6 +368,7 @@ class CanOpenTransport(Transport):
             self._check_supported_modes(drive)
             self._take_first_mode(drive)
             self._write_cycle_period(drive)
+            self._hold_rpdo = self._map_hold_rpdo(drive)
             self._drive_tpdo = self._map_pdo(drive.tpdo, "drive", [(0x6041, 0, 16), (0x6064, 0, 32)],
                                              0x180 + self.drive_node_id)
             self._encoder_tpdo = self._map_pdo(encoder.tpdo, "encoder", [(0x6004, 0, self._encoder_value_bits())],
@@ -378,6 +380,8 @@ class CanOpenTransport(Transport):
                 self.network.bus.set_filters(self._receive_filters())
             self._check_encoder(encoder)
             self.network.subscribe(self._rpdo.cob_id, self._on_rpdo_echo)
+            if self._hold_rpdo is not None:  # (the same buffer: the echoes of both in bus order)
+                self.network.subscribe(self._hold_rpdo.cob_id, self._on_rpdo_echo)
             self.network.subscribe(0x580 + self.drive_node_id, self._on_drive_sdo_response)
             self._start_sync()
             drive.tpdo[1].add_callback(self._on_drive_tpdo)
@@ -606,6 +610,25 @@ class CanOpenTransport(Transport):
         self._rpdo_transmission_type = ASYNCHRONOUS_RPDO if self.mode == "ip_buffer" else 1
         return layout
 
+    def _map_hold_rpdo(self, drive: Any) -> PdoLayout | None:
+        """Interpolated position: RPDO2 carries the hold records (:mod:`rig.transports.interpolation_feed`)
+        into the same buffer as RPDO1's setpoints, asynchronous too, so that a trace of the bus tells a hold
+        record from a setpoint of the same value. A drive without a second RPDO it lets the master map takes
+        them on RPDO1 (noted in ``warnings``: its traces cannot tell them apart)."""
+        if self.mode != "ip_buffer":
+            return None
+        if 0x1401 in drive.object_dictionary and 0x1601 in drive.object_dictionary:
+            try:
+                return self._map_pdo(drive.rpdo, "drive", [(0x60C1, 1, 32)], 0x300 + self.drive_node_id, number=2,
+                                     transmission_type=ASYNCHRONOUS_RPDO)
+            except DeviceFault as err:
+                why = str(err)
+        else:
+            why = "its EDS has no RPDO2 (0x1401/0x1601)"
+        self._ride_through(f"drive {self.drive_node_id}: hold records go on RPDO1 with the setpoints ({why}); a "
+                           "trace of the bus cannot tell a hold record from a repeated setpoint")
+        return None
+
     def _fall_back_to_csp(self, why: str) -> None:
         """``mode = "auto"``: interpolated position cannot be used on this drive; stream CSP and say why."""
         self._use_mode("csp")
@@ -684,8 +707,8 @@ class CanOpenTransport(Transport):
         cob_ids = [SYNC_COB_ID]
         for node_id in (self.drive_node_id, self.encoder_node_id):
             cob_ids += [0x80 + node_id, 0x180 + node_id, 0x580 + node_id, 0x700 + node_id]
-        cob_ids += [layout.cob_id for layout in (self._rpdo, self._drive_tpdo, self._demand_tpdo, self._encoder_tpdo)
-                    if layout is not None]
+        cob_ids += [layout.cob_id for layout in (self._rpdo, self._hold_rpdo, self._drive_tpdo, self._demand_tpdo,
+                                                 self._encoder_tpdo) if layout is not None]
         return [{"can_id": cob_id, "can_mask": 0x7FF, "extended": False}
                 for cob_id in sorted(set(cob_ids))] + ERROR_FRAME_FILTERS
 
@@ -1078,9 +1101,9 @@ class CanOpenTransport(Transport):
         runner's thread shorter than the lead costs nothing, and a pause of the whole process is ridden
         through for as long as the drive's buffer lasts."""
         for record in self._feed.to_send():
+            rpdo = self._rpdo if record.sample is not None or self._hold_rpdo is None else self._hold_rpdo
             try:
-                self.network.send_message(self._rpdo.cob_id, self._rpdo.pack({index: record.counts
-                                                                             for index in self._rpdo.fields}))
+                self.network.send_message(rpdo.cob_id, rpdo.pack({index: record.counts for index in rpdo.fields}))
             except Exception as err:  # noqa: BLE001 - in the notifier thread: report, the runner raises it
                 self._feed.unsent(record)
                 what = "a hold record" if record.sample is None else f"the record of sample {record.sample}"

@@ -60,9 +60,10 @@ def test_the_drive_takes_one_record_per_sync_from_its_buffer(tmp_path, no_leaks)
     assert summary.held == held.size <= underruns  # every sample the buffer ran dry for is logged HELD
 
 
-def test_a_host_stall_longer_than_the_lead_empties_the_buffer_and_every_sample_says_so(tmp_path, no_leaks):
-    """300 ms of host stall at the 200 Hz test rate: the lead (100 ms = 20 samples) runs out, the drive holds its
-    last record for the rest, the log files every instant with the record really applied."""
+def test_a_host_stall_longer_than_the_lead_holds_the_drive_and_every_sample_says_so(tmp_path, no_leaks):
+    """300 ms of host stall at the 200 Hz test rate: the lead (100 ms = 20 samples) runs out, hold records keep
+    the drive at its last record for the rest (its buffer never runs dry: a drive that faults on an underflow
+    rides the stall through), the log files every instant with the record really applied."""
     sink = ListSink()
     stalled = []
 
@@ -79,8 +80,8 @@ def test_a_host_stall_longer_than_the_lead_empties_the_buffer_and_every_sample_s
     held = np.flatnonzero(flags & SampleFlag.HELD)
     assert summary.lost == 0 and len(sink.rows) == 200
     # how many instants the stall spans depends on how the loaded host runs the simulated SYNC thread, so
-    # the count is not asserted, only that the log accounts for every one the drive's buffer ran dry for
-    assert 0 < held.size <= underruns and summary.held == held.size
+    # the count is not asserted, only that the log accounts for them and the buffer never ran dry
+    assert held.size > 0 and underruns == 0 and summary.held == held.size
 
 
 def test_ip_buffer_needs_the_buffer_objects_in_the_eds(tmp_path):
