@@ -53,6 +53,7 @@ from __future__ import annotations
 
 import collections
 import contextlib
+import math
 import struct
 import threading
 import time
@@ -243,6 +244,10 @@ class CanOpenTransport(Transport):
         self._feed: InterpolationFeed | None = None  # interpolated position: queue, records on the bus, the FIFO
         self._period_written = ""  # 0x60C2 as written, for messages
         self._rpdo_transmission_type = 1
+        self._ramped: set[int] = set()  # CSP samples whose target was limited to the rate from the one before
+        rate = self.limits.rate_max_rad_per_s * self.sample_period_s
+        self._max_step_counts = (None if not math.isfinite(rate) else
+                                 max(0, math.floor(rate * self.drive.counts_per_revolution / (2 * math.pi) + 1e-9)))
         self._ip_enabled_at: int | None = None  # the SYNC count when controlword bit 4 went out
         self._ip_answered_at: int | None = None  # the SYNC count when the drive confirmed it (SDO response)
         self._before_origin: list[tuple[str, Any, float, float]] = []  # TPDOs after bit 4, before bit 12 was seen
@@ -1029,7 +1034,9 @@ class CanOpenTransport(Transport):
         if self._origin is not None and count >= self._origin:
             sample = count - self._origin
             in_force_sample, counts = self._in_force
-            self._applied[sample] = (counts, in_force_sample != sample)
+            ramped = sample in self._ramped
+            self._ramped.discard(sample)
+            self._applied[sample] = (counts, in_force_sample != sample or ramped)
             queued = self._queued_at.pop(sample, None)
             if queued is not None:
                 self._min_lead_s = min(self._min_lead_s, self.clock() - queued)
@@ -1135,7 +1142,15 @@ class CanOpenTransport(Transport):
         self._write_controlword(cia402.CONTROLWORD_ENABLE_INTERPOLATION)
 
     def _put_target_on_bus(self, sample: int) -> None:
+        """CSP: target ``sample`` onto the bus, no farther from the target the drive last took than the rate
+        limit allows (after a stall that held samples the plan may have moved on: the targets ramp back to
+        it, each of those samples HELD with the target really applied)."""
         counts = self._queue.pop(sample)
+        last = self._rpdo_sent[-1][1] if self._rpdo_sent else self._in_force[1]
+        step = self._max_step_counts
+        if step is not None and abs(counts - last) > step:
+            counts = last + (step if counts > last else -step)
+            self._ramped.add(sample)
         self._rpdo_sent.append((sample, counts))
         try:
             self.network.send_message(self._rpdo.cob_id, self._rpdo.pack({index: counts for index in self._rpdo.fields}))

@@ -211,6 +211,31 @@ def test_a_host_stall_longer_than_the_lead_holds_exactly_the_instants_beyond_it(
     _answered_rows_equal_the_offline_simulation(sink, 1000.0, tmp_path)
 
 
+@pytest.mark.parametrize("mode", ["ip_buffer", "csp"])
+def test_after_a_stall_the_applied_target_never_steps_beyond_the_rate_limit(mode, tmp_path):
+    """A 150.5 ms stall with a 100 ms lead holds 51 samples while the plan moves on. CSP: the next target
+    would jump from the held one to the plan (0.25 rad here); it ramps back at the rate limit instead, each
+    ramped sample HELD with the target really applied. Interpolated position: the records follow one another
+    in order after the held instants, so no step exceeds the plan's own."""
+    from rig.transports.base import CommandLimits
+
+    limit = 10.0  # rad/s; the command's own largest rate is 5.03 rad/s
+    command = _command(600)
+    with _clocked_rig(tmp_path, mode=mode, transport_options={"limits": CommandLimits(rate_max_rad_per_s=limit)}
+                      ) as (bus, transport, rig, clock):
+        summary, sink, stalled = _run(bus, transport, clock, command, stall_at=150, stall_s=0.1505)
+    applied = np.array([row[1] for row in sink.rows])
+    step = np.abs(np.diff(applied)) * DRIVE.counts_per_revolution / (2 * np.pi)  # counts per period
+    assert stalled and summary.lost == 0 and len(sink.rows) == 600
+    assert step.max() <= limit * 1e-3 * DRIVE.counts_per_revolution / (2 * np.pi) + 1e-6  # 1632 counts
+    held = (_flags(sink) & SampleFlag.HELD) != 0
+    if mode == "csp":  # the ramp is flagged and ends on the plan
+        designed = np.array([DRIVE.quantize_rad(value) for value in command])
+        assert held.sum() > 51 and np.all(applied[~held] == designed[~held])
+        assert np.all(applied[-100:] == designed[-100:])
+    _answered_rows_equal_the_offline_simulation(sink, 1000.0, tmp_path)
+
+
 # -- devices that answer late, devices that fall silent --------------------------------------------------------
 
 def test_a_drive_answering_each_sync_one_sync_late_is_no_drop_out(tmp_path):
