@@ -170,8 +170,11 @@ class RunSummary:
         Host-paced links: the median, 99th percentile and largest of ``send_lateness_s``
         (:func:`send_lateness_quantiles`), what judges the host's timing (a LATE sample is one above
         ``late_tolerance_s``); nan on device-clocked links, judged by ``held`` and ``min_lead_s``.
+    sync_jitter_max_s
+        CANopen: the largest deviation of two SYNCs' spacing from the period while streaming (a SYNC from a
+        thread of the host is late when the host is busy); nan on links without a SYNC.
 
-    The summary serialises itself (:meth:`to_dict`, :meth:`from_dict`; kind ``"run_summary"``, version 2,
+    The summary serialises itself (:meth:`to_dict`, :meth:`from_dict`; kind ``"run_summary"``, version 3,
     the conventions of :mod:`identify.result_format`): that document is what ``rig run --json`` prints.
     """
 
@@ -194,20 +197,21 @@ class RunSummary:
     send_lateness_p50_s: float = math.nan
     send_lateness_p99_s: float = math.nan
     send_lateness_max_s: float = math.nan
+    sync_jitter_max_s: float = math.nan
 
     KIND: ClassVar[str] = "run_summary"
-    VERSION: ClassVar[int] = 2
-    READS: ClassVar[tuple[int, ...]] = (1, 2)
+    VERSION: ClassVar[int] = 3
+    READS: ClassVar[tuple[int, ...]] = (1, 2, 3)
     """Versions :meth:`from_dict` reads: version 1 (before the send lateness was added) has no
-    ``send_lateness_*`` keys, read as nan (not measured)."""
+    ``send_lateness_*`` keys, versions 1 and 2 no ``sync_jitter_max_s``: read as nan (not measured)."""
     SAVED: ClassVar[tuple[str, ...]] = (
         "samples", "lost", "late", "rate_hz", "held", "min_lead_s", "not_followed", "duplicate", "frame_errors",
         "warnings", "stop", "stale", "cpu_s", "wall_s", "send_lateness_p50_s", "send_lateness_p99_s",
-        "send_lateness_max_s")
+        "send_lateness_max_s", "sync_jitter_max_s")
     """The fields in the document after ``kind``, ``version`` and ``log``, in this order (the first twelve
-    keys are those ``rig run --json`` always printed; version 2 added the last three)."""
+    keys are those ``rig run --json`` always printed; version 2 added the next three, version 3 the last)."""
     MAYBE_NAN: ClassVar[tuple[str, ...]] = ("min_lead_s", "send_lateness_p50_s", "send_lateness_p99_s",
-                                            "send_lateness_max_s")
+                                            "send_lateness_max_s", "sync_jitter_max_s")
     """The times that are nan when the link does not measure them: null in the document."""
 
     def to_dict(self) -> dict[str, Any]:
@@ -238,8 +242,11 @@ class RunSummary:
                     raise ValueError(f"{name} is {value!r}, expected an integer >= 0")
                 counts[name] = value
             seconds = {}
-            lateness = ("send_lateness_p50_s", "send_lateness_p99_s", "send_lateness_max_s")
-            for name in ("rate_hz", "cpu_s", "wall_s", "min_lead_s", *(lateness if data["version"] >= 2 else ())):
+            added_in = {"send_lateness_p50_s": 2, "send_lateness_p99_s": 2, "send_lateness_max_s": 2,
+                        "sync_jitter_max_s": 3}  # keys an earlier version lacks: nan, the fields' default
+            for name in ("rate_hz", "cpu_s", "wall_s", "min_lead_s", *added_in):
+                if data["version"] < added_in.get(name, 1):
+                    continue
                 value = data[name]
                 if value is None and name in cls.MAYBE_NAN:
                     value = math.nan
@@ -572,4 +579,5 @@ def _run_device_clocked(transport: Transport, command: NDArray[np.float64], sink
                       stale=ledger.counts["stale"], frame_errors=transport.frame_errors, rate_hz=rate,
                       send_lateness_s=np.zeros(0), cpu_s=time.process_time() - cpu_start, wall_s=clock() - wall_start,
                       not_followed=ledger.counts["not_followed"], held=held, min_lead_s=transport.min_lead_s,
+                      sync_jitter_max_s=transport.sync_jitter_max_s,
                       stop=str(transport.stop_report or ""), warnings=tuple(transport.warnings))

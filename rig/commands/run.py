@@ -213,6 +213,8 @@ def run(args: argparse.Namespace) -> int:
         else:  # the device owns the clock: a late setpoint is a HELD sample, logged with the command applied
             print(f"held        {summary.held} (setpoints that missed their instant; smallest lead "
                   f"{1e3 * summary.min_lead_s:.3g} ms)")
+        if not math.isnan(summary.sync_jitter_max_s):
+            print(f"sync jitter {1e3 * summary.sync_jitter_max_s:.3g} ms at most (SYNC spacing off the period)")
         print(f"duplicate   {summary.duplicate}")
         if summary.not_followed:
             print(f"not followed {summary.not_followed} (the drive ignored the target: statusword bit 12 clear)")

@@ -271,6 +271,12 @@ class Transport(ABC):
         return self._min_lead_s if math.isfinite(self._min_lead_s) else math.nan
 
     @property
+    def sync_jitter_max_s(self) -> float:
+        """On a link whose sample instants are a bus's SYNC: the largest deviation of two SYNCs' spacing from
+        the sample period while streaming; nan where the link has no such clock."""
+        return math.nan
+
+    @property
     def fault_sample(self) -> int | None:
         """On a device-clocked link: the sample instant at which the device reported its fault (None: no
         fault, or not known)."""

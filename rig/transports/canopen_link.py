@@ -53,6 +53,7 @@ from __future__ import annotations
 
 import collections
 import contextlib
+import logging
 import math
 import struct
 import threading
@@ -70,6 +71,8 @@ from rig.transports.base import FeedbackSample, Setpoint, Transport, check_trace
 from rig.transports.interpolation_feed import MIN_IP_BUFFER_RECORDS, InterpolationFeed, Record
 
 __all__ = ["CanOpenTransport", "DEFAULT_DRIVE_EDS", "DEFAULT_ENCODER_EDS"]
+
+logger = logging.getLogger(__name__)
 
 _CONFIGS = Path(__file__).resolve().parents[2] / "configs" / "eds"
 DEFAULT_DRIVE_EDS = _CONFIGS / "sim_drive_cia402.eds"
@@ -244,6 +247,7 @@ class CanOpenTransport(Transport):
         self._feed: InterpolationFeed | None = None  # interpolated position: queue, records on the bus, the FIFO
         self._period_written = ""  # 0x60C2 as written, for messages
         self._rpdo_transmission_type = 1
+        self._jitter_max_s = 0.0  # the largest |SYNC spacing - period| while streaming
         self._ramped: set[int] = set()  # CSP samples whose target was limited to the rate from the one before
         rate = self.limits.rate_max_rad_per_s * self.sample_period_s
         self._max_step_counts = (None if not math.isfinite(rate) else
@@ -294,6 +298,10 @@ class CanOpenTransport(Transport):
     @property
     def lead_samples(self) -> int:
         return self._samples_ahead(self.lead_s)
+
+    @property
+    def sync_jitter_max_s(self) -> float:
+        return self._jitter_max_s if self._origin is not None else math.nan
 
     # -- seam ----------------------------------------------------------------------------------------------
 
@@ -428,8 +436,28 @@ class CanOpenTransport(Transport):
             with self._lock:
                 self._feed = InterpolationFeed(self._ip_capacity, self.lead_samples, self._in_force[1])
         self._await_syncs_in_operation()
+        self._say_sync_jitter()
         self._watching = True
         return moved_to
+
+    def _say_sync_jitter(self) -> None:
+        """The SYNC's jitter over the bring-up, from the echoes' bus time stamps, logged; where SYNC comes
+        from a thread of this process (the interface has no periodic task of its own), also a warning in
+        the run summary: a host that is busy delays SYNCs, and a drive with a SYNC watchdog of a few cycles
+        (CiA 301 0x1006 with 0x1007, many drives' 0x8700 "SYNC lost") may fault."""
+        with self._lock:
+            stamps = [bus_time for bus_time, _ in self._syncs]
+        spacing = [b - a for a, b in zip(stamps, stamps[1:])]
+        if not spacing:
+            return
+        worst = max(abs(gap - self.sample_period_s) for gap in spacing)
+        logger.info("%s: SYNC jitter over the bring-up: %.3g ms over %d periods", self.name, 1e3 * worst, len(spacing))
+        if isinstance(self._sync_task, _SyncThread):
+            self._ride_through(
+                f"SYNC comes from a thread of this process ({self.interface} has no periodic sending of its own): "
+                f"jitter up to {1e3 * worst:.3g} ms over the bring-up's {len(spacing)} periods, more when the host "
+                "is busy; a drive with a SYNC watchdog may fault (EMCY 0x8700); SocketCAN's kernel broadcast "
+                "manager or an interface with hardware periodic sending keeps SYNC on time")
 
     def _await_syncs_in_operation(self) -> None:
         """Let :data:`SYNCS_BEFORE_STREAMING` SYNCs pass after the drive reached OPERATION ENABLED, so that
@@ -1020,7 +1048,9 @@ class CanOpenTransport(Transport):
             if self._origin is not None and count >= self._origin:
                 sample = count - self._origin
                 if len(self._syncs) > 1:  # how far this instant is off the period (a thread-driven SYNC's jitter)
-                    self._instant_errors[sample] = timestamp - self._syncs[-2][0] - self.sample_period_s
+                    error = timestamp - self._syncs[-2][0] - self.sample_period_s
+                    self._instant_errors[sample] = error
+                    self._jitter_max_s = max(self._jitter_max_s, abs(error))
                 self._device_sample = sample
                 self._arrived.notify_all()
             if len(self._applied) > 4096:

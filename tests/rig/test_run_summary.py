@@ -20,21 +20,22 @@ def _summary(**changes) -> RunSummary:
                   send_lateness_s=np.array([1e-5, 3e-5, 2e-5]), cpu_s=0.25, wall_s=1.31, not_followed=5, held=6,
                   min_lead_s=0.0123, stop="quick stop, then disabled (0.8 ms)",
                   warnings=("encoder EMCY 0x4210 at sample 400 (temperature)",), log="runs/a.csv",
-                  send_lateness_p50_s=2e-5, send_lateness_p99_s=2.98e-5, send_lateness_max_s=3e-5)
+                  send_lateness_p50_s=2e-5, send_lateness_p99_s=2.98e-5, send_lateness_max_s=3e-5,
+                  sync_jitter_max_s=4.2e-4)
     values.update(changes)
     return RunSummary(**values)
 
 
 NOT_MEASURED = {"device-clocked": {"send_lateness_p50_s": math.nan, "send_lateness_p99_s": math.nan,
                                    "send_lateness_max_s": math.nan},
-                "host-paced": {"min_lead_s": math.nan}}
+                "host-paced": {"min_lead_s": math.nan, "sync_jitter_max_s": math.nan}}
 
 
 @pytest.mark.parametrize("link", ["device-clocked", "host-paced"])
 def test_a_run_summary_saved_as_json_reopens_equal(link):
     summary = _summary(**NOT_MEASURED[link])
     document = json.loads(json.dumps(summary.to_dict(), allow_nan=False))  # plain JSON, no NaN token
-    assert document["version"] == 2
+    assert document["version"] == 3
     again = RunSummary.from_dict(document)
     assert again.to_dict() == document
     for name in RunSummary.SAVED + ("log",):
@@ -49,8 +50,8 @@ def test_a_document_of_another_kind_version_or_with_a_bad_key_is_refused_by_name
     document = _summary().to_dict()
     with pytest.raises(ResultFormatError, match="expected a result of kind 'run_summary', got kind 'batch'"):
         RunSummary.from_dict({**document, "kind": "batch"})
-    with pytest.raises(ResultFormatError, match="kind 'run_summary' version 3 cannot be read"):
-        RunSummary.from_dict({**document, "version": 3})
+    with pytest.raises(ResultFormatError, match="kind 'run_summary' version 4 cannot be read"):
+        RunSummary.from_dict({**document, "version": 4})
     without = {key: value for key, value in document.items() if key != "lost"}
     with pytest.raises(ResultFormatError, match="kind 'run_summary': key 'lost' is missing"):
         RunSummary.from_dict(without)
@@ -110,10 +111,14 @@ def test_rig_report_says_what_is_known_of_the_timing_of_each_kind_of_log(tmp_pat
 
 def test_a_version_1_summary_still_reads_with_the_send_lateness_not_measured():
     document = _summary().to_dict()
-    old = {key: value for key, value in document.items() if not key.startswith("send_lateness_")}
+    old = {key: value for key, value in document.items()
+           if not key.startswith("send_lateness_") and key != "sync_jitter_max_s"}
     again = RunSummary.from_dict({**old, "version": 1})
     assert again.samples == 1200 and again.min_lead_s == 0.0123
     assert all(math.isnan(getattr(again, f"send_lateness_{name}_s")) for name in ("p50", "p99", "max"))
+    assert math.isnan(again.sync_jitter_max_s)
+    version_2 = {key: value for key, value in document.items() if key != "sync_jitter_max_s"}
+    assert math.isnan(RunSummary.from_dict({**version_2, "version": 2}).sync_jitter_max_s)
     # version 2 without them is malformed
     with pytest.raises(ResultFormatError, match="key 'send_lateness_p50_s' is missing"):
         RunSummary.from_dict(old)

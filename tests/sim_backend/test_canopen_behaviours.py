@@ -367,7 +367,7 @@ def test_eds_variants_without_optional_objects_load_and_run(tmp_path, no_leaks):
     assert not {0x1006, 0x603F, 0x6098, 0x6502} & set(drive_od.indices) and 0x6041 in drive_od
     assert not {0x6501, 0x6002} & set(encoder_od.indices) and 0x6004 in encoder_od
     text = drive_eds.read_text()
-    assert "0x603F" not in text and "SupportedObjects=21" in text  # the object list renumbered (25 optional objects, 4 dropped)
+    assert "0x603F" not in text and "SupportedObjects=23" in text  # the object list renumbered (27 optional objects, 4 dropped)
     with bench(drive_eds=drive_eds, encoder_eds=encoder_eds,
                drive_behaviour=DriveBehaviour(enable_requires_sync=True)) as b:
         with pytest.raises(canopen.SdoAbortedError) as missing:

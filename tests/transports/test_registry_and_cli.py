@@ -93,10 +93,15 @@ def test_rig_run_writes_a_log_equal_to_the_offline_simulation(kind, tmp_path, ca
     # the document is the run summary's own (kind and version first), with the keys --json always printed
     assert list(result)[:14] == ["kind", "version", "log", "samples", "lost", "late", "rate_hz", "held", "min_lead_s",
                                  "not_followed", "duplicate", "frame_errors", "warnings", "stop"]
-    assert (result["kind"], result["version"]) == ("run_summary", 2)
+    assert (result["kind"], result["version"]) == ("run_summary", 3)
     assert RunSummary.from_dict(result).to_dict() == result
     # every simulated wire is device-clocked: judged by held and min_lead_s, no host send lateness
     assert result["min_lead_s"] is not None and result["send_lateness_p99_s"] is None
+    # CANopen's instants are the SYNCs: their jitter is measured, and a SYNC from a thread of the host (python-can's
+    # virtual bus has no periodic sending) is said to be one
+    assert (result["sync_jitter_max_s"] is not None) == (kind == "canopen")
+    assert any("SYNC comes from a thread of this process" in warning for warning in result["warnings"]) == (
+        kind == "canopen")
     record = read_log(out)
     assert record.num_samples == 60 and record.metadata.transport.startswith(f"{kind}://")
     assert record.metadata.sample_period_s == 0.005 and record.metadata.seed == 4
