@@ -307,7 +307,7 @@ def _import_canopen(path: Path, config: Any) -> ExperimentRecord:
     0x6062 where the EDS has it, encoder TPDO1 0x6004), each TPDO filed under the last SYNC before its time
     stamp, as :mod:`rig.transports.canopen_link` files them; frames are taken in time-stamp order."""
     from rig.transports import parse_transport_url, transport_class
-    from rig.transports.canopen_link import SYNC_COB_ID
+    from rig.transports.canopen_sync import SYNC_COB_ID
 
     link = transport_class("canopen")(**parse_transport_url(config.url)[1], **config.transport_options())
     drive_node, encoder_node = link.drive_node_id, link.encoder_node_id

@@ -485,7 +485,10 @@ class SimulatedCanOpenRig:
                 self.drive.set_data(index, subindex, data)
             except canopen.SdoAbortedError:
                 continue
-        self.streaming = self.streaming or self.state is cia402.DriveState.OPERATION_ENABLED
+        # a target in OPERATION ENABLED starts the samples; in interpolated position a record only waits in
+        # the buffer until ip mode is active (_plant_runs)
+        self.streaming = self.streaming or (self.state is cia402.DriveState.OPERATION_ENABLED
+                                            and self._mode_display != cia402.INTERPOLATED_POSITION_MODE)
 
     @staticmethod
     def _store(node: canopen.LocalNode, index: int, value: int, size: int, *, signed: bool = False) -> None:
@@ -667,8 +670,8 @@ class SimulatedCanOpenRig:
 
     def _plant_runs(self) -> bool:
         """Whether this SYNC in OPERATION ENABLED is a sample: from the first target on (an RPDO applied in
-        OPERATION ENABLED, or a record in the buffer with ip mode active), or always where the plant is not
-        held until the first target."""
+        OPERATION ENABLED outside interpolated position, or a record in the buffer with ip mode active), or
+        always where the plant is not held until the first target."""
         self.streaming = self.streaming or (self._ip_active() and len(self.interpolation) > 0)
         return self.streaming or not self.hold_plant_until_first_target
 

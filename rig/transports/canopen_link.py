@@ -1,14 +1,23 @@
-"""CANopen transport: a CiA 402 drive in cyclic synchronous position mode and a CiA 406 load encoder.
+"""CANopen transport: a CiA 402 drive in interpolated position or cyclic synchronous position mode and a
+CiA 406 load encoder.
+
+The transport is one class in four modules: this one (bring-up glue, streaming, filing the answers), its
+start-up steps by SDO (:mod:`rig.transports.canopen_startup`), interpolated position
+(:mod:`rig.transports.canopen_interpolation`, with the master's copy of the drive's buffer in
+:mod:`rig.transports.interpolation_feed`), and what it knows of object dictionaries and PDOs
+(:mod:`rig.transports.canopen_dictionary`); the SYNC thread is :mod:`rig.transports.canopen_sync`.
 
 Before anything is sent, the EDS files are checked for every object the master needs (a missing one is a
 :class:`ConfigError` naming it and what it is for). Start-up, all by SDO, in :meth:`_prepare` (nothing in
 it can enable the drive):
 
-1. NMT pre-operational for both nodes; producer heartbeat (0x1017) on both; the SYNC period in the
-   drive's 0x1006 (communication cycle period) or else 0x60C2 (interpolation time period); 0x6502
-   (supported drive modes), where present, must offer cyclic synchronous position; mode of operation
-   0x6060 = 8 (cyclic synchronous position), or 6 (homing) first if ``skip_homing`` is false.
-2. PDO mapping: drive RPDO1 = target position 0x607A; drive TPDO1 = statusword 0x6041 + position actual
+1. NMT pre-operational for both nodes; producer heartbeat (0x1017) on both; 0x6502 (supported drive
+   modes), where present, must offer the streaming mode; mode of operation 0x6060 = 7 (interpolated
+   position) or 8 (cyclic synchronous position), or 6 (homing) first if ``skip_homing`` is false; the SYNC
+   period in every object that holds it, 0x1006 (communication cycle period) and 0x60C2 (interpolation
+   time period, CiA 402 types).
+2. PDO mapping: drive RPDO1 = target position 0x607A (synchronous) or the interpolation data record 0x60C1:1
+   (asynchronous, with RPDO2 for hold records); drive TPDO1 = statusword 0x6041 + position actual
    value 0x6064; encoder TPDO1 = position value 0x6004; TPDOs synchronous (transmission type 1: every
    SYNC). Every PDO's communication and mapping parameters are then read back: a device with static PDOs
    refuses the writes (or canopen skips what the EDS marks read-only), so the master decodes the layout
@@ -33,7 +42,8 @@ period, from configuration to the end of the stop (:meth:`_start_sync`), or from
 The runner queues setpoints ``lead_s`` ahead (:meth:`_send`). In cyclic synchronous position, right after
 SYNC k-1 is seen the receive thread puts target k on the bus (:meth:`_on_sync_echo`), so it is in force
 at SYNC k whatever the runner's thread does meanwhile; in interpolated position (``mode``), the receive
-thread keeps the drive's buffer of records filled from the queue at every SYNC. The master receives its
+thread keeps the drive's buffer of records filled from the queue at every SYNC
+(:mod:`rig.transports.canopen_interpolation`). The master receives its
 own frames back (``receive_own_messages``, SocketCAN's echo of a transmitted frame), stamped by the same
 interface clock as the TPDOs and in bus order, so it knows which target was last on the bus before each
 SYNC: a target that came too late leaves its sample HELD with the command really applied. TPDOs carry no SYNC counter: each is filed under the last SYNC before its bus
@@ -55,11 +65,8 @@ import collections
 import contextlib
 import logging
 import math
-import struct
 import threading
-import time
 from collections.abc import Iterator
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -68,7 +75,12 @@ from rig.protocols.can_bus_load import bus_load
 from rig.protocols.can_error_frames import ERROR_FRAME_FILTERS, describe_error_frame, is_bus_off
 from rig.protocols.errors import ConfigError, DeviceFault, TransportError, error_code_meaning
 from rig.transports.base import FeedbackSample, Setpoint, Transport, check_trace_path
-from rig.transports.interpolation_feed import MIN_IP_BUFFER_RECORDS, InterpolationFeed, Record
+from rig.transports.canopen_dictionary import (DRIVE_OBJECTS, ENCODER_OBJECTS, IP_BUFFER_OBJECTS, PdoLayout,
+                                               emcy_prefixes, is_warning, load_object_dictionary, require_objects)
+from rig.transports.canopen_interpolation import CanOpenInterpolation
+from rig.transports.canopen_startup import CanOpenStartUp
+from rig.transports.canopen_sync import SYNC_COB_ID, ErrorFrameListener, SyncThread, sync_message
+from rig.transports.interpolation_feed import InterpolationFeed
 
 __all__ = ["CanOpenTransport", "DEFAULT_DRIVE_EDS", "DEFAULT_ENCODER_EDS"]
 
@@ -85,15 +97,12 @@ LATENCY_EVIDENCE_SAMPLES = 3
 """Samples in a row whose 0x6062 is an earlier sample's target before the run stops for a wrong TPDO
 latency: a wrong latency shows on every sample whose target changed, a target that crossed its SYNC on a
 bus whose receivers see concurrent frames in different orders (python-can's virtual bus) on one."""
-_MODE_NAMES = {cia402.CYCLIC_SYNCHRONOUS_POSITION_MODE: "cyclic synchronous position", cia402.HOMING_MODE: "homing",
-               cia402.INTERPOLATED_POSITION_MODE: "interpolated position"}
 _NMT_STATES = {0x00: "INITIALISING", 0x04: "STOPPED", 0x05: "OPERATIONAL", 0x7F: "PRE-OPERATIONAL"}
 _NMT_OPERATIONAL = 0x05
-SYNC_COB_ID = 0x80  # CiA 301 default (0x1005); the master produces the SYNC
 SYNC_ECHO_TIMEOUT_S = 0.5  # the start-up probe's wait for the echo of a SYNC
 
 
-class CanOpenTransport(Transport):
+class CanOpenTransport(CanOpenStartUp, CanOpenInterpolation, Transport):
     """The rig over CANopen.
 
     Parameters
@@ -205,20 +214,20 @@ class CanOpenTransport(Transport):
                 raise ConfigError("<transport>", f"{part}_tpdo_latency_cycles", f"expected 0..8 SYNC periods, got {value}")
             self.latency_cycles[part] = int(value)
         self.latency_cycles["demand"] = self.latency_cycles["drive"]
-        self.emcy_warning_prefixes = _emcy_prefixes(emcy_warning_codes)
-        self._drive_od = _load_object_dictionary("drive_eds", self.drive_eds, self.drive_node_id)
-        self._encoder_od = _load_object_dictionary("encoder_eds", self.encoder_eds, self.encoder_node_id)
-        _require_objects("drive_eds", self.drive_eds, self._drive_od, _DRIVE_OBJECTS + (
+        self.emcy_warning_prefixes = emcy_prefixes(emcy_warning_codes)
+        self._drive_od = load_object_dictionary("drive_eds", self.drive_eds, self.drive_node_id)
+        self._encoder_od = load_object_dictionary("encoder_eds", self.encoder_eds, self.encoder_node_id)
+        require_objects("drive_eds", self.drive_eds, self._drive_od, DRIVE_OBJECTS + (
             () if self.skip_homing else ((0x6098, "the homing method (skip_homing = false)"),)) + (
-            _IP_BUFFER_OBJECTS if mode == "ip_buffer" else ()))
-        has_ip_buffer = all(index in self._drive_od for index, _ in _IP_BUFFER_OBJECTS)
+            IP_BUFFER_OBJECTS if mode == "ip_buffer" else ()))
+        has_ip_buffer = all(index in self._drive_od for index, _ in IP_BUFFER_OBJECTS)
         self._use_mode("ip_buffer" if mode == "ip_buffer" or (mode == "auto" and has_ip_buffer) else "csp")
         if 0x1006 not in self._drive_od and 0x60C2 not in self._drive_od:
             raise ConfigError("<transport>", "drive_eds", (
                 f"{self.drive_eds} has neither 0x1006 (communication cycle period) nor 0x60C2 (interpolation time "
                 "period): the master must tell the drive the SYNC period it interpolates over; use the vendor's "
                 "EDS with one of them"))
-        _require_objects("encoder_eds", self.encoder_eds, self._encoder_od, _ENCODER_OBJECTS)
+        require_objects("encoder_eds", self.encoder_eds, self._encoder_od, ENCODER_OBJECTS)
         if not (0x6001 in self._encoder_od or 0x6501 in self._encoder_od):
             raise ConfigError("<transport>", "encoder_eds", (
                 f"{self.encoder_eds} has neither 0x6001/0x6002 (measuring units per revolution, total measuring "
@@ -318,7 +327,7 @@ class CanOpenTransport(Transport):
             self.network = self._join_bus(canopen)
             self.network.sync.cob_id = SYNC_COB_ID
             self.network.subscribe(SYNC_COB_ID, self._on_sync_echo)
-            self.network.notifier.add_listener(_ErrorFrameListener(self._on_error_frame))
+            self.network.notifier.add_listener(ErrorFrameListener(self._on_error_frame))
             if self.trace_path is not None:
                 import can
 
@@ -452,7 +461,7 @@ class CanOpenTransport(Transport):
             return
         worst = max(abs(gap - self.sample_period_s) for gap in spacing)
         logger.info("%s: SYNC jitter over the bring-up: %.3g ms over %d periods", self.name, 1e3 * worst, len(spacing))
-        if isinstance(self._sync_task, _SyncThread):
+        if isinstance(self._sync_task, SyncThread):
             self._ride_through(
                 f"SYNC comes from a thread of this process ({self.interface} has no periodic sending of its own): "
                 f"jitter up to {1e3 * worst:.3g} ms over the bring-up's {len(spacing)} periods, more when the host "
@@ -530,209 +539,6 @@ class CanOpenTransport(Transport):
         except (OSError, can.CanError) as err:
             raise TransportError(f"{self.name}: CAN {self.interface}/{self.channel} failed ({doing}): {err}") from err
 
-    # -- start-up steps ------------------------------------------------------------------------------------
-
-    def _write_cycle_period(self, drive: Any) -> None:
-        """The SYNC period, in every object of the drive that holds it: 0x1006 (CiA 301 communication cycle
-        period, UNSIGNED32 microseconds) and 0x60C2 (CiA 402 interpolation time period: sub 1 the value, sub 2
-        its power of ten in seconds; :func:`interpolation_time_period` fits the value to sub 1's type)."""
-        period_us = int(round(self.sample_period_s * 1e6))
-        if 0x1006 in drive.object_dictionary:
-            self._sdo_write(drive, "drive", 0x1006, 0, period_us, "the SYNC period")
-        if 0x60C2 not in drive.object_dictionary:
-            return
-        largest = (1 << {0x05: 8, 0x06: 16, 0x07: 32}.get(drive.object_dictionary[0x60C2][1].data_type, 8)) - 1
-        found = interpolation_time_period(self.sample_period_s, largest)
-        if found is None:
-            problem = (f"a sample period of {self.sample_period_s:g} s has no exact form value x 10^index with the "
-                       f"value in 1..{largest}, as the drive's 0x60C2 (interpolation time period) holds it")
-            if self.mode == "ip_buffer":
-                raise ConfigError("<transport>", "sample_rate_hz", (
-                    f"{problem}; choose a rate whose period it holds (1 ms, 500 us, 250 us, 2 ms ...) or mode = \"csp\""))
-            self._ride_through(f"drive {self.drive_node_id}: 0x60C2 not written: {problem}")
-            return
-        value, index = found
-        self._sdo_write(drive, "drive", 0x60C2, 1, value, "the interpolation time period's value")
-        self._sdo_write(drive, "drive", 0x60C2, 2, index, "the interpolation time period's power of ten")
-        self._period_written = f"0x60C2 (interpolation time period) = {value} x 10^{index} s"
-
-    def _cycle_period_text(self) -> str:
-        return self._period_written or f"0x1006 (communication cycle period) = {int(round(self.sample_period_s * 1e6))} us"
-
-    def _sdo_write(self, node: Any, role: str, index: int, subindex: int, value: int, purpose: str) -> None:
-        """One start-up SDO write; a failure names the node, the object (index:sub and its EDS name), the
-        value, and what to do."""
-        self._sdo(node, role, index, subindex, purpose, value)
-
-    def _sdo_read(self, node: Any, role: str, index: int, subindex: int, purpose: str) -> int:
-        """One start-up SDO read, named as :meth:`_sdo_write` names a write."""
-        return self._sdo(node, role, index, subindex, purpose)
-
-    def _sdo(self, node: Any, role: str, index: int, subindex: int, purpose: str, value: int | None = None) -> int:
-        import canopen
-
-        single = isinstance(node.object_dictionary[index], canopen.objectdictionary.ODVariable)
-        variable = node.sdo[index] if single else node.sdo[index][subindex]
-        name = f" ({variable.od.name})" if variable.od.name else ""
-        where = f"{self.name} {role} {node.id}"
-        what = (f"read of 0x{index:04X}:{subindex:02X}{name}" if value is None
-                else f"write 0x{index:04X}:{subindex:02X}{name} = {value}") + f" ({purpose})"
-        try:
-            if value is None:
-                return variable.raw
-            variable.raw = value
-            return value
-        except canopen.SdoAbortedError as err:
-            raise DeviceFault(where, err.code, (
-                f"refused the start-up {what}: {err}; check the object in the device's manual and its EDS")) from err
-        except canopen.SdoCommunicationError as err:
-            raise TransportError(f"{where}: no answer to the start-up {what}: {err}; check that the node is "
-                                 "powered, on the bus, and at this node-ID") from err
-        except (ValueError, OverflowError, struct.error) as err:  # encoded by the EDS type before anything is sent
-            raise ConfigError("<transport>", "drive_eds" if role == "drive" else "encoder_eds", (
-                f"the EDS's type for the {what} cannot hold the value: {err}")) from err
-
-    def _has_sub(self, node: Any, index: int, subindex: int) -> bool:
-        od = node.object_dictionary
-        return index in od and subindex in getattr(od[index], "subindices", {})
-
-    def _supported_modes(self, drive: Any) -> int | None:
-        """0x6502 (supported drive modes), where the EDS has it: bit 7 cyclic synchronous position, bit 6
-        interpolated position, bit 5 homing."""
-        if 0x6502 not in drive.object_dictionary:
-            return None
-        return self._sdo_read(drive, "drive", 0x6502, 0, "the drive modes it supports")
-
-    def _choose_streaming_mode(self, drive: Any) -> None:
-        """Read the interpolation buffer's capacity; with ``mode = "auto"``, fall back from interpolated
-        position to CSP where the drive cannot take it (0x6502 bit 6 clear, or a buffer of fewer than
-        :data:`MIN_IP_BUFFER_RECORDS` records in 0x60C4)."""
-        if self.mode != "ip_buffer":
-            return
-        supported = self._supported_modes(drive)
-        can_interpolate = supported is None or bool(supported >> 6 & 1)
-        # the buffer's capacity: the smaller of 0x60C4 sub 1 (maximum) and sub 2 (actual buffer size)
-        self._ip_capacity = min(self._sdo_read(drive, "drive", 0x60C4, 1, "the interpolation buffer's capacity"),
-                                self._sdo_read(drive, "drive", 0x60C4, 2, "the interpolation buffer's size")
-                                ) if can_interpolate else 0
-        if self._ip_capacity < MIN_IP_BUFFER_RECORDS and self.mode_requested == "auto":
-            self._use_mode("csp")
-        elif self._ip_capacity < MIN_IP_BUFFER_RECORDS and can_interpolate:
-            raise DeviceFault(self.drive_label, None, (
-                f"its interpolation buffer holds {self._ip_capacity} records (0x60C4:1/2); mode = \"ip_buffer\" "
-                f"needs at least {MIN_IP_BUFFER_RECORDS}: use mode = \"csp\" or \"auto\""))
-
-    def _map_target_rpdo(self, drive: Any) -> PdoLayout:
-        """RPDO1 carries the target: 0x607A (target position), synchronous (CSP: one target per SYNC, the
-        last frame before the SYNC is the one in force), or 0x60C1:1 (interpolation data record),
-        asynchronous (:data:`ASYNCHRONOUS_RPDO`: every record sent reaches the buffer). With ``mode =
-        "auto"``, a drive whose RPDO1 cannot carry records that way streams CSP, with a warning naming why."""
-        def mapped() -> PdoLayout:
-            if self.mode == "ip_buffer":
-                return self._map_pdo(drive.rpdo, "drive", [(0x60C1, 1, 32)], 0x200 + self.drive_node_id,
-                                     transmission_type=ASYNCHRONOUS_RPDO)
-            return self._map_pdo(drive.rpdo, "drive", [(0x607A, 0, 32)], 0x200 + self.drive_node_id)
-
-        try:
-            layout = mapped()
-        except DeviceFault as err:
-            if self.mode_requested != "auto" or self.mode != "ip_buffer":
-                raise
-            self._fall_back_to_csp(f"{err}")
-            layout = mapped()
-        self._rpdo_transmission_type = ASYNCHRONOUS_RPDO if self.mode == "ip_buffer" else 1
-        return layout
-
-    def _map_hold_rpdo(self, drive: Any) -> PdoLayout | None:
-        """Interpolated position: RPDO2 carries the hold records (:mod:`rig.transports.interpolation_feed`)
-        into the same buffer as RPDO1's setpoints, asynchronous too, so that a trace of the bus tells a hold
-        record from a setpoint of the same value. A drive without a second RPDO it lets the master map takes
-        them on RPDO1 (noted in ``warnings``: its traces cannot tell them apart)."""
-        if self.mode != "ip_buffer":
-            return None
-        if 0x1401 in drive.object_dictionary and 0x1601 in drive.object_dictionary:
-            try:
-                return self._map_pdo(drive.rpdo, "drive", [(0x60C1, 1, 32)], 0x300 + self.drive_node_id, number=2,
-                                     transmission_type=ASYNCHRONOUS_RPDO)
-            except DeviceFault as err:
-                why = str(err)
-        else:
-            why = "its EDS has no RPDO2 (0x1401/0x1601)"
-        self._ride_through(f"drive {self.drive_node_id}: hold records go on RPDO1 with the setpoints ({why}); a "
-                           "trace of the bus cannot tell a hold record from a repeated setpoint")
-        return None
-
-    def _fall_back_to_csp(self, why: str) -> None:
-        """``mode = "auto"``: interpolated position cannot be used on this drive; stream CSP and say why."""
-        self._use_mode("csp")
-        self._ride_through(f"drive {self.drive_node_id}: interpolated position not used, cyclic synchronous "
-                           f"position instead: {why}")
-
-    def _check_supported_modes(self, drive: Any) -> None:
-        """The streaming mode, and homing where it is used, against 0x6502 where the EDS has it."""
-        supported = self._supported_modes(drive)
-        if supported is None:
-            return
-        needed = ([(6, "interpolated position")] if self.mode == "ip_buffer" else [(7, "cyclic synchronous position")])
-        needed += [] if self.skip_homing else [(5, "homing")]
-        for bit, name in needed:
-            if not supported >> bit & 1:
-                raise DeviceFault(self.drive_label, None, (
-                    f"does not support {name} mode (0x6502 supported drive modes = 0x{supported:08X}, bit {bit} "
-                    "clear)"))
-
-    def _configure_ip_buffer(self, drive: Any) -> None:
-        """The interpolation buffer (CiA 402 0x60C4): linear interpolation (0x60C0 = 0 where present),
-        cleared and enabled (sub 6: 0, then 1)."""
-        if 0x60C0 in drive.object_dictionary:
-            self._sdo_write(drive, "drive", 0x60C0, 0, 0, "linear interpolation")
-        self._sdo_write(drive, "drive", 0x60C4, 6, 0, "clear the interpolation buffer")
-        self._sdo_write(drive, "drive", 0x60C4, 6, 1, "enable access to the interpolation buffer")
-
-    def _take_first_mode(self, drive: Any) -> None:
-        """0x6060 = the streaming mode (or homing first). With ``mode = "auto"``, a drive that refuses
-        interpolated position (SDO abort on 0x6060 = 7, though its EDS lists the objects) streams CSP, with
-        a warning naming the refusal."""
-        try:
-            self._set_mode(drive, self._streaming_mode if self.skip_homing else cia402.HOMING_MODE)
-        except DeviceFault as err:
-            if not (self.skip_homing and self.mode == "ip_buffer" and self.mode_requested == "auto"
-                    and err.code is not None and err.code > 0xFFFF):
-                raise
-            self._fall_back_to_csp(str(err))
-            self._rpdo = self._map_target_rpdo(drive)
-            self._set_mode(drive, self._streaming_mode)
-
-    def _set_mode(self, drive: Any, mode: int) -> None:
-        self._sdo_write(drive, "drive", 0x6060, 0, mode, f"mode of operation: {_MODE_NAMES.get(mode, 'unknown')}")
-        self._mode = mode
-
-    def _wait_for_mode(self, drive: Any) -> None:
-        """The mode handshake: 0x6061 (modes of operation display) must show the mode written to 0x6060
-        within ``mode_switch_timeout_s``; until then the drive still runs the old mode."""
-        deadline = self.clock() + self.mode_switch_timeout_s
-        while True:
-            shown = drive.sdo[0x6061].raw
-            shown = shown - 256 if shown > 127 else shown  # INTEGER8
-            if shown == self._mode:
-                return
-            if self.clock() > deadline:
-                raise DeviceFault(self.drive_label, None, (
-                    f"did not take mode {self._mode} ({_MODE_NAMES.get(self._mode, 'unknown')}) within "
-                    f"{self.mode_switch_timeout_s:g} s: 0x6061 (modes of operation display) still shows {shown}; "
-                    "a drive that switches slowly needs a larger mode_switch_timeout_s"))
-            self._pause(self.timing.poll_interval_s)
-
-    def _hold_at_actual_position(self, drive: Any) -> float:
-        """Write the actual position (0x6064) into the target (0x607A), so that enabling, or switching to
-        cyclic synchronous position, does not move the motor (a standard drive servoes to whatever 0x607A
-        holds); return that position in radians."""
-        actual = self._sdo_read(drive, "drive", 0x6064, 0, "the actual position the target is set to")
-        self._sdo_write(drive, "drive", 0x607A, 0, actual, "the target at the actual position, so that nothing moves")
-        with self._lock:
-            self._in_force = (-1, actual)  # the drive holds this target until the first RPDO
-        return self.drive.rad_from_counts(actual)
-
     def _receive_filters(self) -> list[dict[str, int]]:
         """The frames the master listens to (in the kernel on SocketCAN): its SYNC and RPDO echoes, and
         each node's EMCY, TPDO, SDO response and heartbeat. The echoes of its SDO requests and other nodes'
@@ -755,13 +561,13 @@ class CanOpenTransport(Transport):
     def _start_sync_producer(self) -> None:
         """SYNC from a cyclic task at the sample period: python-can's ``send_periodic`` where the interface
         or the kernel does it (SocketCAN's broadcast manager: hrtimer precision, no Python in the timing),
-        else our own :class:`_SyncThread`, which, unlike python-can's thread fallback, never sends two SYNCs
+        else our own :class:`SyncThread`, which, unlike python-can's thread fallback, never sends two SYNCs
         closer than one cycle's bus time when it catches up after a stall (a SYNC wins arbitration over the
         answers to the one before it, which would then be filed under the wrong sample)."""
-        task = self.network.bus.send_periodic(_sync_message(), self.sample_period_s)
+        task = self.network.bus.send_periodic(sync_message(), self.sample_period_s)
         if type(task).__name__ == "ThreadBasedCyclicSendTask":
             task.stop()
-            task = _SyncThread(self.network.bus, self.sample_period_s, self.min_cycle_s)
+            task = SyncThread(self.network.bus, self.sample_period_s, self.min_cycle_s)
         self._sync_task = task
 
     def _await_first_sync(self) -> None:
@@ -785,125 +591,6 @@ class CanOpenTransport(Transport):
         task, self._sync_task = self._sync_task, None
         if task is not None:
             task.stop()
-
-    def _home(self, drive: Any) -> None:
-        """Homing mode: start with bit 4, wait for "homing attained" (statusword bit 12; bit 13 is a homing
-        error), at most ``homing_timeout_s``."""
-        drive.sdo[0x6098].raw = self.homing_method
-        drive.sdo[0x6040].raw = cia402.CONTROLWORD_START_HOMING
-        deadline = self.clock() + self.homing_timeout_s
-        while True:
-            statusword = drive.sdo[0x6041].raw
-            if statusword & cia402.STATUSWORD_HOMING_ERROR:
-                raise DeviceFault(self.drive_label, cia402.fault_code_or_none(self._read_error_code),
-                                  f"homing (method {self.homing_method}) failed: statusword 0x{statusword:04X}")
-            if statusword & cia402.STATUSWORD_HOMING_ATTAINED:
-                break
-            if self.clock() > deadline:
-                raise DeviceFault(self.drive_label, None,
-                                  f"homing did not finish within {self.homing_timeout_s:g} s (homing_timeout_s)")
-            self._pause(max(self.timing.poll_interval_s, 0.01))
-        drive.sdo[0x6040].raw = cia402.CONTROLWORD_ENABLE_OPERATION
-
-    def _map_pdo(self, pdos: Any, role: str, needed: list[tuple[int, int, int]], cob_id: int,
-                 number: int = 1, transmission_type: int = 1) -> PdoLayout:
-        """Map PDO ``number`` of ``pdos`` to the ``needed`` objects ``(index, sub-index, bits)`` with
-        ``transmission_type`` (1: synchronous, every SYNC), then read its communication and mapping
-        parameters back from the device: a device with static PDOs refuses the writes (or canopen skips
-        entries its EDS marks read-only), and what the master decodes must be what the device sends. A
-        layout that carries the needed objects is used as it is; one that does not is refused naming the
-        object, and the refusal the device gave, if any."""
-        import canopen
-
-        pdo = pdos[number]
-        kind = f"{'RPDO' if pdo.com_record.od.index < 0x1800 else 'TPDO'}{number}"
-        node_id = pdos.node.id
-        where = f"{kind} of {role} {node_id} (0x{pdo.com_record.od.index:04X}/0x{pdo.map_array.od.index:04X})"
-        pdos.read()
-        pdo.clear()
-        for index, subindex, _ in needed:
-            pdo.add_variable(index, subindex)
-        pdo.cob_id = cob_id
-        pdo.trans_type = transmission_type
-        pdo.enabled = True
-        refused = ""
-        try:
-            pdo.save()
-        except canopen.SdoAbortedError as err:  # a static PDO: the read-back below says whether its layout serves
-            refused = f" (the device refused its configuration: SDO abort 0x{err.code:08X})"
-        pdo.read()
-        layout = PdoLayout.from_pdo(pdo, where)
-        device = f"{self.name} {role} {node_id}"
-        if not pdo.enabled:
-            raise DeviceFault(device, None, f"{where} stays disabled after configuration (COB-ID bit 31 set){refused}")
-        if pdo.trans_type != transmission_type and (kind.startswith("TPDO") or transmission_type != 1):
-            needs = ("1, an answer to every SYNC" if transmission_type == 1 else
-                     f"{transmission_type} (asynchronous: a synchronous RPDO keeps only the last frame before a "
-                     "SYNC, CiA 301, and interpolation records would be lost)")
-            raise DeviceFault(device, None, (
-                f"{where} has transmission type {pdo.trans_type} (0x{pdo.com_record.od.index:04X}:02){refused}; the "
-                f"master needs {needs}: set it with the vendor's tool"))
-        for index, _, bits in needed:
-            if index not in layout.fields:
-                raise DeviceFault(device, None, (
-                    f"{where} does not map 0x{index:04X} (it maps {layout.describe()}){refused or ', not writable on this device'}; "
-                    "the master needs it there"))
-            if layout.fields[index][1] * 8 < bits:
-                raise DeviceFault(device, None, (
-                    f"{where} maps only {layout.fields[index][1] * 8} bits of 0x{index:04X}; the master needs {bits}"))
-        sent = {index for index, _, _ in needed}
-        if kind.startswith("RPDO") and set(layout.fields) - sent:
-            extra = ", ".join(f"0x{index:04X}" for index in sorted(set(layout.fields) - sent))
-            raise DeviceFault(device, None, (
-                f"{where} maps {extra} besides the target (not writable on this device); the master sends "
-                "only the target"))
-        return layout
-
-    def _map_demand_tpdo(self, drive: Any) -> PdoLayout | None:
-        """Drive TPDO2 = 0x6062 (position demand value: the target the drive applied at that SYNC), for the
-        latency check; a drive that cannot map it is streamed without the check (noted in ``warnings``)."""
-        if not self._checks_latency:
-            return None
-        try:
-            return self._map_pdo(drive.tpdo, "drive", [(0x6062, 0, 32)], 0x280 + self.drive_node_id, number=2)
-        except DeviceFault as err:
-            self._ride_through(f"drive {self.drive_node_id}: the TPDO latency is not checked ({err})")
-            return None
-
-    def _encoder_value_bits(self) -> int:
-        """Bits of 0x6004 the configured encoder needs in its TPDO."""
-        return min(32, max(8, self.encoder.bits + self.encoder.multi_turn_bits))
-
-    def _check_encoder(self, encoder: Any) -> None:
-        """CiA 406: the position value's scaling is 0x6001 (measuring units per revolution) and 0x6002
-        (total measuring range); where the EDS lacks them, 0x6501 (physical single-turn resolution) and
-        0x6502 (number of distinguishable revolutions) stand in. A total range of 2**32 does not fit the
-        UNSIGNED32 of 0x6002: a 32-bit encoder reports 0 there, read as 2**32. 0x6000 bit 0 (code
-        sequence) must agree with ``[encoder] direction``."""
-        od = encoder.object_dictionary
-        expected = (self.encoder.counts_per_revolution, self.encoder.modulus)
-        per_revolution_index = 0x6001 if 0x6001 in od else 0x6501
-        per_revolution = encoder.sdo[per_revolution_index].raw
-        if 0x6002 in od:
-            objects = f"0x{per_revolution_index:04X}, 0x6002"
-            total = encoder.sdo[0x6002].raw
-        else:
-            objects = f"0x{per_revolution_index:04X}, 0x6502"
-            total = per_revolution * max(encoder.sdo[0x6502].raw, 1)
-        if total == 0:
-            total = 1 << 32
-        device = f"{self.name} encoder {self.encoder_node_id}"
-        if (per_revolution, total) != expected:
-            raise DeviceFault(device, None, (
-                f"reports {per_revolution} counts per revolution and a range of {total} counts ({objects}), "
-                f"but the config says {expected[0]} and {expected[1]} ([encoder] bits, multi_turn_bits)"))
-        if 0x6000 in od:
-            counts_down = bool(encoder.sdo[0x6000].raw & 0x0001)
-            if counts_down != (self.encoder.direction < 0):
-                raise DeviceFault(device, None, (
-                    f"counts {'down' if counts_down else 'up'} with the angle (0x6000 bit 0, code sequence = "
-                    f"{int(counts_down)}), but the config says direction = {self.encoder.direction}; set [encoder] "
-                    f"direction = {-1 if counts_down else 1}"))
 
     def _send(self, setpoint: Setpoint) -> None:
         """CSP: queue setpoint ``seq``; the receive thread puts it on the bus right after SYNC ``seq - 1``,
@@ -1081,96 +768,6 @@ class CanOpenTransport(Transport):
         if upcoming in self._queue:
             self._put_target_on_bus(upcoming)
 
-    def _take_ip_record(self, count: int) -> None:
-        """Interpolated position at SYNC ``count`` (from the first SYNC whose statusword showed bit 12, ip
-        mode active: sample 0): the drive takes the oldest record of its buffer (the master's copy of the
-        buffer follows the bus order of its RPDO echoes). A hold record, or an empty buffer (an underrun),
-        leaves the sample HELD at the record before."""
-        if self._origin is None or count < self._origin:
-            return
-        sample = count - self._origin
-        record = self._feed.take()
-        if record is None or record.sample is None:
-            if self._dry_since is None:
-                self._dry_since = count  # (after the run's last record the buffer runs dry for good: no lead)
-            self._applied[sample] = (self._in_force[1], True)
-            return
-        self._in_force = (record.sample, record.counts)
-        queued = self._queued_at.pop(record.sample, None)
-        if queued is not None:  # (a SYNC replayed once sample 0 was known happened that many periods ago)
-            at = self.clock() - (self._sync_count - count) * self.sample_period_s
-            self._min_lead_s = min(self._min_lead_s, at - queued)
-        if self._dry_since is not None:  # the buffer ran dry for these instants: a negative lead
-            self._min_lead_s = min(self._min_lead_s, -(count - self._dry_since) * self.sample_period_s)
-            self._dry_since = None
-        self._applied[sample] = (record.counts, False)
-
-    def _check_buffer_position(self, buffered: int) -> None:
-        """Before ip mode is enabled: where the drive counts the records of its FIFO in 0x60C4:4 (buffer
-        position), that count must be what the echoes say went in, else the records are not all reaching
-        the buffer and the run stops. CiA 402 defines sub 4 for ring buffers; many FIFO drives leave it at a
-        constant (0 or 1): a value that is not a count is only noted, and the records are then checked each
-        sample against 0x6062 (position demand value) where the drive has it."""
-        if not self._has_sub(self._drive, 0x60C4, 4):
-            return
-        try:
-            with self._translated_errors("interpolation buffer position (0x60C4:4)"):
-                in_drive = self._drive.sdo[0x60C4][4].raw
-        except DeviceFault as err:  # write-only or not implemented on this drive: nothing to learn from it
-            self._ride_through(f"drive {self.drive_node_id}: 0x60C4:4 not readable ({err})")
-            return
-        if in_drive == buffered:
-            return
-        if 1 < in_drive < buffered:
-            raise DeviceFault(self.drive_label, None, (
-                f"holds {in_drive} records in its interpolation buffer (0x60C4:4 buffer position) after {buffered} "
-                f"were sent on {self._rpdo.where} with transmission type {self._rpdo_transmission_type}: the "
-                "records do not all reach the buffer; use mode = \"csp\""))
-        check = "0x6062 each sample" if self._demand_tpdo is not None else "nothing (no 0x6062 in its TPDOs)"
-        self._ride_through(f"drive {self.drive_node_id}: 0x60C4:4 (buffer position) reads {in_drive} with {buffered} "
-                           f"records sent; not a count of its FIFO, so arrival is checked by {check}")
-
-    def _put_records_on_bus(self) -> None:
-        """Interpolated position: put what :meth:`InterpolationFeed.to_send` says on the bus (queued records
-        while the drive's buffer has room; while streaming, a hold record where the buffer would run dry).
-        Called with the lock held, from the runner's thread as it queues and from the receive thread at
-        every SYNC: the lead is kept in the host's queue and the drive's buffer together, so a stall of the
-        runner's thread shorter than the lead costs nothing, and a pause of the whole process is ridden
-        through for as long as the drive's buffer lasts."""
-        for record in self._feed.to_send():
-            rpdo = self._rpdo if record.sample is not None or self._hold_rpdo is None else self._hold_rpdo
-            try:
-                self.network.send_message(rpdo.cob_id, rpdo.pack({index: record.counts for index in rpdo.fields}))
-            except Exception as err:  # noqa: BLE001 - in the notifier thread: report, the runner raises it
-                self._feed.unsent(record)
-                what = "a hold record" if record.sample is None else f"the record of sample {record.sample}"
-                self._report_fault(TransportError(f"{self.name}: sending {what} failed: {err}"))
-                return
-
-    def _start_interpolation(self) -> None:
-        """Interpolated position, before sample 0: once the drive's buffer holds the lead (or every setpoint
-        there is), check that the records really are in it (0x60C4:4 buffer position, where the EDS has it),
-        then set controlword bit 4 (enable ip mode). Sample 0 is the first SYNC whose statusword shows bit 12
-        (:meth:`_file_locked`); a drive that does not show it within :data:`IP_START_SYNCS` SYNCs stops the
-        run, saying so."""
-        with self._lock:
-            enabled_at, ready = self._ip_enabled_at, self._feed.ready_to_start()
-            buffered = self._feed.buffered
-        if enabled_at is not None:
-            if self._sync_count - enabled_at > IP_START_SYNCS:
-                raise DeviceFault(self.drive_label, None, (
-                    f"does not interpolate: statusword bit 12 (ip mode active) still clear {IP_START_SYNCS} SYNCs "
-                    f"after controlword bit 4 (enable ip mode), with {buffered} records in its buffer (0x60C4); "
-                    f"{self._cycle_period_text()} was written; check what the drive needs to start interpolated "
-                    "position (its manual, 0x60C2 interpolation time period), or use mode = \"csp\""))
-            return
-        if not ready:
-            return
-        self._check_buffer_position(buffered)
-        with self._lock:
-            self._ip_enabled_at = self._sync_count
-        self._write_controlword(cia402.CONTROLWORD_ENABLE_INTERPOLATION)
-
     def _put_target_on_bus(self, sample: int) -> None:
         """CSP: target ``sample`` onto the bus, no farther from the target the drive last took than the rate
         limit allows (after a stall that held samples the plan may have moved on: the targets ramp back to
@@ -1197,14 +794,6 @@ class CanOpenTransport(Transport):
                 self._arrived.notify_all()  # (wakes _recv_internal waiting to start the interpolation)
             elif self._rpdo_sent:
                 self._in_force = self._rpdo_sent.popleft()
-
-    def _on_drive_sdo_response(self, can_id: int, data: bytes, timestamp: float) -> None:
-        """An SDO response from the drive, in bus order with the SYNC echoes: the answer to controlword bit 4
-        (enable ip mode) bounds the SYNC at which the drive can first have taken a record
-        (:meth:`_find_ip_origin`)."""
-        with self._lock:
-            if self._ip_enabled_at is not None and self._ip_answered_at is None:
-                self._ip_answered_at = self._sync_count
 
     def _sync_before(self, timestamp: float) -> int | None:
         """The count of the last SYNC on the bus before bus time ``timestamp`` (None: before the first)."""
@@ -1252,36 +841,6 @@ class CanOpenTransport(Transport):
         if len(self._parts) > 512:
             for old in sorted(self._parts)[:256]:
                 del self._parts[old]
-
-    def _find_ip_origin(self, part: str, value: Any, timestamp: float, received: float, answers: int) -> None:
-        """Interpolated position, after controlword bit 4: the first SYNC whose drive statusword shows bit 12
-        (ip mode active) is sample 0, the first at which the drive took a record. Until it is seen, TPDOs are
-        kept; then the records taken at the SYNCs since are replayed, and the kept TPDOs filed."""
-        if answers <= self._ip_enabled_at:
-            return
-        if part != "drive" or not value[0] & cia402.STATUSWORD_IP_MODE_ACTIVE:
-            self._before_origin.append((part, value, timestamp, received))
-            return
-        latest = None if self._ip_answered_at is None else self._ip_answered_at + 1
-        if latest is not None and answers > latest:
-            # the drive took its bit 4 before its SDO answer, so its first record went at SYNC <= latest; a
-            # statusword that says later was sent later than drive_tpdo_latency_cycles says
-            configured = self.latency_cycles["drive"]
-            self._report_fault(DeviceFault(self.drive_label, None, (
-                f"answers SYNC k after SYNC k + {configured + answers - latest} or later: its statusword shows bit 12 "
-                f"(ip mode active) first in the answer filed under SYNC {answers - self._ip_enabled_at} after "
-                f"controlword bit 4, which it had confirmed by SYNC {latest - self._ip_enabled_at}; set "
-                f"drive_tpdo_latency_cycles = {configured + answers - latest} (and check encoder_tpdo_latency_cycles)")))
-            self._arrived.notify_all()
-            return
-        self._origin = answers
-        self._feed.streaming = True
-        for count in range(answers, self._sync_count):  # (this SYNC's own record is taken by the caller)
-            self._take_ip_record(count)
-        self._device_sample = self._sync_count - 1 - answers
-        kept, self._before_origin = self._before_origin, []
-        for item in kept:
-            self._file_locked(*item)
 
     def _check_latency(self, seq: int, demand: int | None) -> None:
         """Compare the drive's 0x6062 for sample ``seq`` with the target in force at its SYNC (``demand``
@@ -1344,7 +903,7 @@ class CanOpenTransport(Transport):
         code = entry.code
         if code & 0xFF00 == 0:
             return
-        if _is_warning(code, self.emcy_warning_prefixes):
+        if is_warning(code, self.emcy_warning_prefixes):
             self._ride_through(f"{role} {node_id}: EMCY 0x{code:04X} ({error_code_meaning(code)}), ridden "
                                "through (emcy_warning_codes)")
             return
@@ -1384,196 +943,5 @@ class CanOpenTransport(Transport):
                 self.raise_fault()
 
 
-@dataclass(frozen=True)
-class PdoLayout:
-    """Where each mapped object sits in one PDO's data, as the device's mapping parameter says
-    (CiA 301 0x1600/0x1A00: entries of index, sub-index and length in bits, packed in order).
-
-    Attributes
-    ----------
-    where
-        The PDO in messages ("TPDO1 of drive 1 (0x1800/0x1A00)").
-    cob_id
-        Its COB-ID as read back.
-    fields
-        Object index -> (byte offset, byte length).
-    length
-        Data bytes of the PDO.
-    """
-
-    where: str
-    cob_id: int
-    fields: dict[int, tuple[int, int]]
-    length: int
-
-    @classmethod
-    def from_pdo(cls, pdo: Any, where: str) -> PdoLayout:
-        fields: dict[int, tuple[int, int]] = {}
-        offset = 0
-        for variable in pdo:
-            size = variable.length // 8
-            fields.setdefault(variable.index, (offset, size))
-            offset += size
-        return cls(where, int(pdo.cob_id), fields, offset)
-
-    def describe(self) -> str:
-        return ", ".join(f"0x{index:04X} ({8 * size} bit)" for index, (_, size) in self.fields.items()) or "nothing"
-
-    def value(self, data: bytes, index: int, signed: bool = False) -> int:
-        """The value of object ``index`` in ``data``; ValueError if the frame is shorter than the mapping."""
-        offset, size = self.fields[index]
-        if len(data) < offset + size:
-            raise ValueError(f"{self.where}: {len(data)} bytes, the mapping needs {offset + size}")
-        return int.from_bytes(data[offset:offset + size], "little", signed=signed)
-
-    def pack(self, values: dict[int, int]) -> bytes:
-        """The PDO's data with ``values`` (index -> integer, two's complement where negative)."""
-        data = bytearray(self.length)
-        for index, (offset, size) in self.fields.items():
-            data[offset:offset + size] = (values[index] & ((1 << 8 * size) - 1)).to_bytes(size, "little")
-        return bytes(data)
-
-
-_DRIVE_OBJECTS = (
-    (0x1017, "the producer heartbeat time the master sets and watches"),
-    (0x1400, "RPDO1 communication parameter (the target's PDO)"), (0x1600, "RPDO1 mapping"),
-    (0x1800, "TPDO1 communication parameter (statusword and actual position)"), (0x1A00, "TPDO1 mapping"),
-    (0x6040, "the controlword"), (0x6041, "the statusword"), (0x6060, "modes of operation"),
-    (0x6061, "modes of operation display (the mode handshake)"), (0x6064, "position actual value"),
-    (0x607A, "target position"),
-)
 SYNCS_BEFORE_STREAMING = 2
 """SYNCs between OPERATION ENABLED and the first setpoint (:meth:`CanOpenTransport._await_syncs_in_operation`)."""
-IP_START_SYNCS = 50
-"""SYNCs the drive may take after controlword bit 4 (enable ip mode) before its statusword shows bit 12 (ip
-mode active); a drive that never shows it does not interpolate (0x60C2 not accepted, a drive-internal
-reason), and the run stops saying so."""
-ASYNCHRONOUS_RPDO = 255
-"""RPDO transmission type for interpolation records: event-driven, applied on arrival (CiA 301 7.2.2.2), so
-that every record sent reaches the drive's buffer; a synchronous RPDO (0..240) keeps only the last frame
-received before a SYNC."""
-
-_IP_BUFFER_OBJECTS = (
-    (0x60C1, "the interpolation data records (mode = \"ip_buffer\")"),
-    (0x60C4, "the interpolation buffer's size and its clear/enable (mode = \"ip_buffer\")"),
-)
-_ENCODER_OBJECTS = (
-    (0x1017, "the producer heartbeat time the master sets and watches"),
-    (0x1800, "TPDO1 communication parameter (the position value's PDO)"), (0x1A00, "TPDO1 mapping"),
-    (0x6004, "position value"),
-)
-
-
-def interpolation_time_period(period_s: float, largest_value: int) -> tuple[int, int] | None:
-    """``period_s`` as CiA 402's 0x60C2 holds it: (value, index) with value x 10^index s equal to the period
-    (to 1 ppm) and 1 <= value <= ``largest_value`` (255 for the standard's UNSIGNED8 sub 1), the smallest
-    value that does; None where none does (a period of 1/3 ms).
-
-    >>> interpolation_time_period(1e-3, 255), interpolation_time_period(250e-6, 255), interpolation_time_period(1 / 3000, 255)
-    ((1, -3), (250, -6), None)
-    """
-    for index in range(3, -10, -1):
-        value = period_s / 10.0 ** index
-        whole = round(value)
-        if 1 <= whole <= largest_value and abs(value - whole) <= 1e-6 * value:
-            return whole, index
-    return None
-
-
-def _load_object_dictionary(key: str, path: str, node_id: int) -> Any:
-    import canopen
-
-    if not Path(path).is_file():
-        raise ConfigError("<transport>", key, f"no such EDS file {path}")
-    try:
-        return canopen.import_od(path, node_id)
-    except Exception as err:  # noqa: BLE001 - canopen raises whatever its parsers raise
-        raise ConfigError("<transport>", key, f"{path} is not a readable EDS/DCF file: {err}") from err
-
-
-def _require_objects(key: str, path: str, od: Any, objects: tuple[tuple[int, str], ...]) -> None:
-    """Refuse an EDS that lacks an object the master needs, naming it and what it is needed for."""
-    for index, purpose in objects:
-        if index not in od:
-            raise ConfigError("<transport>", key, (
-                f"{path} has no object 0x{index:04X}; the master needs it for {purpose}; use the vendor's EDS "
-                "of this device (a device without it cannot be driven by this master)"))
-
-
-def _emcy_prefixes(text: str) -> tuple[str, ...]:
-    """``"0x4, 0x8130"`` -> ("4", "8130"): hex prefixes an EMCY code's four hex digits are matched against."""
-    prefixes = []
-    for item in str(text).split(","):
-        item = item.strip().lower()
-        if not item:
-            continue
-        digits = item[2:] if item.startswith("0x") else item
-        if not (1 <= len(digits) <= 4 and all(char in "0123456789abcdef" for char in digits)):
-            raise ConfigError("<transport>", "emcy_warning_codes", (
-                f"{item!r} is not a hex EMCY code or prefix (expected e.g. \"0x4\" or \"0x4210, 0xFF\")"))
-        prefixes.append(digits)
-    return tuple(prefixes)
-
-
-def _is_warning(code: int, prefixes: tuple[str, ...]) -> bool:
-    digits = f"{code:04x}"
-    return any(digits.startswith(prefix) for prefix in prefixes)
-
-
-def _sync_message() -> Any:
-    import can
-
-    return can.Message(arbitration_id=SYNC_COB_ID, data=b"", is_extended_id=False)
-
-
-class _SyncThread:
-    """A SYNC producer thread for interfaces without periodic sending of their own: SYNC k is due at
-    t_0 + k T; one that comes late goes out as soon as possible, but never closer than ``min_spacing_s``
-    (one cycle's bus time) to the one before, and the following ones return to the grid. The master sees
-    each SYNC's real instant in its echo's timestamp and flags samples that are off the period (LATE)."""
-
-    def __init__(self, bus: Any, period_s: float, min_spacing_s: float) -> None:
-        self.bus, self.period_s, self.min_spacing_s = bus, period_s, min_spacing_s
-        self._stopped = threading.Event()
-        self._thread = threading.Thread(target=self._run, name="canopen-sync", daemon=True)
-        self._thread.start()
-
-    def _run(self) -> None:
-        message = _sync_message()
-        start = last = time.perf_counter()
-        k = 0
-        while not self._stopped.is_set():
-            due = max(start + k * self.period_s, last + self.min_spacing_s)
-            remaining = due - time.perf_counter()
-            if remaining > 0 and self._stopped.wait(remaining):
-                return
-            try:
-                self.bus.send(message)
-            except Exception:  # noqa: BLE001 - the bus is going down; the master sees SYNCs stop
-                return
-            last = time.perf_counter()
-            k += 1
-
-    def stop(self) -> None:
-        self._stopped.set()
-        if self._thread is not threading.current_thread():
-            self._thread.join(timeout=1.0)
-
-
-class _ErrorFrameListener:
-    """python-can listener passing error frames to ``callback`` (notifier thread)."""
-
-    def __init__(self, callback: Any) -> None:
-        self.callback = callback
-
-    def on_message_received(self, message: Any) -> None:
-        if message.is_error_frame:
-            self.callback(message)
-
-    __call__ = on_message_received  # python-can's notifier calls its listeners
-
-    def on_error(self, exc: Exception) -> None:  # the notifier's own receive errors: nothing to add
-        pass
-
-    def stop(self) -> None:
-        pass

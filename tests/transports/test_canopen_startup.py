@@ -132,7 +132,7 @@ class _RecordingNetwork:
 def _streaming_canopen_transport(**options):
     """A transport in the state streaming leaves it in, driven by scripted bus events (canopen
     test_sdo.py style): SYNC echoes, RPDO echoes and TPDOs with their bus timestamps, no threads."""
-    from rig.transports.canopen_link import PdoLayout
+    from rig.transports.canopen_dictionary import PdoLayout
 
     transport = _unopened_canopen_transport(**{"mode": "csp", **options})
     transport.network = _RecordingNetwork()
@@ -271,7 +271,8 @@ def test_one_demand_value_off_is_an_ambiguous_sample_and_three_in_a_row_a_wrong_
     """0x6062 (position demand value) beside each sample: one that shows the previous target is a target
     that crossed its SYNC (AMBIGUOUS); three in a row is a device answering a SYNC later than configured."""
     from rig.protocols.errors import DeviceFault
-    from rig.transports.canopen_link import LATENCY_EVIDENCE_SAMPLES, PdoLayout
+    from rig.transports.canopen_dictionary import PdoLayout
+    from rig.transports.canopen_link import LATENCY_EVIDENCE_SAMPLES
 
     transport = _streaming_canopen_transport()
     transport._demand_tpdo = PdoLayout("TPDO2 of drive 1", 0x281, {0x6062: (0, 4)}, 4)

@@ -153,7 +153,8 @@ def test_the_receive_thread_keeps_the_drives_buffer_full_from_the_hosts_queue():
     queued one on the bus, so the runner's thread may stall for its whole lead without an underrun."""
     from rig.protocols.encoder_counts import EncoderResolution
     from rig.transports import Setpoint
-    from rig.transports.canopen_link import CanOpenTransport, PdoLayout
+    from rig.transports.canopen_dictionary import PdoLayout
+    from rig.transports.canopen_link import CanOpenTransport
     from rig.transports.interpolation_feed import IP_BUFFER_MARGIN_RECORDS, InterpolationFeed
 
     transport = CanOpenTransport("virtual", "unused", encoder=EncoderResolution(bits=12, signed=True),
