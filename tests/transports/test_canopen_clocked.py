@@ -163,6 +163,26 @@ def test_in_csp_each_target_is_on_the_bus_between_the_sync_before_and_its_own(ra
     _answered_rows_equal_the_offline_simulation(sink, rate_hz, tmp_path)
 
 
+@pytest.mark.parametrize("underflow", ["hold", "fault", "fault_after_first"])
+@pytest.mark.parametrize("capacity", [4, 16, 64])
+def test_every_buffer_size_and_underflow_behaviour_runs_clean_through_a_stall(capacity, underflow, tmp_path):
+    """Interpolated position on the strict drive (CiA 301 RPDO semantics, CiA 402 buffer): buffers of 4, 16
+    and 64 records (0x60C4:2), a drive that holds on an empty buffer and the two that fault on one (maxon EPOS:
+    at any SYNC with ip mode active; others once a record was taken), and the 0x60C2 it needs: the run is
+    clean through a host stall longer than the lead and through its end, each row is what the drive applied
+    at that SYNC, and the drive never finds its buffer empty."""
+    behaviour = DriveBehaviour(ip_underflow=underflow, requires_ip_period=True)
+    with _clocked_rig(tmp_path, drive_behaviour=behaviour) as (bus, transport, rig, clock):
+        rig.drive.set_data(0x60C4, 2, capacity.to_bytes(4, "little"))
+        summary, sink, stalled = _run(bus, transport, clock, _command(400), stall_at=150, stall_s=0.1505)
+        faults, underruns, state = list(rig.faults), rig.ip_underruns, rig.state
+    assert transport.mode == "ip_buffer" and transport._ip_capacity == capacity
+    assert stalled and summary.samples == 400 and summary.lost == 0 and summary.held > 0
+    assert not faults and underruns == 0 and state is cia402.DriveState.SWITCH_ON_DISABLED
+    assert not np.any(_flags(sink) & SampleFlag.unusable())
+    _answered_rows_equal_the_offline_simulation(sink, 1000.0, tmp_path)
+
+
 # -- host stalls -------------------------------------------------------------------------------------------------
 
 @pytest.mark.parametrize("mode", ["ip_buffer", "csp"])

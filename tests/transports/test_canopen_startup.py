@@ -304,3 +304,16 @@ def test_one_demand_value_off_is_an_ambiguous_sample_and_three_in_a_row_a_wrong_
     sync()
     with pytest.raises(DeviceFault, match=r"set drive_tpdo_latency_cycles = 1"):
         transport.raise_fault()
+
+
+def test_the_interpolation_time_period_takes_the_form_cia402_0x60c2_holds():
+    """0x60C2: sub 1 an UNSIGNED8 value, sub 2 an INTEGER8 power of ten (seconds): 1 ms is 1 x 10^-3, not
+    1000 x 10^-6, which does not fit sub 1; a period with no exact form (1/3 ms) has none."""
+    from rig.transports.canopen_dictionary import interpolation_time_period
+
+    assert interpolation_time_period(1e-3, 255) == (1, -3)
+    assert interpolation_time_period(250e-6, 255) == (250, -6)
+    assert interpolation_time_period(5e-3, 255) == (5, -3)
+    assert interpolation_time_period(1 / 3000, 255) is None
+    assert interpolation_time_period(1 / 3000, 255) is None and interpolation_time_period(333e-6, 255) is None
+    assert interpolation_time_period(333e-6, 65535) == (333, -6)  # a drive whose sub 1 is wider

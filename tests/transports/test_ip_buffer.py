@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from identify.experiment_record import SampleFlag
-from rig.protocols.errors import ConfigError
+from rig.protocols.errors import ConfigError, DeviceFault
 from rig.rig_config import load_rig_config
 from rig.runner import run_experiment
 from rig.transports import open_transport
@@ -177,3 +177,30 @@ def test_the_receive_thread_keeps_the_drives_buffer_full_from_the_hosts_queue():
     assert transport.network.sent == list(range(100))  # every queued record went in, one per SYNC
     assert not any(held for _, held in transport._applied.values())
     assert [transport._applied[sample][0] for sample in range(38)] == list(range(38))
+
+
+def test_a_drive_that_never_shows_ip_mode_active_stops_the_run_naming_bit_12_and_the_period_written():
+    """Scripted: controlword bit 4 went out, SYNCs pass, the statusword never shows bit 12 (a drive that does
+    not accept its 0x60C2, or refuses to interpolate for a reason of its own): the run stops saying so, not
+    with advice about the TPDO latency."""
+    from rig.protocols.encoder_counts import EncoderResolution
+    from rig.transports.canopen_dictionary import PdoLayout
+    from rig.transports.canopen_interpolation import IP_START_SYNCS
+    from rig.transports.canopen_link import CanOpenTransport
+    from rig.transports.interpolation_feed import InterpolationFeed
+
+    transport = CanOpenTransport("virtual", "unused", encoder=EncoderResolution(bits=12, signed=True),
+                                 sample_period_s=1e-3, mode="ip_buffer", lead_s=0.1)
+    transport.network = _RecordingNetwork()
+    transport._rpdo = PdoLayout("RPDO1 of drive 1", 0x201, {0x60C1: (0, 4)}, 4)
+    transport._feed = InterpolationFeed(64, transport.lead_samples, 0)
+    transport._period_written = "0x60C2 (interpolation time period) = 1 x 10^-3 s"
+    transport._ip_enabled_at = 5
+    transport._sync_count = 5 + IP_START_SYNCS
+    transport._start_interpolation()  # still within the drive's allowance
+    transport._sync_count += 1
+    with pytest.raises(DeviceFault, match=r"does not interpolate: statusword bit 12 \(ip mode active\) still clear "
+                                          r"50 SYNCs after controlword bit 4 .*0x60C2 \(interpolation time period\) = "
+                                          r"1 x 10\^-3 s was written") as raised:
+        transport._start_interpolation()
+    assert "drive_tpdo_latency_cycles" not in str(raised.value)
