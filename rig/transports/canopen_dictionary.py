@@ -95,7 +95,7 @@ def interpolation_time_period(period_s: float, largest_value: int) -> tuple[int,
     value that does; None where none does (a period of 1/3 ms).
 
     >>> interpolation_time_period(1e-3, 255), interpolation_time_period(250e-6, 255), interpolation_time_period(1 / 3000, 255)
-    ((1, -3), (250, -6), None)
+    ((1, -3), (25, -5), None)
     """
     for index in range(3, -10, -1):
         value = period_s / 10.0 ** index

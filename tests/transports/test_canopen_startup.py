@@ -312,8 +312,7 @@ def test_the_interpolation_time_period_takes_the_form_cia402_0x60c2_holds():
     from rig.transports.canopen_dictionary import interpolation_time_period
 
     assert interpolation_time_period(1e-3, 255) == (1, -3)
-    assert interpolation_time_period(250e-6, 255) == (250, -6)
+    assert interpolation_time_period(250e-6, 255) == (25, -5)  # the smallest value that holds it exactly
     assert interpolation_time_period(5e-3, 255) == (5, -3)
-    assert interpolation_time_period(1 / 3000, 255) is None
     assert interpolation_time_period(1 / 3000, 255) is None and interpolation_time_period(333e-6, 255) is None
     assert interpolation_time_period(333e-6, 65535) == (333, -6)  # a drive whose sub 1 is wider
