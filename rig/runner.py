@@ -4,9 +4,10 @@ Two loops, chosen by the link (:attr:`~rig.transports.base.Transport.lead_sample
 by its sample number in one :class:`~rig.sample_ledger.SampleLedger`, which hands rows to the sink in
 order once they can no longer change, and both run the transport's one bring-up and one teardown:
 
-* **Device-clocked** (``lead_samples > 0``, CANopen): the device's clock owns the sample instants. The
-  runner keeps the setpoints ``lead_samples`` ahead of the last instant the device passed and files what
-  the device reports; row k is at k T. A setpoint that missed its instant is HELD (the command logged is
+* **Device-clocked** (``lead_samples > 0``: CANopen, serial v2, raw CAN v2/v3): the device's clock owns the
+  sample instants. The runner keeps the setpoints ``lead_samples`` ahead of the last instant the device
+  passed and files what the device reports, taking turns (at most half the lead's answers filed between two
+  rounds of queueing, so a device whose answers never stop coming still gets its setpoints); row k is at k T. A setpoint that missed its instant is HELD (the command logged is
   the one the drive applied), an instant off the period is LATE (:func:`_run_device_clocked`).
 * **Host-paced** (serial and raw CAN, protocol v1): absolute deadlines ``t_k = t_0 + k T`` (no drift: a
   late cycle does not shift the ones after it). Per cycle k the runner waits for ``t_k``
@@ -498,14 +499,47 @@ def _run_device_clocked(transport: Transport, command: NDArray[np.float64], sink
     first_answer = last_answer = math.nan
     failure: BaseException | None = None
 
+    next_seq = next_row = 0  # the next setpoint to queue; the next row (sample instant) to open
+    filed_to = -1  # the highest instant whose answer was filed: rows before it are settled
+    watchdog = FeedbackWatchdog(feedback_timeout_s, clock())
+
+    def take(sample) -> DriveState | None:
+        """File one answer; every instant the device passed has its row, setpoint or not (a drive's buffer
+        that ran dry takes the later records at later instants), and the answer says what was applied."""
+        nonlocal next_row, filed_to, first_answer, last_answer
+        while next_row < total and next_row <= sample.seq:
+            ledger.open_row(next_row, transport.drive.quantize_rad(values[next_row]))
+            next_row += 1
+        state = ledger.file(sample)
+        filed_to = max(filed_to, sample.seq)
+        watchdog.fed(sample.host_time_s)  # when this answer was received, not when the turn began
+        last_answer = sample.host_time_s
+        if math.isnan(first_answer):
+            first_answer = last_answer
+        return state
+
+    def file_what_arrived() -> None:
+        """After a failure (Ctrl-C, SIGTERM, a link error), before the stop: file the answers the transport
+        has already received (a turn files at most a batch), so that no row whose answer came is written
+        LOST. Best effort: a fault or a link error ends it."""
+        for _ in range(total + 2 * pending_cycles):
+            try:
+                sample = transport.receive(0.0)
+            except Exception:  # noqa: BLE001 - the error that ended the run is the one to report
+                return
+            if sample is None:
+                return
+            take(sample)
+
     switch_interval = sys.getswitchinterval()
     sys.setswitchinterval(min(switch_interval, period / 4))  # receive threads need the GIL within a period
     try:
         _check_and_enable(transport, command)
         lead = transport.lead_samples
-        next_seq = next_row = 0  # the next setpoint to queue; the next row (sample instant) to open
-        watchdog = FeedbackWatchdog(feedback_timeout_s, clock())
+        batch = max(1, lead // 2)  # answers filed per turn: the queue never falls more than this behind
+        watchdog.fed(clock())
         while ledger.written < total:
+            # turn 1: queue the setpoints due (as far as ``lead`` ahead of the last instant the device passed)
             device = transport.device_sample
             while next_seq < total and next_seq <= device + lead:
                 sent = transport.send(Setpoint(next_seq, values[next_seq]))
@@ -513,28 +547,25 @@ def _run_device_clocked(transport: Transport, command: NDArray[np.float64], sink
                     ledger.open_row(next_row, sent.position_rad)
                     next_row += 1
                 next_seq += 1
+            # turn 2: file at most ``batch`` answers, then queue again: a device whose answers never stop
+            # coming (a host slower than the device's clock) still gets its setpoints
             sample = transport.receive(period)
-            now = clock()
-            while sample is not None:  # everything that has arrived is filed before any row is final
-                # every instant the device passed has its row, setpoint or not (a drive's buffer that ran
-                # dry takes the later records at later instants); its feedback says what was applied
-                while next_row < total and next_row <= sample.seq:
-                    ledger.open_row(next_row, transport.drive.quantize_rad(values[next_row]))
-                    next_row += 1
-                state = ledger.file(sample)
-                watchdog.fed(now)
-                last_answer = now
-                if math.isnan(first_answer):
-                    first_answer = now
+            filed = 0
+            while sample is not None:
+                state = take(sample)
                 if state is not None and state is not DriveState.OPERATION_ENABLED and state not in _FAULT_STATES:
                     raise DeviceFault(f"{transport.name} drive", None, (
                         f"left OPERATION ENABLED without a fault at sample {sample.seq} (now {state.name}: enable "
                         "input or safe torque off lost?); it no longer follows the targets"))
-                sample = transport.receive(0.0)
+                filed += 1
+                sample = transport.receive(0.0) if filed < batch else None
+            now = clock()
             if watchdog.expired(now):
                 raise TransportError(f"{watchdog.message(transport.name, now)}, stopping at sample "
                                      f"{max(transport.device_sample, 0)}")
-            ledger.write_final(device, sink)  # read before the drain: every answer it makes final has been filed
+            # final: the rows the device has passed whose answers, which come in order, are all filed (an
+            # answer the transport still holds is never written off as LOST)
+            ledger.write_final(min(device, filed_to), sink)
             if progress is not None:
                 progress(ledger.written, ledger.counts["held"])
     except BaseException as err:
@@ -542,6 +573,8 @@ def _run_device_clocked(transport: Transport, command: NDArray[np.float64], sink
         raise
     finally:
         sys.setswitchinterval(switch_interval)
+        if failure is not None and transport.is_open:
+            file_what_arrived()
         stop_at = transport.device_sample  # the last instant the device passed before the stop
         try:
             transport.close()

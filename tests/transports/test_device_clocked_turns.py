@@ -1,0 +1,109 @@
+"""The device-clocked loop gives queueing setpoints and filing ticks each their turn: a scripted link whose
+device ticks faster than the host reads (the host throttled, the device in a process of its own) never runs
+dry, and the setpoints must still go out, and the feedback watchdog must not trip while ticks arrive. No
+thread, no sleep: the link's clock moves only when the host reads."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from identify.experiment_record import SampleFlag
+from rig.protocols import cia402
+from rig.protocols.cia402 import BringUpTiming, DriveState
+from rig.protocols.encoder_counts import EncoderResolution
+from rig.runner import run_experiment
+from rig.transports.base import FeedbackSample, Setpoint, Transport
+
+from clocked_line import SimulatedClock
+from sim_rigs import ListSink
+
+PERIOD_S = 1e-3
+
+
+class FloodingLink(Transport):
+    """A device that ticks every ``PERIOD_S`` from the first receive on, and a host that needs ``read_cost_s``
+    of its clock for every TICK it reads: with ``read_cost_s > PERIOD_S`` the host never catches up, so every
+    receive finds a tick waiting (the input never runs dry). A setpoint counts as in time when it was sent
+    before its tick's instant; otherwise the tick is HELD with the target of the tick before.
+
+    ``starved_after``: this many receives without a setpoint in between fail the test (the device's link
+    watchdog would have stopped the drive)."""
+
+    def __init__(self, *, lead: int, read_cost_s: float, total: int, starved_after: int = 400) -> None:
+        self.link_clock = SimulatedClock(100.0)
+        super().__init__(encoder=EncoderResolution(bits=16), sample_period_s=PERIOD_S, name="flood",
+                         clock=self.link_clock, timing=BringUpTiming(poll_interval_s=0.0))
+        self._lead, self.read_cost_s, self.total, self.starved_after = lead, read_cost_s, total, starved_after
+        self._statusword = cia402.statusword_for(DriveState.SWITCH_ON_DISABLED)
+        self.sent: dict[int, tuple[float, float]] = {}  # seq -> (host time sent, position)
+        self.receives_without_send = self.most_receives_without_send = 0
+        self._tick0_s: float | None = None
+        self._in_force = 0.0
+        self.applied: list[float] = []  # per tick, the target in force
+
+    @property
+    def lead_samples(self) -> int:
+        return self._lead
+
+    def _connect(self) -> None:
+        pass
+
+    def _prepare(self) -> float:
+        return 0.0
+
+    def _write_controlword(self, controlword: int) -> None:
+        state = cia402.next_state(cia402.state_from_statusword(self._statusword), controlword, 0)
+        self._statusword = cia402.statusword_for(state) | (cia402.STATUSWORD_FOLLOWS_TARGET
+                                                           if state is DriveState.OPERATION_ENABLED else 0)
+
+    def _read_statusword(self) -> int:
+        return self._statusword
+
+    def _send(self, setpoint: Setpoint) -> None:
+        self.sent[setpoint.seq] = (self.link_clock(), setpoint.position_rad)
+        self.receives_without_send = 0
+
+    def _recv_internal(self, timeout_s: float) -> FeedbackSample | None:
+        if len(self.sent) < self.total:  # setpoints still to send
+            self.receives_without_send += 1
+        self.most_receives_without_send = max(self.most_receives_without_send, self.receives_without_send)
+        if self.receives_without_send > self.starved_after:
+            raise AssertionError(f"{self.receives_without_send} ticks read and no setpoint sent: the device's "
+                                 "link watchdog stops the drive")
+        if self._tick0_s is None:
+            self._tick0_s = self.link_clock()
+        self.link_clock.advance_to(self.link_clock() + self.read_cost_s)
+        k = self._device_sample + 1  # the oldest tick not read yet; its instant has passed (the host is behind)
+        instant = self._tick0_s + k * PERIOD_S
+        assert instant <= self.link_clock()
+        sent = self.sent.get(k)
+        held = sent is None or sent[0] > instant
+        if not held:
+            self._in_force = sent[1]
+        self._device_sample = k
+        self.applied.append(self._in_force)
+        return FeedbackSample(seq=k, encoder_counts=k, load_angle_rad=0.0, drive_position_rad=self._in_force,
+                              statusword=self._statusword, host_time_s=self.link_clock(), held=held,
+                              applied_position_rad=self._in_force)
+
+    def _close(self) -> None:
+        pass
+
+
+@pytest.mark.parametrize("lead", [1, 16, 250])
+def test_setpoints_are_queued_every_turn_while_ticks_never_stop_arriving(lead):
+    """The host reads a tick every 1.5 ms while the device ticks every 1 ms: there is always a tick to file.
+    The runner still queues setpoints between ticks (bounded work per turn), and the watchdog, fed with the
+    time each tick was received, does not trip: the run completes with every row filed."""
+    link = FloodingLink(lead=lead, read_cost_s=1.5e-3, total=600)
+    sink = ListSink()
+    command = 0.01 * np.sin(np.arange(600) / 20)
+    summary = run_experiment(link, command, sink, feedback_timeout_s=0.05, clock=link.link_clock)
+    assert summary.samples == 600 and summary.lost == 0
+    assert link.most_receives_without_send <= max(1, lead // 2)
+    assert sorted(link.sent) == list(range(600))
+    held = np.flatnonzero(np.array([row[4] for row in sink.rows]) & SampleFlag.HELD)
+    assert summary.held == held.size > 0  # once the host's lead is used up, its setpoints come too late
+    assert [row[3] for row in sink.rows] == list(range(600))
+    assert [row[1] for row in sink.rows] == link.applied[:600]  # the target in force, HELD or not
