@@ -257,7 +257,7 @@ class SimulatedRawCanDevice(can.Listener):
         self.setpoints += 1
         if seq in self.silent_seqs:
             return
-        statusword = cia402.statusword_for(self.state, target_reached=True)
+        statusword = self._following_statusword()
         self._send("RIG_FEEDBACK", seq=seq, statusword=statusword, encoder_counts=sample.encoder_counts & 0xFFFFFFFF)
         self._send("RIG_DRIVE_FEEDBACK", seq=seq, actual_counts=self.actual_counts)
 
@@ -322,7 +322,12 @@ class SimulatedRawCanDevice(can.Listener):
             self.setpoints += 1
             self.held_ticks += held
             if (k & 0xFFFF) not in self.silent_seqs:
-                self._tick_frames(k, self.mode, cia402.statusword_for(self.state, target_reached=True), held)
+                self._tick_frames(k, self.mode, self._following_statusword(), held)
+
+    def _following_statusword(self) -> int:
+        """The statusword of a sample in OPERATION ENABLED: at the target, and bit 12 set (the drive follows the
+        targets, as in CiA 402 cyclic synchronous position mode; the serial spec's section 5)."""
+        return cia402.statusword_for(self.state, target_reached=True) | cia402.STATUSWORD_FOLLOWS_TARGET
 
     def _tick_frames(self, k: int, mode: int, statusword: int, held: bool) -> None:
         """The frames of tick k: RIG_FEEDBACK, then (v3) RIG_DRIVE_TICK or (v2) RIG_DRIVE_FEEDBACK and

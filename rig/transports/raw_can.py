@@ -20,6 +20,7 @@ host-paced, the v1 way, unless ``protocol = "v2"``.
 
 from __future__ import annotations
 
+import collections
 import math
 import time
 from typing import Any
@@ -130,7 +131,14 @@ class RawCanTransport(Transport):
         self._in_force: tuple[int, int] | None = None  # v3: (tick, target counts in force) of the latest tick filed
         self._fault_sample: int | None = None
         self._pending_fault: DeviceFault | None = None  # v2: RIG_FAULT, until the faulted tick's frames are in
+        self._pending_fault_s = math.inf  # when that RIG_FAULT arrived
         self._info: dict[int, dict[str, int]] = {}
+        # samples completed while the host waited for an answer (RIG_START's may take 100 ms: the device
+        # ticks meanwhile), handed out by the next receives in order
+        self._ready: collections.deque[FeedbackSample] = collections.deque()
+        # v3 ticks completed before RIG_START's answer, which says the target in force before any setpoint
+        self._unresolved: list[tuple[int, dict[str, Any], float]] = []
+        self._target_unknown_warned = False
 
     @property
     def lead_samples(self) -> int:
@@ -229,17 +237,28 @@ class RawCanTransport(Transport):
             self._started = True
             status = self._request_reply("RIG_START")  # the device's tick 0: the setpoints queued so far are its lead
             self._in_force = (-1, status["actual_counts"])  # before any setpoint: the position held since enabling
+            unresolved, self._unresolved = self._unresolved, []
+            for seq, parts, received in unresolved:  # ticks that came before this answer, in their order
+                self._ready.append(self._tick_sample(seq, parts, received))
+        if self._ready:
+            return self._ready.popleft()
         deadline = self.clock() + timeout_s
         while True:
             sample = self._receive_one(max(deadline - self.clock(), 0.0))
             if isinstance(sample, FeedbackSample):
                 return sample
-            if sample is None and self._pending_fault is not None:  # the faulted tick's frames did not follow
-                self._report_fault(self._pending_fault)
+            if self._pending_fault is not None and self.clock() >= self._pending_fault_s + self._fault_grace_s:
+                self._report_fault(self._pending_fault)  # the faulted tick's frames did not follow
             if sample is None and self.clock() >= deadline:
                 return None
             if self._fault is not None:
                 return None
+
+    @property
+    def _fault_grace_s(self) -> float:
+        """How long after RIG_FAULT the host waits for the frames of the faulted tick (they leave before the
+        next tick, DBC comment on RIG_FAULT): four periods, at least 10 ms (a loaded host's read delay)."""
+        return max(4 * self.sample_period_s, 0.01)
 
     def _close(self) -> None:
         bus, self._bus = self._bus, None
@@ -303,7 +322,7 @@ class RawCanTransport(Transport):
             if self._started:  # sent before the frames of the tick it happened in: that tick is filed first
                 if self._fault_sample is None:
                     self._fault_sample = self._device_sample + 1
-                self._pending_fault = fault
+                self._pending_fault, self._pending_fault_s = fault, self.clock()
             else:
                 self._report_fault(fault)
         elif name in _TICK_FRAMES[self.version]:
@@ -313,30 +332,63 @@ class RawCanTransport(Transport):
             parts[name] = signals
             if len(parts) == len(_TICK_FRAMES[self.version]):
                 del self._parts[seq]
-                feedback = parts["RIG_FEEDBACK"]
-                drive = parts["RIG_DRIVE_TICK" if self.version >= 3 else "RIG_DRIVE_FEEDBACK"]
-                raw = feedback["encoder_counts"]
-                counts = raw - (1 << 32) if self.encoder.signed and raw >= 1 << 31 else raw
                 received = self.clock()
-                held, applied = False, None
-                if self.version >= 3:
-                    held, applied_counts = drive["applied_age"] > 0, self._target_in_force(seq, drive["applied_age"])
-                    applied = None if applied_counts is None else self.drive.rad_from_counts(applied_counts)
-                    self._account_tick(seq, held, received)
-                elif v2:
-                    tick = parts["RIG_TICK_APPLIED"]
-                    held, applied = bool(tick["tick_flags"] & 1), self.drive.rad_from_counts(tick["applied_counts"])
-                    self._account_tick(seq, held, received)
-                if cia402.state_from_statusword_or_none(feedback["statusword"]) in _FAULT_STATES:
-                    self._faulted_statusword(seq, feedback["statusword"])
-                return FeedbackSample(seq=seq, encoder_counts=counts, load_angle_rad=self._decode_encoder(counts),
-                                      drive_position_rad=self.drive.rad_from_counts(drive["actual_counts"]),
-                                      statusword=feedback["statusword"], host_time_s=received, held=held,
-                                      applied_position_rad=applied)
+                if v2:
+                    self._account_tick(seq, self._tick_held(parts), received)
+                statusword = parts["RIG_FEEDBACK"]["statusword"]
+                if cia402.state_from_statusword_or_none(statusword) in _FAULT_STATES:
+                    self._faulted_statusword(seq, statusword)
+                if self.version >= 3 and self._in_force is None:  # before RIG_START's answer: resolved with it
+                    self._unresolved.append((seq, parts, received))
+                    return True
+                return self._tick_sample(seq, parts, received)
             if len(self._parts) > 256:
                 for old in sorted(self._parts)[:128]:
                     del self._parts[old]
         return True
+
+    def _tick_held(self, parts: dict[str, Any]) -> bool:
+        if self.version >= 3:
+            return parts["RIG_DRIVE_TICK"]["applied_age"] > 0
+        return bool(parts["RIG_TICK_APPLIED"]["tick_flags"] & 1)
+
+    def _tick_sample(self, seq: int, parts: dict[str, Any], received: float) -> FeedbackSample:
+        """The sample of one complete tick (v1: one answer): encoder and statusword of RIG_FEEDBACK, drive position,
+        and on a device-clocked link whether it was HELD and the target in force. Statusword bit 12 clear in
+        OPERATION ENABLED: the drive did not follow the target (NOT_FOLLOWED; serial spec section 5)."""
+        feedback = parts["RIG_FEEDBACK"]
+        drive = parts["RIG_DRIVE_TICK" if self.version >= 3 else "RIG_DRIVE_FEEDBACK"]
+        raw = feedback["encoder_counts"]
+        counts = raw - (1 << 32) if self.encoder.signed and raw >= 1 << 31 else raw
+        held, applied, unknown = False, None, False
+        if self.version >= 3:
+            age = drive["applied_age"]
+            held, applied_counts = age > 0, self._target_in_force(seq, age)
+            if applied_counts is None:
+                applied_counts, unknown = self._last_known_target(seq), True
+            applied = self.drive.rad_from_counts(applied_counts)
+        elif self.version >= 2:
+            tick = parts["RIG_TICK_APPLIED"]
+            held, applied = bool(tick["tick_flags"] & 1), self.drive.rad_from_counts(tick["applied_counts"])
+        statusword = feedback["statusword"]
+        state = cia402.state_from_statusword_or_none(statusword)
+        return FeedbackSample(seq=seq, encoder_counts=counts, load_angle_rad=self._decode_encoder(counts),
+                              drive_position_rad=self.drive.rad_from_counts(drive["actual_counts"]),
+                              statusword=statusword, host_time_s=received, held=held, applied_position_rad=applied,
+                              target_ignored=(state is cia402.DriveState.OPERATION_ENABLED
+                                              and not statusword & cia402.STATUSWORD_FOLLOWS_TARGET),
+                              ambiguous=unknown)
+
+    def _last_known_target(self, k: int) -> int:
+        """v3, tick k's target not known (``applied_age`` 255 and the frames of the ticks before lost): the
+        latest target known, logged with the sample flagged AMBIGUOUS (unusable), and said once in a warning."""
+        if not self._target_unknown_warned:
+            self._target_unknown_warned = True
+            self._ride_through(
+                f"tick {k}: the target in force is not known (RIG_DRIVE_TICK applied_age 255 after a hold of more "
+                "than 254 ticks whose earlier tick frames were lost): such samples are logged HELD and AMBIGUOUS "
+                "(unusable), with the latest target known")
+        return self._in_force[1] if self._in_force is not None else self.drive.counts_from_rad(self.initial_position_rad)
 
     def _unprompted_status(self, statusword: int) -> None:
         """RIG_STATUS with seq 0 (never a request number): the device says on its own that the drive changed
@@ -415,7 +467,9 @@ class RawCanTransport(Transport):
                 remaining = deadline - self.clock()
                 if remaining <= 0:
                     break
-                self._receive_one(remaining)
+                sample = self._receive_one(remaining)
+                if isinstance(sample, FeedbackSample):  # a tick while waiting: kept for the next receive
+                    self._ready.append(sample)
             else:
                 return answers.pop(request)
         raise TransportError(f"{self.name}: no {answer} answer to {name} (seq {request}) within "

@@ -127,3 +127,18 @@ def test_the_first_fault_is_remembered_after_its_row_went_to_the_sink():
     rows = _release_all(ledger, device_sample=2)
     assert [row[0] for row in rows] == [0, 1] and rows[1][4] & SampleFlag.FAULT
     assert ledger.first_fault == 1
+
+
+def test_a_held_sample_whose_applied_command_is_unknown_is_unusable_not_logged_as_the_design():
+    """A HELD answer that cannot say which target was in force: the row's command (the designed one) was not
+    applied, so the row is flagged AMBIGUOUS (unusable) besides HELD; one that says it logs it."""
+    ledger = SampleLedger(sample_period_s=0.01, pending_cycles=1)
+    for seq in range(3):
+        ledger.open_row(seq, command_rad=0.1 * seq)
+    ledger.file(_feedback(0))
+    ledger.file(_feedback(1, held=True))
+    ledger.file(_feedback(2, held=True, applied_position_rad=0.0))
+    rows = _release_all(ledger, device_sample=3)
+    assert [(row[2], row[4]) for row in rows] == [
+        (0.0, 0), (0.1, int(SampleFlag.HELD | SampleFlag.AMBIGUOUS)), (0.0, int(SampleFlag.HELD))]
+    assert SampleFlag.AMBIGUOUS & SampleFlag.unusable()
