@@ -142,7 +142,8 @@ class RunSummary:
     samples
         Samples written (sent setpoints).
     lost, late, duplicate, not_followed
-        Samples with the LOST, LATE, DUPLICATE, NOT_FOLLOWED flag.
+        Samples with the LOST, LATE, DUPLICATE, NOT_FOLLOWED flag (a HELD sample is counted in ``held``, and in
+        ``late`` only when it is flagged LATE too).
     stale
         Feedback frames that arrived after their sample was declared lost (dropped).
     frame_errors
@@ -157,7 +158,7 @@ class RunSummary:
     not_followed
         Samples with the NOT_FOLLOWED flag.
     held
-        Device-clocked links: samples whose setpoint missed its instant (HELD; ``late`` counts them too).
+        Device-clocked links: samples whose setpoint missed its instant (HELD).
     min_lead_s
         Device-clocked links: the smallest lead of a setpoint over its sample instant (nan otherwise).
     stop

@@ -176,7 +176,7 @@ class SampleLedger:
         self._answered.discard(seq)
         self.counts["lost"] += bool(row.flags & _LOST)
         self.counts["held"] += bool(row.flags & _HELD)
-        self.counts["late"] += bool(row.flags & (_HELD | _LATE))
+        self.counts["late"] += bool(row.flags & _LATE)
         self.counts["not_followed"] += bool(row.flags & _NOT_FOLLOWED)
 
     def write_final(self, newest: int, sink) -> None:
