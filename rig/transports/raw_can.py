@@ -220,7 +220,10 @@ class RawCanTransport(Transport):
 
     def _send(self, setpoint: Setpoint) -> None:
         counts = self.drive.counts_from_rad(setpoint.position_rad)
-        self._transmit(self.codec.encode("RIG_SETPOINT", seq=setpoint.seq, target_counts=counts))
+        if self.version < 2 or setpoint.seq > self._device_sample:
+            # (a setpoint for a tick the device has reported is dropped there, DBC: after a long stall the
+            # host does not flood the bus, and its own receive queue, with hundreds of them)
+            self._transmit(self.codec.encode("RIG_SETPOINT", seq=setpoint.seq, target_counts=counts))
         self._last_seq = setpoint.seq
         if self.version >= 3:
             self._sent_counts[setpoint.seq] = counts

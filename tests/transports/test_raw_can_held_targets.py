@@ -22,7 +22,7 @@ from spec_raw_can_device import RIG_DRIVE_TICK, RIG_FEEDBACK, RIG_STATUS, SpecRa
 
 PERIOD_S = 0.005
 DRIVE = DriveScaling(1 << 17)
-RIG_START = 259
+RIG_START, RIG_SETPOINT = 259, 272
 
 
 class ScriptedBus(ClockedBus):
@@ -38,6 +38,7 @@ class ScriptedBus(ClockedBus):
         self.deliver = deliver or (lambda arbitration_id, data: data)
         self._start_seq: bytes | None = None
         self._held_answer: tuple[float, int, bytes] | None = None
+        self.setpoints: list[tuple[int, int]] = []
 
     def device_sends(self, arbitration_id: int, data: bytes) -> None:
         if arbitration_id == RIG_STATUS and self._start_seq is not None and data[:2] == self._start_seq:
@@ -61,6 +62,8 @@ class ScriptedBus(ClockedBus):
     def send(self, message, timeout=None) -> None:
         if message.arbitration_id == RIG_START:
             self._start_seq = bytes(message.data[:2])
+        if message.arbitration_id == RIG_SETPOINT:  # (seq, the last tick the host had heard of when it sent it)
+            self.setpoints.append((struct.unpack_from("<H", message.data)[0], self.transport.device_sample))
         super().send(message, timeout)
 
 
@@ -121,6 +124,9 @@ def test_a_lost_start_answer_holds_past_254_ticks_and_every_row_carries_the_targ
     assert len(held) > 300 and summary.lost == 0 and summary.held == len(held)
     _rows_agree_with_the_device(sink, device, range(1000))
     assert not any(row[4] & SampleFlag.AMBIGUOUS for row in sink.rows)
+    # the setpoints of the ticks that passed during the wait are not put on the bus (the device drops them):
+    # hundreds of useless frames at once would crowd the ticks' frames and the host's own receive queue
+    assert all(seq > heard for seq, heard in bus.setpoints)
 
 
 def test_a_hold_whose_target_the_host_cannot_know_is_flagged_unusable_with_a_reason():
