@@ -6,8 +6,8 @@ order once they can no longer change, and both run the transport's one bring-up 
 
 * **Device-clocked** (``lead_samples > 0``: CANopen, serial v2, raw CAN v2/v3): the device's clock owns the
   sample instants. The runner keeps the setpoints ``lead_samples`` ahead of the last instant the device
-  passed and files what the device reports, taking turns (at most half the lead's answers filed between two
-  rounds of queueing, so a device whose answers never stop coming still gets its setpoints); row k is at k T. A setpoint that missed its instant is HELD (the command logged is
+  passed and files what the device reports, taking turns (at most half the lead's setpoints queued, and
+  answers filed, per turn: a device whose answers never stop coming still gets its setpoints); row k is at k T. A setpoint that missed its instant is HELD (the command logged is
   the one the drive applied), an instant off the period is LATE (:func:`_run_device_clocked`).
 * **Host-paced** (serial and raw CAN, protocol v1): absolute deadlines ``t_k = t_0 + k T`` (no drift: a
   late cycle does not shift the ones after it). Per cycle k the runner waits for ``t_k``
@@ -537,12 +537,15 @@ def _run_device_clocked(transport: Transport, command: NDArray[np.float64], sink
     try:
         _check_and_enable(transport, command)
         lead = transport.lead_samples
-        batch = max(1, lead // 2)  # answers filed per turn: the queue never falls more than this behind
+        batch = max(1, lead // 2)  # setpoints queued, answers filed per turn: the queue never falls more than
+        # this behind, and neither side floods the link (a burst of frames overruns a CAN adapter's receive queue)
         watchdog.fed(clock())
         while ledger.written < total:
-            # turn 1: queue the setpoints due (as far as ``lead`` ahead of the last instant the device passed)
+            # turn 1: queue the setpoints due (as far as ``lead`` ahead of the last instant the device passed),
+            # at most ``batch`` of them once the device runs (the whole lead before its first answer)
             device = transport.device_sample
-            while next_seq < total and next_seq <= device + lead:
+            last_to_queue = min(device + lead, next_seq - 1 + (batch if filed_to >= 0 else lead))
+            while next_seq < total and next_seq <= last_to_queue:
                 sent = transport.send(Setpoint(next_seq, values[next_seq]))
                 if next_seq == next_row:
                     ledger.open_row(next_row, sent.position_rad)

@@ -244,6 +244,7 @@ class RawCanTransport(Transport):
             for seq, parts, received in unresolved:  # ticks that came before this answer, in their order
                 self._ready.append(self._tick_sample(seq, parts, received))
         if self._ready:
+            self._read_waiting_frames()
             return self._ready.popleft()
         deadline = self.clock() + timeout_s
         while True:
@@ -256,6 +257,17 @@ class RawCanTransport(Transport):
                 return None
             if self._fault is not None:
                 return None
+
+    def _read_waiting_frames(self, limit: int = 64) -> None:
+        """While samples wait to be handed out (those that came during an answer's wait), read the frames that
+        have arrived meanwhile too (at most ``limit``): the device goes on sending two or three a tick, and an
+        adapter's (or udp_multicast's) receive queue that is not read overflows."""
+        for _ in range(limit):
+            sample = self._receive_one(0.0)
+            if sample is None:
+                return
+            if isinstance(sample, FeedbackSample):
+                self._ready.append(sample)
 
     @property
     def _fault_grace_s(self) -> float:

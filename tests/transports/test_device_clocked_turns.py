@@ -5,6 +5,8 @@ thread, no sleep: the link's clock moves only when the host reads."""
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 
@@ -30,7 +32,8 @@ class FloodingLink(Transport):
     ``starved_after``: this many receives without a setpoint in between fail the test (the device's link
     watchdog would have stopped the drive)."""
 
-    def __init__(self, *, lead: int, read_cost_s: float, total: int, starved_after: int = 400) -> None:
+    def __init__(self, *, lead: int, read_cost_s: float, total: int, starved_after: int = 400,
+                 hears_every_tick_at_once: bool = False) -> None:
         self.link_clock = SimulatedClock(100.0)
         super().__init__(encoder=EncoderResolution(bits=16), sample_period_s=PERIOD_S, name="flood",
                          clock=self.link_clock, timing=BringUpTiming(poll_interval_s=0.0))
@@ -41,6 +44,11 @@ class FloodingLink(Transport):
         self._tick0_s: float | None = None
         self._in_force = 0.0
         self.applied: list[float] = []  # per tick, the target in force
+        # like a link that reads everything received in one read (serial): the device's position is the last
+        # tick that has arrived, though the host has filed only the oldest of them
+        self.hears_every_tick_at_once = hears_every_tick_at_once
+        self.sends_since_receive = self.most_sends_between_receives = 0
+        self._next_unread = 0
 
     @property
     def lead_samples(self) -> int:
@@ -63,6 +71,9 @@ class FloodingLink(Transport):
     def _send(self, setpoint: Setpoint) -> None:
         self.sent[setpoint.seq] = (self.link_clock(), setpoint.position_rad)
         self.receives_without_send = 0
+        if self._tick0_s is not None:  # once the device runs
+            self.sends_since_receive += 1
+            self.most_sends_between_receives = max(self.most_sends_between_receives, self.sends_since_receive)
 
     def _recv_internal(self, timeout_s: float) -> FeedbackSample | None:
         if len(self.sent) < self.total:  # setpoints still to send
@@ -71,17 +82,21 @@ class FloodingLink(Transport):
         if self.receives_without_send > self.starved_after:
             raise AssertionError(f"{self.receives_without_send} ticks read and no setpoint sent: the device's "
                                  "link watchdog stops the drive")
+        self.sends_since_receive = 0
         if self._tick0_s is None:
             self._tick0_s = self.link_clock()
         self.link_clock.advance_to(self.link_clock() + self.read_cost_s)
-        k = self._device_sample + 1  # the oldest tick not read yet; its instant has passed (the host is behind)
+        k = self._next_unread  # the oldest tick not read yet; its instant has passed (the host is behind)
+        self._next_unread += 1
         instant = self._tick0_s + k * PERIOD_S
         assert instant <= self.link_clock()
         sent = self.sent.get(k)
         held = sent is None or sent[0] > instant
         if not held:
             self._in_force = sent[1]
-        self._device_sample = k
+        self._device_sample = max(self._device_sample, k)
+        if self.hears_every_tick_at_once:
+            self._device_sample = math.floor((self.link_clock() - self._tick0_s) / PERIOD_S + 1e-9)
         self.applied.append(self._in_force)
         return FeedbackSample(seq=k, encoder_counts=k, load_angle_rad=0.0, drive_position_rad=self._in_force,
                               statusword=self._statusword, host_time_s=self.link_clock(), held=held,
@@ -107,3 +122,17 @@ def test_setpoints_are_queued_every_turn_while_ticks_never_stop_arriving(lead):
     assert summary.held == held.size > 0  # once the host's lead is used up, its setpoints come too late
     assert [row[3] for row in sink.rows] == list(range(600))
     assert [row[1] for row in sink.rows] == link.applied[:600]  # the target in force, HELD or not
+
+
+def test_a_device_far_ahead_gets_at_most_half_the_lead_of_setpoints_a_turn():
+    """The link hears of every tick that has arrived at once (the device's position jumps by hundreds while the
+    host has filed only the oldest): setpoints still go out at most half the lead a turn (the whole lead only
+    before the device runs), so that the link carries no burst of hundreds of frames (which overruns a CAN
+    adapter's receive queue), and every row is still the tick the device reported."""
+    link = FloodingLink(lead=40, read_cost_s=1.5e-3, total=600, hears_every_tick_at_once=True)
+    sink = ListSink()
+    summary = run_experiment(link, 0.01 * np.sin(np.arange(600) / 20), sink, feedback_timeout_s=0.05,
+                             clock=link.link_clock)
+    assert summary.samples == 600 and summary.lost == 0 and sorted(link.sent) == list(range(600))
+    assert link.most_sends_between_receives <= 20
+    assert [row[1] for row in sink.rows] == link.applied[:600]
