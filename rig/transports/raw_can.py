@@ -32,6 +32,7 @@ from rig.protocols.errors import ConfigError, DeviceFault, TransportError
 from rig.protocols.raw_can_frames import DEFAULT_DBC, RawCanCodec
 from rig.protocols.serial_frames import unwrap_seq
 from rig.transports.base import FeedbackSample, Setpoint, Transport, check_trace_path
+from rig.transports import serial_link
 from rig.transports.serial_link import DEFAULT_LEAD_S
 
 __all__ = ["RawCanTransport"]
@@ -169,6 +170,7 @@ class RawCanTransport(Transport):
             self._trace = can.Logger(self.trace_path)
 
     def _prepare(self) -> float:
+        self._request = serial_link.REQUEST_ORIGINS.randrange(0xFFFF)  # as serial (its spec, section 6)
         position = self.drive.rad_from_counts(self._request_reply("RIG_STATUS_REQUEST")["actual_counts"])
         self._negotiate()
         self.load = self._cycle_load(self.version)  # the frames this device really sends

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import collections
 import math
+import random
 import select
 
 from rig.protocols import cia402
@@ -49,6 +50,10 @@ _ANSWER_TO = {MessageType.CONTROL: MessageType.STATUS, MessageType.STATUS_REQUES
               MessageType.ERROR_REQUEST: MessageType.ERROR, MessageType.HELLO: MessageType.DEVICE_INFO,
               MessageType.START: MessageType.STATUS}
 PROTOCOLS = ("auto", "v1", "v2")
+REQUEST_ORIGINS = random.SystemRandom()
+"""Where each session's request numbers start (spec section 6, across host sessions): the device may still
+remember the last request number an earlier host's CONTROL had it apply, so a host counting from 1 again would
+find its first CONTROL taken for a repeat; from a random origin that happens once in 65535 sessions."""
 HELLO_ATTEMPTS = 2
 """HELLO is sent at most this often (once more after a lost answer): a device that answered the STATUS_REQUEST
 before it but not two HELLOs is a v1 device, which drops unknown message types."""
@@ -159,6 +164,7 @@ class SerialTransport(Transport):
         self._serial.reset_input_buffer()
 
     def _prepare(self) -> float:
+        self._request = REQUEST_ORIGINS.randrange(0xFFFF)  # the next request number is 1 more (spec section 6)
         status = self._request_reply(MessageType.STATUS_REQUEST)
         self._negotiate()
         return self.drive.rad_from_counts(status.fields[1])

@@ -366,3 +366,21 @@ def test_a_faulted_tick_that_comes_in_a_later_read_than_its_fault_frame_is_filed
     assert flags[100] & SampleFlag.FAULT and not flags[100] & SampleFlag.LOST
     assert sink.rows[100][3] == device.ticks[100].encoder_counts
     assert not np.any(flags[:100] & (SampleFlag.FAULT | SampleFlag.LOST))
+
+
+def test_a_device_that_remembers_an_earlier_hosts_last_request_number_is_still_brought_up(rig, monkeypatch):
+    """Section 6: the device remembers the number of the last CONTROL it applied, also across host sessions (it
+    cannot tell them apart). An earlier host whose session ended after its first CONTROL left 4 there (STATUS_REQUEST
+    1, HELLO 2, STATUS_REQUEST 3, CONTROL 4): a host counting from 1 again would have its first CONTROL taken for a
+    repeat and never applied. Each session's numbers start at a random origin (seeded here)."""
+    import random
+
+    from rig.transports import serial_link
+
+    monkeypatch.setattr(serial_link, "REQUEST_ORIGINS", random.Random(11))
+    line, transport, device, clock = rig()
+    device.last_applied_request = 4
+    transport.timing = BringUpTiming(poll_interval_s=0.0, enable_timeout_s=0.5)
+    summary, sink, _ = _run(line, transport, clock, _command(50))
+    assert summary.samples == 50 and summary.lost == 0
+    assert device.controlwords[:3] == [0x0006, 0x0007, 0x000F]
