@@ -6,13 +6,14 @@ every answer is attributed to its sample exactly. Bring-up walks the CiA 402 sta
 RIG_CONTROL frames (each answered by RIG_STATUS); RIG_FAULT from the device stops the run.
 The receive side runs in the caller's thread (``bus.recv``): no background threads.
 
-Protocols v3 and v2 (the DBC's comments on RIG_HELLO, RIG_START, RIG_DEVICE_INFO, RIG_DRIVE_TICK,
-RIG_TICK_APPLIED; the serial spec's section 16, which they mirror): the device owns the sample clock.
-:meth:`_prepare` sends RIG_HELLO with the highest version the DBC has the frames for (3); a device answering
-RIG_DEVICE_INFO with version 3 or 2 buffers RIG_SETPOINTs by tick number, ticks from RIG_START on at its own
+Protocols v4, v3 and v2 (the DBC's comments on RIG_HELLO, RIG_START, RIG_DEVICE_INFO, RIG_DEVICE_INFO_V4,
+RIG_DRIVE_TICK, RIG_TICK_APPLIED; the serial spec's section 16, which they mirror): the device owns the sample
+clock. :meth:`_prepare` sends RIG_HELLO with the highest version the DBC has the frames for (4); a device
+answering RIG_DEVICE_INFO_V4 (v4: v3 with a two-byte buffer capacity, so the lead is not capped at 255 ticks)
+or RIG_DEVICE_INFO with version 3 or 2 buffers RIG_SETPOINTs by tick number, ticks from RIG_START on at its own
 period, and reports each tick k: in v3 with RIG_FEEDBACK and RIG_DRIVE_TICK (the drive position, the buffer
 level and ``applied_age``, from which the host takes the target in force out of the setpoints it sent: 2
-frames a tick, 394 bit with the setpoint, so 1 Mbit/s carries 2538 Hz), in v2 with RIG_FEEDBACK,
+frames a tick, 394 bit with the setpoint, so 1 Mbit/s carries 2538 Hz; v4 alike), in v2 with RIG_FEEDBACK,
 RIG_DRIVE_FEEDBACK and RIG_TICK_APPLIED (512 bit: 1953 Hz; a v2 device is refused above the rate its bus
 carries). A device that does not answer (a v1 device), or a DBC without the v2/v3 frames, is driven
 host-paced, the v1 way, unless ``protocol = "v2"``.
@@ -39,9 +40,11 @@ __all__ = ["RawCanTransport"]
 
 _PROTOCOLS = ("auto", "v1", "v2")
 _CLOCKED_MESSAGES = ("RIG_HELLO", "RIG_START", "RIG_DEVICE_INFO")  # the handshake of v2 and v3
-_TICK_FRAMES = {1: ("RIG_FEEDBACK", "RIG_DRIVE_FEEDBACK"),  # per sample (v1) or per tick (v2, v3), by version
+_TICK_FRAMES = {1: ("RIG_FEEDBACK", "RIG_DRIVE_FEEDBACK"),  # per sample (v1) or per tick (v2, v3, v4), by version
                 2: ("RIG_FEEDBACK", "RIG_DRIVE_FEEDBACK", "RIG_TICK_APPLIED"),
-                3: ("RIG_FEEDBACK", "RIG_DRIVE_TICK")}
+                3: ("RIG_FEEDBACK", "RIG_DRIVE_TICK"),
+                4: ("RIG_FEEDBACK", "RIG_DRIVE_TICK")}
+_V4_INFO = "RIG_DEVICE_INFO_V4"  # v4's answer to RIG_HELLO: v3 with a two-byte buffer capacity
 _AGE_UNKNOWN = 255  # RIG_DRIVE_TICK applied_age: the target of tick k-1 (DBC comment on RIG_DRIVE_TICK)
 _FAULT_STATES = (cia402.DriveState.FAULT, cia402.DriveState.FAULT_REACTION_ACTIVE)
 
@@ -68,12 +71,12 @@ class RawCanTransport(Transport):
         Write every frame sent and received to this file with python-can's writers (``.blf``, ``.asc``,
         ``.log``, ``.csv``, ``.trc``; not ``.db``).
     protocol
-        ``"auto"`` (default): v3 or v2 (the device's clock) if the device answers RIG_HELLO, else v1 (host-paced,
-        with a warning); ``"v2"``: refuse a device that does not own the clock (v2 or v3 is accepted);
+        ``"auto"`` (default): v4, v3 or v2 (the device's clock) if the device answers RIG_HELLO, else v1 (host-paced,
+        with a warning); ``"v2"``: refuse a device that does not own the clock (v2, v3 or v4 is accepted);
         ``"v1"``: send no RIG_HELLO.
     lead_s
-        v2/v3: how far ahead of the device's ticks setpoints are queued, at most its buffer (RIG_DEVICE_INFO: at
-        most 255 setpoints, 127.5 ms at 2 kHz). Default: serial's :data:`~rig.transports.serial_link.DEFAULT_LEAD_S`
+        v2-v4: how far ahead of the device's ticks setpoints are queued, at most its buffer (RIG_DEVICE_INFO: at
+        most 255 setpoints, 127.5 ms at 2 kHz; RIG_DEVICE_INFO_V4: at most 65535). Default: serial's :data:`~rig.transports.serial_link.DEFAULT_LEAD_S`
         (250 ms; why: see there), the protocol this one mirrors.
     """
 
@@ -99,8 +102,9 @@ class RawCanTransport(Transport):
         lengths = self.codec.lengths
         handshake = protocol != "v1" and all(name in lengths for name in _CLOCKED_MESSAGES)
         # the highest version the DBC has the frames of: what RIG_HELLO asks for
-        self.max_version = max([1] + [version for version in (2, 3) if handshake
-                                      and all(name in lengths for name in _TICK_FRAMES[version])])
+        self.max_version = max([1] + [version for version in (2, 3, 4) if handshake
+                                      and all(name in lengths for name in _TICK_FRAMES[version])
+                                      and (version < 4 or _V4_INFO in lengths)])
         self.speaks_v2 = self.max_version >= 2
         self.load = self._cycle_load(self.max_version)
         if self.load.load > 1.0:
@@ -197,7 +201,7 @@ class RawCanTransport(Transport):
         if version < 2:
             if self.protocol == "v2":
                 raise TransportError(f"{self.name}: the device answers RIG_HELLO with version {version}; "
-                                     "protocol = \"v2\" needs 2 or 3")
+                                     "protocol = \"v2\" needs 2 or later")
             return
         load = self._cycle_load(version)
         if load.load > 1.0:
@@ -205,7 +209,7 @@ class RawCanTransport(Transport):
                 f"{1 / self.sample_period_s:g} Hz, but the device speaks raw-CAN protocol v{version} "
                 f"({len(_TICK_FRAMES[version])} frames a tick, {load.bits_per_cycle} bit a cycle with the setpoint): "
                 f"{self.bitrate} bit/s carries at most {load.max_rate_hz:.0f} Hz; lower sample_rate_hz to that, or "
-                f"update the device to protocol v{self.max_version} (configs/raw_can.dbc, RIG_DRIVE_TICK)"))
+                "update the device to protocol v3 or later (configs/raw_can.dbc, RIG_DRIVE_TICK)"))
         if not math.isclose(period_ns * 1e-9, self.sample_period_s, rel_tol=1e-6, abs_tol=1e-9):
             raise ConfigError("<transport>", "sample_rate_hz", (
                 f"{1 / self.sample_period_s:g} Hz, but the device ticks every {period_ns} ns (RIG_DEVICE_INFO): set "
@@ -334,6 +338,8 @@ class RawCanTransport(Transport):
             self._status[signals["seq"]] = signals
         elif name == "RIG_DEVICE_INFO":
             self._info[signals["seq"]] = signals
+        elif name == _V4_INFO:  # the version is the frame's
+            self._info[signals["seq"]] = {**signals, "version": 4}
         elif name == "RIG_FAULT":
             fault = DeviceFault(self.name, signals["error_code"], "the device reported a fault")
             if self._started:  # sent before the frames of the tick it happened in: that tick is filed first

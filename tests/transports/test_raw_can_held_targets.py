@@ -9,6 +9,7 @@ from __future__ import annotations
 import struct
 
 import numpy as np
+import pytest
 
 from identify.experiment_record import SampleFlag
 from rig.protocols.cia402 import BringUpTiming, DriveScaling
@@ -71,7 +72,7 @@ def _rig(*, period_s=PERIOD_S, lead_s=0.05, reply_timeout_s=0.3, device_options=
     clock = SimulatedClock(500.0)
     bus: ScriptedBus | None = None
     device = SpecRawCanDevice(clock=clock, output=lambda arbitration_id, data: bus.device_sends(arbitration_id, data),
-                              sample_period_ns=round(period_s * 1e9), buffer_capacity=255, **(device_options or {}))
+                              sample_period_ns=round(period_s * 1e9), **{"buffer_capacity": 255, **(device_options or {})})
     transport = RawCanTransport("virtual", "clocked", encoder=EncoderResolution(bits=16), sample_period_s=period_s,
                                 drive=DRIVE, timing=BringUpTiming(poll_interval_s=0.0),
                                 reply_timeout_s=reply_timeout_s, lead_s=lead_s, name="clocked", clock=clock)
@@ -169,3 +170,18 @@ def test_statusword_bit_12_clear_is_not_followed_on_raw_can_as_on_serial():
     summary, sink = _run(bus, transport, clock, 100)
     assert summary.samples == 100 and summary.not_followed == 100
     assert all(row[4] & SampleFlag.NOT_FOLLOWED for row in sink.rows)
+
+
+@pytest.mark.parametrize(("version", "capacity", "lead", "held"), [(4, 600, 500, 0), (3, 255, 255, 146)])
+def test_at_2_khz_a_v4_device_holds_the_whole_250_ms_lead_and_a_v3_device_caps_it_at_255(version, capacity, lead,
+                                                                                         held):
+    """RIG_DEVICE_INFO's one-byte capacity caps the lead at 255 ticks, 127.5 ms at 2 kHz; a v4 device says its
+    capacity in two bytes (RIG_DEVICE_INFO_V4), so the default 250 ms lead (500 setpoints) fits and a 200 ms
+    host stall costs nothing. A v3 device is still driven, with the lead it can hold: the same stall holds
+    the 146 ticks it outlasts."""
+    bus, transport, device, clock = _rig(period_s=0.0005, lead_s=0.25, device_options={
+        "protocol_version": version, "buffer_capacity": capacity, "watchdog_ticking_s": 5.0})
+    summary, sink = _run(bus, transport, clock, 1500, stall_at=600, stall_s=0.2, feedback_timeout_s=1.0)
+    assert transport.version == version and transport.lead_samples == lead
+    assert summary.samples == 1500 and summary.lost == 0 and summary.held == held
+    _rows_agree_with_the_device(sink, device, range(1500))
