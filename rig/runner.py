@@ -47,7 +47,8 @@ from rig.protocols.errors import DeviceFault, TransportError
 from rig.sample_ledger import SampleLedger
 from rig.transports.base import CommandRefused, Setpoint, Transport
 
-__all__ = ["RunSummary", "SampleSink", "run_experiment", "send_lateness_quantiles", "wait_until"]
+__all__ = ["RunSummary", "SampleSink", "answer_window_cycles", "run_experiment", "send_lateness_quantiles",
+           "wait_until"]
 
 
 _FAULT_STATES = (DriveState.FAULT, DriveState.FAULT_REACTION_ACTIVE)
@@ -55,7 +56,12 @@ WATCHDOG_GRACE = 0.5
 """How long, as a share of ``feedback_timeout_s``, the host goes on listening once the silence exceeds it
 (:class:`FeedbackWatchdog`)."""
 PENDING_CYCLES = 4
-"""Feedback is still filed under its sample this many cycles after the sample was sent."""
+"""Feedback is still filed under its sample this many cycles after the sample was sent (at least; host-paced:
+see :func:`answer_window_cycles`)."""
+LATE_ANSWER_WINDOW_S = 0.02
+"""Host-paced links file an answer (LATE) at least this long after its setpoint: on the 2-core test machine
+with both cores busy, a v1 device's FEEDBACK reached the host 4-5 ms after its SETPOINT at 1 kHz (the device's
+process descheduled), which a window of 4 periods wrote off as LOST although the device had sent it."""
 CATCH_UP_SPACING = 0.5
 """Behind schedule, consecutive setpoints are still sent at least this many periods apart."""
 WAKE_MARGIN_S = 300e-6
@@ -92,6 +98,13 @@ class FeedbackWatchdog:
     def message(self, transport_name: str, now: float) -> str:
         return (f"{transport_name}: no feedback for {now - self.last_feedback:.3g} s (watchdog "
                 f"{self.timeout_s:g} s)")
+
+
+def answer_window_cycles(sample_period_s: float, pending_cycles: int = PENDING_CYCLES) -> int:
+    """Host-paced links: how many cycles after its setpoint an answer is still filed under its sample,
+    ``max(pending_cycles, ceil(LATE_ANSWER_WINDOW_S / T))`` (4 periods at 200 Hz, 20 at 1 kHz;
+    ``docs/serial_protocol.md`` section 8)."""
+    return max(int(pending_cycles), math.ceil(LATE_ANSWER_WINDOW_S / sample_period_s - 1e-9))
 
 
 def wait_until(deadline: float, clock: Callable[[], float] = time.perf_counter) -> None:
@@ -345,7 +358,8 @@ def run_experiment(transport: Transport, command_rad: ArrayLike, sink: SampleSin
         A cycle starting later than this after its deadline is LATE (default: half a period).
     pending_cycles
         Feedback is still filed under its sample (flagged LATE) up to this many cycles after the sample
-        was sent; later, the sample is LOST. A simulated rig, whose devices share the driver's process and
+        was sent (host-paced: at least :data:`LATE_ANSWER_WINDOW_S`, :func:`answer_window_cycles`); later,
+        the sample is LOST. A simulated rig, whose devices share the driver's process and
         only stall with it, can afford a long window.
     progress
         Called as ``progress(samples_done, late_so_far)`` after each sample.
@@ -376,6 +390,7 @@ def run_experiment(transport: Transport, command_rad: ArrayLike, sink: SampleSin
                                    pending_cycles=pending_cycles, progress=progress, clock=clock)
     period = transport.sample_period_s
     tolerance = 0.5 * period if late_tolerance_s is None else float(late_tolerance_s)
+    pending_cycles = answer_window_cycles(period, pending_cycles)
     ledger = SampleLedger(period, pending_cycles)
     values = command.tolist()
     lateness = np.zeros(command.size)

@@ -136,3 +136,72 @@ def test_a_device_far_ahead_gets_at_most_half_the_lead_of_setpoints_a_turn():
     assert summary.samples == 600 and summary.lost == 0 and sorted(link.sent) == list(range(600))
     assert link.most_sends_between_receives <= 20
     assert [row[1] for row in sink.rows] == link.applied[:600]
+
+
+class AutoClock:
+    """A host clock that moves 20 us every time it is read (the host's own computing), and jumps when the host
+    waits on the link (:class:`SlowAnswerV1Link`)."""
+
+    def __init__(self, start_s: float = 50.0) -> None:
+        self.now_s = start_s
+
+    def __call__(self) -> float:
+        self.now_s += 20e-6
+        return self.now_s
+
+
+class SlowAnswerV1Link(Transport):
+    """A protocol v1 (host-paced) device that answers each SETPOINT 0.2 ms after it arrives, except the
+    setpoints in ``late``, whose FEEDBACK reaches the host ``late[seq]`` seconds after it (a device process
+    descheduled on a loaded host)."""
+
+    def __init__(self, clock: AutoClock, late: dict[int, float]) -> None:
+        super().__init__(encoder=EncoderResolution(bits=16), sample_period_s=PERIOD_S, name="v1", clock=clock,
+                         timing=BringUpTiming(poll_interval_s=0.0))
+        self.host_clock, self.late = clock, late
+        self._statusword = cia402.statusword_for(DriveState.SWITCH_ON_DISABLED)
+        self._answers: list[tuple[float, int]] = []  # (arrival at the host, seq)
+
+    def _connect(self) -> None:
+        pass
+
+    def _prepare(self) -> float:
+        return 0.0
+
+    def _write_controlword(self, controlword: int) -> None:
+        state = cia402.next_state(cia402.state_from_statusword(self._statusword), controlword, 0)
+        self._statusword = cia402.statusword_for(state) | (cia402.STATUSWORD_FOLLOWS_TARGET
+                                                           if state is DriveState.OPERATION_ENABLED else 0)
+
+    def _read_statusword(self) -> int:
+        return self._statusword
+
+    def _send(self, setpoint: Setpoint) -> None:
+        self._answers.append((self.host_clock.now_s + self.late.get(setpoint.seq, 2e-4), setpoint.seq))
+        self._answers.sort()
+
+    def _recv_internal(self, timeout_s: float) -> FeedbackSample | None:
+        end = self.host_clock.now_s + timeout_s
+        if not self._answers or self._answers[0][0] > end:
+            self.host_clock.now_s = max(self.host_clock.now_s, end)  # waited out the timeout
+            return None
+        arrival, seq = self._answers.pop(0)
+        self.host_clock.now_s = max(self.host_clock.now_s, arrival)
+        return FeedbackSample(seq=seq, encoder_counts=seq, load_angle_rad=0.0, drive_position_rad=0.0,
+                              statusword=self._statusword, host_time_s=self.host_clock.now_s)
+
+    def _close(self) -> None:
+        pass
+
+
+def test_a_v1_answer_that_comes_10_ms_late_at_1_khz_is_filed_late_not_lost():
+    """Host-paced (v1) at 1 kHz on a loaded 2-core host: the device's FEEDBACK for sample 50 reaches the host
+    10 ms (10 periods) after its SETPOINT. It is the device's answer to that setpoint (its seq says so): filed
+    LATE, not written off LOST while the host still listens (spec section 8: 20 ms, at least 4 periods)."""
+    clock = AutoClock()
+    link = SlowAnswerV1Link(clock, late={50: 0.010})
+    sink = ListSink()
+    summary = run_experiment(link, np.zeros(120), sink, feedback_timeout_s=0.1, clock=clock)
+    flags = [row[4] for row in sink.rows]
+    assert summary.samples == 120 and summary.lost == summary.stale == 0
+    assert flags[50] == SampleFlag.LATE and sink.rows[50][3] == 50
