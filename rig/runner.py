@@ -556,10 +556,11 @@ def _run_device_clocked(transport: Transport, command: NDArray[np.float64], sink
         # this behind, and neither side floods the link (a burst of frames overruns a CAN adapter's receive queue)
         watchdog.fed(clock())
         while ledger.written < total:
-            # turn 1: queue the setpoints due (as far as ``lead`` ahead of the last instant the device passed),
-            # at most ``batch`` of them once the device runs (the whole lead before its first answer)
+            # turn 1: queue the setpoints due (as far as ``lead`` ahead of the last instant the device passed):
+            # those of instants already passed (HELD; they keep the limits' chain and their rows) and, once the
+            # device runs, at most ``batch`` ahead of it (the whole lead before its first answer)
             device = transport.device_sample
-            last_to_queue = min(device + lead, next_seq - 1 + (batch if filed_to >= 0 else lead))
+            last_to_queue = min(device + lead, max(next_seq - 1, device) + (batch if filed_to >= 0 else lead))
             while next_seq < total and next_seq <= last_to_queue:
                 sent = transport.send(Setpoint(next_seq, values[next_seq]))
                 if next_seq == next_row:

@@ -33,7 +33,7 @@ class FloodingLink(Transport):
     watchdog would have stopped the drive)."""
 
     def __init__(self, *, lead: int, read_cost_s: float, total: int, starved_after: int = 400,
-                 hears_every_tick_at_once: bool = False) -> None:
+                 hears_every_tick_at_once: bool = False, stall_at: int | None = None, stall_s: float = 0.0) -> None:
         self.link_clock = SimulatedClock(100.0)
         super().__init__(encoder=EncoderResolution(bits=16), sample_period_s=PERIOD_S, name="flood",
                          clock=self.link_clock, timing=BringUpTiming(poll_interval_s=0.0))
@@ -49,6 +49,7 @@ class FloodingLink(Transport):
         self.hears_every_tick_at_once = hears_every_tick_at_once
         self.sends_since_receive = self.most_sends_between_receives = 0
         self._next_unread = 0
+        self.stall_at, self.stall_s = stall_at, stall_s
 
     @property
     def lead_samples(self) -> int:
@@ -71,7 +72,7 @@ class FloodingLink(Transport):
     def _send(self, setpoint: Setpoint) -> None:
         self.sent[setpoint.seq] = (self.link_clock(), setpoint.position_rad)
         self.receives_without_send = 0
-        if self._tick0_s is not None:  # once the device runs
+        if self._tick0_s is not None and setpoint.seq > self._device_sample:  # ahead of the device, once it runs
             self.sends_since_receive += 1
             self.most_sends_between_receives = max(self.most_sends_between_receives, self.sends_since_receive)
 
@@ -86,10 +87,16 @@ class FloodingLink(Transport):
         if self._tick0_s is None:
             self._tick0_s = self.link_clock()
         self.link_clock.advance_to(self.link_clock() + self.read_cost_s)
-        k = self._next_unread  # the oldest tick not read yet; its instant has passed (the host is behind)
-        self._next_unread += 1
+        k = self._next_unread  # the oldest tick not read yet
         instant = self._tick0_s + k * PERIOD_S
-        assert instant <= self.link_clock()
+        if instant > self.link_clock():  # not there yet: the host waits for it, at most timeout_s
+            if instant > self.link_clock() + timeout_s:
+                self.link_clock.advance_to(self.link_clock() + timeout_s)
+                return None
+            self.link_clock.advance_to(instant)
+        if k == self.stall_at:  # the host stalls right after reading this tick
+            self.link_clock.advance_to(self.link_clock() + self.stall_s)
+        self._next_unread += 1
         sent = self.sent.get(k)
         held = sent is None or sent[0] > instant
         if not held:
@@ -126,9 +133,9 @@ def test_setpoints_are_queued_every_turn_while_ticks_never_stop_arriving(lead):
 
 def test_a_device_far_ahead_gets_at_most_half_the_lead_of_setpoints_a_turn():
     """The link hears of every tick that has arrived at once (the device's position jumps by hundreds while the
-    host has filed only the oldest): setpoints still go out at most half the lead a turn (the whole lead only
-    before the device runs), so that the link carries no burst of hundreds of frames (which overruns a CAN
-    adapter's receive queue), and every row is still the tick the device reported."""
+    host has filed only the oldest): setpoints ahead of the device still go out at most half the lead a turn
+    (the whole lead only before the device runs), so that the link carries no burst of hundreds of them
+    (which overruns a CAN adapter's receive queue), and every row is still the tick the device reported."""
     link = FloodingLink(lead=40, read_cost_s=1.5e-3, total=600, hears_every_tick_at_once=True)
     sink = ListSink()
     summary = run_experiment(link, 0.01 * np.sin(np.arange(600) / 20), sink, feedback_timeout_s=0.05,
@@ -205,3 +212,19 @@ def test_a_v1_answer_that_comes_10_ms_late_at_1_khz_is_filed_late_not_lost():
     flags = [row[4] for row in sink.rows]
     assert summary.samples == 120 and summary.lost == summary.stale == 0
     assert flags[50] == SampleFlag.LATE and sink.rows[50][3] == 50
+
+
+def test_a_host_behind_a_one_setpoint_buffer_catches_up_in_one_turn():
+    """Lead 1 (a device buffering one setpoint), a link that hears of every tick that has arrived at once, and
+    a host stall of 20 ms after tick 100: the setpoints of the instants that passed meanwhile (HELD either
+    way) go out in one turn, and the next one is again ahead of the device, so the stall costs the ticks it
+    outlasted and no more (at one setpoint a turn the host would stay behind for tens of turns)."""
+    link = FloodingLink(lead=1, read_cost_s=0.4e-3, total=400, hears_every_tick_at_once=True, stall_at=100,
+                        stall_s=0.02)
+    sink = ListSink()
+    summary = run_experiment(link, 0.01 * np.sin(np.arange(400) / 20), sink, feedback_timeout_s=0.05,
+                             clock=link.link_clock)
+    held = np.flatnonzero(np.array([row[4] for row in sink.rows]) & SampleFlag.HELD)
+    assert summary.samples == 400 and summary.lost == 0
+    assert held.tolist() == list(range(101, 101 + held.size)) and held.size <= 21
+    assert [row[1] for row in sink.rows] == link.applied[:400]
