@@ -137,6 +137,7 @@ class RawCanTransport(Transport):
         self._fault_sample: int | None = None
         self._pending_fault: DeviceFault | None = None  # v2: RIG_FAULT, until the faulted tick's frames are in
         self._pending_fault_s = math.inf  # when that RIG_FAULT arrived
+        self._fault_after: tuple[int, DeviceFault] | None = None  # a faulted statusword's tick, and its fault
         self._info: dict[int, dict[str, int]] = {}
         # samples completed while the host waited for an answer (RIG_START's may take 100 ms: the device
         # ticks meanwhile), handed out by the next receives in order
@@ -251,18 +252,28 @@ class RawCanTransport(Transport):
                 self._ready.append(self._tick_sample(seq, parts, received))
         if self._ready:
             self._read_waiting_frames()
-            return self._ready.popleft()
+            return self._hand_out(self._ready.popleft())
+        if self._fault_after is not None:  # its tick's sample is no longer waiting
+            self._report_fault(self._fault_after[1])
+            return None
         deadline = self.clock() + timeout_s
         while True:
             sample = self._receive_one(max(deadline - self.clock(), 0.0))
             if isinstance(sample, FeedbackSample):
-                return sample
+                return self._hand_out(sample)
             if self._pending_fault is not None and self.clock() >= self._pending_fault_s + self._fault_grace_s:
                 self._report_fault(self._pending_fault)  # the faulted tick's frames did not follow
             if sample is None and self.clock() >= deadline:
                 return None
             if self._fault is not None:
                 return None
+
+    def _hand_out(self, sample: FeedbackSample) -> FeedbackSample:
+        """``sample`` to the caller; once the faulted tick's sample is out, its fault is raised by the next
+        receive (the samples before it, also those that waited in ``_ready``, are all filed first)."""
+        if self._fault_after is not None and sample.seq >= self._fault_after[0]:
+            self._report_fault(self._fault_after[1])
+        return sample
 
     def _read_waiting_frames(self, limit: int = 64) -> None:
         """While samples wait to be handed out (those that came during an answer's wait), read the frames that
@@ -429,13 +440,15 @@ class RawCanTransport(Transport):
         """A statusword says FAULT: the run stops at this sample even if RIG_FAULT was lost on the bus (the
         serial spec's section 9, which the DBC follows). Raw CAN has no request for the error code."""
         if self._pending_fault is not None:  # the faulted tick after its RIG_FAULT: the code is known
-            self._report_fault(self._pending_fault)
-            return
-        if self._fault is None and self._fault_sample is None:
-            self._fault_sample = seq
-        self._report_fault(DeviceFault(self.name, None, (
-            f"the drive reports FAULT in its statusword 0x{statusword:04X} at sample {seq} (no RIG_FAULT frame "
-            "came with the error code: lost on the bus?)")))
+            fault = self._pending_fault
+        else:
+            if self._fault is None and self._fault_sample is None:
+                self._fault_sample = seq
+            fault = DeviceFault(self.name, None, (
+                f"the drive reports FAULT in its statusword 0x{statusword:04X} at sample {seq} (no RIG_FAULT frame "
+                "came with the error code: lost on the bus?)"))
+        if self._fault_after is None:  # raised once this tick's sample is handed out (it may wait in _ready)
+            self._fault_after = (seq, fault)
 
     def _target_in_force(self, k: int, age: int) -> int | None:
         """v3: the target counts in force at tick k from RIG_DRIVE_TICK's ``applied_age`` (DBC comment): the

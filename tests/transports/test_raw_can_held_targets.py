@@ -49,15 +49,20 @@ class ScriptedBus(ClockedBus):
                 return
             if self.answer_start_after_s:  # the device ticks meanwhile; its answer comes after those ticks
                 self._held_answer = (self.clock() + self.answer_start_after_s, arbitration_id, bytes(data))
+                self.answer_start_after_s = 0.0  # once
                 return
         data = self.deliver(arbitration_id, bytes(data))
         if data is not None:
             super().device_sends(arbitration_id, data)
 
     def recv(self, timeout: float | None = None):
-        if self._held_answer is not None and self.clock() >= self._held_answer[0]:
-            super().device_sends(*self._held_answer[1:])
-            self._held_answer = None
+        if self._held_answer is not None:
+            release = self._held_answer[0]
+            if not self._to_host and timeout and self.clock() < release <= self.clock() + timeout:
+                self.stall(release - self.clock())  # nothing else comes before it: the host waits for it
+            if self.clock() >= release:
+                super().device_sends(*self._held_answer[1:])
+                self._held_answer = None
         return super().recv(timeout)
 
     def send(self, message, timeout=None) -> None:
@@ -185,3 +190,20 @@ def test_at_2_khz_a_v4_device_holds_the_whole_250_ms_lead_and_a_v3_device_caps_i
     assert transport.version == version and transport.lead_samples == lead
     assert summary.samples == 1500 and summary.lost == 0 and summary.held == held
     _rows_agree_with_the_device(sink, device, range(1500))
+
+
+def test_a_fault_among_the_ticks_that_came_before_the_start_answer_stops_the_run_after_filing_them():
+    """The drive faults at tick 5, while the host still waits for RIG_START's answer (90 ms, legal): the ticks
+    before it and the faulted one are samples like any (the faulted one flagged FAULT); the run stops after
+    them, naming the code."""
+    from rig.protocols.errors import DeviceFault
+
+    bus, transport, device, clock = _rig(answer_start_after_s=0.09,
+                                         device_options={"fault_at_sample": 5, "fault_code": 0x2310})
+    sink = ListSink()
+    with pytest.raises(DeviceFault, match=r"0x2310"):
+        run_experiment(transport, np.zeros(200), sink, feedback_timeout_s=0.5, clock=clock)
+    flags = [row[4] for row in sink.rows]
+    assert len(flags) == 6 and flags[5] & SampleFlag.FAULT
+    assert not any(flag & (SampleFlag.LOST | SampleFlag.FAULT) for flag in flags[:5])
+    assert [row[3] for row in sink.rows[:5]] == [device.ticks[k].encoder_counts for k in range(5)]
