@@ -33,7 +33,8 @@ class FloodingLink(Transport):
     watchdog would have stopped the drive)."""
 
     def __init__(self, *, lead: int, read_cost_s: float, total: int, starved_after: int = 400,
-                 hears_every_tick_at_once: bool = False, stall_at: int | None = None, stall_s: float = 0.0) -> None:
+                 hears_every_tick_at_once: bool = False, stall_at: int | None = None, stall_s: float = 0.0,
+                 stamps_arrival: bool = False) -> None:
         self.link_clock = SimulatedClock(100.0)
         super().__init__(encoder=EncoderResolution(bits=16), sample_period_s=PERIOD_S, name="flood",
                          clock=self.link_clock, timing=BringUpTiming(poll_interval_s=0.0))
@@ -50,6 +51,7 @@ class FloodingLink(Transport):
         self.sends_since_receive = self.most_sends_between_receives = 0
         self._next_unread = 0
         self.stall_at, self.stall_s = stall_at, stall_s
+        self.stamps_arrival = stamps_arrival  # host_time_s: when the tick reached the host, not when it was read
 
     @property
     def lead_samples(self) -> int:
@@ -106,7 +108,9 @@ class FloodingLink(Transport):
             self._device_sample = math.floor((self.link_clock() - self._tick0_s) / PERIOD_S + 1e-9)
         self.applied.append(self._in_force)
         return FeedbackSample(seq=k, encoder_counts=k, load_angle_rad=0.0, drive_position_rad=self._in_force,
-                              statusword=self._statusword, host_time_s=self.link_clock(), held=held,
+                              statusword=self._statusword, held=held,
+                              host_time_s=max(instant, self.link_clock() - 1.0) if self.stamps_arrival
+                              else self.link_clock(),
                               applied_position_rad=self._in_force)
 
     def _close(self) -> None:
@@ -228,3 +232,15 @@ def test_a_host_behind_a_one_setpoint_buffer_catches_up_in_one_turn():
     assert summary.samples == 400 and summary.lost == 0
     assert held.tolist() == list(range(101, 101 + held.size)) and held.size <= 21
     assert [row[1] for row in sink.rows] == link.applied[:400]
+
+
+def test_a_backlog_of_ticks_received_long_ago_does_not_trip_the_watchdog_while_more_keep_coming():
+    """Each tick is stamped with when it reached the host, and the host files them ever later (1.5 ms a tick
+    against the device's 1 ms): the oldest waiting tick is soon more than the watchdog's 50 ms (and its grace)
+    old, yet the device is not silent, there is always more to read. Every tick filed feeds the watchdog, so
+    it trips only after the host has listened through a silence (its grace) in which nothing was filed."""
+    link = FloodingLink(lead=16, read_cost_s=1.5e-3, total=600, stamps_arrival=True)
+    sink = ListSink()
+    summary = run_experiment(link, 0.01 * np.sin(np.arange(600) / 20), sink, feedback_timeout_s=0.05,
+                             clock=link.link_clock)
+    assert summary.samples == 600 and summary.lost == 0
