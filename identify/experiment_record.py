@@ -42,7 +42,7 @@ class SampleFlag(IntFlag):
     FAULT = 16  #: the device reported a fault during this sample
     NOT_FOLLOWED = 32  #: the drive said it ignored the target in this sample (CiA 402 CSP statusword bit 12 clear)
     HELD = 64  #: the setpoint missed its sample instant; the device held the previous one (the logged command)
-    AMBIGUOUS = 128  #: which sample instant the reading answers is not certain (two SYNCs closer than one cycle)
+    AMBIGUOUS = 128  #: which sample instant the reading answers, or (HELD) which command was in force, is not certain
 
     @classmethod
     def unusable(cls) -> SampleFlag:

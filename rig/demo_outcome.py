@@ -114,7 +114,7 @@ class DemoRun:
     """One experiment streamed over the wire.
 
     ``late``, ``held`` and ``min_lead_s`` are those of :class:`rig.runner.RunSummary`: ``late`` counts the
-    samples flagged HELD or LATE. On a device-clocked link a LATE sample is one whose instant was off the
+    samples flagged LATE, ``held`` those flagged HELD. On a device-clocked link a LATE sample is one whose instant was off the
     period by more than the late tolerance (over CANopen: the spacing of the SYNCs on the bus, which on the
     simulated rig come from a host thread and jitter with the machine's load); its value is exact, its time
     k T is not. ``lead_s`` is how far ahead of the device's sample instants the setpoints were queued (0:
@@ -239,7 +239,7 @@ def format_summary(outcome: DemoOutcome) -> str:
     held = sum(run.held for run in runs.values())
     lines.append("")
     lines.append(f"{len(runs)} experiments over {outcome.transport}: {samples} samples, {lost} lost, {held} held, "
-                 f"{late} late (held, or sampled at an instant off the period: values exact, time column nominal); "
+                 f"{late} late (sampled at an instant off the period: values exact, time column nominal); "
                  f"noise bound {outcome.noise_bound_rad:.3g} rad")
     lines.append(f"staircase filter pole a = {outcome.filter_pole:.4g}: {outcome.filter_pole_reason}")
     if outcome.retries:

@@ -4,9 +4,10 @@ Two loops, chosen by the link (:attr:`~rig.transports.base.Transport.lead_sample
 by its sample number in one :class:`~rig.sample_ledger.SampleLedger`, which hands rows to the sink in
 order once they can no longer change, and both run the transport's one bring-up and one teardown:
 
-* **Device-clocked** (``lead_samples > 0``, CANopen): the device's clock owns the sample instants. The
-  runner keeps the setpoints ``lead_samples`` ahead of the last instant the device passed and files what
-  the device reports; row k is at k T. A setpoint that missed its instant is HELD (the command logged is
+* **Device-clocked** (``lead_samples > 0``: CANopen, serial v2, raw CAN v2/v3): the device's clock owns the
+  sample instants. The runner keeps the setpoints ``lead_samples`` ahead of the last instant the device
+  passed and files what the device reports, taking turns (at most half the lead's setpoints queued, and
+  answers filed, per turn: a device whose answers never stop coming still gets its setpoints); row k is at k T. A setpoint that missed its instant is HELD (the command logged is
   the one the drive applied), an instant off the period is LATE (:func:`_run_device_clocked`).
 * **Host-paced** (serial and raw CAN, protocol v1): absolute deadlines ``t_k = t_0 + k T`` (no drift: a
   late cycle does not shift the ones after it). Per cycle k the runner waits for ``t_k``
@@ -46,7 +47,8 @@ from rig.protocols.errors import DeviceFault, TransportError
 from rig.sample_ledger import SampleLedger
 from rig.transports.base import CommandRefused, Setpoint, Transport
 
-__all__ = ["RunSummary", "SampleSink", "run_experiment", "send_lateness_quantiles", "wait_until"]
+__all__ = ["RunSummary", "SampleSink", "answer_window_cycles", "run_experiment", "send_lateness_quantiles",
+           "wait_until"]
 
 
 _FAULT_STATES = (DriveState.FAULT, DriveState.FAULT_REACTION_ACTIVE)
@@ -54,7 +56,12 @@ WATCHDOG_GRACE = 0.5
 """How long, as a share of ``feedback_timeout_s``, the host goes on listening once the silence exceeds it
 (:class:`FeedbackWatchdog`)."""
 PENDING_CYCLES = 4
-"""Feedback is still filed under its sample this many cycles after the sample was sent."""
+"""Feedback is still filed under its sample this many cycles after the sample was sent (at least; host-paced:
+see :func:`answer_window_cycles`)."""
+LATE_ANSWER_WINDOW_S = 0.02
+"""Host-paced links file an answer (LATE) at least this long after its setpoint: on the 2-core test machine
+with both cores busy, a v1 device's FEEDBACK reached the host 4-5 ms after its SETPOINT at 1 kHz (the device's
+process descheduled), which a window of 4 periods wrote off as LOST although the device had sent it."""
 CATCH_UP_SPACING = 0.5
 """Behind schedule, consecutive setpoints are still sent at least this many periods apart."""
 WAKE_MARGIN_S = 300e-6
@@ -91,6 +98,13 @@ class FeedbackWatchdog:
     def message(self, transport_name: str, now: float) -> str:
         return (f"{transport_name}: no feedback for {now - self.last_feedback:.3g} s (watchdog "
                 f"{self.timeout_s:g} s)")
+
+
+def answer_window_cycles(sample_period_s: float, pending_cycles: int = PENDING_CYCLES) -> int:
+    """Host-paced links: how many cycles after its setpoint an answer is still filed under its sample,
+    ``max(pending_cycles, ceil(LATE_ANSWER_WINDOW_S / T))`` (4 periods at 200 Hz, 20 at 1 kHz;
+    ``docs/serial_protocol.md`` section 8)."""
+    return max(int(pending_cycles), math.ceil(LATE_ANSWER_WINDOW_S / sample_period_s - 1e-9))
 
 
 def wait_until(deadline: float, clock: Callable[[], float] = time.perf_counter) -> None:
@@ -141,7 +155,8 @@ class RunSummary:
     samples
         Samples written (sent setpoints).
     lost, late, duplicate, not_followed
-        Samples with the LOST, LATE, DUPLICATE, NOT_FOLLOWED flag.
+        Samples with the LOST, LATE, DUPLICATE, NOT_FOLLOWED flag (a HELD sample is counted in ``held``, and in
+        ``late`` only when it is flagged LATE too).
     stale
         Feedback frames that arrived after their sample was declared lost (dropped).
     frame_errors
@@ -156,7 +171,7 @@ class RunSummary:
     not_followed
         Samples with the NOT_FOLLOWED flag.
     held
-        Device-clocked links: samples whose setpoint missed its instant (HELD; ``late`` counts them too).
+        Device-clocked links: samples whose setpoint missed its instant (HELD).
     min_lead_s
         Device-clocked links: the smallest lead of a setpoint over its sample instant (nan otherwise).
     stop
@@ -350,7 +365,8 @@ def run_experiment(transport: Transport, command_rad: ArrayLike, sink: SampleSin
         A cycle starting later than this after its deadline is LATE (default: half a period).
     pending_cycles
         Feedback is still filed under its sample (flagged LATE) up to this many cycles after the sample
-        was sent; later, the sample is LOST. A simulated rig, whose devices share the driver's process and
+        was sent (host-paced: at least :data:`LATE_ANSWER_WINDOW_S`, :func:`answer_window_cycles`); later,
+        the sample is LOST. A simulated rig, whose devices share the driver's process and
         only stall with it, can afford a long window.
     progress
         Called as ``progress(samples_done, late_so_far)`` after each sample.
@@ -381,6 +397,7 @@ def run_experiment(transport: Transport, command_rad: ArrayLike, sink: SampleSin
                                    pending_cycles=pending_cycles, progress=progress, clock=clock)
     period = transport.sample_period_s
     tolerance = 0.5 * period if late_tolerance_s is None else float(late_tolerance_s)
+    pending_cycles = answer_window_cycles(period, pending_cycles)
     ledger = SampleLedger(period, pending_cycles)
     values = command.tolist()
     lateness = np.zeros(command.size)
@@ -506,43 +523,77 @@ def _run_device_clocked(transport: Transport, command: NDArray[np.float64], sink
     first_answer = last_answer = math.nan
     failure: BaseException | None = None
 
+    next_seq = next_row = 0  # the next setpoint to queue; the next row (sample instant) to open
+    filed_to = -1  # the highest instant whose answer was filed: rows before it are settled
+    watchdog = FeedbackWatchdog(feedback_timeout_s, clock())
+
+    def take(sample) -> DriveState | None:
+        """File one answer; every instant the device passed has its row, setpoint or not (a drive's buffer
+        that ran dry takes the later records at later instants), and the answer says what was applied."""
+        nonlocal next_row, filed_to, first_answer, last_answer
+        while next_row < total and next_row <= sample.seq:
+            ledger.open_row(next_row, transport.drive.quantize_rad(values[next_row]))
+            next_row += 1
+        state = ledger.file(sample)
+        filed_to = max(filed_to, sample.seq)
+        watchdog.fed(sample.host_time_s)  # when this answer was received, not when the turn began
+        last_answer = sample.host_time_s
+        if math.isnan(first_answer):
+            first_answer = last_answer
+        return state
+
+    def file_what_arrived() -> None:
+        """After a failure (Ctrl-C, SIGTERM, a link error), before the stop: file the answers the transport
+        has already received (a turn files at most a batch), so that no row whose answer came is written
+        LOST. Best effort: a fault or a link error ends it."""
+        for _ in range(total + 2 * pending_cycles):
+            try:
+                sample = transport.receive(0.0)
+            except Exception:  # noqa: BLE001 - the error that ended the run is the one to report
+                return
+            if sample is None:
+                return
+            take(sample)
+
     switch_interval = sys.getswitchinterval()
     sys.setswitchinterval(min(switch_interval, period / 4))  # receive threads need the GIL within a period
     try:
         _check_and_enable(transport, command)
         lead = transport.lead_samples
-        next_seq = next_row = 0  # the next setpoint to queue; the next row (sample instant) to open
-        watchdog = FeedbackWatchdog(feedback_timeout_s, clock())
+        batch = max(1, lead // 2)  # setpoints queued, answers filed per turn: the queue never falls more than
+        # this behind, and neither side floods the link (a burst of frames overruns a CAN adapter's receive queue)
+        watchdog.fed(clock())
         while ledger.written < total:
+            # turn 1: queue the setpoints due (as far as ``lead`` ahead of the last instant the device passed):
+            # those of instants already passed (HELD; they keep the limits' chain and their rows) and, once the
+            # device runs, at most ``batch`` ahead of it (the whole lead before its first answer)
             device = transport.device_sample
-            while next_seq < total and next_seq <= device + lead:
+            last_to_queue = min(device + lead, max(next_seq - 1, device) + (batch if filed_to >= 0 else lead))
+            while next_seq < total and next_seq <= last_to_queue:
                 sent = transport.send(Setpoint(next_seq, values[next_seq]))
                 if next_seq == next_row:
                     ledger.open_row(next_row, sent.position_rad)
                     next_row += 1
                 next_seq += 1
+            # turn 2: file at most ``batch`` answers, then queue again: a device whose answers never stop
+            # coming (a host slower than the device's clock) still gets its setpoints
             sample = transport.receive(period)
-            now = clock()
-            while sample is not None:  # everything that has arrived is filed before any row is final
-                # every instant the device passed has its row, setpoint or not (a drive's buffer that ran
-                # dry takes the later records at later instants); its feedback says what was applied
-                while next_row < total and next_row <= sample.seq:
-                    ledger.open_row(next_row, transport.drive.quantize_rad(values[next_row]))
-                    next_row += 1
-                state = ledger.file(sample)
-                watchdog.fed(now)
-                last_answer = now
-                if math.isnan(first_answer):
-                    first_answer = now
+            filed = 0
+            while sample is not None:
+                state = take(sample)
                 if state is not None and state is not DriveState.OPERATION_ENABLED and state not in _FAULT_STATES:
                     raise DeviceFault(f"{transport.name} drive", None, (
                         f"left OPERATION ENABLED without a fault at sample {sample.seq} (now {state.name}: enable "
                         "input or safe torque off lost?); it no longer follows the targets"))
-                sample = transport.receive(0.0)
+                filed += 1
+                sample = transport.receive(0.0) if filed < batch else None
+            now = clock()
             if watchdog.expired(now):
                 raise TransportError(f"{watchdog.message(transport.name, now)}, stopping at sample "
                                      f"{max(transport.device_sample, 0)}")
-            ledger.write_final(device, sink)  # read before the drain: every answer it makes final has been filed
+            # final: the rows the device has passed whose answers, which come in order, are all filed (an
+            # answer the transport still holds is never written off as LOST)
+            ledger.write_final(min(device, filed_to), sink)
             if progress is not None:
                 progress(ledger.written, ledger.counts["held"])
     except BaseException as err:
@@ -550,6 +601,8 @@ def _run_device_clocked(transport: Transport, command: NDArray[np.float64], sink
         raise
     finally:
         sys.setswitchinterval(switch_interval)
+        if failure is not None and transport.is_open:
+            file_what_arrived()
         stop_at = transport.device_sample  # the last instant the device passed before the stop
         try:
             transport.close()

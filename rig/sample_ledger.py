@@ -8,7 +8,8 @@ measured and which target was really in force. The ledger turns that into log ro
 * a row is opened when its setpoint is queued (``command_rad`` = the setpoint, flags = LOST);
 * :meth:`SampleLedger.file` fills it from the feedback: LOST cleared, HELD and the command actually
   applied when the setpoint missed its instant, LATE when the instant itself was off the period, NOT_FOLLOWED when the drive ignored it, AMBIGUOUS when
-  the instant it answers is uncertain, FAULT in a fault state, DUPLICATE when a second answer comes for
+  the instant it answers is uncertain or, HELD, the command in force is not known (the row keeps a command
+  that was not applied: unusable), FAULT in a fault state, DUPLICATE when a second answer comes for
   the same sample;
 * :meth:`SampleLedger.next_final` / :meth:`SampleLedger.release` hand rows to the log oldest first, once
   their instant lies ``pending_cycles`` instants behind the device (a later answer could still come until
@@ -138,6 +139,8 @@ class SampleLedger:
             row.flags |= _LATE
         if sample.applied_position_rad is not None:
             row.command_rad = sample.applied_position_rad  # the data stay true: the command really applied
+        elif sample.held:  # held, and what was in force is not known: the designed command was not applied
+            row.flags |= _AMBIGUOUS
         if sample.target_ignored:
             row.flags |= _NOT_FOLLOWED
         if sample.ambiguous:
@@ -173,7 +176,7 @@ class SampleLedger:
         self._answered.discard(seq)
         self.counts["lost"] += bool(row.flags & _LOST)
         self.counts["held"] += bool(row.flags & _HELD)
-        self.counts["late"] += bool(row.flags & (_HELD | _LATE))
+        self.counts["late"] += bool(row.flags & _LATE)
         self.counts["not_followed"] += bool(row.flags & _NOT_FOLLOWED)
 
     def write_final(self, newest: int, sink) -> None:

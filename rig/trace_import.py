@@ -12,7 +12,8 @@ Raw CAN (``configs/raw_can.dbc`` or the config's ``dbc``):
 * its reading is the RIG_FEEDBACK + RIG_DRIVE_FEEDBACK (v1, v2) or RIG_DRIVE_TICK (v3) pair with the same
   ``seq``, decoded as the transport
   decodes it (signed counts, the angle continuous with the previous reading), filed as the runner files it:
-  only while at most ``PENDING_CYCLES`` later setpoints have been sent (else it is stale and the sample LOST),
+  only while at most :func:`~rig.runner.answer_window_cycles` later setpoints have been sent (else it is stale
+  and the sample LOST),
   a second copy marks DUPLICATE, a fault state in its statusword FAULT; a RIG_FAULT frame marks the sample
   of the last setpoint sent FAULT;
 * LATE is judged from the trace's time stamps against the first setpoint's (``t0 + k T`` plus the config's
@@ -67,7 +68,7 @@ from rig.protocols import cia402
 from rig.protocols.cia402 import DriveState, state_from_statusword_or_none
 from rig.protocols.errors import ConfigError, LogFileError
 from rig.protocols.serial_frames import unwrap_seq
-from rig.runner import PENDING_CYCLES
+from rig.runner import answer_window_cycles
 from rig.signal_files import check_input_file
 
 __all__ = ["TRACE_SUFFIXES", "import_trace"]
@@ -131,6 +132,7 @@ def _import_raw_can(path: Path, config: Any) -> ExperimentRecord:
     except ValueError as err:
         raise ConfigError(config.source, "transport.dbc", str(err)) from err
     period, tolerance = config.sample_period_s, config.late_tolerance_s
+    window = answer_window_cycles(period)
     encoder, drive = config.encoder, config.drive
     rows: list[_Row] = []
     received: set[int] = set()
@@ -229,7 +231,7 @@ def _import_raw_can(path: Path, config: Any) -> ExperimentRecord:
             if device_clocked and k >= len(rows):  # a tick (HELD) before its setpoint was sent, if it ever is
                 early.setdefault(k, []).append(reading)
                 continue
-            if not 0 <= k < len(rows) or (not device_clocked and k < len(rows) - 1 - PENDING_CYCLES):
+            if not 0 <= k < len(rows) or (not device_clocked and k < len(rows) - 1 - window):
                 continue  # answers no setpoint of the run, or came after its sample was written (LOST)
             file_reading(k, reading)
     for k, readings in early.items():

@@ -1,7 +1,8 @@
 """A simulated rig on the raw-CAN protocol of ``configs/raw_can.dbc``: a responder on a python-can bus
 (the ``virtual`` interface in tests) around a simulated gearbox.
 
-Protocol v3 (the default, ``protocol_version=3``) and v2 (the DBC's comments on RIG_HELLO, RIG_START,
+Protocol v3 (the default, ``protocol_version=3``), v4 (v3 with RIG_DEVICE_INFO_V4's two-byte buffer capacity) and
+v2 (the DBC's comments on RIG_HELLO, RIG_START,
 RIG_DEVICE_INFO, RIG_TICK_APPLIED and RIG_DRIVE_TICK, and the serial spec's section 16, which they mirror):
 after RIG_HELLO the device buffers RIG_SETPOINTs by tick number and, from RIG_START on, ticks at the plant's
 sample period on a thread of its own: tick k applies setpoint k (or holds the previous target, flagged HELD),
@@ -59,9 +60,10 @@ class SimulatedRawCanDevice(can.Listener):
         This many RIG_STATUS answers from the transition to OPERATION ENABLED on are lost; the host sends
         the request again with the same ``seq``, which the device answers without applying it twice.
     protocol_version, buffer_capacity, sample_period_s
-        3 (default) or 2: answers RIG_HELLO and ticks on its own clock in v3 (or v2) mode, buffering
-        ``buffer_capacity`` setpoints, every ``sample_period_s`` (default: the gearbox's); 1: a v1 device, which
-        ignores RIG_HELLO and RIG_START. In v2/v3 mode the sample numbers of the fault options are tick numbers.
+        3 (default), 4 or 2: answers RIG_HELLO and ticks on its own clock in v3 (v4: the same ticks, the buffer
+        capacity in two bytes of RIG_DEVICE_INFO_V4, up to 65535; or v2) mode, buffering ``buffer_capacity``
+        setpoints, every ``sample_period_s`` (default: the gearbox's); 1: a v1 device, which ignores RIG_HELLO
+        and RIG_START. In v2/v3 mode the sample numbers of the fault options are tick numbers.
     clock
         The device's clock in seconds (``time.perf_counter``). The threads of :meth:`start` wait on the wall
         clock; for a simulated clock use :meth:`start_scripted` instead (no thread), hand it the host's frames
@@ -74,10 +76,11 @@ class SimulatedRawCanDevice(can.Listener):
                  disable_at_seq: int | None = None, error_frame_at: tuple[int, int] | None = None,
                  lost_status_after_enable: int = 0, protocol_version: int = 3, buffer_capacity: int = 255,
                  sample_period_s: float | None = None, clock: Callable[[], float] = time.perf_counter) -> None:
-        if protocol_version not in (1, 2, 3):
-            raise ValueError(f"protocol_version: expected 1, 2 or 3, got {protocol_version!r}")
-        if not 1 <= int(buffer_capacity) <= 255:
-            raise ValueError(f"buffer_capacity: expected 1..255 setpoints, got {buffer_capacity!r}")
+        if protocol_version not in (1, 2, 3, 4):
+            raise ValueError(f"protocol_version: expected 1, 2, 3 or 4, got {protocol_version!r}")
+        most = 65535 if protocol_version >= 4 else 255  # RIG_DEVICE_INFO_V4's two bytes, RIG_DEVICE_INFO's one
+        if not 1 <= int(buffer_capacity) <= most:
+            raise ValueError(f"buffer_capacity: expected 1..{most} setpoints, got {buffer_capacity!r}")
         self._clock = clock
         self.protocol_version, self.buffer_capacity = int(protocol_version), int(buffer_capacity)
         self.sample_period_s = float(gearbox.sample_period_s if sample_period_s is None else sample_period_s)
@@ -210,6 +213,10 @@ class SimulatedRawCanDevice(can.Listener):
             self.requests.append((name, signals["seq"]))
             if self.state is not cia402.DriveState.OPERATION_ENABLED:
                 self.mode = max(1, min(signals["version"], self.protocol_version))
+            if self.mode >= 4:  # (the DBC's RIG_DEVICE_INFO_V4: the version is the frame's)
+                self._send("RIG_DEVICE_INFO_V4", seq=signals["seq"], buffer_capacity=self.buffer_capacity,
+                           sample_period_ns=round(self.sample_period_s * 1e9))
+                return
             self._send("RIG_DEVICE_INFO", seq=signals["seq"], version=self.mode, buffer_capacity=self.buffer_capacity,
                        sample_period_ns=round(self.sample_period_s * 1e9))
         elif name == "RIG_START" and self.protocol_version >= 2:
@@ -257,7 +264,7 @@ class SimulatedRawCanDevice(can.Listener):
         self.setpoints += 1
         if seq in self.silent_seqs:
             return
-        statusword = cia402.statusword_for(self.state, target_reached=True)
+        statusword = self._following_statusword()
         self._send("RIG_FEEDBACK", seq=seq, statusword=statusword, encoder_counts=sample.encoder_counts & 0xFFFFFFFF)
         self._send("RIG_DRIVE_FEEDBACK", seq=seq, actual_counts=self.actual_counts)
 
@@ -322,14 +329,19 @@ class SimulatedRawCanDevice(can.Listener):
             self.setpoints += 1
             self.held_ticks += held
             if (k & 0xFFFF) not in self.silent_seqs:
-                self._tick_frames(k, self.mode, cia402.statusword_for(self.state, target_reached=True), held)
+                self._tick_frames(k, self.mode, self._following_statusword(), held)
+
+    def _following_statusword(self) -> int:
+        """The statusword of a sample in OPERATION ENABLED: at the target, and bit 12 set (the drive follows the
+        targets, as in CiA 402 cyclic synchronous position mode; the serial spec's section 5)."""
+        return cia402.statusword_for(self.state, target_reached=True) | cia402.STATUSWORD_FOLLOWS_TARGET
 
     def _tick_frames(self, k: int, mode: int, statusword: int, held: bool) -> None:
         """The frames of tick k: RIG_FEEDBACK, then (v3) RIG_DRIVE_TICK or (v2) RIG_DRIVE_FEEDBACK and
         RIG_TICK_APPLIED (the DBC's comments on RIG_DRIVE_TICK and RIG_TICK_APPLIED)."""
         self._send("RIG_FEEDBACK", seq=k, statusword=statusword, encoder_counts=self.encoder_counts & 0xFFFFFFFF)
         if mode >= 3:
-            self._send("RIG_DRIVE_TICK", seq=k, actual_counts=self.actual_counts, buffer_level=len(self.buffer),
+            self._send("RIG_DRIVE_TICK", seq=k, actual_counts=self.actual_counts, buffer_level=min(len(self.buffer), 255),
                        applied_age=self._applied_age(k))
             return
         self._send("RIG_DRIVE_FEEDBACK", seq=k, actual_counts=self.actual_counts)

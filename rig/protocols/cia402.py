@@ -228,8 +228,8 @@ def bring_to_operation_enabled(write_controlword: Callable[[int], None], read_st
 
     Each controlword of :func:`next_controlword` is written once; the statusword is then polled
     (paced by ``timing.poll_interval_s``) until the state changes. A drive found in FAULT gets one fault
-    reset, on a rising edge of bit 7 (a word with bit 7 clear first if the last one had it set,
-    transition 15), and may take ``timing.fault_reset_timeout_s`` to leave FAULT. The error code
+    reset, on a rising edge of bit 7 (0x0000 first, then 0x0080, transition 15: the drive may still hold
+    0x0080 from an earlier host), and may take ``timing.fault_reset_timeout_s`` to leave FAULT. The error code
     (0x603F through ``read_fault_code``) is read when the fault is first seen, so every message names it.
 
     Raises
@@ -263,8 +263,9 @@ def bring_to_operation_enabled(write_controlword: Callable[[int], None], read_st
             if state is DriveState.FAULT_REACTION_ACTIVE:  # the reset acts only in FAULT
                 state = _wait_for_state(read_statusword, lambda s, _: s is not DriveState.FAULT_REACTION_ACTIVE,
                                         reset_until, timing, clock, sleep)
-            if previous & CONTROLWORD_FAULT_RESET:
-                write(CONTROLWORD_DISABLE_VOLTAGE)
+            # bit 7 clear first, always: the drive may still hold 0x0080 from an earlier host (transition 15
+            # acts on the rising edge), and 0x0000 leaves FAULT as it is
+            write(CONTROLWORD_DISABLE_VOLTAGE)
             write(CONTROLWORD_FAULT_RESET)
             reset_done = True
             state = _wait_for_state(read_statusword, lambda s, _: s not in _FAULT_STATES, reset_until, timing,

@@ -6,13 +6,14 @@ every answer is attributed to its sample exactly. Bring-up walks the CiA 402 sta
 RIG_CONTROL frames (each answered by RIG_STATUS); RIG_FAULT from the device stops the run.
 The receive side runs in the caller's thread (``bus.recv``): no background threads.
 
-Protocols v3 and v2 (the DBC's comments on RIG_HELLO, RIG_START, RIG_DEVICE_INFO, RIG_DRIVE_TICK,
-RIG_TICK_APPLIED; the serial spec's section 16, which they mirror): the device owns the sample clock.
-:meth:`_prepare` sends RIG_HELLO with the highest version the DBC has the frames for (3); a device answering
-RIG_DEVICE_INFO with version 3 or 2 buffers RIG_SETPOINTs by tick number, ticks from RIG_START on at its own
+Protocols v4, v3 and v2 (the DBC's comments on RIG_HELLO, RIG_START, RIG_DEVICE_INFO, RIG_DEVICE_INFO_V4,
+RIG_DRIVE_TICK, RIG_TICK_APPLIED; the serial spec's section 16, which they mirror): the device owns the sample
+clock. :meth:`_prepare` sends RIG_HELLO with the highest version the DBC has the frames for (4); a device
+answering RIG_DEVICE_INFO_V4 (v4: v3 with a two-byte buffer capacity, so the lead is not capped at 255 ticks)
+or RIG_DEVICE_INFO with version 3 or 2 buffers RIG_SETPOINTs by tick number, ticks from RIG_START on at its own
 period, and reports each tick k: in v3 with RIG_FEEDBACK and RIG_DRIVE_TICK (the drive position, the buffer
 level and ``applied_age``, from which the host takes the target in force out of the setpoints it sent: 2
-frames a tick, 394 bit with the setpoint, so 1 Mbit/s carries 2538 Hz), in v2 with RIG_FEEDBACK,
+frames a tick, 394 bit with the setpoint, so 1 Mbit/s carries 2538 Hz; v4 alike), in v2 with RIG_FEEDBACK,
 RIG_DRIVE_FEEDBACK and RIG_TICK_APPLIED (512 bit: 1953 Hz; a v2 device is refused above the rate its bus
 carries). A device that does not answer (a v1 device), or a DBC without the v2/v3 frames, is driven
 host-paced, the v1 way, unless ``protocol = "v2"``.
@@ -20,6 +21,7 @@ host-paced, the v1 way, unless ``protocol = "v2"``.
 
 from __future__ import annotations
 
+import collections
 import math
 import time
 from typing import Any
@@ -31,15 +33,18 @@ from rig.protocols.errors import ConfigError, DeviceFault, TransportError
 from rig.protocols.raw_can_frames import DEFAULT_DBC, RawCanCodec
 from rig.protocols.serial_frames import unwrap_seq
 from rig.transports.base import FeedbackSample, Setpoint, Transport, check_trace_path
+from rig.transports import serial_link
 from rig.transports.serial_link import DEFAULT_LEAD_S
 
 __all__ = ["RawCanTransport"]
 
 _PROTOCOLS = ("auto", "v1", "v2")
 _CLOCKED_MESSAGES = ("RIG_HELLO", "RIG_START", "RIG_DEVICE_INFO")  # the handshake of v2 and v3
-_TICK_FRAMES = {1: ("RIG_FEEDBACK", "RIG_DRIVE_FEEDBACK"),  # per sample (v1) or per tick (v2, v3), by version
+_TICK_FRAMES = {1: ("RIG_FEEDBACK", "RIG_DRIVE_FEEDBACK"),  # per sample (v1) or per tick (v2, v3, v4), by version
                 2: ("RIG_FEEDBACK", "RIG_DRIVE_FEEDBACK", "RIG_TICK_APPLIED"),
-                3: ("RIG_FEEDBACK", "RIG_DRIVE_TICK")}
+                3: ("RIG_FEEDBACK", "RIG_DRIVE_TICK"),
+                4: ("RIG_FEEDBACK", "RIG_DRIVE_TICK")}
+_V4_INFO = "RIG_DEVICE_INFO_V4"  # v4's answer to RIG_HELLO: v3 with a two-byte buffer capacity
 _AGE_UNKNOWN = 255  # RIG_DRIVE_TICK applied_age: the target of tick k-1 (DBC comment on RIG_DRIVE_TICK)
 _FAULT_STATES = (cia402.DriveState.FAULT, cia402.DriveState.FAULT_REACTION_ACTIVE)
 
@@ -66,12 +71,12 @@ class RawCanTransport(Transport):
         Write every frame sent and received to this file with python-can's writers (``.blf``, ``.asc``,
         ``.log``, ``.csv``, ``.trc``; not ``.db``).
     protocol
-        ``"auto"`` (default): v3 or v2 (the device's clock) if the device answers RIG_HELLO, else v1 (host-paced,
-        with a warning); ``"v2"``: refuse a device that does not own the clock (v2 or v3 is accepted);
+        ``"auto"`` (default): v4, v3 or v2 (the device's clock) if the device answers RIG_HELLO, else v1 (host-paced,
+        with a warning); ``"v2"``: refuse a device that does not own the clock (v2, v3 or v4 is accepted);
         ``"v1"``: send no RIG_HELLO.
     lead_s
-        v2/v3: how far ahead of the device's ticks setpoints are queued, at most its buffer (RIG_DEVICE_INFO: at
-        most 255 setpoints, 127.5 ms at 2 kHz). Default: serial's :data:`~rig.transports.serial_link.DEFAULT_LEAD_S`
+        v2-v4: how far ahead of the device's ticks setpoints are queued, at most its buffer (RIG_DEVICE_INFO: at
+        most 255 setpoints, 127.5 ms at 2 kHz; RIG_DEVICE_INFO_V4: at most 65535). Default: serial's :data:`~rig.transports.serial_link.DEFAULT_LEAD_S`
         (250 ms; why: see there), the protocol this one mirrors.
     """
 
@@ -97,8 +102,9 @@ class RawCanTransport(Transport):
         lengths = self.codec.lengths
         handshake = protocol != "v1" and all(name in lengths for name in _CLOCKED_MESSAGES)
         # the highest version the DBC has the frames of: what RIG_HELLO asks for
-        self.max_version = max([1] + [version for version in (2, 3) if handshake
-                                      and all(name in lengths for name in _TICK_FRAMES[version])])
+        self.max_version = max([1] + [version for version in (2, 3, 4) if handshake
+                                      and all(name in lengths for name in _TICK_FRAMES[version])
+                                      and (version < 4 or _V4_INFO in lengths)])
         self.speaks_v2 = self.max_version >= 2
         self.load = self._cycle_load(self.max_version)
         if self.load.load > 1.0:
@@ -130,7 +136,15 @@ class RawCanTransport(Transport):
         self._in_force: tuple[int, int] | None = None  # v3: (tick, target counts in force) of the latest tick filed
         self._fault_sample: int | None = None
         self._pending_fault: DeviceFault | None = None  # v2: RIG_FAULT, until the faulted tick's frames are in
+        self._pending_fault_s = math.inf  # when that RIG_FAULT arrived
+        self._fault_after: tuple[int, DeviceFault] | None = None  # a faulted statusword's tick, and its fault
         self._info: dict[int, dict[str, int]] = {}
+        # samples completed while the host waited for an answer (RIG_START's may take 100 ms: the device
+        # ticks meanwhile), handed out by the next receives in order
+        self._ready: collections.deque[FeedbackSample] = collections.deque()
+        # v3 ticks completed before RIG_START's answer, which says the target in force before any setpoint
+        self._unresolved: list[tuple[int, dict[str, Any], float]] = []
+        self._target_unknown_warned = False
 
     @property
     def lead_samples(self) -> int:
@@ -161,6 +175,7 @@ class RawCanTransport(Transport):
             self._trace = can.Logger(self.trace_path)
 
     def _prepare(self) -> float:
+        self._request = serial_link.REQUEST_ORIGINS.randrange(0xFFFF)  # as serial (its spec, section 6)
         position = self.drive.rad_from_counts(self._request_reply("RIG_STATUS_REQUEST")["actual_counts"])
         self._negotiate()
         self.load = self._cycle_load(self.version)  # the frames this device really sends
@@ -187,7 +202,7 @@ class RawCanTransport(Transport):
         if version < 2:
             if self.protocol == "v2":
                 raise TransportError(f"{self.name}: the device answers RIG_HELLO with version {version}; "
-                                     "protocol = \"v2\" needs 2 or 3")
+                                     "protocol = \"v2\" needs 2 or later")
             return
         load = self._cycle_load(version)
         if load.load > 1.0:
@@ -195,7 +210,7 @@ class RawCanTransport(Transport):
                 f"{1 / self.sample_period_s:g} Hz, but the device speaks raw-CAN protocol v{version} "
                 f"({len(_TICK_FRAMES[version])} frames a tick, {load.bits_per_cycle} bit a cycle with the setpoint): "
                 f"{self.bitrate} bit/s carries at most {load.max_rate_hz:.0f} Hz; lower sample_rate_hz to that, or "
-                f"update the device to protocol v{self.max_version} (configs/raw_can.dbc, RIG_DRIVE_TICK)"))
+                "update the device to protocol v3 or later (configs/raw_can.dbc, RIG_DRIVE_TICK)"))
         if not math.isclose(period_ns * 1e-9, self.sample_period_s, rel_tol=1e-6, abs_tol=1e-9):
             raise ConfigError("<transport>", "sample_rate_hz", (
                 f"{1 / self.sample_period_s:g} Hz, but the device ticks every {period_ns} ns (RIG_DEVICE_INFO): set "
@@ -212,7 +227,10 @@ class RawCanTransport(Transport):
 
     def _send(self, setpoint: Setpoint) -> None:
         counts = self.drive.counts_from_rad(setpoint.position_rad)
-        self._transmit(self.codec.encode("RIG_SETPOINT", seq=setpoint.seq, target_counts=counts))
+        if self.version < 2 or setpoint.seq > self._device_sample:
+            # (a setpoint for a tick the device has reported is dropped there, DBC: after a long stall the
+            # host does not flood the bus, and its own receive queue, with hundreds of them)
+            self._transmit(self.codec.encode("RIG_SETPOINT", seq=setpoint.seq, target_counts=counts))
         self._last_seq = setpoint.seq
         if self.version >= 3:
             self._sent_counts[setpoint.seq] = counts
@@ -229,17 +247,50 @@ class RawCanTransport(Transport):
             self._started = True
             status = self._request_reply("RIG_START")  # the device's tick 0: the setpoints queued so far are its lead
             self._in_force = (-1, status["actual_counts"])  # before any setpoint: the position held since enabling
+            unresolved, self._unresolved = self._unresolved, []
+            for seq, parts, received in unresolved:  # ticks that came before this answer, in their order
+                self._ready.append(self._tick_sample(seq, parts, received))
+        if self._ready:
+            self._read_waiting_frames()
+            return self._hand_out(self._ready.popleft())
+        if self._fault_after is not None:  # its tick's sample is no longer waiting
+            self._report_fault(self._fault_after[1])
+            return None
         deadline = self.clock() + timeout_s
         while True:
             sample = self._receive_one(max(deadline - self.clock(), 0.0))
             if isinstance(sample, FeedbackSample):
-                return sample
-            if sample is None and self._pending_fault is not None:  # the faulted tick's frames did not follow
-                self._report_fault(self._pending_fault)
+                return self._hand_out(sample)
+            if self._pending_fault is not None and self.clock() >= self._pending_fault_s + self._fault_grace_s:
+                self._report_fault(self._pending_fault)  # the faulted tick's frames did not follow
             if sample is None and self.clock() >= deadline:
                 return None
             if self._fault is not None:
                 return None
+
+    def _hand_out(self, sample: FeedbackSample) -> FeedbackSample:
+        """``sample`` to the caller; once the faulted tick's sample is out, its fault is raised by the next
+        receive (the samples before it, also those that waited in ``_ready``, are all filed first)."""
+        if self._fault_after is not None and sample.seq >= self._fault_after[0]:
+            self._report_fault(self._fault_after[1])
+        return sample
+
+    def _read_waiting_frames(self, limit: int = 64) -> None:
+        """While samples wait to be handed out (those that came during an answer's wait), read the frames that
+        have arrived meanwhile too (at most ``limit``): the device goes on sending two or three a tick, and an
+        adapter's (or udp_multicast's) receive queue that is not read overflows."""
+        for _ in range(limit):
+            sample = self._receive_one(0.0)
+            if sample is None:
+                return
+            if isinstance(sample, FeedbackSample):
+                self._ready.append(sample)
+
+    @property
+    def _fault_grace_s(self) -> float:
+        """How long after RIG_FAULT the host waits for the frames of the faulted tick (they leave before the
+        next tick, DBC comment on RIG_FAULT): four periods, at least 10 ms (a loaded host's read delay)."""
+        return max(4 * self.sample_period_s, 0.01)
 
     def _close(self) -> None:
         bus, self._bus = self._bus, None
@@ -298,12 +349,14 @@ class RawCanTransport(Transport):
             self._status[signals["seq"]] = signals
         elif name == "RIG_DEVICE_INFO":
             self._info[signals["seq"]] = signals
+        elif name == _V4_INFO:  # the version is the frame's
+            self._info[signals["seq"]] = {**signals, "version": 4}
         elif name == "RIG_FAULT":
             fault = DeviceFault(self.name, signals["error_code"], "the device reported a fault")
             if self._started:  # sent before the frames of the tick it happened in: that tick is filed first
                 if self._fault_sample is None:
                     self._fault_sample = self._device_sample + 1
-                self._pending_fault = fault
+                self._pending_fault, self._pending_fault_s = fault, self.clock()
             else:
                 self._report_fault(fault)
         elif name in _TICK_FRAMES[self.version]:
@@ -313,30 +366,63 @@ class RawCanTransport(Transport):
             parts[name] = signals
             if len(parts) == len(_TICK_FRAMES[self.version]):
                 del self._parts[seq]
-                feedback = parts["RIG_FEEDBACK"]
-                drive = parts["RIG_DRIVE_TICK" if self.version >= 3 else "RIG_DRIVE_FEEDBACK"]
-                raw = feedback["encoder_counts"]
-                counts = raw - (1 << 32) if self.encoder.signed and raw >= 1 << 31 else raw
                 received = self.clock()
-                held, applied = False, None
-                if self.version >= 3:
-                    held, applied_counts = drive["applied_age"] > 0, self._target_in_force(seq, drive["applied_age"])
-                    applied = None if applied_counts is None else self.drive.rad_from_counts(applied_counts)
-                    self._account_tick(seq, held, received)
-                elif v2:
-                    tick = parts["RIG_TICK_APPLIED"]
-                    held, applied = bool(tick["tick_flags"] & 1), self.drive.rad_from_counts(tick["applied_counts"])
-                    self._account_tick(seq, held, received)
-                if cia402.state_from_statusword_or_none(feedback["statusword"]) in _FAULT_STATES:
-                    self._faulted_statusword(seq, feedback["statusword"])
-                return FeedbackSample(seq=seq, encoder_counts=counts, load_angle_rad=self._decode_encoder(counts),
-                                      drive_position_rad=self.drive.rad_from_counts(drive["actual_counts"]),
-                                      statusword=feedback["statusword"], host_time_s=received, held=held,
-                                      applied_position_rad=applied)
+                if v2:
+                    self._account_tick(seq, self._tick_held(parts), received)
+                statusword = parts["RIG_FEEDBACK"]["statusword"]
+                if cia402.state_from_statusword_or_none(statusword) in _FAULT_STATES:
+                    self._faulted_statusword(seq, statusword)
+                if self.version >= 3 and self._in_force is None:  # before RIG_START's answer: resolved with it
+                    self._unresolved.append((seq, parts, received))
+                    return True
+                return self._tick_sample(seq, parts, received)
             if len(self._parts) > 256:
                 for old in sorted(self._parts)[:128]:
                     del self._parts[old]
         return True
+
+    def _tick_held(self, parts: dict[str, Any]) -> bool:
+        if self.version >= 3:
+            return parts["RIG_DRIVE_TICK"]["applied_age"] > 0
+        return bool(parts["RIG_TICK_APPLIED"]["tick_flags"] & 1)
+
+    def _tick_sample(self, seq: int, parts: dict[str, Any], received: float) -> FeedbackSample:
+        """The sample of one complete tick (v1: one answer): encoder and statusword of RIG_FEEDBACK, drive position,
+        and on a device-clocked link whether it was HELD and the target in force. Statusword bit 12 clear in
+        OPERATION ENABLED: the drive did not follow the target (NOT_FOLLOWED; serial spec section 5)."""
+        feedback = parts["RIG_FEEDBACK"]
+        drive = parts["RIG_DRIVE_TICK" if self.version >= 3 else "RIG_DRIVE_FEEDBACK"]
+        raw = feedback["encoder_counts"]
+        counts = raw - (1 << 32) if self.encoder.signed and raw >= 1 << 31 else raw
+        held, applied, unknown = False, None, False
+        if self.version >= 3:
+            age = drive["applied_age"]
+            held, applied_counts = age > 0, self._target_in_force(seq, age)
+            if applied_counts is None:
+                applied_counts, unknown = self._last_known_target(seq), True
+            applied = self.drive.rad_from_counts(applied_counts)
+        elif self.version >= 2:
+            tick = parts["RIG_TICK_APPLIED"]
+            held, applied = bool(tick["tick_flags"] & 1), self.drive.rad_from_counts(tick["applied_counts"])
+        statusword = feedback["statusword"]
+        state = cia402.state_from_statusword_or_none(statusword)
+        return FeedbackSample(seq=seq, encoder_counts=counts, load_angle_rad=self._decode_encoder(counts),
+                              drive_position_rad=self.drive.rad_from_counts(drive["actual_counts"]),
+                              statusword=statusword, host_time_s=received, held=held, applied_position_rad=applied,
+                              target_ignored=(state is cia402.DriveState.OPERATION_ENABLED
+                                              and not statusword & cia402.STATUSWORD_FOLLOWS_TARGET),
+                              ambiguous=unknown)
+
+    def _last_known_target(self, k: int) -> int:
+        """v3, tick k's target not known (``applied_age`` 255 and the frames of the ticks before lost): the
+        latest target known, logged with the sample flagged AMBIGUOUS (unusable), and said once in a warning."""
+        if not self._target_unknown_warned:
+            self._target_unknown_warned = True
+            self._ride_through(
+                f"tick {k}: the target in force is not known (RIG_DRIVE_TICK applied_age 255 after a hold of more "
+                "than 254 ticks whose earlier tick frames were lost): such samples are logged HELD and AMBIGUOUS "
+                "(unusable), with the latest target known")
+        return self._in_force[1] if self._in_force is not None else self.drive.counts_from_rad(self.initial_position_rad)
 
     def _unprompted_status(self, statusword: int) -> None:
         """RIG_STATUS with seq 0 (never a request number): the device says on its own that the drive changed
@@ -354,13 +440,15 @@ class RawCanTransport(Transport):
         """A statusword says FAULT: the run stops at this sample even if RIG_FAULT was lost on the bus (the
         serial spec's section 9, which the DBC follows). Raw CAN has no request for the error code."""
         if self._pending_fault is not None:  # the faulted tick after its RIG_FAULT: the code is known
-            self._report_fault(self._pending_fault)
-            return
-        if self._fault is None and self._fault_sample is None:
-            self._fault_sample = seq
-        self._report_fault(DeviceFault(self.name, None, (
-            f"the drive reports FAULT in its statusword 0x{statusword:04X} at sample {seq} (no RIG_FAULT frame "
-            "came with the error code: lost on the bus?)")))
+            fault = self._pending_fault
+        else:
+            if self._fault is None and self._fault_sample is None:
+                self._fault_sample = seq
+            fault = DeviceFault(self.name, None, (
+                f"the drive reports FAULT in its statusword 0x{statusword:04X} at sample {seq} (no RIG_FAULT frame "
+                "came with the error code: lost on the bus?)"))
+        if self._fault_after is None:  # raised once this tick's sample is handed out (it may wait in _ready)
+            self._fault_after = (seq, fault)
 
     def _target_in_force(self, k: int, age: int) -> int | None:
         """v3: the target counts in force at tick k from RIG_DRIVE_TICK's ``applied_age`` (DBC comment): the
@@ -415,7 +503,9 @@ class RawCanTransport(Transport):
                 remaining = deadline - self.clock()
                 if remaining <= 0:
                     break
-                self._receive_one(remaining)
+                sample = self._receive_one(remaining)
+                if isinstance(sample, FeedbackSample):  # a tick while waiting: kept for the next receive
+                    self._ready.append(sample)
             else:
                 return answers.pop(request)
         raise TransportError(f"{self.name}: no {answer} answer to {name} (seq {request}) within "

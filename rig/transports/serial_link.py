@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import collections
 import math
+import random
 import select
 
 from rig.protocols import cia402
@@ -49,6 +50,10 @@ _ANSWER_TO = {MessageType.CONTROL: MessageType.STATUS, MessageType.STATUS_REQUES
               MessageType.ERROR_REQUEST: MessageType.ERROR, MessageType.HELLO: MessageType.DEVICE_INFO,
               MessageType.START: MessageType.STATUS}
 PROTOCOLS = ("auto", "v1", "v2")
+REQUEST_ORIGINS = random.SystemRandom()
+"""Where each session's request numbers start (spec section 6, across host sessions): the device may still
+remember the last request number an earlier host's CONTROL had it apply, so a host counting from 1 again would
+find its first CONTROL taken for a repeat; from a random origin that happens once in 65535 sessions."""
 HELLO_ATTEMPTS = 2
 """HELLO is sent at most this often (once more after a lost answer): a device that answered the STATUS_REQUEST
 before it but not two HELLOs is a v1 device, which drops unknown message types."""
@@ -137,6 +142,7 @@ class SerialTransport(Transport):
         self._queued_at: dict[int, float] = {}  # tick -> host time its SETPOINT was written
         self._min_lead_s = math.inf
         self._fault_sample: int | None = None
+        self._fault_heard_s = math.inf  # when the FAULT frame arrived (v2)
 
     @property
     def lead_samples(self) -> int:
@@ -158,6 +164,7 @@ class SerialTransport(Transport):
         self._serial.reset_input_buffer()
 
     def _prepare(self) -> float:
+        self._request = REQUEST_ORIGINS.randrange(0xFFFF)  # the next request number is 1 more (spec section 6)
         status = self._request_reply(MessageType.STATUS_REQUEST)
         self._negotiate()
         return self.drive.rad_from_counts(status.fields[1])
@@ -234,7 +241,18 @@ class SerialTransport(Transport):
             self._started = True
             self._request_reply(MessageType.START)  # the device's tick 0: the setpoints queued so far are its lead
         deadline = self.clock() + timeout_s
-        while not self._feedback:
+        while True:
+            if self._feedback:
+                item = self._feedback[0]
+                if not isinstance(item, DeviceFault):
+                    return self._feedback.popleft()
+                # the device's FAULT frame, after every sample that came before it; it acts once the faulted
+                # tick's TICK (sent right after it, spec 16.3) is filed, or when that does not come in time
+                faulted_tick_in = self._fault_sample is None or self._device_sample >= self._fault_sample
+                if faulted_tick_in or self.clock() >= self._fault_heard_s + self._fault_grace_s:
+                    self._feedback.popleft()
+                    self._report_fault(item)
+                    return None
             if self._code_needed:
                 self._report_faulted_statusword()
             if self._fault is not None:
@@ -242,11 +260,12 @@ class SerialTransport(Transport):
             remaining = deadline - self.clock()
             if not self._poll(max(remaining, 0.0)) and remaining <= 0:
                 return None
-        item = self._feedback.popleft()
-        if isinstance(item, DeviceFault):  # the device's FAULT frame, after every sample that came before it
-            self._report_fault(item)
-            return None
-        return item
+
+    @property
+    def _fault_grace_s(self) -> float:
+        """How long after the FAULT frame the host listens for the faulted tick's TICK (it leaves before the next
+        tick, spec 16.5): four periods, at least 10 ms (a loaded host's read delay)."""
+        return max(4 * self.sample_period_s, 0.01)
 
     def _close(self) -> None:
         if self._serial is not None:
@@ -314,6 +333,7 @@ class SerialTransport(Transport):
             if self._started:
                 if self._fault_sample is None:
                     self._fault_sample = self._device_sample + 1  # it comes before the TICK of the tick it happened in
+                    self._fault_heard_s = received_s
                 self._feedback.append(fault)  # raised once the TICKs received before it are filed
             else:
                 self._report_fault(fault)

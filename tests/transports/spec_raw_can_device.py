@@ -17,6 +17,7 @@ id    name                DLC  signals (start bit | length)
 272   RIG_SETPOINT        6    seq 0|16, target_counts 16|32 signed
 384   RIG_STATUS          8    seq 0|16, statusword 16|16, actual_counts 32|32 signed
 385   RIG_DEVICE_INFO     8    seq 0|16, version 16|8, buffer_capacity 24|8, sample_period_ns 32|32  (v2, v3)
+386   RIG_DEVICE_INFO_V4  8    seq 0|16, buffer_capacity 16|16, sample_period_ns 32|32              (v4)
 400   RIG_FEEDBACK        8    seq 0|16, statusword 16|16, encoder_counts 32|32
 401   RIG_DRIVE_FEEDBACK  6    seq 0|16, actual_counts 16|32 signed
 402   RIG_TICK_APPLIED    8    seq 0|16, applied_counts 16|32 signed, tick_flags 48|8, buffer_level 56|8  (v2)
@@ -49,7 +50,9 @@ HOST_FRAMES = {256: (CONTROL, "<HH"), 257: (STATUS_REQUEST, "<H"), 272: (SETPOIN
 HOST_FRAMES_V2 = HOST_FRAMES | {258: (HELLO, "<HB"), 259: (START, "<H")}
 RIG_STATUS, RIG_DEVICE_INFO, RIG_FEEDBACK, RIG_DRIVE_FEEDBACK, RIG_TICK_APPLIED, RIG_DRIVE_TICK, RIG_FAULT = (
     384, 385, 400, 401, 402, 403, 416)
-TICK_FRAMES = {2: (RIG_FEEDBACK, RIG_DRIVE_FEEDBACK, RIG_TICK_APPLIED), 3: (RIG_FEEDBACK, RIG_DRIVE_TICK)}
+RIG_DEVICE_INFO_V4 = 386
+TICK_FRAMES = {2: (RIG_FEEDBACK, RIG_DRIVE_FEEDBACK, RIG_TICK_APPLIED), 3: (RIG_FEEDBACK, RIG_DRIVE_TICK),
+               4: (RIG_FEEDBACK, RIG_DRIVE_TICK)}  # v4: v3's ticks (DBC comment on RIG_DEVICE_INFO_V4)
 AGE_OLD = 255  # RIG_DRIVE_TICK applied_age: 255 or more ticks back, or no setpoint applied since RIG_START
 
 
@@ -62,8 +65,8 @@ class SpecRawCanDevice(SpecSerialDevice):
     channel
         The virtual bus the host's ``can://virtual/<channel>`` opens.
     protocol_version
-        The highest version the device speaks: 3 (default), 2 or 1 (``RIG_DEVICE_INFO`` answers the lower of
-        it and the host's).
+        The highest version the device speaks: 3 (default), 4, 2 or 1 (``RIG_DEVICE_INFO`` answers the lower of
+        it and the host's; in v4 ``RIG_DEVICE_INFO_V4``).
     tick_frame_order
         The order in which the frames of a tick leave (the DBC names them, not their order): an order of
         :data:`TICK_FRAMES` of ``protocol_version`` (default: as the DBC lists them).
@@ -85,8 +88,10 @@ class SpecRawCanDevice(SpecSerialDevice):
         self._session_mode = 2  # the protocol of the session START began (its tick frames)
         super().__init__(output=(lambda data: None) if output is not None else None,
                          protocol_version=protocol_version, **options)
-        if not 1 <= self.buffer_capacity <= 255:
-            raise ValueError(f"buffer_capacity: RIG_DEVICE_INFO carries 1..255, got {self.buffer_capacity}")
+        most = 65535 if protocol_version >= 4 else 255  # RIG_DEVICE_INFO_V4's two bytes, RIG_DEVICE_INFO's one
+        if not 1 <= self.buffer_capacity <= most:
+            raise ValueError(f"buffer_capacity: the device's answer to RIG_HELLO carries 1..{most}, got "
+                             f"{self.buffer_capacity}")
         self._host_frames = HOST_FRAMES_V2 if self.protocol_version >= 2 else HOST_FRAMES
 
     # -- the link: a virtual CAN bus ---------------------------------------------------------------------------
@@ -138,6 +143,8 @@ class SpecRawCanDevice(SpecSerialDevice):
         if kind == STATUS:
             statusword, actual = fields
             out(RIG_STATUS, struct.pack("<HHi", seq, statusword, actual))
+        elif kind == DEVICE_INFO and fields[0] >= 4:  # v4: the version is the frame's, the capacity two bytes
+            out(RIG_DEVICE_INFO_V4, struct.pack("<HHI", seq, *fields[1:]))
         elif kind == DEVICE_INFO:
             out(RIG_DEVICE_INFO, struct.pack("<HBBI", seq, *fields))
         elif kind == FAULT:

@@ -296,10 +296,13 @@ def test_the_feedback_watchdog_stops_a_silent_drive_and_the_drive_ends_disabled(
             _run(bus, transport, clock, _command(2000), feedback_timeout_s=timeout_s)
         state, controlwords = rig.state, rig.controlwords
     last_tpdo = max(i for i, (_, cob_id, _) in enumerate(bus.frames) if cob_id == 0x181)
-    fed_s = next(when for when, cob_id, _ in bus.frames[last_tpdo:] if cob_id == 0x80)  # its sample filed
+    fed_s = bus.frames[last_tpdo][0]  # the watchdog reads when the last answer was received (the host's clock
+    # reads the bus in whole periods here: up to one period before the frame's own time)
     quick_stop_s = next(when for when, cob_id, data in bus.frames if cob_id == 0x601 and data[1:3] == b"\x40\x60"
                         and int.from_bytes(data[4:6], "little") == cia402.CONTROLWORD_QUICK_STOP)
-    assert (1 + WATCHDOG_GRACE) * timeout_s < quick_stop_s - fed_s <= (1 + WATCHDOG_GRACE) * timeout_s + 2e-3
+    assert (1 + WATCHDOG_GRACE) * timeout_s - 1e-3 < quick_stop_s - fed_s <= (1 + WATCHDOG_GRACE) * timeout_s + 2e-3
+    silence_s = float(str(caught.value).split("no feedback for ")[1].split(" s")[0])
+    assert silence_s >= (1 + WATCHDOG_GRACE) * timeout_s - 1e-9
     assert "stopping at sample" in str(caught.value)
     assert controlwords[-2:] == [cia402.CONTROLWORD_QUICK_STOP, cia402.CONTROLWORD_DISABLE_VOLTAGE]
     assert state is cia402.DriveState.SWITCH_ON_DISABLED

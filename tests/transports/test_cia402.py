@@ -31,8 +31,8 @@ class ScriptedDrive:
     (DriveState.SWITCHED_ON, [0x0F]),
     (DriveState.OPERATION_ENABLED, []),
     (DriveState.QUICK_STOP_ACTIVE, [0x00, 0x06, 0x07, 0x0F]),
-    # fault reset acts on a rising edge of bit 7: 0x80 after a word with bit 7 clear
-    (DriveState.FAULT, [0x80, 0x06, 0x07, 0x0F]),
+    # fault reset acts on a rising edge of bit 7: 0x80 after a word with bit 7 clear, sent first
+    (DriveState.FAULT, [0x00, 0x80, 0x06, 0x07, 0x0F]),
 ])
 def test_bring_up_sends_the_controlwords_of_the_profile(start, controlwords):
     drive = ScriptedDrive(start)
@@ -44,6 +44,15 @@ def test_bring_up_sends_the_controlwords_of_the_profile(start, controlwords):
 def test_fault_reset_needs_a_rising_edge():
     assert next_state(DriveState.FAULT, 0x80, 0x80) is DriveState.FAULT
     assert next_state(DriveState.FAULT, 0x80, 0x00) is DriveState.SWITCH_ON_DISABLED
+
+
+def test_a_fault_reset_reaches_a_drive_that_still_holds_0x0080_from_an_earlier_host():
+    """The host does not know the last controlword the drive received (an earlier session may have ended on a
+    fault reset): 0x0000 goes first, so that 0x0080 is a rising edge of bit 7 whatever came before."""
+    drive = ScriptedDrive(DriveState.FAULT)
+    drive.previous = cia402.CONTROLWORD_FAULT_RESET
+    sent = cia402.bring_to_operation_enabled(drive.write, drive.read, "drive")
+    assert sent[:2] == [0x0000, 0x0080] and drive.state is DriveState.OPERATION_ENABLED
 
 
 def test_quick_stop_then_disable_voltage_is_the_controlled_stop():

@@ -42,7 +42,7 @@ def test_scripted_exchange_with_the_simulated_responder(tmp_path):
     assert tx("RIG_CONTROL", seq=3, controlword=0x0F)[0][1]["statusword"] == 0x0237
     expected = load_plant_config(write_test_plant(tmp_path)).gearbox(seed=2).step(1000 * 2 * 3.141592653589793 / 131072)
     assert tx("RIG_SETPOINT", seq=0, target_counts=1000) == [
-        ("RIG_FEEDBACK", {"seq": 0, "statusword": 0x0637, "encoder_counts": expected.encoder_counts & 0xFFFFFFFF}),
+        ("RIG_FEEDBACK", {"seq": 0, "statusword": 0x1637, "encoder_counts": expected.encoder_counts & 0xFFFFFFFF}),
         ("RIG_DRIVE_FEEDBACK", {"seq": 0, "actual_counts": 1000})]
     assert tx("RIG_SETPOINT", seq=1, target_counts=2000) == [("RIG_FAULT", {"error_code": 0x2310})]
     assert tx("RIG_STATUS_REQUEST", seq=4)[0][1]["statusword"] & 0x4F == 0x08  # FAULT

@@ -59,6 +59,18 @@ def test_shipped_configs_validate(name):
     assert (config.simulation is not None) == name.startswith("sim")
 
 
+def test_the_serial_template_follows_the_specs_v2_timing():
+    """docs/serial_protocol.md 16.5: a lead of 250 ms rides through the host stalls measured; the host's feedback
+    watchdog must not stop a run for less silence than the lead covers, and gives up (with its grace) before
+    the device's own v2 link watchdog (at least 0.5 s after START, 16.4) stops the drive on its own."""
+    from rig.runner import WATCHDOG_GRACE
+    from rig.transports.serial_link import DEFAULT_LEAD_S
+
+    config = load_rig_config(CONFIGS / "rig_serial.toml")
+    assert config.options["lead_s"] == DEFAULT_LEAD_S == 0.25
+    assert DEFAULT_LEAD_S <= config.feedback_timeout_s and (1 + WATCHDOG_GRACE) * config.feedback_timeout_s < 0.5
+
+
 def test_the_real_canopen_template_validates_once_it_names_real_eds_files(tmp_path):
     text = (CONFIGS / "rig_canopen.toml").read_text()
     with pytest.raises(ConfigError, match=r"rig_canopen.toml: \[transport.drive_eds\] no such EDS file /path/to/your_drive"):

@@ -42,14 +42,17 @@ def test_feedback_out_of_order_fills_its_own_rows_and_rows_leave_in_order_once_f
     assert ledger.counts["lost"] == 1
 
 
-def test_a_held_sample_logs_the_command_really_applied_and_counts_as_late():
-    ledger = SampleLedger(sample_period_s=0.001, pending_cycles=1)
-    ledger.open_row(0, 1.0)
-    ledger.open_row(1, 2.0)
+def test_a_held_sample_logs_the_command_really_applied_and_late_counts_only_late_rows():
+    """HELD (a setpoint that missed its instant) and LATE (an instant off the period) are two flags, counted
+    apart: ``late`` is the number of rows flagged LATE, as ``rig run --json`` reports it."""
+    ledger = SampleLedger(sample_period_s=0.001, pending_cycles=1, late_tolerance_s=0.0005)
+    for seq, command in enumerate((1.0, 2.0, 3.0)):
+        ledger.open_row(seq, command)
     ledger.file(_feedback(0, applied_position_rad=1.0))
     ledger.file(_feedback(1, held=True, applied_position_rad=1.0))  # setpoint 1 came after its SYNC
+    ledger.file(_feedback(2, applied_position_rad=3.0, instant_error_s=0.0008))  # its SYNC 0.8 ms off
     rows = _release_all(ledger, device_sample=5)
-    assert [(row[2], row[4]) for row in rows] == [(1.0, 0), (1.0, int(SampleFlag.HELD))]
+    assert [(row[2], row[4]) for row in rows] == [(1.0, 0), (1.0, int(SampleFlag.HELD)), (3.0, int(SampleFlag.LATE))]
     assert ledger.counts["held"] == ledger.counts["late"] == 1
 
 
@@ -127,3 +130,18 @@ def test_the_first_fault_is_remembered_after_its_row_went_to_the_sink():
     rows = _release_all(ledger, device_sample=2)
     assert [row[0] for row in rows] == [0, 1] and rows[1][4] & SampleFlag.FAULT
     assert ledger.first_fault == 1
+
+
+def test_a_held_sample_whose_applied_command_is_unknown_is_unusable_not_logged_as_the_design():
+    """A HELD answer that cannot say which target was in force: the row's command (the designed one) was not
+    applied, so the row is flagged AMBIGUOUS (unusable) besides HELD; one that says it logs it."""
+    ledger = SampleLedger(sample_period_s=0.01, pending_cycles=1)
+    for seq in range(3):
+        ledger.open_row(seq, command_rad=0.1 * seq)
+    ledger.file(_feedback(0))
+    ledger.file(_feedback(1, held=True))
+    ledger.file(_feedback(2, held=True, applied_position_rad=0.0))
+    rows = _release_all(ledger, device_sample=3)
+    assert [(row[2], row[4]) for row in rows] == [
+        (0.0, 0), (0.1, int(SampleFlag.HELD | SampleFlag.AMBIGUOUS)), (0.0, int(SampleFlag.HELD))]
+    assert SampleFlag.AMBIGUOUS & SampleFlag.unusable()

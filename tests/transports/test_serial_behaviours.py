@@ -92,7 +92,8 @@ def test_a_slow_fault_reset_is_waited_for_and_the_code_is_read_first(tmp_path, n
         assert summary.samples == 20 and summary.lost == 0
         kinds = [kind for kind, _ in device.requests]
         assert kinds.index(MessageType.ERROR_REQUEST) < kinds.index(MessageType.CONTROL)  # read when first seen
-        assert device.controlwords[0] == cia402.CONTROLWORD_FAULT_RESET
+        # bit 7 clear first, so that the reset is a rising edge whatever the device last received
+        assert device.controlwords[:2] == [cia402.CONTROLWORD_DISABLE_VOLTAGE, cia402.CONTROLWORD_FAULT_RESET]
         assert device.error_code == 0
 
 

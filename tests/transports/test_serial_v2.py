@@ -62,9 +62,20 @@ class Wire:
         return [(seq, fields) for way, kind, seq, fields in self.trace if way == "->" and kind == name]
 
 
+class _FromOne:
+    """A session's request numbers from 1, as in the spec's worked examples (the host picks a random origin)."""
+
+    @staticmethod
+    def randrange(_stop: int) -> int:
+        return 0
+
+
 @pytest.fixture
-def line():
+def line(monkeypatch):
     """``line(**device_options, protocol=..., lead_s=...)`` -> a :class:`Wire`; devices closed afterwards."""
+    from rig.transports import serial_link
+
+    monkeypatch.setattr(serial_link, "REQUEST_ORIGINS", _FromOne())
     devices = []
 
     def make(*, protocol: str = "auto", lead_s: float = 0.05, **device_options) -> Wire:

@@ -129,13 +129,14 @@ def test_a_v2_raw_can_device_is_still_driven_with_its_three_tick_frames(rig):
 def test_the_raw_can_v2_watchdog_rides_through_a_stall_and_is_heard_when_it_stops_the_drive(rig):
     """The DBC says nothing of a link watchdog; the serial spec it refers to does (sections 10, 16.4): 0.9 s
     of silence is ridden through holding, 1.2 s stops the drive, and the host hears it from the unprompted
-    RIG_STATUS (seq 0) instead of waiting out its feedback watchdog."""
+    RIG_STATUS (seq 0) instead of waiting out its feedback watchdog (the run is long enough for the stop to fall
+    within its samples: the ticks the device sent before it are all filed first)."""
     bus, transport, device, clock = rig()
     summary, *_ = _run(bus, transport, clock, stall_at=40, stall_s=0.9, feedback_timeout_s=2.0)
     assert not device.watchdog_expired and summary.samples == SAMPLES and summary.lost == 0 and summary.held > 0
     bus, transport, device, clock = rig()
     with pytest.raises(DeviceFault, match=r"left OPERATION ENABLED without a fault \(unprompted RIG_STATUS 0x0240: SWITCH_ON_DISABLED"):
-        _run(bus, transport, clock, stall_at=40, stall_s=1.2, feedback_timeout_s=2.0)
+        _run(bus, transport, clock, stall_at=40, stall_s=1.2, feedback_timeout_s=2.0, samples=400)
     assert device.watchdog_expired and device.state == SWITCH_ON_DISABLED
 
 

@@ -125,7 +125,7 @@ def test_a_host_stall_longer_than_the_lead_holds_exactly_the_ticks_it_outlasts(r
     heard, last_in_stall = _stall_ticks(device, stall_start, stall_s)
     expected_held = list(range(heard + LEAD, last_in_stall + 1))
     held = np.flatnonzero(_flags(sink) & SampleFlag.HELD).tolist()
-    assert held == expected_held and summary.held == len(held) == 11 and summary.late == len(held)
+    assert held == expected_held and summary.held == len(held) == 11 and summary.late == 0
     commands = [row[1] for row in sink.rows]
     assert commands[held[0]:held[-1] + 1] == [commands[held[0] - 1]] * len(held)  # the last target, held
     assert sorted(device.dropped_setpoints) == held  # each came after its tick and was dropped there
@@ -321,3 +321,66 @@ def test_a_fault_during_a_host_stall_files_every_tick_before_it(rig, fault_at):
     assert len(sink.rows) == fault_at + 1 and flags[fault_at] & SampleFlag.FAULT
     assert not np.any(flags[:fault_at] & (SampleFlag.FAULT | SampleFlag.LOST))
     assert [row[3] for row in sink.rows[:fault_at]] == [device.ticks[k].encoder_counts for k in range(fault_at)]
+
+
+def test_a_faulted_tick_that_comes_in_a_later_read_than_its_fault_frame_is_filed(rig):
+    """Section 16.3: the FAULT frame goes out before the TICK of the faulted tick; the host may read the two in
+    different reads (the TICK still on the line when the FAULT frame was read). The faulted tick is a row,
+    flagged FAULT with the values the device sent, not LOST."""
+    from rig.protocols.serial_frames import FrameDecoder, MessageType
+
+    clock = SimulatedClock(1000.0)
+    held_back = bytearray()
+    seen = {"fault": False, "read": False}
+
+    class SplitLine(ClockedLine):
+        def device_writes(self, data: bytes) -> None:
+            for chunk in bytes(data).split(b"\x00")[:-1] if data.endswith(b"\x00") else [bytes(data)]:
+                if seen["fault"]:
+                    held_back.extend(chunk + b"\x00")
+                    continue
+                super().device_writes(chunk + b"\x00")
+                seen["fault"] = any(m.type is MessageType.FAULT for m in FrameDecoder().feed(chunk + b"\x00"))
+
+        def _host_polls(self, timeout_s: float) -> bool:
+            if held_back and seen["read"]:  # the FAULT frame was read in an earlier read: now the rest
+                rest = bytes(held_back)
+                held_back.clear()
+                ClockedLine.device_writes(self, rest)
+            delivered = super()._host_polls(timeout_s)
+            seen["read"] = seen["read"] or (seen["fault"] and delivered)
+            return delivered
+
+    line: ClockedLine | None = None
+    device = SpecSerialDevice(clock=clock, output=lambda data: line.device_writes(data), fault_at_sample=100,
+                              fault_code=0x2310)
+    transport = SerialTransport("simulated", encoder=EncoderResolution(bits=16), sample_period_s=PERIOD_S,
+                                drive=DRIVE, timing=BringUpTiming(poll_interval_s=0.0), reply_timeout_s=0.3,
+                                lead_s=LEAD_S, name="clocked", clock=clock)
+    line = SplitLine(transport, clock, feed=device.feed, next_event_s=device.next_event_s, run_due=device.run_due)
+    sink = ListSink()
+    with pytest.raises(DeviceFault, match=r"0x2310"):
+        run_experiment(transport, _command(), sink, feedback_timeout_s=0.5, clock=clock)
+    flags = _flags(sink)
+    assert seen["read"] and len(sink.rows) == 101
+    assert flags[100] & SampleFlag.FAULT and not flags[100] & SampleFlag.LOST
+    assert sink.rows[100][3] == device.ticks[100].encoder_counts
+    assert not np.any(flags[:100] & (SampleFlag.FAULT | SampleFlag.LOST))
+
+
+def test_a_device_that_remembers_an_earlier_hosts_last_request_number_is_still_brought_up(rig, monkeypatch):
+    """Section 6: the device remembers the number of the last CONTROL it applied, also across host sessions (it
+    cannot tell them apart). An earlier host whose session ended after its first CONTROL left 4 there (STATUS_REQUEST
+    1, HELLO 2, STATUS_REQUEST 3, CONTROL 4): a host counting from 1 again would have its first CONTROL taken for a
+    repeat and never applied. Each session's numbers start at a random origin (seeded here)."""
+    import random
+
+    from rig.transports import serial_link
+
+    monkeypatch.setattr(serial_link, "REQUEST_ORIGINS", random.Random(11))
+    line, transport, device, clock = rig()
+    device.last_applied_request = 4
+    transport.timing = BringUpTiming(poll_interval_s=0.0, enable_timeout_s=0.5)
+    summary, sink, _ = _run(line, transport, clock, _command(50))
+    assert summary.samples == 50 and summary.lost == 0
+    assert device.controlwords[:3] == [0x0006, 0x0007, 0x000F]
