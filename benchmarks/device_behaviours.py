@@ -25,7 +25,7 @@ Columns:
 
 Usage::
 
-    python benchmarks/device_behaviours.py [--samples 400] [--rate 200] [--peer [--peer-samples 1500]]
+    python benchmarks/device_behaviours.py [--samples 400] [--rate 200] [--peer [--peer-samples 1500] [--peer-json FILE]]
 
 The simulated devices answer from threads of this process, so runs take the demo's window for late answers
 (``rig.demo.SIMULATED_RIG_PENDING_CYCLES``). The peer runs at its own rate (1 kHz) in its own processes.
@@ -37,6 +37,8 @@ import argparse
 import contextlib
 import json
 import os
+import re
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -156,8 +158,9 @@ def run_one(name: str, behaviours, mode: str, num_samples: int, rate_hz: float, 
             "command_step": command_step, "note": message}
 
 
-def peer_rows(num_samples: int | None) -> list[dict[str, object]]:
-    """The conformance peer's variants (its ``run.py --json``), as rows of the table."""
+def peer_rows(num_samples: int | None, keep_json: str | None = None) -> list[dict[str, object]]:
+    """The conformance peer's variants (its ``run.py --json``), as rows of the table; ``keep_json``: copy its
+    JSON lines (every measured value, the master's whole message) there."""
     with tempfile.TemporaryDirectory() as directory:
         out = Path(directory) / "peer.jsonl"
         command = [sys.executable, str(PEER_RUN), "--json", str(out)]
@@ -168,10 +171,13 @@ def peer_rows(num_samples: int | None) -> list[dict[str, object]]:
         if not out.exists():
             raise SystemExit(f"{PEER_RUN} wrote no results (exit {done.returncode}):\n{done.stderr[-800:]}")
         results = [json.loads(line) for line in out.read_text().splitlines() if line.strip()]
+        if keep_json:
+            shutil.copyfile(out, keep_json)
     rows = []
     for result in results:
         expectation = ("PASS" if result.get("pass") else "FAIL") + f" against \"{result.get('expected', '?')}\""
-        message = result.get("message") or ""
+        # the bus URL (one per variant) says nothing the row does not: drop it, keep the master's words
+        message = re.sub(r"(rig: )?(device error: )?canopen://\S+ ", "", result.get("message") or "")
         rows.append({"device": f"peer: {result['variant']}", "mode": PEER_MODES.get(result.get("mode_shown"), "?"),
                      "outcome": result.get("verdict", "?"), "state": result.get("final_state", "?"),
                      "wrong": result.get("cmd_wrong"), "usable": result.get("usable"), "rows": result.get("rows"),
@@ -197,6 +203,8 @@ def main() -> int:
     parser.add_argument("--peer", action="store_true", help="add the conformance peer's variants (~3-5 min)")
     parser.add_argument("--peer-samples", type=int, default=None,
                         help="samples per peer run (its --n; default: the peer's own, 1500)")
+    parser.add_argument("--peer-json", default=None, metavar="FILE",
+                        help="keep the peer's JSON lines (all its measured values, whole messages) in FILE")
     args = parser.parse_args()
     print(f"# CANopen master vs device behaviours: simulated drive {args.samples} samples at {args.rate:g} Hz, "
           f"modes auto and csp" + (", then the conformance peer's variants (1 kHz)" if args.peer else ""))
@@ -210,7 +218,7 @@ def main() -> int:
             row["device"] = f"{name} [{mode}]"
             print_row(row)
     if args.peer:
-        for row in peer_rows(args.peer_samples):
+        for row in peer_rows(args.peer_samples, args.peer_json):
             print_row(row)
     return 0
 
