@@ -493,13 +493,17 @@ class SimulatedCanOpenRig:
 
     def _apply_rpdo(self, values: RpdoValues) -> None:
         """RPDO data written to the mapped objects (the write hooks act on them: a controlword, a record
-        into the interpolation buffer); a value the drive refuses is not written."""
+        into the interpolation buffer); a value the drive refuses is not written. A target position (0x607A)
+        in OPERATION ENABLED is the first target; an interpolation data record (0x60C1) is not: it waits in
+        the buffer until ip mode takes it (:meth:`_plant_runs`)."""
+        target = False
         for index, subindex, data in values:
             try:
                 self.drive.set_data(index, subindex, data)
             except canopen.SdoAbortedError:
                 continue
-        self.streaming = self.streaming or self.state is cia402.DriveState.OPERATION_ENABLED
+            target = target or index == 0x607A
+        self.streaming = self.streaming or (target and self.state is cia402.DriveState.OPERATION_ENABLED)
 
     @staticmethod
     def _store(node: canopen.LocalNode, index: int, value: int, size: int, *, signed: bool = False) -> None:
