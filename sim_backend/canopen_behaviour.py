@@ -210,6 +210,11 @@ class DriveBehaviour(NodeBehaviour):
     faults with EMCY 0x6320 (parameter error) and 0x603F = 0x6320. Where the EDS has no 0x1006, 0x60C2 is
     the only period. False: the drive takes one record per SYNC whatever 0x60C2 says."""
 
+    ip_buffer_records: int | None = None
+    """The interpolation buffer's capacity (CiA 402 0x60C4:1 maximum buffer size, and 0x60C4:2 actual
+    buffer size at power-on), as the drive's EDS gives it (``SimulatedCanOpenRig.write_eds`` writes it);
+    e.g. 4 for a drive with a small FIFO. None keeps the EDS's (64)."""
+
     def __post_init__(self) -> None:
         super().__post_init__()
         _check("DriveBehaviour.ip_underflow", self.ip_underflow in IP_UNDERFLOW,
@@ -237,6 +242,10 @@ class DriveBehaviour(NodeBehaviour):
                    "None or a quick stop option code from 0 to 8", self.quick_stop_option)
         _check("DriveBehaviour.nmt_on_fault", self.nmt_on_fault in NMT_ON_FAULT,
                "None, 'pre-operational' or 'stopped'", self.nmt_on_fault)
+        if self.ip_buffer_records is not None:
+            _check("DriveBehaviour.ip_buffer_records",
+                   _is_int(self.ip_buffer_records) and 1 <= self.ip_buffer_records <= 0xFFFF,
+                   "None or a number of records from 1 to 65535", self.ip_buffer_records)
 
     @property
     def needs_clock(self) -> bool:
@@ -280,6 +289,13 @@ def real_variety() -> dict[str, tuple[DriveBehaviour, EncoderBehaviour]]:
         "pre-operational on fault": (drive(nmt_on_fault="pre-operational", emcy_error_reset=True), encoder()),
         "stopped on fault": (drive(nmt_on_fault="stopped"), encoder()),
         "encoder temperature warning at sample 20": (drive(), encoder(emcy_warning_at_seq=20)),
+        "interpolation buffer underflow faults (EPOS-like, 0x8600)": (drive(ip_underflow="fault"), encoder()),
+        "underflow faults after the first record (0x8600)": (drive(ip_underflow="fault_after_first"), encoder()),
+        "needs 0x60C2 = SYNC period (0x6320)": (drive(requires_ip_period=True), encoder()),
+        "interpolation buffer of 16 records": (drive(ip_buffer_records=16), encoder()),
+        "interpolation buffer of 4 records": (drive(ip_buffer_records=4), encoder()),
+        "interpolation buffer of 3 records": (drive(ip_buffer_records=3), encoder()),
+        "small buffer, faults on underflow": (drive(ip_buffer_records=4, ip_underflow="fault"), encoder()),
     }
 
 

@@ -89,8 +89,16 @@ def u32_range(value: int) -> int:
     return value
 
 
-def _static_eds_text(text: str, behaviour: NodeBehaviour) -> str:
-    """The EDS of a device with ``behaviour``: PDO parameters read-only and the static TPDO1 layout."""
+def _vendor_eds_text(text: str, behaviour: NodeBehaviour) -> str:
+    """The EDS of a device with ``behaviour``: for ``static_pdos`` the PDO parameters read-only and the static
+    TPDO1 layout; a drive's interpolation buffer capacity (0x60C4:1/2, ``ip_buffer_records``)."""
+    records = getattr(behaviour, "ip_buffer_records", None)
+    if records is not None:
+        try:
+            text = with_entries(text, defaults={(0x60C4, 1): records, (0x60C4, 2): records})
+        except KeyError as err:
+            raise InvalidInputError(f"drive_behaviour.ip_buffer_records: the drive's EDS has no 0x60C4 "
+                                    f"(interpolation data configuration): {err}") from err
     if not behaviour.static_pdos:
         return text
     defaults: dict[tuple[int, int], int] = {}
@@ -199,14 +207,20 @@ class SimulatedCanOpenRig:
         self.delayed_tpdo = delayed_tpdo
         self.error_frame_at = error_frame_at
         self.network: canopen.Network | None = None
-        self.drive_eds_text = _static_eds_text(eds_text(drive_eds), self.drive_behaviour)
-        self.encoder_eds_text = _static_eds_text(eds_text(encoder_eds), self.encoder_behaviour)
+        self.drive_eds_text = _vendor_eds_text(eds_text(drive_eds), self.drive_behaviour)
+        self.encoder_eds_text = _vendor_eds_text(eds_text(encoder_eds), self.encoder_behaviour)
         self.drive = canopen.LocalNode(drive_node_id, load_eds_text(self.drive_eds_text, Path(drive_eds).name))
         self.encoder = canopen.LocalNode(encoder_node_id, load_eds_text(self.encoder_eds_text, Path(encoder_eds).name))
         self.state = cia402.DriveState.SWITCH_ON_DISABLED
         self.controlword = 0
         self.controlwords: list[int] = []
         self.setpoints = 0  # SYNCs sampled since the first target (RPDO) in OPERATION ENABLED
+        # what the drive really did, sample by sample (one int per sample, for comparing a master's log with
+        # it): applied_targets[k] = the target (drive counts) applied at sample k, i.e. the position demand
+        # 0x6062 after the k-th sampled SYNC; position_before_samples = the actual position 0x6064 just before
+        # sample 0 (the step into the first target counts as a step too)
+        self.applied_targets: list[int] = []
+        self.position_before_samples: int | None = None
         self.streaming = False  # the plant holds exactly at rest until the first target arrives
         if self.drive_behaviour.requires_ip_period and 0x60C2 not in self.drive.object_dictionary:
             raise InvalidInputError("drive_behaviour.requires_ip_period: the drive's EDS has no 0x60C2 "
@@ -479,16 +493,17 @@ class SimulatedCanOpenRig:
 
     def _apply_rpdo(self, values: RpdoValues) -> None:
         """RPDO data written to the mapped objects (the write hooks act on them: a controlword, a record
-        into the interpolation buffer); a value the drive refuses is not written."""
+        into the interpolation buffer); a value the drive refuses is not written. A target position (0x607A)
+        in OPERATION ENABLED is the first target; an interpolation data record (0x60C1) is not: it waits in
+        the buffer until ip mode takes it (:meth:`_plant_runs`)."""
+        target = False
         for index, subindex, data in values:
             try:
                 self.drive.set_data(index, subindex, data)
             except canopen.SdoAbortedError:
                 continue
-        # a target in OPERATION ENABLED starts the samples; in interpolated position a record only waits in
-        # the buffer until ip mode is active (_plant_runs)
-        self.streaming = self.streaming or (self.state is cia402.DriveState.OPERATION_ENABLED
-                                            and self._mode_display != cia402.INTERPOLATED_POSITION_MODE)
+            target = target or index == 0x607A
+        self.streaming = self.streaming or (target and self.state is cia402.DriveState.OPERATION_ENABLED)
 
     @staticmethod
     def _store(node: canopen.LocalNode, index: int, value: int, size: int, *, signed: bool = False) -> None:
@@ -695,6 +710,9 @@ class SimulatedCanOpenRig:
                 self._fault_locked(EMCY_FOLLOWING_ERROR)
                 return
         applied = target if follows else actual  # statusword bit 12 clear: the drive holds its position
+        if self.position_before_samples is None:
+            self.position_before_samples = actual
+        self.applied_targets.append(applied)
         sample = self.gearbox.step(self.drive_scaling.rad_from_counts(applied))
         applied_bytes = applied.to_bytes(4, "little", signed=True)
         self.drive.data_store.setdefault(0x6064, {})[0] = applied_bytes

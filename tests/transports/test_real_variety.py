@@ -48,6 +48,15 @@ EXPECTED = {
     "pre-operational on fault": ("stops", r"drive 1 \(code 0x2310", {}, 20),
     "stopped on fault": ("stops", r"drive 1 \(code 0x2310", {}, 20),
     "encoder temperature warning at sample 20": (CLEAN, None, {}, None),
+    # interpolated position (CiA 402 0x60C1/0x60C4): a master that fills the buffer before controlword bit 4
+    # and never lets it run dry, and writes 0x60C2 = the SYNC period, runs clean on each of these
+    "interpolation buffer underflow faults (EPOS-like, 0x8600)": (CLEAN, None, {}, None),
+    "underflow faults after the first record (0x8600)": (CLEAN, None, {}, None),
+    "needs 0x60C2 = SYNC period (0x6320)": (CLEAN, None, {}, None),
+    "interpolation buffer of 16 records": (CLEAN, None, {}, None),
+    "interpolation buffer of 4 records": (CLEAN, None, {}, None),
+    "interpolation buffer of 3 records": (CLEAN, None, {}, None),  # auto: too small to stream into, CSP
+    "small buffer, faults on underflow": (CLEAN, None, {}, None),
 }
 
 
