@@ -137,7 +137,7 @@ def test_diagnose_refuses_two_files_whose_reports_would_share_a_directory(tmp_pa
     assert "would both write their report to DIR/run/" in capsys.readouterr().err
 
 
-def test_simulate_import_and_save_refuse_an_existing_file(tmp_path, capsys):
+def test_simulate_refuses_an_existing_file_and_replaces_it_with_force(tmp_path, capsys):
     out = tmp_path / "sim.csv"
     out.write_text("keep")
     code = main(["simulate", str(CONFIGS / "plants" / "cerone2009.toml"), "--excitation", str(PRBS), "--out", str(out)])
