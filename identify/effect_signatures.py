@@ -84,14 +84,15 @@ def signature_scores(command_rad: NDArray[np.float64], angle_rad: NDArray[np.flo
     Parameters
     ----------
     command_rad, angle_rad, simulated_rad
-        u_t, the measured y_t and the model's free-run y^_t, same length.
+        u_t, the measured y_t (NaN where not measured) and the model's free-run y^_t, same length.
     noise_bound_rad
         delta, the bound on the measurement error.
     sample_period_s
         T.
     """
-    y = np.asarray(angle_rad, dtype=float)
     y_hat = np.asarray(simulated_rad, dtype=float)
+    y = np.asarray(angle_rad, dtype=float)
+    y = np.where(np.isnan(y), y_hat, y)  # a sample not measured (NaN) has no residual: it shows no signature
     r = y - y_hat
     delta = float(noise_bound_rad)
     moving_threshold = max(1e-12, 1e-3 * float(np.ptp(y_hat)) / max(1.0, np.sqrt(y_hat.size)))

@@ -69,6 +69,7 @@ __all__ = [
     "HammersteinOptions",
     "NodePlay",
     "RefinementReport",
+    "complete_windows",
     "identify_hammerstein",
     "pi_moesp_observability",
     "select_order",
@@ -485,7 +486,10 @@ def pi_moesp_observability(
     inputs
         The inputs z, shape (N, m) (the lifted input of eq. (4)) or (N,).
     output_rad
-        The output y, shape (N,).
+        The output y, shape (N,); NaN marks a sample not measured. Column t of the block-Hankel matrices is
+        the window of p + f samples from t, and each window satisfies eq. (8) with its own state, so the
+        windows that hold a missing sample are left out (:func:`complete_windows`) and the others used as they
+        are.
     past_horizon, future_horizon
         p and f.
     remove_offset
@@ -508,12 +512,21 @@ def pi_moesp_observability(
     a, b = f * m, (f + p) * m
     s, M = p + f, m + 1
     w = np.hstack((inputs, outputs))
-    gram = _hankel_gram(w, s, j)
-    if remove_offset:
-        # row sums of the Hankel matrix: Σ_{t<j} w(t + b), from one cumulative sum
-        cumulative = np.vstack((np.zeros((1, M)), np.cumsum(w, axis=0)))
-        sums = (cumulative[j : j + s] - cumulative[:s]).ravel()
-        gram -= np.outer(sums, sums) / j
+    if np.any(np.isnan(outputs)):
+        # the complete windows only, as rows of the explicit (transposed) block-Hankel matrix
+        windows = np.flatnonzero(complete_windows(outputs[:, 0], s))
+        hankel = np.lib.stride_tricks.sliding_window_view(w, s, axis=0)[windows].transpose(0, 2, 1).reshape(-1, s * M)
+        gram = hankel.T @ hankel
+        if remove_offset:
+            sums = hankel.sum(axis=0)
+            gram -= np.outer(sums, sums) / max(windows.size, 1)
+    else:
+        gram = _hankel_gram(w, s, j)
+        if remove_offset:
+            # row sums of the Hankel matrix: Σ_{t<j} w(t + b), from one cumulative sum
+            cumulative = np.vstack((np.zeros((1, M)), np.cumsum(w, axis=0)))
+            sums = (cumulative[j : j + s] - cumulative[:s]).ravel()
+            gram -= np.outer(sums, sums) / j
     index = np.arange(s * M).reshape(s, M)
     order = np.concatenate((index[p:, :m].ravel(), index[:p, :m].ravel(), index[p:, m]))
     gram = gram[np.ix_(order, order)]
@@ -526,6 +539,13 @@ def pi_moesp_observability(
     input_diagonal = np.abs(np.diag(R_in))
     U, singular_values, _ = scipy.linalg.svd(L32, full_matrices=True, check_finite=False)
     return U, singular_values, input_diagonal
+
+
+def complete_windows(output_rad: NDArray[np.float64], window_samples: int) -> NDArray[np.bool_]:
+    """For each t = 0..N - ``window_samples``, whether the window of samples t .. t + window_samples - 1 holds
+    no missing (NaN) output: the columns of the block-Hankel matrices of eq. (8) that can be used."""
+    missing = np.concatenate(([0], np.cumsum(np.isnan(output_rad))))
+    return (missing[window_samples:] - missing[: missing.size - window_samples]) == 0
 
 
 def select_order(singular_values: ArrayLike, max_order: int) -> int:
@@ -622,7 +642,9 @@ def _regressors(A: NDArray[np.float64], C: NDArray[np.float64], z: NDArray[np.fl
     if not offset:
         keep[-1] = False
     # QR of [Ψ, y]: R gives Ψ's factor, its last column Q^T y, and its last diagonal entry |y - Ψ θ_LS|.
-    augmented = np.column_stack((columns[:, keep], y))
+    # The regressors are filtered inputs, known at every sample: a row with a missing output is left out.
+    measured = ~np.isnan(y)
+    augmented = np.column_stack((columns[:, keep], y))[measured]
     k = augmented.shape[1] - 1
     R_aug = np.triu(scipy.linalg.lapack.dgeqrf(augmented, overwrite_a=True)[0][: k + 1])
     R, qty = R_aug[:k, :k], R_aug[:k, k]
@@ -708,6 +730,7 @@ def _refine(z: NDArray, y: NDArray, numerator: NDArray, denominator: NDArray, mu
     probe = np.zeros(2 * n)
     free = np.column_stack([scipy.signal.lfilter(b, denominator, probe, zi=np.eye(n)[k])[0] for k in range(n)])
     zi0 = _lstsq(free, free_response[: 2 * n])
+    measured = ~np.isnan(y)
 
     def unpack(params: NDArray) -> tuple[NDArray, NDArray, NDArray, float, NDArray]:
         a = np.concatenate(([1.0], params[:n]))
@@ -722,15 +745,15 @@ def _refine(z: NDArray, y: NDArray, numerator: NDArray, denominator: NDArray, mu
         a, b_full, mu_k, mu0_k, zi = unpack(params)
         with np.errstate(all="ignore"):
             model = mu0_k + scipy.signal.lfilter(b_full, a, z @ mu_k, zi=zi)[0]
-        r = y - model
+        r = np.where(measured, y - model, 0.0)  # a missing output costs nothing
         return np.where(np.isfinite(r), r, 1e6)
 
     start = np.concatenate((denominator[1:], b[first_b:n], mu, [mu0], zi0))
     before = residual(start)
     solution = scipy.optimize.least_squares(residual, start, method="trf", x_scale="jac")
     a, b_full, mu_new, mu0_new, zi = unpack(solution.x)
-    rms_before_rad = float(np.sqrt(np.mean(before**2)))
-    rms_after_rad = float(np.sqrt(np.mean(solution.fun**2)))
+    rms_before_rad = float(np.sqrt(np.mean(before[measured] ** 2)))
+    rms_after_rad = float(np.sqrt(np.mean(solution.fun[measured] ** 2)))
     applied = rms_after_rad < rms_before_rad and bool(np.all(np.abs(np.roots(a)) < 1.0))
     report = RefinementReport(
         rms_before_rad=rms_before_rad, rms_after_rad=rms_after_rad if applied else rms_before_rad,
@@ -842,7 +865,10 @@ def identify_hammerstein(
     ----------
     input_rad, output_rad
         Input u and output y, one sample each per time step, starting at u_min (with the hold, if any); the
-        old keyword names ``u=``, ``y=`` still work, with a DeprecationWarning.
+        old keyword names ``u=``, ``y=`` still work, with a DeprecationWarning. NaN in ``output_rad`` marks a
+        sample not measured (LOST): the Hankel columns (windows of p + f samples) that hold one and the rows
+        of the least squares at it are left out, μ0 is the mean of the hold's measured samples, and
+        ``num_columns`` of the model counts the windows used.
     nodes
         Path nodes (eq. (3)); :meth:`PathNodes.uniform` for equally spaced ones, or one sequence of node
         positions shared by both paths.
@@ -863,7 +889,7 @@ def identify_hammerstein(
     options = with_options("identify_hammerstein", options, HammersteinOptions, option_values)
     u_signal = varying("input_rad", as_signal("input_rad", input_rad), "use the cyclic random excitation of "
                        "identify.cyclic_excitation (configs/experiments/hammerstein_cyclic.toml)")
-    y_signal = as_signal("output_rad", output_rad)
+    y_signal = as_signal("output_rad", output_rad, missing_allowed=True)
     N = same_length(input_rad=u_signal, output_rad=y_signal)
     nodes = _path_nodes(nodes)
     p, f = options.past_horizon, options.future_horizon
@@ -877,6 +903,15 @@ def identify_hammerstein(
             f"input_rad, output_rad: {N} samples are too few for past_horizon={p}, future_horizon={f} and {m} lifted inputs: "
             f"the Hankel matrices need at least {needed_columns} columns, i.e. {needed_columns + p + f - 1} samples"
         )
+    missing = int(np.count_nonzero(np.isnan(y_signal)))
+    if missing:
+        j = int(np.count_nonzero(complete_windows(y_signal, p + f)))
+        if j < needed_columns:
+            raise InvalidInputError(
+                f"output_rad: {missing} of the {N} outputs are missing (NaN, LOST), which leaves {j} complete windows "
+                f"of p + f = {p + f} samples (Hankel columns); past_horizon={p}, future_horizon={f} and {m} lifted "
+                f"inputs need at least {needed_columns}: record again with fewer lost samples, or use shorter "
+                "horizons or fewer nodes")
     check_cyclic_input(u_signal, nodes, initial_direction=options.initial_direction,
                        tolerance_rad=_node_tolerance(nodes), min_visits=options.min_visits)
 
@@ -896,8 +931,9 @@ def identify_hammerstein(
         A, B, C, D, mu, mu0_final, x0, model_output, refinement = _refined_model(
             z, y_signal, numerator, denominator, mu, mu0_final, free_response @ x0, options.feedthrough,
             (A, B, C, D, x0, model_output))
-    residual = y_signal - model_output
-    spread = np.linalg.norm(y_signal - y_signal.mean())
+    measured = ~np.isnan(y_signal)  # the fit and its RMS are over the measured samples
+    residual = (y_signal - model_output)[measured]
+    spread = np.linalg.norm(y_signal[measured] - y_signal[measured].mean())
     fit = 100.0 * (1.0 - np.linalg.norm(residual) / spread) if spread > 0 else float("nan")
     num_a = len(nodes.ascending) - 1
     return HammersteinModel(
@@ -945,7 +981,10 @@ def _start_offset(u: NDArray[np.float64], y: NDArray[np.float64], nodes: PathNod
             f"hold_samples: sample {k} of the hold is u = {float(u[k])}, expected u_min = {nodes.u_min}; "
             "shorten hold_samples or give mu0_rad"
         )
-    mu0_hold_rad = float(np.mean(y[:K]))
+    if np.all(np.isnan(y[:K])):
+        raise InvalidInputError(f"hold_samples: all {K} outputs of the hold are missing (LOST): no mu0 can be read "
+                                "from it; give mu0_rad or record again")
+    mu0_hold_rad = float(np.nanmean(y[:K]))  # the samples of the hold that were measured
     return mu0_hold_rad, mu0_hold_rad
 
 

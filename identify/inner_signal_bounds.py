@@ -42,7 +42,7 @@ class InnerSignalBounds:
     Attributes
     ----------
     lower_rad, upper_rad
-        x_t^min and x_t^max.
+        x_t^min and x_t^max; NaN where y_t is missing (not measured), where nothing bounds x_t.
     invertible
         True where Proposition 2 holds (|y_t - y_{t-1}| > 2Δη; sample 0 has no predecessor and is never
         invertible); elsewhere the band bound applies.
@@ -81,6 +81,7 @@ class InnerSignalBounds:
     def median_half_width_rad(self, *, invertible: bool) -> float:
         """Median Δx_t over the invertible samples (``invertible=True``) or the others; nan if there are none."""
         chosen = self.half_width_rad[self.invertible == invertible]
+        chosen = chosen[np.isfinite(chosen)]  # a missing sample has no bound
         return float(np.median(chosen)) if chosen.size else float("nan")
 
     KIND = "inner_signal_bounds"
@@ -122,7 +123,8 @@ def bound_inner_signal(output_rad: ArrayLike, noise_bound_rad: float, backlash: 
     Parameters
     ----------
     output_rad
-        y_t, t = 0..N-1, measured output of the dynamic (PRBS) experiment.
+        y_t, t = 0..N-1, measured output of the dynamic (PRBS) experiment; NaN marks a sample not measured
+        (its bounds are NaN, and the sample after it is not invertible: Proposition 2 needs y_{t-1}).
     noise_bound_rad
         Δη >= 0 of eq. (5).
     backlash
@@ -133,7 +135,7 @@ def bound_inner_signal(output_rad: ArrayLike, noise_bound_rad: float, backlash: 
     InnerSignalBounds
         Guaranteed bounds (padded by 1e-12 relative against rounding) and the invertible-sample mask.
     """
-    y = as_signal("output_rad", output_rad, min_samples=2)
+    y = as_signal("output_rad", output_rad, min_samples=2, missing_allowed=True)
     noise = float(noise_bound_rad)
     if not np.isfinite(noise) or noise < 0.0:
         raise InvalidInputError(f"noise_bound_rad: expected a finite number >= 0, got {noise_bound_rad!r}")
@@ -147,7 +149,8 @@ def bound_inner_signal(output_rad: ArrayLike, noise_bound_rad: float, backlash: 
                                          -backlash.left.slope_times_deadband_vertices)
     lower = np.minimum(left_low, right_low)
     upper = np.maximum(left_high, right_high)
-    step = np.diff(y)
+    with np.errstate(invalid="ignore"):
+        step = np.diff(y)  # NaN next to a missing sample: neither rising nor falling
     direction = np.zeros(y.size, dtype=np.int8)
     direction[1:][step > 2.0 * noise] = 1
     direction[1:][step < -2.0 * noise] = -1
@@ -167,7 +170,7 @@ def shared_backlash_constraints(output_rad: ArrayLike, noise_bound_rad: float, b
     (ρ, c) up to ζ_t = ρ η_t, |ζ_t| <= ρ^max Δη, and D_γ is a polygon in (ρ, c): see
     :class:`identify.linear_block_bounds.SharedBacklashConstraints`.
     """
-    y = as_signal("output_rad", output_rad, min_samples=2)
+    y = as_signal("output_rad", output_rad, min_samples=2, missing_allowed=True)
     if y.size != inner.lower_rad.size:
         raise InvalidInputError(f"output_rad: expected {inner.lower_rad.size} samples like the inner-signal bounds, got {y.size}")
     noise = float(noise_bound_rad)

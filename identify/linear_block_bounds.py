@@ -582,8 +582,8 @@ class _Data:
 def _prepare(input_rad: ArrayLike, inner_lower_rad: ArrayLike, inner_upper_rad: ArrayLike,
              orders: LinearModelOrders, shared: SharedBacklashConstraints | None = None) -> _Data:
     u = as_signal("input_rad", input_rad)
-    lower = as_signal("inner_lower_rad", inner_lower_rad)
-    upper = as_signal("inner_upper_rad", inner_upper_rad)
+    lower = as_signal("inner_lower_rad", inner_lower_rad, missing_allowed=True)
+    upper = as_signal("inner_upper_rad", inner_upper_rad, missing_allowed=True)
     same_length(input_rad=u, inner_lower_rad=lower, inner_upper_rad=upper)
     bad = np.flatnonzero(lower > upper)
     if bad.size:
@@ -595,16 +595,24 @@ def _prepare(input_rad: ArrayLike, inner_lower_rad: ArrayLike, inner_upper_rad: 
                                 f"before the first equation, but the record has {u.size} samples; the orders are "
                                 f"too high for the data (at least {n + 2 * p} samples are needed): use lower orders "
                                 "or a longer record")
-    if u.size - n < 2 * p:
-        raise InvalidInputError(f"input_rad: {u.size} samples give {u.size - n} equations for the {p} parameters of "
-                                f"na={orders.na}, nk={orders.nk}, nb={orders.nb}; the orders are too high for the "
-                                f"data (at least {2 * p} equations are needed): use lower orders or a longer record")
+    known = np.isfinite(lower) & np.isfinite(upper)
+    times = np.arange(n, u.size)
+    complete = np.all([known[times - i] for i in range(orders.na + 1)], axis=0)
+    times = times[complete]
+    missing = int(np.count_nonzero(~known))
+    if times.size < 2 * p:
+        left = (f"; {missing} samples without an inner-signal bound (output not measured) set aside "
+                f"{u.size - n - times.size} of the {u.size - n} equations" if missing else "")
+        raise InvalidInputError(f"input_rad: {u.size} samples give {times.size} equations for the {p} parameters of "
+                                f"na={orders.na}, nk={orders.nk}, nb={orders.nb}{left}; the orders are too high for "
+                                f"the data (at least {2 * p} equations are needed): use lower orders or a longer "
+                                "record" + (" with fewer lost samples" if missing else ""))
     if np.ptp(u) == 0.0:
         raise InvalidInputError(f"input_rad: the input is constant ({u[0]:g} rad in all {u.size} samples), so it "
                                 "excites nothing and the linear block cannot be bounded; use a persistently exciting "
                                 "dynamic experiment such as the PRBS (configs/experiments/prbs.toml)")
-    times = np.arange(n, u.size)
-    xc, dx = 0.5 * (lower + upper), 0.5 * (upper - lower)
+    # a sample without bounds is in no equation; 0 +- 0 keeps its (unused) variable finite
+    xc, dx = np.where(known, 0.5 * (lower + upper), 0.0), np.where(known, 0.5 * (upper - lower), 0.0)
     columns = [-xc[times - i] for i in range(1, orders.na + 1)] + [u[times - j] for j in range(orders.nk, orders.nb + 1)]
     if shared is not None:
         if not isinstance(shared, SharedBacklashConstraints):
@@ -1801,7 +1809,11 @@ def bound_linear_block(input_rad: ArrayLike, inner_lower_rad: ArrayLike, inner_u
     input_rad
         u_t of the dynamic experiment.
     inner_lower_rad, inner_upper_rad
-        x_t^min, x_t^max from :func:`identify.inner_signal_bounds.bound_inner_signal` (eq. (23)).
+        x_t^min, x_t^max from :func:`identify.inner_signal_bounds.bound_inner_signal` (eq. (23)); NaN where
+        x_t is not bounded (a sample whose output was not measured). An equation of eq. (7) is used only when
+        its regressors are complete: the equation at t needs x_t, ..., x_{t-na}, so each missing sample sets
+        aside up to na + 1 equations. The bounds hold as before (fewer equations give a set that contains the
+        one of all of them), only possibly wider.
     na, nk, nb
         Orders: A = 1 + a_1 q^-1 + ... + a_na q^-na, B = b_nk q^-nk + ... + b_nb q^-nb.
     method

@@ -398,7 +398,8 @@ def disagreement(model: PlantModel, command_rad: ArrayLike, angle_rad: ArrayLike
     model
         The model, simulated from rest on the whole command.
     command_rad, angle_rad
-        u_t and the measured y_t.
+        u_t and the measured y_t; NaN marks a sample not measured: its residual is 0, it is never falsified,
+        and the fraction and the gap are over the measured samples.
     noise_bound_rad
         delta > 0.
     estimation_samples
@@ -406,24 +407,25 @@ def disagreement(model: PlantModel, command_rad: ArrayLike, angle_rad: ArrayLike
         (default: 0, the whole record).
     """
     u = as_signal("command_rad", command_rad, min_samples=2)
-    y = as_signal("angle_rad", angle_rad, min_samples=2)
+    y = as_signal("angle_rad", angle_rad, min_samples=2, missing_allowed=True)
     same_length(command_rad=u, angle_rad=y)
     delta = positive("noise_bound_rad", noise_bound_rad)
     start = 0 if estimation_samples is None else int(estimation_samples)
     if not 0 <= start < u.size:
         raise InvalidInputError(f"estimation_samples: expected 0 <= n < {u.size}, got {estimation_samples!r}")
     simulated = np.asarray(model.simulate(u), dtype=float)
-    residual = y - simulated
+    residual = _measured_error(y, simulated)
     if not np.all(np.isfinite(residual)):
         residual = np.where(np.isfinite(residual), residual, _BIG)
     falsified = np.abs(residual) > delta
     tail = residual[start:]
+    measured = max(int(np.count_nonzero(~np.isnan(y[start:]))), 1)  # the fraction and gap of measured samples
     return Disagreement(
         simulated_rad=simulated,
         residual_rad=residual,
         falsified=falsified,
-        falsified_fraction=float(np.mean(falsified[start:])),
-        gap_rad=float(np.sqrt(np.mean(tail * tail))),
+        falsified_fraction=float(np.count_nonzero(falsified[start:]) / measured),
+        gap_rad=float(np.sqrt(np.sum(tail * tail) / measured)),
         windows=_windows(falsified, residual, merge_gap_samples, min_window_samples),
     )
 
@@ -548,6 +550,24 @@ class _Chain:
         return True
 
 
+def _measured_error(y: NDArray[np.float64], simulated: NDArray[np.float64]) -> NDArray[np.float64]:
+    """y_t - y^_t where y_t was measured, 0 where it is missing (NaN: a LOST or unusable sample), so that a
+    sample not measured counts neither against a model nor for it: it drops out of every least-squares cost,
+    and every comparison of two models on the same samples (their ratio of RMS errors) is unchanged by it."""
+    with np.errstate(invalid="ignore"):
+        return np.where(np.isnan(y), 0.0, y - simulated)
+
+
+def _bridged(y: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``y`` with its missing samples (NaN) interpolated linearly between the measured ones: for equation-error
+    start values only (an ARX fit filters y, where one NaN would spread), never for a residual."""
+    missing = np.isnan(y)
+    if not np.any(missing):
+        return y
+    index = np.arange(y.size)
+    return np.where(missing, np.interp(index, index[~missing], y[~missing]), y)
+
+
 def _free_run_error(chain: _Chain, u: NDArray[np.float64], y: NDArray[np.float64]) -> NDArray[np.float64]:
     if not chain.linear_stable():
         return np.full(y.size, _BIG / math.sqrt(y.size))
@@ -555,10 +575,9 @@ def _free_run_error(chain: _Chain, u: NDArray[np.float64], y: NDArray[np.float64
         simulated = chain.model().simulate(u)
     except (InvalidInputError, ValueError, OverflowError, FloatingPointError):
         return np.full(y.size, _BIG / math.sqrt(y.size))
-    error = y - simulated
-    if not np.all(np.isfinite(error)):
+    if not np.all(np.isfinite(simulated)):
         return np.full(y.size, _BIG / math.sqrt(y.size))
-    return error
+    return _measured_error(y, simulated)
 
 
 def _rms(values: NDArray[np.float64]) -> float:
@@ -665,7 +684,7 @@ def fit_linear_model(command_rad: ArrayLike, angle_rad: ArrayLike, sample_period
     ``resonance``).
     """
     u = as_signal("command_rad", command_rad, min_samples=10)
-    y = as_signal("angle_rad", angle_rad, min_samples=10)
+    y = as_signal("angle_rad", angle_rad, min_samples=10, missing_allowed=True)
     same_length(command_rad=u, angle_rad=y)
     period = positive("sample_period_s", sample_period_s)
     n_est = int(estimation_samples)
@@ -677,14 +696,14 @@ def fit_linear_model(command_rad: ArrayLike, angle_rad: ArrayLike, sample_period
     best: tuple[float, int, LinearBlock] | None = None
     for order in range(1, max_order + 1):
         try:
-            a, b = _steiglitz_mcbride(u[:n_est], y[:n_est], order, input_delay_samples)
+            a, b = _steiglitz_mcbride(u[:n_est], _bridged(y[:n_est]), order, input_delay_samples)
         except InvalidInputError:
             continue
         chain = _Chain([_linear_component(LinearBlock(a=a, b=b, sample_period_s=period))])
         chain = _polish(chain, u[:n_est], y[:n_est], max_evaluations)
         block = chain.model().blocks[0]
         assert isinstance(block, LinearBlock)
-        gap = _rms((y - block.apply(u))[n_est:])
+        gap = _rms(_measured_error(y, block.apply(u))[n_est:])
         gaps[order] = gap
         if best is None or gap < 0.98 * best[0]:
             best = (gap, order, block)
@@ -765,7 +784,7 @@ def _try_effect(kind: str, chain: _Chain, u: NDArray[np.float64], y: NDArray[np.
     if entry.searched:
         options = [with_effect((d,)) for d in range(1, max_delay_samples + 1)]
     else:
-        simulated = y - residual
+        simulated = np.where(np.isnan(y), _bridged(y), y - residual)  # for the guesses only
         options = [with_effect(g) for g in entry.guesses(GuessContext(u, residual, delta, period, scores,
                                                                       simulated, train))]
         if entry.placement == "dynamics" and chain.components[index].loop_free and options:
@@ -1122,6 +1141,8 @@ def _contact_branch_start(chain: _Chain, u: NDArray[np.float64], y: NDArray[np.f
         w = OutputBacklash(m_l=1.0, c_l_rad=max(c_l, 1e-9), m_r=1.0, c_r_rad=max(c_r, 1e-9)).apply(x)
         right = np.abs(w - (x - c_r)) < 1e-12
         left = np.abs(w - (x + c_l)) < 1e-12
+        measured = ~np.isnan(y)
+        right, left = right & measured, left & measured
         if np.any(right):
             c_r = float(np.mean(x[right] - y[right]))
         if np.any(left):
@@ -1147,11 +1168,13 @@ def _output_error_fit(u: NDArray[np.float64], y: NDArray[np.float64], a: tuple[f
     q^-k / A, k = ``delay`` .. ``delay + numerator_terms - 1``), so only A is searched. Returns a and b (with
     ``delay`` leading zeros)."""
 
+    measured = ~np.isnan(y)  # a missing sample is no row of the least squares
+
     def solve(a_values: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         denominator = (1.0, *a_values)
         phi = np.column_stack([lfilter([0.0] * (delay + j) + [1.0], denominator, u) for j in range(numerator_terms)])
-        theta, *_ = np.linalg.lstsq(phi, y, rcond=None)
-        return theta, y - phi @ theta
+        theta, *_ = np.linalg.lstsq(phi[measured], y[measured], rcond=None)
+        return theta, _measured_error(y, phi @ theta)
 
     def residual(a_values: NDArray[np.float64]) -> NDArray[np.float64]:
         if np.any(np.abs(np.roots((1.0, *a_values))) >= 0.9999):
@@ -1307,7 +1330,11 @@ def diagnose_model(command_rad: ArrayLike, angle_rad: ArrayLike, noise_bound_rad
     Parameters
     ----------
     command_rad, angle_rad
-        Measured input u_t and output y_t (rad), one record.
+        Measured input u_t and output y_t (rad), one record. NaN in ``angle_rad`` marks a sample not
+        measured (LOST, or unusable by its flags): the free run still covers it (the model needs only the
+        command), but it is left out of every residual, fit and count (its residual is 0, it is never
+        falsified, and the gaps and falsified fractions are over the measured samples). Each segment must
+        keep :data:`MIN_MEASURED_FRACTION` of its samples.
     noise_bound_rad
         delta: bound on the measurement error, |e_t| <= delta (include the encoder's half count).
     sample_period_s
@@ -1337,6 +1364,7 @@ def diagnose_model(command_rad: ArrayLike, angle_rad: ArrayLike, noise_bound_rad
                                 replace(options, from_operating_point=False), progress=progress)
         return _absolute(result, operating_point, period)
     n_est = int(round(options.estimation_fraction * u.size))
+    _check_measured(y, n_est)
     say = progress or (lambda _message: None)
     excitation = _excitation(u, n_est)
     if excitation["reason"]:
@@ -1364,12 +1392,35 @@ def diagnose_model(command_rad: ArrayLike, angle_rad: ArrayLike, noise_bound_rad
     )
 
 
+MIN_MEASURED_FRACTION = 0.5
+"""The estimation and the validation segment must each have at least this fraction of their samples measured
+(not NaN): the free run still covers every sample, but a segment mostly missing would judge a model on a few
+stretches of it."""
+
+
+def _check_measured(y: NDArray[np.float64], n_est: int) -> None:
+    """Refuse a record whose estimation or validation segment is too little measured (:data:`MIN_MEASURED_FRACTION`),
+    saying how many samples are left and how many are needed."""
+    missing = np.isnan(y)
+    if not np.any(missing):
+        return
+    for name, part in (("estimation", slice(0, n_est)), ("validation", slice(n_est, y.size))):
+        total = int(missing[part].size)
+        measured = total - int(np.count_nonzero(missing[part]))
+        needed = int(math.ceil(MIN_MEASURED_FRACTION * total))
+        if measured < needed:
+            raise InvalidInputError(
+                f"angle_rad: {int(np.count_nonzero(missing))} of the {y.size} samples are missing (NaN: lost or "
+                f"unusable), which leaves {measured} measured samples of the {total} of the {name} segment; at "
+                f"least {needed} ({100 * MIN_MEASURED_FRACTION:.0f} %) are needed: record again with fewer lost samples")
+
+
 def _checked_record(command_rad: ArrayLike, angle_rad: ArrayLike, noise_bound_rad: float, sample_period_s: float,
                     model: PlantModel | None) -> tuple[NDArray[np.float64], NDArray[np.float64], float, float]:
     """u, y, delta and T of :func:`diagnose_model`, checked (T is the model's own when it has one, so that the
     blocks added carry exactly the model's period)."""
     u = as_signal("command_rad", command_rad, min_samples=50)
-    y = as_signal("angle_rad", angle_rad, min_samples=50)
+    y = as_signal("angle_rad", angle_rad, min_samples=50, missing_allowed=True)
     same_length(command_rad=u, angle_rad=y)
     delta = positive("noise_bound_rad", noise_bound_rad)
     period = positive("sample_period_s", sample_period_s)
@@ -1516,6 +1567,9 @@ def _operating_point(y: NDArray[np.float64], delta: float) -> float:
     """y_0 when the record starts at rest (its first angles within two noise bounds of each other) away from
     zero; 0 otherwise (a record that starts in motion has a state no angle gives: it runs from zero)."""
     first = y[:OPERATING_POINT_SAMPLES]
+    first = first[~np.isnan(first)]
+    if first.size == 0:
+        return 0.0
     y0 = float(np.median(first))
     at_rest = float(np.ptp(first)) <= 2.0 * delta
     return y0 if at_rest and abs(y0) > OPERATING_POINT_MIN_NOISE_BOUNDS * delta else 0.0
@@ -2155,7 +2209,7 @@ def _add_step(best: _Candidate, chain: _Chain, current: Disagreement, steps: lis
               max_evaluations: int) -> _Search:
     polished = _polish(_refine_delays(best.chain, u[:n_est], y[:n_est]), u[:n_est], y[:n_est],
                        _budget(best.chain, max_evaluations))
-    if _rms((y - polished.model().simulate(u))[n_est:]) <= best.gap_rad:
+    if _rms(_measured_error(y, polished.model().simulate(u))[n_est:]) <= best.gap_rad:
         best = _Candidate(best.kind, polished, best.gap_rad, _build(polished.components[best.index],
                                                                    polished.components[best.index].values), best.index)
     after = disagreement(best.chain.model(), u, y, delta, n_est)
@@ -2308,7 +2362,8 @@ def _judged(kind: str, chain: _Chain, index: int, u: NDArray[np.float64], y: NDA
             n_est: int) -> _Candidate:
     """A fitted chain as a :class:`_Candidate` of effect ``kind`` at ``index``: its validated gap and error
     and its estimation error."""
-    error = (y - chain.model().simulate(u))[n_est:] if chain.linear_stable() else np.full(y.size - n_est, _BIG)
+    error = (_measured_error(y, chain.model().simulate(u))[n_est:] if chain.linear_stable()
+             else np.full(y.size - n_est, _BIG))
     error = np.where(np.isfinite(error), error, _BIG)
     component = chain.components[index]
     return _Candidate(kind, chain, _rms(error), _build(component, component.values), index,
@@ -2375,7 +2430,7 @@ def _compound(kinds: Sequence[str], hysteresis: _Candidate, tried: Sequence[_Can
 
     def fitted(kind: str, base: _Chain, forced: Sequence[tuple[float, ...]] = ()) -> _Candidate:
         simulated = base.model().simulate(u)
-        return _try_effect(kind, base, u, y, n_est, delta, period, y - simulated,
+        return _try_effect(kind, base, u, y, n_est, delta, period, _measured_error(y, simulated),
                            signature_scores(u, y, simulated, delta, period), options.max_delay_samples,
                            options.max_evaluations, forced)
 
@@ -2832,7 +2887,7 @@ def _fold_intervals(chain: _Chain, start_model: PlantModel, u: NDArray[np.float6
     for part in _fold_parts(u.size):
         refit, held_out = _fold_refit(chain, u, y, part, max_evaluations)
         collect(refit)
-        start_gap = _rms((y - start_simulated)[part])
+        start_gap = _rms(_measured_error(y, start_simulated)[part])
         if start_gap > 0.0:
             reductions.append(1.0 - _rms(held_out) / start_gap)
     intervals = {kind: {key: _jackknife_interval(v[0], v[1:]) for key, v in parameters.items()}

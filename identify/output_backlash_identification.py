@@ -132,7 +132,9 @@ def bound_output_backlash_system(steady_input_rad: ArrayLike, steady_output_rad:
     steady_input_rad, steady_output_rad
         The 2M steady-state points (ū_s, ȳ_s) of the filtered staircase experiment, both half-waves mixed.
     input_rad, output_rad
-        u_t and y_t of the dynamic (PRBS) experiment.
+        u_t and y_t of the dynamic (PRBS) experiment. NaN in ``output_rad`` marks a sample not measured (a
+        LOST sample): the equations of eq. (7) that need its inner signal are left out (see
+        :func:`identify.linear_block_bounds.bound_linear_block`); the others still bound every parameter.
     noise_bound_rad
         Δη > 0 (eq. (5)), the same for both experiments (for an n-bit encoder, 2π/2^n).
     na, nk, nb
@@ -171,7 +173,7 @@ def bound_output_backlash_system(steady_input_rad: ArrayLike, steady_output_rad:
     if not (noise > 0.0 and noise < float("inf")):
         raise InvalidInputError(f"noise_bound_rad: expected a finite number > 0, got {noise_bound_rad!r}")
     u = as_signal("input_rad", input_rad, min_samples=2)
-    y = as_signal("output_rad", output_rad, min_samples=2)
+    y = as_signal("output_rad", output_rad, min_samples=2, missing_allowed=True)
     same_length(input_rad=u, output_rad=y)
     backlash = bound_backlash_parameters(steady_input_rad, steady_output_rad, noise,
                                          filter_step_amplitude_rad=filter_step_amplitude_rad)

@@ -40,8 +40,12 @@ def with_options(function_name: str, options: OptionsT | None, defaults: Callabl
     return dataclasses.replace(base, **option_values)  # type: ignore[type-var]
 
 
-def as_signal(name: str, values: ArrayLike, *, min_samples: int = 1) -> NDArray[np.float64]:
+def as_signal(name: str, values: ArrayLike, *, min_samples: int = 1, missing_allowed: bool = False) -> NDArray[np.float64]:
     """Return ``values`` as a finite 1-D float array, or raise naming ``name`` and the bad sample.
+
+    With ``missing_allowed``, NaN marks a sample that was not measured (a LOST sample of
+    :class:`identify.experiment_record.ExperimentRecord`, or one its flags make unusable) and is kept; an
+    infinite value is still refused.
 
     Parameters
     ----------
@@ -51,6 +55,8 @@ def as_signal(name: str, values: ArrayLike, *, min_samples: int = 1) -> NDArray[
         Anything numpy can turn into a 1-D array of floats.
     min_samples
         The fewest samples the caller can work with.
+    missing_allowed
+        Keep NaN (a sample not measured); the caller sets those samples aside.
     """
     try:
         signal = np.asarray(values, dtype=float)
@@ -60,7 +66,9 @@ def as_signal(name: str, values: ArrayLike, *, min_samples: int = 1) -> NDArray[
         raise InvalidInputError(f"{name}: expected a 1-D array, got shape {signal.shape}")
     if signal.size < min_samples:
         raise InvalidInputError(f"{name}: expected at least {min_samples} samples, got {signal.size}")
-    bad = np.flatnonzero(~np.isfinite(signal))
+    if missing_allowed and signal.size and np.all(np.isnan(signal)):
+        raise InvalidInputError(f"{name}: all {signal.size} samples are missing (NaN): nothing was measured")
+    bad = np.flatnonzero(np.isinf(signal) if missing_allowed else ~np.isfinite(signal))
     if bad.size:
         raise InvalidInputError(
             f"{name}: sample {bad[0]} is {signal[bad[0]]} ({bad.size} non-finite samples in all); "

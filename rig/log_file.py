@@ -41,6 +41,7 @@ import stat
 import time
 import warnings
 from collections.abc import Mapping
+from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
 from typing import Any, TextIO
@@ -53,8 +54,9 @@ from identify.validation import InvalidInputError
 from rig.protocols.errors import LogFileError
 from rig.signal_files import check_input_file
 
-__all__ = ["COLUMNS", "FORMAT_LINE", "LogWriteError", "LogWriter", "check_output_varies", "count_samples", "is_rig_log",
-           "read_experiment_data", "read_log", "write_log"]
+__all__ = ["COLUMNS", "FORMAT_LINE", "LogWriteError", "LogWriter", "SetAside", "check_output_varies", "count_samples",
+           "is_rig_log", "read_experiment_data", "read_log", "read_usable_input_output", "unusable_as_missing",
+           "write_log"]
 
 FORMAT_LINE = "# rig-log v1"
 COLUMNS = ("time_s", "command_rad", "angle_rad", "encoder_counts", "flags")
@@ -124,6 +126,9 @@ class LogWriter:
     fsync
         Also fsync at every flush (survives power loss, costs a disk write per flush); ``close`` always
         fsyncs.
+    claimed
+        The :class:`rig.output_paths.ClaimedOutput` of ``path`` (claimed before a run starts, so that no other
+        run writes it); None opens ``path`` itself, replacing a file there.
 
     Examples
     --------
@@ -132,7 +137,8 @@ class LogWriter:
     """
 
     def __init__(self, path: str | Path, metadata: ExperimentMetadata | Mapping[str, Any], *,
-                 flush_every: int = 1, flush_interval_s: float | None = None, fsync: bool = False) -> None:
+                 flush_every: int = 1, flush_interval_s: float | None = None, fsync: bool = False,
+                 claimed: Any = None) -> None:
         self.path = Path(path)
         if isinstance(flush_every, bool) or not isinstance(flush_every, int) or flush_every < 1:
             raise InvalidInputError(f"flush_every: expected an integer >= 1, got {flush_every!r}")
@@ -154,7 +160,8 @@ class LogWriter:
         self._failure: str | None = None
         self._summary_written = False
         try:
-            self._file: TextIO | None = self.path.open("w", encoding="utf-8", newline="\n")
+            self._file: TextIO | None = (self.path.open("w", encoding="utf-8", newline="\n") if claimed is None
+                                         else claimed.open_text())
         except OSError as err:
             if isinstance(err, FileNotFoundError) and not self.path.parent.is_dir():
                 raise LogWriteError(f"{self.path}: cannot open the log for writing: the directory {self.path.parent} "
@@ -519,6 +526,51 @@ def read_input_output(path: str | Path) -> tuple[NDArray[np.float64], NDArray[np
     if "t" in table and table["t"].size > 1:
         _check_time_column(path, table["t"])
     return table["u"], table["y"]
+
+
+@dataclass(frozen=True)
+class SetAside:
+    """The samples of a record that an analysis leaves out: those whose flags make them unusable
+    (:meth:`identify.experiment_record.SampleFlag.unusable`: LOST, DUPLICATE, FAULT, NOT_FOLLOWED, AMBIGUOUS),
+    counted per flag (a sample with two of them counts under each)."""
+
+    samples: int
+    total: int
+    by_flag: dict[str, int]
+
+    def flags_text(self) -> str:
+        """'LOST 3, DUPLICATE 1'."""
+        return ", ".join(f"{name} {count}" for name, count in self.by_flag.items())
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"samples": self.samples, "of": self.total, "by_flag": dict(self.by_flag)}
+
+
+def unusable_as_missing(record: ExperimentRecord) -> tuple[NDArray[np.float64], SetAside]:
+    """The record's angles with NaN at every unusable sample (the methods of ``identify`` take NaN for a
+    sample not measured), and what was set aside."""
+    unusable = ~record.valid_mask
+    by_flag = {flag.name: int(np.count_nonzero(unusable & ((record.flags & int(flag)) != 0)))
+               for flag in SampleFlag if flag & SampleFlag.unusable()}
+    angle = np.where(unusable, np.nan, record.angle_rad)
+    return angle, SetAside(int(np.count_nonzero(unusable)), len(record),
+                           {name: count for name, count in by_flag.items() if count})
+
+
+def read_usable_input_output(path: str | Path) -> tuple[NDArray[np.float64], NDArray[np.float64], SetAside]:
+    """:func:`read_input_output` with the output NaN at the samples a rig log (CSV, MDF4 or MAT) flags
+    unusable, and what was set aside (nothing for a plain table, which has no flags)."""
+    from rig.measurement_files import measurement_format, read_measurement_record
+
+    path = check_input_file(path, "a rig-log v1 file or a CSV with columns u,y")
+    kind = measurement_format(path)
+    record = read_log(path) if kind is None and is_rig_log(path) else (
+        read_measurement_record(path) if kind is not None else None)
+    if record is None:
+        u, y = read_input_output(path)
+        return u, y, SetAside(0, int(u.size), {})
+    y, aside = unusable_as_missing(record)
+    return record.command_rad, y, aside
 
 
 JITTER_NOTE = 0.01

@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import xml.etree.ElementTree as ElementTree
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -318,8 +319,8 @@ def _columns(record: ExperimentRecord) -> dict[str, NDArray[Any]]:
 
 
 def write_mdf(path: str | Path, record: ExperimentRecord) -> None:
-    """Write ``record`` as an ASAM MDF 4.10 file (layout in the module docstring). ``path`` must end in
-    ``.mf4`` or ``.mdf`` (asammdf would change another suffix)."""
+    """Write ``record`` as an ASAM MDF 4.10 file (layout in the module docstring) at exactly ``path``, which
+    must end in ``.mf4`` or ``.mdf`` (asammdf saves an MDF 4 file as ``.mf4``; it is moved to the name asked)."""
     path = Path(path)
     asammdf = require_asammdf(path)
     from asammdf.blocks.v4_blocks import FileHistory
@@ -351,9 +352,11 @@ def write_mdf(path: str | Path, record: ExperimentRecord) -> None:
                            f"<tool_id>rig</tool_id><tool_vendor>gearbox-rig</tool_vendor>"
                            f"<tool_version>{escape(__version__)}</tool_version></FHcomment>")
         mdf.file_history.insert(0, history)
-        mdf.save(path, overwrite=True)
+        saved = Path(mdf.save(path, overwrite=True))
     finally:
         mdf.close()
+    if saved.resolve() != path.resolve():  # asammdf names an MDF 4 file .mf4 whatever it was asked: give it the name asked
+        os.replace(saved, path)
 
 
 def write_mat(path: str | Path, record: ExperimentRecord) -> None:

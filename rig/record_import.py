@@ -34,7 +34,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from identify.experiment_record import ExperimentMetadata, ExperimentRecord
+from identify.experiment_record import ExperimentMetadata, ExperimentRecord, SampleFlag
 from rig.protocols.errors import LogFileError
 
 __all__ = ["ImportOptions", "ImportReport", "RecordImportError", "parse_columns", "parse_units", "read_measurement",
@@ -154,7 +154,9 @@ def remove_spikes(y: NDArray[np.float64]) -> tuple[NDArray[np.float64], tuple[in
     if y.size < 3:
         return y, ()
     steps = np.abs(np.diff(y))
-    typical = float(np.quantile(steps, 0.99))
+    if not np.any(np.isfinite(steps)):
+        return y, ()
+    typical = float(np.nanquantile(steps, 0.99))  # a LOST sample (NaN) is no step, and never a spike
     jump = max(SPIKE_JUMP_FACTOR * typical, SPIKE_MIN_JUMP_RAD)
     middle = y[1:-1]
     before, after = y[:-2], y[2:]
@@ -300,7 +302,7 @@ def read_measurement(path: str | Path, options: ImportOptions | None = None) -> 
         except LogFileError as err:
             raise _bounded(err) from None
         t, u, y, valid = record.time_s, record.command_rad, record.angle_rad, None
-        metadata = record.metadata
+        metadata, flags, counts = record.metadata, record.flags, record.encoder_counts
     else:
         if not is_json and is_rig_log(path):
             raise RecordImportError(f"{path}: a rig log has fixed columns and units; --columns, --units and --valid "
@@ -308,7 +310,7 @@ def read_measurement(path: str | Path, options: ImportOptions | None = None) -> 
         columns = _json_records(path, text, options) if is_json else _csv_columns(path, options)
         t, u, y = columns["t"], columns["u"] * scale, columns["y"] * scale
         valid = columns.get("valid")
-        metadata = None
+        metadata, flags, counts = None, None, None
     notes: list[str] = []
     kept = None
     if valid is not None:
@@ -333,12 +335,20 @@ def read_measurement(path: str | Path, options: ImportOptions | None = None) -> 
     t, (u, y), note, spread = uniform_sampling(t, u, y, refuse=options.irregular == "refuse", source=str(path))
     if note:
         notes.append(note)
+        if flags is not None:  # the flags belong to the samples as taken; a resampled one is LOST where y is unknown
+            lost_before = int(np.count_nonzero(flags & int(SampleFlag.LOST)))
+            flags = np.where(np.isnan(y), int(SampleFlag.LOST), 0).astype(np.uint8)
+            counts = None
+            if lost_before or np.any(flags):
+                notes.append(f"the sample flags are not resampled: each resampled sample next to one of the {lost_before} "
+                             f"LOST samples is LOST ({int(np.count_nonzero(flags))} in all), the other flags are dropped")
     period = float(np.median(np.diff(t))) if note == "" else spread[1]
     if metadata is None or note:
         metadata = ExperimentMetadata(sample_period_s=period, source=str(path),
                                       transport="json records" if is_json else "csv")
     record = ExperimentRecord(time_s=np.asarray(t, dtype=float), command_rad=np.asarray(u, dtype=float),
-                              angle_rad=np.asarray(y, dtype=float), encoder_counts=None, flags=None, metadata=metadata)
+                              angle_rad=np.asarray(y, dtype=float), encoder_counts=counts, flags=flags,
+                              metadata=metadata)
     return record, ImportReport(notes=tuple(notes), spike_samples=spikes, resampled=bool(note),
                                 period_min_s=spread[0], period_median_s=spread[1], period_max_s=spread[2],
                                 kept_samples=kept)

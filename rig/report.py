@@ -85,8 +85,11 @@ def write_report(out_dir: str | Path, title: str, sections: Sequence[ReportSecti
     matplotlib.use("Agg")
     from matplotlib.figure import Figure
 
+    from rig.output_paths import atomic_output, mark_report_dir
+
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
+    mark_report_dir(out_dir)  # rig may write this directory again; a directory of the user's it refuses
     names = [figure.name for section in sections for figure in section.figures]
     duplicated = sorted({name for name in names if names.count(name) > 1})
     if duplicated:
@@ -115,7 +118,8 @@ def write_report(out_dir: str | Path, title: str, sections: Sequence[ReportSecti
         + "\n</body></html>\n"
     )
     index = out_dir / "index.html"
-    index.write_text(page, encoding="utf-8")
+    with atomic_output(index, force=True) as written:  # a reader never sees half a page
+        written.write_text(page, encoding="utf-8")
     return index
 
 

@@ -24,7 +24,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         ),
     )
     parser.add_argument("--out", type=Path, default=Path("demo-report"), metavar="DIR",
-                        help="report directory (default: ./demo-report)")
+                        help="report directory (default: ./demo-report): a new or empty one, or an earlier report of "
+                             "rig; another non-empty directory is refused unless --force")
+    parser.add_argument("--force", action="store_true", help="write into an --out directory that holds other files")
     parser.add_argument("--transport", choices=("canopen", "can", "serial"), default="canopen",
                         help="wire protocol between the driver and the simulated rig (default: canopen)")
     parser.add_argument("--quick", action="store_true", help="shorter experiments (for tests and a first look)")
@@ -35,11 +37,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from rig.demo import FULL_PLAN, QUICK_PLAN, format_summary, run_demo, summary_rows
-    from rig.output_paths import check_output_dir, writing
+    from rig.output_paths import check_report_dir, mark_report_dir, writing
 
-    check_output_dir(args.out, "--out")  # before minutes of experiments
+    check_report_dir(args.out, "--out", force=args.force)  # before minutes of experiments
     steps, progress = _progress_bars(per_sample=sys.stderr.isatty()) if not args.json else (None, None)
     with writing(args.out, "--out"):
+        args.out.mkdir(parents=True, exist_ok=True)
+        mark_report_dir(args.out)  # its logs go in first
         outcome = run_demo(args.out, args.transport, QUICK_PLAN if args.quick else FULL_PLAN, steps, progress)
     if args.json:
         print(json.dumps({"report": str(outcome.report_index), "rows": [list(row) for row in summary_rows(outcome)]}))

@@ -49,6 +49,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         help="bound on the measurement error |e_t| in rad (include the encoder's half count)")
     parser.add_argument("--report", metavar="DIR", default=None,
                         help="write figures and an HTML page to DIR (with several files: DIR/<file name>/)")
+    parser.add_argument("--force", action="store_true",
+                        help="write the --report into a directory that holds other files (not an earlier report)")
     parser.add_argument("--jobs", type=int, default=1, metavar="N",
                         help="diagnose several files in N processes (0: one per core; default 1)")
     parser.add_argument("--scheduler", metavar="ADDRESS", default=None,
@@ -72,9 +74,15 @@ def run(args: argparse.Namespace) -> int:
     from rig.record_import import options_from_arguments
 
     if args.report is not None:  # before the work: a diagnosis can take minutes
-        from rig.output_paths import check_output_dir
+        from rig.output_paths import check_report_dir
 
-        check_output_dir(args.report, "--report", inputs=args.data)
+        check_report_dir(args.report, "--report", inputs=args.data, force=args.force)
+        _refuse_shared_report_names(args.data)
+        if len(args.data) > 1:  # the reports go into subdirectories: the top one is the report of the batch
+            from rig.output_paths import mark_report_dir
+
+            Path(args.report).mkdir(parents=True, exist_ok=True)
+            mark_report_dir(args.report)
     fmu = _fmu_options(args)
     options = {"model": args.model, "fmu": fmu, "noise_bound": args.noise_bound, "report": args.report,
                "report_per_file": len(args.data) > 1, "import": options_from_arguments(args),
@@ -108,25 +116,46 @@ def run(args: argparse.Namespace) -> int:
     return exit_codes.SUCCESS if all(outcome.error is None for outcome in outcomes) else exit_codes.BAD_INPUT
 
 
+def _refuse_shared_report_names(paths: list[str]) -> None:
+    """With several files, each report goes to DIR/<file name without suffix>/: two files of one name (in
+    different directories, or run.csv and run.mf4) would write one report over the other (one file given
+    twice writes the same report twice)."""
+    if len(paths) < 2:
+        return
+    seen: dict[str, str] = {}
+    for path in paths:
+        stem = Path(path).stem
+        if stem in seen and Path(seen[stem]).resolve() != Path(path).resolve():
+            raise ValueError(f"--report: {seen[stem]} and {path} would both write their report to DIR/{stem}/, one "
+                             "over the other; rename one of them, or diagnose them in two commands with two --report "
+                             "directories")
+        seen[stem] = path
+
+
 def diagnose_file(path_text: str, options: dict):
-    """Diagnose one file with the command's options; return the result, the number of samples and the
-    report's index page (None without --report). A module-level function returning picklable values, so
-    that it runs in other processes."""
+    """Diagnose one file with the command's options; return the result, the number of samples, the
+    report's index page (None without --report), what the import did and the samples set aside (unusable by
+    their flags: left out of the disagreement and the fits, see :func:`identify.model_discrepancy.diagnose_model`).
+    A module-level function returning picklable values, so that it runs in other processes."""
     from identify.model_discrepancy import diagnose_model
-    from rig.log_file import check_output_varies
-    from rig.batch import shipped_path
+    from identify.validation import InvalidInputError
+    from rig.log_file import check_output_varies, unusable_as_missing
     from rig.record_import import read_measurement
 
     record, imported = read_measurement(path_text, options.get("import"))
-    check_output_varies(path_text, record.angle_rad)
+    angle_rad, set_aside = unusable_as_missing(record)
+    check_output_varies(path_text, angle_rad)
     model, candidates = _start_model(options, record.metadata.sample_period_s)
     progress = _progress_lines(path_text, record.command_rad.size) if options.get("progress") else None
-    result = diagnose_model(record.command_rad, record.angle_rad, options["noise_bound"],
-                            record.metadata.sample_period_s, model, candidates=candidates, progress=progress)
+    try:
+        result = diagnose_model(record.command_rad, angle_rad, options["noise_bound"],
+                                record.metadata.sample_period_s, model, candidates=candidates, progress=progress)
+    except InvalidInputError as err:
+        raise InvalidInputError(f"{path_text}: {err}") from err
     index = None
     if options["report"] is not None:
         index = _write_report(path_text, result, record, options)
-    return result, int(record.command_rad.size), index, imported
+    return result, int(record.command_rad.size), index, imported, set_aside
 
 
 def _write_report(path_text: str, result, record, options: dict):
@@ -150,10 +179,10 @@ def _with_report(outcome, options: dict):
 
     if outcome.error is not None:
         return outcome
-    result, num_samples, _, imported = outcome.result
+    result, num_samples, _, imported, set_aside = outcome.result
     record, _ = read_measurement(outcome.path, options.get("import"))
     index = _write_report(outcome.path, result, record, options)
-    return dataclasses.replace(outcome, result=(result, num_samples, index, imported))
+    return dataclasses.replace(outcome, result=(result, num_samples, index, imported, set_aside))
 
 
 def _fmu_options(args: argparse.Namespace) -> dict | None:
@@ -227,8 +256,8 @@ def _progress_lines(path_text: str, num_samples: int):
 def _document(outcome, black_box: dict | None = None) -> dict:
     """The ``--json`` object of one file: the result's document plus what the import did (and, for an FMU
     start model, ``fmu``: :func:`black_box_note`)."""
-    result, _, _, imported = outcome
-    document = {**result.to_dict(), "import": imported.to_dict()}
+    result, _, _, imported, set_aside = outcome
+    document = {**result.to_dict(), "import": imported.to_dict(), "set_aside": set_aside.to_dict()}
     if black_box is not None:
         document["fmu"] = black_box
     return document
@@ -256,9 +285,12 @@ def _acceptance_note(candidate) -> str:
 
 
 def _print_summary(data: str, model: str | None, noise_bound: float, result, num_samples: int, index,
-                   imported=None, black_box: dict | None = None) -> None:
+                   imported=None, set_aside=None, black_box: dict | None = None) -> None:
     print(f"data          {data}  ({num_samples} samples, validation from sample "
           f"{result.estimation_samples})")
+    if set_aside is not None and set_aside.samples:
+        print(f"set aside     {set_aside.samples} of {set_aside.total} samples, unusable by their flags "
+              f"({set_aside.flags_text()}): the free run covers them, the disagreement and the fits leave them out")
     start = model or ("linear, order %d (fitted)" % result.linear_fit.order if result.linear_fit else "not fitted")
     for note in (imported.notes if imported is not None else ()):
         print(f"import        {note}")

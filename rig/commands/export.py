@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
 
 from rig import exit_codes
@@ -37,7 +38,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--format", choices=sorted(FORMATS), default=None,
                         help="output format (default: from the suffix of --out: .mf4/.mdf, .mat, .csv)")
     parser.add_argument("--out", metavar="FILE", required=True,
-                        help="file to write (.mf4 or .mdf for mdf, .mat for mat; replaced if it exists)")
+                        help="file to write (.mf4 or .mdf for mdf, .mat for mat); an existing file is refused "
+                             "unless --force. It is written under a temporary name and moved into place when complete")
+    parser.add_argument("--force", action="store_true", help="replace an existing --out file")
     parser.add_argument("--json", action="store_true", help='print {"log", "out", "format", "samples"} as JSON')
     parser.set_defaults(handler=run)
 
@@ -63,22 +66,24 @@ def output_format(out: str, given: str | None) -> str:
 def run(args: argparse.Namespace) -> int:
     from rig.log_file import read_experiment_data, write_log
     from rig.measurement_files import require_asammdf, write_mat, write_mdf
-    from rig.output_paths import check_output_file, writing
+    from rig.output_paths import atomic_output, check_output_file, is_regular_target
 
     kind = output_format(args.out, args.format)
     if kind == "mdf":
         require_asammdf(Path(args.out))  # before the work: a missing package is named at once
-    out = check_output_file(args.out, "--out", inputs=[args.log])
+    out = check_output_file(args.out, "--out", inputs=[args.log], force=args.force)
     record = read_experiment_data(args.log)
-    with writing(out, "--out"):
+    with atomic_output(out, "--out", force=args.force, suffix=".mf4" if kind == "mdf" else None) as written:
         if kind == "mdf":
-            write_mdf(out, record)
+            write_mdf(written, record)
         elif kind == "mat":
-            write_mat(out, record)
+            write_mat(written, record)
         else:
-            write_log(out, record)
+            write_log(written, record)
+    # the data may be going to stdout (--out /dev/stdout): then what is said goes to stderr
+    status = sys.stdout if is_regular_target(out) else sys.stderr
     if args.json:
-        print(json.dumps({"log": args.log, "out": str(out), "format": kind, "samples": len(record)}))
+        print(json.dumps({"log": args.log, "out": str(out), "format": kind, "samples": len(record)}), file=status)
     else:
-        print(f"{args.log} -> {out} ({kind}, {len(record)} samples)")
+        print(f"{args.log} -> {out} ({kind}, {len(record)} samples)", file=status)
     return exit_codes.SUCCESS

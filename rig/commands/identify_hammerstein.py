@@ -97,22 +97,22 @@ def run(args: argparse.Namespace) -> int:
 
     options["import"] = options_from_arguments(args)
     if len(args.data) == 1 and args.scheduler is None:
-        model, hold = identify_file(args.data[0], options)  # errors go to rig.cli with their exit code
+        result = identify_file(args.data[0], options)  # errors go to rig.cli with their exit code
         if args.json:
-            print(json.dumps(model.to_dict()))
+            print(json.dumps(_model_document(result)))
         else:
-            _print_table(model, Path(args.data[0]), hold)
+            _print_table(result[0], Path(args.data[0]), result[1], result[2])
         sys.stdout.flush()
         return exit_codes.SUCCESS
     outcomes = map_files(partial(identify_file, options=options), args.data, jobs=args.jobs,
                          scheduler=args.scheduler)
     if args.json:
-        print(json.dumps(batch_document([outcome.to_json("model", lambda result: result[0].to_dict())
+        print(json.dumps(batch_document([outcome.to_json("model", _model_document)
                                          for outcome in outcomes])))
     else:
         for outcome in outcomes:
             if outcome.error is None:
-                _print_table(outcome.result[0], Path(outcome.path), outcome.result[1])
+                _print_table(outcome.result[0], Path(outcome.path), outcome.result[1], outcome.result[2])
             else:
                 print(f"data             {outcome.path}\nerror            {outcome.error}")
             print()
@@ -121,7 +121,10 @@ def run(args: argparse.Namespace) -> int:
 
 
 def identify_file(path_text: str, options: dict):
-    """Identify one file with the command's options; return the model and the hold length used."""
+    """Identify one file with the command's options; return the model, the hold length used and what was set
+    aside (:func:`_set_aside_document`): the samples its flags make unusable are NaN to
+    :func:`identify.hammerstein_subspace.identify_hammerstein`, which leaves out the windows and rows that hold
+    them."""
     import numpy as np
 
     from identify.border_lifting import PathNodes, uniform_nodes
@@ -131,17 +134,18 @@ def identify_file(path_text: str, options: dict):
         identify_hammerstein,
     )
     from identify.validation import InvalidInputError
-    from rig.log_file import check_output_varies, read_input_output
+    from rig.log_file import check_output_varies, read_usable_input_output, unusable_as_missing
 
     path = Path(path_text)
     imported = options.get("import")
     if imported is None or imported.is_default:
-        u, y = read_input_output(path)  # u, y columns; no time column needed
+        u, y, set_aside = read_usable_input_output(path)  # u, y columns; no time column needed
     else:
         from rig.record_import import read_measurement
 
         record, report = read_measurement(path, imported)
-        u, y = record.command_rad, record.angle_rad
+        u = record.command_rad
+        y, set_aside = unusable_as_missing(record)
         for note in report.notes:
             print(f"import           {note}", file=sys.stderr)
     if u.size == 0:
@@ -168,19 +172,41 @@ def identify_file(path_text: str, options: dict):
                 "cyclic random excitation that starts with a hold at u_min (configs/experiments/hammerstein_cyclic.toml): "
                 "start with the hold at u_min or give --mu0"
             )
-    model = identify_hammerstein(
-        u, y, nodes,
-        hold_samples=hold, mu0_rad=options["mu0"], order=options["order"],
-        past_horizon=DEFAULT_PAST_HORIZON if options["past_horizon"] is None else options["past_horizon"],
-        future_horizon=DEFAULT_FUTURE_HORIZON if options["future_horizon"] is None else options["future_horizon"],
-        feedthrough=not options["no_feedthrough"], split=options["split"], refine=options["refine"],
-    )
-    return model, hold
+    past = DEFAULT_PAST_HORIZON if options["past_horizon"] is None else options["past_horizon"]
+    future = DEFAULT_FUTURE_HORIZON if options["future_horizon"] is None else options["future_horizon"]
+    try:
+        model = identify_hammerstein(
+            u, y, nodes,
+            hold_samples=hold, mu0_rad=options["mu0"], order=options["order"], past_horizon=past,
+            future_horizon=future, feedthrough=not options["no_feedthrough"], split=options["split"],
+            refine=options["refine"],
+        )
+    except InvalidInputError as err:
+        raise InvalidInputError(f"{path}: {err}") from err
+    return model, hold, _set_aside_document(set_aside, u.size - past - future + 1, model.num_columns)
 
 
-def _print_table(model, path: Path, hold: int | None) -> None:
+def _set_aside_document(set_aside, all_windows: int, used_windows: int) -> dict:
+    """What ``--json`` (key ``set_aside``) and the table say about the unusable samples: how many, by flag,
+    and the Hankel windows (columns) left out because they hold one."""
+    return {**set_aside.to_dict(), "hankel_columns_left_out": int(all_windows - used_windows),
+            "hankel_columns": int(all_windows)}
+
+
+def _model_document(result) -> dict:
+    """The ``--json`` object of one file: the model (kind hammerstein_model) and ``set_aside``."""
+    model, _, set_aside = result
+    return {**model.to_dict(), "set_aside": set_aside}
+
+
+def _print_table(model, path: Path, hold: int | None, set_aside: dict | None = None) -> None:
     numerator, denominator = model.transfer_function
     print(f"data             {path}")
+    if set_aside and set_aside["samples"]:
+        flags = ", ".join(f"{name} {count}" for name, count in set_aside["by_flag"].items())
+        print(f"set aside        {set_aside['samples']} of {set_aside['of']} samples, unusable by their flags ({flags}): "
+              f"{set_aside['hankel_columns_left_out']} of the {set_aside['hankel_columns']} Hankel columns (windows "
+              "holding one) and their least-squares rows are left out")
     print(f"order            {model.order}   (p = {model.past_horizon}, f = {model.future_horizon}, "
           f"j = {model.num_columns} columns, B and mu: {model.split})")
     shown = model.singular_values[: min(8, model.singular_values.size)]

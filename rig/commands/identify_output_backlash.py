@@ -74,7 +74,8 @@ def register(methods: argparse._SubParsersAction) -> None:
                              "example at about twice the time")
     parser.add_argument("--save", metavar="RESULT.json", default=None,
                         help="also write the --json object with the data it came from (steady points, dynamic "
-                             "record, noise bound, orders) to RESULT.json")
+                             "record, noise bound, orders) to RESULT.json (an existing file is refused unless --force)")
+    parser.add_argument("--force", action="store_true", help="replace an existing --save file")
     parser.set_defaults(handler=run)
 
 
@@ -84,8 +85,10 @@ inputs it came from)."""
 
 
 def _read(path_text: str, role: str):
-    """(u, y) of the ``role`` experiment, naming the role when the file is missing."""
-    from rig.log_file import check_output_varies, is_rig_log, read_input_output
+    """(u, y, set aside) of the ``role`` experiment, naming the role when the file is missing. The dynamic
+    experiment's output is NaN at the samples its flags make unusable (:func:`rig.log_file.unusable_as_missing`),
+    which the bounds leave out; the steady-state points are each a usable sample (set aside: None)."""
+    from rig.log_file import check_output_varies, is_rig_log, read_input_output, read_usable_input_output
     from rig.measurement_files import measurement_format, read_measurement_record
     from rig.signal_files import check_input_file
 
@@ -94,17 +97,18 @@ def _read(path_text: str, role: str):
     path = check_input_file(path_text, f"the {role} data (a CSV with columns u, y, or a rig log)")
     if role == "steady-state":
         if is_rig_log(path) or (measurement_format(path) is not None and read_measurement_record(path) is not None):
-            return staircase_steady_points(path)[:2]
+            return (*staircase_steady_points(path)[:2], None)
         if _has_time_column(path):
             raise ValueError(
                 f"{path}: --steady takes one row per steady-state point (columns u, y: the last sample of each "
                 "half-wave of the steady_staircase experiment), but this is a per-sample record (a CSV with a t "
                 "column) that does not say where the half-waves end: give the staircase experiment's rig log (its "
                 "metadata say it), or pass a record of every sample as --dynamic")
-    u, y = read_input_output(path)
-    if role == "dynamic":
-        check_output_varies(path, y)
-    return u, y
+    if role == "steady-state":
+        return (*read_input_output(path), None)
+    u, y, set_aside = read_usable_input_output(path)
+    check_output_varies(path, y)
+    return u, y, set_aside
 
 
 def _has_time_column(path: Path) -> bool:
@@ -182,7 +186,7 @@ def run(args: argparse.Namespace) -> int:
     if args.save is not None:  # before the work: a coupled bound can take a while
         from rig.output_paths import check_output_file
 
-        check_output_file(args.save, "--save", inputs=[*args.steady, *args.dynamic])
+        check_output_file(args.save, "--save", inputs=[*args.steady, *args.dynamic], force=args.force)
     if args.jobs < 0:
         raise ValueError(f"--jobs: expected 0 (all cores) or a positive number of processes, got {args.jobs}")
     if len(args.steady) == 1:
@@ -238,8 +242,8 @@ def bound_pair(dynamic: str, steady_of: dict[str, str], options: dict) -> dict:
     module-level function returning plain data, so that it runs in other processes."""
     from rig.batch import shipped_path, user_path
 
-    result, *_ = _bound(shipped_path(steady_of[user_path(dynamic)]), dynamic, options)  # a cluster worker's copies
-    return _document(result, options["method"])
+    result, _, _, _, y, set_aside = _bound(shipped_path(steady_of[user_path(dynamic)]), dynamic, options)  # a cluster worker's copies
+    return _document(result, options["method"], _set_aside_document(set_aside, y, options))
 
 
 _OPTIONS = ("noise_bound", "na", "nk", "nb", "method", "filter_step", "window_samples", "joint_samples",
@@ -250,8 +254,8 @@ def _bound(steady: str, dynamic: str, options: dict, map_windows=None, progress=
     from identify.output_backlash_identification import bound_output_backlash_system
     from identify.validation import InvalidInputError
 
-    steady_u, steady_y = _read(steady, "steady-state")
-    u, y = _read(dynamic, "dynamic")
+    steady_u, steady_y, _ = _read(steady, "steady-state")
+    u, y, set_aside = _read(dynamic, "dynamic")
     try:
         result = bound_output_backlash_system(steady_u, steady_y, u, y, options["noise_bound"], na=options["na"],
                                               nk=options["nk"], nb=options["nb"], method=options["method"],
@@ -266,14 +270,33 @@ def _bound(steady: str, dynamic: str, options: dict, map_windows=None, progress=
                                               verify_inner=len(u) <= options["joint_samples"])
     except InvalidInputError as err:
         raise InvalidInputError(f"{err} (--steady {steady}, --dynamic {dynamic})") from err
-    return result, steady_u, steady_y, u, y
+    return result, steady_u, steady_y, u, y, set_aside
 
 
-def _document(result, method: str) -> dict:
+def _set_aside_document(set_aside, y, options: dict) -> dict:
+    """The samples of the dynamic record set aside (unusable by their flags) and the equations of eq. (7)
+    left out because their regressors need one (x_t .. x_{t-na}): as
+    :func:`identify.linear_block_bounds.bound_linear_block` counts them."""
+    import numpy as np
+
+    from identify.linear_block_bounds import LinearModelOrders
+
+    orders = LinearModelOrders(options["na"], options["nk"], options["nb"])
+    times = np.arange(orders.first_equation, y.size)
+    known = ~np.isnan(y)
+    complete = np.all([known[times - i] for i in range(orders.na + 1)], axis=0) if times.size else known[:0]
+    return {**set_aside.to_dict(), "equations_left_out": int(times.size - np.count_nonzero(complete)),
+            "equations": int(times.size)}
+
+
+def _document(result, method: str, set_aside: dict | None = None) -> dict:
     """The ``--json`` object: :meth:`OutputBacklashIdentification.to_dict` (the keys of issue 2, with
-    ``kind`` and ``version``), and ``notes`` when a bound fell back (a bounding LP HiGHS could not solve)."""
+    ``kind`` and ``version``), ``notes`` when a bound fell back (a bounding LP HiGHS could not solve), and
+    ``set_aside``: the dynamic record's unusable samples and the equations they took out."""
     assert result.method == method
     document = result.to_dict()
+    if set_aside is not None:
+        document["set_aside"] = set_aside
     if result.linear is not None and result.linear.notes:
         document["notes"] = list(result.linear.notes)
     return document
@@ -318,9 +341,10 @@ def _run_one(args: argparse.Namespace, steady: str, dynamic: str) -> int:
     # the windows and parts of a long record run in worker processes even with --jobs 1: a crash inside
     # HiGHS then loses that worker's windows (valid, looser bounds with a note), not the command
     with executor_for(args.jobs, args.scheduler, isolated=True) as executor:
-        result, steady_u, steady_y, u, y = _bound(steady, dynamic, options, map_callable(executor),
-                                                  _ProgressLine(sys.stderr))
-    document = _document(result, args.method)
+        result, steady_u, steady_y, u, y, set_aside = _bound(steady, dynamic, options, map_callable(executor),
+                                                             _ProgressLine(sys.stderr))
+    aside = _set_aside_document(set_aside, y, options)
+    document = _document(result, args.method, aside)
     if result.is_empty:
         if args.json:
             print(json.dumps(document))
@@ -336,6 +360,9 @@ def _run_one(args: argparse.Namespace, steady: str, dynamic: str) -> int:
     else:
         print(f"steady-state data  {steady}  ({_steady_description(steady, len(steady_u))})")
         print(f"dynamic data       {dynamic}  ({inner.lower_rad.size} samples, {inner.num_invertible} invertible)")
+        if aside["samples"]:
+            print(f"set aside          {aside['samples']} samples unusable by their flags ({set_aside.flags_text()}): "
+                  f"the {aside['equations_left_out']} of the {aside['equations']} equations that need one are left out")
         print(f"noise bound        {args.noise_bound:.6g} rad     method {args.method}")
         if result.linear.windowing:
             print(f"windowing          {result.linear.windowing}")
@@ -363,10 +390,10 @@ def _save(path_text: str, document: dict, args: argparse.Namespace, steady: str,
     """Write the ``--save`` file (:data:`SAVED_FORMAT`); an unwritable path is an OSError naming it."""
     saved = {"format": SAVED_FORMAT, **document, "data": {
         "steady": {"u": steady_u.tolist(), "y": steady_y.tolist(), "file": str(steady)},
-        "dynamic": {"u": u.tolist(), "y": y.tolist(), "file": str(dynamic)},
+        "dynamic": {"u": u.tolist(), "y": [None if math.isnan(v) else v for v in y.tolist()], "file": str(dynamic)},
         "noise_bound_rad": args.noise_bound, "filter_step_rad": args.filter_step,
         "na": args.na, "nk": args.nk, "nb": args.nb}}
-    from rig.output_paths import writing
+    from rig.output_paths import atomic_output
 
-    with writing(path_text, "--save"):
-        Path(path_text).write_text(json.dumps(saved))
+    with atomic_output(path_text, "--save", force=args.force) as written:
+        written.write_text(json.dumps(saved))

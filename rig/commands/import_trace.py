@@ -34,7 +34,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("trace", metavar="TRACE", help="CAN trace: .blf, .asc, .trc, .log (candump -l) or .csv")
     parser.add_argument("--config", metavar="RIG.toml", required=True,
                         help="the rig config of the run (rate, drive scaling, encoder, DBC or node-IDs)")
-    parser.add_argument("--out", metavar="LOG", required=True, help="log file to write (CSV, rig-log v1)")
+    parser.add_argument("--out", metavar="LOG", required=True,
+                        help="log file to write (CSV, rig-log v1); an existing file is refused unless --force")
+    parser.add_argument("--force", action="store_true", help="replace an existing --out file")
     parser.add_argument("--json", action="store_true",
                         help='print {"log", "trace", "samples", "lost", "late", "held", "duplicate", "fault", '
                              '"frame_errors"} as JSON')
@@ -44,15 +46,15 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from identify.experiment_record import SampleFlag
     from rig.log_file import write_log
-    from rig.output_paths import check_output_file, writing
+    from rig.output_paths import atomic_output, check_output_file
     from rig.rig_config import load_rig_config
     from rig.trace_import import import_trace
 
-    check_output_file(args.out, "--out", inputs=[args.trace, args.config])
+    check_output_file(args.out, "--out", inputs=[args.trace, args.config], force=args.force)
     config = load_rig_config(args.config)
     record = import_trace(args.trace, config)
-    with writing(args.out, "--out"):
-        write_log(args.out, record)
+    with atomic_output(args.out, "--out", force=args.force) as written:
+        write_log(written, record)
     result = {"log": args.out, "trace": args.trace, "samples": len(record),
               **{name: record.count_flag(flag) for name, flag in (
                   ("lost", SampleFlag.LOST), ("late", SampleFlag.LATE), ("held", SampleFlag.HELD),

@@ -543,7 +543,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     parser.add_argument("results", nargs="+", metavar="RESULT",
                         help="experiment log, t,u,y CSV, or saved JSON of rig identify/diagnose/run --json")
-    parser.add_argument("--out", required=True, metavar="DIR", help="directory for index.html and the PNG figures")
+    parser.add_argument("--out", required=True, metavar="DIR",
+                        help="directory for index.html and the PNG figures: a new or empty one, or an earlier report "
+                             "of rig (another non-empty directory is refused unless --force)")
+    parser.add_argument("--force", action="store_true", help="write into a --out directory that holds other files")
     parser.add_argument("--title", default="rig report", help="page title (default: rig report)")
     parser.add_argument("--sample-period", type=_positive_float, default=None, metavar="S",
                         help="sample period in seconds for frequency axes (default: from the first log, if any)")
@@ -552,9 +555,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from rig.output_paths import check_output_dir, writing
+    from rig.output_paths import check_report_dir, writing
 
-    check_output_dir(args.out, "--out", inputs=args.results)  # before the files are read and drawn
+    check_report_dir(args.out, "--out", inputs=args.results, force=args.force)  # before the files are read and drawn
     with writing(args.out, "--out"):
         index, count = write_result_report(args.results, args.out, title=args.title,
                                            sample_period_s=args.sample_period)

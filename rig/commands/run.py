@@ -41,7 +41,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--experiment", metavar="EXP.toml", required=True,
                         help="experiment config (configs/experiments/*.toml), or a CSV, .mf4/.mdf or .mat file with a command_rad column "
                              "(one value per sample; an optional time_s column must step by the rig's period)")
-    parser.add_argument("--out", metavar="LOG", required=True, help="log file to write (CSV, rig-log v1)")
+    parser.add_argument("--out", metavar="LOG", required=True,
+                        help="log file to write (CSV, rig-log v1); an existing file is refused unless --force, and a "
+                             "file another run is writing always is")
+    parser.add_argument("--force", action="store_true", help="replace an existing --out log (and --can-trace file)")
     parser.add_argument("--duration", type=float, default=None, metavar="S",
                         help="run for S seconds (the excitation is cut, or repeated cyclically to fill S)")
     parser.add_argument("--can-trace", metavar="FILE.blf", default=None,
@@ -120,7 +123,7 @@ def run(args: argparse.Namespace) -> int:
     from rig.experiment_config import load_experiment_config
     from rig.log_file import LogWriter
     from rig.log_metadata import experiment_log_metadata
-    from rig.output_paths import check_output_file
+    from rig.output_paths import check_output_file, claim_output_file
     from rig.rig_config import load_rig_config
     from rig.runner import run_experiment
     from rig.transports import open_transport
@@ -128,14 +131,14 @@ def run(args: argparse.Namespace) -> int:
 
     config = load_rig_config(args.config)
     inputs = [args.config, args.experiment]
-    check_output_file(args.out, "--out", inputs=inputs)  # before the devices start and the drive is enabled
+    check_output_file(args.out, "--out", inputs=inputs, force=args.force)  # before the devices start and the drive is enabled
     if args.can_trace is not None:
         if config.scheme not in ("canopen", "can"):
             raise ValueError(f"--can-trace: the {config.scheme} transport has no CAN frames to trace")
         from rig.transports.base import check_trace_path
 
         check_trace_path(args.can_trace)
-        check_output_file(args.can_trace, "--can-trace", inputs=[*inputs, args.out])
+        check_output_file(args.can_trace, "--can-trace", inputs=[*inputs, args.out], force=args.force)
         if Path(args.can_trace).resolve() == Path(args.out).resolve():
             raise ValueError(f"--can-trace {args.can_trace}: is the --out log too: give the trace its own file")
     num_samples = None
@@ -161,7 +164,9 @@ def run(args: argparse.Namespace) -> int:
             raise ValueError(f"--sim-faults: {config.source} is a real rig (no [simulation] table); faults are "
                              "injected only into simulated devices")
         faults = parse_fault_spec(args.sim_faults, seed=args.sim_faults_seed)
+    claimed = claim_output_file(args.out, "--out", force=args.force)  # a second run on it stops here
     with contextlib.ExitStack() as stack:
+        stack.callback(claimed.release)
         gearbox = None
         url = config.url
         if config.simulation is not None:
@@ -177,7 +182,7 @@ def run(args: argparse.Namespace) -> int:
 
             view = stack.enter_context(open_live_view(command.size, config.sample_period_s, sys.stderr))
         log = LogWriter(args.out, experiment_log_metadata(config, excitation, gearbox, command.size, injected),
-                        flush_every=10, flush_interval_s=0.05)
+                        flush_every=10, flush_interval_s=0.05, claimed=claimed)
         sink = log if view is None else view.observe(log)
         bar = None
         if not args.json and not args.live and sys.stderr.isatty():

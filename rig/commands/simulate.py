@@ -24,7 +24,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("plant", metavar="PLANT.toml", help="plant config (configs/plants/*.toml)")
     parser.add_argument("--excitation", metavar="EXC.toml", required=True,
                         help="experiment config (configs/experiments/*.toml)")
-    parser.add_argument("--out", metavar="LOG", required=True, help="log file to write (CSV, rig-log v1)")
+    parser.add_argument("--out", metavar="LOG", required=True,
+                        help="log file to write (CSV, rig-log v1); an existing file is refused unless --force")
+    parser.add_argument("--force", action="store_true", help="replace an existing --out file")
     parser.add_argument("--seed", type=int, default=None, metavar="S", help="seed of the excitation (S) and noise (S+1)")
     parser.add_argument("--json", action="store_true", help='print {"log": path, "samples": N} as JSON')
     parser.set_defaults(handler=run)
@@ -41,11 +43,11 @@ def run(args: argparse.Namespace) -> int:
     from rig.log_file import LogWriter
     from sim_backend.plant_config import describe_noise, load_plant_config, plant_config_to_toml
 
-    from rig.output_paths import check_output_file
+    from rig.output_paths import atomic_output, check_output_file
 
     if args.seed is not None and args.seed < 0:
         raise ValueError(f"--seed: expected an integer >= 0, got {args.seed}")
-    check_output_file(args.out, "--out", inputs=[args.plant, args.excitation])
+    check_output_file(args.out, "--out", inputs=[args.plant, args.excitation], force=args.force)
     plant_config = load_plant_config(args.plant)
     excitation = load_experiment_config(args.excitation, seed=args.seed)
     gearbox = plant_config.gearbox(seed=None if args.seed is None else args.seed + 1)
@@ -70,7 +72,8 @@ def run(args: argparse.Namespace) -> int:
                             "offset_counts": gearbox.encoder.offset_counts}},
         software_version=__version__,
     )
-    with LogWriter(args.out, metadata, flush_every=4096) as log:
+    with atomic_output(args.out, "--out", force=args.force) as written, LogWriter(written, metadata,
+                                                                                    flush_every=4096) as log:
         log.append_many(run_.time_s, run_.command_rad, run_.measured_angle_rad, run_.encoder_counts)
     if args.json:
         print(json.dumps({"log": str(args.out), "samples": len(run_)}))

@@ -229,8 +229,8 @@ def test_result_is_frozen_and_serialises_to_the_issue_json(excitation) -> None:
 def test_errors_name_the_problem(excitation) -> None:
     y = exact_plant("switch").simulate(excitation)
     bad = y.copy()
-    bad[321] = np.nan
-    with pytest.raises(InvalidInputError, match="output_rad: sample 321 is nan"):
+    bad[321] = np.inf  # NaN marks a sample not measured (tests/identify/test_missing_samples.py); inf is an error
+    with pytest.raises(InvalidInputError, match="output_rad: sample 321 is inf"):
         identify_hammerstein(excitation, bad, NODES, hold_samples=HOLD)
     with pytest.raises(InvalidInputError, match="input_rad has 3100, output_rad has 3099"):
         identify_hammerstein(excitation, y[:-1], NODES, hold_samples=HOLD)

@@ -44,12 +44,16 @@ def _args(files, *extra: str) -> list[str]:
 def test_json_has_exactly_the_issue_keys_and_bounds_contain_the_truth(files, capsys) -> None:
     assert main(_args(files, "--json")) == exit_codes.SUCCESS
     document = json.loads(capsys.readouterr().out)
-    # the keys of issue 2, the kind and version, and the whole result (issue 16) for from_dict
+    # the keys of issue 2, the kind and version, the whole result (issue 16) for from_dict, and the samples
+    # set aside (none here)
     assert set(document) == {"backlash", "linear", "method", "invertible_samples", "samples", "kind", "version",
-                             "noise_bound_rad", "backlash_set", "inner_signal", "linear_bounds"}
+                             "noise_bound_rad", "backlash_set", "inner_signal", "linear_bounds", "set_aside"}
+    assert document["set_aside"]["samples"] == 0 and document["set_aside"]["equations_left_out"] == 0
     assert (document["kind"], document["version"]) == ("output_backlash", 1)
     reopened = OutputBacklashIdentification.from_dict(document)
-    assert reopened.to_dict() == document and reopened.linear_intervals["a1"].lower == document["linear"]["a1"]["lower"]
+    result_document = {key: value for key, value in document.items() if key != "set_aside"}  # set_aside: the data's
+    assert reopened.to_dict() == result_document
+    assert reopened.linear_intervals["a1"].lower == document["linear"]["a1"]["lower"]
     assert list(document["backlash"]) == ["m_l", "c_l", "m_r", "c_r"]
     assert list(document["linear"]) == ["a1", "a2", "b1", "b2"]
     assert document["method"] == "coupled" and document["samples"] == 100
