@@ -37,6 +37,7 @@ _ERROR_CODES = {
     0x7121: "motor blocked", 0x7305: "incremental sensor 1 fault", 0x7500: "communication (additional modules)",
     0x8110: "CAN overrun, objects lost", 0x8120: "CAN in error passive mode", 0x8130: "life guard or heartbeat error",
     0x8140: "recovered from bus off", 0x8210: "PDO not processed due to length error", 0x8220: "PDO length exceeded",
+    0x8600: "positioning controller (in interpolated position: an empty interpolation buffer, 0x60C4, an underflow)",
     0x8611: "position following error", 0x8612: "reference limit",
 }
 _ERROR_CLASSES = {

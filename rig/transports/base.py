@@ -69,6 +69,10 @@ __all__ = ["BringUpTiming", "CommandLimits", "CommandRefused", "DriveScaling", "
            "Transport", "check_trace_path"]
 
 TRACE_SUFFIXES = (".blf", ".asc", ".log", ".csv", ".trc")
+CATCH_UP_FACTOR = 2.0
+"""After a stall, a device-clocked link brings the target back to the plan at most this many times the plan's
+own largest step per sample (:attr:`Transport.catch_up_step_rad`): fast enough to meet a plan moving at
+its own top speed, never a jump the plan does not make."""
 
 
 def check_trace_path(path: str | None) -> str | None:
@@ -230,6 +234,7 @@ class Transport(ABC):
         self.initial_position_rad = 0.0
         self.frame_errors = 0
         self.stop_report: StopReport | None = None
+        self.plan_step_rad = math.inf  # the command's largest step, from the runner's check (catch_up_step_rad)
         self.warnings: list[str] = []  # device warnings ridden through (e.g. an encoder's EMCY 0x4210)
         self._state = "closed"
         self._enabling_sent = False
@@ -269,6 +274,14 @@ class Transport(ABC):
         """On a device-clocked link: the smallest time seen between a setpoint being queued and its sample
         instant (negative: a setpoint that came too late and was HELD); nan when none was measured."""
         return self._min_lead_s if math.isfinite(self._min_lead_s) else math.nan
+
+    @property
+    def catch_up_step_rad(self) -> float:
+        """The largest step a device-clocked link lets the target make when it goes back to the plan after
+        a stall held samples: the rate limit's step, and at most :data:`CATCH_UP_FACTOR` times the command's
+        own largest step (:attr:`plan_step_rad`, set by the runner's check), so that a plan that moves
+        smoothly is never met with a jump even where no rate limit is configured."""
+        return min(self.limits.rate_max_rad_per_s * self.sample_period_s, CATCH_UP_FACTOR * self.plan_step_rad)
 
     @property
     def sync_jitter_max_s(self) -> float:

@@ -148,7 +148,10 @@ class CanOpenInterpolation:
             return
         self._origin = answers
         self._feed.streaming = True
+        stamps = dict((count, bus_time) for bus_time, count in self._syncs)
         for count in range(answers, self._sync_count):  # (this SYNC's own record is taken by the caller)
+            if count in stamps and count - 1 in stamps:  # its instant's error, as _on_sync_echo records it
+                self._instant_errors[count - answers] = stamps[count] - stamps[count - 1] - self.sample_period_s
             self._take_ip_record(count)
         self._device_sample = self._sync_count - 1 - answers
         kept, self._before_origin = self._before_origin, []

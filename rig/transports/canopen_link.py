@@ -135,7 +135,7 @@ class CanOpenTransport(CanOpenStartUp, CanOpenInterpolation, Transport):
     mode
         ``"auto"`` (default): ``"ip_buffer"`` where the drive has an interpolation buffer (its EDS lists
         0x60C1 and 0x60C4, 0x6502 bit 6 says interpolated position is supported where the EDS has 0x6502,
-        and 0x60C4 holds at least :data:`MIN_IP_BUFFER_RECORDS`), else ``"csp"``. ``"csp"``: cyclic
+        and 0x60C4 holds at least :data:`~rig.transports.interpolation_feed.AUTO_IP_BUFFER_RECORDS` (16)), else ``"csp"``. ``"csp"``: cyclic
         synchronous position (0x6060 = 8): one target per SYNC, put on the bus right after the SYNC before
         it, so its lead on the bus is under one period whatever ``lead_s`` is (a receive thread that misses
         that window holds the sample). ``"ip_buffer"``: interpolated position with the drive's FIFO of
@@ -257,10 +257,7 @@ class CanOpenTransport(CanOpenStartUp, CanOpenInterpolation, Transport):
         self._period_written = ""  # 0x60C2 as written, for messages
         self._rpdo_transmission_type = 1
         self._jitter_max_s = 0.0  # the largest |SYNC spacing - period| while streaming
-        self._ramped: set[int] = set()  # CSP samples whose target was limited to the rate from the one before
-        rate = self.limits.rate_max_rad_per_s * self.sample_period_s
-        self._max_step_counts = (None if not math.isfinite(rate) else
-                                 max(0, math.floor(rate * self.drive.counts_per_revolution / (2 * math.pi) + 1e-9)))
+        self._ramped: set[int] = set()  # CSP samples whose target was limited on its way back to the plan
         self._ip_enabled_at: int | None = None  # the SYNC count when controlword bit 4 went out
         self._ip_answered_at: int | None = None  # the SYNC count when the drive confirmed it (SDO response)
         self._before_origin: list[tuple[str, Any, float, float]] = []  # TPDOs after bit 4, before bit 12 was seen
@@ -769,12 +766,15 @@ class CanOpenTransport(CanOpenStartUp, CanOpenInterpolation, Transport):
             self._put_target_on_bus(upcoming)
 
     def _put_target_on_bus(self, sample: int) -> None:
-        """CSP: target ``sample`` onto the bus, no farther from the target the drive last took than the rate
-        limit allows (after a stall that held samples the plan may have moved on: the targets ramp back to
-        it, each of those samples HELD with the target really applied)."""
+        """CSP: target ``sample`` onto the bus, no farther from the target the drive last took than
+        :attr:`catch_up_step_rad` (the rate limit's step, and twice the plan's own largest): after a stall
+        that held samples the plan may have moved on, and the targets ramp back to it, each of those samples
+        HELD with the target really applied."""
         counts = self._queue.pop(sample)
         last = self._rpdo_sent[-1][1] if self._rpdo_sent else self._in_force[1]
-        step = self._max_step_counts
+        step_rad = self.catch_up_step_rad
+        step = None if not math.isfinite(step_rad) else max(1, math.floor(
+            step_rad * self.drive.counts_per_revolution / (2 * math.pi) + 1e-9))
         if step is not None and abs(counts - last) > step:
             counts = last + (step if counts > last else -step)
             self._ramped.add(sample)

@@ -15,7 +15,7 @@ from typing import Any
 from rig.protocols import cia402
 from rig.protocols.errors import ConfigError, DeviceFault, TransportError
 from rig.transports.canopen_dictionary import ASYNCHRONOUS_RPDO, PdoLayout, interpolation_time_period
-from rig.transports.interpolation_feed import MIN_IP_BUFFER_RECORDS
+from rig.transports.interpolation_feed import AUTO_IP_BUFFER_RECORDS, MIN_IP_BUFFER_RECORDS
 
 __all__ = ["CanOpenStartUp", "MODE_NAMES"]
 
@@ -100,7 +100,7 @@ class CanOpenStartUp:
     def _choose_streaming_mode(self, drive: Any) -> None:
         """Read the interpolation buffer's capacity; with ``mode = "auto"``, fall back from interpolated
         position to CSP where the drive cannot take it (0x6502 bit 6 clear, or a buffer of fewer than
-        :data:`MIN_IP_BUFFER_RECORDS` records in 0x60C4)."""
+        :data:`AUTO_IP_BUFFER_RECORDS` records in 0x60C4), with a warning saying why."""
         if self.mode != "ip_buffer":
             return
         supported = self._supported_modes(drive)
@@ -109,8 +109,11 @@ class CanOpenStartUp:
         self._ip_capacity = min(self._sdo_read(drive, "drive", 0x60C4, 1, "the interpolation buffer's capacity"),
                                 self._sdo_read(drive, "drive", 0x60C4, 2, "the interpolation buffer's size")
                                 ) if can_interpolate else 0
-        if self._ip_capacity < MIN_IP_BUFFER_RECORDS and self.mode_requested == "auto":
-            self._use_mode("csp")
+        if self._ip_capacity < AUTO_IP_BUFFER_RECORDS and self.mode_requested == "auto":
+            self._fall_back_to_csp(
+                "0x6502 does not offer interpolated position" if not can_interpolate else
+                f"its interpolation buffer holds {self._ip_capacity} records (0x60C4:1/2), fewer than the "
+                f"{AUTO_IP_BUFFER_RECORDS} mode = \"auto\" takes it for (mode = \"ip_buffer\" streams into 4 or more)")
         elif self._ip_capacity < MIN_IP_BUFFER_RECORDS and can_interpolate:
             raise DeviceFault(self.drive_label, None, (
                 f"its interpolation buffer holds {self._ip_capacity} records (0x60C4:1/2); mode = \"ip_buffer\" "

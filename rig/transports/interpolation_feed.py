@@ -15,8 +15,10 @@ Two rules make every legal drive accept the stream:
 
 * **Fill first.** Ip mode is enabled only once the FIFO holds the lead (:meth:`ready_to_start`): a drive that
   faults on an empty buffer (maxon EPOS: EMCY on a queue underflow) never sees one at start.
-* **Never run dry while streaming.** When the queue has nothing for the next SYNC, the feed puts a *hold
-  record* (a copy of the last record) into the FIFO (:meth:`to_send`): the drive holds as a drive with a
+* **Never run dry while streaming.** When the queue has nothing for the next SYNCs, the feed keeps
+  :data:`IP_BUFFER_MARGIN_RECORDS` *hold records* (copies of the last record) in the FIFO (:meth:`to_send`;
+  two, because a SYNC producer catching up after a stall may put two SYNCs on the bus before the master
+  hears of the first): the drive holds as a drive with a
   "hold" underflow behaviour would, the sample is logged HELD, and a drive that faults on underflow does not
   fault at the end of a run or during a host stall. The records of later setpoints then reach the drive at
   later instants, each logged with its instant.
@@ -27,11 +29,16 @@ from __future__ import annotations
 import collections
 from dataclasses import dataclass
 
-__all__ = ["IP_BUFFER_MARGIN_RECORDS", "MIN_IP_BUFFER_RECORDS", "InterpolationFeed", "Record"]
+__all__ = ["AUTO_IP_BUFFER_RECORDS", "IP_BUFFER_MARGIN_RECORDS", "MIN_IP_BUFFER_RECORDS", "InterpolationFeed",
+           "Record"]
 
 MIN_IP_BUFFER_RECORDS = 4
-"""The smallest interpolation buffer (0x60C4) worth streaming into: below it, the margin below leaves no
-lead to speak of (``mode = "auto"`` uses CSP instead)."""
+"""The smallest interpolation buffer (0x60C4) ``mode = "ip_buffer"`` streams into: below it, the margin
+leaves no lead to speak of."""
+AUTO_IP_BUFFER_RECORDS = 16
+"""The smallest buffer ``mode = "auto"`` takes interpolated position for (CSP otherwise): a buffer holds the
+drive through a pause of the whole host process only for its records less the margin (2 ms in 4 records at
+1 kHz), and a drive that faults on an empty buffer would fault at the first longer one; a CSP drive holds."""
 IP_BUFFER_MARGIN_RECORDS = 2
 """Records of the drive's buffer the lead leaves free: one RPDO on the bus whose echo the master has not
 seen yet, and one record the drive may already have taken at a SYNC whose echo the master has not seen
@@ -78,15 +85,18 @@ class InterpolationFeed:
     def to_send(self) -> list[Record]:
         """The records to put on the bus now, in order: queued setpoints while the FIFO (the master's copy
         plus the records whose echo is due) has room below :data:`IP_BUFFER_MARGIN_RECORDS`; while
-        streaming, one hold record if otherwise nothing would be in the FIFO at the next SYNC."""
+        streaming, hold records where the queue has nothing more and the FIFO would otherwise hold fewer than
+        :data:`IP_BUFFER_MARGIN_RECORDS`."""
         records = []
         room = self.room - len(self.buffer) - len(self.in_flight)
         while room > 0 and self.next_sample in self.queue:
             records.append(Record(self.next_sample, self.queue.pop(self.next_sample)))
             self.next_sample += 1
             room -= 1
-        if self.streaming and not records and not self.buffer and not self.in_flight:
-            records.append(Record(None, self.last_counts))
+        held = len(self.buffer) + len(self.in_flight) + len(records)
+        while self.streaming and held < IP_BUFFER_MARGIN_RECORDS and self.next_sample not in self.queue:
+            records.append(Record(None, records[-1].counts if records else self.last_counts))
+            held += 1
         for record in records:
             self.in_flight.append(record)
             self.last_counts = record.counts

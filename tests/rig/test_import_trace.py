@@ -130,17 +130,22 @@ def test_a_canopen_trace_with_held_samples_imports_as_the_runs_log(mode, tmp_pat
     flags = np.array([row[4] for row in sink.rows])
     (heard,) = stalled  # the runner had queued up to this instant's predecessor + the lead
     lead = transport.lead_samples
-    # interpolated position: the hold record put in at the stall's last SYNC is taken at the next one
-    extra = int(mode == "ip_buffer")
-    expected_held = list(range(heard + lead, heard + int(stall_s / period_s) + 1 + extra))
-    assert lead == 20 and len(expected_held) == summary.held == 11 + extra
-    assert np.flatnonzero(flags & SampleFlag.HELD).tolist() == expected_held
+    # the instants of the stall, then interpolated position's two hold records, or CSP's ramp back to the plan
+    in_stall = list(range(heard + lead, heard + int(stall_s / period_s) + 1))
+    held = np.flatnonzero(flags & SampleFlag.HELD).tolist()
+    assert lead == 20 and len(in_stall) == 11 and held[:11] == in_stall and summary.held == len(held)
+    assert held == list(range(held[0], held[-1] + 1)) and (len(held) == 13 if mode == "ip_buffer" else len(held) > 11)
     record = import_trace(trace, config)
     np.testing.assert_allclose(record.time_s, [row[0] for row in sink.rows], rtol=0, atol=1e-12)
     np.testing.assert_array_equal(record.command_rad, [row[1] for row in sink.rows])
     np.testing.assert_array_equal(record.angle_rad, [row[2] for row in sink.rows])
     np.testing.assert_array_equal(record.encoder_counts, [row[3] for row in sink.rows])
-    np.testing.assert_array_equal(record.flags, flags)  # every flag, LATE too: the trace has the SYNCs
+    # every flag, LATE too (the trace has the SYNCs), but HELD on CSP's ramp back to the plan after the stall:
+    # the trace holds the targets the drive took, not the plan they were limited from
+    ramp = np.zeros(flags.size, bool)
+    ramp[held[11:]] = mode == "csp"
+    np.testing.assert_array_equal(record.flags[~ramp], flags[~ramp])
+    assert not np.any(record.flags[ramp] & SampleFlag.HELD)
 
 
 @pytest.mark.parametrize("seconds, stall_ms", [(0.8, 400), (2.4, 1700)], ids=["hold", "hold-past-254-ticks"])

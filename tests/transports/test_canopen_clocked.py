@@ -125,12 +125,12 @@ def test_the_fifo_is_filled_to_its_capacity_and_the_lead_is_kept_sync_by_sync(ra
     assert transport.mode == "ip_buffer" and capacity == BUFFER_RECORDS and transport.lead_samples == lead
     assert summary.samples == samples and summary.lost == summary.held == summary.late == summary.stale == 0
     full = capacity - IP_BUFFER_MARGIN_RECORDS
-    expected = [min(full, samples - k) for k in range(samples)]
+    expected = [max(min(full, samples - k), IP_BUFFER_MARGIN_RECORDS) for k in range(samples)]
     expected[1] -= 1  # sample 0 is known from the statusword (bit 12) of its SYNC, answered after the next one
     assert levels[:samples] == expected
-    # after the last record, hold records one at a time: the drive never finds its FIFO empty (a drive that
-    # faults on an underflow ends the run without a fault)
-    assert levels[samples:] and all(level == 1 for level in levels[samples:]) and rig.ip_underruns == 0
+    # from the last records on, hold records keep two in the FIFO: the drive never finds it empty (a drive
+    # that faults on an underflow ends the run without a fault)
+    assert levels[samples:] and all(level == 2 for level in levels[samples:]) and rig.ip_underruns == 0
     # every record queued the lead ahead, but the one queued when sample 0 became known, one SYNC after it
     assert math.isclose(summary.min_lead_s, LEAD_S - period_s, abs_tol=1e-9)
     syncs = np.array(_sync_times(bus))  # the master's cyclic SYNC: exactly every period
@@ -200,9 +200,10 @@ def test_a_host_stall_shorter_than_the_lead_holds_nothing(mode, tmp_path):
 @pytest.mark.parametrize("mode", ["ip_buffer", "csp"])
 def test_a_host_stall_longer_than_the_lead_holds_exactly_the_instants_beyond_it(mode, tmp_path):
     """150.5 periods of stall with a 100-period lead: the setpoints the host had queued cover the instants
-    up to the one it had heard of plus the lead less one; every later instant in the stall is HELD (in
-    interpolated position each is a SYNC that found the FIFO empty: an underrun), nothing is lost, and the
-    lead is kept again after it."""
+    up to the one it had heard of plus the lead less one; every later instant in the stall is HELD, nothing
+    is lost, and the lead is kept again after it. Interpolated position: the drive takes hold records, never
+    an empty FIFO, and the two hold records in its FIFO when the stall ends are taken first. CSP: the targets
+    ramp back to the plan at twice its own largest step, those samples HELD too."""
     period_s, stall_s, samples = 1e-3, 0.1505, 500
     lead = round(LEAD_S / period_s)
     command = _command(samples)
@@ -210,23 +211,26 @@ def test_a_host_stall_longer_than_the_lead_holds_exactly_the_instants_beyond_it(
         summary, sink, stalled = _run(bus, transport, clock, command, stall_at=150, stall_s=stall_s)
         levels = rig.ip_levels
     heard, last_in_stall = _stall_instants(stalled, stall_s, period_s)
-    # interpolated position: the hold record put in at the stall's last SYNC is taken at the next one
-    expected_held = list(range(heard + lead, last_in_stall + 1 + (mode == "ip_buffer")))
+    in_stall = list(range(heard + lead, last_in_stall + 1))
     held = np.flatnonzero(_flags(sink) & SampleFlag.HELD).tolist()
-    assert len(expected_held) == 51 + (mode == "ip_buffer") and held == expected_held
+    assert len(in_stall) == 51 and held[:51] == in_stall and held == list(range(held[0], held[-1] + 1))
     assert summary.held == len(held) and summary.lost == 0 and summary.samples == samples
     commands = [row[1] for row in sink.rows]
-    assert commands[held[0]:held[-1] + 1] == [commands[held[0] - 1]] * len(held)  # the last target, held
+    plan = [DRIVE.quantize_rad(v) for v in command]
     if mode == "ip_buffer":  # the drive's own account: at these SYNCs it took a hold record, never an empty FIFO
-        assert not any(level == 0 for level in levels[:samples]) and rig.ip_underruns == 0
-        # after the underrun the drive takes the later records at later instants, each logged as applied
-        assert commands[held[-1] + 1:] == [DRIVE.quantize_rad(v) for v in command[held[0]:samples - len(held)]]
-    else:  # CSP: a target that missed its SYNC is dropped; from the next SYNC on the targets are in time
-        assert commands[held[-1] + 1:] == [DRIVE.quantize_rad(v) for v in command[held[-1] + 1:]]
+        assert len(held) == 51 + 2 and not any(level == 0 for level in levels[:samples]) and rig.ip_underruns == 0
+        assert commands[held[0]:held[-1] + 1] == [commands[held[0] - 1]] * len(held)  # the last target, held
+        # after the stall the drive takes the later records at later instants, each logged as applied
+        assert commands[held[-1] + 1:] == plan[held[0]:samples - len(held)]
+        slack = 3 * period_s  # the two hold records' instants after the stall's last
+    else:  # CSP: targets that missed their SYNC are dropped; the ramp back meets the plan, then it is in time
+        plan_step = max(abs(b - a) for a, b in zip(plan, plan[1:]))
+        ramp = np.abs(np.diff(commands[held[0] - 1:held[-1] + 2]))
+        assert len(held) > 51 and ramp.max() <= 2 * plan_step + 1e-12
+        assert commands[held[-1] + 1:] == plan[held[-1] + 1:]
+        slack = period_s
     # the smallest lead is negative: the first setpoint queued after the stall came after its instant, by
-    # the stall less the lead (the master measures it in whole periods, so up to one period more; in
-    # interpolated position one more, the instant of the hold record put in at the stall's last SYNC)
-    slack = period_s * (1 + (mode == "ip_buffer"))
+    # the stall less the lead (the master measures it in whole periods, so up to one period more)
     assert LEAD_S - stall_s - slack - 1e-9 <= summary.min_lead_s <= LEAD_S - stall_s + 1e-9
     _answered_rows_equal_the_offline_simulation(sink, 1000.0, tmp_path)
 
