@@ -155,7 +155,8 @@ def test_rig_run_streams_a_command_file(tmp_path, capsys, no_leaks):
     np.testing.assert_allclose(record.command_rad, command, atol=np.pi / 131072)  # quantised to drive counts
     assert record.metadata.excitation == "command"
     path.write_text("time_s,command_rad\n0.0,0.1\n0.01,0.2\n")
-    assert main(["run", str(write_test_config("serial", tmp_path)), "--experiment", str(path), "--out", str(out)]) == 2
+    assert main(["run", str(write_test_config("serial", tmp_path)), "--experiment", str(path), "--out",
+                 str(tmp_path / "second.csv")]) == 2
     assert "time_s steps by 0.01 s after row 1, but the rig samples every 0.005 s" in capsys.readouterr().err
 
 
