@@ -337,7 +337,8 @@ def check_command(transport: Transport, command_rad: NDArray[np.float64]) -> Non
                     f"above the rate limit {transport.limits.rate_max_rad_per_s:.6g} rad/s; start the experiment at "
                     "the actual position (or move the drive there first)")
         transport.limits.check(quantized, previous, transport.sample_period_s, k)
-        transport.plan_step_rad = max(transport.plan_step_rad if k else 0.0, abs(quantized - previous))
+        if k:  # the plan's own steps (not the first, from wherever the drive stands)
+            transport.plan_step_rad = max(transport.plan_step_rad if k > 1 else 0.0, abs(quantized - previous))
         previous = quantized
 
 
