@@ -413,8 +413,8 @@ class Transport(ABC):
             final = cia402.state_from_statusword(self._read_statusword())
         except Exception:  # noqa: BLE001 - a node that was reset or stopped may not answer
             logger.debug("%s: state after the escalated stop", self.name, exc_info=True)
-        last_seen = final or report.final_state or report.last_seen
-        return StopReport(tuple(steps), final, last_seen, escalated=True)
+        # what the drive said when the stop failed (what it says after a reset is in final_state)
+        return StopReport(tuple(steps), final, report.final_state or report.last_seen, escalated=True)
 
     def check_stopped(self, cause: BaseException | None = None) -> None:
         """Raise :class:`~rig.protocols.errors.DriveMayBeEnabled` if the drive was enabled and its stop was

@@ -78,7 +78,7 @@ class CanOpenInterpolation:
 
     def _put_records_on_bus(self) -> None:
         """Interpolated position: put what :meth:`InterpolationFeed.to_send` says on the bus (queued records
-        while the drive's buffer has room; while streaming, a hold record where the buffer would run dry).
+        while the drive's buffer has room; while streaming, hold records where it would run low).
         Called with the lock held, from the runner's thread as it queues and from the receive thread at
         every SYNC: the lead is kept in the host's queue and the drive's buffer together, so a stall of the
         runner's thread shorter than the lead costs nothing, and a pause of the whole process is ridden
