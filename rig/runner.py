@@ -577,6 +577,8 @@ def _run_device_clocked(transport: Transport, command: NDArray[np.float64], sink
                     ledger.open_row(next_row, sent.position_rad)
                     next_row += 1
                 next_seq += 1
+                if next_seq == total:
+                    transport.end_of_stream()
             # turn 2: file at most ``batch`` answers, then queue again: a device whose answers never stop
             # coming (a host slower than the device's clock) still gets its setpoints
             sample = transport.receive(period)

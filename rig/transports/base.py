@@ -427,6 +427,11 @@ class Transport(ABC):
         raise DriveMayBeEnabled(self.drive_label, str(report),
                                 None if last is None else last.name.replace("_", " "), cause) from cause
 
+    def end_of_stream(self) -> None:
+        """The runner has sent the run's last setpoint. A link that keeps its device's buffer from running
+        dry may fill it now (CANopen interpolated position: hold records up to its capacity, so a host stall
+        between the last sample and the stop cannot empty it); nothing on other links."""
+
     def close(self) -> None:
         """Stop if the drive was enabled, then release the link (idempotent)."""
         try:

@@ -125,12 +125,28 @@ class CanOpenInterpolation:
             if self._ip_enabled_at is not None and self._ip_answered_at is None:
                 self._ip_answered_at = self._sync_count
 
+    def _origin_from_the_answer(self, count: int) -> bool:
+        """SYNC ``count``, before sample 0 is known: where the drive confirmed bit 4 before any SYNC passed
+        after the request went out, it took its first record at the next SYNC, this one if it is that one:
+        sample 0 by the bus order alone (a statusword that comes late cannot shift it). Whether it is."""
+        if (self._ip_enabled_at is None or self._ip_answered_at != self._ip_enabled_at
+                or count != self._ip_answered_at + 1):
+            return False
+        self._origin = count
+        self._feed.streaming = True
+        kept, self._before_origin = self._before_origin, []
+        for item in kept:
+            self._file_locked(*item)
+        return True
+
     def _find_ip_origin(self, part: str, value: Any, timestamp: float, received: float, answers: int) -> None:
         """Interpolated position, after controlword bit 4: the first SYNC whose drive statusword shows bit 12
         (ip mode active) is sample 0, the first at which the drive took a record. Until it is seen, TPDOs are
         kept; then the records taken at the SYNCs since are replayed, and the kept TPDOs filed."""
         if answers <= self._ip_enabled_at:
             return
+        if self._ip_answered_at is not None and self._ip_answered_at == self._ip_enabled_at:
+            return  # sample 0 follows from the bus order (_origin_from_the_answer), not from a statusword
         if part != "drive" or not value[0] & cia402.STATUSWORD_IP_MODE_ACTIVE:
             self._before_origin.append((part, value, timestamp, received))
             return

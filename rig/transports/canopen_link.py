@@ -616,6 +616,12 @@ class CanOpenTransport(CanOpenStartUp, CanOpenInterpolation, Transport):
                 self._put_target_on_bus(setpoint.seq)
                 self._queued_at.pop(setpoint.seq, None)
 
+    def end_of_stream(self) -> None:
+        if self._feed is not None:
+            with self._lock:
+                self._feed.finished = True
+                self._put_records_on_bus()
+
     def _recv_internal(self, timeout_s: float) -> FeedbackSample | None:
         if self._feed is not None and self._origin is None:  # interpolated position, before sample 0
             if self._ip_enabled_at is None:
@@ -725,6 +731,8 @@ class CanOpenTransport(CanOpenStartUp, CanOpenInterpolation, Transport):
                 else:
                     self._unfiled.append(item)
             if self._feed is not None:
+                if self._origin is None:
+                    self._origin_from_the_answer(count)
                 self._take_ip_record(count)
                 self._put_records_on_bus()
             else:

@@ -78,6 +78,7 @@ class InterpolationFeed:
         self.buffer: collections.deque[Record] = collections.deque()  # in the drive's FIFO, oldest first
         self.last_counts = int(initial_counts)
         self.streaming = False  # the drive takes records (ip mode active)
+        self.finished = False  # the run's last setpoint is queued: hold records may fill the FIFO
 
     def queue_setpoint(self, sample: int, counts: int) -> None:
         self.queue[sample] = int(counts)
@@ -86,7 +87,8 @@ class InterpolationFeed:
         """The records to put on the bus now, in order: queued setpoints while the FIFO (the master's copy
         plus the records whose echo is due) has room below :data:`IP_BUFFER_MARGIN_RECORDS`; while
         streaming, hold records where the queue has nothing more and the FIFO would otherwise hold fewer than
-        :data:`IP_BUFFER_MARGIN_RECORDS`."""
+        :data:`IP_BUFFER_MARGIN_RECORDS`, or, once the run's last setpoint is queued (``finished``), fewer than
+        it holds (later setpoints would take their instants later; after the last there are none)."""
         records = []
         room = self.room - len(self.buffer) - len(self.in_flight)
         while room > 0 and self.next_sample in self.queue:
@@ -94,7 +96,8 @@ class InterpolationFeed:
             self.next_sample += 1
             room -= 1
         held = len(self.buffer) + len(self.in_flight) + len(records)
-        while self.streaming and held < IP_BUFFER_MARGIN_RECORDS and self.next_sample not in self.queue:
+        floor = self.room if self.finished else IP_BUFFER_MARGIN_RECORDS  # (after the run no row is shifted)
+        while self.streaming and held < floor and self.next_sample not in self.queue:
             records.append(Record(None, records[-1].counts if records else self.last_counts))
             held += 1
         for record in records:

@@ -125,14 +125,11 @@ def test_the_fifo_is_filled_to_its_capacity_and_the_lead_is_kept_sync_by_sync(ra
     assert transport.mode == "ip_buffer" and capacity == BUFFER_RECORDS and transport.lead_samples == lead
     assert summary.samples == samples and summary.lost == summary.held == summary.late == summary.stale == 0
     full = capacity - IP_BUFFER_MARGIN_RECORDS
-    expected = [max(min(full, samples - k), IP_BUFFER_MARGIN_RECORDS) for k in range(samples)]
-    expected[1] -= 1  # sample 0 is known from the statusword (bit 12) of its SYNC, answered after the next one
-    assert levels[:samples] == expected
-    # from the last records on, hold records keep two in the FIFO: the drive never finds it empty (a drive
-    # that faults on an underflow ends the run without a fault)
-    assert levels[samples:] and all(level == 2 for level in levels[samples:]) and rig.ip_underruns == 0
-    # every record queued the lead ahead, but the one queued when sample 0 became known, one SYNC after it
-    assert math.isclose(summary.min_lead_s, LEAD_S - period_s, abs_tol=1e-9)
+    # from the last setpoint on, hold records keep the FIFO full: the drive never finds it empty (a drive that
+    # faults on an underflow ends the run without a fault, whatever the host does before the stop)
+    assert levels[:samples] == [full] * samples
+    assert levels[samples:] and all(level == full for level in levels[samples:]) and rig.ip_underruns == 0
+    assert math.isclose(summary.min_lead_s, LEAD_S, abs_tol=1e-9)  # every record queued exactly the lead ahead
     syncs = np.array(_sync_times(bus))  # the master's cyclic SYNC: exactly every period
     np.testing.assert_allclose(np.diff(syncs), period_s, rtol=0, atol=1e-9)
     commands = [row[1] for row in sink.rows]
