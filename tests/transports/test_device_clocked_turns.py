@@ -23,7 +23,28 @@ from sim_rigs import ListSink
 PERIOD_S = 1e-3
 
 
-class FloodingLink(Transport):
+class ScriptedDriveLink(Transport):
+    """A link whose drive is the CiA 402 state machine alone, answered at once (the scripted links below add
+    what they send and receive)."""
+
+    _statusword = cia402.statusword_for(DriveState.SWITCH_ON_DISABLED)
+
+    def _connect(self) -> None:
+        pass
+
+    def _prepare(self) -> float:
+        return 0.0
+
+    def _write_controlword(self, controlword: int) -> None:
+        state = cia402.next_state(cia402.state_from_statusword(self._statusword), controlword, 0)
+        self._statusword = cia402.statusword_for(state) | (cia402.STATUSWORD_FOLLOWS_TARGET
+                                                           if state is DriveState.OPERATION_ENABLED else 0)
+
+    def _read_statusword(self) -> int:
+        return self._statusword
+
+
+class FloodingLink(ScriptedDriveLink):
     """A device that ticks every ``PERIOD_S`` from the first receive on, and a host that needs ``read_cost_s``
     of its clock for every TICK it reads: with ``read_cost_s > PERIOD_S`` the host never catches up, so every
     receive finds a tick waiting (the input never runs dry). A setpoint counts as in time when it was sent
@@ -56,20 +77,6 @@ class FloodingLink(Transport):
     @property
     def lead_samples(self) -> int:
         return self._lead
-
-    def _connect(self) -> None:
-        pass
-
-    def _prepare(self) -> float:
-        return 0.0
-
-    def _write_controlword(self, controlword: int) -> None:
-        state = cia402.next_state(cia402.state_from_statusword(self._statusword), controlword, 0)
-        self._statusword = cia402.statusword_for(state) | (cia402.STATUSWORD_FOLLOWS_TARGET
-                                                           if state is DriveState.OPERATION_ENABLED else 0)
-
-    def _read_statusword(self) -> int:
-        return self._statusword
 
     def _send(self, setpoint: Setpoint) -> None:
         self.sent[setpoint.seq] = (self.link_clock(), setpoint.position_rad)
@@ -161,7 +168,7 @@ class AutoClock:
         return self.now_s
 
 
-class SlowAnswerV1Link(Transport):
+class SlowAnswerV1Link(ScriptedDriveLink):
     """A protocol v1 (host-paced) device that answers each SETPOINT 0.2 ms after it arrives, except the
     setpoints in ``late``, whose FEEDBACK reaches the host ``late[seq]`` seconds after it (a device process
     descheduled on a loaded host)."""
@@ -172,20 +179,6 @@ class SlowAnswerV1Link(Transport):
         self.host_clock, self.late = clock, late
         self._statusword = cia402.statusword_for(DriveState.SWITCH_ON_DISABLED)
         self._answers: list[tuple[float, int]] = []  # (arrival at the host, seq)
-
-    def _connect(self) -> None:
-        pass
-
-    def _prepare(self) -> float:
-        return 0.0
-
-    def _write_controlword(self, controlword: int) -> None:
-        state = cia402.next_state(cia402.state_from_statusword(self._statusword), controlword, 0)
-        self._statusword = cia402.statusword_for(state) | (cia402.STATUSWORD_FOLLOWS_TARGET
-                                                           if state is DriveState.OPERATION_ENABLED else 0)
-
-    def _read_statusword(self) -> int:
-        return self._statusword
 
     def _send(self, setpoint: Setpoint) -> None:
         self._answers.append((self.host_clock.now_s + self.late.get(setpoint.seq, 2e-4), setpoint.seq))
