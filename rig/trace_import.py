@@ -37,9 +37,10 @@ CANopen (SYNC + drive RPDO1 + TPDOs, the mapping :mod:`rig.transports.canopen_li
   the RPDO1 sent after SYNC s - 1; the target in force at SYNC s is the last RPDO1 before it (HELD, with
   that command, when it is not sample s's own);
 * interpolated position (7): RPDO1 k is setpoint k, a record into the drive's buffer, and RPDO2 a hold
-  record (:mod:`rig.transports.interpolation_feed`); sample 0's SYNC is the first after the first record
-  whose drive statusword shows bit 12 (ip mode active), and each SYNC from it takes the oldest record of
-  the buffer (a hold record, or an empty buffer, holds the last one: HELD, with that command);
+  record (:mod:`rig.transports.interpolation_feed`); sample 0's SYNC is the one after the drive's answer to
+  the SDO write of controlword bit 4 when that answer came before the next SYNC, otherwise the first after
+  the first record whose drive statusword shows bit 12 (ip mode active); each SYNC from it takes the oldest
+  record of the buffer (a hold record, or an empty buffer, holds the last one: HELD, with that command);
 * each TPDO is filed under the last SYNC before its time stamp (minus its latency in cycles), as the
   transport files it; a complete set is the reading (DUPLICATE for a second one, AMBIGUOUS when SYNCs came
   closer than one cycle's bus time or the drive's 0x6062 is not the target in force, NOT_FOLLOWED, FAULT);
@@ -286,23 +287,38 @@ def _streams_interpolated_position(path: Path, link: Any, mode_written: int | No
     return link.mode == "ip_buffer"
 
 
-def _first_sync_in_ip_mode(frames: list[tuple[float, int, Any]], sync_id: int, rpdo_id: int, status_id: int,
-                           latency: int) -> int | None:
-    """The count of the first SYNC after the first RPDO1 whose drive statusword (TPDO1, filed as the
-    transport files it, ``latency`` cycles back) shows bit 12 (ip mode active): sample 0 in interpolated
-    position; None if there is none."""
+def _ip_origin(frames: list[tuple[float, int, Any]], sync_id: int, rpdo_id: int, drive_node: int,
+               latency: int) -> int | None:
+    """The count of sample 0's SYNC in interpolated position, by the transport's rule: where the drive
+    answered the SDO write of controlword bit 4 (enable ip mode) before a SYNC passed after the request, the
+    SYNC after its answer (the bus order alone); otherwise the first SYNC after the first record whose drive
+    statusword (TPDO1, filed as the transport files it, ``latency`` cycles back) shows bit 12 (ip mode
+    active). None if there is neither."""
     syncs = first_record = 0
+    enabled_at = answered_at = None
     for _, _, message in frames:
-        cob = message.arbitration_id
+        cob, data = message.arbitration_id, bytes(message.data)
         if cob == sync_id:
             syncs += 1
         elif cob == rpdo_id and not first_record:
             first_record = syncs or -1
-        elif cob == status_id and first_record and len(message.data) >= 2:
+        elif cob == 0x600 + drive_node and first_record and enabled_at is None and _writes_ip_enable(data):
+            enabled_at = syncs
+        elif cob == 0x580 + drive_node and enabled_at is not None and answered_at is None:
+            answered_at = syncs
+            if answered_at == enabled_at:
+                return answered_at + 1
+        elif cob == 0x180 + drive_node and first_record and len(data) >= 2:
             answers = syncs - latency
-            if answers > max(first_record, 0) and int.from_bytes(bytes(message.data[:2]), "little") & (1 << 12):
+            if answers > max(first_record, 0) and int.from_bytes(data[:2], "little") & cia402.STATUSWORD_IP_MODE_ACTIVE:
                 return answers
     return None
+
+
+def _writes_ip_enable(data: bytes) -> bool:
+    """An expedited SDO download (CiA 301 7.2.4.3.3) of controlword 0x6040 sub 0 with bit 4 (enable ip mode)."""
+    return (len(data) == 8 and data[0] & 0xE0 == 0x20 and data[1:4] == bytes((0x40, 0x60, 0))
+            and int.from_bytes(data[4:6], "little") & 0x10 != 0)
 
 
 def _import_canopen(path: Path, config: Any) -> ExperimentRecord:
@@ -322,7 +338,7 @@ def _import_canopen(path: Path, config: Any) -> ExperimentRecord:
                      if not message.is_error_frame), key=lambda item: (item[0], item[1]))
     frame_errors = 0
     has_demand = any(message.arbitration_id == 0x280 + drive_node for _, _, message in frames)
-    ip_origin = _first_sync_in_ip_mode(frames, SYNC_COB_ID, rpdo_id, 0x180 + drive_node, link.latency_cycles["drive"])
+    ip_origin = _ip_origin(frames, SYNC_COB_ID, rpdo_id, drive_node, link.latency_cycles["drive"])
     syncs: list[float] = []
     origin: int | None = None
     in_force: tuple[int, int] = (-1, 0)
@@ -343,7 +359,8 @@ def _import_canopen(path: Path, config: Any) -> ExperimentRecord:
         count = next((number for number in range(len(syncs), 0, -1) if syncs[number - 1] <= stamp), None)
         if count is None or origin is None:
             return
-        seq = count - link.latency_cycles[part] - origin
+        latency = link.demand_latency_cycles(interpolating) if part == "demand" else link.latency_cycles[part]
+        seq = count - latency - origin
         if seq < 0:
             return
         pair = parts.setdefault(seq, {})

@@ -163,8 +163,14 @@ class CanOpenTransport(CanOpenStartUp, CanOpenInterpolation, Transport):
         saying what to set; an encoder has no such object, so its latency can only be configured. In
         interpolated position a drive that takes each record as the end point of the segment to the next SYNC
         (CiA 402 linear interpolation: its 0x6062 at SYNC k is record k - 1) looks exactly like one that
-        answers a SYNC late; ``drive_tpdo_latency_cycles = 1`` files its commands and the encoder right
-        there too (its statusword then lands one sample early).
+        answers a SYNC late while streaming; set ``ip_record_is_segment_end`` for it instead.
+    ip_record_is_segment_end
+        In interpolated position, the drive takes each record as the end point of the segment to the next
+        SYNC (CiA 402 linear interpolation leaves open which end of a segment a record is): its 0x6062 at
+        SYNC k is the record it took at SYNC k - 1, and its axis reaches a record one SYNC after taking it.
+        The demand value is then checked one SYNC back; the statusword and the encoder keep their own
+        latencies, so sample 0 (the first SYNC with bit 12) and the encoder's readings are filed where the
+        drive sent them, and the log shows the interpolator's one-sample lag between command and angle.
     emcy_warning_codes
         EMCY codes that are warnings, logged and ridden through: comma-separated hex prefixes of the code
         (``"0x4"``, the default, is every temperature code 0x4xxx of CiA 301 Table 21; ``"0x4210,0xFF"``
@@ -181,7 +187,7 @@ class CanOpenTransport(CanOpenStartUp, CanOpenInterpolation, Transport):
                  heartbeat_timeout_s: float = 0.5, sdo_timeout_s: float = 0.5, skip_homing: bool = True,
                  homing_method: int = 37, homing_timeout_s: float = 30.0, mode_switch_timeout_s: float = 1.0,
                  mode: str = "auto", sync_producer: str = "master", lead_s: float = 0.1, drive_tpdo_latency_cycles: int = 0,
-                 encoder_tpdo_latency_cycles: int = 0,
+                 encoder_tpdo_latency_cycles: int = 0, ip_record_is_segment_end: bool = False,
                  emcy_warning_codes: str = "0x4", trace_path: str | None = None, **kwargs: Any) -> None:
         super().__init__(**kwargs)
         self.interface, self.channel, self.bitrate = interface, channel, int(bitrate)
@@ -214,6 +220,7 @@ class CanOpenTransport(CanOpenStartUp, CanOpenInterpolation, Transport):
                 raise ConfigError("<transport>", f"{part}_tpdo_latency_cycles", f"expected 0..8 SYNC periods, got {value}")
             self.latency_cycles[part] = int(value)
         self.latency_cycles["demand"] = self.latency_cycles["drive"]
+        self.ip_record_is_segment_end = bool(ip_record_is_segment_end)
         self.emcy_warning_prefixes = emcy_prefixes(emcy_warning_codes)
         self._drive_od = load_object_dictionary("drive_eds", self.drive_eds, self.drive_node_id)
         self._encoder_od = load_object_dictionary("encoder_eds", self.encoder_eds, self.encoder_node_id)
@@ -300,6 +307,12 @@ class CanOpenTransport(CanOpenStartUp, CanOpenInterpolation, Transport):
         self.mode = mode
         self._streaming_mode = (cia402.INTERPOLATED_POSITION_MODE if mode == "ip_buffer"
                                 else cia402.CYCLIC_SYNCHRONOUS_POSITION_MODE)
+        self.latency_cycles["demand"] = self.demand_latency_cycles(interpolating=mode == "ip_buffer")
+
+    def demand_latency_cycles(self, interpolating: bool) -> int:
+        """How many SYNCs back the drive's 0x6062 is filed: its TPDO latency, plus one in interpolated
+        position for a drive that takes each record as the end point of the segment to the next SYNC."""
+        return self.latency_cycles["drive"] + int(interpolating and self.ip_record_is_segment_end)
 
     @property
     def lead_samples(self) -> int:
@@ -876,11 +889,12 @@ class CanOpenTransport(CanOpenStartUp, CanOpenInterpolation, Transport):
                     # files both right (the encoder's latency is its own)
                     self._report_fault(DeviceFault(self.drive_label, None, (
                         f"its position demand value 0x6062 at sample {seq} is the record of sample {seq - 1} "
-                        f"({LATENCY_EVIDENCE_SAMPLES} samples in a row): either it answers SYNC k after SYNC k + "
-                        f"{configured + 1}, or it takes each interpolation record as the end point of the segment "
-                        "to the next SYNC (CiA 402 linear interpolation, 0x6062 showing the segment's start); the "
-                        f"two look the same on the bus, and drive_tpdo_latency_cycles = {configured + 1} serves "
-                        "both (set encoder_tpdo_latency_cycles only for an encoder that answers late)")))
+                        f"({LATENCY_EVIDENCE_SAMPLES} samples in a row): either it takes each interpolation record "
+                        "as the end point of the segment to the next SYNC (CiA 402 linear interpolation, 0x6062 "
+                        "showing the segment's start: set ip_record_is_segment_end = true), or it answers SYNC k "
+                        f"after SYNC k + {configured + 1} (set drive_tpdo_latency_cycles = {configured + 1}); the "
+                        "two look the same on the bus while streaming: its manual says which (a drive whose "
+                        "statusword shows bit 12 at the SYNC after it confirmed controlword bit 4 answers in time)")))
                     return
                 self._report_fault(DeviceFault(self.drive_label, None, (
                     f"answers SYNC k after SYNC k + {configured + late}: its position demand value 0x6062 at sample "

@@ -1,4 +1,4 @@
-"""``rig import TRACE`` (issue 17, item 3): the trace of ``rig run --can-trace`` gives back the run's own log
+"""``rig import TRACE``: the trace of ``rig run --can-trace`` gives back the run's own log
 sample for sample in every trace format, raw CAN and CANopen (HELD samples too), a missing frame is a LOST sample, and damaged or foreign traces get
 an error naming the frame."""
 
@@ -238,3 +238,33 @@ def test_a_canopen_trace_that_starts_after_the_start_up_needs_the_mode_in_the_co
     run = read_log(log)
     np.testing.assert_array_equal(record.command_rad, run.command_rad)
     np.testing.assert_array_equal(record.angle_rad, run.angle_rad)
+
+
+def _ip_start_frames(answer_after_sync: bool, first_bit_12: int) -> list:
+    """An interpolated-position start on drive node 1, as (time stamp, index, frame): two records, SYNC 1,
+    the SDO write of controlword 0x001F (bit 4, enable ip mode) and the drive's answer (after SYNC 2 when
+    ``answer_after_sync``), then SYNCs 2-4 each followed by the drive's statusword, bit 12 (ip mode active)
+    set from SYNC ``first_bit_12`` on."""
+    def frame(cob: int, data: bytes) -> can.Message:
+        return can.Message(arbitration_id=cob, data=data, is_extended_id=False)
+
+    sync, record = frame(0x080, b""), frame(0x201, (0).to_bytes(4, "little"))
+    request = frame(0x601, bytes((0x2B, 0x40, 0x60, 0x00, 0x1F, 0x00, 0, 0)))
+    answer = frame(0x581, bytes((0x60, 0x40, 0x60, 0x00, 0, 0, 0, 0)))
+    status = [frame(0x181, (0x0637 | (0x1000 if n >= first_bit_12 else 0)).to_bytes(2, "little")
+                    + (0).to_bytes(4, "little")) for n in range(5)]
+    order = [record, record, sync, request] + ([sync, answer] if answer_after_sync else [answer, sync])
+    order += [status[2], sync, status[3], sync, status[4]]
+    return [(0.001 * index, index, message) for index, message in enumerate(order)]
+
+
+@pytest.mark.parametrize(("answer_after_sync", "first_bit_12", "origin"),
+                         [(False, 2, 2), (False, 3, 2), (True, 3, 3), (True, 4, 4)])
+def test_interpolated_position_starts_where_the_bus_order_says(answer_after_sync, first_bit_12, origin):
+    """Sample 0 of an imported interpolated-position trace, by the transport's rule: the drive answered the
+    SDO write of bit 4 before the next SYNC (2), so it took its first record at that SYNC, whatever a
+    statusword sent late says; when the answer came after a SYNC, the first statusword with bit 12 decides."""
+    from rig.trace_import import _ip_origin
+
+    frames = _ip_start_frames(answer_after_sync, first_bit_12)
+    assert _ip_origin(frames, 0x080, 0x201, 1, latency=0) == origin

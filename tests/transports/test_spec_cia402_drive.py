@@ -37,10 +37,12 @@ drive (``sim_backend/canopen_nodes.py``):
   written while access is disabled, or into a full buffer, are discarded (whatever the mode; the simulated
   drive takes them only in mode 7). Records are consumed only with controlword bit 4 and statusword bit 12
   set; bit 4 low pauses (the master never clears it mid-run, so no test here reaches that branch); an
-  underrun holds the last record. On the bus this lag is exactly what a drive that jumps to each record and
-  answers one SYNC late sends (``sim_backend``'s "TPDOs one SYNC late"), so the master is told
-  ``drive_tpdo_latency_cycles = 1`` for these runs; untold, it stops naming both causes
-  (:func:`test_the_interpolation_lag_looks_like_a_tpdo_latency_and_the_master_says_both`).
+  underrun holds the last record. While streaming, this lag is exactly what a drive that jumps to each
+  record and answers one SYNC late sends (``sim_backend``'s "TPDOs one SYNC late"), so the master is told
+  ``ip_record_is_segment_end = true`` for these runs; untold, it stops naming both causes
+  (:func:`test_the_interpolation_lag_looks_like_a_tpdo_latency_and_the_master_says_both`). Told a TPDO
+  latency instead, it would file the statusword one SYNC early, and sample 0 with it whenever the drive's
+  answer to controlword bit 4 came after a SYNC (a loaded host).
 * CiA 406 encoder: position value 0x6004 (UNSIGNED32; the load, gear ratio 1), 0x6001 measuring units per
   revolution, 0x6002 total measuring range, 0x6000 code sequence; its TPDO as the drive's.
 
@@ -78,9 +80,9 @@ DISABLED_STATES = (SWITCH_ON_DISABLED, FAULT)  # the power stage off; QUICK STOP
 
 
 def _options(mode: str) -> dict:
-    """Interpolated position: the drive's 0x6062 lags one record (see the module docstring), which on the
-    bus looks exactly like a TPDO answering one SYNC late; the master is told so."""
-    return {} if mode == "csp" else {"drive_tpdo_latency_cycles": 1}
+    """Interpolated position: the drive takes each record as the end point of its segment (see the module
+    docstring); the master is told so."""
+    return {} if mode == "csp" else {"ip_record_is_segment_end": True}
 
 
 def _transport(rig: SpecCia402Rig, mode: str, **options) -> CanOpenTransport:
@@ -178,12 +180,13 @@ def test_the_interpolation_lag_looks_like_a_tpdo_latency_and_the_master_says_bot
     """CiA 402 linear interpolation: the demand 0x6062 at SYNC k is the record taken at SYNC k - 1 (the
     segment's start), so every changed record shows in 0x6062 one sample late, although the TPDOs answer
     their own SYNC. On the bus that is what a drive that jumps to each record and answers one SYNC late
-    sends too, so the master cannot tell them apart: by default it stops after 3 such samples, naming both
-    causes and the setting that serves both (drive_tpdo_latency_cycles = 1; the encoder keeps its own)."""
+    sends too, so while streaming the master cannot tell them apart: untold, it stops after 3 such samples,
+    naming both causes and the setting for each (the runs above are told ip_record_is_segment_end)."""
     with _rig(tmp_path) as rig:
-        with pytest.raises(DeviceFault, match=(r"end point of the segment .* drive_tpdo_latency_cycles = 1 "
-                                               r"serves both")):
-            _run(rig, "auto", drive_tpdo_latency_cycles=0)
+        with pytest.raises(DeviceFault, match=(r"end point of the segment .* set ip_record_is_segment_end = true"
+                                               r"\), or it answers SYNC k after SYNC k \+ 1 \(set "
+                                               r"drive_tpdo_latency_cycles = 1\)")):
+            _run(rig, "auto", ip_record_is_segment_end=False)
         _assert_stopped(rig)
     cycles = _streamed_cycles(rig)
     assert [cycle.demand_counts for cycle in cycles[1:]] == [cycle.in_force_counts for cycle in cycles[:-1]]
@@ -244,7 +247,7 @@ heartbeat_ms = 100
 heartbeat_timeout_s = {WATCHDOG_S}
 sdo_timeout_s = 1.0
 mode = "{mode}"
-drive_tpdo_latency_cycles = {_options(mode).get("drive_tpdo_latency_cycles", 0)}
+ip_record_is_segment_end = {str(_options(mode).get("ip_record_is_segment_end", False)).lower()}
 
 [drive]
 counts_per_revolution = {1 << 17}
