@@ -91,6 +91,7 @@ class MeasurementTable:
     time_bases: dict[str, NDArray[np.float64]] = field(default_factory=dict)
     repeated: dict[str, list[int]] = field(default_factory=dict)
     units: dict[str, str] = field(default_factory=dict)
+    start_utc: str | None = None
 
     def present(self) -> str:
         names = sorted(self.columns)
@@ -148,11 +149,25 @@ def _read_mdf(path: Path) -> MeasurementTable:
             bases[name] = np.asarray(signal.timestamps, dtype=float)
             units[name] = str(signal.unit or "")
         metadata = _mdf_metadata(path, mdf.header.comment)
+        start_utc = _mdf_start(mdf)
     finally:
         mdf.close()
     for name in repeated:
         columns.pop(name, None)  # which one is meant is unclear; named in the error if it is asked for
-    return MeasurementTable(path, "mdf", columns, metadata, bases, repeated, units)
+    return MeasurementTable(path, "mdf", columns, metadata, bases, repeated, units, start_utc)
+
+
+def _mdf_start(mdf: Any) -> str | None:
+    """The file's start time (the header's absolute time of its master time 0) in UTC, or None."""
+    from identify.experiment_record import utc_timestamp
+
+    try:
+        start = mdf.header.start_time
+        if start.tzinfo is None:  # a local time without its offset: not an instant
+            return None
+        return utc_timestamp(start)
+    except (AttributeError, ValueError, OverflowError):
+        return None
 
 
 def _mdf_metadata(path: Path, comment: str) -> dict[str, Any] | None:
@@ -368,6 +383,8 @@ def write_mdf(path: str | Path, record: ExperimentRecord) -> None:
         signals = [asammdf.Signal(samples=values, timestamps=timestamps, name=name, unit=_UNITS[name],
                                   comment=_COMMENTS[name]) for name, values in columns.items()]
         mdf.append(signals, comment="rig-log v1 samples")
+        if record.metadata.acquisition_start is not None:  # else asammdf's default: the time of the export
+            mdf.header.start_time = record.metadata.acquisition_start
         metadata_json = _metadata_json(record)
         meta = record.metadata
         lines = [f"rig log exported by gearbox-rig {__version__}", f"source: {meta.source}",

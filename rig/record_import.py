@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import json
 import math
+from datetime import datetime, timedelta
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -37,7 +38,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from identify.experiment_record import ExperimentMetadata, ExperimentRecord, SampleFlag
+from identify.experiment_record import ExperimentMetadata, ExperimentRecord, SampleFlag, utc_timestamp
 from rig.channel_units import parse_units
 from rig.protocols.errors import LogFileError
 
@@ -364,8 +365,14 @@ def read_measurement(path: str | Path, options: ImportOptions | None = None) -> 
                              f"LOST samples is LOST ({int(np.count_nonzero(flags))} in all), the other flags are dropped")
     period = float(np.median(np.diff(t))) if note == "" else spread[1]
     if metadata is None or note:
+        start = metadata.acquisition_start_utc if metadata is not None else None
+        if metadata is None and table is not None and table.start_utc is not None:
+            # an MDF file's start time is the instant of its master time 0; the record's sample 0 is at t[0]
+            file_start = datetime.fromisoformat(table.start_utc.replace("Z", "+00:00"))
+            start = utc_timestamp(file_start + timedelta(seconds=float(t[0])))
         metadata = ExperimentMetadata(sample_period_s=period, source=str(path),
-                                      transport="json records" if is_json else (measurement_format(path) or "csv"))
+                                      transport="json records" if is_json else (measurement_format(path) or "csv"),
+                                      acquisition_start_utc=start)
     record = ExperimentRecord(time_s=np.asarray(t, dtype=float), command_rad=np.asarray(u, dtype=float),
                               angle_rad=np.asarray(y, dtype=float), encoder_counts=counts, flags=flags,
                               metadata=metadata)

@@ -68,5 +68,7 @@ def run(args: argparse.Namespace) -> int:
         return exit_codes.SUCCESS
     width = max(len(key) for key in info)
     for key, value in info.items():
+        if key == "acquisition_start_utc" and value is None:
+            value = "unknown (not recorded: a log written before rig recorded it, or data of another tool)"
         print(f"{key:<{width}}  {_text(value)}")
     return exit_codes.SUCCESS

@@ -182,7 +182,7 @@ def run(args: argparse.Namespace) -> int:
 
             view = stack.enter_context(open_live_view(command.size, config.sample_period_s, sys.stderr))
         log = LogWriter(args.out, experiment_log_metadata(config, excitation, gearbox, command.size, injected),
-                        flush_every=10, flush_interval_s=0.05, claimed=claimed)
+                        flush_every=10, flush_interval_s=0.05, claimed=claimed, stamp_start=True)
         sink = log if view is None else view.observe(log)
         bar = None
         if not args.json and not args.live and sys.stderr.isatty():
