@@ -27,21 +27,14 @@ import math
 import warnings
 from pathlib import Path
 
+from rig.protocols.angle_units import NO_UNIT as _NO_UNIT
+from rig.protocols.angle_units import angle_unit_factor, unit_kind
 from rig.protocols.errors import LogFileError
 
 __all__ = ["UNITS_HELP", "UnitMismatchWarning", "angle_factor", "parse_units", "time_factor", "unit_kind"]
 
 UNITS_HELP = "rad, deg, rev, or counts:N (N counts per revolution, e.g. counts:4096)"
 
-_ANGLE_UNITS = {
-    "rad": ("rad", 1.0), "radian": ("rad", 1.0), "radians": ("rad", 1.0),
-    "deg": ("deg", math.pi / 180.0), "°": ("deg", math.pi / 180.0), "degree": ("deg", math.pi / 180.0),
-    "degrees": ("deg", math.pi / 180.0),
-    "rev": ("rev", 2.0 * math.pi), "revolution": ("rev", 2.0 * math.pi), "revolutions": ("rev", 2.0 * math.pi),
-    "turn": ("rev", 2.0 * math.pi), "turns": ("rev", 2.0 * math.pi),
-}
-_COUNT_UNITS = {"counts", "count", "cnt", "cnts", "inc", "incr", "increments", "ticks", "lsb"}
-_NO_UNIT = {"", "-", "1", "none"}
 _TIME_UNITS = {"s": 1.0, "sec": 1.0, "ms": 1e-3, "us": 1e-6, "µs": 1e-6, "μs": 1e-6, "ns": 1e-9}
 
 
@@ -53,7 +46,7 @@ def parse_units(text: str) -> float:
     """``rad`` -> 1, ``deg`` -> pi/180, ``rev`` -> 2 pi, ``counts:N`` -> 2 pi / N: the factor to radians."""
     text = text.strip()
     if text in ("rad", "deg", "rev"):
-        return _ANGLE_UNITS[text][1]
+        return angle_unit_factor(text)
     if text.startswith("counts:"):
         try:
             resolution = float(text.split(":", 1)[1])
@@ -62,18 +55,6 @@ def parse_units(text: str) -> float:
         if math.isfinite(resolution) and resolution > 0:
             return 2.0 * math.pi / resolution
     raise ValueError(f"--units: expected {UNITS_HELP}, got {text!r}")
-
-
-def unit_kind(unit: str) -> str:
-    """``"rad"``, ``"deg"``, ``"rev"``, ``"counts"``, ``""`` (no unit) or ``"unknown"`` for a file's unit text."""
-    key = unit.strip().lower()
-    if key in _NO_UNIT:
-        return ""
-    if key in _ANGLE_UNITS:
-        return _ANGLE_UNITS[key][0]
-    if key in _COUNT_UNITS:
-        return "counts"
-    return "unknown"
 
 
 def angle_factor(path: Path | str, channel: str, file_unit: str, stated: str | None) -> float:
@@ -97,7 +78,7 @@ def angle_factor(path: Path | str, channel: str, file_unit: str, stated: str | N
     if kind == "unknown":
         raise LogFileError(f"{path}: channel {channel!r} is in {file_unit!r}, which is no angle unit read here "
                            f"({UNITS_HELP}); convert the channel, or pass --units to say how to read its numbers")
-    return _ANGLE_UNITS[kind][1]
+    return angle_unit_factor(kind)
 
 
 def time_factor(path: Path | str, channel: str, file_unit: str) -> float:
