@@ -249,6 +249,12 @@ class ExperimentRecord:
     flags: NDArray[np.uint8] | None
     metadata: ExperimentMetadata
 
+    def __eq__(self, other: object) -> bool:
+        """Field by field, arrays element-wise (:func:`identify.result_format.results_equal`)."""
+        from identify.result_format import results_equal
+
+        return results_equal(self, other)
+
     def __post_init__(self) -> None:
         time = _array("time_s", self.time_s, float)
         command = _array("command_rad", self.command_rad, float)
@@ -297,6 +303,23 @@ class ExperimentRecord:
         for name, value in (("time_s", time), ("command_rad", command), ("angle_rad", angle),
                             ("encoder_counts", counts), ("flags", flags)):
             object.__setattr__(self, name, value)
+
+    def to_pandas(self) -> Any:
+        """The record as a ``pandas.DataFrame``: columns ``time_s``, ``command_rad``, ``angle_rad`` (NaN where
+        LOST), ``encoder_counts`` (nullable integers, absent for data without them) and ``flags``; the metadata
+        as ``attrs["metadata"]`` (:meth:`ExperimentMetadata.to_dict`). Needs pandas (not a dependency)."""
+        from identify.result_format import require_pandas
+
+        pandas = require_pandas("ExperimentRecord.to_pandas()")
+        columns: dict[str, Any] = {"time_s": self.time_s, "command_rad": self.command_rad, "angle_rad": self.angle_rad}
+        if self.encoder_counts is not None:
+            lost = (self.flags & int(SampleFlag.LOST)) != 0
+            columns["encoder_counts"] = pandas.array(np.where(lost, 0, self.encoder_counts), dtype="Int64")
+            columns["encoder_counts"][lost] = pandas.NA
+        columns["flags"] = self.flags
+        frame = pandas.DataFrame(columns)
+        frame.attrs["metadata"] = self.metadata.to_dict()
+        return frame
 
     def __len__(self) -> int:
         return int(self.time_s.size)
