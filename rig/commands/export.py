@@ -90,6 +90,5 @@ def run(args: argparse.Namespace) -> int:
         print(json.dumps({"log": args.log, "out": str(out), "format": kind, "samples": len(record),
                           "acquisition_start_utc": start}), file=status)
     else:
-        print(f"{args.log} -> {out} ({kind}, {len(record)} samples, acquisition start "
-              f"{start or 'unknown'})", file=status)
+        print(f"{args.log} -> {out} ({kind}, {len(record)} samples)", file=status)
     return exit_codes.SUCCESS
