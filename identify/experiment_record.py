@@ -15,6 +15,7 @@ import math
 import numbers
 from collections.abc import Mapping
 from dataclasses import dataclass, field, fields
+from datetime import datetime, timezone
 from enum import IntFlag
 from types import MappingProxyType
 from typing import Any
@@ -24,7 +25,8 @@ from numpy.typing import ArrayLike, NDArray
 
 from identify.validation import InvalidInputError
 
-__all__ = ["NOMINAL_TIME_TOLERANCE_S", "ExperimentMetadata", "ExperimentRecord", "SampleFlag"]
+__all__ = ["NOMINAL_TIME_TOLERANCE_S", "ExperimentMetadata", "ExperimentRecord", "SampleFlag", "now_utc",
+           "utc_timestamp"]
 
 NOMINAL_TIME_TOLERANCE_S = 1e-9
 """A time column within this of t_0 + k·T at every sample is the nominal grid (float64 rounding of k·T at
@@ -80,6 +82,9 @@ class ExperimentMetadata:
         Free-form description of the configs used (e.g. file names or their parsed contents).
     software_version
         Version of this package that wrote the record.
+    acquisition_start_utc
+        When sample 0 was taken, in UTC, as ISO 8601 text (``2025-03-04T09:15:02.123456Z``); None when unknown
+        (logs written before it was recorded, data of other tools). :attr:`acquisition_start` is the datetime.
     extra
         Anything else (kept on reading a newer log).
     """
@@ -95,9 +100,12 @@ class ExperimentMetadata:
     seed: int | None = None
     config: Mapping[str, Any] = field(default_factory=dict)
     software_version: str = ""
+    acquisition_start_utc: str | None = None
     extra: Mapping[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
+        if self.acquisition_start_utc is not None:
+            object.__setattr__(self, "acquisition_start_utc", utc_timestamp(self.acquisition_start_utc))
         period = self.sample_period_s
         if isinstance(period, bool) or not isinstance(period, numbers.Real) or not (
                 math.isfinite(period) and period > 0):
@@ -133,6 +141,13 @@ class ExperimentMetadata:
         object.__setattr__(self, "config", MappingProxyType(dict(self.config)))
         object.__setattr__(self, "extra", MappingProxyType(dict(self.extra)))
 
+    @property
+    def acquisition_start(self) -> datetime | None:
+        """:attr:`acquisition_start_utc` as a timezone-aware datetime (UTC), or None when unknown."""
+        if self.acquisition_start_utc is None:
+            return None
+        return datetime.fromisoformat(self.acquisition_start_utc.replace("Z", "+00:00"))
+
     def to_dict(self) -> dict[str, Any]:
         """Plain JSON-able dict (``inf`` bound written as the string ``"inf"``)."""
         out: dict[str, Any] = {}
@@ -162,6 +177,29 @@ class ExperimentMetadata:
         if values.get("noise_bound_rad") == "inf":
             values["noise_bound_rad"] = math.inf
         return cls(**values, extra=extra)
+
+
+def utc_timestamp(value: str | datetime) -> str:
+    """An instant as ISO 8601 text in UTC with a ``Z`` (``2025-03-04T09:15:02.123456Z``), from a timezone-aware
+    datetime or ISO 8601 text with an offset; a time without an offset is refused (it could be any zone)."""
+    if isinstance(value, str):
+        try:
+            value = datetime.fromisoformat(value.strip().replace("Z", "+00:00"))
+        except ValueError:
+            raise InvalidInputError(f"acquisition_start_utc: expected an ISO 8601 time such as "
+                                    f"2025-03-04T09:15:02.123Z, got {value!r}") from None
+    if not isinstance(value, datetime):
+        raise InvalidInputError(f"acquisition_start_utc: expected ISO 8601 text or a datetime, got {value!r}")
+    if value.utcoffset() is None:
+        raise InvalidInputError(f"acquisition_start_utc: {value.isoformat()} has no time zone; give it in UTC "
+                                "(ending in Z or +00:00)")
+    utc = value.astimezone(timezone.utc)
+    return utc.replace(tzinfo=None).isoformat(timespec="microseconds") + "Z"
+
+
+def now_utc() -> str:
+    """The host's clock now, as :func:`utc_timestamp` writes it."""
+    return utc_timestamp(datetime.now(timezone.utc))
 
 
 def _array(name: str, values: ArrayLike, dtype: Any) -> NDArray[Any]:
@@ -211,6 +249,12 @@ class ExperimentRecord:
     flags: NDArray[np.uint8] | None
     metadata: ExperimentMetadata
 
+    def __eq__(self, other: object) -> bool:
+        """Field by field, arrays element-wise (:func:`identify.result_format.results_equal`)."""
+        from identify.result_format import results_equal
+
+        return results_equal(self, other)
+
     def __post_init__(self) -> None:
         time = _array("time_s", self.time_s, float)
         command = _array("command_rad", self.command_rad, float)
@@ -259,6 +303,23 @@ class ExperimentRecord:
         for name, value in (("time_s", time), ("command_rad", command), ("angle_rad", angle),
                             ("encoder_counts", counts), ("flags", flags)):
             object.__setattr__(self, name, value)
+
+    def to_pandas(self) -> Any:
+        """The record as a ``pandas.DataFrame``: columns ``time_s``, ``command_rad``, ``angle_rad`` (NaN where
+        LOST), ``encoder_counts`` (nullable integers, absent for data without them) and ``flags``; the metadata
+        as ``attrs["metadata"]`` (:meth:`ExperimentMetadata.to_dict`). Needs pandas (not a dependency)."""
+        from identify.result_format import require_pandas
+
+        pandas = require_pandas("ExperimentRecord.to_pandas()")
+        columns: dict[str, Any] = {"time_s": self.time_s, "command_rad": self.command_rad, "angle_rad": self.angle_rad}
+        if self.encoder_counts is not None:
+            lost = (self.flags & int(SampleFlag.LOST)) != 0
+            columns["encoder_counts"] = pandas.array(np.where(lost, 0, self.encoder_counts), dtype="Int64")
+            columns["encoder_counts"][lost] = pandas.NA
+        columns["flags"] = self.flags
+        frame = pandas.DataFrame(columns)
+        frame.attrs["metadata"] = self.metadata.to_dict()
+        return frame
 
     def __len__(self) -> int:
         return int(self.time_s.size)

@@ -141,6 +141,12 @@ class BacklashSidePolygon:
     strip_lower_rad: NDArray[np.float64] = field(default_factory=lambda: np.empty(0))
     strip_upper_rad: NDArray[np.float64] = field(default_factory=lambda: np.empty(0))
 
+    def __eq__(self, other: object) -> bool:
+        """Field by field, arrays element-wise (:func:`identify.result_format.results_equal`)."""
+        from identify.result_format import results_equal
+
+        return results_equal(self, other)
+
     def inverse_slope_rows(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """The polygon in (ρ, c) = (1/m, p/m) as rows G [ρ, c] <= h.
 
@@ -251,6 +257,12 @@ class BacklashFeasibleSet:
     noise_bound_rad: float
     alpha_rad: NDArray[np.float64]
     explanation: EmptyFeasibleSetExplanation | None
+
+    def __eq__(self, other: object) -> bool:
+        """Field by field, arrays element-wise (:func:`identify.result_format.results_equal`)."""
+        from identify.result_format import results_equal
+
+        return results_equal(self, other)
 
     @property
     def is_empty(self) -> bool:

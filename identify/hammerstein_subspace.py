@@ -134,6 +134,12 @@ class NodePlay:
     nodes_rad: NDArray[np.float64]
     gaps_rad: NDArray[np.float64]
 
+    def __eq__(self, other: object) -> bool:
+        """Field by field, arrays element-wise (:func:`identify.result_format.results_equal`)."""
+        from identify.result_format import results_equal
+
+        return results_equal(self, other)
+
     @property
     def interior_gaps_rad(self) -> NDArray[np.float64]:
         """The gaps without the end nodes, where both paths meet (all of them for two nodes)."""
@@ -223,6 +229,12 @@ class HammersteinModel:
     refinement: RefinementReport | None = None
     ascending_border: PiecewiseLinearBorder = field(init=False)
     descending_border: PiecewiseLinearBorder = field(init=False)
+
+    def __eq__(self, other: object) -> bool:
+        """Field by field, arrays element-wise (:func:`identify.result_format.results_equal`)."""
+        from identify.result_format import results_equal
+
+        return results_equal(self, other)
 
     def __post_init__(self) -> None:
         n = int(self.order)
@@ -340,6 +352,19 @@ class HammersteinModel:
 
     KIND = "hammerstein_model"
     VERSION = 1
+
+    def to_pandas(self) -> Any:
+        """The identified borders as a ``pandas.DataFrame``: one row per node of each path, columns ``path``
+        (``ascending``/``descending``), ``node_rad`` and ``border_rad`` (H at the node; the first ascending
+        node holds μ0). The dynamics (A, B, C, D, poles) stay on the model. Needs pandas (not a dependency)."""
+        from identify.result_format import require_pandas
+
+        pandas = require_pandas("HammersteinModel.to_pandas()")
+        rows = [(path, float(node), float(border(node)))
+                for path, nodes, border in (("ascending", self.nodes.ascending, self.ascending_border),
+                                            ("descending", self.nodes.descending, self.descending_border))
+                for node in nodes]
+        return pandas.DataFrame(rows, columns=["path", "node_rad", "border_rad"])
 
     def to_dict(self) -> dict[str, Any]:
         """The ``rig identify hammerstein --json`` document: ``kind`` ``"hammerstein_model"``, ``version`` 1,

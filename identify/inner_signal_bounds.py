@@ -55,6 +55,12 @@ class InnerSignalBounds:
     invertible: NDArray[np.bool_]
     direction: NDArray[np.int8]
 
+    def __eq__(self, other: object) -> bool:
+        """Field by field, arrays element-wise (:func:`identify.result_format.results_equal`)."""
+        from identify.result_format import results_equal
+
+        return results_equal(self, other)
+
     @property
     def center_rad(self) -> NDArray[np.float64]:
         """x_t^c of eq. (28)."""

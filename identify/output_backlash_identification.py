@@ -57,6 +57,26 @@ class OutputBacklashIdentification:
     KIND = "output_backlash"
     VERSION = 1
 
+    def __eq__(self, other: object) -> bool:
+        """Field by field, arrays element-wise (:func:`identify.result_format.results_equal`)."""
+        from identify.result_format import results_equal
+
+        return results_equal(self, other)
+
+    def to_pandas(self) -> Any:
+        """The parameter intervals as a ``pandas.DataFrame``: one row per parameter (``m_l c_l m_r c_r``, then
+        ``a1..`` ``b..`` unless the set is empty), columns ``block`` (``backlash``/``linear``), ``parameter``,
+        ``lower``, ``upper``, ``center``. Needs pandas (not a dependency)."""
+        from identify.result_format import require_pandas
+
+        pandas = require_pandas("OutputBacklashIdentification.to_pandas()")
+        blocks = [("backlash", self.backlash.intervals())]
+        if self.linear is not None and not self.linear.is_empty:
+            blocks.append(("linear", self.linear.intervals))
+        rows = [(block, name, interval.lower, interval.upper, interval.center)
+                for block, intervals in blocks for name, interval in intervals.items()]
+        return pandas.DataFrame(rows, columns=["block", "parameter", "lower", "upper", "center"])
+
     def to_dict(self) -> dict[str, Any]:
         """The ``rig identify output-backlash --json`` document: ``kind`` ``"output_backlash"``, ``version``
         1, the keys of issue 2 (``backlash`` and ``linear`` intervals, ``method``, ``invertible_samples``,

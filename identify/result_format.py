@@ -9,13 +9,17 @@ with :class:`ResultFormatError` naming both. Readers (``rig report``) dispatch o
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import math
 from collections.abc import Iterator, Mapping, Sequence
 from typing import Any
 
+import numpy as np
+
 from identify.validation import InvalidInputError
 
-__all__ = ["ResultFormatError", "check_kind", "kind_of", "malformed", "number", "numbers", "tagged"]
+__all__ = ["ResultFormatError", "check_kind", "kind_of", "malformed", "number", "numbers", "require_pandas",
+           "results_equal", "tagged", "values_equal"]
 
 
 class ResultFormatError(InvalidInputError):
@@ -76,3 +80,47 @@ def malformed(kind: str) -> Iterator[None]:
     except (TypeError, ValueError, AttributeError, IndexError) as err:
         text = str(err)
         raise ResultFormatError(f"kind {kind!r}: malformed ({text[:160]})") from None
+
+
+def values_equal(first: Any, second: Any) -> bool:
+    """Whether two result values are equal, arrays compared element-wise (shape, values, NaN equal to NaN),
+    through tuples, lists, mappings and dataclasses: what ``==`` means for a result type (a result saved and
+    reopened equals the original)."""
+    if isinstance(first, (np.ndarray, np.generic)) or isinstance(second, (np.ndarray, np.generic)):
+        a, b = np.asarray(first), np.asarray(second)
+        if a.shape != b.shape:
+            return False
+        try:
+            return bool(np.array_equal(a, b, equal_nan=a.dtype.kind in "fc" and b.dtype.kind in "fc"))
+        except TypeError:  # object arrays
+            return all(values_equal(x, y) for x, y in zip(a.ravel().tolist(), b.ravel().tolist()))
+    if dataclasses.is_dataclass(first) and not isinstance(first, type):
+        return type(first) is type(second) and results_equal(first, second)
+    if isinstance(first, Mapping):
+        return (isinstance(second, Mapping) and first.keys() == second.keys()
+                and all(values_equal(first[key], second[key]) for key in first))
+    if isinstance(first, (tuple, list)):
+        return (isinstance(second, (tuple, list)) and len(first) == len(second)
+                and all(values_equal(x, y) for x, y in zip(first, second)))
+    if isinstance(first, float) and isinstance(second, float) and math.isnan(first) and math.isnan(second):
+        return True
+    return bool(first == second)
+
+
+def results_equal(first: Any, second: Any) -> bool:
+    """``first == second`` for two dataclass results: the same type and every field equal by
+    :func:`values_equal` (fields that are not compared, ``compare=False``, are skipped)."""
+    if type(first) is not type(second):
+        return False
+    return all(values_equal(getattr(first, item.name), getattr(second, item.name))
+               for item in dataclasses.fields(first) if item.compare)
+
+
+def require_pandas(what: str) -> Any:
+    """The pandas module, or ImportError saying that ``what`` needs it and how to install it (pandas is not
+    a dependency of this package: only ``to_pandas()`` uses it)."""
+    try:
+        import pandas
+    except ImportError as err:
+        raise ImportError(f"{what} needs pandas, which is not installed: pip install pandas") from err
+    return pandas

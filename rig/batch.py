@@ -159,7 +159,8 @@ def usable_cores() -> int:
 
 def _worker_start() -> None:
     """In each worker process: SIGINT ignored and SIGTERM at its default, so that a Ctrl-C is reported once,
-    by the main process (which stops the workers), and warnings as the command's one-line notes."""
+    by the main process (which stops the workers), warnings as the command's one-line notes, and the BLAS
+    threads limited as in the command (:mod:`rig.blas_threads`)."""
     import signal
     import warnings
 
@@ -170,6 +171,9 @@ def _worker_start() -> None:
     if hasattr(signal, "pthread_sigmask"):
         signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})  # blocked by _sigint_held at the fork
     warnings.showwarning = show_warning_as_note
+    from rig.blas_threads import limit_blas_threads
+
+    limit_blas_threads()  # RIG_BLAS_THREADS, as in the command's own process
 
 
 @contextlib.contextmanager
@@ -267,8 +271,8 @@ def user_path(path: str) -> str:
 def _run_shipped(function: Callable[[str], Any], shipped: ShippedFile,
                  shared: Sequence[ShippedFile]) -> FileOutcome:
     """On a cluster worker: write the task's files into a temporary directory (each under its own name, in
-    a folder of its own), run ``function`` on the copy of ``shipped``, and name the user's paths in an
-    error message instead of the copies'."""
+    a folder of its own), run ``function`` on the copy of ``shipped`` with the BLAS threads limited
+    (:mod:`rig.blas_threads`), and name the user's paths in an error message instead of the copies'."""
     with tempfile.TemporaryDirectory(prefix="rig-task-") as folder:
         copies = {}
         for number, file in enumerate((shipped, *shared)):
@@ -277,8 +281,11 @@ def _run_shipped(function: Callable[[str], Any], shipped: ShippedFile,
             copy.write_bytes(file.content)
             copies[file.path] = str(copy)
         token = _SHIPPED.set(copies)
+        from rig.blas_threads import limited_blas_threads
+
         try:
-            outcome = _guarded(function, copies[shipped.path])
+            with limited_blas_threads():  # the worker's RIG_BLAS_THREADS (default 1), as in a local process
+                outcome = _guarded(function, copies[shipped.path])
         finally:
             _SHIPPED.reset(token)
     error = outcome.error

@@ -206,8 +206,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     started = time.time()
     drives = getattr(args.handler, "__module__", "") in DRIVE_COMMANDS
+    analyses = getattr(args.handler, "__module__", "") in ANALYSIS_COMMANDS
     try:
-        with signals_as_interrupts(drives), warnings.catch_warnings(), logging_to_stderr(args.verbose):
+        with signals_as_interrupts(drives), warnings.catch_warnings(), logging_to_stderr(args.verbose), \
+                _blas_threads(analyses):
             warnings.showwarning = show_warning_as_note
             try:
                 return int(args.handler(args))
@@ -240,6 +242,20 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (DeviceFault, TransportError) as err:
         print(f"rig: device error: {_with_notes(err)}", file=sys.stderr)
         return exit_codes.DEVICE_FAULT
+
+
+ANALYSIS_COMMANDS = frozenset({"rig.commands.diagnose", "rig.commands.identify_hammerstein",
+                               "rig.commands.identify_output_backlash", "rig.commands.demo"})
+"""Commands that run the identification methods: their BLAS runs on ``RIG_BLAS_THREADS`` threads (default
+1; :mod:`rig.blas_threads`)."""
+
+
+def _blas_threads(analyses: bool) -> contextlib.AbstractContextManager[None]:
+    if not analyses:
+        return contextlib.nullcontext()
+    from rig.blas_threads import limited_blas_threads
+
+    return limited_blas_threads()
 
 
 def _report_input_os_error(err: OSError) -> int:

@@ -112,7 +112,7 @@ class SimulatedRigSession:
             url, gearbox = stack.enter_context(simulated_rig(self.config, command_rad))
             excitation = Excitation(name=name, kind="demo", command_rad=command_rad, seed=None)
             writer = LogWriter(log_path, experiment_log_metadata(self.config, excitation, gearbox, command_rad.size),
-                               flush_every=100, flush_interval_s=0.1)
+                               flush_every=100, flush_interval_s=0.1, stamp_start=True)
             progress = self.progress(name, command_rad.size) if self.progress else None
             transport = open_transport(url, **self.config.transport_options())
             summary = run_experiment(transport, command_rad, writer,

@@ -6,6 +6,7 @@ Format ``rig-log v1`` (a CSV file with a commented header)::
     # metadata {"sample_period_s": 0.001, "source": "cerone2009", ...}      <- one line of JSON
     # units time_s=s command_rad=rad angle_rad=rad encoder_counts=counts flags=bits(1 LOST,2 LATE,...)
     time_s,command_rad,angle_rad,encoder_counts,flags
+    # start {"acquisition_start_utc": "2025-03-04T09:15:02.123456Z"}          <- with the first sample of a run
     0.0,0.0,0.0,0,0
     0.001,0.25,nan,,1                                                        <- a LOST sample
     # summary {"frame_errors": 0, "stop": "quick stop sent, ..."}              <- at the end, if the run ended
@@ -18,6 +19,12 @@ Format ``rig-log v1`` (a CSV file with a commented header)::
   after ``flush_interval_s``; a process killed at any instant leaves every flushed line readable, and a
   torn last line is dropped on reading with a warning. ``close()`` flushes and fsyncs.
 * Floats are written with ``repr`` (shortest exact round trip).
+* When the acquisition started (the host's UTC clock when the first sample of a run reached the log, within
+  a few sample periods of sample 0's instant) is only known once it has; a writer with ``stamp_start``
+  writes it with that sample as one comment line ``# start {"acquisition_start_utc": ...}`` (ISO 8601, UTC),
+  and :func:`read_log` puts it in ``metadata.acquisition_start_utc``. A log written before this line existed
+  reads with the start None (unknown); a record whose metadata already holds the start (``write_log`` of a
+  record read back) keeps it in the metadata line.
 * What is only known at the end of a run (the damaged frames the transport discarded, what the controlled
   stop did, who owned the sample clock and how the run kept it: ``sample_clock`` ``"device"`` with
   ``min_lead_s``, or ``"host"`` with ``send_lateness_p50_s``, ``_p99_s``, ``_max_s``; see
@@ -49,7 +56,7 @@ from typing import Any, TextIO
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from identify.experiment_record import ExperimentMetadata, ExperimentRecord, SampleFlag
+from identify.experiment_record import ExperimentMetadata, ExperimentRecord, SampleFlag, now_utc
 from identify.validation import InvalidInputError
 from rig.protocols.errors import LogFileError
 from rig.signal_files import check_input_file
@@ -62,6 +69,7 @@ FORMAT_LINE = "# rig-log v1"
 COLUMNS = ("time_s", "command_rad", "angle_rad", "encoder_counts", "flags")
 _METADATA_PREFIX = "# metadata "
 _SUMMARY_PREFIX = "# summary "
+_START_PREFIX = "# start "
 _UNITS_LINE = ("# units time_s=s command_rad=rad angle_rad=rad encoder_counts=counts flags=bits("
                + ",".join(f"{int(flag)} {flag.name}" for flag in SampleFlag if flag.value) + ")")
 
@@ -129,6 +137,9 @@ class LogWriter:
     claimed
         The :class:`rig.output_paths.ClaimedOutput` of ``path`` (claimed before a run starts, so that no other
         run writes it); None opens ``path`` itself, replacing a file there.
+    stamp_start
+        Record the host's UTC clock at the first sample as the acquisition start (a run; module docstring),
+        unless the metadata holds one already.
 
     Examples
     --------
@@ -138,14 +149,17 @@ class LogWriter:
 
     def __init__(self, path: str | Path, metadata: ExperimentMetadata | Mapping[str, Any], *,
                  flush_every: int = 1, flush_interval_s: float | None = None, fsync: bool = False,
-                 claimed: Any = None) -> None:
+                 claimed: Any = None, stamp_start: bool = False) -> None:
         self.path = Path(path)
         if isinstance(flush_every, bool) or not isinstance(flush_every, int) or flush_every < 1:
             raise InvalidInputError(f"flush_every: expected an integer >= 1, got {flush_every!r}")
         if flush_interval_s is not None and not (math.isfinite(flush_interval_s) and flush_interval_s > 0):
             raise InvalidInputError(f"flush_interval_s: expected a number > 0 or None, got {flush_interval_s!r}")
+        values = _metadata_dict(metadata)
+        self._stamp_start = stamp_start and values.get("acquisition_start_utc") is None
+        self.acquisition_start_utc: str | None = values.get("acquisition_start_utc")
         try:
-            header = json.dumps(_metadata_dict(metadata), allow_nan=False, default=_json_default)
+            header = json.dumps(values, allow_nan=False, default=_json_default)
         except ValueError as err:
             raise InvalidInputError(
                 f"metadata: {err} (write an infinite bound or a NaN as a string such as \"inf\")"
@@ -231,8 +245,13 @@ class LogWriter:
         elif not math.isfinite(angle):
             raise InvalidInputError(f"angle_rad: sample {self.samples} is {angle_rad!r}; flag it LOST instead")
         counts = "" if encoder_counts is None or lost else str(int(encoder_counts))
+        line = f"{time_value!r},{command!r},{angle!r},{counts},{flag}\n"
+        if self._stamp_start:
+            self.acquisition_start_utc = now_utc()
+            line = f"{_START_PREFIX}{json.dumps({'acquisition_start_utc': self.acquisition_start_utc})}\n{line}"
+            self._stamp_start = False
         try:
-            self._file.write(f"{time_value!r},{command!r},{angle!r},{counts},{flag}\n")
+            self._file.write(line)
         except OSError as err:  # a write that filled the buffer went to the OS and was refused
             raise self._fail(err, f"sample {self.samples}") from None
         self._last_time = time_value
@@ -313,13 +332,16 @@ def count_samples(path: str | Path) -> int | None:
     lines = 0
     try:
         with path.open("rb") as handle:
-            tail = b""
+            tail = head = b""
             while chunk := handle.read(1 << 20):
                 lines += chunk.count(b"\n")
                 tail = (tail + chunk)[-4096:]
+                head = head or chunk
     except OSError:
         return None
     if tail.endswith(b"\n") and tail[:-1].rsplit(b"\n", 1)[-1].startswith(_SUMMARY_PREFIX.encode()):
+        lines -= 1
+    if b"\n" + _START_PREFIX.encode() in head:
         lines -= 1
     return max(0, lines - 4)  # format, metadata, units and column lines
 
@@ -378,6 +400,16 @@ def read_log(path: str | Path) -> ExperimentRecord:
     if columns != COLUMNS:
         raise LogFileError(f"{path}: line {header_line}: expected columns {','.join(COLUMNS)}, got {','.join(columns)}")
     rows = lines[header_line:]
+    if rows and rows[0].startswith(_START_PREFIX):
+        number = header_line + 1
+        try:
+            start = json.loads(rows[0][len(_START_PREFIX):])["acquisition_start_utc"]
+            metadata = ExperimentMetadata.from_dict({**metadata.to_dict(), "acquisition_start_utc": start})
+        except (json.JSONDecodeError, KeyError, TypeError, ValueError) as err:
+            raise LogFileError(f"{path}: line {number}: the start line is damaged ({err}); expected "
+                               f'{_START_PREFIX}{{"acquisition_start_utc": "2025-03-04T09:15:02.123456Z"}}') from None
+        rows = rows[1:]
+        header_line += 1
     if rows and rows[-1].startswith(_SUMMARY_PREFIX):
         number = header_line + len(rows)
         try:

@@ -47,7 +47,7 @@ from rig.protocols.errors import LogFileError
 from rig.signal_files import check_input_file, read_signal_table
 
 __all__ = ["MDF_SUFFIXES", "MAT_SUFFIXES", "MDF_INSTALL_HINT", "MeasurementTable", "require_asammdf", "measurement_format",
-           "read_measurement", "read_measurement_record", "read_table", "write_mat", "write_mdf"]
+           "read_channels", "read_measurement", "read_measurement_record", "read_table", "write_mat", "write_mdf"]
 
 MDF_SUFFIXES = (".mf4", ".mdf")
 MAT_SUFFIXES = (".mat",)
@@ -90,6 +90,8 @@ class MeasurementTable:
     metadata: dict[str, Any] | None = None
     time_bases: dict[str, NDArray[np.float64]] = field(default_factory=dict)
     repeated: dict[str, list[int]] = field(default_factory=dict)
+    units: dict[str, str] = field(default_factory=dict)
+    start_utc: str | None = None
 
     def present(self) -> str:
         names = sorted(self.columns)
@@ -131,6 +133,7 @@ def _read_mdf(path: Path) -> MeasurementTable:
         columns: dict[str, NDArray[Any]] = {}
         bases: dict[str, NDArray[np.float64]] = {}
         repeated: dict[str, list[int]] = {}
+        units: dict[str, str] = {}
         for name, places in mdf.channels_db.items():
             if len(places) > 1:
                 repeated[name] = [group for group, _ in places]
@@ -144,12 +147,27 @@ def _read_mdf(path: Path) -> MeasurementTable:
                 continue  # arrays, strings, bytes: not a signal of ours
             columns[name] = samples
             bases[name] = np.asarray(signal.timestamps, dtype=float)
+            units[name] = str(signal.unit or "")
         metadata = _mdf_metadata(path, mdf.header.comment)
+        start_utc = _mdf_start(mdf)
     finally:
         mdf.close()
     for name in repeated:
         columns.pop(name, None)  # which one is meant is unclear; named in the error if it is asked for
-    return MeasurementTable(path, "mdf", columns, metadata, bases, repeated)
+    return MeasurementTable(path, "mdf", columns, metadata, bases, repeated, units, start_utc)
+
+
+def _mdf_start(mdf: Any) -> str | None:
+    """The file's start time (the header's absolute time of its master time 0) in UTC, or None."""
+    from identify.experiment_record import utc_timestamp
+
+    try:
+        start = mdf.header.start_time
+        if start.tzinfo is None:  # a local time without its offset: not an instant
+            return None
+        return utc_timestamp(start)
+    except (AttributeError, ValueError, OverflowError):
+        return None
 
 
 def _mdf_metadata(path: Path, comment: str) -> dict[str, Any] | None:
@@ -218,36 +236,67 @@ def read_table(path: str | Path, required_columns: tuple[str, ...],
     """``{column: float array}`` from a CSV, MDF or MAT file, with the column rules of
     :func:`rig.signal_files.read_signal_table`: every required column (and every optional one present) must
     hold finite numbers, and all have one length. In an MDF file a missing ``t`` is the master time of the
-    other columns' group (they must share one)."""
+    other columns' group (they must share one), and the channels' units are converted (``t``/``time_s`` to
+    seconds, the others to radians: :mod:`rig.channel_units`)."""
     if measurement_format(path) is None:
         return read_signal_table(path, required_columns, optional_columns)
     table = read_measurement(path)
-    wanted = [*required_columns, *(name for name in optional_columns if name in table.columns)]
-    derived_time = table.kind == "mdf" and "t" in wanted and "t" not in table.columns
+    wanted = {name: name for name in required_columns}
+    wanted.update({name: name for name in optional_columns if name in table.columns})
+    time_role = "time_s" if "time_s" in wanted else "t"
+    return read_channels(table, wanted, time_role=time_role)
+
+
+def read_channels(table: MeasurementTable, wanted: dict[str, str], *, time_role: str = "t",
+                  raw_roles: tuple[str, ...] = (), stated_units: str | None = None) -> dict[str, NDArray[np.float64]]:
+    """``{role: float array}`` for the channel map ``wanted`` (role -> channel name) of a measurement file.
+
+    The role ``time_role`` is converted to seconds; ``raw_roles`` (a validity flag) are taken as they are;
+    every other role is an angle, converted to radians from the channel's unit in the file or from
+    ``stated_units`` (``--units``; :func:`rig.channel_units.angle_factor`). Where the time channel's name is
+    ``t`` and an MDF file has no such channel, the master time of the other channels' group is the time (they
+    must share one). Every channel must hold finite numbers, all of one length."""
+    from rig.channel_units import angle_factor, time_factor
+
+    path = table.path
+    what = "expected channels " + ", ".join(wanted.values())
+    if "u" in wanted or "y" in wanted:
+        what += "; choose them with --columns t=NAME,u=NAME,y=NAME"
+    derived_time = (table.kind == "mdf" and time_role in wanted and wanted[time_role] == "t"
+                    and "t" not in table.columns)
+    out: dict[str, NDArray[np.float64]] = {}
+    for role, name in wanted.items():
+        if derived_time and role == time_role:
+            continue
+        values = _float_column(table, name, what)
+        unit = table.units.get(name, "")
+        if role == time_role:
+            values = values * time_factor(path, name, unit)
+        elif role not in raw_roles:
+            values = values * angle_factor(path, name, unit, stated_units)
+        out[role] = values
     if derived_time:
-        wanted.remove("t")
-    what = f"expected channels {', '.join(required_columns)}"
-    out = {name: _float_column(table, name, what) for name in wanted}
-    if derived_time or ("t" in required_columns and "t" not in out):
-        if not wanted:
-            raise LogFileError(f"{table.path}: no channel 't' ({what}); the file has: {table.present()}")
-        first = wanted[0]
-        for other in wanted[1:]:
+        others = [role for role in wanted if role != time_role]
+        if not others:
+            raise LogFileError(f"{path}: no channel 't' ({what}); the file has: {table.present()}")
+        first = wanted[others[0]]
+        for role in others[1:]:
+            other = wanted[role]
             if not np.array_equal(table.time_bases[other], table.time_bases[first]):
-                raise LogFileError(f"{table.path}: channels {first!r} and {other!r} have different time bases (other "
+                raise LogFileError(f"{path}: channels {first!r} and {other!r} have different time bases (other "
                                    "groups or rates); resample them onto one (asammdf: MDF.resample) and export again")
-        out["t"] = table.time_bases[first]
-    lengths = {name: values.size for name, values in out.items()}
+        out[time_role] = table.time_bases[first]
+    lengths = {wanted[role]: values.size for role, values in out.items() if not (derived_time and role == time_role)}
     if len(set(lengths.values())) > 1:
-        raise LogFileError(f"{table.path}: channels of different lengths: "
+        raise LogFileError(f"{path}: channels of different lengths: "
                            + ", ".join(f"{name} {size}" for name, size in lengths.items()))
-    for name, values in out.items():
+    for role, values in out.items():
         bad = np.flatnonzero(~np.isfinite(values))
         if bad.size:
-            raise LogFileError(f"{table.path}: channel {name!r}, sample {int(bad[0])}: {values[bad[0]]!r} is not a "
+            raise LogFileError(f"{path}: channel {wanted[role]!r}, sample {int(bad[0])}: {values[bad[0]]!r} is not a "
                                f"finite number ({bad.size} such samples)")
-    if next(iter(lengths.values()), 0) == 0:
-        raise LogFileError(f"{table.path}: the channels have no samples")
+    if next(iter(out.values())).size == 0:
+        raise LogFileError(f"{path}: the channels have no samples")
     return out
 
 
@@ -334,6 +383,8 @@ def write_mdf(path: str | Path, record: ExperimentRecord) -> None:
         signals = [asammdf.Signal(samples=values, timestamps=timestamps, name=name, unit=_UNITS[name],
                                   comment=_COMMENTS[name]) for name, values in columns.items()]
         mdf.append(signals, comment="rig-log v1 samples")
+        if record.metadata.acquisition_start is not None:  # else asammdf's default: the time of the export
+            mdf.header.start_time = record.metadata.acquisition_start
         metadata_json = _metadata_json(record)
         meta = record.metadata
         lines = [f"rig log exported by gearbox-rig {__version__}", f"source: {meta.source}",

@@ -7,7 +7,10 @@ Every command that reads a record through :func:`read_measurement` accepts:
   or any key given by ``records=KEY`` in ``--columns``), or a top-level list of such objects;
 * ``--columns t=timestamp,u=goal_position,y=position``: which key or CSV column is the time (s), the
   command and the measured angle (default ``t``, ``u``, ``y``);
-* ``--units``: ``rad`` (default), ``deg``, or ``counts:N`` (N counts per revolution), for u and y;
+* **MDF4 and MAT files**: channels (MDF) or variables (MAT) by the same names and options; an MDF channel's
+  own unit is converted (:mod:`rig.channel_units`);
+* ``--units``: ``rad`` (default), ``deg``, ``rev``, or ``counts:N`` (N counts per revolution), for u and y; it
+  overrides an MDF channel's unit, with a warning where the two disagree;
 * ``--valid COLUMN``: keep only the samples where COLUMN holds (true, or nonzero in a CSV); when it holds on
   several stretches the longest is kept and the others are counted in a note;
 * **spikes** (one-sample read failures): sample t is a spike when it departs from both neighbours by more
@@ -27,6 +30,7 @@ from __future__ import annotations
 
 import json
 import math
+from datetime import datetime, timedelta
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -34,7 +38,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from identify.experiment_record import ExperimentMetadata, ExperimentRecord, SampleFlag
+from identify.experiment_record import ExperimentMetadata, ExperimentRecord, SampleFlag, utc_timestamp
+from rig.channel_units import parse_units
 from rig.protocols.errors import LogFileError
 
 __all__ = ["ImportOptions", "ImportReport", "RecordImportError", "parse_columns", "parse_units", "read_measurement",
@@ -71,7 +76,7 @@ class ImportOptions:
     """What :func:`read_measurement` does with a file (module docstring)."""
 
     columns: dict[str, str] = field(default_factory=lambda: {"t": "t", "u": "u", "y": "y"})
-    units: str = "rad"
+    units: str | None = None  # None: the file's own units (an MDF channel's), else radians
     valid: str | None = None
     remove_spikes: bool = True
     irregular: str = "resample"  # or "refuse"
@@ -80,10 +85,19 @@ class ImportOptions:
     def is_default(self) -> bool:
         """No column, unit or validity option given (spike and sampling rules at their defaults)."""
         return (all(self.columns.get(role) == role for role in ("t", "u", "y")) and "records" not in self.columns
-                and self.units == "rad" and self.valid is None and self.remove_spikes and self.irregular == "resample")
+                and self.units is None and self.valid is None and self.remove_spikes and self.irregular == "resample")
+
+    def channel_map(self) -> dict[str, str]:
+        """Role -> column, key or channel name: ``t``, ``u``, ``y`` and, with ``valid``, ``valid``. The one
+        channel map of every format (CSV, JSON, MDF4, MAT)."""
+        wanted = {role: self.columns.get(role, role) for role in ("t", "u", "y")}
+        if self.valid:
+            wanted["valid"] = self.valid
+        return wanted
 
     def __post_init__(self) -> None:
-        parse_units(self.units)
+        if self.units is not None:
+            parse_units(self.units)
         if self.irregular not in ("resample", "refuse"):
             raise ValueError(f"irregular: expected resample or refuse, got {self.irregular!r}")
 
@@ -128,23 +142,6 @@ def parse_columns(text: str) -> dict[str, str]:
             raise ValueError(f"--columns: expected t=NAME,u=NAME,y=NAME (and optionally records=KEY), got {part!r}")
         columns[role] = name
     return columns
-
-
-def parse_units(text: str) -> float:
-    """``rad`` -> 1, ``deg`` -> pi/180, ``counts:N`` -> 2 pi / N: the factor to radians."""
-    text = text.strip()
-    if text == "rad":
-        return 1.0
-    if text == "deg":
-        return math.pi / 180.0
-    if text.startswith("counts:"):
-        try:
-            resolution = float(text.split(":", 1)[1])
-        except ValueError:
-            resolution = math.nan
-        if math.isfinite(resolution) and resolution > 0:
-            return 2.0 * math.pi / resolution
-    raise ValueError(f"--units: expected rad, deg or counts:N (N counts per revolution, e.g. counts:4096), got {text!r}")
 
 
 def remove_spikes(y: NDArray[np.float64]) -> tuple[NDArray[np.float64], tuple[int, ...]]:
@@ -212,9 +209,7 @@ def _json_records(path: Path, text: str, options: ImportOptions) -> dict[str, ND
         raise RecordImportError(f"{path}: expected a JSON object with a per-sample list or a list of records")
     if not records or not all(isinstance(r, dict) for r in records):
         raise RecordImportError(f"{path}: the per-sample list must hold at least one object per sample")
-    wanted = {role: options.columns[role] for role in ("t", "u", "y")}
-    if options.valid:
-        wanted["valid"] = options.valid
+    wanted = options.channel_map()
     available = sorted(map(str, records[0]))
     missing = [name for name in wanted.values() if name not in records[0]]
     if missing:
@@ -248,9 +243,7 @@ def _bounded(err: LogFileError) -> RecordImportError:
 def _csv_columns(path: Path, options: ImportOptions) -> dict[str, NDArray[np.float64]]:
     from rig.signal_files import read_signal_table
 
-    wanted = {role: options.columns[role] for role in ("t", "u", "y")}
-    if options.valid:
-        wanted["valid"] = options.valid
+    wanted = options.channel_map()
     try:
         table = read_signal_table(path, tuple(wanted.values()))
     except RecordImportError:
@@ -258,6 +251,20 @@ def _csv_columns(path: Path, options: ImportOptions) -> dict[str, NDArray[np.flo
     except LogFileError as err:
         raise _bounded(err) from None
     return {role: table[name] for role, name in wanted.items()}
+
+
+def _measurement_columns(table: Any, options: ImportOptions) -> dict[str, NDArray[np.float64]]:
+    """The channel map of ``options`` read from an MDF4 or MAT file's
+    :class:`~rig.measurement_files.MeasurementTable`, u and y in radians (the channel's own unit, or
+    ``--units``), t in seconds."""
+    from rig.measurement_files import read_channels
+
+    try:
+        return read_channels(table, options.channel_map(), raw_roles=("valid",), stated_units=options.units)
+    except RecordImportError:
+        raise
+    except LogFileError as err:
+        raise _bounded(err) from None
 
 
 def _longest_run(flag: NDArray[np.bool_]) -> tuple[int, int, int]:
@@ -279,6 +286,16 @@ def _looks_like_json(path: Path) -> tuple[bool, str]:
     return text.lstrip()[:1] in ("{", "["), text
 
 
+def _measurement_table(path: Path) -> Any:
+    """All channels of an MDF4 or MAT file (:func:`rig.measurement_files.read_measurement`)."""
+    from rig.measurement_files import read_measurement as read_file
+
+    try:
+        return read_file(path)
+    except LogFileError as err:
+        raise _bounded(err) from None
+
+
 def read_measurement(path: str | Path, options: ImportOptions | None = None) -> tuple[ExperimentRecord, ImportReport]:
     """Read one record for analysis with ``options`` (module docstring); return it and what was done."""
     from rig.log_file import is_rig_log, read_experiment_data
@@ -287,14 +304,13 @@ def read_measurement(path: str | Path, options: ImportOptions | None = None) -> 
 
     options = options or ImportOptions()
     path = check_input_file(path, "a rig log, a CSV, MDF4 or MAT file, or a JSON record")
-    scale = parse_units(options.units)
-    default_columns = all(options.columns.get(role) == role for role in ("t", "u", "y"))
     binary = measurement_format(path) is not None  # MDF4 / MAT: channels by name, read by their own reader
-    if binary and not (default_columns and options.valid is None and scale == 1.0):
-        raise RecordImportError(f"{path}: --columns, --units and --valid are for CSV and JSON records; an MDF4 or "
-                                "MAT file needs channels t, u, y in s and rad (as `rig export` writes them)")
+    table = _measurement_table(path) if binary else None
+    exported = table is not None and options.is_default and table.metadata is not None
     is_json, text = (False, "") if binary or is_rig_log(path) else _looks_like_json(path)
-    if not is_json and default_columns and options.valid is None and scale == 1.0:
+    plain_options = all(options.columns.get(role) == role for role in ("t", "u", "y")) and options.valid is None \
+        and options.units is None
+    if exported or (not binary and not is_json and plain_options):
         try:
             record = read_experiment_data(path)
         except RecordImportError:
@@ -304,10 +320,15 @@ def read_measurement(path: str | Path, options: ImportOptions | None = None) -> 
         t, u, y, valid = record.time_s, record.command_rad, record.angle_rad, None
         metadata, flags, counts = record.metadata, record.flags, record.encoder_counts
     else:
-        if not is_json and is_rig_log(path):
+        if not binary and not is_json and is_rig_log(path):
             raise RecordImportError(f"{path}: a rig log has fixed columns and units; --columns, --units and --valid "
-                                    "are for CSV and JSON records")
-        columns = _json_records(path, text, options) if is_json else _csv_columns(path, options)
+                                    "are for records of other tools")
+        if binary:
+            columns = _measurement_columns(table, options)
+            scale = 1.0
+        else:
+            columns = _json_records(path, text, options) if is_json else _csv_columns(path, options)
+            scale = parse_units(options.units or "rad")
         t, u, y = columns["t"], columns["u"] * scale, columns["y"] * scale
         valid = columns.get("valid")
         metadata, flags, counts = None, None, None
@@ -344,8 +365,14 @@ def read_measurement(path: str | Path, options: ImportOptions | None = None) -> 
                              f"LOST samples is LOST ({int(np.count_nonzero(flags))} in all), the other flags are dropped")
     period = float(np.median(np.diff(t))) if note == "" else spread[1]
     if metadata is None or note:
+        start = metadata.acquisition_start_utc if metadata is not None else None
+        if metadata is None and table is not None and table.start_utc is not None:
+            # an MDF file's start time is the instant of its master time 0; the record's sample 0 is at t[0]
+            file_start = datetime.fromisoformat(table.start_utc.replace("Z", "+00:00"))
+            start = utc_timestamp(file_start + timedelta(seconds=float(t[0])))
         metadata = ExperimentMetadata(sample_period_s=period, source=str(path),
-                                      transport="json records" if is_json else "csv")
+                                      transport="json records" if is_json else (measurement_format(path) or "csv"),
+                                      acquisition_start_utc=start)
     record = ExperimentRecord(time_s=np.asarray(t, dtype=float), command_rad=np.asarray(u, dtype=float),
                               angle_rad=np.asarray(y, dtype=float), encoder_counts=counts, flags=flags,
                               metadata=metadata)
@@ -360,8 +387,9 @@ def add_import_arguments(parser: Any) -> None:
     parser.add_argument("--columns", default=None, metavar="t=NAME,u=NAME,y=NAME",
                         help="which CSV column or JSON record key is time (s), command and measured angle "
                              "(default t,u,y; records=KEY names a JSON object's per-sample list)")
-    parser.add_argument("--units", default="rad", metavar="UNIT",
-                        help="units of u and y: rad (default), deg, or counts:N with N counts per revolution")
+    parser.add_argument("--units", default=None, metavar="UNIT",
+                        help="units of u and y: rad (default; an MDF channel's own unit when not given), deg, rev, "
+                             "or counts:N with N counts per revolution")
     parser.add_argument("--valid", default=None, metavar="COLUMN",
                         help="keep only the longest stretch of samples where COLUMN holds (e.g. torque_enable)")
     parser.add_argument("--keep-spikes", action="store_true",

@@ -41,6 +41,7 @@ The format::
     seed = 4                             # optional: seed of the simulated noise
     # fmu_input = "command"              # an FMU with several real inputs/outputs: which carry the
     # fmu_output = "angle"               # commanded angle and the load angle (rad)
+    # fmu_parameters = { damping_ratio = 0.5 }   # set before the FMU starts (`rig inspect my_gearbox.fmu` lists them)
 
 A simulated serial rig uses ``url = "serial://pty"``: the simulated device creates a pty and the command
 line puts its path in the URL.
@@ -48,6 +49,7 @@ line puts its path in the URL.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -73,6 +75,10 @@ class SimulationConfig:
     seed: int | None = None
     fmu_input: str | None = None
     fmu_output: str | None = None
+    fmu_parameters: dict[str, Any] = field(default_factory=dict)
+    fmu_seconds_per_sample: float | None = None
+    """How long the FMU plant took a sample when the config was loaded (measured: a plant slower than the
+    rig's clock makes the simulated devices miss their deadlines, and the run's error then says so)."""
 
 
 @dataclass(frozen=True)
@@ -163,21 +169,24 @@ def _transport_options(table: ConfigTable, scheme: str) -> dict[str, Any]:
     return options
 
 
-def _check_fmu_plant(table: ConfigTable, simulation: SimulationConfig, rate_hz: float) -> None:
+def _check_fmu_plant(table: ConfigTable, simulation: SimulationConfig, rate_hz: float) -> SimulationConfig:
     """An FMU plant is checked on load (the file, its input and output, its binary for this platform), so that
     a bad one is named before any device starts; ``fmu_input`` / ``fmu_output`` belong to an FMU only."""
-    from sim_backend.fmu_plant import is_fmu_path, open_fmu_block
+    from sim_backend.fmu_plant import is_fmu_path, open_fmu_block, time_fmu_steps
 
     if not is_fmu_path(simulation.plant_path):
-        for key in ("fmu_input", "fmu_output"):
-            if getattr(simulation, key) is not None:
-                raise table.error(key, f"chooses a variable of an FMU plant, but the plant is {simulation.plant_path.name}")
-        return
+        for key in ("fmu_input", "fmu_output", "fmu_parameters"):
+            if getattr(simulation, key):
+                what = "sets parameters" if key == "fmu_parameters" else "chooses a variable"
+                raise table.error(key, f"{what} of an FMU plant, but the plant is {simulation.plant_path.name}")
+        return simulation
     try:
-        open_fmu_block(simulation.plant_path, 1.0 / rate_hz, simulation.fmu_input, simulation.fmu_output,
-                       options=("fmu_input", "fmu_output"))
+        block = open_fmu_block(simulation.plant_path, 1.0 / rate_hz, simulation.fmu_input, simulation.fmu_output,
+                               options=("fmu_input", "fmu_output"), parameters=simulation.fmu_parameters)
+        seconds = time_fmu_steps(block)
     except ConfigError as err:
-        raise table.error("plant", str(err)) from err
+        raise table.error("fmu_parameters" if err.key.startswith("fmu_parameters") else "plant", str(err)) from err
+    return dataclasses.replace(simulation, fmu_seconds_per_sample=seconds)
 
 
 def load_rig_config(path: str | Path) -> RigConfig:
@@ -231,8 +240,9 @@ def load_rig_config(path: str | Path) -> RigConfig:
         if not plant_path.is_file():
             raise sim.error("plant", f"no such plant config {plant_path}")
         simulation = SimulationConfig(plant_path, sim.integer("seed", None, minimum=0),
-                                      sim.string("fmu_input", None), sim.string("fmu_output", None))
-        _check_fmu_plant(sim, simulation, rate)
+                                      sim.string("fmu_input", None), sim.string("fmu_output", None),
+                                      dict(sim.table("fmu_parameters", None).data))
+        simulation = _check_fmu_plant(sim, simulation, rate)
         sim.finish()
     if url == SIMULATED_SERIAL_URL and simulation is None:
         raise transport.error("url", f"{SIMULATED_SERIAL_URL} is the simulated device's pty: add a [simulation] table")

@@ -34,7 +34,7 @@ import math
 import sys
 import time
 from collections.abc import Callable, Iterator, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, ClassVar, Protocol
 
 import numpy as np
@@ -200,7 +200,7 @@ class RunSummary:
     stale: int
     frame_errors: int
     rate_hz: float
-    send_lateness_s: NDArray[np.float64]
+    send_lateness_s: NDArray[np.float64] = field(compare=False)  # not saved (to_dict): == compares what is
     cpu_s: float
     wall_s: float
     not_followed: int = 0
@@ -228,6 +228,22 @@ class RunSummary:
     MAYBE_NAN: ClassVar[tuple[str, ...]] = ("min_lead_s", "send_lateness_p50_s", "send_lateness_p99_s",
                                             "send_lateness_max_s", "sync_jitter_max_s")
     """The times that are nan when the link does not measure them: null in the document."""
+
+    def __eq__(self, other: object) -> bool:
+        """Field by field, arrays element-wise (:func:`identify.result_format.results_equal`)."""
+        from identify.result_format import results_equal
+
+        return results_equal(self, other)
+
+    def to_pandas(self) -> Any:
+        """The summary as a one-row ``pandas.DataFrame`` of :meth:`to_dict`'s values (``warnings`` joined by
+        "; "). Needs pandas (not a dependency)."""
+        from identify.result_format import require_pandas
+
+        pandas = require_pandas("RunSummary.to_pandas()")
+        values = self.to_dict()
+        values["warnings"] = "; ".join(values.get("warnings") or ())
+        return pandas.DataFrame([values])
 
     def to_dict(self) -> dict[str, Any]:
         """``{"kind": "run_summary", "version": 2, "log": ..., "samples": ..., ...}`` (:attr:`SAVED`), plain

@@ -41,11 +41,13 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from identify.validation import InvalidInputError, as_signal, positive
+from rig.protocols.angle_units import angle_unit_factor, unit_kind
 from rig.protocols.encoder_counts import EncoderResolution
 from rig.protocols.errors import ConfigError
 
-__all__ = ["FmuBlock", "FmuDescription", "FmuVariable", "describe_fmu", "fmu_plant_config", "is_fmu_path",
-           "open_fmu_block"]
+__all__ = ["FmuBlock", "FmuDescription", "FmuParameter", "FmuVariable", "check_fmu_parameters", "describe_fmu",
+           "fmu_plant_config", "is_fmu_path", "open_fmu_block", "parse_parameter_assignments",
+           "time_fmu_steps"]
 
 FMU_SUFFIX = ".fmu"
 
@@ -85,6 +87,58 @@ class FmuVariable:
         return f"{self.name}{unit}"
 
 
+SETTABLE_VARIABILITIES = ("fixed", "tunable")
+"""A parameter (causality ``parameter``) of these variabilities may be set before the FMU is initialised (FMI
+2.0 section 2.2.7, FMI 3.0 section 2.4.7.4): ``fixed`` ones there only, ``tunable`` ones there and later. Both
+are set here once, before initialisation, so both are accepted; constants, calculated parameters and other
+variables are not parameters one can set."""
+
+_REAL_TYPES = ("Real", "Float64", "Float32")
+_INTEGER_TYPES = ("Integer", "Int8", "UInt8", "Int16", "UInt16", "Int32", "UInt32", "Int64", "UInt64")
+
+
+@dataclass(frozen=True)
+class FmuParameter:
+    """A variable of the FMU with causality ``parameter`` (or ``calculatedParameter``, which cannot be set):
+    what it is, what it accepts, and its start value."""
+
+    name: str
+    value_reference: int
+    type: str
+    variability: str
+    causality: str = "parameter"
+    start: str | None = None
+    minimum: float | None = None
+    maximum: float | None = None
+    unit: str = ""
+    description: str = ""
+
+    @property
+    def settable(self) -> bool:
+        """Whether it can be set before initialisation (:data:`SETTABLE_VARIABILITIES`) and is a number or a
+        boolean (the types set here)."""
+        return self.causality == "parameter" and self.variability in SETTABLE_VARIABILITIES and (
+            self.type in _REAL_TYPES or self.type in _INTEGER_TYPES or self.type == "Boolean")
+
+    def accepts(self) -> str:
+        """'a real number in [0.1, 2] (start 0.7, unit 1)': what a value must be."""
+        kind = {"Boolean": "true or false"}.get(self.type, "an integer" if self.type in _INTEGER_TYPES
+                                               else "a real number")
+        low = "-inf" if self.minimum is None else f"{self.minimum:g}"
+        high = "inf" if self.maximum is None else f"{self.maximum:g}"
+        bounds = f" in [{low}, {high}]" if self.minimum is not None or self.maximum is not None else ""
+        extras = [f"start {self.start}" if self.start is not None else "", f"unit {self.unit}" if self.unit else ""]
+        extra = ", ".join(item for item in extras if item)
+        return f"{kind}{bounds}" + (f" ({extra})" if extra else "")
+
+    def describe(self) -> str:
+        """One line of ``rig inspect model.fmu``."""
+        causality = "" if self.causality == "parameter" else f" {self.causality}"
+        settable = "" if self.settable else "; cannot be set"
+        text = f"{self.name}: {self.accepts()}, {self.variability}{causality}{settable}"
+        return text + (f" - {self.description}" if self.description else "")
+
+
 @dataclass(frozen=True)
 class FmuDescription:
     """What ``modelDescription.xml`` says about an FMU, and which of its binaries this machine can load."""
@@ -100,6 +154,10 @@ class FmuDescription:
     other_outputs: tuple[str, ...]
     platforms: tuple[str, ...]
     model_identifiers: dict[str, str] = field(default_factory=dict)
+    parameters: tuple[FmuParameter, ...] = ()
+    """Every variable with causality ``parameter`` or ``calculatedParameter`` (settable or not)."""
+    variables: dict[str, tuple[str, str]] = field(default_factory=dict)
+    """Every variable's (causality, variability), to say why a name given as a parameter is not one."""
 
 
 def _platform() -> str:
@@ -151,11 +209,18 @@ def describe_fmu(path: str | os.PathLike[str]) -> FmuDescription:
                                                           "model-exchange interface (scheduled execution is not supported)")
     real_types = {"Real", "Float64", "Float32"}
     inputs, outputs, other_inputs, other_outputs = [], [], [], []
+    parameters, variables = [], {}
     for variable in description.modelVariables:
+        variables[variable.name] = (str(variable.causality), str(variable.variability))
+        if variable.causality in ("parameter", "calculatedParameter") and not getattr(variable, "dimensions", None):
+            parameters.append(FmuParameter(
+                variable.name, int(variable.valueReference), str(variable.type), str(variable.variability),
+                str(variable.causality), None if variable.start is None else str(variable.start), _bound(variable, "min"),
+                _bound(variable, "max"), _unit(variable), str(variable.description or "")))
         if variable.causality not in ("input", "output"):
             continue
         if variable.type in real_types and not getattr(variable, "dimensions", None):
-            item = FmuVariable(variable.name, int(variable.valueReference), str(variable.unit or ""),
+            item = FmuVariable(variable.name, int(variable.valueReference), _unit(variable),
                                str(variable.description or ""))
             (inputs if variable.causality == "input" else outputs).append(item)
         else:
@@ -163,7 +228,106 @@ def describe_fmu(path: str | os.PathLike[str]) -> FmuDescription:
     return FmuDescription(path=source, fmi_version=version, model_name=str(description.modelName),
                           interfaces=tuple(interfaces), inputs=tuple(inputs), outputs=tuple(outputs),
                           other_inputs=tuple(other_inputs), other_outputs=tuple(other_outputs),
-                          platforms=platforms, model_identifiers=identifiers)
+                          platforms=platforms, model_identifiers=identifiers, parameters=tuple(parameters),
+                          variables=variables)
+
+
+def _unit(variable: Any) -> str:
+    """A variable's unit: its own, or its declared type's."""
+    unit = variable.unit or (getattr(variable.declaredType, "unit", None) if variable.declaredType else None)
+    return str(unit or "")
+
+
+def _bound(variable: Any, which: str) -> float | None:
+    """A variable's ``min`` or ``max`` (its own, or its declared type's) as a number, or None."""
+    value = getattr(variable, which, None)
+    if value is None and variable.declaredType is not None:
+        value = getattr(variable.declaredType, which, None)
+    try:
+        return None if value is None else float(value)
+    except (TypeError, ValueError):
+        return None
+
+
+def parse_parameter_assignments(texts: list[str] | tuple[str, ...], option: str = "--fmu-parameter") -> dict[str, Any]:
+    """``["damping_ratio=0.5", "enabled=true"]`` -> ``{"damping_ratio": 0.5, "enabled": True}`` (numbers as
+    TOML writes them, ``true``/``false``); a malformed one raises :class:`ConfigError` naming it."""
+    values: dict[str, Any] = {}
+    for text in texts:
+        name, sep, value = text.partition("=")
+        name, value = name.strip(), value.strip()
+        if not sep or not name or not value:
+            raise ConfigError(option, text, "expected NAME=VALUE, e.g. --fmu-parameter damping_ratio=0.5")
+        if value.lower() in ("true", "false"):
+            values[name] = value.lower() == "true"
+            continue
+        try:
+            values[name] = int(value)
+        except ValueError:
+            try:
+                values[name] = float(value)
+            except ValueError:
+                raise ConfigError(option, text, f"{value!r} is not a number, true or false") from None
+    return values
+
+
+def check_fmu_parameters(description: FmuDescription, values: Any, key: str = "fmu_parameters") -> tuple[
+        tuple[str, int, str, Any], ...]:
+    """Check parameter values against the FMU's model description and return them as the block carries them,
+    ``(name, value reference, type, value)``. An unknown name, a variable that is no parameter one can set, a
+    value of the wrong type or outside the parameter's [min, max] raises :class:`ConfigError` naming the FMU
+    file, ``key``, the parameter and what it accepts."""
+    source = description.path
+    if not hasattr(values, "items"):
+        raise ConfigError(source, key, f"expected a table of parameter = value, got {values!r}")
+    by_name = {parameter.name: parameter for parameter in description.parameters}
+    settable = [parameter for parameter in description.parameters if parameter.settable]
+    listed = ", ".join(p.name for p in settable[:30]) + (" ..." if len(settable) > 30 else "") if settable else "none"
+    out = []
+    for name, value in values.items():
+        where = f"{key}.{name}"
+        parameter = by_name.get(name)
+        if parameter is None:
+            if name in description.variables:
+                causality, variability = description.variables[name]
+                raise ConfigError(source, where, f"is not a parameter of the FMU (causality {causality}, variability "
+                                                 f"{variability}); the parameters it lets be set: {listed}")
+            raise ConfigError(source, where, f"the FMU has no variable {name!r}; the parameters it lets be set: {listed} "
+                                             f"(rig inspect {Path(source).name} lists them)")
+        if not parameter.settable:
+            raise ConfigError(source, where, f"cannot be set (causality {parameter.causality}, variability "
+                                             f"{parameter.variability}, type {parameter.type}; only parameters of "
+                                             "variability fixed or tunable that are numbers or booleans can); the "
+                                             f"parameters it lets be set: {listed}")
+        if parameter.type == "Boolean":
+            if not isinstance(value, bool):
+                raise ConfigError(source, where, f"expected true or false, got {value!r}")
+            out.append((name, parameter.value_reference, parameter.type, bool(value)))
+            continue
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+            raise ConfigError(source, where, f"expected {parameter.accepts()}, got {value!r}")
+        if parameter.type in _INTEGER_TYPES and value != int(value):
+            raise ConfigError(source, where, f"expected {parameter.accepts()}, got {value!r}")
+        if (parameter.minimum is not None and value < parameter.minimum) or (
+                parameter.maximum is not None and value > parameter.maximum):
+            raise ConfigError(source, where, f"{value!r} is outside the range the FMU accepts: {parameter.accepts()}")
+        number = int(value) if parameter.type in _INTEGER_TYPES else float(value)
+        out.append((name, parameter.value_reference, parameter.type, number))
+    return tuple(out)
+
+
+def _angle_scale(description: FmuDescription, variable: FmuVariable, kind: str, option: str) -> float:
+    """The factor from the FMU's unit of ``variable`` to radians (rad or none: 1; deg, rev: converted); an
+    input or output in another unit is refused, naming it."""
+    found = unit_kind(variable.unit)
+    if found in ("", "rad"):
+        return 1.0
+    if found in ("deg", "rev"):
+        return angle_unit_factor(found)
+    raise ConfigError(description.path, option, f"the FMU's {kind} {variable.name!r} is in {variable.unit!r}, which "
+                                                f"is no angle unit converted here (rad, deg, rev): the rig's "
+                                                f"{'command' if kind == 'input' else 'load angle'} is an angle; export "
+                                                f"the model with this {kind} in rad or deg")
 
 
 def _choose(description: FmuDescription, kind: str, wanted: str | None, option: str) -> FmuVariable:
@@ -301,6 +465,13 @@ class FmuBlock:
     input_reference: int = 0
     output_reference: int = 0
     fmi_version: str = "2.0"
+    parameters: tuple[tuple[str, int, str, Any], ...] = ()
+    """Values set before initialisation: (name, value reference, type, value), checked by
+    :func:`check_fmu_parameters`; the others keep the start values the FMU was exported with."""
+    input_per_rad: float = 1.0
+    """The FMU's input unit per radian (1 for rad; 180/pi for an input in deg)."""
+    output_rad_per_unit: float = 1.0
+    """Radians per unit of the FMU's output (1 for rad; pi/180 for an output in deg)."""
     black_box = True
 
     def __post_init__(self) -> None:
@@ -317,7 +488,8 @@ class FmuBlock:
         a fresh :meth:`stepper`. The last few runs are kept (the FMU is deterministic)."""
         u = as_signal("signal", signal)
         unpacked = _unpacked(self.path)
-        key = (self.interface, self.input_reference, self.output_reference, self.sample_period_s, u.tobytes())
+        key = (self.interface, self.input_reference, self.output_reference, self.sample_period_s, self.parameters,
+               self.input_per_rad, self.output_rad_per_unit, u.tobytes())
         with unpacked.lock:
             cached = unpacked.runs.get(key)
             if cached is not None:
@@ -386,22 +558,30 @@ def _drive(stepper: FmuStepper, u: NDArray[np.float64], keep: bool = True) -> ND
 
 def open_fmu_block(path: str | os.PathLike[str], sample_period_s: float, input_name: str | None = None,
                    output_name: str | None = None, *,
-                   options: tuple[str, str] = ("--fmu-input", "--fmu-output")) -> FmuBlock:
+                   options: tuple[str, str] = ("--fmu-input", "--fmu-output"),
+                   parameters: Any = None, parameters_key: str = "fmu_parameters") -> FmuBlock:
     """Check an FMU and make its block.
 
     The input and output are found automatically when the FMU has one real input and one real output;
     otherwise ``input_name`` / ``output_name`` choose (errors name the file, list the variables and say
-    which of ``options`` to give). The FMU's binary for this platform must be present."""
+    which of ``options`` to give). An input or output in deg or rev is converted (the block takes and gives
+    rad); another unit is refused. ``parameters`` (``{name: value}``) are checked against the model
+    description (:func:`check_fmu_parameters`, errors naming ``parameters_key``) and set before each
+    initialisation. The FMU's binary for this platform must be present."""
     description = describe_fmu(path)
     source = description.path
     input_variable = _choose(description, "input", input_name, options[0])
     output_variable = _choose(description, "output", output_name, options[1])
+    input_scale = _angle_scale(description, input_variable, "input", options[0])
+    output_scale = _angle_scale(description, output_variable, "output", options[1])
+    checked = check_fmu_parameters(description, parameters or {}, parameters_key)
     interface = "co_simulation" if "co_simulation" in description.interfaces else "model_exchange"
     _check_platform(description, interface)
     block = FmuBlock(path=source, sample_period_s=sample_period_s, input_name=input_variable.name,
                      output_name=output_variable.name, interface=interface,
                      input_reference=input_variable.value_reference,
-                     output_reference=output_variable.value_reference, fmi_version=description.fmi_version)
+                     output_reference=output_variable.value_reference, fmi_version=description.fmi_version,
+                     parameters=checked, input_per_rad=1.0 / input_scale, output_rad_per_unit=output_scale)
     try:  # load the binary once now: a library that does not load is a clear error here, not mid-run
         block.stepper().close()
     except ConfigError:
@@ -412,16 +592,34 @@ def open_fmu_block(path: str | os.PathLike[str], sample_period_s: float, input_n
     return block
 
 
+def time_fmu_steps(block: FmuBlock, samples: int = 50, budget_s: float = 0.5) -> float:
+    """Seconds one sample of ``block`` takes (the mean over up to ``samples`` steps of a square wave, fewer
+    when they take longer than ``budget_s``): what a simulated rig's device spends on the plant every period."""
+    import time
+
+    stepper = block.stepper()
+    try:
+        start = time.perf_counter()
+        done = 0
+        for done in range(1, samples + 1):
+            stepper.step(0.1 if (done // 5) % 2 else -0.1)
+            if time.perf_counter() - start > budget_s:
+                break
+        return (time.perf_counter() - start) / max(done, 1)
+    finally:
+        stepper.close()
+
+
 def fmu_plant_config(path: str | os.PathLike[str], sample_period_s: float, encoder: EncoderResolution, *,
                      seed: int | None = None, input_name: str | None = None, output_name: str | None = None,
-                     options: tuple[str, str] = ("fmu_input", "fmu_output")) -> Any:
+                     options: tuple[str, str] = ("fmu_input", "fmu_output"), parameters: Any = None) -> Any:
     """The simulated plant of a rig config whose ``[simulation] plant`` is an FMU: the FMU's block, the rig's
     encoder and sample period, and no noise beyond the encoder's quantisation (put noise in the FMU if the
     model has it)."""
     from sim_backend.noise import NoNoise
     from sim_backend.plant_config import PlantConfig
 
-    block = open_fmu_block(path, sample_period_s, input_name, output_name, options=options)
+    block = open_fmu_block(path, sample_period_s, input_name, output_name, options=options, parameters=parameters)
     return PlantConfig(name=Path(path).stem, sample_period_s=sample_period_s, encoder=encoder, noise=NoNoise(),
                        blocks=(block,), seed=seed, description=f"FMU {Path(path).name}", source=str(path))
 
@@ -456,6 +654,12 @@ class FmuStepper(ABC):
             fmu.reset()  # FMI 2.0 fmi2Reset / 3.0 fmi3Reset: as if just instantiated
         self.fmu = fmu
         self._finalizer = weakref.finalize(self, _free, fmu)
+        for name, reference, kind, value in block.parameters:  # before initialisation, as FMI asks of fixed ones
+            try:
+                _set_parameter(fmu, self.is_fmi3, reference, kind, value)
+            except Exception as err:  # fmpy raises FMICallException for a status above Warning
+                raise InvalidInputError(f"{block.name}: setting parameter {name!r} = {value!r} failed: {err}"
+                                        f"{unpacked.last_message()}") from err
         self._finalizer.atexit = False  # at exit the process ends: freeing then races threads still stepping
         # the FMI functions themselves on arrays made once: fmpy's setReal/getReal build new arrays and go
         # through its call logger on every call (three calls a sample: about half the time of a fast FMU)
@@ -480,7 +684,7 @@ class FmuStepper(ABC):
                                     f"{self._unpacked.last_message()}")
 
     def _write_input(self, x: float) -> None:
-        self._value[0] = x
+        self._value[0] = x * self.block.input_per_rad
         status = self._set()
         if status:
             self._check("setting the input " + repr(self.block.input_name), status)
@@ -489,7 +693,7 @@ class FmuStepper(ABC):
         status = self._get()
         if status:
             self._check("getting the output " + repr(self.block.output_name), status)
-        return float(self._value[0])
+        return float(self._value[0]) * self.block.output_rad_per_unit
 
     def step(self, x: float) -> float:
         """Hold input ``x`` (rad) from this sample instant on and return the output at it (module docstring)."""
@@ -526,6 +730,18 @@ class FmuStepper(ABC):
                 self._unpacked.idle[self.block.interface].append(self.fmu)
                 return
         self.close()
+
+
+def _set_parameter(fmu: Any, is_fmi3: bool, reference: int, kind: str, value: Any) -> None:
+    """Set one parameter through fmpy's setter of its type."""
+    if kind == "Boolean":
+        fmu.setBoolean([reference], [bool(value)])
+    elif kind in _REAL_TYPES:
+        setter = (fmu.setFloat32 if kind == "Float32" else fmu.setFloat64) if is_fmi3 else fmu.setReal
+        setter([reference], [float(value)])
+    else:
+        setter = getattr(fmu, f"set{kind}") if is_fmi3 else fmu.setInteger
+        setter([reference], [int(value)])
 
 
 def _free(fmu: Any) -> None:

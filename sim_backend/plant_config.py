@@ -44,7 +44,7 @@ upper_input_rad = 2.0, lower_value_rad = -1.0, upper_value_rad = 1.0 }`` (the li
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -120,15 +120,17 @@ def load_plant_config(path: str | Path) -> PlantConfig:
 
 
 def load_simulated_plant(path: str | Path, *, sample_period_s: float, encoder: EncoderResolution,
-                         fmu_input: str | None = None, fmu_output: str | None = None) -> PlantConfig:
+                         fmu_input: str | None = None, fmu_output: str | None = None,
+                         fmu_parameters: Mapping[str, Any] | None = None) -> PlantConfig:
     """The plant behind a simulated rig (``[simulation] plant`` of a rig config): a plant TOML, or an FMU
     (:func:`sim_backend.fmu_plant.fmu_plant_config`: the FMU's block at the rig's sample period, read by the
-    rig's encoder; ``fmu_input`` / ``fmu_output`` choose its variables when it has several)."""
+    rig's encoder; ``fmu_input`` / ``fmu_output`` choose its variables when it has several, and
+    ``fmu_parameters`` set its parameters)."""
     from sim_backend.fmu_plant import fmu_plant_config, is_fmu_path
 
     if is_fmu_path(path):
         return fmu_plant_config(path, sample_period_s, encoder, input_name=fmu_input, output_name=fmu_output,
-                                options=("fmu_input", "fmu_output"))
+                                options=("fmu_input", "fmu_output"), parameters=fmu_parameters)
     return load_plant_config(path)
 
 

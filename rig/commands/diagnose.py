@@ -43,6 +43,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                              "exchange; needs fmpy: pip install 'gearbox-rig[fmu]'); default: fit a linear model")
     parser.add_argument("--fmu-input", metavar="NAME", default=None,
                         help="the FMU's input that takes the commanded angle in rad (needed when it has several)")
+    parser.add_argument("--fmu-parameter", metavar="NAME=VALUE", action="append", default=[],
+                        help="with --model PLANT.fmu: set a parameter of the FMU before it starts (repeat for "
+                             "several; `rig inspect PLANT.fmu` lists them with their ranges)")
     parser.add_argument("--fmu-output", metavar="NAME", default=None,
                         help="the FMU's output that gives the load angle in rad (needed when it has several)")
     parser.add_argument("--noise-bound", type=float, required=True, metavar="RAD",
@@ -190,15 +193,19 @@ def _fmu_options(args: argparse.Namespace) -> dict | None:
     what the workers need to open it again; None for a plant TOML or no model. ``--fmu-input`` /
     ``--fmu-output`` without an FMU are refused."""
     from rig.protocols.errors import ConfigError
-    from sim_backend.fmu_plant import is_fmu_path, open_fmu_block
+    from sim_backend.fmu_plant import is_fmu_path, open_fmu_block, parse_parameter_assignments
 
     if args.model is None or not is_fmu_path(args.model):
-        for option, value in (("--fmu-input", args.fmu_input), ("--fmu-output", args.fmu_output)):
+        for option, value in (("--fmu-input", args.fmu_input), ("--fmu-output", args.fmu_output),
+                              ("--fmu-parameter", args.fmu_parameter or None)):
             if value is not None:
-                raise ConfigError(option, "--model", f"{option} chooses a variable of an FMU: give --model PLANT.fmu")
+                what = "sets a parameter" if option == "--fmu-parameter" else "chooses a variable"
+                raise ConfigError(option, "--model", f"{option} {what} of an FMU: give --model PLANT.fmu")
         return None
-    block = open_fmu_block(args.model, 1.0, args.fmu_input, args.fmu_output)  # the period is each file's
-    return {"input": block.input_name, "output": block.output_name}
+    parameters = parse_parameter_assignments(args.fmu_parameter)
+    block = open_fmu_block(args.model, 1.0, args.fmu_input, args.fmu_output,  # the period is each file's
+                           parameters=parameters, parameters_key="--fmu-parameter")
+    return {"input": block.input_name, "output": block.output_name, "parameters": parameters}
 
 
 def _start_model(options: dict, sample_period_s: float):
@@ -220,7 +227,8 @@ def _start_model(options: dict, sample_period_s: float):
     from sim_backend.fmu_plant import open_fmu_block
 
     block = open_fmu_block(shipped_path(options["model"]), sample_period_s, options["fmu"]["input"],
-                           options["fmu"]["output"])
+                           options["fmu"]["output"], parameters=options["fmu"].get("parameters"),
+                           parameters_key="--fmu-parameter")
     candidates, _ = effects_around_black_box()
     return PlantModel((block,)), candidates
 
@@ -234,6 +242,7 @@ def black_box_note(options: dict) -> dict | None:
 
     tried, skipped = effects_around_black_box()
     return {"file": str(options["model"]), "input": options["fmu"]["input"], "output": options["fmu"]["output"],
+            "parameters": dict(options["fmu"].get("parameters") or {}),
             "effects_tried": placements_text(tried), "effects_skipped": skipped}
 
 
@@ -300,6 +309,8 @@ def _print_summary(data: str, model: str | None, noise_bound: float, result, num
     if black_box is not None:
         print(f"fmu           input {black_box['input']!r}, output {black_box['output']!r}: effects are added "
               "around it (input side: before its input; output side: after its output)")
+        if black_box.get("parameters"):
+            print("fmu params    " + ", ".join(f"{name} = {value!r}" for name, value in black_box["parameters"].items()))
         for name, reason in black_box["effects_skipped"].items():
             print(f"not tried     {name}: {reason}")
     print(f"noise bound   {noise_bound:.4g} rad")

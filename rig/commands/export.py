@@ -41,7 +41,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         help="file to write (.mf4 or .mdf for mdf, .mat for mat); an existing file is refused "
                              "unless --force. It is written under a temporary name and moved into place when complete")
     parser.add_argument("--force", action="store_true", help="replace an existing --out file")
-    parser.add_argument("--json", action="store_true", help='print {"log", "out", "format", "samples"} as JSON')
+    parser.add_argument("--json", action="store_true", help='print {"log", "out", "format", "samples", "acquisition_start_utc"} as JSON')
     parser.set_defaults(handler=run)
 
 
@@ -82,8 +82,13 @@ def run(args: argparse.Namespace) -> int:
             write_log(written, record)
     # the data may be going to stdout (--out /dev/stdout): then what is said goes to stderr
     status = sys.stdout if is_regular_target(out) else sys.stderr
+    start = record.metadata.acquisition_start_utc
+    if start is None and kind == "mdf":
+        print(f"rig: note: {args.log} records no acquisition start (a log written before rig recorded it, or data "
+              f"of another tool): the start time of {out} is the time of this export", file=sys.stderr)
     if args.json:
-        print(json.dumps({"log": args.log, "out": str(out), "format": kind, "samples": len(record)}), file=status)
+        print(json.dumps({"log": args.log, "out": str(out), "format": kind, "samples": len(record),
+                          "acquisition_start_utc": start}), file=status)
     else:
         print(f"{args.log} -> {out} ({kind}, {len(record)} samples)", file=status)
     return exit_codes.SUCCESS

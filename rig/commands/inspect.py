@@ -1,4 +1,6 @@
-"""``rig inspect LOG``: a log's metadata, sample count and lost-sample count, or what is wrong with it."""
+"""``rig inspect LOG``: a log's metadata, sample count and lost-sample count, or what is wrong with it;
+``rig inspect MODEL.fmu``: an FMU's interfaces, inputs, outputs and parameters (what ``fmu_parameters`` and
+``--fmu-parameter`` accept)."""
 
 from __future__ import annotations
 
@@ -19,10 +21,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         description=(
             "Show a log's metadata, its sample count and its lost-sample count, or say exactly what is wrong "
             "with a damaged or foreign file. Plain CSV files with columns t,u,y and ASAM MDF4 (.mf4/.mdf) or MATLAB (.mat) "
-            "files are accepted too."
+            "files are accepted too. Given an FMU (.fmu), list its interfaces, real inputs and outputs and its "
+            "parameters with type, range, start value and whether they can be set."
         ),
     )
-    parser.add_argument("log", metavar="LOG", help="a rig-log v1 file, a CSV with columns t,u,y, or .mf4/.mdf/.mat")
+    parser.add_argument("log", metavar="LOG",
+                        help="a rig-log v1 file, a CSV with columns t,u,y, .mf4/.mdf/.mat, or an FMU (.fmu)")
     parser.add_argument("--json", action="store_true", help="print the summary as JSON")
     parser.set_defaults(handler=run)
 
@@ -59,7 +63,46 @@ def _text(value: Any) -> str:
     return "-" if value is None or value == "" else str(value)
 
 
+def fmu_summary(path: str) -> dict[str, Any]:
+    """The JSON summary of an FMU: version, interfaces, real inputs and outputs (with units) and every
+    parameter (type, variability, start, min, max, unit, settable)."""
+    from sim_backend.fmu_plant import describe_fmu
+
+    description = describe_fmu(path)
+    return {"fmu": str(path), "fmi_version": description.fmi_version, "model_name": description.model_name,
+            "interfaces": list(description.interfaces), "platforms": list(description.platforms),
+            "inputs": [{"name": v.name, "unit": v.unit} for v in description.inputs],
+            "outputs": [{"name": v.name, "unit": v.unit} for v in description.outputs],
+            "parameters": [{"name": p.name, "type": p.type, "variability": p.variability, "start": p.start,
+                            "min": p.minimum, "max": p.maximum, "unit": p.unit, "settable": p.settable,
+                            "description": p.description} for p in description.parameters]}
+
+
+def _print_fmu(info: dict[str, Any], path: str) -> None:
+    from sim_backend.fmu_plant import describe_fmu
+
+    description = describe_fmu(path)
+    print(f"fmu          {info['fmu']}")
+    print(f"model        {info['model_name']} (FMI {info['fmi_version']}; {', '.join(info['interfaces'])})")
+    print(f"platforms    {', '.join(info['platforms']) or '-'}")
+    print(f"inputs       {', '.join(v.describe() for v in description.inputs) or '-'}")
+    print(f"outputs      {', '.join(v.describe() for v in description.outputs) or '-'}")
+    if not description.parameters:
+        print("parameters   none")
+    for number, parameter in enumerate(description.parameters):
+        print(f"{'parameters' if number == 0 else '':<12} {parameter.describe()}")
+
+
 def run(args: argparse.Namespace) -> int:
+    from sim_backend.fmu_plant import is_fmu_path
+
+    if is_fmu_path(args.log):
+        info = fmu_summary(args.log)
+        if args.json:
+            print(json.dumps(info))
+        else:
+            _print_fmu(info, args.log)
+        return exit_codes.SUCCESS
     info = summary(args.log)
     for message in info["warnings"]:
         print(f"rig: warning: {message}", file=sys.stderr)
@@ -68,5 +111,7 @@ def run(args: argparse.Namespace) -> int:
         return exit_codes.SUCCESS
     width = max(len(key) for key in info)
     for key, value in info.items():
+        if key == "acquisition_start_utc" and value is None:
+            value = "unknown (not recorded: a log written before rig recorded it, or data of another tool)"
         print(f"{key:<{width}}  {_text(value)}")
     return exit_codes.SUCCESS

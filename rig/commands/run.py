@@ -14,6 +14,7 @@ import json
 import math
 import sys
 import time
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -117,6 +118,33 @@ def _check_run_length(config: Any, num_samples: int, what: str) -> None:
         "feedback_timeout_s, which also lets a stalled link go unnoticed for longer)")
 
 
+def _slow_fmu_plant(config: Any) -> str:
+    """What to say when a simulated rig's FMU plant takes longer than half a sample period a sample (the
+    simulated devices step it every period: it falls behind the rig's clock); "" otherwise."""
+    sim = config.simulation
+    seconds = None if sim is None else sim.fmu_seconds_per_sample
+    if seconds is None or seconds <= 0.5 * config.sample_period_s:
+        return ""
+    return (f"the simulated plant {sim.plant_path.name} (an FMU) took {1e3 * seconds:.3g} ms a sample when "
+            f"{config.source} was loaded, against a sample period of {1e3 * config.sample_period_s:.3g} ms: the "
+            "simulated devices step it every period, so it falls behind the rig's clock and the run may miss its "
+            "feedback watchdog; lower sample_rate_hz, export the model for co-simulation (its own solver), or "
+            "simplify it")
+
+
+@contextlib.contextmanager
+def _naming_a_slow_plant(slow_plant: str) -> Any:
+    """A link failure on a rig whose simulated FMU plant is too slow names the plant as the likely cause."""
+    from rig.protocols.errors import TransportError
+
+    try:
+        yield
+    except TransportError as err:
+        if slow_plant:
+            err.add_note("likely cause: " + slow_plant)
+        raise
+
+
 def run(args: argparse.Namespace) -> int:
     import numpy as np
 
@@ -164,8 +192,11 @@ def run(args: argparse.Namespace) -> int:
             raise ValueError(f"--sim-faults: {config.source} is a real rig (no [simulation] table); faults are "
                              "injected only into simulated devices")
         faults = parse_fault_spec(args.sim_faults, seed=args.sim_faults_seed)
+    slow_plant = _slow_fmu_plant(config)
+    if slow_plant:
+        warnings.warn(slow_plant, stacklevel=1)
     claimed = claim_output_file(args.out, "--out", force=args.force)  # a second run on it stops here
-    with contextlib.ExitStack() as stack:
+    with contextlib.ExitStack() as stack, _naming_a_slow_plant(slow_plant):
         stack.callback(claimed.release)
         gearbox = None
         url = config.url
@@ -182,7 +213,7 @@ def run(args: argparse.Namespace) -> int:
 
             view = stack.enter_context(open_live_view(command.size, config.sample_period_s, sys.stderr))
         log = LogWriter(args.out, experiment_log_metadata(config, excitation, gearbox, command.size, injected),
-                        flush_every=10, flush_interval_s=0.05, claimed=claimed)
+                        flush_every=10, flush_interval_s=0.05, claimed=claimed, stamp_start=True)
         sink = log if view is None else view.observe(log)
         bar = None
         if not args.json and not args.live and sys.stderr.isatty():

@@ -73,7 +73,8 @@ def run(args: argparse.Namespace) -> int:
         software_version=__version__,
     )
     with atomic_output(args.out, "--out", force=args.force) as written, LogWriter(written, metadata,
-                                                                                    flush_every=4096) as log:
+                                                                                    flush_every=4096,
+                                                                                    stamp_start=True) as log:
         log.append_many(run_.time_s, run_.command_rad, run_.measured_angle_rad, run_.encoder_counts)
     if args.json:
         print(json.dumps({"log": str(args.out), "samples": len(run_)}))

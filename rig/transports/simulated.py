@@ -147,7 +147,8 @@ def simulated_rig(config: RigConfig, command_rad: NDArray[np.float64] | None = N
     if sim is None:
         raise ConfigError(config.source, "simulation", "a real rig (no [simulation] table): nothing to simulate")
     plant = load_simulated_plant(sim.plant_path, sample_period_s=config.sample_period_s, encoder=config.encoder,
-                                 fmu_input=sim.fmu_input, fmu_output=sim.fmu_output)  # a plant TOML or an FMU
+                                 fmu_input=sim.fmu_input, fmu_output=sim.fmu_output,
+                                 fmu_parameters=sim.fmu_parameters)  # a plant TOML or an FMU
     gearbox = plant.gearbox(seed=sim.seed)
     if not math.isclose(gearbox.sample_period_s, config.sample_period_s, rel_tol=1e-9):
         raise ConfigError(config.source, "sample_rate_hz",

@@ -29,6 +29,23 @@ def without_linux_binaries(path: Path, out: Path) -> Path:
     return out
 
 
+def with_model_description(path: Path, out: Path, edits: dict[str, str]) -> Path:
+    """A copy of the FMU at ``path`` whose modelDescription.xml has each key of ``edits`` replaced by its value
+    (a unit, a range or a causality that the Python model cannot declare; its binary does not read them)."""
+    with zipfile.ZipFile(path) as source, zipfile.ZipFile(out, "w") as target:
+        for item in source.infolist():
+            content = source.read(item.filename)
+            if item.filename == "modelDescription.xml":
+                text = content.decode("utf-8")
+                for old, new in edits.items():
+                    if old not in text:
+                        raise ValueError(f"{path}: modelDescription.xml has no {old!r}")
+                    text = text.replace(old, new)
+                content = text.encode("utf-8")
+            target.writestr(item, content)
+    return out
+
+
 SERVO_VARIABLES = {
     "2.0": """  <ModelVariables>
     <ScalarVariable name="command" valueReference="0" causality="input" variability="continuous"><Real start="0"/></ScalarVariable>

@@ -41,7 +41,6 @@ from sim_rigs import ROOT, excitation, no_leaks, simulated, write_test_config  #
 
 RIG = ROOT / ".venv" / "bin" / "rig"
 PRBS = ROOT / "configs" / "experiments" / "prbs.toml"
-HEADER_LINES = 4
 
 
 def _rig_command() -> list[str]:
@@ -81,7 +80,8 @@ def _wait_for_rows(out: Path, rows: int, process: subprocess.Popen | None = None
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
         if out.exists():
-            complete = out.read_bytes().count(b"\n") - HEADER_LINES
+            lines = out.read_bytes().split(b"\n")[:-1]  # the complete ones; comment lines (header, start) are no samples
+            complete = sum(1 for line in lines if not line.startswith(b"#")) - 1  # less the column line
             if complete >= rows:
                 return complete
         if process is not None and process.poll() is not None:

@@ -69,7 +69,9 @@ def test_log_to_mdf4_diagnoses_like_the_csv(log, tmp_path, capsys):
 def test_log_to_mat_reads_back_identical_arrays(log, tmp_path, capsys):
     mat = tmp_path / "run.mat"
     assert main(["export", str(log), "--out", str(mat), "--json"]) == exit_codes.SUCCESS
-    assert json.loads(capsys.readouterr().out) == {"log": str(log), "out": str(mat), "format": "mat", "samples": 100}
+    written = json.loads(capsys.readouterr().out)
+    assert written == {"log": str(log), "out": str(mat), "format": "mat", "samples": 100,
+                       "acquisition_start_utc": read_log(log).metadata.acquisition_start_utc}
     original = read_log(log)
     _same_record(original, read_experiment_data(mat))
     u, y = read_input_output(mat)

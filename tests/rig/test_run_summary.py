@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 
@@ -131,3 +132,13 @@ def test_the_send_lateness_quantiles_of_a_run():
     assert quantiles["send_lateness_p99_s"] == pytest.approx(9.9e-4)
     assert quantiles["send_lateness_max_s"] == 1e-3
     assert all(math.isnan(value) for value in send_lateness_quantiles(np.zeros(0)).values())
+
+
+@pytest.mark.parametrize("link", ["device-clocked", "host-paced"])
+def test_a_run_summary_equals_its_reopened_copy_and_differs_after_a_change(link):
+    summary = _summary(**NOT_MEASURED[link])
+    again = RunSummary.from_dict(json.loads(json.dumps(summary.to_dict(), allow_nan=False)))
+    assert summary == again  # NaN (not measured) equals NaN; the per-sample send lateness is not saved
+    assert summary != dataclasses.replace(summary, lost=summary.lost + 1)
+    frame = summary.to_pandas()
+    assert len(frame) == 1 and frame["samples"].item() == summary.samples
