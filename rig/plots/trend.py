@@ -55,7 +55,8 @@ def trend_figure(trend: BacklashTrend, name: str, truth: PlayTruth | None = None
                       label="true play (simulation)")
         axes.set_xlabel(f"time [{unit}]")
         axes.set_ylabel("play c_l + c_r [rad]")
-        axes.set_title(f"play per {trend.window_s:g} s window, noise bound {trend.noise_bound_rad:.3g} rad")
+        allowance = f" + wear allowance {trend.wear_allowance_rad:.3g}" if trend.wear_allowance_rad else ""
+        axes.set_title(f"play per {trend.window_s:g} s window, noise bound {trend.noise_bound_rad:.3g}{allowance} rad")
         axes.grid(True, alpha=0.3)
         axes.legend(loc="upper left", fontsize="small")
 
