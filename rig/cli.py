@@ -33,6 +33,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "rig.commands.inspect",
     "rig.commands.run",
     "rig.commands.diagnose",
+    "rig.commands.trend",
     "rig.commands.report",
     "rig.commands.export",
     "rig.commands.import_trace",

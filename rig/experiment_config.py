@@ -57,6 +57,35 @@ class Excitation:
         return {"name": self.name, "kind": self.kind, "seed": self.seed, "parameters": dict(self.parameters),
                 "source": self.source}
 
+    def repeated(self, num_samples: int) -> NDArray[np.float64]:
+        """The command cut, or repeated cyclically, to ``num_samples`` samples.
+
+        A filtered staircase is repeated before its filter: the square-wave reference (with the amplitudes in
+        the order this excitation used) is repeated and filtered once, so the command stays filtered across
+        each repetition and every cycle's samples are those of the first after the filter has settled.
+        Repeating the filtered samples themselves would step the command from the last level back to 0
+        unfiltered at each wrap: the inner signal overshoots there and the first half-wave after it is no
+        steady-state point of eqs. (11)-(12) of Cerone et al. (2009). Other excitations repeat as they are.
+        """
+        count = int(num_samples)
+        if count < 1:
+            raise InvalidInputError(f"num_samples: expected at least 1, got {num_samples!r}")
+        if self.kind != "filtered_staircase" or count <= self.command_rad.size:
+            return np.resize(self.command_rad, count)
+        from identify.excitation_design import lowpass_filter, staircase_reference
+
+        amplitudes = np.asarray(self.parameters["amplitudes_rad"], dtype=float)
+        if self.parameters.get("shuffle"):
+            amplitudes = np.random.default_rng(self.seed).permutation(amplitudes)  # the order generated
+        reference = staircase_reference(amplitudes, int(self.parameters["samples_per_half_wave"]))
+        repeats = -(-count // reference.size)
+        command = lowpass_filter(np.tile(reference, repeats), float(self.parameters["filter_pole"]),
+                                 int(self.parameters.get("filter_order", 1)))[:count]
+        if not np.array_equal(command[:self.command_rad.size], self.command_rad):
+            raise InvalidInputError(f"{self.source}: the staircase could not be generated again from its "
+                                    "parameters; repeat it with fewer samples than one cycle")
+        return command
+
 
 def _prbs(table: ConfigTable, rng: np.random.Generator) -> tuple[NDArray[np.float64], dict[str, Any]]:
     from identify.excitation_design import prbs_sequence

@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from identify.backlash_wear import PlayTrace, simulate_with_play, wearing_backlash_of
 from identify.plant_blocks import PlantModel
 from identify.validation import InvalidInputError, as_signal, positive
 from rig.protocols.encoder_counts import EncoderResolution
@@ -49,17 +50,21 @@ class GearboxSample:
 
 @dataclass(frozen=True)
 class GearboxTrajectory:
-    """A whole run: the arrays of :class:`GearboxSample` fields plus time and command."""
+    """A whole run: the arrays of :class:`GearboxSample` fields plus time and command, and for a plant whose
+    backlash wears (:mod:`identify.backlash_wear`) the true half-widths of the play at every sample."""
 
     time_s: NDArray[np.float64]
     command_rad: NDArray[np.float64]
     load_angle_rad: NDArray[np.float64]
     measured_angle_rad: NDArray[np.float64]
     encoder_counts: NDArray[np.int64]
+    play: PlayTrace | None = None
 
     def __post_init__(self) -> None:
         lengths = {len(getattr(self, name)) for name in
                    ("time_s", "command_rad", "load_angle_rad", "measured_angle_rad", "encoder_counts")}
+        if self.play is not None:
+            lengths.add(len(self.play))
         if len(lengths) != 1:
             raise InvalidInputError(f"GearboxTrajectory: arrays of different lengths {sorted(lengths)}")
 
@@ -164,7 +169,10 @@ class SimulatedGearbox:
         sample, to stepping ``self.calibrated_for(command_rad)`` from rest. Leaves this gearbox reset."""
         command = as_signal("command_rad", command_rad)
         gearbox = self.calibrated_for(command) if getattr(self.noise, "needs_reference", False) else self
-        load = self.plant.simulate(command)
+        if wearing_backlash_of(self.plant) is None:
+            load, play = self.plant.simulate(command), None
+        else:
+            load, play = simulate_with_play(self.plant, command)
         noise = gearbox.noise.sampler(np.random.default_rng(self.seed)).draw(command.size)
         noisy = load + noise
         counts = self.encoder.counts_from_rad(noisy)
@@ -176,4 +184,5 @@ class SimulatedGearbox:
             load_angle_rad=load,
             measured_angle_rad=np.asarray(measured, dtype=float),
             encoder_counts=np.asarray(counts, dtype=np.int64),
+            play=play,
         )

@@ -36,6 +36,11 @@ its name (see ``DRIVE_TRAIN_KEYS``); the sample period is the file's. Only ``gea
 ``shaft_stiffness_nm_per_rad`` left out is a rigid shaft (the form ``rig diagnose`` fits its drive-train
 effects in: friction on the load, gravity, rate and torque limits).
 
+An ``output_backlash`` table may add ``backlash_growth = { per_rad_travel = 2e-6, max_rad = 0.05 }``: its play then
+grows with wear, each flank by k rad per rad of output travel it drives, up to max_rad
+(:class:`identify.backlash_wear.WearingOutputBacklash`; ``max_rad`` optional, no limit). Without the key the
+block is the backlash of the catalogue, exactly as before.
+
 Input backlash and switch borders are inline tables: ``{ kind = "table", nodes_u = [...], values = [...] }``
 or ``{ kind = "arctan", input_shift_rad = -1.0, output_shift_rad = 0.0, lower_input_rad = -2.0,
 upper_input_rad = 2.0, lower_value_rad = -1.0, upper_value_rad = 1.0 }`` (the limits are optional).
@@ -49,6 +54,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from identify.backlash_wear import BacklashGrowth, WearingOutputBacklash
 from identify.drive_train import POSITION_FEEDBACK, DriveTrain
 from identify.effect_catalogue import EFFECTS, Effect, effect_for_block
 from identify.plant_blocks import (
@@ -57,6 +63,7 @@ from identify.plant_blocks import (
     InputBacklash,
     InputSwitch,
     LinearBlock,
+    OutputBacklash,
     PiecewiseLinearBorder,
     PlantModel,
 )
@@ -315,6 +322,32 @@ def _read_drive_train(t: ConfigTable, period: float) -> DriveTrain:
     return _build(t, DriveTrain, sample_period_s=period, **kwargs)
 
 
+BACKLASH_GROWTH_KEY = "backlash_growth"
+"""The optional key of an ``output_backlash`` table that makes its play grow with wear
+(:mod:`identify.backlash_wear`): ``backlash_growth = { per_rad_travel = 2e-6, max_rad = 0.02 }``, k and g_max
+of the law, ``max_rad`` optional (no limit)."""
+
+
+def _wearing_reader(plain: Callable[[ConfigTable, float], Block]) -> Callable[[ConfigTable, float], Block]:
+    """The ``output_backlash`` reader: the catalogue's (``plain``), or with :data:`BACKLASH_GROWTH_KEY` a
+    :class:`WearingOutputBacklash` of the same keys."""
+
+    def read(t: ConfigTable, period: float) -> Block:
+        if not t.has(BACKLASH_GROWTH_KEY):
+            return plain(t, period)
+        growth_table = t.table(BACKLASH_GROWTH_KEY)
+        growth = _build(growth_table, BacklashGrowth,
+                        per_rad_travel=growth_table.number("per_rad_travel", minimum=0.0),
+                        max_rad=growth_table.number("max_rad", minimum=0.0, exclusive_minimum=True)
+                        if growth_table.has("max_rad") else math.inf)
+        growth_table.finish()
+        return _build(t, WearingOutputBacklash, m_l=t.number("m_l"), c_l_rad=t.number("c_l_rad"),
+                      m_r=t.number("m_r"), c_r_rad=t.number("c_r_rad"),
+                      initial_output_rad=t.number("initial_output_rad", 0.0), growth=growth)
+
+    return read
+
+
 BLOCK_TYPES: dict[str, tuple[type, Callable[[ConfigTable, float], Block]]] = {
     "linear": (LinearBlock, _read_linear),
     "state_space": (LinearBlock, _read_state_space),
@@ -327,7 +360,9 @@ BLOCK_TYPES: dict[str, tuple[type, Callable[[ConfigTable, float], Block]]] = {
 """``type`` in a ``[[blocks]]`` table -> (block class, reader): the linear and Hammerstein blocks, then every
 effect of the catalogue (:data:`identify.effect_catalogue.EFFECTS`) under its ``toml_type``; the catalogue's
 dynamics effects (friction on the load, gravity, rate and torque limits, shaft play) are keys of the one
-``drive_train`` table."""
+``drive_train`` table. An ``output_backlash`` with :data:`BACKLASH_GROWTH_KEY` is a
+:class:`~identify.backlash_wear.WearingOutputBacklash`."""
+BLOCK_TYPES["output_backlash"] = (OutputBacklash, _wearing_reader(BLOCK_TYPES["output_backlash"][1]))
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -381,6 +416,11 @@ def _block_fields(block: Block) -> dict[str, Any]:
         return {"type": "input_switch", "ascending": _border_fields(block.ascending, "ascending"),
                 "descending": _border_fields(block.descending, "descending"),
                 "initial_input_rad": block.initial_input_rad, "initial_ascending": block.initial_ascending}
+    if isinstance(block, WearingOutputBacklash):
+        growth = {"per_rad_travel": block.growth.per_rad_travel}
+        if math.isfinite(block.growth.max_rad):
+            growth["max_rad"] = block.growth.max_rad
+        return {**_block_fields(block.unworn), BACKLASH_GROWTH_KEY: growth}
     entry = effect_for_block(block)
     if entry is not None:
         return entry.toml_fields(block)

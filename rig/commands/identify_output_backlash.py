@@ -7,7 +7,9 @@ import argparse
 import json
 import math
 import sys
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from rig import exit_codes
 
@@ -117,6 +119,10 @@ def _has_time_column(path: Path) -> bool:
     return "t" in read_table(path, ("u", "y"), optional_columns=("t",))
 
 
+REPEAT_FILTERED = "reference, filtered across repetitions"
+"""``config.excitation_repeat`` of a log (``rig simulate --duration``) whose staircase was repeated before its
+filter (:meth:`rig.experiment_config.Excitation.repeated`): no unfiltered step at the wraps."""
+
 STEADY_TAIL_FRACTION = 0.1
 """The last 10 % of a half-wave is at steady state (as in rig.demo): a LOST end sample is replaced by the last
 valid sample in that tail."""
@@ -129,12 +135,51 @@ def staircase_steady_points(path: Path):
     valid angle in the half-wave's settled tail."""
     import numpy as np
 
-    from identify.excitation_design import staircase_steady_state_indices
     from rig.log_file import read_experiment_data
 
+    points = staircase_steady_samples(read_experiment_data(path), path)
+    moved = int(np.count_nonzero(points.taken != points.ends))
+    description = (f"{points.ends.size} points: the end of each half-wave of {points.samples_per_half_wave} samples "
+                   "of the staircase log" + (f", {moved} of them taken up to {points.tail - 1} samples early (the "
+                                             "end sample was lost)" if moved else ""))
+    return points.command_rad, points.angle_rad, description
+
+
+@dataclass(frozen=True)
+class StaircaseSteadyPoints:
+    """The steady-state points of a staircase log: ``ends`` the last sample of each half-wave that has a
+    usable settled tail, ``taken`` the sample whose angle was used (the last usable one of the tail),
+    ``command_rad`` ū and ``angle_rad`` ȳ there; ``unusable_ends``: the half-waves whose whole tail was
+    unusable (left out when asked, else refused); ``wrapped_ends``: the first half-wave after each wrap of an
+    excitation repeated sample by sample (left out when asked)."""
+
+    ends: Any
+    taken: Any
+    command_rad: Any
+    angle_rad: Any
+    unusable_ends: Any
+    samples_per_half_wave: int
+    tail: int
+    wrapped_ends: Any = ()
+
+
+def staircase_steady_samples(record, path: Path, *, skip_unusable: bool = False,
+                             skip_after_wrap: bool = False) -> StaircaseSteadyPoints:
+    """The steady-state points of the staircase log ``record`` read from ``path`` (named in errors): the
+    half-wave ends from its metadata (``config.excitation``: kind filtered_staircase, ``samples_per_half_wave``,
+    ``amplitudes_rad``; ``config.excitation_samples`` when the log cuts or repeats the excitation), and at each
+    the last usable angle of the settled tail (its last :data:`STEADY_TAIL_FRACTION`). A tail without a usable
+    sample is refused naming its line, or with ``skip_unusable`` left out and listed. With ``skip_after_wrap``
+    the first half-wave after each repetition of an excitation repeated sample by sample (``rig run
+    --duration``) is left out and listed: the command steps there unfiltered from the last level to the first,
+    the inner signal overshoots and the output stops inside the dead band (a log whose
+    ``config.excitation_repeat`` says the staircase was filtered across repetitions has no such step)."""
     from collections.abc import Mapping
 
-    record = read_experiment_data(path)
+    import numpy as np
+
+    from identify.excitation_design import staircase_steady_state_indices
+
     config = record.metadata.config if isinstance(record.metadata.config, Mapping) else {}
     excitation = config.get("excitation") if isinstance(config.get("excitation"), Mapping) else {}
     kind = excitation.get("kind")
@@ -157,26 +202,28 @@ def staircase_steady_points(path: Path):
     n = len(record)
     indices = np.concatenate([ends + start for start in range(0, n, cycle)])
     indices = indices[indices < n]
+    wrapped = np.empty(0, dtype=np.int64)
+    if skip_after_wrap and cycle == ends[-1] + 1 and config.get("excitation_repeat") != REPEAT_FILTERED:
+        after_wrap = (indices >= cycle) & (indices % cycle == ends[0])
+        wrapped, indices = indices[after_wrap], indices[~after_wrap]
     if indices.size < 2:
         raise ValueError(f"{path}: the log holds {n} samples, fewer than two half-waves of {half} samples: run "
                          "the whole staircase")
     tail = max(1, int(STEADY_TAIL_FRACTION * half))
     valid = record.valid_mask
-    u = record.command_rad[indices]
-    y = np.empty(indices.size)
-    moved = 0
-    for position, index in enumerate(indices.tolist()):
-        usable = np.flatnonzero(valid[index - tail + 1: index + 1])
-        if usable.size == 0:
-            raise ValueError(f"{path}: line {index + 5} and the {tail - 1} samples before it (the settled tail of "
-                             f"half-wave {position + 1}) are all LOST or unusable: no steady-state value there; "
-                             "record the staircase again")
-        moved += usable[-1] != tail - 1
-        y[position] = record.angle_rad[index - tail + 1 + usable[-1]]
-    description = (f"{indices.size} points: the end of each half-wave of {half} samples of the staircase log"
-                   + (f", {moved} of them taken up to {tail - 1} samples early (the end sample was lost)" if moved
-                      else ""))
-    return u, y, description
+    # the last usable sample of each tail [end - tail + 1, end]: the running index of the last usable sample
+    last_usable = np.maximum.accumulate(np.where(valid, np.arange(n), -1))
+    taken = last_usable[indices]
+    usable = taken >= indices - tail + 1
+    if not np.all(usable) and not skip_unusable:
+        position = int(np.flatnonzero(~usable)[0])
+        index = int(indices[position])
+        raise ValueError(f"{path}: line {index + 5} and the {tail - 1} samples before it (the settled tail of "
+                         f"half-wave {position + 1}) are all LOST or unusable: no steady-state value there; "
+                         "record the staircase again")
+    kept = indices[usable]
+    return StaircaseSteadyPoints(kept, taken[usable], record.command_rad[kept], record.angle_rad[taken[usable]],
+                                 indices[~usable], half, tail, wrapped)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -40,6 +40,8 @@ DIMENSIONLESS = {
     "falsified_fraction_final", "required_noise_scale", "score",
     # the LP of linear_block_bounds works on θ = [a, b], dimensionless coefficients
     "max_certificate_gap", "tightening_tolerance",
+    # the wear law of backlash_wear: rad of half-width per rad of output travel
+    "per_rad_travel",
 }
 
 PAPER_SYMBOLS = {"D": "the feedthrough of (A, B, C, D)", "mu0": "μ0 of Pouliquen et al. (2013), glossary P13"}

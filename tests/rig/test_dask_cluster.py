@@ -216,6 +216,25 @@ def test_output_backlash_pairs_on_the_cluster_equal_the_local_run(cluster, data_
     assert_same_numbers(local, remote)
 
 
+def test_trend_windows_on_the_cluster_equal_the_local_run(cluster, tmp_path, monkeypatch, capsys):
+    """``rig trend --scheduler``: the windows' steady-state points travel with their tasks (the workers never
+    read the log), and the bounds equal the local ones."""
+    address, _ = cluster
+    monkeypatch.chdir(tmp_path)
+    configs = Path(__file__).resolve().parents[2] / "configs"
+    assert main(["simulate", str(configs / "plants" / "wearing_gearbox.toml"), "--excitation",
+                 str(configs / "experiments" / "steady_staircase.toml"), "--duration", "30", "--out",
+                 "run.csv"]) == exit_codes.SUCCESS
+    capsys.readouterr()
+    common = ["trend", "run.csv", "--window", "10s", "--wear-allowance", "2e-4", "--json"]
+    code, local = run_json(capsys, *common, "--jobs", "1")
+    assert code == exit_codes.SUCCESS
+    code, remote = run_json(capsys, *common, "--scheduler", address)
+    assert code == exit_codes.SUCCESS
+    assert [window["status"] for window in remote["windows"]] == ["bounded"] * 3
+    assert_same_numbers(local, remote)
+
+
 def test_bad_and_missing_files_are_named_as_the_user_gave_them(cluster, data_dir, monkeypatch, capsys):
     address, _ = cluster
     monkeypatch.chdir(data_dir)
