@@ -40,6 +40,13 @@ from rig.protocols.config_schema import ConfigTable, load_toml
 __all__ = ["EXCITATION_KINDS", "Excitation", "load_experiment_config"]
 
 
+REPEAT_FILTERED = "reference, filtered across repetitions"
+"""``config.excitation_repeat`` of a log whose staircase was repeated before its filter
+(:meth:`Excitation.repeated`): no unfiltered step at the wraps."""
+REPEAT_SAMPLES = "samples"
+"""``config.excitation_repeat`` of a log whose excitation was repeated sample by sample."""
+
+
 @dataclass(frozen=True)
 class Excitation:
     """A generated excitation and what is needed to generate it again."""
@@ -56,6 +63,11 @@ class Excitation:
         """What a log records about the excitation."""
         return {"name": self.name, "kind": self.kind, "seed": self.seed, "parameters": dict(self.parameters),
                 "source": self.source}
+
+    @property
+    def repetition(self) -> str:
+        """How :meth:`repeated` repeats this excitation (a log's ``config.excitation_repeat``)."""
+        return REPEAT_FILTERED if self.kind == "filtered_staircase" else REPEAT_SAMPLES
 
     def repeated(self, num_samples: int) -> NDArray[np.float64]:
         """The command cut, or repeated cyclically, to ``num_samples`` samples.

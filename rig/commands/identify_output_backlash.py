@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from rig import exit_codes
+from rig.experiment_config import REPEAT_FILTERED
 
 DESCRIPTION = """\
 Bound the parameters of a linear block followed by an output backlash from a steady-state experiment
@@ -118,10 +119,6 @@ def _has_time_column(path: Path) -> bool:
 
     return "t" in read_table(path, ("u", "y"), optional_columns=("t",))
 
-
-REPEAT_FILTERED = "reference, filtered across repetitions"
-"""``config.excitation_repeat`` of a log (``rig simulate --duration``) whose staircase was repeated before its
-filter (:meth:`rig.experiment_config.Excitation.repeated`): no unfiltered step at the wraps."""
 
 STEADY_TAIL_FRACTION = 0.1
 """The last 10 % of a half-wave is at steady state (as in rig.demo): a LOST end sample is replaced by the last

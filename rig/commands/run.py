@@ -183,7 +183,7 @@ def run(args: argparse.Namespace) -> int:
     if num_samples is None:
         _check_run_length(config, command.size, f"{args.experiment}")
     else:
-        command = np.resize(command, num_samples)
+        command = excitation.repeated(num_samples)
     faults = None
     if args.sim_faults is not None:
         from sim_backend.faults import parse_fault_spec

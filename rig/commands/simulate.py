@@ -47,7 +47,6 @@ def run(args: argparse.Namespace) -> int:
     from identify import __version__
     from identify.backlash_wear import wearing_backlash_of
     from identify.experiment_record import ExperimentMetadata
-    from rig.commands.identify_output_backlash import REPEAT_FILTERED
     from rig.experiment_config import load_experiment_config
     from rig.log_file import LogWriter
     from rig.truth_file import truth_path_for, write_play_truth
@@ -87,7 +86,7 @@ def run(args: argparse.Namespace) -> int:
                 "excitation": excitation.metadata(), "noise": describe_noise(noise),
                 "num_samples": int(command.size),
                 "excitation_samples": int(excitation.command_rad.size),  # cut or repeated cyclically to num_samples
-                "excitation_repeat": REPEAT_FILTERED if excitation.kind == "filtered_staircase" else "samples",
+                "excitation_repeat": excitation.repetition,
                 "additive_noise_bound_rad": _json_number(noise.noise_bound_rad),
                 "quantization_bound_rad": gearbox.encoder.quantization_bound_rad,
                 "encoder": {"bits": gearbox.encoder.bits, "multi_turn_bits": gearbox.encoder.multi_turn_bits,

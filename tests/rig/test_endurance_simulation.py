@@ -13,7 +13,8 @@ import pytest
 from identify.experiment_record import ExperimentMetadata, ExperimentRecord
 from rig import exit_codes
 from rig.cli import main
-from rig.commands.identify_output_backlash import REPEAT_FILTERED, staircase_steady_samples
+from rig.commands.identify_output_backlash import staircase_steady_samples
+from rig.experiment_config import REPEAT_FILTERED
 from rig.experiment_config import load_experiment_config
 from rig.log_file import read_log
 from rig.truth_file import read_play_truth, truth_path_for
@@ -92,3 +93,21 @@ def test_the_half_wave_after_a_wrap_sample_by_sample_is_left_out():
     assert np.max(np.abs(y - line)) < 1e-7
     every = staircase_steady_samples(record, Path("run.csv"))  # rig identify output-backlash keeps them all
     assert every.ends.size == 300 and every.wrapped_ends.size == 0
+
+
+def test_run_duration_repeats_a_staircase_before_its_filter(tmp_path):
+    """``rig run --duration`` longer than the staircase repeats it as ``rig simulate`` does: the device gets
+    no unfiltered step back to 0 at each wrap, and the log says how it was repeated."""
+    text = STAIRCASE.read_text().replace("num_amplitudes = 50", "num_amplitudes = 2").replace(
+        "samples_per_half_wave = 100", "samples_per_half_wave = 25").replace(
+        "amplitude_min_rad = 0.6", "amplitude_min_rad = 0.2").replace("amplitude_max_rad = 3.0", "amplitude_max_rad = 0.3")
+    (tmp_path / "staircase.toml").write_text(text)
+    excitation = load_experiment_config(tmp_path / "staircase.toml")
+    log = tmp_path / "run.csv"
+    assert main(["run", str(CONFIGS / "sim_serial.toml"), "--experiment", str(tmp_path / "staircase.toml"),
+                 "--duration", "0.35", "--out", str(log)]) == exit_codes.SUCCESS
+    record = read_log(log)
+    assert len(record) > 3 * excitation.command_rad.size
+    assert record.metadata.config["excitation_repeat"] == REPEAT_FILTERED
+    within = np.max(np.abs(np.diff(excitation.command_rad)))
+    assert np.max(np.abs(np.diff(record.command_rad))) <= within + 1e-9

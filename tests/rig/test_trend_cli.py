@@ -16,7 +16,7 @@ from identify.experiment_record import ExperimentMetadata, ExperimentRecord, Sam
 from identify.result_format import ResultFormatError
 from rig import exit_codes
 from rig.cli import main
-from rig.commands.identify_output_backlash import REPEAT_FILTERED
+from rig.experiment_config import REPEAT_FILTERED
 from rig.commands.trend import parse_window
 from rig.experiment_config import load_experiment_config
 from rig.log_file import write_log
