@@ -228,9 +228,9 @@ class RawCanTransport(Transport):
 
     def _send(self, setpoint: Setpoint) -> None:
         """v1: the setpoint of this sample, now. v2-v4: buffered by the device for tick ``seq``, nearer the target
-        in force than the plan after a stall (:mod:`rig.transports.tick_buffer`); not sent at all when tick
-        ``seq`` has passed (the device would drop it, DBC: after a long stall the host does not flood the bus,
-        and its own receive queue, with hundreds of them)."""
+        in force than the plan after a stall (:mod:`rig.transports.tick_buffer`); not sent at all when the device
+        has reported tick ``seq`` (it would drop it, DBC: after a long stall the host does not flood the bus, and
+        its own receive queue, with hundreds of them)."""
         counts = self.drive.counts_from_rad(setpoint.position_rad)
         self._last_seq = setpoint.seq
         if self.version < 2:
@@ -240,7 +240,7 @@ class RawCanTransport(Transport):
         self._queued_any = True
         ticks = self._tick_buffer()
         counts = ticks.place(setpoint.seq, counts, now, reported=self._device_sample, toward_plan=self._toward_plan)
-        if counts is None:  # its tick has passed: HELD
+        if counts is None:  # its tick has been reported: HELD
             self._min_lead_s = min(self._min_lead_s, ticks.instant_s(setpoint.seq) - now)
             return
         self._transmit(self.codec.encode("RIG_SETPOINT", seq=setpoint.seq, target_counts=counts))
@@ -421,7 +421,7 @@ class RawCanTransport(Transport):
             ticks = self._tick_buffer()
             if not unknown:
                 ticks.in_force(seq, applied_counts)
-            limited = ticks.limited(seq)
+            limited = ticks.limited(seq) and not held  # a HELD tick applied none of it
         statusword = feedback["statusword"]
         state = cia402.state_from_statusword_or_none(statusword)
         return FeedbackSample(seq=seq, encoder_counts=counts, load_angle_rad=self._decode_encoder(counts),

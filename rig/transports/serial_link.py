@@ -227,7 +227,7 @@ class SerialTransport(Transport):
     def _send(self, setpoint: Setpoint) -> None:
         """v1: the setpoint of this sample, now. v2: queued in the device's buffer for tick ``seq``, nearer the
         target in force than the plan after a stall (:mod:`rig.transports.tick_buffer`); not written at all when
-        tick ``seq`` has passed (the device would drop it, spec 16.3: that tick is HELD)."""
+        the device has reported tick ``seq`` (it would drop it, spec 16.3: that tick was HELD)."""
         counts = self.drive.counts_from_rad(setpoint.position_rad)
         self._last_seq = setpoint.seq
         if self.version < 2:
@@ -381,7 +381,8 @@ class SerialTransport(Transport):
             drive_position_rad=self.drive.rad_from_counts(actual), statusword=statusword, host_time_s=received_s,
             target_ignored=(state is cia402.DriveState.OPERATION_ENABLED
                             and not statusword & cia402.STATUSWORD_FOLLOWS_TARGET),
-            held=held, applied_position_rad=self.drive.rad_from_counts(applied), limited=ticks.limited(k))
+            held=held, applied_position_rad=self.drive.rad_from_counts(applied),
+            limited=ticks.limited(k) and not held)  # a HELD tick applied none of it
         fault_waiting = bool(self._feedback) and isinstance(self._feedback[-1], DeviceFault)
         if fault_waiting and state in _FAULT_STATES:  # the faulted tick's TICK: filed before its FAULT frame acts
             self._feedback.insert(len(self._feedback) - 1, sample)

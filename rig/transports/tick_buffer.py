@@ -7,11 +7,14 @@ plan, and the first setpoint the device takes again must not jump from it to the
 CANopen CSP, :meth:`~rig.transports.base.Transport._toward_plan` is the one rule). :class:`TickBuffer` keeps
 what the host knows of the device's clock and of the targets it may hold, and places each setpoint:
 
-* not at all when its tick has passed (reported, or passed on the estimate of the device's clock): the device
-  would drop it, so it would only cost line time, and the host knows it cannot be in force;
-* otherwise at most :attr:`~rig.transports.base.Transport.catch_up_step_rad` from every target that may be in
-  force at the tick before: the target the device last reported applied, and every setpoint sent after that
-  tick which may yet miss its own (sent less than :data:`MAY_MISS_S` before its tick's estimated instant).
+* not at all for a tick the device has reported (spec 16.3: it would drop it; the setpoint only costs line
+  time). A tick that has passed only on the host's estimate of the device's clock still gets its setpoint: a
+  device whose ticks run late (a burst, spec 16.3) may still take it, and every frame restarts its link
+  watchdog (16.4), which a host that stays behind would otherwise starve;
+* at most :attr:`~rig.transports.base.Transport.catch_up_step_rad` from every target that may be in force at
+  the tick before: the target the device last reported in force, and every setpoint sent after that tick
+  which may miss its own (sent less than :data:`MAY_MISS_S` before its tick's estimated instant, or after
+  it), since the device then holds the one before. A setpoint sent earlier is taken to be applied.
   A setpoint so limited is flagged LIMITED on its tick's sample, which logs the target the device applied.
 """
 
@@ -52,10 +55,11 @@ class TickBuffer:
         # (k, arrival of k's report - k T), the values increasing: the window's minimum comes first
         self._origins: collections.deque[tuple[int, float]] = collections.deque()
         self._newest = -1
-        # the targets that may be in force at tick _placed: the last one the device reported, or since then the
-        # setpoints that may miss their ticks, and the last one sent that will not
-        self._lowest = self._highest = int(in_force_counts)
-        self._placed = -1
+        # the targets that may be in force at the tick of the last setpoint sent: the anchor's (a tick and the
+        # target in force there: the device reported it, or a setpoint sent in time), and those of the setpoints
+        # sent for later ticks that may miss them
+        self._anchor = (-1, int(in_force_counts))
+        self._may_miss: collections.deque[tuple[int, int]] = collections.deque()
         self._limited: set[int] = set()
 
     def instant_s(self, k: int) -> float:
@@ -76,32 +80,34 @@ class TickBuffer:
             self._limited = {tick for tick in self._limited if tick >= self._newest - self._window_ticks}
 
     def in_force(self, k: int, applied_counts: int) -> None:
-        """Tick k's report says ``applied_counts`` was the target in force: after the last setpoint placed it is
-        what the next one steps from."""
-        if k >= self._placed:
-            self._lowest = self._highest = int(applied_counts)
-            self._placed = k
+        """Tick k's report says ``applied_counts`` was the target in force there: the setpoints sent for tick k
+        and before are settled."""
+        if k >= self._anchor[0]:
+            self._anchor = (k, int(applied_counts))
+            while self._may_miss and self._may_miss[0][0] <= k:
+                self._may_miss.popleft()
 
     def place(self, k: int, plan_counts: int, now_s: float, *, reported: int,
               toward_plan: Callable[[int, int, int], int]) -> int | None:
         """The target to send now (``now_s``) for tick k, whose planned target is ``plan_counts``; None: send
-        nothing, tick k has passed (``reported``: the latest tick the device reported; or on the estimate).
+        nothing, the device has reported tick k (``reported``: the latest tick it reported).
         ``toward_plan(plan, lowest, highest)`` is the link's way back to the plan."""
-        lead_s = self.instant_s(k) - now_s
-        if k <= reported or lead_s <= 0:
+        if k <= reported:
             return None
-        counts = toward_plan(plan_counts, self._lowest, self._highest)
+        possible = [self._anchor[1], *(counts for _, counts in self._may_miss)]
+        counts = toward_plan(plan_counts, min(possible), max(possible))
         if counts != plan_counts:
             self._limited.add(k)
-        if lead_s < self._may_miss_s:  # it may miss its tick: then the targets before it stay in force
-            self._lowest, self._highest = min(self._lowest, counts), max(self._highest, counts)
+        if self.instant_s(k) - now_s < self._may_miss_s:  # it may miss its tick: the targets before it stay possible
+            self._may_miss.append((k, counts))
         else:
-            self._lowest = self._highest = counts
-        self._placed = k
+            self._anchor = (k, counts)
+            self._may_miss.clear()
         return counts
 
     def limited(self, k: int) -> bool:
-        """Tick k's setpoint was limited on its way back to the plan (asked once, for the tick's sample)."""
+        """Tick k's setpoint was limited on its way back to the plan (asked once, for the tick's sample; whether
+        the device applied it, its report says)."""
         if k in self._limited:
             self._limited.discard(k)
             return True

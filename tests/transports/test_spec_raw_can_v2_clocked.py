@@ -93,7 +93,7 @@ def test_a_raw_can_host_stall_longer_than_the_lead_holds_exactly_the_ticks_it_ou
     held = np.flatnonzero(np.array([row[4] for row in sink.rows]) & SampleFlag.HELD).tolist()
     assert held == list(range(heard + LEAD, last_in_stall + 1)) and summary.held == 11 and summary.lost == 0
     assert [row[1] for row in sink.rows][held[0]:held[-1] + 1] == [sink.rows[held[0] - 1][1]] * 11
-    assert device.dropped_setpoints == {}  # passed, heard of or not: the host sent them no setpoint
+    assert set(device.dropped_setpoints) <= set(held)  # sent before the host had heard of their ticks
     ticks = _drive_ticks(bus)  # the age counts up through the hold from the last setpoint applied; levels exact
     assert [ticks[k][2] for k in held] == list(range(1, 12))
     assert [ticks[k][1] for k in held] == [0] * 11 and ticks[held[0] - 1][1] == LEAD - 1 - (held[0] - 1 - heard)
@@ -160,7 +160,7 @@ def test_the_simulated_raw_can_device_ticks_on_the_clock_and_its_run_equals_the_
     endpoint.connect(bus)
     summary, sink, _, _ = _run(bus, transport, clock, stall_at=80, stall_s=0.1025)
     device.close()
-    assert summary.samples == SAMPLES and summary.lost == 0 and summary.held == 11 and device.dropped_setpoints == 0
+    assert summary.samples == SAMPLES and summary.lost == 0 and summary.held == 11 >= device.dropped_setpoints
     _, commands, angles, _, flags = (np.array(column, dtype=float) for column in zip(*sink.rows))
     held = np.flatnonzero(flags.astype(int) & SampleFlag.HELD)
     assert np.all(np.diff(held) == 1) and np.all(commands[held] == commands[held[0] - 1])
@@ -209,8 +209,9 @@ def test_after_a_stall_the_raw_can_device_steps_back_to_the_plan_within_the_rate
     (0.27 rad in 11 ticks, or far more); the setpoints sent after it ramp from the target the device reported
     in force to the plan at most the rate limit's step (0.03 rad) a tick, each such row LIMITED with the target
     applied. The host reads the ticks that came during the stall a few a turn, so for a while it has not heard
-    of the ticks that passed: it sends no setpoint for them either (the device's clock, estimated from the
-    ticks it did hear, says they have passed)."""
+    of the ticks that passed and sends them setpoints the device drops: those, sent after their ticks' instants
+    on the host's estimate of the device's clock, may miss them, and the ramp steps from the held target
+    whichever of them the device takes."""
     from rig.transports.base import CommandLimits
 
     bus, transport, device, clock = rig(protocol_version=version)
@@ -222,4 +223,4 @@ def test_after_a_stall_the_raw_can_device_steps_back_to_the_plan_within_the_rate
     assert limited.size > 0 and limited[0] == held[-1] + 1
     assert [row[1] for row in sink.rows[limited[-1] + 1:]] == [DRIVE.quantize_rad(value)
                                                                 for value in command[limited[-1] + 1:]]
-    assert device.dropped_setpoints == {}
+    assert device.dropped_setpoints and set(device.dropped_setpoints) <= set(held)
