@@ -7,7 +7,8 @@ measured and which target was really in force. The ledger turns that into log ro
 
 * a row is opened when its setpoint is queued (``command_rad`` = the setpoint, flags = LOST);
 * :meth:`SampleLedger.file` fills it from the feedback: LOST cleared, HELD and the command actually
-  applied when the setpoint missed its instant, LATE when the instant itself was off the period, NOT_FOLLOWED when the drive ignored it, AMBIGUOUS when
+  applied when the setpoint missed its instant, LIMITED (and the command applied) when the host sent a target
+  nearer the one in force than the plan on its way back to the plan after a stall, LATE when the instant itself was off the period, NOT_FOLLOWED when the drive ignored it, AMBIGUOUS when
   the instant it answers is uncertain or, HELD, the command in force is not known (the row keeps a command
   that was not applied: unusable), FAULT in a fault state, DUPLICATE when a second answer comes for
   the same sample;
@@ -29,9 +30,9 @@ from rig.transports.base import FeedbackSample
 
 __all__ = ["LedgerRow", "SampleLedger"]
 
-_LOST, _LATE, _DUPLICATE, _FAULT, _NOT_FOLLOWED, _HELD, _AMBIGUOUS = (int(flag) for flag in (
-    SampleFlag.LOST, SampleFlag.LATE, SampleFlag.DUPLICATE, SampleFlag.FAULT, SampleFlag.NOT_FOLLOWED,
-    SampleFlag.HELD, SampleFlag.AMBIGUOUS))
+_LOST, _LATE, _DUPLICATE, _LIMITED, _FAULT, _NOT_FOLLOWED, _HELD, _AMBIGUOUS = (int(flag) for flag in (
+    SampleFlag.LOST, SampleFlag.LATE, SampleFlag.DUPLICATE, SampleFlag.LIMITED, SampleFlag.FAULT,
+    SampleFlag.NOT_FOLLOWED, SampleFlag.HELD, SampleFlag.AMBIGUOUS))
 _FAULT_STATES = (DriveState.FAULT, DriveState.FAULT_REACTION_ACTIVE)
 _MAX_EARLY = 1 << 16
 """Samples kept for rows not yet opened, at most (a device far ahead of the host: memory stays bounded)."""
@@ -135,6 +136,8 @@ class SampleLedger:
         row.flags &= ~_LOST
         if sample.held:
             row.flags |= _HELD
+        if sample.limited:
+            row.flags |= _LIMITED
         if late or abs(sample.instant_error_s) > self.late_tolerance_s:
             row.flags |= _LATE
         if sample.applied_position_rad is not None:

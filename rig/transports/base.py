@@ -141,6 +141,10 @@ class FeedbackSample:
     instant_error_s
         On a device-clocked link: how far this sample's instant was off the period (its SYNC's spacing
         from the one before minus the period); the runner flags the sample LATE beyond its tolerance.
+    limited
+        On a device-clocked link: the host did not send the planned setpoint ``seq`` but one nearer the target
+        in force before it (:meth:`Transport._toward_plan`, on the way back to the plan after a stall);
+        ``applied_position_rad`` is what the drive took, and the runner flags the sample LIMITED.
     """
 
     seq: int
@@ -154,6 +158,7 @@ class FeedbackSample:
     applied_position_rad: float | None = None
     ambiguous: bool = False
     instant_error_s: float = 0.0
+    limited: bool = False
 
 
 @dataclass(frozen=True)
@@ -282,6 +287,18 @@ class Transport(ABC):
         own largest step (:attr:`plan_step_rad`, set by the runner's check), so that a plan that moves
         smoothly is never met with a jump even where no rate limit is configured."""
         return min(self.limits.rate_max_rad_per_s * self.sample_period_s, CATCH_UP_FACTOR * self.plan_step_rad)
+
+    def _toward_plan(self, plan_counts: int, lowest_counts: int, highest_counts: int | None = None) -> int:
+        """The drive target (counts) to send instead of ``plan_counts`` when the target in force at the sample
+        before is any of ``lowest_counts`` .. ``highest_counts`` (one target: ``highest_counts`` None): the one
+        nearest the plan that is at most :attr:`catch_up_step_rad` (in whole counts, at least 1) from every one
+        of them. The one rule of every device-clocked link's way back to the plan after a stall."""
+        highest_counts = lowest_counts if highest_counts is None else highest_counts
+        step_rad = self.catch_up_step_rad
+        if not math.isfinite(step_rad):
+            return plan_counts
+        step = max(1, math.floor(step_rad * self.drive.counts_per_revolution / (2 * math.pi) + 1e-9))
+        return min(max(plan_counts, highest_counts - step), lowest_counts + step)
 
     @property
     def sync_jitter_max_s(self) -> float:

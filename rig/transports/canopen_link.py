@@ -791,13 +791,9 @@ class CanOpenTransport(CanOpenStartUp, CanOpenInterpolation, Transport):
         :attr:`catch_up_step_rad` (the rate limit's step, and twice the plan's own largest): after a stall
         that held samples the plan may have moved on, and the targets ramp back to it, each of those samples
         HELD with the target really applied."""
-        counts = self._queue.pop(sample)
-        last = self._rpdo_sent[-1][1] if self._rpdo_sent else self._in_force[1]
-        step_rad = self.catch_up_step_rad
-        step = None if not math.isfinite(step_rad) else max(1, math.floor(
-            step_rad * self.drive.counts_per_revolution / (2 * math.pi) + 1e-9))
-        if step is not None and abs(counts - last) > step:
-            counts = last + (step if counts > last else -step)
+        planned = self._queue.pop(sample)
+        counts = self._toward_plan(planned, self._rpdo_sent[-1][1] if self._rpdo_sent else self._in_force[1])
+        if counts != planned:
             self._ramped.add(sample)
         self._rpdo_sent.append((sample, counts))
         try:

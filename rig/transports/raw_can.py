@@ -35,6 +35,7 @@ from rig.protocols.serial_frames import unwrap_seq
 from rig.transports.base import FeedbackSample, Setpoint, Transport, check_trace_path
 from rig.transports import serial_link
 from rig.transports.serial_link import DEFAULT_LEAD_S
+from rig.transports.tick_buffer import TickBuffer
 
 __all__ = ["RawCanTransport"]
 
@@ -129,7 +130,7 @@ class RawCanTransport(Transport):
         self.version, self.buffer_capacity = 1, 0
         self._started = self._queued_any = False
         self._device_sample = -1
-        self._tick_origin_s = math.inf
+        self._ticks: TickBuffer | None = None  # the device's clock and the targets it may hold, from the first setpoint
         self._queued_at: dict[int, float] = {}
         self._min_lead_s = math.inf
         self._sent_counts: dict[int, int] = {}  # v3: tick -> target_counts sent for it (applied_age looks back)
@@ -226,21 +227,32 @@ class RawCanTransport(Transport):
         return self._request_reply("RIG_STATUS_REQUEST")["statusword"]
 
     def _send(self, setpoint: Setpoint) -> None:
+        """v1: the setpoint of this sample, now. v2-v4: buffered by the device for tick ``seq``, nearer the target
+        in force than the plan after a stall (:mod:`rig.transports.tick_buffer`); not sent at all when the device
+        has reported tick ``seq`` (it would drop it, DBC: after a long stall the host does not flood the bus, and
+        its own receive queue, with hundreds of them)."""
         counts = self.drive.counts_from_rad(setpoint.position_rad)
-        if self.version < 2 or setpoint.seq > self._device_sample:
-            # (a setpoint for a tick the device has reported is dropped there, DBC: after a long stall the
-            # host does not flood the bus, and its own receive queue, with hundreds of them)
-            self._transmit(self.codec.encode("RIG_SETPOINT", seq=setpoint.seq, target_counts=counts))
         self._last_seq = setpoint.seq
+        if self.version < 2:
+            self._transmit(self.codec.encode("RIG_SETPOINT", seq=setpoint.seq, target_counts=counts))
+            return
+        now = self.clock()
+        self._queued_any = True
+        ticks = self._tick_buffer()
+        counts = ticks.place(setpoint.seq, counts, now, reported=self._device_sample, toward_plan=self._toward_plan)
+        if counts is None:  # its tick has been reported: HELD
+            self._min_lead_s = min(self._min_lead_s, ticks.instant_s(setpoint.seq) - now)
+            return
+        self._transmit(self.codec.encode("RIG_SETPOINT", seq=setpoint.seq, target_counts=counts))
         if self.version >= 3:
             self._sent_counts[setpoint.seq] = counts
-        if self.version >= 2:
-            now = self.clock()
-            self._queued_any = True
-            if setpoint.seq <= self._device_sample:  # its tick has passed: dropped by the device, HELD
-                self._min_lead_s = min(self._min_lead_s, self._tick_origin_s + setpoint.seq * self.sample_period_s - now)
-            elif self._started:  # queued before START, a setpoint is ahead of a clock that has not started
-                self._queued_at[setpoint.seq] = now
+        if self._started:  # queued before START, a setpoint is ahead of a clock that has not started
+            self._queued_at[setpoint.seq] = now
+
+    def _tick_buffer(self) -> TickBuffer:
+        if self._ticks is None:  # before the first setpoint the drive holds where it stood when enabled
+            self._ticks = TickBuffer(self.sample_period_s, self.drive.counts_from_rad(self.initial_position_rad))
+        return self._ticks
 
     def _recv_internal(self, timeout_s: float) -> FeedbackSample | None:
         if self.version >= 2 and not self._started and self._queued_any:
@@ -394,7 +406,7 @@ class RawCanTransport(Transport):
         drive = parts["RIG_DRIVE_TICK" if self.version >= 3 else "RIG_DRIVE_FEEDBACK"]
         raw = feedback["encoder_counts"]
         counts = raw - (1 << 32) if self.encoder.signed and raw >= 1 << 31 else raw
-        held, applied, unknown = False, None, False
+        held, applied, unknown, limited = False, None, False, False
         if self.version >= 3:
             age = drive["applied_age"]
             held, applied_counts = age > 0, self._target_in_force(seq, age)
@@ -403,7 +415,13 @@ class RawCanTransport(Transport):
             applied = self.drive.rad_from_counts(applied_counts)
         elif self.version >= 2:
             tick = parts["RIG_TICK_APPLIED"]
-            held, applied = bool(tick["tick_flags"] & 1), self.drive.rad_from_counts(tick["applied_counts"])
+            held, applied_counts = bool(tick["tick_flags"] & 1), tick["applied_counts"]
+            applied = self.drive.rad_from_counts(applied_counts)
+        if self.version >= 2:
+            ticks = self._tick_buffer()
+            if not unknown:
+                ticks.in_force(seq, applied_counts)
+            limited = ticks.limited(seq) and not held  # a HELD tick applied none of it
         statusword = feedback["statusword"]
         state = cia402.state_from_statusword_or_none(statusword)
         return FeedbackSample(seq=seq, encoder_counts=counts, load_angle_rad=self._decode_encoder(counts),
@@ -411,7 +429,7 @@ class RawCanTransport(Transport):
                               statusword=statusword, host_time_s=received, held=held, applied_position_rad=applied,
                               target_ignored=(state is cia402.DriveState.OPERATION_ENABLED
                                               and not statusword & cia402.STATUSWORD_FOLLOWS_TARGET),
-                              ambiguous=unknown)
+                              ambiguous=unknown, limited=limited)
 
     def _last_known_target(self, k: int) -> int:
         """v3, tick k's target not known (``applied_age`` 255 and the frames of the ticks before lost): the
@@ -468,11 +486,11 @@ class RawCanTransport(Transport):
     def _account_tick(self, k: int, held: bool, received_s: float) -> None:
         """Tick k's lead (as on serial v2: tick 0's host time estimated from the earliest arrival) and the
         device's position in its clock."""
-        period = self.sample_period_s
-        self._tick_origin_s = min(self._tick_origin_s, received_s - k * period)
+        ticks = self._tick_buffer()
+        ticks.heard(k, received_s)
         queued = self._queued_at.pop(k, None)
         if queued is not None:
-            lead = self._tick_origin_s + k * period - queued
+            lead = ticks.instant_s(k) - queued
             self._min_lead_s = min(self._min_lead_s, min(lead, 0.0) if held else lead)
         if k > self._device_sample:
             if len(self._queued_at) > 4 * max(self.buffer_capacity, 16):

@@ -36,6 +36,7 @@ from rig.protocols.serial_frames import (
     unwrap_seq,
 )
 from rig.transports.base import FeedbackSample, Setpoint, Transport
+from rig.transports.tick_buffer import TickBuffer
 
 __all__ = ["DEFAULT_LEAD_S", "MAX_REPLY_TIMEOUT_S", "SerialTransport"]
 
@@ -138,7 +139,7 @@ class SerialTransport(Transport):
         self._started = False  # START sent and answered
         self._queued_any = False
         self._device_sample = -1  # the highest tick the device reported
-        self._tick_origin_s = math.inf  # host time of tick 0, estimated as min(arrival of TICK k - k T)
+        self._ticks: TickBuffer | None = None  # the device's clock and the targets it may hold, from the first SETPOINT
         self._queued_at: dict[int, float] = {}  # tick -> host time its SETPOINT was written
         self._min_lead_s = math.inf
         self._fault_sample: int | None = None
@@ -224,17 +225,29 @@ class SerialTransport(Transport):
         return None
 
     def _send(self, setpoint: Setpoint) -> None:
-        """v1: the setpoint of this sample, now. v2: queued in the device's buffer for tick ``seq``; one for a
-        tick the device has already reported is dropped there (that tick was HELD)."""
-        self._write(encode_frame(MessageType.SETPOINT, setpoint.seq, self.drive.counts_from_rad(setpoint.position_rad)))
+        """v1: the setpoint of this sample, now. v2: queued in the device's buffer for tick ``seq``, nearer the
+        target in force than the plan after a stall (:mod:`rig.transports.tick_buffer`); not written at all when
+        the device has reported tick ``seq`` (it would drop it, spec 16.3: that tick was HELD)."""
+        counts = self.drive.counts_from_rad(setpoint.position_rad)
         self._last_seq = setpoint.seq
-        if self.version >= 2:
-            now = self.clock()
-            self._queued_any = True
-            if setpoint.seq <= self._device_sample:  # too late: its lead, from the device clock's estimate
-                self._min_lead_s = min(self._min_lead_s, self._tick_origin_s + setpoint.seq * self.sample_period_s - now)
-            elif self._started:  # queued before START, a setpoint is ahead of a clock that has not started
-                self._queued_at[setpoint.seq] = now
+        if self.version < 2:
+            self._write(encode_frame(MessageType.SETPOINT, setpoint.seq, counts))
+            return
+        now = self.clock()
+        self._queued_any = True
+        ticks = self._tick_buffer()
+        counts = ticks.place(setpoint.seq, counts, now, reported=self._device_sample, toward_plan=self._toward_plan)
+        if counts is None:  # too late: its lead, from the device clock's estimate
+            self._min_lead_s = min(self._min_lead_s, ticks.instant_s(setpoint.seq) - now)
+            return
+        self._write(encode_frame(MessageType.SETPOINT, setpoint.seq, counts))
+        if self._started:  # queued before START, a setpoint is ahead of a clock that has not started
+            self._queued_at[setpoint.seq] = now
+
+    def _tick_buffer(self) -> TickBuffer:
+        if self._ticks is None:  # before the first setpoint the drive holds where it stood when enabled (spec 16.3)
+            self._ticks = TickBuffer(self.sample_period_s, self.drive.counts_from_rad(self.initial_position_rad))
+        return self._ticks
 
     def _recv_internal(self, timeout_s: float) -> FeedbackSample | None:
         if self.version >= 2 and not self._started and self._queued_any:
@@ -349,13 +362,13 @@ class SerialTransport(Transport):
         except TransportError as err:
             self._report_fault(err)
             return
-        period = self.sample_period_s
         held = bool(flags & TICK_HELD)
-        # tick k's host time is at most its TICK's arrival: the earliest arrival minus k T estimates tick 0
-        self._tick_origin_s = min(self._tick_origin_s, received_s - k * period)
+        ticks = self._tick_buffer()
+        ticks.heard(k, received_s)
+        ticks.in_force(k, applied)
         queued = self._queued_at.pop(k, None)
         if queued is not None:
-            lead = self._tick_origin_s + k * period - queued
+            lead = ticks.instant_s(k) - queued
             self._min_lead_s = min(self._min_lead_s, min(lead, 0.0) if held else lead)
         if k > self._device_sample:
             if len(self._queued_at) > 4 * max(self.buffer_capacity, 16):  # setpoints whose TICK was lost
@@ -368,7 +381,8 @@ class SerialTransport(Transport):
             drive_position_rad=self.drive.rad_from_counts(actual), statusword=statusword, host_time_s=received_s,
             target_ignored=(state is cia402.DriveState.OPERATION_ENABLED
                             and not statusword & cia402.STATUSWORD_FOLLOWS_TARGET),
-            held=held, applied_position_rad=self.drive.rad_from_counts(applied))
+            held=held, applied_position_rad=self.drive.rad_from_counts(applied),
+            limited=ticks.limited(k) and not held)  # a HELD tick applied none of it
         fault_waiting = bool(self._feedback) and isinstance(self._feedback[-1], DeviceFault)
         if fault_waiting and state in _FAULT_STATES:  # the faulted tick's TICK: filed before its FAULT frame acts
             self._feedback.insert(len(self._feedback) - 1, sample)

@@ -16,6 +16,8 @@ import collections
 import math
 from collections.abc import Callable
 
+import numpy as np
+
 from rig.protocols.serial_frames import FrameDecoder
 from rig.transports.serial_link import SerialTransport
 
@@ -173,3 +175,24 @@ class SimulatedRawCanEndpoint:
 
     def run_due(self) -> None:
         self.device.run_due()
+
+
+def check_the_way_back_to_the_plan(sink, device, command, drive, step_rad: float) -> np.ndarray:
+    """After a host stall on a clocked, buffering device (serial spec 16.3; the raw-CAN DBC), row by row: the
+    target the device applied (its own record, ``device.ticks[k]``) never steps farther than ``step_rad`` (in
+    whole drive counts) from the one it applied the tick before, from the drive's position at enable (0) on; each
+    row logs that target, HELD exactly where the device held, and LIMITED exactly where the device applied a
+    target the host had brought nearer the one in force than ``command``. Returns the LIMITED rows."""
+    from identify.experiment_record import SampleFlag
+
+    step_counts = math.floor(step_rad * drive.counts_per_revolution / (2 * math.pi) + 1e-9)
+    rows = range(len(sink.rows))
+    applied = np.array([device.ticks[k].applied_counts for k in rows])
+    assert np.abs(np.diff(applied, prepend=0)).max() <= step_counts
+    flags = np.array([row[4] for row in sink.rows])
+    assert [row[1] for row in sink.rows] == [drive.rad_from_counts(counts) for counts in applied]
+    assert [bool(flag & SampleFlag.HELD) for flag in flags] == [device.ticks[k].held for k in rows]
+    planned = np.array([drive.counts_from_rad(value) for value in command[:len(sink.rows)]])
+    limited = (flags & SampleFlag.LIMITED) != 0
+    assert limited.tolist() == [not device.ticks[k].held and applied[k] != planned[k] for k in rows]
+    return np.flatnonzero(limited)

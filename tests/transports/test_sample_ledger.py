@@ -56,6 +56,16 @@ def test_a_held_sample_logs_the_command_really_applied_and_late_counts_only_late
     assert ledger.counts["held"] == ledger.counts["late"] == 1
 
 
+def test_a_target_limited_on_the_way_back_to_the_plan_logs_the_command_applied_flagged_limited():
+    """After a stall the host sent a target nearer the one in force than the plan (0.25, not 0.5): the row logs
+    0.25, LIMITED and not HELD (the device applied what it was sent)."""
+    ledger = SampleLedger(sample_period_s=0.001, pending_cycles=0)
+    ledger.open_row(0, 0.5)
+    ledger.file(_feedback(0, applied_position_rad=0.25, limited=True))
+    (row,) = _release_all(ledger, device_sample=0)
+    assert (row[2], row[4]) == (0.25, int(SampleFlag.LIMITED)) and ledger.counts["held"] == 0
+
+
 def test_a_second_answer_marks_the_sample_duplicate_and_an_answer_to_no_open_row_is_stale():
     ledger = SampleLedger(sample_period_s=0.001, pending_cycles=1)
     ledger.open_row(0, 0.0)

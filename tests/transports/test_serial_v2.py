@@ -22,6 +22,7 @@ from rig.transports.serial_link import SerialTransport
 from sim_backend.plant_config import load_plant_config
 from sim_backend.serial_device import SimulatedSerialDevice
 
+from clocked_line import SimulatedClock
 from sim_rigs import CONFIGS, ListSink, excitation, no_leaks, simulated  # noqa: F401  (no_leaks is a fixture)
 
 PERIOD_S = 0.005
@@ -29,10 +30,12 @@ DRIVE = DriveScaling(1 << 17)
 
 
 class Wire:
-    """A host transport and a simulated device on one scripted line; :attr:`trace` is what crossed it."""
+    """A host transport and a simulated device on one scripted line; :attr:`trace` is what crossed it. The
+    transport's clock (``clock``, simulated) moves one period with each tick, and by its timeout when the host
+    polls an empty line."""
 
-    def __init__(self, transport: SerialTransport, device: SimulatedSerialDevice) -> None:
-        self.transport, self.device = transport, device
+    def __init__(self, transport: SerialTransport, device: SimulatedSerialDevice, clock: SimulatedClock) -> None:
+        self.transport, self.device, self.clock = transport, device, clock
         self.trace: list[tuple[str, str, int, tuple[int, ...]]] = []
         self._to_host = bytearray()
         self._device_decoder = FrameDecoder()
@@ -47,15 +50,17 @@ class Wire:
 
     def _host_polls(self, timeout_s: float) -> bool:
         if not self._to_host:
+            self.clock.advance_to(self.clock() + timeout_s)
             return False
         data, self._to_host = bytes(self._to_host), bytearray()
         for message in FrameDecoder().feed(data):
             self.trace.append(("<-", message.type.name, message.seq, message.fields))
-            self.transport._dispatch(message, 0.0)
+            self.transport._dispatch(message, self.clock())
         return True
 
     def tick(self, ticks: int = 1) -> None:
         for _ in range(ticks):
+            self.clock.advance_to(self.clock() + PERIOD_S)
             self._to_host += self.device.tick()
 
     def sent(self, name: str) -> list[tuple[int, tuple[int, ...]]]:
@@ -82,10 +87,11 @@ def line(monkeypatch):
         gearbox = load_plant_config(CONFIGS / "plants" / "precision_gearbox.toml").gearbox(seed=0)
         device = SimulatedSerialDevice(gearbox, **{"sample_period_s": PERIOD_S, **device_options})
         devices.append(device)
+        clock = SimulatedClock(1000.0)
         transport = SerialTransport("scripted", encoder=EncoderResolution(bits=12, signed=True), sample_period_s=PERIOD_S,
                                     drive=DRIVE, timing=BringUpTiming(poll_interval_s=0.0), reply_timeout_s=0.01,
-                                    protocol=protocol, lead_s=lead_s, name="scripted")
-        return Wire(transport, device)
+                                    protocol=protocol, lead_s=lead_s, name="scripted", clock=clock)
+        return Wire(transport, device, clock)
 
     yield make
     for device in devices:
@@ -176,8 +182,9 @@ def test_setpoints_queued_ahead_are_applied_at_their_ticks_and_an_underrun_is_he
     # the HELD tick carries the command really applied: the previous target
     assert [sample.applied_position_rad for sample in samples] == targets[:3] + [targets[2]]
     assert transport.device_sample == 3 and device.held_ticks == 1
-    transport.send(Setpoint(3, targets[3]))  # for a tick that has passed: dropped by the device
-    assert device.dropped_setpoints == 1 and 3 not in device.buffer and transport.min_lead_s < 0
+    written = len(wire.sent("SETPOINT"))
+    transport.send(Setpoint(3, targets[3]))  # for a tick the device has reported: it would be dropped there
+    assert len(wire.sent("SETPOINT")) == written and device.dropped_setpoints == 0 and transport.min_lead_s <= 0
     transport.send(Setpoint(4, targets[4]))
     wire.tick()
     (sample,) = _tick_samples(wire)

@@ -197,7 +197,9 @@ def test_a_host_stall_longer_than_the_lead_holds_samples_and_loses_none(no_leaks
     assert [row[1] for row in sink.rows] == [DRIVE.rad_from_counts(device.ticks[k].applied_counts)
                                              for k in range(SAMPLES)]
     assert all(device.ticks[k].held for k in held)
-    assert sorted(device.dropped_setpoints) == held.tolist()  # each came after its tick and was dropped
+    # the host sends no setpoint for a tick that has passed; one sent in time by its estimate of the device's
+    # clock that a busy machine still delivered late is dropped there, and that tick is HELD
+    assert set(device.dropped_setpoints) <= set(held.tolist())
 
 
 # -- version handshake and v1 devices (spec section 16.2) -------------------------------------------------------
