@@ -110,4 +110,4 @@ def test_run_duration_repeats_a_staircase_before_its_filter(tmp_path):
     assert len(record) > 3 * excitation.command_rad.size
     assert record.metadata.config["excitation_repeat"] == REPEAT_FILTERED
     within = np.max(np.abs(np.diff(excitation.command_rad)))
-    assert np.max(np.abs(np.diff(record.command_rad))) <= within + 1e-9
+    assert np.max(np.abs(np.diff(record.command_rad))) <= within + 1e-4  # the drive's counts: 2 pi / 2^17 rad
