@@ -47,9 +47,9 @@ from numpy.typing import ArrayLike, NDArray
 from scipy import optimize, stats
 from scipy.signal import lfilter
 
-from identify.drive_train import DriveTrain
-from identify.effect_catalogue import EFFECT_NAMES, EFFECTS, GuessContext, effect, reference_train
 from identify.border_lifting import direction_signal
+from identify.drive_train import DriveTrain
+from identify.effect_catalogue import EFFECTS, EFFECT_NAMES, GuessContext, effect, reference_train
 from identify.effect_signatures import SignatureScore, signature_scores
 from identify.plant_blocks import (
     Block,
@@ -64,14 +64,66 @@ from identify.plant_blocks import (
 from identify.result_format import check_kind, malformed, tagged
 from identify.validation import InvalidInputError, as_signal, positive, same_length, varying, with_options
 
-VERDICTS = ("explained", "named", "ambiguous", "unexplained", "not_excited")
-"""The verdicts: the start model already agrees within the noise bound; effects were found (named); two or
-more candidates fit within their uncertainty of each other (all listed, none chosen); nothing helps; the
-data cannot show the effects (the command never reverses, a segment too short, or an input the record does
-not contain)."""
+from identify.model_discrepancy.thresholds import (
+    AMBIGUITY_MIN_MARGIN,
+    AMBIGUITY_SIGMAS,
+    ANGLE_RESOLUTION_NOISE_BOUNDS,
+    AT_REST_NOISE_BOUNDS,
+    BASELINE_EFFORT,
+    BREAKAWAY_SCAN,
+    COMMAND_STILL_RANGE_FRACTION,
+    COMPLEXITY_PENALTY,
+    CONSISTENT_FRACTION,
+    CONTACT_BRANCH_PLAYS,
+    CONTACT_BRANCH_ROUNDS,
+    DELAY_REFINE_REACH,
+    DYNAMICS_EVALUATIONS,
+    EFFECT_DIFF_STEP,
+    ESTIMATION_FRACTION,
+    FAILED_RUN_ERROR_RAD,
+    FAMILY_TIE,
+    FEASIBLE_WALK_BISECTIONS,
+    FEASIBLE_WALK_FIRST_STEP,
+    FEASIBLE_WALK_STEPS,
+    FOLDS,
+    FOLD_EVALUATIONS,
+    FRICTION_CLEARLY_BETTER,
+    FRICTION_MIN_HALVING,
+    JACKKNIFE_T,
+    JOINT_FIT_ORDER,
+    LINEAR_DIFF_STEP,
+    LOOP_BANDWIDTH_NYQUIST_SHARE,
+    LOOP_DAMPING_RANGE,
+    LOOP_POLISHED_STARTS,
+    LOOP_START_FACTORS,
+    LOOP_START_GUESSES,
+    LOOP_TRADE_POINTS,
+    MAX_DELAY_SAMPLES,
+    MAX_EFFECTS,
+    MAX_EVALUATIONS,
+    MIN_MEASURED_FRACTION,
+    MIN_REDUCTION,
+    MIN_SEGMENT_REVERSALS,
+    MIN_VALIDATION_SAMPLES,
+    OPERATING_POINT_MIN_NOISE_BOUNDS,
+    OPERATING_POINT_SAMPLES,
+    ORDER_CHOICE_FACTOR,
+    REFIT_CONFIDENCE,
+    REFIT_FOLDS,
+    START_INPUT_DELAY_SAMPLES,
+    START_MAX_ORDER,
+    STATIC_FRICTION_SCAN,
+    STICK_SLIP_MIN_GAIN,
+    STICK_SLIP_ROUNDS,
+    STICTION_RATIO,
+    UNMEASURED_INPUT_FRACTION,
+    UNMEASURED_MODEL_STILL_NOISE_BOUNDS,
+    UNMEASURED_OUTPUT_MOTION_NOISE_BOUNDS,
+    VALIDATION_BLOCKS,
+    WINDOW_MERGE_GAP_SAMPLES,
+    WINDOW_MIN_FALSIFIED_SAMPLES,
+)
 
-ESTIMATION_FRACTION = 0.6
-"""Default share of the record the effects are fitted on; the rest is the validation segment."""
 
 __all__ = [
     "DisagreementWindow",
@@ -90,20 +142,12 @@ __all__ = [
     "rigid_train_like",
 ]
 
-_BIG = 1.0e6
-_LINEAR_DIFF_STEP = 1e-6
-"""Relative finite-difference step of the polish for polynomial coefficients: with poles near z = 1 a
-0.1 % change of a_1 is a different system, and the fit stalls."""
-_EFFECT_DIFF_STEP = 1e-3
-"""... and for effect parameters, whose free-run response has kinks (a play taken up, a limit reached)."""
-_BASELINE_EFFORT = 5
-"""Before another effect is tried, the model so far is polished with this many times the evaluations of one
-candidate fit."""
 
-
-# ----------------------------------------------------------------------------------------------------------
-# Results
-# ----------------------------------------------------------------------------------------------------------
+VERDICTS = ("explained", "named", "ambiguous", "unexplained", "not_excited")
+"""The verdicts: the start model already agrees within the noise bound; effects were found (named); two or
+more candidates fit within their uncertainty of each other (all listed, none chosen); nothing helps; the
+data cannot show the effects (the command never reverses, a segment too short, or an input the record does
+not contain)."""
 
 
 @dataclass(frozen=True)
@@ -363,11 +407,6 @@ class DiscrepancyReport:
                 undecided=tuple(CandidateResult.from_dict(c) for c in data.get("undecided", ())))
 
 
-# ----------------------------------------------------------------------------------------------------------
-# Step 2: disagreement
-# ----------------------------------------------------------------------------------------------------------
-
-
 def _windows(falsified: NDArray[np.bool_], residual: NDArray[np.float64], merge_gap: int,
              min_falsified: int) -> tuple[DisagreementWindow, ...]:
     index = np.flatnonzero(falsified)
@@ -385,8 +424,8 @@ def _windows(falsified: NDArray[np.bool_], residual: NDArray[np.float64], merge_
 
 
 def disagreement(model: PlantModel, command_rad: ArrayLike, angle_rad: ArrayLike, noise_bound_rad: float,
-                 estimation_samples: int | None = None, *, merge_gap_samples: int = 20,
-                 min_window_samples: int = 3) -> Disagreement:
+                 estimation_samples: int | None = None, *, merge_gap_samples: int = WINDOW_MERGE_GAP_SAMPLES,
+                 min_window_samples: int = WINDOW_MIN_FALSIFIED_SAMPLES) -> Disagreement:
     """Free-run residual of ``model`` against the measurement and the samples it falsifies.
 
     A sample is falsified when |y_t - y^_t| > delta, the noise bound of eq. (4) of Cerone et al. (2009):
@@ -416,7 +455,7 @@ def disagreement(model: PlantModel, command_rad: ArrayLike, angle_rad: ArrayLike
     simulated = np.asarray(model.simulate(u), dtype=float)
     residual = _measured_error(y, simulated)
     if not np.all(np.isfinite(residual)):
-        residual = np.where(np.isfinite(residual), residual, _BIG)
+        residual = np.where(np.isfinite(residual), residual, FAILED_RUN_ERROR_RAD)
     falsified = np.abs(residual) > delta
     tail = residual[start:]
     measured = max(int(np.count_nonzero(~np.isnan(y[start:]))), 1)  # the fraction and gap of measured samples
@@ -428,11 +467,6 @@ def disagreement(model: PlantModel, command_rad: ArrayLike, angle_rad: ArrayLike
         gap_rad=float(np.sqrt(np.sum(tail * tail) / measured)),
         windows=_windows(falsified, residual, merge_gap_samples, min_window_samples),
     )
-
-
-# ----------------------------------------------------------------------------------------------------------
-# Parametrised models: a chain of components, some with free parameters
-# ----------------------------------------------------------------------------------------------------------
 
 
 @dataclass(frozen=True)
@@ -479,16 +513,6 @@ def _build(component: _Component, values: Sequence[float]) -> Block:
         assert isinstance(component.block, DriveTrain)
         return _train(component.block, v, component.effects, component.loop_free)
     return effect(kind).build(v, component.sample_period_s)
-
-
-LOOP_DAMPING_RANGE = (0.05, 2.0)
-"""The damping ratio of a fitted drive train's position loop is kept within this range (below: an
-oscillator no servo is tuned to; above: a first-order lag, which zeta = 2 already is within 7 % in its
-rise time; a wider range only buys sub-steps, which grow with zeta omega_n T)."""
-
-LOOP_BANDWIDTH_NYQUIST_SHARE = 0.2
-"""... and its bandwidth at most this share of the Nyquist frequency (a position loop faster than a tenth
-of the sample rate is no dynamics the record resolves; at 1 kHz: 100 Hz, 63 sub-steps at zeta = 2)."""
 
 
 def _train(base: DriveTrain, values: Sequence[float], effects: Sequence[str], loop_free: bool) -> DriveTrain:
@@ -570,13 +594,13 @@ def _bridged(y: NDArray[np.float64]) -> NDArray[np.float64]:
 
 def _free_run_error(chain: _Chain, u: NDArray[np.float64], y: NDArray[np.float64]) -> NDArray[np.float64]:
     if not chain.linear_stable():
-        return np.full(y.size, _BIG / math.sqrt(y.size))
+        return np.full(y.size, FAILED_RUN_ERROR_RAD / math.sqrt(y.size))
     try:
         simulated = chain.model().simulate(u)
     except (InvalidInputError, ValueError, OverflowError, FloatingPointError):
-        return np.full(y.size, _BIG / math.sqrt(y.size))
+        return np.full(y.size, FAILED_RUN_ERROR_RAD / math.sqrt(y.size))
     if not np.all(np.isfinite(simulated)):
-        return np.full(y.size, _BIG / math.sqrt(y.size))
+        return np.full(y.size, FAILED_RUN_ERROR_RAD / math.sqrt(y.size))
     return _measured_error(y, simulated)
 
 
@@ -601,7 +625,7 @@ def _polish(chain: _Chain, u: NDArray[np.float64], y: NDArray[np.float64], max_e
         return chain
     theta0 = theta_all[mask]
     scale = np.maximum(np.abs(theta0), 1e-6)
-    steps = np.concatenate([np.full(len(c.values), _LINEAR_DIFF_STEP if c.kind == "linear" else _EFFECT_DIFF_STEP)
+    steps = np.concatenate([np.full(len(c.values), LINEAR_DIFF_STEP if c.kind == "linear" else EFFECT_DIFF_STEP)
                             for c in chain.components if c.free])[mask]
 
     def expand(z: NDArray[np.float64]) -> _Chain:
@@ -620,11 +644,6 @@ def _polish(chain: _Chain, u: NDArray[np.float64], y: NDArray[np.float64], max_e
     if _rms(error(candidate)) <= _rms(error(chain)):
         return candidate
     return chain
-
-
-# ----------------------------------------------------------------------------------------------------------
-# Step 1: the start linear model
-# ----------------------------------------------------------------------------------------------------------
 
 
 def _arx(u: NDArray[np.float64], y: NDArray[np.float64], order: int, delay: int) -> tuple[tuple[float, ...], tuple[float, ...]]:
@@ -672,8 +691,9 @@ def _arx_numerator(u: NDArray[np.float64], y: NDArray[np.float64], a: tuple[floa
 
 
 def fit_linear_model(command_rad: ArrayLike, angle_rad: ArrayLike, sample_period_s: float,
-                     estimation_samples: int, *, max_order: int = 2, input_delay_samples: int = 1,
-                     max_evaluations: int = 40) -> LinearFit:
+                     estimation_samples: int, *, max_order: int = START_MAX_ORDER,
+                     input_delay_samples: int = START_INPUT_DELAY_SAMPLES,
+                     max_evaluations: int = MAX_EVALUATIONS) -> LinearFit:
     """The best low-order linear model y_t = B(q^-1)/A(q^-1) u_t (eq. (1) of Cerone et al. 2009).
 
     For each order n = 1..``max_order`` an equation-error (ARX) fit gives the initial guess of an
@@ -705,16 +725,11 @@ def fit_linear_model(command_rad: ArrayLike, angle_rad: ArrayLike, sample_period
         assert isinstance(block, LinearBlock)
         gap = _rms(_measured_error(y, block.apply(u))[n_est:])
         gaps[order] = gap
-        if best is None or gap < 0.98 * best[0]:
+        if best is None or gap < ORDER_CHOICE_FACTOR * best[0]:
             best = (gap, order, block)
     if best is None:
         raise InvalidInputError(f"angle_rad: no stable linear model of order 1..{max_order} fits the data")
     return LinearFit(block=best[2], order=best[1], validation_gap_by_order_rad=gaps)
-
-
-# ----------------------------------------------------------------------------------------------------------
-# Step 4: candidate effects
-# ----------------------------------------------------------------------------------------------------------
 
 
 def _insert_index(chain: _Chain, kind: str) -> int:
@@ -799,7 +814,7 @@ def _try_effect(kind: str, chain: _Chain, u: NDArray[np.float64], y: NDArray[np.
     else:
         starts = [options[int(np.argmin(costs))]]
     if entry.contact_start is not None:
-        plays = np.geomspace(delta, max(float(np.max(np.abs(residual))), 4.0 * delta), 4)
+        plays = np.geomspace(delta, max(float(np.max(np.abs(residual))), 4.0 * delta), CONTACT_BRANCH_PLAYS)
         forms = [[with_effect(start, refit) for start in entry.contact_start(c_l, c_r)] for refit, c_l, c_r in
                  filter(None, (_contact_branch_start(chain, u_est, y_est, play) for play in plays))]
         for contacts in zip(*forms):  # the best start of each form, over the plays the refits began from
@@ -826,10 +841,10 @@ def _merged(chain: _Chain, index: int, kind: str, values: Sequence[float]) -> _C
 
 
 def _baseline_refit(chain: _Chain, u: NDArray[np.float64], y: NDArray[np.float64], max_evaluations: int) -> _Chain:
-    """``chain`` refitted on the estimation segment (u, y) at :data:`_BASELINE_EFFORT` times the candidates'
+    """``chain`` refitted on the estimation segment (u, y) at :data:`BASELINE_EFFORT` times the candidates'
     effort: its delays re-searched, then everything polished (the baseline a further effect must beat, and
     the model without an effect in :func:`_still_needed`)."""
-    return _polish(_refine_delays(chain, u, y), u, y, _budget(chain, _BASELINE_EFFORT * max_evaluations))
+    return _polish(_refine_delays(chain, u, y), u, y, _budget(chain, BASELINE_EFFORT * max_evaluations))
 
 
 def _polished_start(start: _Chain, u: NDArray[np.float64], y: NDArray[np.float64], max_evaluations: int) -> _Chain:
@@ -839,18 +854,6 @@ def _polished_start(start: _Chain, u: NDArray[np.float64], y: NDArray[np.float64
     if any(c.kind == "linear" for c in best.components):
         best = _polish(best, u, y, max_evaluations, frozenset({"linear"}))
     return _polish(best, u, y, _budget(best, max_evaluations))
-
-
-LOOP_POLISHED_STARTS = 3
-"""A dynamics candidate whose loop is free is polished from this many starts, the best-ranked option of
-each of as many different loops (:data:`LOOP_START_FACTORS`, as the train has them: after the caps of
-:data:`LOOP_DAMPING_RANGE` and :data:`LOOP_BANDWIDTH_NYQUIST_SHARE`), and the fit with the lowest
-estimation error is kept. From the single best-ranked start, the speed-limit fit of two of four repeated
-records of one servo (K-Scale STS3215, sin_time_square, kp 32, 100 Hz) stayed at the start model's loop,
-10 Hz at the damping cap zeta = 2 (estimation error 32.7 mrad on the first): a local minimum, since from
-the slower start (half the bandwidth, 0.7 times the damping) the polish reaches 4.0 Hz, zeta 0.79 and
-23.7 mrad on the same segment. At 100 Hz the faster starts are capped to the start loop itself, so three
-different loops are all there are there; elsewhere three polishes cost three times one."""
 
 
 def _distinct_loop_starts(options: Sequence[_Chain], costs: Sequence[float], index: int,
@@ -869,13 +872,6 @@ def _distinct_loop_starts(options: Sequence[_Chain], costs: Sequence[float], ind
         if len(chosen) == count:
             break
     return chosen
-
-
-DYNAMICS_EVALUATIONS = 15
-"""Function evaluations of a polish of a chain with a drive train in it (:func:`_budget`): each is a
-sub-stepped drive-train run (about 10 ms for 2000 samples, against 0.1 ms for the linear chains), and the
-guesses (from the start model's peaks, its loop stiffness and the signatures) start within a few
-Gauss-Newton steps of the optimum."""
 
 
 def _budget(chain: _Chain, evaluations: int) -> int:
@@ -914,18 +910,6 @@ def _dynamics_chain(chain: _Chain, index: int, u: NDArray[np.float64]) -> tuple[
     train = _build(holder, holder.values)
     assert isinstance(train, DriveTrain)
     return _Chain(components), train
-
-
-LOOP_START_FACTORS = ((1.0, 1.0), (0.5, 0.7), (0.5, 1.4), (2.0, 0.7), (2.0, 1.4))
-"""Starts of a free loop in a dynamics fit, as factors on the bandwidth and damping of the start model's
-rigid equivalent (:func:`rigid_train_like`): the linear model was fitted with the effect missing, and a
-speed limit or friction makes it slower and more damped than the drive's loop is (a rate-limited record's
-linear fit gave 47 Hz at the damping cap for a 30 Hz, zeta 0.7 loop)."""
-
-
-LOOP_START_GUESSES = 2
-"""... tried with the best this many effect guesses at the start model's loop (each start is a sub-stepped
-run: all guesses from all starts would cost five times as many)."""
 
 
 def _loop_starts(train: DriveTrain) -> list[tuple[float, float]]:
@@ -976,7 +960,7 @@ def rigid_train_like(block: LinearBlock, input_rad: NDArray[np.float64]) -> Driv
         try:
             return _train(base, v, (), True).apply(input_rad) - target
         except InvalidInputError:
-            return np.full(input_rad.size, _BIG / math.sqrt(input_rad.size))
+            return np.full(input_rad.size, FAILED_RUN_ERROR_RAD / math.sqrt(input_rad.size))
 
     with np.errstate(all="ignore"):
         fit = optimize.least_squares(error, np.array(start), method="trf", diff_step=1e-4, max_nfev=20)
@@ -1007,15 +991,7 @@ def _scan_breakaway(chain: _Chain, index: int, u: NDArray[np.float64], y: NDArra
         components[index] = _Component(component.kind, (ratio * slide, slide), sample_period_s=component.sample_period_s)
         return _Chain(components)
 
-    return _best_of([chain, *(with_ratio(ratio) for ratio in np.linspace(1.0, 3.0, 41))], u, y, samples)
-
-
-STICK_SLIP_ROUNDS = 4
-"""A stick-slip fit after the linear block (:func:`_stick_slip_fit`) scans the breakaway and polishes the
-rest at most this many times."""
-
-STICK_SLIP_MIN_GAIN = 0.01
-"""... and stops when a round lowers the estimation error by less than this fraction."""
+    return _best_of([chain, *(with_ratio(ratio) for ratio in np.linspace(*BREAKAWAY_SCAN))], u, y, samples)
 
 
 def _stick_slip_fit(chain: _Chain, index: int, u: NDArray[np.float64], y: NDArray[np.float64],
@@ -1057,7 +1033,7 @@ def _scan_static_friction(chain: _Chain, index: int, kind: str, u: NDArray[np.fl
         components[index] = replace(holder, values=tuple(values))
         return _Chain(components)
 
-    return _best_of([chain, *(with_ratio(ratio) for ratio in np.linspace(1.0, 2.0, 21))], u, y, samples)
+    return _best_of([chain, *(with_ratio(ratio) for ratio in np.linspace(*STATIC_FRICTION_SCAN))], u, y, samples)
 
 
 def _stick_slip_scanned(chain: _Chain, u: NDArray[np.float64], y: NDArray[np.float64],
@@ -1114,7 +1090,7 @@ def _refit_last_linear(chain: _Chain, u: NDArray[np.float64], y: NDArray[np.floa
 
 
 def _contact_branch_start(chain: _Chain, u: NDArray[np.float64], y: NDArray[np.float64], play_rad: float,
-                          rounds: int = 5) -> tuple[_Chain, float, float] | None:
+                          rounds: int = CONTACT_BRANCH_ROUNDS) -> tuple[_Chain, float, float] | None:
     """A start for a play after the chain's free linear block, which was fitted with the play missing and
     has absorbed part of it.
 
@@ -1178,17 +1154,17 @@ def _output_error_fit(u: NDArray[np.float64], y: NDArray[np.float64], a: tuple[f
 
     def residual(a_values: NDArray[np.float64]) -> NDArray[np.float64]:
         if np.any(np.abs(np.roots((1.0, *a_values))) >= 0.9999):
-            return np.full(y.size, _BIG / math.sqrt(y.size))
+            return np.full(y.size, FAILED_RUN_ERROR_RAD / math.sqrt(y.size))
         return solve(a_values)[1]
 
     with np.errstate(all="ignore"):
-        fit = optimize.least_squares(residual, np.array(a, dtype=float), method="trf", diff_step=_LINEAR_DIFF_STEP,
+        fit = optimize.least_squares(residual, np.array(a, dtype=float), method="trf", diff_step=LINEAR_DIFF_STEP,
                                      max_nfev=max_evaluations)
     theta, _ = solve(fit.x)
     return tuple(float(v) for v in fit.x), (0.0,) * delay + tuple(float(v) for v in theta)
 
 
-def _refine_delays(chain: _Chain, u: NDArray[np.float64], y: NDArray[np.float64], reach: int = 5,
+def _refine_delays(chain: _Chain, u: NDArray[np.float64], y: NDArray[np.float64], reach: int = DELAY_REFINE_REACH,
                    samples: NDArray[np.bool_] | None = None) -> _Chain:
     """Re-search every integer delay already in the chain within +-``reach`` samples (a delay found before
     a second effect was added absorbs part of that effect's lag)."""
@@ -1300,12 +1276,12 @@ class DiagnoseOptions:
 
     estimation_fraction: float = ESTIMATION_FRACTION
     candidates: tuple[str, ...] = EFFECT_NAMES
-    max_effects: int = 3
-    complexity_penalty: float = 0.03
-    min_reduction: float = 0.15
-    consistent_fraction: float = 0.01
-    max_delay_samples: int = 40
-    max_evaluations: int = 40
+    max_effects: int = MAX_EFFECTS
+    complexity_penalty: float = COMPLEXITY_PENALTY
+    min_reduction: float = MIN_REDUCTION
+    consistent_fraction: float = CONSISTENT_FRACTION
+    max_delay_samples: int = MAX_DELAY_SAMPLES
+    max_evaluations: int = MAX_EVALUATIONS
     from_operating_point: bool = True
 
     def __post_init__(self) -> None:
@@ -1392,12 +1368,6 @@ def diagnose_model(command_rad: ArrayLike, angle_rad: ArrayLike, noise_bound_rad
     )
 
 
-MIN_MEASURED_FRACTION = 0.5
-"""The estimation and the validation segment must each have at least this fraction of their samples measured
-(not NaN): the free run still covers every sample, but a segment mostly missing would judge a model on a few
-stretches of it."""
-
-
 def _check_measured(y: NDArray[np.float64], n_est: int) -> None:
     """Refuse a record whose estimation or validation segment is too little measured (:data:`MIN_MEASURED_FRACTION`),
     saying how many samples are left and how many are needed."""
@@ -1465,10 +1435,10 @@ def _start(u: NDArray[np.float64], y: NDArray[np.float64], period: float, n_est:
     its order was chosen, and the chain the search begins with (a fitted linear block raised to order 2 so
     that joint fits have two poles to move)."""
     if model is not None:
-        return model, None, _start_chain(model, None, 2)
+        return model, None, _start_chain(model, None, JOINT_FIT_ORDER)
     linear_fit = fit_linear_model(u, y, period, n_est, max_evaluations=max_evaluations)
     say(f"start: linear model of order {linear_fit.order}")
-    return PlantModel((linear_fit.block,)), linear_fit, _start_chain(None, linear_fit.block, 2)
+    return PlantModel((linear_fit.block,)), linear_fit, _start_chain(None, linear_fit.block, JOINT_FIT_ORDER)
 
 
 def _named_intervals(chain: _Chain, steps: Sequence[DiscrepancyStep], start_model: PlantModel,
@@ -1526,43 +1496,6 @@ def _left_unexplained(current: Disagreement, consistent: bool, delta: float) -> 
             "effects lowers the validated gap further: what is left is unexplained")
 
 
-VALIDATION_BLOCKS = 8
-"""The validation segment is cut into this many contiguous blocks; the spread of a candidate's per-block
-gap is its uncertainty (neighbouring samples of a free-run error are strongly correlated, so the spread
-over blocks, not over samples, says how much the gap would move on another stretch of data)."""
-
-AMBIGUITY_SIGMAS = 2.0
-"""Two candidates are told apart when the log of the ratio of their penalised gaps exceeds this many
-standard errors of the paired per-block log ratios (about a 95 % one-sided level for 8 blocks; ratios, not
-differences, because both candidates' errors grow and shrink together with the motion in each block)..."""
-
-AMBIGUITY_MIN_MARGIN = 0.03
-"""... and is at least this fraction of the better gap: a difference of 3 % in an RMS error is within what
-a refit from another start or a few more samples changes; choosing by it would be choosing by chance."""
-
-MIN_SEGMENT_REVERSALS = 1
-"""Each segment must see the command reverse its direction at least this often: a play, friction or a
-lag is judged where the motion turns; a segment that never turns (a ramp, one step) cannot tell them apart:
-an estimation segment without a turn cannot fit them, a validation segment without one is too short to
-judge, and the record is not scored."""
-
-MIN_VALIDATION_SAMPLES = 40
-"""A validation segment shorter than this is too short to judge (fewer blocks than samples per block)."""
-
-UNMEASURED_INPUT_FRACTION = 0.05
-"""An unexplained record whose output moves by more than the noise while the command and the model are at
-rest in at least this share of samples is driven by something the record does not contain (torque off and
-the load swinging, a hand on the arm): not excited by the command, rather than unexplained."""
-
-OPERATING_POINT_SAMPLES = 5
-"""The operating point is the median of this many first measured angles (a one-sample read failure at the
-start does not move it)."""
-
-OPERATING_POINT_MIN_NOISE_BOUNDS = 10.0
-"""A record whose first angles lie within this many noise bounds of zero starts at zero: the start-up
-transient of a free run from zero is then within a few noise bounds and fades."""
-
-
 def _operating_point(y: NDArray[np.float64], delta: float) -> float:
     """y_0 when the record starts at rest (its first angles within two noise bounds of each other) away from
     zero; 0 otherwise (a record that starts in motion has a state no angle gives: it runs from zero)."""
@@ -1571,7 +1504,7 @@ def _operating_point(y: NDArray[np.float64], delta: float) -> float:
     if first.size == 0:
         return 0.0
     y0 = float(np.median(first))
-    at_rest = float(np.ptp(first)) <= 2.0 * delta
+    at_rest = float(np.ptp(first)) <= AT_REST_NOISE_BOUNDS * delta
     return y0 if at_rest and abs(y0) > OPERATING_POINT_MIN_NOISE_BOUNDS * delta else 0.0
 
 
@@ -1593,14 +1526,6 @@ def _absolute(result: DiscrepancyResult, operating_point: float, period: float) 
                    initial=moved(result.initial), final=moved(result.final), operating_point_rad=operating_point)
 
 
-FOLDS = 4
-"""Cross-validation folds for the parameter intervals: each fold leaves out one quarter of the record."""
-
-FOLD_EVALUATIONS = 8
-"""Function evaluations of each fold's refit: it starts from the fitted values, which are close to every
-fold's optimum, so a few Gauss-Newton steps move it there; more only cost time."""
-
-
 def _fold_refit(chain: _Chain, u: NDArray[np.float64], y: NDArray[np.float64], part: NDArray[np.intp],
                 max_evaluations: int) -> tuple[_Chain, NDArray[np.float64]]:
     """``chain`` refitted from its fitted values (delays re-searched, then at most :data:`FOLD_EVALUATIONS`
@@ -1618,21 +1543,6 @@ def _fold_parts(samples: int, folds: int = FOLDS) -> list[NDArray[np.intp]]:
     """The ``folds`` contiguous folds of a record (contiguous: a free-run error is correlated over
     neighbouring samples, so interleaved folds would leave out nothing the refit does not see)."""
     return np.array_split(np.arange(samples), folds)
-
-
-REFIT_FOLDS = 8
-"""Cross-validation folds of the acceptance's refits (:func:`_judged_by_refits`). The interval is a
-jackknife over the folds with Student's t for REFIT_FOLDS - 1 degrees of freedom (:data:`REFIT_CONFIDENCE`):
-with 4 folds the jackknife standard error rests on 3 degrees of freedom and t = 3.18, with 8 on 7 and
-t = 2.36, so the interval is about a quarter narrower for the same coverage and its width itself varies
-less from record to record; each fold left out is still 1/8 of the record (75 samples of a 6 s record at
-100 Hz, several times the settling time of a position loop, so neighbouring folds' errors are nearly
-independent). Cost: 8 refits of the baseline per round and 8 of each candidate judged, each at most
-:data:`FOLD_EVALUATIONS` evaluations."""
-
-REFIT_CONFIDENCE = 0.95
-"""Two-sided coverage of the refit interval (Student's t quantile for the jackknife, as
-:data:`JACKKNIFE_T` is for the parameter intervals)."""
 
 
 def _held_out_errors(chain: _Chain, u: NDArray[np.float64], y: NDArray[np.float64],
@@ -2363,8 +2273,8 @@ def _judged(kind: str, chain: _Chain, index: int, u: NDArray[np.float64], y: NDA
     """A fitted chain as a :class:`_Candidate` of effect ``kind`` at ``index``: its validated gap and error
     and its estimation error."""
     error = (_measured_error(y, chain.model().simulate(u))[n_est:] if chain.linear_stable()
-             else np.full(y.size - n_est, _BIG))
-    error = np.where(np.isfinite(error), error, _BIG)
+             else np.full(y.size - n_est, FAILED_RUN_ERROR_RAD))
+    error = np.where(np.isfinite(error), error, FAILED_RUN_ERROR_RAD)
     component = chain.components[index]
     return _Candidate(kind, chain, _rms(error), _build(component, component.values), index,
                       _rms(_free_run_error(chain, u[:n_est], y[:n_est])), error)
@@ -2543,7 +2453,7 @@ def _within_uncertainty(best_cost: float, best_error: NDArray[np.float64] | None
 def _command_reversals(u: NDArray[np.float64]) -> NDArray[np.bool_]:
     """True at the samples where the command's direction of motion turns (a designed command moves smoothly
     or holds exactly: only steps below a millionth of its range, rounding, are no motion)."""
-    threshold = 1e-6 * float(np.ptp(u)) if u.size else 0.0
+    threshold = COMMAND_STILL_RANGE_FRACTION * float(np.ptp(u)) if u.size else 0.0
     direction = direction_signal(u, threshold=threshold)
     turns = np.zeros(u.size, dtype=bool)
     turns[1:] = (np.diff(direction) != 0) & (direction[:-1] != 0)
@@ -2577,9 +2487,9 @@ def _unmeasured_input(u: NDArray[np.float64], y: NDArray[np.float64], simulated:
                       delta: float) -> str:
     """A reason when the output moves while the command and the model are at rest
     (:data:`UNMEASURED_INPUT_FRACTION`), else an empty string."""
-    command_still = np.abs(np.diff(u)) <= 1e-12 + 1e-6 * float(np.ptp(u))
-    model_still = np.abs(np.diff(simulated)) <= 0.1 * delta
-    output_moves = np.abs(np.diff(y)) > 2.0 * delta
+    command_still = np.abs(np.diff(u)) <= 1e-12 + COMMAND_STILL_RANGE_FRACTION * float(np.ptp(u))
+    model_still = np.abs(np.diff(simulated)) <= UNMEASURED_MODEL_STILL_NOISE_BOUNDS * delta
+    output_moves = np.abs(np.diff(y)) > UNMEASURED_OUTPUT_MOTION_NOISE_BOUNDS * delta
     share = float(np.mean(command_still & model_still & output_moves))
     if share < UNMEASURED_INPUT_FRACTION:
         return ""
@@ -2590,7 +2500,7 @@ def _unmeasured_input(u: NDArray[np.float64], y: NDArray[np.float64], simulated:
 def _verdict(initial: Disagreement, final: Disagreement, steps: Sequence[DiscrepancyStep],
              ambiguous_between: tuple[str, ...], consistent: bool, delta: float,
              consistent_fraction: float, undecided: Sequence[CandidateResult] = (),
-             min_reduction: float = 0.15) -> tuple[str, str]:
+             min_reduction: float = MIN_REDUCTION) -> tuple[str, str]:
     """The verdict of the workflow and the reason in words (module docstring)."""
     if initial.falsified_fraction <= consistent_fraction:
         return "explained", (f"the start model agrees with the data within the noise bound ({delta:.3g} rad) on "
@@ -2622,11 +2532,6 @@ def _percent_lower(reduction: float) -> str:
     return f"{100 * abs(reduction):.0f} % {'lower' if reduction >= 0 else 'higher'}"
 
 
-JACKKNIFE_T = 3.182
-"""Student's t at 97.5 % for FOLDS - 1 = 3 degrees of freedom: the interval is the fit +- this many
-delete-a-block jackknife standard errors (two-sided 95 % if the fold estimates were normal)."""
-
-
 def _jackknife_interval(fitted: float, folds: Sequence[float]) -> tuple[float, float]:
     """theta^ +- t SE_jack with SE_jack^2 = (K-1)/K sum (theta_k - mean theta)^2 over the K delete-a-block
     refits (Efron and Tibshirani 1993, ch. 11), widened to contain every refit and the fit itself. The
@@ -2648,14 +2553,6 @@ def _jackknife_standard_error(values: NDArray[np.float64]) -> float:
     if k < 2:
         return 0.0
     return math.sqrt((k - 1) / k * float(np.sum((values - values.mean()) ** 2)))
-
-
-ANGLE_RESOLUTION_NOISE_BOUNDS = 1.0
-"""An angle parameter (unit rad in the catalogue: a play's half-width, a dead-zone edge, a limit, a
-friction twist, an offset) is not resolved finer than this many noise bounds: with |e_t| <= delta every
-level the output dwells at is known only within +-delta (set membership, eq. (4) of Cerone et al. 2009),
-and a 12-bit encoder with little dither biases such levels by up to half a count, which no refit on the
-same samples reveals. Its interval is widened by this on each side."""
 
 
 def _effect_parameters(chain: _Chain) -> dict[str, dict[str, float]]:
@@ -2703,10 +2600,6 @@ def _resolution_floor(intervals: dict[str, dict[str, tuple[float, float]]], delt
                 low, high = max(low, parameter.lower), min(high, parameter.upper)
             out[kind][key] = (low, high)
     return out
-
-
-LOOP_TRADE_POINTS = 9
-"""Points of the walk of :func:`_loop_traded_intervals`, from no damping on the load to all of it there."""
 
 
 def _loop_traded_intervals(chain: _Chain, u: NDArray[np.float64], y: NDArray[np.float64],
@@ -2766,19 +2659,6 @@ def _loop_traded_intervals(chain: _Chain, u: NDArray[np.float64], y: NDArray[np.
                     low, high = min(low, float(value)), max(high, float(value))
             out[kind][key] = (low, high)
     return out
-
-
-FEASIBLE_WALK_FIRST_STEP = 1.0e-4
-"""First step of the walk of :func:`_feasible_intervals`, relative to the fitted value (1 for a value of 0);
-each further step doubles it."""
-
-FEASIBLE_WALK_STEPS = 30
-"""Doublings of the walk at most (from 1e-4 of the value to 1e5 times it: a parameter still feasible there is
-not bounded by the record, and its interval says so by its size)."""
-
-FEASIBLE_WALK_BISECTIONS = 5
-"""Bisections between the last feasible and the first infeasible value of the walk (the end to 1/32 of the
-last step)."""
 
 
 def _effect_positions(chain: _Chain) -> dict[str, list[int]]:
@@ -2896,22 +2776,6 @@ def _fold_intervals(chain: _Chain, start_model: PlantModel, u: NDArray[np.float6
                  "low": float(min(reductions)) if reductions else math.nan,
                  "high": float(max(reductions)) if reductions else math.nan}
     return intervals, reduction
-
-
-STICTION_RATIO = 1.15
-"""Friction has real stiction when its breakaway twist exceeds the sliding one by this factor; without it
-(breakaway = sliding) Coulomb friction is the same map as a symmetric backlash with unit slopes."""
-
-FRICTION_CLEARLY_BETTER = 0.8
-"""Friction with stiction must fit the estimation segment to this fraction of backlash's error to be named
-over backlash (the two fits differ only through the stiction)."""
-
-FRICTION_MIN_HALVING = 0.5
-"""... and bring the validated gap to at most this fraction of the gap before."""
-
-FAMILY_TIE = 1.05
-"""Friction that wins the validated gap without real stiction gives way to backlash when backlash's penalised
-gap is within this factor of friction's (the simpler, equivalent map)."""
 
 
 def _prefer_within_family(best: _Candidate, tried: Sequence[_Candidate], penalised: dict[str, float],
