@@ -1,140 +1,54 @@
 """Model-discrepancy workflow: find where a simulation model and a measurement disagree, name the missing
 physical effect, add it with fitted parameters, and show the validated gap shrink.
 
-The workflow (issue 6) runs in five steps on one record (u_t, y_t), t = 0..N-1, with a known bound
-delta on the measurement error (|e_t| <= delta, the noise bound of set-membership identification,
-eq. (4) of Cerone et al. 2009):
+The workflow runs on one record (u_t, y_t), t = 0..N-1, with a known bound delta on the measurement error
+(|e_t| <= delta, the noise bound of set-membership identification, eq. (4) of Cerone et al. 2009). One module
+per step:
 
-1. **Start** from a given :class:`~identify.plant_blocks.PlantModel` or, without one, from the best
-   low-order linear model (:func:`fit_linear_model`: output-error fit, order chosen by validation error).
-2. **Disagree** (:func:`disagreement`): free-run simulation y^_t of the model on the measured input, residual
-   r_t = y_t - y^_t; a sample is *falsified* when |r_t| > delta (it cannot be explained by the model plus
-   admissible noise); falsified samples are grouped into windows.
-3. **Explain** (:func:`signature_scores`): each candidate effect leaves a signature in r_t
-   (see :mod:`identify.effect_signatures`).
-4. **Add and fit**: every candidate is inserted into the model, its parameters (with the linear block's
-   coefficients when the start model was fitted) are fitted on the estimation segment, and the gap
-   g = sqrt(mean r_t^2) is measured on the validation segment. The effect whose penalised gap
-   g_after (1 + penalty * n_parameters) is lowest and below g_before is kept; repeat until the falsified
-   fraction on the validation segment is at most ``consistent_fraction`` or no candidate helps.
-5. **Show**: one :class:`DiscrepancyStep` per kept effect and a :class:`DiscrepancyResult` overall, with a
-   verdict (:data:`VERDICTS`, issue 15): ``explained`` when the start model already agrees, ``named`` when
-   effects were kept, ``ambiguous`` when the best candidate has rivals within their uncertainty
-   (:data:`VALIDATION_BLOCKS`, :data:`AMBIGUITY_SIGMAS`, :data:`AMBIGUITY_MIN_MARGIN`) that the look-ahead
-   of :func:`_search` cannot separate, ``unexplained`` when nothing helps, and ``not_excited`` when a
-   segment never sees the command turn (:data:`MIN_SEGMENT_REVERSALS`, not scored) or the output moves
-   while command and model rest (:data:`UNMEASURED_INPUT_FRACTION`). Named effects carry parameter
-   intervals and the gap reduction its range over :data:`FOLDS` cross-validation refits.
+1. **Start** (:mod:`.start_model`) from a given :class:`~identify.plant_blocks.PlantModel` or, without one,
+   from the best low-order linear model (:func:`fit_linear_model`: output-error fit, order chosen by
+   validation error).
+2. **Disagree** (:mod:`.disagreement`, :func:`disagreement`): free-run simulation y^_t of the model on the
+   measured input, residual r_t = y_t - y^_t; a sample is *falsified* when |r_t| > delta (it cannot be
+   explained by the model plus admissible noise); falsified samples are grouped into windows.
+3. **Candidates** (:mod:`.candidates`): the effects of :mod:`identify.effect_catalogue` (blocks, parameters,
+   placement, guesses, "vanished"), each placed into the model; each leaves a signature in r_t
+   (:mod:`identify.effect_signatures`).
+4. **Fit** (:mod:`.fit`): every candidate is inserted into the model (a :mod:`.chain`), its parameters (with
+   the linear block's coefficients when the start model was fitted) are fitted on the estimation segment,
+   and the gap g = sqrt(mean r_t^2) is measured on the validation segment.
+5. **Judge** (:mod:`.judgement`): the effect whose penalised gap g_after (1 + penalty * n_parameters) is
+   lowest is kept when its reduction of the gap is clearly above ``min_reduction``, both over the validation
+   blocks and over :data:`REFIT_FOLDS` cross-validation refits of the whole record; rivals within their
+   uncertainty are followed to the end of their own searches. The rounds (:mod:`.search`) repeat until the
+   falsified fraction on the validation segment is at most ``consistent_fraction`` or no candidate helps.
+6. **Verdict** (:mod:`.verdict`): one of :data:`VERDICTS`: ``explained`` when the start model already agrees,
+   ``named`` when effects were kept, ``ambiguous`` when the best candidate has rivals within their
+   uncertainty or its reduction straddles the acceptance, ``unexplained`` when nothing helps, and
+   ``not_excited`` when a segment never sees the command turn or the output moves while command and model
+   rest.
+7. **Intervals** (:mod:`.intervals`): the named effects' parameters and the gap reduction with their range
+   over cross-validation refits.
 
-The effects themselves (blocks, parameters, placement, guesses, "vanished") come from
-:mod:`identify.effect_catalogue`.
+:mod:`.pipeline` runs the steps (:func:`diagnose_model`, settings :class:`DiagnoseOptions` in
+:mod:`.options`); :mod:`.result` holds the result types (:class:`DiscrepancyResult`, the JSON
+:class:`DiscrepancyReport`); every threshold and tuned setting, with its reason and evidence, is in
+:mod:`.thresholds`.
 
 The start model and all fits use only the estimation segment; every number quoted as a gap is measured on
-the validation segment, which the fits never see. The acceptance also asks refits of the whole record with
-one of :data:`REFIT_FOLDS` folds left out at a time, each scored on the fold it did not see
-(:func:`_judged_by_refits`): a candidate is named only when both say its gap reduction is clearly enough.
+the validation segment, which the fits never see.
 """
 
 from __future__ import annotations
 
-import math
-from collections.abc import Callable
-from dataclasses import replace
-from typing import Any
-
-import numpy as np
-from numpy.typing import ArrayLike, NDArray
-
 from identify.effect_catalogue import EFFECT_NAMES
-from identify.plant_blocks import OutputOffset, PlantModel
-from identify.validation import InvalidInputError, as_signal, positive, same_length, varying, with_options
-
-from identify.model_discrepancy.candidates import (
-    _Candidate,
-    _TRAIN_CACHE,
-    _candidate_names,
-    _dynamics_chain,
-    _insert_index,
-    _loop_starts,
-    _merged,
-    _with_loop,
-    _without_effect,
-    rigid_train_like,
-)
-from identify.model_discrepancy.chain import (
-    _Chain,
-    _Component,
-    _bridged,
-    _build,
-    _effect_parameters,
-    _free_run_error,
-    _linear_component,
-    _measured_error,
-    _parameters,
-    _polish,
-    _rms,
-    _train,
-)
-from identify.model_discrepancy.disagreement import _windows, disagreement
-from identify.model_discrepancy.fit import (
-    _baseline_refit,
-    _best_of,
-    _budget,
-    _compound,
-    _contact_branch_start,
-    _distinct_loop_starts,
-    _fold_parts,
-    _fold_refit,
-    _held_out_errors,
-    _judged,
-    _polished_start,
-    _refine_delays,
-    _refit_last_linear,
-    _scan_breakaway,
-    _scan_static_friction,
-    _stick_slip_fit,
-    _stick_slip_scanned,
-    _try_effect,
-    _walk_delays,
-)
-from identify.model_discrepancy.intervals import (
-    _effect_positions,
-    _feasible_intervals,
-    _final_train,
-    _fold_intervals,
-    _jackknife_interval,
-    _loop_traded_intervals,
-    _named_intervals,
-    _resolution_floor,
-    _with_final_parameters,
-)
-from identify.model_discrepancy.judgement import (
-    _acceptance,
-    _accepted,
-    _block_gaps,
-    _contenders,
-    _falsifying_blocks,
-    _gap_uncertainty,
-    _has_stiction,
-    _jackknife_standard_error,
-    _judged_by_refits,
-    _one_per_family,
-    _peers,
-    _penalty_factor,
-    _prefer_within_family,
-    _ratio_interval,
-    _reduction_judged,
-    _refit_judged,
-    _refit_reduction,
-    _rivals,
-    _twin_judgement,
-    _with_friction_as_backlash,
-    _with_refits,
-    _within_uncertainty,
-)
+from identify.model_discrepancy.candidates import rigid_train_like
+from identify.model_discrepancy.disagreement import disagreement
 from identify.model_discrepancy.options import DiagnoseOptions
+from identify.model_discrepancy.pipeline import diagnose_model
 from identify.model_discrepancy.result import (
     ACCEPTANCES,
+    VERDICTS,
     CandidateResult,
     Disagreement,
     DisagreementWindow,
@@ -143,98 +57,9 @@ from identify.model_discrepancy.result import (
     DiscrepancyStep,
     LinearFit,
     MissingEffect,
-    VERDICTS,
 )
-from identify.model_discrepancy.search import (
-    _Search,
-    _add_compound,
-    _add_step,
-    _clear_end,
-    _clearly_better_end,
-    _family_rechecked,
-    _search,
-    _still_needed,
-)
-from identify.model_discrepancy.start_model import (
-    _arx,
-    _arx_numerator,
-    _output_error_fit,
-    _raised_order,
-    _start,
-    _start_chain,
-    _steiglitz_mcbride,
-    fit_linear_model,
-)
-from identify.model_discrepancy.thresholds import (
-    AMBIGUITY_MIN_MARGIN,
-    AMBIGUITY_SIGMAS,
-    ANGLE_RESOLUTION_NOISE_BOUNDS,
-    AT_REST_NOISE_BOUNDS,
-    BASELINE_EFFORT,
-    BREAKAWAY_SCAN,
-    COMMAND_STILL_RANGE_FRACTION,
-    COMPLEXITY_PENALTY,
-    CONSISTENT_FRACTION,
-    CONTACT_BRANCH_PLAYS,
-    CONTACT_BRANCH_ROUNDS,
-    DELAY_REFINE_REACH,
-    DYNAMICS_EVALUATIONS,
-    EFFECT_DIFF_STEP,
-    ESTIMATION_FRACTION,
-    FAILED_RUN_ERROR_RAD,
-    FAMILY_TIE,
-    FEASIBLE_WALK_BISECTIONS,
-    FEASIBLE_WALK_FIRST_STEP,
-    FEASIBLE_WALK_STEPS,
-    FOLDS,
-    FOLD_EVALUATIONS,
-    FRICTION_CLEARLY_BETTER,
-    FRICTION_MIN_HALVING,
-    JACKKNIFE_T,
-    JOINT_FIT_ORDER,
-    LINEAR_DIFF_STEP,
-    LOOP_BANDWIDTH_NYQUIST_SHARE,
-    LOOP_DAMPING_RANGE,
-    LOOP_POLISHED_STARTS,
-    LOOP_START_FACTORS,
-    LOOP_START_GUESSES,
-    LOOP_TRADE_POINTS,
-    MAX_DELAY_SAMPLES,
-    MAX_EFFECTS,
-    MAX_EVALUATIONS,
-    MIN_MEASURED_FRACTION,
-    MIN_REDUCTION,
-    MIN_SEGMENT_REVERSALS,
-    MIN_VALIDATION_SAMPLES,
-    OPERATING_POINT_MIN_NOISE_BOUNDS,
-    OPERATING_POINT_SAMPLES,
-    ORDER_CHOICE_FACTOR,
-    REFIT_CONFIDENCE,
-    REFIT_FOLDS,
-    START_INPUT_DELAY_SAMPLES,
-    START_MAX_ORDER,
-    STATIC_FRICTION_SCAN,
-    STICK_SLIP_MIN_GAIN,
-    STICK_SLIP_ROUNDS,
-    STICTION_RATIO,
-    UNMEASURED_INPUT_FRACTION,
-    UNMEASURED_MODEL_STILL_NOISE_BOUNDS,
-    UNMEASURED_OUTPUT_MOTION_NOISE_BOUNDS,
-    VALIDATION_BLOCKS,
-    WINDOW_MERGE_GAP_SAMPLES,
-    WINDOW_MIN_FALSIFIED_SAMPLES,
-)
-from identify.model_discrepancy.verdict import (
-    _command_reversals,
-    _excitation,
-    _final_verdict,
-    _left_unexplained,
-    _not_excited,
-    _percent_lower,
-    _unmeasured_input,
-    _verdict,
-)
-
+from identify.model_discrepancy.start_model import fit_linear_model
+from identify.model_discrepancy.thresholds import ESTIMATION_FRACTION, REFIT_FOLDS, VALIDATION_BLOCKS
 
 __all__ = [
     "DisagreementWindow",
@@ -251,146 +76,9 @@ __all__ = [
     "disagreement",
     "fit_linear_model",
     "rigid_train_like",
+    "VERDICTS",
+    "ACCEPTANCES",
+    "ESTIMATION_FRACTION",
+    "REFIT_FOLDS",
+    "VALIDATION_BLOCKS",
 ]
-
-
-def diagnose_model(command_rad: ArrayLike, angle_rad: ArrayLike, noise_bound_rad: float,
-                   sample_period_s: float, model: PlantModel | None = None, options: DiagnoseOptions | None = None,
-                   *, progress: Callable[[str], None] | None = None, **option_values: Any) -> DiscrepancyResult:
-    """Run the model-discrepancy workflow of issue 6 (steps 1-5 of the module docstring), one named step
-    each: the checks (:func:`_checked_record`), the move to the operating point (:func:`_operating_point`,
-    :func:`_absolute`), the excitation check (:func:`_excitation`, :func:`_not_excited`), the start model
-    (:func:`_start`), the greedy search (:func:`_search`), the intervals of what was named
-    (:func:`_named_intervals`) and the verdict (:func:`_final_verdict`).
-
-    Parameters
-    ----------
-    command_rad, angle_rad
-        Measured input u_t and output y_t (rad), one record. NaN in ``angle_rad`` marks a sample not
-        measured (LOST, or unusable by its flags): the free run still covers it (the model needs only the
-        command), but it is left out of every residual, fit and count (its residual is 0, it is never
-        falsified, and the gaps and falsified fractions are over the measured samples). Each segment must
-        keep :data:`MIN_MEASURED_FRACTION` of its samples.
-    noise_bound_rad
-        delta: bound on the measurement error, |e_t| <= delta (include the encoder's half count).
-    sample_period_s
-        T.
-    model
-        The user's model; None fits the best low-order linear model (:func:`fit_linear_model`), whose
-        coefficients are then refitted together with every effect.
-    options
-        The settings (:class:`DiagnoseOptions`); or give its fields as keywords (``candidates=...``,
-        ``max_effects=2``, ...), which override those of ``options``.
-    progress
-        Called with one line of text per stage and candidate.
-
-    Raises
-    ------
-    InvalidInputError
-        Signals too short, of different lengths or not varying, a noise bound or period that is not
-        positive, a model of another sample period, or a setting out of range.
-    TypeError
-        A keyword that is no field of :class:`DiagnoseOptions` (the message lists them).
-    """
-    options = with_options("diagnose_model", options, DiagnoseOptions, option_values)
-    u, y, delta, period = _checked_record(command_rad, angle_rad, noise_bound_rad, sample_period_s, model)
-    operating_point = _operating_point(y, delta) if options.from_operating_point else 0.0
-    if operating_point != 0.0:
-        result = diagnose_model(u - operating_point, y - operating_point, delta, period, model,
-                                replace(options, from_operating_point=False), progress=progress)
-        return _absolute(result, operating_point, period)
-    n_est = int(round(options.estimation_fraction * u.size))
-    _check_measured(y, n_est)
-    say = progress or (lambda _message: None)
-    excitation = _excitation(u, n_est)
-    if excitation["reason"]:
-        say(f"not excited: {excitation['reason']}")
-        return _not_excited(u, y, delta, model, n_est, excitation, options.consistent_fraction)
-    start_model, linear_fit, chain = _start(u, y, period, n_est, model, options.max_evaluations, say)
-    initial = disagreement(start_model, u, y, delta, n_est)
-    found = _search(_Search(chain, initial, [], [], (), initial.residual_rad[n_est:]),
-                    list(_candidate_names(options.candidates, model)), u, y, n_est, delta, period, options, say,
-                    resolve_ties=True)
-    found = _family_rechecked(found, _candidate_names(options.candidates, model), u, y, n_est, delta, options, say)
-    found = _still_needed(found, u, y, n_est, delta, options, say)
-    chain, current, steps = found.chain, found.current, found.steps
-    consistent = current.falsified_fraction <= options.consistent_fraction
-    intervals, reduction = _named_intervals(chain, steps, start_model, u, y, delta, current, options, say)
-    steps = _with_final_parameters(steps, chain)
-    verdict, reason = _final_verdict(u, y, initial, current, found, consistent, delta, options)
-    return DiscrepancyResult(
-        steps=tuple(steps), start_model=start_model, final_model=chain.model() if steps else start_model,
-        initial=initial, final=current, consistent=consistent,
-        unexplained=_left_unexplained(current, consistent, delta),
-        estimation_samples=n_est, noise_bound_rad=delta, linear_fit=linear_fit, verdict=verdict,
-        verdict_reason=reason, candidates=tuple(found.tried), ambiguous_between=found.ambiguous_between,
-        parameter_intervals=intervals, gap_reduction=reduction, excitation=excitation, undecided=found.undecided,
-    )
-
-
-def _check_measured(y: NDArray[np.float64], n_est: int) -> None:
-    """Refuse a record whose estimation or validation segment is too little measured (:data:`MIN_MEASURED_FRACTION`),
-    saying how many samples are left and how many are needed."""
-    missing = np.isnan(y)
-    if not np.any(missing):
-        return
-    for name, part in (("estimation", slice(0, n_est)), ("validation", slice(n_est, y.size))):
-        total = int(missing[part].size)
-        measured = total - int(np.count_nonzero(missing[part]))
-        needed = int(math.ceil(MIN_MEASURED_FRACTION * total))
-        if measured < needed:
-            raise InvalidInputError(
-                f"angle_rad: {int(np.count_nonzero(missing))} of the {y.size} samples are missing (NaN: lost or "
-                f"unusable), which leaves {measured} measured samples of the {total} of the {name} segment; at "
-                f"least {needed} ({100 * MIN_MEASURED_FRACTION:.0f} %) are needed: record again with fewer lost samples")
-
-
-def _checked_record(command_rad: ArrayLike, angle_rad: ArrayLike, noise_bound_rad: float, sample_period_s: float,
-                    model: PlantModel | None) -> tuple[NDArray[np.float64], NDArray[np.float64], float, float]:
-    """u, y, delta and T of :func:`diagnose_model`, checked (T is the model's own when it has one, so that the
-    blocks added carry exactly the model's period)."""
-    u = as_signal("command_rad", command_rad, min_samples=50)
-    y = as_signal("angle_rad", angle_rad, min_samples=50, missing_allowed=True)
-    same_length(command_rad=u, angle_rad=y)
-    delta = positive("noise_bound_rad", noise_bound_rad)
-    period = positive("sample_period_s", sample_period_s)
-    if model is not None and not isinstance(model, PlantModel):
-        raise InvalidInputError(f"model: expected a PlantModel or None, got {type(model).__name__}")
-    if model is not None and model.sample_period_s is not None:
-        if abs(model.sample_period_s - period) > 1e-3 * period:
-            raise InvalidInputError(
-                f"sample_period_s: the data are sampled every {period:g} s, the model every {model.sample_period_s:g} s")
-        period = model.sample_period_s
-    varying("command_rad", u, "record a step or PRBS experiment (configs/experiments/prbs.toml) to compare a "
-                              "model with")
-    return u, y, delta, period
-
-
-def _operating_point(y: NDArray[np.float64], delta: float) -> float:
-    """y_0 when the record starts at rest (its first angles within two noise bounds of each other) away from
-    zero; 0 otherwise (a record that starts in motion has a state no angle gives: it runs from zero)."""
-    first = y[:OPERATING_POINT_SAMPLES]
-    first = first[~np.isnan(first)]
-    if first.size == 0:
-        return 0.0
-    y0 = float(np.median(first))
-    at_rest = float(np.ptp(first)) <= AT_REST_NOISE_BOUNDS * delta
-    return y0 if at_rest and abs(y0) > OPERATING_POINT_MIN_NOISE_BOUNDS * delta else 0.0
-
-
-def _absolute(result: DiscrepancyResult, operating_point: float, period: float) -> DiscrepancyResult:
-    """``result`` of a run on u - y_0, y - y_0 in absolute angles: simulated outputs moved back by y_0, models
-    wrapped as y_0 + M(u - y_0)."""
-    from dataclasses import replace
-
-    def wrap(model: PlantModel) -> PlantModel:
-        return PlantModel((OutputOffset(offset_rad=-operating_point, drift_rad_per_s=0.0, sample_period_s=period),
-                           *model.blocks,
-                           OutputOffset(offset_rad=operating_point, drift_rad_per_s=0.0, sample_period_s=period)))
-
-    def moved(d: Disagreement) -> Disagreement:
-        return replace(d, simulated_rad=d.simulated_rad + operating_point)
-
-    steps = tuple(replace(step, model=wrap(step.model)) for step in result.steps)
-    return replace(result, steps=steps, start_model=wrap(result.start_model), final_model=wrap(result.final_model),
-                   initial=moved(result.initial), final=moved(result.final), operating_point_rad=operating_point)
