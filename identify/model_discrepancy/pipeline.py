@@ -159,7 +159,6 @@ def _operating_point(y: NDArray[np.float64], delta: float) -> float:
 def _absolute(result: DiscrepancyResult, operating_point: float, period: float) -> DiscrepancyResult:
     """``result`` of a run on u - y_0, y - y_0 in absolute angles: simulated outputs moved back by y_0, models
     wrapped as y_0 + M(u - y_0)."""
-    from dataclasses import replace
 
     def wrap(model: PlantModel) -> PlantModel:
         return PlantModel((OutputOffset(offset_rad=-operating_point, drift_rad_per_s=0.0, sample_period_s=period),

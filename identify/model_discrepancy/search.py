@@ -207,7 +207,7 @@ def _search(state: _Search, remaining: list[str], u: NDArray[np.float64], y: NDA
                 continue
             if judged == "tie" and "clear" in (word, this_round[best.kind].acceptance):
                 if resolve_ties:  # as for rivals: each explanation followed to the end of its own search
-                    ends = [to_end(_add_step(best, chain, current, steps, tried_all, u, y, n_est, delta, scores, tried,
+                    ends = [to_end(_add_step(best, current, steps, tried_all, u, y, n_est, delta, scores, tried,
                                              max_evaluations), [n for n in remaining if n != best.kind]),
                             to_end(_add_compound(parts, chain, current, steps, tried_all, u, y, n_est, delta, scores,
                                                  tried, max_evaluations), [n for n in remaining if n not in twin])]
@@ -226,7 +226,7 @@ def _search(state: _Search, remaining: list[str], u: NDArray[np.float64], y: NDA
                 by_kind = {c.kind: c for c in tried}
                 followed = _one_per_family([by_kind[c.effect] for c in undecided if c.effect in by_kind], tried,
                                            penalised, current.gap_rad)
-                ends = [to_end(_add_step(candidate, chain, current, steps, tried_all, u, y, n_est, delta, scores,
+                ends = [to_end(_add_step(candidate, current, steps, tried_all, u, y, n_est, delta, scores,
                                          tried, max_evaluations), [n for n in remaining if n != candidate.kind])
                         for candidate in followed]
                 ends = [end for end in ends
@@ -248,7 +248,7 @@ def _search(state: _Search, remaining: list[str], u: NDArray[np.float64], y: NDA
             by_kind = {c.kind: c for c in tried}
             ends = []
             for kind in (best.kind, *rivals):
-                step_state = _add_step(by_kind[kind], chain, current, steps, tried_all, u, y, n_est, delta, scores,
+                step_state = _add_step(by_kind[kind], current, steps, tried_all, u, y, n_est, delta, scores,
                                        tried, max_evaluations)
                 ends.append(to_end(step_state, [n for n in remaining if n != kind]))
             chosen = _clear_end(ends, complexity_penalty, consistent_fraction)
@@ -258,14 +258,14 @@ def _search(state: _Search, remaining: list[str], u: NDArray[np.float64], y: NDA
                 return _Search(chain, current, steps, tried_all, ambiguous_between, validation_error)
             say(f"the tie resolves when followed to the end: {', '.join(s.effect for s in chosen.steps)}")
             return chosen
-        state = _add_step(best, chain, current, steps, tried_all, u, y, n_est, delta, scores, tried, max_evaluations)
+        state = _add_step(best, current, steps, tried_all, u, y, n_est, delta, scores, tried, max_evaluations)
         say(f"added {best.kind}: gap {current.gap_rad:.3g} -> {state.current.gap_rad:.3g} rad")
         chain, current, steps, validation_error = state.chain, state.current, state.steps, state.validation_error_rad
         remaining = [name for name in remaining if name != best.kind]
     return _Search(chain, current, steps, tried_all, (), validation_error)
 
 
-def _add_step(best: _Candidate, chain: _Chain, current: Disagreement, steps: list[DiscrepancyStep],
+def _add_step(best: _Candidate, current: Disagreement, steps: list[DiscrepancyStep],
               tried_all: list[CandidateResult], u: NDArray[np.float64], y: NDArray[np.float64], n_est: int,
               delta: float, scores: dict[str, SignatureScore], tried: Sequence[_Candidate],
               max_evaluations: int) -> _Search:
@@ -297,7 +297,7 @@ def _add_compound(parts: Sequence[_Candidate], chain: _Chain, current: Disagreem
     parameters as the compound's final fit has them (they were refitted together)."""
     state = _Search(chain, current, list(steps), list(tried_all))
     for part in parts:
-        state = _add_step(part, state.chain, state.current, state.steps, state.tried, u, y, n_est, delta, scores,
+        state = _add_step(part, state.current, state.steps, state.tried, u, y, n_est, delta, scores,
                           tried, max_evaluations)
     final = state.chain.components[parts[-1].index]
     block = _build(final, final.values)
