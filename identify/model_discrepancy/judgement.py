@@ -215,7 +215,7 @@ def _falsifying_blocks(error: NDArray[np.float64] | None, noise_bound_rad: float
 
 
 def _penalty_factor(effects: Iterable[str], complexity_penalty: float) -> float:
-    """The factor 1 + penalty n by which a model's gap is penalised (module docstring, step 3;
+    """The factor 1 + penalty n by which a model's gap is penalised (package docstring, step 5;
     :attr:`DiagnoseOptions.complexity_penalty`): n is the free parameters of ``effects`` together."""
     return 1.0 + complexity_penalty * sum(EFFECTS[name].free_parameters for name in effects)
 

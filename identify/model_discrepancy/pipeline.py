@@ -35,7 +35,7 @@ from identify.model_discrepancy.verdict import _excitation, _final_verdict, _lef
 def diagnose_model(command_rad: ArrayLike, angle_rad: ArrayLike, noise_bound_rad: float,
                    sample_period_s: float, model: PlantModel | None = None, options: DiagnoseOptions | None = None,
                    *, progress: Callable[[str], None] | None = None, **option_values: Any) -> DiscrepancyResult:
-    """Run the model-discrepancy workflow of issue 6 (steps 1-5 of the module docstring), one named step
+    """Run the model-discrepancy workflow (the steps of the package docstring), one named step
     each: the checks (:func:`_checked_record`), the move to the operating point (:func:`_operating_point`,
     :func:`_absolute`), the excitation check (:func:`_excitation`, :func:`_not_excited`), the start model
     (:func:`_start`), the greedy search (:func:`_search`), the intervals of what was named

@@ -95,7 +95,7 @@ def _verdict(initial: Disagreement, final: Disagreement, steps: Sequence[Discrep
              ambiguous_between: tuple[str, ...], consistent: bool, delta: float,
              consistent_fraction: float, undecided: Sequence[CandidateResult] = (),
              min_reduction: float = MIN_REDUCTION) -> tuple[str, str]:
-    """The verdict of the workflow and the reason in words (module docstring)."""
+    """The verdict of the workflow and the reason in words (package docstring, step 6)."""
     if initial.falsified_fraction <= consistent_fraction:
         return "explained", (f"the start model agrees with the data within the noise bound ({delta:.3g} rad) on "
                              f"{100 * (1 - initial.falsified_fraction):.1f} % of validation samples")
