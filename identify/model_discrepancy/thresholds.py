@@ -171,16 +171,18 @@ different loops are all there are there; elsewhere three polishes cost three tim
 MAX_DELAY_SAMPLES = 40
 """Longest delay tried (default of ``DiagnoseOptions.max_delay_samples``)."""
 
-# Evidence: origin not recorded (the first dual fits; the docstring of _refine_delays).
+# Evidence: the first version of the workflow; origin of the value not recorded.
 DELAY_REFINE_REACH = 5
 """A delay already in the model is searched again within this many samples either side."""
 
-# Evidence: the scan came with the breakaway scan of the load's friction; origin of the grid not recorded.
+# Evidence: the hidden-friction record given the model, named backlash before the scan and friction (at the
+# noise level) with it (confusion benchmark); origin of the grid's range and step not recorded.
 BREAKAWAY_SCAN = (1.0, 3.0, 41)
 """Breakaway/sliding ratios scanned for a stick-slip effect after the linear block: from, to, points (steps
 of 0.05)."""
 
-# Evidence: as BREAKAWAY_SCAN; origin of the grid not recorded.
+# Evidence: came with the breakaway scan of the load's friction (the drive-train candidates); origin of the
+# grid not recorded.
 STATIC_FRICTION_SCAN = (1.0, 2.0, 21)
 """Breakaway/Coulomb ratios T_s / T_c scanned for friction inside a drive train: from, to, points (steps of
 0.05)."""
