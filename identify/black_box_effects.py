@@ -16,7 +16,7 @@ inertias, gravity on the load, a torque limit) cannot be added to a model whose 
 those are skipped with the reason :func:`effects_around_black_box` states.
 
 With a chain that has no linear block of its own (the black box alone), the workflow's placement rule
-(``_insert_index`` of :mod:`identify.model_discrepancy`) already puts ``input`` effects at the front and the
+(``_insert_index`` of :mod:`identify.model_discrepancy.candidates`) already puts ``input`` effects at the front and the
 others at the end, so this module only chooses the candidates.
 """
 

@@ -32,7 +32,7 @@ Adding an effect: write its block (a frozen dataclass with ``apply`` and ``stepp
 score it under the same name in :func:`identify.effect_signatures.signature_scores`. The TOML reader and
 writer, the workflow's candidates, the hidden-effect cases and the confusion benchmark pick it up. A dynamics
 effect is one entry too: its ``train_fields`` map free values to the drive train's fields (placement
-``"dynamics"``, handled in :func:`identify.model_discrepancy._insert_index` and ``_dynamics_chain``).
+``"dynamics"``, handled in :func:`identify.model_discrepancy.candidates._insert_index` and ``_dynamics_chain``).
 """
 
 from __future__ import annotations
@@ -160,7 +160,7 @@ class Effect:
         :func:`identify.effect_signatures.signature_scores` under the same name).
     family
         Effects that are the same map in a limit share a family; the workflow decides between them by a
-        documented rule (``_prefer_within_family`` in :mod:`identify.model_discrepancy`).
+        documented rule (``_prefer_within_family`` in :mod:`identify.model_discrepancy.judgement`).
     searched
         The free value is an integer found by exhaustive search (the delay), not by least squares.
     needs_reversals
@@ -169,7 +169,7 @@ class Effect:
         The effect is tried only against a given model (a fitted start model has absorbed it).
     contact_start
         For a hysteresis after the linear block: starts of the fit from the half-widths (c_l, c_r) of a
-        contact-branch refit (``_contact_branch_start`` in :mod:`identify.model_discrepancy`).
+        contact-branch refit (``_contact_branch_start`` in :mod:`identify.model_discrepancy.fit`).
     stick_slip
         The free run is discontinuous in the breakaway threshold: the fit ends with a scan of the
         breakaway/sliding ratio (``_scan_breakaway``, or ``_scan_static_friction`` for a dynamics effect).
@@ -184,7 +184,7 @@ class Effect:
         For an effect after the drive: the dynamics effects that, merged into one drive train, leave the same
         signature from inside the drive (:data:`HYSTERESIS_INNER_TWIN`); whenever this effect wins a round of
         the search, the twin is tried too, as one compound explanation (``_compound`` in
-        :mod:`identify.model_discrepancy`).
+        :mod:`identify.model_discrepancy.fit`).
     half_widths
         For a hysteresis: fitted block -> the half-widths (c_l, c_r) of the loop it draws between input and
         output (rad; backlash: its own, friction: the sliding twist either way). They start the other
@@ -207,7 +207,7 @@ class Effect:
         Dynamics effects: the index of the free value that is a viscous damping per inertia d / J (1/s) on
         the load's speed, which adds to the velocity loop's own K_v / J = 2 zeta omega_n: when the loop is
         fitted too, the record shows mainly their sum, and the parameter's interval is walked along that
-        trade (``_loop_traded_intervals`` in :mod:`identify.model_discrepancy`).
+        trade (``_loop_traded_intervals`` in :mod:`identify.model_discrepancy.intervals`).
     """
 
     name: str

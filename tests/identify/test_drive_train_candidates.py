@@ -23,20 +23,14 @@ from identify.model_discrepancy import (
     ESTIMATION_FRACTION,
     DiagnoseOptions,
     DiscrepancyStep,
-    _Chain,
-    _Component,
-    _build,
-
-
-    _dynamics_chain,
-    _family_rechecked,
-    _merged,
-    _Search,
-    _try_effect,
     diagnose_model,
     disagreement,
     rigid_train_like,
 )
+from identify.model_discrepancy.candidates import _dynamics_chain, _merged
+from identify.model_discrepancy.chain import _build, _Chain, _Component
+from identify.model_discrepancy.fit import _try_effect
+from identify.model_discrepancy.search import _family_rechecked, _Search
 from identify.plant_blocks import LinearBlock, PlantModel
 from identify.validation import InvalidInputError
 from sim_backend.plant_config import plant_config_from_toml_text, plant_config_to_toml

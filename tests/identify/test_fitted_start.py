@@ -16,8 +16,11 @@ import pytest
 from identify.discrepancy_cases import hidden_effect_record
 from identify.effect_catalogue import effect
 from identify.effect_signatures import signature_scores
-from identify.model_discrepancy import (ESTIMATION_FRACTION, VALIDATION_BLOCKS, _acceptance, _rms, _start,
-                                        _try_effect, diagnose_model, disagreement)
+from identify.model_discrepancy import ESTIMATION_FRACTION, VALIDATION_BLOCKS, diagnose_model, disagreement
+from identify.model_discrepancy.chain import _rms
+from identify.model_discrepancy.fit import _try_effect
+from identify.model_discrepancy.judgement import _acceptance
+from identify.model_discrepancy.start_model import _start
 
 
 def _fitted_start_candidate(name: str, seed: int):

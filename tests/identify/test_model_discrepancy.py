@@ -20,19 +20,13 @@ from identify.model_discrepancy import (
     Disagreement,
     DiscrepancyReport,
     DiscrepancyStep,
-    _acceptance,
-    _Chain,
-    _clear_end,
-    _refit_reduction,
-    _Component,
-    _Search,
-    _still_needed,
-    _with_refits,
-    _within_uncertainty,
     diagnose_model,
     disagreement,
     fit_linear_model,
 )
+from identify.model_discrepancy.chain import _Chain, _Component
+from identify.model_discrepancy.judgement import _acceptance, _refit_reduction, _with_refits, _within_uncertainty
+from identify.model_discrepancy.search import _clear_end, _Search, _still_needed
 from identify.model_discrepancy import DiagnoseOptions
 from identify.plant_blocks import DeadZone, Delay, LinearBlock, OutputBacklash, OutputGain, OutputOffset, PlantModel
 from identify.validation import InvalidInputError

@@ -54,12 +54,14 @@ ANY_UNIT = {
 
 
 def _public_objects():
-    """(module name, name, object) of every name in an identify module's ``__all__`` defined there."""
+    """(module name, name, object) of every name in an identify module's ``__all__`` defined there (for a
+    package such as ``model_discrepancy``: defined in one of its modules)."""
     for info in pkgutil.iter_modules(identify.__path__):
         module = importlib.import_module(f"identify.{info.name}")
         for name in getattr(module, "__all__", ()):
             obj = getattr(module, name)
-            if getattr(obj, "__module__", None) == module.__name__:
+            defined_in = getattr(obj, "__module__", None) or ""
+            if defined_in == module.__name__ or (info.ispkg and defined_in.startswith(f"{module.__name__}.")):
                 yield info.name, name, obj
 
 

@@ -1,0 +1,84 @@
+"""Model-discrepancy workflow: find where a simulation model and a measurement disagree, name the missing
+physical effect, add it with fitted parameters, and show the validated gap shrink.
+
+The workflow runs on one record (u_t, y_t), t = 0..N-1, with a known bound delta on the measurement error
+(|e_t| <= delta, the noise bound of set-membership identification, eq. (4) of Cerone et al. 2009). One module
+per step:
+
+1. **Start** (:mod:`.start_model`) from a given :class:`~identify.plant_blocks.PlantModel` or, without one,
+   from the best low-order linear model (:func:`fit_linear_model`: output-error fit, order chosen by
+   validation error).
+2. **Disagree** (:mod:`.disagreement`, :func:`disagreement`): free-run simulation y^_t of the model on the
+   measured input, residual r_t = y_t - y^_t; a sample is *falsified* when |r_t| > delta (it cannot be
+   explained by the model plus admissible noise); falsified samples are grouped into windows.
+3. **Candidates** (:mod:`.candidates`): the effects of :mod:`identify.effect_catalogue` (blocks, parameters,
+   placement, guesses, "vanished"), each placed into the model; each leaves a signature in r_t
+   (:mod:`identify.effect_signatures`).
+4. **Fit** (:mod:`.fit`): every candidate is inserted into the model (a :mod:`.chain`), its parameters (with
+   the linear block's coefficients when the start model was fitted) are fitted on the estimation segment,
+   and the gap g = sqrt(mean r_t^2) is measured on the validation segment.
+5. **Judge** (:mod:`.judgement`): the effect whose penalised gap g_after (1 + penalty * n_parameters) is
+   lowest is kept when its reduction of the gap is clearly above ``min_reduction``, both over the validation
+   blocks and over :data:`REFIT_FOLDS` cross-validation refits of the whole record; rivals within their
+   uncertainty are followed to the end of their own searches. The rounds (:mod:`.search`) repeat until the
+   falsified fraction on the validation segment is at most ``consistent_fraction`` or no candidate helps.
+6. **Verdict** (:mod:`.verdict`): one of :data:`VERDICTS`: ``explained`` when the start model already agrees,
+   ``named`` when effects were kept, ``ambiguous`` when the best candidate has rivals within their
+   uncertainty or its reduction straddles the acceptance, ``unexplained`` when nothing helps, and
+   ``not_excited`` when a segment never sees the command turn or the output moves while command and model
+   rest.
+7. **Intervals** (:mod:`.intervals`): the named effects' parameters and the gap reduction with their range
+   over cross-validation refits.
+
+:mod:`.pipeline` runs the steps (:func:`diagnose_model`, settings :class:`DiagnoseOptions` in
+:mod:`.options`); :mod:`.result` holds the result types (:class:`DiscrepancyResult`, the JSON
+:class:`DiscrepancyReport`); every threshold and tuned setting, with its reason and evidence, is in
+:mod:`.thresholds`.
+
+The start model and all fits use only the estimation segment; every number quoted as a gap is measured on
+the validation segment, which the fits never see.
+"""
+
+from __future__ import annotations
+
+from identify.effect_catalogue import EFFECT_NAMES
+from identify.model_discrepancy.candidates import rigid_train_like
+from identify.model_discrepancy.disagreement import disagreement
+from identify.model_discrepancy.options import DiagnoseOptions
+from identify.model_discrepancy.pipeline import diagnose_model
+from identify.model_discrepancy.result import (
+    ACCEPTANCES,
+    VERDICTS,
+    CandidateResult,
+    Disagreement,
+    DisagreementWindow,
+    DiscrepancyReport,
+    DiscrepancyResult,
+    DiscrepancyStep,
+    LinearFit,
+    MissingEffect,
+)
+from identify.model_discrepancy.start_model import fit_linear_model
+from identify.model_discrepancy.thresholds import ESTIMATION_FRACTION, REFIT_FOLDS, VALIDATION_BLOCKS
+
+__all__ = [
+    "DisagreementWindow",
+    "Disagreement",
+    "DiscrepancyStep",
+    "DiscrepancyResult",
+    "DiscrepancyReport",
+    "MissingEffect",
+    "LinearFit",
+    "EFFECT_NAMES",
+    "CandidateResult",
+    "DiagnoseOptions",
+    "diagnose_model",
+    "disagreement",
+    "fit_linear_model",
+    "rigid_train_like",
+    "VERDICTS",
+    "ACCEPTANCES",
+    "ESTIMATION_FRACTION",
+    "REFIT_FOLDS",
+    "VALIDATION_BLOCKS",
+]

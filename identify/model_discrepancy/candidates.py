@@ -1,0 +1,190 @@
+"""Step 3 of the workflow, the candidates: which effects of the catalogue (:mod:`identify.effect_catalogue`)
+are tried, and where each goes into the model (its placement: before or after the linear dynamics, at the
+end, or inside a drive train that replaces the linear block, :func:`rigid_train_like`). A
+:class:`_Candidate` is one effect fitted into the model (:mod:`.fit` makes it).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy import optimize
+
+from identify.drive_train import DriveTrain
+from identify.effect_catalogue import EFFECTS, effect, reference_train
+from identify.plant_blocks import Block, LinearBlock, PlantModel, Resonance
+from identify.validation import InvalidInputError
+
+from identify.model_discrepancy.chain import _Chain, _Component, _build, _train
+from identify.model_discrepancy.thresholds import (
+    FAILED_RUN_ERROR_RAD,
+    LOOP_BANDWIDTH_NYQUIST_SHARE,
+    LOOP_DAMPING_RANGE,
+    LOOP_START_FACTORS,
+)
+
+
+def _candidate_names(candidates: Sequence[str], model: PlantModel | None) -> tuple[str, ...]:
+    """The candidates to try: a fitted linear start model has a free static gain, which absorbs any scale
+    error, so an effect that needs a given model is not identifiable against it (README: a gain error can
+    only be named against a given model)."""
+    if model is None:
+        return tuple(name for name in candidates if not EFFECTS[name].needs_given_model)
+    return tuple(candidates)
+
+
+def _insert_index(chain: _Chain, kind: str) -> int:
+    """Where an effect goes (its catalogue placement): ``input`` before the first linear component,
+    ``output`` after the last linear/resonance component, ``end`` at the very end; ``dynamics`` at the drive
+    train (the chain's ``drive_train`` component, or the fixed drive train of a given model), else at the
+    first linear component, which :func:`_dynamics_chain` replaces with a drive train; -1 when the chain
+    has neither (a model without linear dynamics: no dynamics effect can go in)."""
+    linear = [i for i, c in enumerate(chain.components)
+              if c.kind in ("linear", "drive_train") or (c.kind in EFFECTS and EFFECTS[c.kind].linear_dynamics)
+              or isinstance(c.block, (LinearBlock, Resonance, DriveTrain))]
+    placement = effect(kind).placement
+    if placement == "dynamics":
+        trains = [i for i, c in enumerate(chain.components) if c.kind == "drive_train" or isinstance(c.block, DriveTrain)]
+        plain = [i for i, c in enumerate(chain.components) if c.kind == "linear" or isinstance(c.block, LinearBlock)]
+        return (trains or plain or [-1])[0]
+    if placement == "input":
+        return linear[0] if linear else 0
+    if placement == "end":
+        return len(chain.components)
+    return linear[-1] + 1 if linear else len(chain.components)
+
+
+@dataclass(frozen=True)
+class _Candidate:
+    kind: str
+    chain: _Chain
+    gap_rad: float
+    block: Block
+    index: int
+    estimation_rms_rad: float = math.inf
+    validation_error_rad: NDArray[np.float64] | None = None
+
+
+def _dynamics_chain(chain: _Chain, index: int, u: NDArray[np.float64]) -> tuple[_Chain, DriveTrain]:
+    """The chain with a ``drive_train`` component at ``index`` (catalogue placement ``dynamics``) and the
+    train the effect goes into: that component if there is one; a given model's fixed drive train made a
+    component (loop fixed); or the linear component replaced by the rigid drive train of the same response
+    (:func:`rigid_train_like`; loop free again in the joint fit when the linear block was free, fixed
+    when it was the given model's)."""
+    component = chain.components[index]
+    if component.kind == "drive_train":
+        train = _build(component, component.values)
+        assert isinstance(train, DriveTrain)
+        return chain, train
+    if isinstance(component.block, DriveTrain):
+        holder = _Component("drive_train", (), component.block, component.block.sample_period_s)
+    else:
+        linear = _build(component, component.values)
+        assert isinstance(linear, LinearBlock)
+        before = chain.components[:index]
+        inner = PlantModel(tuple(_build(c, c.values) for c in before)).simulate(u) if before else u
+        fitted = rigid_train_like(linear, inner)
+        if component.kind == "linear":
+            holder = _Component("drive_train", (fitted.position_loop_bandwidth_hz, fitted.position_loop_damping_ratio),
+                                fitted, linear.sample_period_s, loop_free=True)
+        else:
+            holder = _Component("drive_train", (), fitted, linear.sample_period_s)
+    components = list(chain.components)
+    components[index] = holder
+    train = _build(holder, holder.values)
+    assert isinstance(train, DriveTrain)
+    return _Chain(components), train
+
+
+def _loop_starts(train: DriveTrain) -> list[tuple[float, float]]:
+    low, high = LOOP_DAMPING_RANGE
+    return [(f * train.position_loop_bandwidth_hz, min(max(z * train.position_loop_damping_ratio, low), high))
+            for f, z in LOOP_START_FACTORS]
+
+
+def _with_loop(chain: _Chain, index: int, loop: tuple[float, float]) -> _Chain:
+    components = list(chain.components)
+    holder = components[index]
+    components[index] = replace(holder, values=tuple(loop) + holder.values[2:])
+    return _Chain(components)
+
+
+_TRAIN_CACHE: dict[tuple[Any, ...], DriveTrain] = {}
+
+
+def rigid_train_like(block: LinearBlock, input_rad: NDArray[np.float64]) -> DriveTrain:
+    """The rigid drive train (:func:`identify.effect_catalogue.reference_train`) whose position loop
+    reproduces ``block``'s free run on ``input_rad`` best (least squares on bandwidth f_n and damping zeta). Start:
+    the continuous poles s = ln(z) / T of the block's dominant pair (complex: omega_n = |s|,
+    zeta = -Re s / |s|; real: omega_n = sqrt(s_1 s_2), zeta = (s_1 + s_2) / (2 omega_n); one real pole s:
+    omega_n = 2|s|, zeta = 1, the critically damped pair of the same rise). The same block and input give
+    the same train (cached: every dynamics candidate of a round starts from it)."""
+    key = (block.a, block.b, block.sample_period_s, input_rad.size, hash(input_rad.tobytes()))
+    if key in _TRAIN_CACHE:
+        return _TRAIN_CACHE[key]
+    period = block.sample_period_s
+    poles = np.roots((1.0, *block.a)) if block.a else np.zeros(0)
+    poles = poles[np.abs(poles) > 1e-9]
+    continuous = np.log(poles.astype(complex)) / period
+    continuous = continuous[np.argsort(np.abs(continuous))][:2]
+    if continuous.size == 2:
+        natural = float(np.sqrt(np.abs(continuous[0] * continuous[1])))
+        damping = float(-np.real(continuous.sum()) / (2.0 * natural)) if natural > 0 else 1.0
+    elif continuous.size == 1:
+        natural, damping = 2.0 * float(abs(continuous[0])), 1.0
+    else:
+        natural, damping = 2.0 * math.pi * 0.1 / period, 1.0
+    nyquist = 0.5 / period
+    start = (min(max(natural / (2.0 * math.pi), 1e-3 * nyquist), LOOP_BANDWIDTH_NYQUIST_SHARE * nyquist),
+             min(max(damping, LOOP_DAMPING_RANGE[0]), LOOP_DAMPING_RANGE[1]))
+    target = block.apply(input_rad)
+    base = reference_train(period, *start)
+
+    def error(v: NDArray[np.float64]) -> NDArray[np.float64]:
+        try:
+            return _train(base, v, (), True).apply(input_rad) - target
+        except InvalidInputError:
+            return np.full(input_rad.size, FAILED_RUN_ERROR_RAD / math.sqrt(input_rad.size))
+
+    with np.errstate(all="ignore"):
+        fit = optimize.least_squares(error, np.array(start), method="trf", diff_step=1e-4, max_nfev=20)
+    train = _train(base, fit.x, (), True)
+    if len(_TRAIN_CACHE) > 64:
+        _TRAIN_CACHE.clear()
+    _TRAIN_CACHE[key] = train
+    return train
+
+
+def _merged(chain: _Chain, index: int, kind: str, values: Sequence[float]) -> _Chain:
+    """``chain`` with dynamics effect ``kind`` of free ``values`` merged into its drive-train component at
+    ``index`` (:func:`_dynamics_chain` made it one)."""
+    components = list(chain.components)
+    holder = components[index]
+    components[index] = replace(holder, values=holder.values + tuple(float(v) for v in values),
+                                effects=holder.effects + (kind,))
+    return _Chain(components)
+
+
+def _without_effect(chain: _Chain, kind: str) -> _Chain | None:
+    """``chain`` with effect ``kind`` taken out: its own component removed, or, for a dynamics effect, its
+    values and name removed from the drive train (the train's field then keeps the start's value, for a
+    rigid train the neutral one); None when the chain does not hold it."""
+    components = list(chain.components)
+    for i, component in enumerate(components):
+        if component.kind == kind:
+            return _Chain(components[:i] + components[i + 1:])
+        if component.kind == "drive_train" and kind in component.effects:
+            k = 2 if component.loop_free else 0
+            for name in component.effects:
+                n = EFFECTS[name].free_parameters
+                if name == kind:
+                    components[i] = replace(component, values=component.values[:k] + component.values[k + n:],
+                                            effects=tuple(e for e in component.effects if e != kind))
+                    return _Chain(components)
+                k += n
+    return None

@@ -1,0 +1,173 @@
+"""The workflow from end to end (:func:`diagnose_model`): the record checked, moved to its operating point,
+checked for excitation, then the start model, the search, the intervals and the verdict, each step one call
+into its module (the package docstring lists them).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import replace
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from identify.plant_blocks import OutputOffset, PlantModel
+from identify.validation import InvalidInputError, as_signal, positive, same_length, varying, with_options
+
+from identify.model_discrepancy.candidates import _candidate_names
+from identify.model_discrepancy.disagreement import disagreement
+from identify.model_discrepancy.intervals import _named_intervals, _with_final_parameters
+from identify.model_discrepancy.options import DiagnoseOptions
+from identify.model_discrepancy.result import Disagreement, DiscrepancyResult
+from identify.model_discrepancy.search import _Search, _family_rechecked, _search, _still_needed
+from identify.model_discrepancy.start_model import _start
+from identify.model_discrepancy.thresholds import (
+    AT_REST_NOISE_BOUNDS,
+    MIN_MEASURED_FRACTION,
+    OPERATING_POINT_MIN_NOISE_BOUNDS,
+    OPERATING_POINT_SAMPLES,
+)
+from identify.model_discrepancy.verdict import _excitation, _final_verdict, _left_unexplained, _not_excited
+
+
+def diagnose_model(command_rad: ArrayLike, angle_rad: ArrayLike, noise_bound_rad: float,
+                   sample_period_s: float, model: PlantModel | None = None, options: DiagnoseOptions | None = None,
+                   *, progress: Callable[[str], None] | None = None, **option_values: Any) -> DiscrepancyResult:
+    """Run the model-discrepancy workflow (the steps of the package docstring), one named step
+    each: the checks (:func:`_checked_record`), the move to the operating point (:func:`_operating_point`,
+    :func:`_absolute`), the excitation check (:func:`_excitation`, :func:`_not_excited`), the start model
+    (:func:`_start`), the greedy search (:func:`_search`), the intervals of what was named
+    (:func:`_named_intervals`) and the verdict (:func:`_final_verdict`).
+
+    Parameters
+    ----------
+    command_rad, angle_rad
+        Measured input u_t and output y_t (rad), one record. NaN in ``angle_rad`` marks a sample not
+        measured (LOST, or unusable by its flags): the free run still covers it (the model needs only the
+        command), but it is left out of every residual, fit and count (its residual is 0, it is never
+        falsified, and the gaps and falsified fractions are over the measured samples). Each segment must
+        keep :data:`MIN_MEASURED_FRACTION` of its samples.
+    noise_bound_rad
+        delta: bound on the measurement error, |e_t| <= delta (include the encoder's half count).
+    sample_period_s
+        T.
+    model
+        The user's model; None fits the best low-order linear model (:func:`fit_linear_model`), whose
+        coefficients are then refitted together with every effect.
+    options
+        The settings (:class:`DiagnoseOptions`); or give its fields as keywords (``candidates=...``,
+        ``max_effects=2``, ...), which override those of ``options``.
+    progress
+        Called with one line of text per stage and candidate.
+
+    Raises
+    ------
+    InvalidInputError
+        Signals too short, of different lengths or not varying, a noise bound or period that is not
+        positive, a model of another sample period, or a setting out of range.
+    TypeError
+        A keyword that is no field of :class:`DiagnoseOptions` (the message lists them).
+    """
+    options = with_options("diagnose_model", options, DiagnoseOptions, option_values)
+    u, y, delta, period = _checked_record(command_rad, angle_rad, noise_bound_rad, sample_period_s, model)
+    operating_point = _operating_point(y, delta) if options.from_operating_point else 0.0
+    if operating_point != 0.0:
+        result = diagnose_model(u - operating_point, y - operating_point, delta, period, model,
+                                replace(options, from_operating_point=False), progress=progress)
+        return _absolute(result, operating_point, period)
+    n_est = int(round(options.estimation_fraction * u.size))
+    _check_measured(y, n_est)
+    say = progress or (lambda _message: None)
+    excitation = _excitation(u, n_est)
+    if excitation["reason"]:
+        say(f"not excited: {excitation['reason']}")
+        return _not_excited(u, y, delta, model, n_est, excitation, options.consistent_fraction)
+    start_model, linear_fit, chain = _start(u, y, period, n_est, model, options.max_evaluations, say)
+    initial = disagreement(start_model, u, y, delta, n_est)
+    found = _search(_Search(chain, initial, [], [], (), initial.residual_rad[n_est:]),
+                    list(_candidate_names(options.candidates, model)), u, y, n_est, delta, period, options, say,
+                    resolve_ties=True)
+    found = _family_rechecked(found, _candidate_names(options.candidates, model), u, y, n_est, delta, options, say)
+    found = _still_needed(found, u, y, n_est, delta, options, say)
+    chain, current, steps = found.chain, found.current, found.steps
+    consistent = current.falsified_fraction <= options.consistent_fraction
+    intervals, reduction = _named_intervals(chain, steps, start_model, u, y, delta, current, options, say)
+    steps = _with_final_parameters(steps, chain)
+    verdict, reason = _final_verdict(u, y, initial, current, found, consistent, delta, options)
+    return DiscrepancyResult(
+        steps=tuple(steps), start_model=start_model, final_model=chain.model() if steps else start_model,
+        initial=initial, final=current, consistent=consistent,
+        unexplained=_left_unexplained(current, consistent, delta),
+        estimation_samples=n_est, noise_bound_rad=delta, linear_fit=linear_fit, verdict=verdict,
+        verdict_reason=reason, candidates=tuple(found.tried), ambiguous_between=found.ambiguous_between,
+        parameter_intervals=intervals, gap_reduction=reduction, excitation=excitation, undecided=found.undecided,
+    )
+
+
+def _checked_record(command_rad: ArrayLike, angle_rad: ArrayLike, noise_bound_rad: float, sample_period_s: float,
+                    model: PlantModel | None) -> tuple[NDArray[np.float64], NDArray[np.float64], float, float]:
+    """u, y, delta and T of :func:`diagnose_model`, checked (T is the model's own when it has one, so that the
+    blocks added carry exactly the model's period)."""
+    u = as_signal("command_rad", command_rad, min_samples=50)
+    y = as_signal("angle_rad", angle_rad, min_samples=50, missing_allowed=True)
+    same_length(command_rad=u, angle_rad=y)
+    delta = positive("noise_bound_rad", noise_bound_rad)
+    period = positive("sample_period_s", sample_period_s)
+    if model is not None and not isinstance(model, PlantModel):
+        raise InvalidInputError(f"model: expected a PlantModel or None, got {type(model).__name__}")
+    if model is not None and model.sample_period_s is not None:
+        if abs(model.sample_period_s - period) > 1e-3 * period:
+            raise InvalidInputError(
+                f"sample_period_s: the data are sampled every {period:g} s, the model every {model.sample_period_s:g} s")
+        period = model.sample_period_s
+    varying("command_rad", u, "record a step or PRBS experiment (configs/experiments/prbs.toml) to compare a "
+                              "model with")
+    return u, y, delta, period
+
+
+def _check_measured(y: NDArray[np.float64], n_est: int) -> None:
+    """Refuse a record whose estimation or validation segment is too little measured (:data:`MIN_MEASURED_FRACTION`),
+    saying how many samples are left and how many are needed."""
+    missing = np.isnan(y)
+    if not np.any(missing):
+        return
+    for name, part in (("estimation", slice(0, n_est)), ("validation", slice(n_est, y.size))):
+        total = int(missing[part].size)
+        measured = total - int(np.count_nonzero(missing[part]))
+        needed = int(math.ceil(MIN_MEASURED_FRACTION * total))
+        if measured < needed:
+            raise InvalidInputError(
+                f"angle_rad: {int(np.count_nonzero(missing))} of the {y.size} samples are missing (NaN: lost or "
+                f"unusable), which leaves {measured} measured samples of the {total} of the {name} segment; at "
+                f"least {needed} ({100 * MIN_MEASURED_FRACTION:.0f} %) are needed: record again with fewer lost samples")
+
+
+def _operating_point(y: NDArray[np.float64], delta: float) -> float:
+    """y_0 when the record starts at rest (its first angles within two noise bounds of each other) away from
+    zero; 0 otherwise (a record that starts in motion has a state no angle gives: it runs from zero)."""
+    first = y[:OPERATING_POINT_SAMPLES]
+    first = first[~np.isnan(first)]
+    if first.size == 0:
+        return 0.0
+    y0 = float(np.median(first))
+    at_rest = float(np.ptp(first)) <= AT_REST_NOISE_BOUNDS * delta
+    return y0 if at_rest and abs(y0) > OPERATING_POINT_MIN_NOISE_BOUNDS * delta else 0.0
+
+
+def _absolute(result: DiscrepancyResult, operating_point: float, period: float) -> DiscrepancyResult:
+    """``result`` of a run on u - y_0, y - y_0 in absolute angles: simulated outputs moved back by y_0, models
+    wrapped as y_0 + M(u - y_0)."""
+
+    def wrap(model: PlantModel) -> PlantModel:
+        return PlantModel((OutputOffset(offset_rad=-operating_point, drift_rad_per_s=0.0, sample_period_s=period),
+                           *model.blocks,
+                           OutputOffset(offset_rad=operating_point, drift_rad_per_s=0.0, sample_period_s=period)))
+
+    def moved(d: Disagreement) -> Disagreement:
+        return replace(d, simulated_rad=d.simulated_rad + operating_point)
+
+    steps = tuple(replace(step, model=wrap(step.model)) for step in result.steps)
+    return replace(result, steps=steps, start_model=wrap(result.start_model), final_model=wrap(result.final_model),
+                   initial=moved(result.initial), final=moved(result.final), operating_point_rad=operating_point)

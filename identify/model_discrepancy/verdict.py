@@ -1,0 +1,149 @@
+"""Step 6 of the workflow, the verdict: explained / named / ambiguous / unexplained / not excited
+(:data:`VERDICTS`) with its reason in words (:func:`_verdict`), including the checks that make a record not
+excited: a segment where the command never turns or too short a validation segment (:func:`_excitation`),
+and an output that moves while the command and the model rest (:func:`_unmeasured_input`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from identify.border_lifting import direction_signal
+from identify.plant_blocks import Delay, PlantModel
+
+from identify.model_discrepancy.disagreement import disagreement
+from identify.model_discrepancy.options import DiagnoseOptions
+from identify.model_discrepancy.result import CandidateResult, Disagreement, DiscrepancyResult, DiscrepancyStep
+from identify.model_discrepancy.search import _Search
+from identify.model_discrepancy.thresholds import (
+    COMMAND_STILL_RANGE_FRACTION,
+    MIN_REDUCTION,
+    MIN_SEGMENT_REVERSALS,
+    MIN_VALIDATION_SAMPLES,
+    UNMEASURED_INPUT_FRACTION,
+    UNMEASURED_MODEL_STILL_NOISE_BOUNDS,
+    UNMEASURED_OUTPUT_MOTION_NOISE_BOUNDS,
+)
+
+
+def _command_reversals(u: NDArray[np.float64]) -> NDArray[np.bool_]:
+    """True at the samples where the command's direction of motion turns (a designed command moves smoothly
+    or holds exactly: only steps below a millionth of its range, rounding, are no motion)."""
+    threshold = COMMAND_STILL_RANGE_FRACTION * float(np.ptp(u)) if u.size else 0.0
+    direction = direction_signal(u, threshold=threshold)
+    turns = np.zeros(u.size, dtype=bool)
+    turns[1:] = (np.diff(direction) != 0) & (direction[:-1] != 0)
+    return turns
+
+
+def _excitation(u: NDArray[np.float64], n_est: int) -> dict[str, Any]:
+    """Whether the record can show the effects: reversals of the command in each segment and the validation
+    segment's length (:data:`MIN_SEGMENT_REVERSALS`, :data:`MIN_VALIDATION_SAMPLES`); ``reason`` says why
+    not, or is empty."""
+    turns = _command_reversals(u)
+    estimation, validation = int(np.count_nonzero(turns[:n_est])), int(np.count_nonzero(turns[n_est:]))
+    samples = int(u.size - n_est)
+    reason = ""
+    if samples < MIN_VALIDATION_SAMPLES:
+        reason = (f"the validation segment is too short to judge: {samples} samples, at least "
+                  f"{MIN_VALIDATION_SAMPLES} needed")
+    elif estimation + validation == 0:
+        reason = "the command never reverses its direction: no effect can be told apart from a lag or a scale"
+    elif validation < MIN_SEGMENT_REVERSALS:
+        reason = (f"the validation segment is too short to judge: the command reverses {validation} times there "
+                  f"(at least {MIN_SEGMENT_REVERSALS} needed); record longer or move more often")
+    elif estimation < MIN_SEGMENT_REVERSALS:
+        reason = (f"the estimation segment cannot fit an effect: the command reverses {estimation} times there "
+                  f"(at least {MIN_SEGMENT_REVERSALS} needed)")
+    return {"reversals_estimation": estimation, "reversals_validation": validation, "validation_samples": samples,
+            "reason": reason}
+
+
+def _unmeasured_input(u: NDArray[np.float64], y: NDArray[np.float64], simulated: NDArray[np.float64],
+                      delta: float) -> str:
+    """A reason when the output moves while the command and the model are at rest
+    (:data:`UNMEASURED_INPUT_FRACTION`), else an empty string."""
+    command_still = np.abs(np.diff(u)) <= 1e-12 + COMMAND_STILL_RANGE_FRACTION * float(np.ptp(u))
+    model_still = np.abs(np.diff(simulated)) <= UNMEASURED_MODEL_STILL_NOISE_BOUNDS * delta
+    output_moves = np.abs(np.diff(y)) > UNMEASURED_OUTPUT_MOTION_NOISE_BOUNDS * delta
+    share = float(np.mean(command_still & model_still & output_moves))
+    if share < UNMEASURED_INPUT_FRACTION:
+        return ""
+    return (f"the output moves while the command and the model are at rest in {100 * share:.0f} % of samples: "
+            "an input the record does not contain (torque off, an external load) drives it")
+
+
+def _not_excited(u: NDArray[np.float64], y: NDArray[np.float64], delta: float, model: PlantModel | None,
+                 n_est: int, excitation: dict[str, Any], consistent_fraction: float) -> DiscrepancyResult:
+    """The result of a record whose segments cannot show the effects (:func:`_excitation`): not scored, a
+    verdict on a segment that cannot show the effects would be a guess."""
+    start_model = model if model is not None else PlantModel((Delay(1),))
+    initial = disagreement(start_model, u, y, delta, n_est)
+    return DiscrepancyResult(
+        steps=(), start_model=start_model, final_model=start_model, initial=initial, final=initial,
+        consistent=initial.falsified_fraction <= consistent_fraction,
+        unexplained=f"not judged: {excitation['reason']}", estimation_samples=n_est, noise_bound_rad=delta,
+        linear_fit=None, verdict="not_excited", verdict_reason=str(excitation["reason"]), excitation=excitation,
+    )
+
+
+def _verdict(initial: Disagreement, final: Disagreement, steps: Sequence[DiscrepancyStep],
+             ambiguous_between: tuple[str, ...], consistent: bool, delta: float,
+             consistent_fraction: float, undecided: Sequence[CandidateResult] = (),
+             min_reduction: float = MIN_REDUCTION) -> tuple[str, str]:
+    """The verdict of the workflow and the reason in words (package docstring, step 6)."""
+    if initial.falsified_fraction <= consistent_fraction:
+        return "explained", (f"the start model agrees with the data within the noise bound ({delta:.3g} rad) on "
+                             f"{100 * (1 - initial.falsified_fraction):.1f} % of validation samples")
+    named = ", ".join(step.effect for step in steps)
+    if undecided:
+        before = f"{named} named (gap {initial.gap_rad:.3g} -> {final.gap_rad:.3g} rad); then " if steps else ""
+        words = "; ".join(f"with {c.effect} the validated gap is {_percent_lower(c.reduction)}, reduction "
+                          f"{c.interval_text()} within its uncertainty" for c in undecided)
+        return "ambiguous", (f"{before}{words}, against {100 * min_reduction:.0f} % required: whether "
+                             f"{'it is' if len(undecided) == 1 else 'they are'} there cannot be told from this "
+                             "record, so none is named")
+    if ambiguous_between:
+        before = f" after {named}" if steps else ""
+        return "ambiguous", (f"{' and '.join(ambiguous_between)} fit the validation segment equally well within "
+                             f"their uncertainty{before}: none is chosen")
+    if steps:
+        left = ("the model is then consistent with the noise bound" if consistent else
+                f"{100 * final.falsified_fraction:.1f} % of validation samples stay outside the noise bound: part "
+                "of the disagreement is unexplained")
+        verb = "lowers" if len(steps) == 1 else "lower"
+        return "named", f"{named} {verb} the validated gap from {initial.gap_rad:.3g} to {final.gap_rad:.3g} rad; {left}"
+    return "unexplained", (f"{100 * initial.falsified_fraction:.1f} % of validation samples are outside the noise "
+                           f"bound and no candidate lowers the validated gap ({initial.gap_rad:.3g} rad) enough")
+
+
+def _percent_lower(reduction: float) -> str:
+    """A gap reduction in words: "18 % lower", or "35 % higher" when it grew."""
+    return f"{100 * abs(reduction):.0f} % {'lower' if reduction >= 0 else 'higher'}"
+
+
+def _final_verdict(u: NDArray[np.float64], y: NDArray[np.float64], initial: Disagreement, final: Disagreement,
+                   found: _Search, consistent: bool, delta: float, options: DiagnoseOptions) -> tuple[str, str]:
+    """:func:`_verdict`, and a record where nothing is named (unexplained, or ambiguous before any effect)
+    whose output moves on its own (:func:`_unmeasured_input`) is not excited by the command instead: a
+    candidate undecided on such a record is as meaningless as none, the record cannot test the model."""
+    verdict, reason = _verdict(initial, final, found.steps, found.ambiguous_between, consistent, delta,
+                               options.consistent_fraction, found.undecided, options.min_reduction)
+    if verdict == "unexplained" or (verdict == "ambiguous" and not found.steps):
+        unmeasured = _unmeasured_input(u, y, final.simulated_rad, delta)
+        if unmeasured:
+            return "not_excited", unmeasured
+    return verdict, reason
+
+
+def _left_unexplained(current: Disagreement, consistent: bool, delta: float) -> str:
+    """What is left, in words (:attr:`DiscrepancyResult.unexplained`)."""
+    if consistent:
+        return "the model is consistent with the noise bound on the validation segment"
+    return (f"{100 * current.falsified_fraction:.1f} % of validation samples still exceed the noise bound "
+            f"(gap {current.gap_rad:.3g} rad against a bound of {delta:.3g} rad) and none of the candidate "
+            "effects lowers the validated gap further: what is left is unexplained")
