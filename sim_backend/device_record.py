@@ -1,0 +1,55 @@
+"""What a simulated device really did, sample by sample: the judge of a host's log (every logged command must
+be the target the device applied at that sample), kept by every simulated device and written by one that runs
+in a process of its own (:mod:`sim_backend.device_process`)."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+__all__ = ["DeviceRecord"]
+
+
+@dataclass(frozen=True)
+class DeviceRecord:
+    """One run of a simulated device.
+
+    Attributes
+    ----------
+    applied_targets
+        Sample k (the k-th SYNC or tick from the first target on): the target in drive counts the device
+        applied, its own or the one it held.
+    controlwords
+        Every controlword received, in order.
+    held
+        Samples the device held because their target had not come: ticks without their setpoint (serial, raw
+        CAN) or SYNCs that found the interpolation buffer empty (CANopen; a CSP drive cannot tell).
+    tick_delay_max_s
+        The latest any tick (or SYNC the device process produced) ran after its instant on the device's clock:
+        how much the device itself was starved. None where the device does not keep the clock.
+    receive_drops
+        Frames the device's receive queue dropped when full (udp_multicast), None where unknown.
+    """
+
+    applied_targets: tuple[int, ...]
+    controlwords: tuple[int, ...]
+    held: int
+    tick_delay_max_s: float | None = None
+    receive_drops: int | None = None
+
+    KIND = "device_record"
+    VERSION = 1
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"kind": self.KIND, "version": self.VERSION, "applied_targets": list(self.applied_targets),
+                "controlwords": list(self.controlwords), "held": self.held,
+                "tick_delay_max_s": self.tick_delay_max_s, "receive_drops": self.receive_drops}
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> DeviceRecord:
+        if data.get("kind") != cls.KIND or data.get("version") != cls.VERSION:
+            raise ValueError(f"not a {cls.KIND} version {cls.VERSION}: kind {data.get('kind')!r}, "
+                             f"version {data.get('version')!r}")
+        return cls(tuple(int(v) for v in data["applied_targets"]), tuple(int(v) for v in data["controlwords"]),
+                   int(data["held"]), data.get("tick_delay_max_s"), data.get("receive_drops"))
