@@ -32,7 +32,7 @@ from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
-from sim_backend.device_record import DeviceRecord
+from sim_backend.device_record import DeviceRecord, TickLateness
 
 __all__ = ["DeviceProcess", "SyncProducer", "device_process", "main", "multicast_group", "unused_udp_port"]
 
@@ -123,13 +123,14 @@ class SyncProducer:
     :class:`~sim_backend.canopen_nodes.SimulatedCanOpenRig`) the next SYNC waits until the devices have answered
     this one (its echo: at most :data:`ANSWER_TIMEOUT_PERIODS` periods, a lost echo is not waited for): a real
     drive answers within microseconds, and a starved simulated one then delays its whole cycle instead of
-    answering after the next SYNC. :attr:`delay_max_s` is the latest a SYNC went out after its instant."""
+    answering after the next SYNC. :attr:`lateness` says how late the SYNCs went out (their samples: the
+    devices' ``setpoints``)."""
 
-    ANSWER_TIMEOUT_PERIODS = 10
+    ANSWER_TIMEOUT_S = 1.0  # a lost echo costs this once; a starved process is waited for
 
     def __init__(self, bus: Any, period_s: float, devices: Any = None) -> None:
         self.bus, self.period_s, self.devices = bus, float(period_s), devices
-        self.delay_max_s = 0.0
+        self.lateness = TickLateness()
         self._stopped = threading.Event()
         self._thread = threading.Thread(target=self._run, name="sim-sync-producer", daemon=True)
 
@@ -164,10 +165,10 @@ class SyncProducer:
             except can.CanError:
                 return  # the bus is going down
             last = time.perf_counter()
-            self.delay_max_s = max(self.delay_max_s, last - instant)
+            self.lateness.observe(0 if self.devices is None else self.devices.setpoints, last - instant)
             k += 1
             if answered is not None:
-                self.devices.wait_for_answers(answered + 1, self.ANSWER_TIMEOUT_PERIODS * self.period_s)
+                self.devices.wait_for_answers(answered + 1, self.ANSWER_TIMEOUT_S)
 
 
 def _start(kind: str, args: Any, stack: contextlib.ExitStack) -> tuple[Any, str, SyncProducer | None]:
@@ -235,7 +236,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             producer.stop()  # no sample after the record is taken
         record = device.record()
         if producer is not None:
-            record = dataclasses.replace(record, tick_delay_max_s=producer.delay_max_s)
+            record = dataclasses.replace(record, tick_delay_max_s=producer.lateness.delay_max_s,
+                                         stalls=tuple(producer.lateness.stalls))
     if args.record is not None:
         Path(args.record).write_text(json.dumps(record.to_dict()))
     return 0

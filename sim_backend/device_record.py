@@ -8,7 +8,10 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
-__all__ = ["DeviceRecord"]
+__all__ = ["DEVICE_STALL_S", "DeviceRecord", "TickLateness"]
+
+DEVICE_STALL_S = 0.01
+"""A tick (or SYNC) this much after its instant is a stall of the device's own process (:class:`TickLateness`)."""
 
 
 @dataclass(frozen=True)
@@ -30,6 +33,10 @@ class DeviceRecord:
         how much the device itself was starved. None where the device does not keep the clock.
     receive_drops
         Frames the device's receive queue dropped when full (udp_multicast), None where unknown.
+    stalls
+        ``(sample, delay_s)`` for every stall of the device's clock: the first tick of each run of ticks more than
+        :data:`DEVICE_STALL_S` after their instants (the device then catches up in a burst), and the largest delay
+        of the run.
     """
 
     applied_targets: tuple[int, ...]
@@ -37,6 +44,7 @@ class DeviceRecord:
     held: int
     tick_delay_max_s: float | None = None
     receive_drops: int | None = None
+    stalls: tuple[tuple[int, float], ...] = ()
 
     KIND = "device_record"
     VERSION = 1
@@ -44,7 +52,8 @@ class DeviceRecord:
     def to_dict(self) -> dict[str, Any]:
         return {"kind": self.KIND, "version": self.VERSION, "applied_targets": list(self.applied_targets),
                 "controlwords": list(self.controlwords), "held": self.held,
-                "tick_delay_max_s": self.tick_delay_max_s, "receive_drops": self.receive_drops}
+                "tick_delay_max_s": self.tick_delay_max_s, "receive_drops": self.receive_drops,
+                "stalls": [list(stall) for stall in self.stalls]}
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any]) -> DeviceRecord:
@@ -52,4 +61,26 @@ class DeviceRecord:
             raise ValueError(f"not a {cls.KIND} version {cls.VERSION}: kind {data.get('kind')!r}, "
                              f"version {data.get('version')!r}")
         return cls(tuple(int(v) for v in data["applied_targets"]), tuple(int(v) for v in data["controlwords"]),
-                   int(data["held"]), data.get("tick_delay_max_s"), data.get("receive_drops"))
+                   int(data["held"]), data.get("tick_delay_max_s"), data.get("receive_drops"),
+                   tuple((int(sample), float(delay)) for sample, delay in data.get("stalls", ())))
+
+
+class TickLateness:
+    """How late a device's clock ran its ticks: the latest (:attr:`delay_max_s`) and its stalls (see
+    :attr:`DeviceRecord.stalls`)."""
+
+    def __init__(self) -> None:
+        self.delay_max_s = 0.0
+        self.stalls: list[tuple[int, float]] = []
+        self._stalled = False
+
+    def observe(self, sample: int, delay_s: float) -> None:
+        """The tick of ``sample`` ran ``delay_s`` after its instant."""
+        self.delay_max_s = max(self.delay_max_s, delay_s)
+        stalled = delay_s > DEVICE_STALL_S
+        if stalled and not self._stalled:
+            self.stalls.append((sample, delay_s))
+        elif stalled:
+            first, delay_max_s = self.stalls[-1]
+            self.stalls[-1] = (first, max(delay_max_s, delay_s))
+        self._stalled = stalled

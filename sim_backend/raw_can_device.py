@@ -26,14 +26,17 @@ import can
 
 from rig.protocols import cia402
 from rig.protocols.can_bus_load import frame_bits
-from rig.protocols.can_interfaces import echoes_own_frames, open_bus, receive_drops
+from rig.protocols.can_interfaces import open_bus, receive_drops
 from rig.protocols.raw_can_frames import DEFAULT_DBC, RawCanCodec
 from rig.protocols.serial_frames import unwrap_seq
-from sim_backend.device_record import DeviceRecord
+from sim_backend.device_record import DeviceRecord, TickLateness
 from sim_backend.plant import SimulatedGearbox
 from sim_backend.virtual_bus_order import one_bus_order
 
 __all__ = ["SimulatedRawCanDevice"]
+
+HOST_FRAMES = ("RIG_CONTROL", "RIG_STATUS_REQUEST", "RIG_HELLO", "RIG_START", "RIG_SETPOINT")
+"""The frames the device receives (configs/raw_can.dbc: those the host sends)."""
 
 
 class SimulatedRawCanDevice(can.Listener):
@@ -95,7 +98,7 @@ class SimulatedRawCanDevice(can.Listener):
         self.ticks = 0
         self.held_ticks = 0
         self.applied_targets: list[int] = []  # tick k: the target applied (DeviceRecord)
-        self.tick_delay_max_s = 0.0  # the latest a tick ran after its instant (the tick thread)
+        self.lateness = TickLateness()  # how late the tick thread ran the ticks
         self.dropped_setpoints = 0
         self.target_counts = 0
         self._applied_tick: int | None = None  # the tick whose setpoint is in force (None: the enable position)
@@ -105,7 +108,6 @@ class SimulatedRawCanDevice(can.Listener):
         self._tick_thread: threading.Thread | None = None
         self.gearbox = gearbox
         self.channel, self.interface, self.port = channel, interface, port
-        self._counts_sent = not echoes_own_frames(interface)  # else each frame is counted as it comes back
         self.drive = cia402.DriveScaling(int(drive_counts_per_revolution))
         self.codec = RawCanCodec(dbc_path)
         self.bitrate = int(bitrate)
@@ -136,8 +138,10 @@ class SimulatedRawCanDevice(can.Listener):
         if self.interface == "virtual":
             one_bus_order()  # every node sees the frames in one order, as on a real bus
             self._bus = can.Bus(interface="virtual", channel=self.channel, receive_own_messages=False)
-        else:
-            self._bus = open_bus(self.interface, self.channel, port=self.port, bitrate=self.bitrate)
+        else:  # an acceptance filter for the host's frames: its own, which udp_multicast hands back, cost no decoding
+            self._bus = open_bus(self.interface, self.channel, port=self.port, bitrate=self.bitrate, can_filters=[
+                {"can_id": self.codec.frame_ids[name], "can_mask": 0x7FF, "extended": False} for name in HOST_FRAMES
+                if name in self.codec.frame_ids])
         self._notifier = can.Notifier(self._bus, [self], timeout=0.05)
         if self.protocol_version >= 2:
             self._stop.clear()
@@ -182,8 +186,8 @@ class SimulatedRawCanDevice(can.Listener):
         with self._state_lock:
             clocked = self.protocol_version >= 2 and self._tick_thread is not None
             return DeviceRecord(tuple(self.applied_targets), tuple(self.controlwords), self.held_ticks,
-                                self.tick_delay_max_s if clocked else None,
-                                None if self._bus is None else receive_drops(self._bus))
+                                self.lateness.delay_max_s if clocked else None,
+                                None if self._bus is None else receive_drops(self._bus), tuple(self.lateness.stalls))
 
     def __enter__(self) -> SimulatedRawCanDevice:
         return self.start()
@@ -193,8 +197,7 @@ class SimulatedRawCanDevice(can.Listener):
 
     def _send(self, name: str, **signals: int) -> None:
         msg = self.codec.encode(name, **signals)
-        if self._counts_sent:
-            self._count(msg)
+        self._count(msg)
         self._bus.send(msg)
 
     def _count(self, msg: can.Message) -> None:
@@ -318,7 +321,7 @@ class SimulatedRawCanDevice(can.Listener):
                 continue
             with self._state_lock:
                 if self._ticking_since == since:
-                    self.tick_delay_max_s = max(self.tick_delay_max_s, self._clock() - due)
+                    self.lateness.observe(len(self.applied_targets), self._clock() - due)
                     self.tick()
 
     def tick(self) -> None:

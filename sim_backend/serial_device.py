@@ -33,7 +33,7 @@ from rig.protocols import cia402
 from rig.protocols.serial_frames import (
     PROTOCOL_VERSION, TICK_HELD, FrameDecoder, MessageType, SerialMessage, encode_frame, unwrap_seq,
 )
-from sim_backend.device_record import DeviceRecord
+from sim_backend.device_record import DeviceRecord, TickLateness
 from sim_backend.plant import SimulatedGearbox
 
 __all__ = ["SimulatedSerialDevice", "serial_device_process"]
@@ -133,7 +133,7 @@ class SimulatedSerialDevice:
         self.ticks = 0  # v2: the next tick's number (ticks done)
         self.held_ticks = 0
         self.applied_targets: list[int] = []  # sample k: the target applied (DeviceRecord)
-        self.tick_delay_max_s = 0.0  # the latest a tick ran after its instant (the tick thread)
+        self.lateness = TickLateness()  # how late the tick thread ran the ticks
         self.dropped_setpoints = 0  # v2: late (tick passed) or beyond the buffer's capacity
         self._ticking_since: float | None = None  # v2: host time of tick 0 (START), None: not ticking
         self._lock = threading.RLock()  # the serve and tick threads share the drive's state
@@ -213,7 +213,8 @@ class SimulatedSerialDevice:
         """What the device did (v2: tick k's target; v1: the target of each setpoint applied)."""
         with self._lock:
             return DeviceRecord(tuple(self.applied_targets), tuple(self.controlwords), self.held_ticks,
-                                self.tick_delay_max_s if self._tick_thread is not None else None)
+                                self.lateness.delay_max_s if self._tick_thread is not None else None,
+                                stalls=tuple(self.lateness.stalls))
 
     def __enter__(self) -> SimulatedSerialDevice:
         return self.start()
@@ -303,7 +304,7 @@ class SimulatedSerialDevice:
                     self._unplug()
                     return
                 lagged = self.reply_lag is not None and self.ticks > self.reply_lag[1]
-                self.tick_delay_max_s = max(self.tick_delay_max_s, now - due)
+                self.lateness.observe(len(self.applied_targets), now - due)
                 frames = self.tick()
             if not frames:
                 continue
