@@ -12,9 +12,11 @@ conditions the script sets up and tears down itself:
     differs from it ("wrong", goal 0), HELD rows, and for each stretch of HELD rows whether it began during a
     pause of the host (two turns of the runner further apart than the lead) that explains it, or else during a
     stall of the device's own clock (its process starved: it then makes up the ticks in a burst beyond the
-    host's lead, which a real device would not do). Also the device's latest tick, frames dropped at a full
+    host's lead, which a real device would not do), or else while the host's rows lagged the device's clock by
+    more than the lead without one such pause (a host with too little CPU to keep up). Also the device's latest tick, frames dropped at a full
     udp_multicast receive buffer (host / device), and how the run ended (exit status as ``rig run`` would
-    give it, and the stop).
+    give it, and the stop). The host waits for a starved device process rather than stop the run
+    (``PATIENT_WITH_A_DEVICE_PROCESS``: SDO and heartbeat timeouts of 5 s, raw-CAN replies of 2 s).
 
 Per row: samples, lost (goal 0), held (setpoints that missed the device's instant; goal 0), the smallest
 lead of a setpoint over its instant, late samples, CPU per 1000 samples, the CAN bus load, and who stalled:
@@ -69,7 +71,8 @@ from rig.protocols.errors import ConfigError, RigError  # noqa: E402
 from rig.rig_config import load_rig_config  # noqa: E402
 from rig.runner import run_experiment  # noqa: E402
 from rig.transports import open_transport  # noqa: E402
-from rig.transports.simulated import start_device_process, start_simulated_devices  # noqa: E402
+from rig.transports.simulated import (PATIENT_WITH_A_DEVICE_PROCESS, start_device_process,  # noqa: E402
+                                     start_simulated_devices)
 from sim_backend.plant_config import load_plant_config  # noqa: E402
 
 STALL_S = 0.05
@@ -140,6 +143,17 @@ def _during(stretch: tuple[int, int], stalls: list[tuple[int, float]], period_s:
     return any(sample <= first <= sample + math.ceil(stall_s / period_s) + lead for sample, stall_s in stalls)
 
 
+def _host_behind(turns: list[tuple[float, int]], period_s: float, lead: int) -> list[tuple[int, float]]:
+    """(rows written, lag) at every turn of the runner whose rows lagged the device's clock by more than the
+    lead: the row w is due at t_0 + w T, t_0 taken from the turn that was least behind. A host that falls behind
+    without one pause longer than the lead (too little CPU to keep up), or a device stall, shows here."""
+    written = [(when, done) for when, done in turns if done > 0]
+    if not written:
+        return []
+    origin = min(when - done * period_s for when, done in written)
+    return [(done, lag) for when, done in written if (lag := when - origin - done * period_s) > lead * period_s]
+
+
 def _exit_status(err: BaseException | None) -> int:
     """The exit status ``rig run`` gives a run that ended with ``err``."""
     if err is None:
@@ -193,6 +207,7 @@ def measure(kind: str, rate_hz: float, duration_s: float, directory: Path, pendi
         if devices == "process":
             device_sync = config.scheme == "canopen" and canopen_sync == "device"
             url, running = start_device_process(config, stack, sample_period_s=1.0 / rate_hz, produce_sync=device_sync)
+            options.update(PATIENT_WITH_A_DEVICE_PROCESS[config.scheme])
             if device_sync:
                 options["sync_producer"] = "external"
         else:
@@ -219,21 +234,23 @@ def measure(kind: str, rate_hz: float, duration_s: float, directory: Path, pendi
     lead = transport.lead_samples
     gaps = np.diff([when for when, _ in turns]) if len(turns) > 1 else np.zeros(0)
     host_stalls = [(turns[i][1], float(gap)) for i, gap in enumerate(gaps) if gap > lead * period]
+    host_behind = _host_behind(turns, period, lead)
     stretches = _held_stretches(flags)
-    applied = np.array(record.applied_targets, dtype=np.int64)
-    logged = np.array([transport.drive.counts_from_rad(value) for value in rows.command_rad], dtype=np.int64)
+    logged = [transport.drive.counts_from_rad(value) for value in rows.command_rad]
     usable = (flags & int(SampleFlag.unusable())) == 0
-    compared = min(len(logged), len(applied))
-    wrong = int(np.count_nonzero(logged[:compared][usable[:compared]] != applied[:compared][usable[:compared]]))
-    wrong += int(np.count_nonzero(usable[compared:]))  # rows the device has no record of
+    offset = record.row_offset(logged)
+    applied = record.applied_targets
+    wrong = sum(1 for k, counts in enumerate(logged)  # (a usable row the device has no sample for is wrong too)
+                if usable[k] and not (0 <= k + offset < len(applied) and applied[k + offset] == counts))
     device_clocked = lead > 0
     row: dict[str, object] = {
         "transport": kind, "rate_hz": rate_hz, "devices": devices, "samples": len(rows.flags),
         "lost": int(np.count_nonzero(flags & int(SampleFlag.LOST))),
-        "wrong": wrong, "held": int(np.count_nonzero(flags & int(SampleFlag.HELD))) if device_clocked else None,
+        "wrong": wrong, "row_offset": offset, "held": int(np.count_nonzero(flags & int(SampleFlag.HELD))) if device_clocked else None,
         "held_stretches": [{"first": first, "last": last,
                             "during_host_stall": _during((first, last), host_stalls, period, lead),
-                            "during_device_stall": _during((first, last), list(record.stalls), period, lead)}
+                            "during_device_stall": _during((first, last), list(record.stalls), period, lead),
+                            "host_behind": _during((first, last), host_behind, period, lead)}
                            for first, last in stretches],
         "lead_ms": 1e3 * lead * period, "host_stalls_over_lead": len(host_stalls),
         "exit": _exit_status(failure),
@@ -295,9 +312,12 @@ def _stretches_cell(row: dict[str, object]) -> str:
         return "none"
     host = sum(stretch["during_host_stall"] for stretch in stretches)
     device = sum(stretch["during_device_stall"] and not stretch["during_host_stall"] for stretch in stretches)
-    neither = [f"{s['first']}-{s['last']}" for s in stretches if not (s["during_host_stall"] or s["during_device_stall"])]
-    return (f"{len(stretches)}: {host} in a host stall > lead, {device} in a device stall only" +
-            (f", {len(neither)} in neither ({', '.join(neither[:3])})" if neither else ""))
+    behind = sum(stretch["host_behind"] and not (stretch["during_host_stall"] or stretch["during_device_stall"])
+                 for stretch in stretches)
+    other = [f"{s['first']}-{s['last']}" for s in stretches
+             if not (s["during_host_stall"] or s["during_device_stall"] or s["host_behind"])]
+    return (f"{len(stretches)}: {host} in a host stall > lead, {device} in a device stall, {behind} with the host "
+            "behind by > lead" + (f", {len(other)} else ({', '.join(other[:3])})" if other else ""))
 
 
 def _optional(value: object, unit: str = "", digits: int = 1) -> str:

@@ -381,7 +381,8 @@ class SimulatedCanOpenRig:
         with self._lock:
             bus = None if self.network is None else self.network.bus
             return DeviceRecord(tuple(self.applied_targets), tuple(self.controlwords), self.ip_underruns,
-                                receive_drops=None if bus is None else receive_drops(bus))
+                                receive_drops=None if bus is None else receive_drops(bus),
+                                position_before_counts=self.position_before_samples)
 
     def __enter__(self) -> SimulatedCanOpenRig:
         return self.start()
