@@ -239,9 +239,7 @@ def measure(kind: str, rate_hz: float, duration_s: float, directory: Path, pendi
     logged = [transport.drive.counts_from_rad(value) for value in rows.command_rad]
     usable = (flags & int(SampleFlag.unusable())) == 0
     offset = record.row_offset(logged)
-    applied = record.applied_targets
-    wrong = sum(1 for k, counts in enumerate(logged)  # (a usable row the device has no sample for is wrong too)
-                if usable[k] and not (0 <= k + offset < len(applied) and applied[k + offset] == counts))
+    wrong = record.wrong_rows(logged, usable.tolist())
     device_clocked = lead > 0
     row: dict[str, object] = {
         "transport": kind, "rate_hz": rate_hz, "devices": devices, "samples": len(rows.flags),

@@ -83,6 +83,22 @@ class DeviceRecord:
         sample = next((k for k, counts in enumerate(self.applied_targets) if counts != start), None)
         return 0 if row is None or sample is None else sample - row
 
+    def wrong_rows(self, logged_counts: Sequence[int], usable: Sequence[bool]) -> int:
+        """How many usable rows of a log (``logged_counts``: the commands in drive counts) name another target than
+        the device applied at that row's sample (:meth:`row_offset`). A row before the device's first sample is
+        right when it names the position the drive held (:attr:`position_before_counts`); a usable row beyond
+        the record is wrong."""
+        offset = self.row_offset(logged_counts)
+        wrong = 0
+        for k, (counts, ok) in enumerate(zip(logged_counts, usable)):
+            sample = k + offset
+            if sample < 0:
+                applied = self.position_before_counts
+            else:
+                applied = self.applied_targets[sample] if sample < len(self.applied_targets) else None
+            wrong += bool(ok) and counts != applied
+        return wrong
+
 
 class TickLateness:
     """How late a device's clock ran its ticks: the latest (:attr:`delay_max_s`) and its stalls (see

@@ -5,8 +5,10 @@ A rig config with a ``[simulation]`` table names a plant (``configs/plants/*.tom
 builds that gearbox, checks it against the rig config (rate, encoder), starts the scheme's simulated
 device(s) on it and yields the URL the transport opens. The devices speak the real protocol (canopen
 LocalNodes and python-can virtual-bus peers, a byte-level serial peer on a pty), so the transport code is
-the same for a simulated and a real rig. ``sim_backend`` is imported only here and only when a device
-starts: ``rig.transports`` stays importable without it, and ``sim_backend`` never imports this module.
+the same for a simulated and a real rig. :func:`start_device_process` starts them in a process of their own
+instead (the CAN devices on python-can's ``udp_multicast``), as a real device has its own CPU. ``sim_backend`` is
+imported only here and only when a device starts: ``rig.transports`` stays importable without it, and
+``sim_backend`` never imports this module.
 """
 
 from __future__ import annotations

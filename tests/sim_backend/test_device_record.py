@@ -19,6 +19,9 @@ def test_rows_held_before_a_drives_late_first_target_are_no_samples_of_the_drive
     # counts its samples from its first target on, took target 2 as its sample 0
     record = DeviceRecord((130, 160, 190), (), 0, position_before_counts=100)
     assert record.row_offset([100, 100, 130, 160, 190]) == -2
+    assert record.wrong_rows([100, 100, 130, 160, 190], [True] * 5) == 0
+    assert record.wrong_rows([100, 100, 130, 160, 999, 190], [True] * 6) == 2  # row 4, and row 5 beyond the record
+    assert record.wrong_rows([100, 100, 130, 160, 999, 190], [True] * 4 + [False] * 2) == 0
     assert record.row_offset([100, 100]) == 0  # nothing moved: nothing to align by
 
 
