@@ -1,7 +1,7 @@
 """Who stalls in a serial v2 run: time stamps of the host's setpoints and reads, of the simulated device's
 ticks, and of the driver process's garbage collections, for one case of ``transport_timing.py``.
 
-The simulated device runs as a thread of the driver's process here (``--serial-device thread`` of
+The simulated device runs as a thread of the driver's process here (``--devices thread`` of
 ``transport_timing.py``), so that its tick thread can be timed: a tick that runs late while the host was also
 silent, at the time of a long collection, is a pause of the whole process, not of one side. Prints the
 longest of each kind of gap, when it came, and every collection longer than 10 ms. Usage::
@@ -77,7 +77,7 @@ def main() -> int:
     SimulatedSerialDevice.tick, SerialTransport._send, SerialTransport._poll = timed_tick, timed_send, timed_poll
     gc.callbacks.append(gc_timer)
     with tempfile.TemporaryDirectory() as directory, transport_timing.condition(args.condition):
-        row = transport_timing.measure("serial", args.rate, args.duration, Path(directory), 4, serial_device="thread")
+        row = transport_timing.measure("serial", args.rate, args.duration, Path(directory), 4, devices="thread")
     origin = ticks[0][1] if ticks else 0.0
     print(f"# serial {args.rate:g} Hz, {args.condition}, {args.duration:g} s, device as a thread: {row['samples']} "
           f"samples, {row['lost']} lost, {row['held']} held, min lead {row['min_lead_ms']:.1f} ms, load average "

@@ -47,6 +47,7 @@ import canopen
 from identify.validation import InvalidInputError
 from rig.protocols import cia402
 from rig.protocols.can_bus_load import frame_bits
+from rig.protocols.can_interfaces import echoes_own_frames, open_bus, receive_drops
 from sim_backend.canopen_behaviour import (
     EMCY_ERROR_RESET, EMCY_FOLLOWING_ERROR, EMCY_PARAMETER_ERROR, EMCY_POSITIONING_CONTROLLER, EMCY_SYNC_LOSS,
     DriveBehaviour, EncoderBehaviour, NodeBehaviour, error_register_for,
@@ -54,10 +55,11 @@ from sim_backend.canopen_behaviour import (
 from sim_backend.canopen_pdos import (
     RPDO_COMMUNICATION_INDICES, RpdoReception, RpdoValues, Tpdo, is_rpdo_transmission_type,
 )
+from sim_backend.device_record import DeviceRecord
 from sim_backend.eds_variants import eds_text, is_pdo_parameter, load_eds_text, static_pdo_access, with_entries
 from sim_backend.interpolation_buffer import InterpolationBuffer, ip_period_matches
 from sim_backend.plant import SimulatedGearbox
-from sim_backend.wire_time_bus import FrameCounter, WireTimeBus
+from sim_backend.wire_time_bus import FrameCounter, InterfaceBus, WireTimeBus
 
 __all__ = ["DRIVE_EDS", "EDS_DIRECTORY", "ENCODER_EDS", "SimulatedCanOpenRig", "u32_range"]
 
@@ -120,7 +122,11 @@ class SimulatedCanOpenRig:
     gearbox
         The plant; stepped once per SYNC while the drive is in OPERATION ENABLED.
     channel
-        The python-can ``virtual`` channel the nodes join (the master joins the same channel).
+        The python-can channel the nodes join (the master joins the same channel).
+    interface, port
+        The python-can interface of ``channel`` (default ``virtual``: in this process, frames stamped with
+        their wire time); ``udp_multicast`` with its ``port`` puts the devices in a process of their own
+        (:mod:`sim_backend.can_device_process`), where the master stamps each frame on arrival.
     drive_node_id, encoder_node_id
         Node-IDs of the two devices.
     drive_counts_per_revolution
@@ -170,7 +176,7 @@ class SimulatedCanOpenRig:
         ENABLED, as a device-level test of a stale target at enable needs.
     """
 
-    def __init__(self, gearbox: SimulatedGearbox, *, channel: str,
+    def __init__(self, gearbox: SimulatedGearbox, *, channel: str, interface: str = "virtual", port: int | None = None,
                  drive_node_id: int = 1, encoder_node_id: int = 2, drive_counts_per_revolution: int = 1 << 17,
                  bitrate: int = 1_000_000, drive_behaviour: DriveBehaviour | None = None,
                  encoder_behaviour: EncoderBehaviour | None = None, drive_eds: str | Path = DRIVE_EDS,
@@ -183,7 +189,7 @@ class SimulatedCanOpenRig:
         self.gearbox = gearbox
         self.clock = clock
         self.hold_plant_until_first_target = bool(hold_plant_until_first_target)
-        self.channel = channel
+        self.channel, self.interface, self.port = channel, interface, port
         self.drive_scaling = cia402.DriveScaling(int(drive_counts_per_revolution))
         self.bitrate = int(bitrate)
         self.drive_behaviour = DriveBehaviour() if drive_behaviour is None else drive_behaviour
@@ -229,6 +235,8 @@ class SimulatedCanOpenRig:
         self._ip_was_active = False  # ip mode active at the last look (_follow_ip_mode)
         self._rpdos = RpdoReception()
         self.syncs = 0
+        self._answered = threading.Condition()  # SYNCs whose TPDOs are on the bus: wait_for_answers
+        self.syncs_answered = 0
         self.homed = False
         self.faults: list[int] = []  # error codes of every fault the drive entered, in order
         self._counter = FrameCounter(clock)
@@ -278,12 +286,18 @@ class SimulatedCanOpenRig:
     # -- lifecycle ------------------------------------------------------------------------------------------
 
     def start(self, bus: object | None = None) -> SimulatedCanOpenRig:
-        """Join the bus: python-can's ``virtual`` channel :attr:`channel` with a notifier thread (default),
+        """Join the bus: :attr:`channel` of :attr:`interface` with a notifier thread (default),
         or a scripted ``bus`` on the devices' :attr:`clock`, which feeds the network itself (``bus.join(network)``)
         and calls :meth:`next_event_s` / :meth:`run_due` instead of the drive's clock thread
         (``tests/transports/clocked_canopen.py``). The bus must offer ``send_at(message, wire_time)``."""
         self._scripted = bus is not None
-        if bus is None:
+        if bus is None and self.interface != "virtual":
+            self.network = canopen.Network(InterfaceBus(
+                open_bus(self.interface, self.channel, port=self.port, bitrate=self.bitrate), self._counter,
+                echoes_own_frames=echoes_own_frames(self.interface)))
+            self.network.NOTIFIER_CYCLE = NOTIFIER_CYCLE_S
+            self.network.connect()
+        elif bus is None:
             self.network = canopen.Network(WireTimeBus(self.channel, self._counter))
             self.network.NOTIFIER_CYCLE = NOTIFIER_CYCLE_S
             self.network.connect()
@@ -360,6 +374,15 @@ class SimulatedCanOpenRig:
             self._late_frames = [(when, frame) for when, frame in self._late_frames if when > now]
         for frame in due:
             self.network.bus.send_at(frame, now)
+
+    def record(self) -> DeviceRecord:
+        """What the drive did: the target applied at each sample, and (interpolated position) the SYNCs that found
+        its buffer empty; a CSP drive cannot tell a held target from a repeated one."""
+        with self._lock:
+            bus = None if self.network is None else self.network.bus
+            return DeviceRecord(tuple(self.applied_targets), tuple(self.controlwords), self.ip_underruns,
+                                receive_drops=None if bus is None else receive_drops(bus),
+                                position_before_counts=self.position_before_samples)
 
     def __enter__(self) -> SimulatedCanOpenRig:
         return self.start()
@@ -805,3 +828,14 @@ class SimulatedCanOpenRig:
                 late.start()
                 continue
             bus.send_at(frame, wire_time)
+        with self._answered:
+            self.syncs_answered += 1
+            self._answered.notify_all()
+
+    def wait_for_answers(self, syncs: int, timeout_s: float) -> bool:
+        """Wait until the devices have answered ``syncs`` SYNCs (their TPDOs on the bus), at most ``timeout_s``;
+        whether they have. A SYNC producer in the devices' process waits for it before the next SYNC, so that a
+        starved process delays its whole cycle, as a real drive's CPU would, instead of answering after the
+        next SYNC (:class:`sim_backend.device_process.SyncProducer`)."""
+        with self._answered:
+            return self._answered.wait_for(lambda: self.syncs_answered >= syncs, timeout_s)

@@ -26,12 +26,17 @@ import can
 
 from rig.protocols import cia402
 from rig.protocols.can_bus_load import frame_bits
+from rig.protocols.can_interfaces import open_bus, receive_drops
 from rig.protocols.raw_can_frames import DEFAULT_DBC, RawCanCodec
 from rig.protocols.serial_frames import unwrap_seq
+from sim_backend.device_record import DeviceRecord, TickLateness
 from sim_backend.plant import SimulatedGearbox
 from sim_backend.virtual_bus_order import one_bus_order
 
 __all__ = ["SimulatedRawCanDevice"]
+
+HOST_FRAMES = ("RIG_CONTROL", "RIG_STATUS_REQUEST", "RIG_HELLO", "RIG_START", "RIG_SETPOINT")
+"""The frames the device receives (configs/raw_can.dbc: those the host sends)."""
 
 
 class SimulatedRawCanDevice(can.Listener):
@@ -42,7 +47,10 @@ class SimulatedRawCanDevice(can.Listener):
     gearbox
         The plant; stepped once per RIG_SETPOINT in OPERATION ENABLED.
     channel
-        The ``virtual`` channel (the host joins the same one).
+        The python-can channel (the host joins the same one).
+    interface, port
+        Its interface (default ``virtual``: in this process); ``udp_multicast`` with its ``port`` puts the device
+        in a process of its own (:mod:`sim_backend.can_device_process`).
     drive_counts_per_revolution
         Drive position scaling.
     dbc_path
@@ -70,7 +78,8 @@ class SimulatedRawCanDevice(can.Listener):
         with :meth:`on_message_received` and run the ticks the clock has reached with :meth:`run_due`.
     """
 
-    def __init__(self, gearbox: SimulatedGearbox, *, channel: str, drive_counts_per_revolution: int = 1 << 17,
+    def __init__(self, gearbox: SimulatedGearbox, *, channel: str, interface: str = "virtual", port: int | None = None,
+                 drive_counts_per_revolution: int = 1 << 17,
                  dbc_path: str = str(DEFAULT_DBC), bitrate: int = 1_000_000, silent_seqs: Iterable[int] = (),
                  fault_at_seq: int | None = None, fault_code: int = 0x7500,
                  disable_at_seq: int | None = None, error_frame_at: tuple[int, int] | None = None,
@@ -88,6 +97,8 @@ class SimulatedRawCanDevice(can.Listener):
         self.buffer: dict[int, int] = {}
         self.ticks = 0
         self.held_ticks = 0
+        self.applied_targets: list[int] = []  # tick k: the target applied (DeviceRecord)
+        self.lateness = TickLateness()  # how late the tick thread ran the ticks
         self.dropped_setpoints = 0
         self.target_counts = 0
         self._applied_tick: int | None = None  # the tick whose setpoint is in force (None: the enable position)
@@ -96,7 +107,7 @@ class SimulatedRawCanDevice(can.Listener):
         self._stop = threading.Event()
         self._tick_thread: threading.Thread | None = None
         self.gearbox = gearbox
-        self.channel = channel
+        self.channel, self.interface, self.port = channel, interface, port
         self.drive = cia402.DriveScaling(int(drive_counts_per_revolution))
         self.codec = RawCanCodec(dbc_path)
         self.bitrate = int(bitrate)
@@ -124,8 +135,13 @@ class SimulatedRawCanDevice(can.Listener):
         self._state_lock = threading.RLock()  # the notifier and the tick thread share the drive's state
 
     def start(self) -> SimulatedRawCanDevice:
-        one_bus_order()  # every node sees the frames in one order, as on a real bus
-        self._bus = can.Bus(interface="virtual", channel=self.channel, receive_own_messages=False)
+        if self.interface == "virtual":
+            one_bus_order()  # every node sees the frames in one order, as on a real bus
+            self._bus = can.Bus(interface="virtual", channel=self.channel, receive_own_messages=False)
+        else:  # an acceptance filter for the host's frames: its own, which udp_multicast hands back, cost no decoding
+            self._bus = open_bus(self.interface, self.channel, port=self.port, bitrate=self.bitrate, can_filters=[
+                {"can_id": self.codec.frame_ids[name], "can_mask": 0x7FF, "extended": False} for name in HOST_FRAMES
+                if name in self.codec.frame_ids])
         self._notifier = can.Notifier(self._bus, [self], timeout=0.05)
         if self.protocol_version >= 2:
             self._stop.clear()
@@ -164,6 +180,14 @@ class SimulatedRawCanDevice(can.Listener):
         if self._bus is not None:
             self._bus.shutdown()
             self._bus = None
+
+    def record(self) -> DeviceRecord:
+        """What the device did (v2-v4: tick k's target; v1: the target of each setpoint applied)."""
+        with self._state_lock:
+            clocked = self.protocol_version >= 2 and self._tick_thread is not None
+            return DeviceRecord(tuple(self.applied_targets), tuple(self.controlwords), self.held_ticks,
+                                self.lateness.delay_max_s if clocked else None,
+                                None if self._bus is None else receive_drops(self._bus), tuple(self.lateness.stalls))
 
     def __enter__(self) -> SimulatedRawCanDevice:
         return self.start()
@@ -261,6 +285,7 @@ class SimulatedRawCanDevice(can.Listener):
         sample = self.gearbox.step(self.drive.rad_from_counts(target_counts))
         self.encoder_counts = sample.encoder_counts
         self.actual_counts = target_counts
+        self.applied_targets.append(target_counts)
         self.setpoints += 1
         if seq in self.silent_seqs:
             return
@@ -296,6 +321,7 @@ class SimulatedRawCanDevice(can.Listener):
                 continue
             with self._state_lock:
                 if self._ticking_since == since:
+                    self.lateness.observe(len(self.applied_targets), self._clock() - due)
                     self.tick()
 
     def tick(self) -> None:
@@ -326,6 +352,7 @@ class SimulatedRawCanDevice(can.Listener):
             sample = self.gearbox.step(self.drive.rad_from_counts(self.target_counts))
             self.encoder_counts = sample.encoder_counts
             self.actual_counts = self.target_counts
+            self.applied_targets.append(self.target_counts)
             self.setpoints += 1
             self.held_ticks += held
             if (k & 0xFFFF) not in self.silent_seqs:

@@ -2,8 +2,8 @@
 
 The host opens :attr:`SimulatedSerialDevice.port` (``/dev/pts/N``) with pyserial as it would open
 ``/dev/ttyUSB0``. ``rig run`` starts the device as threads of its own process; ``python -m
-sim_backend.serial_device PLANT.toml`` (:func:`serial_device_process`) runs it in a process of its own, as a
-real device is a microcontroller with its own clock (the benchmark does, so that a pause of the driver
+sim_backend.device_process serial PLANT.toml`` (:mod:`sim_backend.device_process`) runs it in a process of its
+own, as a real device is a microcontroller with its own clock (the benchmark does, so that a pause of the driver
 does not stop the device's clock).
 
 Protocol v2 (the default, ``protocol_version=2``; spec section 16): a HELLO puts the device in v2 mode; it
@@ -20,7 +20,6 @@ simulated gearbox exactly one sample and is answered by one FEEDBACK frame with 
 from __future__ import annotations
 
 import collections
-import contextlib
 import math
 import os
 import random
@@ -28,12 +27,13 @@ import select
 import threading
 import time
 import tty
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Iterable
 
 from rig.protocols import cia402
 from rig.protocols.serial_frames import (
     PROTOCOL_VERSION, TICK_HELD, FrameDecoder, MessageType, SerialMessage, encode_frame, unwrap_seq,
 )
+from sim_backend.device_record import DeviceRecord, TickLateness
 from sim_backend.plant import SimulatedGearbox
 
 __all__ = ["SimulatedSerialDevice", "serial_device_process"]
@@ -132,6 +132,8 @@ class SimulatedSerialDevice:
         self.buffer: dict[int, int] = {}  # v2: tick -> target counts
         self.ticks = 0  # v2: the next tick's number (ticks done)
         self.held_ticks = 0
+        self.applied_targets: list[int] = []  # sample k: the target applied (DeviceRecord)
+        self.lateness = TickLateness()  # how late the tick thread ran the ticks
         self.dropped_setpoints = 0  # v2: late (tick passed) or beyond the buffer's capacity
         self._ticking_since: float | None = None  # v2: host time of tick 0 (START), None: not ticking
         self._lock = threading.RLock()  # the serve and tick threads share the drive's state
@@ -206,6 +208,13 @@ class SimulatedSerialDevice:
             if fd is not None:
                 os.close(fd)
                 setattr(self, fd_name, None)
+
+    def record(self) -> DeviceRecord:
+        """What the device did (v2: tick k's target; v1: the target of each setpoint applied)."""
+        with self._lock:
+            return DeviceRecord(tuple(self.applied_targets), tuple(self.controlwords), self.held_ticks,
+                                self.lateness.delay_max_s if self._tick_thread is not None else None,
+                                stalls=tuple(self.lateness.stalls))
 
     def __enter__(self) -> SimulatedSerialDevice:
         return self.start()
@@ -295,6 +304,7 @@ class SimulatedSerialDevice:
                     self._unplug()
                     return
                 lagged = self.reply_lag is not None and self.ticks > self.reply_lag[1]
+                self.lateness.observe(len(self.applied_targets), now - due)
                 frames = self.tick()
             if not frames:
                 continue
@@ -331,6 +341,7 @@ class SimulatedSerialDevice:
                 self._end_session()
                 return fault + self._tick_frame(k, self._statusword(), self.target_counts, 0)
             self.target_counts = target
+            self.applied_targets.append(target)
             sample = self.gearbox.step(self.drive.rad_from_counts(target))
             self.encoder_counts = sample.encoder_counts
             self.setpoints += 1
@@ -522,6 +533,7 @@ class SimulatedSerialDevice:
         if fault:
             return fault
         self.target_counts = target
+        self.applied_targets.append(target)
         command_rad = self.drive.rad_from_counts(self.target_counts)
         sample = self.gearbox.step(command_rad)
         self.encoder_counts = sample.encoder_counts
@@ -530,61 +542,3 @@ class SimulatedSerialDevice:
             return b""
         return encode_frame(MessageType.FEEDBACK, message.seq, self._statusword() | cia402.STATUSWORD_TARGET_REACHED,
                             self.actual_counts, sample.encoder_counts & 0xFFFFFFFF)
-
-
-@contextlib.contextmanager
-def serial_device_process(plant_path: str | os.PathLike, *, seed: int | None = None,
-                          sample_period_s: float | None = None, drive_counts_per_revolution: int = 1 << 17,
-                          buffer_capacity: int = 1024) -> Iterator[str]:
-    """Run :func:`main` (the simulated serial rig on ``plant_path``) in a child process; yield its pty path,
-    and end the child on exit (it serves until its stdin closes)."""
-    import subprocess
-    import sys
-
-    command = [sys.executable, "-m", "sim_backend.serial_device", str(plant_path),
-               "--drive-counts-per-revolution", str(drive_counts_per_revolution), "--buffer-capacity", str(buffer_capacity)]
-    if seed is not None:
-        command += ["--seed", str(seed)]
-    if sample_period_s is not None:
-        command += ["--sample-period-s", repr(float(sample_period_s))]
-    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-    child = subprocess.Popen(command, cwd=root, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
-    try:
-        port = child.stdout.readline().strip()
-        if not port:
-            raise RuntimeError(f"{' '.join(command)} ended without naming its pty (exit code {child.wait()})")
-        yield port
-    finally:
-        child.stdin.close()
-        child.stdout.close()
-        child.wait(timeout=10)
-
-
-def main(argv: list[str] | None = None) -> int:
-    """``python -m sim_backend.serial_device PLANT.toml [options]``: the simulated serial rig in a process of its
-    own, as a real device is a microcontroller of its own: its tick thread shares neither the GIL nor the garbage
-    collector's pauses with the driver. Writes the pty path (``/dev/pts/N``) as one line on stdout, then serves
-    until its stdin closes (the parent ended or closed the pipe). Used by ``benchmarks/transport_timing.py``."""
-    import argparse
-    import sys
-
-    from sim_backend.plant_config import load_plant_config
-
-    parser = argparse.ArgumentParser(prog="python -m sim_backend.serial_device", description=main.__doc__.split("\n")[0])
-    parser.add_argument("plant", help="plant TOML (configs/plants/*.toml)")
-    parser.add_argument("--seed", type=int, default=None, help="the plant's noise seed (default: the plant's)")
-    parser.add_argument("--sample-period-s", type=float, default=None, help="tick period (default: the plant's)")
-    parser.add_argument("--drive-counts-per-revolution", type=int, default=1 << 17)
-    parser.add_argument("--buffer-capacity", type=int, default=1024, help="setpoints buffered (v2)")
-    args = parser.parse_args(argv)
-    gearbox = load_plant_config(args.plant).gearbox(seed=args.seed)
-    with SimulatedSerialDevice(gearbox, drive_counts_per_revolution=args.drive_counts_per_revolution,
-                               buffer_capacity=args.buffer_capacity, sample_period_s=args.sample_period_s) as device:
-        sys.stdout.write(device.port + "\n")
-        sys.stdout.flush()
-        sys.stdin.read()  # until the parent closes the pipe
-    return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

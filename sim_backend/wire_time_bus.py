@@ -1,6 +1,7 @@
-"""The simulated CANopen nodes' side of python-can's ``virtual`` bus: frames in one bus order, TPDOs stamped
-with their wire time, and every frame's bits counted for the bus load
-(:class:`sim_backend.canopen_nodes.SimulatedCanOpenRig`)."""
+"""The simulated CANopen nodes' side of the bus (:class:`sim_backend.canopen_nodes.SimulatedCanOpenRig`): on
+python-can's ``virtual`` bus, frames in one bus order, TPDOs stamped with their wire time, and every frame's
+bits counted for the bus load (:class:`WireTimeBus`); on another interface (``udp_multicast``, the devices in a
+process of their own), the same offer without the wire time (:class:`InterfaceBus`)."""
 
 from __future__ import annotations
 
@@ -13,7 +14,7 @@ from can.interfaces.virtual import VirtualBus
 from rig.protocols.can_bus_load import frame_bits
 from sim_backend.virtual_bus_order import one_bus_order
 
-__all__ = ["FrameCounter", "WireTimeBus"]
+__all__ = ["FrameCounter", "InterfaceBus", "WireTimeBus"]
 
 
 class FrameCounter(can.Listener):
@@ -65,3 +66,26 @@ class WireTimeBus(VirtualBus):
                 super().send(msg)
             finally:
                 self.preserve_timestamps = False
+
+
+class InterfaceBus:
+    """A python-can bus on any interface (:func:`rig.protocols.can_interfaces.open_bus`) with what the simulated
+    nodes ask of :class:`WireTimeBus`. ``send_at`` sends now: no interface carries a time stamp to the
+    receiver, which stamps each frame on arrival. Every frame is counted once: as received where the interface
+    hands a bus its own frames back (udp_multicast), else also as sent."""
+
+    def __init__(self, bus: can.BusABC, counter: FrameCounter, *, echoes_own_frames: bool) -> None:
+        self.bus = bus
+        self.counter = counter
+        self._counts_sent = not echoes_own_frames
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        if self._counts_sent:
+            self.counter.on_message_received(msg)
+        self.bus.send(msg, timeout)
+
+    def send_at(self, msg: can.Message, wire_time: float) -> None:
+        self.send(msg)
+
+    def __getattr__(self, name: str) -> object:
+        return getattr(self.bus, name)  # recv, send_periodic, shutdown, fileno, channel_info: the bus's own

@@ -9,7 +9,10 @@ URL                            transport
 ``serial:///dev/ttyUSB0``      the COBS/CRC-16 serial protocol (:mod:`.serial_link`)
 =============================  =====================================================================
 
-``IFACE`` is any python-can interface name (``socketcan``, ``pcan``, ``kvaser``, ``virtual``, ...).
+``IFACE`` is any python-can interface name (``socketcan``, ``pcan``, ``kvaser``, ``virtual``, ...);
+``udp_multicast``, which joins processes on one host (a simulated device in a process of its own), takes the
+multicast group as the channel and its UDP port after the name: ``can://udp_multicast:43113/239.74.163.2``
+(:mod:`rig.protocols.can_interfaces`).
 A backend module is imported only when chosen, so a missing optional driver fails only then, with a
 :class:`~rig.protocols.errors.TransportError` that says what to install. Options the chosen backend does
 not know are rejected (:class:`~rig.protocols.errors.ConfigError`), never ignored.
@@ -22,6 +25,7 @@ import inspect
 from typing import Any
 from urllib.parse import urlsplit
 
+from rig.protocols.can_interfaces import PORT_INTERFACES
 from rig.protocols.errors import ConfigError, TransportError
 from rig.transports.base import CommandLimits, CommandRefused, FeedbackSample, Setpoint, Transport
 
@@ -41,6 +45,8 @@ def parse_transport_url(url: str) -> tuple[str, dict[str, Any]]:
 
     >>> parse_transport_url("canopen://socketcan/can0")
     ('canopen', {'interface': 'socketcan', 'channel': 'can0'})
+    >>> parse_transport_url("can://udp_multicast:43200/239.74.1.2")
+    ('can', {'interface': 'udp_multicast', 'channel': '239.74.1.2', 'port': 43200})
     >>> parse_transport_url("serial:///dev/ttyUSB0")
     ('serial', {'port': '/dev/ttyUSB0'})
     """
@@ -56,7 +62,8 @@ def parse_transport_url(url: str) -> tuple[str, dict[str, Any]]:
         if not port:
             raise ConfigError("<transport>", "url", f"{url!r}: expected serial:///dev/ttyUSB0 (a device path)")
         return scheme, {"port": port}
-    interface, channel = parts.netloc, parts.path.lstrip("/")
+    interface, _, port = parts.netloc.partition(":")
+    channel = parts.path.lstrip("/")
     if not interface or not channel:
         raise ConfigError("<transport>", "url", f"{url!r}: expected {scheme}://INTERFACE/CHANNEL, e.g. {scheme}://socketcan/can0")
     import can
@@ -64,7 +71,14 @@ def parse_transport_url(url: str) -> tuple[str, dict[str, Any]]:
     if interface not in can.interfaces.VALID_INTERFACES:
         raise ConfigError("<transport>", "url", f"{url!r}: {interface!r} is no python-can interface "
                                                 f"(known: {', '.join(sorted(can.interfaces.VALID_INTERFACES))})")
-    return scheme, {"interface": interface, "channel": channel}
+    if not port:
+        return scheme, {"interface": interface, "channel": channel}
+    if interface not in PORT_INTERFACES:
+        raise ConfigError("<transport>", "url", f"{url!r}: a port belongs to {', '.join(sorted(PORT_INTERFACES))} "
+                                                f"only, not to {interface}")
+    if not port.isdigit() or not 1 <= int(port) <= 65535:
+        raise ConfigError("<transport>", "url", f"{url!r}: expected a UDP port 1..65535 after {interface}:")
+    return scheme, {"interface": interface, "channel": channel, "port": int(port)}
 
 
 def transport_class(scheme: str) -> type[Transport]:

@@ -72,6 +72,7 @@ from typing import Any
 
 from rig.protocols import cia402
 from rig.protocols.can_bus_load import bus_load
+from rig.protocols.can_interfaces import open_bus
 from rig.protocols.can_error_frames import ERROR_FRAME_FILTERS, describe_error_frame, is_bus_off
 from rig.protocols.errors import ConfigError, DeviceFault, TransportError, error_code_meaning
 from rig.transports.base import FeedbackSample, Setpoint, Transport, check_trace_path
@@ -107,8 +108,9 @@ class CanOpenTransport(CanOpenStartUp, CanOpenInterpolation, Transport):
 
     Parameters
     ----------
-    interface, channel
-        python-can interface name and channel (from ``canopen://INTERFACE/CHANNEL``).
+    interface, channel, port
+        python-can interface name and channel (from ``canopen://INTERFACE/CHANNEL``), and the UDP port of
+        ``canopen://udp_multicast:PORT/GROUP`` (:mod:`rig.protocols.can_interfaces`).
     bitrate
         Bus bit rate; the cycle's frames must fit at the sample rate or the constructor raises
         :class:`ConfigError` (worst-case bit stuffing, :mod:`rig.protocols.can_bus_load`).
@@ -181,7 +183,8 @@ class CanOpenTransport(CanOpenStartUp, CanOpenInterpolation, Transport):
         (``.blf``, ``.asc``, ``.log``, ``.csv``, ``.trc``; not ``.db``: SqliteWriter drops frames under load).
     """
 
-    def __init__(self, interface: str, channel: str, *, bitrate: int = 1_000_000, drive_node_id: int = 1,
+    def __init__(self, interface: str, channel: str, *, port: int | None = None, bitrate: int = 1_000_000,
+                 drive_node_id: int = 1,
                  encoder_node_id: int = 2, drive_eds: str = str(DEFAULT_DRIVE_EDS),
                  encoder_eds: str = str(DEFAULT_ENCODER_EDS), heartbeat_ms: int = 100,
                  heartbeat_timeout_s: float = 0.5, sdo_timeout_s: float = 0.5, skip_homing: bool = True,
@@ -190,7 +193,7 @@ class CanOpenTransport(CanOpenStartUp, CanOpenInterpolation, Transport):
                  encoder_tpdo_latency_cycles: int = 0, ip_record_is_segment_end: bool = False,
                  emcy_warning_codes: str = "0x4", trace_path: str | None = None, **kwargs: Any) -> None:
         super().__init__(**kwargs)
-        self.interface, self.channel, self.bitrate = interface, channel, int(bitrate)
+        self.interface, self.channel, self.port, self.bitrate = interface, channel, port, int(bitrate)
         self.drive_node_id, self.encoder_node_id = int(drive_node_id), int(encoder_node_id)
         self.drive_eds, self.encoder_eds = str(drive_eds), str(encoder_eds)
         self.heartbeat_ms = int(heartbeat_ms)
@@ -353,10 +356,10 @@ class CanOpenTransport(CanOpenStartUp, CanOpenInterpolation, Transport):
         """A ``canopen.Network`` connected to the configured interface, receiving its own frames (the SYNC
         and RPDO echoes, see the module docstring), with python-can's notifier thread feeding it. The seam a
         scripted test replaces with a bus on a simulated clock (``tests/transports/clocked_canopen.py``)."""
-        network = canopen.Network()
-        network.connect(interface=self.interface, channel=self.channel, bitrate=self.bitrate,
-                        receive_own_messages=True,
-                        can_filters=None if self.trace_path is not None else self._receive_filters())
+        network = canopen.Network(open_bus(
+            self.interface, self.channel, port=self.port, bitrate=self.bitrate, own_frames=True,
+            can_filters=None if self.trace_path is not None else self._receive_filters()))
+        network.connect()
         return network
 
     def _wait_for(self, ready: Any, timeout_s: float) -> bool:

@@ -28,6 +28,7 @@ from typing import Any
 
 from rig.protocols import cia402
 from rig.protocols.can_bus_load import BusLoad, bus_load
+from rig.protocols.can_interfaces import open_bus
 from rig.protocols.can_error_frames import describe_error_frame, is_bus_off
 from rig.protocols.errors import ConfigError, DeviceFault, TransportError
 from rig.protocols.raw_can_frames import DEFAULT_DBC, RawCanCodec
@@ -55,8 +56,9 @@ class RawCanTransport(Transport):
 
     Parameters
     ----------
-    interface, channel
-        python-can interface name and channel (from ``can://INTERFACE/CHANNEL``).
+    interface, channel, port
+        python-can interface name and channel (from ``can://INTERFACE/CHANNEL``), and the UDP port of
+        ``can://udp_multicast:PORT/GROUP`` (:mod:`rig.protocols.can_interfaces`).
     bitrate
         Bus bit rate; a cycle's frames (RIG_SETPOINT and the device's: 3 frames in v1 and v3, 4 in v2) must fit
         at the sample rate (:class:`ConfigError` if not: at config load for the best version the DBC has, after
@@ -81,7 +83,8 @@ class RawCanTransport(Transport):
         (250 ms; why: see there), the protocol this one mirrors.
     """
 
-    def __init__(self, interface: str, channel: str, *, bitrate: int = 1_000_000, dbc: str = str(DEFAULT_DBC),
+    def __init__(self, interface: str, channel: str, *, port: int | None = None, bitrate: int = 1_000_000,
+                 dbc: str = str(DEFAULT_DBC),
                  reply_timeout_s: float = 0.5, reply_retries: int = 3, trace_path: str | None = None,
                  protocol: str = "auto", lead_s: float = DEFAULT_LEAD_S, **kwargs: Any) -> None:
         super().__init__(**kwargs)
@@ -90,7 +93,7 @@ class RawCanTransport(Transport):
         if not (math.isfinite(lead_s) and lead_s > 0):
             raise ConfigError("<transport>", "lead_s", f"expected a lead > 0 s, got {lead_s!r}")
         self.protocol, self.lead_s = protocol, float(lead_s)
-        self.interface, self.channel, self.bitrate = interface, channel, int(bitrate)
+        self.interface, self.channel, self.port, self.bitrate = interface, channel, port, int(bitrate)
         self.reply_timeout_s = float(reply_timeout_s)
         self.reply_retries = int(reply_retries)
         if not 0 <= self.reply_retries <= 10:
@@ -169,7 +172,7 @@ class RawCanTransport(Transport):
         import can
 
         try:
-            self._bus = can.Bus(interface=self.interface, channel=self.channel, bitrate=self.bitrate)
+            self._bus = open_bus(self.interface, self.channel, port=self.port, bitrate=self.bitrate)
         except (can.CanError, OSError, ValueError) as err:
             raise TransportError(f"{self.name}: cannot open CAN {self.interface}/{self.channel}: {err}") from err
         if self.trace_path is not None:

@@ -82,3 +82,44 @@ def test_close_does_a_controlled_stop_and_is_idempotent(kind, tmp_path, no_leaks
             assert drive.setpoints >= 1 and _i32(drive.drive, 0x607A) == 0
         else:  # serial, raw CAN v2: the device ticks on its own clock until the stop, holding the one target
             assert drive.setpoints >= 1 and drive.target_counts == 0 and drive.ticks == drive.setpoints
+
+
+@pytest.mark.parametrize("kind", ["canopen", "can"])
+def test_a_device_in_a_process_of_its_own_applied_every_command_the_log_says(kind, tmp_path, no_leaks):
+    """The simulated devices in a process of their own (``sim_backend.device_process``: CAN on udp_multicast,
+    the CANopen SYNC from the devices' clock): every sample is filed or flagged, and every logged command is the
+    target the device applied at that sample (its record), the angle what its plant did with it. Only accounting
+    is asserted: a busy machine may hold, delay or lose samples, never misfile one; the watchdogs are generous."""
+    import contextlib
+
+    from rig.rig_config import load_rig_config
+    from rig.transports import open_transport
+    from rig.transports.simulated import PATIENT_WITH_A_DEVICE_PROCESS, start_device_process
+    from sim_rigs import write_test_config
+
+    config = load_rig_config(write_test_config(kind, tmp_path))
+    sink = ListSink()
+    with contextlib.ExitStack() as stack:
+        url, device = start_device_process(config, stack, produce_sync=kind == "canopen")
+        sync = {"sync_producer": "external"} if kind == "canopen" else {}
+        transport = open_transport(url, **{**config.transport_options(), **PATIENT_WITH_A_DEVICE_PROCESS[kind], **sync})
+        stack.callback(transport.close)
+        summary = run_experiment(transport, excitation(), sink, feedback_timeout_s=10.0,
+                                 late_tolerance_s=config.late_tolerance_s)
+    record = device.record
+    assert summary.samples == len(sink.rows) == NUM_SAMPLES and len(record.applied_targets) >= NUM_SAMPLES
+    time_s, sent, angle, _, flags = (np.array(column, dtype=object) for column in zip(*sink.rows))
+    np.testing.assert_allclose(time_s.astype(float), np.arange(NUM_SAMPLES) * config.sample_period_s)
+    flags = flags.astype(int)
+    lost = (flags & SampleFlag.LOST) != 0
+    held = (flags & SampleFlag.HELD) != 0
+    assert summary.lost == lost.sum() and summary.held == held.sum()
+    logged = np.array([config.drive.counts_from_rad(value) for value in sent.astype(float)])
+    offset = record.row_offset(logged)  # (rows HELD before a late first target are no samples of the drive's)
+    rows = np.flatnonzero(((flags & int(SampleFlag.unusable())) == 0) & (np.arange(NUM_SAMPLES) + offset >= 0))
+    applied = np.array(record.applied_targets)
+    np.testing.assert_array_equal(logged[rows], applied[rows + offset])
+    expected = load_plant_config(config.simulation.plant_path).gearbox(seed=config.simulation.seed).simulate(
+        np.array([config.drive.rad_from_counts(counts) for counts in applied]))
+    np.testing.assert_array_equal(angle[rows].astype(float), expected.measured_angle_rad[rows + offset])
+    assert record.controlwords[:3] == (0x06, 0x07, 0x0F) and record.controlwords[-2:] == (0x02, 0x00)

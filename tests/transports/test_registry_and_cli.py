@@ -33,6 +33,17 @@ def test_urls_name_the_transport_and_any_python_can_interface():
         parse_transport_url("canopen://nosuchcard/0")
 
 
+def test_udp_multicast_urls_carry_the_port_of_the_group_and_only_it_has_one():
+    assert parse_transport_url("canopen://udp_multicast:43200/239.74.1.2") == (
+        "canopen", {"interface": "udp_multicast", "channel": "239.74.1.2", "port": 43200})
+    assert parse_transport_url("can://udp_multicast/239.74.1.2") == (
+        "can", {"interface": "udp_multicast", "channel": "239.74.1.2"})
+    with pytest.raises(ConfigError, match="a port belongs to udp_multicast only, not to socketcan"):
+        parse_transport_url("can://socketcan:43200/can0")
+    with pytest.raises(ConfigError, match="expected a UDP port 1..65535"):
+        parse_transport_url("can://udp_multicast:99999/239.74.1.2")
+
+
 def test_unknown_options_are_rejected_not_ignored():
     with pytest.raises(ConfigError, match=r"\[baud_rate\] not an option of the serial transport \(accepted: .*baudrate"):
         open_transport("serial:///dev/ttyUSB0", encoder=ENCODER, sample_period_s=1e-3, baud_rate=9600)

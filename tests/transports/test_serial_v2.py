@@ -270,18 +270,20 @@ def test_a_v2_run_reports_its_lead_and_every_row_is_a_tick(tmp_path, no_leaks):
 
 
 def test_the_simulated_serial_device_in_a_process_of_its_own_serves_a_run(tmp_path, no_leaks):
-    """``python -m sim_backend.serial_device`` (the benchmark's device: its own GIL and clock, as a real
+    """``python -m sim_backend.device_process serial`` (the benchmark's device: its own GIL and clock, as a real
     microcontroller): a v2 run, and the log equals the offline simulation of the commands the device applied."""
+    import contextlib
+
     from rig.rig_config import load_rig_config
     from rig.transports import open_transport
-    from sim_backend.serial_device import serial_device_process
+    from rig.transports.simulated import start_device_process
     from sim_rigs import write_test_config
 
     config = load_rig_config(write_test_config("serial", tmp_path))
     sink = ListSink()
-    with serial_device_process(config.simulation.plant_path, seed=config.simulation.seed,
-                               drive_counts_per_revolution=config.drive.counts_per_revolution) as port:
-        transport = open_transport(f"serial://{port}", **config.transport_options())
+    with contextlib.ExitStack() as stack:
+        url, _ = start_device_process(config, stack)
+        transport = open_transport(url, **config.transport_options())
         summary = run_experiment(transport, excitation(80), sink, feedback_timeout_s=2.0,
                                  late_tolerance_s=config.late_tolerance_s)
     assert transport.version == 2 and summary.samples == 80 and summary.lost == 0
