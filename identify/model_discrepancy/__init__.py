@@ -26,7 +26,12 @@ per step:
    ``named`` when effects were kept, ``ambiguous`` when the best candidate has rivals within their
    uncertainty or its reduction straddles the acceptance, ``unexplained`` when nothing helps, and
    ``not_excited`` when a segment never sees the command turn or the output moves while command and model
-   rest.
+   rest. The verdict judges the whole record: ``explained`` needs agreement on the estimation segment too,
+   and a gross disagreement of the measurement with itself, found before any model runs
+   (:func:`gross_disagreements`: a sensor wrap, jumps of 2 pi between consecutive samples; glitches,
+   isolated spikes), is reported with its sample ranges (:class:`GrossDisagreement`, the result's
+   ``findings``); the workflow judges the rest of the record with it put aside, and such a record is never
+   ``explained``.
 7. **Intervals** (:mod:`.intervals`): the named effects' parameters and the gap reduction with their range
    over cross-validation refits.
 
@@ -43,7 +48,7 @@ from __future__ import annotations
 
 from identify.effect_catalogue import EFFECT_NAMES
 from identify.model_discrepancy.candidates import rigid_train_like
-from identify.model_discrepancy.disagreement import disagreement
+from identify.model_discrepancy.disagreement import disagreement, gross_disagreements
 from identify.model_discrepancy.options import DiagnoseOptions
 from identify.model_discrepancy.pipeline import diagnose_model
 from identify.model_discrepancy.result import (
@@ -55,6 +60,7 @@ from identify.model_discrepancy.result import (
     DiscrepancyReport,
     DiscrepancyResult,
     DiscrepancyStep,
+    GrossDisagreement,
     LinearFit,
     MissingEffect,
 )
@@ -74,6 +80,8 @@ __all__ = [
     "DiagnoseOptions",
     "diagnose_model",
     "disagreement",
+    "gross_disagreements",
+    "GrossDisagreement",
     "fit_linear_model",
     "rigid_train_like",
     "VERDICTS",

@@ -17,7 +17,7 @@ from identify.plant_blocks import OutputOffset, PlantModel
 from identify.validation import InvalidInputError, as_signal, positive, same_length, varying, with_options
 
 from identify.model_discrepancy.candidates import _candidate_names
-from identify.model_discrepancy.disagreement import disagreement
+from identify.model_discrepancy.disagreement import disagreement, gross_disagreements
 from identify.model_discrepancy.intervals import _named_intervals, _with_final_parameters
 from identify.model_discrepancy.options import DiagnoseOptions
 from identify.model_discrepancy.result import Disagreement, DiscrepancyResult
@@ -29,14 +29,22 @@ from identify.model_discrepancy.thresholds import (
     OPERATING_POINT_MIN_NOISE_BOUNDS,
     OPERATING_POINT_SAMPLES,
 )
-from identify.model_discrepancy.verdict import _excitation, _final_verdict, _left_unexplained, _not_excited
+from identify.model_discrepancy.verdict import (
+    _excitation,
+    _final_verdict,
+    _left_unexplained,
+    _not_excited,
+    _with_findings,
+)
 
 
 def diagnose_model(command_rad: ArrayLike, angle_rad: ArrayLike, noise_bound_rad: float,
                    sample_period_s: float, model: PlantModel | None = None, options: DiagnoseOptions | None = None,
                    *, progress: Callable[[str], None] | None = None, **option_values: Any) -> DiscrepancyResult:
     """Run the model-discrepancy workflow (the steps of the package docstring), one named step
-    each: the checks (:func:`_checked_record`), the move to the operating point (:func:`_operating_point`,
+    each: the checks (:func:`_checked_record`), the gross disagreements of the measurement over the whole
+    record (:func:`gross_disagreements`: a sensor wrap is undone, glitches are left out, both reported in
+    ``findings`` and the verdict's reason, :func:`_with_findings`), the move to the operating point (:func:`_operating_point`,
     :func:`_absolute`), the excitation check (:func:`_excitation`, :func:`_not_excited`), the start model
     (:func:`_start`), the greedy search (:func:`_search`), the intervals of what was named
     (:func:`_named_intervals`) and the verdict (:func:`_final_verdict`).
@@ -72,6 +80,12 @@ def diagnose_model(command_rad: ArrayLike, angle_rad: ArrayLike, noise_bound_rad
     """
     options = with_options("diagnose_model", options, DiagnoseOptions, option_values)
     u, y, delta, period = _checked_record(command_rad, angle_rad, noise_bound_rad, sample_period_s, model)
+    findings, cleaned = gross_disagreements(u, y, delta)
+    if findings:  # measurement-side: the rest of the record is judged with them put aside, and says so
+        if progress is not None:
+            for finding in findings:
+                progress(finding.text())
+        return _with_findings(diagnose_model(u, cleaned, delta, period, model, options, progress=progress), findings)
     operating_point = _operating_point(y, delta) if options.from_operating_point else 0.0
     if operating_point != 0.0:
         result = diagnose_model(u - operating_point, y - operating_point, delta, period, model,

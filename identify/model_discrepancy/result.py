@@ -39,6 +39,60 @@ class DisagreementWindow:
     peak_residual_rad: float
 
 
+GROSS_KINDS = ("sensor_wrap", "glitch")
+"""What a gross disagreement looks like (:class:`GrossDisagreement`): a single-turn reading that jumped by 2 pi
+at +-pi, or an isolated spike."""
+
+
+@dataclass(frozen=True)
+class GrossDisagreement:
+    """A disagreement of the measurement with itself, found on the whole record before any model runs
+    (:func:`~identify.model_discrepancy.disagreement.gross_disagreements`): where it is and what it looks like.
+
+    Attributes
+    ----------
+    kind
+        One of :data:`GROSS_KINDS`: ``"sensor_wrap"`` (the reading jumps by 2 pi between consecutive samples
+        and stays off by a whole turn until it jumps back: a single-turn sensor wrapped at +-pi) or
+        ``"glitch"`` (a run of at most a few samples far off, then back).
+    ranges
+        The samples concerned, [start, stop) each: the samples a whole turn off, or the spikes.
+    """
+
+    kind: str
+    ranges: tuple[tuple[int, int], ...]
+
+    def __post_init__(self) -> None:
+        if self.kind not in GROSS_KINDS:
+            raise InvalidInputError(f"kind: expected one of {', '.join(GROSS_KINDS)}, got {self.kind!r}")
+
+    @property
+    def samples(self) -> int:
+        return sum(stop - start for start, stop in self.ranges)
+
+    def ranges_text(self, most: int = 6) -> str:
+        """"1203-1850, 2400-2710" (stop inclusive in words), at most ``most`` ranges then "and n more"."""
+        words = [f"{start}" if stop == start + 1 else f"{start}-{stop - 1}" for start, stop in self.ranges[:most]]
+        more = len(self.ranges) - most
+        return ", ".join(words) + (f" and {more} more" if more > 0 else "")
+
+    def text(self) -> str:
+        """In words, where and what: "sensor wrap at samples 1203-1850 (...)"."""
+        if self.kind == "sensor_wrap":
+            return (f"sensor wrap at samples {self.ranges_text()} ({self.samples} samples a whole turn off: the "
+                    "reading jumps by 2 pi between consecutive samples, a single-turn angle wrapped at +-pi; "
+                    "measurement side, not the model)")
+        return (f"glitch at samples {self.ranges_text()} (isolated spikes: the reading leaves and comes back "
+                "within a few samples; measurement side, not the model)")
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"kind": self.kind, "ranges": [[int(a), int(b)] for a, b in self.ranges], "text": self.text()}
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> GrossDisagreement:
+        return cls(str(data["kind"]), tuple((int(a), int(b)) for a, b in data["ranges"]))
+
+
 @dataclass(frozen=True)
 class Disagreement:
     """Free-run residual r_t = y_t - y^_t of a model against the measurement (step 2).
@@ -125,6 +179,10 @@ class DiscrepancyResult:
         The first ``estimation_samples`` samples are the estimation segment, the rest the validation one.
     linear_fit
         How the start linear model was chosen (None when a model was given).
+    findings
+        Gross disagreements of the measurement found on the whole record (:class:`GrossDisagreement`: a sensor
+        wrap, glitches); the workflow ran on the record with a wrap undone and glitches left out, and a record
+        with findings is never ``explained``.
     """
 
     steps: tuple[DiscrepancyStep, ...]
@@ -146,6 +204,7 @@ class DiscrepancyResult:
     excitation: dict[str, Any] = field(default_factory=dict)
     operating_point_rad: float = 0.0
     undecided: tuple[CandidateResult, ...] = ()
+    findings: tuple[GrossDisagreement, ...] = ()
 
     def __post_init__(self) -> None:
         if self.verdict not in VERDICTS:
@@ -175,7 +234,8 @@ class DiscrepancyResult:
             gap_initial_rad=float(self.initial.gap_rad), gap_final_rad=float(self.final.gap_rad),
             gap_reduction=reduction, falsified_fraction_initial=float(self.initial.falsified_fraction),
             falsified_fraction_final=float(self.final.falsified_fraction), excitation=dict(self.excitation),
-            operating_point_rad=float(self.operating_point_rad), undecided=tuple(self.undecided))
+            operating_point_rad=float(self.operating_point_rad), undecided=tuple(self.undecided),
+            findings=tuple(self.findings))
 
     def to_dict(self) -> dict[str, Any]:
         """The ``rig diagnose --json`` document, ``self.report().to_dict()`` (:meth:`DiscrepancyReport.to_dict`)."""
@@ -197,10 +257,11 @@ class MissingEffect:
 @dataclass(frozen=True)
 class DiscrepancyReport:
     """What :func:`diagnose_model` found, as the ``rig diagnose --json`` document holds it (kind
-    ``"model_discrepancy"``, version 3): the verdict with its reason, the missing effects with intervals,
+    ``"model_discrepancy"``, version 4): the verdict with its reason, the missing effects with intervals,
     the candidates with their gaps, uncertainties and gap reductions, the candidates of the last round whose
     reduction straddles the acceptance (``undecided``: an ambiguous verdict after the effects named, if any),
-    the gaps and falsified fractions before and after, the excitation check and the operating point.
+    the gaps and falsified fractions before and after, the excitation check, the operating point and the
+    gross disagreements of the measurement (``findings``).
     :meth:`DiscrepancyResult.report` makes one."""
 
     verdict: str
@@ -217,15 +278,17 @@ class DiscrepancyReport:
     excitation: dict[str, Any]
     operating_point_rad: float
     undecided: tuple[CandidateResult, ...] = ()
+    findings: tuple[GrossDisagreement, ...] = ()
 
     KIND = "model_discrepancy"
-    VERSION = 3
-    READS = (1, 2, 3)
+    VERSION = 4
+    READS = (1, 2, 3, 4)
     """Version 2 added ``undecided`` and each candidate's ``reduction``, ``reduction_interval`` and
     ``acceptance``; version 3 each candidate's ``validation_interval``, ``fold_reductions`` and
     ``refit_interval`` (the interval judged, ``reduction_interval``, is then made of both:
-    :func:`_reduction_judged`). :meth:`from_dict` reads versions 1 and 2 too (no undecided candidates, no
-    intervals; no refits)."""
+    :func:`_reduction_judged`); version 4 ``findings`` (the gross disagreements of the measurement:
+    :class:`GrossDisagreement`, each with ``kind``, ``ranges`` and ``text``). :meth:`from_dict` reads versions
+    1 to 3 too (no undecided candidates, no intervals; no refits; no findings)."""
 
     def __post_init__(self) -> None:
         if self.verdict not in VERDICTS:
@@ -235,7 +298,7 @@ class DiscrepancyReport:
         """``kind``, ``version`` and the keys of issue 6 and issue 15: ``verdict``, ``verdict_reason``,
         ``noise_bound``, ``missing_effects`` (with ``parameter_intervals``), ``ambiguous_between``,
         ``candidates``, ``gap_initial``, ``gap_final``, ``gap_reduction``, ``falsified_fraction_initial``,
-        ``falsified_fraction_final``, ``excitation``, ``operating_point``, ``undecided``."""
+        ``falsified_fraction_final``, ``excitation``, ``operating_point``, ``undecided``, ``findings``."""
         return tagged(self.KIND, self.VERSION, {
             "verdict": self.verdict,
             "verdict_reason": self.verdict_reason,
@@ -261,6 +324,7 @@ class DiscrepancyReport:
             "excitation": dict(self.excitation),
             "operating_point": float(self.operating_point_rad),
             "undecided": [candidate.to_dict() for candidate in self.undecided],
+            "findings": [finding.to_dict() for finding in self.findings],
         })
 
     @classmethod
@@ -283,7 +347,8 @@ class DiscrepancyReport:
                 falsified_fraction_initial=float(data["falsified_fraction_initial"]),
                 falsified_fraction_final=float(data["falsified_fraction_final"]),
                 excitation=dict(data["excitation"]), operating_point_rad=float(data["operating_point"]),
-                undecided=tuple(CandidateResult.from_dict(c) for c in data.get("undecided", ())))
+                undecided=tuple(CandidateResult.from_dict(c) for c in data.get("undecided", ())),
+                findings=tuple(GrossDisagreement.from_dict(f) for f in data.get("findings", ())))
 
 
 @dataclass(frozen=True)

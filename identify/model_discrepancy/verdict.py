@@ -7,6 +7,7 @@ and an output that moves while the command and the model rest (:func:`_unmeasure
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -17,7 +18,13 @@ from identify.plant_blocks import Delay, PlantModel
 
 from identify.model_discrepancy.disagreement import disagreement
 from identify.model_discrepancy.options import DiagnoseOptions
-from identify.model_discrepancy.result import CandidateResult, Disagreement, DiscrepancyResult, DiscrepancyStep
+from identify.model_discrepancy.result import (
+    CandidateResult,
+    Disagreement,
+    DiscrepancyResult,
+    DiscrepancyStep,
+    GrossDisagreement,
+)
 from identify.model_discrepancy.search import _Search
 from identify.model_discrepancy.thresholds import (
     COMMAND_STILL_RANGE_FRACTION,
@@ -94,11 +101,23 @@ def _not_excited(u: NDArray[np.float64], y: NDArray[np.float64], delta: float, m
 def _verdict(initial: Disagreement, final: Disagreement, steps: Sequence[DiscrepancyStep],
              ambiguous_between: tuple[str, ...], consistent: bool, delta: float,
              consistent_fraction: float, undecided: Sequence[CandidateResult] = (),
-             min_reduction: float = MIN_REDUCTION) -> tuple[str, str]:
-    """The verdict of the workflow and the reason in words (package docstring, step 6)."""
+             min_reduction: float = MIN_REDUCTION, estimation_falsified: float = 0.0,
+             estimation_samples: int = 0) -> tuple[str, str]:
+    """The verdict of the workflow and the reason in words (package docstring, step 6). ``explained`` needs
+    agreement on the whole record: at most ``consistent_fraction`` of the samples falsified on the validation
+    segment and on the estimation segment alike (``estimation_falsified``, :func:`_estimation_falsified`); a
+    start model that agrees on the validation segment only is ``unexplained``, with where it disagrees."""
     if initial.falsified_fraction <= consistent_fraction:
+        if estimation_falsified > consistent_fraction:
+            where = ", ".join(f"{w.start}-{w.stop - 1}" for w in initial.windows if w.start < estimation_samples)
+            return "unexplained", (
+                f"the start model agrees with the validation segment within the noise bound ({delta:.3g} rad), but "
+                f"{100 * estimation_falsified:.1f} % of the estimation segment's samples are outside it"
+                f"{' (samples ' + where + ')' if where else ''}: the record disagrees with the model there, and no "
+                "effect can be judged on a validation segment that does not show it")
         return "explained", (f"the start model agrees with the data within the noise bound ({delta:.3g} rad) on "
-                             f"{100 * (1 - initial.falsified_fraction):.1f} % of validation samples")
+                             f"{100 * (1 - initial.falsified_fraction):.1f} % of validation samples and "
+                             f"{100 * (1 - estimation_falsified):.1f} % of estimation samples")
     named = ", ".join(step.effect for step in steps)
     if undecided:
         before = f"{named} named (gap {initial.gap_rad:.3g} -> {final.gap_rad:.3g} rad); then " if steps else ""
@@ -121,6 +140,33 @@ def _verdict(initial: Disagreement, final: Disagreement, steps: Sequence[Discrep
                            f"bound and no candidate lowers the validated gap ({initial.gap_rad:.3g} rad) enough")
 
 
+def _estimation_falsified(initial: Disagreement, y: NDArray[np.float64], n_est: int) -> float:
+    """The fraction of the estimation segment's measured samples that ``initial`` falsifies (its
+    ``falsified_fraction`` is the validation segment's)."""
+    measured = max(int(np.count_nonzero(~np.isnan(y[:n_est]))), 1)
+    return float(np.count_nonzero(initial.falsified[:n_est]) / measured)
+
+
+def _with_findings(result: DiscrepancyResult, findings: Sequence[GrossDisagreement]) -> DiscrepancyResult:
+    """``result`` of the record with its gross disagreements put aside (:func:`gross_disagreements`), with
+    them: carried in ``findings`` and said first in the verdict's reason. A record with findings is never
+    ``explained``: when the rest agrees with the start model the verdict is ``unexplained`` (by the model:
+    the disagreement is the measurement's)."""
+    if not findings:
+        return result
+    said = "; ".join(finding.text() for finding in findings)
+    put_aside = "undone" if all(f.kind == "sensor_wrap" for f in findings) else "put aside"
+    if result.verdict == "explained":
+        verdict = "unexplained"
+        reason = (f"{said}. With {'it' if len(findings) == 1 else 'them'} {put_aside}, {result.verdict_reason}: "
+                  "the record's disagreement is the measurement's, which no model effect explains")
+    else:
+        verdict = result.verdict
+        reason = f"{said}. With {'it' if len(findings) == 1 else 'them'} {put_aside}: {result.verdict_reason}"
+    return replace(result, verdict=verdict, verdict_reason=reason, findings=(*findings, *result.findings),
+                   unexplained=f"{said}; {result.unexplained}")
+
+
 def _percent_lower(reduction: float) -> str:
     """A gap reduction in words: "18 % lower", or "35 % higher" when it grew."""
     return f"{100 * abs(reduction):.0f} % {'lower' if reduction >= 0 else 'higher'}"
@@ -131,8 +177,10 @@ def _final_verdict(u: NDArray[np.float64], y: NDArray[np.float64], initial: Disa
     """:func:`_verdict`, and a record where nothing is named (unexplained, or ambiguous before any effect)
     whose output moves on its own (:func:`_unmeasured_input`) is not excited by the command instead: a
     candidate undecided on such a record is as meaningless as none, the record cannot test the model."""
+    n_est = int(round(options.estimation_fraction * u.size))
     verdict, reason = _verdict(initial, final, found.steps, found.ambiguous_between, consistent, delta,
-                               options.consistent_fraction, found.undecided, options.min_reduction)
+                               options.consistent_fraction, found.undecided, options.min_reduction,
+                               _estimation_falsified(initial, y, n_est), n_est)
     if verdict == "unexplained" or (verdict == "ambiguous" and not found.steps):
         unmeasured = _unmeasured_input(u, y, final.simulated_rad, delta)
         if unmeasured:

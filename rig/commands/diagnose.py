@@ -316,6 +316,8 @@ def _print_summary(data: str, model: str | None, noise_bound: float, result, num
     print(f"noise bound   {noise_bound:.4g} rad")
     print(f"verdict       {VERDICT_WORDS[result.verdict]}")
     print(f"              {result.verdict_reason}")
+    for finding in result.findings:  # measurement-side: the record disagrees with itself there
+        print(f"measurement   {finding.text()}")
     print(f"initial gap   {result.initial.gap_rad:.4g} rad, {100 * result.initial.falsified_fraction:.1f} % "
           f"of validation samples falsified, {len(result.initial.windows)} disagreement windows")
     rounds = sorted({c.round for c in result.candidates})

@@ -112,7 +112,7 @@ def test_fitted_parameters_are_close_to_the_truth():
 
 JSON_KEYS = {"verdict", "verdict_reason", "noise_bound", "missing_effects", "ambiguous_between", "candidates",
              "gap_initial", "gap_final", "gap_reduction", "falsified_fraction_initial", "falsified_fraction_final",
-             "excitation", "operating_point", "undecided", "kind", "version"}
+             "excitation", "operating_point", "undecided", "findings", "kind", "version"}
 
 
 def test_json_document_has_exactly_the_issue_keys():
@@ -210,7 +210,7 @@ def test_a_named_effect_carries_parameter_intervals_containing_its_fit_and_a_gap
     result = run(record)
     assert result.verdict == "named"
     document = result.to_dict()
-    assert document["kind"] == "model_discrepancy" and document["version"] == 3
+    assert document["kind"] == "model_discrepancy" and document["version"] == 4
     assert DiscrepancyReport.from_dict(json.loads(json.dumps(document))) == result.report()
     (entry,) = document["missing_effects"]
     truth = record.true_model.blocks[1]
@@ -356,7 +356,7 @@ def test_a_clear_effect_is_named_with_its_reduction_clear_over_validation_blocks
     assert candidate.reduction_interval == candidate.refit_interval  # the refits measure the size...
     assert candidate.reduction >= 0.15  # ... and the validation segment shows it too
     document = json.loads(json.dumps(result.to_dict()))
-    assert document["version"] == 3 and len(document["candidates"][0]["fold_reductions"]) == REFIT_FOLDS
+    assert document["version"] == 4 and len(document["candidates"][0]["fold_reductions"]) == REFIT_FOLDS
     assert DiscrepancyReport.from_dict(document) == result.report()
 
 
@@ -432,6 +432,15 @@ def test_a_torque_limit_reached_once_in_the_validation_segment_is_named():
     entry = next(c for c in result.candidates if c.effect == "torque_limit" and c.acceptance == "clear")
     assert entry.validation_interval[0] < 0.15 <= entry.reduction  # the block spread alone would not decide
     assert entry.refit_interval[0] >= 0.15
+
+
+def test_a_version_3_document_is_still_read():
+    record = hidden_effect_record(("backlash",), 11)
+    document = json.loads(json.dumps(run(record, candidates=("backlash",)).to_dict()))
+    document["version"] = 3
+    del document["findings"]
+    report = DiscrepancyReport.from_dict(document)
+    assert report.findings == () and report.missing_effects[0].effect == "backlash"
 
 
 def test_a_version_2_document_is_still_read():
