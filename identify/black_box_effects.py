@@ -24,7 +24,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
 
-from identify.effect_catalogue import EFFECT_NAMES, effect
+from identify.effect_catalogue import SEARCHED_EFFECT_NAMES, effect
 from identify.plant_blocks import PlantModel
 
 __all__ = ["AROUND_BLACK_BOX", "effects_around_black_box", "is_black_box", "placements_text"]
@@ -42,7 +42,7 @@ def is_black_box(model: PlantModel | None) -> bool:
     return model is not None and any(getattr(block, "black_box", False) for block in model.blocks)
 
 
-def effects_around_black_box(candidates: Iterable[str] = EFFECT_NAMES) -> tuple[tuple[str, ...], dict[str, str]]:
+def effects_around_black_box(candidates: Iterable[str] = SEARCHED_EFFECT_NAMES) -> tuple[tuple[str, ...], dict[str, str]]:
     """Split ``candidates`` into those that can be added around a black box and those that cannot.
 
     Returns the names that can (in their order) and, for each one that cannot, the reason in words."""

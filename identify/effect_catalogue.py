@@ -51,6 +51,7 @@ from identify.plant_blocks import (
     CoulombFriction,
     DeadZone,
     Delay,
+    EncoderError,
     OutputBacklash,
     OutputGain,
     OutputOffset,
@@ -62,7 +63,8 @@ from identify.validation import InvalidInputError
 if TYPE_CHECKING:
     from identify.effect_signatures import SignatureScore
 
-__all__ = ["DYNAMICS_EFFECTS", "EFFECTS", "EFFECT_NAMES", "HYSTERESIS_INNER_TWIN", "PLACEMENTS", "Effect",
+__all__ = ["DYNAMICS_EFFECTS", "EFFECTS", "EFFECT_NAMES", "HYSTERESIS_INNER_TWIN", "LOOK_ALIKE_EXPERIMENTS",
+           "PLACEMENTS", "SEARCHED_EFFECT_NAMES", "Effect",
            "GuessContext", "Parameter", "TomlKey", "effect", "effect_for_block", "effect_for_toml_type",
            "reference_train"]
 
@@ -203,6 +205,16 @@ class Effect:
         Dynamics effects: (fitted train, its free run y^, the angle resolution e) -> half-widths by which
         the parameters' intervals are widened: what an angle known only within +-e leaves unresolved of a
         torque or a limit (the fold refits all see the same quantised levels and cannot show it).
+    look_alikes
+        Effects that give the same output on records of ordinary motion though their physics differ (a load
+        torque ~ sin of the angle through the drive, gravity, and a once-per-revolution sensor error): when
+        this effect is named, each look-alike is fitted in its place, and if the two fitted models' outputs
+        are within the noise bound of each other on the record, the verdict is ambiguous between them, with
+        the experiment that separates them (:data:`LOOK_ALIKE_EXPERIMENTS`; ``_look_alikes_checked`` in
+        :mod:`identify.model_discrepancy.search`).
+    look_alike_only
+        Not searched by default (not in :data:`SEARCHED_EFFECT_NAMES`): tried as the look-alike of a named
+        effect, or when named in the workflow's ``candidates``.
     loop_damping_value
         Dynamics effects: the index of the free value that is a viscous damping per inertia d / J (1/s) on
         the load's speed, which adds to the velocity loop's own K_v / J = 2 zeta omega_n: when the loop is
@@ -237,6 +249,8 @@ class Effect:
     half_widths: Callable[[Any], tuple[float, float]] | None = None
     width_starts: Callable[[float, DriveTrain], list[tuple[float, ...]]] | None = None
     loop_damping_value: int | None = None
+    look_alikes: tuple[str, ...] = ()
+    look_alike_only: bool = False
 
     def in_train(self, values: Sequence[float], train: DriveTrain) -> DriveTrain:
         """``train`` with this dynamics effect's fields set from its free ``values``."""
@@ -306,6 +320,24 @@ def _gain_guesses(context: GuessContext) -> list[tuple[float, ...]]:
     score = context.scores.get("gain_error")
     relative_error = score.details.get("relative_error", 0.0) if score is not None else 0.0
     return [(relative_error,), *((e,) for e in (-0.2, -0.05, 0.05, 0.2))]
+
+
+def _build_encoder_error(v: Sequence[float], period: float) -> Block:
+    # free values (a1 cos p1, a1 sin p1, a2 cos p2, a2 sin p2): any real vector is a valid error, and the
+    # output is linear in them (a1 sin(x + p1) = a1 cos p1 sin x + a1 sin p1 cos x)
+    return EncoderError(once_per_rev_rad=math.hypot(v[0], v[1]), once_per_rev_phase_rad=math.atan2(v[1], v[0]),
+                        twice_per_rev_rad=math.hypot(v[2], v[3]), twice_per_rev_phase_rad=math.atan2(v[3], v[2]))
+
+
+def _encoder_error_guesses(context: GuessContext) -> list[tuple[float, ...]]:
+    # the least-squares fit of the signature (the residual on sin y^, cos y^, sin 2y^, cos 2y^), and a small
+    # error at the noise bound
+    score = context.scores.get("encoder_error")
+    small = (context.noise_bound_rad, 0.0, 0.0, 0.0)
+    if score is None or not score.details:
+        return [small]
+    d = score.details
+    return [(d["sin_rad"], d["cos_rad"], d["sin2_rad"], d["cos2_rad"]), small]
 
 
 def _build_backlash(v: Sequence[float], period: float) -> Block:
@@ -712,6 +744,30 @@ EFFECTS: dict[str, Effect] = {effect.name: effect for effect in (
         needs_given_model=True,
     ),
     Effect(
+        name="encoder_error", block_class=EncoderError, toml_type="encoder_error",
+        toml_keys=(TomlKey("once_per_rev_rad"), TomlKey("once_per_rev_phase_rad"),
+                   TomlKey("twice_per_rev_rad", default=0.0), TomlKey("twice_per_rev_phase_rad", default=0.0)),
+        takes_sample_period=False,
+        parameters=(Parameter("once_per_rev_rad", "rad", "amplitude a1 of the sensor error once per revolution",
+                              lower=0.0),
+                    Parameter("once_per_rev_phase_rad", "rad", "its phase p1: a1 sin(angle + p1), the angle "
+                              "from the operating point the workflow started at"),
+                    Parameter("twice_per_rev_rad", "rad", "amplitude a2 of the sensor error twice per revolution",
+                              lower=0.0),
+                    Parameter("twice_per_rev_phase_rad", "rad", "its phase p2: a2 sin(2 angle + p2)")),
+        placement="end", free_parameters=4, build=_build_encoder_error,
+        report=lambda b: {"once_per_rev_rad": b.once_per_rev_rad, "once_per_rev_phase_rad": b.once_per_rev_phase_rad,
+                          "twice_per_rev_rad": b.twice_per_rev_rad,
+                          "twice_per_rev_phase_rad": b.twice_per_rev_phase_rad},
+        guesses=_encoder_error_guesses,
+        vanished=lambda b, delta: b.once_per_rev_rad + b.twice_per_rev_rad < delta / 2.0,
+        random_block=lambda rng, u, f, period: EncoderError(
+            once_per_rev_rad=rng.uniform(2e-3, 6e-3), once_per_rev_phase_rad=rng.uniform(-math.pi, math.pi),
+            twice_per_rev_rad=rng.uniform(0.5e-3, 2e-3), twice_per_rev_phase_rad=rng.uniform(-math.pi, math.pi)),
+        signature="r ~ a1 sin(y^ + p1) + a2 sin(2 y^ + p2): the same error at the same angle, at every speed",
+        look_alikes=("gravity",), look_alike_only=True,
+    ),
+    Effect(
         name="load_friction", block_class=DriveTrain, toml_type="drive_train",
         toml_keys=(TomlKey("coulomb_friction_nm"), TomlKey("static_friction_nm"),
                    TomlKey("viscous_friction_nm_s_per_rad")),
@@ -750,7 +806,7 @@ EFFECTS: dict[str, Effect] = {effect.name: effect for effect in (
         vanished=lambda b, delta: _static_error(b, b.gravity_torque_nm / b.total_inertia_kg_m2) < delta / 2.0,
         random_block=_random_gravity,
         signature="a position-dependent sag (r ~ -S sin(y^ - theta_0), S = m g l / (J omega_n^2))",
-        train_fields=_gravity_fields,
+        train_fields=_gravity_fields, look_alikes=("encoder_error",),
         resolution=lambda train, y_hat, e: _torque_resolution(train, ("gravity_per_inertia_rad_per_s2",), e),
     ),
     Effect(
@@ -805,6 +861,17 @@ EFFECTS: dict[str, Effect] = {effect.name: effect for effect in (
 EFFECT_NAMES: tuple[str, ...] = tuple(EFFECTS)
 """Names of the effects the workflow can name."""
 
+SEARCHED_EFFECT_NAMES: tuple[str, ...] = tuple(name for name, entry in EFFECTS.items() if not entry.look_alike_only)
+"""The effects the workflow searches by default (the others are tried as look-alikes of a named effect)."""
+
+LOOK_ALIKE_EXPERIMENTS: dict[frozenset[str], str] = {
+    frozenset({"gravity", "encoder_error"}): (
+        "move slowly through a full revolution in both directions, or at two speeds or with a softer servo: a "
+        "sensor error is the same at every speed and servo setting, while a load torque deflects the load more "
+        "when the servo is softer and lags at higher acceleration; or read the angle with a second encoder"),
+}
+"""The experiment that tells look-alike effects apart (catalogue ``look_alikes``), for the verdict's reason."""
+
 _BY_CLASS = {entry.block_class: entry for entry in EFFECTS.values() if entry.placement != "dynamics"}
 _BY_TOML = {entry.toml_type: entry for entry in EFFECTS.values() if entry.placement != "dynamics"}
 """Blocks and TOML types of one effect each; the dynamics effects share the ``drive_train`` block and table
@@ -849,6 +916,9 @@ def _check() -> None:
             raise AssertionError(f"{entry.name}: an effect with an inner twin gives its hysteresis' half-widths")
         if any(EFFECTS[name].placement != "dynamics" for name in entry.inner_twin):
             raise AssertionError(f"{entry.name}: an inner twin is made of dynamics effects (one drive train)")
+        for other in entry.look_alikes:
+            if entry.name not in EFFECTS[other].look_alikes or frozenset({entry.name, other}) not in LOOK_ALIKE_EXPERIMENTS:
+                raise AssertionError(f"{entry.name}: look-alikes are mutual and say what separates them")
 
 
 _check()

@@ -158,8 +158,20 @@ def signature_scores(command_rad: NDArray[np.float64], angle_rad: NDArray[np.flo
     energy = float(np.dot(y_hat, y_hat))
     relative_error = float(np.dot(r, y_hat)) / energy if energy > 0.0 else 0.0
     scores["gain_error"] = SignatureScore("gain_error", _explained(r, y_hat), {"relative_error": relative_error})
+    scores["encoder_error"] = _encoder_error_score(r, y_hat)
     scores.update(_drive_train_scores(y, y_hat, r, sample_period_s))
     return scores
+
+
+def _encoder_error_score(r: NDArray[np.float64], y_hat: NDArray[np.float64]) -> SignatureScore:
+    """A sensor error once and twice per revolution of the angle: r ~ c1 sin y^ + s1 cos y^ + c2 sin 2y^ +
+    s2 cos 2y^ (least squares); ``details`` the four coefficients, the starts of the catalogue's fit."""
+    regressors = (np.sin(y_hat), np.cos(y_hat), np.sin(2.0 * y_hat), np.cos(2.0 * y_hat))
+    phi = np.column_stack(regressors)
+    coefficients = np.linalg.lstsq(phi, r, rcond=None)[0] if np.any(r) else np.zeros(4)
+    keys = ("sin_rad", "cos_rad", "sin2_rad", "cos2_rad")
+    return SignatureScore("encoder_error", _explained(r, *regressors),
+                          {key: float(value) for key, value in zip(keys, coefficients)})
 
 
 def _drive_train_scores(y: NDArray[np.float64], y_hat: NDArray[np.float64], r: NDArray[np.float64],

@@ -40,6 +40,7 @@ __all__ = [
     "CoulombFriction",
     "DeadZone",
     "Delay",
+    "EncoderError",
     "InputBacklash",
     "InputSwitch",
     "LinearBlock",
@@ -773,6 +774,36 @@ class OutputGain:
     def stepper(self) -> _StaticStepper:
         gain = self.gain
         return _StaticStepper(lambda x: gain * float(x))
+
+
+@dataclass(frozen=True)
+class EncoderError:
+    """Once- and twice-per-revolution error of the angle sensor (an eccentric or tilted encoder disc):
+    y_t = x_t + a1 sin(x_t + p1) + a2 sin(2 x_t + p2), x_t the true angle at the sensor (rad).
+
+    A measurement-side effect: the error depends on the angle alone, the same at every speed, and the drive
+    never feels it (a load torque of the same shape, gravity, deflects the servo more the softer it is and
+    lags in fast moves)."""
+
+    once_per_rev_rad: float
+    once_per_rev_phase_rad: float
+    twice_per_rev_rad: float = 0.0
+    twice_per_rev_phase_rad: float = 0.0
+
+    def __post_init__(self) -> None:
+        for name in ("once_per_rev_rad", "once_per_rev_phase_rad", "twice_per_rev_rad", "twice_per_rev_phase_rad"):
+            object.__setattr__(self, name, _finite(name, getattr(self, name)))
+
+    def _error(self, x: NDArray[np.float64] | float) -> NDArray[np.float64] | float:
+        return (self.once_per_rev_rad * np.sin(x + self.once_per_rev_phase_rad)
+                + self.twice_per_rev_rad * np.sin(2.0 * x + self.twice_per_rev_phase_rad))
+
+    def apply(self, signal: ArrayLike) -> NDArray[np.float64]:
+        x = as_signal("signal", signal)
+        return x + self._error(x)
+
+    def stepper(self) -> _StaticStepper:
+        return _StaticStepper(lambda x: float(x) + float(self._error(float(x))))
 
 
 # ----------------------------------------------------------------------------------------------------------

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from identify.effect_catalogue import EFFECT_NAMES
+from identify.effect_catalogue import EFFECT_NAMES, SEARCHED_EFFECT_NAMES
 from identify.validation import InvalidInputError
 
 from identify.model_discrepancy.thresholds import (
@@ -30,7 +30,8 @@ class DiagnoseOptions:
     estimation_fraction
         The first fraction of the record is the estimation segment, the rest the validation segment.
     candidates
-        Effect names to try (default all of :data:`EFFECT_NAMES`).
+        Effect names to try (default :data:`SEARCHED_EFFECT_NAMES`: all of :data:`EFFECT_NAMES` but those
+        tried only as the look-alike of a named effect, the encoder error).
     max_effects
         Stop after this many effects.
     complexity_penalty
@@ -54,7 +55,7 @@ class DiagnoseOptions:
     """
 
     estimation_fraction: float = ESTIMATION_FRACTION
-    candidates: tuple[str, ...] = EFFECT_NAMES
+    candidates: tuple[str, ...] = SEARCHED_EFFECT_NAMES
     max_effects: int = MAX_EFFECTS
     complexity_penalty: float = COMPLEXITY_PENALTY
     min_reduction: float = MIN_REDUCTION

@@ -21,7 +21,13 @@ from identify.model_discrepancy.disagreement import disagreement, gross_disagree
 from identify.model_discrepancy.intervals import _named_intervals, _with_final_parameters
 from identify.model_discrepancy.options import DiagnoseOptions
 from identify.model_discrepancy.result import Disagreement, DiscrepancyResult
-from identify.model_discrepancy.search import _Search, _family_rechecked, _search, _still_needed
+from identify.model_discrepancy.search import (
+    _look_alikes_checked,
+    _Search,
+    _family_rechecked,
+    _search,
+    _still_needed,
+)
 from identify.model_discrepancy.start_model import _start
 from identify.model_discrepancy.thresholds import (
     AT_REST_NOISE_BOUNDS,
@@ -105,6 +111,7 @@ def diagnose_model(command_rad: ArrayLike, angle_rad: ArrayLike, noise_bound_rad
                     resolve_ties=True)
     found = _family_rechecked(found, _candidate_names(options.candidates, model), u, y, n_est, delta, options, say)
     found = _still_needed(found, u, y, n_est, delta, options, say)
+    found = _look_alikes_checked(found, u, y, n_est, delta, period, options, say)
     chain, current, steps = found.chain, found.current, found.steps
     consistent = current.falsified_fraction <= options.consistent_fraction
     intervals, reduction = _named_intervals(chain, steps, start_model, u, y, delta, current, options, say)

@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from identify.effect_catalogue import EFFECTS
+from identify.effect_catalogue import EFFECTS, LOOK_ALIKE_EXPERIMENTS
 from identify.effect_signatures import SignatureScore, signature_scores
 
 from identify.model_discrepancy.candidates import _Candidate, _insert_index, _without_effect
@@ -58,7 +58,7 @@ from identify.model_discrepancy.judgement import (
 )
 from identify.model_discrepancy.options import DiagnoseOptions
 from identify.model_discrepancy.result import CandidateResult, Disagreement, DiscrepancyStep
-from identify.model_discrepancy.thresholds import AMBIGUITY_MIN_MARGIN
+from identify.model_discrepancy.thresholds import AMBIGUITY_MIN_MARGIN, LOOK_ALIKE_APART_FRACTION
 
 
 @dataclass
@@ -72,6 +72,9 @@ class _Search:
     ambiguous_between: tuple[str, ...] = ()
     validation_error_rad: NDArray[np.float64] | None = None
     undecided: tuple[CandidateResult, ...] = ()
+    look_alike_reason: str = ""
+    """Set when a named effect was dropped for a look-alike the record cannot separate from it
+    (:func:`_look_alikes_checked`): the verdict's reason."""
 
 
 def _search(state: _Search, remaining: list[str], u: NDArray[np.float64], y: NDArray[np.float64], n_est: int,
@@ -482,4 +485,65 @@ def _still_needed(found: _Search, u: NDArray[np.float64], y: NDArray[np.float64]
                             evidence={**steps[-1].evidence, "dropped_after_search": dict(dropped)})
         found = _Search(refit, without, steps, found.tried, found.ambiguous_between,
                         without.residual_rad[n_est:], found.undecided)
+    return found
+
+
+def _look_alikes_checked(found: _Search, u: NDArray[np.float64], y: NDArray[np.float64], n_est: int,
+                         delta: float, period: float, options: DiagnoseOptions,
+                         say: Callable[[str], None]) -> _Search:
+    """Each named effect with look-alikes (catalogue ``look_alikes``: gravity and the encoder error) checked
+    against them: the look-alike is fitted in its place (the final model without the effect, plus the
+    look-alike, :func:`_try_effect`), and when the two fitted models' free-run outputs are within the noise
+    bound of each other on all but ``consistent_fraction`` of the record's measured samples
+    (:data:`LOOK_ALIKE_APART_FRACTION` is that fraction), the record cannot tell them apart: the effect is
+    dropped (the rest refitted as a round's baseline, :func:`_baseline_refit`), the search is ambiguous
+    between the two, and the reason says what experiment would separate them (:data:`LOOK_ALIKE_EXPERIMENTS`).
+
+    The whole record is compared, not the validation segment: the outputs, not their fit to the data, are
+    what a further record would have to tell apart. A torque ~ sin of the load angle through a stiff servo
+    deflects the load by torque / stiffness at every angle: in slow motion exactly the shape of a
+    once-per-revolution sensor error; only fast moves (the servo lags the torque) or a softer servo show the
+    difference."""
+    named = [step.effect for step in found.steps]
+    for step in found.steps:
+        for alike in EFFECTS[step.effect].look_alikes:
+            if alike in named:
+                continue
+            reduced = _without_effect(found.chain, step.effect)
+            if reduced is None or _insert_index(reduced, alike) < 0:
+                continue
+            before = disagreement(reduced.model(), u, y, delta, n_est)
+            scores = signature_scores(u, y, before.simulated_rad, delta, period)
+            other = _try_effect(alike, reduced, u, y, n_est, delta, period, before.residual_rad, scores,
+                                options.max_delay_samples, options.max_evaluations)
+            if EFFECTS[alike].vanished(other.block, delta):
+                continue
+            theirs = np.asarray(other.chain.model().simulate(u), dtype=float)
+            measured = ~np.isnan(y)
+            apart = float(np.mean(np.abs(found.current.simulated_rad - theirs)[measured] > delta))
+            if apart > max(options.consistent_fraction, LOOK_ALIKE_APART_FRACTION):
+                say(f"{step.effect} and its look-alike {alike} give outputs apart by more than the noise bound on "
+                    f"{100 * apart:.1f} % of the record: told apart")
+                continue
+            refit = _baseline_refit(reduced, u[:n_est], y[:n_est], options.max_evaluations)
+            without = disagreement(refit.model(), u, y, delta, n_est)
+            if without.gap_rad > before.gap_rad:
+                refit, without = reduced, before
+            pair = (step.effect, alike)
+            reason = (f"{step.effect} and {alike} give outputs within the noise bound ({delta:.3g} rad) of each "
+                      f"other on {100 * (1 - apart):.1f} % of the record once each is fitted (validated gap "
+                      f"{found.current.gap_rad:.3g} rad with {step.effect}, {other.gap_rad:.3g} rad with {alike}, "
+                      f"{before.gap_rad:.3g} rad with neither): this record cannot tell a load torque from a sensor "
+                      f"error, so neither is named. To separate them: "
+                      f"{LOOK_ALIKE_EXPERIMENTS[frozenset(pair)]}")
+            say(f"ambiguous: {reason}")
+            at = found.steps.index(step)
+            steps = [s for s in found.steps if s is not step]
+            if at < len(steps):  # the next step now follows the model before the dropped one
+                steps[at] = replace(steps[at], gap_before_rad=step.gap_before_rad,
+                                    falsified_fraction_before=step.falsified_fraction_before)
+            if steps:
+                steps[-1] = replace(steps[-1], gap_after_rad=without.gap_rad, model=refit.model(),
+                                    falsified_fraction_after=without.falsified_fraction)
+            return _Search(refit, without, steps, found.tried, pair, without.residual_rad[n_est:], (), reason)
     return found

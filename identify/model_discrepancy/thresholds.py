@@ -318,6 +318,15 @@ CONSISTENT_FRACTION = 0.01
 """The model is consistent with the noise bound when at most this fraction of validation samples is
 falsified (default of ``DiagnoseOptions.consistent_fraction``)."""
 
+# Evidence: the clean-room generator's encoder eccentricity (benchmarks/discrepancy_lookalikes.py): a gravity
+# fitted to it reproduced the sensor error within 12 % in slow motion, i.e. within the noise bound; the value
+# is the consistency tolerance (a model "agrees" with a record when at most 1 % of its samples are outside
+# the bound): two models whose outputs agree that closely cannot be told apart by a record either agrees with.
+LOOK_ALIKE_APART_FRACTION = 0.01
+"""Two fitted look-alike effects (catalogue ``look_alikes``) can be told apart by the record only when their
+models' outputs differ by more than the noise bound on more than this fraction of its measured samples (or
+``consistent_fraction``, if larger)."""
+
 # Evidence: the first version of the workflow; origin not recorded.
 MAX_EFFECTS = 3
 """The search stops after this many effects (default of ``DiagnoseOptions.max_effects``)."""

@@ -181,6 +181,10 @@ def _final_verdict(u: NDArray[np.float64], y: NDArray[np.float64], initial: Disa
     verdict, reason = _verdict(initial, final, found.steps, found.ambiguous_between, consistent, delta,
                                options.consistent_fraction, found.undecided, options.min_reduction,
                                _estimation_falsified(initial, y, n_est), n_est)
+    if found.look_alike_reason and verdict == "ambiguous":
+        named = ", ".join(step.effect for step in found.steps)
+        reason = (f"{named} named (gap {initial.gap_rad:.3g} -> {final.gap_rad:.3g} rad); then " if named else "") \
+            + found.look_alike_reason
     if verdict == "unexplained" or (verdict == "ambiguous" and not found.steps):
         unmeasured = _unmeasured_input(u, y, final.simulated_rad, delta)
         if unmeasured:

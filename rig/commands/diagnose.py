@@ -212,16 +212,17 @@ def _start_model(options: dict, sample_period_s: float):
     """The start model of ``--model`` and the candidate effects: a plant TOML's blocks and every effect; an
     FMU as one black-box block (:mod:`sim_backend.fmu_plant`) sampled at the record's period and the effects
     that can be added around it (:func:`identify.black_box_effects.effects_around_black_box`); no model: a
-    fitted linear model (None) and every effect."""
-    from identify.effect_catalogue import EFFECT_NAMES
+    fitted linear model (None) and every effect (every searched one: an effect tried only as the look-alike of a
+    named one is not, :data:`identify.effect_catalogue.SEARCHED_EFFECT_NAMES`)."""
+    from identify.effect_catalogue import SEARCHED_EFFECT_NAMES
     from rig.batch import shipped_path
 
     if options["model"] is None:
-        return None, EFFECT_NAMES
+        return None, SEARCHED_EFFECT_NAMES
     if options.get("fmu") is None:
         from sim_backend.plant_config import load_plant_config
 
-        return load_plant_config(shipped_path(options["model"])).plant, EFFECT_NAMES  # a cluster worker's copy
+        return load_plant_config(shipped_path(options["model"])).plant, SEARCHED_EFFECT_NAMES  # a cluster worker's copy
     from identify.black_box_effects import effects_around_black_box
     from identify.plant_blocks import PlantModel
     from sim_backend.fmu_plant import open_fmu_block

@@ -14,7 +14,7 @@ import pytest
 from scipy import signal
 
 from identify.black_box_effects import AROUND_BLACK_BOX, effects_around_black_box, is_black_box
-from identify.effect_catalogue import EFFECT_NAMES, EFFECTS
+from identify.effect_catalogue import EFFECT_NAMES, EFFECTS, SEARCHED_EFFECT_NAMES
 from identify.plant_blocks import DeadZone, PlantModel
 from rig.protocols.encoder_counts import EncoderResolution
 from rig.protocols.errors import ConfigError
@@ -154,7 +154,7 @@ def test_an_fmu_without_a_binary_for_this_platform_says_which_it_has(test_fmus):
 
 def test_only_effects_outside_the_dynamics_are_tried_around_a_black_box(monkeypatch):
     kept, skipped = effects_around_black_box()
-    assert set(kept) | set(skipped) == set(EFFECT_NAMES)
+    assert set(kept) | set(skipped) == set(SEARCHED_EFFECT_NAMES)
     assert all(EFFECTS[name].placement in AROUND_BLACK_BOX for name in kept)
     assert {"dead_zone", "saturation", "delay", "backlash", "offset", "gain_error"} <= set(kept)
     # an effect realised inside the dynamics (a placement the black box has no place for) is skipped, with why
