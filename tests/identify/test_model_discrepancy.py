@@ -41,7 +41,7 @@ the whole series search), and that the drive-train candidates do not take these 
 ``benchmarks/model_discrepancy_confusion.py`` checks with the whole catalogue (BENCHMARKS.md)."""
 
 
-def run(record, given_model=True, candidates=EFFECT_NAMES):
+def run(record, given_model=True, candidates=SEARCHED_EFFECT_NAMES):
     return diagnose_model(record.command_rad, record.angle_rad, record.noise_bound_rad, record.sample_period_s,
                           record.nominal_model if given_model else None, candidates=candidates)
 
