@@ -1,0 +1,68 @@
+"""Look-alike effects are reported together: a once-per-revolution encoder error and gravity on the load give
+outputs the noise bound cannot separate on records of ordinary motion, and the workflow then names neither,
+lists both and says what experiment would tell them apart. Records of the clean-room generator
+(``benchmarks/independent_plants``, a data source only) and of :mod:`identify.discrepancy_cases`."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from identify.discrepancy_cases import hidden_effect_record
+from identify.effect_catalogue import EFFECTS, LOOK_ALIKE_EXPERIMENTS, effect
+from identify.model_discrepancy import diagnose_model
+from identify.plant_blocks import EncoderError, LinearBlock, PlantModel
+
+BENCHMARKS = Path(__file__).resolve().parents[2] / "benchmarks"
+sys.path.insert(0, str(BENCHMARKS))
+import discrepancy_lookalikes as lookalikes  # noqa: E402  (the generator's record and nominal model)
+
+
+def independent(effect_name: str, seed: int, **setting):
+    record = lookalikes.generator_module().generate(
+        effect_name, seed, excitation=setting["excitation"],
+        duration_s=setting.get("duration_s", lookalikes.DURATION_S[setting["excitation"]]), bits=12,
+        noise_rad=lookalikes.NOISE_STD_RAD, amplitude_rad=setting.get("amplitude_rad"))
+    nominal = record["nominal"]
+    return diagnose_model(record["command_rad"], record["angle_rad"], lookalikes.noise_bound(nominal),
+                          float(nominal["sample_period_s"]),
+                          PlantModel((lookalikes.nominal_linear_block(nominal),)))
+
+
+@pytest.mark.parametrize("seed, setting", [
+    # both were named gravity alone: steps over nearly a turn (+-3 rad) for 10 s, and a 3-s chirp
+    (2001, {"excitation": "steps", "amplitude_rad": 3.0, "duration_s": 10.0}),
+    (2009, {"excitation": "chirp"}),
+])
+def test_an_encoder_eccentricity_is_not_named_gravity_alone(seed, setting):
+    result = independent("eccentricity", seed, **setting)
+    assert result.missing_effects != ("gravity",), result.verdict_reason
+    assert result.verdict == "ambiguous" and set(result.ambiguous_between) == {"gravity", "encoder_error"}
+    assert "gravity" not in result.missing_effects
+    assert LOOK_ALIKE_EXPERIMENTS[frozenset({"gravity", "encoder_error"})] in result.verdict_reason
+    assert "a sensor error is the same at every speed" in result.verdict_reason
+
+
+def test_gravity_the_record_tells_from_a_sensor_error_stays_named():
+    # our hidden gravity (a 30 Hz loop, fast steps): the drive lags the torque in the moves, which no sensor
+    # error does
+    record = hidden_effect_record(("gravity",), 1000)
+    result = diagnose_model(record.command_rad, record.angle_rad, record.noise_bound_rad, record.sample_period_s,
+                            record.nominal_model)
+    assert result.verdict == "named" and result.missing_effects == ("gravity",), result.verdict_reason
+
+
+def test_the_encoder_error_is_a_measurement_effect_of_the_catalogue_tried_as_gravitys_look_alike():
+    entry = effect("encoder_error")
+    assert entry.placement == "end" and entry.look_alike_only and entry.look_alikes == ("gravity",)
+    assert EFFECTS["gravity"].look_alikes == ("encoder_error",)
+    block = entry.build((3e-3, 4e-3, 0.0, -1e-3), 0.001)
+    assert block == EncoderError(5e-3, np.arctan2(4e-3, 3e-3), 1e-3, np.arctan2(-1e-3, 0.0))
+    x = np.linspace(-4.0, 4.0, 50)
+    assert np.allclose(block.apply(x), x + 5e-3 * np.sin(x + block.once_per_rev_phase_rad)
+                       + 1e-3 * np.sin(2 * x + block.twice_per_rev_phase_rad))
+    model = PlantModel((LinearBlock(a=(-0.5,), b=(0.0, 0.5), sample_period_s=0.001), block))
+    assert np.allclose(model.simulate(x), block.apply(PlantModel(model.blocks[:1]).simulate(x)))
