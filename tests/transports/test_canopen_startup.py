@@ -215,17 +215,10 @@ def test_a_configured_tpdo_latency_files_each_answer_under_the_sync_it_answers()
 
 
 def test_an_interface_that_does_not_echo_our_frames_is_refused_at_start_up(tmp_path, monkeypatch, no_leaks):
-    import canopen
-
     from rig.protocols.errors import TransportError
 
-    connect = canopen.Network.connect
-
-    def connect_without_echo(self, *args, **kwargs):
-        kwargs["receive_own_messages"] = False
-        return connect(self, *args, **kwargs)
-
-    monkeypatch.setattr(canopen.Network, "connect", connect_without_echo)
+    # the bus is opened as on an interface that echoes by itself, so it is not asked to, and does not
+    monkeypatch.setattr("rig.protocols.can_interfaces.echoes_own_frames", lambda interface: True)
     monkeypatch.setattr("rig.transports.canopen_link.SYNC_ECHO_TIMEOUT_S", 0.05)
     config = load_rig_config(write_test_config("canopen", tmp_path))
     gearbox = load_plant_config(config.simulation.plant_path).gearbox(seed=config.simulation.seed)
