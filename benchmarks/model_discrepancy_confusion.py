@@ -47,7 +47,7 @@ import json
 import math
 import sys
 import time
-from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 
 import numpy as np
@@ -55,7 +55,7 @@ import numpy as np
 from identify.discrepancy_cases import hidden_effect_record
 from identify.drive_train import DriveTrain
 from identify.effect_catalogue import EFFECT_NAMES, effect
-from identify.model_discrepancy import ESTIMATION_FRACTION, diagnose_model
+from identify.model_discrepancy import DiagnoseOptions, diagnose_model
 from identify.plant_blocks import LinearBlock, PlantModel
 
 TRUE_EFFECTS = ("none", *EFFECT_NAMES)  # every effect of the catalogue
@@ -242,6 +242,8 @@ def emps(decimate: int, noise_bound_m: float) -> None:
 
 # -- on an independent generator ----------------------------------------------------------------------------------
 
+ESTIMATION_FRACTION = DiagnoseOptions().estimation_fraction
+"""The workflow's estimation share (the rest of a record is its validation segment)."""
 GENERATOR = Path(__file__).resolve().parent / "independent_plants" / "drive_train_generator.py"
 INDEPENDENT_EFFECTS = ("none", "eccentricity", "wrap", "gain_drift", "cogging", "stribeck", "hysteresis", "coulomb",
                        "gravity", "backlash")
@@ -501,7 +503,7 @@ def independent(cases: int, start: str, effects: tuple[str, ...], first_seed: in
     with ProcessPoolExecutor(max_workers=jobs) as pool:
         futures = [pool.submit(run_independent_case, name, case, cases, first_seed, start, excitations, durations,
                                max_draws, bits, noise_std_rad) for name, case in tasks]
-        for future in futures:
+        for future in as_completed(futures):  # a line per case as soon as it is done
             result = future.result()
             runs[result["effect"]].append(result)
             print(f"  {result['effect']} seed {result['seed']} {result['excitation']}: {result['outcome']}: "
@@ -520,7 +522,8 @@ def independent_table(runs: dict[str, list[dict]], effects: tuple[str, ...]) -> 
           "not excited / error | skipped (not excited) | named (count) | truth in interval | median s |")
     print("|---" * 12 + "|")
     for name in effects:
-        results = [r for r in runs.get(name, []) if r["outcome"] != "skipped"]
+        runs[name] = sorted(runs.get(name, []), key=lambda r: r["case"])
+        results = [r for r in runs[name] if r["outcome"] != "skipped"]
         counts = {outcome: sum(r["outcome"] == outcome for r in results) for outcome in OUTCOMES}
         skipped = sum(len(r["skipped"]) for r in runs.get(name, []))
         labels: dict[str, int] = {}
