@@ -541,6 +541,16 @@ def independent_table(runs: dict[str, list[dict]], effects: tuple[str, ...]) -> 
               + " | " + (f"{covered[0]} of {covered[1]}" if covered[1] else "-")
               + f" | {np.median(seconds) if seconds else 0.0:.1f} |")
     results = [r for name in effects for r in runs.get(name, []) if r["outcome"] != "skipped"]
+    print("\nconfident wrong answers, by what was said and the excitations it was said on:")
+    for name in effects:
+        said: dict[str, list[str]] = {}
+        for r in runs.get(name, []):
+            if r["outcome"] == "confident_wrong":
+                said.setdefault("+".join(r["named"]) or r["verdict"], []).append(r["excitation"])
+        if said:
+            print(f"  {name}: " + "; ".join(
+                f"-> {label} {len(exc)} ({', '.join(f'{e} {exc.count(e)}' for e in sorted(set(exc)))})"
+                for label, exc in sorted(said.items(), key=lambda kv: -len(kv[1]))))
     for name in effects:
         wrong = [r for r in runs.get(name, []) if r["outcome"] == "confident_wrong" and name != "none"]
         early = [r for r in wrong if not r.get("in_validation", True)]
