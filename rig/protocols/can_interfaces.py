@@ -87,6 +87,6 @@ def receive_drops(bus: Any) -> int | None:
                     fields = line.split()
                     if fields[9] == inode:
                         return int(fields[-1])
-    except (OSError, ValueError, NotImplementedError, StopIteration, IndexError):
-        return None
+    except (OSError, ValueError, NotImplementedError, AttributeError, StopIteration, IndexError):
+        return None  # (AttributeError: a bus without a socket of its own)
     return None
