@@ -580,10 +580,18 @@ class CanOpenTransport(CanOpenStartUp, CanOpenInterpolation, CanOpenReceiveCheck
         else our own :class:`SyncThread`, which, unlike python-can's thread fallback, never sends two SYNCs
         closer than one cycle's bus time when it catches up after a stall (a SYNC wins arbitration over the
         answers to the one before it, which would then be filed under the wrong sample)."""
-        task = self.network.bus.send_periodic(sync_message(), self.sample_period_s)
+        import can
+
+        bus = self.network.bus
+        if isinstance(bus, can.BusABC) and type(bus)._send_periodic_internal is can.BusABC._send_periodic_internal:
+            # python-can would start its thread, which sends a first SYNC at once: SyncThread numbers its sends
+            # from the first SYNC on the bus, to tell a late SYNC from a lost echo (canopen_receive_checks)
+            self._sync_task = SyncThread(bus, self.sample_period_s, self.min_cycle_s)
+            return
+        task = bus.send_periodic(sync_message(), self.sample_period_s)
         if type(task).__name__ == "ThreadBasedCyclicSendTask":
             task.stop()
-            task = SyncThread(self.network.bus, self.sample_period_s, self.min_cycle_s)
+            task = SyncThread(bus, self.sample_period_s, self.min_cycle_s)
         self._sync_task = task
 
     def _await_first_sync(self) -> None:
