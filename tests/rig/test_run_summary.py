@@ -124,7 +124,7 @@ def test_a_version_1_summary_still_reads_with_the_send_lateness_not_measured():
     assert RunSummary.from_dict({**version_3, "version": 3}).receive_drops == 0  # not counted before version 4
     # version 2 without them is malformed
     with pytest.raises(ResultFormatError, match="key 'send_lateness_p50_s' is missing"):
-        RunSummary.from_dict(old)
+        RunSummary.from_dict({**old, "version": 2})
 
 
 def test_the_send_lateness_quantiles_of_a_run():
