@@ -49,7 +49,9 @@ interface clock as the TPDOs and in bus order, so it knows which target was last
 SYNC: a target that came too late leaves its sample HELD with the command really applied. TPDOs carry no SYNC counter: each is filed under the last SYNC before its bus
 timestamp once the next SYNC has been seen (the order around it is known only then), minus the node's
 ``*_tpdo_latency_cycles``. The host's own clock never enters the filing. An interface that does not echo
-transmitted frames is refused at start-up. A second answer to one SYNC is reported again and the runner
+transmitted frames is refused at start-up; a frame lost on receive (an own echo missing, the interface's drop
+count rising) stops the run with the samples from it on AMBIGUOUS (:mod:`rig.transports.canopen_receive_checks`).
+A second answer to one SYNC is reported again and the runner
 flags the sample DUPLICATE; two SYNCs closer than one cycle's bus time flag their samples AMBIGUOUS.
 In OPERATION ENABLED, a sample whose statusword has bit 12 clear ("target ignored" in cyclic synchronous
 position) is marked ``target_ignored`` (the runner flags it NOT_FOLLOWED). A drive FAULT in the statusword,
