@@ -1,5 +1,5 @@
-"""Confusion matrix of the model-discrepancy workflow (issue 6, extended in issue 15 item 6) on hidden-effect
-records, and a run on the real EMPS record.
+"""Confusion matrix of the model-discrepancy workflow on hidden-effect records (single effects, then two
+effects at once), and a run on the real EMPS record.
 
 For every effect (and for no effect) ``--cases`` records are simulated with random realistic parameters and a
 12-bit encoder (:mod:`identify.discrepancy_cases`); the workflow sees the data, the noise bound and either the
@@ -13,25 +13,50 @@ width of those intervals in per cent of the true value.
 Rows of two effects at once (``--pairs``, ``a+b``): a case is correct when exactly the two are named (in either
 order); the table gives the named sets.
 
+On an independent generator (``--generator independent``): the records come from
+``benchmarks/independent_plants/drive_train_generator.py``, written from the physics alone by someone who never
+read ``identify/`` (a two-mass drive train behind a stiff position servo, sampled exactly, plus one effect, some
+of which our catalogue does not hold: encoder eccentricity, a sensor that wraps at +-pi, a drifting sensor gain,
+cogging, Stribeck friction, Bouc-Wen hysteresis in the coupling; and the catalogue-like Coulomb friction,
+gravity and backlash). Each row draws ``--cases`` records whose effect the generator says is excited (a record
+whose effect is not excited is skipped, counted, and replaced by the next seed, at most ``--max-draws`` per
+case); the excitations rotate through ``--excitations``. The workflow gets the record, a noise bound of half a
+count plus 4.5 standard deviations of the generator's Gaussian noise (:func:`independent_noise_bound`), the
+sample period and, with ``--start given``, the generator's nominal model converted exactly into a
+:class:`~identify.plant_blocks.LinearBlock` (:func:`nominal_linear_block`: the continuous two-mass train with
+its position servo, discretised with a zero-order hold; every case checks it against the generator's own
+nominal twin). Each case is scored as: the right name (:data:`ACCEPTED_NAMES`: the catalogue effects that are
+the same physics or its quasi-static map; none for effects the catalogue has no equivalent of), honest
+(nothing named and the verdict ambiguous or unexplained; on the clean records, explained), confident wrong
+(only wrong effects named with a verdict that is not ambiguous, or explained when the effect is excited),
+hedged wrong (wrong effects named, then ambiguous), right with a wrong one besides, and not excited or an
+error. Where the generator's truth maps onto a named parameter (:func:`truth_in_our_terms`), the intervals are
+checked against it.
+
 Run:  nice -n 10 .venv/bin/python benchmarks/model_discrepancy_confusion.py --cases 20 --start given --jobs 2
       nice -n 10 .venv/bin/python benchmarks/model_discrepancy_confusion.py --cases 5 --start fitted --jobs 2
       nice -n 10 .venv/bin/python benchmarks/model_discrepancy_confusion.py --emps-only
+      OMP_NUM_THREADS=1 nice -n 10 .venv/bin/python benchmarks/model_discrepancy_confusion.py \
+          --generator independent --cases 20 --start given --jobs 2
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 import time
-from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 
 import numpy as np
 
 from identify.discrepancy_cases import hidden_effect_record
+from identify.drive_train import DriveTrain
 from identify.effect_catalogue import EFFECT_NAMES, effect
-from identify.model_discrepancy import diagnose_model
+from identify.model_discrepancy import DiagnoseOptions, diagnose_model
+from identify.plant_blocks import LinearBlock, PlantModel
 
 TRUE_EFFECTS = ("none", *EFFECT_NAMES)  # every effect of the catalogue
 PAIRS = ("gravity+rate_limit", "load_friction+gravity", "backlash+gravity", "delay+torque_limit",
@@ -164,10 +189,19 @@ def tables_from_log(path: Path) -> None:
     """The tables of the cases a run logged on stderr (one JSON object per line after the case's summary),
     e.g. of a run stopped before its end: rows with the cases they have."""
     runs: dict[tuple[str, ...], list[dict]] = {}
+    independent_runs: dict[str, list[dict]] = {}
     for line in path.read_text().splitlines():
         if "{" in line:
             case = json.loads(line[line.index("{"):])
-            runs.setdefault(tuple(case["row"]), []).append(case)
+            if case.get("generator") == "independent":
+                independent_runs.setdefault(case["effect"], []).append(case)
+            else:
+                runs.setdefault(tuple(case["row"]), []).append(case)
+    if independent_runs:
+        print(f"\nfrom {path.name}: {sum(len(v) for v in independent_runs.values())} cases on the independent generator")
+        independent_table(independent_runs, tuple(e for e in INDEPENDENT_EFFECTS if e in independent_runs))
+    if not runs:
+        return
     print(f"\nfrom {path.name}: {sum(len(v) for v in runs.values())} cases")
     singles = tuple("+".join(row) or "none" for row in runs if len(row) < 2)
     if singles:
@@ -206,6 +240,328 @@ def emps(decimate: int, noise_bound_m: float) -> None:
           f"{result.unexplained}")
 
 
+# -- on an independent generator ----------------------------------------------------------------------------------
+
+ESTIMATION_FRACTION = DiagnoseOptions().estimation_fraction
+"""The workflow's estimation share (the rest of a record is its validation segment)."""
+GENERATOR = Path(__file__).resolve().parent / "independent_plants" / "drive_train_generator.py"
+INDEPENDENT_EFFECTS = ("none", "eccentricity", "wrap", "gain_drift", "cogging", "stribeck", "hysteresis", "coulomb",
+                       "gravity", "backlash")
+"""The generator's effects, in the order of its README (the catalogue-like ones last)."""
+INDEPENDENT_EXCITATIONS = ("steps", "chirp", "multisine", "prbs")
+"""The excitations the cases rotate through. The generator's ``ramp`` (forward, then back once at the middle) is
+left out by default: its one reversal falls in the estimation segment (the first 60 %), so the workflow says
+"not excited" for every ramp record (the validation segment has no reversal to judge on)."""
+INDEPENDENT_DURATION_S = {"steps": 5.0, "chirp": 3.0, "multisine": 3.0, "prbs": 3.0, "ramp": 6.0}
+"""Record lengths at 1 kHz, near the 3 000 samples of our own cases: steps are held 0.3-1.5 s, so their records
+are longer for the last 40 % to hold a reversal; the multisine's lowest line (0.2 Hz) is then under one period."""
+NOISE_STD_RAD = 1.0e-4
+"""The generator's white Gaussian noise (standard deviation), added before quantisation; 0.065 counts at 12 bit."""
+NOISE_BOUND_SIGMAS = 4.5
+"""The noise is Gaussian, so unbounded: the bound takes 4.5 standard deviations, exceeded with probability
+6.8e-6 per sample (0.02 samples in a 3 000-sample record; the workflow tolerates 1 % falsified)."""
+
+ACCEPTED_NAMES: dict[str, frozenset[str]] = {
+    "none": frozenset(),
+    "eccentricity": frozenset(),  # once-per-revolution encoder error: no catalogue equivalent
+    "wrap": frozenset(),  # a single-turn reading: no catalogue equivalent
+    # y = (1 + g(t)) theta on an absolute angle near c != 0: y - c = (theta - c) + g(t) c + g(t) (theta - c), a
+    # drifting offset plus a (time-varying) gain error: the two catalogue effects of the measurement's scale
+    "gain_drift": frozenset({"gain_error", "offset"}),
+    "cogging": frozenset(),  # a load torque periodic in the angle, 6-36 per revolution: none
+    # the catalogue's friction with breakaway (load_friction: Coulomb, static, viscous; coulomb_friction: its
+    # quasi-static output form), and the output backlash that quasi-static Coulomb friction maps onto
+    "stribeck": frozenset({"load_friction", "coulomb_friction", "backlash"}),
+    "hysteresis": frozenset(),  # dry friction in parallel with the coupling's spring: no equivalent
+    "coulomb": frozenset({"load_friction", "coulomb_friction", "backlash"}),
+    "gravity": frozenset({"gravity"}),
+    # play in the shaft between the servoed motor and the load inertia: shaft_play; its quasi-static map, an
+    # output backlash, and Coulomb friction without stiction through a compliance (the same play operator)
+    "backlash": frozenset({"shaft_play", "backlash", "coulomb_friction"}),
+}
+"""Per generator effect, the catalogue names that count as naming it rightly."""
+
+OUTCOMES = ("right", "honest", "confident_wrong", "hedged_wrong", "right_and_wrong", "not_excited")
+
+
+def _generator_module():
+    """The clean-room generator, imported from its file (it is a script next to this one, not a package)."""
+    import importlib.util
+
+    name = "drive_train_generator"
+    if name in sys.modules:
+        return sys.modules[name]
+    spec = importlib.util.spec_from_file_location(name, GENERATOR)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+def nominal_linear_block(nominal: dict) -> LinearBlock:
+    """The generator's nominal model (``nominal.json``: its parameters and equations) as our linear block.
+
+    State x = (phi, phi', theta, theta') with phi = theta_m / N the motor angle at the load side, input the
+    motor-side command u, output the load angle theta. Kinematic servo: phi'' = wc^2 (u/N - phi) - 2 zeta wc
+    phi' (the motor ignores the shaft); cascade: J_m' phi'' = K_v (K_p (u/N - phi) - phi') - tau_s with
+    J_m' = N^2 J_m, K_v = 2 zeta wc (J_m' + J_l), K_p = wc / (2 zeta). Shaft tau_s = k (phi - theta) +
+    c (phi' - theta'), load J_l theta'' = tau_s - b theta'. The command is held over each sample and sample k
+    is the angle at t_k, so the zero-order-hold discretisation (the matrix exponential of [[A, B], [0, 0]] T)
+    is exact, and y_k = C x_k is strictly proper (b0 = 0)."""
+    from scipy.linalg import expm
+
+    gear = float(nominal["gear_ratio"])
+    inertia = float(nominal["load_inertia_kg_m2"])
+    stiffness = float(nominal["shaft_stiffness_nm_per_rad"])
+    damping = float(nominal["shaft_damping_nm_s_per_rad"])
+    viscous = float(nominal["viscous_friction_nm_s_per_rad"])
+    wc = 2.0 * math.pi * float(nominal["position_loop_bandwidth_hz"])
+    zeta = float(nominal["position_loop_damping_ratio"])
+    period = float(nominal["sample_period_s"])
+    A = np.zeros((4, 4))
+    B = np.zeros(4)
+    A[0, 1] = A[2, 3] = 1.0
+    A[3] = (stiffness / inertia, damping / inertia, -stiffness / inertia, -(damping + viscous) / inertia)
+    if nominal["servo"] == "kinematic":
+        A[1, :2] = (-wc * wc, -2.0 * zeta * wc)
+        B[1] = wc * wc / gear
+    elif nominal["servo"] == "cascade":
+        motor = gear**2 * float(nominal["motor_inertia_kg_m2"])
+        velocity_gain = 2.0 * zeta * wc * (motor + inertia)
+        position_gain = wc / (2.0 * zeta)
+        A[1] = (-(velocity_gain * position_gain + stiffness) / motor, -(velocity_gain + damping) / motor,
+                stiffness / motor, damping / motor)
+        B[1] = velocity_gain * position_gain / (gear * motor)
+    else:
+        raise ValueError(f"nominal servo {nominal['servo']!r}: expected 'kinematic' or 'cascade'")
+    augmented = np.zeros((5, 5))
+    augmented[:4, :4], augmented[:4, 4] = A, B
+    discrete = expm(augmented * period)
+    return LinearBlock.from_state_space(discrete[:4, :4], discrete[:4, 4], (0.0, 0.0, 1.0, 0.0), 0.0, period)
+
+
+def independent_noise_bound(nominal: dict) -> float:
+    """Half a count (the encoder rounds to the nearest count) plus :data:`NOISE_BOUND_SIGMAS` standard
+    deviations of the Gaussian noise the generator adds before rounding."""
+    return 0.5 * float(nominal["count_rad"]) + NOISE_BOUND_SIGMAS * float(nominal["noise_std_rad"])
+
+
+def _train_of(model: PlantModel) -> DriveTrain | None:
+    return next((b for b in model.blocks if isinstance(b, DriveTrain)), None)
+
+
+def truth_in_our_terms(truth: dict, nominal: dict, name: str, model: PlantModel,
+                       operating_point_rad: float) -> dict[str, float]:
+    """The generator's truth as the parameters our effect ``name`` reports, where the two describe the same
+    thing; parameters without a counterpart are left out (not compared).
+
+    A load torque tau twists the generator's shaft by tau / k behind its motor, which the servo holds exactly;
+    in our train (the rigid drive train, or one with a shaft of stiffness k') the same torque per inertia
+    X = tau / J leaves a static error X / omega_n^2 (+ X J / k'). So X is compared at the same static sag:
+    X = (tau / k) / (1 / omega_n^2 + J / k'), with omega_n and J of the train in ``model``. Output backlash and
+    Coulomb friction through a compliance report twists: the play's half-width b_h, or the sliding twist
+    F_c / k of quasi-static friction (breakaway F_s / k). The hanging angle is reported from the operating
+    point the workflow moved to: theta_0 - y_0. A drifting gain and the effects without a catalogue
+    equivalent are not compared."""
+    p = truth["parameters"]
+    effect_name = truth["effect"]
+    k = float(nominal["shaft_stiffness_nm_per_rad"])
+    sliding = {"coulomb": p.get("coulomb_nm"), "stribeck": p.get("coulomb_nm")}.get(effect_name)
+    breakaway = {"coulomb": p.get("coulomb_nm"), "stribeck": p.get("static_nm")}.get(effect_name)
+    if name in ("load_friction", "gravity"):
+        train = _train_of(model)
+        if train is None:
+            return {}
+        compliance = 1.0 / train.natural_frequency_rad_per_s**2 + (
+            0.0 if train.rigid else train.total_inertia_kg_m2 / train.shaft_stiffness_nm_per_rad)
+        if name == "gravity" and effect_name == "gravity":
+            return {"gravity_per_inertia_rad_per_s2": p["mgr_nm"] / k / compliance,
+                    "hanging_angle_rad": p["hanging_angle_rad"] - operating_point_rad}
+        if name == "load_friction" and sliding is not None:
+            return {"coulomb_per_inertia_rad_per_s2": sliding / k / compliance,
+                    "static_per_inertia_rad_per_s2": breakaway / k / compliance,
+                    "viscous_per_inertia_per_s": 0.0}
+        return {}
+    if name == "coulomb_friction" and sliding is not None:
+        return {"breakaway_deflection_rad": breakaway / k, "sliding_deflection_rad": sliding / k}
+    if name == "backlash" and sliding is not None:
+        return {"c_l_rad": sliding / k, "c_r_rad": sliding / k}
+    if name == "backlash" and effect_name == "backlash":
+        return {"c_l_rad": p["half_width_rad"], "c_r_rad": p["half_width_rad"]}
+    if name == "shaft_play" and effect_name == "backlash":
+        return {"play_rad": 2.0 * p["half_width_rad"]}
+    if name == "coulomb_friction" and effect_name == "backlash":
+        return {"breakaway_deflection_rad": p["half_width_rad"], "sliding_deflection_rad": p["half_width_rad"]}
+    return {}
+
+
+def _effect_in_validation(record: dict) -> bool:
+    """Whether the effect shows in the validation segment (the last 40 %) by the generator's own test: the
+    clean sensor angle more than half a count from the nominal twin's, or for a wrapping sensor a reading
+    more than pi from the multi-turn angle there."""
+    truth = record["truth"]
+    start = int(round(ESTIMATION_FRACTION * record["angle_rad"].size))
+    clean = record["clean_angle_rad"][start:]
+    if truth["effect"] == "wrap":
+        return bool(np.any(np.abs(record["angle_rad"][start:] - clean) > math.pi))
+    return bool(np.max(np.abs(clean - record["nominal_state"][start:, 2])) > 0.5 * truth["count_rad"])
+
+
+def _inside(key: str, value: float, low: float, high: float) -> bool:
+    """``value`` in [low, high]; an angle also one or more turns away (a hanging angle is known modulo 2 pi)."""
+    if key == "hanging_angle_rad":
+        turns = math.ceil((low - value) / (2.0 * math.pi))
+        return value + 2.0 * math.pi * turns <= high
+    return low <= value <= high
+
+
+def independent_outcome(effect_name: str, named: tuple[str, ...], verdict: str) -> str:
+    """The case's column (:data:`OUTCOMES`)."""
+    if verdict == "not_excited":
+        return "not_excited"
+    accepted = ACCEPTED_NAMES[effect_name]
+    if effect_name == "none":
+        if verdict == "explained":
+            return "honest"
+        return "confident_wrong" if named and verdict != "ambiguous" else "hedged_wrong"
+    if verdict == "explained":
+        return "confident_wrong"
+    if not named:
+        return "honest"
+    right = [name in accepted for name in named]
+    if all(right):
+        return "right"
+    if any(right):
+        return "right_and_wrong"
+    return "hedged_wrong" if verdict == "ambiguous" else "confident_wrong"
+
+
+def run_independent_case(effect_name: str, case: int, cases: int, first_seed: int, start: str,
+                         excitations: tuple[str, ...], durations: dict[str, float], max_draws: int,
+                         bits: int, noise_std_rad: float) -> dict:
+    """One case of a row: the first excited record of seeds first_seed + case + j cases (j = 0, 1, ...; the
+    excitation rotates with case + j), diagnosed and scored."""
+    generator = _generator_module()
+    skipped: list[str] = []
+    for draw in range(max_draws):
+        seed = first_seed + case + draw * cases
+        excitation = excitations[(case + draw) % len(excitations)]
+        record = generator.generate(effect_name, seed, excitation=excitation, duration_s=durations[excitation],
+                                    bits=bits, noise_rad=noise_std_rad)
+        if record["truth"]["excited"] or effect_name == "none":
+            break
+        skipped.append(f"{seed}/{excitation}")
+    else:
+        return {"effect": effect_name, "case": case, "seed": None, "excitation": None, "skipped": skipped,
+                "outcome": "skipped", "named": [], "verdict": "-", "covered": [0, 0], "missed": [], "seconds": 0.0}
+    truth, nominal = record["truth"], record["nominal"]
+    delta = independent_noise_bound(nominal)
+    block = nominal_linear_block(nominal)
+    command, angle = record["command_rad"], record["angle_rad"]
+    twin = record["nominal_state"][:, 2]
+    conversion_error = float(np.max(np.abs(block.apply(command - command[0]) + command[0] - twin)))
+    if conversion_error > 1e-8:
+        raise RuntimeError(f"{effect_name} seed {seed}: our linear block differs from the generator's nominal twin "
+                           f"by {conversion_error:.3g} rad")
+    started = time.perf_counter()
+    base = {"effect": effect_name, "case": case, "seed": seed, "excitation": excitation, "skipped": skipped,
+            "effect_size_counts": truth["effect_size"].get("max_abs_counts"),
+            "in_validation": _effect_in_validation(record), "noise_bound_rad": delta,
+            "conversion_error_rad": conversion_error}
+    try:
+        result = diagnose_model(command, angle, delta, float(nominal["sample_period_s"]),
+                                PlantModel((block,)) if start == "given" else None)
+    except Exception as err:  # a crash is a result of the benchmark, not the end of the run
+        return {**base, "outcome": "not_excited", "named": [], "verdict": f"error: {type(err).__name__}: {err}",
+                "covered": [0, 0], "missed": [], "seconds": time.perf_counter() - started}
+    named = tuple(result.missing_effects)
+    covered, missed = [0, 0], []
+    for name in set(named) & ACCEPTED_NAMES[effect_name]:
+        ours = truth_in_our_terms(truth, nominal, name, result.final_model, result.operating_point_rad)
+        for key, (low, high) in result.parameter_intervals.get(name, {}).items():
+            if key not in ours:
+                continue
+            inside = _inside(key, ours[key], low, high)
+            covered[0] += inside
+            covered[1] += 1
+            if not inside:
+                missed.append(f"{name}.{key}: truth {ours[key]:.4g} outside [{low:.4g}, {high:.4g}]")
+    return {**base, "outcome": independent_outcome(effect_name, named, result.verdict), "named": list(named),
+            "ambiguous_between": list(result.ambiguous_between), "verdict": result.verdict,
+            "reason": result.verdict_reason[:400],
+            "reduction": 1.0 - result.final.gap_rad / result.initial.gap_rad if result.initial.gap_rad > 0 else 0.0,
+            "covered": covered, "missed": missed, "seconds": time.perf_counter() - started}
+
+
+def independent(cases: int, start: str, effects: tuple[str, ...], first_seed: int, jobs: int,
+                excitations: tuple[str, ...], durations: dict[str, float], max_draws: int, bits: int,
+                noise_std_rad: float) -> None:
+    """Every row of ``effects`` on the independent generator; a line per case on stderr, then the table."""
+    started = time.perf_counter()
+    tasks = [(name, case) for name in effects for case in range(cases)]
+    runs: dict[str, list[dict]] = {name: [] for name in effects}
+    with ProcessPoolExecutor(max_workers=jobs) as pool:
+        futures = [pool.submit(run_independent_case, name, case, cases, first_seed, start, excitations, durations,
+                               max_draws, bits, noise_std_rad) for name, case in tasks]
+        for future in as_completed(futures):  # a line per case as soon as it is done
+            result = future.result()
+            runs[result["effect"]].append(result)
+            print(f"  {result['effect']} seed {result['seed']} {result['excitation']}: {result['outcome']}: "
+                  f"{result['verdict']} {'+'.join(result['named']) or '-'} ({result['seconds']:.0f} s) "
+                  + json.dumps({"generator": "independent", "start": start, **result}),
+                  file=sys.stderr, flush=True)
+    print(f"\non the independent generator, start model: {start}; {cases} cases per row (seeds from {first_seed}, "
+          f"excitations {', '.join(excitations)}, {bits}-bit encoder, noise std {noise_std_rad:g} rad); "
+          f"{time.perf_counter() - started:.0f} s in all with {jobs} process(es)")
+    independent_table(runs, effects)
+
+
+def independent_table(runs: dict[str, list[dict]], effects: tuple[str, ...]) -> None:
+    """One row per generator effect: the outcome counts, what was named, and the intervals of right names."""
+    print("| effect | accepted names | right | honest | confident wrong | hedged wrong | right + wrong | "
+          "not excited / error | skipped (not excited) | named (count) | truth in interval | median s |")
+    print("|---" * 12 + "|")
+    for name in effects:
+        runs[name] = sorted(runs.get(name, []), key=lambda r: r["case"])
+        results = [r for r in runs[name] if r["outcome"] != "skipped"]
+        counts = {outcome: sum(r["outcome"] == outcome for r in results) for outcome in OUTCOMES}
+        skipped = sum(len(r["skipped"]) for r in runs.get(name, []))
+        labels: dict[str, int] = {}
+        for r in results:
+            if r["named"]:
+                label = "+".join(r["named"]) + (" (then ambiguous)" if r["verdict"] == "ambiguous" else "")
+            else:
+                label = r["verdict"].split(":")[0]
+            labels[label] = labels.get(label, 0) + 1
+        covered = [sum(r["covered"][0] for r in results), sum(r["covered"][1] for r in results)]
+        seconds = [r["seconds"] for r in results]
+        print(f"| {name} | {', '.join(sorted(ACCEPTED_NAMES[name])) or '-'} | "
+              + " | ".join(str(counts[o]) for o in OUTCOMES)
+              + f" | {skipped} | " + ", ".join(f"{k} {v}" for k, v in sorted(labels.items(), key=lambda kv: -kv[1]))
+              + " | " + (f"{covered[0]} of {covered[1]}" if covered[1] else "-")
+              + f" | {np.median(seconds) if seconds else 0.0:.1f} |")
+    results = [r for name in effects for r in runs.get(name, []) if r["outcome"] != "skipped"]
+    print("\nconfident wrong answers, by what was said and the excitations it was said on:")
+    for name in effects:
+        said: dict[str, list[str]] = {}
+        for r in runs.get(name, []):
+            if r["outcome"] == "confident_wrong":
+                said.setdefault("+".join(r["named"]) or r["verdict"], []).append(r["excitation"])
+        if said:
+            print(f"  {name}: " + "; ".join(
+                f"-> {label} {len(exc)} ({', '.join(f'{e} {exc.count(e)}' for e in sorted(set(exc)))})"
+                for label, exc in sorted(said.items(), key=lambda kv: -len(kv[1]))))
+    for name in effects:
+        wrong = [r for r in runs.get(name, []) if r["outcome"] == "confident_wrong" and name != "none"]
+        early = [r for r in wrong if not r.get("in_validation", True)]
+        if early:
+            print(f"{name}: {len(early)} of {len(wrong)} confident wrong answers on records whose effect shows only in "
+                  f"the estimation segment (the first {100 * ESTIMATION_FRACTION:.0f} %): "
+                  + ", ".join(f"{r['verdict']} {'+'.join(r['named'])}".strip() for r in early))
+    print(f"\n{len(results)} cases: " + ", ".join(f"{o.replace('_', ' ')} {sum(r['outcome'] == o for r in results)}"
+                                              for o in OUTCOMES))
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--cases", type=int, default=20, help="random cases per true effect (default 20)")
@@ -221,11 +577,31 @@ def main() -> None:
     parser.add_argument("--no-emps", action="store_true")
     parser.add_argument("--from-log", type=Path, metavar="FILE",
                         help="print the tables of the cases logged (stderr) by an earlier run, and nothing else")
+    parser.add_argument("--generator", choices=("ours", "independent"), default="ours",
+                        help="ours: identify.discrepancy_cases (default); independent: the clean-room generator in "
+                             "benchmarks/independent_plants (rows: its effects; no pairs, no EMPS)")
+    parser.add_argument("--excitations", default=",".join(INDEPENDENT_EXCITATIONS),
+                        help="independent generator: excitations the cases rotate through (default %(default)s)")
+    parser.add_argument("--duration", type=float, default=None, metavar="S",
+                        help="independent generator: record length for every excitation (default: "
+                             + ", ".join(f"{k} {v:g} s" for k, v in INDEPENDENT_DURATION_S.items()) + ")")
+    parser.add_argument("--max-draws", type=int, default=40,
+                        help="independent generator: seeds tried per case for a record whose effect is excited")
+    parser.add_argument("--bits", type=int, default=12, help="independent generator: encoder bits (default 12)")
+    parser.add_argument("--noise-std", type=float, default=NOISE_STD_RAD, metavar="RAD",
+                        help="independent generator: Gaussian noise std before quantisation (default %(default)g)")
     parser.add_argument("--emps-decimate", type=int, default=5)
     parser.add_argument("--emps-noise-bound", type=float, default=1e-6, metavar="M")
     args = parser.parse_args()
     if args.from_log is not None:
         tables_from_log(args.from_log)
+        return
+    if args.generator == "independent":
+        durations = {k: (v if args.duration is None else args.duration) for k, v in INDEPENDENT_DURATION_S.items()}
+        effects = INDEPENDENT_EFFECTS if args.effects is None else tuple(e for e in args.effects.split(",") if e)
+        independent(args.cases, args.start, effects, args.first_seed, args.jobs,
+                    tuple(e for e in args.excitations.split(",") if e), durations, args.max_draws, args.bits,
+                    args.noise_std)
         return
     if args.effects is not None:
         effects = tuple(e for e in args.effects.split(",") if e)

@@ -188,8 +188,12 @@ class RunSummary:
     sync_jitter_max_s
         CANopen: the largest deviation of two SYNCs' spacing from the period while streaming (a SYNC from a
         thread of the host is late when the host is busy); nan on links without a SYNC.
+    receive_drops
+        CANopen: frames lost on receive (the interface's count of its receive queue's drops where it keeps one,
+        udp_multicast and SocketCAN; else the master's own SYNCs and RPDOs whose echo never came). A loss stops
+        the run: the samples from it on are AMBIGUOUS (:mod:`rig.transports.canopen_receive_checks`).
 
-    The summary serialises itself (:meth:`to_dict`, :meth:`from_dict`; kind ``"run_summary"``, version 3,
+    The summary serialises itself (:meth:`to_dict`, :meth:`from_dict`; kind ``"run_summary"``, version 4,
     the conventions of :mod:`identify.result_format`): that document is what ``rig run --json`` prints.
     """
 
@@ -213,18 +217,21 @@ class RunSummary:
     send_lateness_p99_s: float = math.nan
     send_lateness_max_s: float = math.nan
     sync_jitter_max_s: float = math.nan
+    receive_drops: int = 0
 
     KIND: ClassVar[str] = "run_summary"
-    VERSION: ClassVar[int] = 3
-    READS: ClassVar[tuple[int, ...]] = (1, 2, 3)
+    VERSION: ClassVar[int] = 4
+    READS: ClassVar[tuple[int, ...]] = (1, 2, 3, 4)
     """Versions :meth:`from_dict` reads: version 1 (before the send lateness was added) has no
-    ``send_lateness_*`` keys, versions 1 and 2 no ``sync_jitter_max_s``: read as nan (not measured)."""
+    ``send_lateness_*`` keys, versions 1 and 2 no ``sync_jitter_max_s``: read as nan (not measured); versions
+    1 to 3 no ``receive_drops``: read as 0 (not counted)."""
     SAVED: ClassVar[tuple[str, ...]] = (
         "samples", "lost", "late", "rate_hz", "held", "min_lead_s", "not_followed", "duplicate", "frame_errors",
         "warnings", "stop", "stale", "cpu_s", "wall_s", "send_lateness_p50_s", "send_lateness_p99_s",
-        "send_lateness_max_s", "sync_jitter_max_s")
+        "send_lateness_max_s", "sync_jitter_max_s", "receive_drops")
     """The fields in the document after ``kind``, ``version`` and ``log``, in this order (the first twelve
-    keys are those ``rig run --json`` always printed; version 2 added the next three, version 3 the last)."""
+    keys are those ``rig run --json`` always printed; version 2 added the next three, version 3
+    ``sync_jitter_max_s``, version 4 ``receive_drops``)."""
     MAYBE_NAN: ClassVar[tuple[str, ...]] = ("min_lead_s", "send_lateness_p50_s", "send_lateness_p99_s",
                                             "send_lateness_max_s", "sync_jitter_max_s")
     """The times that are nan when the link does not measure them: null in the document."""
@@ -246,7 +253,7 @@ class RunSummary:
         return pandas.DataFrame([values])
 
     def to_dict(self) -> dict[str, Any]:
-        """``{"kind": "run_summary", "version": 2, "log": ..., "samples": ..., ...}`` (:attr:`SAVED`), plain
+        """``{"kind": "run_summary", "version": 4, "log": ..., "samples": ..., ...}`` (:attr:`SAVED`), plain
         JSON values: ``min_lead_s`` is null when the link is host-paced and the ``send_lateness_*`` when it is
         device-clocked (nan in the summary), ``warnings`` a list. The per-sample ``send_lateness_s`` is not
         written (it grows with the run: 8 bytes a sample); :meth:`from_dict` gives an empty array for it."""
@@ -267,7 +274,10 @@ class RunSummary:
         check_kind(data, cls.KIND, cls.READS)
         with malformed(cls.KIND):
             counts = {}
-            for name in ("samples", "lost", "late", "held", "not_followed", "duplicate", "frame_errors", "stale"):
+            for name in ("samples", "lost", "late", "held", "not_followed", "duplicate", "frame_errors", "stale",
+                         "receive_drops"):
+                if name == "receive_drops" and data["version"] < 4:
+                    continue  # (not counted before version 4: the field's default, 0)
                 value = data[name]
                 if isinstance(value, bool) or not isinstance(value, int) or value < 0:
                     raise ValueError(f"{name} is {value!r}, expected an integer >= 0")
@@ -318,7 +328,8 @@ def _write_summary(sink: SampleSink, transport: Transport, failure: BaseExceptio
     known = {name: None if isinstance(value, float) and math.isnan(value) else value
              for name, value in (timing or {}).items()}
     try:
-        write_summary({"frame_errors": transport.frame_errors, "stop": str(transport.stop_report or ""), **known})
+        write_summary({"frame_errors": transport.frame_errors, "receive_drops": transport.receive_drops,
+                       "stop": str(transport.stop_report or ""), **known})
     except Exception:
         if failure is None:
             raise  # otherwise what ended the run is the error to report, not this one
@@ -652,5 +663,5 @@ def _run_device_clocked(transport: Transport, command: NDArray[np.float64], sink
                       stale=ledger.counts["stale"], frame_errors=transport.frame_errors, rate_hz=rate,
                       send_lateness_s=np.zeros(0), cpu_s=time.process_time() - cpu_start, wall_s=clock() - wall_start,
                       not_followed=ledger.counts["not_followed"], held=held, min_lead_s=transport.min_lead_s,
-                      sync_jitter_max_s=transport.sync_jitter_max_s,
+                      sync_jitter_max_s=transport.sync_jitter_max_s, receive_drops=transport.receive_drops,
                       stop=str(transport.stop_report or ""), warnings=tuple(transport.warnings))

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from typing import Any
 
-__all__ = ["CAN_ERR_BUSOFF", "ERROR_FRAME_FILTERS", "describe_error_frame", "is_bus_off"]
+__all__ = ["CAN_ERR_BUSOFF", "ERROR_FRAME_FILTERS", "describe_error_frame", "is_bus_off", "is_rx_overflow"]
 
 CAN_ERR_TX_TIMEOUT = 0x001
 CAN_ERR_LOSTARB = 0x002
@@ -21,6 +21,7 @@ CAN_ERR_ACK = 0x020
 CAN_ERR_BUSOFF = 0x040
 CAN_ERR_BUSERROR = 0x080
 CAN_ERR_RESTARTED = 0x100
+CAN_ERR_CRTL_RX_OVERFLOW = 0x01  # data[1] of a controller-problem error frame: the RX buffer overflowed
 
 _CLASSES = ((CAN_ERR_TX_TIMEOUT, "TX timeout"), (CAN_ERR_LOSTARB, "lost arbitration"),
             (CAN_ERR_CRTL, "controller problem"), (CAN_ERR_PROT, "protocol violation"),
@@ -37,6 +38,14 @@ out: it is the SYNC identifier, which a CANopen master passes already."""
 def is_bus_off(message: Any) -> bool:
     """True for an error frame that reports bus-off."""
     return bool(message.is_error_frame and message.arbitration_id & CAN_ERR_BUSOFF)
+
+
+def is_rx_overflow(message: Any) -> bool:
+    """True for an error frame in which the CAN controller reports that its receive buffer overflowed
+    (``CAN_ERR_CRTL`` with ``CAN_ERR_CRTL_RX_OVERFLOW`` in data[1]): frames on the bus were lost to the host."""
+    data = bytes(message.data or b"")
+    return bool(message.is_error_frame and message.arbitration_id & CAN_ERR_CRTL and len(data) > 1
+                and data[1] & CAN_ERR_CRTL_RX_OVERFLOW)
 
 
 def describe_error_frame(message: Any) -> str:

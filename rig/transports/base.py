@@ -307,6 +307,11 @@ class Transport(ABC):
         return math.nan
 
     @property
+    def receive_drops(self) -> int:
+        """Frames the link lost on receive (a receive queue that overflowed), where it can tell; 0 otherwise."""
+        return 0
+
+    @property
     def fault_sample(self) -> int | None:
         """On a device-clocked link: the sample instant at which the device reported its fault (None: no
         fault, or not known)."""

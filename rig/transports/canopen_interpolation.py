@@ -40,6 +40,7 @@ class CanOpenInterpolation:
             if self._dry_since is None:
                 self._dry_since = count  # (after the run's last record the buffer runs dry for good: no lead)
             self._applied[sample] = (self._in_force[1], True)
+            self._wait_for_rpdo_echo(sample, self._in_force[1], any_value=True)  # one due may be in the drive
             return
         self._in_force = (record.sample, record.counts)
         queued = self._queued_at.pop(record.sample, None)
@@ -85,9 +86,12 @@ class CanOpenInterpolation:
         through for as long as the drive's buffer lasts."""
         for record in self._feed.to_send():
             rpdo = self._rpdo if record.sample is not None or self._hold_rpdo is None else self._hold_rpdo
+            data = rpdo.pack({index: record.counts for index in rpdo.fields})
+            own = self._own_rpdo_sent(rpdo.cob_id, data)
             try:
-                self.network.send_message(rpdo.cob_id, rpdo.pack({index: record.counts for index in rpdo.fields}))
+                self.network.send_message(rpdo.cob_id, data)
             except Exception as err:  # noqa: BLE001 - in the notifier thread: report, the runner raises it
+                self._own_rpdo_unsent(own)
                 self._feed.unsent(record)
                 what = "a hold record" if record.sample is None else f"the record of sample {record.sample}"
                 self._report_fault(TransportError(f"{self.name}: sending {what} failed: {err}"))

@@ -49,7 +49,9 @@ interface clock as the TPDOs and in bus order, so it knows which target was last
 SYNC: a target that came too late leaves its sample HELD with the command really applied. TPDOs carry no SYNC counter: each is filed under the last SYNC before its bus
 timestamp once the next SYNC has been seen (the order around it is known only then), minus the node's
 ``*_tpdo_latency_cycles``. The host's own clock never enters the filing. An interface that does not echo
-transmitted frames is refused at start-up. A second answer to one SYNC is reported again and the runner
+transmitted frames is refused at start-up; a frame lost on receive (an own echo missing, the interface's drop
+count rising) stops the run with the samples from it on AMBIGUOUS (:mod:`rig.transports.canopen_receive_checks`).
+A second answer to one SYNC is reported again and the runner
 flags the sample DUPLICATE; two SYNCs closer than one cycle's bus time flag their samples AMBIGUOUS.
 In OPERATION ENABLED, a sample whose statusword has bit 12 clear ("target ignored" in cyclic synchronous
 position) is marked ``target_ignored`` (the runner flags it NOT_FOLLOWED). A drive FAULT in the statusword,
@@ -73,12 +75,13 @@ from typing import Any
 from rig.protocols import cia402
 from rig.protocols.can_bus_load import bus_load
 from rig.protocols.can_interfaces import open_bus
-from rig.protocols.can_error_frames import ERROR_FRAME_FILTERS, describe_error_frame, is_bus_off
+from rig.protocols.can_error_frames import ERROR_FRAME_FILTERS, describe_error_frame, is_bus_off, is_rx_overflow
 from rig.protocols.errors import ConfigError, DeviceFault, TransportError, error_code_meaning
 from rig.transports.base import FeedbackSample, Setpoint, Transport, check_trace_path
 from rig.transports.canopen_dictionary import (DRIVE_OBJECTS, ENCODER_OBJECTS, IP_BUFFER_OBJECTS, PdoLayout,
                                                emcy_prefixes, is_warning, load_object_dictionary, require_objects)
 from rig.transports.canopen_interpolation import CanOpenInterpolation
+from rig.transports.canopen_receive_checks import CanOpenReceiveChecks
 from rig.transports.canopen_startup import CanOpenStartUp
 from rig.transports.canopen_sync import SYNC_COB_ID, ErrorFrameListener, SyncThread, sync_message
 from rig.transports.interpolation_feed import InterpolationFeed
@@ -103,7 +106,7 @@ _NMT_OPERATIONAL = 0x05
 SYNC_ECHO_TIMEOUT_S = 0.5  # the start-up probe's wait for the echo of a SYNC
 
 
-class CanOpenTransport(CanOpenStartUp, CanOpenInterpolation, Transport):
+class CanOpenTransport(CanOpenStartUp, CanOpenInterpolation, CanOpenReceiveChecks, Transport):
     """The rig over CANopen.
 
     Parameters
@@ -299,6 +302,7 @@ class CanOpenTransport(CanOpenStartUp, CanOpenInterpolation, Transport):
         self._ready: collections.deque[FeedbackSample] = collections.deque()
         self._arrived = threading.Condition(self._lock)
         self._emcy: tuple[str, int, int] | None = None  # (role, node-ID, EMCY code; 0: FAULT in the statusword)
+        self._init_receive_checks()  # frames lost on receive (rig.transports.canopen_receive_checks)
 
     @property
     def min_cycle_s(self) -> float:
@@ -338,6 +342,7 @@ class CanOpenTransport(CanOpenStartUp, CanOpenInterpolation, Transport):
             raise TransportError("the canopen transport needs the canopen package: pip install canopen") from err
         with self._translated_errors("start-up"):
             self.network = self._join_bus(canopen)
+            self._start_drop_count()
             self.network.sync.cob_id = SYNC_COB_ID
             self.network.subscribe(SYNC_COB_ID, self._on_sync_echo)
             self.network.notifier.add_listener(ErrorFrameListener(self._on_error_frame))
@@ -577,10 +582,18 @@ class CanOpenTransport(CanOpenStartUp, CanOpenInterpolation, Transport):
         else our own :class:`SyncThread`, which, unlike python-can's thread fallback, never sends two SYNCs
         closer than one cycle's bus time when it catches up after a stall (a SYNC wins arbitration over the
         answers to the one before it, which would then be filed under the wrong sample)."""
-        task = self.network.bus.send_periodic(sync_message(), self.sample_period_s)
+        import can
+
+        bus = self.network.bus
+        if isinstance(bus, can.BusABC) and type(bus)._send_periodic_internal is can.BusABC._send_periodic_internal:
+            # python-can would start its thread, which sends a first SYNC at once: SyncThread numbers its sends
+            # from the first SYNC on the bus, to tell a late SYNC from a lost echo (canopen_receive_checks)
+            self._sync_task = SyncThread(bus, self.sample_period_s, self.min_cycle_s)
+            return
+        task = bus.send_periodic(sync_message(), self.sample_period_s)
         if type(task).__name__ == "ThreadBasedCyclicSendTask":
             task.stop()
-            task = SyncThread(self.network.bus, self.sample_period_s, self.min_cycle_s)
+            task = SyncThread(bus, self.sample_period_s, self.min_cycle_s)
         self._sync_task = task
 
     def _await_first_sync(self) -> None:
@@ -659,6 +672,7 @@ class CanOpenTransport(CanOpenStartUp, CanOpenInterpolation, Transport):
             self._stop_sync()
         except Exception:  # noqa: BLE001 - the bus is gone already
             pass
+        self._stop_drop_count()
         network, self.network = self.network, None
         if network is not None:
             try:
@@ -732,6 +746,8 @@ class CanOpenTransport(CanOpenStartUp, CanOpenInterpolation, Transport):
         3. the target for the next SYNC goes on the bus now (if the runner has queued it)."""
         with self._arrived:
             self._echo_probe.set()
+            self._check_drop_count()
+            self._check_sync_spacing(timestamp)
             self._sync_count += 1
             count = self._sync_count
             if self._syncs and timestamp - self._syncs[-1][0] < self.min_cycle_s:
@@ -775,6 +791,7 @@ class CanOpenTransport(CanOpenStartUp, CanOpenInterpolation, Transport):
             ramped = sample in self._ramped
             self._ramped.discard(sample)
             self._applied[sample] = (counts, in_force_sample != sample or ramped)
+            self._wait_for_rpdo_echo(sample, counts)  # a target due may have been in force: its echo tells
             queued = self._queued_at.pop(sample, None)
             if queued is not None:
                 self._min_lead_s = min(self._min_lead_s, self.clock() - queued)
@@ -799,9 +816,12 @@ class CanOpenTransport(CanOpenStartUp, CanOpenInterpolation, Transport):
         if counts != planned:
             self._ramped.add(sample)
         self._rpdo_sent.append((sample, counts))
+        data = self._rpdo.pack({index: counts for index in self._rpdo.fields})
+        own = self._own_rpdo_sent(self._rpdo.cob_id, data)
         try:
-            self.network.send_message(self._rpdo.cob_id, self._rpdo.pack({index: counts for index in self._rpdo.fields}))
+            self.network.send_message(self._rpdo.cob_id, data)
         except Exception as err:  # noqa: BLE001 - in the notifier thread: report, the runner raises it
+            self._own_rpdo_unsent(own)
             self._rpdo_sent.pop()
             self._report_fault(TransportError(f"{self.name}: sending the target of sample {sample} failed: {err}"))
 
@@ -809,6 +829,7 @@ class CanOpenTransport(CanOpenStartUp, CanOpenInterpolation, Transport):
         """Our own RPDO back from the interface: CSP: from here on, until the next one, this target is in
         force; interpolated position: this record is in the drive's buffer now."""
         with self._arrived:
+            self._own_rpdo_echoed(can_id, data)  # (a loss stops the run: the rows from it on are flagged)
             if self._feed is not None:
                 self._feed.echoed()
                 self._arrived.notify_all()  # (wakes _recv_internal waiting to start the interpolation)
@@ -851,13 +872,12 @@ class CanOpenTransport(CanOpenStartUp, CanOpenInterpolation, Transport):
                 mismatch = parts["demand"] != counts
                 ambiguous = ambiguous or mismatch
                 self._check_latency(seq, parts["demand"] if mismatch else None)
-            self._ready.append(FeedbackSample(
+            self._report(FeedbackSample(
                 seq=seq, encoder_counts=parts["encoder"], load_angle_rad=self._decode_encoder(parts["encoder"]),
                 drive_position_rad=self.drive.rad_from_counts(actual), statusword=statusword,
                 host_time_s=received, target_ignored=self._target_ignored(statusword), held=held,
                 applied_position_rad=None if counts is None else self.drive.rad_from_counts(counts),
                 ambiguous=ambiguous, instant_error_s=self._instant_errors.get(seq, 0.0)))
-            self._arrived.notify_all()
         if len(self._parts) > 512:
             for old in sorted(self._parts)[:256]:
                 del self._parts[old]
@@ -911,6 +931,9 @@ class CanOpenTransport(CanOpenStartUp, CanOpenInterpolation, Transport):
     def _on_error_frame(self, message: Any) -> None:
         """An error frame (canopen's own listener ignores them): bus-off stops the run, others are counted."""
         self._count_frame_errors(f"CAN error frame {bytes(message.data).hex()}")
+        if is_rx_overflow(message):
+            with self._arrived:
+                self._check_rx_overflow(describe_error_frame(message))
         if is_bus_off(message):
             self._report_fault(TransportError(
                 f"{self.name}: the CAN controller went bus off ({describe_error_frame(message)}): nothing can be "

@@ -141,7 +141,7 @@ def test_foreign_files_are_refused_with_the_file_and_what_was_expected(data, cap
     assert main(["report", str(other_json), "--out", str(tmp_path / "r")]) == exit_codes.BAD_INPUT
     error = capsys.readouterr().err
     assert f"{other_json}: JSON without a 'kind' key (keys [name, speed])" in error
-    assert "output_backlash v1, hammerstein_model v1, model_discrepancy v1/2/3/4, run_summary v1/2/3, batch v1" in error
+    assert "output_backlash v1, hammerstein_model v1, model_discrepancy v1/2/3/4, run_summary v1/2/3/4, batch v1" in error
 
     binary = tmp_path / "figure.png"
     binary.write_bytes(b"\x89PNG\r\n\x1a\n\x00\x00\xff\xfe")

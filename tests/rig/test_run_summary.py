@@ -22,7 +22,7 @@ def _summary(**changes) -> RunSummary:
                   min_lead_s=0.0123, stop="quick stop, then disabled (0.8 ms)",
                   warnings=("encoder EMCY 0x4210 at sample 400 (temperature)",), log="runs/a.csv",
                   send_lateness_p50_s=2e-5, send_lateness_p99_s=2.98e-5, send_lateness_max_s=3e-5,
-                  sync_jitter_max_s=4.2e-4)
+                  sync_jitter_max_s=4.2e-4, receive_drops=9)
     values.update(changes)
     return RunSummary(**values)
 
@@ -36,7 +36,7 @@ NOT_MEASURED = {"device-clocked": {"send_lateness_p50_s": math.nan, "send_latene
 def test_a_run_summary_saved_as_json_reopens_equal(link):
     summary = _summary(**NOT_MEASURED[link])
     document = json.loads(json.dumps(summary.to_dict(), allow_nan=False))  # plain JSON, no NaN token
-    assert document["version"] == 3
+    assert document["version"] == 4
     again = RunSummary.from_dict(document)
     assert again.to_dict() == document
     for name in RunSummary.SAVED + ("log",):
@@ -51,8 +51,8 @@ def test_a_document_of_another_kind_version_or_with_a_bad_key_is_refused_by_name
     document = _summary().to_dict()
     with pytest.raises(ResultFormatError, match="expected a result of kind 'run_summary', got kind 'batch'"):
         RunSummary.from_dict({**document, "kind": "batch"})
-    with pytest.raises(ResultFormatError, match="kind 'run_summary' version 4 cannot be read"):
-        RunSummary.from_dict({**document, "version": 4})
+    with pytest.raises(ResultFormatError, match="kind 'run_summary' version 5 cannot be read"):
+        RunSummary.from_dict({**document, "version": 5})
     without = {key: value for key, value in document.items() if key != "lost"}
     with pytest.raises(ResultFormatError, match="kind 'run_summary': key 'lost' is missing"):
         RunSummary.from_dict(without)
@@ -113,16 +113,18 @@ def test_rig_report_says_what_is_known_of_the_timing_of_each_kind_of_log(tmp_pat
 def test_a_version_1_summary_still_reads_with_the_send_lateness_not_measured():
     document = _summary().to_dict()
     old = {key: value for key, value in document.items()
-           if not key.startswith("send_lateness_") and key != "sync_jitter_max_s"}
+           if not key.startswith("send_lateness_") and key not in ("sync_jitter_max_s", "receive_drops")}
     again = RunSummary.from_dict({**old, "version": 1})
     assert again.samples == 1200 and again.min_lead_s == 0.0123
     assert all(math.isnan(getattr(again, f"send_lateness_{name}_s")) for name in ("p50", "p99", "max"))
     assert math.isnan(again.sync_jitter_max_s)
-    version_2 = {key: value for key, value in document.items() if key != "sync_jitter_max_s"}
+    version_2 = {key: value for key, value in document.items() if key not in ("sync_jitter_max_s", "receive_drops")}
     assert math.isnan(RunSummary.from_dict({**version_2, "version": 2}).sync_jitter_max_s)
+    version_3 = {key: value for key, value in document.items() if key != "receive_drops"}
+    assert RunSummary.from_dict({**version_3, "version": 3}).receive_drops == 0  # not counted before version 4
     # version 2 without them is malformed
     with pytest.raises(ResultFormatError, match="key 'send_lateness_p50_s' is missing"):
-        RunSummary.from_dict(old)
+        RunSummary.from_dict({**old, "version": 2})
 
 
 def test_the_send_lateness_quantiles_of_a_run():

@@ -19,6 +19,9 @@ The rules, those of :mod:`clocked_line` for a bus:
 * A frame the master sends while it holds its lock (a target put on the bus from the runner's thread)
   reaches the bus when the lock is released, at the same instant: the receive thread would wait for that
   lock too.
+* :meth:`ClockedCanBus.drop_from_master` deletes chosen frames from the master's receive stream only (an
+  RX overrun of its receive queue: the frame was on the bus and every other node got it), and
+  ``master_drops`` counts them, as an interface's drop counter would.
 """
 
 from __future__ import annotations
@@ -68,6 +71,8 @@ class ClockedCanEndpoint:
         self.listeners: list[Any] = []  # added by add_listener: they see every frame, the node's own too
         self.exception = None  # (python-can Notifier interface)
         self.filters: list[dict[str, int]] | None = None
+        self.drops: Callable[[can.Message, bool], bool] | None = None  # (frame, own) -> lost on receive
+        self.dropped = 0
 
     # -- as a python-can bus -----------------------------------------------------------------------------
     def send(self, message: can.Message, timeout: float | None = None) -> None:
@@ -99,6 +104,9 @@ class ClockedCanEndpoint:
             listener.stop()
 
     def deliver(self, message: can.Message, own: bool) -> None:
+        if self.drops is not None and (self.receive_own_messages or not own) and self.drops(message, own):
+            self.dropped += 1
+            return
         if self.network is not None and (self.receive_own_messages or not own):
             for listener in self.network.listeners:  # canopen's MessageListener: network.notify(...)
                 listener.on_message_received(message)
@@ -119,22 +127,40 @@ class ClockedCanBus:
         self._devices: list[Any] = []
         self._delivering = False
         self._hold: Callable[[], bool] = lambda: False
+        self._master: ClockedCanEndpoint | None = None
+        self._master_drops: Callable[[can.Message, bool], bool] | None = None
 
     # -- the two sides ----------------------------------------------------------------------------------
-    def master(self, transport: Any) -> None:
+    def master(self, transport: Any, *, counts_drops: bool = False) -> None:
         """Put ``transport`` (a :class:`CanOpenTransport` built with ``clock=`` this bus's clock) on the
-        bus: its network joins here, and its waits move the simulated clock."""
+        bus: its network joins here, and its waits move the simulated clock. ``counts_drops``: its interface
+        counts the frames :meth:`drop_from_master` deletes (as udp_multicast and SocketCAN count receive
+        queue overflows); otherwise it has no drop counter (as python-can's virtual interface)."""
 
         def join_bus(canopen: Any) -> Any:
             endpoint = self.endpoint(receive_own_messages=True)
+            endpoint.drops, self._master = self._master_drops, endpoint
             network = canopen.Network(endpoint)
             endpoint.join(network)
             return network
 
         transport._join_bus = join_bus
+        transport._open_drop_counter = lambda: (lambda: self.master_drops) if counts_drops else None
         transport._wait_for = lambda ready, timeout_s: self.wait_for(ready, timeout_s, transport._lock)
         transport._pause = self.stall
         self._hold = transport._lock.locked
+
+    def drop_from_master(self, drops: Callable[[can.Message, bool], bool]) -> None:
+        """Delete from the master's receive stream every frame for which ``drops(frame, own)`` is true (``own``:
+        the echo of a frame the master sent); the other nodes still receive it."""
+        self._master_drops = drops
+        if self._master is not None:
+            self._master.drops = drops
+
+    @property
+    def master_drops(self) -> int:
+        """Frames deleted from the master's receive stream so far."""
+        return 0 if self._master is None else self._master.dropped
 
     def devices(self, rig: Any) -> None:
         """Start ``rig`` (a :class:`SimulatedCanOpenRig` built with ``clock=`` this bus's clock) on the bus."""

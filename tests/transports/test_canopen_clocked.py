@@ -45,7 +45,7 @@ def _gearbox(rate_hz: float, directory):
 
 @contextlib.contextmanager
 def _clocked_rig(tmp_path, *, rate_hz: float = 1000.0, mode: str = "ip_buffer", drive_behaviour=None,
-                 encoder_behaviour=None, transport_options=None, **faults):
+                 encoder_behaviour=None, transport_options=None, counts_drops: bool = False, **faults):
     """(bus, transport, rig, clock): the master and the simulated nodes on one :class:`ClockedCanBus`."""
     clock = SimulatedClock(100.0)
     bus = ClockedCanBus(clock)
@@ -55,7 +55,7 @@ def _clocked_rig(tmp_path, *, rate_hz: float = 1000.0, mode: str = "ip_buffer", 
     transport = CanOpenTransport("virtual", "clocked", encoder=gearbox.encoder, sample_period_s=1 / rate_hz,
                                  drive=DRIVE, timing=BringUpTiming(), mode=mode, lead_s=LEAD_S, name="clocked",
                                  clock=clock, **(transport_options or {}))
-    bus.master(transport)
+    bus.master(transport, counts_drops=counts_drops)
     bus.devices(rig)
     try:
         yield bus, transport, rig, clock
@@ -324,3 +324,105 @@ def test_an_encoder_tpdo_delayed_past_two_syncs_costs_exactly_its_sample_and_the
     command = np.array([row[1] for row in sink.rows])
     expected = _gearbox(1000.0, tmp_path).simulate(command).measured_angle_rad
     np.testing.assert_array_equal(np.array([row[2] for row in sink.rows])[clean], expected[clean])
+
+
+# -- a receive queue that loses frames ---------------------------------------------------------------------------
+
+DROP_AT = 150  # the sample after which the master's receive stream loses a frame
+
+
+def _once(wanted):
+    """A ``drop_from_master`` rule that deletes the first frame for which ``wanted(frame, own)`` is true."""
+    done = []
+
+    def drops(frame, own) -> bool:
+        if not done and wanted(frame, own):
+            done.append(frame)
+            return True
+        return False
+
+    return drops
+
+
+def _sync_echo(transport):
+    """The echo of the SYNC of sample DROP_AT + 1."""
+    return _once(lambda frame, own: own and frame.arbitration_id == 0x80 and transport._origin is not None
+                 and transport._sync_count == transport._origin + DROP_AT)
+
+
+def _rpdo_echo(transport):
+    """The echo of the first target (CSP) or interpolation record (IP) put on the bus after sample DROP_AT."""
+    return _once(lambda frame, own: own and frame.arbitration_id in (0x201, 0x301)
+                 and transport.device_sample >= DROP_AT)
+
+
+def _drive_tpdo(transport):
+    return _once(lambda frame, own: not own and frame.arbitration_id == 0x181 and transport.device_sample >= DROP_AT)
+
+
+def _run_losing_frames(tmp_path, mode, rule, *, counts_drops=False, demand=True, samples=400):
+    """Run with ``rule(transport)`` deleting frames from the master's receive stream: (the error that ended the
+    run or None, the summary or None, rows, usable rows' commands judged against what the drive applied: the
+    number of usable rows that are wrong, the drive's final state, frames deleted). ``demand`` False: the
+    master does not map the drive's 0x6062 (as for a drive whose EDS lacks it or a second TPDO), so nothing
+    but the bus order tells it which command the drive applied."""
+    with _clocked_rig(tmp_path, mode=mode, counts_drops=counts_drops) as (bus, transport, rig, clock):
+        transport._checks_latency = demand
+        bus.drop_from_master(rule(transport))
+        sink, failure, summary = ListSink(), None, None
+        try:
+            summary = run_experiment(transport, _command(samples), sink, feedback_timeout_s=0.5, clock=clock)
+        except TransportError as err:
+            failure = err
+        record, state, dropped = rig.record(), rig.state, bus.master_drops
+    flags = _flags(sink)
+    usable = (flags & SampleFlag.unusable()) == 0
+    logged = [DRIVE.counts_from_rad(row[1]) for row in sink.rows]
+    return failure, summary, sink, record.wrong_rows(logged, usable.tolist()), state, dropped
+
+
+@pytest.mark.parametrize("demand", [True, False], ids=["with 0x6062", "without 0x6062"])
+@pytest.mark.parametrize("mode", ["csp", "ip_buffer"])
+@pytest.mark.parametrize("lost", ["sync echo", "rpdo echo"])
+def test_a_lost_echo_of_the_masters_own_frame_stops_the_run_and_no_wrong_row_is_usable(lost, mode, demand,
+                                                                                        tmp_path):
+    """The master numbers the samples by its SYNC echoes and knows the target (CSP) or record (IP) in force
+    from its RPDO echoes in bus order. One of them lost from its receive queue (an RX overrun: the frame was on
+    the bus, the drive got it) breaks that bookkeeping: from there no row is logged usable unless it carries the
+    command the drive applied; the run stops naming the lost frame, and the drive ends quick-stopped and
+    disabled as after every stop."""
+    rule = _sync_echo if lost == "sync echo" else _rpdo_echo
+    failure, _, sink, wrong, state, dropped = _run_losing_frames(tmp_path, mode, rule, demand=demand)
+    assert dropped == 1
+    assert wrong == 0
+    assert failure is not None and "receive" in str(failure) and "lost" in str(failure)
+    assert ("SYNC" if lost == "sync echo" else "RPDO") in str(failure)
+    assert state is cia402.DriveState.SWITCH_ON_DISABLED
+    flags = _flags(sink)
+    usable = np.flatnonzero((flags & SampleFlag.unusable()) == 0)
+    assert usable.size and usable.max() <= DROP_AT + 1  # nothing after the loss is usable
+    assert len(sink.rows) > DROP_AT  # the rows before it are kept
+
+
+@pytest.mark.parametrize("mode", ["csp", "ip_buffer"])
+def test_a_lost_drive_tpdo_costs_its_sample_only(mode, tmp_path):
+    """A drive TPDO lost on receive, on an interface without a drop counter: that sample is LOST (it never had
+    both answers), everything else is usable and right; the master's own bookkeeping is untouched."""
+    failure, summary, sink, wrong, state, dropped = _run_losing_frames(tmp_path, mode, _drive_tpdo)
+    assert dropped == 1 and failure is None and wrong == 0
+    assert summary.lost == 1 and summary.samples == 400
+    assert np.flatnonzero(_flags(sink) & SampleFlag.unusable()).tolist() == [DROP_AT]
+
+
+@pytest.mark.parametrize("mode", ["csp", "ip_buffer"])
+def test_a_drop_the_interface_counts_stops_the_run_whatever_frame_it_was(mode, tmp_path):
+    """Where the interface counts the frames its receive queue dropped (udp_multicast, SocketCAN: the socket's
+    drop count, the one SO_RXQ_OVFL reports), a rise says frames were lost without saying which: the master
+    cannot prove any later row right, so it stops, counts the drop in the run summary's receive_drops, and no
+    usable row is wrong."""
+    failure, _, sink, wrong, state, dropped = _run_losing_frames(tmp_path, mode, _drive_tpdo, counts_drops=True)
+    assert dropped == 1 and wrong == 0
+    assert failure is not None and "dropped 1 frame" in str(failure)
+    assert state is cia402.DriveState.SWITCH_ON_DISABLED
+    usable = np.flatnonzero((_flags(sink) & SampleFlag.unusable()) == 0)
+    assert usable.max() <= DROP_AT + 1

@@ -124,9 +124,15 @@ class _RecordingNetwork:
 
     def __init__(self) -> None:
         self.sent: list[tuple[int, bytes]] = []
+        self.echoed = 0
 
     def send_message(self, can_id: int, data: bytes) -> None:
         self.sent.append((can_id, bytes(data)))
+
+    def next_echo(self) -> tuple[int, bytes]:
+        """The COB-ID and data of the oldest frame sent whose echo the script has not yet given the master."""
+        self.echoed += 1
+        return self.sent[self.echoed - 1]
 
 
 def _streaming_canopen_transport(**options):
@@ -176,9 +182,9 @@ def test_targets_go_on_the_bus_right_after_the_previous_sync_and_a_late_one_is_h
     assert transport.network.sent == []  # queued: nothing goes out before a SYNC
     transport._on_sync_echo(0x80, b"", 1.000)  # SYNC count 1: target 0 goes out, for the next SYNC
     assert transport.network.sent == [(0x201, (10).to_bytes(4, "little"))]
-    transport._on_rpdo_echo(0x201, b"", 1.0002)
+    transport._on_rpdo_echo(*transport.network.next_echo(), 1.0002)
     transport._on_sync_echo(0x80, b"", 1.001)  # sample 0 (target 0 in force); target 1 goes out
-    transport._on_rpdo_echo(0x201, b"", 1.0012)
+    transport._on_rpdo_echo(*transport.network.next_echo(), 1.0012)
     transport._on_sync_echo(0x80, b"", 1.002)  # sample 1: target 1 in force; nothing queued for sample 2
     transport._on_sync_echo(0x80, b"", 1.003)  # sample 2: held at target 1
     transport._send(Setpoint(2, transport.drive.rad_from_counts(30)))  # came after its SYNC: dropped
@@ -195,10 +201,10 @@ def test_a_target_whose_rpdo_reaches_the_bus_after_its_sync_is_held():
     transport._send(Setpoint(0, transport.drive.rad_from_counts(10)))
     transport._send(Setpoint(1, transport.drive.rad_from_counts(20)))
     transport._on_sync_echo(0x80, b"", 1.000)
-    transport._on_rpdo_echo(0x201, b"", 1.0002)
+    transport._on_rpdo_echo(*transport.network.next_echo(), 1.0002)
     transport._on_sync_echo(0x80, b"", 1.001)  # sample 0; target 1 sent ...
     transport._on_sync_echo(0x80, b"", 1.002)  # ... but SYNC 1 came first on the bus
-    transport._on_rpdo_echo(0x201, b"", 1.0021)
+    transport._on_rpdo_echo(*transport.network.next_echo(), 1.0021)
     assert transport._applied[1] == (10, True)
 
 
@@ -215,17 +221,10 @@ def test_a_configured_tpdo_latency_files_each_answer_under_the_sync_it_answers()
 
 
 def test_an_interface_that_does_not_echo_our_frames_is_refused_at_start_up(tmp_path, monkeypatch, no_leaks):
-    import canopen
-
     from rig.protocols.errors import TransportError
 
-    connect = canopen.Network.connect
-
-    def connect_without_echo(self, *args, **kwargs):
-        kwargs["receive_own_messages"] = False
-        return connect(self, *args, **kwargs)
-
-    monkeypatch.setattr(canopen.Network, "connect", connect_without_echo)
+    # the bus is opened as on an interface that echoes by itself, so it is not asked to, and does not
+    monkeypatch.setattr("rig.protocols.can_interfaces.echoes_own_frames", lambda interface: True)
     monkeypatch.setattr("rig.transports.canopen_link.SYNC_ECHO_TIMEOUT_S", 0.05)
     config = load_rig_config(write_test_config("canopen", tmp_path))
     gearbox = load_plant_config(config.simulation.plant_path).gearbox(seed=config.simulation.seed)
@@ -284,7 +283,7 @@ def test_one_demand_value_off_is_an_ambiguous_sample_and_three_in_a_row_a_wrong_
     def sync() -> float:
         at = next(clock)
         transport._on_sync_echo(0x80, b"", at)  # records the target in force, puts the next one on the bus
-        transport._on_rpdo_echo(0x201, b"", at + 0.0001)
+        transport._on_rpdo_echo(*transport.network.next_echo(), at + 0.0001)
         return at
 
     def answer(demand: int) -> None:

@@ -142,9 +142,17 @@ class _RecordingNetwork:
 
     def __init__(self) -> None:
         self.sent: list[int] = []
+        self.frames: list[tuple[int, bytes]] = []
+        self.echoed = 0
 
     def send_message(self, can_id: int, data: bytes) -> None:
         self.sent.append(int.from_bytes(data, "little", signed=True))
+        self.frames.append((can_id, bytes(data)))
+
+    def next_echo(self) -> tuple[int, bytes]:
+        """The COB-ID and data of the oldest frame sent whose echo the script has not yet given the master."""
+        self.echoed += 1
+        return self.frames[self.echoed - 1]
 
 
 def test_the_receive_thread_keeps_the_drives_buffer_full_from_the_hosts_queue():
@@ -168,12 +176,12 @@ def test_the_receive_thread_keeps_the_drives_buffer_full_from_the_hosts_queue():
     full = 64 - IP_BUFFER_MARGIN_RECORDS
     assert transport.network.sent == list(range(full))  # in order, up to the margin, the rest queued
     for record in range(full):
-        transport._on_rpdo_echo(0x201, b"", 1.0)  # the bus carried them: in the drive's buffer now
+        transport._on_rpdo_echo(*transport.network.next_echo(), 1.0)  # the bus carried them: in the drive's buffer now
     assert transport._feed.ready_to_start()  # the buffer holds the lead it can: ip mode may be enabled
     transport._origin, transport._feed.streaming = 1, True  # (bit 12 seen at the first SYNC after bit 4)
     for count in range(1, 39):  # the runner's thread queues nothing more: 38 SYNCs pass
         transport._on_sync_echo(0x80, b"", 1.0 + count * 1e-3)
-        transport._on_rpdo_echo(0x201, b"", 1.0 + count * 1e-3 + 2e-4)
+        transport._on_rpdo_echo(*transport.network.next_echo(), 1.0 + count * 1e-3 + 2e-4)
     assert transport.network.sent == list(range(100))  # every queued record went in, one per SYNC
     assert not any(held for _, held in transport._applied.values())
     assert [transport._applied[sample][0] for sample in range(38)] == list(range(38))

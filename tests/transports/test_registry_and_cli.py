@@ -116,7 +116,7 @@ def test_rig_run_writes_a_log_equal_to_the_offline_simulation(kind, tmp_path, ca
     # the document is the run summary's own (kind and version first), with the keys --json always printed
     assert list(result)[:14] == ["kind", "version", "log", "samples", "lost", "late", "rate_hz", "held", "min_lead_s",
                                  "not_followed", "duplicate", "frame_errors", "warnings", "stop"]
-    assert (result["kind"], result["version"]) == ("run_summary", 3)
+    assert (result["kind"], result["version"]) == ("run_summary", 4)
     assert RunSummary.from_dict(result).to_dict() == result
     # every simulated wire is device-clocked: judged by held and min_lead_s, no host send lateness
     assert result["min_lead_s"] is not None and result["send_lateness_p99_s"] is None

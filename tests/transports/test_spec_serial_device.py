@@ -150,7 +150,7 @@ def test_the_driver_runs_a_v2_device_written_from_the_spec(tmp_path, capsys, no_
     assert device.controlwords == [0x0006, 0x0007, 0x000F, 0x0002, 0x0000] and device.state == SWITCH_ON_DISABLED
     # device-clocked: judged by held and the smallest lead, which the log's summary line keeps too; the host's
     # send lateness is not measured
-    assert result["version"] == 3 and result["send_lateness_max_s"] is None and result["sync_jitter_max_s"] is None
+    assert result["version"] == 4 and result["send_lateness_max_s"] is None and result["sync_jitter_max_s"] is None
     assert log.metadata.extra["summary"]["sample_clock"] == "device"
     assert log.metadata.extra["summary"]["min_lead_s"] == result["min_lead_s"]
 
