@@ -263,7 +263,7 @@ NOISE_BOUND_SIGMAS = 4.5
 
 ACCEPTED_NAMES: dict[str, frozenset[str]] = {
     "none": frozenset(),
-    "eccentricity": frozenset(),  # once-per-revolution encoder error: no catalogue equivalent
+    "eccentricity": frozenset({"encoder_error"}),  # the catalogue's once-per-revolution (and 2nd) encoder error
     "wrap": frozenset(),  # a single-turn reading: no catalogue equivalent
     # y = (1 + g(t)) theta on an absolute angle near c != 0: y - c = (theta - c) + g(t) c + g(t) (theta - c), a
     # drifting offset plus a (time-varying) gain error: the two catalogue effects of the measurement's scale
@@ -274,6 +274,7 @@ ACCEPTED_NAMES: dict[str, frozenset[str]] = {
     "stribeck": frozenset({"load_friction", "coulomb_friction", "backlash"}),
     "hysteresis": frozenset(),  # dry friction in parallel with the coupling's spring: no equivalent
     "coulomb": frozenset({"load_friction", "coulomb_friction", "backlash"}),
+    # (the encoder error is gravity's look-alike: a record that cannot tell them apart is ambiguous, listing both)
     "gravity": frozenset({"gravity"}),
     # play in the shaft between the servoed motor and the load inertia: shaft_play; its quasi-static map, an
     # output backlash, and Coulomb friction without stiction through a compliance (the same play operator)
