@@ -12,7 +12,7 @@ Usage (from the repository root)::
     nice -n 10 .venv/bin/python benchmarks/cerone2009_set_membership.py --runs 100 --num-samples 100
     nice -n 10 .venv/bin/python benchmarks/cerone2009_set_membership.py --runs 20 --num-samples 1000
 
-Scaling with the record length (issue 19): ``--scaling N [N ...]`` runs the coupled method only, for every N
+Scaling with the record length: ``--scaling N [N ...]`` runs the coupled method only, for every N
 and n_bit, with run r of (N, n_bit) drawn from ``numpy.random.default_rng([seed, N, n_bit, r])`` (so one
 failing case is rerun alone with ``--scaling N --n-bits n --first-run r --runs 1``), and prints wall and CPU
 time (this process and its worker processes), peak memory, median half-widths, truth containment and the

@@ -1,4 +1,4 @@
-"""Repeatability of the model-discrepancy workflow on real records (issue 15, item 4).
+"""Repeatability of the model-discrepancy workflow on real records.
 
 The K-Scale STS3215 servo records (``../shared/realdata/kscale_sts3215``: 5 trajectories x 3 position-loop
 gains x 4 repetitions of the same experiment) are read as ``rig diagnose`` reads them

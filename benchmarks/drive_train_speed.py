@@ -1,4 +1,4 @@
-"""Cost of the drive train (issue 15): CPU µs per sample of :meth:`DriveTrain.apply` and of stepping, and
+"""Cost of the drive train: CPU µs per sample of :meth:`DriveTrain.apply` and of stepping, and
 the CPU seconds of one model-discrepancy diagnosis of a K-Scale STS3215 record (the workflow fits the
 drive-train candidates, so the train's recurrence is run many times).
 

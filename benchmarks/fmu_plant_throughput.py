@@ -1,4 +1,4 @@
-"""FMU plants (issue 17 item 1): time per sample of an FMU stepped as a plant block, for the interfaces and
+"""FMU plants: time per sample of an FMU stepped as a plant block, for the interfaces and
 FMI versions :mod:`sim_backend.fmu_plant` runs, and the time of ``rig diagnose --model x.fmu`` with an
 effect hidden around the FMU.
 

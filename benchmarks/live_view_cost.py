@@ -1,4 +1,4 @@
-"""What ``rig run --live`` costs the capture (issue 17, item 5).
+"""What ``rig run --live`` costs the capture.
 
 Two tables:
 

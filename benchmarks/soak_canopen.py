@@ -1,4 +1,4 @@
-"""Soak: a long run at 1 kHz over the simulated CANopen rig with random frame loss (issue 8).
+"""Soak: a long run at 1 kHz over the simulated CANopen rig with random frame loss.
 
 Prints whether memory stays bounded (RSS sampled over the run), whether every sample is accounted for
 (received + flagged LOST = sent, from the log written to disk), and whether any thread, virtual CAN bus or

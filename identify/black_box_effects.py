@@ -1,4 +1,4 @@
-"""Which effects of the catalogue can be added around a black-box model (an FMU, issue 17).
+"""Which effects of the catalogue can be added around a black-box model (an FMU).
 
 A black box is a block the workflow cannot look inside: it has an input and an output and nothing else
 (``black_box = True`` on the block, as :class:`sim_backend.fmu_plant.FmuBlock` sets it). The

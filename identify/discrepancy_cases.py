@@ -1,4 +1,4 @@
-"""Hidden-effect test records for the model-discrepancy workflow (issue 6): a linear gearbox model plus
+"""Hidden-effect test records for the model-discrepancy workflow: a linear gearbox model plus
 effects with randomised parameters of realistic size, read by an n-bit absolute encoder.
 
 The nominal model is the drive position loop of ``configs/plants/precision_gearbox.toml`` (30 Hz,

@@ -1,4 +1,4 @@
-"""The catalogue of physical effects the model-discrepancy workflow can name (issue 15, item 1).
+"""The catalogue of physical effects the model-discrepancy workflow can name.
 
 Each effect is defined once, here: the block class of :mod:`identify.plant_blocks` that models it, its
 ``type`` in a plant TOML ``[[blocks]]`` table and the keys of that table, its name in ``rig diagnose``, the

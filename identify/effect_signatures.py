@@ -1,4 +1,4 @@
-"""Signatures a missing physical effect leaves in the free-run residual r_t = y_t - y^_t (issue 6, step 3).
+"""Signatures a missing physical effect leaves in the free-run residual r_t = y_t - y^_t.
 
 Each score is the fraction of the residual's energy sum r_t^2 that a characteristic regressor of the effect
 explains by least squares (0: no sign of the effect, 1: the residual is exactly that signature), computed from

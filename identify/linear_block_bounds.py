@@ -47,7 +47,7 @@ solve starting from the previous optimal basis.
 Records up to ``partition_samples`` (1000) get a final tightening by spatial branch and bound on the box of
 a (:func:`_partitioned_bounds`): the box is cut into cells, each bounded by its own interval relaxation, and
 the hull of the cells is the bound; the cells that decide a bound are halved again. One relaxation over the
-whole box left up to half of the reported width to the relaxation at 8 bits (issue 19); the cells bring the
+whole box left up to half of the reported width to the relaxation at 8 bits; the cells bring the
 outer bounds to within about 5-10 % of the verified inner values.
 
 Records up to ``moment_samples`` (0 by default: off) get a last tightening by the first-order moment (SDP)
@@ -947,7 +947,7 @@ _PART_ROUNDS = 1
 """Rounds of a part's interval relaxation per pass over the parts (its final round, all parameters). A part's own
 further rounds tighten from its own box only, a further pass from the intersection of all parts: at N = 10 000,
 12 bits (run 0), one round per pass over 4 passes gave a1 4.85e-6 in 9.9 CPU-s of joint LPs, six rounds per
-pass over 2 passes 4.98e-6 in 13.9 CPU-s (issue 19)."""
+pass over 2 passes 4.98e-6 in 13.9 CPU-s."""
 _PART_PASSES = 6
 """Passes over the parts at most (they stop earlier once a pass shrinks no interval by ``tightening_tolerance``)."""
 
@@ -1042,7 +1042,7 @@ DEFAULT_MOMENT_SAMPLES = 0
 _PARTITION_BOXES = 48
 """Sub-boxes of a solved at most by the partition; it stops earlier once a refinement moves no bound by 1 %. N = 1000,
 8 bits, run 0 of the benchmark: 24 cells left a2 1.117 times as wide as its verified inner values, 48 (36 solved
-before the 1 % stop) 1.075, for 12.6 instead of 8.8 CPU-s (issue 19)."""
+before the 1 % stop) 1.075, for 12.6 instead of 8.8 CPU-s."""
 
 
 _PARTITION_STAGE = "partition of the box of a (cells)"
@@ -1521,7 +1521,7 @@ def _moving(low: NDArray[np.float64], high: NDArray[np.float64], new_low: NDArra
     the width of its interval before the pass (two sides moving by less shrink an interval by less than
     ``relative_improvement``). The box of a sets every relaxation's envelopes (r_i Δx_s), so while it shrinks
     every bound may move again: at N = 100 000, 12 bits, the upper bound of b2 moved 3.6 % in the pass after
-    one that had not moved it (issue 19)."""
+    one that had not moved it."""
     width = np.repeat(np.maximum(high - low, 1e-300), 2)
     moved = (_as_lower_bounds(new_low, new_high) - _as_lower_bounds(low, high)) / width > 0.5 * relative_improvement
     return moved | bool(moved[: 2 * na].any())

@@ -1,5 +1,5 @@
 """A first-order moment (Shor) relaxation of the coupled linear-block problem, written with cvxpy, used to make
-certified cutting planes for the bounding LP (issue 19, item 3).
+certified cutting planes for the bounding LP.
 
 The coupled feasible set (:mod:`identify.linear_block_bounds`) is bilinear in a_i δx_s. McCormick replaces each
 product z_{i,s} = a_i δx_s by its four envelope inequalities over the box of (a_i, δx_s), one product at a

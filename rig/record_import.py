@@ -1,4 +1,4 @@
-"""Import measurements written by other tools (issue 15, item 5): per-sample JSON records, chosen columns,
+"""Import measurements written by other tools: per-sample JSON records, chosen columns,
 units, a validity flag, one-sample read failures and irregular sampling.
 
 Every command that reads a record through :func:`read_measurement` accepts:

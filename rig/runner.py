@@ -125,7 +125,7 @@ def frozen_heap() -> Iterator[None]:
     Without it a full (generation 2) collection during the run scans every one of them: about 120 000
     objects in the driver's process, 85 ms of CPU measured on the 2-core test machine, during which neither
     the runner nor a simulated device in the same process runs; with the core shared with another process
-    that is the ~205 ms starvation that HELD a serial 2 kHz run (BENCHMARKS.md, issue 14). Collections during
+    that is the ~205 ms starvation that HELD a serial 2 kHz run (BENCHMARKS.md). Collections during
     the run then scan only the objects the run itself made."""
     gc.freeze()
     try:

@@ -1,5 +1,5 @@
 """``rig diagnose DATA``: find where a model and a measurement disagree, name the missing physical effect, add
-it with fitted parameters and show the gap shrink (:mod:`identify.model_discrepancy`, issue 6)."""
+it with fitted parameters and show the gap shrink (:mod:`identify.model_discrepancy`)."""
 
 from __future__ import annotations
 

@@ -83,7 +83,7 @@ class SerialTransport(Transport):
         v2: how far ahead of the device's ticks setpoints are queued, as ``ceil(lead_s / T)`` setpoints, at most
         the device's buffer capacity. Default :data:`DEFAULT_LEAD_S` (250 ms): Klipper schedules 100 ms or more
         ahead; the longest host starvation measured on the 2-core test machine with both cores busy was about
-        205 ms (BENCHMARKS.md, issue 14), and a serial device's buffer is cheap (6 bytes a setpoint, spec 16.5).
+        205 ms (BENCHMARKS.md), and a serial device's buffer is cheap (6 bytes a setpoint, spec 16.5).
     **kwargs
         See :class:`~rig.transports.base.Transport`.
     """

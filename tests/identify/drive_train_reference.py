@@ -1,4 +1,4 @@
-"""The pure-Python drive-train stepper as it was before the recurrence was compiled with numba (issue 15):
+"""The pure-Python drive-train stepper as it was before the recurrence was compiled with numba:
 a reference for ``test_drive_train.py`` only, which checks the compiled kernel of
 :mod:`identify.drive_train` against it within 1e-12 relative. Not used by the product."""
 

@@ -1,4 +1,4 @@
-"""The drive-train candidates of the effect catalogue (issue 15, item 2): friction on the load, gravity, rate
+"""The drive-train candidates of the effect catalogue: friction on the load, gravity, rate
 and torque limits, fitted inside a drive train.
 
 Each hidden-effect record is the nominal 30 Hz position loop as a rigid drive train holding one effect of

@@ -1,4 +1,4 @@
-"""The effect catalogue (issue 15, item 1): every effect is one entry, and the workflow, the plant TOML
+"""The effect catalogue: every effect is one entry, and the workflow, the plant TOML
 reader and writer and the hidden-effect cases all read it."""
 
 from __future__ import annotations

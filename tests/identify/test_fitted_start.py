@@ -1,4 +1,4 @@
-"""The model-discrepancy workflow from a fitted start (issue 15, item 6): the workflow fits its own linear model,
+"""The model-discrepancy workflow from a fitted start: the workflow fits its own linear model,
 which has absorbed part of the hidden effect, and the candidate fits must still reach the truth's gap; and the
 acceptance of a candidate must not hang on a validation block where the data cannot tell the models apart.
 

@@ -552,7 +552,7 @@ def test_linear_block_bounds_are_built_from_keywords() -> None:
 
 def test_the_widened_relaxation_of_a_sliver_cell_contains_its_set_and_little_more() -> None:
     # a cell of the partition whose relaxation HiGHS calls infeasible without a certificate is bounded on the
-    # LP with every row widened by _WIDENING (1 + |bound|): a superset, so its bounds hold (issue 19)
+    # LP with every row widened by _WIDENING (1 + |bound|): a superset, so its bounds hold
     import scipy.sparse as sp
 
     from identify.linear_block_bounds import _LP, _WIDENING, _bounds_over, _Counter, _widened

@@ -1,4 +1,4 @@
-"""The moment (SDP) relaxation of the coupled linear-block problem and its certified cuts (issue 19, item 3)."""
+"""The moment (SDP) relaxation of the coupled linear-block problem and its certified cuts."""
 
 from __future__ import annotations
 

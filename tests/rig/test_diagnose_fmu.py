@@ -1,4 +1,4 @@
-"""``rig diagnose DATA --model plant.fmu`` (issue 17 item 1): an effect hidden around the user's FMU is named
+"""``rig diagnose DATA --model plant.fmu``: an effect hidden around the user's FMU is named
 with an interval that holds the truth; a bad FMU is a clear error before any work."""
 
 from __future__ import annotations

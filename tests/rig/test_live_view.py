@@ -1,4 +1,4 @@
-"""``rig run --live`` (issue 17, item 5), headless: the terminal view is chosen without a display, the log of a
+"""``rig run --live``, headless: the terminal view is chosen without a display, the log of a
 run with the view holds the same samples as one without it, and a slow renderer costs frames and rows of the
 view, never samples of the log."""
 

@@ -1,4 +1,4 @@
-"""``rig export`` and the MDF4 / MAT readers (issue 17, item 2): round trips, the file layout, foreign files
+"""``rig export`` and the MDF4 / MAT readers: round trips, the file layout, foreign files
 with channels t,u,y, and the errors for missing channels, damaged files and a missing asammdf."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Real-log import (issue 15, item 5): per-sample JSON records, --columns, --units, --valid, spikes, irregular
+"""Real-log import: per-sample JSON records, --columns, --units, --valid, spikes, irregular
 sampling, and error messages that echo at most one short line of the file."""
 
 from __future__ import annotations

@@ -1,5 +1,5 @@
 """Opt-in (RIG_REALDATA=1): the K-Scale STS3215 records (``../shared/realdata/kscale_sts3215``) imported as
-``rig diagnose`` reads them give one verdict per experiment over its 4 repetitions (issue 15, item 4). Without
+``rig diagnose`` reads them give one verdict per experiment over its 4 repetitions. Without
 RIG_REALDATA=1 this module defines no test."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""The user's model as an FMU (issue 17 item 1): the block's sampling against the exact discretisation of
+"""The user's model as an FMU: the block's sampling against the exact discretisation of
 the model inside the test FMU, stepping equal to a whole run, and the errors a user meets (a missing file,
 several inputs or outputs, no binary for this platform, not an FMU)."""
 

@@ -1,4 +1,4 @@
-"""A simulated rig whose plant is the user's FMU (issue 17 item 1): ``rig run`` over the real wire gives the
+"""A simulated rig whose plant is the user's FMU: ``rig run`` over the real wire gives the
 samples of the FMU simulated offline on the logged command, and a bad FMU plant is named when the rig
 config is loaded."""
 
