@@ -19,67 +19,21 @@ table per effect.
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import json
-import math
 import sys
 import time
 from concurrent.futures import ProcessPoolExecutor, as_completed
-from pathlib import Path
-
-import numpy as np
 
 from identify.model_discrepancy import diagnose_model
-from identify.plant_blocks import LinearBlock, PlantModel
+from identify.plant_blocks import PlantModel
 
-GENERATOR = Path(__file__).resolve().parent / "independent_plants" / "drive_train_generator.py"
-EXCITATIONS = ("steps", "chirp", "multisine", "prbs")
-DURATION_S = {"steps": 5.0, "chirp": 3.0, "multisine": 3.0, "prbs": 3.0, "ramp": 6.0}
-NOISE_STD_RAD = 1.0e-4
-NOISE_BOUND_SIGMAS = 4.5
+# the protocol of the confusion benchmark's independent rows: one definition of the record, model and bound
+from model_discrepancy_confusion import INDEPENDENT_DURATION_S as DURATION_S
+from model_discrepancy_confusion import INDEPENDENT_EXCITATIONS as EXCITATIONS
+from model_discrepancy_confusion import NOISE_STD_RAD, generator_module, nominal_linear_block
+from model_discrepancy_confusion import independent_noise_bound as noise_bound
+
 EFFECTS = ("eccentricity", "wrap", "gravity", "none", "coulomb")
-
-
-def generator_module():
-    """The clean-room generator, imported from its file (a script, not a package)."""
-    name = "drive_train_generator"
-    if name not in sys.modules:
-        spec = importlib.util.spec_from_file_location(name, GENERATOR)
-        module = importlib.util.module_from_spec(spec)
-        sys.modules[name] = module
-        spec.loader.exec_module(module)
-    return sys.modules[name]
-
-
-def nominal_linear_block(nominal: dict) -> LinearBlock:
-    """The generator's nominal kinematic-servo two-mass train (state: motor angle and speed at the load side,
-    load angle and speed) discretised exactly with a zero-order hold; output the load angle."""
-    from scipy.linalg import expm
-
-    if nominal["servo"] != "kinematic":
-        raise ValueError("only the kinematic servo is converted here")
-    gear = float(nominal["gear_ratio"])
-    inertia = float(nominal["load_inertia_kg_m2"])
-    k = float(nominal["shaft_stiffness_nm_per_rad"])
-    c = float(nominal["shaft_damping_nm_s_per_rad"])
-    b = float(nominal["viscous_friction_nm_s_per_rad"])
-    wc = 2.0 * math.pi * float(nominal["position_loop_bandwidth_hz"])
-    zeta = float(nominal["position_loop_damping_ratio"])
-    period = float(nominal["sample_period_s"])
-    A = np.zeros((4, 4))
-    B = np.zeros(4)
-    A[0, 1] = A[2, 3] = 1.0
-    A[1, :2] = (-wc * wc, -2.0 * zeta * wc)
-    B[1] = wc * wc / gear
-    A[3] = (k / inertia, c / inertia, -k / inertia, -(c + b) / inertia)
-    augmented = np.zeros((5, 5))
-    augmented[:4, :4], augmented[:4, 4] = A, B
-    discrete = expm(augmented * period)
-    return LinearBlock.from_state_space(discrete[:4, :4], discrete[:4, 4], (0.0, 0.0, 1.0, 0.0), 0.0, period)
-
-
-def noise_bound(nominal: dict) -> float:
-    return 0.5 * float(nominal["count_rad"]) + NOISE_BOUND_SIGMAS * float(nominal["noise_std_rad"])
 
 
 def record_for(effect: str, seed: int, max_draws: int = 40, setting: dict | None = None) -> tuple[dict, int, str]:

@@ -285,7 +285,7 @@ ACCEPTED_NAMES: dict[str, frozenset[str]] = {
 OUTCOMES = ("right", "honest", "confident_wrong", "hedged_wrong", "right_and_wrong", "not_excited")
 
 
-def _generator_module():
+def generator_module():
     """The clean-room generator, imported from its file (it is a script next to this one, not a package)."""
     import importlib.util
 
@@ -442,7 +442,7 @@ def run_independent_case(effect_name: str, case: int, cases: int, first_seed: in
                          bits: int, noise_std_rad: float) -> dict:
     """One case of a row: the first excited record of seeds first_seed + case + j cases (j = 0, 1, ...; the
     excitation rotates with case + j), diagnosed and scored."""
-    generator = _generator_module()
+    generator = generator_module()
     skipped: list[str] = []
     for draw in range(max_draws):
         seed = first_seed + case + draw * cases
