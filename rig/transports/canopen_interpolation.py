@@ -39,7 +39,7 @@ class CanOpenInterpolation:
         if record is None or record.sample is None:
             if self._dry_since is None:
                 self._dry_since = count  # (after the run's last record the buffer runs dry for good: no lead)
-            self._applied[sample] = (self._in_force[1], True)
+            self._applied[sample] = (self._in_force[1], True, False)
             self._wait_for_rpdo_echo(sample, self._in_force[1], any_value=True)  # one due may be in the drive
             return
         self._in_force = (record.sample, record.counts)
@@ -50,7 +50,7 @@ class CanOpenInterpolation:
         if self._dry_since is not None:  # the buffer ran dry for these instants: a negative lead
             self._min_lead_s = min(self._min_lead_s, -(count - self._dry_since) * self.sample_period_s)
             self._dry_since = None
-        self._applied[sample] = (record.counts, False)
+        self._applied[sample] = (record.counts, False, False)
 
     def _check_buffer_position(self, buffered: int) -> None:
         """Before ip mode is enabled: where the drive counts the records of its FIFO in 0x60C4:4 (buffer

@@ -290,7 +290,7 @@ class CanOpenTransport(CanOpenStartUp, CanOpenInterpolation, CanOpenReceiveCheck
         self._queued_at: dict[int, float] = {}  # sample -> host time it was queued (for the lead)
         self._rpdo_sent: collections.deque[tuple[int, int]] = collections.deque()  # (sample, counts), echo due
         self._in_force: tuple[int, int] = (-1, 0)  # (sample, counts) of the last RPDO on the bus
-        self._applied: dict[int, tuple[int, bool]] = {}  # sample -> (target counts in force, held)
+        self._applied: dict[int, tuple[int, bool, bool]] = {}  # sample -> (target counts in force, held, limited)
         self._instant_errors: dict[int, float] = {}  # sample -> SYNC spacing minus the period (s)
         self._ambiguous: set[int] = set()  # SYNC counts whose answers cannot be filed for certain
         self._device_sample = -1
@@ -790,7 +790,8 @@ class CanOpenTransport(CanOpenStartUp, CanOpenInterpolation, CanOpenReceiveCheck
             in_force_sample, counts = self._in_force
             ramped = sample in self._ramped
             self._ramped.discard(sample)
-            self._applied[sample] = (counts, in_force_sample != sample or ramped)
+            held = in_force_sample != sample
+            self._applied[sample] = (counts, held, ramped and not held)
             self._wait_for_rpdo_echo(sample, counts)  # a target due may have been in force: its echo tells
             queued = self._queued_at.pop(sample, None)
             if queued is not None:
@@ -810,7 +811,7 @@ class CanOpenTransport(CanOpenStartUp, CanOpenInterpolation, CanOpenReceiveCheck
         """CSP: target ``sample`` onto the bus, no farther from the target the drive last took than
         :attr:`catch_up_step_rad` (the rate limit's step, and twice the plan's own largest): after a stall
         that held samples the plan may have moved on, and the targets ramp back to it, each of those samples
-        HELD with the target really applied."""
+        LIMITED with the target really applied (as on every device-clocked wire, :meth:`_toward_plan`)."""
         planned = self._queue.pop(sample)
         counts = self._toward_plan(planned, self._rpdo_sent[-1][1] if self._rpdo_sent else self._in_force[1])
         if counts != planned:
@@ -865,7 +866,7 @@ class CanOpenTransport(CanOpenStartUp, CanOpenInterpolation, CanOpenReceiveCheck
         # delayed past the next SYNC and filed there) reports it again, and the runner flags it DUPLICATE
         if "drive" in parts and "encoder" in parts and ("demand" in parts or self._demand_tpdo is None):
             statusword, actual = parts["drive"]
-            counts, held = self._applied.get(seq, (None, False))
+            counts, held, limited = self._applied.get(seq, (None, False, False))
             ambiguous = (bool(self._ambiguous)
                          and any(seq + self._origin + latency in self._ambiguous for latency in self.latency_cycles.values()))
             if "demand" in parts and counts is not None:
@@ -875,7 +876,7 @@ class CanOpenTransport(CanOpenStartUp, CanOpenInterpolation, CanOpenReceiveCheck
             self._report(FeedbackSample(
                 seq=seq, encoder_counts=parts["encoder"], load_angle_rad=self._decode_encoder(parts["encoder"]),
                 drive_position_rad=self.drive.rad_from_counts(actual), statusword=statusword,
-                host_time_s=received, target_ignored=self._target_ignored(statusword), held=held,
+                host_time_s=received, target_ignored=self._target_ignored(statusword), held=held, limited=limited,
                 applied_position_rad=None if counts is None else self.drive.rad_from_counts(counts),
                 ambiguous=ambiguous, instant_error_s=self._instant_errors.get(seq, 0.0)))
         if len(self._parts) > 512:

@@ -200,7 +200,7 @@ def test_a_host_stall_longer_than_the_lead_holds_exactly_the_instants_beyond_it(
     up to the one it had heard of plus the lead less one; every later instant in the stall is HELD, nothing
     is lost, and the lead is kept again after it. Interpolated position: the drive takes hold records, never
     an empty FIFO, and the two hold records in its FIFO when the stall ends are taken first. CSP: the targets
-    ramp back to the plan at twice its own largest step, those samples HELD too."""
+    ramp back to the plan at twice its own largest step, those samples LIMITED."""
     period_s, stall_s, samples = 1e-3, 0.1505, 500
     lead = round(LEAD_S / period_s)
     command = _command(samples)
@@ -220,11 +220,14 @@ def test_a_host_stall_longer_than_the_lead_holds_exactly_the_instants_beyond_it(
         # after the stall the drive takes the later records at later instants, each logged as applied
         assert commands[held[-1] + 1:] == plan[held[0]:samples - len(held)]
         slack = 3 * period_s  # the two hold records' instants after the stall's last
-    else:  # CSP: targets that missed their SYNC are dropped; the ramp back meets the plan, then it is in time
+    else:  # CSP: targets that missed their SYNC are dropped; the ramp back (LIMITED) meets the plan, then in time
+        assert held == in_stall
+        limited = np.flatnonzero(_flags(sink) & SampleFlag.LIMITED).tolist()
+        assert limited and limited == list(range(held[-1] + 1, limited[-1] + 1))
         plan_step = max(abs(b - a) for a, b in zip(plan, plan[1:]))
-        ramp = np.abs(np.diff(commands[held[0] - 1:held[-1] + 2]))
-        assert len(held) > 51 and ramp.max() <= 2 * plan_step + 1e-12
-        assert commands[held[-1] + 1:] == plan[held[-1] + 1:]
+        ramp = np.abs(np.diff(commands[held[0] - 1:limited[-1] + 2]))
+        assert ramp.max() <= 2 * plan_step + 1e-12
+        assert commands[limited[-1] + 1:] == plan[limited[-1] + 1:]
         slack = period_s
     # the smallest lead is negative: the first setpoint queued after the stall came after its instant, by
     # the stall less the lead (the master measures it in whole periods, so up to one period more)
@@ -236,7 +239,7 @@ def test_a_host_stall_longer_than_the_lead_holds_exactly_the_instants_beyond_it(
 def test_after_a_stall_the_applied_target_never_steps_beyond_the_rate_limit(mode, tmp_path):
     """A 150.5 ms stall with a 100 ms lead holds 51 samples while the plan moves on. CSP: the next target
     would jump from the held one to the plan (0.25 rad here); it ramps back at the rate limit instead, each
-    ramped sample HELD with the target really applied. Interpolated position: the records follow one another
+    ramped sample LIMITED with the target really applied. Interpolated position: the records follow one another
     in order after the held instants, so no step exceeds the plan's own."""
     from rig.transports.base import CommandLimits
 
@@ -250,9 +253,11 @@ def test_after_a_stall_the_applied_target_never_steps_beyond_the_rate_limit(mode
     assert stalled and summary.lost == 0 and len(sink.rows) == 600
     assert step.max() <= limit * 1e-3 * DRIVE.counts_per_revolution / (2 * np.pi) + 1e-6  # 1632 counts
     held = (_flags(sink) & SampleFlag.HELD) != 0
-    if mode == "csp":  # the ramp is flagged and ends on the plan
+    if mode == "csp":  # the ramp is flagged LIMITED, as on every device-clocked wire, and ends on the plan
+        limited = (_flags(sink) & SampleFlag.LIMITED) != 0
         designed = np.array([DRIVE.quantize_rad(value) for value in command])
-        assert held.sum() > 51 and np.all(applied[~held] == designed[~held])
+        assert held.sum() == 51 and limited.sum() > 0 and not np.any(held & limited)
+        assert np.all(applied[~(held | limited)] == designed[~(held | limited)])
         assert np.all(applied[-100:] == designed[-100:])
     _answered_rows_equal_the_offline_simulation(sink, 1000.0, tmp_path)
 

@@ -183,7 +183,7 @@ def test_the_receive_thread_keeps_the_drives_buffer_full_from_the_hosts_queue():
         transport._on_sync_echo(0x80, b"", 1.0 + count * 1e-3)
         transport._on_rpdo_echo(*transport.network.next_echo(), 1.0 + count * 1e-3 + 2e-4)
     assert transport.network.sent == list(range(100))  # every queued record went in, one per SYNC
-    assert not any(held for _, held in transport._applied.values())
+    assert not any(held for _, held, _ in transport._applied.values())
     assert [transport._applied[sample][0] for sample in range(38)] == list(range(38))
 
 
