@@ -164,10 +164,11 @@ def _exit_status(err: BaseException | None) -> int:
 
 
 def measure(kind: str, rate_hz: float, duration_s: float, directory: Path, pending_cycles: int,
-            stall_every_s: float | None = None, devices: str = "thread", canopen_sync: str = "device") -> dict[str, object]:
+            stall_every_s: float | None = None, devices: str = "thread", canopen_sync: str = "device",
+            device_nice: int = 0) -> dict[str, object]:
     """One row: ``kind`` at ``rate_hz`` for ``duration_s``, its devices in the driver's process (``devices =
-    "thread"``) or in one of their own (``"process"``; the CANopen SYNC then from the devices' process, or with
-    ``canopen_sync = "host"`` from the driver's)."""
+    "thread"``) or in one of their own (``"process"``, at niceness ``device_nice``; the CANopen SYNC then from
+    the devices' process, or with ``canopen_sync = "host"`` from the driver's)."""
     config = _config(kind, rate_hz, directory)
     # the plant's physics stay at its own 1 kHz; only the wall-clock rate of the loop changes here
     gearbox = load_plant_config(config.simulation.plant_path).gearbox(seed=config.simulation.seed)
@@ -207,6 +208,8 @@ def measure(kind: str, rate_hz: float, duration_s: float, directory: Path, pendi
         if devices == "process":
             device_sync = config.scheme == "canopen" and canopen_sync == "device"
             url, running = start_device_process(config, stack, sample_period_s=1.0 / rate_hz, produce_sync=device_sync)
+            if device_nice:
+                _renice(running.pid, device_nice)
             options.update(PATIENT_WITH_A_DEVICE_PROCESS[config.scheme])
             if device_sync:
                 options["sync_producer"] = "external"
@@ -267,6 +270,17 @@ def measure(kind: str, rate_hz: float, duration_s: float, directory: Path, pendi
         row.update(bus_load_pct=100 * load.load, bus_limit_hz=load.max_rate_hz,
                    measured_load_pct=None if measured_load is None else 100 * measured_load)
     return row
+
+
+def _renice(pid: int, nice: int) -> None:
+    """Every thread of process ``pid`` at niceness ``nice`` (Linux keeps a niceness per thread; below 0 needs
+    the privilege to raise a priority, CAP_SYS_NICE)."""
+    for task in Path(f"/proc/{pid}/task").iterdir():
+        try:
+            os.setpriority(os.PRIO_PROCESS, int(task.name), nice)
+        except PermissionError as err:
+            raise SystemExit(f"--device-nice {nice}: {err}; run as a user allowed to raise priorities, or "
+                             "leave the device at the driver's priority (--device-nice 0)") from err
 
 
 @contextlib.contextmanager
@@ -358,6 +372,10 @@ def main() -> int:
     parser.add_argument("--canopen-sync", choices=["device", "host"], default="device",
                         help="CANopen devices in a process of their own: SYNC from their process (default; the "
                              "master listens, sync_producer = \"external\") or from the driver's (a thread)")
+    parser.add_argument("--device-nice", type=int, default=0,
+                        help="niceness of a device's own process (default 0, as the driver and the hogs): below 0 "
+                             "it stands for a device with a CPU of its own, so that its process is not starved "
+                             "by the hogs and only the host's stalls show (needs CAP_SYS_NICE)")
     parser.add_argument("--json", action="store_true", help="print the rows as JSON")
     args = parser.parse_args()
     rows = []
@@ -372,7 +390,7 @@ def main() -> int:
                         try:
                             row = measure(kind, rate, args.duration, Path(directory), args.pending_cycles,
                                           stall_every_s=5.0 if name == "stall" else None, devices=devices,
-                                          canopen_sync=args.canopen_sync)
+                                          canopen_sync=args.canopen_sync, device_nice=args.device_nice)
                         except ConfigError as err:  # e.g. a rate the bus cannot carry: refused on load
                             row = {"transport": kind, "rate_hz": rate, "refused": err.problem}
                         rows.append({"condition": name, **row})
@@ -384,7 +402,7 @@ def main() -> int:
     blas = {name: os.environ.get(name) for name in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")}
     print(f"# transport timing, {args.duration:g} s per case, Python {platform.python_version()}, "
           f"{platform.machine()}, {os.cpu_count()} cores, devices: {args.devices}, CANopen SYNC with its devices in a "
-          f"process: {args.canopen_sync}, stall = {1e3 * STALL_S:g} ms every 5 s, load average "
+          f"process: {args.canopen_sync}, device process niceness {args.device_nice}, stall = {1e3 * STALL_S:g} ms every 5 s, load average "
           f"{os.getloadavg()[0]:.2f} at the end, BLAS threads {blas}")
     timing = [row for row in rows if row["condition"] != "hog"]
     hog = [row for row in rows if row["condition"] == "hog"]
