@@ -250,6 +250,11 @@ class ClaimedOutput:
         self._descriptor = None
         return handle
 
+    def hand_over(self) -> None:
+        """The claimed file is written by a writer that opens it by name (python-can's trace writers): the
+        lock stays with this claim until :meth:`release`, and the file is never removed by it."""
+        self._opened = True
+
     def release(self) -> None:
         """Give the claim up: remove the file if this claim created it and nothing was written."""
         if self._descriptor is not None:
@@ -270,8 +275,9 @@ def claim_output_file(path: str | Path, option: str = "", *, force: bool = False
         return ClaimedOutput(target, None, False)
     flags = os.O_RDWR | os.O_CREAT | getattr(os, "O_CLOEXEC", 0)
     try:
+        existed = force and target.exists()
         descriptor = os.open(target, flags | (0 if force else os.O_EXCL), 0o666)
-        created = not force
+        created = not existed
     except FileExistsError:
         refuse_existing(target, option, force)
         raise

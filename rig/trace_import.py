@@ -49,7 +49,7 @@ CANopen (SYNC + drive RPDO1 + TPDOs, the mapping :mod:`rig.transports.canopen_li
 * the samples run to the last RPDO1's (a run whose last setpoints were all HELD ends earlier), and a
   sample whose setpoint never reached the bus and that has no reading takes the previous command (the
   trace does not hold the value the host had queued); for the same reason a CSP target the master limited
-  on its way back to the plan after a stall is logged with the value on the bus but not flagged HELD.
+  on its way back to the plan after a stall is logged with the value on the bus but not flagged LIMITED.
 
 Error frames and malformed frames of ours are counted (``frame_errors`` in the summary) and ridden through, as
 the transport does. A trace that cannot be read, or whose setpoints do not follow one another, raises

@@ -198,6 +198,9 @@ def run(args: argparse.Namespace) -> int:
     claimed = claim_output_file(args.out, "--out", force=args.force)  # a second run on it stops here
     with contextlib.ExitStack() as stack, _naming_a_slow_plant(slow_plant):
         stack.callback(claimed.release)
+        if args.can_trace is not None:  # claimed as the log is; python-can's writer opens it by name
+            trace = claim_output_file(args.can_trace, "--can-trace", force=args.force)
+            stack.callback(trace.release)
         gearbox = None
         url = config.url
         if config.simulation is not None:
@@ -205,6 +208,7 @@ def run(args: argparse.Namespace) -> int:
         options = config.transport_options()
         if args.can_trace is not None:
             options["trace_path"] = args.can_trace
+            trace.hand_over()
         transport = open_transport(url, **options)
         injected = None if faults is None else {"spec": args.sim_faults, "seed": args.sim_faults_seed}
         view = None

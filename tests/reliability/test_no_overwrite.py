@@ -91,6 +91,27 @@ def test_run_refuses_an_existing_log_and_one_another_run_writes_before_the_drive
     assert out.read_text() == "# rig-log v1\nthe samples of an earlier run\n"
 
 
+def test_run_refuses_a_can_trace_another_run_writes_before_the_drive(tmp_path, capsys, monkeypatch):
+    """The --can-trace file is claimed as the log is: with --force, a trace another run is writing now is
+    refused before anything is driven, and its frames are left as they are."""
+    import rig.transports
+
+    monkeypatch.setattr(rig.transports, "open_transport", lambda *a, **k: pytest.fail("the transport was opened"))
+    trace = tmp_path / "run.blf"
+    trace.write_bytes(b"LOGG the frames of a run going on now")
+    held = claim_output_file(trace, "--can-trace", force=True)  # that run
+    try:
+        code = main(["run", str(CONFIGS / "sim_can.toml"), "--experiment", str(PRBS), "--out",
+                     str(tmp_path / "run.csv"), "--can-trace", str(trace), "--force"])
+        assert code == exit_codes.WRITE_FAILED
+        err = capsys.readouterr().err
+        assert "another process is writing it now" in err and "--can-trace" in err
+    finally:
+        held.release()
+    assert trace.read_bytes() == b"LOGG the frames of a run going on now"
+    assert not (tmp_path / "run.csv").exists()
+
+
 def test_a_claimed_log_is_exclusive_and_released_when_the_run_never_started(tmp_path):
     out = tmp_path / "run.csv"
     first = claim_output_file(out, "--out")

@@ -134,18 +134,20 @@ def test_a_canopen_trace_with_held_samples_imports_as_the_runs_log(mode, tmp_pat
     in_stall = list(range(heard + lead, heard + int(stall_s / period_s) + 1))
     held = np.flatnonzero(flags & SampleFlag.HELD).tolist()
     assert lead == 20 and len(in_stall) == 11 and held[:11] == in_stall and summary.held == len(held)
-    assert held == list(range(held[0], held[-1] + 1)) and (len(held) == 13 if mode == "ip_buffer" else len(held) > 11)
+    assert held == list(range(held[0], held[-1] + 1)) and len(held) == (13 if mode == "ip_buffer" else 11)
+    limited = np.flatnonzero(flags & SampleFlag.LIMITED).tolist()  # CSP's ramp back to the plan
+    assert (limited[0] == held[-1] + 1 and limited == list(range(limited[0], limited[-1] + 1))) if mode == "csp" \
+        else not limited
     record = import_trace(trace, config)
     np.testing.assert_allclose(record.time_s, [row[0] for row in sink.rows], rtol=0, atol=1e-12)
     np.testing.assert_array_equal(record.command_rad, [row[1] for row in sink.rows])
     np.testing.assert_array_equal(record.angle_rad, [row[2] for row in sink.rows])
     np.testing.assert_array_equal(record.encoder_counts, [row[3] for row in sink.rows])
-    # every flag, LATE too (the trace has the SYNCs), but HELD on CSP's ramp back to the plan after the stall:
-    # the trace holds the targets the drive took, not the plan they were limited from
-    ramp = np.zeros(flags.size, bool)
-    ramp[held[11:]] = mode == "csp"
+    # every flag, LATE too (the trace has the SYNCs), but LIMITED on CSP's ramp back to the plan after the
+    # stall: the trace holds the targets the drive took, not the plan they were limited from
+    ramp = (flags & SampleFlag.LIMITED) != 0
     np.testing.assert_array_equal(record.flags[~ramp], flags[~ramp])
-    assert not np.any(record.flags[ramp] & SampleFlag.HELD)
+    np.testing.assert_array_equal(record.flags[ramp], flags[ramp] & ~np.int64(SampleFlag.LIMITED))
 
 
 @pytest.mark.parametrize("seconds, stall_ms", [(0.8, 400), (2.4, 1700)], ids=["hold", "hold-past-254-ticks"])
