@@ -808,12 +808,17 @@ class CanOpenTransport(CanOpenStartUp, CanOpenInterpolation, CanOpenReceiveCheck
             self._put_target_on_bus(upcoming)
 
     def _put_target_on_bus(self, sample: int) -> None:
-        """CSP: target ``sample`` onto the bus, no farther from the target the drive last took than
-        :attr:`catch_up_step_rad` (the rate limit's step, and twice the plan's own largest): after a stall
+        """CSP: target ``sample`` onto the bus, no farther than :attr:`catch_up_step_rad` (the rate limit's
+        step, and twice the plan's own largest) from any target the drive can have in force when it takes
+        this one: the one in force at the SYNC just seen, and those sent since (echo due): after a stall
         that held samples the plan may have moved on, and the targets ramp back to it, each of those samples
         LIMITED with the target really applied (as on every device-clocked wire, :meth:`_toward_plan`)."""
         planned = self._queue.pop(sample)
-        counts = self._toward_plan(planned, self._rpdo_sent[-1][1] if self._rpdo_sent else self._in_force[1])
+        # the drive steps from the target in force at the SYNC just seen to this one, or, if this one comes
+        # late, to a target sent before it whose echo is still due: limited from all of them (after a stall
+        # the master may answer several old SYNCs in a row, each target late, the drive taking only the last)
+        possible = [self._in_force[1], *(counts for _, counts in self._rpdo_sent)]
+        counts = self._toward_plan(planned, min(possible), max(possible))
         if counts != planned:
             self._ramped.add(sample)
         self._rpdo_sent.append((sample, counts))

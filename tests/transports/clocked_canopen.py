@@ -73,6 +73,7 @@ class ClockedCanEndpoint:
         self.filters: list[dict[str, int]] | None = None
         self.drops: Callable[[can.Message, bool], bool] | None = None  # (frame, own) -> lost on receive
         self.dropped = 0
+        self.backlog: collections.deque[tuple[can.Message, bool]] | None = None  # receive side starved: queued
 
     # -- as a python-can bus -----------------------------------------------------------------------------
     def send(self, message: can.Message, timeout: float | None = None) -> None:
@@ -104,6 +105,9 @@ class ClockedCanEndpoint:
             listener.stop()
 
     def deliver(self, message: can.Message, own: bool) -> None:
+        if self.backlog is not None:
+            self.backlog.append((message, own))
+            return
         if self.drops is not None and (self.receive_own_messages or not own) and self.drops(message, own):
             self.dropped += 1
             return
@@ -240,6 +244,25 @@ class ClockedCanBus:
         while (when := self.next_event_s()) <= end:
             self._advance_to(when)
         self.clock.advance_to(end)
+
+    def stall_receive(self, seconds: float) -> None:
+        """``seconds`` pass with the master's receive side starved as well as its host thread (a whole process
+        descheduled): the frames of the stall queue up in its receive buffer, and when it runs again it
+        handles them in bus order, one after the other, before any frame it sends meanwhile reaches the
+        nodes (they all go on the bus after the backlog, before the next event)."""
+        assert self._master is not None
+        self._master.backlog = collections.deque()
+        try:
+            self.stall(seconds)
+        finally:
+            backlog, self._master.backlog = self._master.backlog, None
+        held, self._hold = self._hold, lambda: True  # the master's frames wait behind the backlog
+        try:
+            for message, own in backlog:
+                self._master.deliver(message, own)
+        finally:
+            self._hold = held
+        self.deliver()
 
     def wait_for(self, ready: Callable[[], bool], timeout_s: float, lock: Any) -> bool:
         """The host waits until ``ready()`` (checked with ``lock`` held) or ``timeout_s`` has passed: the

@@ -262,6 +262,34 @@ def test_after_a_stall_the_applied_target_never_steps_beyond_the_rate_limit(mode
     _answered_rows_equal_the_offline_simulation(sink, 1000.0, tmp_path)
 
 
+def test_after_a_whole_process_stall_the_drive_never_steps_beyond_the_rate_limit(tmp_path):
+    """CSP with the master's whole process descheduled for 40 ms (its receive side too): when it runs again it
+    handles the stall's SYNC echoes one after the other and puts a target on the bus for each; all of them
+    reach the drive after their SYNCs, and the drive takes the last at the next SYNC. Each is limited from
+    the target in force at the SYNC it answers, not from the one sent before it, so the drive's own record
+    never steps further than the rate limit allows from one SYNC to the next."""
+    from rig.transports.base import CommandLimits
+
+    limit = 10.0  # rad/s; the command's own largest rate is 5.03 rad/s
+    step_counts = limit * 1e-3 * DRIVE.counts_per_revolution / (2 * np.pi)  # 1632 counts per period
+    command = _command(600)
+    with _clocked_rig(tmp_path, mode="csp",
+                      transport_options={"limits": CommandLimits(rate_max_rad_per_s=limit)}) as (bus, transport, rig,
+                                                                                                   clock):
+        stalled = []
+
+        def progress(done: int, _held: int) -> None:
+            if done >= 150 and not stalled:
+                stalled.append(done)
+                bus.stall_receive(0.0405)
+
+        summary = run_experiment(transport, command, ListSink(), feedback_timeout_s=0.5, clock=clock,
+                                 progress=progress)
+        applied = np.array(rig.record().applied_targets, dtype=float)
+    assert stalled and summary.samples == 600
+    assert np.abs(np.diff(applied)).max() <= step_counts + 1
+
+
 # -- devices that answer late, devices that fall silent --------------------------------------------------------
 
 def test_a_drive_answering_each_sync_one_sync_late_is_no_drop_out(tmp_path):

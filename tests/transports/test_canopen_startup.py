@@ -189,8 +189,8 @@ def test_targets_go_on_the_bus_right_after_the_previous_sync_and_a_late_one_is_h
     transport._on_sync_echo(0x80, b"", 1.003)  # sample 2: held at target 1
     transport._send(Setpoint(2, transport.drive.rad_from_counts(30)))  # came after its SYNC: dropped
     assert [sent[1] for sent in transport.network.sent] == [(10).to_bytes(4, "little"), (20).to_bytes(4, "little")]
-    assert transport._applied[0] == (10, False) and transport._applied[1] == (20, False)
-    assert transport._applied[2] == (20, True)  # HELD: the command really applied is logged
+    assert transport._applied[0] == (10, False, False) and transport._applied[1] == (20, False, False)
+    assert transport._applied[2] == (20, True, False)  # HELD: the command really applied is logged
     assert transport.device_sample == 2 and transport.min_lead_s < 0
 
 
@@ -205,7 +205,7 @@ def test_a_target_whose_rpdo_reaches_the_bus_after_its_sync_is_held():
     transport._on_sync_echo(0x80, b"", 1.001)  # sample 0; target 1 sent ...
     transport._on_sync_echo(0x80, b"", 1.002)  # ... but SYNC 1 came first on the bus
     transport._on_rpdo_echo(*transport.network.next_echo(), 1.0021)
-    assert transport._applied[1] == (10, True)
+    assert transport._applied[1] == (10, True, False)
 
 
 def test_a_configured_tpdo_latency_files_each_answer_under_the_sync_it_answers():
