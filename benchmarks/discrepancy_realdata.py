@@ -72,7 +72,8 @@ def answer(run: dict) -> str:
 
 
 def agree(runs: list[dict]) -> tuple[bool, str]:
-    """Issue 15's agreement: same verdict, same named effects, overlapping intervals of every named parameter.
+    """Repeatability: the repetitions agree on the verdict and the named effects, and the intervals of every
+    named parameter overlap.
     (Which candidates an ambiguous verdict lists is not a named effect: :func:`same_contenders` says whether
     those agree too.)"""
     verdicts = {run["verdict"] for run in runs}

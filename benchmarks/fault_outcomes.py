@@ -1,5 +1,5 @@
-"""Fault -> outcome -> samples kept / samples sent, for every wire fault ``rig run --sim-faults`` injects
-(issue 8). Each case is one ``rig run`` of the PRBS experiment on a simulated rig at 1 kHz, as a user
+"""Fault -> outcome -> samples kept / samples sent, for every wire fault ``rig run --sim-faults`` injects.
+Each case is one ``rig run`` of the PRBS experiment on a simulated rig at 1 kHz, as a user
 would type it; the table is the evidence behind the README's "Faults and outcomes".
 
     .venv/bin/python benchmarks/fault_outcomes.py [--duration 2]

@@ -26,7 +26,7 @@ steps 0.95, 0.8, 0.5, 0 and bisection; then a few sequential-LP steps move along
 each new a counting only once the exact problem at it is solved: :func:`_inner_values`).
 
 For records longer than two windows (400 samples) the work goes window by window, so that it grows about
-linearly with the record (issue 19; :func:`_coupled_bounds`). The feasible set of any subset of the
+linearly with the record (:func:`_coupled_bounds`). The feasible set of any subset of the
 equations contains the full one, so every window's bounds are valid. The box of a is first tightened on the
 first 200 samples (McCormick); the box of a is then narrow, and the later LPs use a smaller relaxation that is
 tight for a narrow box (:func:`_interval_lp`: a_i δx_s = a_i^c δx_s + e, |e| <= r_i Δx_s, without product
@@ -103,13 +103,14 @@ _DEFAULT_SETTINGS = {"solver": "simplex", "simplex_strategy": 1, "presolve": "on
                      "simplex_scale_strategy": 2}
 """Dual simplex with HiGHS's own pricing for every model's first solve. Devex pricing
 (``simplex_dual_edge_weight_strategy`` 1) made one 3000-sample part's 8 LPs 3-28 % faster, but with it a worker
-segfaulted inside HiGHS 1.16 (a stack overflow, like the ``HEkkDualRHS::chooseNormal`` recursion of issue 19) on
-N = 100 000, 8 bits, run 0, which this setting had solved: not used (BENCHMARKS.md)."""
+segfaulted inside HiGHS 1.16 (a stack overflow: the ``HEkkDualRHS::chooseNormal`` recursion of the dual simplex)
+on N = 100 000, 8 bits, run 0, which this setting had solved: not used."""
 _RECOVERY_SETTINGS = (
     {"solver": "simplex", "simplex_strategy": 1, "presolve": "on"},
     {"solver": "simplex", "simplex_strategy": 1, "presolve": "off"},
     # the chained equations of long records have rows of very different size; unscaled dual simplex solved
-    # the bounding LP of issue 19 (N = 10 000, 12 bits) that every scaled setting stopped on with "Solve error"
+    # the bounding LP of benchmark record [2009, 10000, 12, 1] that every scaled setting stopped on with
+    # "Solve error"
     {"solver": "simplex", "simplex_strategy": 1, "presolve": "on", "simplex_scale_strategy": 0},
     {"solver": "ipm", "run_crossover": "off", "presolve": "on"},
     {"solver": "ipm", "run_crossover": "off", "presolve": "off"},
@@ -372,7 +373,7 @@ after postsolve, mostly the same parts pass after pass; on them this setting nee
 whose presolved first solve crashed HiGHS 1.16 (the ``chooseNormal`` recursion) it solved in about a second where
 presolve off with HiGHS's own pricing (steepest edge switching to Devex) failed and its recovery crashed. Not the
 default: at 12 bits it is about 40 % slower on the parts than the presolved solve, which fails there on 3 % of
-them (BENCHMARKS.md, "session 10")."""
+them (measured on the parts of that record at 8 and 12 bits)."""
 
 
 _FROM_BASIS = {"presolve": "off"}
@@ -428,7 +429,7 @@ class _Solver:
         unpresolved = _UNPRESOLVED if self.presolve_failed else {}
         self.base_settings = {**_DEFAULT_SETTINGS, **(first_solve or {}), **unpresolved, **self.fixed_settings}
         self._set(self.base_settings)
-        # A bounded time per attempt: a warm start that stalls on a long record's LP (issue 19: one part of a
+        # A bounded time per attempt: a warm start that stalls on a long record's LP (one part of a
         # 100 000-sample record kept a worker busy for over 15 minutes) goes on to the recovery settings and,
         # at worst, to the fallback bound, instead of holding up the whole record.
         # HiGHS counts its time limit over all runs of one model, so each run sets it from the time used so far.
@@ -1070,7 +1071,7 @@ def _partitioned_bounds(data: _Data, low: NDArray[np.float64], high: NDArray[np.
 
     The relaxations replace a_i δx_s by a set that grows with the width of the box of a_i (McCormick:
     :func:`_coupled_lp`; the interval relaxation: r_i Δx_s per product), so the box that one relaxation gives
-    for the whole box of a is wider than the exact set's (the outer/inner ratio of issue 19: 1.4-2 at 8 bits).
+    for the whole box of a is wider than the exact set's (outer/inner 1.4-2 at 8 bits without the cells).
     Here the box of a is cut into cells; each cell's interval relaxation is tightened over the cell alone (narrower a,
     smaller envelopes), cells whose relaxation is proven empty (certified phase 1) are dropped, and the hull of
     the cells' boxes is the bound. Every feasible point has its a in some cell and satisfies that cell's
@@ -1093,7 +1094,7 @@ def _partitioned_bounds(data: _Data, low: NDArray[np.float64], high: NDArray[np.
             return None
         if not points:
             # HiGHS found the cell's relaxation infeasible, but the certificate cannot prove it: a sliver within
-            # the solver's tolerance. Keeping the cell's box would give the hull the whole box of b (issue 19:
+            # the solver's tolerance. Keeping the cell's box would give the hull the whole box of b (at
             # 96 cells at N = 1000, 8 bits left the bounds as before the partition); the relaxation widened by
             # the tolerance contains the cell's set, so its certified bounds hold (or prove the cell empty).
             widened = _widened(relaxation(data, box_low, box_high))
@@ -1143,7 +1144,7 @@ def _partitioned_bounds(data: _Data, low: NDArray[np.float64], high: NDArray[np.
         # relaxation is about tight: 1e-4 of the width at 15 bits); one that moves it by less than
         # ``relative_improvement`` ends it only once the cells just solved were halved twice along every a_i:
         # one halving leaves a bound to the other axes, so the first refinements may move the hull by little
-        # before the next ones move it by much (N = 100, 8 bits, run 9: b1 0.7 % and 0.3 %, then 3.6 %; issue 19).
+        # before the next ones move it by much (N = 100, 8 bits, run 9: b1 0.7 % and 0.3 %, then 3.6 %).
         # Waiting for the two halvings at every move below the tolerance made N = 1000, 15 bits 5 times slower.
         settled = min(depth for _, _, depth in pending) >= 2 * na
         tiny = moved < 0.1 * relative_improvement and solved > 2 * na and not patient
@@ -1166,8 +1167,8 @@ def _partitioned_bounds(data: _Data, low: NDArray[np.float64], high: NDArray[np.
 
 RELAXATION_GAP_TARGET = 1.1
 """Largest ratio of a parameter's outer interval to the span of its verified inner values that a partitioned
-record is left with when a patient partition can do better (:func:`_closed_relaxation_gap`): the figure issue 19
-asks for at N <= 1000 (above it a tenth of the reported width may be relaxation, not data). A lower target
+record is left with when a patient partition can do better (:func:`_closed_relaxation_gap`): the goal set
+for N <= 1000 (above it a tenth of the reported width may be relaxation, not data). A lower target
 costs time on most records at 8 bits: at 1.05 the median run of N = 100 was partitioned twice (2.4 times the
 CPU) for 1.05 instead of 1.06."""
 
@@ -1299,7 +1300,7 @@ RETRY_SETTINGS = {"solver": "ipm", "run_crossover": "off", "presolve": "on"}
 :meth:`_Solver.minimize` needs). The worker deaths met so far were HiGHS 1.16 overflowing its stack in the dual
 simplex (``HEkkDualRHS::chooseNormal``), which the interior-point method does not run; the solver is
 deterministic, so the same task by the dual simplex would die again (and did, with presolve off: N = 100 000,
-8 bits, run 0, BENCHMARKS.md "Record length, session 4"). It costs about 3 times the simplex on a part."""
+8 bits, run 0 of the record-length benchmark). It costs about 3 times the simplex on a part."""
 
 
 class _GuardedMap:
@@ -1365,7 +1366,7 @@ def _coupled_bounds(data: _Data, low: NDArray[np.float64], high: NDArray[np.floa
                     progress: Progress | None = None, window: int = _WINDOW,
                     joint_samples: int = _JOINT_SAMPLES
                     ) -> tuple[NDArray[np.float64], NDArray[np.float64], int, list[NDArray[np.float64]], _WindowPlan]:
-    """Coupled bounds; records longer than two windows go window by window (Item 1 of issue 19).
+    """Coupled bounds; records longer than two windows go window by window.
 
     1. The McCormick rounds on the first window make the box of a narrow.
     2. Every window (``window`` samples, consecutive ones sharing ``_WINDOW_OVERLAP``) is bounded on the
@@ -1439,8 +1440,8 @@ def _coupled_bounds(data: _Data, low: NDArray[np.float64], high: NDArray[np.floa
     chunk_passes = 0
     # All data jointly: all max_rounds rounds unless nothing moves. Each round maps a box monotonically (a
     # smaller box gives a smaller relaxation) and this box lies inside the one the all-data rounds started
-    # from before issue 19, so after as many rounds it lies inside their result too; stopping at the passes'
-    # tolerance could stop earlier, from a box that is already close. Parts: a fixed point over the parts,
+    # over all the data at once, so after as many rounds it lies inside their result too; stopping at the
+    # passes' tolerance could stop earlier, from a box that is already close. Parts: a fixed point over the parts,
     # one round of each part's relaxation per pass (_PART_ROUNDS), every pass from the intersection of the
     # previous one, each part solving only the bounds still moving that it may decide, until no bound moves or
     # _PART_PASSES passes were run. The box after any pass is a guaranteed outer bound, so the stopping rule
@@ -1548,7 +1549,7 @@ class _TaskBounds:
                    ) -> tuple[list[int], list[NDArray[np.bool_]]]:
         """The tasks to re-solve and, for each, the bounds (the ``wanted`` of :func:`_bounds_over`): a bound
         still ``moving`` whose own value lies within ``margin`` (2p) of the intersection and would reach it
-        with its expected gain. The intersection of a fixed point advances about geometrically (issue 19,
+        with its expected gain. The intersection of a fixed point advances about geometrically (the benchmark's
         N = 100 000, 12 bits: shrinks of 0.64, 0.18, 0.036 per pass over the parts), and so does each task, so
         the expected gain is the task's gain in its last solve times twice the ratio of the intersection's
         last two advances (``advance``: this pass's, per bound), at most that gain; a task solved once may

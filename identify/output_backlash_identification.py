@@ -79,7 +79,7 @@ class OutputBacklashIdentification:
 
     def to_dict(self) -> dict[str, Any]:
         """The ``rig identify output-backlash --json`` document: ``kind`` ``"output_backlash"``, ``version``
-        1, the keys of issue 2 (``backlash`` and ``linear`` intervals, ``method``, ``invertible_samples``,
+        1, the documented keys (``backlash`` and ``linear`` intervals, ``method``, ``invertible_samples``,
         ``samples``; for an empty set ``empty`` and ``explanation``), and the whole result for
         :meth:`from_dict`: ``noise_bound_rad``, ``backlash_set``, ``inner_signal``, ``linear_bounds``."""
         whole = {"noise_bound_rad": number(self.noise_bound_rad), "backlash_set": self.backlash.to_dict(),

@@ -76,7 +76,7 @@ coulomb       load torque: tau = -F_c tanh(v/eps); F_c in [0.03, 0.3] N m, eps =
 gravity       load torque: tau = -m g r sin(theta_l - theta_0); m g r in [0.1, 1.0] N m,
               theta_0 (hanging angle) in [-pi, pi).
 hysteresis    shaft: internal dry friction of the coupling as a Bouc-Wen element in parallel
-              with the spring-damper (the brief asked for "in series"; see README for why):
+              with the spring-damper (a series element was specified; see README for why):
               tau_s = k Delta + c Delta' + T_h w,
               w' = (Delta'/d_h) (1 - |w|^n (beta sgn(Delta' w) + gamma)), beta = gamma = 1/2,
               so w in [-1, 1] and the hysteretic torque T_h w saturates at +-T_h after a

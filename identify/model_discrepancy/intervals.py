@@ -218,7 +218,7 @@ def _feasible_intervals(chain: _Chain, u: NDArray[np.float64], y: NDArray[np.flo
     whole-record gap 1.0003 times the fit's); the feasible slice was [169.74, 171.85] Hz (seed 1006). On the
     hidden-effect benchmark, seeds 1000-1019, the intervals held the truth for 458 of 460 parameters given the
     model (446 without the slice) and 416 of 418 from a fitted start (408), their median widths a few tenths
-    of a per cent of the value wider (resonance 0.2 -> 1.4 %, BENCHMARKS.md, session 14)."""
+    of a per cent of the value wider (resonance 0.2 -> 1.4 %; BENCHMARKS.md, section 5)."""
     fit_error = _free_run_error(chain, u, y)
     allowed = max(consistent_fraction, float(np.mean(np.abs(fit_error) > delta)))
     theta = chain.vector()

@@ -295,8 +295,8 @@ class DiscrepancyReport:
             raise InvalidInputError(f"verdict: expected one of {', '.join(VERDICTS)}, got {self.verdict!r}")
 
     def to_dict(self) -> dict[str, Any]:
-        """``kind``, ``version`` and the keys of issue 6 and issue 15: ``verdict``, ``verdict_reason``,
-        ``noise_bound``, ``missing_effects`` (with ``parameter_intervals``), ``ambiguous_between``,
+        """``kind``, ``version`` and the documented keys of the ``rig diagnose --json`` report: ``verdict``,
+        ``verdict_reason``, ``noise_bound``, ``missing_effects`` (with ``parameter_intervals``), ``ambiguous_between``,
         ``candidates``, ``gap_initial``, ``gap_final``, ``gap_reduction``, ``falsified_fraction_initial``,
         ``falsified_fraction_final``, ``excitation``, ``operating_point``, ``undecided``, ``findings``."""
         return tagged(self.KIND, self.VERSION, {

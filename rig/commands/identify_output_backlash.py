@@ -334,7 +334,7 @@ def _set_aside_document(set_aside, y, options: dict) -> dict:
 
 
 def _document(result, method: str, set_aside: dict | None = None) -> dict:
-    """The ``--json`` object: :meth:`OutputBacklashIdentification.to_dict` (the keys of issue 2, with
+    """The ``--json`` object: :meth:`OutputBacklashIdentification.to_dict` (the documented keys, with
     ``kind`` and ``version``), ``notes`` when a bound fell back (a bounding LP HiGHS could not solve), and
     ``set_aside``: the dynamic record's unusable samples and the equations they took out."""
     assert result.method == method

@@ -264,7 +264,7 @@ def test_a_constant_input_is_refused_with_what_to_do():
 
 
 def test_an_unstable_identified_model_says_so_in_json_and_text(capsys) -> None:
-    """Issue 15, item 7: |p| >= 1 is flagged (``"stable": false`` and a warning line), never printed silently."""
+    """An unstable pole, |p| >= 1, is flagged (``"stable": false`` and a warning line), never printed silently."""
     from pathlib import Path
 
     from identify.plant_blocks import LinearBlock

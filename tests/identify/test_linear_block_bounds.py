@@ -63,8 +63,8 @@ def test_true_parameters_inside_every_bound_and_coupled_inside_paper(n_bit: int)
 
 @pytest.mark.parametrize("n_bit, seed", [(8, 71), (12, 72)])
 def test_partition_of_the_box_of_a_brings_the_outer_bounds_to_the_verified_points(n_bit: int, seed: int) -> None:
-    # Issue 19: at 8 bits the outer interval was 1.25-2 times the span of verified feasible points. The
-    # partition (spatial branch and bound on a) must stay an outer bound, inside the one-relaxation bound,
+    # Without the partition, at 8 bits the outer interval is 1.25-2 times the span of verified feasible points.
+    # The partition (spatial branch and bound on a) must stay an outer bound, inside the one-relaxation bound,
     # and with the verified points (bisection and local steps) come within 10 % of them.
     data, paper = _run(n_bit, seed, "paper")
     inner = paper.inner_signal
@@ -89,7 +89,7 @@ def test_partition_of_the_box_of_a_brings_the_outer_bounds_to_the_verified_point
 
 def test_a_partition_that_stopped_early_is_made_again_until_the_bounds_come_within_a_tenth_of_the_verified_values(
 ) -> None:
-    # Issue 19: the first partition ends on a refinement that moves the hull by under 0.1 %, which the first
+    # The first partition ends on a refinement that moves the hull by under 0.1 %, which the first
     # halvings along one a_i can do before the next move it by much. On 13 of 30 records at 8 bits (seeds 60-89)
     # that left an outer interval over 1.1 times the span of the verified points (seed 61: 1.165 after 6 cells);
     # the verified values show it, and the partition is made again, patient, from the first one's hull.
@@ -225,9 +225,9 @@ def test_interval_relaxation_holds_at_the_truth_and_contains_the_mccormick_one()
 
 
 def test_a_bounding_lp_that_highs_cannot_solve_falls_back_to_a_valid_bound_with_a_note(monkeypatch) -> None:
-    # Issue 19: at N = 10 000, 12 bits (benchmark seed [2009, 10000, 12, 1]) one LP of the full-data relaxation
-    # stopped with "Solve error" under every recovery setting and the user got a traceback. Here every LP that
-    # bounds b2 from above in the coupled rounds "fails" the same way: the result must still contain the truth,
+    # At N = 10 000, 12 bits (benchmark seed [2009, 10000, 12, 1]) one LP of the full-data relaxation
+    # stopped with "Solve error" under every recovery setting, which must not end in a traceback. Here every LP
+    # that bounds b2 from above in the coupled rounds "fails" the same way: the result must still contain the truth,
     # stay inside the paper method's box, and name the parameter.
     import identify.linear_block_bounds as module
 
@@ -257,7 +257,7 @@ def test_a_bounding_lp_that_highs_cannot_solve_falls_back_to_a_valid_bound_with_
 
 
 def _old_all_data_bounds(data, inner):
-    """The coupled bounds as they were before issue 19 (the reference): McCormick rounds on the first 200
+    """The coupled bounds over all the data at once (the reference): McCormick rounds on the first 200
     samples, then rounds of the interval relaxation over all the data."""
     from identify.linear_block_bounds import (LinearModelOrders, _Counter, _interval_lp, _paper_bounds, _prepare,
                                               _subset, _tighten)
@@ -321,8 +321,8 @@ def test_parts_of_a_long_record_run_through_a_map_and_give_the_same_bounds() -> 
 
 
 def test_row_generation_gives_the_paper_bounds_of_the_whole_orthant_lps(monkeypatch) -> None:
-    # Long records bound each orthant's LP on a growing subset of its rows (issue 19: the whole LPs of a
-    # 100 000-sample record took 8.5 CPU-s in one process before the windows could start); here the subset
+    # Long records bound each orthant's LP on a growing subset of its rows (the whole LPs of a
+    # 100 000-sample record take 8.5 CPU-s in one process before the windows could start); here the subset
     # starts at 300 of the 1796 rows of a 900-sample record and must end at the whole LP's bounds.
     import identify.linear_block_bounds as module
 
@@ -371,7 +371,7 @@ def test_a_pass_re_solves_only_the_bounds_still_moving_that_a_task_could_decide(
 
 
 def test_the_passes_over_the_parts_iterate_to_a_fixed_point_that_one_pass_contains(monkeypatch) -> None:
-    # Issue 19: the parts of a long record are solved one round each per pass, every pass from the
+    # The parts of a long record are solved one round each per pass, every pass from the
     # intersection of the previous one, until a pass shrinks no interval by the tightening tolerance. More
     # passes only intersect more valid boxes: never wider than one pass, and the truth stays inside.
     import identify.linear_block_bounds as module
@@ -407,7 +407,7 @@ def _long_record_options(seed: int):
 
 
 def test_a_part_starts_its_next_pass_from_its_last_basis_and_gets_the_bounds_of_a_cold_start(monkeypatch) -> None:
-    # Issue 19: a part's LP keeps its rows and columns from pass to pass, so its next pass starts from its last
+    # A part's LP keeps its rows and columns from pass to pass, so its next pass starts from its last
     # basis (HiGHS's first solve of a 3000-sample part is most of its time). Only the start differs: the
     # certified bounds are those of parts solved from scratch, up to the rounding of the certificates.
     import identify.linear_block_bounds as module
@@ -436,7 +436,7 @@ def test_a_part_starts_its_next_pass_from_its_last_basis_and_gets_the_bounds_of_
 
 
 def test_a_part_whose_presolved_solve_failed_solves_its_next_passes_without_presolve(monkeypatch) -> None:
-    # Issue 19: at N = 100 000, 8 bits, 28 % of the parts' presolved first solves failed ("excessive primal
+    # At N = 100 000, 8 bits, 28 % of the parts' presolved first solves failed ("excessive primal
     # values" after postsolve), mostly the same parts pass after pass, and one crashed HiGHS. Here every
     # presolved solve of a part stops at once (a time limit of zero): each part may pay for it once, not in
     # every pass, and the bounds still contain the truth.
@@ -467,7 +467,7 @@ def test_a_part_whose_presolved_solve_failed_solves_its_next_passes_without_pres
 
 
 def _window_task_whose_joint_parts_kill_their_process(task):
-    """A worker that dies like the one of issue 19 (segfault inside HiGHS), here by SIGKILL."""
+    """A worker that dies as in a segfault inside HiGHS, here by SIGKILL."""
     import os
     import signal
 
@@ -479,7 +479,7 @@ def _window_task_whose_joint_parts_kill_their_process(task):
 
 
 def test_a_worker_process_that_dies_gives_valid_looser_bounds_with_a_note(monkeypatch) -> None:
-    # Issue 19: at N = 100 000, 8 bits, a worker segfaulted inside HiGHS and the user got BrokenProcessPool.
+    # At N = 100 000, 8 bits, a worker can segfault inside HiGHS: no BrokenProcessPool may reach the user.
     # Here every worker that starts a joint part dies: the window bounds must be returned, with a note.
     import multiprocessing
     from concurrent.futures import ProcessPoolExecutor
@@ -511,7 +511,7 @@ def test_a_worker_process_that_dies_gives_valid_looser_bounds_with_a_note(monkey
 
 @pytest.mark.slow
 @pytest.mark.skipif(__import__("os").environ.get("RIG_SLOW") != "1", reason="about a minute: opt-in with RIG_SLOW=1")
-def test_the_issue_19_record_that_stopped_highs_gives_bounds() -> None:
+def test_the_record_that_stopped_highs_gives_bounds() -> None:
     # The benchmark's run 1 at N = 10 000, 12 bits (seed [2009, 10000, 12, 1]): the all-data LP stopped with
     # "HiGHS failed on a bounding LP: Solve error" and a traceback. Now: bounds that contain the truth.
     from identify.excitation_design import filtered_staircase, prbs_sequence, staircase_steady_state_indices
@@ -537,7 +537,7 @@ def test_the_issue_19_record_that_stopped_highs_gives_bounds() -> None:
 
 
 def test_linear_block_bounds_are_built_from_keywords() -> None:
-    # issue 16, item 4: no more 11 positional arguments; the diagnostics default to "none"
+    # keyword fields, not 11 positional arguments; the diagnostics default to "none"
     from identify.feasible_parameter_set import ParameterInterval
     from identify.linear_block_bounds import LinearBlockBounds, LinearModelOrders
 

@@ -115,7 +115,7 @@ JSON_KEYS = {"verdict", "verdict_reason", "noise_bound", "missing_effects", "amb
              "excitation", "operating_point", "undecided", "findings", "kind", "version"}
 
 
-def test_json_document_has_exactly_the_issue_keys():
+def test_json_document_has_exactly_the_documented_keys():
     record = hidden_effect_record(("dead_zone",), 61)
     document = run(record).to_dict()
     assert set(document) == JSON_KEYS
@@ -299,7 +299,7 @@ def test_a_record_in_absolute_angles_runs_freely_from_its_operating_point_not_fr
 
 
 def test_repetitions_of_one_experiment_give_one_answer_with_overlapping_intervals():
-    """Issue 15, item 4 on the simulator: the same plant and command, measured four times with fresh noise."""
+    """Repeatability on the simulator: the same plant and command, measured four times with fresh noise."""
     record = hidden_effect_record(("backlash",), 12)
     clean = record.true_model.simulate(record.command_rad)
     count = 2 * np.pi / 2 ** 12

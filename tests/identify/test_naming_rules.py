@@ -125,7 +125,7 @@ def test_the_unit_rule_sees_constructors_and_methods_and_catches_the_old_names()
             ("plant_blocks.InputBacklash", "initial_output_rad"),
             ("feasible_parameter_set.BacklashFeasibleSet.contains", "c_r_rad"),
             ("hammerstein_subspace.HammersteinModel", "residual_rms_rad")} <= seen
-    # the names issue 16 left behind fail the rule
+    # the names replaced when units joined the names fail the rule
     old = [("OutputBacklash", "c_l"), ("OutputBacklash", "initial_output"), ("InputSwitch", "initial_input"),
            ("ArctanBorder", "input_shift"), ("HammersteinModel", "residual_rms")]
     assert len(_without_unit(old)) == len(old)

@@ -49,7 +49,7 @@ def _same_arrays(first, second) -> None:
 def test_an_output_backlash_result_saved_and_reopened_equals_the_original(result) -> None:
     document = result.to_dict()
     assert document["kind"] == "output_backlash" and document["version"] == 1
-    # the keys of issue 2 stay
+    # the documented keys stay
     assert {"backlash", "linear", "method", "invertible_samples", "samples"} <= set(document)
     back = OutputBacklashIdentification.from_dict(_reopened(document))
     assert back.to_dict() == document

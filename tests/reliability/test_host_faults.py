@@ -1,4 +1,4 @@
-"""Host faults during ``rig run`` on a simulated serial rig (issue 8, "Host"): SIGINT, SIGTERM, SIGKILL, a disk
+"""Host faults during ``rig run`` on a simulated serial rig: SIGINT, SIGTERM, SIGKILL, a disk
 that fills up during the run, and an output path that cannot be written at start.
 
 Defined outcomes (the README's fault table):

@@ -1,5 +1,5 @@
-"""Issue 18, inputs: bounded reads, every CSV layout a user's tool writes (BOM, column order, text columns,
-line ends; refused: duplicate columns, other separators named), time columns checked (holes, milliseconds,
+"""Reliability of the inputs: bounded reads, every CSV layout a user's tool writes (BOM, column order, text
+columns, line ends; refused: duplicate columns, other separators named), time columns checked (holes, milliseconds,
 jitter), a constant output refused, one-line messages that name the file, and the staircase log accepted by
 `rig identify output-backlash --steady`."""
 

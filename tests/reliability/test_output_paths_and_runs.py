@@ -1,5 +1,5 @@
-"""Issue 18, outputs and processes: every output path checked before the work starts (exit 5 naming the path,
-the OS's reason and what to do), inputs never overwritten, a closed pipe and a full stdout, --duration
+"""Reliability of the outputs and processes: every output path checked before the work starts (exit 5 naming
+the path, the OS's reason and what to do), inputs never overwritten, a closed pipe and a full stdout, --duration
 beyond what the runner can start refused up front, --jobs capped, and one message on Ctrl-C of a batch."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Property-based tests (hypothesis) for hostile input to the readers (issue 8, "Bad input").
+"""Property-based tests (hypothesis) for hostile input to the readers.
 
 * Serial decoder (``rig.protocols.serial_frames.FrameDecoder``): arbitrary byte streams never raise and only
   ever yield messages whose frame, CRC included, is on the wire between two delimiters; valid frames after

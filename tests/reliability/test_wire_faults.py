@@ -1,5 +1,5 @@
-"""Wire faults injected into the simulated devices (issue 8, "Faults to inject"), through ``rig run
---sim-faults`` as a user would run them, and their defined outcomes (README, "Faults and outcomes"):
+"""Wire faults injected into the simulated devices through ``rig run --sim-faults``, as a user would run
+them, and their defined outcomes (README, "Faults and outcomes"):
 
 * ridden through: lost feedback (random or in bursts) and line noise (garbage bytes, bit flips) end the
   run normally; every lost sample is flagged LOST in the log and counted, and received + lost = sent;
@@ -285,7 +285,7 @@ def test_error_frames_are_counted_in_the_summary(tmp_path, no_leaks):
     assert summary.frame_errors == 1 and summary.lost == 0
 
 
-# -- the host stalls (issue 14: the device owns the clock) ------------------------------------------------
+# -- the host stalls (the device owns the clock) ---------------------------------------------------------
 
 @pytest.mark.parametrize("kind", ["canopen", "serial", "can"])
 def test_a_host_stall_longer_than_the_lead_costs_held_samples_never_lost_ones(kind, tmp_path, capsys, no_leaks):

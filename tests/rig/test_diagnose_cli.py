@@ -1,4 +1,4 @@
-"""``rig diagnose``: the JSON keys of issue 6 on a hidden-backlash record, the report, and bad input."""
+"""``rig diagnose``: the documented JSON keys on a hidden-backlash record, the report, and bad input."""
 
 from __future__ import annotations
 

@@ -41,10 +41,10 @@ def _args(files, *extra: str) -> list[str]:
             "--noise-bound", repr(NOISE), "--na", "2", "--nk", "1", "--nb", "2", *extra]
 
 
-def test_json_has_exactly_the_issue_keys_and_bounds_contain_the_truth(files, capsys) -> None:
+def test_json_has_exactly_the_documented_keys_and_bounds_contain_the_truth(files, capsys) -> None:
     assert main(_args(files, "--json")) == exit_codes.SUCCESS
     document = json.loads(capsys.readouterr().out)
-    # the keys of issue 2, the kind and version, the whole result for from_dict, and the samples
+    # the documented keys, the kind and version, the whole result for from_dict, and the samples
     # set aside (none here)
     assert set(document) == {"backlash", "linear", "method", "invertible_samples", "samples", "kind", "version",
                              "noise_bound_rad", "backlash_set", "inner_signal", "linear_bounds", "set_aside"}
@@ -154,7 +154,7 @@ def test_long_record_shows_progress_and_says_which_windowing_it_used(long_files,
     assert "overlapping parts of 400 samples jointly" in captured.out
     assert "then the box of a partitioned into cells" in captured.out  # 900 samples <= --partition-samples 1000
     assert "window pass 1: 5/5" in captured.err and "joint relaxation of 3 part(s) of up to 400 samples: 3/3" in captured.err
-    # --json keeps stdout one JSON object: the keys of issue 2 and the result's own; the
+    # --json keeps stdout one JSON object: the documented keys and the result's own; the
     # progress goes to stderr
     assert main(_args(long_files, "--joint-samples", "400", "--partition-samples", "0", "--json")) == exit_codes.SUCCESS
     captured = capsys.readouterr()
@@ -175,9 +175,9 @@ def test_windows_of_one_record_run_in_worker_processes_with_the_same_bounds(long
 
 
 def _window_task_that_dies_in_the_joint_parts(task, retries_too: bool):
-    """A worker dying as in a HiGHS stack overflow in the dual simplex (BENCHMARKS.md, "Record length, session
-    4"), by SIGKILL: in every joint part, or (``retries_too`` False) only in those not solved again by the
-    interior-point method."""
+    """A worker dying as in a HiGHS stack overflow in the dual simplex (BENCHMARKS.md, set-membership
+    bounds against the record length), by SIGKILL: in every joint part, or (``retries_too`` False) only in
+    those not solved again by the interior-point method."""
     import os
     import signal
 

@@ -124,17 +124,17 @@ class FloodingLink(ScriptedDriveLink):
         pass
 
 
-@pytest.mark.parametrize("lead", [1, 16, 250])
-def test_setpoints_are_queued_every_turn_while_ticks_never_stop_arriving(lead):
+@pytest.mark.parametrize("lead_samples", [1, 16, 250])
+def test_setpoints_are_queued_every_turn_while_ticks_never_stop_arriving(lead_samples):
     """The host reads a tick every 1.5 ms while the device ticks every 1 ms: there is always a tick to file.
     The runner still queues setpoints between ticks (bounded work per turn), and the watchdog, fed with the
     time each tick was received, does not trip: the run completes with every row filed."""
-    link = FloodingLink(lead=lead, read_cost_s=1.5e-3, total=600)
+    link = FloodingLink(lead=lead_samples, read_cost_s=1.5e-3, total=600)
     sink = ListSink()
     command = 0.01 * np.sin(np.arange(600) / 20)
     summary = run_experiment(link, command, sink, feedback_timeout_s=0.05, clock=link.link_clock)
     assert summary.samples == 600 and summary.lost == 0
-    assert link.most_receives_without_send <= max(1, lead // 2)
+    assert link.most_receives_without_send <= max(1, lead_samples // 2)
     assert sorted(link.sent) == list(range(600))
     held = np.flatnonzero(np.array([row[4] for row in sink.rows]) & SampleFlag.HELD)
     assert summary.held == held.size > 0  # once the host's lead is used up, its setpoints come too late

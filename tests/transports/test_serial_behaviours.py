@@ -1,5 +1,5 @@
-"""The serial and raw-CAN links against the legal behaviours of real devices (issue 13, "Serial spec gaps"
-and items 2 and 5): lost answers retried, slow answers and fault resets waited for, boot output skipped,
+"""The serial and raw-CAN links against the legal behaviours of real devices (docs/serial_protocol.md,
+sections 5, 6, 9 and 11): lost answers retried, slow answers and fault resets waited for, boot output skipped,
 the error code read, the first command checked against the actual position before enabling, the encoder's
 width and first-reading branch, statusword bit 12."""
 

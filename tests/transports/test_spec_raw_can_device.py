@@ -164,7 +164,7 @@ def test_a_v2_raw_can_fault_is_named_by_rig_fault_and_its_tick_is_the_last_sampl
     assert code == exit_codes.DEVICE_FAULT and "0x2310" in err
     log = read_log(tmp_path / "run.csv")
     # the log ends at the faulted tick; flagged FAULT when the host had queued its setpoint (a host that fell
-    # behind the device, HELD, has no row for it: the runner opens none on the fault, see the report of issue 14)
+    # behind the device, HELD, has no row for it: the runner opens no row on the fault)
     assert len(log.flags) in (60, 61) and (len(log.flags) == 60 or log.flags[60] & SampleFlag.FAULT)
     assert not np.any(log.flags[:60] & (SampleFlag.FAULT | SampleFlag.LOST))
     assert max(spec.ticks) == 60 and spec.controlwords[-2:] == [0x0002, 0x0000]
