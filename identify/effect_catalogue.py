@@ -207,7 +207,8 @@ class Effect:
         torque or a limit (the fold refits all see the same quantised levels and cannot show it).
     look_alikes
         Effects that give the same output on records of ordinary motion though their physics differ (a load
-        torque ~ sin of the angle through the drive, gravity, and a once-per-revolution sensor error): when
+        torque ~ sin of the angle through the drive, gravity, and a once-per-revolution sensor error; an offset
+        and a sensor error over a small range of angles): when
         this effect is named, each look-alike is fitted in its place, and if the two fitted models' outputs
         are within the noise bound of each other on the record, the verdict is ambiguous between them, with
         the experiment that separates them (:data:`LOOK_ALIKE_EXPERIMENTS`; ``_look_alikes_checked`` in
@@ -728,6 +729,7 @@ EFFECTS: dict[str, Effect] = {effect.name: effect for effect in (
                                                     drift_rad_per_s=rng.uniform(-0.01, 0.01),
                                                     sample_period_s=period),
         signature="r ~ o + drift t T",
+        look_alikes=("encoder_error",),
     ),
     Effect(
         name="gain_error", block_class=OutputGain, toml_type="gain",
@@ -765,7 +767,7 @@ EFFECTS: dict[str, Effect] = {effect.name: effect for effect in (
             once_per_rev_rad=rng.uniform(2e-3, 6e-3), once_per_rev_phase_rad=rng.uniform(-math.pi, math.pi),
             twice_per_rev_rad=rng.uniform(0.5e-3, 2e-3), twice_per_rev_phase_rad=rng.uniform(-math.pi, math.pi)),
         signature="r ~ a1 sin(y^ + p1) + a2 sin(2 y^ + p2): the same error at the same angle, at every speed",
-        look_alikes=("gravity",), look_alike_only=True,
+        look_alikes=("gravity", "offset"), look_alike_only=True,
     ),
     Effect(
         name="load_friction", block_class=DriveTrain, toml_type="drive_train",
@@ -869,6 +871,10 @@ LOOK_ALIKE_EXPERIMENTS: dict[frozenset[str], str] = {
         "move slowly through a full revolution in both directions, or at two speeds or with a softer servo: a "
         "sensor error is the same at every speed and servo setting, while a load torque deflects the load more "
         "when the servo is softer and lags at higher acceleration; or read the angle with a second encoder"),
+    frozenset({"offset", "encoder_error"}): (
+        "move through a wider range of angles (a quarter turn or more, in both directions): an offset is the same "
+        "at every angle, while an error that depends on the angle (a sensor error, a load torque, cogging) changes "
+        "with it; over a small range of angles any of them is a constant"),
 }
 """The experiment that tells look-alike effects apart (catalogue ``look_alikes``), for the verdict's reason."""
 

@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from identify.effect_catalogue import EFFECTS, LOOK_ALIKE_EXPERIMENTS
+from identify.effect_catalogue import EFFECTS, LOOK_ALIKE_EXPERIMENTS, SEARCHED_EFFECT_NAMES
 from identify.effect_signatures import SignatureScore, signature_scores
 
 from identify.model_discrepancy.candidates import _Candidate, _insert_index, _without_effect
@@ -491,7 +491,7 @@ def _still_needed(found: _Search, u: NDArray[np.float64], y: NDArray[np.float64]
 def _look_alikes_checked(found: _Search, u: NDArray[np.float64], y: NDArray[np.float64], n_est: int,
                          delta: float, period: float, options: DiagnoseOptions,
                          say: Callable[[str], None]) -> _Search:
-    """Each named effect with look-alikes (catalogue ``look_alikes``: gravity and the encoder error) checked
+    """Each named effect with look-alikes (catalogue ``look_alikes``: gravity, the encoder error, the offset) checked
     against them: the look-alike is fitted in its place (the final model without the effect, plus the
     look-alike, :func:`_try_effect`), and when the two fitted models' free-run outputs are within the noise
     bound of each other on all but ``consistent_fraction`` of the record's measured samples
@@ -505,10 +505,12 @@ def _look_alikes_checked(found: _Search, u: NDArray[np.float64], y: NDArray[np.f
     once-per-revolution sensor error; only fast moves (the servo lags the torque) or a softer servo show the
     difference."""
     named = [step.effect for step in found.steps]
+    whole_catalogue = set(SEARCHED_EFFECT_NAMES) <= set(options.candidates)
     for step in found.steps:
         for alike in EFFECTS[step.effect].look_alikes:
-            if alike in named:
-                continue
+            if alike in named or not (alike in options.candidates
+                                      or (whole_catalogue and EFFECTS[alike].look_alike_only)):
+                continue  # (a search the user restricted to some candidates stays within them)
             reduced = _without_effect(found.chain, step.effect)
             if reduced is None or _insert_index(reduced, alike) < 0:
                 continue
@@ -533,8 +535,8 @@ def _look_alikes_checked(found: _Search, u: NDArray[np.float64], y: NDArray[np.f
             reason = (f"{step.effect} and {alike} give outputs within the noise bound ({delta:.3g} rad) of each "
                       f"other on {100 * (1 - apart):.1f} % of the record once each is fitted (validated gap "
                       f"{found.current.gap_rad:.3g} rad with {step.effect}, {other.gap_rad:.3g} rad with {alike}, "
-                      f"{before.gap_rad:.3g} rad with neither): this record cannot tell a load torque from a sensor "
-                      f"error, so neither is named. To separate them: "
+                      f"{before.gap_rad:.3g} rad with neither): this record cannot tell {step.effect} from "
+                      f"{alike}, so neither is named. To separate them: "
                       f"{LOOK_ALIKE_EXPERIMENTS[frozenset(pair)]}")
             say(f"ambiguous: {reason}")
             at = found.steps.index(step)

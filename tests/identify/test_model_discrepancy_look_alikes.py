@@ -1,5 +1,6 @@
 """Look-alike effects are reported together: a once-per-revolution encoder error and gravity on the load give
-outputs the noise bound cannot separate on records of ordinary motion, and the workflow then names neither,
+outputs the noise bound cannot separate on records of ordinary motion, as an offset and any error that depends
+on the angle do over a small range of angles, and the workflow then names neither,
 lists both and says what experiment would tell them apart. Records of the clean-room generator
 (``benchmarks/independent_plants``, a data source only) and of :mod:`identify.discrepancy_cases`."""
 
@@ -46,6 +47,24 @@ def test_an_encoder_eccentricity_is_not_named_gravity_alone(seed, setting):
     assert "a sensor error is the same at every speed" in result.verdict_reason
 
 
+@pytest.mark.parametrize("effect_name, seed", [("eccentricity", 1000), ("gravity", 1002), ("cogging", 1003)])
+def test_an_angle_dependent_error_over_a_small_motion_is_not_named_an_offset(effect_name, seed):
+    # prbs of +-0.01 rad from rest: the record starts where the effect has moved the angle, and over so small a
+    # range of angles any error that depends on the angle is a constant; each of these was named offset alone
+    result = independent(effect_name, seed, excitation="prbs")
+    assert result.verdict == "ambiguous" and result.missing_effects == (), result.verdict_reason
+    assert set(result.ambiguous_between) == {"offset", "encoder_error"}
+    assert LOOK_ALIKE_EXPERIMENTS[frozenset({"offset", "encoder_error"})] in result.verdict_reason
+
+
+def test_an_offset_over_a_wide_motion_stays_named():
+    # our hidden offset, steps over about 1.6 rad: an error that depends on the angle would change across them
+    record = hidden_effect_record(("offset",), 1000)
+    result = diagnose_model(record.command_rad, record.angle_rad, record.noise_bound_rad, record.sample_period_s,
+                            record.nominal_model)
+    assert result.verdict == "named" and result.missing_effects == ("offset",), result.verdict_reason
+
+
 def test_gravity_the_record_tells_from_a_sensor_error_stays_named():
     # our hidden gravity (a 30 Hz loop, fast steps): the drive lags the torque in the moves, which no sensor
     # error does
@@ -57,8 +76,8 @@ def test_gravity_the_record_tells_from_a_sensor_error_stays_named():
 
 def test_the_encoder_error_is_a_measurement_effect_of_the_catalogue_tried_as_gravitys_look_alike():
     entry = effect("encoder_error")
-    assert entry.placement == "end" and entry.look_alike_only and entry.look_alikes == ("gravity",)
-    assert EFFECTS["gravity"].look_alikes == ("encoder_error",)
+    assert entry.placement == "end" and entry.look_alike_only and entry.look_alikes == ("gravity", "offset")
+    assert EFFECTS["gravity"].look_alikes == ("encoder_error",) and EFFECTS["offset"].look_alikes == ("encoder_error",)
     block = entry.build((3e-3, 4e-3, 0.0, -1e-3), 0.001)
     assert block == EncoderError(5e-3, np.arctan2(4e-3, 3e-3), 1e-3, np.arctan2(-1e-3, 0.0))
     x = np.linspace(-4.0, 4.0, 50)
