@@ -129,16 +129,26 @@ def staircase_steady_points(path: Path):
     """(u, y, description) of the steady-state points of a steady_staircase rig log: at the last sample of
     every half-wave (from the excitation's ``samples_per_half_wave`` and amplitudes in the metadata; a log
     cut or repeated by ``rig run --duration`` has the ends it holds), u is the command there and y the last
-    valid angle in the half-wave's settled tail."""
+    valid angle in the half-wave's settled tail. A half-wave whose whole tail is LOST or unusable is left out
+    and said (a point left out can only widen the feasible set); fewer than two points left is refused."""
     import numpy as np
 
     from rig.log_file import read_experiment_data
 
-    points = staircase_steady_samples(read_experiment_data(path), path)
+    points = staircase_steady_samples(read_experiment_data(path), path, skip_unusable=True)
+    total = points.ends.size + len(points.unusable_ends)
+    if points.ends.size < 2:
+        raise ValueError(f"{path}: {points.ends.size} of the {total} half-waves {'has' if points.ends.size == 1 else 'have'} a usable settled tail (the last "
+                         f"{points.tail} samples of each; the others are all LOST or unusable): at least two steady-"
+                         "state points are needed; record the staircase again")
     moved = int(np.count_nonzero(points.taken != points.ends))
+    left_out = len(points.unusable_ends)
+    lines = ", ".join(str(int(index) + 5) for index in points.unusable_ends[:5]) + (", ..." if left_out > 5 else "")
     description = (f"{points.ends.size} points: the end of each half-wave of {points.samples_per_half_wave} samples "
                    "of the staircase log" + (f", {moved} of them taken up to {points.tail - 1} samples early (the "
-                                             "end sample was lost)" if moved else ""))
+                                             "end sample was lost)" if moved else "")
+                   + (f"; {left_out} half-wave{'s' * (left_out != 1)} left out (line{'s' * (left_out != 1)} {lines}: "
+                      f"{'their' if left_out != 1 else 'its'} whole settled tail LOST or unusable)" if left_out else ""))
     return points.command_rad, points.angle_rad, description
 
 

@@ -375,6 +375,32 @@ def test_a_lost_end_sample_is_taken_from_the_settled_tail(tmp_path):
     assert "1 of them taken up to 9 samples early" in description
 
 
+def test_a_half_wave_whose_whole_settled_tail_is_lost_is_left_out_not_the_whole_log(tmp_path):
+    """A burst of LOST samples over one half-wave's settled tail costs that steady-state point only (leaving a
+    point out can only widen the feasible set): the rest are bounded and the description says which was left
+    out; a log with fewer than two usable points left is refused, saying how many."""
+    from dataclasses import replace
+
+    from identify.experiment_record import SampleFlag
+    from rig.commands.identify_output_backlash import staircase_steady_points
+
+    path = tmp_path / "stair.csv"
+    assert main(["simulate", str(CONFIGS / "plants" / "cerone2009.toml"), "--excitation",
+                 str(CONFIGS / "experiments" / "steady_staircase.toml"), "--out", str(path), "--json"]) == 0
+    record = read_log(path)
+    flags, angle = record.flags.copy(), record.angle_rad.copy()
+    flags[170:230], angle[170:230] = SampleFlag.LOST, np.nan  # the whole tail of the second half-wave (190-199)
+    write_log(path, replace(record, flags=flags, angle_rad=angle))
+    u, y, description = staircase_steady_points(path)
+    assert u.size == 99 and y[1] == record.angle_rad[299]
+    assert "1 half-wave left out (line 204: its whole settled tail LOST or unusable)" in description
+    flags[:], angle[:] = SampleFlag.LOST, np.nan
+    flags[90:100], angle[90:100] = record.flags[90:100], record.angle_rad[90:100]
+    write_log(path, replace(record, flags=flags, angle_rad=angle))
+    with pytest.raises(ValueError, match=r"1 of the 100 half-waves has a usable settled tail"):
+        staircase_steady_points(path)
+
+
 # --- progress -----------------------------------------------------------------------------------------------
 
 def test_diagnose_shows_its_steps_on_a_terminal(tmp_path, capsys, monkeypatch):
