@@ -28,6 +28,7 @@ extensions = [
 
 source_suffix = {".md": "markdown", ".rst": "restructuredtext"}
 root_doc = "index"
+highlight_language = "none"  # literal blocks without a language (config formats, help texts) stay plain
 smartquotes = False  # keep -- and quotes as typed: option names and JSON must read as the shell takes them
 exclude_patterns = ["_build", "Thumbs.db", ".DS_Store"]
 
@@ -46,5 +47,7 @@ napoleon_use_rtype = False
 html_theme = "alabaster"
 html_title = f"gearbox-rig {release}"
 html_theme_options = {"description": "Hardware-in-the-loop gearbox test rig", "fixed_sidebar": True,
-                      "page_width": "1100px", "sidebar_width": "230px"}
+                      "page_width": "1200px", "sidebar_width": "230px"}
 html_sidebars = {"**": ["about.html", "navigation.html", "relations.html", "searchbox.html"]}
+html_static_path = ["_static"]
+html_css_files = ["rig.css"]

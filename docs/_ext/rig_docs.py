@@ -47,7 +47,7 @@ def _paragraphs(text: str) -> list[nodes.Node]:
     for block in re.split(r"\n\s*\n", text.strip("\n")):
         lines = block.splitlines()
         if any(line.startswith(" ") for line in lines[1:]) or any(line.startswith("  ") for line in lines):
-            out.append(nodes.literal_block(block, block))
+            out.append(nodes.literal_block(block, block, language="text"))
         else:
             out.append(nodes.paragraph(text=" ".join(line.strip() for line in lines)))
     return out
@@ -107,7 +107,7 @@ class RigCliDirective(SphinxDirective):
         if summary:
             section += nodes.paragraph(text=summary[0].upper() + summary[1:] + ".")
         usage = parser.format_usage().strip()
-        section += nodes.literal_block(usage, usage)
+        section += nodes.literal_block(usage, usage, language="text")
         if parser.description:
             section.extend(_paragraphs(parser.description))
         arguments = _argument_list(parser)
@@ -128,7 +128,7 @@ class RigCliDirective(SphinxDirective):
                 listing += nodes.list_item("", paragraph)
             section += listing
         if parser.epilog:
-            section += nodes.literal_block(parser.epilog.strip(), parser.epilog.strip())
+            section += nodes.literal_block(parser.epilog.strip(), parser.epilog.strip(), language="text")
         nested: list[nodes.Node] = [section]
         for name, help_text, sub in subcommands:
             nested.extend(self._command_sections(sub, [*words, name], help_text))
