@@ -14,7 +14,7 @@ Format ``rig-log v1`` (a CSV file with a commented header)::
 * pandas: ``pandas.read_csv(path, comment="#")``; numpy:
   ``numpy.genfromtxt(path, delimiter=",", names=True, skip_header=3)`` (the header is always 3 comment
   lines); MATLAB:
-  ``readtable(path, "CommentStyle", "#")``. The metadata line is plain JSON after ``# metadata ``.
+  ``readtable(path, "CommentStyle", "#")``. The metadata line is plain JSON after ``"# metadata "``.
 * Samples are appended one line each and flushed to the OS every ``flush_every`` samples (1 by default) or
   after ``flush_interval_s``; a process killed at any instant leaves every flushed line readable, and a
   torn last line is dropped on reading with a warning. ``close()`` flushes and fsyncs.
