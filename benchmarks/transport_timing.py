@@ -22,7 +22,8 @@ Per row: samples, lost (goal 0), held (setpoints that missed the device's instan
 lead of a setpoint over its instant, late samples, CPU per 1000 samples, the CAN bus load, and who stalled:
 the longest gap between two rows the runner filed (a pause of the host, stalls included, or a silence of
 the device) and the longest garbage collection of the driver's process during the run. Every wire runs
-on the device's clock with the default lead (100 ms): ``canopen`` with the default ``mode = "auto"``,
+on the device's clock with its default lead (CANopen 100 ms; serial and raw CAN as their configs and the
+device's buffer allow, the lead column of the hog table): ``canopen`` with the default ``mode = "auto"``,
 which streams interpolated position into the simulated drive's 64-record buffer (the lead sits in the
 drive, at most the buffer less 2 records); ``canopen-csp`` forces cyclic synchronous position (one target
 per SYNC, on the bus right after the SYNC before it: under one period of lead on the bus); ``serial`` and

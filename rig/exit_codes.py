@@ -1,4 +1,4 @@
-"""Exit codes of the ``rig`` command (documented in README.md, section "Exit codes")."""
+"""Exit codes of the ``rig`` command (documented in docs/reference/exit_codes.md and the README)."""
 
 SUCCESS = 0
 UNEXPECTED_ERROR = 1

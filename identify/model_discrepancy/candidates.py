@@ -31,7 +31,7 @@ from identify.model_discrepancy.thresholds import (
 
 def _candidate_names(candidates: Sequence[str], model: PlantModel | None) -> tuple[str, ...]:
     """The candidates to try: a fitted linear start model has a free static gain, which absorbs any scale
-    error, so an effect that needs a given model is not identifiable against it (README: a gain error can
+    error, so an effect that needs a given model is not identifiable against it (docs/methods/model_discrepancy.md: a gain error can
     only be named against a given model)."""
     if model is None:
         return tuple(name for name in candidates if not EFFECTS[name].needs_given_model)

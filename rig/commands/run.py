@@ -53,18 +53,19 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--sim-faults", metavar="SPEC", default=None,
                         help="simulated rigs only: inject wire faults, e.g. 'drop=0.001,burst=20@500' or "
                              "'fault=0x2310@300' (all wires), 'heartbeat@400' (canopen), 'garbage=0.01', "
-                             "'bitflip=0.001', 'unplug@400' (serial); see README, Faults and outcomes")
+                             "'bitflip=0.001', 'unplug@400' (serial); see docs/reference/faults.md")
     parser.add_argument("--sim-faults-seed", metavar="N", type=int, default=0,
                         help="seed of the random faults (default 0): the same seed repeats the same faults")
     parser.add_argument("--live", action="store_true",
                         help="show the command, the load angle and the lost/held counters as the run goes: a "
                              "matplotlib window when there is a display, else a text plot on stderr; the view "
                              "drops frames when it falls behind, never samples")
+    from rig.runner import RunSummary
+
+    keys = ", ".join(f'"{name}"' for name in ("log", *RunSummary.SAVED))
     parser.add_argument("--json", action="store_true",
-                        help='print the run summary as JSON: {"kind": "run_summary", "version": 2, "log", "samples", '
-                             '"lost", "late", "rate_hz", "held", "min_lead_s", "not_followed", "duplicate", '
-                             '"frame_errors", "warnings", "stop", "stale", "cpu_s", "wall_s", "send_lateness_p50_s", '
-                             '"send_lateness_p99_s", "send_lateness_max_s"} (rig report reads it)')
+                        help=f'print the run summary as JSON: {{"kind": "{RunSummary.KIND}", "version": '
+                             f'{RunSummary.VERSION}, {keys}}} (rig report reads it)')
     parser.set_defaults(handler=run)
 
 

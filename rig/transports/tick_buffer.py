@@ -3,8 +3,8 @@
 
 Such a device applies setpoint k at its own tick k. A setpoint that reaches it after tick k is dropped there,
 and the device holds the target it applied last (HELD, spec 16.3). After a host stall that target lags the
-plan, and the first setpoint the device takes again must not jump from it to the plan (README, "Safety"; as
-CANopen CSP, :meth:`~rig.transports.base.Transport._toward_plan` is the one rule). :class:`TickBuffer` keeps
+plan, and the first setpoint the device takes again must not jump from it to the plan
+(docs/reference/faults.md, "Safety"; as CANopen CSP, :meth:`~rig.transports.base.Transport._toward_plan` is the one rule). :class:`TickBuffer` keeps
 what the host knows of the device's clock and of the targets it may hold, and places each setpoint:
 
 * not at all for a tick the device has reported (spec 16.3: it would drop it; the setpoint only costs line
