@@ -308,6 +308,14 @@ class HammersteinModel:
         """(numerator, denominator) of G, coefficients of q^0, q^-1, ..., q^-n; denominator[0] = 1."""
         return _state_space_to_tf(self.A, self.B, self.C, self.D)
 
+    def to_control(self, sample_period_s: float | bool = True) -> Any:
+        """G(q) as python-control's discrete-time ``TransferFunction``, with sample time ``sample_period_s``
+        (the record's; True: discrete, period unspecified). Needs ``pip install control``."""
+        from identify.control_systems import discrete_transfer_function
+
+        numerator, denominator = self.transfer_function
+        return discrete_transfer_function(numerator, denominator, sample_period_s, "HammersteinModel.to_control()")
+
     @property
     def static_gain(self) -> float:
         """G(1) = D + C (I - A)^-1 B; 1 by construction (A.2)."""

@@ -178,6 +178,14 @@ class LinearBlock:
         b = list(self.b) + [0.0] * (order - len(self.b))
         return a, b
 
+    def to_control(self) -> Any:
+        """This block as python-control's discrete-time ``TransferFunction`` (sample time
+        :attr:`sample_period_s`; needs ``pip install control``)."""
+        from identify.control_systems import discrete_transfer_function
+
+        a, b = self._padded()
+        return discrete_transfer_function(b, a, self.sample_period_s, "LinearBlock.to_control()")
+
     def apply(self, signal: ArrayLike) -> NDArray[np.float64]:
         """Filter a whole signal from rest (direct form II transposed, as :func:`scipy.signal.lfilter`)."""
         u = as_signal("signal", signal)

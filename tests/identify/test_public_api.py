@@ -99,3 +99,38 @@ def test_to_pandas_without_pandas_says_what_to_install(monkeypatch):
     with pytest.raises(ImportError, match=r"ExperimentRecord\.to_pandas\(\) needs pandas, which is not installed: "
                                           r"pip install pandas"):
         _record().to_pandas()
+
+
+def test_linear_dynamics_convert_to_python_control_with_the_same_response():
+    """The field's linear-systems library takes our linear parts as they are: the same step response as our
+    own simulation, the same frequency response, the sample time kept."""
+    control = pytest.importorskip("control")
+    from identify import PathNodes, cyclic_random_excitation, identify_hammerstein
+    from identify.plant_blocks import LinearBlock, PlantModel, pouliquen2013_backlash
+
+    block = LinearBlock(a=(0.5, 0.7), b=(0.0, 1.4, 0.8), sample_period_s=0.002)  # Cerone et al. (2009), eq. (8)
+    system = block.to_control()
+    assert isinstance(system, control.TransferFunction) and system.dt == 0.002
+    u = np.sin(0.3 * np.arange(200))
+    response = control.forced_response(system, T=np.arange(200) * 0.002, U=u)
+    np.testing.assert_allclose(np.ravel(response.outputs), block.apply(u), rtol=0, atol=1e-12)
+    assert control.dcgain(system) == pytest.approx(block.static_gain, abs=1e-12)
+
+    rng = np.random.default_rng(4)
+    excitation = cyclic_random_excitation(1500, -3.0, 3.0, 100, rng=rng)
+    y = PlantModel((pouliquen2013_backlash(), LinearBlock(a=(-1.8858, 0.9048), b=(0.0, 0.1994, -0.1804),
+                                                         sample_period_s=1.0))).simulate(excitation)
+    model = identify_hammerstein(excitation, y, PathNodes.uniform(-3.0, 3.0, 8), hold_samples=100)
+    identified = model.to_control(1.0)
+    omega = np.array([0.01, 0.1, 1.0])
+    np.testing.assert_allclose(np.ravel(identified(np.exp(1j * omega))), model.frequency_response(omega),
+                               rtol=1e-9)
+
+
+def test_to_control_without_python_control_says_what_to_install(monkeypatch):
+    from identify.plant_blocks import LinearBlock
+
+    monkeypatch.setitem(sys.modules, "control", None)
+    with pytest.raises(ImportError, match=r"LinearBlock\.to_control\(\) needs python-control, which is not "
+                                          r"installed: pip install control"):
+        LinearBlock(a=(0.5,), b=(1.0,), sample_period_s=1.0).to_control()
