@@ -352,7 +352,7 @@ def _hammerstein_section(result: ResultFile, sample_period_s: float | None, used
 
 
 def _diagnose_section(result: ResultFile, used: set[str]):
-    from rig.commands.diagnose import VERDICT_WORDS
+    from rig.plots.discrepancy import diagnosis_summary, verdict_heading
     from rig.report import ReportFigure, ReportSection
 
     report = result.content
@@ -370,11 +370,8 @@ def _diagnose_section(result: ResultFile, used: set[str]):
     fractions = (f" Samples outside the noise bound: {100 * report.falsified_fraction_initial:.1f} % before, "
                  f"{100 * report.falsified_fraction_final:.1f} % after.")
     named = ", ".join(step.effect for step in steps) or "none"
-    reason = report.verdict_reason
-    text = (f"{result.name}: verdict {VERDICT_WORDS.get(report.verdict, report.verdict)}"
-            f"{': ' + reason if reason else ''}. Missing effects named, in order: {named}. Free-run RMS error on "
-            f"the validation segment {gap_initial:.4g} rad before, {gap_final:.4g} rad after.{fractions}"
-            f"{_undecided_text(report)}{_candidates_text(report)}")
+    text = (f"{result.name}: {diagnosis_summary(report)} Free-run RMS error on the validation segment "
+            f"{gap_initial:.4g} rad before, {gap_final:.4g} rad after.{fractions}")
     labels = ["start model"] + [f"+ {step.effect}" for step in steps]
     gaps = [gap_initial] + [step.gap_after_rad for step in steps]
 
@@ -392,7 +389,7 @@ def _diagnose_section(result: ResultFile, used: set[str]):
                f"each effect added ({named}); the gap went from {gap_initial:.4g} to {gap_final:.4g} rad "
                f"({reduction:.0f} % smaller). Look for each added effect lowering the bar clearly; a last bar still far "
                "above the noise level means something is still unexplained.")
-    return ReportSection(f"Model discrepancy: {result.name}", text=text,
+    return ReportSection(f"Model discrepancy: {result.name}, {verdict_heading(report)}", text=text,
                          table_header=("missing effect", "parameters", "gap before [rad]", "gap after [rad]"),
                          table_rows=rows, figures=(ReportFigure(f"{slug}_gap", caption, draw, size_in=(6.5, 3.5)),))
 
@@ -419,24 +416,6 @@ def _run_summary_section(result: ResultFile):
             "the loop timing.")
     return ReportSection(f"Run: {result.name}", text=text, table_header=("quantity", "value"), table_rows=tuple(rows))
 
-
-def _undecided_text(report) -> str:
-    """The candidates whose gap reduction straddles the acceptance (an ambiguous verdict after the effects
-    named, if any), with their numbers; empty when there are none."""
-    if not report.undecided:
-        return ""
-    after = (f" after {', '.join(step.effect for step in report.missing_effects)}" if report.missing_effects else "")
-    words = "; ".join(f"{c.effect} {c.reduction_text()}" for c in report.undecided)
-    return (f" Undecided{after}, not named (gap reduction within its uncertainty around the acceptance): "
-            f"{words}.")
-
-
-def _candidates_text(report) -> str:
-    """The first round's candidates with their validated gaps, best first."""
-    ranked = sorted((c for c in report.candidates if c.round == 0), key=lambda c: c.penalised_gap_rad)
-    words = "; ".join(f"{c.effect} {c.gap_rad:.3g} +- {c.gap_uncertainty_rad:.2g} rad"
-                      + (" (vanished)" if c.vanished else "") for c in ranked)
-    return f" Candidates tried first, with their validated gaps: {words}." if words else ""
 
 
 def _errors_section(results: list[ResultFile]):

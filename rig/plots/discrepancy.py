@@ -10,7 +10,7 @@ from numpy.typing import NDArray
 
 from identify.border_lifting import direction_signal
 from identify.effect_signatures import delay_regressor
-from identify.model_discrepancy import DiscrepancyResult, DiscrepancyStep
+from identify.model_discrepancy import DiscrepancyReport, DiscrepancyResult, DiscrepancyStep
 from rig.report import ReportFigure, ReportSection, write_report
 
 
@@ -157,12 +157,60 @@ def signature_figure(step: DiscrepancyStep, number: int, residual_rad: NDArray[n
         draw)
 
 
+def verdict_heading(report: DiscrepancyReport) -> str:
+    """The verdict of a diagnosis as a page heading says it: ``AMBIGUOUS between gravity and offset``,
+    ``NAMED backlash``, ``EXPLAINED``, ... (never a heading a verdict contradicts)."""
+    word = report.verdict.replace("_", " ").upper()
+    if report.verdict == "ambiguous" and report.ambiguous_between:
+        listed = list(report.ambiguous_between)
+        return f"{word} between {', '.join(listed[:-1])} and {listed[-1]}" if len(listed) > 1 else f"{word}: {listed[0]}"
+    if report.missing_effects:
+        return f"{word} {', '.join(step.effect for step in report.missing_effects)}"
+    return word
+
+
+def diagnosis_summary(report: DiscrepancyReport) -> str:
+    """The verdict in words with its reason, the effects named, the undecided candidates and the first round's
+    candidates: one text for every page that shows a diagnosis (``rig diagnose --report``, ``rig report``)."""
+    from rig.commands.diagnose import VERDICT_WORDS
+
+    named = ", ".join(step.effect for step in report.missing_effects) or "none"
+    reason = report.verdict_reason
+    return (f"Verdict {VERDICT_WORDS.get(report.verdict, report.verdict)}{': ' + reason if reason else ''}. "
+            f"Missing effects named, in order: {named}.{_undecided_text(report)}{_candidates_text(report)}")
+
+
+def _undecided_text(report) -> str:
+    """The candidates whose gap reduction straddles the acceptance (an ambiguous verdict after the effects
+    named, if any), with their numbers; empty when there are none."""
+    if not report.undecided:
+        return ""
+    after = (f" after {', '.join(step.effect for step in report.missing_effects)}" if report.missing_effects else "")
+    words = "; ".join(f"{c.effect} {c.reduction_text()}" for c in report.undecided)
+    return (f" Undecided{after}, not named (gap reduction within its uncertainty around the acceptance): "
+            f"{words}.")
+
+
+def _candidates_text(report) -> str:
+    """The first round's candidates with their validated gaps, best first."""
+    ranked = sorted((c for c in report.candidates if c.round == 0), key=lambda c: c.penalised_gap_rad)
+    words = "; ".join(f"{c.effect} {c.gap_rad:.3g} +- {c.gap_uncertainty_rad:.2g} rad"
+                      + (" (vanished)" if c.vanished else "") for c in ranked)
+    return f" Candidates tried first, with their validated gaps: {words}." if words else ""
+
+
 def discrepancy_section(result: DiscrepancyResult, command_rad: NDArray[np.float64], angle_rad: NDArray[np.float64],
                         sample_period_s: float, source: str = "") -> ReportSection:
     """The report section of one diagnosis: the table of added effects and every figure."""
     time_s = np.arange(command_rad.size) * sample_period_s
+    report = result.report()
+
+    def shown(effect: str, key: str, value: float) -> str:
+        interval = result.parameter_intervals.get(effect, {}).get(key)
+        return f"{key} = {value:.4g}" + (f" [{interval[0]:.4g}, {interval[1]:.4g}]" if interval is not None else "")
+
     rows = tuple(
-        (str(number), step.effect, ", ".join(f"{k} = {v:.4g}" for k, v in step.parameters.items()),
+        (str(number), step.effect, ", ".join(shown(step.effect, k, v) for k, v in step.parameters.items()),
          f"{step.gap_before_rad:.4g}", f"{step.gap_after_rad:.4g}", f"{100 * step.falsified_fraction_after:.1f}")
         for number, step in enumerate(result.steps, 1)
     )
@@ -174,6 +222,7 @@ def discrepancy_section(result: DiscrepancyResult, command_rad: NDArray[np.float
         simulated = step.model.simulate(command_rad)
         residual = angle_rad - simulated
     text = (
+        f"{diagnosis_summary(report)}\n\n"
         f"Data {source}: {command_rad.size} samples; the fits use the first {result.estimation_samples}, the gaps "
         f"(RMS free-run error) are measured on the rest. Noise bound {result.noise_bound_rad:.4g} rad. "
         f"Gap {result.initial.gap_rad:.4g} rad -> {result.final.gap_rad:.4g} rad; falsified samples "
@@ -181,8 +230,8 @@ def discrepancy_section(result: DiscrepancyResult, command_rad: NDArray[np.float
         f"{result.unexplained[0].upper()}{result.unexplained[1:]}."
     )
     section = ReportSection(
-        "Missing effects" if result.steps else "No missing effect found", text,
-        ("step", "effect", "parameters", "gap before [rad]", "gap after [rad]", "falsified after [%]"), rows,
+        f"Model discrepancy: {verdict_heading(report)}", text,
+        ("step", "effect", "parameters [interval]", "gap before [rad]", "gap after [rad]", "falsified after [%]"), rows,
         tuple(figures))
     return section
 

@@ -50,6 +50,34 @@ def test_json_names_the_hidden_backlash_and_writes_the_report(files, capsys):
     assert index.is_file() and missing_images(index) == []
     page = index.read_text()
     assert "backlash" in page and "signature_1_backlash.png" in page
+    assert "Model discrepancy: NAMED backlash" in page and "Verdict NAMED" in page
+    low, high = document["missing_effects"][0]["parameter_intervals"]["c_l_rad"]
+    assert f"c_l_rad = {parameters['c_l_rad']:.4g} [{low:.4g}, {high:.4g}]" in page  # each value with its interval
+
+
+def test_the_report_page_is_headed_by_an_ambiguous_verdict_never_by_no_missing_effect(tmp_path, capsys):
+    """An ambiguous diagnosis (an offset or an angle-dependent sensor error over a small motion) is said on
+    the page as on stdout: its heading and first words carry the verdict and the candidates."""
+    from identify.plant_blocks import LinearBlock
+
+    nominal = LinearBlock(a=(-1.73691838, 0.76805512), b=(0.0, 0.01625312, 0.01488362), sample_period_s=0.001)
+    small = 0.01 * np.sign(np.sin(np.arange(3000) / 37.0))  # +-0.01 rad from rest
+    angle = nominal.apply(small) + 0.004 + np.random.default_rng(1).uniform(-2e-4, 2e-4, small.size)
+    data = tmp_path / "small.csv"
+    data.write_text("t,u,y\n" + "".join(f"{0.001 * k!r},{u!r},{y!r}\n" for k, (u, y) in
+                                         enumerate(zip(small.tolist(), angle.tolist()))))
+    model = tmp_path / "nominal.toml"
+    model.write_text(NOMINAL_TOML)  # the same block
+    report = tmp_path / "report"
+    assert main(["diagnose", str(data), "--model", str(model), "--noise-bound", "0.001", "--json", "--report",
+                 str(report)]) == exit_codes.SUCCESS
+    document = json.loads(capsys.readouterr().out)
+    between = document["ambiguous_between"]
+    assert document["verdict"] == "ambiguous" and "offset" in between and len(between) == 2
+    page = (report / "index.html").read_text()
+    assert "No missing effect found" not in page
+    assert f"Model discrepancy: AMBIGUOUS between {between[0]} and {between[1]}" in page
+    assert "Verdict AMBIGUOUS" in page
 
 
 def test_text_output_names_the_effect(files, capsys):
