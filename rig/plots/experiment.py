@@ -141,8 +141,12 @@ def timing_figure(record: ExperimentRecord, name: str, *, lead_s: float | None =
                f"spacing carries no jitter to plot; drawn instead are the samples flagged as not taken at their "
                f"instant with their own setpoint: {flagged_total} of {len(record)} ("
                + ", ".join(f"{counts[flag]} {flag.name}" for flag in TIMING_FLAGS if counts[flag])
-               + ("" if flagged_total else "none") + f").{lead_text} Look for no HELD or LATE samples"
-               + (" and a smallest lead well above 0." if "smallest lead" in leads_ms else "."))
+               + ("" if flagged_total else "none") + f").{lead_text} "
+               + (f"These {flagged_total} samples are set aside by the analysis commands (their rows do not carry "
+                  "the command applied at the sample's own instant, or carry none); a run on a quieter host, with "
+                  "a longer lead, shows none." if flagged_total else
+                  "Every sample was taken at its instant with its own setpoint.")
+               + (" A smallest lead well above 0 leaves room for host stalls." if "smallest lead" in leads_ms else ""))
     return ReportFigure(name, caption, draw, size_in=(8.0, 1.6 + 0.3 * len(rows)))
 
 
@@ -220,8 +224,10 @@ def runs_timing_figure(runs: Sequence[RunTiming], name: str) -> ReportFigure:
                f"k·T, so its spacing carries no jitter to plot; left, the samples flagged as not taken at their "
                "instant with their own setpoint (HELD, LATE, LOST ...) over each run; right, how far ahead of its "
                "instant each setpoint was queued and the smallest lead seen (below 0 the setpoint missed its "
-               f"instant and the sample is HELD). {'; '.join(lines)}. Look for no ticks on the left and smallest "
-               "leads well above 0 on the right.")
+               f"instant and the sample is HELD). {'; '.join(lines)}. "
+               + ("Each tick on the left is a sample the analysis commands set aside; a clean run has none, and a "
+                  "smallest lead well above 0 leaves room for host stalls." if any(sum(c.values()) for c in counts)
+                  else "No run has a flagged sample; a smallest lead well above 0 leaves room for host stalls."))
     return ReportFigure(name, caption, draw, size_in=(9.0, 1.2 + 0.55 * len(runs)))
 
 
@@ -247,5 +253,7 @@ def _period_deviation_figure(record: ExperimentRecord, name: str) -> ReportFigur
 
     return ReportFigure(
         name, f"Measured sample periods (the time column is not the nominal grid k·T) against the nominal "
-        f"{nominal_s * 1e3:g} ms: p99 |deviation| = {p99:.3g} us, {late} late samples. Look for a narrow band "
-        "around zero and no late samples.", draw)
+        f"{nominal_s * 1e3:g} ms: p99 |deviation| = {p99:.3g} us, {late} late samples"
+        + (" (red: taken further from their instant than the late tolerance, and flagged LATE)." if late else
+           ": every period within the late tolerance.")
+        + " A narrow band around zero is a steady loop.", draw)

@@ -103,3 +103,20 @@ def test_the_timing_of_several_runs_shows_each_run_s_flags_and_leads():
     queued = [bar.get_width() for bar in lead_axes.patches[:3]]
     smallest = [bar.get_width() for bar in lead_axes.patches[3:]]
     assert queued == pytest.approx([100.0, 100.0, 0.0]) and smallest == pytest.approx([15.8, -2.0])
+
+
+def test_a_timing_caption_says_what_its_figure_shows():
+    """The caption is computed from the log it describes: with flagged samples it counts them and says they
+    are set aside, never 'look for none'; without, it says every sample was taken at its instant."""
+    from rig.plots.experiment import RunTiming, runs_timing_figure
+
+    flagged = make_record(np.cumsum(np.full(200, 1e-3)) - 1e-3)
+    caption = timing_figure(flagged, "timing", lead_s=0.1, min_lead_s=0.0973).caption
+    assert "4 of 200" in caption and "These 4 samples are set aside" in caption and "Look for no" not in caption
+    clean = ExperimentRecord(flagged.time_s, flagged.command_rad, np.sin(flagged.time_s), None,
+                             np.zeros(len(flagged), dtype=np.uint8), flagged.metadata)
+    assert "Every sample was taken at its instant" in timing_figure(clean, "timing", lead_s=0.1).caption
+    several = runs_timing_figure([RunTiming("cyclic", flagged, 0.1, -0.002)], "timing").caption
+    assert "Look for no ticks" not in several and "set aside" in several
+    measured = make_record(np.arange(200) * 1e-3 + np.r_[0.0, np.full(199, 2e-6)])
+    assert "3 late samples (red:" in timing_figure(measured, "timing").caption
