@@ -60,6 +60,7 @@ from __future__ import annotations
 
 import collections
 import math
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -69,6 +70,7 @@ from identify.experiment_record import ExperimentMetadata, ExperimentRecord, Sam
 from rig.protocols import cia402
 from rig.protocols.cia402 import DriveState, state_from_statusword_or_none
 from rig.protocols.errors import ConfigError, LogFileError
+from rig.protocols.pdo_mapping import MappedObject, Pdo, PdoMapping, mapping_from_dcf, mapping_from_sdo_writes
 from rig.protocols.serial_frames import unwrap_seq
 from rig.runner import answer_window_cycles
 from rig.signal_files import check_input_file
@@ -104,9 +106,10 @@ def _frames(path: Path) -> Any:
                            f"{type(err).__name__}: {err}; the trace is damaged") from None
 
 
-def import_trace(trace: str | Path, config: Any) -> ExperimentRecord:
+def import_trace(trace: str | Path, config: Any, *, dcf: Mapping[int, str | Path] | None = None) -> ExperimentRecord:
     """The rig log of the run captured in ``trace`` on the rig of ``config`` (a loaded rig config); raw CAN
-    or CANopen by the config's transport."""
+    or CANopen by the config's transport. ``dcf``: CANopen, the DCF (or EDS) file of each node by node-ID, whose
+    PDO mapping decodes a trace that starts after the start-up's SDO writes."""
     path = check_input_file(trace, f"a CAN trace ({', '.join(TRACE_SUFFIXES)})")
     if path.suffix.lower() not in TRACE_SUFFIXES:
         raise LogFileError(f"{path}: unknown trace suffix {path.suffix or '(none)'!r}; expected "
@@ -114,7 +117,7 @@ def import_trace(trace: str | Path, config: Any) -> ExperimentRecord:
     if config.scheme == "can":
         return _import_raw_can(path, config)
     if config.scheme == "canopen":
-        return _import_canopen(path, config)
+        return _import_canopen(path, config, dcf)
     raise ConfigError(config.source, "transport.url", f"the {config.scheme} transport has no CAN frames: a trace "
                       "is imported for can:// and canopen:// rigs")
 
@@ -288,7 +291,7 @@ def _streams_interpolated_position(path: Path, link: Any, mode_written: int | No
 
 
 def _ip_origin(frames: list[tuple[float, int, Any]], sync_id: int, rpdo_id: int, drive_node: int,
-               latency: int) -> int | None:
+               latency: int, status_pdo: Pdo) -> int | None:
     """The count of sample 0's SYNC in interpolated position, by the transport's rule: where the drive
     answered the SDO write of controlword bit 4 (enable ip mode) before a SYNC passed after the request, the
     SYNC after its answer (the bus order alone); otherwise the first SYNC after the first record whose drive
@@ -308,11 +311,17 @@ def _ip_origin(frames: list[tuple[float, int, Any]], sync_id: int, rpdo_id: int,
             answered_at = syncs
             if answered_at == enabled_at:
                 return answered_at + 1
-        elif cob == 0x180 + drive_node and first_record and len(data) >= 2:
+        elif cob == status_pdo.cob_id and first_record:
+            values = status_pdo.decode(data)
             answers = syncs - latency
-            if answers > max(first_record, 0) and int.from_bytes(data[:2], "little") & cia402.STATUSWORD_IP_MODE_ACTIVE:
+            if values is not None and answers > max(first_record, 0) \
+                    and values[STATUSWORD] & cia402.STATUSWORD_IP_MODE_ACTIVE:
                 return answers
     return None
+
+
+def _signed32(raw: int) -> int:
+    return raw - (1 << 32) if raw >= 1 << 31 else raw
 
 
 def _writes_ip_enable(data: bytes) -> bool:
@@ -321,24 +330,82 @@ def _writes_ip_enable(data: bytes) -> bool:
             and int.from_bytes(data[4:6], "little") & 0x10 != 0)
 
 
-def _import_canopen(path: Path, config: Any) -> ExperimentRecord:
-    """SYNC + RPDO1 + TPDOs (the mapping the transport sets up: drive TPDO1 0x6041 + 0x6064, drive TPDO2
-    0x6062 where the EDS has it, encoder TPDO1 0x6004), each TPDO filed under the last SYNC before its time
-    stamp, as :mod:`rig.transports.canopen_link` files them; frames are taken in time-stamp order."""
+STATUSWORD, POSITION_ACTUAL, POSITION_DEMAND, TARGET_POSITION = (0x6041, 0), (0x6064, 0), (0x6062, 0), (0x607A, 0)
+INTERPOLATION_RECORD, ENCODER_POSITION = (0x60C1, 1), (0x6004, 0)
+"""The objects the import reads (CiA 402: statusword, position actual value, position demand value, target
+position, interpolation data record 1; CiA 406: position value)."""
+
+
+def _our_mapping(drive_node: int, encoder_node: int) -> PdoMapping:
+    """The PDOs :mod:`rig.transports.canopen_link` sets up: drive RPDO1 (the target, or the interpolation record)
+    and RPDO2 (a hold record), drive TPDO1 0x6041 + 0x6064 and TPDO2 0x6062, encoder TPDO1 0x6004."""
+    def pdo(node: int, receive: bool, number: int, *objects: tuple[int, int, int]) -> Pdo:
+        cob_id = (0x200 if receive else 0x180) + 0x100 * (number - 1) + node
+        return Pdo(node, receive, number, cob_id, tuple(MappedObject(*entry) for entry in objects))
+
+    pdos = (pdo(drive_node, True, 1, (0x607A, 0, 32)), pdo(drive_node, True, 2, (0x60C1, 1, 32)),
+            pdo(drive_node, False, 1, (0x6041, 0, 16), (0x6064, 0, 32)), pdo(drive_node, False, 2, (0x6062, 0, 32)),
+            pdo(encoder_node, False, 1, (0x6004, 0, 32)))
+    return PdoMapping({p.cob_id: p for p in pdos}, "the mapping this program's master sets up")
+
+
+def _canopen_mapping(path: Path, frames: list[tuple[float, int, Any]], drive_node: int, encoder_node: int,
+                     dcf: Mapping[int, str | Path] | None) -> PdoMapping:
+    """The PDO mapping of the captured run: from the DCFs given, else from the SDO writes of the trace's
+    start-up, else the one this program's master sets up."""
+    if dcf:
+        try:
+            return mapping_from_dcf(dcf)
+        except ValueError as err:
+            raise LogFileError(str(err)) from None
+    written = mapping_from_sdo_writes(((message.arbitration_id, bytes(message.data)) for _, _, message in frames),
+                                      f"the SDO writes in {path}")
+    return written if written is not None else _our_mapping(drive_node, encoder_node)
+
+
+def _import_canopen(path: Path, config: Any, dcf: Mapping[int, str | Path] | None = None) -> ExperimentRecord:
+    """SYNC + the drive's target RPDO + TPDOs, decoded by the PDO mapping of the run (:func:`_canopen_mapping`:
+    another master's too), each TPDO filed under the last SYNC before its time stamp, as
+    :mod:`rig.transports.canopen_link` files them; frames are taken in time-stamp order."""
     from rig.transports import parse_transport_url, transport_class
     from rig.transports.canopen_sync import SYNC_COB_ID
 
     link = transport_class("canopen")(**parse_transport_url(config.url)[1], **config.transport_options())
     drive_node, encoder_node = link.drive_node_id, link.encoder_node_id
-    ids = {0x180 + drive_node: "drive", 0x280 + drive_node: "demand", 0x180 + encoder_node: "encoder"}
-    rpdo_id, hold_id, sdo_request_id = 0x200 + drive_node, 0x300 + drive_node, 0x600 + drive_node
+    sdo_request_id = 0x600 + drive_node
     period, tolerance = config.sample_period_s, config.late_tolerance_s
     encoder, drive = config.encoder, config.drive
     frames = sorted(((message.timestamp, index, message) for index, message in _frames(path)
                      if not message.is_error_frame), key=lambda item: (item[0], item[1]))
+    mapping = _canopen_mapping(path, frames, drive_node, encoder_node, dcf)
+    target_pdo = (mapping.carrying(drive_node, *TARGET_POSITION, receive=True)
+                  or mapping.carrying(drive_node, *INTERPOLATION_RECORD, receive=True))
+    status_pdo = mapping.carrying(drive_node, *STATUSWORD, receive=False)
+    encoder_pdo = mapping.carrying(encoder_node, *ENCODER_POSITION, receive=False)
+    for found, what in ((target_pdo, f"the target (0x607A or 0x60C1:01) to drive node {drive_node}"),
+                        (status_pdo, f"the statusword 0x6041 of drive node {drive_node}"),
+                        (encoder_pdo, f"the position value 0x6004 of encoder node {encoder_node}")):
+        if found is None:
+            raise LogFileError(f"{path}: no PDO carries {what} in {mapping.source}: give the node-IDs of the run in "
+                               f"{config.source} ([transport] drive_node_id, encoder_node_id), or the nodes' DCF "
+                               "files (rig import --dcf NODE=FILE)")
+    assert target_pdo is not None and status_pdo is not None and encoder_pdo is not None
+    hold_pdo = next((pdo for pdo in mapping.pdos.values() if pdo.node_id == drive_node and pdo.receive
+                     and pdo is not target_pdo and any((e.index, e.subindex) == INTERPOLATION_RECORD
+                                                       for e in pdo.objects)), None)
+    rpdo_id, hold_id = target_pdo.cob_id, None if hold_pdo is None else hold_pdo.cob_id
+    target_object = next((e.index, e.subindex) for e in target_pdo.objects
+                         if (e.index, e.subindex) in (TARGET_POSITION, INTERPOLATION_RECORD))
+    # the parts of a reading, by the PDO that carries each (a statusword and a position may share one)
+    readings: dict[int, list[tuple[str, tuple[int, int]]]] = {}
+    for part, pdo, obj in (("status", status_pdo, STATUSWORD), ("encoder", encoder_pdo, ENCODER_POSITION),
+                           ("demand", mapping.carrying(drive_node, *POSITION_DEMAND, receive=False), POSITION_DEMAND)):
+        if pdo is not None:
+            readings.setdefault(pdo.cob_id, []).append((part, obj))
+    demand_pdo = mapping.carrying(drive_node, *POSITION_DEMAND, receive=False)
     frame_errors = 0
-    has_demand = any(message.arbitration_id == 0x280 + drive_node for _, _, message in frames)
-    ip_origin = _ip_origin(frames, SYNC_COB_ID, rpdo_id, drive_node, link.latency_cycles["drive"])
+    has_demand = demand_pdo is not None and any(message.arbitration_id == demand_pdo.cob_id for _, _, message in frames)
+    ip_origin = _ip_origin(frames, SYNC_COB_ID, rpdo_id, drive_node, link.latency_cycles["drive"], status_pdo)
     syncs: list[float] = []
     origin: int | None = None
     in_force: tuple[int, int] = (-1, 0)
@@ -359,13 +426,14 @@ def _import_canopen(path: Path, config: Any) -> ExperimentRecord:
         count = next((number for number in range(len(syncs), 0, -1) if syncs[number - 1] <= stamp), None)
         if count is None or origin is None:
             return
-        latency = link.demand_latency_cycles(interpolating) if part == "demand" else link.latency_cycles[part]
+        latency = (link.demand_latency_cycles(interpolating) if part == "demand"
+                   else link.latency_cycles["encoder" if part == "encoder" else "drive"])
         seq = count - latency - origin
         if seq < 0:
             return
         pair = parts.setdefault(seq, {})
         pair[part] = value
-        if "drive" in pair and "encoder" in pair and ("demand" in pair or not has_demand):
+        if "status" in pair and "encoder" in pair and ("demand" in pair or not has_demand):
             angle = encoder.rad_from_counts(pair["encoder"], near_rad=0.0 if last_angle is None else last_angle)
             last_angle = angle
             answers.setdefault(seq, []).append({**pair, "angle": angle})
@@ -401,15 +469,17 @@ def _import_canopen(path: Path, config: Any) -> ExperimentRecord:
             if len(data) == 8 and data[0] & 0xE0 == 0x20 and data[1:4] == bytes((0x60, 0x60, 0)):
                 mode_written = int.from_bytes(data[4:5], "little", signed=True)
         elif cob == hold_id and interpolating:
-            if len(message.data) != 4:
+            values = hold_pdo.decode(bytes(message.data)) if hold_pdo is not None else None
+            if values is None:
                 frame_errors += 1
                 continue
-            buffer.append((None, int.from_bytes(bytes(message.data), "little", signed=True)))
+            buffer.append((None, _signed32(values[INTERPOLATION_RECORD])))
         elif cob == rpdo_id:
-            if len(message.data) != 4:
+            values = target_pdo.decode(bytes(message.data))
+            if values is None:
                 frame_errors += 1
                 continue
-            counts = int.from_bytes(bytes(message.data), "little", signed=True)
+            counts = _signed32(values[target_object])
             if not rpdos:
                 interpolating = _streams_interpolated_position(path, link, mode_written, index, stamp)
             if interpolating:
@@ -421,30 +491,23 @@ def _import_canopen(path: Path, config: Any) -> ExperimentRecord:
                 sample = len(syncs) + 1 - origin  # put on the bus right after SYNC sample - 1
                 in_force = (sample, counts)
             rpdos.append((sample, counts))
-        elif cob in ids:
-            part = ids[cob]
-            data = bytes(message.data)
-            try:
-                if part == "drive":
-                    value: Any = (int.from_bytes(data[0:2], "little"), int.from_bytes(data[2:6], "little", signed=True))
-                    if len(data) != 6:
-                        raise ValueError
-                elif part == "demand":
-                    if len(data) != 4:
-                        raise ValueError
-                    value = int.from_bytes(data, "little", signed=True)
-                else:
-                    if len(data) != 4:
-                        raise ValueError
-                    raw = int.from_bytes(data, "little")
-                    value = raw - (1 << 32) if encoder.signed and raw >= 1 << 31 else raw
-            except ValueError:
+        elif cob in readings:
+            values = mapping.pdos[cob].decode(bytes(message.data))
+            if values is None:
                 frame_errors += 1
                 continue
-            unfiled.append((part, value, stamp))
+            for part, obj in readings[cob]:
+                raw = values[obj]
+                if part == "demand":
+                    value: Any = _signed32(raw)
+                elif part == "encoder":
+                    value = raw - (1 << 32) if encoder.signed and raw >= 1 << 31 else raw
+                else:
+                    value = raw
+                unfiled.append((part, value, stamp))
     if origin is None:
-        raise LogFileError(f"{path}: no RPDO1 of the drive (0x{rpdo_id:03X}) in {len(frames)} frames: not a capture "
-                           f"of a run on the CANopen rig of {config.source}")
+        raise LogFileError(f"{path}: no {target_pdo.name} in {len(frames)} frames (the PDO that carries the drive's "
+                           f"target in {mapping.source}): not a capture of a run on the CANopen rig of {config.source}")
     total = max(sample for sample, _ in rpdos) + 1
     targets: dict[int, int] = {}
     for sample, counts in rpdos:
@@ -456,7 +519,7 @@ def _import_canopen(path: Path, config: Any) -> ExperimentRecord:
         found = answers.get(seq, [])
         if found:
             answer = found[0]
-            statusword, _ = answer["drive"]
+            statusword = answer["status"]
             counts, held = applied.get(seq, (None, False))
             row.angle_rad, row.counts = answer["angle"], answer["encoder"]
             row.flags &= ~_LOST
@@ -485,7 +548,8 @@ def _import_canopen(path: Path, config: Any) -> ExperimentRecord:
     metadata = ExperimentMetadata(
         sample_period_s=period, source=config.name, transport=config.url, encoder_bits=encoder.bits,
         config={"rig": rig_config_metadata(config), "num_samples": len(rows)}, software_version=__version__,
-        extra={"imported_from": {"trace": str(path), "frames": len(frames), "origin_sync": origin},
+        extra={"imported_from": {"trace": str(path), "frames": len(frames), "origin_sync": origin,
+                                 "pdo_mapping": mapping.source},
                "summary": {"frame_errors": frame_errors}})
     n = len(rows)
     return ExperimentRecord(time_s=np.arange(n) * period, command_rad=np.array([row.command_rad for row in rows]),

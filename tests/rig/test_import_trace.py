@@ -216,7 +216,7 @@ def test_a_serial_rig_is_refused_and_the_output_is_checked_first(tmp_path, capsy
     assert "the serial transport has no CAN frames" in capsys.readouterr().err
     assert main(["import", str(trace), "--config", str(_config(tmp_path, "canopen")), "--out",
                  str(tmp_path / "o.csv")]) == exit_codes.BAD_INPUT
-    assert "no RPDO1 of the drive (0x201)" in capsys.readouterr().err
+    assert "no node 1 RPDO1 (COB-ID 0x201)" in capsys.readouterr().err
     assert main(["import", str(trace), "--config", str(_config(tmp_path)), "--out",
                  str(tmp_path / "missing" / "o.csv")]) == exit_codes.WRITE_FAILED
 
@@ -266,7 +266,8 @@ def test_interpolated_position_starts_where_the_bus_order_says(answer_after_sync
     """Sample 0 of an imported interpolated-position trace, by the transport's rule: the drive answered the
     SDO write of bit 4 before the next SYNC (2), so it took its first record at that SYNC, whatever a
     statusword sent late says; when the answer came after a SYNC, the first statusword with bit 12 decides."""
-    from rig.trace_import import _ip_origin
+    from rig.trace_import import _ip_origin, _our_mapping
 
     frames = _ip_start_frames(answer_after_sync, first_bit_12)
-    assert _ip_origin(frames, 0x080, 0x201, 1, latency=0) == origin
+    status_pdo = _our_mapping(1, 2).pdos[0x181]
+    assert _ip_origin(frames, 0x080, 0x201, 1, latency=0, status_pdo=status_pdo) == origin
