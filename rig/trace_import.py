@@ -51,6 +51,9 @@ CANopen (SYNC + drive RPDO1 + TPDOs, the mapping :mod:`rig.transports.canopen_li
   trace does not hold the value the host had queued); for the same reason a CSP target the master limited
   on its way back to the plan after a stall is logged with the value on the bus but not flagged LIMITED.
 
+Both set the log's acquisition start (``acquisition_start_utc``) to the time stamp of sample 0's first frame
+(the first setpoint; the SYNC of sample 0) where the trace's clock is the wall clock (:func:`_wall_clock`).
+
 Error frames and malformed frames of ours are counted (``frame_errors`` in the summary) and ridden through, as
 the transport does. A trace that cannot be read, or whose setpoints do not follow one another, raises
 :class:`~rig.protocols.errors.LogFileError` naming the frame (its index in the trace and its time stamp).
@@ -261,6 +264,7 @@ def _import_raw_can(path: Path, config: Any) -> ExperimentRecord:
     metadata = ExperimentMetadata(
         sample_period_s=period, source=config.name, transport=config.url, encoder_bits=encoder.bits,
         config={"rig": rig_config_metadata(config), "num_samples": len(rows)}, software_version=__version__,
+        acquisition_start_utc=_wall_clock(t0),
         extra={"imported_from": {"trace": str(path), "frames": frames, "first_seq": first_seq},
                "summary": {"frame_errors": frame_errors}})
     n = len(rows)
@@ -318,6 +322,22 @@ def _ip_origin(frames: list[tuple[float, int, Any]], sync_id: int, rpdo_id: int,
                     and values[STATUSWORD] & cia402.STATUSWORD_IP_MODE_ACTIVE:
                 return answers
     return None
+
+
+EARLIEST_WALL_CLOCK_S = 946684800.0  # 2000-01-01 UTC
+"""Trace time stamps from this on are the wall clock (BLF, candump); smaller ones count from the start of the
+trace (many ASC and TRC files), which says nothing of the date."""
+
+
+def _wall_clock(stamp: float | None) -> str | None:
+    """The UTC instant of a trace's time stamp, or None when it is not a wall-clock time."""
+    from datetime import datetime, timezone
+
+    from identify.experiment_record import utc_timestamp
+
+    if stamp is None or not EARLIEST_WALL_CLOCK_S <= stamp < 1e11:
+        return None
+    return utc_timestamp(datetime.fromtimestamp(stamp, tz=timezone.utc))
 
 
 def _signed32(raw: int) -> int:
@@ -548,6 +568,7 @@ def _import_canopen(path: Path, config: Any, dcf: Mapping[int, str | Path] | Non
     metadata = ExperimentMetadata(
         sample_period_s=period, source=config.name, transport=config.url, encoder_bits=encoder.bits,
         config={"rig": rig_config_metadata(config), "num_samples": len(rows)}, software_version=__version__,
+        acquisition_start_utc=_wall_clock(syncs[origin - 1] if origin <= len(syncs) else None),
         extra={"imported_from": {"trace": str(path), "frames": len(frames), "origin_sync": origin,
                                  "pdo_mapping": mapping.source},
                "summary": {"frame_errors": frame_errors}})

@@ -70,6 +70,11 @@ def _assert_same_samples(run_log: Path, imported_log: Path, ignore_late: bool = 
     np.testing.assert_array_equal(imported.flags & mask, run.flags & mask)
     assert imported.metadata.sample_period_s == run.metadata.sample_period_s
     assert imported.metadata.source == run.metadata.source and imported.metadata.encoder_bits == 12
+    # the acquisition start from the trace's wall-clock stamps where it has them (BLF, candump), the date of the
+    # run; none from a trace whose stamps count from its own start
+    stamped = imported.metadata.acquisition_start
+    if stamped is not None:
+        assert abs((stamped - run.metadata.acquisition_start).total_seconds()) < 1.0
 
 
 @pytest.mark.parametrize("kind, suffix", [("can", ".blf"), ("can", ".asc"), ("can", ".log"), ("can", ".trc"),
@@ -83,6 +88,8 @@ def test_the_trace_of_a_run_imports_as_the_runs_log(kind, suffix, tmp_path, caps
                  "--json"]) == exit_codes.SUCCESS
     result = json.loads(capsys.readouterr().out)
     assert result["samples"] == 20 and result["frame_errors"] == 0
+    if suffix in (".blf", ".log"):
+        assert read_log(imported).metadata.acquisition_start is not None
     # CANopen: the device's SYNC spacing decides LATE, and the trace has the SYNCs: every flag is compared
     _assert_same_samples(log, imported, ignore_late=kind == "can")
 
