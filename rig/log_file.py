@@ -19,8 +19,10 @@ Format ``rig-log v1`` (a CSV file with a commented header)::
   after ``flush_interval_s``; a process killed at any instant leaves every flushed line readable, and a
   torn last line is dropped on reading with a warning. ``close()`` flushes and fsyncs.
 * Floats are written with ``repr`` (shortest exact round trip).
-* When the acquisition started (the host's UTC clock when the first sample of a run reached the log, within
-  a few sample periods of sample 0's instant) is only known once it has; a writer with ``stamp_start``
+* When the acquisition started (the host's UTC clock when the first sample of a run reached the log: after
+  sample 0's instant by as much as the runner waits for its answer, up to the lead on a device-clocked wire,
+  100 ms by default on CANopen; a trace's own time stamps give the instant itself, ``rig import``) is only
+  known once it has; a writer with ``stamp_start``
   writes it with that sample as one comment line ``# start {"acquisition_start_utc": ...}`` (ISO 8601, UTC),
   and :func:`read_log` puts it in ``metadata.acquisition_start_utc``. A log written before this line existed
   reads with the start None (unknown); a record whose metadata already holds the start (``write_log`` of a
