@@ -273,16 +273,6 @@ def _document(outcome, black_box: dict | None = None) -> dict:
     return document
 
 
-VERDICT_WORDS = {
-    "explained": "EXPLAINED: the start model already agrees with the data",
-    "named": "NAMED: missing effects found",
-    "ambiguous": "AMBIGUOUS: the data cannot decide between candidates, or whether one is there; none is chosen",
-    "unexplained": "UNEXPLAINED: no candidate effect helps",
-    "not_excited": "NOT EXCITED: the data cannot show the effects",
-}
-"""The verdict of :data:`identify.model_discrepancy.VERDICTS` in words (text output and report)."""
-
-
 def _acceptance_note(candidate) -> str:
     """What a candidate's gap reduction said (``identify.model_discrepancy.ACCEPTANCES``), for the candidates
     line: vanished, or the reduction with the interval judged and its parts when it reaches the acceptance (the
@@ -315,6 +305,8 @@ def _print_summary(data: str, model: str | None, noise_bound: float, result, num
         for name, reason in black_box["effects_skipped"].items():
             print(f"not tried     {name}: {reason}")
     print(f"noise bound   {noise_bound:.4g} rad")
+    from rig.plots.discrepancy import VERDICT_WORDS
+
     print(f"verdict       {VERDICT_WORDS[result.verdict]}")
     print(f"              {result.verdict_reason}")
     for finding in result.findings:  # measurement-side: the record disagrees with itself there

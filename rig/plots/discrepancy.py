@@ -157,6 +157,16 @@ def signature_figure(step: DiscrepancyStep, number: int, residual_rad: NDArray[n
         draw)
 
 
+VERDICT_WORDS = {
+    "explained": "EXPLAINED: the start model already agrees with the data",
+    "named": "NAMED: missing effects found",
+    "ambiguous": "AMBIGUOUS: the data cannot decide between candidates, or whether one is there; none is chosen",
+    "unexplained": "UNEXPLAINED: no candidate effect helps",
+    "not_excited": "NOT EXCITED: the data cannot show the effects",
+}
+"""The verdict of :data:`identify.model_discrepancy.VERDICTS` in words (text output and report)."""
+
+
 def verdict_heading(report: DiscrepancyReport) -> str:
     """The verdict of a diagnosis as a page heading says it: ``AMBIGUOUS between gravity and offset``,
     ``NAMED backlash``, ``EXPLAINED``, ... (never a heading a verdict contradicts)."""
@@ -172,8 +182,6 @@ def verdict_heading(report: DiscrepancyReport) -> str:
 def diagnosis_summary(report: DiscrepancyReport) -> str:
     """The verdict in words with its reason, the effects named, the undecided candidates and the first round's
     candidates: one text for every page that shows a diagnosis (``rig diagnose --report``, ``rig report``)."""
-    from rig.commands.diagnose import VERDICT_WORDS
-
     named = ", ".join(step.effect for step in report.missing_effects) or "none"
     reason = report.verdict_reason
     return (f"Verdict {VERDICT_WORDS.get(report.verdict, report.verdict)}{': ' + reason if reason else ''}. "
