@@ -241,6 +241,10 @@ class DiscrepancyResult:
         """The ``rig diagnose --json`` document, ``self.report().to_dict()`` (:meth:`DiscrepancyReport.to_dict`)."""
         return self.report().to_dict()
 
+    def to_pandas(self) -> Any:
+        """``self.report().to_pandas()`` (:meth:`DiscrepancyReport.to_pandas`)."""
+        return self.report().to_pandas()
+
 
 @dataclass(frozen=True)
 class MissingEffect:
@@ -293,6 +297,21 @@ class DiscrepancyReport:
     def __post_init__(self) -> None:
         if self.verdict not in VERDICTS:
             raise InvalidInputError(f"verdict: expected one of {', '.join(VERDICTS)}, got {self.verdict!r}")
+
+    def to_pandas(self) -> Any:
+        """The named effects' parameters as a ``pandas.DataFrame``: one row per parameter, columns ``effect``,
+        ``parameter``, ``value``, ``lower``, ``upper`` (the cross-validated interval; NaN where none), and the
+        verdict, its reason and ``ambiguous_between`` in ``attrs``. Needs pandas (not a dependency)."""
+        from identify.result_format import require_pandas
+
+        pandas = require_pandas("DiscrepancyReport.to_pandas()")
+        nan = float("nan")
+        rows = [(step.effect, name, value, *step.parameter_intervals.get(name, (nan, nan)))
+                for step in self.missing_effects for name, value in step.parameters.items()]
+        table = pandas.DataFrame(rows, columns=["effect", "parameter", "value", "lower", "upper"])
+        table.attrs.update(verdict=self.verdict, verdict_reason=self.verdict_reason,
+                           ambiguous_between=list(self.ambiguous_between))
+        return table
 
     def to_dict(self) -> dict[str, Any]:
         """``kind``, ``version`` and the documented keys of the ``rig diagnose --json`` report: ``verdict``,

@@ -134,3 +134,22 @@ def test_to_control_without_python_control_says_what_to_install(monkeypatch):
     with pytest.raises(ImportError, match=r"LinearBlock\.to_control\(\) needs python-control, which is not "
                                           r"installed: pip install control"):
         LinearBlock(a=(0.5,), b=(1.0,), sample_period_s=1.0).to_control()
+
+
+def test_a_diagnosis_to_pandas_lists_each_named_parameter_with_its_interval_and_the_verdict():
+    pytest.importorskip("pandas")
+    from identify.discrepancy_cases import hidden_effect_record
+    from identify.model_discrepancy import DiscrepancyReport, diagnose_model
+
+    record = hidden_effect_record(("backlash",), 3, num_samples=1500)
+    result = diagnose_model(record.command_rad, record.angle_rad, record.noise_bound_rad, record.sample_period_s,
+                            record.nominal_model)
+    table = result.to_pandas()
+    assert table.attrs["verdict"] == result.verdict == "named"
+    step = result.report().missing_effects[0]
+    assert list(table["effect"]) == ["backlash"] * len(step.parameters)
+    for row in table.itertuples():
+        assert row.value == step.parameters[row.parameter]
+        assert (row.lower, row.upper) == pytest.approx(step.parameter_intervals[row.parameter])
+    reopened = DiscrepancyReport.from_dict(json.loads(json.dumps(result.to_dict())))
+    assert reopened.to_pandas().equals(table)
