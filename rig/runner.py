@@ -566,9 +566,10 @@ def _run_device_clocked(transport: Transport, command: NDArray[np.float64], sink
         state = ledger.file(sample)
         filed_to = max(filed_to, sample.seq)
         watchdog.fed(sample.host_time_s)  # when this answer was received, not when the turn began
-        last_answer = sample.host_time_s
-        if math.isnan(first_answer):
-            first_answer = last_answer
+        if sample.seq < total:  # (the device goes on answering after the run's last instant: not the run's rate)
+            last_answer = sample.host_time_s
+            if math.isnan(first_answer):
+                first_answer = last_answer
         return state
 
     def file_what_arrived() -> None:

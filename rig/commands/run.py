@@ -246,14 +246,15 @@ def run(args: argparse.Namespace) -> int:
         print(f"experiment  {excitation.name} ({excitation.kind}, seed {excitation.seed})")
         print(f"samples     {summary.samples} at {config.sample_rate_hz:g} Hz (achieved {summary.rate_hz:.6g} Hz)")
         print(f"lost        {summary.lost}")
-        if math.isnan(summary.min_lead_s):
+        if not math.isnan(summary.send_lateness_max_s):  # the host owns the clock: it measured its sends
             print(f"late        {summary.late}")
             print(f"send lateness p50 {1e6 * summary.send_lateness_p50_s:.0f} us, p99 "
                   f"{1e6 * summary.send_lateness_p99_s:.0f} us, max {1e6 * summary.send_lateness_max_s:.0f} us "
                   "(each setpoint's send after its deadline)")
         else:  # the device owns the clock: a late setpoint is a HELD sample, logged with the command applied
-            print(f"held        {summary.held} (setpoints that missed their instant; smallest lead "
-                  f"{1e3 * summary.min_lead_s:.3g} ms)")
+            lead = ("not measured on this run" if math.isnan(summary.min_lead_s)
+                    else f"{1e3 * summary.min_lead_s:.3g} ms")
+            print(f"held        {summary.held} (setpoints that missed their instant; smallest lead {lead})")
         if not math.isnan(summary.sync_jitter_max_s):
             print(f"sync jitter {1e3 * summary.sync_jitter_max_s:.3g} ms at most (SYNC spacing off the period)")
         print(f"duplicate   {summary.duplicate}")

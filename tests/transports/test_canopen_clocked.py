@@ -459,3 +459,14 @@ def test_a_drop_the_interface_counts_stops_the_run_whatever_frame_it_was(mode, t
     assert state is cia402.DriveState.SWITCH_ON_DISABLED
     usable = np.flatnonzero((_flags(sink) & SampleFlag.unusable()) == 0)
     assert usable.max() <= DROP_AT + 1
+
+
+@pytest.mark.parametrize("mode", ["ip_buffer", "csp"])
+def test_the_achieved_rate_counts_the_runs_own_answers_only(mode, tmp_path):
+    """The drive goes on answering SYNCs while the run ends (its pending window, the stop): those answers are
+    no samples of the run, and counting them halved the rate of a short run (100 samples at 1 kHz said 500 Hz).
+    On the simulated clock the rate is the period's."""
+    with _clocked_rig(tmp_path, mode=mode) as (bus, transport, rig, clock):
+        summary, sink, _ = _run(bus, transport, clock, _command(100))
+    assert summary.samples == 100 and summary.lost == 0
+    assert summary.rate_hz == pytest.approx(1000.0, rel=0.02)

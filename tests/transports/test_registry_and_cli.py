@@ -201,3 +201,14 @@ def test_ctrl_c_on_rig_run_stops_the_rig_and_leaves_a_complete_log(kind, tmp_pat
         record = read_log(out)  # closed cleanly: every row readable
     assert 10 <= record.num_samples < 12000
     assert np.all(np.diff(record.time_s) > 0)
+
+
+def test_a_short_device_clocked_run_says_nothing_meaningless(tmp_path, capsys, no_leaks):
+    """Every setpoint of a short run is queued before the device starts: the smallest lead is not measured,
+    and the summary says so in words; no line prints a number it does not have ("nan")."""
+    out = tmp_path / "run.csv"
+    assert main(["run", str(CONFIGS / "sim_serial.toml"), "--experiment", str(CONFIGS / "experiments" / "prbs.toml"),
+                 "--out", str(out), "--duration", "0.1"]) == 0
+    printed = capsys.readouterr().out
+    assert "nan" not in printed.lower() and "send lateness" not in printed
+    assert "held        0 (setpoints that missed their instant; smallest lead" in printed
