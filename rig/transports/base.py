@@ -189,7 +189,10 @@ class CommandLimits:
         if rate > self.rate_max_rad_per_s * (1 + 1e-12):
             raise CommandRefused(
                 f"setpoint {seq}: rate {rate:.6g} rad/s (from {previous_rad:.6g} to {position_rad:.6g} rad) exceeds "
-                f"the limit {self.rate_max_rad_per_s:.6g} rad/s")
+                f"the limit {self.rate_max_rad_per_s:.6g} rad/s ([limits] rate_max_rad_per_s): at "
+                f"{1 / sample_period_s:g} Hz one step may be at most {self.rate_max_rad_per_s * sample_period_s:.4g} "
+                "rad; narrow the experiment's range (a cyclic experiment jumps from u_max to u_min in one sample), "
+                "or raise the limit if the drive can follow")
 
 
 class Transport(ABC):
