@@ -25,8 +25,11 @@ from numpy.typing import ArrayLike, NDArray
 
 from identify.validation import InvalidInputError
 
-__all__ = ["NOMINAL_TIME_TOLERANCE_S", "ExperimentMetadata", "ExperimentRecord", "SampleFlag", "now_utc",
-           "utc_timestamp"]
+__all__ = ["NOMINAL_TIME_TOLERANCE_S", "OFFLINE_TRANSPORT", "ExperimentMetadata", "ExperimentRecord", "SampleFlag",
+           "now_utc", "utc_timestamp"]
+
+OFFLINE_TRANSPORT = "offline"
+"""``transport`` of a record simulated offline (``rig simulate``): no wire, no clock; every sample at its instant."""
 
 NOMINAL_TIME_TOLERANCE_S = 1e-9
 """A time column within this of t_0 + k·T at every sample is the nominal grid (float64 rounding of k·T at

@@ -29,6 +29,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from identify.experiment_record import OFFLINE_TRANSPORT
 from rig import exit_codes
 
 __all__ = ["ResultFile", "read_result_file", "read_result_files", "readable_kinds", "register", "report_sections", "run",
@@ -238,8 +239,10 @@ def _experiment_section(result: ResultFile, used: set[str]):
     text = (f"{result.path.name}: {len(record)} samples at a nominal period of {record.sample_period_s * 1e3:g} ms "
             f"({record.metadata.transport or 'unknown transport'}); {record.lost_count} lost samples; "
             f"{_timing_text(record)}.")
-    return ReportSection(f"Experiment: {result.path.name}", text=text,
-                         figures=(signal_figure(record, f"signals_{slug}"), timing_figure(record, f"timing_{slug}")))
+    figures = [signal_figure(record, f"signals_{slug}")]
+    if record.metadata.transport != OFFLINE_TRANSPORT:  # an offline simulation has no timing to draw
+        figures.append(timing_figure(record, f"timing_{slug}"))
+    return ReportSection(f"Experiment: {result.path.name}", text=text, figures=tuple(figures))
 
 
 def _timing_text(record) -> str:
@@ -254,6 +257,8 @@ def _timing_text(record) -> str:
 
     from identify.experiment_record import SampleFlag
 
+    if record.metadata.transport == OFFLINE_TRANSPORT:
+        return "an offline simulation (rig simulate): no wire and no clock, every sample at its instant k·T"
     summary = record.metadata.extra.get("summary", {})
     clock = summary.get("sample_clock")
     if clock == "device" or (clock is None and record.time_column_is_nominal()):

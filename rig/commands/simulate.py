@@ -46,7 +46,7 @@ def run(args: argparse.Namespace) -> int:
 
     from identify import __version__
     from identify.backlash_wear import wearing_backlash_of
-    from identify.experiment_record import ExperimentMetadata
+    from identify.experiment_record import OFFLINE_TRANSPORT, ExperimentMetadata
     from rig.experiment_config import load_experiment_config
     from rig.log_file import LogWriter
     from rig.truth_file import truth_path_for, write_play_truth
@@ -75,7 +75,7 @@ def run(args: argparse.Namespace) -> int:
     metadata = ExperimentMetadata(
         sample_period_s=gearbox.sample_period_s,
         source=plant_config.name,
-        transport="offline",
+        transport=OFFLINE_TRANSPORT,
         encoder_bits=gearbox.encoder.bits,
         noise_kind=noise.kind,
         noise_bound_rad=noise.noise_bound_rad + gearbox.encoder.quantization_bound_rad,  # |y_t - w_t| <= this

@@ -246,3 +246,17 @@ def test_the_report_shows_intervals_and_candidate_gaps_of_a_diagnosis(tmp_path):
     low, high = document["missing_effects"][0]["parameter_intervals"]["c_l_rad"]
     assert f"[{low:.4g}, {high:.4g}]" in section.table_rows[0][1]
     assert "NAMED" in section.text and "Candidates tried first" in section.text and "delay" in section.text
+
+
+def test_an_offline_simulation_is_reported_as_one_without_a_timing_figure(tmp_path, capsys):
+    """A `rig simulate` log had no wire and no clock: the page says so, and draws no timing figure (it was
+    called device-clocked, with an empty figure and a lead "not in this log")."""
+    log = tmp_path / "sim.csv"
+    assert main(["simulate", str(REPO / "configs" / "plants" / "cerone2009.toml"), "--excitation",
+                 str(REPO / "configs" / "experiments" / "prbs.toml"), "--out", str(log)]) == exit_codes.SUCCESS
+    capsys.readouterr()
+    assert main(["report", str(log), "--out", str(tmp_path / "page")]) == exit_codes.SUCCESS
+    index = Path(capsys.readouterr().out.strip())
+    page = index.read_text(encoding="utf-8")
+    assert "an offline simulation (rig simulate): no wire and no clock" in page
+    assert "device-clocked" not in page and page.count("<img ") == 1 and missing_images(index) == []
