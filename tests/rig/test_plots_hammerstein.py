@@ -90,6 +90,11 @@ def test_borders_figure_draws_the_paths_and_their_gap_against_the_truth(model):
     true_gap = gaps["true gap"]
     assert np.interp(0.0, true_gap.get_xdata(), true_gap.get_ydata()) * 1e-3 == pytest.approx(np.pi / 2, abs=1e-3)
     assert model.largest_play_rad == pytest.approx(np.pi / 2, abs=0.1)
+    # the caption states the comparison the figure shows, computed from the same paths, and invites no check
+    true_play = max(true_descending(float(u)) - true_ascending(float(u)) for u in nodes_u)
+    caption = report_figure.caption
+    assert f"against the true play's {true_play * 1e3:.3g} mrad" in caption and "Look for" not in caption
+    assert f"{100 * (model.largest_play_rad / true_play - 1):+.0f} %" in caption
 
 
 def test_singular_values_figure_marks_the_order_at_the_gap(model):
