@@ -88,8 +88,10 @@ def windows_figure(result: DiscrepancyResult, time_s: NDArray[np.float64], name:
     return ReportFigure(
         name,
         f"Residual of the start model; black dots are the samples the noise bound cannot explain "
-        f"({100 * result.initial.falsified_fraction:.1f} % of the validation segment), shaded spans are the "
-        f"{len(result.initial.windows)} windows where they cluster.",
+        f"({100 * result.initial.falsified_fraction:.1f} % of the validation segment)"
+        + (", no window where they cluster." if not result.initial.windows else
+           ", the shaded span is the one window where they cluster." if len(result.initial.windows) == 1 else
+           f", shaded spans are the {len(result.initial.windows)} windows where they cluster."),
         draw)
 
 
