@@ -20,6 +20,7 @@ Functions that only need intervals also take plain ``{name: ParameterInterval}``
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, Union
@@ -446,14 +447,37 @@ def _intervals_caption(intervals: Mapping[str, Mapping[str, ParameterInterval]],
         ratio = median_width_ratio(intervals[labels[-1]], intervals[labels[0]], linear_names)
         if ratio is not None:
             summary.append(f"median width ratio {labels[-1]}/{labels[0]} on the linear block = {ratio:.3g}")
+    prior = _prior_box_bounds(intervals, names)
+    if prior:
+        summary.append("bounds that are the a-priori stability box |a_i| <= C(na, i), not the data's: "
+                       + ", ".join(prior))
     with_inner = [label for label in labels if inner[label] is not None]
     inner_text = (f"; thick pale bars: verified inner values of {', '.join(with_inner)} (the exact bounds lie between "
                   "them and the thin bars)") if with_inner else ""
     what = "true value (red line at 0)" if truth else "first method's centre (no true values given)"
     return (f"Guaranteed parameter intervals per method ({', '.join(labels)}), each axis relative to the {what}; "
             "backlash m, c from eqs. (18)-(20), linear block a_i, b_j from Section 5 of Cerone et al. (2009)"
-            f"{inner_text}. {'; '.join(summary)}. Look for every bar crossing the red line and for the tighter "
-            "method.")
+            f"{inner_text}. {'; '.join(summary)}.")
+
+
+def _prior_box_bounds(intervals: Mapping[str, Mapping[str, ParameterInterval]], names: Sequence[str]) -> list[str]:
+    """``"<method> <a_i> lower|upper"`` for every bound on the edge of the a-priori box of a stable A(q^-1),
+    |a_i| <= C(na, i) (:mod:`identify.linear_block_bounds`): where the data did not tighten it."""
+    orders = [parsed[1] for parsed in map(linear_parameter, names) if parsed is not None and parsed[0] == "a"]
+    if not orders:
+        return []
+    na = max(orders)
+    found = []
+    for label, per in intervals.items():
+        for name in names:
+            parsed = linear_parameter(name)
+            if parsed is None or parsed[0] != "a" or name not in per:
+                continue
+            edge = float(math.comb(na, parsed[1]))
+            for side, value, at in (("lower", per[name].lower, -edge), ("upper", per[name].upper, edge)):
+                if math.isclose(value, at, rel_tol=1e-9, abs_tol=1e-9):
+                    found.append(f"{label} {name} {side} ({at:g})")
+    return found
 
 
 def _intervals_drawing(intervals: Mapping[str, Mapping[str, ParameterInterval]],

@@ -189,3 +189,17 @@ def test_interval_figure_draws_inner_bars_only_for_a_method_that_has_them(result
     assert not [line for axes in none_drawn.axes for line in axes.get_lines() if line.get_linewidth() >= 6.0]
     paper_only = _drawn(parameter_intervals_figure({"paper": results["paper"]}, "paper_only"))
     assert not [line for axes in paper_only.axes for line in axes.get_lines() if line.get_linewidth() >= 6.0]
+
+
+def test_a_bound_the_data_did_not_tighten_is_named_as_the_prior_box():
+    """Bounds on the edge of the a-priori box of a stable A(q^-1), |a_i| <= C(na, i), are the assumption, not
+    the data's: the caption names them, and only them."""
+    from rig.plots.set_membership import _intervals_caption
+
+    intervals = {"paper": {"a1": ParameterInterval(-2.0, 0.7), "a2": ParameterInterval(0.5, 1.0),
+                           "b1": ParameterInterval(1.3, 1.5)},
+                 "coupled": {"a1": ParameterInterval(0.4, 0.6), "a2": ParameterInterval(0.6, 0.8),
+                             "b1": ParameterInterval(1.35, 1.45)}}
+    caption = _intervals_caption(intervals, {"paper": None, "coupled": None}, ["a1", "a2", "b1"], {})
+    assert "a-priori stability box |a_i| <= C(na, i), not the data's: paper a1 lower (-2), paper a2 upper (1)" in caption
+    assert "coupled a" not in caption.split("not the data's:")[1] and "Look for" not in caption
