@@ -129,11 +129,15 @@ def signature_figure(step: DiscrepancyStep, number: int, residual_rad: NDArray[n
     elif effect == "gravity":
         x, x_label = simulated_rad, "model angle y^ [rad]"
         what = "the residual follows the sine of the angle: a position-dependent load"
+    elif effect == "encoder_error":
+        x, x_label = simulated_rad, "model angle y^ [rad]"
+        what = "the residual is the same at the same angle, once or twice per revolution"
     else:
         x, x_label = time_s, "time [s]"
         what = ("a narrow peak in the spectrum of the residual" if effect == "resonance"
                 else "the residual follows a constant plus a slow drift")
-    score = step.evidence["signature_scores"][effect]
+    score = step.evidence.get("signature_scores", {}).get(effect)
+    scored = f"signature score {score:.2f}; " if score is not None else ""
 
     def draw(figure) -> None:
         if effect == "resonance":
@@ -146,7 +150,15 @@ def signature_figure(step: DiscrepancyStep, number: int, residual_rad: NDArray[n
             axes.set_ylabel("residual amplitude [rad]")
             return
         axes = figure.subplots()
-        axes.plot(x, residual_rad, ".", ms=2, alpha=0.5)
+        if effect in ("backlash", "coulomb_friction"):  # three directions, not a continuous axis: one box each
+            present = [(level, name) for level, name in ((-1.0, "moving down"), (0.0, "at rest"), (1.0, "moving up"))
+                       if np.any(x == level)]
+            groups = [residual_rad[(x == level) & np.isfinite(residual_rad)] for level, _ in present]
+            axes.boxplot(groups, positions=[level for level, _ in present], widths=0.5, showfliers=False)
+            axes.set_xticks([level for level, _ in present],
+                            [f"{name} ({group.size})" for (_, name), group in zip(present, groups)])
+        else:
+            axes.plot(x, residual_rad, ".", ms=2, alpha=0.5)
         for sign in (-1.0, 1.0):
             axes.axhline(sign * noise_bound_rad, color="gray", lw=0.8, ls=":")
         axes.set_xlabel(x_label)
@@ -154,7 +166,7 @@ def signature_figure(step: DiscrepancyStep, number: int, residual_rad: NDArray[n
 
     return ReportFigure(
         f"signature_{number}_{effect}",
-        f"Step {number}, {effect.replace('_', ' ')}: {what} (signature score {score:.2f}; the effect was chosen "
+        f"Step {number}, {effect.replace('_', ' ')}: {what} ({scored}the effect was chosen "
         f"because it lowered the validated gap from {step.gap_before_rad:.3g} to {step.gap_after_rad:.3g} rad).",
         draw)
 

@@ -102,6 +102,18 @@ def test_figures_label_their_axes_with_units(files):
     for figure in figures:
         assert unlabelled_axes(figure) == []
         assert figure.caption
+    # the backlash's signature is the residual per direction of motion: one box per direction, not three
+    # values overplotted on a continuous axis
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from matplotlib.figure import Figure
+
+    drawn = Figure(figsize=figures[2].size_in)
+    figures[2].draw(drawn)
+    labels = [label.get_text() for label in drawn.axes[0].get_xticklabels()]
+    assert [label.split(" (")[0] for label in labels] == ["moving down", "at rest", "moving up"]
+    assert not drawn.axes[0].get_lines()[0].get_marker() == "."
 
 
 @pytest.mark.parametrize(("effect", "caption"), [("delay", "samples early leaves"),
