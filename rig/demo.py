@@ -66,7 +66,7 @@ class SimulatedRigSession:
         self.max_attempts = 5
 
     def run(self, name: str, command_rad: NDArray[np.float64], *, keep_log: bool = True,
-            max_lost: int = 0) -> ExperimentRecord:
+            max_lost: int = 0, kind: str = "demo", parameters: dict | None = None) -> ExperimentRecord:
         """Stream ``command_rad`` from rest; return a record with at most ``max_lost`` samples off the
         design (unusable, or HELD: the drive applied an earlier setpoint than the designed one, which a
         cyclic excitation cannot tolerate).
@@ -75,12 +75,14 @@ class SimulatedRigSession:
         lost more than ``max_lost`` is run again from rest, up to :attr:`max_attempts` times; so is one whose
         link failed (the simulated devices run in this process: a host stall longer than the feedback
         watchdog starves them too, which on a real rig would be a fault). The repeats are counted in
-        :attr:`retries`. The log goes to ``out_dir/logs/<name>.csv`` when kept.
+        :attr:`retries`. The log goes to ``out_dir/logs/<name>.csv`` when kept, its excitation recorded as
+        ``kind`` with ``parameters`` (as an experiment config would give them), so that the commands that read
+        a log by its excitation (``rig identify output-backlash --steady``) take the demo's logs too.
         """
         problem = ""
         for attempt in range(1, self.max_attempts + 1):
             try:
-                record = self._run_once(name, command_rad, keep_log=keep_log)
+                record = self._run_once(name, command_rad, keep_log=keep_log, kind=kind, parameters=parameters)
             except TransportError as err:  # the link itself is in this process: a stall, not a broken wire
                 problem = f"the link failed ({err})"
             else:
@@ -93,7 +95,8 @@ class SimulatedRigSession:
         raise TransportError(f"{name}: in each of {self.max_attempts} attempts {problem}; the host cannot keep the "
                              f"rig's rate: close other programs and run again{other_wire}")
 
-    def _run_once(self, name: str, command_rad: NDArray[np.float64], *, keep_log: bool) -> ExperimentRecord:
+    def _run_once(self, name: str, command_rad: NDArray[np.float64], *, keep_log: bool, kind: str = "demo",
+                  parameters: dict | None = None) -> ExperimentRecord:
         import tempfile
 
         from rig.experiment_config import Excitation
@@ -110,7 +113,8 @@ class SimulatedRigSession:
             else:
                 log_path = Path(stack.enter_context(tempfile.TemporaryDirectory())) / f"{name}.csv"
             url, gearbox = stack.enter_context(simulated_rig(self.config, command_rad))
-            excitation = Excitation(name=name, kind="demo", command_rad=command_rad, seed=None)
+            excitation = Excitation(name=name, kind=kind, command_rad=command_rad, seed=None,
+                                    parameters=dict(parameters or {}))
             writer = LogWriter(log_path, experiment_log_metadata(self.config, excitation, gearbox, command_rad.size),
                                flush_every=100, flush_interval_s=0.1, stamp_start=True)
             progress = self.progress(name, command_rad.size) if self.progress else None
@@ -227,7 +231,9 @@ def run_demo(out_dir: Path | None, transport: str = "canopen", plan: DemoPlan = 
             design, amplitudes, session.config.limits.rate_max_rad_per_s, session.config.sample_period_s)
         staircase = filtered_staircase(amplitudes, filter_pole, plan.samples_per_half_wave)
         steady_index = staircase_steady_state_indices(len(amplitudes), plan.samples_per_half_wave)
-        steady_record = session.run("staircase", staircase, max_lost=staircase.size // 100)
+        steady_record = session.run("staircase", staircase, max_lost=staircase.size // 100, kind="filtered_staircase",
+                                    parameters={"amplitudes_rad": amplitudes, "filter_pole": filter_pole,
+                                                "samples_per_half_wave": plan.samples_per_half_wave})
         steady_output = last_valid_values(steady_record, steady_index, steady_tail)
     rng = np.random.default_rng(plan.seed)
     with timed("prbs", "run the PRBS experiment"):

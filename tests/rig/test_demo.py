@@ -147,7 +147,7 @@ def test_an_experiment_whose_link_fails_on_a_busy_host_is_run_again_and_then_rep
     session = SimulatedRigSession("serial", None)
     attempts = []
 
-    def stalled(name, command_rad, *, keep_log):
+    def stalled(name, command_rad, *, keep_log, **_excitation):
         attempts.append(name)
         if len(attempts) < 3:
             raise TransportError("serial:///dev/pts/0: no feedback for 0.1 s (watchdog 0.1 s)")
