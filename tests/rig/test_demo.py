@@ -37,6 +37,14 @@ def test_demo_writes_a_complete_report_and_bounds_contain_the_truth(tmp_path, ca
     page = index.read_text()
     assert len(re.findall(r"<img ", page)) >= 6
     assert (out / "logs" / "prbs.csv").is_file() and (out / "logs" / "staircase.csv").is_file()
+    # its logs are logs like any run's: the staircase log records its excitation, and --steady takes it
+    from rig.commands.identify_output_backlash import staircase_steady_points
+    from rig.log_file import read_log
+
+    excitation = read_log(out / "logs" / "staircase.csv").metadata.config["excitation"]
+    assert excitation["kind"] == "filtered_staircase"
+    steady_u, _, described = staircase_steady_points(out / "logs" / "staircase.csv")
+    assert steady_u.size == 2 * len(excitation["parameters"]["amplitudes_rad"]) and "half-wave" in described
     rows = {row[0]: row for row in result["rows"]}
     # The staircase uses the reference pole (no overshoot of x_t for the play to hold), so the structure of the
     # method holds on the steady-state points: every bound contains the true value and the exact set D_γ the
