@@ -378,9 +378,17 @@ def _canopen_mapping(path: Path, frames: list[tuple[float, int, Any]], drive_nod
             return mapping_from_dcf(dcf)
         except ValueError as err:
             raise LogFileError(str(err)) from None
+    ours = _our_mapping(drive_node, encoder_node)
     written = mapping_from_sdo_writes(((message.arbitration_id, bytes(message.data)) for _, _, message in frames),
                                       f"the SDO writes in {path}")
-    return written if written is not None else _our_mapping(drive_node, encoder_node)
+    if written is None:
+        return ours
+    # a PDO the start-up did not configure keeps the mapping it had (this driver's, where its COB-ID is free)
+    kept = {cob: pdo for cob, pdo in ours.pdos.items()
+            if cob not in written.pdos and (pdo.node_id, pdo.receive, pdo.number) not in written.configured}
+    return PdoMapping({**kept, **written.pdos}, written.source if not kept else
+                      f"{written.source}, and this driver's mapping for the PDOs they leave alone",
+                      written.configured)
 
 
 def _import_canopen(path: Path, config: Any, dcf: Mapping[int, str | Path] | None = None) -> ExperimentRecord:

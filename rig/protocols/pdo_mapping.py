@@ -72,16 +72,20 @@ class Pdo:
 
 @dataclass(frozen=True)
 class PdoMapping:
-    """The valid PDOs of a network, by COB-ID; ``source`` says where the mapping came from."""
+    """The valid PDOs of a network, by COB-ID; ``source`` says where the mapping came from; ``configured``: every
+    ``(node-ID, receive, number)`` whose parameters it wrote, the PDOs it disabled included."""
 
     pdos: Mapping[int, Pdo]
     source: str
+    configured: frozenset[tuple[int, bool, int]] = frozenset()
 
     def carrying(self, node_id: int, index: int, subindex: int = 0, *, receive: bool) -> Pdo | None:
-        """The PDO of ``node_id`` in that direction that maps ``index``:``subindex`` (the lowest-numbered)."""
+        """The PDO of ``node_id`` in that direction that maps ``index``:``subindex``: one that was configured
+        (:attr:`configured`) before one assumed, then the lowest-numbered."""
         found = [pdo for pdo in self.pdos.values() if pdo.node_id == node_id and pdo.receive == receive
                  and any((entry.index, entry.subindex) == (index, subindex) for entry in pdo.objects)]
-        return min(found, key=lambda pdo: pdo.number) if found else None
+        return min(found, key=lambda pdo: ((pdo.node_id, pdo.receive, pdo.number) not in self.configured,
+                                           pdo.number)) if found else None
 
 
 class _Builder:
@@ -119,7 +123,7 @@ class _Builder:
             if len(objects) != count:
                 continue  # a count written without its entries: not a usable mapping
             pdos[cob_id & 0x7FF] = Pdo(node_id, receive, number, cob_id & 0x7FF, objects)
-        return PdoMapping(pdos, source)
+        return PdoMapping(pdos, source, frozenset({*self.cob_ids, *self.counts, *self.entries}))
 
 
 def _expedited_download(data: bytes) -> tuple[int, int, int] | None:

@@ -3,6 +3,8 @@ DCF gives it (CiA 306)."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 
 from rig.protocols.pdo_mapping import MappedObject, mapping_from_dcf, mapping_from_sdo_writes
@@ -57,3 +59,25 @@ def test_a_dcf_gives_the_mapping_with_its_node_id(tmp_path):
     empty.write_text("[1000]\nParameterValue=0x192\n")
     with pytest.raises(ValueError, match=r"empty\.dcf: maps no PDO of node 9"):
         mapping_from_dcf({9: empty})
+
+
+def test_the_pdos_a_start_up_writes_are_known_disabled_ones_too():
+    writes = [*_tpdo2_configured(3, 0x283), *_download(3, 0x1400, 1, 0x203 | 1 << 31, 4)]  # RPDO1 disabled
+    mapping = mapping_from_sdo_writes(writes, "trace")
+    assert set(mapping.pdos) == {0x283}
+    assert {(3, False, 2), (3, True, 1)} <= mapping.configured
+
+
+def test_a_start_up_that_maps_some_pdos_keeps_this_driver_s_mapping_for_the_others():
+    """A master that configures only the drive's TPDO2 (0x6064 then 0x6041) and leaves the rest as they were:
+    the statusword is read where the writes put it, the target and the encoder from this driver's mapping."""
+    import can
+
+    from rig.trace_import import _canopen_mapping
+
+    frames = [(0.001 * k, k, can.Message(arbitration_id=cob, data=data, is_extended_id=False))
+              for k, (cob, data) in enumerate(_tpdo2_configured(3, 0x283))]
+    mapping = _canopen_mapping(Path("t.blf"), frames, 3, 9, None)
+    assert mapping.carrying(3, 0x6041, receive=False).cob_id == 0x283  # written, before the assumed TPDO1
+    assert mapping.carrying(3, 0x607A, receive=True).cob_id == 0x203 and mapping.carrying(9, 0x6004, receive=False)
+    assert "this driver's mapping for the PDOs they leave alone" in mapping.source
