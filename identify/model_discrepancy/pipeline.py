@@ -116,7 +116,7 @@ def diagnose_model(command_rad: ArrayLike, angle_rad: ArrayLike, noise_bound_rad
     consistent = current.falsified_fraction <= options.consistent_fraction
     intervals, reduction = _named_intervals(chain, steps, start_model, u, y, delta, current, options, say)
     steps = _with_final_parameters(steps, chain)
-    verdict, reason = _final_verdict(u, y, initial, current, found, consistent, delta, options)
+    verdict, reason = _final_verdict(u, y, initial, current, found, consistent, delta, period, options)
     return DiscrepancyResult(
         steps=tuple(steps), start_model=start_model, final_model=chain.model() if steps else start_model,
         initial=initial, final=current, consistent=consistent,

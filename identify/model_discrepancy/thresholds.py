@@ -361,6 +361,15 @@ UNMEASURED_INPUT_FRACTION = 0.05
 rest in at least this share of samples is driven by something the record does not contain (torque off and
 the load swinging, a hand on the arm): not excited by the command, rather than unexplained."""
 
+# Evidence: chosen with the limit-cycle check (a sine under noise of a tenth of its amplitude correlates at
+# about 0.99 at one period; a random walk's first peak after its first zero crossing stays well below 0.5).
+REST_OSCILLATION_CORRELATION = 0.5
+"""The output at rest repeats when its normalised autocorrelation reaches this at its first peak."""
+
+# Evidence: as above; fewer cycles make the autocorrelation's peak a matter of chance.
+REST_OSCILLATION_CYCLES = 3
+"""The rest stretch must hold at least this many periods for an oscillation to be said."""
+
 # Evidence: from the noise model (one step of two readings, each within +-delta, moves by at most 2 delta).
 UNMEASURED_OUTPUT_MOTION_NOISE_BOUNDS = 2.0
 """The output moves in a sample when it changes by more than this many noise bounds."""

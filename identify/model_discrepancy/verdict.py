@@ -31,6 +31,8 @@ from identify.model_discrepancy.thresholds import (
     MIN_REDUCTION,
     MIN_SEGMENT_REVERSALS,
     MIN_VALIDATION_SAMPLES,
+    REST_OSCILLATION_CORRELATION,
+    REST_OSCILLATION_CYCLES,
     UNMEASURED_INPUT_FRACTION,
     UNMEASURED_MODEL_STILL_NOISE_BOUNDS,
     UNMEASURED_OUTPUT_MOTION_NOISE_BOUNDS,
@@ -71,17 +73,58 @@ def _excitation(u: NDArray[np.float64], n_est: int) -> dict[str, Any]:
 
 
 def _unmeasured_input(u: NDArray[np.float64], y: NDArray[np.float64], simulated: NDArray[np.float64],
-                      delta: float) -> str:
+                      delta: float, period_s: float) -> str:
     """A reason when the output moves while the command and the model are at rest
-    (:data:`UNMEASURED_INPUT_FRACTION`), else an empty string."""
+    (:data:`UNMEASURED_INPUT_FRACTION`), else an empty string. Where it oscillates there
+    (:func:`_rest_oscillation`), the reason gives the amplitude and period and names both readings: a limit
+    cycle of the plant's own loop, or a periodic input the record does not contain."""
     command_still = np.abs(np.diff(u)) <= 1e-12 + COMMAND_STILL_RANGE_FRACTION * float(np.ptp(u))
     model_still = np.abs(np.diff(simulated)) <= UNMEASURED_MODEL_STILL_NOISE_BOUNDS * delta
     output_moves = np.abs(np.diff(y)) > UNMEASURED_OUTPUT_MOTION_NOISE_BOUNDS * delta
     share = float(np.mean(command_still & model_still & output_moves))
     if share < UNMEASURED_INPUT_FRACTION:
         return ""
-    return (f"the output moves while the command and the model are at rest in {100 * share:.0f} % of samples: "
-            "an input the record does not contain (torque off, an external load) drives it")
+    moves = f"the output moves while the command and the model are at rest in {100 * share:.0f} % of samples"
+    oscillation = _rest_oscillation(y, command_still & model_still)
+    if oscillation is None:
+        return f"{moves}: an input the record does not contain (torque off, an external load) drives it"
+    period_samples, amplitude_rad = oscillation
+    return (f"{moves}, oscillating by +-{amplitude_rad:.3g} rad with a period of {period_samples * period_s:.3g} s "
+            f"({1 / (period_samples * period_s):.3g} Hz): a limit cycle of the plant's own loop (a position loop "
+            "hunting through friction or play) looks so, as does a periodic input the record does not contain; this "
+            "record cannot tell them apart (record the drive's torque, or hold with the loop gain changed: a limit "
+            "cycle's amplitude and period follow the gain, an external input's do not)")
+
+
+def _rest_oscillation(y: NDArray[np.float64], still: NDArray[np.bool_]) -> tuple[float, float] | None:
+    """(period in samples, half the peak-to-peak amplitude) of the output over the longest stretch where the
+    command and the model rest, when it repeats there: its autocorrelation has a first peak of at least
+    :data:`REST_OSCILLATION_CORRELATION` and the stretch holds :data:`REST_OSCILLATION_CYCLES` periods; else None."""
+    best_start, best_length, start = 0, 0, None
+    for index, flag in enumerate(np.append(still, False)):
+        if flag and start is None:
+            start = index
+        elif not flag and start is not None:
+            if index - start > best_length:
+                best_start, best_length = start, index - start
+            start = None
+    segment = y[best_start:best_start + best_length + 1]
+    segment = segment[np.isfinite(segment)]
+    if segment.size < 8:
+        return None
+    centred = segment - segment.mean()
+    spectrum = np.fft.rfft(centred, 2 * centred.size)
+    correlation = np.fft.irfft(np.abs(spectrum) ** 2)[:centred.size]
+    if correlation[0] <= 0.0:
+        return None
+    correlation = correlation / correlation[0]
+    falling = np.flatnonzero(correlation < 0.0)
+    if falling.size == 0 or falling[0] + 1 >= centred.size // REST_OSCILLATION_CYCLES:
+        return None  # it never turns back, or not within a third of the stretch
+    lag = int(falling[0] + np.argmax(correlation[falling[0]:centred.size // REST_OSCILLATION_CYCLES]))
+    if lag <= falling[0] or correlation[lag] < REST_OSCILLATION_CORRELATION:
+        return None
+    return float(lag), 0.5 * float(np.ptp(centred))
 
 
 def _not_excited(u: NDArray[np.float64], y: NDArray[np.float64], delta: float, model: PlantModel | None,
@@ -173,7 +216,8 @@ def _percent_lower(reduction: float) -> str:
 
 
 def _final_verdict(u: NDArray[np.float64], y: NDArray[np.float64], initial: Disagreement, final: Disagreement,
-                   found: _Search, consistent: bool, delta: float, options: DiagnoseOptions) -> tuple[str, str]:
+                   found: _Search, consistent: bool, delta: float, period_s: float,
+                   options: DiagnoseOptions) -> tuple[str, str]:
     """:func:`_verdict`, and a record where nothing is named (unexplained, or ambiguous before any effect)
     whose output moves on its own (:func:`_unmeasured_input`) is not excited by the command instead: a
     candidate undecided on such a record is as meaningless as none, the record cannot test the model."""
@@ -186,7 +230,7 @@ def _final_verdict(u: NDArray[np.float64], y: NDArray[np.float64], initial: Disa
         reason = (f"{named} named (gap {initial.gap_rad:.3g} -> {final.gap_rad:.3g} rad); then " if named else "") \
             + found.look_alike_reason
     if verdict == "unexplained" or (verdict == "ambiguous" and not found.steps):
-        unmeasured = _unmeasured_input(u, y, final.simulated_rad, delta)
+        unmeasured = _unmeasured_input(u, y, final.simulated_rad, delta, period_s)
         if unmeasured:
             return "not_excited", unmeasured
     return verdict, reason

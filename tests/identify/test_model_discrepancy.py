@@ -4,6 +4,8 @@ random realistic parameters, read by a 12-bit encoder; the workflow sees only th
 
 from __future__ import annotations
 
+import re
+
 import json
 from dataclasses import replace
 
@@ -269,10 +271,28 @@ def test_an_output_moving_while_command_and_model_rest_is_an_unmeasured_input():
     swing[still] = 0.05 * np.sin(still / 7.0) + rng.uniform(-1e-3, 1e-3, still.size)
     result = diagnose_model(record.command_rad, record.angle_rad + swing, record.noise_bound_rad,
                             record.sample_period_s, record.nominal_model)
-    # a 50 mrad swing at 23 Hz while the command holds: no candidate explains it, and it is not the command's
+    # a 50 mrad swing at 23 Hz while the command holds: no candidate explains it, and it is not the command's;
+    # it repeats, so it is said with its amplitude and period, and as what it can be: the plant's own limit
+    # cycle (a loop hunting through friction or play) or a periodic input the record does not contain
     assert result.verdict == "not_excited", result.verdict_reason
-    assert "input the record does not contain" in result.verdict_reason
+    assert "input the record does not contain" in result.verdict_reason and "limit cycle" in result.verdict_reason
     assert result.missing_effects == ()
+    period_s = float(re.search(r"a period of ([0-9.e-]+) s", result.verdict_reason).group(1))
+    amplitude = float(re.search(r"oscillating by \+-([0-9.e-]+) rad", result.verdict_reason).group(1))
+    assert period_s == pytest.approx(2 * np.pi * 7 * record.sample_period_s, rel=0.05)
+    assert amplitude == pytest.approx(0.05, rel=0.1)
+
+
+def test_an_output_drifting_while_command_and_model_rest_is_no_limit_cycle():
+    rng = np.random.default_rng(3)
+    record = hidden_effect_record((), 31)
+    drift = np.zeros(record.command_rad.size)
+    still = np.flatnonzero(np.abs(np.diff(record.command_rad, prepend=0.0)) == 0.0)
+    drift[still] = np.cumsum(rng.normal(0.0, 0.004, still.size))  # a hand on the arm: no period
+    result = diagnose_model(record.command_rad, record.angle_rad + drift, record.noise_bound_rad,
+                            record.sample_period_s, record.nominal_model)
+    assert result.verdict == "not_excited", result.verdict_reason
+    assert "input the record does not contain" in result.verdict_reason and "limit cycle" not in result.verdict_reason
 
 
 def test_a_gain_error_is_not_a_candidate_against_a_fitted_start_model():
