@@ -72,33 +72,48 @@ def _excitation(u: NDArray[np.float64], n_est: int) -> dict[str, Any]:
             "reason": reason}
 
 
+def _at_rest(u: NDArray[np.float64], simulated: NDArray[np.float64], delta: float) -> NDArray[np.bool_]:
+    """Per step between two samples: the command holds and the model's free run rests."""
+    command_still = np.abs(np.diff(u)) <= 1e-12 + COMMAND_STILL_RANGE_FRACTION * float(np.ptp(u))
+    return command_still & (np.abs(np.diff(simulated)) <= UNMEASURED_MODEL_STILL_NOISE_BOUNDS * delta)
+
+
 def _unmeasured_input(u: NDArray[np.float64], y: NDArray[np.float64], simulated: NDArray[np.float64],
                       delta: float, period_s: float) -> str:
     """A reason when the output moves while the command and the model are at rest
     (:data:`UNMEASURED_INPUT_FRACTION`), else an empty string. Where it oscillates there
-    (:func:`_rest_oscillation`), the reason gives the amplitude and period and names both readings: a limit
-    cycle of the plant's own loop, or a periodic input the record does not contain."""
-    command_still = np.abs(np.diff(u)) <= 1e-12 + COMMAND_STILL_RANGE_FRACTION * float(np.ptp(u))
-    model_still = np.abs(np.diff(simulated)) <= UNMEASURED_MODEL_STILL_NOISE_BOUNDS * delta
+    (:func:`_rest_oscillation`), the reason gives the amplitude and period and names both readings."""
+    still = _at_rest(u, simulated, delta)
     output_moves = np.abs(np.diff(y)) > UNMEASURED_OUTPUT_MOTION_NOISE_BOUNDS * delta
-    share = float(np.mean(command_still & model_still & output_moves))
+    share = float(np.mean(still & output_moves))
     if share < UNMEASURED_INPUT_FRACTION:
         return ""
     moves = f"the output moves while the command and the model are at rest in {100 * share:.0f} % of samples"
-    oscillation = _rest_oscillation(y, command_still & model_still)
-    if oscillation is None:
+    oscillation = _oscillation_text(y, still, delta, period_s)
+    if not oscillation:
         return f"{moves}: an input the record does not contain (torque off, an external load) drives it"
+    return f"{moves}, {oscillation}"
+
+
+def _oscillation_text(y: NDArray[np.float64], still: NDArray[np.bool_], delta: float, period_s: float) -> str:
+    """The output's oscillation where the command and the model rest, in words (:func:`_rest_oscillation`,
+    larger than the noise bound), or an empty string: a limit cycle of the plant's own loop, or a periodic
+    input the record does not contain, which the record cannot tell apart."""
+    oscillation = _rest_oscillation(y, still)
+    if oscillation is None or oscillation[1] <= delta:
+        return ""
     period_samples, amplitude_rad = oscillation
-    return (f"{moves}, oscillating by +-{amplitude_rad:.3g} rad with a period of {period_samples * period_s:.3g} s "
-            f"({1 / (period_samples * period_s):.3g} Hz): a limit cycle of the plant's own loop (a position loop "
-            "hunting through friction or play) looks so, as does a periodic input the record does not contain; this "
-            "record cannot tell them apart (record the drive's torque, or hold with the loop gain changed: a limit "
-            "cycle's amplitude and period follow the gain, an external input's do not)")
+    return (f"oscillating by +-{amplitude_rad:.3g} rad with a period of {period_samples * period_s:.3g} s "
+            f"({1 / (period_samples * period_s):.3g} Hz) while the command and the model rest: a limit cycle of the "
+            "plant's own loop (a position loop hunting through friction or play) looks so, as does a periodic input "
+            "the record does not contain; this record cannot tell them apart (record the drive's torque, or hold "
+            "with the loop gain changed: a limit cycle's amplitude and period follow the gain, an external input's "
+            "do not)")
 
 
 def _rest_oscillation(y: NDArray[np.float64], still: NDArray[np.bool_]) -> tuple[float, float] | None:
-    """(period in samples, half the peak-to-peak amplitude) of the output over the longest stretch where the
-    command and the model rest, when it repeats there: its autocorrelation has a first peak of at least
+    """(period in samples, half its peak-to-peak amplitude after the first period, 1st to 99th percentile) of the
+    output over the longest stretch where the command and the model rest, when it repeats there: its autocorrelation has a first peak of at least
     :data:`REST_OSCILLATION_CORRELATION` and the stretch holds :data:`REST_OSCILLATION_CYCLES` periods; else None."""
     best_start, best_length, start = 0, 0, None
     for index, flag in enumerate(np.append(still, False)):
@@ -124,7 +139,8 @@ def _rest_oscillation(y: NDArray[np.float64], still: NDArray[np.bool_]) -> tuple
     lag = int(falling[0] + np.argmax(correlation[falling[0]:centred.size // REST_OSCILLATION_CYCLES]))
     if lag <= falling[0] or correlation[lag] < REST_OSCILLATION_CORRELATION:
         return None
-    return float(lag), 0.5 * float(np.ptp(centred))
+    settled = centred[lag:]  # the first period can still hold the end of the move before the rest
+    return float(lag), 0.5 * float(np.percentile(settled, 99) - np.percentile(settled, 1))
 
 
 def _not_excited(u: NDArray[np.float64], y: NDArray[np.float64], delta: float, model: PlantModel | None,
@@ -233,6 +249,10 @@ def _final_verdict(u: NDArray[np.float64], y: NDArray[np.float64], initial: Disa
         unmeasured = _unmeasured_input(u, y, final.simulated_rad, delta, period_s)
         if unmeasured:
             return "not_excited", unmeasured
+    if verdict in ("unexplained", "ambiguous", "named"):  # what the catalogue cannot name, said as what it is
+        oscillation = _oscillation_text(y, _at_rest(u, final.simulated_rad, delta), delta, period_s)
+        if oscillation:
+            reason = f"{reason}; the output is {oscillation}"
     return verdict, reason
 
 

@@ -569,3 +569,29 @@ def test_an_effect_the_later_ones_make_redundant_is_dropped_and_one_still_needed
     kept = _still_needed(found, shifted.command_rad, shifted.angle_rad, n_est, shifted.noise_bound_rad,
                          DiagnoseOptions(), lambda _m: None)
     assert [step.effect for step in kept.steps] == ["offset", "backlash"] and kept is found
+
+
+@pytest.mark.parametrize("seed", [0, 4])
+def test_a_hunting_axis_is_said_as_a_limit_cycle_with_its_amplitude_and_period(seed):
+    """A position loop with integral action hunting through stiction while its command rests
+    (``tests/peers/hunting_axis``, a generator written from the physics alone): nothing in the catalogue is
+    that, and the reason says what the record shows, the oscillation's amplitude and period against the
+    generator's truth (period within 3 %, amplitude within 15 %), as a limit cycle or a periodic input."""
+    import sys
+    from pathlib import Path
+
+    from identify.plant_blocks import LinearBlock, PlantModel
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "peers" / "hunting_axis"))
+    import hunting
+
+    record = hunting.generate(seed)
+    nominal = LinearBlock(a=tuple(record["nominal_a"][1:]), b=tuple(record["nominal_b"]),
+                          sample_period_s=record["sample_period_s"])
+    result = diagnose_model(record["command_rad"], record["angle_rad"], record["noise_bound_rad"],
+                            record["sample_period_s"], PlantModel((nominal,)))
+    assert result.missing_effects == () and "limit cycle" in result.verdict_reason, result.verdict_reason
+    period_s = float(re.search(r"a period of ([0-9.e-]+) s", result.verdict_reason).group(1))
+    amplitude = float(re.search(r"oscillating by \+-([0-9.e-]+) rad", result.verdict_reason).group(1))
+    assert period_s == pytest.approx(record["truth"]["limit_cycle_period_s"], rel=0.03)
+    assert amplitude == pytest.approx(record["truth"]["limit_cycle_amplitude_rad"], rel=0.15)
