@@ -297,14 +297,19 @@ def condition(name: str):
             hog.wait()
 
 
+def _refused_row(row: dict[str, object]) -> str:
+    """A table row for a case refused on load (e.g. a rate the bus cannot carry)."""
+    return (f"| {row['condition']} | {row['transport']} | {row['rate_hz']:.0f} Hz | refused on load: "
+            f"{str(row['refused'])[:90]} |||||||||||")
+
+
 def _print_timing_table(rows: list[dict[str, object]]) -> None:
     print("| condition | transport | rate | samples | lost | held | min lead | late | duplicate | CPU per 1000 "
           "samples | load avg | link load (worst case / measured) | longest host gap | longest gc |")
     print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for row in rows:
         if "refused" in row:
-            print(f"| {row['condition']} | {row['transport']} | {row['rate_hz']:.0f} Hz | refused on load: "
-                  f"{row['refused'][:90]} |||||||||||")
+            print(_refused_row(row))
             continue
         if "late" not in row:
             print(f"| {row['condition']} | {row['transport']} | {row['rate_hz']:.0f} Hz | {row['samples']} | "
@@ -344,8 +349,7 @@ def _print_device_table(rows: list[dict[str, object]]) -> None:
     print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for row in rows:
         if "refused" in row:
-            print(f"| {row['condition']} | {row['transport']} | {row['rate_hz']:.0f} Hz | refused on load: "
-                  f"{row['refused'][:90]} |||||||||||")
+            print(_refused_row(row))
             continue
         stop = str(row["stop"]).replace("|", "/")
         print(f"| {row['condition']} | {row['transport']} | {row['rate_hz']:.0f} Hz | {row['samples']} | {row['lost']} | "
