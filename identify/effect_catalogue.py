@@ -38,7 +38,7 @@ effect is one entry too: its ``train_fields`` map free values to the drive train
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any
 
@@ -64,6 +64,7 @@ if TYPE_CHECKING:
     from identify.effect_signatures import SignatureScore
 
 __all__ = ["DYNAMICS_EFFECTS", "EFFECTS", "EFFECT_NAMES", "HYSTERESIS_INNER_TWIN", "LOOK_ALIKE_EXPERIMENTS",
+           "SAME_MAP_READINGS",
            "PLACEMENTS", "SEARCHED_EFFECT_NAMES", "Effect",
            "GuessContext", "Parameter", "TomlKey", "effect", "effect_for_block", "effect_for_toml_type",
            "reference_train"]
@@ -213,6 +214,14 @@ class Effect:
         are within the noise bound of each other on the record, the verdict is ambiguous between them, with
         the experiment that separates them (:data:`LOOK_ALIKE_EXPERIMENTS`; ``_look_alikes_checked`` in
         :mod:`identify.model_discrepancy.search`).
+    same_map_as
+        Other mechanisms whose map from command to angle is exactly this effect's fitted map (an output
+        backlash with unit slopes is Coulomb friction without stiction behind the position loop, plus an offset
+        of half its asymmetry): the data of one record can never tell them apart, so when this effect is
+        named it stays in the model (the map is identified) and the verdict is ambiguous between the
+        mechanisms, reading the fitted sizes both ways (:data:`SAME_MAP_READINGS`) and saying what experiment
+        separates them (:data:`LOOK_ALIKE_EXPERIMENTS`; ``_mechanisms_left_open`` in
+        :mod:`identify.model_discrepancy.search`).
     look_alike_only
         Not searched by default (not in :data:`SEARCHED_EFFECT_NAMES`): tried as the look-alike of a named
         effect, or when named in the workflow's ``candidates``.
@@ -251,6 +260,7 @@ class Effect:
     width_starts: Callable[[float, DriveTrain], list[tuple[float, ...]]] | None = None
     loop_damping_value: int | None = None
     look_alikes: tuple[str, ...] = ()
+    same_map_as: tuple[str, ...] = ()
     look_alike_only: bool = False
 
     def in_train(self, values: Sequence[float], train: DriveTrain) -> DriveTrain:
@@ -640,7 +650,7 @@ EFFECTS: dict[str, Effect] = {effect.name: effect for effect in (
                   "direction of y^)",
         family="hysteresis", needs_reversals=True,
         contact_start=lambda c_l, c_r: [(c_l, c_r)], inner_twin=HYSTERESIS_INNER_TWIN,
-        half_widths=lambda b: (b.c_l_rad, b.c_r_rad),
+        half_widths=lambda b: (b.c_l_rad, b.c_r_rad), same_map_as=("coulomb_friction",),
     ),
     Effect(
         name="dead_zone", block_class=DeadZone, toml_type="dead_zone",
@@ -875,8 +885,31 @@ LOOK_ALIKE_EXPERIMENTS: dict[frozenset[str], str] = {
         "move through a wider range of angles (a quarter turn or more, in both directions): an offset is the same "
         "at every angle, while an error that depends on the angle (a sensor error, a load torque, cogging) changes "
         "with it; over a small range of angles any of them is a constant"),
+    frozenset({"backlash", "coulomb_friction"}): (
+        "record again at another position-loop gain (friction's band, twice F / k, shrinks as the loop stiffness k "
+        "grows; a play keeps its width), or log the drive's torque or current through the reversals (a play turns "
+        "the motor through its width with "
+        "almost no torque, friction needs its full breakaway torque at once), or read the motor side with a "
+        "second encoder (across a play the motor moves while the load stands; under friction both stand), or "
+        "lock the output and twist the input both ways at low torque"),
 }
-"""The experiment that tells look-alike effects apart (catalogue ``look_alikes``), for the verdict's reason."""
+"""The experiment that tells look-alike effects apart (catalogue ``look_alikes`` and ``same_map_as``), for the
+verdict's reason."""
+
+
+def _play_or_friction(parameters: Mapping[str, float]) -> str:
+    c_l, c_r = parameters["c_l_rad"], parameters["c_r_rad"]
+    return (f"a play of width {c_l + c_r:.3g} rad (c_l {c_l:.3g}, c_r {c_r:.3g}), or Coulomb friction without "
+            f"stiction that leaves the output {0.5 * (c_l + c_r):.3g} rad behind the command either way (divide by "
+            f"the position loop's stiffness per unit torque to read it as a torque), with an offset of "
+            f"{0.5 * (c_l - c_r):.3g} rad")
+
+
+SAME_MAP_READINGS: dict[tuple[str, str], Callable[[Mapping[str, float]], str]] = {
+    ("backlash", "coulomb_friction"): _play_or_friction,
+}
+"""(named effect, other mechanism) -> the named effect's fitted parameters read as either mechanism, in words
+(catalogue ``same_map_as``)."""
 
 _BY_CLASS = {entry.block_class: entry for entry in EFFECTS.values() if entry.placement != "dynamics"}
 _BY_TOML = {entry.toml_type: entry for entry in EFFECTS.values() if entry.placement != "dynamics"}

@@ -32,8 +32,14 @@ per step:
    isolated spikes), is reported with its sample ranges (:class:`GrossDisagreement`, the result's
    ``findings``); the workflow judges the rest of the record with it put aside, and such a record is never
    ``explained``.
+   A named map that two mechanisms draw alike (an output backlash and Coulomb friction without stiction behind
+   the position loop) stays in the model, and the verdict is ``ambiguous`` between the mechanisms.
 7. **Intervals** (:mod:`.intervals`): the named effects' parameters and the gap reduction with their range
    over cross-validation refits.
+8. **Open world** (:mod:`.open_world`): a small black box of the final residual, fitted on the estimation
+   segment and judged on the validation segment, measures the structure the final model left; the verdict
+   says how much of the gap remains unexplained, and is lowered to ``ambiguous`` when the black box takes more
+   off what remains than the named effects took off the start model's gap (:class:`ResidualStructure`).
 
 :mod:`.pipeline` runs the steps (:func:`diagnose_model`, settings :class:`DiagnoseOptions` in
 :mod:`.options`); :mod:`.result` holds the result types (:class:`DiscrepancyResult`, the JSON
@@ -63,6 +69,7 @@ from identify.model_discrepancy.result import (
     GrossDisagreement,
     LinearFit,
     MissingEffect,
+    ResidualStructure,
 )
 from identify.model_discrepancy.start_model import fit_linear_model
 from identify.model_discrepancy.thresholds import ESTIMATION_FRACTION, REFIT_FOLDS, VALIDATION_BLOCKS
@@ -82,6 +89,7 @@ __all__ = [
     "disagreement",
     "gross_disagreements",
     "GrossDisagreement",
+    "ResidualStructure",
     "fit_linear_model",
     "rigid_train_like",
     "VERDICTS",

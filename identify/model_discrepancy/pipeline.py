@@ -19,10 +19,12 @@ from identify.validation import InvalidInputError, as_signal, positive, same_len
 from identify.model_discrepancy.candidates import _candidate_names
 from identify.model_discrepancy.disagreement import disagreement, gross_disagreements
 from identify.model_discrepancy.intervals import _named_intervals, _with_final_parameters
+from identify.model_discrepancy.open_world import open_world_checked
 from identify.model_discrepancy.options import DiagnoseOptions
 from identify.model_discrepancy.result import Disagreement, DiscrepancyResult
 from identify.model_discrepancy.search import (
     _look_alikes_checked,
+    _mechanisms_left_open,
     _Search,
     _family_rechecked,
     _search,
@@ -53,7 +55,8 @@ def diagnose_model(command_rad: ArrayLike, angle_rad: ArrayLike, noise_bound_rad
     ``findings`` and the verdict's reason, :func:`_with_findings`), the move to the operating point (:func:`_operating_point`,
     :func:`_absolute`), the excitation check (:func:`_excitation`, :func:`_not_excited`), the start model
     (:func:`_start`), the greedy search (:func:`_search`), the intervals of what was named
-    (:func:`_named_intervals`) and the verdict (:func:`_final_verdict`).
+    (:func:`_named_intervals`), the verdict (:func:`_final_verdict`) and the open-world check of what the final
+    model leaves (:func:`open_world_checked`).
 
     Parameters
     ----------
@@ -106,17 +109,19 @@ def diagnose_model(command_rad: ArrayLike, angle_rad: ArrayLike, noise_bound_rad
         return _not_excited(u, y, delta, model, n_est, excitation, options.consistent_fraction)
     start_model, linear_fit, chain = _start(u, y, period, n_est, model, options.max_evaluations, say)
     initial = disagreement(start_model, u, y, delta, n_est)
-    found = _search(_Search(chain, initial, [], [], (), initial.residual_rad[n_est:]),
-                    list(_candidate_names(options.candidates, model)), u, y, n_est, delta, period, options, say,
-                    resolve_ties=True)
-    found = _family_rechecked(found, _candidate_names(options.candidates, model), u, y, n_est, delta, options, say)
+    candidates = list(_candidate_names(options.candidates, model))
+    found = _search(_Search(chain, initial, [], [], (), initial.residual_rad[n_est:]), list(candidates), u, y, n_est,
+                    delta, period, options, say, resolve_ties=True)
+    found = _family_rechecked(found, candidates, u, y, n_est, delta, options, say)
     found = _still_needed(found, u, y, n_est, delta, options, say)
     found = _look_alikes_checked(found, u, y, n_est, delta, period, options, say)
     chain, current, steps = found.chain, found.current, found.steps
     consistent = current.falsified_fraction <= options.consistent_fraction
     intervals, reduction = _named_intervals(chain, steps, start_model, u, y, delta, current, options, say)
     steps = _with_final_parameters(steps, chain)
+    found = _mechanisms_left_open(replace(found, steps=steps), candidates, say)
     verdict, reason = _final_verdict(u, y, initial, current, found, consistent, delta, period, options)
+    verdict, reason, structure = open_world_checked(verdict, reason, u, y, initial, current, steps, consistent, n_est)
     return DiscrepancyResult(
         steps=tuple(steps), start_model=start_model, final_model=chain.model() if steps else start_model,
         initial=initial, final=current, consistent=consistent,
@@ -124,6 +129,7 @@ def diagnose_model(command_rad: ArrayLike, angle_rad: ArrayLike, noise_bound_rad
         estimation_samples=n_est, noise_bound_rad=delta, linear_fit=linear_fit, verdict=verdict,
         verdict_reason=reason, candidates=tuple(found.tried), ambiguous_between=found.ambiguous_between,
         parameter_intervals=intervals, gap_reduction=reduction, excitation=excitation, undecided=found.undecided,
+        residual_structure=structure,
     )
 
 

@@ -160,6 +160,35 @@ class DiscrepancyStep:
 
 
 @dataclass(frozen=True)
+class ResidualStructure:
+    """What the black box of the final residual found (the open-world check,
+    :func:`~identify.model_discrepancy.open_world.residual_structure`).
+
+    Attributes
+    ----------
+    explained_fraction
+        Share of the validation residual's mean square the black box, fitted on the estimation segment,
+        predicts (0 when it predicts nothing; it can be negative on held-out data, reported as 0).
+    gap_rad
+        RMS of the validation residual before the black box (the final validated gap).
+    gap_after_black_box_rad
+        RMS of what the black box leaves of it.
+    """
+
+    explained_fraction: float
+    gap_rad: float
+    gap_after_black_box_rad: float
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"explained_fraction": self.explained_fraction, "gap": self.gap_rad,
+                "gap_after_black_box": self.gap_after_black_box_rad}
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> ResidualStructure:
+        return cls(float(data["explained_fraction"]), float(data["gap"]), float(data["gap_after_black_box"]))
+
+
+@dataclass(frozen=True)
 class DiscrepancyResult:
     """The whole workflow (step 5).
 
@@ -205,6 +234,7 @@ class DiscrepancyResult:
     operating_point_rad: float = 0.0
     undecided: tuple[CandidateResult, ...] = ()
     findings: tuple[GrossDisagreement, ...] = ()
+    residual_structure: ResidualStructure | None = None
 
     def __post_init__(self) -> None:
         if self.verdict not in VERDICTS:
@@ -235,7 +265,7 @@ class DiscrepancyResult:
             gap_reduction=reduction, falsified_fraction_initial=float(self.initial.falsified_fraction),
             falsified_fraction_final=float(self.final.falsified_fraction), excitation=dict(self.excitation),
             operating_point_rad=float(self.operating_point_rad), undecided=tuple(self.undecided),
-            findings=tuple(self.findings))
+            findings=tuple(self.findings), residual_structure=self.residual_structure)
 
     def to_dict(self) -> dict[str, Any]:
         """The ``rig diagnose --json`` document, ``self.report().to_dict()`` (:meth:`DiscrepancyReport.to_dict`)."""
@@ -261,7 +291,7 @@ class MissingEffect:
 @dataclass(frozen=True)
 class DiscrepancyReport:
     """What :func:`diagnose_model` found, as the ``rig diagnose --json`` document holds it (kind
-    ``"model_discrepancy"``, version 4): the verdict with its reason, the missing effects with intervals,
+    ``"model_discrepancy"``, version 5): the verdict with its reason, the missing effects with intervals,
     the candidates with their gaps, uncertainties and gap reductions, the candidates of the last round whose
     reduction straddles the acceptance (``undecided``: an ambiguous verdict after the effects named, if any),
     the gaps and falsified fractions before and after, the excitation check, the operating point and the
@@ -283,16 +313,18 @@ class DiscrepancyReport:
     operating_point_rad: float
     undecided: tuple[CandidateResult, ...] = ()
     findings: tuple[GrossDisagreement, ...] = ()
+    residual_structure: ResidualStructure | None = None
 
     KIND = "model_discrepancy"
-    VERSION = 4
-    READS = (1, 2, 3, 4)
+    VERSION = 5
+    READS = (1, 2, 3, 4, 5)
     """Version 2 added ``undecided`` and each candidate's ``reduction``, ``reduction_interval`` and
     ``acceptance``; version 3 each candidate's ``validation_interval``, ``fold_reductions`` and
     ``refit_interval`` (the interval judged, ``reduction_interval``, is then made of both:
     :func:`_reduction_judged`); version 4 ``findings`` (the gross disagreements of the measurement:
-    :class:`GrossDisagreement`, each with ``kind``, ``ranges`` and ``text``). :meth:`from_dict` reads versions
-    1 to 3 too (no undecided candidates, no intervals; no refits; no findings)."""
+    :class:`GrossDisagreement`, each with ``kind``, ``ranges`` and ``text``); version 5 ``residual_structure``
+    (the open-world check: :class:`ResidualStructure`, null when not judged). :meth:`from_dict` reads versions
+    1 to 4 too (no undecided candidates, no intervals; no refits; no findings; no residual structure)."""
 
     def __post_init__(self) -> None:
         if self.verdict not in VERDICTS:
@@ -317,7 +349,8 @@ class DiscrepancyReport:
         """``kind``, ``version`` and the documented keys of the ``rig diagnose --json`` report: ``verdict``,
         ``verdict_reason``, ``noise_bound``, ``missing_effects`` (with ``parameter_intervals``), ``ambiguous_between``,
         ``candidates``, ``gap_initial``, ``gap_final``, ``gap_reduction``, ``falsified_fraction_initial``,
-        ``falsified_fraction_final``, ``excitation``, ``operating_point``, ``undecided``, ``findings``."""
+        ``falsified_fraction_final``, ``excitation``, ``operating_point``, ``undecided``, ``findings``,
+        ``residual_structure``."""
         return tagged(self.KIND, self.VERSION, {
             "verdict": self.verdict,
             "verdict_reason": self.verdict_reason,
@@ -344,6 +377,7 @@ class DiscrepancyReport:
             "operating_point": float(self.operating_point_rad),
             "undecided": [candidate.to_dict() for candidate in self.undecided],
             "findings": [finding.to_dict() for finding in self.findings],
+            "residual_structure": None if self.residual_structure is None else self.residual_structure.to_dict(),
         })
 
     @classmethod
@@ -367,7 +401,9 @@ class DiscrepancyReport:
                 falsified_fraction_final=float(data["falsified_fraction_final"]),
                 excitation=dict(data["excitation"]), operating_point_rad=float(data["operating_point"]),
                 undecided=tuple(CandidateResult.from_dict(c) for c in data.get("undecided", ())),
-                findings=tuple(GrossDisagreement.from_dict(f) for f in data.get("findings", ())))
+                findings=tuple(GrossDisagreement.from_dict(f) for f in data.get("findings", ())),
+                residual_structure=None if data.get("residual_structure") is None
+                else ResidualStructure.from_dict(data["residual_structure"]))
 
 
 @dataclass(frozen=True)

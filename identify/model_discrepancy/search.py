@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from identify.effect_catalogue import EFFECTS, LOOK_ALIKE_EXPERIMENTS, SEARCHED_EFFECT_NAMES
+from identify.effect_catalogue import EFFECTS, LOOK_ALIKE_EXPERIMENTS, SAME_MAP_READINGS, SEARCHED_EFFECT_NAMES
 from identify.effect_signatures import SignatureScore, signature_scores
 
 from identify.model_discrepancy.candidates import _Candidate, _insert_index, _without_effect
@@ -75,6 +75,9 @@ class _Search:
     look_alike_reason: str = ""
     """Set when a named effect was dropped for a look-alike the record cannot separate from it
     (:func:`_look_alikes_checked`): the verdict's reason."""
+    mechanism_reason: str = ""
+    """Set when a named effect's map is also another mechanism's (:func:`_mechanisms_left_open`): said after
+    what the named map explains."""
 
 
 def _search(state: _Search, remaining: list[str], u: NDArray[np.float64], y: NDArray[np.float64], n_est: int,
@@ -549,3 +552,34 @@ def _look_alikes_checked(found: _Search, u: NDArray[np.float64], y: NDArray[np.f
                                     falsified_fraction_after=without.falsified_fraction)
             return _Search(refit, without, steps, found.tried, pair, without.residual_rad[n_est:], (), reason)
     return found
+
+
+def _mechanisms_left_open(found: _Search, candidates: Sequence[str], say: Callable[[str], None]) -> _Search:
+    """A named effect whose fitted map is exactly another mechanism's (catalogue ``same_map_as``) keeps its place
+    in the model, with its sizes and intervals (the map is identified), but the verdict is ambiguous between
+    the mechanisms: the reason reads the fitted sizes both ways (:data:`SAME_MAP_READINGS`) and says what
+    experiment separates them (:data:`LOOK_ALIKE_EXPERIMENTS`).
+
+    An output backlash with unit slopes, w_t = x_t + c_l going down and x_t - c_r going up (eq. (3) of Cerone
+    et al. 2009), is the map of Coulomb friction without stiction behind a stiff position loop: the load stops
+    short of the command by T_c / K either way and stands until the drive has turned back through twice that,
+    plus an offset of (c_l - c_r) / 2 (a constant load torque). From the command and the angle alone no record
+    separates them; friction with stiction (breakaway above sliding) leaves stick-slip jumps and is named as
+    friction by the family rule. A search the user restricted to candidates without the other mechanism stays
+    within them, and a verdict already ambiguous keeps its own reason."""
+    if found.ambiguous_between or found.undecided:
+        return found
+    named = [step.effect for step in found.steps]
+    for step in found.steps:
+        for other in EFFECTS[step.effect].same_map_as:
+            if other in named or other not in candidates:
+                continue
+            reading = SAME_MAP_READINGS[(step.effect, other)](step.parameters)
+            reason = (f"but the {step.effect} fitted is also the map of {other}: {reading}. From the command and "
+                      f"the angle alone the two are one map, so which of them it is cannot be told from this record "
+                      f"(the fitted map stays in the model). To separate them: "
+                      f"{LOOK_ALIKE_EXPERIMENTS[frozenset((step.effect, other))]}")
+            say(f"ambiguous: {reason}")
+            return replace(found, ambiguous_between=(step.effect, other), mechanism_reason=reason)
+    return found
+

@@ -429,3 +429,34 @@ not bounded by the record, and its interval says so by its size)."""
 FEASIBLE_WALK_BISECTIONS = 5
 """Bisections between the last feasible and the first infeasible value of the walk (the end to 1/32 of the
 last step)."""
+
+# ----------------------------------------------------------------------------------------------------------
+# Step 7: the open-world check (identify.model_discrepancy.open_world)
+# ----------------------------------------------------------------------------------------------------------
+
+# Evidence: lags that span a sample (a delay, the drive's one-sample latency) to a few tens of samples (a mode
+# or a loop of a few Hz at 1 kHz) in octaves: 14 columns, few against the thousands of estimation samples of
+# a record, so the black box cannot learn the noise it is judged on.
+OPEN_WORLD_LAGS = (0, 1, 2, 4, 8, 16, 32)
+"""Delays (samples) of the command and of the model's output among the black box's regressors."""
+
+# Evidence: once- to three-per-revolution errors and torques (gravity, eccentricity, the low cogging orders).
+OPEN_WORLD_HARMONICS = 3
+"""Harmonics k of the model's angle whose sin(k y^), cos(k y^) the black box gets."""
+
+# Evidence: 24 records, 2026-12-03 (BENCHMARKS.md, "The open-world check"). Where the final model agreed with
+# the noise bound nothing was judged (our hidden backlash, gravity, friction, load friction, resonance, delay);
+# where the remainder was unstructured the black box predicted 0-3 % (the clean-room generator's hysteresis
+# and Stribeck on steps, its Coulomb friction on steps, gain drift on steps and multisine); 19-29 % where a
+# fit was only rough (its Coulomb friction on a chirp, Stribeck on a chirp, hysteresis on a chirp); 51-85 %
+# where an effect outside the catalogue was left (hysteresis named as load friction + resonance + gravity,
+# a drifting gain named as an offset, an eccentricity over a small motion).
+OPEN_WORLD_MIN_EXPLAINED = 0.3
+"""Share of the validated residual's mean square the black box must predict on held-out samples before the
+verdict says structure is left: below it, what remains reads as noise and unmodelled detail."""
+
+# Evidence: as OPEN_WORLD_MIN_EXPLAINED: the records with an effect outside the catalogue were at 51-85 %, the
+# rough fits of effects the catalogue holds at 19-29 %.
+OPEN_WORLD_NOT_WHOLE_STORY = 0.5
+"""A verdict ``named`` is lowered to ``ambiguous`` when the black box predicts at least this share of what the
+named effects leave: they are then not the whole story."""

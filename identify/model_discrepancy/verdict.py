@@ -234,13 +234,16 @@ def _percent_lower(reduction: float) -> str:
 def _final_verdict(u: NDArray[np.float64], y: NDArray[np.float64], initial: Disagreement, final: Disagreement,
                    found: _Search, consistent: bool, delta: float, period_s: float,
                    options: DiagnoseOptions) -> tuple[str, str]:
-    """:func:`_verdict`, and a record where nothing is named (unexplained, or ambiguous before any effect)
-    whose output moves on its own (:func:`_unmeasured_input`) is not excited by the command instead: a
+    """:func:`_verdict` (ambiguous when the named map is also another mechanism's, ``found.mechanism_reason``),
+    and a record where nothing is named (unexplained, or ambiguous before any effect) whose output moves on its own (:func:`_unmeasured_input`) is not excited by the command instead: a
     candidate undecided on such a record is as meaningless as none, the record cannot test the model."""
     n_est = int(round(options.estimation_fraction * u.size))
-    verdict, reason = _verdict(initial, final, found.steps, found.ambiguous_between, consistent, delta,
+    ambiguous_between = () if found.mechanism_reason else found.ambiguous_between
+    verdict, reason = _verdict(initial, final, found.steps, ambiguous_between, consistent, delta,
                                options.consistent_fraction, found.undecided, options.min_reduction,
                                _estimation_falsified(initial, y, n_est), n_est)
+    if found.mechanism_reason and verdict == "named":  # the map is named, its mechanism left open
+        verdict, reason = "ambiguous", f"{reason}; {found.mechanism_reason}"
     if found.look_alike_reason and verdict == "ambiguous":
         named = ", ".join(step.effect for step in found.steps)
         reason = (f"{named} named (gap {initial.gap_rad:.3g} -> {final.gap_rad:.3g} rad); then " if named else "") \

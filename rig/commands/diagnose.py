@@ -333,7 +333,9 @@ def _print_summary(data: str, model: str | None, noise_bound: float, result, num
     elif not result.steps:
         print("no missing effect found" if result.verdict != "ambiguous" else
               f"no effect chosen between {', '.join(result.ambiguous_between)}")
-    elif result.verdict == "ambiguous" and not result.undecided:
+    elif result.verdict == "ambiguous" and set(result.ambiguous_between) & set(result.missing_effects):
+        print(f"mechanism     not told: {' or '.join(result.ambiguous_between)}, one map from command to angle")
+    elif result.verdict == "ambiguous" and result.ambiguous_between and not result.undecided:
         print(f"then          no effect chosen between {', '.join(result.ambiguous_between)}")
     print(f"final gap     {result.final.gap_rad:.4g} rad, {100 * result.final.falsified_fraction:.1f} % falsified")
     if result.steps and result.gap_reduction:
@@ -341,5 +343,10 @@ def _print_summary(data: str, model: str | None, noise_bound: float, result, num
               f"{100 * result.gap_reduction['low']:.1f} .. {100 * result.gap_reduction['high']:.1f} % over "
               f"{len(result.gap_reduction['folds'])} cross-validation folds")
     print(result.unexplained)
+    structure = result.residual_structure
+    if structure is not None:
+        print(f"open world    a black box of the command, the model's output and its angle predicts "
+              f"{100 * structure.explained_fraction:.0f} % of what the final model leaves on held-out samples "
+              f"(gap {structure.gap_rad:.3g} -> {structure.gap_after_black_box_rad:.3g} rad)")
     if index is not None:
         print(f"report        {index}")

@@ -174,7 +174,8 @@ def signature_figure(step: DiscrepancyStep, number: int, residual_rad: NDArray[n
 VERDICT_WORDS = {
     "explained": "EXPLAINED: the start model already agrees with the data",
     "named": "NAMED: missing effects found",
-    "ambiguous": "AMBIGUOUS: the data cannot decide between candidates, or whether one is there; none is chosen",
+    "ambiguous": "AMBIGUOUS: the data cannot decide between candidates, or whether one is there, or which "
+                 "mechanism draws a fitted map",
     "unexplained": "UNEXPLAINED: no candidate effect helps",
     "not_excited": "NOT EXCITED: the data cannot show the effects",
 }

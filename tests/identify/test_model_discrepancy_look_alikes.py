@@ -23,6 +23,10 @@ import discrepancy_lookalikes as lookalikes  # noqa: E402  (the generator's reco
 
 
 def independent(effect_name: str, seed: int, **setting):
+    return independent_with_record(effect_name, seed, **setting)[0]
+
+
+def independent_with_record(effect_name: str, seed: int, **setting):
     record = lookalikes.generator_module().generate(
         effect_name, seed, excitation=setting["excitation"],
         duration_s=setting.get("duration_s", lookalikes.DURATION_S[setting["excitation"]]), bits=12,
@@ -30,7 +34,7 @@ def independent(effect_name: str, seed: int, **setting):
     nominal = record["nominal"]
     return diagnose_model(record["command_rad"], record["angle_rad"], lookalikes.noise_bound(nominal),
                           float(nominal["sample_period_s"]),
-                          PlantModel((lookalikes.nominal_linear_block(nominal),)))
+                          PlantModel((lookalikes.nominal_linear_block(nominal),))), record
 
 
 @pytest.mark.parametrize("seed, setting", [
@@ -85,3 +89,29 @@ def test_the_encoder_error_is_a_measurement_effect_of_the_catalogue_tried_as_gra
                        + 1e-3 * np.sin(2 * x + block.twice_per_rev_phase_rad))
     model = PlantModel((LinearBlock(a=(-0.5,), b=(0.0, 0.5), sample_period_s=0.001), block))
     assert np.allclose(model.simulate(x), block.apply(PlantModel(model.blocks[:1]).simulate(x)))
+
+
+def test_friction_behind_a_stiff_servo_is_fitted_as_a_play_and_its_mechanism_left_open():
+    # the generator's Coulomb friction on the load (tau = -F_c tanh(v / eps)) behind its kinematic servo twists
+    # the shaft by F_c / k whichever way the load moves: the map of a play of that half-width; from the command
+    # and the angle alone nothing tells the two apart, so the map is named and the mechanism is not
+    result, record = independent_with_record("coulomb", 1004, excitation="chirp")
+    assert result.verdict == "ambiguous", result.verdict_reason
+    assert result.missing_effects == ("backlash",)
+    assert set(result.ambiguous_between) == {"backlash", "coulomb_friction"}
+    assert LOOK_ALIKE_EXPERIMENTS[frozenset({"backlash", "coulomb_friction"})] in result.verdict_reason
+    twist = record["truth"]["parameters"]["coulomb_nm"] / record["nominal"]["shaft_stiffness_nm_per_rad"]
+    parameters = result.steps[0].parameters
+    assert (parameters["c_l_rad"] + parameters["c_r_rad"]) / 2 == pytest.approx(twist, rel=0.15)
+    for key in ("c_l_rad", "c_r_rad"):
+        low, high = result.parameter_intervals["backlash"][key]
+        assert low <= twist <= high
+
+
+def test_a_play_restricted_to_the_play_alone_is_named():
+    # a search the user limited to backlash has been told the mechanism: nothing is left open
+    record = hidden_effect_record(("backlash",), 11)
+    result = diagnose_model(record.command_rad, record.angle_rad, record.noise_bound_rad, record.sample_period_s,
+                            record.nominal_model, candidates=("backlash",))
+    assert result.verdict == "named" and result.missing_effects == ("backlash",), result.verdict_reason
+

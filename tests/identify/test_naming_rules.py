@@ -37,7 +37,7 @@ DIMENSIONLESS = {
     "position_loop_damping_ratio", "filter_pole", "reference_pole", "pole_tolerance", "complexity_penalty",
     "min_reduction", "reduction", "consistent_fraction", "estimation_fraction", "falsified_fraction",
     "falsified_fraction_before", "falsified_fraction_after", "falsified_fraction_initial",
-    "falsified_fraction_final", "required_noise_scale", "score",
+    "falsified_fraction_final", "required_noise_scale", "score", "explained_fraction",
     # the LP of linear_block_bounds works on θ = [a, b], dimensionless coefficients
     "max_certificate_gap", "tightening_tolerance",
     # the wear law of backlash_wear: rad of half-width per rad of output travel

@@ -65,7 +65,8 @@ def test_an_effect_hidden_around_the_fmu_is_named_with_its_truth_in_the_interval
     code = main(["diagnose", str(data), "--model", str(fmu_path), "--noise-bound", repr(NOISE_BOUND_RAD), "--json"])
     assert code == exit_codes.SUCCESS
     document = json.loads(capsys.readouterr().out)
-    assert document["verdict"] == "named"
+    # a play's map is also friction without stiction behind the loop: fitted, its mechanism left open
+    assert document["verdict"] == ("ambiguous" if hidden == "backlash" else "named"), document["verdict_reason"]
     assert [entry["effect"] for entry in document["missing_effects"]] == [hidden]
     intervals = document["missing_effects"][0]["parameter_intervals"]
     for name, value in truth.items():

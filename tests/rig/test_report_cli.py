@@ -141,7 +141,7 @@ def test_foreign_files_are_refused_with_the_file_and_what_was_expected(data, cap
     assert main(["report", str(other_json), "--out", str(tmp_path / "r")]) == exit_codes.BAD_INPUT
     error = capsys.readouterr().err
     assert f"{other_json}: JSON without a 'kind' key (keys [name, speed])" in error
-    assert "output_backlash v1, hammerstein_model v1, model_discrepancy v1/2/3/4, run_summary v1/2/3/4, batch v1" in error
+    assert "output_backlash v1, hammerstein_model v1, model_discrepancy v1/2/3/4/5, run_summary v1/2/3/4, batch v1" in error
 
     binary = tmp_path / "figure.png"
     binary.write_bytes(b"\x89PNG\r\n\x1a\n\x00\x00\xff\xfe")
@@ -200,7 +200,7 @@ def test_a_saved_result_with_damaged_data_names_the_file_and_the_key(data, capsy
 @pytest.mark.parametrize("document, words", [
     ({"kind": "hammerstein_model", "version": 9}, "kind 'hammerstein_model' version 9 cannot be read"),
     ({"kind": "gearbox_photo", "version": 1}, "kind 'gearbox_photo' version 1 cannot be read"),
-    ({**DIAGNOSE, "version": 5}, "kind 'model_discrepancy' version 5 cannot be read"),
+    ({**DIAGNOSE, "version": 6}, "kind 'model_discrepancy' version 6 cannot be read"),
 ])
 def test_a_kind_or_version_it_cannot_read_is_named(document, words, capsys, tmp_path):
     path = tmp_path / "result.json"
@@ -245,7 +245,9 @@ def test_the_report_shows_intervals_and_candidate_gaps_of_a_diagnosis(tmp_path):
     (section,) = report_sections([read_result_file(path)])
     low, high = document["missing_effects"][0]["parameter_intervals"]["c_l_rad"]
     assert f"[{low:.4g}, {high:.4g}]" in section.table_rows[0][1]
-    assert "NAMED" in section.text and "Candidates tried first" in section.text and "delay" in section.text
+    assert "AMBIGUOUS between backlash and coulomb_friction" in section.title  # the play's map, its mechanism open
+    assert "Verdict AMBIGUOUS" in section.text
+    assert "Candidates tried first" in section.text and "delay" in section.text
 
 
 def test_an_offline_simulation_is_reported_as_one_without_a_timing_figure(tmp_path, capsys):
