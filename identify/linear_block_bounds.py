@@ -246,6 +246,24 @@ class LinearBlockBounds:
     def is_empty(self) -> bool:
         return self.explanation is not None
 
+    @property
+    def outer_inner_ratio(self) -> dict[str, float | None] | None:
+        """How tight the guarantee is, per parameter: the width of the outer (guaranteed) interval over the width
+        the verified inner values span. The exact feasible set's projection lies between the two, so the ratio
+        bounds how much wider than exact the guaranteed interval can be: 1 means the interval is the exact one,
+        4 that it may be up to four times too wide. None for a parameter without two distinct verified values,
+        and None altogether when no inner values were computed (the paper method, or a record longer than the
+        inner-values limit)."""
+        if self.inner_lower is None or self.inner_upper is None:
+            return None
+        ratios: dict[str, float | None] = {}
+        for name, interval in self.intervals.items():
+            low, high = self.inner_lower.get(name, math.nan), self.inner_upper.get(name, math.nan)
+            inner = high - low
+            ratios[name] = ((interval.upper - interval.lower) / inner
+                            if math.isfinite(inner) and inner > 0 else None)
+        return ratios
+
     def magnitude_envelope(self, omega_rad_per_sample: ArrayLike) -> MagnitudeEnvelope:
         """The guaranteed range of |G(e^{jω})| over the parameter box at ω (rad/sample), with the central
         model's |G| (:class:`identify.linear_block_response.MagnitudeEnvelope`); raises for an empty set."""
@@ -256,10 +274,14 @@ class LinearBlockBounds:
         return MagnitudeEnvelope.of_box(self.intervals, omega_rad_per_sample)
 
     KIND = "linear_block_bounds"
-    VERSION = 1
+    VERSION = 2
+    READS = (1, 2)
+    """Version 2 added ``outer_inner_ratio`` (derived from the intervals and the inner values; read back from
+    them, so version 1 documents read the same)."""
 
     def to_dict(self) -> dict[str, Any]:
-        """``{"kind": "linear_block_bounds", "version": 1, ...}``: every attribute as plain JSON values."""
+        """``{"kind": "linear_block_bounds", "version": 2, ...}``: every attribute as plain JSON values, and
+        :attr:`outer_inner_ratio`."""
         def values(mapping: dict[str, float] | None) -> dict[str, float | str] | None:
             return None if mapping is None else {name: number(value) for name, value in mapping.items()}
 
@@ -272,6 +294,8 @@ class LinearBlockBounds:
             "intervals": {name: interval.to_dict() for name, interval in self.intervals.items()},
             "inner_lower": values(self.inner_lower), "inner_upper": values(self.inner_upper),
             "inner_point": values(self.inner_point), "explanation": explanation,
+            "outer_inner_ratio": None if self.outer_inner_ratio is None else {
+                name: None if ratio is None else number(ratio) for name, ratio in self.outer_inner_ratio.items()},
             "num_linear_programs": self.num_linear_programs, "num_tightening_rounds": self.num_tightening_rounds,
             "feasible_orthants": [list(orthant) for orthant in self.feasible_orthants],
             "max_certificate_gap": number(self.max_certificate_gap), "notes": list(self.notes),
@@ -280,7 +304,7 @@ class LinearBlockBounds:
     @classmethod
     def from_dict(cls, data: Mapping[str, Any]) -> LinearBlockBounds:
         """Inverse of :meth:`to_dict`; a document of another kind or version is a ResultFormatError."""
-        check_kind(data, cls.KIND, (cls.VERSION,))
+        check_kind(data, cls.KIND, cls.READS)
         with malformed(cls.KIND):
             def values(key: str) -> dict[str, float] | None:
                 return None if data[key] is None else {str(k): float(v) for k, v in data[key].items()}

@@ -425,14 +425,21 @@ def _run_one(args: argparse.Namespace, steady: str, dynamic: str) -> int:
         for name, interval in (*backlash.items(), *linear.items()):
             print(f"{name:<10} {interval.lower:>14.8g} {interval.upper:>14.8g} {interval.center:>14.8g} "
                   f"{interval.half_width:>11.3g}")
-        if result.linear.inner_lower is not None and result.linear.inner_upper is not None:
+        ratios = result.linear.outer_inner_ratio
+        if ratios is not None:
             print()
             print("verified inner values (points of the exact feasible set reach at least these; '-': no verified "
-                  "point found, the outer bound still holds):")
+                  "point found, the outer bound still holds) and outer/inner, how many times wider than the span of "
+                  "the verified values the guaranteed interval is (1: exact):")
             for name in linear:
                 low, high = (f"{value:>14.8g}" if math.isfinite(value) else f"{'-':>14}"
                              for value in (result.linear.inner_lower[name], result.linear.inner_upper[name]))
-                print(f"{name:<10} {low} {high}")
+                ratio = "-" if ratios.get(name) is None else f"{ratios[name]:.3g}"
+                print(f"{name:<10} {low} {high}  outer/inner {ratio}")
+        elif result.method == "coupled":
+            print()
+            print(f"outer/inner        not computed: the verified inner values are computed for records of up to "
+                  f"--joint-samples ({args.joint_samples}) samples, this one has {inner.lower_rad.size}")
         for note in result.linear.notes:
             print(f"note: {note}")
     sys.stdout.flush()

@@ -355,6 +355,12 @@ def _intervals_of(source: IntervalSource) -> dict[str, ParameterInterval]:
                     f"its from_dict), got {type(source).__name__}")
 
 
+def _outer_inner_ratio(source: IntervalSource) -> dict[str, float | None] | None:
+    """:attr:`LinearBlockBounds.outer_inner_ratio` of a source, or None (no linear bounds or no inner values)."""
+    linear = source.linear if isinstance(source, OutputBacklashIdentification) else source
+    return linear.outer_inner_ratio if isinstance(linear, LinearBlockBounds) else None
+
+
 def _inner_values(source: IntervalSource) -> tuple[dict[str, float], dict[str, float]] | None:
     """The verified inner values (lower, upper) of the parameters that have them (finite: the coupled
     method found a verified point reaching them), or None when no parameter has."""
@@ -407,7 +413,8 @@ def parameter_intervals_figure(results: Mapping[str, IntervalSource], name: str,
         raise ValueError("results: no intervals to draw (every result is empty)")
     truth = dict(true_values or {})
     rows = -(-len(names) // min(4, len(names)))
-    return ReportFigure(name, _intervals_caption(intervals, inner, names, truth),
+    ratios = {label: _outer_inner_ratio(source) for label, source in results.items()}
+    return ReportFigure(name, _intervals_caption(intervals, inner, names, truth, ratios),
                         _intervals_drawing(intervals, inner, names, truth), size_in=(9.0, 1.0 + 1.35 * rows))
 
 
@@ -428,9 +435,11 @@ def _interval_references(intervals: Mapping[str, Mapping[str, ParameterInterval]
 
 
 def _intervals_caption(intervals: Mapping[str, Mapping[str, ParameterInterval]],
-                       inner: Mapping[str, _InnerValues], names: Sequence[str], truth: Mapping[str, float]) -> str:
-    """The caption of :func:`parameter_intervals_figure`: each method's :class:`IntervalSetSummary` and the
-    :func:`median_width_ratio` of the last method to the first on the linear block."""
+                       inner: Mapping[str, _InnerValues], names: Sequence[str], truth: Mapping[str, float],
+                       ratios: Mapping[str, dict[str, float | None] | None] | None = None) -> str:
+    """The caption of :func:`parameter_intervals_figure`: each method's :class:`IntervalSetSummary`, the
+    :func:`median_width_ratio` of the last method to the first on the linear block, and each method's
+    outer/inner ratios (:attr:`LinearBlockBounds.outer_inner_ratio`: how tight its guarantee is)."""
     labels = list(intervals)
     summary = []
     for label in labels:
@@ -441,6 +450,11 @@ def _intervals_caption(intervals: Mapping[str, Mapping[str, ParameterInterval]],
         text = f"{label}: median half-width {numbers.median_half_width:.3g}"
         if numbers.truth_known:
             text += f", true value inside {numbers.truth_inside} of {numbers.truth_known}"
+        tightness = {name: ratio for name, ratio in ((ratios or {}).get(label) or {}).items()
+                     if ratio is not None and name in names}
+        if tightness:
+            text += (", outer/inner (how many times wider than the verified span the guarantee is; 1: exact) "
+                     + " ".join(f"{name} {ratio:.3g}" for name, ratio in tightness.items()))
         summary.append(text)
     if len(labels) >= 2:
         linear_names = [p for p in names if linear_parameter(p) is not None]

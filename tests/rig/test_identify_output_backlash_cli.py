@@ -63,12 +63,22 @@ def test_json_has_exactly_the_documented_keys_and_bounds_contain_the_truth(files
         for name, bounds in document[group].items():
             assert set(bounds) == {"lower", "upper", "center"}
             assert bounds["lower"] <= truth[name] <= bounds["upper"]
+    # how tight each guaranteed interval is: its width over the span of the verified inner values (>= 1)
+    linear = document["linear_bounds"]
+    ratios = linear["outer_inner_ratio"]
+    assert set(ratios) == {"a1", "a2", "b1", "b2"}
+    for name, ratio in ratios.items():
+        outer = document["linear"][name]
+        span = linear["inner_upper"][name] - linear["inner_lower"][name]
+        assert ratio == pytest.approx((outer["upper"] - outer["lower"]) / span)
+        assert 1.0 - 1e-9 <= ratio < 1.5, (name, ratio)  # 100 samples, 12 bits: close to exact
 
 
 def test_paper_method_table_output(files, capsys) -> None:
     assert main(_args(files, "--method", "paper")) == exit_codes.SUCCESS
     out = capsys.readouterr().out
     assert "method paper" in out and "half-width" in out
+    assert "outer/inner" not in out  # the paper method has no verified inner values
     for name in ("m_l", "c_l", "m_r", "c_r", "a1", "a2", "b1", "b2"):
         assert f"\n{name} " in out
 
@@ -153,12 +163,16 @@ def test_long_record_shows_progress_and_says_which_windowing_it_used(long_files,
     assert "windowing          5 windows of 200 samples (overlap 20)" in captured.out
     assert "overlapping parts of 400 samples jointly" in captured.out
     assert "then the box of a partitioned into cells" in captured.out  # 900 samples <= --partition-samples 1000
+    assert "outer/inner        not computed: the verified inner values are computed for records of up to " \
+           "--joint-samples (400) samples, this one has 900" in captured.out
     assert "window pass 1: 5/5" in captured.err and "joint relaxation of 3 part(s) of up to 400 samples: 3/3" in captured.err
     # --json keeps stdout one JSON object: the documented keys and the result's own; the
     # progress goes to stderr
     assert main(_args(long_files, "--joint-samples", "400", "--partition-samples", "0", "--json")) == exit_codes.SUCCESS
     captured = capsys.readouterr()
     assert "partitioned" not in json.loads(captured.out)["linear_bounds"]["windowing"]
+    # 900 samples > --joint-samples 400: no verified inner values, so no tightness figure, and the text says so
+    assert json.loads(captured.out)["linear_bounds"]["outer_inner_ratio"] is None
     assert set(json.loads(captured.out)) >= {"backlash", "linear", "method", "invertible_samples", "samples", "kind",
                                              "version"}
     assert "window pass 1" in captured.err

@@ -203,3 +203,12 @@ def test_a_bound_the_data_did_not_tighten_is_named_as_the_prior_box():
     caption = _intervals_caption(intervals, {"paper": None, "coupled": None}, ["a1", "a2", "b1"], {})
     assert "a-priori stability box |a_i| <= C(na, i), not the data's: paper a1 lower (-2), paper a2 upper (1)" in caption
     assert "coupled a" not in caption.split("not the data's:")[1] and "Look for" not in caption
+
+
+def test_the_interval_caption_says_how_tight_each_verified_guarantee_is(results):
+    caption = parameter_intervals_figure(results, "intervals", true_values=TRUE_VALUES).caption
+    ratios = results["coupled"].linear.outer_inner_ratio
+    assert ratios is not None and all(ratio is not None and ratio >= 1.0 - 1e-9 for ratio in ratios.values())
+    assert "outer/inner (how many times wider than the verified span the guarantee is; 1: exact) " + " ".join(
+        f"{name} {ratio:.3g}" for name, ratio in ratios.items()) in caption
+    assert results["paper"].linear.outer_inner_ratio is None  # no verified inner values: nothing claimed
