@@ -190,7 +190,8 @@ def verdict_heading(report: DiscrepancyReport) -> str:
         listed = list(report.ambiguous_between)
         return f"{word} between {', '.join(listed[:-1])} and {listed[-1]}" if len(listed) > 1 else f"{word}: {listed[0]}"
     if report.missing_effects:
-        return f"{word} {', '.join(step.effect for step in report.missing_effects)}"
+        fitted = ", ".join(step.effect for step in report.missing_effects)
+        return f"{word}: {fitted} fitted, not the whole story" if report.verdict == "ambiguous" else f"{word} {fitted}"
     return word
 
 

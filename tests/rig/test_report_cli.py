@@ -262,3 +262,14 @@ def test_an_offline_simulation_is_reported_as_one_without_a_timing_figure(tmp_pa
     page = index.read_text(encoding="utf-8")
     assert "an offline simulation (rig simulate): no wire and no clock" in page
     assert "device-clocked" not in page and page.count("<img ") == 1 and missing_images(index) == []
+
+
+def test_a_fitted_effect_that_is_not_the_whole_story_is_headed_so():
+    """An ambiguous verdict that keeps fitted effects without rivals (the open-world check found most of what
+    they leave predictable) is not headed as if the effect were simply named."""
+    from rig.plots.discrepancy import verdict_heading
+
+    report = dataclasses.replace(DIAGNOSIS, verdict="ambiguous", ambiguous_between=(),
+                                 verdict_reason="backlash lowers the gap; a black box predicts 77 % of what remains")
+    assert verdict_heading(report) == "AMBIGUOUS: backlash fitted, not the whole story"
+    assert verdict_heading(dataclasses.replace(report, verdict="named")) == "NAMED backlash"
