@@ -379,12 +379,19 @@ def _diagnose_section(result: ResultFile, used: set[str]):
             f"{gap_initial:.4g} rad before, {gap_final:.4g} rad after.{fractions}")
     labels = ["start model"] + [f"+ {step.effect}" for step in steps]
     gaps = [gap_initial] + [step.gap_after_rad for step in steps]
+    open_candidates = _open_candidates(report)
 
     def draw(figure) -> None:
         axes = figure.subplots()
         positions = range(len(gaps))
         axes.bar(positions, gaps, color=["tab:gray"] + ["tab:green"] * (len(gaps) - 1))
-        axes.set_xticks(list(positions), labels, fontsize=8)
+        if open_candidates:  # left open by the verdict: hatched, beside the final model, never part of it
+            tried = range(len(gaps), len(gaps) + len(open_candidates))
+            axes.bar(tried, [candidate.gap_rad for candidate in open_candidates], color="white",
+                     edgecolor="tab:orange", hatch="//")
+            positions = range(len(gaps) + len(open_candidates))
+        axes.set_xticks(list(positions), labels + [f"{candidate.effect}?\n(not added)" for candidate in open_candidates],
+                        fontsize=8)
         axes.set_xlabel("model [-]")
         axes.set_ylabel("validation gap (free-run RMS) [rad]")
         axes.grid(True, axis="y", lw=0.3, alpha=0.5)
@@ -394,9 +401,28 @@ def _diagnose_section(result: ResultFile, used: set[str]):
                f"each effect added ({named}); the gap went from {gap_initial:.4g} to {gap_final:.4g} rad "
                f"({reduction:.0f} % smaller). Look for each added effect lowering the bar clearly; a last bar still far "
                "above the noise level means something is still unexplained.")
+    if open_candidates:
+        caption += (" Hatched: the candidates the diagnosis left open, with the validated gap each reached when tried ("
+                    + "; ".join(f"{candidate.effect} {candidate.gap_rad:.4g} rad" for candidate in open_candidates)
+                    + "); the verdict says why none of them was added, so a low hatched bar is an explanation still "
+                      "to decide between, not an unexplained rest.")
     return ReportSection(f"Model discrepancy: {result.name}, {verdict_heading(report)}", text=text,
                          table_header=("missing effect", "parameters", "gap before [rad]", "gap after [rad]"),
                          table_rows=rows, figures=(ReportFigure(f"{slug}_gap", caption, draw, size_in=(6.5, 3.5)),))
+
+
+def _open_candidates(report) -> list:
+    """The candidates a diagnosis left open and did not add, as tried in the round after the last effect added:
+    those it is ambiguous between when it added none of them, then the undecided ones. (When it added one of
+    them, the others are other mechanisms of the same fitted map, which the verdict's reason names; no bar of
+    theirs would say more.)"""
+    named = {step.effect for step in report.missing_effects}
+    between = [] if named & set(report.ambiguous_between) else list(report.ambiguous_between)
+    tried = {candidate.effect: candidate for candidate in report.candidates
+             if candidate.round == len(report.missing_effects)}
+    open_candidates = [tried[name] for name in between if name in tried]
+    return open_candidates + [candidate for candidate in report.undecided
+                              if candidate.effect not in {shown.effect for shown in open_candidates}]
 
 
 def _run_summary_section(result: ResultFile):

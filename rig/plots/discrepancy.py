@@ -55,8 +55,8 @@ def comparison_figure(result: DiscrepancyResult, angle_rad: NDArray[np.float64],
                 axes.axvspan(time_s[zoom.start], time_s[zoom.stop - 1], color="tab:orange", alpha=0.2, lw=0)
             grid[0, 1].set_title(f"zoom: {ZOOM_SAMPLES} samples of the validation segment", fontsize=9)
             top, bottom = grid[0, 0], grid[1, 0]
-        top.legend(loc="best", fontsize=8)
-        bottom.legend(loc="best", fontsize=8)
+        # Above the panels, not in them: a free run fills its panel, and a legend inside would hide some of it.
+        figure.legend(*top.get_legend_handles_labels(), loc="outside upper center", ncols=3, fontsize=8)
 
     zoom_text = (f" Right: the shaded {ZOOM_SAMPLES} samples from the start of the validation segment."
                  if zoom is not None else "")
@@ -87,7 +87,7 @@ def windows_figure(result: DiscrepancyResult, time_s: NDArray[np.float64], name:
 
     return ReportFigure(
         name,
-        f"Residual of the start model; black dots are the samples the noise bound cannot explain "
+        f"Residual of the start model (red line); black dots are the samples the noise bound cannot explain "
         f"({100 * result.initial.falsified_fraction:.1f} % of the validation segment)"
         + (", no window where they cluster." if not result.initial.windows else
            ", the shaded span is the one window where they cluster." if len(result.initial.windows) == 1 else

@@ -31,3 +31,38 @@ def unlabelled_axes(report_figure: ReportFigure) -> list[str]:
         if not _UNIT.search(y_label):
             problems.append(f"{report_figure.name} axes {index}: y label {y_label!r}")
     return problems
+
+
+def legends_over_data(report_figure: ReportFigure) -> list[str]:
+    """Draw the figure off-screen and list every legend (of an axes or of the figure) that covers points of a
+    labelled line in any axes (the lines a legend names are the data; unlabelled ones are guides such as the
+    noise bound): a legend must not hide data."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import numpy as np
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    figure = Figure(figsize=report_figure.size_in, layout="constrained")
+    report_figure.draw(figure)
+    canvas = FigureCanvasAgg(figure)
+    canvas.draw()
+    renderer = canvas.get_renderer()
+    legends = [(f"axes {index}", axes.get_legend()) for index, axes in enumerate(figure.axes)] + \
+              [("figure", legend) for legend in figure.legends]
+    problems = []
+    for where, legend in legends:
+        if legend is None or not legend.get_visible():
+            continue
+        box = legend.get_window_extent(renderer)
+        for index, axes in enumerate(figure.axes):
+            for line in axes.lines:
+                points = line.get_transform().transform(np.asarray(line.get_xydata(), dtype=float))
+                points = points[np.all(np.isfinite(points), axis=1)]
+                covered = int(np.count_nonzero((points[:, 0] >= box.x0) & (points[:, 0] <= box.x1)
+                                               & (points[:, 1] >= box.y0) & (points[:, 1] <= box.y1)))
+                if covered and not line.get_label().startswith("_"):
+                    problems.append(f"{report_figure.name}: the legend of the {where} covers {covered} of "
+                                    f"{len(points)} points of {line.get_label()!r} in axes {index}")
+    return problems

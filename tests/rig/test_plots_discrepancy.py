@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from plot_checks import unlabelled_axes
+from plot_checks import legends_over_data, unlabelled_axes
 
 from identify.discrepancy_cases import hidden_effect_record
 from identify.model_discrepancy import diagnose_model
@@ -44,3 +44,16 @@ def test_a_long_free_run_is_also_drawn_over_a_window_of_the_validation_segment(d
     zoom_residual = figure.axes[3]
     final = next(line for line in zoom_residual.get_lines() if line.get_label() == "final model")
     np.testing.assert_allclose(final.get_ydata(), result.final.residual_rad[start:start + ZOOM_SAMPLES])
+
+
+def test_the_legend_of_the_comparison_hides_no_data(diagnosis):
+    """A square wave fills its panel from edge to edge: a legend inside it covered the measured angle."""
+    from identify.plant_blocks import LinearBlock, PlantModel
+
+    record, result, time_s = diagnosis
+    assert legends_over_data(comparison_figure(result, record.angle_rad, time_s)) == []
+    nominal = LinearBlock(a=(-1.73691838, 0.76805512), b=(0.0, 0.01625312, 0.01488362), sample_period_s=0.001)
+    square = 0.01 * np.sign(np.sin(np.arange(3000) / 37.0))
+    angle = nominal.apply(square) + 0.004 + np.random.default_rng(1).uniform(-2e-4, 2e-4, square.size)
+    filled = diagnose_model(square, angle, 0.001, 0.001, PlantModel((nominal,)))
+    assert legends_over_data(comparison_figure(filled, angle, np.arange(square.size) * 0.001)) == []

@@ -273,3 +273,37 @@ def test_a_fitted_effect_that_is_not_the_whole_story_is_headed_so():
                                  verdict_reason="backlash lowers the gap; a black box predicts 77 % of what remains")
     assert verdict_heading(report) == "AMBIGUOUS: backlash fitted, not the whole story"
     assert verdict_heading(dataclasses.replace(report, verdict="named")) == "NAMED backlash"
+
+
+def test_the_gap_figure_of_an_ambiguous_diagnosis_draws_the_candidates_it_left_open(tmp_path):
+    """An offset the model lacks, over a small motion, is also a load that depends on the angle: neither is
+    added, and the verdict says both fit. The figure drew only the start model's bar, and its caption read that
+    bar as something unexplained; it now draws the two candidates beside it, hatched, with their gaps."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    from identify.model_discrepancy import diagnose_model
+
+    nominal = LinearBlock(a=(-1.73691838, 0.76805512), b=(0.0, 0.01625312, 0.01488362), sample_period_s=0.001)
+    square = 0.01 * np.sign(np.sin(np.arange(3000) / 37.0))
+    angle = nominal.apply(square) + 0.004 + np.random.default_rng(1).uniform(-2e-4, 2e-4, square.size)
+    document = diagnose_model(square, angle, 0.001, 0.001, PlantModel((nominal,))).to_dict()
+    assert document["verdict"] == "ambiguous" and document["missing_effects"] == []
+    path = tmp_path / "diagnose.json"
+    path.write_text(json.dumps(document))
+    (section,) = report_sections([read_result_file(path)])
+    (figure_spec,) = section.figures
+    figure = Figure(figsize=figure_spec.size_in, layout="constrained")
+    figure_spec.draw(figure)
+    FigureCanvasAgg(figure).draw()
+    (axes,) = figure.axes
+    gaps = {candidate["effect"]: candidate["gap"] for candidate in document["candidates"] if candidate["round"] == 0}
+    between = document["ambiguous_between"]
+    labels = [label.get_text() for label in axes.get_xticklabels()]
+    assert labels == ["start model"] + [f"{name}?\n(not added)" for name in between]
+    heights = [bar.get_height() for bar in axes.patches]
+    np.testing.assert_allclose(heights, [document["gap_initial"]] + [gaps[name] for name in between])
+    assert all(gaps[name] < 0.1 * document["gap_initial"] for name in between)  # what the verdict says: both fit
+    for name in between:
+        assert f"{name} {gaps[name]:.4g} rad" in figure_spec.caption
+    assert "Hatched: the candidates the diagnosis left open" in figure_spec.caption
