@@ -125,7 +125,9 @@ def diagnose_model(command_rad: ArrayLike, angle_rad: ArrayLike, noise_bound_rad
     return DiscrepancyResult(
         steps=tuple(steps), start_model=start_model, final_model=chain.model() if steps else start_model,
         initial=initial, final=current, consistent=consistent,
-        unexplained=_left_unexplained(current, consistent, delta),
+        unexplained=_left_unexplained(current, consistent, delta, tuple(
+            name for name in dict.fromkeys((*found.ambiguous_between, *(c.effect for c in found.undecided)))
+            if name not in {step.effect for step in steps})),
         estimation_samples=n_est, noise_bound_rad=delta, linear_fit=linear_fit, verdict=verdict,
         verdict_reason=reason, candidates=tuple(found.tried), ambiguous_between=found.ambiguous_between,
         parameter_intervals=intervals, gap_reduction=reduction, excitation=excitation, undecided=found.undecided,

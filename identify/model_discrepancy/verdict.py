@@ -259,10 +259,14 @@ def _final_verdict(u: NDArray[np.float64], y: NDArray[np.float64], initial: Disa
     return verdict, reason
 
 
-def _left_unexplained(current: Disagreement, consistent: bool, delta: float) -> str:
-    """What is left, in words (:attr:`DiscrepancyResult.unexplained`)."""
+def _left_unexplained(current: Disagreement, consistent: bool, delta: float, left_open: Sequence[str] = ()) -> str:
+    """What is left, in words (:attr:`DiscrepancyResult.unexplained`); ``left_open``: candidates not added
+    that the verdict leaves open (ambiguous or undecided)."""
     if consistent:
         return "the model is consistent with the noise bound on the validation segment"
-    return (f"{100 * current.falsified_fraction:.1f} % of validation samples still exceed the noise bound "
-            f"(gap {current.gap_rad:.3g} rad against a bound of {delta:.3g} rad) and none of the candidate "
-            "effects lowers the validated gap further: what is left is unexplained")
+    left = (f"{100 * current.falsified_fraction:.1f} % of validation samples still exceed the noise bound "
+            f"(gap {current.gap_rad:.3g} rad against a bound of {delta:.3g} rad)")
+    if left_open:
+        return (f"{left}; {', '.join(left_open)} would lower the validated gap, but this record cannot tell "
+                f"whether {'it is' if len(left_open) == 1 else 'they are'} there (the verdict's reason): not added")
+    return f"{left} and none of the candidate effects lowers the validated gap further: what is left is unexplained"

@@ -596,3 +596,17 @@ def test_a_hunting_axis_is_said_as_a_limit_cycle_with_its_amplitude_and_period(s
     amplitude = float(re.search(r"oscillating by \+-([0-9.e-]+) rad", result.verdict_reason).group(1))
     assert period_s == pytest.approx(record["truth"]["limit_cycle_period_s"], rel=0.03)
     assert amplitude == pytest.approx(record["truth"]["limit_cycle_amplitude_rad"], rel=0.15)
+
+
+def test_what_is_left_names_the_candidates_the_verdict_left_open():
+    # an offset over a small square wave is also a load that depends on the angle: neither is added, and the
+    # text of what is left must not say that no candidate lowers the gap (both do, to a tenth of it)
+    nominal = LinearBlock(a=(-1.73691838, 0.76805512), b=(0.0, 0.01625312, 0.01488362), sample_period_s=0.001)
+    square = 0.01 * np.sign(np.sin(np.arange(3000) / 37.0))
+    angle = nominal.apply(square) + 0.004 + np.random.default_rng(1).uniform(-2e-4, 2e-4, square.size)
+    result = diagnose_model(square, angle, 0.001, 0.001, PlantModel((nominal,)))
+    assert result.verdict == "ambiguous" and result.missing_effects == ()
+    assert "none of the candidate effects lowers" not in result.unexplained
+    for name in result.ambiguous_between:
+        assert name in result.unexplained
+    assert "cannot tell whether they are there" in result.unexplained
