@@ -53,8 +53,8 @@ Write a static HTML report (index.html and PNG figures) from result files:
 Result JSON is read by its "kind" and "version" keys; a kind or version this version cannot read is
 refused with both named.
 Save the JSON with e.g. `rig identify hammerstein run.csv --json > hammerstein.json`. The frequency axis
-of the Bode figure is in Hz when --sample-period is given or an experiment log is among the files, else in
-cycles per sample. The command prints the path of index.html."""
+of the Bode figure is in Hz when --sample-period is given or the experiment logs among the files share one
+period, else in cycles per sample (logs of different periods: the page says so). The command prints the path of index.html."""
 
 EXPECTED = ("a rig-log v1 experiment log, a CSV file with columns t,u,y, or the JSON printed by "
             "`rig identify output-backlash --json`, `rig identify hammerstein --json`, `rig diagnose --json` "
@@ -469,12 +469,21 @@ def report_sections(results: list[ResultFile], *, sample_period_s: float | None 
     """The report's sections: experiments, then set membership (all methods together), Hammerstein models,
     discrepancy diagnoses and run summaries, each in the order given.
 
-    ``sample_period_s`` sets the frequency axis of the Bode and pole figures; without it the first experiment
-    log's period is used, if any.
+    ``sample_period_s`` sets the frequency axis of the Bode and pole figures; without it the experiment logs'
+    period is used when they all share one. Logs of different periods cannot say which one the results came
+    from: the axes are then per sample, and the sections of the results say so.
     """
+    import dataclasses
+
     experiments = [result for result in results if result.kind == "experiment"]
-    if sample_period_s is None and experiments:
-        sample_period_s = float(experiments[0].content.sample_period_s)
+    periods = sorted({float(result.content.sample_period_s) for result in experiments})
+    period_note = ""
+    if sample_period_s is None and len(periods) == 1:
+        sample_period_s = periods[0]
+    elif sample_period_s is None and len(periods) > 1:
+        period_note = (f" Frequencies are per sample: the logs were sampled every "
+                       f"{', '.join(f'{1e3 * period:g}' for period in periods)} ms, and which of them the results "
+                       "came from is not in the files; give --sample-period for hertz.")
     used: set[str] = set()
     sections = [_named(result, _experiment_section, result, used) for result in experiments]
     backlash_results = [result for result in results if result.kind == "output_backlash"]
@@ -482,6 +491,10 @@ def report_sections(results: list[ResultFile], *, sample_period_s: float | None 
         sections.append(_named(backlash_results, _set_membership_section, backlash_results, sample_period_s, used))
     sections += [_named(result, _hammerstein_section, result, sample_period_s, used) for result in results
                  if result.kind == "hammerstein_model"]
+    if period_note:
+        sections = [dataclasses.replace(section, text=section.text + period_note)
+                    if section.title.startswith(("Set membership", "Hammerstein")) else section
+                    for section in sections]
     sections += [_named(result, _diagnose_section, result, used) for result in results
                  if result.kind == "model_discrepancy"]
     sections += [_named(result, _run_summary_section, result) for result in results if result.kind == "run_summary"]
@@ -559,7 +572,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--force", action="store_true", help="write into a --out directory that holds other files")
     parser.add_argument("--title", default="rig report", help="page title (default: rig report)")
     parser.add_argument("--sample-period", type=_positive_float, default=None, metavar="S",
-                        help="sample period in seconds for frequency axes (default: from the first log, if any)")
+                        help="sample period in seconds for frequency axes (default: the logs' period when they share one)")
     parser.add_argument("--json", action="store_true", help='print {"report": PATH, "figures": N}')
     parser.set_defaults(handler=run)
 

@@ -307,3 +307,27 @@ def test_the_gap_figure_of_an_ambiguous_diagnosis_draws_the_candidates_it_left_o
     for name in between:
         assert f"{name} {gaps[name]:.4g} rad" in figure_spec.caption
     assert "Hatched: the candidates the diagnosis left open" in figure_spec.caption
+
+
+def test_logs_of_different_periods_leave_the_frequency_axes_per_sample_and_say_so(tmp_path, capsys):
+    """Which period a result came from is not in its file: logs of 1 ms and 10 ms must not lend the first one's
+    period to a model fitted on 10-ms data (its poles were drawn at 22.5 Hz instead of 2.25 Hz)."""
+    cyclic = cyclic_random_excitation(1200, -3.0, 3.0, hold_samples=50, rng=0)
+    G = LinearBlock(a=(-1.8858, 0.9048), b=(0.0, 0.1994, -0.1804), sample_period_s=0.01)
+    data = _csv(tmp_path / "cyclic.csv", "u,y", cyclic, PlantModel((pouliquen2013_backlash(), G)).simulate(cyclic))
+    assert main(["identify", "hammerstein", str(data), "--json"]) == exit_codes.SUCCESS
+    hammerstein = tmp_path / "hammerstein.json"
+    hammerstein.write_text(capsys.readouterr().out)
+    logs = []
+    for period in (0.001, 0.01):
+        u = prbs_sequence(60, 1.0, rng=1)
+        logs.append(tmp_path / f"prbs_{period:g}.log")
+        write_log(logs[-1], ExperimentRecord(np.arange(u.size) * period, u, 0.5 * u, None, None,
+                                             ExperimentMetadata(sample_period_s=period, excitation="prbs")))
+    files = [read_result_file(path) for path in (*logs, hammerstein)]
+    (section,) = [s for s in report_sections(files) if s.title.startswith("Hammerstein")]
+    assert "Frequencies are per sample: the logs were sampled every 1, 10 ms" in section.text
+    assert "Hz" not in section.figures[0].caption
+    # one period among the logs, or one given, is used as before
+    (one,) = [s for s in report_sections(files[1:]) if s.title.startswith("Hammerstein")]
+    assert "per sample" not in one.text and "Hz" in one.figures[0].caption
