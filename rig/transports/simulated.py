@@ -174,10 +174,12 @@ def start_device_process(config: RigConfig, stack: contextlib.ExitStack, *, samp
 
 @contextlib.contextmanager
 def simulated_rig(config: RigConfig, command_rad: NDArray[np.float64] | None = None,
-                  faults: FaultPlan | None = None) -> Iterator[tuple[str, SimulatedGearbox]]:
+                  faults: FaultPlan | None = None, num_samples: int | None = None,
+                  ) -> Iterator[tuple[str, SimulatedGearbox]]:
     """Start the simulated devices of a rig config with a ``[simulation]`` table; yield the URL the
-    transport must open and the simulated gearbox. ``command_rad`` (the whole command) calibrates noise
-    that needs a reference; ``faults`` makes the devices inject wire faults. Devices are stopped on exit.
+    transport must open and the simulated gearbox. ``command_rad`` (the command, or its beginning for a long
+    run) calibrates noise that needs a reference; ``faults`` makes the devices inject wire faults over the
+    run's ``num_samples`` samples (default: those of ``command_rad``). Devices are stopped on exit.
 
     Raises
     ------
@@ -203,7 +205,9 @@ def simulated_rig(config: RigConfig, command_rad: NDArray[np.float64] | None = N
         gearbox = gearbox.calibrated_for(command_rad)
     device_options: dict[str, object] = {}
     if faults is not None:
-        device_options = faults.device_options(config.scheme, 0 if command_rad is None else len(command_rad))
+        if num_samples is None:
+            num_samples = 0 if command_rad is None else len(command_rad)
+        device_options = faults.device_options(config.scheme, num_samples)
     with contextlib.ExitStack() as stack:
         url, _ = start_simulated_devices(config, gearbox, stack, **device_options)
         yield url, gearbox
