@@ -26,17 +26,20 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from rig.command_source import CommandSource
+from rig.command_source import CHUNK_SAMPLES, CommandSource
 from rig.transports.base import CommandRefused
 
 if TYPE_CHECKING:
     from rig.transports.base import Transport
 
-__all__ = ["CHECKS_PER_READ", "CheckedCommand", "check_command"]
+__all__ = ["CHECKS_PER_READ", "LOOKAHEAD_SAMPLES", "CheckedCommand", "check_command"]
 
 CHECKS_PER_READ = 2
 """Samples of the chunk ahead checked per sample read: twice as fast as the run sends, so the next chunk is
 checked when half of the current one is sent."""
+LOOKAHEAD_SAMPLES = 2 * CHUNK_SAMPLES
+"""Samples checked ahead of the last one read, at most (more than one chunk: the next chunk is checked whole
+before the run reaches it)."""
 
 
 class CheckedCommand:
@@ -127,8 +130,8 @@ class CheckedCommand:
                 previous = quantized
         except CommandRefused as err:
             if self._read_to:  # the run has started: say how far it got
-                raise CommandRefused(f"{err}; the command was checked ahead of the run, which had sent samples "
-                                     f"0 to {self._read_to - 1}: it stopped before this sample's chunk")
+                raise CommandRefused(f"{err}; the command is checked ahead of the run, which had reached sample "
+                                     f"{self._read_to - 1}: it stopped before sending any sample of this chunk")
             raise
         self._previous, self._plan_step, self._pending_done = previous, plan_step, stop
         if stop == len(values):
@@ -175,7 +178,7 @@ class CheckedCommand:
             self._current = (start, end, values)
         if k >= self._read_to:
             self._read_to = k + 1
-            if self._ready_end - k < 2 * len(values) and not self._exhausted:
+            if self._ready_end - k < LOOKAHEAD_SAMPLES and not self._exhausted:
                 self._check_ahead(CHECKS_PER_READ)
         return values[k - start]
 

@@ -646,7 +646,10 @@ def _run_device_clocked(transport: Transport, command: CheckedCommand, sink: Sam
                 return
             if sample is None:
                 return
-            take(sample)
+            try:
+                take(sample)
+            except Exception:  # noqa: BLE001 - a chunk of the command that cannot be read: the stop comes first
+                return
 
     switch_interval = sys.getswitchinterval()
     sys.setswitchinterval(min(switch_interval, period / 4))  # receive threads need the GIL within a period

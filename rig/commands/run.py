@@ -46,8 +46,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         help="log file to write (CSV, rig-log v1); an existing file is refused unless --force, and a "
                              "file another run is writing always is")
     parser.add_argument("--force", action="store_true", help="replace an existing --out log (and --can-trace file)")
-    parser.add_argument("--duration", type=float, default=None, metavar="S",
-                        help="run for S seconds (the excitation is cut, or repeated cyclically to fill S)")
+    parser.add_argument("--duration", type=duration_s, default=None, metavar="S",
+                        help="run for S seconds, or S with a unit: 90s, 20min, 8h (the excitation is cut, or "
+                             "repeated cyclically to fill S, produced as it is sent: any length)")
     parser.add_argument("--can-trace", metavar="FILE.blf", default=None,
                         help="CAN transports: write every frame to FILE (.blf, .asc, .log, .csv or .trc)")
     parser.add_argument("--sim-faults", metavar="SPEC", default=None,
@@ -67,6 +68,24 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         help=f'print the run summary as JSON: {{"kind": "{RunSummary.KIND}", "version": '
                              f'{RunSummary.VERSION}, {keys}}} (rig report reads it)')
     parser.set_defaults(handler=run)
+
+
+_DURATION_UNITS = {"s": 1.0, "min": 60.0, "h": 3600.0}
+
+
+def duration_s(text: str) -> float:
+    """``--duration``: seconds, or a number with a unit ``s``, ``min`` or ``h`` (``8h`` is 28800)."""
+    stripped = text.strip()
+    factor = 1.0
+    for unit, seconds in _DURATION_UNITS.items():
+        if stripped.endswith(unit):
+            stripped, factor = stripped[:-len(unit)].strip(), seconds
+            break
+    try:
+        value = float(stripped) * factor
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected seconds or a number with s, min or h (8h), got {text!r}") from None
+    return value
 
 
 def load_command_file(path: str | Path, sample_period_s: float) -> Any:
@@ -95,12 +114,6 @@ def load_command_file(path: str | Path, sample_period_s: float) -> Any:
                                f"every {sample_period_s:g} s")
     return Excitation(name=Path(path).stem, kind="file", command_rad=table["command_rad"], seed=None,
                       source=str(path))
-
-
-NOISE_REFERENCE_SAMPLES = 1 << 18
-"""A simulated plant whose noise is given as an SNR fixes its level from the noise-free response to the
-command's first samples, at most this many (262 s at 1 kHz; the whole command of a shorter run): a run of hours
-is not simulated twice before it starts."""
 
 
 class FlagCounter:
@@ -214,8 +227,7 @@ def run(args: argparse.Namespace) -> int:
         gearbox = None
         url = config.url
         if config.simulation is not None:
-            url, gearbox = stack.enter_context(simulated_rig(
-                config, command.head(NOISE_REFERENCE_SAMPLES), faults, num_samples=num_samples))
+            url, gearbox = stack.enter_context(simulated_rig(config, command, faults))
         options = config.transport_options()
         if args.can_trace is not None:
             options["trace_path"] = args.can_trace

@@ -95,6 +95,17 @@ def test_a_duration_far_beyond_one_cycle_starts_at_once_and_streams(experiment, 
     assert record.metadata.extra["summary"]["stop"].endswith("ends SWITCH ON DISABLED")
 
 
+def test_a_duration_takes_seconds_or_a_unit(tmp_path, capsys):
+    from rig.commands.run import duration_s
+
+    assert [duration_s(text) for text in ("480", "90s", "20min", "8h", "1.5 h")] == [480, 90, 1200, 28800, 5400]
+    with pytest.raises(SystemExit) as exit_info:  # (argparse's usage error)
+        main(["run", str(CONFIGS / "sim_serial.toml"), "--experiment", str(PRBS), "--out",
+              str(tmp_path / "run.csv"), "--duration", "3 days"])
+    assert exit_info.value.code == exit_codes.BAD_INPUT
+    assert "expected seconds or a number with s, min or h (8h), got '3 days'" in capsys.readouterr().err
+
+
 # --- output paths before the work -----------------------------------------------------------------------------
 
 def test_report_out_unwritable_or_a_file_is_exit_5_before_anything_is_read(log, read_only_dir, tmp_path, capsys,

@@ -155,7 +155,7 @@ def test_a_chunk_beyond_a_limit_later_in_the_run_stops_the_drive_before_any_of_i
     command[bad] = 0.6
     transport, device, clock = clocked_rig(limits=CommandLimits(position_min_rad=-0.5, position_max_rad=0.5))
     with pytest.raises(CommandRefused, match=rf"setpoint {bad}: position 0.599978 rad is outside the limits "
-                                             r"\[-0.5, 0.5\] rad; .* stopped before this sample's chunk"):
+                                             r"\[-0.5, 0.5\] rad; .* stopped before sending any sample of this chunk"):
         run_experiment(transport, command, _log(tmp_path / "stopped.csv"), feedback_timeout_s=0.5, clock=clock)
     # quick stop, then disable, confirmed
     assert device.controlwords[-2:] == [0x0002, 0x0000] and transport.stop_report.confirmed
