@@ -48,14 +48,14 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from identify.result_format import check_kind, malformed, tagged
-from rig.command_check import CheckedCommand, check_command
+from rig.command_check import CheckedCommand, check_command  # noqa: F401 - (rig.runner.check_command, as before)
 from rig.command_source import CommandSource, as_command_source
 from rig.protocols.cia402 import DriveState
 from rig.protocols.errors import DeviceFault, TransportError
 from rig.sample_ledger import SampleLedger
 from rig.transports.base import Setpoint, Transport
 
-__all__ = ["RunSummary", "SampleSink", "SendLateness", "answer_window_cycles", "check_command", "run_experiment",
+__all__ = ["RunSummary", "SampleSink", "SendLateness", "answer_window_cycles", "run_experiment",
            "send_lateness_quantiles", "wait_until"]
 
 
@@ -193,7 +193,7 @@ class RunSummary:
         :class:`SampleSink`; ``rig run`` sets it with :func:`dataclasses.replace`).
     send_lateness_p50_s, send_lateness_p99_s, send_lateness_max_s
         Host-paced links: the median, 99th percentile and largest send lateness of every sample
-        (:class:`SendLateness`: exact up to :data:`SendLateness.EXACT_SAMPLES` samples, then within 1 % from a
+        (:class:`SendLateness`: exact up to :data:`SendLateness.EXACT_SAMPLES` samples, then within 0.5 % from a
         fixed histogram; the largest always exact), what judges the host's timing (a LATE sample is one above
         ``late_tolerance_s``); nan on device-clocked links, judged by ``held`` and ``min_lead_s``.
     sync_jitter_max_s
