@@ -172,8 +172,6 @@ def _naming_a_slow_plant(slow_plant: str) -> Any:
 
 
 def run(args: argparse.Namespace) -> int:
-    import numpy as np
-
     from rig.experiment_config import load_experiment_config
     from rig.log_file import LogWriter
     from rig.log_metadata import experiment_log_metadata
