@@ -29,13 +29,16 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from identify.validation import InvalidInputError
 from rig.protocols.config_schema import ConfigTable, load_toml
+
+if TYPE_CHECKING:
+    from rig.command_source import CommandSource
 
 __all__ = ["EXCITATION_KINDS", "Excitation", "load_experiment_config"]
 
@@ -49,7 +52,10 @@ REPEAT_SAMPLES = "samples"
 
 @dataclass(frozen=True)
 class Excitation:
-    """A generated excitation and what is needed to generate it again."""
+    """A generated excitation and what is needed to generate it again.
+
+    ``streamed``: a command read from disk as it is sent (a CSV command file), too long maybe to hold; then
+    ``command_rad`` holds only its first chunk, and :attr:`cycle_samples` is its length."""
 
     name: str
     kind: str
@@ -58,6 +64,14 @@ class Excitation:
     parameters: dict[str, Any] = field(default_factory=dict)
     description: str = ""
     source: str = "<memory>"
+    streamed: CommandSource | None = None
+
+    @property
+    def cycle_samples(self) -> int:
+        """The samples of one pass of the excitation (before :meth:`repeated` cuts or repeats it)."""
+        if self.streamed is not None and self.streamed.num_samples is not None:
+            return self.streamed.num_samples
+        return int(self.command_rad.size)
 
     def metadata(self) -> dict[str, Any]:
         """What a log records about the excitation."""
@@ -68,6 +82,44 @@ class Excitation:
     def repetition(self) -> str:
         """How :meth:`repeated` repeats this excitation (a log's ``config.excitation_repeat``)."""
         return REPEAT_FILTERED if self.kind == "filtered_staircase" else REPEAT_SAMPLES
+
+    def stream(self, num_samples: int | None) -> CommandSource:
+        """The command of :meth:`repeated` as a :class:`~rig.command_source.CommandSource`, produced a chunk at
+        a time as a run sends it (``num_samples`` None: repeated until the run is stopped), so that a run of
+        hours holds a few thousand samples of it at a time. The same samples as :meth:`repeated`.
+
+        Raises
+        ------
+        InvalidInputError
+            ``num_samples`` < 1, or a staircase whose parameters no longer generate its command.
+        """
+        from rig.command_source import ArrayCommand, CyclicCommand, FilteredRepeatCommand, RepeatedSource
+
+        count = None if num_samples is None else int(num_samples)
+        if count is not None and count < 1:
+            raise InvalidInputError(f"num_samples: expected at least 1, got {num_samples!r}")
+        if self.streamed is not None:
+            return self.streamed if count == self.streamed.num_samples else RepeatedSource(self.streamed, count)
+        if count is not None and count <= self.command_rad.size:
+            return ArrayCommand(self.command_rad[:count])
+        if self.kind != "filtered_staircase":
+            return CyclicCommand(self.command_rad, count)
+        reference = self._staircase_reference()
+        source = FilteredRepeatCommand(reference, float(self.parameters["filter_pole"]),
+                                       int(self.parameters.get("filter_order", 1)), count)
+        if not np.array_equal(source.head(self.command_rad.size), self.command_rad):  # one cycle: bounded
+            raise InvalidInputError(f"{self.source}: the staircase could not be generated again from its "
+                                    "parameters; repeat it with fewer samples than one cycle")
+        return source
+
+    def _staircase_reference(self) -> NDArray[np.float64]:
+        """The unfiltered square-wave reference of a filtered staircase, its amplitudes in the order used."""
+        from identify.excitation_design import staircase_reference
+
+        amplitudes = np.asarray(self.parameters["amplitudes_rad"], dtype=float)
+        if self.parameters.get("shuffle"):
+            amplitudes = np.random.default_rng(self.seed).permutation(amplitudes)  # the order generated
+        return staircase_reference(amplitudes, int(self.parameters["samples_per_half_wave"]))
 
     def repeated(self, num_samples: int) -> NDArray[np.float64]:
         """The command cut, or repeated cyclically, to ``num_samples`` samples.
@@ -82,14 +134,13 @@ class Excitation:
         count = int(num_samples)
         if count < 1:
             raise InvalidInputError(f"num_samples: expected at least 1, got {num_samples!r}")
+        if self.streamed is not None:
+            return self.stream(count).to_array()
         if self.kind != "filtered_staircase" or count <= self.command_rad.size:
             return np.resize(self.command_rad, count)
-        from identify.excitation_design import lowpass_filter, staircase_reference
+        from identify.excitation_design import lowpass_filter
 
-        amplitudes = np.asarray(self.parameters["amplitudes_rad"], dtype=float)
-        if self.parameters.get("shuffle"):
-            amplitudes = np.random.default_rng(self.seed).permutation(amplitudes)  # the order generated
-        reference = staircase_reference(amplitudes, int(self.parameters["samples_per_half_wave"]))
+        reference = self._staircase_reference()
         repeats = -(-count // reference.size)
         command = lowpass_filter(np.tile(reference, repeats), float(self.parameters["filter_pole"]),
                                  int(self.parameters.get("filter_order", 1)))[:count]

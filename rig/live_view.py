@@ -124,6 +124,9 @@ class LiveFrame:
         Rows the view did not see (all of them are in the log).
     final
         The last frame, drawn after the run.
+    sample_period_s
+        The rig's sample period: the status line gives the run's time so far and the time left (nan: not
+        shown).
     """
 
     time_s: NDArray[np.float64]
@@ -135,17 +138,30 @@ class LiveFrame:
     held: int
     dropped_rows: int
     final: bool = False
+    sample_period_s: float = math.nan
 
     def status_line(self) -> str:
-        """``t 1.234 s of 5 s  command +0.1 rad  load angle +0.09 rad  lost 0  held 0``."""
+        """``t 1.234 s  command +0.1 rad  load angle +0.09 rad  elapsed 0:00:01  ETA 0:00:04  samples
+        1234/5000  lost 0  held 0`` (elapsed and ETA in the rig's sample time, when the period is known)."""
         if self.time_s.size:
             now = (f"t {self.time_s[-1]:.3f} s  command {self.command_rad[-1]:+.4f} rad  "
                    f"load angle {self.angle_rad[-1]:+.4f} rad")
         else:
             now = "t -  (no sample yet)"
         shown = f"  (view: {self.dropped_rows} rows not shown)" if self.dropped_rows else ""
-        return (f"{now}  samples {self.samples}/{self.total_samples}  lost {self.lost}  held {self.held}"
+        timing = ""
+        if math.isfinite(self.sample_period_s):
+            left = max(self.total_samples - self.samples, 0) * self.sample_period_s
+            timing = (f"  elapsed {_clock_time(self.samples * self.sample_period_s)}  "
+                      f"ETA {_clock_time(left)}")
+        return (f"{now}{timing}  samples {self.samples}/{self.total_samples}  lost {self.lost}  held {self.held}"
                 f"{shown}")
+
+
+def _clock_time(seconds: float) -> str:
+    """``h:mm:ss``."""
+    whole = int(round(seconds))
+    return f"{whole // 3600}:{whole // 60 % 60:02d}:{whole % 60:02d}"
 
 
 class Renderer(Protocol):
@@ -169,6 +185,7 @@ class LiveView:
         self.renderer = renderer
         self.feed = LiveFeed(LIVE_BUFFER_ROWS if capacity is None else capacity)
         self.total_samples = int(total_samples)
+        self.sample_period_s = float(sample_period_s)
         self.frame_interval_s = max(frame_interval_s, getattr(renderer, "min_interval_s", 0.0))
         self._window_rows = max(2, int(math.ceil(window_s / sample_period_s)))
         self._window = np.zeros((0, 3))  # time, command, angle of the rows shown
@@ -212,7 +229,7 @@ class LiveView:
         feed = self.feed
         self.renderer.draw(LiveFrame(rows[:, 0], rows[:, 1], rows[:, 2], samples=feed.offered,
                                      total_samples=self.total_samples, lost=feed.lost, held=feed.held,
-                                     dropped_rows=feed.dropped, final=final))
+                                     dropped_rows=feed.dropped, final=final, sample_period_s=self.sample_period_s))
         self.frames_drawn += 1
 
     def summary_line(self) -> str:

@@ -52,6 +52,6 @@ def experiment_log_metadata(config: RigConfig, excitation: Excitation, gearbox: 
         sample_period_s=config.sample_period_s, source=config.name, transport=config.url,
         encoder_bits=config.encoder.bits, excitation=excitation.name, excitation_seed=excitation.seed,
         config={"rig": rig_config, "excitation": excitation.metadata(), "num_samples": num_samples,
-                "excitation_samples": int(excitation.command_rad.size),  # cut or repeated cyclically to num_samples
+                "excitation_samples": excitation.cycle_samples,  # cut or repeated cyclically to num_samples
                 "excitation_repeat": excitation.repetition},
         software_version=__version__, **values)

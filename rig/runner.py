@@ -20,10 +20,17 @@ order once they can no longer change, and both run the transport's one bring-up 
 Both flag LOST (no feedback within ``pending_cycles`` cycles; angle NaN), DUPLICATE (a second answer for
 one sample), FAULT, NOT_FOLLOWED (CiA 402 CSP statusword bit 12 clear) and AMBIGUOUS (which instant a
 reading answers is uncertain). Safety: the transport is prepared (devices configured, the drive's actual
-position read, nothing enabled), the whole command is checked against the software limits starting from
-that actual position, and only then is the drive enabled; a feedback watchdog stops the run when nothing
-arrives for ``feedback_timeout_s``; any error, device fault or Ctrl-C ends with the controlled stop
-(quick stop, then disable) and the log closed, complete up to the stop.
+position read, nothing enabled), the command's first chunk is checked against the software limits starting
+from that actual position, and only then is the drive enabled; the chunks after it are checked as the run
+goes, each before any of its samples is sent (:class:`~rig.command_check.CheckedCommand`: one beyond a limit
+ends the run); a feedback watchdog stops the run when nothing arrives for ``feedback_timeout_s``; any error,
+device fault, refused chunk or Ctrl-C ends with the controlled stop (quick stop, then disable) and the log
+closed, complete up to the stop.
+
+The command is a :class:`~rig.command_source.CommandSource` produced as it is sent (an array is wrapped as
+one), and nothing the runner keeps grows with the run's length (the ledger holds the rows not yet final, the
+send lateness is summarised in bounded memory: :class:`SendLateness`), so a run of hours starts at once and
+keeps flat memory.
 """
 
 from __future__ import annotations
@@ -41,14 +48,15 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from identify.result_format import check_kind, malformed, tagged
-from identify.validation import as_signal
+from rig.command_check import CheckedCommand, check_command  # noqa: F401 - (rig.runner.check_command, as before)
+from rig.command_source import CommandSource, as_command_source
 from rig.protocols.cia402 import DriveState
 from rig.protocols.errors import DeviceFault, TransportError
 from rig.sample_ledger import SampleLedger
-from rig.transports.base import CommandRefused, Setpoint, Transport
+from rig.transports.base import Setpoint, Transport
 
-__all__ = ["RunSummary", "SampleSink", "answer_window_cycles", "run_experiment", "send_lateness_quantiles",
-           "wait_until"]
+__all__ = ["RunSummary", "SampleSink", "SendLateness", "answer_window_cycles", "run_experiment",
+           "send_lateness_quantiles", "wait_until"]
 
 
 _FAULT_STATES = (DriveState.FAULT, DriveState.FAULT_REACTION_ACTIVE)
@@ -164,8 +172,10 @@ class RunSummary:
     rate_hz
         Achieved rate: samples / (time of the last send - time of the first send) * (samples - 1) / samples.
     send_lateness_s
-        Host-paced links: per sample, actual send time minus its deadline t_k (the loop's timing jitter);
-        empty on device-clocked links, where the device's clock fixes the instants.
+        Host-paced links: actual send time minus its deadline t_k (the loop's timing jitter) of the first
+        :data:`SendLateness.EXACT_SAMPLES` samples (bounded: a run of hours does not keep one per sample; the
+        quantiles below cover every sample); empty on device-clocked links, where the device's clock fixes the
+        instants.
     cpu_s, wall_s
         Process CPU time and wall time of the streaming loop.
     not_followed
@@ -182,8 +192,9 @@ class RunSummary:
         The log file the samples went to, when the caller knows it (the runner writes to a
         :class:`SampleSink`; ``rig run`` sets it with :func:`dataclasses.replace`).
     send_lateness_p50_s, send_lateness_p99_s, send_lateness_max_s
-        Host-paced links: the median, 99th percentile and largest of ``send_lateness_s``
-        (:func:`send_lateness_quantiles`), what judges the host's timing (a LATE sample is one above
+        Host-paced links: the median, 99th percentile and largest send lateness of every sample
+        (:class:`SendLateness`: exact up to :data:`SendLateness.EXACT_SAMPLES` samples, then within 0.5 % from a
+        fixed histogram; the largest always exact), what judges the host's timing (a LATE sample is one above
         ``late_tolerance_s``); nan on device-clocked links, judged by ``held`` and ``min_lead_s``.
     sync_jitter_max_s
         CANopen: the largest deviation of two SYNCs' spacing from the period while streaming (a SYNC from a
@@ -317,6 +328,72 @@ def send_lateness_quantiles(send_lateness_s: NDArray[np.float64]) -> dict[str, f
             "send_lateness_max_s": float(np.max(send_lateness_s))}
 
 
+class SendLateness:
+    """The send lateness of a host-paced run (each setpoint's send time after its deadline), summarised in
+    bounded memory whatever the run's length.
+
+    The first :data:`EXACT_SAMPLES` values are kept: up to there the quantiles are exact
+    (:func:`send_lateness_quantiles`). After that every value goes into a fixed histogram of :data:`BINS`
+    bins whose edges grow by :data:`BIN_RATIO` from :data:`SMALLEST_S` (values below it share the first bin,
+    values above :data:`LARGEST_S` the last): a quantile is then the geometric middle of its bin, within half
+    a bin (0.5 %) of the exact one for lateness between 0.1 us and 100 s. The largest value, the first and
+    the last are always exact."""
+
+    EXACT_SAMPLES: ClassVar[int] = 1 << 16
+    SMALLEST_S: ClassVar[float] = 1e-7
+    LARGEST_S: ClassVar[float] = 100.0
+    BIN_RATIO: ClassVar[float] = 1.01
+    BINS: ClassVar[int] = math.ceil(math.log(LARGEST_S / SMALLEST_S) / math.log(BIN_RATIO)) + 1
+
+    def __init__(self) -> None:
+        self.count = 0
+        self.first = self.last = math.nan
+        self.max = -math.inf
+        self._exact = np.empty(self.EXACT_SAMPLES)
+        self._histogram: list[int] | None = None
+        self._scale = 1.0 / math.log(self.BIN_RATIO)
+
+    def add(self, lateness_s: float) -> None:
+        if self.count < self.EXACT_SAMPLES:
+            self._exact[self.count] = lateness_s
+            if self.count == 0:
+                self.first = lateness_s
+        else:
+            if self._histogram is None:
+                self._histogram = [0] * self.BINS
+                for value in self._exact.tolist():
+                    self._histogram[self._bin(value)] += 1
+            self._histogram[self._bin(lateness_s)] += 1
+        self.count += 1
+        self.last = lateness_s
+        if lateness_s > self.max:
+            self.max = lateness_s
+
+    def _bin(self, value: float) -> int:
+        if value <= self.SMALLEST_S:
+            return 0
+        return min(self.BINS - 1, 1 + int(math.log(value / self.SMALLEST_S) * self._scale))
+
+    @property
+    def kept(self) -> NDArray[np.float64]:
+        """The values of the first :data:`EXACT_SAMPLES` samples (a copy)."""
+        return self._exact[:min(self.count, self.EXACT_SAMPLES)].copy()
+
+    def quantiles(self) -> dict[str, float]:
+        """``send_lateness_p50_s``, ``_p99_s``, ``_max_s`` of every value added (nan for none)."""
+        if self._histogram is None:
+            return send_lateness_quantiles(self._exact[:self.count])
+        cumulative = np.cumsum(self._histogram)
+        out = {}
+        for name, q in (("send_lateness_p50_s", 0.5), ("send_lateness_p99_s", 0.99)):
+            index = int(np.searchsorted(cumulative, q * (self.count - 1) + 1))
+            low = 0.0 if index == 0 else self.SMALLEST_S * self.BIN_RATIO ** (index - 1)
+            high = self.SMALLEST_S * self.BIN_RATIO ** index
+            out[name] = min(math.sqrt(low * high) if low > 0 else high / 2, self.max)
+        out["send_lateness_max_s"] = float(self.max)
+        return out
+
+
 def _write_summary(sink: SampleSink, transport: Transport, failure: BaseException | None,
                    timing: Mapping[str, Any] | None = None) -> None:
     """Hand the sink what is known only at the end (``frame_errors``, ``stop`` and, once the run started, its
@@ -335,42 +412,19 @@ def _write_summary(sink: SampleSink, transport: Transport, failure: BaseExceptio
             raise  # otherwise what ended the run is the error to report, not this one
 
 
-def _check_and_enable(transport: Transport, command_rad: NDArray[np.float64]) -> None:
-    """After :meth:`Transport.prepare`: check the whole command from the actual position, then enable.
-    Homing can move the actual position after enabling: the command is then checked again from there (a
+def _check_and_enable(transport: Transport, command: CheckedCommand) -> None:
+    """After :meth:`Transport.prepare`: check the command's first chunk from the actual position, then enable.
+    Homing can move the actual position after enabling: the first chunk is then checked again from there (a
     refusal stops the drive)."""
     checked_from = transport.initial_position_rad
-    check_command(transport, command_rad)
+    command.check_first()
     transport.enable()
     if transport.initial_position_rad != checked_from:
-        check_command(transport, command_rad)
-
-
-def check_command(transport: Transport, command_rad: NDArray[np.float64]) -> None:
-    """Refuse the whole command before the drive is enabled if any sample breaks the software limits; the
-    first setpoint is checked against the drive's actual position (:attr:`Transport.initial_position_rad`,
-    read by :meth:`Transport.prepare`), so a first command the rate limit does not allow from there is
-    refused with the distance, instead of making the drive jump."""
-    previous = transport.initial_position_rad
-    for k, value in enumerate(command_rad.tolist()):
-        quantized = transport.drive.quantize_rad(value)
-        if k == 0 and not math.isclose(quantized, previous, abs_tol=1e-12):
-            step_s = transport.sample_period_s
-            rate = abs(quantized - previous) / step_s
-            if rate > transport.limits.rate_max_rad_per_s * (1 + 1e-12):
-                raise CommandRefused(
-                    f"setpoint 0: the first command {quantized:.6g} rad is {abs(quantized - previous):.6g} rad from the "
-                    f"drive's actual position {previous:.6g} rad: reaching it in one sample needs {rate:.6g} rad/s, "
-                    f"above the rate limit {transport.limits.rate_max_rad_per_s:.6g} rad/s; start the experiment at "
-                    "the actual position (or move the drive there first)")
-        transport.limits.check(quantized, previous, transport.sample_period_s, k)
-        if k:  # the plan's own steps (not the first, from wherever the drive stands)
-            transport.plan_step_rad = max(transport.plan_step_rad if k > 1 else 0.0, abs(quantized - previous))
-        previous = quantized
+        command.recheck_first()
 
 
 @frozen_heap()
-def run_experiment(transport: Transport, command_rad: ArrayLike, sink: SampleSink, *,
+def run_experiment(transport: Transport, command_rad: CommandSource | ArrayLike, sink: SampleSink, *,
                    feedback_timeout_s: float = 0.1, late_tolerance_s: float | None = None,
                    pending_cycles: int = PENDING_CYCLES,
                    progress: Callable[[int, int], None] | None = None,
@@ -383,7 +437,8 @@ def run_experiment(transport: Transport, command_rad: ArrayLike, sink: SampleSin
     transport
         A transport not yet opened; it is opened here and always closed (controlled stop first).
     command_rad
-        The drive position targets, one per sample.
+        The drive position targets, one per sample: a :class:`~rig.command_source.CommandSource` produced
+        chunk by chunk as the run sends it (any length, or open-ended), or an array (wrapped as one).
     sink
         Receives one row per sample (time, command as sent, load angle, encoder counts, flags); always
         closed, also on error.
@@ -403,11 +458,13 @@ def run_experiment(transport: Transport, command_rad: ArrayLike, sink: SampleSin
     Raises
     ------
     CommandRefused
-        A command beyond the software limits (the drive was never enabled).
+        A command beyond the software limits: in its first chunk, the drive was never enabled; in a later
+        one (checked ahead while the run goes), the run ends with the controlled stop before any sample of
+        that chunk is sent, the log complete up to the stop.
     DeviceFault, TransportError
         The device faulted or the link failed; the log holds every sample up to the stop.
     """
-    command = as_signal("command_rad", command_rad)
+    source = as_command_source(command_rad)
     try:
         # a link whose handshake decides who owns the sample clock (serial v2) knows lead_samples only now
         transport.prepare()
@@ -419,6 +476,7 @@ def run_experiment(transport: Transport, command_rad: ArrayLike, sink: SampleSin
         finally:
             sink.close()
         raise
+    command = CheckedCommand(transport, source)
     if transport.lead_samples > 0:
         return _run_device_clocked(transport, command, sink, feedback_timeout_s=feedback_timeout_s,
                                    late_tolerance_s=0.5 * transport.sample_period_s if late_tolerance_s is None
@@ -428,8 +486,7 @@ def run_experiment(transport: Transport, command_rad: ArrayLike, sink: SampleSin
     tolerance = 0.5 * period if late_tolerance_s is None else float(late_tolerance_s)
     pending_cycles = answer_window_cycles(period, pending_cycles)
     ledger = SampleLedger(period, pending_cycles)
-    values = command.tolist()
-    lateness = np.zeros(command.size)
+    lateness = SendLateness()
     cpu_start, wall_start = time.process_time(), clock()
     sent_count = 0
     failure: BaseException | None = None
@@ -457,7 +514,10 @@ def run_experiment(transport: Transport, command_rad: ArrayLike, sink: SampleSin
         catch_up_spacing = max(CATCH_UP_SPACING * period, transport.min_cycle_s)
         watchdog.fed(start)
         last_send = -math.inf
-        for k, value in enumerate(values):
+        k = 0
+        while command.contains(k):
+            value = command.value(k)  # checked (and the samples ahead checked a little further)
+            command.release_below(k)
             deadline = start + k * period
             # behind schedule, catch up at most twice as fast: devices expect setpoints about a period
             # apart, not in a burst
@@ -467,14 +527,15 @@ def run_experiment(transport: Transport, command_rad: ArrayLike, sink: SampleSin
                 wait_until(send_at, clock)
                 now = clock()
             last_send = now
-            lateness[k] = now - deadline
+            late_s = now - deadline
+            lateness.add(late_s)
             if watchdog.expired(now):
                 stale = ledger.counts["stale"]
                 too_late = (f"; {stale} answers came more than {pending_cycles} cycles after their setpoint (a "
                             "device answering that late cannot be used at this rate)" if stale else "")
                 raise TransportError(f"{watchdog.message(transport.name, now)}, stopping at sample {k}{too_late}")
             sent = transport.send(Setpoint(k, value))
-            ledger.open_row(k, sent.position_rad, late=lateness[k] > tolerance)
+            ledger.open_row(k, sent.position_rad, late=late_s > tolerance)
             sent_count += 1
             # Take what arrives until sample k is answered or the next deadline comes; when behind
             # schedule, only drain what is there, so that the loop catches up (answers of the last
@@ -488,6 +549,7 @@ def run_experiment(transport: Transport, command_rad: ArrayLike, sink: SampleSin
             ledger.write_final(k, sink)
             if progress is not None:
                 progress(k + 1, ledger.counts["late"])
+            k += 1
         grace_end = clock() + pending_cycles * period
         while len(ledger) and not ledger.all_answered and clock() < grace_end:
             sample = transport.receive(max(grace_end - clock(), 0.0))
@@ -507,7 +569,7 @@ def run_experiment(transport: Transport, command_rad: ArrayLike, sink: SampleSin
         finally:
             try:
                 ledger.write_final(sent_count - 1 + pending_cycles, sink)
-                quantiles = send_lateness_quantiles(lateness[:sent_count])
+                quantiles = lateness.quantiles()
                 _write_summary(sink, transport, failure, {"sample_clock": "host", **quantiles})
             finally:
                 sink.close()
@@ -516,15 +578,15 @@ def run_experiment(transport: Transport, command_rad: ArrayLike, sink: SampleSin
     wall = clock() - wall_start
     rate = 0.0
     if sent_count > 1:
-        rate = (sent_count - 1) / ((sent_count - 1) * period + lateness[sent_count - 1] - lateness[0])
+        rate = (sent_count - 1) / ((sent_count - 1) * period + lateness.last - lateness.first)
     return RunSummary(samples=sent_count, lost=counts["lost"], late=counts["late"], duplicate=counts["duplicate"],
                       stale=counts["stale"], frame_errors=transport.frame_errors, rate_hz=rate,
-                      send_lateness_s=lateness[:sent_count], cpu_s=time.process_time() - cpu_start, wall_s=wall,
+                      send_lateness_s=lateness.kept, cpu_s=time.process_time() - cpu_start, wall_s=wall,
                       not_followed=counts["not_followed"], stop=str(transport.stop_report or ""),
                       warnings=tuple(transport.warnings), **quantiles)
 
 
-def _run_device_clocked(transport: Transport, command: NDArray[np.float64], sink: SampleSink, *,
+def _run_device_clocked(transport: Transport, command: CheckedCommand, sink: SampleSink, *,
                         feedback_timeout_s: float, late_tolerance_s: float, pending_cycles: int,
                         progress: Callable[[int, int], None] | None, clock: Callable[[], float]) -> RunSummary:
     """:func:`run_experiment` on a link whose device owns the sample clock (``lead_samples`` > 0).
@@ -545,9 +607,8 @@ def _run_device_clocked(transport: Transport, command: NDArray[np.float64], sink
     # the device, not the host, fixes each instant: a row can wait for an answer as long as the lead lasts
     # (an answer that a busy host reads late is still filed under its instant, never LOST)
     pending_cycles = max(pending_cycles, transport.lead_samples)
-    values = command.tolist()
-    total = len(values)
-    ledger = SampleLedger(period, pending_cycles, late_tolerance_s, num_samples=total)
+    ledger = SampleLedger(period, pending_cycles, late_tolerance_s,  # an open-ended command: once its end is known
+                          **({} if command.total is None else {"num_samples": command.total}))
     cpu_start, wall_start = time.process_time(), clock()
     first_answer = last_answer = math.nan
     failure: BaseException | None = None
@@ -560,13 +621,14 @@ def _run_device_clocked(transport: Transport, command: NDArray[np.float64], sink
         """File one answer; every instant the device passed has its row, setpoint or not (a drive's buffer
         that ran dry takes the later records at later instants), and the answer says what was applied."""
         nonlocal next_row, filed_to, first_answer, last_answer
-        while next_row < total and next_row <= sample.seq:
-            ledger.open_row(next_row, transport.drive.quantize_rad(values[next_row]))
+        while next_row <= sample.seq and command.contains(next_row):
+            ledger.open_row(next_row, transport.drive.quantize_rad(command.value(next_row)))
             next_row += 1
         state = ledger.file(sample)
         filed_to = max(filed_to, sample.seq)
         watchdog.fed(sample.host_time_s)  # when this answer was received, not when the turn began
-        if sample.seq < total:  # (the device goes on answering after the run's last instant: not the run's rate)
+        # (the device goes on answering after the run's last instant: not the run's rate)
+        if command.total is None or sample.seq < command.total:
             last_answer = sample.host_time_s
             if math.isnan(first_answer):
                 first_answer = last_answer
@@ -576,14 +638,18 @@ def _run_device_clocked(transport: Transport, command: NDArray[np.float64], sink
         """After a failure (Ctrl-C, SIGTERM, a link error), before the stop: file the answers the transport
         has already received (a turn files at most a batch), so that no row whose answer came is written
         LOST. Best effort: a fault or a link error ends it."""
-        for _ in range(total + 2 * pending_cycles):
+        known = command.total if command.total is not None else max(next_seq, next_row, transport.device_sample + 1)
+        for _ in range(known + 2 * pending_cycles):
             try:
                 sample = transport.receive(0.0)
             except Exception:  # noqa: BLE001 - the error that ended the run is the one to report
                 return
             if sample is None:
                 return
-            take(sample)
+            try:
+                take(sample)
+            except Exception:  # noqa: BLE001 - a chunk of the command that cannot be read: the stop comes first
+                return
 
     switch_interval = sys.getswitchinterval()
     sys.setswitchinterval(min(switch_interval, period / 4))  # receive threads need the GIL within a period
@@ -593,20 +659,28 @@ def _run_device_clocked(transport: Transport, command: NDArray[np.float64], sink
         batch = max(1, lead // 2)  # setpoints queued, answers filed per turn: the queue never falls more than
         # this behind, and neither side floods the link (a burst of frames overruns a CAN adapter's receive queue)
         watchdog.fed(clock())
-        while ledger.written < total:
+        ended = False  # transport.end_of_stream() called
+        while command.total is None or ledger.written < command.total:
             # turn 1: queue the setpoints due (as far as ``lead`` ahead of the last instant the device passed):
             # those of instants already passed (HELD; they keep the limits' chain and their rows) and, once the
             # device runs, at most ``batch`` ahead of it (the whole lead before its first answer)
             device = transport.device_sample
             last_to_queue = min(device + lead, max(next_seq - 1, device) + (batch if filed_to >= 0 else lead))
-            while next_seq < total and next_seq <= last_to_queue:
-                sent = transport.send(Setpoint(next_seq, values[next_seq]))
+            while next_seq <= last_to_queue and command.contains(next_seq):
+                sent = transport.send(Setpoint(next_seq, command.value(next_seq)))
                 if next_seq == next_row:
                     ledger.open_row(next_row, sent.position_rad)
                     next_row += 1
                 next_seq += 1
-                if next_seq == total:
+                if next_seq == command.total:
                     transport.end_of_stream()
+                    ended = True
+            if command.total is not None:
+                ledger.num_samples = command.total  # (answers past the end belong to no sample of the run)
+                if not ended and next_seq == command.total:  # an open-ended command whose end came just now
+                    transport.end_of_stream()
+                    ended = True
+            command.release_below(min(next_seq, next_row))
             # turn 2: file at most ``batch`` answers, then queue again: a device whose answers never stop
             # coming (a host slower than the device's clock) still gets its setpoints
             sample = transport.receive(period)
@@ -650,7 +724,8 @@ def _run_device_clocked(transport: Transport, command: NDArray[np.float64], sink
                         ledger.mark_fault(last)
                     ledger.write_final(last + pending_cycles, sink)
                 else:
-                    ledger.write_final(total + pending_cycles, sink)
+                    assert command.total is not None  # the loop ends only at the command's end
+                    ledger.write_final(command.total + pending_cycles, sink)
                 timing = {"sample_clock": "device", "min_lead_s": transport.min_lead_s}
                 _write_summary(sink, transport, failure, timing)
             finally:

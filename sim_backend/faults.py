@@ -101,7 +101,12 @@ class FaultPlan:
     def lost_feedback(self, num_samples: int) -> frozenset[int]:
         """Sample numbers (below ``num_samples``) whose feedback frame the device does not send."""
         rng = np.random.default_rng(self.seed)
-        lost = set(np.flatnonzero(rng.random(num_samples) < self.drop_probability).tolist())
+        lost: set[int] = set()
+        if self.drop_probability > 0:
+            step = 1 << 20  # drawn a block at a time (the same numbers as one draw): a run of hours needs no
+            for start in range(0, num_samples, step):  # array of one number a sample
+                block = rng.random(min(step, num_samples - start))
+                lost.update((start + np.flatnonzero(block < self.drop_probability)).tolist())
         for first, count in self.bursts:
             lost.update(range(first, first + count))
         return frozenset(lost)

@@ -46,8 +46,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         help="log file to write (CSV, rig-log v1); an existing file is refused unless --force, and a "
                              "file another run is writing always is")
     parser.add_argument("--force", action="store_true", help="replace an existing --out log (and --can-trace file)")
-    parser.add_argument("--duration", type=float, default=None, metavar="S",
-                        help="run for S seconds (the excitation is cut, or repeated cyclically to fill S)")
+    parser.add_argument("--duration", type=duration_s, default=None, metavar="S",
+                        help="run for S seconds, or S with a unit: 90s, 20min, 8h (the excitation is cut, or "
+                             "repeated cyclically to fill S, produced as it is sent: any length)")
     parser.add_argument("--can-trace", metavar="FILE.blf", default=None,
                         help="CAN transports: write every frame to FILE (.blf, .asc, .log, .csv or .trc)")
     parser.add_argument("--sim-faults", metavar="SPEC", default=None,
@@ -69,14 +70,41 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.set_defaults(handler=run)
 
 
+_DURATION_UNITS = {"s": 1.0, "min": 60.0, "h": 3600.0}
+
+
+def duration_s(text: str) -> float:
+    """``--duration``: seconds, or a number with a unit ``s``, ``min`` or ``h`` (``8h`` is 28800)."""
+    stripped = text.strip()
+    factor = 1.0
+    for unit, seconds in _DURATION_UNITS.items():
+        if stripped.endswith(unit):
+            stripped, factor = stripped[:-len(unit)].strip(), seconds
+            break
+    try:
+        value = float(stripped) * factor
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected seconds or a number with s, min or h (8h), got {text!r}") from None
+    return value
+
+
 def load_command_file(path: str | Path, sample_period_s: float) -> Any:
-    """An excitation read from a CSV, MDF4 or MAT file with a ``command_rad`` column (and optionally ``time_s``)."""
+    """An excitation read from a CSV, MDF4 or MAT file with a ``command_rad`` column (and optionally ``time_s``).
+
+    A CSV file is read from disk as the run sends it (:class:`~rig.command_source.CsvCommandFile`: only its
+    rows are counted now, and its first chunk read); an MDF4 or MAT file is read whole (its library reads
+    whole channels)."""
     import numpy as np
 
+    from rig.command_source import CsvCommandFile
     from rig.experiment_config import Excitation
+    from rig.measurement_files import measurement_format, read_table
     from rig.protocols.errors import LogFileError
-    from rig.measurement_files import read_table
 
+    if measurement_format(path) is None:  # CSV
+        streamed = CsvCommandFile(path, sample_period_s)
+        return Excitation(name=Path(path).stem, kind="file", command_rad=streamed.head(streamed.chunk_samples),
+                          seed=None, source=str(path), streamed=streamed)
     table = read_table(path, ("command_rad",), optional_columns=("time_s",))
     if "time_s" in table and table["time_s"].size > 1:
         steps = np.diff(table["time_s"])
@@ -88,35 +116,32 @@ def load_command_file(path: str | Path, sample_period_s: float) -> Any:
                       source=str(path))
 
 
-SETUP_SECONDS_PER_SAMPLE = 50e-9
-"""What the runner's set-up costs per sample of the command, at most (about 26-38 ns measured on the 2-core
-CI host and on the issue's machine, doubled for a loaded host): ``run_experiment`` turns the whole command
-into a Python list after it has armed its feedback watchdog and before the first setpoint."""
-MAX_RUN_SAMPLES = 1 << 24
-"""Samples of one run at most whatever the watchdog: the runner holds the whole command and a per-sample
-timing array in memory (about 60 bytes a sample)."""
+class FlagCounter:
+    """A sink that counts the LOST, HELD and LATE rows it passes on to ``sink`` (the progress bar's counters:
+    exact, since every row goes through it)."""
 
+    def __init__(self, sink: Any) -> None:
+        from identify.experiment_record import SampleFlag
 
-def max_run_samples(config: Any) -> int:
-    """The longest command the current runner can start on the rig of ``config``: its set-up before the first
-    sample (:data:`SETUP_SECONDS_PER_SAMPLE` a sample) must fit in half of what the feedback watchdog leaves
-    after the two periods of lead, or the watchdog stops the run at sample 0; and :data:`MAX_RUN_SAMPLES`."""
-    budget_s = 0.5 * (config.feedback_timeout_s - 2 * config.sample_period_s)
-    return max(1, min(MAX_RUN_SAMPLES, int(budget_s / SETUP_SECONDS_PER_SAMPLE)))
+        self._sink = sink
+        self._lost, self._held, self._late = int(SampleFlag.LOST), int(SampleFlag.HELD), int(SampleFlag.LATE)
+        self.lost = self.held = self.late = 0
 
+    def append(self, time_s: float, command_rad: float, angle_rad: float, encoder_counts: int | None = None,
+               flags: int = 0) -> None:
+        self._sink.append(time_s, command_rad, angle_rad, encoder_counts, flags)
+        if flags:
+            self.lost += bool(flags & self._lost)
+            self.held += bool(flags & self._held)
+            self.late += bool(flags & self._late)
 
-def _check_run_length(config: Any, num_samples: int, what: str) -> None:
-    """Refuse, before anything is generated or opened, a command longer than :func:`max_run_samples`."""
-    limit = max_run_samples(config)
-    if num_samples <= limit:
-        return
-    seconds = limit * config.sample_period_s
-    raise ValueError(
-        f"{what}: {num_samples} samples at {config.sample_rate_hz:g} Hz is longer than one run can be on this rig: "
-        f"at most {limit} samples ({seconds:g} s), because the runner prepares the whole command before its first "
-        f"sample and that must fit in half of the feedback watchdog (feedback_timeout_s = "
-        f"{config.feedback_timeout_s:g} s in {config.source}); record in runs of at most {seconds:g} s (or raise "
-        "feedback_timeout_s, which also lets a stalled link go unnoticed for longer)")
+    def write_summary(self, summary: Any) -> None:
+        write_summary = getattr(self._sink, "write_summary", None)
+        if write_summary is not None:
+            write_summary(summary)
+
+    def close(self) -> None:
+        self._sink.close()
 
 
 def _slow_fmu_plant(config: Any) -> str:
@@ -147,8 +172,6 @@ def _naming_a_slow_plant(slow_plant: str) -> Any:
 
 
 def run(args: argparse.Namespace) -> int:
-    import numpy as np
-
     from rig.experiment_config import load_experiment_config
     from rig.log_file import LogWriter
     from rig.log_metadata import experiment_log_metadata
@@ -175,16 +198,13 @@ def run(args: argparse.Namespace) -> int:
         if not (math.isfinite(args.duration) and args.duration > 0):
             raise ValueError(f"--duration: expected a number of seconds > 0, got {args.duration}")
         num_samples = max(1, int(round(args.duration * config.sample_rate_hz)))
-        _check_run_length(config, num_samples, f"--duration {args.duration:g}")
     if Path(args.experiment).suffix.lower() in (".csv", ".mf4", ".mdf", ".mat"):
         excitation = load_command_file(args.experiment, config.sample_period_s)
     else:
         excitation = load_experiment_config(args.experiment)
-    command = excitation.command_rad
     if num_samples is None:
-        _check_run_length(config, command.size, f"{args.experiment}")
-    else:
-        command = excitation.repeated(num_samples)
+        num_samples = excitation.cycle_samples
+    command = excitation.stream(num_samples)  # produced chunk by chunk as the run sends it
     faults = None
     if args.sim_faults is not None:
         from sim_backend.faults import parse_fault_spec
@@ -216,23 +236,25 @@ def run(args: argparse.Namespace) -> int:
         if args.live:  # on the sink: the view sees each row after the log has it (rig/live_view.py)
             from rig.live_view import open_live_view
 
-            view = stack.enter_context(open_live_view(command.size, config.sample_period_s, sys.stderr))
-        log = LogWriter(args.out, experiment_log_metadata(config, excitation, gearbox, command.size, injected),
+            view = stack.enter_context(open_live_view(num_samples, config.sample_period_s, sys.stderr))
+        log = LogWriter(args.out, experiment_log_metadata(config, excitation, gearbox, num_samples, injected),
                         flush_every=10, flush_interval_s=0.05, claimed=claimed, stamp_start=True)
         sink = log if view is None else view.observe(log)
-        bar = None
+        bar = flags = None
         if not args.json and not args.live and sys.stderr.isatty():
             from tqdm import tqdm
 
-            bar = stack.enter_context(tqdm(total=command.size, unit="sample", file=sys.stderr))
+            # tqdm shows the time elapsed and the time left; the postfix, the rows flagged so far
+            bar = stack.enter_context(tqdm(total=num_samples, unit="sample", file=sys.stderr))
+            sink = flags = FlagCounter(sink)
         stalls = list(faults.host_stalls) if faults is not None else []
 
         def progress(done: int, late: int) -> None:
             while stalls and done >= stalls[0][0]:  # --sim-faults stall=MS@K: the driver's own thread pauses
                 time.sleep(stalls.pop(0)[1])
-            if bar is not None and (done % 50 == 0 or done == command.size):
+            if bar is not None and flags is not None and (done % 50 == 0 or done == num_samples):
                 bar.n = done
-                bar.set_postfix(late=late, refresh=True)
+                bar.set_postfix(lost=flags.lost, held=flags.held, late=flags.late, refresh=True)
         summary = run_experiment(transport, command, sink, feedback_timeout_s=config.feedback_timeout_s,
                                  late_tolerance_s=config.late_tolerance_s,
                                  progress=progress if bar is not None or stalls else None)

@@ -242,7 +242,9 @@ class Transport(ABC):
         self.initial_position_rad = 0.0
         self.frame_errors = 0
         self.stop_report: StopReport | None = None
-        self.plan_step_rad = math.inf  # the command's largest step, from the runner's check (catch_up_step_rad)
+        # the command's largest step among the samples the runner has checked so far (it checks a chunk ahead
+        # of those sent; catch_up_step_rad); inf until the runner's first check
+        self.plan_step_rad = math.inf
         self.warnings: list[str] = []  # device warnings ridden through (e.g. an encoder's EMCY 0x4210)
         self._state = "closed"
         self._enabling_sent = False
@@ -287,8 +289,9 @@ class Transport(ABC):
     def catch_up_step_rad(self) -> float:
         """The largest step a device-clocked link lets the target make when it goes back to the plan after
         a stall held samples: the rate limit's step, and at most :data:`CATCH_UP_FACTOR` times the command's
-        own largest step (:attr:`plan_step_rad`, set by the runner's check), so that a plan that moves
-        smoothly is never met with a jump even where no rate limit is configured."""
+        own largest step (:attr:`plan_step_rad`, set by the runner's check: that of the samples checked so
+        far, which include every sample sent), so that a plan that moves smoothly is never met with a jump
+        even where no rate limit is configured."""
         return min(self.limits.rate_max_rad_per_s * self.sample_period_s, CATCH_UP_FACTOR * self.plan_step_rad)
 
     def _toward_plan(self, plan_counts: int, lowest_counts: int, highest_counts: int | None = None) -> int:

@@ -26,6 +26,7 @@ if TYPE_CHECKING:
     import numpy as np
     from numpy.typing import NDArray
 
+    from rig.command_source import CommandSource
     from rig.rig_config import RigConfig
     from sim_backend.canopen_nodes import SimulatedCanOpenRig
     from sim_backend.device_process import DeviceProcess
@@ -172,18 +173,27 @@ def start_device_process(config: RigConfig, stack: contextlib.ExitStack, *, samp
     return url, running
 
 
+NOISE_REFERENCE_SAMPLES = 1 << 18
+"""A simulated plant whose noise is given as an SNR fixes its level from the noise-free response to the
+command's first samples, at most this many (262 s at 1 kHz; the whole command of a shorter run): a run of hours
+is not simulated twice before it starts."""
+
+
 @contextlib.contextmanager
-def simulated_rig(config: RigConfig, command_rad: NDArray[np.float64] | None = None,
+def simulated_rig(config: RigConfig, command_rad: NDArray[np.float64] | CommandSource | None = None,
                   faults: FaultPlan | None = None) -> Iterator[tuple[str, SimulatedGearbox]]:
     """Start the simulated devices of a rig config with a ``[simulation]`` table; yield the URL the
-    transport must open and the simulated gearbox. ``command_rad`` (the whole command) calibrates noise
-    that needs a reference; ``faults`` makes the devices inject wire faults. Devices are stopped on exit.
+    transport must open and the simulated gearbox. ``command_rad`` (the command: an array, or a
+    :class:`~rig.command_source.CommandSource` of which at most :data:`NOISE_REFERENCE_SAMPLES` are read)
+    calibrates noise that needs a reference; ``faults`` makes the devices inject wire faults over its
+    samples. Devices are stopped on exit.
 
     Raises
     ------
     ConfigError
         The config has no ``[simulation]`` table, or its rate or encoder differs from the plant's.
     """
+    from rig.command_source import as_command_source
     from sim_backend.plant_config import load_simulated_plant
 
     sim = config.simulation
@@ -199,11 +209,13 @@ def simulated_rig(config: RigConfig, command_rad: NDArray[np.float64] | None = N
                           f"{1 / gearbox.sample_period_s:g} Hz ({sim.plant_path})")
     if gearbox.encoder != config.encoder:
         raise ConfigError(config.source, "encoder", f"differs from the simulated plant's encoder {gearbox.encoder}")
-    if command_rad is not None and getattr(gearbox.noise, "needs_reference", False):
-        gearbox = gearbox.calibrated_for(command_rad)
+    source = None if command_rad is None else as_command_source(command_rad)
+    if source is not None and getattr(gearbox.noise, "needs_reference", False):
+        gearbox = gearbox.calibrated_for(source.head(NOISE_REFERENCE_SAMPLES))
     device_options: dict[str, object] = {}
     if faults is not None:
-        device_options = faults.device_options(config.scheme, 0 if command_rad is None else len(command_rad))
+        num_samples = 0 if source is None or source.num_samples is None else source.num_samples
+        device_options = faults.device_options(config.scheme, num_samples)
     with contextlib.ExitStack() as stack:
         url, _ = start_simulated_devices(config, gearbox, stack, **device_options)
         yield url, gearbox

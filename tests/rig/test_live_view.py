@@ -4,6 +4,7 @@ view, never samples of the log."""
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from pathlib import Path
 
@@ -168,6 +169,11 @@ def test_the_terminal_plot_puts_both_curves_between_their_range():
     assert plot[0].count(".") > 0 and plot[-1].count(".") > 0  # the command at +-1 rad: top and bottom rows
     assert plot[2].count("*") > 0 and plot[6].count("*") > 0  # the angle at +-0.5 rad: rows 2 and 6 of 0..8
     assert lines[-1].endswith("samples 300/500  lost 1  held 2")
+
+
+def test_the_status_line_gives_the_time_elapsed_and_left_of_a_long_run():
+    frame = dataclasses.replace(_frame(300), samples=3_600_000, total_samples=28_800_000, sample_period_s=1e-3)
+    assert frame.status_line().endswith("elapsed 1:00:00  ETA 7:00:00  samples 3600000/28800000  lost 1  held 2")
 
 
 def test_the_window_draws_what_it_is_sent_off_screen(headless):
