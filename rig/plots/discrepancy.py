@@ -22,7 +22,9 @@ segment: at the report's width a free run of thousands of samples is a solid ban
 def comparison_figure(result: DiscrepancyResult, angle_rad: NDArray[np.float64], time_s: NDArray[np.float64],
                       name: str = "measured_vs_simulated") -> ReportFigure:
     """Measured angle with the start and final model's free-run simulations, and both residuals; a long
-    record also over :data:`ZOOM_SAMPLES` samples from the start of the validation segment (right)."""
+    record also over :data:`ZOOM_SAMPLES` samples from the start of the validation segment (right). With nothing
+    added the final model is the start model: it is drawn once (a second line would hide the first)."""
+    added = bool(result.steps)
     zoom = None
     if time_s.size > 5 * ZOOM_SAMPLES:
         start = min(result.estimation_samples, time_s.size - ZOOM_SAMPLES)
@@ -31,11 +33,14 @@ def comparison_figure(result: DiscrepancyResult, angle_rad: NDArray[np.float64],
     def draw_column(top, bottom, where: slice) -> None:
         t = time_s[where]
         top.plot(t, angle_rad[where], lw=1.2, color="black", label="measured")
-        top.plot(t, result.initial.simulated_rad[where], lw=0.8, color="tab:red", label="start model")
-        top.plot(t, result.final.simulated_rad[where], lw=0.8, ls="--", color="tab:green", label="final model")
+        start_label = "start model" if added else "model (nothing added)"
+        top.plot(t, result.initial.simulated_rad[where], lw=0.8, color="tab:red", label=start_label)
+        if added:
+            top.plot(t, result.final.simulated_rad[where], lw=0.8, ls="--", color="tab:green", label="final model")
         top.set_ylabel("load angle y [rad]")
-        bottom.plot(t, result.initial.residual_rad[where], lw=0.7, color="tab:red", label="start model")
-        bottom.plot(t, result.final.residual_rad[where], lw=0.7, color="tab:green", label="final model")
+        bottom.plot(t, result.initial.residual_rad[where], lw=0.7, color="tab:red", label=start_label)
+        if added:
+            bottom.plot(t, result.final.residual_rad[where], lw=0.7, color="tab:green", label="final model")
         for sign in (-1.0, 1.0):
             bottom.axhline(sign * result.noise_bound_rad, color="gray", lw=0.8, ls=":")
         if t[0] <= time_s[result.estimation_samples] <= t[-1]:
@@ -60,12 +65,19 @@ def comparison_figure(result: DiscrepancyResult, angle_rad: NDArray[np.float64],
 
     zoom_text = (f" Right: the shaded {ZOOM_SAMPLES} samples from the start of the validation segment."
                  if zoom is not None else "")
+    band = (f"the noise bound +-{result.noise_bound_rad:.3g} rad (dotted) and the start of the validation segment "
+            "(blue line)")
+    if added:
+        what = (f"Measured load angle against the free-run simulation of the start model (red) and of the final "
+                f"model (green, dashed); below, the residuals with {band}. Gap {result.initial.gap_rad:.3g} rad "
+                f"before, {result.final.gap_rad:.3g} rad after: the green residual should stay inside the dotted band.")
+    else:
+        what = (f"Measured load angle against the free-run simulation of the model (red; nothing was added, so the "
+                f"start model is the final one); below, its residual with {band}. Gap {result.initial.gap_rad:.3g} "
+                "rad: where the residual leaves the dotted band, the model and the record disagree.")
     return ReportFigure(
         name,
-        f"Measured load angle against the free-run simulation of the start model (red) and of the final model "
-        f"(green, dashed); below, the residuals with the noise bound +-{result.noise_bound_rad:.3g} rad (dotted) "
-        f"and the start of the validation segment (blue line). Gap {result.initial.gap_rad:.3g} rad before, "
-        f"{result.final.gap_rad:.3g} rad after: the green residual should stay inside the dotted band.{zoom_text}",
+        f"{what}{zoom_text}",
         draw, size_in=(9.5, 5.0) if zoom is not None else (7.5, 5.0))
 
 

@@ -57,3 +57,21 @@ def test_the_legend_of_the_comparison_hides_no_data(diagnosis):
     angle = nominal.apply(square) + 0.004 + np.random.default_rng(1).uniform(-2e-4, 2e-4, square.size)
     filled = diagnose_model(square, angle, 0.001, 0.001, PlantModel((nominal,)))
     assert legends_over_data(comparison_figure(filled, angle, np.arange(square.size) * 0.001)) == []
+
+
+def test_with_nothing_added_the_model_is_drawn_once_and_the_caption_says_so(diagnosis):
+    """With no effect added the final model is the start model: its dashed green line lay exactly over the red
+    one and hid it, and the caption spoke of a final model and a gap after."""
+    import dataclasses
+
+    record, result, time_s = diagnosis
+    nothing = dataclasses.replace(result, steps=(), final=result.initial)
+    report_figure = comparison_figure(nothing, record.angle_rad, time_s)
+    figure = _drawn(report_figure)
+    for axes in figure.axes:
+        labels = [line.get_label() for line in axes.get_lines() if not line.get_label().startswith("_")]
+        assert "final model" not in labels and "model (nothing added)" in labels
+    assert "nothing was added, so the start model is the final one" in report_figure.caption
+    assert "after" not in report_figure.caption
+    drawn = comparison_figure(result, record.angle_rad, time_s)  # with the play added: both models
+    assert "final model (green, dashed)" in drawn.caption
