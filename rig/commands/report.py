@@ -240,9 +240,24 @@ def _experiment_section(result: ResultFile, used: set[str]):
             f"({record.metadata.transport or 'unknown transport'}); {record.lost_count} lost samples; "
             f"{_timing_text(record)}.")
     figures = [signal_figure(record, f"signals_{slug}")]
-    if record.metadata.transport != OFFLINE_TRANSPORT:  # an offline simulation has no timing to draw
+    if _nothing_of_timing(record):
+        text += (" No timing figure: the time column is the nominal grid k·T, no sample is flagged HELD, LATE or "
+                 "LOST, and the log has no run summary; there is nothing of its timing to draw.")
+    elif record.metadata.transport != OFFLINE_TRANSPORT:  # an offline simulation has no timing to draw
         figures.append(timing_figure(record, f"timing_{slug}"))
     return ReportSection(f"Experiment: {result.path.name}", text=text, figures=tuple(figures))
+
+
+def _nothing_of_timing(record) -> bool:
+    """Whether a log holds nothing of its timing: a nominal time column (no jitter to plot), no timing flag, no
+    run summary (no lead): its timing figure would be an empty box."""
+    import numpy as np
+
+    from rig.plots.experiment import TIMING_FLAGS
+
+    return (record.metadata.transport != OFFLINE_TRANSPORT and not record.metadata.extra.get("summary")
+            and record.time_column_is_nominal()
+            and not np.any(record.flags & int(sum(TIMING_FLAGS))))
 
 
 def _timing_text(record) -> str:

@@ -80,10 +80,10 @@ def test_report_from_a_log_and_the_json_of_identify_and_diagnose(data, capsys, t
     assert index == (out / "index.html").resolve() and index.is_file()
     # 2 experiment figures (signals, timing), intervals + Bode for both methods together, the backlash band,
     # polygons and inner-signal bounds once (both methods share them), 1 discrepancy figure.
-    assert printed["figures"] == 8
+    assert printed["figures"] == 7  # the prbs log has nothing of its timing: no timing figure
     assert missing_images(index) == []
     page = index.read_text(encoding="utf-8")
-    assert page.count("<img ") == 8 and "set_membership_paper_polygons.png" in page
+    assert page.count("<img ") == 7 and "set_membership_paper_polygons.png" in page
     for title in ("Experiment: prbs.log", "Set membership", "Model discrepancy: diagnose.json"):
         assert title in page
     # The interval table shows each method's bounds as printed by `rig identify output-backlash --json`.
@@ -177,10 +177,10 @@ def test_a_saved_output_backlash_result_reopens_and_draws_polygons_band_and_inne
     assert main(["report", str(data / "prbs.log"), str(saved), "--out", str(out), "--json"]) == exit_codes.SUCCESS
     printed_report = json.loads(capsys.readouterr().out)
     # signals + timing, intervals + Bode, and from the saved data: backlash band, polygons, inner-signal bounds
-    assert printed_report["figures"] == 7
+    assert printed_report["figures"] == 6  # the prbs log: no (empty) timing figure
     index = Path(printed_report["report"])
     page = index.read_text(encoding="utf-8")
-    assert missing_images(index) == [] and page.count("<img ") == 7
+    assert missing_images(index) == [] and page.count("<img ") == 6
     for name in ("_backlash.png", "_polygons.png", "_inner.png"):
         assert f"set_membership_coupled_saved{name}" in page
 
@@ -331,3 +331,14 @@ def test_logs_of_different_periods_leave_the_frequency_axes_per_sample_and_say_s
     # one period among the logs, or one given, is used as before
     (one,) = [s for s in report_sections(files[1:]) if s.title.startswith("Hammerstein")]
     assert "per sample" not in one.text and "Hz" in one.figures[0].caption
+
+
+def test_a_log_with_nothing_of_its_timing_gets_no_empty_timing_figure(tmp_path):
+    """A log on the nominal grid with no flag and no run summary drew an empty box as its timing figure."""
+    u = prbs_sequence(60, 1.0, rng=1)
+    log = tmp_path / "prbs.log"
+    write_log(log, ExperimentRecord(np.arange(u.size) * 0.01, u, 0.5 * u, None, None,
+                                    ExperimentMetadata(sample_period_s=0.01, excitation="prbs")))
+    (section,) = report_sections([read_result_file(log)])
+    assert [figure.name for figure in section.figures] == ["signals_prbs"]
+    assert "No timing figure: the time column is the nominal grid" in section.text
