@@ -326,6 +326,12 @@ def inner_signal_figure(result: OutputBacklashIdentification | InnerSignalBounds
         width_axes.semilogy(time_axis[invertible], half[invertible] * 1e3, "o", ms=2.5, color="tab:red",
                             label="invertible")
         width_axes.set_ylabel("half-width Δx [mrad]")
+        # within a decade matplotlib labels every minor tick (6x10^1, 4x10^1, 3x10^1, ...): 1-2-5 labels only
+        from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
+
+        width_axes.yaxis.set_major_locator(LogLocator(base=10.0, subs=(1.0, 2.0, 5.0)))
+        width_axes.yaxis.set_major_formatter(FuncFormatter(lambda value, _: f"{value:g}"))
+        width_axes.yaxis.set_minor_formatter(NullFormatter())
         width_axes.set_xlabel(time_label)
         width_axes.legend(loc="upper right", fontsize=7)
 

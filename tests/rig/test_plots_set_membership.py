@@ -212,3 +212,17 @@ def test_the_interval_caption_says_how_tight_each_verified_guarantee_is(results)
     assert "outer/inner (how many times wider than the verified span the guarantee is; 1: exact) " + " ".join(
         f"{name} {ratio:.3g}" for name, ratio in ratios.items()) in caption
     assert results["paper"].linear.outer_inner_ratio is None  # no verified inner values: nothing claimed
+
+
+def test_the_half_width_axis_of_the_inner_signal_figure_labels_a_few_round_values(results):
+    """Within a decade the log axis labelled every minor tick (6x10^1, 4x10^1, 3x10^1, ...) on top of each other."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    figure = _drawn(inner_signal_figure(results["paper"], "inner", sample_period_s=0.01))
+    FigureCanvasAgg(figure).draw()
+    width_axes = figure.axes[1]
+    low, high = width_axes.get_ylim()
+    labels = [tick.get_text() for tick in width_axes.get_yticklabels(minor=False) + width_axes.get_yticklabels(minor=True)
+              if tick.get_text() and low <= tick.get_position()[1] <= high]
+    assert 1 <= len(labels) <= 7, labels
+    assert all(float(text) / 10 ** np.floor(np.log10(float(text))) in (1.0, 2.0, 5.0) for text in labels), labels
