@@ -32,6 +32,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from identify.experiment_record import SampleFlag
+from rig.sinks import ForwardingSink
 
 __all__ = ["FRAME_INTERVAL_S", "LIVE_BUFFER_ROWS", "LiveFeed", "LiveFrame", "LiveView", "ObservedSink",
            "TerminalRenderer", "WindowRenderer", "WindowUnavailable", "choose_renderer", "display_available",
@@ -87,25 +88,17 @@ class LiveFeed:
         return self.offered - self.taken - pending
 
 
-class ObservedSink:
+class ObservedSink(ForwardingSink):
     """A :class:`rig.runner.SampleSink` that writes each row to ``sink`` and then offers it to ``feed``."""
 
     def __init__(self, sink: Any, feed: LiveFeed) -> None:
-        self._sink = sink
+        super().__init__(sink)
         self._feed = feed
 
     def append(self, time_s: float, command_rad: float, angle_rad: float, encoder_counts: int | None = None,
                flags: int = 0) -> None:
-        self._sink.append(time_s, command_rad, angle_rad, encoder_counts, flags)  # the log first
+        super().append(time_s, command_rad, angle_rad, encoder_counts, flags)  # the log first
         self._feed.offer(time_s, command_rad, angle_rad, flags)
-
-    def write_summary(self, summary: Any) -> None:
-        write_summary = getattr(self._sink, "write_summary", None)
-        if write_summary is not None:
-            write_summary(summary)
-
-    def close(self) -> None:
-        self._sink.close()
 
 
 @dataclass(frozen=True)

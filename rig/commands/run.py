@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from rig import exit_codes
+from rig.sinks import ForwardingSink
 
 __all__ = ["DEFAULT_CONFIG", "load_command_file", "register", "run"]
 
@@ -116,32 +117,24 @@ def load_command_file(path: str | Path, sample_period_s: float) -> Any:
                       source=str(path))
 
 
-class FlagCounter:
+class FlagCounter(ForwardingSink):
     """A sink that counts the LOST, HELD and LATE rows it passes on to ``sink`` (the progress bar's counters:
     exact, since every row goes through it)."""
 
     def __init__(self, sink: Any) -> None:
         from identify.experiment_record import SampleFlag
 
-        self._sink = sink
+        super().__init__(sink)
         self._lost, self._held, self._late = int(SampleFlag.LOST), int(SampleFlag.HELD), int(SampleFlag.LATE)
         self.lost = self.held = self.late = 0
 
     def append(self, time_s: float, command_rad: float, angle_rad: float, encoder_counts: int | None = None,
                flags: int = 0) -> None:
-        self._sink.append(time_s, command_rad, angle_rad, encoder_counts, flags)
+        super().append(time_s, command_rad, angle_rad, encoder_counts, flags)
         if flags:
             self.lost += bool(flags & self._lost)
             self.held += bool(flags & self._held)
             self.late += bool(flags & self._late)
-
-    def write_summary(self, summary: Any) -> None:
-        write_summary = getattr(self._sink, "write_summary", None)
-        if write_summary is not None:
-            write_summary(summary)
-
-    def close(self) -> None:
-        self._sink.close()
 
 
 def _slow_fmu_plant(config: Any) -> str:
