@@ -17,12 +17,14 @@ The verdict says it (:func:`open_world_checked`):
   the remaining gap than the named effects took off the start model's, the record holds something the
   catalogue lacks and the named effects may only stand in for it: the verdict is lowered to ``ambiguous`` (the
   fitted effects stay in the model, with the reason);
-* an unexplained record says how much structure its disagreement has.
+* a record where nothing was added says how much structure its disagreement has (unexplained: structure the
+  catalogue does not hold; ambiguous: as the candidates left open would).
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
+
 import numpy as np
 from numpy.typing import NDArray
 
@@ -47,9 +49,8 @@ def black_box_features(u: NDArray[np.float64], simulated: NDArray[np.float64]) -
         for lag in OPEN_WORLD_LAGS:
             columns.append(np.concatenate((np.full(lag, signal[0]), signal[:n - lag])) if lag else signal)
     moves = np.sign(np.diff(simulated, prepend=simulated[0]))
-    moved = np.flatnonzero(moves)
     direction = np.zeros(n)
-    if moved.size:  # the last direction of motion, held through rests
+    if np.any(moves):  # the last direction of motion, held through rests
         held = np.maximum.accumulate(np.where(moves != 0, np.arange(n), -1))
         direction = np.where(held >= 0, moves[np.maximum(held, 0)], 0.0)
     columns.append(direction)
@@ -94,8 +95,10 @@ def open_world_checked(verdict: str, reason: str, u: NDArray[np.float64], y: NDA
                  f"segment, predicts {100 * structure.explained_fraction:.0f} % of the remaining residual's mean "
                  f"square on the validation segment (gap {structure.gap_rad:.3g} -> "
                  f"{structure.gap_after_black_box_rad:.3g} rad)")
-    if not steps:
-        return verdict, f"{reason}; {predicted}: the disagreement has structure the catalogue does not hold", structure
+    if not steps:  # ambiguous: the candidates left open may hold that structure; unexplained: none does
+        what = ("as the candidates left open would" if verdict == "ambiguous" else
+                "the disagreement has structure the catalogue does not hold")
+        return verdict, f"{reason}; {predicted}: {what}", structure
     named = ", ".join(step.effect for step in steps)
     remains = final.gap_rad / initial.gap_rad if initial.gap_rad > 0 else 1.0
     said = f"{reason}; {100 * remains:.0f} % of the validated gap remains unexplained after {named}: {predicted}"
