@@ -19,6 +19,7 @@ from identify.experiment_record import ExperimentMetadata, ExperimentRecord
 from identify.model_discrepancy import CandidateResult, DiscrepancyReport, MissingEffect
 from identify.output_backlash_identification import bound_output_backlash_system
 from identify.plant_blocks import LinearBlock, OutputBacklash, PlantModel, pouliquen2013_backlash
+from report_inputs import printed_to, write_csv
 from rig import exit_codes
 from rig.cli import main
 from rig.commands.report import read_result_file, report_sections
@@ -36,15 +37,6 @@ DIAGNOSE = DIAGNOSIS.to_dict()
 REPO = Path(__file__).resolve().parents[2]
 
 
-def _csv(path: Path, header: str, *columns) -> Path:
-    path.write_text(header + "\n" + "".join(",".join(repr(float(v)) for v in row) + "\n" for row in zip(*columns)))
-    return path
-
-
-def _json_of(capsys, argv: list[str], path: Path) -> Path:
-    assert main(argv) == exit_codes.SUCCESS
-    path.write_text(capsys.readouterr().out)
-    return path
 
 
 @pytest.fixture(scope="module")
@@ -53,7 +45,7 @@ def data(tmp_path_factory):
     rng = np.random.default_rng(0)
     staircase = filtered_staircase(list(np.linspace(0.6, 3.0, 6)), 0.8125, 100)
     steady = staircase_steady_state_indices(6, 100)
-    _csv(folder / "steady.csv", "u,y", staircase[steady],
+    write_csv(folder / "steady.csv", "u,y", staircase[steady],
          SM_PLANT.simulate(staircase)[steady] + rng.uniform(-NOISE, NOISE, steady.size))
     u = prbs_sequence(60, 1.0, rng=1)
     y = SM_PLANT.simulate(u) + rng.uniform(-NOISE, NOISE, u.size)
@@ -61,7 +53,7 @@ def data(tmp_path_factory):
                                                     ExperimentMetadata(sample_period_s=0.01, excitation="prbs")))
     cyclic = cyclic_random_excitation(1200, -3.0, 3.0, hold_samples=50, rng=0)
     G = LinearBlock(a=(-1.8858, 0.9048), b=(0.0, 0.1994, -0.1804), sample_period_s=0.01)
-    _csv(folder / "cyclic.csv", "u,y", cyclic, PlantModel((pouliquen2013_backlash(), G)).simulate(cyclic))
+    write_csv(folder / "cyclic.csv", "u,y", cyclic, PlantModel((pouliquen2013_backlash(), G)).simulate(cyclic))
     (folder / "diagnose.json").write_text(json.dumps(DIAGNOSE))
     return folder
 
@@ -69,8 +61,8 @@ def data(tmp_path_factory):
 def test_report_from_a_log_and_the_json_of_identify_and_diagnose(data, capsys, tmp_path):
     common = ["identify", "output-backlash", "--steady", str(data / "steady.csv"), "--dynamic", str(data / "prbs.log"),
               "--noise-bound", repr(NOISE), "--na", "2", "--nk", "1", "--nb", "2", "--json"]
-    paper = _json_of(capsys, [*common, "--method", "paper"], data / "paper.json")
-    coupled = _json_of(capsys, common, data / "coupled.json")
+    paper = printed_to(capsys, [*common, "--method", "paper"], data / "paper.json")
+    coupled = printed_to(capsys, common, data / "coupled.json")
     out = tmp_path / "report"
     code = main(["report", str(data / "prbs.log"), str(paper), str(coupled), str(data / "diagnose.json"),
                  "--out", str(out), "--json"])
@@ -96,7 +88,7 @@ def test_report_from_a_log_and_the_json_of_identify_and_diagnose(data, capsys, t
 
 
 def test_the_json_of_identify_hammerstein_gives_its_three_figures(data, capsys):
-    hammerstein = _json_of(capsys, ["identify", "hammerstein", str(data / "cyclic.csv"), "--json"],
+    hammerstein = printed_to(capsys, ["identify", "hammerstein", str(data / "cyclic.csv"), "--json"],
                            data / "hammerstein.json")
     result = read_result_file(hammerstein)
     assert result.kind == "hammerstein_model"
@@ -166,7 +158,7 @@ def test_chromium_check_script_says_how_to_install_chromium(tmp_path):
 
 def test_a_saved_output_backlash_result_reopens_and_draws_polygons_band_and_inner_bounds(data, capsys, tmp_path):
     saved = tmp_path / "coupled_saved.json"
-    printed = _json_of(capsys, ["identify", "output-backlash", "--steady", str(data / "steady.csv"), "--dynamic",
+    printed = printed_to(capsys, ["identify", "output-backlash", "--steady", str(data / "steady.csv"), "--dynamic",
                                 str(data / "prbs.log"), "--noise-bound", repr(NOISE), "--na", "2", "--nk", "1",
                                 "--nb", "2", "--json", "--save", str(saved)], tmp_path / "printed.json")
     document = json.loads(saved.read_text())
@@ -186,7 +178,7 @@ def test_a_saved_output_backlash_result_reopens_and_draws_polygons_band_and_inne
 
 
 def test_a_saved_result_with_damaged_data_names_the_file_and_the_key(data, capsys, tmp_path):
-    document = json.loads(_json_of(capsys, ["identify", "output-backlash", "--steady", str(data / "steady.csv"),
+    document = json.loads(printed_to(capsys, ["identify", "output-backlash", "--steady", str(data / "steady.csv"),
                                             "--dynamic", str(data / "prbs.log"), "--noise-bound", repr(NOISE), "--na",
                                             "2", "--nk", "1", "--nb", "2", "--json", "--method", "paper"],
                                    tmp_path / "printed.json").read_text())
@@ -314,7 +306,7 @@ def test_logs_of_different_periods_leave_the_frequency_axes_per_sample_and_say_s
     period to a model fitted on 10-ms data (its poles were drawn at 22.5 Hz instead of 2.25 Hz)."""
     cyclic = cyclic_random_excitation(1200, -3.0, 3.0, hold_samples=50, rng=0)
     G = LinearBlock(a=(-1.8858, 0.9048), b=(0.0, 0.1994, -0.1804), sample_period_s=0.01)
-    data = _csv(tmp_path / "cyclic.csv", "u,y", cyclic, PlantModel((pouliquen2013_backlash(), G)).simulate(cyclic))
+    data = write_csv(tmp_path / "cyclic.csv", "u,y", cyclic, PlantModel((pouliquen2013_backlash(), G)).simulate(cyclic))
     assert main(["identify", "hammerstein", str(data), "--json"]) == exit_codes.SUCCESS
     hammerstein = tmp_path / "hammerstein.json"
     hammerstein.write_text(capsys.readouterr().out)

@@ -22,6 +22,7 @@ from identify.excitation_design import filtered_staircase, prbs_sequence, stairc
 from identify.experiment_record import ExperimentMetadata, ExperimentRecord, SampleFlag
 from identify.plant_blocks import LinearBlock, OutputBacklash, PlantModel, pouliquen2013_backlash
 from nominal_model import NOMINAL_TOML
+from report_inputs import printed_to, write_csv
 from rig import exit_codes
 from rig.cli import main
 from rig.log_file import LogWriter, write_log
@@ -38,15 +39,6 @@ def _chromium():
     require_chromium()  # before the inputs are made: without Chromium there is nothing to check
 
 
-def _csv(path: Path, header: str, *columns) -> Path:
-    path.write_text(header + "\n" + "".join(",".join(repr(float(v)) for v in row) + "\n" for row in zip(*columns)))
-    return path
-
-
-def _printed(capsys, argv: list[str], path: Path, expected_code: int = exit_codes.SUCCESS) -> Path:
-    assert main(argv) == expected_code
-    path.write_text(capsys.readouterr().out)
-    return path
 
 
 @pytest.fixture(scope="module")
@@ -56,7 +48,7 @@ def inputs(tmp_path_factory):
     rng = np.random.default_rng(0)
     staircase = filtered_staircase(list(np.linspace(0.6, 3.0, 6)), 0.8125, 100)
     steady = staircase_steady_state_indices(6, 100)
-    _csv(folder / "steady.csv", "u,y", staircase[steady],
+    write_csv(folder / "steady.csv", "u,y", staircase[steady],
          SM_PLANT.simulate(staircase)[steady] + rng.uniform(-NOISE, NOISE, steady.size))
     u = prbs_sequence(60, 1.0, rng=1)
     write_log(folder / "prbs.log", ExperimentRecord(np.arange(u.size) * PERIOD_S, u,
@@ -64,7 +56,7 @@ def inputs(tmp_path_factory):
                                                     None, ExperimentMetadata(sample_period_s=PERIOD_S, excitation="prbs")))
     cyclic = cyclic_random_excitation(1200, -3.0, 3.0, hold_samples=50, rng=0)
     G = LinearBlock(a=(-1.8858, 0.9048), b=(0.0, 0.1994, -0.1804), sample_period_s=PERIOD_S)
-    _csv(folder / "cyclic.csv", "u,y", cyclic, PlantModel((pouliquen2013_backlash(), G)).simulate(cyclic))
+    write_csv(folder / "cyclic.csv", "u,y", cyclic, PlantModel((pouliquen2013_backlash(), G)).simulate(cyclic))
     # Device-clocked with HELD samples, and host-paced with one late send: the two timing figures.
     time_s = np.arange(300) * PERIOD_S
     command = np.sin(2 * np.pi * time_s)
@@ -84,7 +76,7 @@ def inputs(tmp_path_factory):
     nominal = LinearBlock(a=(-1.73691838, 0.76805512), b=(0.0, 0.01625312, 0.01488362), sample_period_s=0.001)
     small = 0.01 * np.sign(np.sin(np.arange(3000) / 37.0))
     angle = nominal.apply(small) + 0.004 + np.random.default_rng(1).uniform(-2e-4, 2e-4, small.size)
-    _csv(folder / "small.csv", "t,u,y", np.arange(small.size) * 0.001, small, angle)
+    write_csv(folder / "small.csv", "t,u,y", np.arange(small.size) * 0.001, small, angle)
     (folder / "nominal.toml").write_text(NOMINAL_TOML)
     (folder / "broken.csv").write_text("t,u,y\n0,1,x\n")
     summary = RunSummary(samples=300, lost=3, late=7, duplicate=1, stale=2, frame_errors=4, rate_hz=99.87,
@@ -119,11 +111,11 @@ def _check_page(index: Path, tmp_path: Path, figures: int) -> None:
 def test_rig_report_of_every_result_kind_shows_every_figure(inputs, tmp_path, capsys):
     common = ["identify", "output-backlash", "--steady", str(inputs / "steady.csv"), "--dynamic",
               str(inputs / "prbs.log"), "--noise-bound", repr(NOISE), "--na", "2", "--nk", "1", "--nb", "2", "--json"]
-    paper = _printed(capsys, [*common, "--method", "paper"], tmp_path / "paper.json")
-    _printed(capsys, [*common, "--save", str(tmp_path / "coupled.json")], tmp_path / "coupled_printed.json")
-    hammerstein = _printed(capsys, ["identify", "hammerstein", str(inputs / "cyclic.csv"), "--json"],
+    paper = printed_to(capsys, [*common, "--method", "paper"], tmp_path / "paper.json")
+    printed_to(capsys, [*common, "--save", str(tmp_path / "coupled.json")], tmp_path / "coupled_printed.json")
+    hammerstein = printed_to(capsys, ["identify", "hammerstein", str(inputs / "cyclic.csv"), "--json"],
                            tmp_path / "hammerstein.json")
-    batch = _printed(capsys, ["diagnose", str(inputs / "small.csv"), str(inputs / "broken.csv"), "--model",
+    batch = printed_to(capsys, ["diagnose", str(inputs / "small.csv"), str(inputs / "broken.csv"), "--model",
                               str(inputs / "nominal.toml"), "--noise-bound", "0.001", "--jobs", "1", "--json"],
                      tmp_path / "batch.json", expected_code=exit_codes.BAD_INPUT)  # the broken file failed
     out = tmp_path / "report"
