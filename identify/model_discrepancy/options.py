@@ -46,12 +46,11 @@ class DiagnoseOptions:
     max_evaluations
         Function evaluations per least-squares polish.
     from_operating_point
-        Start the free run at the measured operating point, not at zero: when the record starts at rest (the
-        first angles within two noise bounds of each other) further than
-        :data:`OPERATING_POINT_MIN_NOISE_BOUNDS` noise bounds from zero, the workflow runs on
-        u - y_0 and y - y_0 (y_0 the median of the first :data:`OPERATING_POINT_SAMPLES` angles), and the
-        models it returns are wrapped as y_0 + M(u - y_0). Parameters of position-dependent effects
-        (dead-zone edges, saturation limits) are then relative to y_0.
+        Start the free run from rest at the record's first command u_0, not from zero: when the record starts
+        at rest (its first :data:`OPERATING_POINT_SAMPLES` angles within two noise bounds of each other) nearer
+        u_0 than zero, and u_0 is further than :data:`OPERATING_POINT_MIN_NOISE_BOUNDS` noise bounds from zero,
+        the workflow runs on u - u_0 and y - u_0, and the models it returns are wrapped as u_0 + M(u - u_0).
+        Parameters of position-dependent effects (dead-zone edges, saturation limits) are then relative to u_0.
     """
 
     estimation_fraction: float = ESTIMATION_FRACTION

@@ -95,7 +95,7 @@ def diagnose_model(command_rad: ArrayLike, angle_rad: ArrayLike, noise_bound_rad
             for finding in findings:
                 progress(finding.text())
         return _with_findings(diagnose_model(u, cleaned, delta, period, model, options, progress=progress), findings)
-    operating_point = _operating_point(y, delta) if options.from_operating_point else 0.0
+    operating_point = _operating_point(u, y, delta) if options.from_operating_point else 0.0
     if operating_point != 0.0:
         result = diagnose_model(u - operating_point, y - operating_point, delta, period, model,
                                 replace(options, from_operating_point=False), progress=progress)
@@ -173,21 +173,27 @@ def _check_measured(y: NDArray[np.float64], n_est: int) -> None:
                 f"least {needed} ({100 * MIN_MEASURED_FRACTION:.0f} %) are needed: record again with fewer lost samples")
 
 
-def _operating_point(y: NDArray[np.float64], delta: float) -> float:
-    """y_0 when the record starts at rest (its first angles within two noise bounds of each other) away from
-    zero; 0 otherwise (a record that starts in motion has a state no angle gives: it runs from zero)."""
+def _operating_point(u: NDArray[np.float64], y: NDArray[np.float64], delta: float) -> float:
+    """u_0, the record's first command, when the plant rested under it before the record began: the record
+    starts at rest (its first angles within two noise bounds of each other), nearer u_0 than zero, with u_0 not
+    within a tenth of a noise bound of zero; 0 otherwise. Every model then runs on u - u_0 from zero: from rest
+    at u_0 (a play centred there). A record that starts in motion has a state no angle gives, and one whose
+    angle rests nearer zero than its moving command (the command began with the record): both run from zero.
+    An angle resting away from its command (friction, play, an offset) stays in the residual for the candidates
+    to explain."""
     first = y[:OPERATING_POINT_SAMPLES]
     first = first[~np.isnan(first)]
     if first.size == 0:
         return 0.0
-    y0 = float(np.median(first))
+    y0, u0 = float(np.median(first)), float(u[0])
     at_rest = float(np.ptp(first)) <= AT_REST_NOISE_BOUNDS * delta
-    return y0 if at_rest and abs(y0) > OPERATING_POINT_MIN_NOISE_BOUNDS * delta else 0.0
+    rested_under_u0 = abs(y0 - u0) < abs(y0) and abs(u0) > OPERATING_POINT_MIN_NOISE_BOUNDS * delta
+    return u0 if at_rest and rested_under_u0 else 0.0
 
 
 def _absolute(result: DiscrepancyResult, operating_point: float, period: float) -> DiscrepancyResult:
-    """``result`` of a run on u - y_0, y - y_0 in absolute angles: simulated outputs moved back by y_0, models
-    wrapped as y_0 + M(u - y_0)."""
+    """``result`` of a run on u - u_0, y - u_0 in absolute angles: simulated outputs moved back by u_0, models
+    wrapped as u_0 + M(u - u_0)."""
 
     def wrap(model: PlantModel) -> PlantModel:
         return PlantModel((OutputOffset(offset_rad=-operating_point, drift_rad_per_s=0.0, sample_period_s=period),

@@ -20,9 +20,9 @@ DATA is a rig-log v1 file, a plain CSV with columns t, u, y (seconds, radians), 
 MATLAB (.mat) file (one written by `rig export`, or with channels t, u, y), or per-sample JSON records (an
 object with an entries[] list, as the K-Scale sysid logger writes); --columns, --units and --valid read
 other tools' files. One-sample read failures are replaced and counted, irregular sampling is resampled with a
-note, and the free run starts from the measured operating point. Without --model the start model is the best
-linear model of order 1 or 2 (chosen by validation error). The noise bound must cover the encoder's half
-count.
+note, and a record that starts at rest is run from rest at its first command. Without --model the start
+model is the best linear model of order 1 or 2 (chosen by validation error). The noise bound must cover the
+encoder's half count.
 
 Example (a K-Scale STS3215 record, 4096 counts/rev: noise bound of a few counts):
   rig diagnose sysid.json --columns t=timestamp,u=goal_position,y=position --valid torque_enable \
@@ -295,7 +295,8 @@ def _print_summary(data: str, model: str | None, noise_bound: float, result, num
     for note in (imported.notes if imported is not None else ()):
         print(f"import        {note}")
     if result.operating_point_rad:
-        print(f"operating pt  {result.operating_point_rad:.4g} rad (the free run starts there)")
+        print(f"operating pt  {result.operating_point_rad:.4g} rad (the first command: the free run starts at rest "
+              "there)")
     print(f"start model   {start}")
     if black_box is not None:
         print(f"fmu           input {black_box['input']!r}, output {black_box['output']!r}: effects are added "

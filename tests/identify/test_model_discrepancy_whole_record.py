@@ -65,6 +65,23 @@ def test_a_clean_independent_record_stays_explained(seed, excitation):
     assert result.verdict == "explained" and result.findings == (), result.verdict_reason
 
 
+def test_a_record_resting_at_its_first_command_near_zero_runs_from_rest_there():
+    # seed 1010, multisine: the plant rests at its first command, -3.8 mrad (3 noise bounds); run from rest at
+    # zero instead, the given model rang out of the noise bound for its first 185 samples
+    record, result = independent("none", 1010, "multisine")
+    assert result.operating_point_rad == pytest.approx(record["command_rad"][0])
+    assert result.verdict == "explained", result.verdict_reason
+
+
+def test_a_record_whose_command_moves_from_its_first_sample_runs_from_zero():
+    # the angle rests at zero for its first samples while the command already ramps away (-3.5 mrad at sample
+    # 0): the plant did not rest under that command, the record began with it
+    record = hidden_effect_record(("gain_error",), 92)
+    result = diagnose_model(record.command_rad, record.angle_rad, record.noise_bound_rad, record.sample_period_s,
+                            record.nominal_model)
+    assert abs(record.command_rad[0]) > 3 * record.noise_bound_rad and result.operating_point_rad == 0.0
+
+
 def test_a_glitch_in_the_estimation_segment_is_found_and_the_record_is_not_explained():
     record = hidden_effect_record((), 1000)
     angle = record.angle_rad.copy()
