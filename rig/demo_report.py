@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from rig.demo_outcome import SUMMARY_HEADER, DemoOutcome, summary_rows
+from rig.demo_outcome import NOMINAL_MODEL_FILE, SUMMARY_HEADER, DemoOutcome, reproduce_commands, summary_rows
 from rig.plots.discrepancy import discrepancy_section
 from rig.plots.experiment import RunTiming, runs_timing_figure, signal_figure
 from rig.plots.hammerstein import hammerstein_figures
@@ -46,6 +46,14 @@ def demo_report_sections(outcome: DemoOutcome) -> list[ReportSection]:
                   "an approximation."),
             table_header=SUMMARY_HEADER,
             table_rows=tuple(summary_rows(outcome)),
+        ),
+        ReportSection(
+            "The same numbers from the command line",
+            text=("Each experiment's log is in logs/ of this directory (staircase.csv, prbs.csv, cyclic.csv), and the "
+                  f"nominal model the diagnosis starts from is {NOMINAL_MODEL_FILE}. Run in this directory, these "
+                  "commands print the summary's numbers again: they read the logs as the demo did and use its "
+                  "settings (the table rounds to five digits)."),
+            commands=tuple(line for what, command in reproduce_commands(outcome) for line in (f"# {what}", command)),
         ),
         ReportSection(
             "Experiments",
