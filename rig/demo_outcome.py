@@ -207,7 +207,10 @@ def summary_rows(outcome: DemoOutcome) -> list[tuple[str, str, str, str]]:
                  f"{model.max_pole_magnitude:.4f} (order {model.order}, given)"))
     diagnosis = outcome.discrepancy
     found = ", ".join(diagnosis.missing_effects) or "none"
-    rows.append(("discrepancy: missing effect", "backlash", "-", found))
+    others = [effect for effect in diagnosis.ambiguous_between if effect not in diagnosis.missing_effects]
+    rows.append(("discrepancy: missing effect", "backlash", "-",
+                 f"{found}, or {' or '.join(others)}: ambiguous (the section says what tells them apart)"
+                 if diagnosis.verdict == "ambiguous" and others else found))
     backlash_step = next((step for step in diagnosis.steps if step.effect == "backlash"), None)
     if backlash_step is not None:
         keys = [key for key in backlash_step.parameters if key.startswith("c_")]

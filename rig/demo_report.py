@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -88,9 +87,9 @@ def demo_report_sections(outcome: DemoOutcome) -> list[ReportSection]:
         ),
     ]
     cyclic = runs["cyclic"].record
-    section = discrepancy_section(outcome.discrepancy, cyclic.command_rad, cyclic.angle_rad, truth.linear.sample_period_s,
-                                  "the cyclic experiment, against the nominal gearbox model without its play")
-    sections.append(replace(section, title=f"Model discrepancy: {section.title.lower()}"))
+    sections.append(discrepancy_section(outcome.discrepancy, cyclic.command_rad, cyclic.angle_rad,
+                                        truth.linear.sample_period_s,
+                                        "the cyclic experiment, against the nominal gearbox model without its play"))
     return sections
 
 

@@ -167,8 +167,10 @@ def linear_block_bode_figure(results: IntervalSource | Mapping[str, IntervalSour
                f"{'; dashed, the true model' if has_true else ''}. {'. '.join(notes)}.{cut} Bottom: the same "
                f"relative to {'the true model' if has_true else 'the last central model'} (linear within ±1 dB, "
                "logarithmic beyond). Look for "
-               f"{'the central models on the true curve and ' if has_true else ''}"
-               "a narrow envelope where the excitation had power.")
+               + " and ".join([*(["the central models on the true curve"] if has_true else []),
+                               *(["a narrow envelope where the excitation had power"] if drawn_envelopes else []),
+                               *([] if has_true or drawn_envelopes else ["the methods' central models together"])])
+               + ".")
     return ReportFigure(name, caption, _bode_drawing(axis, curves), size_in=(7.5, 5.5))
 
 

@@ -262,3 +262,5 @@ def test_bode_figure_shows_every_curve_whole_and_names_what_falls_to_minus_infin
     said = " ".join(text.get_text() for axes in figure.axes for text in [axes.title, axes._right_title, *axes.texts])
     assert re.search(r"true G below -\d+ dB from 4\d\d Hz", said), said
     assert re.search(r"true G below -\d+ dB from 4\d\d Hz", report_figure.caption), report_figure.caption
+    # neither box's envelope is bounded enough to draw: the caption does not send the reader looking for one
+    assert "no envelope drawn" in report_figure.caption and "narrow envelope" not in report_figure.caption
