@@ -183,7 +183,9 @@ set-membership methods, Hammerstein, discrepancy and the report."""
 def run_demo(out_dir: Path | None, transport: str = "canopen", plan: DemoPlan = FULL_PLAN,
              steps: Callable[[str], contextlib.AbstractContextManager[Any]] | None = None,
              progress: Callable[[str, int], Callable[[int, int], None] | None] | None = None) -> DemoOutcome:
-    """Run the whole chain and return what it found; writes logs and a report under ``out_dir``.
+    """Run the whole chain and return what it found; writes the logs (``logs/``), the nominal model it diagnoses
+    (:data:`rig.demo_outcome.NOMINAL_MODEL_FILE`) and a report under ``out_dir``. Every method reads the logs as
+    the commands of :func:`rig.demo_outcome.reproduce_commands` read them, so those give the same numbers.
 
     ``steps(description)`` is entered around each step (the command line shows a progress bar with it);
     ``progress(name, samples)`` returns the per-sample callback of each experiment.
