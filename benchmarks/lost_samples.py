@@ -73,7 +73,7 @@ from identify.plant_blocks import LinearBlock, OutputBacklash  # noqa: E402
 from pouliquen2013_hammerstein import GRID, true_paths  # noqa: E402
 from rig import exit_codes  # noqa: E402
 from rig.cli import main as rig_main  # noqa: E402
-from rig.commands.identify_output_backlash import staircase_steady_samples  # noqa: E402
+from rig.staircase_points import staircase_steady_samples  # noqa: E402
 from rig.log_file import LogWriter, read_log, write_log  # noqa: E402
 from sim_backend.plant_config import load_plant_config  # noqa: E402
 

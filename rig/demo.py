@@ -28,17 +28,19 @@ import numpy as np
 from numpy.typing import NDArray
 
 from identify.experiment_record import ExperimentRecord, SampleFlag
-from rig.demo_outcome import (FULL_PLAN, QUICK_PLAN, DemoOutcome, DemoPlan, DemoRun, format_summary, summary_rows,
-                              true_gearbox)
+from rig.demo_outcome import (FULL_PLAN, NOMINAL_MODEL_FILE, QUICK_PLAN, DemoOutcome, DemoPlan, DemoRun, TrueGearbox,
+                              format_summary, reproduce_commands, summary_rows, true_gearbox)
 from rig.demo_report import write_demo_report
 from rig.protocols.errors import TransportError
 
 if TYPE_CHECKING:
     from identify.excitation_design import FilterPoleDesign
+    from sim_backend.plant_config import PlantConfig
 
 __all__ = ["DEMO_STEPS", "FULL_PLAN", "QUICK_PLAN", "SimulatedRigSession", "format_summary", "last_valid_values",
-           "run_demo", "staircase_filter_pole", "summary_rows"]
-# FULL_PLAN, QUICK_PLAN, format_summary and summary_rows live in rig.demo_outcome; `rig demo` reads them here.
+           "reproduce_commands", "run_demo", "staircase_filter_pole", "summary_rows"]
+# FULL_PLAN, QUICK_PLAN, format_summary, reproduce_commands and summary_rows live in rig.demo_outcome; `rig demo`
+# reads them here.
 
 CONFIG_DIR = Path(__file__).resolve().parents[1] / "configs"
 TRANSPORTS = ("canopen", "can", "serial")
@@ -181,7 +183,9 @@ set-membership methods, Hammerstein, discrepancy and the report."""
 def run_demo(out_dir: Path | None, transport: str = "canopen", plan: DemoPlan = FULL_PLAN,
              steps: Callable[[str], contextlib.AbstractContextManager[Any]] | None = None,
              progress: Callable[[str, int], Callable[[int, int], None] | None] | None = None) -> DemoOutcome:
-    """Run the whole chain and return what it found; writes logs and a report under ``out_dir``.
+    """Run the whole chain and return what it found; writes the logs (``logs/``), the nominal model it diagnoses
+    (:data:`rig.demo_outcome.NOMINAL_MODEL_FILE`) and a report under ``out_dir``. Every method reads the logs as
+    the commands of :func:`rig.demo_outcome.reproduce_commands` read them, so those give the same numbers.
 
     ``steps(description)`` is entered around each step (the command line shows a progress bar with it);
     ``progress(name, samples)`` returns the per-sample callback of each experiment.
@@ -190,11 +194,11 @@ def run_demo(out_dir: Path | None, transport: str = "canopen", plan: DemoPlan = 
 
     from identify.border_lifting import PathNodes
     from identify.cyclic_excitation import cyclic_random_excitation
-    from identify.excitation_design import (design_filter_pole, filtered_staircase, prbs_sequence,
-                                            staircase_steady_state_indices)
+    from identify.excitation_design import design_filter_pole, filtered_staircase, prbs_sequence
     from identify.hammerstein_subspace import identify_hammerstein
     from identify.model_discrepancy import diagnose_model
     from identify.output_backlash_identification import bound_output_backlash_system
+    from rig.staircase_points import staircase_steady_samples
     from sim_backend.plant_config import load_plant_config
 
     step = steps or (lambda description: contextlib.nullcontext())
@@ -230,44 +234,59 @@ def run_demo(out_dir: Path | None, transport: str = "canopen", plan: DemoPlan = 
         filter_pole, filter_pole_reason = staircase_filter_pole(
             design, amplitudes, session.config.limits.rate_max_rad_per_s, session.config.sample_period_s)
         staircase = filtered_staircase(amplitudes, filter_pole, plan.samples_per_half_wave)
-        steady_index = staircase_steady_state_indices(len(amplitudes), plan.samples_per_half_wave)
         steady_record = session.run("staircase", staircase, max_lost=staircase.size // 100, kind="filtered_staircase",
                                     parameters={"amplitudes_rad": amplitudes, "filter_pole": filter_pole,
                                                 "samples_per_half_wave": plan.samples_per_half_wave})
-        steady_output = last_valid_values(steady_record, steady_index, steady_tail)
+        steady = staircase_steady_samples(steady_record, Path("staircase"), skip_unusable=True)
     rng = np.random.default_rng(plan.seed)
     with timed("prbs", "run the PRBS experiment"):
-        prbs = prbs_sequence(plan.prbs_samples, plan.prbs_amplitude_rad, rng)
-        prbs_output = session.run("prbs", prbs).angle_rad
+        prbs = session.run("prbs", prbs_sequence(plan.prbs_samples, plan.prbs_amplitude_rad, rng))
     with timed("cyclic", "run the cyclic random experiment"):
-        cyclic = cyclic_random_excitation(plan.cyclic_samples, -plan.cyclic_range_rad, plan.cyclic_range_rad,
-                                          plan.hold_samples, rng)
         # No lost sample is filled in: the play is a few counts, and interpolating a burst of samples across
         # the random jumps of the excitation biases the borders by more than that.
-        cyclic_output = session.run("cyclic", cyclic).angle_rad
+        cyclic = session.run("cyclic", cyclic_random_excitation(
+            plan.cyclic_samples, -plan.cyclic_range_rad, plan.cyclic_range_rad, plan.hold_samples, rng))
+    # From here on every method reads the logs as the commands of demo_outcome.reproduce_commands read them: the
+    # command as sent over the wire (quantised by the drive's position unit), the steady points as --steady
+    # takes them.
 
     set_membership = {}
     for method in ("paper", "coupled"):
         with timed(f"set_membership_{method}", f"bound backlash and linear block ({method} method)"):
             set_membership[method] = bound_output_backlash_system(
-                staircase[steady_index], steady_output, prbs, prbs_output, noise_bound, na=plan.na, nk=plan.nk,
-                nb=plan.nb, method=method, filter_step_amplitude_rad=plan.filter_step_amplitude_rad)
+                steady.command_rad, steady.angle_rad, prbs.command_rad, prbs.angle_rad, noise_bound, na=plan.na,
+                nk=plan.nk, nb=plan.nb, method=method, filter_step_amplitude_rad=plan.filter_step_amplitude_rad)
     with timed("hammerstein", "identify the Hammerstein model"):
         hammerstein = identify_hammerstein(
-            cyclic, cyclic_output, PathNodes.uniform(-plan.cyclic_range_rad, plan.cyclic_range_rad, plan.num_nodes),
+            cyclic.command_rad, cyclic.angle_rad,  # nodes over the range of u as sent, as the command's default
+            PathNodes.uniform(np.min(cyclic.command_rad), np.max(cyclic.command_rad), plan.num_nodes),
             hold_samples=plan.hold_samples, order=plan.na)  # the order of the drive loop and torsion mode
     with timed("discrepancy", "diagnose a nominal model that lacks the backlash"):
-        discrepancy = diagnose_model(cyclic, cyclic_output, noise_bound, truth.linear.sample_period_s,
+        discrepancy = diagnose_model(cyclic.command_rad, cyclic.angle_rad, noise_bound, truth.linear.sample_period_s,
                                      model=truth.nominal_without_backlash())
 
     outcome = DemoOutcome(
         transport=transport, truth=truth, plan=plan, noise_bound_rad=noise_bound, filter_design=design,
         filter_pole=filter_pole, filter_pole_reason=filter_pole_reason,
-        runs=dict(session.runs), steady_input_rad=staircase[steady_index], steady_output_rad=steady_output,
+        runs=dict(session.runs), steady_input_rad=steady.command_rad, steady_output_rad=steady.angle_rad,
         set_membership=set_membership, hammerstein=hammerstein, discrepancy=discrepancy, timings_s=timings,
         retries=dict(session.retries))
     if out_dir is not None:
         with timed("report", "write the report"):
+            _write_nominal_model(plant_config, truth, out_dir / NOMINAL_MODEL_FILE)
             index = write_demo_report(outcome, out_dir)
         outcome = replace(outcome, report_index=index, timings_s=timings)
     return outcome
+
+
+def _write_nominal_model(plant_config: PlantConfig, truth: TrueGearbox, path: Path) -> None:
+    """The model the discrepancy step diagnoses, as a plant config for ``rig diagnose --model``."""
+    from rig.output_paths import atomic_output
+    from sim_backend.plant_config import plant_config_to_toml
+
+    nominal = replace(plant_config, name=f"{plant_config.name} without its play", enabled=(),
+                      blocks=truth.nominal_without_backlash().blocks,
+                      description="the demo's nominal model: the simulated gearbox with its play replaced by the gear "
+                                  "ratio (rig demo diagnoses what it lacks)")
+    with atomic_output(path, force=True) as written:
+        written.write_text(plant_config_to_toml(nominal), encoding="utf-8")

@@ -18,8 +18,8 @@ from identify.experiment_record import ExperimentRecord
 from identify.plant_blocks import Delay, LinearBlock, OutputBacklash, PlantModel, Resonance
 from rig.report import format_interval
 
-__all__ = ["FULL_PLAN", "QUICK_PLAN", "SUMMARY_HEADER", "DemoOutcome", "DemoPlan", "DemoRun", "TrueGearbox",
-           "format_summary", "summary_rows", "true_gearbox"]
+__all__ = ["FULL_PLAN", "NOMINAL_MODEL_FILE", "QUICK_PLAN", "SUMMARY_HEADER", "DemoOutcome", "DemoPlan", "DemoRun",
+           "TrueGearbox", "format_summary", "reproduce_commands", "summary_rows", "true_gearbox"]
 
 
 @dataclass(frozen=True)
@@ -207,7 +207,10 @@ def summary_rows(outcome: DemoOutcome) -> list[tuple[str, str, str, str]]:
                  f"{model.max_pole_magnitude:.4f} (order {model.order}, given)"))
     diagnosis = outcome.discrepancy
     found = ", ".join(diagnosis.missing_effects) or "none"
-    rows.append(("discrepancy: missing effect", "backlash", "-", found))
+    others = [effect for effect in diagnosis.ambiguous_between if effect not in diagnosis.missing_effects]
+    rows.append(("discrepancy: missing effect", "backlash", "-",
+                 f"{found}, or {' or '.join(others)}: ambiguous (the section says what tells them apart)"
+                 if diagnosis.verdict == "ambiguous" and others else found))
     backlash_step = next((step for step in diagnosis.steps if step.effect == "backlash"), None)
     if backlash_step is not None:
         keys = [key for key in backlash_step.parameters if key.startswith("c_")]
@@ -224,6 +227,28 @@ def summary_rows(outcome: DemoOutcome) -> list[tuple[str, str, str, str]]:
 
 
 SUMMARY_HEADER = ("quantity", "true", "paper method", "coupled method or estimate")
+
+NOMINAL_MODEL_FILE = "nominal_model.toml"
+"""The model the demo diagnoses (the simulated gearbox with its play replaced by the gear ratio), written in the
+report directory beside ``logs/`` as a plant config that ``rig diagnose --model`` reads."""
+
+
+def reproduce_commands(outcome: DemoOutcome) -> tuple[tuple[str, str], ...]:
+    """(what it gives, command): the ``rig`` commands that compute the summary's numbers again from the logs the
+    demo saved, run in its report directory. The demo reads those logs as these commands do (the command as
+    sent, the staircase's steady points as ``--steady`` takes them) with the same settings, so they print the
+    same numbers."""
+    plan = outcome.plan
+    noise = repr(float(outcome.noise_bound_rad))
+    bounds = (f"rig identify output-backlash --steady logs/staircase.csv --dynamic logs/prbs.csv --noise-bound {noise} "
+              f"--na {plan.na} --nk {plan.nk} --nb {plan.nb} --filter-step {float(plan.filter_step_amplitude_rad)!r}")
+    return (
+        ("backlash and linear rows, paper method", f"{bounds} --method paper"),
+        ("backlash and linear rows, coupled method", f"{bounds} --method coupled"),
+        ("Hammerstein rows", f"rig identify hammerstein logs/cyclic.csv --num-nodes {plan.num_nodes} "
+                             f"--hold-samples {plan.hold_samples} --order {plan.na}"),
+        ("discrepancy rows", f"rig diagnose logs/cyclic.csv --model {NOMINAL_MODEL_FILE} --noise-bound {noise}"),
+    )
 
 
 def format_summary(outcome: DemoOutcome) -> str:

@@ -2,12 +2,11 @@
 
 from __future__ import annotations
 
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
-from rig.demo_outcome import SUMMARY_HEADER, DemoOutcome, summary_rows
+from rig.demo_outcome import NOMINAL_MODEL_FILE, SUMMARY_HEADER, DemoOutcome, reproduce_commands, summary_rows
 from rig.plots.discrepancy import discrepancy_section
 from rig.plots.experiment import RunTiming, runs_timing_figure, signal_figure
 from rig.plots.hammerstein import hammerstein_figures
@@ -48,6 +47,14 @@ def demo_report_sections(outcome: DemoOutcome) -> list[ReportSection]:
             table_rows=tuple(summary_rows(outcome)),
         ),
         ReportSection(
+            "The same numbers from the command line",
+            text=("Each experiment's log is in logs/ of this directory (staircase.csv, prbs.csv, cyclic.csv), and the "
+                  f"nominal model the diagnosis starts from is {NOMINAL_MODEL_FILE}. Run in this directory, these "
+                  "commands print the summary's numbers again: they read the logs as the demo did and use its "
+                  "settings (the table rounds to five digits)."),
+            commands=tuple(line for what, command in reproduce_commands(outcome) for line in (f"# {what}", command)),
+        ),
+        ReportSection(
             "Experiments",
             text=("Every experiment was streamed at the rig's fixed rate by the same runner that drives a real rig. "
                   f"On the {outcome.transport} wire the device's clock owns the sample instants: the log's time "
@@ -80,9 +87,9 @@ def demo_report_sections(outcome: DemoOutcome) -> list[ReportSection]:
         ),
     ]
     cyclic = runs["cyclic"].record
-    section = discrepancy_section(outcome.discrepancy, cyclic.command_rad, cyclic.angle_rad, truth.linear.sample_period_s,
-                                  "the cyclic experiment, against the nominal gearbox model without its play")
-    sections.append(replace(section, title=f"Model discrepancy: {section.title.lower()}"))
+    sections.append(discrepancy_section(outcome.discrepancy, cyclic.command_rad, cyclic.angle_rad,
+                                        truth.linear.sample_period_s,
+                                        "the cyclic experiment, against the nominal gearbox model without its play"))
     return sections
 
 

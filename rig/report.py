@@ -66,13 +66,15 @@ class ReportFigure:
 
 @dataclass(frozen=True)
 class ReportSection:
-    """A titled part of a report: a paragraph, an optional table and its figures."""
+    """A titled part of a report: a paragraph, an optional table, optional commands (shown as typed, one a
+    line) and its figures."""
 
     title: str
     text: str = ""
     table_header: tuple[str, ...] = ()
     table_rows: tuple[tuple[str, ...], ...] = ()
     figures: tuple[ReportFigure, ...] = field(default_factory=tuple)
+    commands: tuple[str, ...] = ()
 
 
 def write_report(out_dir: str | Path, title: str, sections: Sequence[ReportSection]) -> Path:
@@ -102,6 +104,8 @@ def write_report(out_dir: str | Path, title: str, sections: Sequence[ReportSecti
             body.extend(f"<p>{html.escape(paragraph)}</p>" for paragraph in section.text.split("\n\n"))
         if section.table_rows:
             body.append(_html_table(section.table_header, section.table_rows))
+        if section.commands:
+            body.append(f"<pre>{html.escape(chr(10).join(section.commands))}</pre>")
         for report_figure in section.figures:
             figure = Figure(figsize=report_figure.size_in, layout="constrained")
             report_figure.draw(figure)
@@ -142,4 +146,5 @@ _STYLE = (
     "table{border-collapse:collapse;margin:1rem 0}td,th{border:1px solid #bbb;padding:.25rem .6rem;"
     "text-align:right;font-variant-numeric:tabular-nums}th{background:#f0f0f0}"
     "figure{margin:1.5rem 0}img{max-width:100%}figcaption{font-size:.9rem;color:#555}"
+    "pre{white-space:pre-wrap;background:#f6f6f6;padding:.5rem .8rem;font-size:.85rem}"
 )

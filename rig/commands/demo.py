@@ -31,12 +31,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         help="wire protocol between the driver and the simulated rig (default: canopen)")
     parser.add_argument("--quick", action="store_true", help="shorter experiments (for tests and a first look)")
     parser.add_argument("--json", action="store_true",
-                        help='print {"report": path, "rows": [[quantity, true, paper, coupled], ...]} as JSON')
+                        help='print {"report": path, "rows": [[quantity, true, paper, coupled], ...], "commands": '
+                             '[...]} as JSON (the commands give the rows again from the saved logs, run in --out)')
     parser.set_defaults(handler=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    from rig.demo import FULL_PLAN, QUICK_PLAN, format_summary, run_demo, summary_rows
+    from rig.demo import FULL_PLAN, QUICK_PLAN, format_summary, reproduce_commands, run_demo, summary_rows
     from rig.output_paths import check_report_dir, mark_report_dir, writing
 
     check_report_dir(args.out, "--out", force=args.force)  # before minutes of experiments
@@ -45,11 +46,15 @@ def run(args: argparse.Namespace) -> int:
         args.out.mkdir(parents=True, exist_ok=True)
         mark_report_dir(args.out)  # its logs go in first
         outcome = run_demo(args.out, args.transport, QUICK_PLAN if args.quick else FULL_PLAN, steps, progress)
+    commands = [command for _, command in reproduce_commands(outcome)]
     if args.json:
-        print(json.dumps({"report": str(outcome.report_index), "rows": [list(row) for row in summary_rows(outcome)]}))
+        print(json.dumps({"report": str(outcome.report_index), "rows": [list(row) for row in summary_rows(outcome)],
+                          "commands": commands}))
     else:
         print(format_summary(outcome))
         print(f"\nreport: {outcome.report_index}")
+        print(f"the same numbers from the saved logs, run in {args.out}:")
+        print("\n".join(f"  {command}" for command in commands))
     return exit_codes.SUCCESS
 
 

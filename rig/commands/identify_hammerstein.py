@@ -222,6 +222,7 @@ def _print_table(model, path: Path, hold: int | None, set_aside: dict | None = N
     mu0_source = f"hold of {hold} samples, re-estimated" if model.mu0_hold_rad is not None else "given/estimated"
     print(f"mu0              {model.mu0:.6g}   ({mu0_source})")
     print(f"fit              {model.fit_percent:.2f} %   residual RMS {model.residual_rms_rad:.4g}")
+    print(f"play             {model.play_at_nodes().describe()}")
     if model.refinement is not None:
         r = model.refinement
         outcome = "applied" if r.applied else "not applied: no improvement or unstable, subspace estimate kept"

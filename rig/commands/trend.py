@@ -144,7 +144,7 @@ def _windows_of(args: argparse.Namespace, window_s: float):
 
     import numpy as np
 
-    from rig.commands.identify_output_backlash import staircase_steady_samples
+    from rig.staircase_points import staircase_steady_samples
     from rig.log_file import read_experiment_data
     from rig.truth_file import read_play_truth, truth_path_for
 

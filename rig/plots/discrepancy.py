@@ -81,6 +81,11 @@ def comparison_figure(result: DiscrepancyResult, angle_rad: NDArray[np.float64],
         draw, size_in=(9.5, 5.0) if zoom is not None else (7.5, 5.0))
 
 
+SPREAD_COVERAGE = 0.5
+"""Windows of falsified samples that cover at least this fraction of the record are not a cluster: the caption
+says the start model misses throughout."""
+
+
 def windows_figure(result: DiscrepancyResult, time_s: NDArray[np.float64], name: str = "disagreement_windows") -> ReportFigure:
     """The start model's residual with the falsified samples and the windows where they cluster."""
 
@@ -97,13 +102,21 @@ def windows_figure(result: DiscrepancyResult, time_s: NDArray[np.float64], name:
         axes.set_xlabel("time [s]")
         axes.set_ylabel("residual of start model [rad]")
 
+    windows = result.initial.windows
+    covered = sum(window.stop - window.start for window in windows) / max(1, time_s.size)
+    if not windows:
+        where = ", no window where they cluster."
+    elif covered >= SPREAD_COVERAGE:
+        where = (f", the shaded {'span covers' if len(windows) == 1 else f'{len(windows)} spans cover'} "
+                 f"{100 * covered:.0f} % of the record: they do not cluster, the start model misses throughout.")
+    elif len(windows) == 1:
+        where = ", the shaded span is the one window where they cluster."
+    else:
+        where = f", shaded spans are the {len(windows)} windows where they cluster."
     return ReportFigure(
         name,
         f"Residual of the start model (red line); black dots are the samples the noise bound cannot explain "
-        f"({100 * result.initial.falsified_fraction:.1f} % of the validation segment)"
-        + (", no window where they cluster." if not result.initial.windows else
-           ", the shaded span is the one window where they cluster." if len(result.initial.windows) == 1 else
-           f", shaded spans are the {len(result.initial.windows)} windows where they cluster."),
+        f"({100 * result.initial.falsified_fraction:.1f} % of the validation segment){where}",
         draw)
 
 

@@ -11,8 +11,8 @@ says what to look for, with the numbers that matter; matplotlib is used only ins
   (Proposition 2) marked;
 * :func:`parameter_intervals_figure`: the intervals of eqs. (18)-(20) and of Section 5, per method, against
   the true values when known;
-* :func:`linear_block_bode_figure`: |G(e^{jω})| of the central model θ^c and its envelope over the
-  parameter box.
+* :func:`linear_block_bode_figure` (from :mod:`rig.plots.linear_block_bode`): |G(e^{jω})| of the central
+  model θ^c and its envelope over the parameter box.
 
 Functions that only need intervals also take plain ``{name: ParameterInterval}`` mappings, so that
 ``rig report`` can draw them from the JSON of ``rig identify output-backlash --json``.
@@ -22,18 +22,18 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
 from typing import Any, Union
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
 from identify.feasible_parameter_set import (BacklashFeasibleSet, IntervalSetSummary, ParameterInterval,
                                             median_width_ratio)
 from identify.inner_signal_bounds import InnerSignalBounds
 from identify.linear_block_bounds import LinearBlockBounds
-from identify.linear_block_response import MagnitudeEnvelope, linear_parameter, magnitude, polynomials
+from identify.linear_block_response import linear_parameter
 from identify.output_backlash_identification import OutputBacklashIdentification
+from rig.plots.linear_block_bode import METHOD_COLOURS, IntervalSource, linear_block_bode_figure
 from rig.report import ReportFigure, format_interval
 
 __all__ = [
@@ -48,10 +48,6 @@ __all__ = [
     "parameter_unit",
 ]
 
-IntervalSource = Union[OutputBacklashIdentification, LinearBlockBounds]
-"""What the interval figures accept: a full result or the linear-block bounds (result objects, never JSON)."""
-
-_METHOD_COLOURS = ("tab:blue", "tab:orange", "tab:green", "tab:purple", "tab:brown", "tab:pink")
 _BACKLASH_ORDER = ("m_l", "c_l", "m_r", "c_r")
 
 
@@ -520,7 +516,7 @@ def _intervals_drawing(intervals: Mapping[str, Mapping[str, ParameterInterval]],
             exponent = 0 if -1 <= exponent <= 2 else exponent
             scale = 10.0 ** -exponent
             for row, label in enumerate(labels):
-                colour = _METHOD_COLOURS[row % len(_METHOD_COLOURS)]
+                colour = METHOD_COLOURS[row % len(METHOD_COLOURS)]
                 interval = intervals[label].get(parameter)
                 if interval is None:
                     axes.text(0.5, row, "empty", ha="center", va="center", fontsize=7, color=colour,
@@ -546,192 +542,6 @@ def _intervals_drawing(intervals: Mapping[str, Mapping[str, ParameterInterval]],
             axes.set_xlabel(f"{parameter} {sign} {abs(reference):.5g} [{scaled_unit}]", fontsize=8)
         for axes in axes_grid[len(names):]:
             axes.set_visible(False)
-
-    return draw
-
-
-# ----------------------------------------------------------------------------------------------------------
-# Bode magnitude of the linear-block set
-# ----------------------------------------------------------------------------------------------------------
-
-
-def _true_polynomials(true_linear: Any) -> tuple[NDArray, NDArray]:
-    if isinstance(true_linear, Mapping):
-        return polynomials(true_linear)
-    if isinstance(true_linear, tuple) and len(true_linear) == 2:
-        a_part, b_part = true_linear
-    else:
-        a_part, b_part = true_linear.a, true_linear.b
-    return np.asarray(b_part, dtype=float), np.r_[1.0, np.asarray(a_part, dtype=float)]
-
-
-@dataclass(frozen=True)
-class _FrequencyAxis:
-    omega: NDArray[np.float64]  # rad/sample, π/1000..π
-    values: NDArray[np.float64]  # what the axis shows
-    label: str
-    nyquist_text: str
-
-
-def _frequency_axis(sample_period_s: float | None, num_frequencies: int) -> _FrequencyAxis:
-    """ω log-spaced up to Nyquist, shown in Hz when the sample period is known, else in cycles per sample."""
-    omega = np.logspace(np.log10(np.pi / 1000.0), np.log10(np.pi), num_frequencies)
-    if sample_period_s is None:
-        return _FrequencyAxis(omega, omega / (2 * np.pi), "frequency [cycles/sample]", "0.5 cycles/sample")
-    period = float(sample_period_s)
-    return _FrequencyAxis(omega, omega / (2 * np.pi * period), "frequency [Hz]", f"{0.5 / period:.4g} Hz")
-
-
-def _linear_bounds_of(results: IntervalSource | Mapping[str, IntervalSource]) -> dict[str, LinearBlockBounds]:
-    """Method label ("" for a single source) -> its non-empty linear-block bounds."""
-    sources: dict[str, Any] = ({"": results} if isinstance(results, (OutputBacklashIdentification, LinearBlockBounds))
-                               else dict(results))
-    linear_of = {label: source.linear if isinstance(source, OutputBacklashIdentification) else source
-                 for label, source in sources.items()}
-    for label, linear in linear_of.items():
-        if linear is not None and not isinstance(linear, LinearBlockBounds):
-            raise TypeError(f"results: expected OutputBacklashIdentification or LinearBlockBounds, got "
-                            f"{type(linear).__name__}{' for ' + label if label else ''}")
-    linear_of = {label: linear for label, linear in linear_of.items() if linear is not None and not linear.is_empty}
-    if not linear_of:
-        raise ValueError("results: no linear-block intervals to draw (empty feasible set?)")
-    return linear_of
-
-
-def _decibels(values: NDArray[np.float64]) -> NDArray[np.float64]:
-    with np.errstate(divide="ignore"):
-        return 20.0 * np.log10(values)
-
-
-def _percent(fraction: float) -> str:
-    """A fraction as a percentage that never rounds a few frequencies to "0 %" or all but a few to "100 %"."""
-    if 0.0 < fraction < 0.01:
-        return "< 1 %"
-    if 0.99 < fraction < 1.0:
-        return "> 99 %"
-    return f"{100.0 * fraction:.0f} %"
-
-
-ENVELOPE_DRAWN_FROM = 0.5
-"""The box's envelope is drawn for a method only where it is bounded, and only if it is bounded at this
-fraction of the frequencies at least: a band of a few disjoint slivers between infinite stretches tells
-nothing, and the caption gives the fraction instead."""
-
-
-def _envelope_note(label: str, envelope: MagnitudeEnvelope, true_magnitude: NDArray[np.float64] | None) -> str:
-    """What the caption says of one method's envelope: the numbers :class:`MagnitudeEnvelope` computed."""
-    prefix = f"{label}: " if label else ""
-    bounded = envelope.bounded_fraction
-    reasons = []
-    if envelope.unbounded_above_fraction > 0.0:
-        reasons.append(f"no upper bound at {_percent(envelope.unbounded_above_fraction)}, where a model of the box "
-                       "has a pole on the unit circle")
-    if envelope.zero_below_fraction > 0.0:
-        reasons.append(f"lower bound 0 at {_percent(envelope.zero_below_fraction)}, where one has a zero there")
-    why = f" ({'; '.join(reasons)})" if reasons else ""
-    if bounded < ENVELOPE_DRAWN_FROM:
-        return f"{prefix}envelope not drawn, bounded at {_percent(bounded)} of the frequencies{why}"
-    text = (f"{prefix}envelope bounded at {_percent(bounded)} of the frequencies{why}, median width "
-            f"{envelope.median_width_db:.3g} dB there")
-    if true_magnitude is not None:
-        text += f", true |G| inside it at {_percent(envelope.fraction_containing(true_magnitude))} of them"
-    return text
-
-
-def linear_block_bode_figure(results: IntervalSource | Mapping[str, IntervalSource], name: str, *,
-                             sample_period_s: float | None = None, true_linear: Any = None,
-                             num_frequencies: int = 400) -> ReportFigure:
-    """Bode magnitude of the linear block G(q) = B(q^-1)/A(q^-1): central model and the parameter box's envelope.
-
-    The central model is θ^c, the centre of the intervals (eq. (19) applied to Section 5). The envelope is
-    :meth:`identify.linear_block_bounds.LinearBlockBounds.magnitude_envelope`, the exact range of |G(e^{jω})|
-    over the box of θ; the box contains the feasible set, so the envelope is guaranteed to contain the |G| of
-    every feasible model, but it is wider than the set's own (box models need not be feasible nor have unit
-    static gain, eq. (8)). A box that holds a model with a pole on the unit circle has no upper bound there:
-    the envelope is drawn only where it is bounded, and only for a method whose envelope is bounded at
-    :data:`ENVELOPE_DRAWN_FROM` of the frequencies; the caption says which. The figure formats the numbers
-    the envelope computed.
-
-    Parameters
-    ----------
-    results
-        One result or linear-block bounds, or method label -> either to overlay several methods.
-    sample_period_s
-        Frequencies in Hz when given, else in cycles per sample.
-    true_linear
-        The true block: an object with ``a`` (a_1..a_na) and ``b`` (b_0..b_nb), e.g.
-        :class:`identify.plant_blocks.LinearBlock`, a tuple ``(a, b)`` or a mapping ``{a1.., b<k>..}``.
-    """
-    linear_of = _linear_bounds_of(results)
-    axis = _frequency_axis(sample_period_s, num_frequencies)
-    envelopes = {label: linear.magnitude_envelope(axis.omega) for label, linear in linear_of.items()}
-    feasible_db = {label: _decibels(magnitude(*polynomials(linear.inner_point), axis.omega))
-                   for label, linear in linear_of.items() if linear.inner_point}
-    true_magnitude = None if true_linear is None else magnitude(*_true_polynomials(true_linear), axis.omega)
-    true_db = None if true_magnitude is None else _decibels(true_magnitude)
-    drawn_envelopes = {label for label, envelope in envelopes.items()
-                       if envelope.bounded_fraction >= ENVELOPE_DRAWN_FROM}
-    notes = [_envelope_note(label, envelope, true_magnitude) for label, envelope in envelopes.items()]
-    draw = _bode_drawing(axis, envelopes, drawn_envelopes, feasible_db, true_db)
-    shaded = ("shaded, the exact range of |G| over the parameter box where it is bounded (it contains the |G| of "
-              "every model of the feasible set, but box models need not be feasible nor have unit static gain, so "
-              "it is wider than the set's own)") if drawn_envelopes else "no envelope drawn"
-    caption = (f"Bode magnitude of the linear block G = B/A (Cerone et al. 2009, Section 5) up to the Nyquist "
-               f"frequency {axis.nyquist_text}: line, the central model θ^c of each method; {shaded}"
-               f"{'; dotted, a model verified to satisfy the exact constraints' if feasible_db else ''}"
-               f"{'; dashed, the true model' if true_db is not None else ''}. {'. '.join(notes)}. Bottom: the same "
-               f"relative to {'the true model' if true_db is not None else 'the last central model'}. Look for "
-               f"{'the central models on the true curve and ' if true_db is not None else ''}"
-               "a narrow envelope where the excitation had power.")
-    return ReportFigure(name, caption, draw, size_in=(7.5, 5.5))
-
-
-def _bode_drawing(axis: _FrequencyAxis, envelopes: Mapping[str, MagnitudeEnvelope], drawn_envelopes: set[str],
-                  feasible_db: Mapping[str, NDArray[np.float64]],
-                  true_db: NDArray[np.float64] | None) -> Any:
-    """The drawing function of :func:`linear_block_bode_figure`: |G| on top, |G| relative to the reference
-    (the true model, else the last central model) below; the y ranges follow the models, not an envelope."""
-    labels = list(envelopes)
-    colour = {label: _METHOD_COLOURS[index % len(_METHOD_COLOURS)] for index, label in enumerate(labels)}
-    reference_db = true_db if true_db is not None else envelopes[labels[-1]].central_db
-    reference_label = "|G_true|" if true_db is not None else f"|G({labels[-1] + ' ' if labels[-1] else ''}θ^c)|"
-    models = [envelope.central_db for envelope in envelopes.values()] + list(feasible_db.values())
-    shown = np.concatenate([curve[np.isfinite(curve)] for curve in models + ([true_db] if true_db is not None else [])])
-    y_low, y_high = float(np.percentile(shown, 1)) - 20.0, float(np.percentile(shown, 99)) + 20.0
-    deviations = np.concatenate([np.abs(curve - reference_db)[np.isfinite(curve - reference_db)] for curve in models])
-    limit = min(max(1.3 * float(np.percentile(deviations, 95)) if deviations.size else 1.0, 1.0), 60.0)
-
-    def draw(figure) -> None:
-        axes, deviation_axes = figure.subplots(2, 1, sharex=True, height_ratios=(3, 2))
-        for label, envelope in envelopes.items():
-            prefix = f"{label}: " if label else ""
-            if label in drawn_envelopes:
-                bounded = envelope.bounded
-                low = np.where(bounded, envelope.lower_db, np.nan)
-                high = np.where(bounded, envelope.upper_db, np.nan)
-                axes.fill_between(axis.values, low, high, where=bounded, color=colour[label], alpha=0.25, lw=0,
-                                  label=f"{prefix}envelope over the box")
-                deviation_axes.fill_between(axis.values, low - reference_db, high - reference_db, where=bounded,
-                                            color=colour[label], alpha=0.25, lw=0)
-            axes.plot(axis.values, envelope.central_db, color=colour[label], lw=1.2,
-                      label=f"{prefix}central model θ^c")
-            deviation_axes.plot(axis.values, envelope.central_db - reference_db, color=colour[label], lw=1.0)
-        for label, point_db in feasible_db.items():
-            axes.plot(axis.values, point_db, ":", color=colour[label], lw=1.2,
-                      label=f"{label + ': ' if label else ''}a verified feasible model")
-            deviation_axes.plot(axis.values, point_db - reference_db, ":", color=colour[label], lw=1.2)
-        if true_db is not None:
-            axes.plot(axis.values, true_db, "k--", lw=1.0, label="true G")
-        axes.set_ylim(y_low, y_high)
-        axes.set_xscale("log")
-        axes.set_ylabel("magnitude |G| [dB]")
-        axes.grid(True, which="both", lw=0.3, alpha=0.5)
-        axes.legend(loc="lower left", fontsize=7)
-        deviation_axes.axhline(0.0, color="k", ls="--" if true_db is not None else "-", lw=1.0)
-        deviation_axes.set_ylim(-limit, limit)
-        deviation_axes.set_xlabel(axis.label)
-        deviation_axes.set_ylabel(f"|G| - {reference_label} [dB]", fontsize=8)
-        deviation_axes.grid(True, which="both", lw=0.3, alpha=0.5)
 
     return draw
 

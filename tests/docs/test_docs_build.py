@@ -5,6 +5,8 @@
   not parse).
 - Every relative link and image in the built HTML points at a file of the build, and every ``#anchor`` at an
   id in that file. External links are not followed (no network at test time).
+- The built site is self-contained: no page loads a script, style sheet or font from the network (the equations
+  are MathML, written when the site is built), so it reads the same offline.
 - The command-line reference is generated from ``rig.cli.build_parser``: every command and option is on it.
 - The README stays a short entry point whose quick start holds exactly the two commands CI runs.
 - Shell and Python blocks marked ``:class: tested`` in the pages are run, in page order, in a scratch directory
@@ -98,6 +100,48 @@ def test_internal_links_and_anchors_resolve(site: Path) -> None:
                 if unquote(parts.fragment) not in ids:
                     broken.append(f"{page.relative_to(site)}: {target} (no id {parts.fragment!r})")
     assert not broken, "broken internal links:\n" + "\n".join(broken[:40])
+
+
+_LOADED_LINKS = {"stylesheet", "icon", "preload", "modulepreload", "manifest"}
+"""The <link rel> kinds a browser fetches when it shows the page (index, search, next... are navigation)."""
+
+
+class _Resources(HTMLParser):
+    """What a page loads when it is shown: script sources, style sheets and other <link> resources, images and
+    frames, and url(...) in inline styles (a link a reader may follow, <a href>, is not loaded)."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.loaded: list[str] = []
+        self.equations = 0
+
+    def handle_starttag(self, tag: str, attrs: list[tuple[str, str | None]]) -> None:
+        values = dict(attrs)
+        if tag in ("script", "img", "iframe", "source", "embed") and values.get("src"):
+            self.loaded.append(values["src"])
+        if tag == "link" and values.get("href") and set((values.get("rel") or "").split()) & _LOADED_LINKS:
+            self.loaded.append(values["href"])
+        self.loaded += re.findall(r"url\(['\"]?([^'\")]+)", values.get("style") or "")
+        self.equations += tag == "math"
+
+
+def test_the_site_loads_nothing_from_the_network_and_its_equations_are_mathml(site: Path) -> None:
+    remote = []
+    equations = 0
+    for page in sorted(site.rglob("*.html")):
+        resources = _Resources()
+        resources.feed(page.read_text(encoding="utf-8"))
+        equations += resources.equations
+        remote += [f"{page.relative_to(site)}: {url}" for url in resources.loaded
+                   if urlsplit(url).scheme in ("http", "https") or url.startswith("//")]
+    for sheet in sorted(site.rglob("*.css")):
+        remote += [f"{sheet.relative_to(site)}: {url}" for url in re.findall(
+            r"(?:url\(['\"]?|@import\s+['\"])((?:https?:)?//[^'\")\s]+)", sheet.read_text(encoding="utf-8"))]
+    assert not remote, "the site loads from the network:\n" + "\n".join(remote[:20])
+    method_page = (site / "methods" / "set_membership.html").read_text(encoding="utf-8")
+    assert equations > 50 and "<math" in method_page and "\\begin{cases}" not in method_page
+    drive_train = (site / "reference" / "api" / "identify.drive_train.html").read_text(encoding="utf-8")
+    assert "<mtable" in drive_train and not re.search(r"<mi>&(amp;)?</mi>", drive_train)  # aligned at &, not "&"
 
 
 def _commands(parser: argparse.ArgumentParser, words: tuple[str, ...] = ("rig",)):

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 import shutil
 import struct
 import subprocess
@@ -9,6 +10,8 @@ import sys
 from pathlib import Path
 
 import pytest
+
+CONTENT_WIDTH_PX = 960  # the report's column (rig.report's style: max-width 60rem); wider figures are scaled down
 
 CHECKER = Path(__file__).resolve().parents[2] / "scripts" / "check_report_in_chromium"
 CHROMIUM_CANDIDATES = ("/usr/bin/chromium", "chromium", "chromium-browser", "google-chrome", "google-chrome-stable")
@@ -34,3 +37,24 @@ def png_size(path: Path) -> tuple[int, int]:
     head = path.read_bytes()[:24]
     assert head[:8] == b"\x89PNG\r\n\x1a\n" and head[12:16] == b"IHDR", f"{path} is not a PNG file"
     return struct.unpack(">II", head[16:24])
+
+
+def check_page(index: Path, tmp_path: Path, figures: int) -> None:
+    """The checker passes on the page, and the screenshot is at least as tall as the page's figures stacked."""
+    page = index.read_text(encoding="utf-8")
+    sources = re.findall(r'<img src="([^"]+)"', page)
+    assert len(sources) == figures
+    screenshot = tmp_path / "screenshot.png"
+    completed = run_checker(index.parent, screenshot)
+    assert completed.returncode == 0, completed.stdout + completed.stderr
+    assert f"images      {figures} in the rendered page, {figures} in the page source, {figures} loaded" in \
+        completed.stdout
+    assert "ok: every image loaded and lies within the screenshot" in completed.stdout
+    # Independently of the checker's own measurement: the figures stand one below the other, each at its size
+    # in the page's column, so the screenshot must be at least as tall as they are together.
+    shown_heights = []
+    for source in sources:
+        width, height = png_size(index.parent / source)
+        shown_heights.append(height * min(1.0, CONTENT_WIDTH_PX / width))
+    shot_width, shot_height = png_size(screenshot)
+    assert shot_width == 1280 and shot_height >= sum(shown_heights), (shot_height, sum(shown_heights))

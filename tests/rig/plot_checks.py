@@ -66,3 +66,30 @@ def legends_over_data(report_figure: ReportFigure) -> list[str]:
                     problems.append(f"{report_figure.name}: the legend of the {where} covers {covered} of "
                                     f"{len(points)} points of {line.get_label()!r} in axes {index}")
     return problems
+
+
+def lines_beyond_limits(report_figure: ReportFigure) -> list[str]:
+    """Draw the figure off-screen and list every line whose data reach beyond its axes' limits (a figure must
+    show the whole of each curve it draws; what it leaves out it must not draw at all, and say so)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import numpy as np
+    from matplotlib.figure import Figure
+
+    figure = Figure(figsize=report_figure.size_in, layout="constrained")
+    report_figure.draw(figure)
+    problems = []
+    for index, axes in enumerate(figure.axes):
+        (x_low, x_high), (y_low, y_high) = sorted(axes.get_xlim()), sorted(axes.get_ylim())
+        for line in axes.lines:
+            if line.get_transform() != axes.transData:  # a guide across the axes (axhline), not data
+                continue
+            x, y = (np.asarray(values, dtype=float) for values in (line.get_xdata(), line.get_ydata()))
+            shown = np.isfinite(x) & np.isfinite(y)
+            outside = shown & ((y < y_low) | (y > y_high) | (x < x_low) | (x > x_high))
+            if np.any(outside):
+                problems.append(f"{report_figure.name} axes {index}: {np.count_nonzero(outside)} points of "
+                                f"{line.get_label()!r} lie outside y {y_low:.3g}..{y_high:.3g} (they span "
+                                f"{np.min(y[shown]):.3g}..{np.max(y[shown]):.3g})")
+    return problems

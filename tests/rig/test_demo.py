@@ -1,5 +1,6 @@
 """`rig demo` end to end on the simulated rig over CANopen (the quick plan keeps it short)."""
 
+import html
 import json
 import re
 
@@ -25,12 +26,40 @@ def test_true_gearbox_collapses_delay_linear_and_resonance_into_one_transfer_fun
     assert truth.play_rad == pytest.approx(0.005)
 
 
-def test_demo_writes_a_complete_report_and_bounds_contain_the_truth(tmp_path, capsys):
-    out = tmp_path / "report"
+def _quick_demo(out):
+    """(out, the --json result) of `rig demo --quick` writing its report to ``out``."""
+    import contextlib
+    import io
+
+    printed = io.StringIO()
     # serial: the wire whose simulated device loses the fewest samples on a busy host (BENCHMARKS.md);
     # CANopen and raw CAN are covered by the transport contract tests.
-    assert main(["demo", "--quick", "--transport", "serial", "--out", str(out), "--json"]) == 0
-    result = json.loads(capsys.readouterr().out)
+    with contextlib.redirect_stdout(printed):
+        assert main(["demo", "--quick", "--transport", "serial", "--out", str(out), "--json"]) == 0
+    return out, json.loads(printed.getvalue())
+
+
+@pytest.fixture(scope="session")
+def quick_demo(tmp_path_factory, worker_id):
+    """(report directory, the --json result) of one `rig demo --quick` per test run, shared by the tests of its
+    outputs. Under pytest-xdist the first worker to need it runs it in the run's common temporary directory while
+    the others wait on a lock, then read it (the tests only read the report directory)."""
+    if worker_id == "master":
+        return _quick_demo(tmp_path_factory.mktemp("demo") / "report")
+    import fcntl
+
+    shared = tmp_path_factory.getbasetemp().parent  # one per run, above each worker's own
+    with open(shared / "quick_demo.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        saved = shared / "quick_demo.json"
+        if not saved.exists():
+            _, result = _quick_demo(shared / "quick_demo")
+            saved.write_text(json.dumps(result), encoding="utf-8")
+        return shared / "quick_demo", json.loads(saved.read_text(encoding="utf-8"))
+
+
+def test_demo_writes_a_complete_report_and_bounds_contain_the_truth(quick_demo):
+    out, result = quick_demo
     index = out / "index.html"
     assert result["report"] == str(index)
     assert missing_images(index) == []
@@ -77,6 +106,65 @@ def test_demo_writes_a_complete_report_and_bounds_contain_the_truth(tmp_path, ca
     assert gap_after < 0.5 * gap_before
     assert all(row[2] == "-" for name, row in rows.items() if name.startswith(("discrepancy", "Hammerstein")))
     assert "Model discrepancy" in page
+    headings = re.findall(r"<h2>(.*?)</h2>", page)
+    assert not [heading for heading in headings if heading.lower().count("model discrepancy") > 1], headings
+
+
+def test_the_commands_the_demo_states_give_its_numbers_from_its_saved_logs(quick_demo, monkeypatch, capsys):
+    """What a user does to check the demo: run, in its report directory, the commands it states (the report's
+    section and the --json "commands"), on its saved logs, and find the summary's numbers (to the digits the
+    table prints)."""
+    import shlex
+
+    from identify.hammerstein_subspace import HammersteinModel
+    from rig.report import format_interval
+
+    out, result = quick_demo
+    page = (out / "index.html").read_text(encoding="utf-8")
+    assert len(result["commands"]) == 4 and all(html.escape(command) in page for command in result["commands"])
+    monkeypatch.chdir(out)
+    printed = {}
+    for command in result["commands"]:
+        words = shlex.split(command)
+        assert words[0] == "rig"
+        assert main([*words[1:], "--json"]) == 0, command
+        key = words[2] if words[1] == "identify" else words[1]
+        printed[f"{key} {words[-1]}" if key == "output-backlash" else key] = json.loads(capsys.readouterr().out)
+    rows = {row[0]: row for row in result["rows"]}
+    for column, method in ((2, "paper"), (3, "coupled")):
+        bounds = printed[f"output-backlash {method}"]
+        for group, names in (("backlash", ("m_l", "c_l", "m_r", "c_r")),
+                             ("linear", ("a1", "a2", "a3", "a4", "b2", "b3", "b4", "b5"))):
+            for name in names:
+                interval = bounds[group][name]
+                assert rows[f"{group} {name}"][column] == format_interval(interval["lower"], interval["upper"]), \
+                    (method, name)
+    model = HammersteinModel.from_dict(printed["hammerstein"])
+    assert rows["Hammerstein play [rad]"][3] == model.play_at_nodes().describe()
+    assert rows["Hammerstein slowest pole |p|"][3].startswith(f"{model.max_pole_magnitude:.4f} ")
+    diagnosis = printed["diagnose"]
+    (backlash,) = [effect for effect in diagnosis["missing_effects"] if effect["effect"] == "backlash"]
+    named = ", ".join(effect["effect"] for effect in diagnosis["missing_effects"])
+    assert rows["discrepancy: missing effect"][3].startswith(named)
+    if diagnosis["verdict"] == "ambiguous":  # the table row says so, as the section's verdict does
+        assert "ambiguous" in rows["discrepancy: missing effect"][3]
+        assert all(effect in rows["discrepancy: missing effect"][3] for effect in diagnosis["ambiguous_between"])
+    fitted = rows["discrepancy: fitted play c_l + c_r [rad]"][3]
+    assert fitted.startswith(f"{backlash['parameters']['c_l_rad'] + backlash['parameters']['c_r_rad']:.4g} in ")
+    assert rows["discrepancy: gap of the nominal model [rad]"][3] == f"{diagnosis['gap_initial']:.3g}"
+    assert rows["discrepancy: gap with backlash [rad]"][3] == f"{diagnosis['gap_final']:.3g}"
+
+
+def test_the_demo_page_shows_every_figure_in_chromium(quick_demo, tmp_path):
+    """The page a newcomer opens first, in a browser: every figure loads and lies within the page."""
+    from chromium_check import check_page, require_chromium
+
+    require_chromium()
+    out, _ = quick_demo
+    # signals of three experiments and their timing; five set-membership figures; three Hammerstein figures;
+    # the diagnosis's comparison, disagreement windows and one signature per effect added
+    effects = len(re.findall(r"<tr><td>\d+</td>", (out / "index.html").read_text(encoding="utf-8")))
+    check_page(out / "index.html", tmp_path, figures=4 + 5 + 3 + 2 + effects)
 
 
 def lossy_record():

@@ -13,7 +13,7 @@ import pytest
 from identify.experiment_record import ExperimentMetadata, ExperimentRecord
 from rig import exit_codes
 from rig.cli import main
-from rig.commands.identify_output_backlash import staircase_steady_samples
+from rig.staircase_points import staircase_steady_samples
 from rig.experiment_config import REPEAT_FILTERED
 from rig.experiment_config import load_experiment_config
 from rig.log_file import read_log

@@ -8,7 +8,7 @@ from plot_checks import legends_over_data, unlabelled_axes
 
 from identify.discrepancy_cases import hidden_effect_record
 from identify.model_discrepancy import diagnose_model
-from rig.plots.discrepancy import ZOOM_SAMPLES, comparison_figure
+from rig.plots.discrepancy import ZOOM_SAMPLES, comparison_figure, windows_figure
 
 
 @pytest.fixture(scope="module")
@@ -75,3 +75,15 @@ def test_with_nothing_added_the_model_is_drawn_once_and_the_caption_says_so(diag
     assert "after" not in report_figure.caption
     drawn = comparison_figure(result, record.angle_rad, time_s)  # with the play added: both models
     assert "final model (green, dashed)" in drawn.caption
+
+
+def test_windows_that_cover_most_of_the_record_are_not_called_a_cluster(diagnosis):
+    """A hidden backlash makes the start model miss at nearly every reversal: its windows of falsified samples
+    cover nearly the whole record, and the caption says so instead of pointing at a cluster."""
+    record, result, time_s = diagnosis
+    covered = sum(window.stop - window.start for window in result.initial.windows) / record.command_rad.size
+    assert covered > 0.9  # the premise
+    caption = windows_figure(result, time_s).caption
+    assert f"cover {100 * covered:.0f} % of the record: they do not cluster" in caption, caption
+    assert "where they cluster" not in caption
+

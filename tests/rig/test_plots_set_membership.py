@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import re
 
 import numpy as np
 import pytest
@@ -226,3 +227,40 @@ def test_the_half_width_axis_of_the_inner_signal_figure_labels_a_few_round_value
               if tick.get_text() and low <= tick.get_position()[1] <= high]
     assert 1 <= len(labels) <= 7, labels
     assert all(float(text) / 10 ** np.floor(np.log10(float(text))) in (1.0, 2.0, 5.0) for text in labels), labels
+
+
+# The intervals `rig demo --quick` found for the precision gearbox (na = 4, nk = 2, nb = 5): a paper-method box
+# whose central model is 12 dB low, a coupled one on the true curve; the true G has a double zero at z = -1.
+DEMO_INTERVALS = {
+    "paper": {"a1": (-4, -2.105), "a2": (1.5522, 6), "a3": (-4, -0.0755), "a4": (-0.31978, 1),
+              "b2": (-0.065431, 0.066787), "b3": (-0.059558, 0.074443), "b4": (-0.067433, 0.066342),
+              "b5": (-0.06788, 0.065879)},
+    "coupled": {"a1": (-3.2168, -3.1396), "a2": (4.1464, 4.331), "a3": (-2.8792, -2.7038), "a4": (0.7143, 0.77955),
+                "b2": (-0.0021896, 0.0059428), "b3": (2.9733e-05, 0.015171), "b4": (-0.0032461, 0.011491),
+                "b5": (-0.002399, 0.0073905)},
+}
+
+
+def test_bode_figure_shows_every_curve_whole_and_names_what_falls_to_minus_infinity():
+    from pathlib import Path
+
+    from plot_checks import lines_beyond_limits
+
+    from identify.linear_block_bounds import LinearBlockBounds, LinearModelOrders
+    from rig.demo_outcome import true_gearbox
+    from sim_backend.plant_config import load_plant_config
+
+    plant = load_plant_config(Path(__file__).resolve().parents[2] / "configs" / "plants" / "precision_gearbox.toml")
+    truth = true_gearbox(plant.plant).linear
+    bounds = {method: LinearBlockBounds(method=method, orders=LinearModelOrders(4, 2, 5),
+                                        intervals={name: ParameterInterval(*ends) for name, ends in box.items()})
+              for method, box in DEMO_INTERVALS.items()}
+    report_figure = linear_block_bode_figure(bounds, "bode", sample_period_s=truth.sample_period_s, true_linear=truth)
+    assert lines_beyond_limits(report_figure) == []
+    # |G_true| falls to -inf dB at the Nyquist frequency (its zeros at z = -1): the figure cuts it and says where
+    figure = _drawn(report_figure)
+    said = " ".join(text.get_text() for axes in figure.axes for text in [axes.title, axes._right_title, *axes.texts])
+    assert re.search(r"true G below -\d+ dB from 4\d\d Hz", said), said
+    assert re.search(r"true G below -\d+ dB from 4\d\d Hz", report_figure.caption), report_figure.caption
+    # neither box's envelope is bounded enough to draw: the caption does not send the reader looking for one
+    assert "no envelope drawn" in report_figure.caption and "narrow envelope" not in report_figure.caption

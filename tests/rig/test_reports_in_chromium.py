@@ -3,20 +3,18 @@ every figure loads and lies within the screenshot of the whole page.
 
 The pages come from small inputs that take seconds: ``rig report`` of every result kind it reads (experiment logs
 of both clocks, both set-membership methods with the saved data, a Hammerstein model, a batch of diagnoses with a
-file that failed, a run summary) and ``rig diagnose --report``. ``rig demo`` writes its page only after minutes of
-experiments, so it is not rendered here (run the checker on ``rig demo --quick --out DIR`` by hand).
+file that failed, a run summary) and ``rig diagnose --report``. ``rig demo`` writes its page only after about 40 s
+of experiments: ``tests/rig/test_demo.py`` renders the page of the quick demo that its other tests share.
 """
 
 from __future__ import annotations
 
 import json
-import re
-from pathlib import Path
 
 import numpy as np
 import pytest
 
-from chromium_check import png_size, require_chromium, run_checker
+from chromium_check import check_page, require_chromium
 from identify.cyclic_excitation import cyclic_random_excitation
 from identify.excitation_design import filtered_staircase, prbs_sequence, staircase_steady_state_indices
 from identify.experiment_record import ExperimentMetadata, ExperimentRecord, SampleFlag
@@ -31,7 +29,6 @@ from rig.runner import RunSummary
 PERIOD_S = 0.01
 SM_PLANT = PlantModel((LinearBlock((0.5, 0.7), (0.0, 1.4, 0.8), PERIOD_S), OutputBacklash(0.248, 0.0698, 0.252, 0.0349)))
 NOISE = 1e-3
-CONTENT_WIDTH_PX = 960  # the report's column (rig.report's style: max-width 60rem); wider figures are scaled down
 
 
 @pytest.fixture(autouse=True)
@@ -87,27 +84,6 @@ def inputs(tmp_path_factory):
     return folder
 
 
-def _check_page(index: Path, tmp_path: Path, figures: int) -> None:
-    """The checker passes on the page, and the screenshot is at least as tall as the page's figures stacked."""
-    page = index.read_text(encoding="utf-8")
-    sources = re.findall(r'<img src="([^"]+)"', page)
-    assert len(sources) == figures
-    screenshot = tmp_path / "screenshot.png"
-    completed = run_checker(index.parent, screenshot)
-    assert completed.returncode == 0, completed.stdout + completed.stderr
-    assert f"images      {figures} in the rendered page, {figures} in the page source, {figures} loaded" in \
-        completed.stdout
-    assert "ok: every image loaded and lies within the screenshot" in completed.stdout
-    # Independently of the checker's own measurement: the figures stand one below the other, each at its size
-    # in the page's column, so the screenshot must be at least as tall as they are together.
-    shown_heights = []
-    for source in sources:
-        width, height = png_size(index.parent / source)
-        shown_heights.append(height * min(1.0, CONTENT_WIDTH_PX / width))
-    shot_width, shot_height = png_size(screenshot)
-    assert shot_width == 1280 and shot_height >= sum(shown_heights), (shot_height, sum(shown_heights))
-
-
 def test_rig_report_of_every_result_kind_shows_every_figure(inputs, tmp_path, capsys):
     common = ["identify", "output-backlash", "--steady", str(inputs / "steady.csv"), "--dynamic",
               str(inputs / "prbs.log"), "--noise-bound", repr(NOISE), "--na", "2", "--nk", "1", "--nb", "2", "--json"]
@@ -130,7 +106,7 @@ def test_rig_report_of_every_result_kind_shows_every_figure(inputs, tmp_path, ca
     # signals of three logs, timing of the two with a timing to draw (the prbs log has no summary and no flag),
     # intervals, Bode, band, polygons, inner bounds, three Hammerstein figures, the diagnosis's gaps
     assert printed["figures"] == 14
-    _check_page(out / "index.html", tmp_path, printed["figures"])
+    check_page(out / "index.html", tmp_path, printed["figures"])
 
 
 def test_rig_diagnose_report_shows_every_figure(inputs, tmp_path, capsys):
@@ -138,4 +114,4 @@ def test_rig_diagnose_report_shows_every_figure(inputs, tmp_path, capsys):
     assert main(["diagnose", str(inputs / "small.csv"), "--model", str(inputs / "nominal.toml"), "--noise-bound",
                  "0.001", "--json", "--report", str(out)]) == exit_codes.SUCCESS
     capsys.readouterr()
-    _check_page(out / "index.html", tmp_path, figures=2)
+    check_page(out / "index.html", tmp_path, figures=2)
