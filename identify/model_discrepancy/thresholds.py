@@ -463,3 +463,19 @@ verdict says structure is left: below it, what remains reads as noise and unmode
 OPEN_WORLD_NOT_WHOLE_STORY = 0.5
 """A verdict ``named`` is lowered to ``ambiguous`` when the black box predicts at least this share of what the
 named effects leave: they are then not the whole story."""
+
+# Evidence: a cost bound, set with the walk of _structure_profile_intervals on the independent generator's
+# friction and play rows (benchmarks/model_discrepancy_confusion.py --generator independent --effects
+# coulomb,stribeck,backlash): each point is one least-squares refit, and a walk from 2 % in 8 doublings with 3
+# bisections doubled the median time of a friction case (13 -> 34 s) for the same coverage.
+STRUCTURE_PROFILE_STEPS = 6
+"""Doublings of the profile walk at most, from 5 % of the fitted value to 1.6 times it."""
+
+# Evidence: as STRUCTURE_PROFILE_STEPS.
+STRUCTURE_PROFILE_BISECTIONS = 2
+"""Bisections between the last value within the structure error and the first beyond it (the end to 1/4 of
+the last step)."""
+
+# Evidence: as STRUCTURE_PROFILE_STEPS.
+STRUCTURE_PROFILE_FIRST_STEP = 5.0e-2
+"""First step of the profile walk relative to the fitted value (1 for a value of 0)."""
