@@ -696,8 +696,8 @@ def _run_kernel(state, constants, substeps, commands, record):
                                                    kv, speed_limit, torque_limit)
                 if clipped:
                     integrating = False
+                weight = gravity * math.sin(theta - hanging) if gravity != 0.0 else 0.0
                 if rigid:
-                    weight = gravity * math.sin(theta - hanging)
                     omega, friction, stuck = _load_half_kick(omega, drive - motor_damping * omega - weight, stuck,
                                                              rigid_inertia, kick, coulomb, static, viscous)
                     shaft = 0.0
@@ -706,8 +706,8 @@ def _run_kernel(state, constants, substeps, commands, record):
                 else:
                     shaft = _shaft_torque(phi - theta, omega_phi - omega, stiffness, damping, half_play)
                     omega_phi += kick * (drive - shaft - motor_damping * omega_phi) / motor_inertia
-                    omega, friction, stuck = _load_half_kick(omega, shaft - gravity * math.sin(theta - hanging), stuck,
-                                                             load_inertia, kick, coulomb, static, viscous)
+                    omega, friction, stuck = _load_half_kick(omega, shaft - weight, stuck, load_inertia, kick, coulomb,
+                                                             static, viscous)
                 if substep == 0 and half == 0:
                     record[sample, 5], record[sample, 6], record[sample, 7] = drive, shaft, friction
                 if half == 0:

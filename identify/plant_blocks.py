@@ -27,6 +27,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Protocol, runtime_checkable
 
+import numba
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy import signal as scipy_signal
@@ -314,21 +315,28 @@ class OutputBacklash:
         object.__setattr__(self, "initial_output_rad", _finite("initial_output_rad", self.initial_output_rad))
 
     def apply(self, signal: ArrayLike) -> NDArray[np.float64]:
-        x = as_signal("signal", signal)
-        m_l, c_l, m_r, c_r = self.m_l, self.c_l_rad, self.m_r, self.c_r_rad
-        w = self.initial_output_rad
-        out = []
-        append = out.append
-        for x_t in x.tolist():
-            if x_t <= w / m_l - c_l:
-                w = m_l * (x_t + c_l)
-            elif x_t >= w / m_r + c_r:
-                w = m_r * (x_t - c_r)
-            append(w)
-        return np.array(out, dtype=float)
+        # a fresh writable copy: one compiled signature (a read-only input would compile a second one)
+        x = np.array(as_signal("signal", signal), dtype=np.float64)
+        return _output_backlash_run(x, self.m_l, self.c_l_rad, self.m_r, self.c_r_rad, self.initial_output_rad)
 
     def stepper(self) -> _OutputBacklashStepper:
         return _OutputBacklashStepper(self)
+
+
+@numba.njit(cache=True)
+def _output_backlash_run(x, m_l, c_l, m_r, c_r, w):
+    """The loop of :meth:`_OutputBacklashStepper.step` over a whole signal from w_{-1} = ``w`` (the same
+    operations in the same order, so the same numbers; compiled, as every per-sample loop a diagnosis runs
+    in its fits)."""
+    out = np.empty(x.size)
+    for t in range(x.size):
+        x_t = x[t]
+        if x_t <= w / m_l - c_l:
+            w = m_l * (x_t + c_l)
+        elif x_t >= w / m_r + c_r:
+            w = m_r * (x_t - c_r)
+        out[t] = w
+    return out
 
 
 class _OutputBacklashStepper:
@@ -876,13 +884,37 @@ class CoulombFriction:
         return self.coulomb_torque_nm / self.stiffness_nm_per_rad
 
     def apply(self, signal: ArrayLike) -> NDArray[np.float64]:
-        x = as_signal("signal", signal)
-        stepper = self.stepper()
-        step = stepper.step
-        return np.array([step(x_t) for x_t in x.tolist()], dtype=float)
+        # a fresh writable copy: one compiled signature (a read-only input would compile a second one)
+        x = np.array(as_signal("signal", signal), dtype=np.float64)
+        return _friction_run(x, self.breakaway_deflection_rad, self.sliding_deflection_rad, self.initial_output_rad)
 
     def stepper(self) -> _FrictionStepper:
         return _FrictionStepper(self)
+
+
+@numba.njit(cache=True)
+def _friction_run(x, stick, slide, y):
+    """The loop of :meth:`_FrictionStepper.step` over a whole signal from rest at y_{-1} = ``y`` (the same
+    operations in the same order, so the same numbers)."""
+    out = np.empty(x.size)
+    moving = 0
+    for t in range(x.size):
+        x_t = x[t]
+        twist = x_t - y
+        if moving > 0 and twist > slide:
+            y = x_t - slide
+        elif moving < 0 and -twist > slide:
+            y = x_t + slide
+        elif twist > stick:
+            moving = 1
+            y = x_t - slide
+        elif -twist > stick:
+            moving = -1
+            y = x_t + slide
+        else:
+            moving = 0
+        out[t] = y
+    return out
 
 
 class _FrictionStepper:

@@ -47,6 +47,7 @@ from identify.model_discrepancy.thresholds import (
     DELAY_REFINE_REACH,
     DYNAMICS_EVALUATIONS,
     FAILED_RUN_ERROR_RAD,
+    FIT_MAX_SAMPLES,
     FOLDS,
     FOLD_EVALUATIONS,
     LOOP_POLISHED_STARTS,
@@ -65,7 +66,9 @@ def _try_effect(kind: str, chain: _Chain, u: NDArray[np.float64], y: NDArray[np.
     """The candidate of effect ``kind`` added to ``chain``: its catalogue guesses (and, for a dynamics effect
     with a free loop, the loop starts) ranked by the estimation error, the best polished, and each of
     ``forced_starts`` (values of the effect, unranked) polished too; the fit with the lowest estimation error
-    is kept, its delays walked (:func:`_walk_delays`).
+    is kept, its delays walked (:func:`_walk_delays`). The fit uses the first :func:`_fit_samples` samples of the
+    estimation segment (all of it on a record of up to :data:`FIT_MAX_SAMPLES`); the candidate's estimation
+    error and validated gap (:func:`_judged`) are over the whole segments.
 
     A hysteresis after the linear block (catalogue ``contact_start``) also polishes the best start of each of
     its contact-branch forms (:func:`_contact_branch_start`; friction has one per breakaway/sliding ratio),
@@ -76,7 +79,8 @@ def _try_effect(kind: str, chain: _Chain, u: NDArray[np.float64], y: NDArray[np.
     at breakaway = sliding ranked first and stopped at 6.2 mrad, the one at 1.5 times the sliding reaches
     0.65 mrad (the polish cannot move the breakaway). A stick-slip fit ends in :func:`_stick_slip_fit`."""
     index = _insert_index(chain, kind)
-    u_est, y_est = u[:n_est], y[:n_est]
+    n_fit = _fit_samples(n_est)
+    u_est, y_est = u[:n_fit], y[:n_fit]
     entry = effect(kind)
     train: DriveTrain | None = None
     if entry.placement == "dynamics":
@@ -122,6 +126,12 @@ def _try_effect(kind: str, chain: _Chain, u: NDArray[np.float64], y: NDArray[np.
                                                  delta):  # a delay the held fit found; see _walk_delays
         best = _walk_delays(best, u_est, y_est, _budget(best, max_evaluations), max_delay_samples)
     return _judged(kind, _stick_slip_scanned(best, u_est, y_est), index, u, y, n_est)
+
+
+def _fit_samples(n_est: int) -> int:
+    """How many of the ``n_est`` estimation samples a candidate's fit uses: the first :data:`FIT_MAX_SAMPLES` at
+    most."""
+    return min(n_est, FIT_MAX_SAMPLES)
 
 
 def _baseline_refit(chain: _Chain, u: NDArray[np.float64], y: NDArray[np.float64], max_evaluations: int) -> _Chain:
@@ -433,7 +443,7 @@ def _compound(kinds: Sequence[str], hysteresis: _Candidate, tried: Sequence[_Can
         # the whole twin started from the hysteresis' width (catalogue width_starts), the last effect polished
         # with all of them free; kept if it fits the estimation segment better than the sequential fit
         index = _insert_index(chain, kinds[0])
-        base, train = _dynamics_chain(chain, index, u[:n_est])
+        base, train = _dynamics_chain(chain, index, u[:_fit_samples(n_est)])
         for kind in kinds[:-1]:
             base = _merged(base, index, kind, EFFECTS[kind].width_starts(width, train)[0])
         joint = fitted(kinds[-1], base, EFFECTS[kinds[-1]].width_starts(width, train))

@@ -176,6 +176,19 @@ BASELINE_EFFORT = 5
 """Before another effect is tried, the model so far is polished with this many times the evaluations of one
 candidate fit."""
 
+# Evidence: benchmarks/diagnosis_speed.py (BENCHMARKS.md, "Diagnosis against the record length"): a hidden
+# backlash, seed 11, N = 100 000, named with the same sizes to 0.01 mrad fitted on the whole 60 000-sample
+# estimation segment and on its first 20 000, given the model and from a fitted start. Every record of the
+# tests, of the confusion benchmark (3000 samples), the K-Scale records and the EMPS record (24 841 samples, an
+# estimation segment of 14 905) are below the bound, so their answers are unchanged.
+FIT_MAX_SAMPLES = 20_000
+"""A candidate's fit (:func:`_try_effect`, with the drive train it goes into) uses at most this many samples of
+the estimation segment, its first ones (a free run starts from rest at the first sample): each evaluation of a
+fit is a free run over the samples it uses, and a fit makes hundreds, so on a long record the fits would grow
+with it while 20 s at 1 kHz already holds a hundred or more reversals of the command. The candidates are still
+judged on the whole validation segment and the effect kept is polished on the whole estimation segment
+(:func:`_add_step`), so a long record still sharpens what is named."""
+
 # Evidence: the first version of the workflow; origin not recorded.
 MAX_EVALUATIONS = 40
 """Function evaluations per least-squares polish (default of ``DiagnoseOptions.max_evaluations``)."""
