@@ -37,6 +37,7 @@ from identify.model_discrepancy.thresholds import (
     FEASIBLE_WALK_BISECTIONS,
     FEASIBLE_WALK_FIRST_STEP,
     FEASIBLE_WALK_STEPS,
+    FIT_MAX_SAMPLES,
     JACKKNIFE_T,
     LOOP_DAMPING_RANGE,
     LOOP_TRADE_POINTS,
@@ -258,7 +259,7 @@ def _structure_profile_intervals(chain: _Chain, u: NDArray[np.float64], y: NDArr
     plus its structure error s^2 = g^2 - delta^2 / 3 (g the fit's whole-record gap, delta^2 / 3 the variance of
     noise spread evenly over +-delta): what the model cannot follow could move the parameter that far. Walked
     from the fit in doubling steps (:data:`STRUCTURE_PROFILE_FIRST_STEP`, :data:`STRUCTURE_PROFILE_STEPS`), the
-    end bisected (:data:`STRUCTURE_PROFILE_BISECTIONS`).
+    end bisected (:data:`STRUCTURE_PROFILE_BISECTIONS`), on the record's first :data:`FIT_MAX_SAMPLES` samples.
 
     The fold refits measure the fit's spread, not the bias of a structure that cannot follow the plant: on
     the independent generator a Stribeck curve read as a breakaway step (breakaway 2.3-2.7 mrad true, intervals
@@ -266,6 +267,7 @@ def _structure_profile_intervals(chain: _Chain, u: NDArray[np.float64], y: NDArr
     friction fitted 20 % high were outside their intervals (7 of 39 parameters). Moving one parameter with the
     others at their fit recovered 1 of the 7: the bias is shared between parameters, so the others are refitted
     at every point."""
+    u, y = u[:FIT_MAX_SAMPLES], y[:FIT_MAX_SAMPLES]  # a refit per point: bounded as a candidate's fit is
     fit_error = _free_run_error(chain, u, y)
     fit_square = float(np.mean(fit_error * fit_error))
     allowed = fit_square + max(fit_square - delta * delta / 3.0, 0.0)
