@@ -16,7 +16,7 @@ Columns:
   more than any HELD stretch under 8 samples gives), ``traceback`` (an error outside the rig's error tree);
   for a peer variant, the peer's own verdict;
 * wrong rows: usable logged rows whose command differs from the target the simulated drive applied at that
-  sample (``SimulatedCanOpenRig.applied_targets``; row k is sample k); for a peer variant its ``cmd_wrong``;
+  sample (``SimulatedCanOpenRig.record().applied_targets``; row k is sample k); for a peer variant its ``cmd_wrong``;
 * applied / command step: the largest change of the applied target between two consecutive SYNCs (from the
   position before sample 0 on), against the largest change between two consecutive commands, in drive counts
   (2**17 per revolution); for a peer variant its ``max_jump`` (actual position 0x6064) and ``cmd_max_step``;
@@ -132,7 +132,7 @@ def run_one(name: str, behaviours, mode: str, num_samples: int, rate_hz: float, 
             outcome, message = "traceback", f"{type(err).__name__}: {err}"
         message = message.replace(f"{url} ", "")
         state = rig.state.name.replace("_", " ")
-        applied = list(rig.applied_targets)
+        applied = rig.record().applied_targets.tolist()
         before = rig.position_before_samples
         mode_used = getattr(transport, "mode", "?")
     scaling = rig.drive_scaling

@@ -55,7 +55,7 @@ from sim_backend.canopen_behaviour import (
 from sim_backend.canopen_pdos import (
     RPDO_COMMUNICATION_INDICES, RpdoReception, RpdoValues, Tpdo, is_rpdo_transmission_type,
 )
-from sim_backend.device_record import DeviceRecord
+from sim_backend.device_record import AppliedTargets, DeviceRecord
 from sim_backend.eds_variants import eds_text, is_pdo_parameter, load_eds_text, static_pdo_access, with_entries
 from sim_backend.interpolation_buffer import InterpolationBuffer, ip_period_matches
 from sim_backend.plant import SimulatedGearbox
@@ -221,11 +221,11 @@ class SimulatedCanOpenRig:
         self.controlword = 0
         self.controlwords: list[int] = []
         self.setpoints = 0  # SYNCs sampled since the first target (RPDO) in OPERATION ENABLED
-        # what the drive really did, sample by sample (one int per sample, for comparing a master's log with
-        # it): applied_targets[k] = the target (drive counts) applied at sample k, i.e. the position demand
-        # 0x6062 after the k-th sampled SYNC; position_before_samples = the actual position 0x6064 just before
-        # sample 0 (the step into the first target counts as a step too)
-        self.applied_targets: list[int] = []
+        # what the drive really did, sample by sample (on disk, for comparing a master's log with it): sample k's
+        # target (drive counts), i.e. the position demand 0x6062 after the k-th sampled SYNC;
+        # position_before_samples = the actual position 0x6064 just before sample 0 (the step into the first
+        # target counts as a step too)
+        self.applied_targets = AppliedTargets()
         self.position_before_samples: int | None = None
         self.streaming = False  # the plant holds exactly at rest until the first target arrives
         if self.drive_behaviour.requires_ip_period and 0x60C2 not in self.drive.object_dictionary:
@@ -280,8 +280,9 @@ class SimulatedCanOpenRig:
 
     @property
     def ip_levels(self) -> list[int]:
-        """The records each SYNC with ip mode active found in the buffer, before taking one."""
-        return self.interpolation.levels
+        """The records each SYNC with ip mode active found in the buffer, before taking one: the last
+        :data:`~sim_backend.interpolation_buffer.LEVELS_KEPT` SYNCs' (all of a shorter run's)."""
+        return list(self.interpolation.levels)
 
     # -- lifecycle ------------------------------------------------------------------------------------------
 
@@ -351,6 +352,7 @@ class SimulatedCanOpenRig:
             node.nmt.stop_heartbeat()
         self.network.disconnect()
         self.network = None
+        self.applied_targets.close()
 
     def next_event_s(self) -> float:
         """Scripted bus: when the devices next do something no frame triggers (a tick of the drive's clock,
@@ -380,7 +382,7 @@ class SimulatedCanOpenRig:
         its buffer empty; a CSP drive cannot tell a held target from a repeated one."""
         with self._lock:
             bus = None if self.network is None else self.network.bus
-            return DeviceRecord(tuple(self.applied_targets), tuple(self.controlwords), self.ip_underruns,
+            return DeviceRecord(self.applied_targets.array(), tuple(self.controlwords), self.ip_underruns,
                                 receive_drops=None if bus is None else receive_drops(bus),
                                 position_before_counts=self.position_before_samples)
 

@@ -12,15 +12,16 @@ the garbage collector's pauses with the driver, and a host that is starved does 
 
 The child writes its address (the pty path, or the channel) as one line on stdout, serves until its stdin
 closes, then writes its :class:`~sim_backend.device_record.DeviceRecord` (``--record FILE``: what it applied at
-every SYNC or tick) and ends. :func:`device_process` is the parent's side: it starts the child, yields a
-:class:`DeviceProcess` with the address, and on exit stops the child and reads the record.
+every SYNC or tick; the targets in ``FILE.targets`` beside it) and ends. :func:`device_process` is the parent's
+side: it starts the child, yields a :class:`DeviceProcess` with the address, and on exit stops the child and
+reads the record (its targets mapped from the file, which the mapping keeps after the temporary directory is
+removed, as POSIX keeps a mapped file that is unlinked).
 """
 
 from __future__ import annotations
 
 import contextlib
 import dataclasses
-import json
 import os
 import random
 import subprocess
@@ -112,7 +113,7 @@ def device_process(kind: str, plant_path: str | os.PathLike, **options: Any) -> 
         if not record_path.exists():
             raise RuntimeError(f"the simulated {kind} device (pid {child.pid}) ended (exit code {child.returncode}) "
                                "without writing its record")
-        running.record = DeviceRecord.from_dict(json.loads(record_path.read_text()))
+        running.record = DeviceRecord.read(record_path)
 
 
 class SyncProducer:
@@ -225,7 +226,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--drive-node-id", type=int, default=1)
     parser.add_argument("--encoder-node-id", type=int, default=2)
     parser.add_argument("--produce-sync", action="store_true", help="canopen: produce SYNC on the devices' clock")
-    parser.add_argument("--record", default=None, help="write the DeviceRecord (JSON) here at the end")
+    parser.add_argument("--record", default=None,
+                        help="write the DeviceRecord here at the end (JSON; its targets in FILE.targets beside it)")
     args = parser.parse_args(argv)
     with contextlib.ExitStack() as stack:
         device, address, producer = _start(args.kind, args, stack)
@@ -239,7 +241,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             record = dataclasses.replace(record, tick_delay_max_s=producer.lateness.delay_max_s,
                                          stalls=tuple(producer.lateness.stalls))
     if args.record is not None:
-        Path(args.record).write_text(json.dumps(record.to_dict()))
+        record.write(args.record)
     return 0
 
 

@@ -1,20 +1,101 @@
 """What a simulated device really did, sample by sample: the judge of a host's log (every logged command must
-be the target the device applied at that sample), kept by every simulated device and written by one that runs
-in a process of its own (:mod:`sim_backend.device_process`)."""
+be the target the device applied at that sample), kept by every simulated device (:class:`AppliedTargets`, on
+disk, so that a run of any length keeps flat memory) and written by one that runs in a process of its own
+(:mod:`sim_backend.device_process`) as a JSON file with the targets in a binary file beside it."""
 
 from __future__ import annotations
 
+import array
+import json
+import os
+import tempfile
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
+from pathlib import Path
 from typing import Any
 
-__all__ = ["DEVICE_STALL_S", "DeviceRecord", "TickLateness"]
+import numpy as np
+from numpy.typing import NDArray
+
+__all__ = ["DEVICE_STALL_S", "REQUESTS_KEPT", "AppliedTargets", "DeviceRecord", "TickLateness"]
 
 DEVICE_STALL_S = 0.01
 """A tick (or SYNC) this much after its instant is a stall of the device's own process (:class:`TickLateness`)."""
 
+REQUESTS_KEPT = 1024
+"""The requests a simulated device keeps for inspection (its ``requests``): the last this many, since a host may
+poll the drive's status all through a run of hours."""
 
-@dataclass(frozen=True)
+TARGET_DTYPE = np.dtype("=i4")
+"""A target in drive counts as the device keeps it: INTEGER32 (CiA 402 0x607A; the serial and raw-CAN targets),
+in this machine's byte order (the JSON record names it)."""
+
+
+def _read_only(values: NDArray[Any]) -> NDArray[Any]:
+    values.flags.writeable = False
+    return values
+
+
+def _mapped_targets(source: Any, count: int, dtype: np.dtype) -> NDArray[np.int32]:
+    """The first ``count`` targets of ``source`` (a path or an open file) mapped read-only (no copy in memory);
+    an empty array for none (a file cannot map zero bytes)."""
+    if count == 0:
+        return _read_only(np.empty(0, dtype))
+    return np.memmap(source, dtype=dtype, mode="r", shape=(count,))
+
+
+class AppliedTargets:
+    """Sample k's applied target (drive counts), appended as the device applies it: the last
+    :data:`BLOCK_SAMPLES` in memory, the rest in an unnamed temporary file (4 bytes a sample: 115 MB for 8 h at
+    1 kHz), which goes when it is closed or collected. :meth:`array` is what has been applied so far, mapped
+    from the file; it stays readable after :meth:`close`."""
+
+    BLOCK_SAMPLES = 4096
+
+    def __init__(self) -> None:
+        self._block = array.array("i")  # (C int: TARGET_DTYPE's four bytes on every platform CPython runs on)
+        self._file: Any = None  # opened at the first block written
+        self._written = 0
+        self._closed: NDArray[np.int32] | None = None  # every target, once closed
+
+    def append(self, counts: int) -> None:
+        """Sample ``len(self)``'s target (an INTEGER32: OverflowError beyond it)."""
+        if self._closed is not None:
+            raise ValueError("applied targets: closed, no target can be added")
+        self._block.append(counts)
+        if len(self._block) >= self.BLOCK_SAMPLES:
+            self._write_block()
+
+    def __len__(self) -> int:
+        return self._written + len(self._block)
+
+    def array(self) -> NDArray[np.int32]:
+        """Every target applied so far, read-only (later appends do not change it)."""
+        if self._closed is not None:
+            return self._closed
+        self._write_block()
+        return _mapped_targets(self._file, self._written, TARGET_DTYPE)
+
+    def close(self) -> None:
+        """No more targets; delete the file (idempotent). :meth:`array` and the arrays taken before stay
+        readable (they map it)."""
+        if self._closed is None:
+            self._closed = self.array()
+        if self._file is not None:
+            self._file.close()
+
+    def _write_block(self) -> None:
+        if not self._block:
+            return
+        if self._file is None:
+            self._file = tempfile.TemporaryFile(prefix="applied-targets-")
+        data = self._block.tobytes()
+        os.pwrite(self._file.fileno(), data, self._written * TARGET_DTYPE.itemsize)
+        self._written += len(self._block)
+        del self._block[:]
+
+
+@dataclass(frozen=True, eq=False)
 class DeviceRecord:
     """One run of a simulated device.
 
@@ -22,7 +103,9 @@ class DeviceRecord:
     ----------
     applied_targets
         Sample k (the k-th SYNC or tick from the first target on): the target in drive counts the device
-        applied, its own or the one it held.
+        applied, its own or the one it held. Given as any sequence of integers; kept as a read-only int32
+        array (mapped from a file, not copied into memory, where the device's :class:`AppliedTargets` or a
+        written record's file holds it).
     controlwords
         Every controlword received, in order.
     held
@@ -43,7 +126,7 @@ class DeviceRecord:
         of the run.
     """
 
-    applied_targets: tuple[int, ...]
+    applied_targets: NDArray[np.int32]
     controlwords: tuple[int, ...]
     held: int
     tick_delay_max_s: float | None = None
@@ -52,23 +135,77 @@ class DeviceRecord:
     position_before_counts: int | None = None
 
     KIND = "device_record"
-    VERSION = 1
+    VERSION = 2
+    """Version 2 keeps the applied targets in a binary file beside the JSON (``applied_targets``: its ``file``,
+    ``count`` and ``dtype``); version 1 held them as a JSON list and is refused with a message that says so."""
 
-    def to_dict(self) -> dict[str, Any]:
-        return {"kind": self.KIND, "version": self.VERSION, "applied_targets": list(self.applied_targets),
+    def __post_init__(self) -> None:
+        targets = self.applied_targets
+        if not (isinstance(targets, np.ndarray) and targets.dtype.kind == "i" and targets.dtype.itemsize == 4):
+            targets = _read_only(np.array(targets, dtype=TARGET_DTYPE).reshape(-1))
+        object.__setattr__(self, "applied_targets", targets)
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, DeviceRecord):
+            return NotImplemented
+        return all(np.array_equal(getattr(self, field.name), getattr(other, field.name)) if field.name ==
+                   "applied_targets" else getattr(self, field.name) == getattr(other, field.name)
+                   for field in fields(self))
+
+    @staticmethod
+    def targets_path(path: str | os.PathLike) -> Path:
+        """Where :meth:`write` puts the applied targets of the record written at ``path``."""
+        path = Path(path)
+        return path.with_name(path.name + ".targets")
+
+    def to_dict(self, targets_file: str) -> dict[str, Any]:
+        """The JSON document; the applied targets are in ``targets_file`` (relative to the document's directory),
+        written by the caller (:meth:`write` does both)."""
+        return {"kind": self.KIND, "version": self.VERSION,
+                "applied_targets": {"file": targets_file, "count": int(self.applied_targets.size),
+                                    "dtype": self.applied_targets.dtype.str},
                 "controlwords": list(self.controlwords), "held": self.held,
                 "tick_delay_max_s": self.tick_delay_max_s, "receive_drops": self.receive_drops,
                 "stalls": [list(stall) for stall in self.stalls], "position_before_counts": self.position_before_counts}
 
     @classmethod
-    def from_dict(cls, data: Mapping[str, Any]) -> DeviceRecord:
+    def from_dict(cls, data: Mapping[str, Any], directory: str | os.PathLike) -> DeviceRecord:
+        """The record of :meth:`to_dict`'s document, its targets file in ``directory`` mapped, not read into memory.
+
+        Raises
+        ------
+        ValueError
+            Not a device record of this version, or a targets file missing or shorter than the document says.
+        """
+        if data.get("kind") == cls.KIND and data.get("version") == 1:
+            raise ValueError(f"a {cls.KIND} version 1 (its targets inline, from an earlier sim_backend): this one reads "
+                             f"version {cls.VERSION} only (targets in a file beside it); run the device again")
         if data.get("kind") != cls.KIND or data.get("version") != cls.VERSION:
             raise ValueError(f"not a {cls.KIND} version {cls.VERSION}: kind {data.get('kind')!r}, "
                              f"version {data.get('version')!r}")
-        return cls(tuple(int(v) for v in data["applied_targets"]), tuple(int(v) for v in data["controlwords"]),
+        targets = data["applied_targets"]
+        path, count, dtype = Path(directory) / targets["file"], int(targets["count"]), np.dtype(targets["dtype"])
+        size = path.stat().st_size if path.exists() else None
+        if size != count * dtype.itemsize:
+            found = "is missing" if size is None else f"has {size} bytes"
+            raise ValueError(f"{path}: the record's applied targets file {found}, expected {count} targets of "
+                             f"{dtype.itemsize} bytes; write the record again (DeviceRecord.write)")
+        return cls(_mapped_targets(path, count, dtype), tuple(int(v) for v in data["controlwords"]),
                    int(data["held"]), data.get("tick_delay_max_s"), data.get("receive_drops"),
                    tuple((int(sample), float(delay)) for sample, delay in data.get("stalls", ())),
                    data.get("position_before_counts"))
+
+    def write(self, path: str | os.PathLike) -> None:
+        """The record as JSON at ``path``, its applied targets in :meth:`targets_path` (``path`` + ``.targets``)."""
+        targets = self.targets_path(path)
+        self.applied_targets.tofile(targets)
+        Path(path).write_text(json.dumps(self.to_dict(targets.name)))
+
+    @classmethod
+    def read(cls, path: str | os.PathLike) -> DeviceRecord:
+        """The record :meth:`write` wrote at ``path`` (see :meth:`from_dict`)."""
+        path = Path(path)
+        return cls.from_dict(json.loads(path.read_text()), path.parent)
 
     def row_offset(self, logged_counts: Sequence[int]) -> int:
         """The offset o such that a host's log row k is the device's sample k + o (``logged_counts``: the row's
@@ -79,25 +216,26 @@ class DeviceRecord:
         if self.position_before_counts is None:
             return 0
         start = self.position_before_counts
-        row = next((k for k, counts in enumerate(logged_counts) if counts != start), None)
-        sample = next((k for k, counts in enumerate(self.applied_targets) if counts != start), None)
-        return 0 if row is None or sample is None else sample - row
+        row = np.flatnonzero(np.asarray(logged_counts, dtype=np.int64) != start)
+        sample = np.flatnonzero(self.applied_targets != start)
+        return 0 if row.size == 0 or sample.size == 0 else int(sample[0] - row[0])
 
     def wrong_rows(self, logged_counts: Sequence[int], usable: Sequence[bool]) -> int:
         """How many usable rows of a log (``logged_counts``: the commands in drive counts) name another target than
         the device applied at that row's sample (:meth:`row_offset`). A row before the device's first sample is
         right when it names the position the drive held (:attr:`position_before_counts`); a usable row beyond
         the record is wrong."""
-        offset = self.row_offset(logged_counts)
-        wrong = 0
-        for k, (counts, ok) in enumerate(zip(logged_counts, usable)):
-            sample = k + offset
-            if sample < 0:
-                applied = self.position_before_counts
-            else:
-                applied = self.applied_targets[sample] if sample < len(self.applied_targets) else None
-            wrong += bool(ok) and counts != applied
-        return wrong
+        logged = np.asarray(logged_counts, dtype=np.int64)
+        usable = np.asarray(usable, dtype=bool)
+        rows = min(logged.size, usable.size)
+        logged, usable = logged[:rows], usable[:rows]
+        samples = np.arange(rows) + self.row_offset(logged)
+        right = np.zeros(rows, dtype=bool)
+        within = (samples >= 0) & (samples < self.applied_targets.size)
+        right[within] = logged[within] == self.applied_targets[samples[within]]
+        if self.position_before_counts is not None:
+            right[samples < 0] = logged[samples < 0] == self.position_before_counts
+        return int(np.count_nonzero(usable & ~right))
 
 
 class TickLateness:

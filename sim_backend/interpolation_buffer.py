@@ -27,12 +27,15 @@ import canopen
 
 from identify.validation import InvalidInputError
 
-__all__ = ["DATA_RECORD_BYTES", "InterpolationBuffer", "ip_period_matches"]
+__all__ = ["DATA_RECORD_BYTES", "LEVELS_KEPT", "InterpolationBuffer", "ip_period_matches"]
 
 DATA_RECORD_BYTES = 4  # 0x60C4:5: a record is one INTEGER32 position (0x60C1:1)
 SDO_ABORT_VALUE_RANGE = 0x06090030  # CiA 301: value range of parameter exceeded
 SDO_ABORT_VALUE_TOO_HIGH = 0x06090031  # CiA 301: value of parameter written too high
 SDO_ABORT_VALUE_TOO_LOW = 0x06090032  # CiA 301: value of parameter written too low
+LEVELS_KEPT = 4096
+"""The buffer levels kept (:attr:`InterpolationBuffer.levels`): those of the last this many SYNCs, so that a run of
+any length keeps flat memory."""
 
 
 def ip_period_matches(value: int, index: int, cycle_period_us: int | None) -> bool:
@@ -64,7 +67,8 @@ class InterpolationBuffer:
         self.access_enabled = False  # 0x60C4:6 = 1 enables, 0 clears and disables (CiA 402)
         self.overflows = 0  # records that found the buffer full (discarded)
         self.underflows = 0  # SYNCs with ip mode active that found the buffer empty
-        self.levels: list[int] = []  # the records each SYNC with ip mode active found, before taking one
+        # the records each of the last LEVELS_KEPT SYNCs with ip mode active found, before taking one
+        self.levels: collections.deque[int] = collections.deque(maxlen=LEVELS_KEPT)
         self.taken_since_ip_mode_start = 0  # records taken since ip mode last became active
         self.resize(size_records)
 

@@ -17,6 +17,7 @@ same sequence number. RIG_CONTROL runs the CiA 402 state machine (:mod:`rig.prot
 
 from __future__ import annotations
 
+import collections
 import math
 import threading
 import time
@@ -29,7 +30,7 @@ from rig.protocols.can_bus_load import frame_bits
 from rig.protocols.can_interfaces import open_bus, receive_drops
 from rig.protocols.raw_can_frames import DEFAULT_DBC, RawCanCodec
 from rig.protocols.serial_frames import unwrap_seq
-from sim_backend.device_record import DeviceRecord, TickLateness
+from sim_backend.device_record import REQUESTS_KEPT, AppliedTargets, DeviceRecord, TickLateness
 from sim_backend.plant import SimulatedGearbox
 from sim_backend.virtual_bus_order import one_bus_order
 
@@ -97,7 +98,7 @@ class SimulatedRawCanDevice(can.Listener):
         self.buffer: dict[int, int] = {}
         self.ticks = 0
         self.held_ticks = 0
-        self.applied_targets: list[int] = []  # tick k: the target applied (DeviceRecord)
+        self.applied_targets = AppliedTargets()  # tick k: the target applied (DeviceRecord)
         self.lateness = TickLateness()  # how late the tick thread ran the ticks
         self.dropped_setpoints = 0
         self.target_counts = 0
@@ -120,7 +121,8 @@ class SimulatedRawCanDevice(can.Listener):
         self.state = cia402.DriveState.SWITCH_ON_DISABLED
         self.controlword = 0
         self.controlwords: list[int] = []
-        self.requests: list[tuple[str, int]] = []  # every request received, repeats included
+        # the last REQUESTS_KEPT requests received, repeats included
+        self.requests: collections.deque[tuple[str, int]] = collections.deque(maxlen=REQUESTS_KEPT)
         self.lost_status_after_enable = int(lost_status_after_enable)
         self.lost_answers = 0
         self._to_lose = 0
@@ -169,7 +171,7 @@ class SimulatedRawCanDevice(can.Listener):
                 break
 
     def close(self) -> None:
-        """Stop the receive and tick threads and leave the bus (idempotent)."""
+        """Stop the receive and tick threads and leave the bus (idempotent); records taken before stay readable."""
         self._stop.set()
         if self._tick_thread is not None:
             self._tick_thread.join(timeout=2.0)
@@ -180,12 +182,13 @@ class SimulatedRawCanDevice(can.Listener):
         if self._bus is not None:
             self._bus.shutdown()
             self._bus = None
+        self.applied_targets.close()
 
     def record(self) -> DeviceRecord:
         """What the device did (v2-v4: tick k's target; v1: the target of each setpoint applied)."""
         with self._state_lock:
             clocked = self.protocol_version >= 2 and self._tick_thread is not None
-            return DeviceRecord(tuple(self.applied_targets), tuple(self.controlwords), self.held_ticks,
+            return DeviceRecord(self.applied_targets.array(), tuple(self.controlwords), self.held_ticks,
                                 self.lateness.delay_max_s if clocked else None,
                                 None if self._bus is None else receive_drops(self._bus), tuple(self.lateness.stalls))
 

@@ -33,7 +33,7 @@ from rig.protocols import cia402
 from rig.protocols.serial_frames import (
     PROTOCOL_VERSION, TICK_HELD, FrameDecoder, MessageType, SerialMessage, encode_frame, unwrap_seq,
 )
-from sim_backend.device_record import DeviceRecord, TickLateness
+from sim_backend.device_record import REQUESTS_KEPT, AppliedTargets, DeviceRecord, TickLateness
 from sim_backend.plant import SimulatedGearbox
 
 __all__ = ["SimulatedSerialDevice", "serial_device_process"]
@@ -132,7 +132,7 @@ class SimulatedSerialDevice:
         self.buffer: dict[int, int] = {}  # v2: tick -> target counts
         self.ticks = 0  # v2: the next tick's number (ticks done)
         self.held_ticks = 0
-        self.applied_targets: list[int] = []  # sample k: the target applied (DeviceRecord)
+        self.applied_targets = AppliedTargets()  # sample k: the target applied (DeviceRecord)
         self.lateness = TickLateness()  # how late the tick thread ran the ticks
         self.dropped_setpoints = 0  # v2: late (tick passed) or beyond the buffer's capacity
         self._ticking_since: float | None = None  # v2: host time of tick 0 (START), None: not ticking
@@ -153,7 +153,8 @@ class SimulatedSerialDevice:
         self.actual_counts = int(initial_actual_counts)
         self.setpoints = 0
         self.controlwords: list[int] = []
-        self.requests: list[tuple[MessageType, int]] = []  # every request received, repeats included
+        # the last REQUESTS_KEPT requests received, repeats included
+        self.requests: collections.deque[tuple[MessageType, int]] = collections.deque(maxlen=REQUESTS_KEPT)
         self.status_delay_s = float(status_delay_s)
         self.fault_reset_delay_s = float(fault_reset_delay_s)
         self.lost_status_after_enable = int(lost_status_after_enable)
@@ -195,7 +196,7 @@ class SimulatedSerialDevice:
         return self
 
     def close(self) -> None:
-        """Stop the device threads and close the pty (idempotent)."""
+        """Stop the device threads and close the pty (idempotent); records taken before stay readable."""
         self._stop.set()
         self._wake.set()
         for name in ("_thread", "_tick_thread"):
@@ -208,11 +209,12 @@ class SimulatedSerialDevice:
             if fd is not None:
                 os.close(fd)
                 setattr(self, fd_name, None)
+        self.applied_targets.close()
 
     def record(self) -> DeviceRecord:
         """What the device did (v2: tick k's target; v1: the target of each setpoint applied)."""
         with self._lock:
-            return DeviceRecord(tuple(self.applied_targets), tuple(self.controlwords), self.held_ticks,
+            return DeviceRecord(self.applied_targets.array(), tuple(self.controlwords), self.held_ticks,
                                 self.lateness.delay_max_s if self._tick_thread is not None else None,
                                 stalls=tuple(self.lateness.stalls))
 

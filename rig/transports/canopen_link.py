@@ -186,6 +186,11 @@ class CanOpenTransport(CanOpenStartUp, CanOpenInterpolation, CanOpenReceiveCheck
         (``.blf``, ``.asc``, ``.log``, ``.csv``, ``.trc``; not ``.db``: SqliteWriter drops frames under load).
     """
 
+    RECENT_SAMPLES = 4096
+    """Samples whose SYNC time, target in force and instant error are kept (and SYNCs found bunched), for filing
+    answers that come late: far more than a pending window, and no more, so that a run of hours keeps flat
+    memory."""
+
     def __init__(self, interface: str, channel: str, *, port: int | None = None, bitrate: int = 1_000_000,
                  drive_node_id: int = 1,
                  encoder_node_id: int = 2, drive_eds: str = str(DEFAULT_DRIVE_EDS),
@@ -283,7 +288,8 @@ class CanOpenTransport(CanOpenStartUp, CanOpenInterpolation, CanOpenReceiveCheck
         self._echo_probe = threading.Event()
         self._sync_task: Any = None
         self._sync_count = 0  # SYNCs seen on the bus since the producer started
-        self._syncs: collections.deque[tuple[float, int]] = collections.deque(maxlen=4096)  # (bus time, count)
+        # (bus time, count) of the recent SYNCs
+        self._syncs: collections.deque[tuple[float, int]] = collections.deque(maxlen=self.RECENT_SAMPLES)
         self._unfiled: list[tuple[str, Any, float, float]] = []  # TPDOs after the last SYNC: filed at the next
         self._origin: int | None = None  # the SYNC count of sample 0
         self._queue: dict[int, int] = {}  # sample -> target counts, queued by the runner, not yet on the bus
@@ -777,10 +783,11 @@ class CanOpenTransport(CanOpenStartUp, CanOpenInterpolation, CanOpenReceiveCheck
                     self._jitter_max_s = max(self._jitter_max_s, abs(error))
                 self._device_sample = sample
                 self._arrived.notify_all()
-            if len(self._applied) > 4096:
-                for old in sorted(self._applied)[:2048]:
+            if len(self._applied) > self.RECENT_SAMPLES:
+                for old in sorted(self._applied)[:self.RECENT_SAMPLES // 2]:
                     del self._applied[old]
                     self._instant_errors.pop(old, None)
+                self._ambiguous = {count for count in self._ambiguous if count > old + self._origin}
 
     def _record_csp_target(self, count: int) -> None:
         """CSP at SYNC ``count``: record the target in force (the last RPDO on the bus before it: setpoint

@@ -108,9 +108,6 @@ def _driver_memory(samples: int, chunk_samples: int) -> int:
     """Bytes held by the driver's code (allocated in files under rig/ and alive) near the end of a run of
     ``samples`` samples, taken at the same place in the command's last chunk whatever the run's length."""
     transport, device, _ = _clocked_rig()
-    # the simulated device keeps every target it applied (its record for tests; the ints were decoded by
-    # rig's frame code, so they would count as rig's): only the last ones here
-    device.applied_targets = collections.deque(maxlen=64)
     held = []
 
     def progress(done: int, _held: int) -> None:
@@ -160,7 +157,7 @@ def test_a_chunk_beyond_a_limit_later_in_the_run_stops_the_drive_before_any_of_i
     # quick stop, then disable, confirmed
     assert device.controlwords[-2:] == [0x0002, 0x0000] and transport.stop_report.confirmed
     assert transport.stop_report.final_state.name == "SWITCH_ON_DISABLED"
-    applied = np.array([DRIVE.rad_from_counts(counts) for counts in device.applied_targets])
+    applied = np.array([DRIVE.rad_from_counts(counts) for counts in device.record().applied_targets.tolist()])
     assert CHUNK_SAMPLES < applied.size < 3 * CHUNK_SAMPLES  # stopped while sending the chunks before it
     assert np.all(np.abs(applied) <= 0.2 + 1e-4)
     record = read_log(tmp_path / "stopped.csv")
@@ -178,7 +175,7 @@ def test_the_first_chunk_is_checked_before_enabling(clocked_rig, tmp_path):
     transport, device, clock = clocked_rig(limits=CommandLimits(position_max_rad=0.5))
     with pytest.raises(CommandRefused, match=rf"^setpoint {CHUNK_SAMPLES - 1}: position 0.599978 rad is outside"):
         run_experiment(transport, command, _log(tmp_path / "refused.csv"), feedback_timeout_s=0.5, clock=clock)
-    assert 0x000F not in device.controlwords and device.applied_targets == []
+    assert 0x000F not in device.controlwords and device.record().applied_targets.size == 0
     with pytest.raises(LogFileError, match="the log has a header but no samples"):
         read_log(tmp_path / "refused.csv")
 
