@@ -14,7 +14,7 @@ from typing import Any
 
 from rig.experiment_config import REPEAT_FILTERED
 
-__all__ = ["STEADY_TAIL_FRACTION", "StaircaseSteadyPoints", "staircase_steady_samples"]
+__all__ = ["STEADY_TAIL_FRACTION", "StaircasePlan", "StaircaseSteadyPoints", "staircase_plan", "staircase_steady_samples"]
 
 STEADY_TAIL_FRACTION = 0.1
 """The last 10 % of a half-wave is at steady state: a LOST end sample is replaced by the last valid sample in
@@ -39,24 +39,39 @@ class StaircaseSteadyPoints:
     wrapped_ends: Any = ()
 
 
-def staircase_steady_samples(record, path: Path, *, skip_unusable: bool = False,
-                             skip_after_wrap: bool = False) -> StaircaseSteadyPoints:
-    """The steady-state points of the staircase log ``record`` read from ``path`` (named in errors): the
-    half-wave ends from its metadata (``config.excitation``: kind filtered_staircase, ``samples_per_half_wave``,
-    ``amplitudes_rad``; ``config.excitation_samples`` when the log cuts or repeats the excitation), and at each
-    the last usable angle of the settled tail (its last :data:`STEADY_TAIL_FRACTION`). A tail without a usable
-    sample is refused naming its line, or with ``skip_unusable`` left out and listed. With ``skip_after_wrap``
-    the first half-wave after each repetition of an excitation repeated sample by sample (``rig run
-    --duration``) is left out and listed: the command steps there unfiltered from the last level to the first,
-    the inner signal overshoots and the output stops inside the dead band (a log whose
-    ``config.excitation_repeat`` says the staircase was filtered across repetitions has no such step)."""
-    from collections.abc import Mapping
+@dataclass(frozen=True)
+class StaircasePlan:
+    """Where a staircase log's steady-state points fall: ``ends`` the last sample of each half-wave within one
+    cycle of ``cycle`` samples (the excitation as logged: cut or repeated), ``tail`` the settled tail of each
+    half-wave (its last :data:`STEADY_TAIL_FRACTION`) in which the last usable angle is the point's, and
+    ``steps_at_wrap`` whether the command steps unfiltered from the last level to the first at each repetition
+    (an excitation repeated sample by sample, ``rig run --duration``: the first half-wave after a wrap is no
+    steady state)."""
 
-    import numpy as np
+    ends: Any
+    cycle: int
+    samples_per_half_wave: int
+    tail: int
+    steps_at_wrap: bool
+
+    def after_wrap(self, indices: Any) -> Any:
+        """Which of the half-wave ends ``indices`` (sample numbers of the log) are the first after a wrap that
+        steps (all False where none does)."""
+        import numpy as np
+
+        indices = np.asarray(indices)
+        return (indices >= self.cycle) & (indices % self.cycle == self.ends[0]) & self.steps_at_wrap
+
+
+def staircase_plan(config: Any, path: Path | str) -> StaircasePlan:
+    """The :class:`StaircasePlan` of a log's metadata ``config`` (``config.excitation``: kind filtered_staircase,
+    ``samples_per_half_wave``, ``amplitudes_rad``; ``config.excitation_samples`` when the log cuts or repeats the
+    excitation); ``path`` names the log in errors."""
+    from collections.abc import Mapping
 
     from identify.excitation_design import staircase_steady_state_indices
 
-    config = record.metadata.config if isinstance(record.metadata.config, Mapping) else {}
+    config = config if isinstance(config, Mapping) else {}
     excitation = config.get("excitation") if isinstance(config.get("excitation"), Mapping) else {}
     kind = excitation.get("kind")
     parameters = excitation.get("parameters") if isinstance(excitation.get("parameters"), Mapping) else {}
@@ -75,17 +90,33 @@ def staircase_steady_samples(record, path: Path, *, skip_unusable: bool = False,
                          f"amplitudes_rad ({type(err).__name__}: {str(err)[:80]}); the log was not written by "
                          "`rig run` or `rig simulate`") from None
     cycle = int(config.get("excitation_samples") or (ends[-1] + 1))
+    steps = cycle == ends[-1] + 1 and config.get("excitation_repeat") != REPEAT_FILTERED
+    return StaircasePlan(ends, cycle, half, max(1, int(STEADY_TAIL_FRACTION * half)), steps)
+
+
+def staircase_steady_samples(record, path: Path, *, skip_unusable: bool = False,
+                             skip_after_wrap: bool = False) -> StaircaseSteadyPoints:
+    """The steady-state points of the staircase log ``record`` read from ``path`` (named in errors): the
+    half-wave ends from its metadata (:func:`staircase_plan`), and at each the last usable angle of the settled
+    tail. A tail without a usable sample is refused naming its line, or with ``skip_unusable`` left out and
+    listed. With ``skip_after_wrap`` the first half-wave after each repetition of an excitation repeated sample
+    by sample (``rig run --duration``) is left out and listed: the command steps there unfiltered from the last
+    level to the first, the inner signal overshoots and the output stops inside the dead band (a log whose
+    ``config.excitation_repeat`` says the staircase was filtered across repetitions has no such step)."""
+    import numpy as np
+
+    plan = staircase_plan(record.metadata.config, path)
+    half, tail = plan.samples_per_half_wave, plan.tail
     n = len(record)
-    indices = np.concatenate([ends + start for start in range(0, n, cycle)])
+    indices = np.concatenate([plan.ends + start for start in range(0, n, plan.cycle)])
     indices = indices[indices < n]
     wrapped = np.empty(0, dtype=np.int64)
-    if skip_after_wrap and cycle == ends[-1] + 1 and config.get("excitation_repeat") != REPEAT_FILTERED:
-        after_wrap = (indices >= cycle) & (indices % cycle == ends[0])
+    if skip_after_wrap:
+        after_wrap = plan.after_wrap(indices)
         wrapped, indices = indices[after_wrap], indices[~after_wrap]
     if indices.size < 2:
         raise ValueError(f"{path}: the log holds {n} samples, fewer than two half-waves of {half} samples: run "
                          "the whole staircase")
-    tail = max(1, int(STEADY_TAIL_FRACTION * half))
     valid = record.valid_mask
     # the last usable sample of each tail [end - tail + 1, end]: the running index of the last usable sample
     last_usable = np.maximum.accumulate(np.where(valid, np.arange(n), -1))

@@ -45,9 +45,9 @@ def _mapped_targets(source: Any, count: int, dtype: np.dtype) -> NDArray[np.int3
 
 
 class AppliedTargets:
-    """Sample k's applied target (drive counts), appended as the device applies it: the last
-    :data:`BLOCK_SAMPLES` in memory, the rest in an unnamed temporary file (4 bytes a sample: 115 MB for 8 h at
-    1 kHz), which goes when it is closed or collected. :meth:`array` is what has been applied so far, mapped
+    """Sample k's applied target (drive counts), appended as the device applies it: up to :data:`BLOCK_SAMPLES`
+    in memory, then written as a block to an unnamed temporary file (4 bytes a sample: 115 MB for 8 h at 1 kHz),
+    which goes when it is closed or collected. :meth:`array` is what has been applied so far, mapped
     from the file; it stays readable after :meth:`close`."""
 
     BLOCK_SAMPLES = 4096
@@ -141,7 +141,8 @@ class DeviceRecord:
 
     def __post_init__(self) -> None:
         targets = self.applied_targets
-        if not (isinstance(targets, np.ndarray) and targets.dtype.kind == "i" and targets.dtype.itemsize == 4):
+        if not (isinstance(targets, np.ndarray) and targets.dtype.kind == "i" and targets.dtype.itemsize == 4
+                and not targets.flags.writeable):  # (a mapped file's, or a copy that no one else can change)
             targets = _read_only(np.array(targets, dtype=TARGET_DTYPE).reshape(-1))
         object.__setattr__(self, "applied_targets", targets)
 
