@@ -9,6 +9,10 @@ are counted there, from every row, so they stay exact whatever the view misses. 
 renderer; a frame that comes due while the renderer is still busy is skipped, not queued. So a slow
 renderer costs frames and rows *of the view*, never samples of the log.
 
+On the steady staircase the view also shows the latest trend window's guaranteed bounds on the play
+(:class:`rig.live_trend.LiveTrend`: the points picked on the view's thread, each window bounded in a process of its
+own).
+
 Renderers: :class:`WindowRenderer`, a matplotlib figure drawn in a process of its own (a GUI needs its main
 thread, and the runner owns this one), when a display is there; :class:`TerminalRenderer`, a text plot on
 stderr, otherwise (no ``DISPLAY``/``WAYLAND_DISPLAY``, or ``MPLBACKEND`` a non-interactive backend such as
@@ -26,13 +30,17 @@ import threading
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass
-from typing import Any, Protocol, TextIO
+from typing import TYPE_CHECKING, Any, Protocol, TextIO
 
 import numpy as np
 from numpy.typing import NDArray
 
 from identify.experiment_record import SampleFlag
+from rig.live_trend import trend_text
 from rig.sinks import ForwardingSink
+
+if TYPE_CHECKING:
+    from rig.live_trend import LiveTrend
 
 __all__ = ["FRAME_INTERVAL_S", "LIVE_BUFFER_ROWS", "LiveFeed", "LiveFrame", "LiveView", "ObservedSink",
            "TerminalRenderer", "WindowRenderer", "WindowUnavailable", "choose_renderer", "display_available",
@@ -47,7 +55,7 @@ WINDOW_S = 5.0
 NON_INTERACTIVE_BACKENDS = frozenset({"agg", "cairo", "pdf", "pgf", "ps", "svg", "template"})
 """matplotlib's built-in backends that draw no window (``BackendFilter.NON_INTERACTIVE`` of matplotlib 3.9)."""
 
-_LOST, _HELD = int(SampleFlag.LOST), int(SampleFlag.HELD)
+_LOST, _HELD, _UNUSABLE = int(SampleFlag.LOST), int(SampleFlag.HELD), int(SampleFlag.unusable())
 
 
 class LiveFeed:
@@ -57,7 +65,7 @@ class LiveFeed:
     def __init__(self, capacity: int = LIVE_BUFFER_ROWS) -> None:
         if capacity < 1:
             raise ValueError(f"live view buffer: expected at least 1 row, got {capacity}")
-        self._rows: collections.deque[tuple[float, float, float]] = collections.deque(maxlen=capacity)
+        self._rows: collections.deque[tuple[float, float, float, int]] = collections.deque(maxlen=capacity)
         self.offered = 0
         self.taken = 0
         self.lost = 0
@@ -70,10 +78,10 @@ class LiveFeed:
             self.lost += 1
         if flags & _HELD:
             self.held += 1
-        self._rows.append((time_s, command_rad, angle_rad))
+        self._rows.append((time_s, command_rad, angle_rad, flags))
 
-    def take(self) -> list[tuple[float, float, float]]:
-        """From the view: every row buffered now, oldest first."""
+    def take(self) -> list[tuple[float, float, float, int]]:
+        """From the view: every row buffered now, oldest first (time, command, angle, flags)."""
         rows = []
         with contextlib.suppress(IndexError):
             while True:
@@ -117,6 +125,9 @@ class LiveFrame:
         Rows the view did not see (all of them are in the log).
     final
         The last frame, drawn after the run.
+    trend
+        The latest trend window's bounds on the play in words (:func:`rig.live_trend.trend_text`); "" where the
+        view has no trend.
     sample_period_s
         The rig's sample period: the status line gives the run's time so far and the time left (nan: not
         shown).
@@ -132,6 +143,7 @@ class LiveFrame:
     dropped_rows: int
     final: bool = False
     sample_period_s: float = math.nan
+    trend: str = ""
 
     def status_line(self) -> str:
         """``t 1.234 s  command +0.1 rad  load angle +0.09 rad  elapsed 0:00:01  ETA 0:00:04  samples
@@ -174,7 +186,7 @@ class LiveView:
 
     def __init__(self, renderer: Renderer, total_samples: int, sample_period_s: float, *,
                  capacity: int | None = None, frame_interval_s: float = FRAME_INTERVAL_S,
-                 window_s: float = WINDOW_S) -> None:
+                 window_s: float = WINDOW_S, trend: LiveTrend | None = None) -> None:
         self.renderer = renderer
         self.feed = LiveFeed(LIVE_BUFFER_ROWS if capacity is None else capacity)
         self.total_samples = int(total_samples)
@@ -182,6 +194,7 @@ class LiveView:
         self.frame_interval_s = max(frame_interval_s, getattr(renderer, "min_interval_s", 0.0))
         self._window_rows = max(2, int(math.ceil(window_s / sample_period_s)))
         self._window = np.zeros((0, 3))  # time, command, angle of the rows shown
+        self.trend = trend
         self.frames_drawn = 0
         self.frames_skipped = 0
         self._stopping = threading.Event()
@@ -217,12 +230,18 @@ class LiveView:
     def _draw(self, final: bool) -> None:
         # only the new rows go through Python objects; the window is joined as arrays (a copy, no loop), so
         # the view holds the interpreter lock for microseconds at a time, not for a whole window
-        new = np.array(self.feed.take(), dtype=float).reshape(-1, 3)
-        self._window = rows = np.concatenate([self._window, new])[-self._window_rows:]
+        new = np.array(self.feed.take(), dtype=float).reshape(-1, 4)
+        self._window = rows = np.concatenate([self._window, new[:, :3]])[-self._window_rows:]
+        trend = ""
+        if self.trend is not None:
+            self.trend.add(new[:, 0], new[:, 1], new[:, 2], (new[:, 3].astype(np.int64) & _UNUSABLE) == 0)
+            # the final frame (the capture has ended) waits for the windows being bounded
+            trend = trend_text(self.trend.finish() if final else self.trend.current())
         feed = self.feed
         self.renderer.draw(LiveFrame(rows[:, 0], rows[:, 1], rows[:, 2], samples=feed.offered,
                                      total_samples=self.total_samples, lost=feed.lost, held=feed.held,
-                                     dropped_rows=feed.dropped, final=final, sample_period_s=self.sample_period_s))
+                                     dropped_rows=feed.dropped, final=final, sample_period_s=self.sample_period_s,
+                                     trend=trend))
         self.frames_drawn += 1
 
     def summary_line(self) -> str:
@@ -231,6 +250,8 @@ class LiveView:
                 f"{self.feed.dropped} of {self.feed.offered} rows not shown (the log has every sample)")
         if self.error is not None:
             text += f"; the view stopped: {self.error}"
+        if self.trend is not None and self.trend.error is not None:
+            text += f"; the trend stopped: {type(self.trend.error).__name__}: {self.trend.error}"
         return text
 
 
@@ -259,11 +280,11 @@ def choose_renderer(stream: TextIO) -> Renderer:
 
 @contextlib.contextmanager
 def open_live_view(total_samples: int, sample_period_s: float, stream: TextIO,
-                   renderer: Renderer | None = None) -> Iterator[LiveView]:
-    """A started :class:`LiveView` on ``renderer`` (default :func:`choose_renderer`), stopped and its
-    renderer closed on exit."""
+                   renderer: Renderer | None = None, trend: LiveTrend | None = None) -> Iterator[LiveView]:
+    """A started :class:`LiveView` on ``renderer`` (default :func:`choose_renderer`), with ``trend`` if given;
+    stopped, its renderer and trend closed on exit."""
     renderer = choose_renderer(stream) if renderer is None else renderer
-    view = LiveView(renderer, total_samples, sample_period_s)
+    view = LiveView(renderer, total_samples, sample_period_s, trend=trend)
     try:
         view.start()
         yield view
@@ -272,6 +293,8 @@ def open_live_view(total_samples: int, sample_period_s: float, stream: TextIO,
             view.stop()
         finally:
             renderer.close()
+            if trend is not None:
+                trend.close()
 
 
 class TerminalRenderer:
@@ -311,6 +334,8 @@ class TerminalRenderer:
         span = f"{frame.time_s[0]:.2f} .. {frame.time_s[-1]:.2f} s" if frame.time_s.size else "no samples yet"
         lines.append(f" . command   * load angle   # both   {span}")
         lines.append(frame.status_line())
+        if frame.trend:
+            lines.append(frame.trend)
         if self.note:
             lines.append(self.note)
         return lines
@@ -394,7 +419,8 @@ class WindowRenderer:
             return
         step = max(1, frame.time_s.size // WINDOW_POINTS)
         thinned = {name: getattr(frame, name)[::step] for name in ("time_s", "command_rad", "angle_rad")}
-        self._connection.send({**thinned, "status": frame.status_line(), "final": frame.final})
+        status = frame.status_line() + (f"\n{frame.trend}" if frame.trend else "")
+        self._connection.send({**thinned, "status": status, "final": frame.final})
         self._ready = False
         self.frames_sent += 1
         if frame.final:

@@ -62,6 +62,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         help="show the command, the load angle and the lost/held counters as the run goes: a "
                              "matplotlib window when there is a display, else a text plot on stderr; the view "
                              "drops frames when it falls behind, never samples")
+    parser.add_argument("--trend-window", metavar="LENGTH", default="60s",
+                        help="with --live on the steady_staircase experiment: the view also shows the guaranteed "
+                             "bounds on the play of the latest complete window of this length (as `rig trend "
+                             "--window`; 60s, 5min, 1h; default 60s), bounded in a process of its own")
     from rig.runner import RunSummary
 
     keys = ", ".join(f'"{name}"' for name in ("log", *RunSummary.SAVED))
@@ -164,6 +168,24 @@ def _naming_a_slow_plant(slow_plant: str) -> Any:
         raise
 
 
+def _live_trend(args: argparse.Namespace, metadata: Any, sample_period_s: float) -> Any:
+    """The live view's trend of the play (:class:`rig.live_trend.LiveTrend`) on the steady staircase with a finite
+    noise bound; None for another experiment (``--trend-window`` is checked either way)."""
+    from rig.commands.identify_output_backlash import staircase_plan
+    from rig.commands.trend import parse_window
+    from rig.live_trend import LiveTrend
+
+    window_s = parse_window(args.trend_window)
+    noise_bound = metadata.noise_bound_rad
+    if noise_bound is None or not (math.isfinite(noise_bound) and noise_bound > 0):
+        return None
+    try:
+        plan = staircase_plan(metadata.config, args.experiment)
+    except ValueError:  # not the staircase: nothing to trend
+        return None
+    return LiveTrend(plan, sample_period_s, window_s, noise_bound)
+
+
 def run(args: argparse.Namespace) -> int:
     from rig.experiment_config import load_experiment_config
     from rig.log_file import LogWriter
@@ -225,13 +247,14 @@ def run(args: argparse.Namespace) -> int:
             trace.hand_over()
         transport = open_transport(url, **options)
         injected = None if faults is None else {"spec": args.sim_faults, "seed": args.sim_faults_seed}
+        metadata = experiment_log_metadata(config, excitation, gearbox, num_samples, injected)
         view = None
         if args.live:  # on the sink: the view sees each row after the log has it (rig/live_view.py)
             from rig.live_view import open_live_view
 
-            view = stack.enter_context(open_live_view(num_samples, config.sample_period_s, sys.stderr))
-        log = LogWriter(args.out, experiment_log_metadata(config, excitation, gearbox, num_samples, injected),
-                        flush_every=10, flush_interval_s=0.05, claimed=claimed, stamp_start=True)
+            view = stack.enter_context(open_live_view(num_samples, config.sample_period_s, sys.stderr,
+                                                      trend=_live_trend(args, metadata, config.sample_period_s)))
+        log = LogWriter(args.out, metadata, flush_every=10, flush_interval_s=0.05, claimed=claimed, stamp_start=True)
         sink = log if view is None else view.observe(log)
         bar = flags = None
         if not args.json and not args.live and sys.stderr.isatty():
