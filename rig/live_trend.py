@@ -2,7 +2,7 @@
 
 The live view (:mod:`rig.live_view`) hands each batch of rows it takes to :class:`LiveTrend`, on its own thread:
 the steady-state points are picked from them as ``rig trend`` picks them from the log
-(:func:`rig.commands.identify_output_backlash.staircase_plan`: the last usable angle of each half-wave's settled
+(:func:`rig.staircase_points.staircase_plan`: the last usable angle of each half-wave's settled
 tail, none after a wrap that steps), and a window, once the rows have passed its end, is bounded by
 :func:`identify.backlash_trend.bound_window_play` (eqs. (11)-(20) of Cerone, Piga, Regruto 2009) in a process of
 its own, so that neither the capture nor the view waits for its linear programs. A point whose rows the view
@@ -46,7 +46,7 @@ class LiveTrend:
     Parameters
     ----------
     plan
-        Where the log's steady-state points fall (:class:`~rig.commands.identify_output_backlash.StaircasePlan`).
+        Where the log's steady-state points fall (:class:`~rig.staircase_points.StaircasePlan`).
     sample_period_s
         The rig's sample period: row time k T is sample k.
     window_s

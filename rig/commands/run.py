@@ -171,7 +171,7 @@ def _naming_a_slow_plant(slow_plant: str) -> Any:
 def _live_trend(args: argparse.Namespace, metadata: Any, sample_period_s: float) -> Any:
     """The live view's trend of the play (:class:`rig.live_trend.LiveTrend`) on the steady staircase with a finite
     noise bound; None for another experiment (whose ``--trend-window`` is checked all the same)."""
-    from rig.commands.identify_output_backlash import staircase_plan
+    from rig.staircase_points import staircase_plan
     from rig.commands.trend import parse_window
     from rig.live_trend import LiveTrend
 

@@ -15,9 +15,9 @@ from identify.backlash_trend import TrendWindow
 from identify.experiment_record import SampleFlag
 from rig import exit_codes
 from rig.cli import main
-from rig.commands.identify_output_backlash import staircase_plan
 from rig.live_trend import LiveTrend, trend_text
 from rig.log_file import read_log
+from rig.staircase_points import staircase_plan
 
 from live_rig import live_rig_config
 
