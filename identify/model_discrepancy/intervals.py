@@ -230,7 +230,6 @@ def _feasible_intervals(chain: _Chain, u: NDArray[np.float64], y: NDArray[np.flo
     fit_error = _free_run_error(chain, u, y)
     allowed = max(consistent_fraction, float(np.mean(np.abs(fit_error) > delta)))
     theta = chain.vector()
-    out = {kind: dict(parameters) for kind, parameters in intervals.items()}
 
     def feasible_at(position: int, value: float) -> dict[str, dict[str, float]] | None:
         moved = theta.copy()
@@ -240,14 +239,8 @@ def _feasible_intervals(chain: _Chain, u: NDArray[np.float64], y: NDArray[np.flo
             return None
         return _effect_parameters(option)
 
-    for kind, positions in _effect_positions(chain).items():
-        if kind not in out:
-            continue
-        for position in positions:
-            _walk_out(float(theta[position]), FEASIBLE_WALK_FIRST_STEP, FEASIBLE_WALK_STEPS,
-                      FEASIBLE_WALK_BISECTIONS, lambda value, p=position: feasible_at(p, value),
-                      lambda parameters, k=kind: _take(out, k, parameters))
-    return out
+    return _walked_out(chain, intervals, FEASIBLE_WALK_FIRST_STEP, FEASIBLE_WALK_STEPS, FEASIBLE_WALK_BISECTIONS,
+                       feasible_at)
 
 
 def _structure_profile_intervals(chain: _Chain, u: NDArray[np.float64], y: NDArray[np.float64], delta: float,
@@ -272,7 +265,6 @@ def _structure_profile_intervals(chain: _Chain, u: NDArray[np.float64], y: NDArr
     fit_square = float(np.mean(fit_error * fit_error))
     allowed = fit_square + max(fit_square - delta * delta / 3.0, 0.0)
     theta = chain.vector()
-    out = {kind: dict(parameters) for kind, parameters in intervals.items()}
 
     def refit_at(position: int, value: float) -> dict[str, dict[str, float]] | None:
         moved = theta.copy()
@@ -281,13 +273,24 @@ def _structure_profile_intervals(chain: _Chain, u: NDArray[np.float64], y: NDArr
         error = _free_run_error(refit, u, y)
         return _effect_parameters(refit) if float(np.mean(error * error)) <= allowed else None
 
+    return _walked_out(chain, intervals, STRUCTURE_PROFILE_FIRST_STEP, STRUCTURE_PROFILE_STEPS,
+                       STRUCTURE_PROFILE_BISECTIONS, refit_at)
+
+
+def _walked_out(chain: _Chain, intervals: dict[str, dict[str, tuple[float, float]]], first_step: float,
+                steps: int, bisections: int, at: Callable[[int, float], dict[str, dict[str, float]] | None]
+                ) -> dict[str, dict[str, tuple[float, float]]]:
+    """``intervals`` widened by walking each free parameter of every named effect out from its fit
+    (:func:`_walk_out`; ``at(position, value)``: the model's parameters with entry ``position`` of
+    :meth:`_Chain.vector` at ``value``, None where that value is out)."""
+    theta = chain.vector()
+    out = {kind: dict(parameters) for kind, parameters in intervals.items()}
     for kind, positions in _effect_positions(chain).items():
         if kind not in out:
             continue
         for position in positions:
-            _walk_out(float(theta[position]), STRUCTURE_PROFILE_FIRST_STEP, STRUCTURE_PROFILE_STEPS,
-                      STRUCTURE_PROFILE_BISECTIONS, lambda value, p=position: refit_at(p, value),
-                      lambda parameters, k=kind: _take(out, k, parameters))
+            _walk_out(float(theta[position]), first_step, steps, bisections,
+                      lambda value, p=position: at(p, value), lambda parameters, k=kind: _take(out, k, parameters))
     return out
 
 

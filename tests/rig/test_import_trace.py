@@ -22,39 +22,14 @@ from rig.trace_import import import_trace
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "transports"))  # the clocked bus
 
-CONFIGS = Path(__file__).resolve().parents[2] / "configs"
-RATE_HZ = 200.0  # as the transport tests: a modest rate that a loaded CI host keeps
-
-
-def _config(directory: Path, kind: str = "can", mode: str | None = None) -> Path:
-    """The simulated rig of ``kind`` at the test rate; ``mode`` sets the CANopen streaming mode."""
-    plant = (CONFIGS / "plants" / "precision_gearbox.toml").read_text()
-    plant = plant.replace("sample_period_s = 0.001", f"sample_period_s = {1 / RATE_HZ!r}")
-    plant = plant.replace("frequency_hz = 120.0", "frequency_hz = 40.0")  # below this rate's Nyquist frequency
-    (directory / "plant.toml").write_text(plant)
-    lines = []
-    for line in (CONFIGS / f"sim_{kind}.toml").read_text().splitlines():
-        if line.startswith("sample_rate_hz"):
-            line = f"sample_rate_hz = {RATE_HZ!r}"
-        elif line.startswith("plant ="):
-            line = f'plant = "{directory / "plant.toml"}"'
-        elif line.startswith("feedback_timeout_s"):
-            line = "feedback_timeout_s = 0.5"
-        elif line.startswith("url = "):
-            scheme = line.split('"')[1].split(":")[0]
-            line = f'url = "{scheme}://virtual/import_{directory.name}"'  # one bus per test
-        elif line.startswith("sdo_timeout_s") and mode is not None:
-            line += f'\nmode = "{mode}"'
-        lines.append(line)
-    path = directory / f"sim_{kind}.toml"
-    path.write_text("\n".join(lines) + "\n")
-    return path
+from live_rig import CONFIGS, RATE_HZ, sim_rig_config  # noqa: E402
 
 
 def _run(directory: Path, trace: Path, seconds: float = 0.1, kind: str = "can", *options: str,
          mode: str | None = None) -> Path:
     log = directory / "run.csv"
-    assert main(["run", str(_config(directory, kind, mode)), "--experiment", str(CONFIGS / "experiments" / "prbs.toml"),
+    config = sim_rig_config(directory, kind, mode, bus="import")
+    assert main(["run", str(config), "--experiment", str(CONFIGS / "experiments" / "prbs.toml"),
                  "--out", str(log), "--duration", repr(seconds), "--can-trace", str(trace), "--json", *options]) == 0
     return log
 
@@ -110,7 +85,7 @@ def test_a_canopen_trace_with_held_samples_imports_as_the_runs_log(mode, tmp_pat
     from clocked_line import SimulatedClock
     from sim_rigs import ListSink
 
-    config = load_rig_config(_config(tmp_path, "canopen", mode))
+    config = load_rig_config(sim_rig_config(tmp_path, "canopen", mode, bus="import"))
     trace, stall_s, period_s = tmp_path / "run.blf", 0.1525, 1 / RATE_HZ
     clock = SimulatedClock(100.0)
     bus = ClockedCanBus(clock)
@@ -193,7 +168,7 @@ def test_a_missing_feedback_frame_is_a_lost_sample(tmp_path):
 
 
 def test_damaged_and_foreign_traces_are_named(tmp_path, capsys):
-    config = _config(tmp_path)
+    config = sim_rig_config(tmp_path, "can", bus="import")
     damaged = tmp_path / "damaged.blf"
     damaged.write_bytes(b"LOGG" + b"\x07" * 300)
     assert main(["import", str(damaged), "--config", str(config), "--out", str(tmp_path / "o.csv")]) == 2
@@ -221,10 +196,10 @@ def test_a_serial_rig_is_refused_and_the_output_is_checked_first(tmp_path, capsy
     assert main(["import", str(trace), "--config", str(CONFIGS / "sim_serial.toml"), "--out",
                  str(tmp_path / "o.csv")]) == exit_codes.BAD_INPUT
     assert "the serial transport has no CAN frames" in capsys.readouterr().err
-    assert main(["import", str(trace), "--config", str(_config(tmp_path, "canopen")), "--out",
+    assert main(["import", str(trace), "--config", str(sim_rig_config(tmp_path, "canopen", bus="import")), "--out",
                  str(tmp_path / "o.csv")]) == exit_codes.BAD_INPUT
     assert "no node 1 RPDO1 (COB-ID 0x201)" in capsys.readouterr().err
-    assert main(["import", str(trace), "--config", str(_config(tmp_path)), "--out",
+    assert main(["import", str(trace), "--config", str(sim_rig_config(tmp_path, "can", bus="import")), "--out",
                  str(tmp_path / "missing" / "o.csv")]) == exit_codes.WRITE_FAILED
 
 
@@ -242,7 +217,7 @@ def test_a_canopen_trace_that_starts_after_the_start_up_needs_the_mode_in_the_co
     with pytest.raises(LogFileError, match=r"no SDO write of 0x6060 before it .* set mode = \"ip_buffer\" or "
                                            r"\"csp\" in the config's \[transport\]"):
         import_trace(late, load_rig_config(tmp_path / "sim_canopen.toml"))
-    told = _config(tmp_path, "canopen", "ip_buffer")
+    told = sim_rig_config(tmp_path, "canopen", "ip_buffer", bus="import")
     record = import_trace(late, load_rig_config(told))
     run = read_log(log)
     np.testing.assert_array_equal(record.command_rad, run.command_rad)

@@ -19,7 +19,7 @@ from rig.live_trend import LiveTrend, trend_text
 from rig.log_file import read_log
 from rig.staircase_points import staircase_plan
 
-from live_rig import live_rig_config
+from live_rig import sim_rig_config
 
 CONFIGS = Path(__file__).resolve().parents[2] / "configs"
 STAIRCASE = CONFIGS / "experiments" / "steady_staircase.toml"
@@ -101,7 +101,7 @@ def test_a_live_run_of_the_staircase_shows_the_latest_windows_bounds(tmp_path, c
     monkeypatch.setenv("MPLBACKEND", "Agg")
     log = tmp_path / "run.csv"
     # 200 Hz (the view tests' rate): a half-wave of 100 samples is 0.5 s, so a window of 2 s has 2 points a side
-    assert main(["run", str(live_rig_config(tmp_path)), "--experiment", str(STAIRCASE), "--out", str(log),
+    assert main(["run", str(sim_rig_config(tmp_path)), "--experiment", str(STAIRCASE), "--out", str(log),
                  "--duration", "4.5", "--json", "--live", "--trend-window", "2s"]) == exit_codes.SUCCESS
     shown = capsys.readouterr().err
     assert not (read_log(log).flags & int(SampleFlag.unusable())).any()  # (else the log's points differ)

@@ -19,13 +19,13 @@ from rig.log_file import read_log
 from rig.rig_config import load_rig_config
 from sim_backend.plant_config import load_plant_config
 
-from live_rig import CONFIGS, RATE_HZ, live_rig_config
+from live_rig import CONFIGS, RATE_HZ, sim_rig_config
 
 
 def _run(directory: Path, seconds: float, *options: str) -> Path:
     directory.mkdir()
     log = directory / "run.csv"
-    assert main(["run", str(live_rig_config(directory)), "--experiment", str(CONFIGS / "experiments" / "prbs.toml"),
+    assert main(["run", str(sim_rig_config(directory)), "--experiment", str(CONFIGS / "experiments" / "prbs.toml"),
                  "--out", str(log), "--duration", repr(seconds), "--json", *options]) == exit_codes.SUCCESS
     return log
 
