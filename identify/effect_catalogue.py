@@ -414,8 +414,13 @@ def reference_train(sample_period_s: float, bandwidth_hz: float = REFERENCE_BAND
 
 
 def _loop_stiffness_per_inertia(train: DriveTrain) -> float:
-    """omega_n^2: a torque T / J on the train leaves a static position error T / (J omega_n^2) in its P loop."""
-    return train.natural_frequency_rad_per_s ** 2
+    """The load's stiffness per inertia: a torque T / J on the load of a rigid train leaves a static position
+    error T / (J omega_n^2) in its P loop, which holds the motor; a shaft of stiffness k between them twists
+    by T / k more: 1 / (1 / omega_n^2 + J / k)."""
+    compliance = 1.0 / train.natural_frequency_rad_per_s ** 2
+    if not train.rigid:
+        compliance += train.total_inertia_kg_m2 / train.shaft_stiffness_nm_per_rad
+    return 1.0 / compliance
 
 
 def _friction_fields(v: Sequence[float], train: DriveTrain) -> dict[str, Any]:
@@ -885,6 +890,9 @@ LOOK_ALIKE_EXPERIMENTS: dict[frozenset[str], str] = {
         "move through a wider range of angles (a quarter turn or more, in both directions): an offset is the same "
         "at every angle, while an error that depends on the angle (a sensor error, a load torque, cogging) changes "
         "with it; over a small range of angles any of them is a constant"),
+    frozenset({"gravity", "offset"}): (
+        "move through a wider range of angles (a quarter turn or more, in both directions): an offset is the same "
+        "at every angle, while a load's weight sags the load by an amount that changes with the angle"),
     frozenset({"backlash", "coulomb_friction"}): (
         "record again at another position-loop gain (friction's band, twice F / k, shrinks as the loop stiffness k "
         "grows; a play keeps its width), or log the drive's torque or current through the reversals (a play turns "

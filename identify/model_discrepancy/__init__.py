@@ -54,7 +54,7 @@ the validation segment, which the fits never see.
 from __future__ import annotations
 
 from identify.effect_catalogue import EFFECT_NAMES
-from identify.model_discrepancy.candidates import rigid_train_like
+from identify.model_discrepancy.candidates import drive_train_like, rigid_train_like, two_mass_train_like
 from identify.model_discrepancy.disagreement import disagreement, gross_disagreements
 from identify.model_discrepancy.options import DiagnoseOptions
 from identify.model_discrepancy.pipeline import diagnose_model
@@ -92,7 +92,9 @@ __all__ = [
     "GrossDisagreement",
     "ResidualStructure",
     "fit_linear_model",
+    "drive_train_like",
     "rigid_train_like",
+    "two_mass_train_like",
     "VERDICTS",
     "ACCEPTANCES",
     "ESTIMATION_FRACTION",

@@ -1,6 +1,6 @@
 """Step 3 of the workflow, the candidates: which effects of the catalogue (:mod:`identify.effect_catalogue`)
 are tried, and where each goes into the model (its placement: before or after the linear dynamics, at the
-end, or inside a drive train that replaces the linear block, :func:`rigid_train_like`). A
+end, or inside a drive train that replaces the linear block, :func:`drive_train_like`). A
 :class:`_Candidate` is one effect fitted into the model (:mod:`.fit` makes it).
 """
 
@@ -26,6 +26,9 @@ from identify.model_discrepancy.thresholds import (
     LOOP_BANDWIDTH_NYQUIST_SHARE,
     LOOP_DAMPING_RANGE,
     LOOP_START_FACTORS,
+    SHAFT_MODE_MAX_DAMPING,
+    SHAFT_TRAIN_ERROR_SHARE,
+    SHAFT_TRAIN_LOAD_INERTIA_STARTS,
 )
 
 
@@ -73,9 +76,9 @@ class _Candidate:
 def _dynamics_chain(chain: _Chain, index: int, u: NDArray[np.float64]) -> tuple[_Chain, DriveTrain]:
     """The chain with a ``drive_train`` component at ``index`` (catalogue placement ``dynamics``) and the
     train the effect goes into: that component if there is one; a given model's fixed drive train made a
-    component (loop fixed); or the linear component replaced by the rigid drive train of the same response
-    (:func:`rigid_train_like`; loop free again in the joint fit when the linear block was free, fixed
-    when it was the given model's)."""
+    component (loop fixed); or the linear component replaced by the drive train of the same response
+    (:func:`drive_train_like`; loop free again in the joint fit when the linear block was free, fixed
+    when it was the given model's; a two-mass train keeps its fitted shaft either way)."""
     component = chain.components[index]
     if component.kind == "drive_train":
         train = _build(component, component.values)
@@ -88,7 +91,7 @@ def _dynamics_chain(chain: _Chain, index: int, u: NDArray[np.float64]) -> tuple[
         assert isinstance(linear, LinearBlock)
         before = chain.components[:index]
         inner = PlantModel(tuple(_build(c, c.values) for c in before)).simulate(u) if before else u
-        fitted = rigid_train_like(linear, inner)
+        fitted = drive_train_like(linear, inner)
         if component.kind == "linear":
             holder = _Component("drive_train", (fitted.position_loop_bandwidth_hz, fitted.position_loop_damping_ratio),
                                 fitted, linear.sample_period_s, loop_free=True)
@@ -117,21 +120,37 @@ def _with_loop(chain: _Chain, index: int, loop: tuple[float, float]) -> _Chain:
 _TRAIN_CACHE: dict[tuple[Any, ...], DriveTrain] = {}
 
 
-def rigid_train_like(block: LinearBlock, input_rad: NDArray[np.float64]) -> DriveTrain:
-    """The rigid drive train (:func:`identify.effect_catalogue.reference_train`) whose position loop
-    reproduces ``block``'s free run on ``input_rad`` best (least squares on bandwidth f_n and damping zeta). Start:
-    the continuous poles s = ln(z) / T of the block's dominant pair (complex: omega_n = |s|,
-    zeta = -Re s / |s|; real: omega_n = sqrt(s_1 s_2), zeta = (s_1 + s_2) / (2 omega_n); one real pole s:
-    omega_n = 2|s|, zeta = 1, the critically damped pair of the same rise). The same block and input give
-    the same train (cached: every dynamics candidate of a round starts from it)."""
-    key = (block.a, block.b, block.sample_period_s, input_rad.size, hash(input_rad.tobytes()))
-    if key in _TRAIN_CACHE:
-        return _TRAIN_CACHE[key]
-    period = block.sample_period_s
+def drive_train_like(block: LinearBlock, input_rad: NDArray[np.float64]) -> DriveTrain:
+    """The drive train the dynamics effects go into, of the same response as ``block`` on ``input_rad``:
+    the rigid train (:func:`rigid_train_like`), or, when the block has a lightly damped pole pair besides
+    its loop (a shaft mode), the two-mass train (:func:`two_mass_train_like`) if its free run is within
+    :data:`SHAFT_TRAIN_ERROR_SHARE` of the rigid train's error of the block's. A friction or a play fitted
+    into a rigid train of a block with a shaft mode has to stand in for the mode as well."""
+    rigid = rigid_train_like(block, input_rad)
+    split = _shaft_mode(block)
+    if split is None:
+        return rigid
+    shaft = two_mass_train_like(block, input_rad, *split)
+    target = block.apply(input_rad)
+    rigid_error = float(np.sqrt(np.mean((rigid.apply(input_rad) - target) ** 2)))
+    shaft_error = float(np.sqrt(np.mean((shaft.apply(input_rad) - target) ** 2)))
+    return shaft if shaft_error <= SHAFT_TRAIN_ERROR_SHARE * rigid_error else rigid
+
+
+def _continuous_poles(block: LinearBlock) -> NDArray[np.complex128]:
+    """The block's poles as s = ln(z) / T (poles at the origin of z, pure delays, left out), slowest first."""
     poles = np.roots((1.0, *block.a)) if block.a else np.zeros(0)
     poles = poles[np.abs(poles) > 1e-9]
-    continuous = np.log(poles.astype(complex)) / period
-    continuous = continuous[np.argsort(np.abs(continuous))][:2]
+    continuous = np.log(poles.astype(complex)) / block.sample_period_s
+    return continuous[np.argsort(np.abs(continuous))]
+
+
+def _loop_start(continuous: NDArray[np.complex128], period: float) -> tuple[float, float]:
+    """A position loop's bandwidth f_n and damping zeta from the slowest poles of ``continuous`` (complex
+    pair: omega_n = |s|, zeta = -Re s / |s|; two real: omega_n = sqrt(s_1 s_2), zeta = (s_1 + s_2) /
+    (2 omega_n); one real pole s: omega_n = 2|s|, zeta = 1, the critically damped pair of the same rise),
+    within the fitted loop's range."""
+    continuous = continuous[:2]
     if continuous.size == 2:
         natural = float(np.sqrt(np.abs(continuous[0] * continuous[1])))
         damping = float(-np.real(continuous.sum()) / (2.0 * natural)) if natural > 0 else 1.0
@@ -140,8 +159,32 @@ def rigid_train_like(block: LinearBlock, input_rad: NDArray[np.float64]) -> Driv
     else:
         natural, damping = 2.0 * math.pi * 0.1 / period, 1.0
     nyquist = 0.5 / period
-    start = (min(max(natural / (2.0 * math.pi), 1e-3 * nyquist), LOOP_BANDWIDTH_NYQUIST_SHARE * nyquist),
-             min(max(damping, LOOP_DAMPING_RANGE[0]), LOOP_DAMPING_RANGE[1]))
+    return (min(max(natural / (2.0 * math.pi), 1e-3 * nyquist), LOOP_BANDWIDTH_NYQUIST_SHARE * nyquist),
+            min(max(damping, LOOP_DAMPING_RANGE[0]), LOOP_DAMPING_RANGE[1]))
+
+
+def _shaft_mode(block: LinearBlock) -> tuple[tuple[float, float], complex] | None:
+    """The loop's start and the shaft mode's pole s (Im s > 0) when the block has a complex pair of damping
+    ratio below :data:`SHAFT_MODE_MAX_DAMPING` and at least two poles besides it (the loop); else None."""
+    continuous = _continuous_poles(block)
+    pairs = [s for s in continuous if s.imag > 0 and -s.real / abs(s) < SHAFT_MODE_MAX_DAMPING]
+    if not pairs or continuous.size < 4:
+        return None
+    mode = min(pairs, key=lambda s: -s.real / abs(s))
+    rest = np.array([s for s in continuous if abs(s - mode) > 1e-9 * abs(mode) and abs(s - np.conj(mode)) > 1e-9 * abs(mode)])
+    return _loop_start(rest, block.sample_period_s), complex(mode)
+
+
+def rigid_train_like(block: LinearBlock, input_rad: NDArray[np.float64]) -> DriveTrain:
+    """The rigid drive train (:func:`identify.effect_catalogue.reference_train`) whose position loop
+    reproduces ``block``'s free run on ``input_rad`` best (least squares on bandwidth f_n and damping zeta),
+    from the loop of the block's dominant poles (:func:`_loop_start`). The same block and input give the
+    same train (cached: every dynamics candidate of a round starts from it)."""
+    key = ("rigid", block.a, block.b, block.sample_period_s, input_rad.size, hash(input_rad.tobytes()))
+    if key in _TRAIN_CACHE:
+        return _TRAIN_CACHE[key]
+    period = block.sample_period_s
+    start = _loop_start(_continuous_poles(block), period)
     target = block.apply(input_rad)
     base = reference_train(period, *start)
 
@@ -153,7 +196,57 @@ def rigid_train_like(block: LinearBlock, input_rad: NDArray[np.float64]) -> Driv
 
     with np.errstate(all="ignore"):
         fit = optimize.least_squares(error, np.array(start), method="trf", diff_step=1e-4, max_nfev=20)
-    train = _train(base, fit.x, (), True)
+    return _cached(key, _train(base, fit.x, (), True))
+
+
+def _two_mass_train(period: float, values: Sequence[float]) -> DriveTrain:
+    """The normalised two-mass train (total inertia 1, gear 1, the loop on the motor's angle) of
+    (f_n, zeta, ln J_l, ln k, ln d)."""
+    bandwidth, damping, log_load, log_stiffness, log_damping = values
+    load = math.exp(log_load)
+    return replace(reference_train(period, abs(bandwidth), abs(damping)), motor_inertia_kg_m2=1.0 - load,
+                   load_inertia_kg_m2=load, shaft_stiffness_nm_per_rad=math.exp(log_stiffness),
+                   shaft_damping_nm_s_per_rad=math.exp(log_damping))
+
+
+def two_mass_train_like(block: LinearBlock, input_rad: NDArray[np.float64], loop: tuple[float, float],
+                        mode: complex) -> DriveTrain:
+    """The two-mass drive train (a motor J_m under the position loop, a shaft of stiffness k and damping d,
+    a load J_l; J_m + J_l = 1) whose free run reproduces ``block``'s on ``input_rad`` best (least squares on
+    f_n, zeta, J_l, k and d). Starts: the loop's bandwidth and damping, and for each load share J_l of
+    :data:`SHAFT_TRAIN_LOAD_INERTIA_STARTS` the shaft of the mode's pole s as the load's mode against a
+    motor the loop holds (k = |s|^2 J_l, d = 2 zeta_s |s| J_l with zeta_s = -Re s / |s|). Cached as
+    :func:`rigid_train_like`."""
+    key = ("two_mass", block.a, block.b, block.sample_period_s, input_rad.size, hash(input_rad.tobytes()))
+    if key in _TRAIN_CACHE:
+        return _TRAIN_CACHE[key]
+    period = block.sample_period_s
+    target = block.apply(input_rad)
+    nyquist = 0.5 / period
+    low = (1e-3 * nyquist, LOOP_DAMPING_RANGE[0], math.log(1e-4), -np.inf, -np.inf)
+    high = (LOOP_BANDWIDTH_NYQUIST_SHARE * nyquist, LOOP_DAMPING_RANGE[1], math.log(0.95), np.inf, np.inf)
+
+    def error(v: NDArray[np.float64]) -> NDArray[np.float64]:
+        try:
+            return _two_mass_train(period, v).apply(input_rad) - target
+        except InvalidInputError:
+            return np.full(input_rad.size, FAILED_RUN_ERROR_RAD / math.sqrt(input_rad.size))
+
+    best = None
+    natural, damping = abs(mode), -mode.real / abs(mode)
+    for load in SHAFT_TRAIN_LOAD_INERTIA_STARTS:
+        start = np.clip((loop[0], loop[1], math.log(load), math.log(natural**2 * load),
+                         math.log(2.0 * damping * natural * load)), low, high)
+        with np.errstate(all="ignore"):
+            fit = optimize.least_squares(error, start, bounds=(low, high), method="trf", diff_step=1e-4,
+                                         max_nfev=60)
+        if best is None or fit.cost < best.cost:
+            best = fit
+    assert best is not None
+    return _cached(key, _two_mass_train(period, best.x))
+
+
+def _cached(key: tuple[Any, ...], train: DriveTrain) -> DriveTrain:
     if len(_TRAIN_CACHE) > 64:
         _TRAIN_CACHE.clear()
     _TRAIN_CACHE[key] = train

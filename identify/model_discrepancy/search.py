@@ -500,7 +500,10 @@ def _look_alikes_checked(found: _Search, u: NDArray[np.float64], y: NDArray[np.f
     bound of each other on all but ``consistent_fraction`` of the record's measured samples
     (:data:`LOOK_ALIKE_APART_FRACTION` is that fraction), the record cannot tell them apart: the effect is
     dropped (the rest refitted as a round's baseline, :func:`_baseline_refit`), the search is ambiguous
-    between the two, and the reason says what experiment would separate them (:data:`LOOK_ALIKE_EXPERIMENTS`).
+    between them, and the reason says what experiment would separate them (:data:`LOOK_ALIKE_EXPERIMENTS`).
+    The look-alikes of a look-alike that also fits are tried in the effect's place as well: over a small
+    range of angles a load torque, a sensor error and an offset are all one constant, and all three are
+    reported.
 
     The whole record is compared, not the validation segment: the outputs, not their fit to the data, are
     what a further record would have to tell apart. A torque ~ sin of the load angle through a stiff servo
@@ -509,48 +512,76 @@ def _look_alikes_checked(found: _Search, u: NDArray[np.float64], y: NDArray[np.f
     difference."""
     named = [step.effect for step in found.steps]
     whole_catalogue = set(SEARCHED_EFFECT_NAMES) <= set(options.candidates)
+
+    def allowed(alike: str) -> bool:
+        # (a search the user restricted to some candidates stays within them)
+        return alike not in named and (alike in options.candidates
+                                       or (whole_catalogue and EFFECTS[alike].look_alike_only))
+
+    def fitted_in_place(alike: str, reduced: _Chain, before: Disagreement) -> tuple[_Candidate, float] | None:
+        """``alike`` fitted into ``reduced`` and the share of the record's measured samples where its output
+        is further than the noise bound from the named model's; None when it vanishes."""
+        scores = signature_scores(u, y, before.simulated_rad, delta, period)
+        other = _try_effect(alike, reduced, u, y, n_est, delta, period, before.residual_rad, scores,
+                            options.max_delay_samples, options.max_evaluations)
+        if EFFECTS[alike].vanished(other.block, delta):
+            return None
+        theirs = np.asarray(other.chain.model().simulate(u), dtype=float)
+        measured = ~np.isnan(y)
+        return other, float(np.mean(np.abs(found.current.simulated_rad - theirs)[measured] > delta))
+
+    apart_allowed = max(options.consistent_fraction, LOOK_ALIKE_APART_FRACTION)
     for step in found.steps:
-        for alike in EFFECTS[step.effect].look_alikes:
-            if alike in named or not (alike in options.candidates
-                                      or (whole_catalogue and EFFECTS[alike].look_alike_only)):
-                continue  # (a search the user restricted to some candidates stays within them)
-            reduced = _without_effect(found.chain, step.effect)
-            if reduced is None or _insert_index(reduced, alike) < 0:
-                continue
-            before = disagreement(reduced.model(), u, y, delta, n_est)
-            scores = signature_scores(u, y, before.simulated_rad, delta, period)
-            other = _try_effect(alike, reduced, u, y, n_est, delta, period, before.residual_rad, scores,
-                                options.max_delay_samples, options.max_evaluations)
-            if EFFECTS[alike].vanished(other.block, delta):
-                continue
-            theirs = np.asarray(other.chain.model().simulate(u), dtype=float)
-            measured = ~np.isnan(y)
-            apart = float(np.mean(np.abs(found.current.simulated_rad - theirs)[measured] > delta))
-            if apart > max(options.consistent_fraction, LOOK_ALIKE_APART_FRACTION):
-                say(f"{step.effect} and its look-alike {alike} give outputs apart by more than the noise bound on "
-                    f"{100 * apart:.1f} % of the record: told apart")
-                continue
-            refit = _baseline_refit(reduced, u[:n_est], y[:n_est], options.max_evaluations)
-            without = disagreement(refit.model(), u, y, delta, n_est)
-            if without.gap_rad > before.gap_rad:
-                refit, without = reduced, before
-            pair = (step.effect, alike)
-            reason = (f"{step.effect} and {alike} give outputs within the noise bound ({delta:.3g} rad) of each "
-                      f"other on {100 * (1 - apart):.1f} % of the record once each is fitted (validated gap "
-                      f"{found.current.gap_rad:.3g} rad with {step.effect}, {other.gap_rad:.3g} rad with {alike}, "
-                      f"{before.gap_rad:.3g} rad with neither): this record cannot tell {step.effect} from "
-                      f"{alike}, so neither is named. To separate them: "
-                      f"{LOOK_ALIKE_EXPERIMENTS[frozenset(pair)]}")
-            say(f"ambiguous: {reason}")
-            at = found.steps.index(step)
-            steps = [s for s in found.steps if s is not step]
-            if at < len(steps):  # the next step now follows the model before the dropped one
-                steps[at] = replace(steps[at], gap_before_rad=step.gap_before_rad,
-                                    falsified_fraction_before=step.falsified_fraction_before)
-            if steps:
-                steps[-1] = replace(steps[-1], gap_after_rad=without.gap_rad, model=refit.model(),
-                                    falsified_fraction_after=without.falsified_fraction)
-            return _Search(refit, without, steps, found.tried, pair, without.residual_rad[n_est:], (), reason)
+        reduced = _without_effect(found.chain, step.effect)
+        if reduced is None:
+            continue
+        before = disagreement(reduced.model(), u, y, delta, n_est)
+        group: list[tuple[str, str, _Candidate, float]] = []  # (look-alike, of which member, its fit, apart)
+        members = [step.effect]
+        while members:  # the look-alikes of the named effect, then theirs (an offset, gravity and a sensor error)
+            member = members.pop(0)
+            for alike in EFFECTS[member].look_alikes:
+                if (not allowed(alike) or alike == step.effect or any(alike == g[0] for g in group)
+                        or _insert_index(reduced, alike) < 0):
+                    continue
+                fit = fitted_in_place(alike, reduced, before)
+                if fit is None:
+                    continue
+                if fit[1] > apart_allowed:
+                    say(f"{step.effect} and its look-alike {alike} give outputs apart by more than the noise bound "
+                        f"on {100 * fit[1]:.1f} % of the record: told apart")
+                    continue
+                group.append((alike, member, *fit))
+                members.append(alike)
+        if not group:
+            continue
+        refit = _baseline_refit(reduced, u[:n_est], y[:n_est], options.max_evaluations)
+        without = disagreement(refit.model(), u, y, delta, n_est)
+        if without.gap_rad > before.gap_rad:
+            refit, without = reduced, before
+        between = (step.effect, *(alike for alike, *_ in group))
+        names = ", ".join(between[:-1]) + " and " + between[-1]
+        gaps = ", ".join([f"{found.current.gap_rad:.3g} rad with {step.effect}"]
+                         + [f"{fit.gap_rad:.3g} rad with {alike}" for alike, _, fit, _ in group])
+        together = 100 * (1 - max(apart for *_, apart in group))
+        experiments = "; and ".join(LOOK_ALIKE_EXPERIMENTS[frozenset((member, alike))]
+                                    for alike, member, _, _ in group
+                                    if frozenset((member, alike)) in LOOK_ALIKE_EXPERIMENTS)
+        told = f"{between[0]} from {between[1]}" if len(between) == 2 else f"{names} apart"
+        reason = (f"{names} give outputs within the noise bound ({delta:.3g} rad) of each other on {together:.1f} % "
+                  f"of the record once each is fitted (validated gap {gaps}, {before.gap_rad:.3g} rad with "
+                  f"{'neither' if len(between) == 2 else 'none of them'}): this record cannot tell {told}, so "
+                  f"{'neither' if len(between) == 2 else 'none'} is named. To separate them: {experiments}")
+        say(f"ambiguous: {reason}")
+        at = found.steps.index(step)
+        steps = [s for s in found.steps if s is not step]
+        if at < len(steps):  # the next step now follows the model before the dropped one
+            steps[at] = replace(steps[at], gap_before_rad=step.gap_before_rad,
+                                falsified_fraction_before=step.falsified_fraction_before)
+        if steps:
+            steps[-1] = replace(steps[-1], gap_after_rad=without.gap_rad, model=refit.model(),
+                                falsified_fraction_after=without.falsified_fraction)
+        return _Search(refit, without, steps, found.tried, between, without.residual_rad[n_est:], (), reason)
     return found
 
 

@@ -14,6 +14,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from identify.border_lifting import direction_signal
+from identify.effect_catalogue import LOOK_ALIKE_EXPERIMENTS
 from identify.plant_blocks import Delay, PlantModel
 
 from identify.model_discrepancy.disagreement import disagreement
@@ -187,8 +188,11 @@ def _verdict(initial: Disagreement, final: Disagreement, steps: Sequence[Discrep
                              "record, so none is named")
     if ambiguous_between:
         before = f" after {named}" if steps else ""
+        pairs = [frozenset((a, b)) for i, a in enumerate(ambiguous_between) for b in ambiguous_between[i + 1:]]
+        experiments = "; and ".join(LOOK_ALIKE_EXPERIMENTS[pair] for pair in pairs if pair in LOOK_ALIKE_EXPERIMENTS)
         return "ambiguous", (f"{' and '.join(ambiguous_between)} fit the validation segment equally well within "
-                             f"their uncertainty{before}: none is chosen")
+                             f"their uncertainty{before}: none is chosen"
+                             + (f". To separate them: {experiments}" if experiments else ""))
     if steps:
         left = ("the model is then consistent with the noise bound" if consistent else
                 f"{100 * final.falsified_fraction:.1f} % of validation samples stay outside the noise bound: part "

@@ -15,6 +15,7 @@ import pytest
 from identify.discrepancy_cases import hidden_effect_record
 from identify.effect_catalogue import EFFECTS, LOOK_ALIKE_EXPERIMENTS, effect
 from identify.model_discrepancy import diagnose_model
+from identify.drive_train import DriveTrain
 from identify.plant_blocks import EncoderError, LinearBlock, PlantModel
 
 BENCHMARKS = Path(__file__).resolve().parents[2] / "benchmarks"
@@ -45,7 +46,8 @@ def independent_with_record(effect_name: str, seed: int, **setting):
 def test_an_encoder_eccentricity_is_not_named_gravity_alone(seed, setting):
     result = independent("eccentricity", seed, **setting)
     assert result.missing_effects != ("gravity",), result.verdict_reason
-    assert result.verdict == "ambiguous" and set(result.ambiguous_between) == {"gravity", "encoder_error"}
+    assert result.verdict == "ambiguous" and {"gravity", "encoder_error"} <= set(result.ambiguous_between)
+    assert set(result.ambiguous_between) <= {"gravity", "encoder_error", "offset"}
     assert "gravity" not in result.missing_effects
     assert LOOK_ALIKE_EXPERIMENTS[frozenset({"gravity", "encoder_error"})] in result.verdict_reason
     assert "a sensor error is the same at every speed" in result.verdict_reason
@@ -54,11 +56,14 @@ def test_an_encoder_eccentricity_is_not_named_gravity_alone(seed, setting):
 @pytest.mark.parametrize("effect_name, seed", [("eccentricity", 1000), ("gravity", 1002), ("cogging", 1003)])
 def test_an_angle_dependent_error_over_a_small_motion_is_not_named_an_offset(effect_name, seed):
     # prbs of +-0.01 rad from rest: the record starts where the effect has moved the angle, and over so small a
-    # range of angles any error that depends on the angle is a constant; each of these was named offset alone
+    # range of angles any error that depends on the angle is a constant (a load torque through the shaft as
+    # well); each of these was named offset alone
     result = independent(effect_name, seed, excitation="prbs")
     assert result.verdict == "ambiguous" and result.missing_effects == (), result.verdict_reason
-    assert set(result.ambiguous_between) == {"offset", "encoder_error"}
-    assert LOOK_ALIKE_EXPERIMENTS[frozenset({"offset", "encoder_error"})] in result.verdict_reason
+    assert "offset" in result.ambiguous_between
+    assert len(result.ambiguous_between) >= 2
+    assert set(result.ambiguous_between) <= {"offset", "encoder_error", "gravity"}
+    assert "move through a wider range of angles" in result.verdict_reason
 
 
 def test_an_offset_over_a_wide_motion_stays_named():
@@ -91,21 +96,23 @@ def test_the_encoder_error_is_a_measurement_effect_of_the_catalogue_tried_as_gra
     assert np.allclose(model.simulate(x), block.apply(PlantModel(model.blocks[:1]).simulate(x)))
 
 
-def test_friction_behind_a_stiff_servo_is_fitted_as_a_play_and_its_mechanism_left_open():
-    # the generator's Coulomb friction on the load (tau = -F_c tanh(v / eps)) behind its kinematic servo twists
-    # the shaft by F_c / k whichever way the load moves: the map of a play of that half-width; from the command
-    # and the angle alone nothing tells the two apart, so the map is named and the mechanism is not
+def test_friction_behind_a_stiff_servo_and_a_shaft_is_named_friction_with_its_size():
+    # the generator's Coulomb friction on the load (tau = -F_c tanh(v / eps)) behind its kinematic servo and a
+    # shaft with a 30.8 Hz mode: output backlash and output Coulomb friction (one map) take 32 % off the gap;
+    # friction on the load of a two-mass train with the block's shaft mode takes 78 % off and reaches the
+    # noise bound. Fitted into a rigid train (which cannot hold the mode) it was left open as play or friction.
     result, record = independent_with_record("coulomb", 1004, excitation="chirp")
-    assert result.verdict == "ambiguous", result.verdict_reason
-    assert result.missing_effects == ("backlash",)
-    assert set(result.ambiguous_between) == {"backlash", "coulomb_friction"}
-    assert LOOK_ALIKE_EXPERIMENTS[frozenset({"backlash", "coulomb_friction"})] in result.verdict_reason
+    assert result.verdict == "named" and result.missing_effects == ("load_friction",), result.verdict_reason
+    # the truth as a torque per inertia at the same static sag: F_c / k = X (1 / omega_n^2 + J / k')
+    train = next(block for block in result.final_model.blocks if isinstance(block, DriveTrain))
+    assert not train.rigid
     twist = record["truth"]["parameters"]["coulomb_nm"] / record["nominal"]["shaft_stiffness_nm_per_rad"]
-    parameters = result.steps[0].parameters
-    assert (parameters["c_l_rad"] + parameters["c_r_rad"]) / 2 == pytest.approx(twist, rel=0.15)
-    for key in ("c_l_rad", "c_r_rad"):
-        low, high = result.parameter_intervals["backlash"][key]
-        assert low <= twist <= high
+    truth = twist / (1.0 / train.natural_frequency_rad_per_s**2
+                     + train.total_inertia_kg_m2 / train.shaft_stiffness_nm_per_rad)
+    fitted = result.steps[0].parameters["coulomb_per_inertia_rad_per_s2"]
+    assert fitted == pytest.approx(truth, rel=0.05)
+    low, high = result.parameter_intervals["load_friction"]["coulomb_per_inertia_rad_per_s2"]
+    assert low <= truth <= high
 
 
 def test_a_play_restricted_to_the_play_alone_is_named():
