@@ -581,21 +581,7 @@ def _look_alikes_checked(found: _Search, u: NDArray[np.float64], y: NDArray[np.f
         if without.gap_rad > before.gap_rad:
             refit, without = reduced, before
         between = (step.effect, *(alike for alike, *_ in group))
-        names = ", ".join(between[:-1]) + " and " + between[-1]
-        gaps = ", ".join([f"{found.current.gap_rad:.3g} rad with {step.effect}"]
-                         + [f"{fit.gap_rad:.3g} rad with {alike}" for alike, _, fit, _ in group])
-        together = 100 * (1 - max(apart for *_, apart in group))
-        closeness = (f"give outputs within the noise bound ({delta:.3g} rad) of each other on {together:.1f} % of the "
-                     "record once each is fitted" if together >= 100 * (1 - apart_allowed) else
-                     f"fit the record equally well within their uncertainty, their outputs within the noise bound "
-                     f"({delta:.3g} rad) of each other on {together:.1f} % of it")
-        experiments = "; and ".join(LOOK_ALIKE_EXPERIMENTS[frozenset((member, alike))]
-                                    for alike, member, _, _ in group
-                                    if frozenset((member, alike)) in LOOK_ALIKE_EXPERIMENTS)
-        told = f"{between[0]} from {between[1]}" if len(between) == 2 else f"{names} apart"
-        reason = (f"{names} {closeness} (validated gap {gaps}, {before.gap_rad:.3g} rad with "
-                  f"{'neither' if len(between) == 2 else 'none of them'}): this record cannot tell {told}, so "
-                  f"{'neither' if len(between) == 2 else 'none'} is named. To separate them: {experiments}")
+        reason = _look_alike_reason(between, group, found.current.gap_rad, before.gap_rad, delta, apart_allowed)
         say(f"ambiguous: {reason}")
         at = found.steps.index(step)
         steps = [s for s in found.steps if s is not step]
@@ -607,6 +593,27 @@ def _look_alikes_checked(found: _Search, u: NDArray[np.float64], y: NDArray[np.f
                                 falsified_fraction_after=without.falsified_fraction)
         return _Search(refit, without, steps, found.tried, between, without.residual_rad[n_est:], (), reason)
     return found
+
+
+def _look_alike_reason(between: tuple[str, ...], group: Sequence[tuple[str, str, _Candidate, float]],
+                       named_gap_rad: float, gap_without_rad: float, delta: float, apart_allowed: float) -> str:
+    """The verdict's reason for a named effect (``between[0]``) and the look-alikes of ``group`` (look-alike,
+    the member it is a look-alike of, its fit, the share of samples apart) the record cannot tell apart."""
+    names = ", ".join(between[:-1]) + " and " + between[-1]
+    gaps = ", ".join([f"{named_gap_rad:.3g} rad with {between[0]}"]
+                     + [f"{fit.gap_rad:.3g} rad with {alike}" for alike, _, fit, _ in group])
+    together = 100 * (1 - max(apart for *_, apart in group))
+    closeness = (f"give outputs within the noise bound ({delta:.3g} rad) of each other on {together:.1f} % of the "
+                 "record once each is fitted" if together >= 100 * (1 - apart_allowed) else
+                 f"fit the record equally well within their uncertainty, their outputs within the noise bound "
+                 f"({delta:.3g} rad) of each other on {together:.1f} % of it")
+    experiments = "; and ".join(LOOK_ALIKE_EXPERIMENTS[frozenset((member, alike))] for alike, member, _, _ in group
+                                if frozenset((member, alike)) in LOOK_ALIKE_EXPERIMENTS)
+    two = len(between) == 2
+    told = f"{between[0]} from {between[1]}" if two else f"{names} apart"
+    return (f"{names} {closeness} (validated gap {gaps}, {gap_without_rad:.3g} rad with "
+            f"{'neither' if two else 'none of them'}): this record cannot tell {told}, so "
+            f"{'neither' if two else 'none'} is named. To separate them: {experiments}")
 
 
 def _mechanisms_left_open(found: _Search, candidates: Sequence[str], say: Callable[[str], None]) -> _Search:
