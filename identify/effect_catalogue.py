@@ -63,7 +63,7 @@ from identify.validation import InvalidInputError
 if TYPE_CHECKING:
     from identify.effect_signatures import SignatureScore
 
-__all__ = ["DYNAMICS_EFFECTS", "EFFECTS", "EFFECT_NAMES", "HYSTERESIS_INNER_TWIN", "LOOK_ALIKE_EXPERIMENTS",
+__all__ = ["ANGLE_SHAPE_EXPERIMENT", "DYNAMICS_EFFECTS", "EFFECTS", "EFFECT_NAMES", "HYSTERESIS_INNER_TWIN", "LOOK_ALIKE_EXPERIMENTS",
            "SAME_MAP_READINGS",
            "PLACEMENTS", "SEARCHED_EFFECT_NAMES", "Effect",
            "GuessContext", "Parameter", "TomlKey", "effect", "effect_for_block", "effect_for_toml_type",
@@ -225,6 +225,12 @@ class Effect:
     look_alike_only
         Not searched by default (not in :data:`SEARCHED_EFFECT_NAMES`): tried as the look-alike of a named
         effect, or when named in the workflow's ``candidates``.
+    angle_sag
+        For an effect that is a sine of the angle once per revolution (a weight's torque): fitted block ->
+        the amplitude S (rad) of the sag it leaves at rest. Over a range R of angles such a sag departs from a
+        straight line by at most S R^2 / 8; when that is below the noise bound, the record has not shown the
+        sine, and any load torque that varies smoothly with the angle (cogging, a spring) fits as well
+        (``_shape_left_open`` in :mod:`identify.model_discrepancy.search`).
     loop_damping_value
         Dynamics effects: the index of the free value that is a viscous damping per inertia d / J (1/s) on
         the load's speed, which adds to the velocity loop's own K_v / J = 2 zeta omega_n: when the loop is
@@ -259,6 +265,7 @@ class Effect:
     half_widths: Callable[[Any], tuple[float, float]] | None = None
     width_starts: Callable[[float, DriveTrain], list[tuple[float, ...]]] | None = None
     loop_damping_value: int | None = None
+    angle_sag: Callable[[Any], float] | None = None
     look_alikes: tuple[str, ...] = ()
     same_map_as: tuple[str, ...] = ()
     look_alike_only: bool = False
@@ -824,6 +831,7 @@ EFFECTS: dict[str, Effect] = {effect.name: effect for effect in (
         random_block=_random_gravity,
         signature="a position-dependent sag (r ~ -S sin(y^ - theta_0), S = m g l / (J omega_n^2))",
         train_fields=_gravity_fields, look_alikes=("encoder_error",),
+        angle_sag=lambda b: _static_error(b, b.gravity_torque_nm / b.total_inertia_kg_m2),
         resolution=lambda train, y_hat, e: _torque_resolution(train, ("gravity_per_inertia_rad_per_s2",), e),
     ),
     Effect(
@@ -903,6 +911,12 @@ LOOK_ALIKE_EXPERIMENTS: dict[frozenset[str], str] = {
 }
 """The experiment that tells look-alike effects apart (catalogue ``look_alikes`` and ``same_map_as``), for the
 verdict's reason."""
+
+
+ANGLE_SHAPE_EXPERIMENT = (
+    "move through a wider range of angles (a quarter turn or more, in both directions): a weight's sag is a sine of "
+    "the angle once per revolution, while cogging repeats many times a revolution and a spring grows with the angle")
+"""The experiment that shows the shape of an effect over the angle (catalogue ``angle_sag``)."""
 
 
 def _play_or_friction(parameters: Mapping[str, float]) -> str:

@@ -95,6 +95,15 @@ def _train(base: DriveTrain, values: Sequence[float], effects: Sequence[str], lo
     return train
 
 
+def _effect_block(chain: "_Chain", kind: str) -> Block | None:
+    """The block that holds effect ``kind`` in ``chain`` (its own component, or the drive train it was merged
+    into), or None."""
+    for component in chain.components:
+        if component.kind == kind or (component.kind == "drive_train" and kind in component.effects):
+            return _build(component, component.values)
+    return None
+
+
 def _parameters(kind: str, block: Block) -> dict[str, float]:
     """The public parameters of a fitted effect block."""
     return {key: float(value) for key, value in effect(kind).report(block).items()}

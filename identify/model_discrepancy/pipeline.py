@@ -25,6 +25,7 @@ from identify.model_discrepancy.result import Disagreement, DiscrepancyResult
 from identify.model_discrepancy.search import (
     _look_alikes_checked,
     _mechanisms_left_open,
+    _shape_left_open,
     _Search,
     _family_rechecked,
     _search,
@@ -120,6 +121,7 @@ def diagnose_model(command_rad: ArrayLike, angle_rad: ArrayLike, noise_bound_rad
     intervals, reduction = _named_intervals(chain, steps, start_model, u, y, delta, current, options, say)
     steps = _with_final_parameters(steps, chain)
     found = _mechanisms_left_open(replace(found, steps=steps), candidates, say)
+    found = _shape_left_open(found, y, delta, say)
     verdict, reason = _final_verdict(u, y, initial, current, found, consistent, delta, period, options)
     verdict, reason, structure = open_world_checked(verdict, reason, u, y, initial, current, steps, consistent, n_est)
     return DiscrepancyResult(

@@ -14,7 +14,13 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from identify.effect_catalogue import EFFECTS, LOOK_ALIKE_EXPERIMENTS, SAME_MAP_READINGS, SEARCHED_EFFECT_NAMES
+from identify.effect_catalogue import (
+    ANGLE_SHAPE_EXPERIMENT,
+    EFFECTS,
+    LOOK_ALIKE_EXPERIMENTS,
+    SAME_MAP_READINGS,
+    SEARCHED_EFFECT_NAMES,
+)
 from identify.effect_signatures import SignatureScore, signature_scores
 
 from identify.model_discrepancy.candidates import _Candidate, _insert_index, _without_effect
@@ -22,6 +28,7 @@ from identify.model_discrepancy.chain import (
     _Chain,
     _Component,
     _build,
+    _effect_block,
     _free_run_error,
     _measured_error,
     _parameters,
@@ -645,3 +652,34 @@ def _mechanisms_left_open(found: _Search, candidates: Sequence[str], say: Callab
             return replace(found, ambiguous_between=(step.effect, other), mechanism_reason=reason)
     return found
 
+
+
+def _shape_left_open(found: _Search, y: NDArray[np.float64], delta: float, say: Callable[[str], None]) -> _Search:
+    """A named effect whose output is a sine of the angle (catalogue ``angle_sag``: a weight's sag of amplitude
+    S) over a record whose angles span only R: such a sag departs from a straight line by at most S R^2 / 8
+    there, and when that is below the noise bound the record has shown a load torque with a value and a slope
+    at these angles, not its sine: cogging, a spring or any torque that varies smoothly with the angle fits as
+    well. The fitted effect stays in the model (the local map is identified), the verdict is ambiguous, and
+    the reason says what range of angles would show the shape (:data:`ANGLE_SHAPE_EXPERIMENT`)."""
+    if found.ambiguous_between or found.undecided or found.mechanism_reason:
+        return found
+    measured = y[np.isfinite(y)]
+    span = float(np.max(measured) - np.min(measured)) if measured.size else 0.0
+    for step in found.steps:
+        entry = EFFECTS[step.effect]
+        block = _effect_block(found.chain, step.effect)
+        if entry.angle_sag is None or block is None:
+            continue
+        sag = entry.angle_sag(block)
+        bend = sag * span**2 / 8.0
+        if bend >= delta:
+            continue
+        reason = (f"but the record's angles span {span:.3g} rad, over which a sine of the angle of amplitude {sag:.3g} "
+                  f"rad departs from a straight line by at most {bend:.3g} rad, under the noise bound ({delta:.3g} "
+                  f"rad): the record shows a load torque with a value and a slope at these angles, which {step.effect} "
+                  f"fits, and so would any torque that varies smoothly with the angle (cogging, a spring), so which it "
+                  f"is cannot be told from this record (the fitted {step.effect} stays in the model). To see its "
+                  f"shape: {ANGLE_SHAPE_EXPERIMENT}")
+        say(f"ambiguous: {reason}")
+        return replace(found, ambiguous_between=(step.effect,), mechanism_reason=reason)
+    return found
