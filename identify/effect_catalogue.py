@@ -431,10 +431,12 @@ def _loop_stiffness_per_inertia(train: DriveTrain) -> float:
 
 
 def _friction_fields(v: Sequence[float], train: DriveTrain) -> dict[str, Any]:
+    # the viscous friction adds to what the train has (a two-mass train fitted to a linear block keeps its
+    # load's own); Coulomb and breakaway friction are the effect's alone
     inertia = train.total_inertia_kg_m2
     coulomb = abs(v[0])
     return {"coulomb_friction_nm": coulomb * inertia, "static_friction_nm": (coulomb + abs(v[1])) * inertia,
-            "viscous_friction_nm_s_per_rad": abs(v[2]) * inertia}
+            "viscous_friction_nm_s_per_rad": train.viscous_friction_nm_s_per_rad + abs(v[2]) * inertia}
 
 
 def _gravity_fields(v: Sequence[float], train: DriveTrain) -> dict[str, Any]:
@@ -484,9 +486,12 @@ def _load_friction_guesses(context: GuessContext) -> list[tuple[float, ...]]:
 
 
 def _viscous_guess(train: DriveTrain) -> float:
-    """d_v / J of 2 % of the loop's damping 2 zeta omega_n (a start at exactly 0 would not move in the scaled
-    polish)."""
-    return 0.02 * 2.0 * train.position_loop_damping_ratio * train.natural_frequency_rad_per_s
+    """d_v / J of 2 % of the damping that moves with the load (a start at exactly 0 would not move in the
+    scaled polish): in a rigid train the loop's 2 zeta omega_n; behind a shaft the load's critical damping on
+    it, 2 sqrt(k J_l) / J."""
+    if train.rigid:
+        return 0.02 * 2.0 * train.position_loop_damping_ratio * train.natural_frequency_rad_per_s
+    return 0.02 * 2.0 * math.sqrt(train.shaft_stiffness_nm_per_rad * train.load_inertia_kg_m2) / train.total_inertia_kg_m2
 
 
 def _friction_width_starts(width_rad: float, train: DriveTrain) -> list[tuple[float, ...]]:
