@@ -285,9 +285,8 @@ def _renice(pid: int, nice: int) -> None:
 
 
 @contextlib.contextmanager
-def condition(name: str):
-    """``busy``: one CPU-hog process per core; ``hog``: :data:`HOGS` of them; for the duration of the block."""
-    count = {"busy": os.cpu_count() or 2, "hog": HOGS}.get(name, 0)
+def cpu_hogs(count: int):
+    """``count`` CPU-bound processes (a busy loop each, normal priority) for the duration of the block."""
     hogs = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(count)]
     try:
         yield
@@ -295,6 +294,13 @@ def condition(name: str):
         for hog in hogs:
             hog.kill()
             hog.wait()
+
+
+@contextlib.contextmanager
+def condition(name: str):
+    """``busy``: one CPU-hog process per core; ``hog``: :data:`HOGS` of them; for the duration of the block."""
+    with cpu_hogs({"busy": os.cpu_count() or 2, "hog": HOGS}.get(name, 0)):
+        yield
 
 
 def _refused_row(row: dict[str, object]) -> str:
