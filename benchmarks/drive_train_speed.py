@@ -6,7 +6,8 @@ CPU time of this process (``time.process_time``), so the figures depend less on 
 runs than wall-clock figures; still, state the load (``uptime``) with them. The first call of a compiled
 kernel (numba, cached on disk after the first run) is made before timing.
 
-Run: ``.venv/bin/python benchmarks/drive_train_speed.py [--record FILE.json] [--no-diagnosis] [--profile]``.
+Run: ``.venv/bin/python benchmarks/drive_train_speed.py [--record FILE.json] [--no-diagnosis] [--profile]``
+(``NUMBA_CACHE_DIR=$(mktemp -d)`` in front: the first call's figure is the compilation).
 """
 
 from __future__ import annotations
@@ -54,9 +55,19 @@ def _cpu_us_per_sample(run, samples: int) -> float:
     return 1e6 * elapsed / (repeats * samples)
 
 
+def first_call_cpu_s() -> float:
+    """CPU seconds of the first ``apply`` in this process: numba compiles the kernel (an empty cache, e.g. a
+    fresh ``NUMBA_CACHE_DIR``) or loads it from its cache."""
+    train = TRAINS["compliant with play, 1 kHz"]
+    started = time.process_time()
+    train.apply(np.zeros(10))
+    return time.process_time() - started
+
+
 def stepper_table() -> None:
     uptime = Path("/proc/loadavg").read_text().split()[:3]
     print(f"load average {' '.join(uptime)}")
+    print(f"first call of the compiled kernel: {first_call_cpu_s():.2f} CPU s")
     print("| train | sub-steps per sample | apply [CPU µs/sample] | step [CPU µs/sample] |")
     print("|---|---|---|---|")
     for name, train in TRAINS.items():
