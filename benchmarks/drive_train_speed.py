@@ -1,6 +1,7 @@
-"""Cost of the drive train: CPU µs per sample of :meth:`DriveTrain.apply` and of stepping, and
-the CPU seconds of one model-discrepancy diagnosis of a K-Scale STS3215 record (the workflow fits the
-drive-train candidates, so the train's recurrence is run many times).
+"""Cost of the drive train: CPU µs per sample of :meth:`DriveTrain.apply`, of stepping and of the pure-Python
+recurrence the compiled kernel replaced (``tests/identify/drive_train_reference.py``), and the CPU seconds of
+one model-discrepancy diagnosis of a K-Scale STS3215 record (the workflow fits the drive-train candidates, so
+the train's recurrence is run many times).
 
 CPU time of this process (``time.process_time``), so the figures depend less on what else the machine
 runs than wall-clock figures; still, state the load (``uptime``) with them. The first call of a compiled
@@ -16,6 +17,7 @@ import argparse
 import cProfile
 import math
 import pstats
+import sys
 import time
 from pathlib import Path
 
@@ -24,7 +26,8 @@ import numpy as np
 from identify.drive_train import DriveTrain
 from identify.plant_blocks import LinearBlock
 
-KSCALE = Path(__file__).resolve().parent / "discrepancy_realdata.py"
+ROOT = Path(__file__).resolve().parents[1]
+KSCALE = ROOT / "benchmarks" / "discrepancy_realdata.py"
 DEFAULT_RECORD = "sysid_sts3215_sin_sin_2025-03-17_190436.json"  # sin_sin, kp 16, first repetition
 
 TRAINS = {
@@ -65,11 +68,15 @@ def first_call_cpu_s() -> float:
 
 
 def stepper_table() -> None:
+    sys.path.insert(0, str(ROOT / "tests" / "identify"))
+    from drive_train_reference import reference_load_angle_rad  # the recurrence before it was compiled
+
     uptime = Path("/proc/loadavg").read_text().split()[:3]
     print(f"load average {' '.join(uptime)}")
     print(f"first call of the compiled kernel: {first_call_cpu_s():.2f} CPU s")
-    print("| train | sub-steps per sample | apply [CPU µs/sample] | step [CPU µs/sample] |")
-    print("|---|---|---|---|")
+    print("| train | sub-steps per sample | apply [CPU µs/sample] | step [CPU µs/sample] "
+          "| pure-Python recurrence [CPU µs/sample] |")
+    print("|---|---|---|---|---|")
     for name, train in TRAINS.items():
         command = 0.5 * np.sin(np.linspace(0.0, 20.0, 2000)) + np.where(np.arange(2000) % 400 < 200, 0.3, -0.3)
 
@@ -78,9 +85,13 @@ def stepper_table() -> None:
             for r in command:
                 step(r)
 
-        substeps = train.substeps_per_sample if isinstance(train, DriveTrain) else "-"
+        if isinstance(train, DriveTrain):
+            substeps = train.substeps_per_sample
+            pure_python = f"{_cpu_us_per_sample(lambda: reference_load_angle_rad(train, command), 2000):.3g}"
+        else:
+            substeps = pure_python = "-"
         print(f"| {name} | {substeps} | {_cpu_us_per_sample(lambda: train.apply(command), 2000):.3g} "
-              f"| {_cpu_us_per_sample(stepped, 2000):.3g} |")
+              f"| {_cpu_us_per_sample(stepped, 2000):.3g} | {pure_python} |")
 
 
 def diagnosis(record: str, profile: bool) -> None:
