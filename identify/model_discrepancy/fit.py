@@ -53,6 +53,7 @@ from identify.model_discrepancy.thresholds import (
     LOOP_POLISHED_STARTS,
     LOOP_START_GUESSES,
     REFIT_FOLDS,
+    START_SCREEN_SAMPLES,
     STATIC_FRICTION_SCAN,
     STICK_SLIP_MIN_GAIN,
     STICK_SLIP_ROUNDS,
@@ -67,8 +68,10 @@ def _try_effect(kind: str, chain: _Chain, u: NDArray[np.float64], y: NDArray[np.
     with a free loop, the loop starts) ranked by the estimation error, the best polished, and each of
     ``forced_starts`` (values of the effect, unranked) polished too; the fit with the lowest estimation error
     is kept, its delays walked (:func:`_walk_delays`). The fit uses the first :func:`_fit_samples` samples of the
-    estimation segment (all of it on a record of up to :data:`FIT_MAX_SAMPLES`); the candidate's estimation
-    error and validated gap (:func:`_judged`) are over the whole segments.
+    estimation segment (all of it on a record of up to :data:`FIT_MAX_SAMPLES`); its starts are ranked and
+    polished on the first :func:`_screen_samples` of them (:data:`START_SCREEN_SAMPLES`), and on a record longer
+    than that the best start is polished again on all the fit uses; the candidate's estimation error and
+    validated gap (:func:`_judged`) are over the whole segments.
 
     A hysteresis after the linear block (catalogue ``contact_start``) also polishes the best start of each of
     its contact-branch forms (:func:`_contact_branch_start`; friction has one per breakaway/sliding ratio),
@@ -81,6 +84,8 @@ def _try_effect(kind: str, chain: _Chain, u: NDArray[np.float64], y: NDArray[np.
     index = _insert_index(chain, kind)
     n_fit = _fit_samples(n_est)
     u_est, y_est = u[:n_fit], y[:n_fit]
+    n_screen = _screen_samples(n_est)
+    u_start, y_start = u[:n_screen], y[:n_screen]
     entry = effect(kind)
     train: DriveTrain | None = None
     if entry.placement == "dynamics":
@@ -102,11 +107,11 @@ def _try_effect(kind: str, chain: _Chain, u: NDArray[np.float64], y: NDArray[np.
                                                                       simulated, train))]
         if entry.placement == "dynamics" and chain.components[index].loop_free and options:
             # the guesses ranked at the start model's loop; the best LOOP_START_GUESSES from every loop start
-            costs = [_rms(_free_run_error(option, u_est, y_est)) for option in options]
+            costs = [_rms(_free_run_error(option, u_start, y_start)) for option in options]
             ranked = [options[i] for i in np.argsort(costs)[:LOOP_START_GUESSES]]
             options = [_with_loop(option, index, loop) for option in ranked for loop in _loop_starts(train)]
-    options = [_refit_last_linear(option, u_est, y_est) for option in options]
-    costs = [_rms(_free_run_error(option, u_est, y_est)) for option in options]
+    options = [_refit_last_linear(option, u_start, y_start) for option in options]
+    costs = [_rms(_free_run_error(option, u_start, y_start)) for option in options]
     if entry.placement == "dynamics" and chain.components[index].loop_free:
         starts = _distinct_loop_starts(options, costs, index, LOOP_POLISHED_STARTS)
     else:
@@ -114,18 +119,26 @@ def _try_effect(kind: str, chain: _Chain, u: NDArray[np.float64], y: NDArray[np.
     if entry.contact_start is not None:
         plays = np.geomspace(delta, max(float(np.max(np.abs(residual))), 4.0 * delta), CONTACT_BRANCH_PLAYS)
         forms = [[with_effect(start, refit) for start in entry.contact_start(c_l, c_r)] for refit, c_l, c_r in
-                 filter(None, (_contact_branch_start(chain, u_est, y_est, play) for play in plays))]
+                 filter(None, (_contact_branch_start(chain, u_start, y_start, play) for play in plays))]
         for contacts in zip(*forms):  # the best start of each form, over the plays the refits began from
-            starts.append(contacts[int(np.argmin([_rms(_free_run_error(c, u_est, y_est)) for c in contacts]))])
+            starts.append(contacts[int(np.argmin([_rms(_free_run_error(c, u_start, y_start)) for c in contacts]))])
     starts += [with_effect(tuple(values)) for values in forced_starts]
-    fits = [_polished_start(start, u_est, y_est, max_evaluations) for start in starts]
+    fits = [_polished_start(start, u_start, y_start, max_evaluations) for start in starts]
     if entry.stick_slip and train is None:
-        fits = [_stick_slip_fit(fit, index, u_est, y_est, max_evaluations) for fit in fits]
-    best = fits[int(np.argmin([_rms(_free_run_error(fit, u_est, y_est)) for fit in fits]))]
+        fits = [_stick_slip_fit(fit, index, u_start, y_start, max_evaluations) for fit in fits]
+    best = fits[int(np.argmin([_rms(_free_run_error(fit, u_start, y_start)) for fit in fits]))]
+    if n_screen < n_fit:
+        best = _polished_start(best, u_est, y_est, max_evaluations)
     if not entry.searched or not entry.vanished(_build(best.components[index], best.components[index].values),
                                                  delta):  # a delay the held fit found; see _walk_delays
         best = _walk_delays(best, u_est, y_est, _budget(best, max_evaluations), max_delay_samples)
     return _judged(kind, _stick_slip_scanned(best, u_est, y_est), index, u, y, n_est)
+
+
+def _screen_samples(n_est: int) -> int:
+    """How many of the ``n_est`` estimation samples a candidate's starts are ranked and polished on: the first
+    :data:`START_SCREEN_SAMPLES` at most (and at most :func:`_fit_samples`)."""
+    return min(_fit_samples(n_est), START_SCREEN_SAMPLES)
 
 
 def _fit_samples(n_est: int) -> int:

@@ -213,6 +213,25 @@ with it while 20 s at 1 kHz already holds a hundred or more reversals of the com
 judged on the whole validation segment and the effect kept is polished on the whole estimation segment
 (:func:`_add_step`), so a long record still sharpens what is named."""
 
+# Evidence: benchmarks/diagnosis_speed.py (BENCHMARKS.md, "Diagnosis against the record length"): a hidden
+# backlash, seed 11, N = 100 000 from a fitted start, the same verdict and sizes to 0.01 mrad with 33.6 CPU s
+# before and 16.4 after; every candidate's validated gap within 0.1 % but coulomb_friction (+0.08 %) and the
+# inner twin load_friction+shaft_play (3.62 -> 3.72 mrad, behind backlash's 0.47). Hidden load_friction,
+# shaft_play, coulomb_friction, resonance, load_friction+shaft_play, dead_zone and delay, seed 11, N = 30 000,
+# fitted start: the same effects named, sizes within 0.01 mrad of those before, Coulomb friction nearer the
+# truth (breakaway 16.13 against 16.22, truth 16.11 mrad), the load's static friction one step of the scan of
+# STATIC_FRICTION_SCAN lower (452 and 458 rad/s^2 against 457 and 468, truth 465). Records with an
+# estimation segment of up to 5000 samples (the tests, the confusion benchmark, the K-Scale records) are fitted
+# as before.
+START_SCREEN_SAMPLES = 5_000
+"""A candidate's starts (its guesses with the linear block refitted, the loop starts, the contact-branch
+starts, the forced starts) are ranked and polished on at most this many samples, the first of the fit's
+(:data:`FIT_MAX_SAMPLES`), and only the best of them is polished again on all the fit uses
+(:func:`_try_effect`). A fit makes several starts and each polish is hundreds of free runs, most of them of a
+sub-stepped drive train; where the starts end is told by 5 s at 1 kHz as well as by 20 s (each holds tens of
+reversals of the command), and the one kept is then fitted, judged and, if named, polished on the longer
+stretches. Records of up to this many estimation samples are fitted as before."""
+
 # Evidence: the first version of the workflow; origin not recorded.
 MAX_EVALUATIONS = 40
 """Function evaluations per least-squares polish (default of ``DiagnoseOptions.max_evaluations``)."""

@@ -86,3 +86,49 @@ def test_the_named_backlash_keeps_its_size_when_the_candidates_are_fitted_on_a_w
         assert abs(fitted - whole.steps[0].parameters[key]) < 0.1 * record.noise_bound_rad
         assert abs(fitted - true_value) < record.noise_bound_rad
     assert windowed.final.gap_rad < 1.05 * whole.final.gap_rad
+
+
+SCREEN = 300
+
+
+@pytest.mark.parametrize("kind", ["backlash", "shaft_play"])
+def test_a_candidate_screens_its_starts_on_the_first_samples_and_polishes_only_the_best_on_the_window(
+        record, monkeypatch, simulated_lengths, kind):
+    u, y, delta, period = record.command_rad, record.angle_rad, record.noise_bound_rad, record.sample_period_s
+    n_est = int(round(ESTIMATION_FRACTION * u.size))
+    start = disagreement(record.nominal_model, u, y, delta, n_est)
+    scores = signature_scores(u, y, start.simulated_rad, delta, period)
+    monkeypatch.setattr(fit, "FIT_MAX_SAMPLES", WINDOW)
+
+    def window_runs(screen: int) -> Counter[int]:
+        monkeypatch.setattr(fit, "START_SCREEN_SAMPLES", screen)
+        simulated_lengths.clear()
+        fit._try_effect(kind, _start_chain(record.nominal_model, None, 2), u, y, n_est, delta, period,
+                        start.residual_rad, scores, MAX_DELAY_SAMPLES, MAX_EVALUATIONS)
+        return Counter(simulated_lengths)
+
+    unscreened, screened = window_runs(WINDOW), window_runs(SCREEN)
+    # every start ranked and polished on the screen; the window runs only the best start's polish, the delay
+    # walk and the stick-slip scan; the whole segments once each for the judgement
+    assert set(screened) == {SCREEN, WINDOW, n_est, u.size}
+    assert screened[n_est] == screened[u.size] == 1
+    assert screened[SCREEN] > screened[WINDOW]
+    assert screened[WINDOW] < unscreened[WINDOW]
+
+
+def test_the_named_backlash_keeps_its_size_when_the_starts_are_screened_on_the_first_samples(record, monkeypatch):
+    truth = record.true_model.find(OutputBacklash)[0]
+    options = dict(candidates=("backlash", "delay"))
+    monkeypatch.setattr(fit, "FIT_MAX_SAMPLES", WINDOW)
+    monkeypatch.setattr(fit, "START_SCREEN_SAMPLES", WINDOW)
+    whole = diagnose_model(record.command_rad, record.angle_rad, record.noise_bound_rad, record.sample_period_s,
+                           None, **options)
+    monkeypatch.setattr(fit, "START_SCREEN_SAMPLES", SCREEN)
+    screened = diagnose_model(record.command_rad, record.angle_rad, record.noise_bound_rad,
+                              record.sample_period_s, None, **options)
+    assert screened.missing_effects == whole.missing_effects == ("backlash",)
+    for key, true_value in (("c_l_rad", truth.c_l_rad), ("c_r_rad", truth.c_r_rad)):
+        fitted = screened.steps[0].parameters[key]
+        assert abs(fitted - whole.steps[0].parameters[key]) < 0.1 * record.noise_bound_rad
+        assert abs(fitted - true_value) < record.noise_bound_rad
+    assert screened.final.gap_rad < 1.05 * whole.final.gap_rad
