@@ -215,12 +215,13 @@ judged on the whole validation segment and the effect kept is polished on the wh
 
 # Evidence: benchmarks/diagnosis_speed.py (BENCHMARKS.md, "Diagnosis against the record length"): a hidden
 # backlash, seed 11, N = 100 000 from a fitted start, the same verdict and sizes to 0.01 mrad with 33.6 CPU s
-# before and 16.4 after; every candidate's validated gap within 0.1 % but coulomb_friction (+0.08 %) and the
+# before and 16.4 after; every candidate's validated gap within 0.03 % but coulomb_friction's (+0.08 %) and the
 # inner twin load_friction+shaft_play (3.62 -> 3.72 mrad, behind backlash's 0.47). Hidden load_friction,
 # shaft_play, coulomb_friction, resonance, load_friction+shaft_play, dead_zone and delay, seed 11, N = 30 000,
-# fitted start: the same effects named, sizes within 0.01 mrad of those before, Coulomb friction nearer the
-# truth (breakaway 16.13 against 16.22, truth 16.11 mrad), the load's static friction one step of the scan of
-# STATIC_FRICTION_SCAN lower (452 and 458 rad/s^2 against 457 and 468, truth 465). Records with an
+# fitted start: the same effects named; plays, dead zone, resonance and delay the same to 0.01 mrad (0.01 Hz);
+# Coulomb friction nearer the truth (breakaway 16.13 against 16.22, truth 16.11 mrad); the load's static
+# friction one step of STATIC_FRICTION_SCAN lower (452 and 458 rad/s^2 against 457 and 468, truth 465), its
+# viscous term, which the record hardly fixes, 1.5 against 53 per s alone (truth 28). Records with an
 # estimation segment of up to 5000 samples (the tests, the confusion benchmark, the K-Scale records) are fitted
 # as before.
 START_SCREEN_SAMPLES = 5_000
