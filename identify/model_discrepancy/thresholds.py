@@ -214,8 +214,8 @@ judged on the whole validation segment and the effect kept is polished on the wh
 (:func:`_add_step`), so a long record still sharpens what is named."""
 
 # Evidence: benchmarks/diagnosis_speed.py (BENCHMARKS.md, "Diagnosis against the record length"): a hidden
-# backlash, seed 11, N = 100 000 from a fitted start, the same verdict and sizes to 0.01 mrad with 33.6 CPU s
-# before and 16.4 after; every candidate's validated gap within 0.03 % but coulomb_friction's (+0.08 %) and the
+# backlash, seed 11, N = 100 000 from a fitted start, the same verdict and sizes to 0.01 mrad with 34.4 CPU s
+# before and 16.7 after; every candidate's validated gap within 0.03 % but coulomb_friction's (+0.08 %) and the
 # inner twin load_friction+shaft_play (3.62 -> 3.72 mrad, behind backlash's 0.47). Hidden load_friction,
 # shaft_play, coulomb_friction, resonance, load_friction+shaft_play, dead_zone and delay, seed 11, N = 30 000,
 # fitted start: the same effects named; plays, dead zone, resonance and delay the same to 0.01 mrad (0.01 Hz);
