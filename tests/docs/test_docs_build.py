@@ -30,21 +30,9 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[2]
 DOCS = ROOT / "docs"
-BUILD_OPTIONS = ["-W", "--keep-going", "-q", "-b", "html"]
-"""What ``scripts/build_docs`` passes to sphinx-build (checked below), so the test builds what the script builds."""
 
 EXAMPLE_TIMEOUT_S = 120.0
 """Per block: the tested blocks take a few seconds each; the margin is for a machine shared with other work."""
-
-
-@pytest.fixture(scope="module")
-def site(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    out = tmp_path_factory.mktemp("docs") / "html"
-    result = subprocess.run([sys.executable, "-m", "sphinx", *BUILD_OPTIONS, "-E", "-d", str(out.parent / "doctrees"),
-                             str(DOCS), str(out)], cwd=ROOT, capture_output=True, text=True, timeout=600)
-    assert result.returncode == 0 and not result.stderr.strip(), (
-        f"sphinx-build exited {result.returncode}:\n{result.stderr[-6000:]}")
-    return out
 
 
 def test_the_build_script_builds_with_warnings_as_errors() -> None:
