@@ -503,23 +503,22 @@ def _look_alikes_checked(found: _Search, u: NDArray[np.float64], y: NDArray[np.f
                          say: Callable[[str], None]) -> _Search:
     """Each named effect with look-alikes (catalogue ``look_alikes``: gravity, the encoder error, the offset) checked
     against them: the look-alike is fitted in its place (the final model without the effect, plus the
-    look-alike, :func:`_try_effect`). Unless the record prefers the named effect beyond the uncertainty of
-    their validated gaps (:func:`_within_uncertainty`, the paired per-block rule of the search's ties), the
-    record cannot tell them apart: the effect is dropped (the rest refitted as a round's baseline,
-    :func:`_baseline_refit`), the search is ambiguous between them, and the reason says what experiment would
-    separate them (:data:`LOOK_ALIKE_EXPERIMENTS`) and on what share of the record their outputs are within
-    the noise bound of each other. The look-alikes of a look-alike that also fits are tried in the effect's
-    place as well: over a small range of angles a load torque, a sensor error and an offset are all one
-    constant, and all three are reported.
+    look-alike, :func:`_try_effect`), and when the two fitted models' free-run outputs are within the noise
+    bound of each other on all but ``consistent_fraction`` of the record's measured samples
+    (:data:`LOOK_ALIKE_APART_FRACTION` is that fraction), or when they differ but the look-alike fits the
+    validation segment as well within the uncertainty (:func:`_within_uncertainty`) or better, the record
+    cannot tell them apart: the effect is
+    dropped (the rest refitted as a round's baseline, :func:`_baseline_refit`), the search is ambiguous
+    between them, and the reason says what experiment would separate them (:data:`LOOK_ALIKE_EXPERIMENTS`).
+    The look-alikes of a look-alike that also fits are tried in the effect's place as well: over a small
+    range of angles a load torque, a sensor error and an offset are all one constant, and all three are
+    reported.
 
-    Fitted to the data on the estimation segment, a look-alike with more freedom than the effect (a sensor
-    error's second harmonic) can extrapolate far off over angles only the validation segment reaches: when
-    its output is further than the noise bound from the named model's on more than
-    :data:`LOOK_ALIKE_APART_FRACTION` of the samples, it is also fitted to follow the named model's output
-    over the whole record (can any such look-alike give what the effect gives?), and the version with the
-    lower validated gap is judged. A torque ~ sin of the load angle through a stiff servo deflects the load
-    by torque / stiffness at every angle: in slow motion exactly the shape of a once-per-revolution sensor
-    error; only fast moves (the servo lags the torque) or a softer servo show the difference."""
+    The whole record is compared, not the validation segment: the outputs, not their fit to the data, are
+    what a further record would have to tell apart. A torque ~ sin of the load angle through a stiff servo
+    deflects the load by torque / stiffness at every angle: in slow motion exactly the shape of a
+    once-per-revolution sensor error; only fast moves (the servo lags the torque) or a softer servo show the
+    difference."""
     named = [step.effect for step in found.steps]
     whole_catalogue = set(SEARCHED_EFFECT_NAMES) <= set(options.candidates)
 
@@ -537,9 +536,12 @@ def _look_alikes_checked(found: _Search, u: NDArray[np.float64], y: NDArray[np.f
         return float(np.mean(np.abs(named_output - theirs)[measured] > delta))
 
     def fitted_in_place(alike: str, reduced: _Chain, before: Disagreement) -> tuple[_Candidate, float] | None:
-        """``alike`` fitted into ``reduced`` (to the data, and when apart also to the named model's output:
-        the one with the lower validated gap) and the share of the record's measured samples where its output
-        is further than the noise bound from the named model's; None when it vanishes."""
+        """``alike`` fitted into ``reduced`` and the share of the record's measured samples where its output
+        is further than the noise bound from the named model's; None when it vanishes. Fitted to the data
+        on the estimation segment, a look-alike with more freedom than the effect (a sensor error's second
+        harmonic) can extrapolate far off over angles only the validation segment reaches: when its output is
+        apart, it is fitted again to follow the named model's output over the whole record, which is the
+        question asked (can any such look-alike give what the effect gives)."""
         scores = signature_scores(u, y, before.simulated_rad, delta, period)
         other = _try_effect(alike, reduced, u, y, n_est, delta, period, before.residual_rad, scores,
                             options.max_delay_samples, options.max_evaluations)
@@ -547,11 +549,11 @@ def _look_alikes_checked(found: _Search, u: NDArray[np.float64], y: NDArray[np.f
             return None
         apart = apart_from_named(other.chain)
         if apart > apart_allowed:
-            matched = _judged(alike, _polish(other.chain, u, named_output,
-                                             _budget(other.chain, options.max_evaluations), samples=measured),
-                              other.index, u, y, n_est)
-            if matched.gap_rad < other.gap_rad:
-                other, apart = matched, apart_from_named(matched.chain)
+            matched = _polish(other.chain, u, named_output, _budget(other.chain, options.max_evaluations),
+                              samples=measured)
+            matched_apart = apart_from_named(matched)
+            if matched_apart < apart:
+                other, apart = _judged(alike, matched, other.index, u, y, n_est), matched_apart
         return other, apart
 
     for step in found.steps:
@@ -570,12 +572,12 @@ def _look_alikes_checked(found: _Search, u: NDArray[np.float64], y: NDArray[np.f
                 fit = fitted_in_place(alike, reduced, before)
                 if fit is None:
                     continue
-                if fit[0].gap_rad > found.current.gap_rad and not _within_uncertainty(
+                if fit[1] > apart_allowed and fit[0].gap_rad > found.current.gap_rad and not _within_uncertainty(
                         found.current.gap_rad, found.current.residual_rad[n_est:], fit[0].gap_rad,
                         fit[0].validation_error_rad):
-                    say(f"{step.effect} and its look-alike {alike}: the record prefers {step.effect} beyond the "
-                        f"uncertainty (validated gap {found.current.gap_rad:.3g} against {fit[0].gap_rad:.3g} rad, "
-                        f"outputs apart by more than the noise bound on {100 * fit[1]:.1f} % of it): told apart")
+                    say(f"{step.effect} and its look-alike {alike} give outputs apart by more than the noise bound "
+                        f"on {100 * fit[1]:.1f} % of the record, and the record prefers {step.effect} (validated gap "
+                        f"{found.current.gap_rad:.3g} against {fit[0].gap_rad:.3g} rad): told apart")
                     continue
                 group.append((alike, member, *fit))
                 members.append(alike)

@@ -389,13 +389,9 @@ falsified (default of ``DiagnoseOptions.consistent_fraction``)."""
 # of the fitted encoder error on 99.8-100 % of the samples; our hidden gravity (identify.discrepancy_cases,
 # seeds 1000 and 1001) is told apart and stays named.
 LOOK_ALIKE_APART_FRACTION = 0.01
-"""A look-alike (catalogue ``look_alikes``) fitted to the data whose output differs from the named model's by
-more than the noise bound on more than this fraction of the record's measured samples (or
-``consistent_fraction``, if larger) is also fitted to follow the named model's output, and the better of the
-two is judged; whether the record tells them apart is then decided by their validated gaps
-(``_look_alikes_checked``), this share only said in the reason. An eccentricity's encoder error fitted to
-the data extrapolated 13 mrad off over angles only the validation segment reaches (independent generator,
-seed 1035, steps) and let gravity be named alone."""
+"""Two fitted look-alike effects (catalogue ``look_alikes``) can be told apart by the record only when their
+models' outputs differ by more than the noise bound on more than this fraction of its measured samples (or
+``consistent_fraction``, if larger)."""
 
 # Evidence: the first version of the workflow; origin not recorded.
 MAX_EFFECTS = 3
