@@ -62,11 +62,11 @@ def test_an_angle_dependent_error_over_a_small_motion_is_not_named_an_offset(eff
     # range of angles any error that depends on the angle is a constant (a load torque through the shaft as
     # well); each of these was named offset alone
     result = independent(effect_name, seed, excitation="prbs")
-    assert result.verdict == "ambiguous" and result.missing_effects == (), result.verdict_reason
-    assert "offset" in result.ambiguous_between
-    assert len(result.ambiguous_between) >= 2
+    assert result.verdict == "ambiguous", result.verdict_reason
+    assert set(result.missing_effects) <= {"gravity"}  # kept only with its shape left open
     assert set(result.ambiguous_between) <= {"offset", "encoder_error", "gravity"}
-    assert "move through a wider range of angles" in result.verdict_reason
+    assert ("move through a wider range of angles" in result.verdict_reason
+            or "move slowly through a full revolution" in result.verdict_reason)
 
 
 def test_an_offset_over_a_wide_motion_stays_named():
