@@ -90,3 +90,17 @@ def test_the_built_page_shows_every_script_and_its_sections(site: Path) -> None:
     sections = {name for where, _ in _script_list().values() for name in _QUOTED.findall(where)}
     missing = sorted(name for name in sections if name.replace("`", "") not in text)
     assert not missing, f"{PAGE.relative_to(ROOT)} (built) does not name the sections {missing}"
+
+
+_CITED_SECTION = re.compile(r'BENCHMARKS\.md`?,?\s+(?:section \d+\s+)?\(?"([^"\n]+)"')
+
+
+def test_every_docs_page_cites_sections_benchmarks_md_has() -> None:
+    # a page that sends the reader to "BENCHMARKS.md, "HEADING"" must name a heading the file has
+    headings = _headings()
+    wrong = []
+    for path in sorted((ROOT / "docs").rglob("*.md")) + [ROOT / "README.md"]:
+        text = " ".join(path.read_text(encoding="utf-8").split())  # citations wrap across lines
+        wrong += [f"{path.relative_to(ROOT)}: {name!r}" for name in _CITED_SECTION.findall(text)
+                  if name not in headings]
+    assert not wrong, "cited sections that BENCHMARKS.md has no heading for (rename to the heading): " + "; ".join(wrong)
