@@ -162,8 +162,9 @@ SHAFT_MODE_MAX_DAMPING = 0.3
 is read as a shaft mode: the dynamics candidates then also try a two-mass train (:func:`drive_train_like`)."""
 
 # Evidence: the independent generator's nominal block (loop 60 Hz, zeta 0.7; shaft mode 30.8 Hz): the rigid
-# train of the same response misses it by up to 2.0 mrad (RMS 0.24 mrad, the noise bound is 1.2 mrad), the
-# two-mass train by 2.5e-7 rad. Half: a two-mass train is kept only where it is clearly closer.
+# train of the same response misses it by 2.0-17 mrad on chirp, steps, multisine and prbs commands (the noise
+# bound is 1.2 mrad), the two-mass train by at most 1.7e-6 rad. Half: a two-mass train is kept only where it
+# is clearly closer.
 SHAFT_TRAIN_ERROR_SHARE = 0.5
 """The two-mass train replaces the rigid one when its free run's RMS error from the block is at most this
 share of the rigid train's (it costs sub-steps; a train that is not clearly closer is not worth them)."""
