@@ -361,8 +361,8 @@ def truth_in_our_terms(truth: dict, nominal: dict, name: str, model: PlantModel,
     X = tau / J leaves a static error X / omega_n^2 (+ X J / k'). So X is compared at the same static sag:
     X = (tau / k) / (1 / omega_n^2 + J / k'), with omega_n and J of the train in ``model``. Output backlash and
     Coulomb friction through a compliance report twists: the play's half-width b_h, or the sliding twist
-    F_c / k of quasi-static friction (breakaway F_s / k); the load's viscous friction in a two-mass train is the
-    nominal one at the same decay rate b / J_l. The hanging angle is reported from the operating
+    F_c / k of quasi-static friction (breakaway F_s / k); the viscous friction a load friction adds is zero (the
+    nominal load's is the model's). The hanging angle is reported from the operating
     point the workflow moved to: theta_0 - y_0. A drifting gain and the effects without a catalogue
     equivalent are not compared."""
     p = truth["parameters"]
@@ -380,14 +380,11 @@ def truth_in_our_terms(truth: dict, nominal: dict, name: str, model: PlantModel,
             return {"gravity_per_inertia_rad_per_s2": p["mgr_nm"] / k / compliance,
                     "hanging_angle_rad": p["hanging_angle_rad"] - operating_point_rad}
         if name == "load_friction" and sliding is not None:
-            # the nominal load's viscous friction b is in a two-mass train's (its free load decays at the same
-            # rate b / J_l); a rigid train has none of its own
-            viscous = 0.0 if train.rigid else (float(nominal["viscous_friction_nm_s_per_rad"])
-                                               / float(nominal["load_inertia_kg_m2"]) * train.load_inertia_kg_m2
-                                               / train.total_inertia_kg_m2)
+            # the effect reports the viscous friction it adds to the train, and the generator's Coulomb and
+            # Stribeck frictions add none (the nominal load's viscous friction is the model's)
             return {"coulomb_per_inertia_rad_per_s2": sliding / k / compliance,
                     "static_per_inertia_rad_per_s2": breakaway / k / compliance,
-                    "viscous_per_inertia_per_s": viscous}
+                    "viscous_per_inertia_per_s": 0.0}
         return {}
     if name == "coulomb_friction" and sliding is not None:
         return {"breakaway_deflection_rad": breakaway / k, "sliding_deflection_rad": sliding / k}

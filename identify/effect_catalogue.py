@@ -236,6 +236,10 @@ class Effect:
         the load's speed, which adds to the velocity loop's own K_v / J = 2 zeta omega_n: when the loop is
         fitted too, the record shows mainly their sum, and the parameter's interval is walked along that
         trade (``_loop_traded_intervals`` in :mod:`identify.model_discrepancy.intervals`).
+    added_to_train
+        Dynamics effects: the reported parameters that add to a field the train may already have (the load's
+        viscous friction of a given or re-expressed train): they are reported as what the effect adds
+        (:meth:`report_in_train`), since the train's own part is the model's.
     """
 
     name: str
@@ -269,11 +273,22 @@ class Effect:
     look_alikes: tuple[str, ...] = ()
     same_map_as: tuple[str, ...] = ()
     look_alike_only: bool = False
+    added_to_train: tuple[str, ...] = ()
 
     def in_train(self, values: Sequence[float], train: DriveTrain) -> DriveTrain:
         """``train`` with this dynamics effect's fields set from its free ``values``."""
         assert self.train_fields is not None, f"{self.name} is no dynamics effect"
         return replace(train, **self.train_fields(values, train))
+
+    def report_in_train(self, train: DriveTrain, base: DriveTrain) -> dict[str, float]:
+        """:attr:`report` of ``train``, which holds this dynamics effect put into ``base``: the parameters
+        named in :attr:`added_to_train` are what the effect adds to ``base``'s own (a given train's viscous
+        friction is the model's, not the missing effect's)."""
+        values = self.report(train)
+        if self.added_to_train:
+            own = self.report(base)
+            values = {key: value - own[key] if key in self.added_to_train else value for key, value in values.items()}
+        return values
 
     def block_from_toml(self, values: dict[str, Any], sample_period_s: float) -> Block:
         """The block of a TOML table whose keys were read into ``values``."""
@@ -819,6 +834,7 @@ EFFECTS: dict[str, Effect] = {effect.name: effect for effect in (
         resolution=lambda train, y_hat, e: _torque_resolution(
             train, ("coulomb_per_inertia_rad_per_s2", "static_per_inertia_rad_per_s2"), e),
         loop_damping_value=2,  # d_v / J
+        added_to_train=("viscous_per_inertia_per_s",),
     ),
     Effect(
         name="gravity", block_class=DriveTrain, toml_type="drive_train",

@@ -20,7 +20,7 @@ from identify.effect_catalogue import EFFECTS, effect, reference_train
 from identify.plant_blocks import Block, LinearBlock, PlantModel, Resonance
 from identify.validation import InvalidInputError
 
-from identify.model_discrepancy.chain import _Chain, _Component, _build, _train
+from identify.model_discrepancy.chain import _Chain, _Component, _build, _train, _without
 from identify.model_discrepancy.thresholds import (
     FAILED_RUN_ERROR_RAD,
     LOOP_BANDWIDTH_NYQUIST_SHARE,
@@ -277,12 +277,6 @@ def _without_effect(chain: _Chain, kind: str) -> _Chain | None:
         if component.kind == kind:
             return _Chain(components[:i] + components[i + 1:])
         if component.kind == "drive_train" and kind in component.effects:
-            k = 2 if component.loop_free else 0
-            for name in component.effects:
-                n = EFFECTS[name].free_parameters
-                if name == kind:
-                    components[i] = replace(component, values=component.values[:k] + component.values[k + n:],
-                                            effects=tuple(e for e in component.effects if e != kind))
-                    return _Chain(components)
-                k += n
+            components[i] = _without(component, kind)
+            return _Chain(components)
     return None

@@ -218,10 +218,29 @@ def _polish(chain: _Chain, u: NDArray[np.float64], y: NDArray[np.float64], max_e
 
 
 def _effect_parameters(chain: _Chain) -> dict[str, dict[str, float]]:
-    """The public parameters of every effect of a fitted chain (those inside a drive train included)."""
+    """The public parameters of every effect of a fitted chain; an effect inside a drive train reports what
+    it adds to the train without it (catalogue ``report_in_train``)."""
     out: dict[str, dict[str, float]] = {}
     for component in chain.components:
-        kinds = component.effects if component.kind == "drive_train" else (component.kind,)
-        for kind in (k for k in kinds if k in EFFECTS):
-            out[kind] = _parameters(kind, _build(component, component.values))
+        if component.kind == "drive_train":
+            train = _build(component, component.values)
+            for kind in component.effects:
+                base = _without(component, kind)
+                parameters = effect(kind).report_in_train(train, _build(base, base.values))
+                out[kind] = {key: float(value) for key, value in parameters.items()}
+        elif component.kind in EFFECTS:
+            out[component.kind] = _parameters(component.kind, _build(component, component.values))
     return out
+
+
+def _without(component: _Component, kind: str) -> _Component:
+    """Drive-train ``component`` with dynamics effect ``kind``'s values and name taken out (its train's field
+    then keeps the start's value)."""
+    k = 2 if component.loop_free else 0
+    for name in component.effects:
+        n = EFFECTS[name].free_parameters
+        if name == kind:
+            return replace(component, values=component.values[:k] + component.values[k + n:],
+                           effects=tuple(e for e in component.effects if e != kind))
+        k += n
+    raise ValueError(f"{kind} is not in this drive train ({', '.join(component.effects)})")

@@ -29,9 +29,9 @@ from identify.model_discrepancy.chain import (
     _Component,
     _build,
     _effect_block,
+    _effect_parameters,
     _free_run_error,
     _measured_error,
-    _parameters,
     _polish,
     _rms,
 )
@@ -150,7 +150,7 @@ def _search(state: _Search, remaining: list[str], u: NDArray[np.float64], y: NDA
             return CandidateResult(
                 round=round_index, effect=kind, gap_rad=candidate.gap_rad,
                 gap_uncertainty_rad=_gap_uncertainty(candidate.validation_error_rad),
-                penalised_gap_rad=penalised_gap, parameters=_parameters(kind, candidate.block), vanished=vanished,
+                penalised_gap_rad=penalised_gap, parameters=_effect_parameters(candidate.chain)[kind], vanished=vanished,
                 helps=(not vanished) and penalised_gap <= (1.0 - min_reduction) * current.gap_rad,
                 reduction=reduction, reduction_interval=interval, acceptance="vanished" if vanished else word,
                 validation_interval=interval)
@@ -200,7 +200,7 @@ def _search(state: _Search, remaining: list[str], u: NDArray[np.float64], y: NDA
             tried_all.append(CandidateResult(
                 round=round_index - 1, effect=pair_name, gap_rad=pair.gap_rad,
                 gap_uncertainty_rad=_gap_uncertainty(pair.validation_error_rad), penalised_gap_rad=pair_penalised,
-                parameters={key: value for name in twin for key, value in _parameters(name, pair.block).items()},
+                parameters={key: value for name in twin for key, value in _effect_parameters(pair.chain)[name].items()},
                 vanished=pair_vanished,
                 helps=not pair_vanished and pair_penalised <= (1.0 - min_reduction) * current.gap_rad,
                 reduction=reduction, reduction_interval=interval, acceptance="vanished" if pair_vanished else word,
@@ -294,7 +294,7 @@ def _add_step(best: _Candidate, current: Disagreement, steps: list[DiscrepancySt
         "candidate_gaps_rad": {c.kind: c.gap_rad for c in tried},
     }
     step = DiscrepancyStep(
-        effect=best.kind, parameters=_parameters(best.kind, best.block), evidence=evidence,
+        effect=best.kind, parameters=_effect_parameters(best.chain)[best.kind], evidence=evidence,
         gap_before_rad=current.gap_rad, gap_after_rad=after.gap_rad,
         falsified_fraction_before=current.falsified_fraction, falsified_fraction_after=after.falsified_fraction,
         model=best.chain.model(),
@@ -312,9 +312,8 @@ def _add_compound(parts: Sequence[_Candidate], chain: _Chain, current: Disagreem
     for part in parts:
         state = _add_step(part, state.current, state.steps, state.tried, u, y, n_est, delta, scores,
                           tried, max_evaluations)
-    final = state.chain.components[parts[-1].index]
-    block = _build(final, final.values)
-    fixed = [replace(step, parameters=_parameters(step.effect, block)) if i >= len(steps) else step
+    final = _effect_parameters(state.chain)
+    fixed = [replace(step, parameters=final[step.effect]) if i >= len(steps) else step
              for i, step in enumerate(state.steps)]
     return _Search(state.chain, state.current, fixed, state.tried, (), state.validation_error_rad)
 
@@ -433,7 +432,7 @@ def _family_rechecked(found: _Search, candidates: Sequence[str], u: NDArray[np.f
             f"with every named effect in, the friction's fit read as a backlash fits better than {step.effect}'s own")
         current = disagreement(best.chain.model(), u, y, delta, n_est)
         steps = list(found.steps)
-        steps[k] = replace(step, effect=best.kind, parameters=_parameters(best.kind, best.block),
+        steps[k] = replace(step, effect=best.kind, parameters=_effect_parameters(best.chain)[best.kind],
                            evidence={**step.evidence, "family_recheck_gaps_rad": {c.kind: c.gap_rad for c in fits}})
         steps[-1] = replace(steps[-1], gap_after_rad=current.gap_rad, model=best.chain.model(),
                             falsified_fraction_after=current.falsified_fraction)

@@ -95,6 +95,34 @@ def test_gravity_merges_into_the_users_drive_train_and_is_reported_per_inertia()
     assert final.gravity_torque_nm == pytest.approx(true_train.gravity_torque_nm, rel=0.05)
 
 
+def test_friction_on_the_load_reports_what_it_adds_to_the_users_viscous_friction():
+    # the user's rigid train already has viscous friction (d_v / J = 20 1/s, a quarter of the loop's damping
+    # 2 zeta omega_n); the record adds Coulomb friction T_c / J = 30 rad/s^2 (sagging the 8 Hz loop by 12 mrad)
+    # and nothing viscous: the effect's viscous term is what it adds (zero), not the train's total
+    period = 1e-3
+    rigid = DriveTrain(sample_period_s=period, gear_ratio=50.0, motor_inertia_kg_m2=2e-6,
+                       load_inertia_kg_m2=0.015, shaft_stiffness_nm_per_rad=math.inf,
+                       position_loop_bandwidth_hz=8.0, position_loop_damping_ratio=0.8)
+    inertia = rigid.total_inertia_kg_m2
+    model_train = dataclasses.replace(rigid, viscous_friction_nm_s_per_rad=20.0 * inertia)
+    true_train = dataclasses.replace(model_train, coulomb_friction_nm=30.0 * inertia,
+                                     static_friction_nm=30.0 * inertia)
+    rng = np.random.default_rng(8)
+    u = step_excitation(3000, rng)
+    count = 2.0 * math.pi / 4096
+    y = np.round((true_train.apply(u) + rng.uniform(-2e-4, 2e-4, u.size)) / count) * count
+    result = diagnose_model(u, y, 0.5 * count + 2e-4, period, PlantModel((model_train,)))
+    assert result.missing_effects == ("load_friction",)
+    (step,) = result.steps
+    assert step.parameters["coulomb_per_inertia_rad_per_s2"] == pytest.approx(30.0, rel=0.15)
+    assert abs(step.parameters["viscous_per_inertia_per_s"]) < 2.0
+    low, high = result.parameter_intervals["load_friction"]["viscous_per_inertia_per_s"]
+    assert low <= 0.0 <= high
+    # the final model keeps the user's viscous friction
+    (final,) = result.final_model.blocks
+    assert final.viscous_friction_nm_s_per_rad / inertia == pytest.approx(20.0, abs=2.0)
+
+
 def test_the_rigid_equivalent_of_a_linear_loop_reproduces_its_free_run():
     # the 30 Hz, zeta 0.7 loop discretised with a zero-order hold: the fitted rigid train follows it within a
     # hundredth of the noise bound of the hidden-effect records (1 mrad), with the loop's own bandwidth
