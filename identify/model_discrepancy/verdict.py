@@ -177,7 +177,8 @@ def _verdict(initial: Disagreement, final: Disagreement, steps: Sequence[Discrep
                 "effect can be judged on a validation segment that does not show it")
         return "explained", (f"the start model agrees with the data within the noise bound ({delta:.3g} rad) on "
                              f"{100 * (1 - initial.falsified_fraction):.1f} % of validation samples and "
-                             f"{100 * (1 - estimation_falsified):.1f} % of estimation samples")
+                             f"{100 * (1 - estimation_falsified):.1f} % of estimation samples; an effect that moves "
+                             "the angle by less than the noise bound would not show in this record")
     named = ", ".join(step.effect for step in steps)
     if undecided:
         before = f"{named} named (gap {initial.gap_rad:.3g} -> {final.gap_rad:.3g} rad); then " if steps else ""

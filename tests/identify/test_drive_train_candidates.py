@@ -65,6 +65,9 @@ def test_a_clean_record_names_no_drive_train_effect():
                                 record.sample_period_s, model)
         assert result.verdict == "explained"
         assert result.missing_effects == ()
+        # explained says how small an effect could hide: one under the noise bound does not show
+        assert f"noise bound ({record.noise_bound_rad:.3g} rad)" in result.verdict_reason
+        assert "less than the noise bound would not show" in result.verdict_reason
 
 
 def test_gravity_merges_into_the_users_drive_train_and_is_reported_per_inertia():
