@@ -51,8 +51,8 @@ _EIGEN_ERROR = 64.0 * np.finfo(float).eps
 @dataclass(frozen=True)
 class MomentCuts:
     """Linear cuts ``rows @ w <= rhs`` in the lifted columns w = (θ, δx, z, [shared backlash], A, D) of
-    :func:`identify.linear_block_bounds._coupled_lp` extended by the moment columns (see :func:`moment_cuts`),
-    valid at every point of the exact feasible set inside the box.
+    :func:`identify.linear_block_bounds.problem._coupled_lp` extended by the moment columns (see
+    :func:`moment_cuts`), valid at every point of the exact feasible set inside the box.
 
     Attributes
     ----------

@@ -111,7 +111,7 @@ class RenewingProcessPool(Executor):
     """A local process pool that starts a new one when a worker died: a ``ProcessPoolExecutor`` whose worker
     was killed (a crash in native code, the out-of-memory killer) fails the tasks it held with
     ``BrokenProcessPool`` and refuses every later one; this one fails the same tasks, then takes new ones on a
-    fresh pool, so that a caller may solve them again (:class:`identify.linear_block_bounds._GuardedMap`
+    fresh pool, so that a caller may solve them again (:class:`identify.linear_block_bounds.windows._GuardedMap`
     retries a lost window once)."""
 
     def __init__(self, workers: int) -> None:

@@ -16,7 +16,7 @@ from identify.highs_solver import HighsBasis, HighsBasisStatus, HighsLp, HighsMo
 def _small_lp() -> HighsLp:
     """min x0 + 2 x1 subject to x0 + x1 >= 1, x0 - x1 = 0.2, 0 <= x <= 10: optimum x = (0.6, 0.4), cost 1.4."""
     A = sp.csc_matrix(np.array([[1.0, 1.0], [1.0, -1.0]]))
-    model = HighsLp()  # the same fields, in the same way, as identify.linear_block_bounds._Solver
+    model = HighsLp()  # the same fields, in the same way, as identify.linear_block_bounds.certified_lp._Solver
     model.num_col_, model.num_row_ = 2, 2
     model.col_cost_ = np.zeros(2)
     model.col_lower_, model.col_upper_ = np.zeros(2), np.full(2, 10.0)

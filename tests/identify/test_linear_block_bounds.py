@@ -199,8 +199,9 @@ def test_interval_relaxation_holds_at_the_truth_and_contains_the_mccormick_one()
     # it, and its bounds must contain the McCormick relaxation's on the same box (it is an outer set of it).
     from identify.feasible_parameter_set import bound_backlash_parameters
     from identify.inner_signal_bounds import bound_inner_signal
-    from identify.linear_block_bounds import (LinearModelOrders, _bounds_over, _Counter, _coupled_lp, _interval_lp,
-                                              _prepare)
+    from identify.linear_block_bounds import LinearModelOrders
+    from identify.linear_block_bounds.certified_lp import _bounds_over, _Counter
+    from identify.linear_block_bounds.problem import _coupled_lp, _interval_lp, _prepare
 
     data = experiment(10, 5, num_samples=60)
     backlash = bound_backlash_parameters(data.steady_input_rad, data.steady_output_rad, data.noise_bound_rad)
@@ -229,7 +230,7 @@ def test_a_bounding_lp_that_highs_cannot_solve_falls_back_to_a_valid_bound_with_
     # stopped with "Solve error" under every recovery setting, which must not end in a traceback. Here every LP
     # that bounds b2 from above in the coupled rounds "fails" the same way: the result must still contain the truth,
     # stay inside the paper method's box, and name the parameter.
-    import identify.linear_block_bounds as module
+    import identify.linear_block_bounds.certified_lp as module
 
     data = experiment(12, 41)
     _, reference = _run(12, 41, "coupled")
@@ -259,8 +260,10 @@ def test_a_bounding_lp_that_highs_cannot_solve_falls_back_to_a_valid_bound_with_
 def _old_all_data_bounds(data, inner):
     """The coupled bounds over all the data at once (the reference): McCormick rounds on the first 200
     samples, then rounds of the interval relaxation over all the data."""
-    from identify.linear_block_bounds import (LinearModelOrders, _Counter, _interval_lp, _paper_bounds, _prepare,
-                                              _subset, _tighten)
+    from identify.linear_block_bounds import LinearModelOrders
+    from identify.linear_block_bounds.certified_lp import _Counter
+    from identify.linear_block_bounds.problem import _interval_lp, _paper_bounds, _prepare, _tighten
+    from identify.linear_block_bounds.windows import _subset
 
     shared = shared_backlash_constraints(data.output_rad, data.noise_bound_rad, inner.backlash, inner.inner)
     problem = _prepare(data.input_rad, inner.inner.lower_rad, inner.inner.upper_rad, LinearModelOrders(2, 1, 2), shared)
@@ -324,15 +327,16 @@ def test_row_generation_gives_the_paper_bounds_of_the_whole_orthant_lps(monkeypa
     # Long records bound each orthant's LP on a growing subset of its rows (the whole LPs of a
     # 100 000-sample record take 8.5 CPU-s in one process before the windows could start); here the subset
     # starts at 300 of the 1796 rows of a 900-sample record and must end at the whole LP's bounds.
-    import identify.linear_block_bounds as module
+    import identify.linear_block_bounds.problem as module
+    from identify.linear_block_bounds.certified_lp import _Counter
 
     data, paper = _run(10, 63, "paper", num_samples=900)
     inner = paper.inner_signal
     problem = module._prepare(data.input_rad, inner.lower_rad, inner.upper_rad, module.LinearModelOrders(2, 1, 2))
-    whole_low, whole_high, whole_orthants = module._paper_bounds(problem, module._Counter())
+    whole_low, whole_high, whole_orthants = module._paper_bounds(problem, _Counter())
     monkeypatch.setattr(module, "_PAPER_ROWS", 300)
     monkeypatch.setattr(module, "_PAPER_ROWS_ADDED", 20)
-    counter = module._Counter()
+    counter = _Counter()
     low, high, orthants = module._paper_bounds(problem, counter)
     assert orthants == whole_orthants
     assert counter.solves > 8 * len(whole_orthants)  # several turns of the row generation ran
@@ -341,7 +345,7 @@ def test_row_generation_gives_the_paper_bounds_of_the_whole_orthant_lps(monkeypa
 
 
 def test_a_pass_re_solves_only_the_bounds_still_moving_that_a_task_could_decide() -> None:
-    from identify.linear_block_bounds import _moving, _TaskBounds
+    from identify.linear_block_bounds.windows import _moving, _TaskBounds
 
     low, high = np.array([0.0, 10.0]), np.array([1.0, 11.0])
     tasks = _TaskBounds(3, 2)
@@ -374,7 +378,7 @@ def test_the_passes_over_the_parts_iterate_to_a_fixed_point_that_one_pass_contai
     # The parts of a long record are solved one round each per pass, every pass from the
     # intersection of the previous one, until a pass shrinks no interval by the tightening tolerance. More
     # passes only intersect more valid boxes: never wider than one pass, and the truth stays inside.
-    import identify.linear_block_bounds as module
+    import identify.linear_block_bounds.windows as module
 
     data, paper = _run(8, 62, "paper", num_samples=900)
     inner = paper.inner_signal
@@ -410,7 +414,7 @@ def test_a_part_starts_its_next_pass_from_its_last_basis_and_gets_the_bounds_of_
     # A part's LP keeps its rows and columns from pass to pass, so its next pass starts from its last
     # basis (HiGHS's first solve of a 3000-sample part is most of its time). Only the start differs: the
     # certified bounds are those of parts solved from scratch, up to the rounding of the certificates.
-    import identify.linear_block_bounds as module
+    import identify.linear_block_bounds.certified_lp as module
 
     args, options, paper = _long_record_options(64)
     starts = []
@@ -440,7 +444,7 @@ def test_a_part_whose_presolved_solve_failed_solves_its_next_passes_without_pres
     # values" after postsolve), mostly the same parts pass after pass, and one crashed HiGHS. Here every
     # presolved solve of a part stops at once (a time limit of zero): each part may pay for it once, not in
     # every pass, and the bounds still contain the truth.
-    import identify.linear_block_bounds as module
+    import identify.linear_block_bounds.certified_lp as module
 
     args, options, paper = _long_record_options(62)
     failed = []
@@ -471,7 +475,7 @@ def _window_task_whose_joint_parts_kill_their_process(task):
     import os
     import signal
 
-    import identify.linear_block_bounds as module
+    import identify.linear_block_bounds.windows as module
 
     if task[0] == "joint":
         os.kill(os.getpid(), signal.SIGKILL)
@@ -484,7 +488,7 @@ def test_a_worker_process_that_dies_gives_valid_looser_bounds_with_a_note(monkey
     import multiprocessing
     from concurrent.futures import ProcessPoolExecutor
 
-    import identify.linear_block_bounds as module
+    import identify.linear_block_bounds.windows as module
 
     data, paper = _run(10, 61, "paper", num_samples=900)
     inner = paper.inner_signal
@@ -555,7 +559,7 @@ def test_the_widened_relaxation_of_a_sliver_cell_contains_its_set_and_little_mor
     # LP with every row widened by _WIDENING (1 + |bound|): a superset, so its bounds hold
     import scipy.sparse as sp
 
-    from identify.linear_block_bounds import _LP, _WIDENING, _bounds_over, _Counter, _widened
+    from identify.linear_block_bounds.certified_lp import _LP, _WIDENING, _bounds_over, _Counter, _widened
 
     # x0 + x1 = 1 (equality), 0.2 <= x0 - x1 <= 0.4 (ranged), x0 <= 0.69 (inequality), box [0, 1]^2
     lp = _LP(sp.csr_matrix([[1.0, 0.0]]), np.array([0.69]), sp.csr_matrix([[1.0, 1.0]]), np.array([1.0]),

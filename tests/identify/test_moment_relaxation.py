@@ -11,8 +11,10 @@ pytest.importorskip("cvxpy")
 from identify import moment_relaxation  # noqa: E402
 from identify.feasible_parameter_set import bound_backlash_parameters  # noqa: E402
 from identify.inner_signal_bounds import bound_inner_signal, shared_backlash_constraints  # noqa: E402
-from identify.linear_block_bounds import (_LP, LinearModelOrders, _bounds_over, _Counter,  # noqa: E402
-                                          _lifted_moment_lp, _prepare, bound_linear_block)
+from identify.linear_block_bounds import LinearModelOrders, bound_linear_block  # noqa: E402
+from identify.linear_block_bounds.certified_lp import _LP, _bounds_over, _Counter  # noqa: E402
+from identify.linear_block_bounds.final_tightening import _lifted_moment_lp  # noqa: E402
+from identify.linear_block_bounds.problem import _prepare  # noqa: E402
 from cerone2009_data import THETA, experiment  # noqa: E402
 
 _THETA = np.array(list(THETA.values()))

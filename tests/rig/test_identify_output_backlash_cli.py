@@ -195,7 +195,7 @@ def _window_task_that_dies_in_the_joint_parts(task, retries_too: bool):
     import os
     import signal
 
-    import identify.linear_block_bounds as module
+    import identify.linear_block_bounds.windows as module
 
     if task[0] == "joint" and (retries_too or not task[-1]):
         os.kill(os.getpid(), signal.SIGKILL)
@@ -205,7 +205,7 @@ def _window_task_that_dies_in_the_joint_parts(task, retries_too: bool):
 def _bounds_without_and_with_dying_workers(long_files, capsys, monkeypatch, retries_too: bool) -> tuple[dict, dict]:
     """The ``--json`` documents of a long record (--jobs 1, the default) bounded as it is and with the worker
     of every joint part killed (:func:`_window_task_that_dies_in_the_joint_parts`)."""
-    import identify.linear_block_bounds as module
+    import identify.linear_block_bounds.windows as module
 
     options = ("--joint-samples", "400", "--partition-samples", "0", "--json")
     assert main(_args(long_files, *options)) == exit_codes.SUCCESS
