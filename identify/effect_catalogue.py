@@ -63,7 +63,8 @@ from identify.validation import InvalidInputError
 if TYPE_CHECKING:
     from identify.effect_signatures import SignatureScore
 
-__all__ = ["ANGLE_SHAPE_EXPERIMENT", "DYNAMICS_EFFECTS", "EFFECTS", "EFFECT_NAMES", "HYSTERESIS_INNER_TWIN", "LOOK_ALIKE_EXPERIMENTS",
+__all__ = ["ANGLE_SHAPE_EXPERIMENT", "DYNAMICS_EFFECTS", "EFFECTS", "EFFECT_NAMES", "HYSTERESIS_INNER_TWIN",
+           "LINEAR_ORDER_EXPERIMENT", "LOOK_ALIKE_EXPERIMENTS",
            "SAME_MAP_READINGS",
            "PLACEMENTS", "SEARCHED_EFFECT_NAMES", "Effect",
            "GuessContext", "Parameter", "TomlKey", "effect", "effect_for_block", "effect_for_toml_type",
@@ -240,6 +241,11 @@ class Effect:
         Dynamics effects: the reported parameters that add to a field the train may already have (the load's
         viscous friction of a given or re-expressed train): they are reported as what the effect adds
         (:meth:`report_in_train`), since the train's own part is the model's.
+    order_look_alike
+        A linear effect that linear dynamics of a higher order can stand in for (a delay of d samples is the lag
+        that poles the start model lacks also give): from a fitted start, a linear model of a higher order is
+        fitted in its place, and if it fits the record as well, the verdict is ambiguous and the effect is not
+        named (:data:`LINEAR_ORDER_EXPERIMENT`; ``_order_left_open`` in :mod:`identify.model_discrepancy.search`).
     """
 
     name: str
@@ -274,6 +280,7 @@ class Effect:
     same_map_as: tuple[str, ...] = ()
     look_alike_only: bool = False
     added_to_train: tuple[str, ...] = ()
+    order_look_alike: bool = False
 
     def in_train(self, values: Sequence[float], train: DriveTrain) -> DriveTrain:
         """``train`` with this dynamics effect's fields set from its free ``values``."""
@@ -721,6 +728,7 @@ EFFECTS: dict[str, Effect] = {effect.name: effect for effect in (
         random_block=lambda rng, u, f, period: Delay(int(rng.integers(3, 16))),
         signature="the residual of a model d samples early (r ~ y^_{t-d} - y^_t)",
         searched=True,
+        order_look_alike=True,
     ),
     Effect(
         name="coulomb_friction", block_class=CoulombFriction, toml_type="coulomb_friction",
@@ -938,6 +946,11 @@ ANGLE_SHAPE_EXPERIMENT = (
     "move through a wider range of angles (a quarter turn or more, in both directions): a weight's sag is a sine of "
     "the angle once per revolution, while cogging repeats many times a revolution and a spring grows with the angle")
 """The experiment that shows the shape of an effect over the angle (catalogue ``angle_sag``)."""
+
+LINEAR_ORDER_EXPERIMENT = (
+    "a step of the command, read at a finer time step if the drive allows: a delay leaves the angle still for its "
+    "d samples and then moves it, while poles move it at once but slowly; or a model of the drive's loop")
+"""The experiment that tells a delay from linear dynamics of a higher order (catalogue ``order_look_alike``)."""
 
 
 def _play_or_friction(parameters: Mapping[str, float]) -> str:

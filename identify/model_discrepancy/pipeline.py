@@ -25,6 +25,7 @@ from identify.model_discrepancy.result import Disagreement, DiscrepancyResult
 from identify.model_discrepancy.search import (
     _look_alikes_checked,
     _mechanisms_left_open,
+    _order_left_open,
     _shape_left_open,
     _Search,
     _family_rechecked,
@@ -116,6 +117,7 @@ def diagnose_model(command_rad: ArrayLike, angle_rad: ArrayLike, noise_bound_rad
     found = _family_rechecked(found, candidates, u, y, n_est, delta, options, say)
     found = _still_needed(found, u, y, n_est, delta, options, say)
     found = _look_alikes_checked(found, u, y, n_est, delta, period, options, say)
+    found = _order_left_open(found, u, y, n_est, delta, period, linear_fit is not None, options, say)
     chain, current, steps = found.chain, found.current, found.steps
     consistent = current.falsified_fraction <= options.consistent_fraction
     intervals, reduction = _named_intervals(chain, steps, start_model, u, y, delta, current, options, say)

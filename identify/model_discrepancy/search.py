@@ -17,11 +17,14 @@ from numpy.typing import NDArray
 from identify.effect_catalogue import (
     ANGLE_SHAPE_EXPERIMENT,
     EFFECTS,
+    LINEAR_ORDER_EXPERIMENT,
     LOOK_ALIKE_EXPERIMENTS,
     SAME_MAP_READINGS,
     SEARCHED_EFFECT_NAMES,
 )
 from identify.effect_signatures import SignatureScore, signature_scores
+from identify.plant_blocks import PlantModel
+from identify.validation import InvalidInputError
 
 from identify.model_discrepancy.candidates import _Candidate, _insert_index, _without_effect
 from identify.model_discrepancy.chain import (
@@ -65,7 +68,13 @@ from identify.model_discrepancy.judgement import (
 )
 from identify.model_discrepancy.options import DiagnoseOptions
 from identify.model_discrepancy.result import CandidateResult, Disagreement, DiscrepancyStep
-from identify.model_discrepancy.thresholds import AMBIGUITY_MIN_MARGIN, LOOK_ALIKE_APART_FRACTION
+from identify.model_discrepancy.start_model import fit_linear_model
+from identify.model_discrepancy.thresholds import (
+    AMBIGUITY_MIN_MARGIN,
+    LOOK_ALIKE_APART_FRACTION,
+    ORDER_LOOK_ALIKE_EXTRA,
+    START_MAX_ORDER,
+)
 
 
 @dataclass
@@ -582,22 +591,69 @@ def _look_alikes_checked(found: _Search, u: NDArray[np.float64], y: NDArray[np.f
                 members.append(alike)
         if not group:
             continue
-        refit = _baseline_refit(reduced, u[:n_est], y[:n_est], options.max_evaluations)
-        without = disagreement(refit.model(), u, y, delta, n_est)
-        if without.gap_rad > before.gap_rad:
-            refit, without = reduced, before
         between = (step.effect, *(alike for alike, *_ in group))
         reason = _look_alike_reason(between, group, found.current.gap_rad, before.gap_rad, delta, apart_allowed)
         say(f"ambiguous: {reason}")
-        at = found.steps.index(step)
-        steps = [s for s in found.steps if s is not step]
-        if at < len(steps):  # the next step now follows the model before the dropped one
-            steps[at] = replace(steps[at], gap_before_rad=step.gap_before_rad,
-                                falsified_fraction_before=step.falsified_fraction_before)
-        if steps:
-            steps[-1] = replace(steps[-1], gap_after_rad=without.gap_rad, model=refit.model(),
-                                falsified_fraction_after=without.falsified_fraction)
-        return _Search(refit, without, steps, found.tried, between, without.residual_rad[n_est:], (), reason)
+        return _without_step(found, step, reduced, before, between, reason, u, y, n_est, delta, options)
+    return found
+
+
+def _without_step(found: _Search, step: DiscrepancyStep, reduced: _Chain, before: Disagreement,
+                  between: tuple[str, ...], reason: str, u: NDArray[np.float64], y: NDArray[np.float64], n_est: int,
+                  delta: float, options: DiagnoseOptions) -> _Search:
+    """``found`` with the named ``step`` dropped for what the record cannot tell from it: the model without it
+    (``reduced``, whose disagreement is ``before``) refitted, the verdict ambiguous ``between`` for ``reason``."""
+    refit = _baseline_refit(reduced, u[:n_est], y[:n_est], options.max_evaluations)
+    without = disagreement(refit.model(), u, y, delta, n_est)
+    if without.gap_rad > before.gap_rad:
+        refit, without = reduced, before
+    at = found.steps.index(step)
+    steps = [s for s in found.steps if s is not step]
+    if at < len(steps):  # the next step now follows the model before the dropped one
+        steps[at] = replace(steps[at], gap_before_rad=step.gap_before_rad,
+                            falsified_fraction_before=step.falsified_fraction_before)
+    if steps:
+        steps[-1] = replace(steps[-1], gap_after_rad=without.gap_rad, model=refit.model(),
+                            falsified_fraction_after=without.falsified_fraction)
+    return _Search(refit, without, steps, found.tried, between, without.residual_rad[n_est:], (), reason)
+
+
+def _order_left_open(found: _Search, u: NDArray[np.float64], y: NDArray[np.float64], n_est: int, delta: float,
+                     period: float, fitted_start: bool, options: DiagnoseOptions,
+                     say: Callable[[str], None]) -> _Search:
+    """From a fitted start, a named effect that linear dynamics of a higher order can stand in for (catalogue
+    ``order_look_alike``: a delay, whose lag poles the start model lacks also give) is weighed against the best
+    linear model of orders ``START_MAX_ORDER + 1`` .. ``START_MAX_ORDER + ORDER_LOOK_ALIKE_EXTRA`` alone
+    (:func:`fit_linear_model` on the estimation segment). When that linear model's validated gap is no larger,
+    or within its uncertainty (:func:`_within_uncertainty`), the effect is not named: the verdict is ambiguous,
+    and the reason gives both gaps and the experiment that separates them (:data:`LINEAR_ORDER_EXPERIMENT`)."""
+    if not fitted_start or found.ambiguous_between or found.undecided:
+        return found
+    for step in found.steps:
+        reduced = _without_effect(found.chain, step.effect)
+        if not EFFECTS[step.effect].order_look_alike or reduced is None:
+            continue
+        orders = (START_MAX_ORDER + 1, START_MAX_ORDER + ORDER_LOOK_ALIKE_EXTRA)
+        try:
+            linear = fit_linear_model(u, y, period, n_est, min_order=orders[0], max_order=orders[1],
+                                      max_evaluations=options.max_evaluations)
+        except InvalidInputError:
+            return found
+        higher = disagreement(PlantModel((linear.block,)), u, y, delta, n_est)
+        named = found.current
+        if higher.gap_rad > named.gap_rad and not _within_uncertainty(
+                named.gap_rad, named.residual_rad[n_est:], higher.gap_rad, higher.residual_rad[n_est:]):
+            say(f"{step.effect} fits better than a linear model of order {linear.order} (validated gap "
+                f"{named.gap_rad:.3g} against {higher.gap_rad:.3g} rad): told apart")
+            continue
+        reason = (f"{step.effect} lowers the validated gap to {named.gap_rad:.3g} rad, and a linear model of order "
+                  f"{linear.order} without it, fitted on the estimation segment, to {higher.gap_rad:.3g} rad: the "
+                  f"lag it adds is what poles the start model lacks would give, so whether it is {step.effect} or "
+                  f"linear dynamics of a higher order cannot be told from this record, and {step.effect} is not "
+                  f"named. To separate them: {LINEAR_ORDER_EXPERIMENT}")
+        say(f"ambiguous: {reason}")
+        before = disagreement(reduced.model(), u, y, delta, n_est)
+        return _without_step(found, step, reduced, before, (step.effect,), reason, u, y, n_est, delta, options)
     return found
 
 

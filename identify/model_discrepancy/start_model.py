@@ -84,12 +84,12 @@ def _arx_numerator(u: NDArray[np.float64], y: NDArray[np.float64], a: tuple[floa
 
 
 def fit_linear_model(command_rad: ArrayLike, angle_rad: ArrayLike, sample_period_s: float,
-                     estimation_samples: int, *, max_order: int = START_MAX_ORDER,
+                     estimation_samples: int, *, max_order: int = START_MAX_ORDER, min_order: int = 1,
                      input_delay_samples: int = START_INPUT_DELAY_SAMPLES,
                      max_evaluations: int = MAX_EVALUATIONS) -> LinearFit:
     """The best low-order linear model y_t = B(q^-1)/A(q^-1) u_t (eq. (1) of Cerone et al. 2009).
 
-    For each order n = 1..``max_order`` an equation-error (ARX) fit gives the initial guess of an
+    For each order n = ``min_order``..``max_order`` an equation-error (ARX) fit gives the initial guess of an
     output-error fit that minimises the free-run error on the estimation segment; the order with the
     smallest free-run RMS error on the validation segment wins (a higher order only if it lowers that error
     by more than 2 %). B has ``input_delay_samples`` leading zeros (the one sample a sampled drive always
@@ -103,11 +103,12 @@ def fit_linear_model(command_rad: ArrayLike, angle_rad: ArrayLike, sample_period
     n_est = int(estimation_samples)
     if not 10 <= n_est < u.size:
         raise InvalidInputError(f"estimation_samples: expected 10 <= n < {u.size}, got {estimation_samples!r}")
-    if max_order < 1:
-        raise InvalidInputError(f"max_order: expected >= 1, got {max_order!r}")
+    if not 1 <= min_order <= max_order:
+        raise InvalidInputError(f"min_order, max_order: expected 1 <= min_order <= max_order, got {min_order!r}, "
+                                f"{max_order!r}")
     gaps: dict[int, float] = {}
     best: tuple[float, int, LinearBlock] | None = None
-    for order in range(1, max_order + 1):
+    for order in range(min_order, max_order + 1):
         try:
             a, b = _steiglitz_mcbride(u[:n_est], _bridged(y[:n_est]), order, input_delay_samples)
         except InvalidInputError:
@@ -121,7 +122,7 @@ def fit_linear_model(command_rad: ArrayLike, angle_rad: ArrayLike, sample_period
         if best is None or gap < ORDER_CHOICE_FACTOR * best[0]:
             best = (gap, order, block)
     if best is None:
-        raise InvalidInputError(f"angle_rad: no stable linear model of order 1..{max_order} fits the data")
+        raise InvalidInputError(f"angle_rad: no stable linear model of order {min_order}..{max_order} fits the data")
     return LinearFit(block=best[2], order=best[1], validation_gap_by_order_rad=gaps)
 
 

@@ -34,6 +34,7 @@ from identify.model_discrepancy.fit import _try_effect
 from identify.model_discrepancy.search import _family_rechecked, _Search
 from identify.plant_blocks import LinearBlock, PlantModel
 from identify.validation import InvalidInputError
+from servo_and_shaft import servo_and_shaft_block
 from sim_backend.plant_config import plant_config_from_toml_text, plant_config_to_toml
 
 SEED = 1000
@@ -139,26 +140,11 @@ def test_the_rigid_equivalent_of_a_linear_loop_reproduces_its_free_run():
     assert train.position_loop_damping_ratio == pytest.approx(0.7, rel=0.01)
 
 
-def _servo_and_shaft_block(period: float = 1e-3) -> LinearBlock:
-    """A stiff 60 Hz, zeta 0.7 servo turning a load of 0.004 kg m^2 through a shaft of 150 N m/rad, 0.0775 N m s/rad
-    (a 30.8 Hz mode, zeta 0.05), the load's angle read: state (phi, phi', theta, theta'), phi'' = w^2 (u - phi)
-    - 2 zeta w phi', J theta'' = k (phi - theta) + c (phi' - theta'), discretised exactly with a zero-order hold."""
-    from scipy.linalg import expm
-
-    w, zeta, k, c, inertia = 2 * math.pi * 60.0, 0.7, 150.0, 0.0775, 0.004
-    a = np.array([[0, 1, 0, 0], [-w * w, -2 * zeta * w, 0, 0], [0, 0, 0, 1],
-                  [k / inertia, c / inertia, -k / inertia, -c / inertia]])
-    augmented = np.zeros((5, 5))
-    augmented[:4, :4], augmented[1, 4] = a, w * w
-    discrete = expm(augmented * period)
-    return LinearBlock.from_state_space(discrete[:4, :4], discrete[:4, 4], (0.0, 0.0, 1.0, 0.0), 0.0, period)
-
-
 def test_a_linear_block_with_a_shaft_mode_becomes_a_two_mass_train():
     # bare steps of up to 1.2 rad through the stiff servo: the rigid train cannot hold the 30.8 Hz mode (its
     # free run misses the block by a third of a radian); the two-mass train follows it within a third of a
     # 12-bit count (its motor is not infinitely stiff against the shaft's torque), with the servo's loop
-    block = _servo_and_shaft_block()
+    block = servo_and_shaft_block()
     u = step_excitation(3000, np.random.default_rng(3))
     rigid = rigid_train_like(block, u)
     assert np.max(np.abs(rigid.apply(u) - block.apply(u))) > 0.3
