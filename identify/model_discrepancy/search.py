@@ -34,6 +34,7 @@ from identify.model_discrepancy.chain import (
     _effect_block,
     _effect_parameters,
     _free_run_error,
+    _linear_component,
     _measured_error,
     _polish,
     _rms,
@@ -71,6 +72,7 @@ from identify.model_discrepancy.result import CandidateResult, Disagreement, Dis
 from identify.model_discrepancy.start_model import fit_linear_model
 from identify.model_discrepancy.thresholds import (
     AMBIGUITY_MIN_MARGIN,
+    BASELINE_EFFORT,
     LOOK_ALIKE_APART_FRACTION,
     ORDER_LOOK_ALIKE_EXTRA,
     START_MAX_ORDER,
@@ -622,11 +624,14 @@ def _order_left_open(found: _Search, u: NDArray[np.float64], y: NDArray[np.float
                      period: float, fitted_start: bool, options: DiagnoseOptions,
                      say: Callable[[str], None]) -> _Search:
     """From a fitted start, a named effect that linear dynamics of a higher order can stand in for (catalogue
-    ``order_look_alike``: a delay, whose lag poles the start model lacks also give) is weighed against the best
-    linear model of orders ``START_MAX_ORDER + 1`` .. ``START_MAX_ORDER + ORDER_LOOK_ALIKE_EXTRA`` alone
-    (:func:`fit_linear_model` on the estimation segment). When that linear model's validated gap is no larger,
-    or within its uncertainty (:func:`_within_uncertainty`), the effect is not named: the verdict is ambiguous,
-    and the reason gives both gaps and the experiment that separates them (:data:`LINEAR_ORDER_EXPERIMENT`)."""
+    ``order_look_alike``: a delay, whose lag poles the start model lacks also give) must still be needed once
+    the start model has more poles: the best linear model of orders ``START_MAX_ORDER + 1`` ..
+    ``START_MAX_ORDER + ORDER_LOOK_ALIKE_EXTRA`` (:func:`fit_linear_model` on the estimation segment) takes the
+    start model's place in the fitted chain, which is polished with the effect and without it (the linear
+    block's own input delay held, so it cannot take the effect's place). When the chain without it fits no
+    worse, or within its uncertainty (:func:`_within_uncertainty`), the effect is not named: the verdict is
+    ambiguous, and the reason gives the gaps and the experiment that separates them
+    (:data:`LINEAR_ORDER_EXPERIMENT`)."""
     if not fitted_start or found.ambiguous_between or found.undecided:
         return found
     for step in found.steps:
@@ -639,18 +644,28 @@ def _order_left_open(found: _Search, u: NDArray[np.float64], y: NDArray[np.float
                                       max_evaluations=options.max_evaluations)
         except InvalidInputError:
             return found
-        higher = disagreement(PlantModel((linear.block,)), u, y, delta, n_est)
-        named = found.current
-        if higher.gap_rad > named.gap_rad and not _within_uncertainty(
-                named.gap_rad, named.residual_rad[n_est:], higher.gap_rad, higher.residual_rad[n_est:]):
-            say(f"{step.effect} fits better than a linear model of order {linear.order} (validated gap "
-                f"{named.gap_rad:.3g} against {higher.gap_rad:.3g} rad): told apart")
+        at = next((i for i, c in enumerate(found.chain.components) if c.kind == "linear"), None)
+        if at is None:
             continue
-        reason = (f"{step.effect} lowers the validated gap to {named.gap_rad:.3g} rad, and a linear model of order "
-                  f"{linear.order} without it, fitted on the estimation segment, to {higher.gap_rad:.3g} rad: the "
-                  f"lag it adds is what poles the start model lacks would give, so whether it is {step.effect} or "
-                  f"linear dynamics of a higher order cannot be told from this record, and {step.effect} is not "
-                  f"named. To separate them: {LINEAR_ORDER_EXPERIMENT}")
+        components = list(found.chain.components)
+        components[at] = _linear_component(linear.block)
+        richer = _Chain(components)
+        richer_without = _without_effect(richer, step.effect)
+        assert richer_without is not None
+        budget = _budget(richer, BASELINE_EFFORT * options.max_evaluations)
+        fitted = disagreement(_polish(richer, u[:n_est], y[:n_est], budget).model(), u, y, delta, n_est)
+        higher = disagreement(_polish(richer_without, u[:n_est], y[:n_est], budget).model(), u, y, delta, n_est)
+        if higher.gap_rad > fitted.gap_rad and not _within_uncertainty(
+                fitted.gap_rad, fitted.residual_rad[n_est:], higher.gap_rad, higher.residual_rad[n_est:]):
+            say(f"{step.effect} is still needed with a linear block of order {linear.order} (validated gap "
+                f"{fitted.gap_rad:.3g} against {higher.gap_rad:.3g} rad without it): told apart")
+            continue
+        reason = (f"{step.effect} lowers the validated gap to {found.current.gap_rad:.3g} rad, and with a linear "
+                  f"block of order {linear.order} in the start model's place the model fits to {higher.gap_rad:.3g} "
+                  f"rad without it ({fitted.gap_rad:.3g} rad with it): the lag it adds is what poles the start "
+                  f"model lacks would give, so whether it is {step.effect} or linear dynamics of a higher order "
+                  f"cannot be told from this record, and {step.effect} is not named. To separate them: "
+                  f"{LINEAR_ORDER_EXPERIMENT}")
         say(f"ambiguous: {reason}")
         before = disagreement(reduced.model(), u, y, delta, n_est)
         return _without_step(found, step, reduced, before, (step.effect,), reason, u, y, n_est, delta, options)

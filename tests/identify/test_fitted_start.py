@@ -136,19 +136,20 @@ def _servo_and_shaft_prbs_record(seed: int) -> tuple[np.ndarray, np.ndarray, flo
 
 def test_a_delay_that_poles_the_fitted_start_lacks_could_give_is_not_named():
     # the order-2 start holds one pole pair of the four; a delay of a few samples lowered the gap and was named
-    # (6 of 6 seeds), though the plant has no delay: a linear model of order 3-4 fits as well, so the record
-    # cannot tell a delay from the poles, and the verdict says so without naming it
+    # (6 of 6 seeds), though the plant has no delay: with a linear block of order 3-4 in the start's place the
+    # delay is no longer needed, so the record cannot tell a delay from the poles, and the verdict says so
+    # without naming it
     u, y, delta = _servo_and_shaft_prbs_record(0)
     result = diagnose_model(u, y, delta, 1e-3)
     assert result.linear_fit is not None and result.linear_fit.order <= 2
     assert "delay" not in result.missing_effects
     assert result.verdict == "ambiguous" and result.ambiguous_between == ("delay",)
-    assert "a linear model of order" in result.verdict_reason and "delay is not named" in result.verdict_reason
+    assert "a linear block of order" in result.verdict_reason and "delay is not named" in result.verdict_reason
 
 
 def test_a_delay_the_poles_cannot_give_is_still_named_from_a_fitted_start():
-    # a hidden delay of 13 samples: linear models of order 3-4 fit the validation segment far worse than the
-    # start model with the delay, which stays named
+    # a hidden delay of 13 samples: with a linear block of order 3-4 in the start's place the delay is still
+    # needed, and stays named
     record = hidden_effect_record(("delay",), 1000)
     result = diagnose_model(record.command_rad, record.angle_rad, record.noise_bound_rad, record.sample_period_s)
     assert result.missing_effects == ("delay",) and result.verdict == "named"
