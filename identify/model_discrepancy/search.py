@@ -23,7 +23,6 @@ from identify.effect_catalogue import (
     SEARCHED_EFFECT_NAMES,
 )
 from identify.effect_signatures import SignatureScore, signature_scores
-from identify.plant_blocks import PlantModel
 from identify.validation import InvalidInputError
 
 from identify.model_discrepancy.candidates import _Candidate, _insert_index, _without_effect
