@@ -243,9 +243,10 @@ class Effect:
         (:meth:`report_in_train`), since the train's own part is the model's.
     order_look_alike
         A linear effect that linear dynamics of a higher order can stand in for (a delay of d samples is the lag
-        that poles the start model lacks also give): from a fitted start, a linear model of a higher order is
-        fitted in its place, and if it fits the record as well, the verdict is ambiguous and the effect is not
-        named (:data:`LINEAR_ORDER_EXPERIMENT`; ``_order_left_open`` in :mod:`identify.model_discrepancy.search`).
+        that poles the start model lacks also give): from a fitted start it must still be needed once a linear
+        block of a higher order takes the start model's place; if the model fits as well without it, the
+        verdict is ambiguous and the effect is not named (:data:`LINEAR_ORDER_EXPERIMENT`; ``_order_left_open``
+        in :mod:`identify.model_discrepancy.search`).
     """
 
     name: str

@@ -69,8 +69,9 @@ START_MAX_ORDER = 2
 # (1040-1059), the rest ambiguous (delays of a few samples that a pole pair near a quarter of the sampling rate
 # fits within the noise bound).
 ORDER_LOOK_ALIKE_EXTRA = 2
-"""A delay named from a fitted start is weighed against the linear models of orders ``START_MAX_ORDER + 1`` ..
-``START_MAX_ORDER + ORDER_LOOK_ALIKE_EXTRA`` (``_order_left_open``): one more pole pair."""
+"""A delay named from a fitted start must still be needed once the best linear block of orders
+``START_MAX_ORDER + 1`` .. ``START_MAX_ORDER + ORDER_LOOK_ALIKE_EXTRA`` takes the start model's place
+(``_order_left_open``): one more pole pair."""
 
 # Evidence: the first version of the workflow; origin not recorded (the one sample a sampled drive always
 # takes, fit_linear_model's docstring).
