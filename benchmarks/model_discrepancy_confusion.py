@@ -28,9 +28,11 @@ its position servo, discretised with a zero-order hold; every case checks it aga
 nominal twin). Each case is scored as: the right name (:data:`ACCEPTED_NAMES`: the catalogue effects that are
 the same physics or its quasi-static map; none for effects the catalogue has no equivalent of; from a fitted
 start also ``resonance``, the generator's shaft mode, :func:`accepted_names`), honest
-(nothing named and the verdict ambiguous or unexplained; on the clean records, explained), confident wrong
-(only wrong effects named with a verdict that is not ambiguous, or explained when the effect is excited),
-hedged wrong (wrong effects named, then ambiguous), right with a wrong one besides, and not excited or an
+(nothing named and the verdict ambiguous or unexplained; on the clean records, explained), explained under the
+bound (explained, and the effect moves the angle by no more than the noise bound the workflow was given: the
+model without it agrees with the truth within the stated measurement error, so the record cannot show it), confident
+wrong (only wrong effects named with a verdict that is not ambiguous, or explained when the effect moves the angle
+by more than the noise bound), hedged wrong (wrong effects named, then ambiguous), right with a wrong one besides, and not excited or an
 error. Where the generator's truth maps onto a named parameter (:func:`truth_in_our_terms`), the intervals are
 checked against it.
 
@@ -284,7 +286,7 @@ ACCEPTED_NAMES: dict[str, frozenset[str]] = {
 }
 """Per generator effect, the catalogue names that count as naming it rightly."""
 
-OUTCOMES = ("right", "honest", "confident_wrong", "hedged_wrong", "right_and_wrong", "not_excited")
+OUTCOMES = ("right", "honest", "under_bound", "confident_wrong", "hedged_wrong", "right_and_wrong", "not_excited")
 
 
 def generator_module():
@@ -428,8 +430,10 @@ def accepted_names(effect_name: str, start: str) -> frozenset[str]:
     return ACCEPTED_NAMES[effect_name] | (frozenset({"resonance"}) if start == "fitted" else frozenset())
 
 
-def independent_outcome(effect_name: str, named: tuple[str, ...], verdict: str, start: str = "given") -> str:
-    """The case's column (:data:`OUTCOMES`)."""
+def independent_outcome(effect_name: str, named: tuple[str, ...], verdict: str, start: str = "given",
+                        effect_peak_rad: float = math.inf, noise_bound_rad: float = 0.0) -> str:
+    """The case's column (:data:`OUTCOMES`); ``effect_peak_rad`` is the most the effect moves the measured angle
+    (the generator's ``effect_size.max_abs_rad``), ``noise_bound_rad`` the bound the workflow was given."""
     if verdict == "not_excited":
         return "not_excited"
     accepted = accepted_names(effect_name, start)
@@ -440,7 +444,7 @@ def independent_outcome(effect_name: str, named: tuple[str, ...], verdict: str, 
             return "right"
         return "confident_wrong" if named and verdict != "ambiguous" else "hedged_wrong"
     if verdict == "explained":
-        return "confident_wrong"
+        return "under_bound" if effect_peak_rad <= noise_bound_rad else "confident_wrong"
     if not named:
         return "honest"
     right = [name in accepted for name in named]
@@ -501,7 +505,9 @@ def run_independent_case(effect_name: str, case: int, cases: int, first_seed: in
             covered[1] += 1
             if not inside:
                 missed.append(f"{name}.{key}: truth {ours[key]:.4g} outside [{low:.4g}, {high:.4g}]")
-    return {**base, "outcome": independent_outcome(effect_name, named, result.verdict, start), "named": list(named),
+    return {**base, "outcome": independent_outcome(effect_name, named, result.verdict, start,
+                                                   truth["effect_size"].get("max_abs_rad", math.inf), delta),
+            "named": list(named),
             "ambiguous_between": list(result.ambiguous_between), "verdict": result.verdict,
             "reason": result.verdict_reason[:400],
             "reduction": 1.0 - result.final.gap_rad / result.initial.gap_rad if result.initial.gap_rad > 0 else 0.0,
@@ -533,9 +539,9 @@ def independent(cases: int, start: str, effects: tuple[str, ...], first_seed: in
 
 def independent_table(runs: dict[str, list[dict]], effects: tuple[str, ...], start: str = "given") -> None:
     """One row per generator effect: the outcome counts, what was named, and the intervals of right names."""
-    print("| effect | accepted names | right | honest | confident wrong | hedged wrong | right + wrong | "
-          "not excited / error | skipped (not excited) | named (count) | truth in interval | median s |")
-    print("|---" * 12 + "|")
+    print("| effect | accepted names | right | honest | explained under the bound | confident wrong | hedged wrong | "
+          "right + wrong | not excited / error | skipped (not excited) | named (count) | truth in interval | median s |")
+    print("|---" * 13 + "|")
     for name in effects:
         runs[name] = sorted(runs.get(name, []), key=lambda r: r["case"])
         results = [r for r in runs[name] if r["outcome"] != "skipped"]

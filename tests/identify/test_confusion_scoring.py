@@ -1,0 +1,31 @@
+"""How the independent-generator benchmark scores a case (``model_discrepancy_confusion.independent_outcome``):
+an `explained` verdict is wrong only when the hidden effect moves the angle by more than the noise bound the
+workflow was told, since below it the model without the effect agrees with the truth within the stated error."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+BENCHMARKS = Path(__file__).resolve().parents[2] / "benchmarks"
+sys.path.insert(0, str(BENCHMARKS))
+import model_discrepancy_confusion as confusion  # noqa: E402
+
+BOUND = 1.217e-3  # half a 12-bit count plus 4.5 standard deviations of 1e-4 rad
+
+
+def test_explained_is_wrong_only_for_an_effect_above_the_noise_bound():
+    # the hysteresis of seed 1010 (multisine) peaks at 0.94 mrad: under the bound, the record cannot show it
+    assert confusion.independent_outcome("hysteresis", (), "explained", "given", 0.94e-3, BOUND) == "under_bound"
+    assert confusion.independent_outcome("hysteresis", (), "explained", "given", 2.0e-3, BOUND) == "confident_wrong"
+    # without the effect's size the old rule holds: explained while excited is wrong
+    assert confusion.independent_outcome("coulomb", (), "explained") == "confident_wrong"
+
+
+def test_the_other_outcomes_do_not_depend_on_the_effects_size():
+    small = dict(effect_peak_rad=0.5e-3, noise_bound_rad=BOUND)
+    assert confusion.independent_outcome("coulomb", ("load_friction",), "named", "given", **small) == "right"
+    assert confusion.independent_outcome("coulomb", ("gravity",), "named", "given", **small) == "confident_wrong"
+    assert confusion.independent_outcome("coulomb", (), "unexplained", "given", **small) == "honest"
+    assert confusion.independent_outcome("none", (), "explained", "given", 0.0, BOUND) == "honest"
+    assert "under_bound" in confusion.OUTCOMES
