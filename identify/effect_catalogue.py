@@ -668,8 +668,8 @@ turns back, friction stops the load inside the play instead of letting it coast 
 stands still until the far side of the play is taken up: the map of an output backlash. Neither of the two
 alone does that (a load without friction coasts through the play; friction without a play drags the whole
 train), so a greedy search that adds one effect per round meets the hysteresis first and never the pair
-(hidden shaft_play + load_friction records, given the model: 7 of 20 named an output hysteresis first, issue
-15 item 6). Named in order: friction first, then the play fitted through it."""
+(hidden shaft_play + load_friction records, given the model: 7 of 20 named an output hysteresis first). Named
+in order: friction first, then the play fitted through it."""
 
 
 EFFECTS: dict[str, Effect] = {effect.name: effect for effect in (
