@@ -14,7 +14,7 @@ from numpy.typing import NDArray
 from identify.linear_block_bounds import Progress
 from identify.linear_block_bounds.certified_lp import _LP, _bounds_over, _Counter, _proven_infeasible, _widened
 from identify.linear_block_bounds.inner_values import _inner_values
-from identify.linear_block_bounds.problem import _coupled_lp, _Data, _interval_lp, _tighten
+from identify.linear_block_bounds.problem import _candidate, _coupled_lp, _Data, _interval_lp, _tighten
 
 _LOG = logging.getLogger(__package__)  # the package's logger: ``rig -v`` names identify.linear_block_bounds
 
@@ -84,7 +84,7 @@ def _partitioned_bounds(data: _Data, low: NDArray[np.float64], high: NDArray[np.
             else:
                 box_low, box_high = np.maximum(box_low, wide_low), np.minimum(box_high, wide_high)
             points = [None] * (2 * p)
-        return _SubBox(a_low, a_high, box_low, box_high, tuple(None if x is None else x[:p] for x in points), depth)
+        return _SubBox(a_low, a_high, box_low, box_high, tuple(None if x is None else _candidate(data, x) for x in points), depth)
 
     def hull(cells: list[_SubBox]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         return (np.min([c.low for c in cells], axis=0), np.max([c.high for c in cells], axis=0))
