@@ -5,6 +5,7 @@ from the moment (SDP) relaxation (:func:`_moment_bounds`, :mod:`identify.moment_
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -44,7 +45,9 @@ class _SubBox:
 
 def _partitioned_bounds(data: _Data, low: NDArray[np.float64], high: NDArray[np.float64], counter: _Counter,
                         max_boxes: int = _PARTITION_BOXES, relative_improvement: float = 0.01,
-                        progress: Progress | None = None, patient: bool = False
+                        progress: Progress | None = None, patient: bool = False,
+                        relaxation: Callable[[_Data, NDArray[np.float64], NDArray[np.float64]], _LP] = _interval_lp,
+                        candidate: Callable[[_Data, NDArray[np.float64]], NDArray[np.float64]] = _candidate
                         ) -> tuple[NDArray[np.float64], NDArray[np.float64], list[NDArray[np.float64] | None], int]:
     """The final tightening of short records: spatial branch and bound on the box of a.
 
@@ -60,8 +63,6 @@ def _partitioned_bounds(data: _Data, low: NDArray[np.float64], high: NDArray[np.
     halved twice along every a_i, see :func:`_closed_relaxation_gap`). Returns the box, the extreme points
     (``points[2k]`` attains the lower bound of θ_k) and the number of cells solved."""
     na, p = data.orders.na, data.orders.num_parameters
-    # the interval relaxation: a third of McCormick's columns, and as tight once the cells are narrow
-    relaxation = _interval_lp
     counter.stage = f"partition of the box of a ({data.u.size} samples)"
 
     def solve(a_low: NDArray[np.float64], a_high: NDArray[np.float64], depth: int) -> _SubBox | None:
@@ -84,7 +85,7 @@ def _partitioned_bounds(data: _Data, low: NDArray[np.float64], high: NDArray[np.
             else:
                 box_low, box_high = np.maximum(box_low, wide_low), np.minimum(box_high, wide_high)
             points = [None] * (2 * p)
-        return _SubBox(a_low, a_high, box_low, box_high, tuple(None if x is None else _candidate(data, x) for x in points), depth)
+        return _SubBox(a_low, a_high, box_low, box_high, tuple(None if x is None else candidate(data, x) for x in points), depth)
 
     def hull(cells: list[_SubBox]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         return (np.min([c.low for c in cells], axis=0), np.max([c.high for c in cells], axis=0))

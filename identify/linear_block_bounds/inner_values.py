@@ -13,7 +13,10 @@ from scipy.optimize import linprog
 
 from identify.linear_block_bounds.certified_lp import _LP, _Counter, _Solver
 from identify.linear_block_bounds.problem import _Data, _gain_row, _orthant_lp, _with_shared_backlash
+from identify.linear_block_bounds.point_check import _PointCheck
 from identify.linear_block_bounds.result import EmptyLinearSetExplanation
+from identify.linear_block_bounds.trajectory_lp import SOLVER_SETTINGS as TRAJECTORY_SETTINGS
+from identify.linear_block_bounds.trajectory_lp import _TrajectoryProblem
 
 
 class _ExactProblemAtFixedA:
@@ -62,6 +65,7 @@ class _ExactProblemAtFixedA:
         self._times = data.times
         self._p = p
         self._num_samples = N
+        self._scale = max(1.0, float(np.max(np.abs(data.xc))))
 
     def linearized(self, a0: NDArray[np.float64], point: NDArray[np.float64], a_low: NDArray[np.float64],
                    a_high: NDArray[np.float64]) -> _LP:
@@ -94,11 +98,28 @@ class _ExactProblemAtFixedA:
         A_eq = sp.csr_matrix((values, lp.A_eq.indices, lp.A_eq.indptr), shape=lp.A_eq.shape)
         return _LP(lp.A_ub, lp.b_ub, A_eq, lp.b_eq, lower, upper)
 
+    def verified(self, lp: _LP, x: NDArray[np.float64]) -> NDArray[np.float64] | None:
+        """The solution ``x`` of ``lp`` (from :meth:`at`) if it satisfies the equations to 1e-7 of the inner
+        signal's scale (the solver's point meets them only to its tolerance), else None."""
+        residual = np.max(np.abs(lp.A_eq @ x - lp.b_eq)) if lp.A_eq.shape[0] else 0.0
+        return x if residual <= 1e-7 * self._scale else None
+
 
 _INNER_BISECTIONS = 5
 """Bisection steps between the last weight whose a admits no exact solution and the first that does."""
 _INNER_LOCAL_STEPS = 4
 """Sequential-LP steps from each verified point along the exact set's boundary (:func:`_inner_values`)."""
+
+
+def _exact_problem(data: _Data, low: NDArray[np.float64], high: NDArray[np.float64]
+                   ) -> tuple[_ExactProblemAtFixedA | _TrajectoryProblem, dict[str, object]]:
+    """The exact LP at fixed a that the inner values solve, with its HiGHS settings: the inner signal eliminated
+    (:class:`~.trajectory_lp._TrajectoryProblem`, its points decided by the exact check) for na <= 2 and a record
+    of few gaps, else with δx as columns (without presolve: the chained equations are solved best so)."""
+    check = _PointCheck(data)
+    if check.decides and _TrajectoryProblem.suits(data):
+        return _TrajectoryProblem(data, low, high, check), dict(TRAJECTORY_SETTINGS)
+    return _ExactProblemAtFixedA(data, low, high), {"presolve": "off"}
 
 
 def _inner_values(data: _Data, low: NDArray[np.float64], high: NDArray[np.float64], points: list[NDArray[np.float64]],
@@ -118,15 +139,13 @@ def _inner_values(data: _Data, low: NDArray[np.float64], high: NDArray[np.float6
     na, p = orders.na, orders.num_parameters
     inner_low, inner_high = np.full(p, math.nan), np.full(p, math.nan)
     witness = None
-    exact = _ExactProblemAtFixedA(data, low, high)
-    scale = max(1.0, float(np.max(np.abs(data.xc))))
+    exact, settings = _exact_problem(data, low, high)
 
     def checked(lp: _LP, k: int, direction: float) -> NDArray[np.float64] | None:
         cost = np.zeros(lp.lower.size)
         cost[k] = direction
         try:
-            # with a fixed the chained equations are solved best without presolve
-            _, x = _Solver(lp, first_solve={"presolve": "off"}).minimize(cost, counter)
+            _, x = _Solver(lp, first_solve=settings).minimize(cost, counter)
         except RuntimeError:
             return None  # a diagnostic only: the outer bounds do not depend on it
         return x
@@ -134,11 +153,7 @@ def _inner_values(data: _Data, low: NDArray[np.float64], high: NDArray[np.float6
     def verified(fixed_a: NDArray[np.float64], k: int, direction: float) -> NDArray[np.float64] | None:
         lp = exact.at(fixed_a)
         x = checked(lp, k, direction)
-        if x is None:
-            return None
-        # the solver's point satisfies the equations to its tolerance; report it only if it does
-        residual = np.max(np.abs(lp.A_eq @ x - lp.b_eq)) if lp.A_eq.shape[0] else 0.0
-        return x if residual <= 1e-7 * scale else None
+        return None if x is None else exact.verified(lp, x)
 
     # the line searches start from an a that admits an exact solution: the centre of the box if it does, else
     # the first extreme point's a that does
