@@ -261,6 +261,75 @@ class _Solver:
         return bound, x
 
 
+_TALL_RATIO = 50
+"""An LP with this many ranged rows per column or more is solved by row generation (:class:`_RowGeneratedSolver`)."""
+_TALL_START_ROWS = 2000
+"""Ranged rows of the first subset (evenly spread) of :class:`_RowGeneratedSolver`."""
+_TALL_ROWS_ADDED = 100
+"""Most violated ranged rows added per turn."""
+_TALL_TURNS = 40
+"""Turns of the row generation per objective at most (the bound after any turn is valid, only possibly looser)."""
+_TALL_VIOLATION = 1e-10
+"""A ranged row counts as violated by a subset's minimiser beyond this (absolute; the rows of the LPs this serves
+are angles in rad)."""
+
+
+class _RowGeneratedSolver:
+    """:meth:`_Solver.minimize` of a tall LP (few columns, many ranged rows: the trajectory LPs of
+    :mod:`~.trajectory_lp`, one row per sample) on a subset of its ranged rows that grows by the rows its minimisers
+    violate (row generation, the dual of column generation), the other rows (inequalities, equalities) kept whole.
+
+    Fewer rows give a relaxation, so the certified bound of the subset LP is a valid bound of the whole LP at every
+    turn, and a subset proven infeasible proves the whole LP infeasible; once a minimiser violates no row it is a
+    minimiser of the whole LP. After ``_TALL_TURNS`` turns the bound is kept and the last minimiser returned as it
+    is (it may then violate rows of the whole LP by a little: callers use such points only as candidates). The
+    subset carries over from objective to objective: the rows one objective needed are likely needed again."""
+
+    def __init__(self, lp: _LP, first_solve: Mapping[str, Any] | None = None) -> None:
+        self.lp = lp
+        self._first_solve = first_solve
+        self._rows, self._row_lower, self._row_upper = lp.ranged()
+        count = self._rows.shape[0]
+        self._chosen = np.zeros(count, dtype=bool)
+        self._chosen[:: max(1, -(-count // _TALL_START_ROWS))] = True
+        self._solver: _Solver | None = None
+        self.warm = False
+
+    @staticmethod
+    def suits(lp: _LP) -> bool:
+        return lp.ranged()[0].shape[0] >= _TALL_RATIO * max(lp.lower.size, 1)
+
+    def _subset_solver(self) -> _Solver:
+        if self._solver is None:
+            lp, chosen = self.lp, self._chosen
+            subset = _LP(lp.A_ub, lp.b_ub, lp.A_eq, lp.b_eq, lp.lower, lp.upper, self._rows[chosen],
+                         self._row_lower[chosen], self._row_upper[chosen])
+            self._solver = _Solver(subset, first_solve=self._first_solve)
+        return self._solver
+
+    def minimize(self, cost: NDArray[np.float64], counter: _Counter) -> tuple[float, NDArray[np.float64] | None]:
+        bound, x = math.inf, None
+        for _ in range(_TALL_TURNS):
+            bound, x = self._subset_solver().minimize(cost, counter)
+            if x is None:
+                return bound, None
+            values = self._rows @ x
+            violation = np.maximum(values - self._row_upper, self._row_lower - values)
+            violation[self._chosen] = 0.0
+            worst = np.argsort(violation)[-_TALL_ROWS_ADDED:]
+            worst = worst[violation[worst] > _TALL_VIOLATION]
+            if not worst.size:
+                break
+            self._chosen[worst] = True
+            self._solver = None
+        return bound, x
+
+
+def _solver_for(lp: _LP, first_solve: Mapping[str, Any] | None = None) -> _Solver | _RowGeneratedSolver:
+    """The solver of an LP: by row generation when it is tall (:class:`_RowGeneratedSolver`), else one HiGHS model."""
+    return _RowGeneratedSolver(lp, first_solve) if _RowGeneratedSolver.suits(lp) else _Solver(lp, first_solve=first_solve)
+
+
 def _certified_minimum(lp: _LP, cost: NDArray[np.float64], counter: _Counter) -> tuple[float, NDArray[np.float64] | None]:
     return _Solver(lp).minimize(cost, counter)
 
@@ -304,6 +373,8 @@ def _bounds_over(lp: _LP, p: int, counter: _Counter, wanted: NDArray[np.bool_] |
     A bound whose LP HiGHS cannot solve (after the recovery settings of :meth:`_Solver.minimize`) is the
     LP's own column bound for that variable, which holds for every point of the set (the caller's current
     box); it is recorded in ``counter.fallbacks`` and its point is None."""
+    if not retry and start is None and _RowGeneratedSolver.suits(lp):
+        return _solved_bounds(_RowGeneratedSolver(lp), lp, p, counter, wanted)
     solver = _Solver(lp, settings=RETRY_SETTINGS if retry else None, start=start)
     try:
         return _solved_bounds(solver, lp, p, counter, wanted)
@@ -314,7 +385,7 @@ def _bounds_over(lp: _LP, p: int, counter: _Counter, wanted: NDArray[np.bool_] |
                                                                          handoff.presolve_failed)
 
 
-def _solved_bounds(solver: _Solver, lp: _LP, p: int, counter: _Counter, wanted: NDArray[np.bool_] | None
+def _solved_bounds(solver: _Solver | _RowGeneratedSolver, lp: _LP, p: int, counter: _Counter, wanted: NDArray[np.bool_] | None
                    ) -> tuple[NDArray[np.float64], NDArray[np.float64], list[NDArray[np.float64] | None]]:
     """The solves of :func:`_bounds_over` on its model."""
     lows, highs = lp.lower[:p].copy(), lp.upper[:p].copy()

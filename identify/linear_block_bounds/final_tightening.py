@@ -15,7 +15,7 @@ from numpy.typing import NDArray
 from identify.linear_block_bounds import Progress
 from identify.linear_block_bounds.certified_lp import _LP, _bounds_over, _Counter, _proven_infeasible, _widened
 from identify.linear_block_bounds.inner_values import _inner_values
-from identify.linear_block_bounds.problem import _candidate, _coupled_lp, _Data, _interval_lp, _tighten
+from identify.linear_block_bounds.problem import _coupled_lp, _Data, _interval_lp, _tighten
 
 _LOG = logging.getLogger(__package__)  # the package's logger: ``rig -v`` names identify.linear_block_bounds
 
@@ -46,8 +46,7 @@ class _SubBox:
 def _partitioned_bounds(data: _Data, low: NDArray[np.float64], high: NDArray[np.float64], counter: _Counter,
                         max_boxes: int = _PARTITION_BOXES, relative_improvement: float = 0.01,
                         progress: Progress | None = None, patient: bool = False,
-                        relaxation: Callable[[_Data, NDArray[np.float64], NDArray[np.float64]], _LP] = _interval_lp,
-                        candidate: Callable[[_Data, NDArray[np.float64]], NDArray[np.float64]] = _candidate
+                        relaxation: Callable[[_Data, NDArray[np.float64], NDArray[np.float64]], _LP] = _interval_lp
                         ) -> tuple[NDArray[np.float64], NDArray[np.float64], list[NDArray[np.float64] | None], int]:
     """The final tightening of short records: spatial branch and bound on the box of a.
 
@@ -85,7 +84,7 @@ def _partitioned_bounds(data: _Data, low: NDArray[np.float64], high: NDArray[np.
             else:
                 box_low, box_high = np.maximum(box_low, wide_low), np.minimum(box_high, wide_high)
             points = [None] * (2 * p)
-        return _SubBox(a_low, a_high, box_low, box_high, tuple(None if x is None else candidate(data, x) for x in points), depth)
+        return _SubBox(a_low, a_high, box_low, box_high, tuple(None if x is None else x[:p] for x in points), depth)
 
     def hull(cells: list[_SubBox]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         return (np.min([c.low for c in cells], axis=0), np.max([c.high for c in cells], axis=0))
@@ -163,7 +162,8 @@ def _relaxation_gap(low: NDArray[np.float64], high: NDArray[np.float64], inner_l
 
 def _closed_relaxation_gap(data: _Data, low: NDArray[np.float64], high: NDArray[np.float64],
                            points: list[NDArray[np.float64] | None], inner: tuple[NDArray[np.float64], ...],
-                           counter: _Counter, progress: Progress | None
+                           counter: _Counter, progress: Progress | None,
+                           relaxation: Callable[[_Data, NDArray[np.float64], NDArray[np.float64]], _LP] = _interval_lp
                            ) -> tuple[NDArray[np.float64], NDArray[np.float64], tuple[NDArray[np.float64], ...], int]:
     """The partition made again, patient, where the verified inner values show that the first one stopped
     early: a gap above :data:`RELAXATION_GAP_TARGET`. A first partition ends on a refinement that moves the
@@ -177,7 +177,7 @@ def _closed_relaxation_gap(data: _Data, low: NDArray[np.float64], high: NDArray[
     if _relaxation_gap(low, high, inner[0], inner[1]) <= RELAXATION_GAP_TARGET:
         return low, high, inner, 0
     new_low, new_high, cell_points, cells = _partitioned_bounds(data, low, high, counter, progress=progress,
-                                                                patient=True)
+                                                                patient=True, relaxation=relaxation)
     new_low, new_high = np.maximum(new_low, low), np.minimum(new_high, high)
     points = [new if new is not None else old for new, old in zip(cell_points, points)]
     inner_low, inner_high, witness = _inner_values(data, new_low, new_high, points, counter)

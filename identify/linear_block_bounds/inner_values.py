@@ -11,7 +11,7 @@ import scipy.sparse as sp
 from numpy.typing import NDArray
 from scipy.optimize import linprog
 
-from identify.linear_block_bounds.certified_lp import _LP, _Counter, _Solver
+from identify.linear_block_bounds.certified_lp import _LP, _Counter, _solver_for
 from identify.linear_block_bounds.problem import _Data, _gain_row, _orthant_lp, _with_shared_backlash
 from identify.linear_block_bounds.point_check import _PointCheck
 from identify.linear_block_bounds.result import EmptyLinearSetExplanation
@@ -145,7 +145,7 @@ def _inner_values(data: _Data, low: NDArray[np.float64], high: NDArray[np.float6
         cost = np.zeros(lp.lower.size)
         cost[k] = direction
         try:
-            _, x = _Solver(lp, first_solve=settings).minimize(cost, counter)
+            _, x = _solver_for(lp, first_solve=settings).minimize(cost, counter)
         except RuntimeError:
             return None  # a diagnostic only: the outer bounds do not depend on it
         return x

@@ -15,13 +15,18 @@ from identify.linear_block_bounds.certified_lp import _RECOVERY_NAMES, _Counter
 from identify.linear_block_bounds.final_tightening import _closed_relaxation_gap, _moment_bounds, _partitioned_bounds
 from identify.linear_block_bounds.inner_values import _explain, _inner_values
 from identify.linear_block_bounds.problem import (_B_BOX, LinearModelOrders, SharedBacklashConstraints, _Data,
-                                                  _paper_bounds, _prepare)
+                                                  _interval_lp, _paper_bounds, _prepare, _tighten)
 from identify.linear_block_bounds.result import LinearBlockBounds
+from identify.linear_block_bounds.trajectory_lp import _trajectory_relaxation, _TrajectoryProblem
 from identify.linear_block_bounds.windows import _JOINT_SAMPLES, _WINDOW, _coupled_bounds, _describe
 from identify.validation import InvalidInputError
 
 
 LINEAR_BOUND_METHODS = ("paper", "coupled")
+_TRAJECTORY_ROUNDS = 12
+"""Rounds of the trajectory relaxation over all samples at most, from the paper method's box (they stop earlier once
+no interval shrinks by the tightening tolerance): N = 10 000, 8 bits, run 0 of the record-length benchmark took 7
+rounds (1.0 s) to the box of the windows and joint parts."""
 
 
 def bound_linear_block(input_rad: ArrayLike, inner_lower_rad: ArrayLike, inner_upper_rad: ArrayLike, *,
@@ -31,7 +36,7 @@ def bound_linear_block(input_rad: ArrayLike, inner_lower_rad: ArrayLike, inner_u
                        verify_inner: bool = True, window_samples: int = _WINDOW,
                        joint_samples: int = _JOINT_SAMPLES, partition_samples: int = DEFAULT_PARTITION_SAMPLES,
                        moment_samples: int = DEFAULT_MOMENT_SAMPLES, map_windows: MapFunction | None = None,
-                       progress: Progress | None = None) -> LinearBlockBounds:
+                       progress: Progress | None = None, eliminate_inner_signal: bool = True) -> LinearBlockBounds:
     """Guaranteed bounds on θ = [a_1..a_na, b_nk..b_nb] with unit static gain (eq. (8)), Section 5.
 
     Parameters
@@ -57,16 +62,23 @@ def bound_linear_block(input_rad: ArrayLike, inner_lower_rad: ArrayLike, inner_u
     verify_inner
         Coupled method: compute the verified inner values (2p or more extra LPs; about a quarter of the time
         for long records). The outer bounds do not depend on it.
+    eliminate_inner_signal
+        Coupled method: bound by the trajectory relaxation, the inner signal eliminated (x = M(a)[b; s], a few
+        columns and one row per sample: :func:`~.trajectory_lp._trajectory_relaxation`), whenever the record has
+        few gaps (:meth:`~.trajectory_lp._TrajectoryProblem.suits`): rounds over all samples, then the partition of
+        the box of a into cells at every record length, made again while the verified inner values show a gap
+        above :data:`~.final_tightening.RELAXATION_GAP_TARGET`. False, or a record of many gaps: the windows and
+        joint parts below, with δx as columns.
     window_samples, joint_samples
-        Coupled method on records longer than two windows: windows of this many samples are bounded one by
-        one and their boxes intersected; the final relaxation is solved jointly over all samples if there are
-        at most ``joint_samples``, else over the windows that decide the bounds, up to that many samples
-        (see :func:`~.windows._coupled_bounds`; the time grows about linearly with the record).
+        Coupled method without the trajectory relaxation, on records longer than two windows: windows of this many
+        samples are bounded one by one and their boxes intersected; the final relaxation is solved jointly over all
+        samples if there are at most ``joint_samples``, else over the windows that decide the bounds, up to that
+        many samples (see :func:`~.windows._coupled_bounds`; the time grows about linearly with the record).
     partition_samples
-        Coupled method on records up to this length: the final tightening cuts the box of a into cells, each
-        bounded by its own relaxation, and takes the hull (spatial branch and bound,
-        :func:`~.final_tightening._partitioned_bounds`; narrows the outer bounds towards the exact set at a few times
-        the cost). 0 switches it off.
+        Coupled method: the final tightening cuts the box of a into cells, each bounded by its own relaxation, and
+        takes the hull (spatial branch and bound, :func:`~.final_tightening._partitioned_bounds`; narrows the outer
+        bounds towards the exact set at a few times the cost). With the trajectory relaxation every record gets it
+        (a cell costs O(N)); without, records up to this length (a cell's LP has δx as columns). 0 switches it off.
     moment_samples
         Coupled method on records up to this length: a last tightening by the first-order moment (SDP)
         relaxation, solved with cvxpy and certified through LP cuts (:func:`~.final_tightening._moment_bounds`). 0 (the
@@ -95,23 +107,26 @@ def bound_linear_block(input_rad: ArrayLike, inner_lower_rad: ArrayLike, inner_u
     inner = (None, None, None)
     moment_notes: list[str] = []
     windowing = f"all {data.u.size} samples in one relaxation per orthant"
+    trajectory = method == "coupled" and eliminate_inner_signal and _TrajectoryProblem.suits(data)
+    partitioned = bool(orders.na) and (data.u.size <= partition_samples or (trajectory and partition_samples > 0))
     if method == "coupled":
         low, high, rounds, points, windowing = _coupled_stages(
             data, low, high, counter, moment_notes, max_tightening_rounds=max_tightening_rounds,
             tightening_tolerance=tightening_tolerance, map_windows=map if map_windows is None else map_windows,
-            progress=progress, window_samples=window_samples, joint_samples=joint_samples,
-            partition_samples=partition_samples, moment_samples=moment_samples)
+            progress=progress, window_samples=window_samples, joint_samples=joint_samples, trajectory=trajectory,
+            partitioned=partitioned, moment_samples=moment_samples)
         if np.any(np.isnan(low)):
             return LinearBlockBounds(method=method, orders=orders, intervals={}, explanation=_explain(data, counter),
                                      num_linear_programs=counter.solves, num_tightening_rounds=rounds,
                                      feasible_orthants=tuple(feasible), max_certificate_gap=counter.max_gap,
                                      windowing=windowing)
         if verify_inner and any(point is not None for point in points):
-            refine = data.u.size <= max(partition_samples, 2 * window_samples)
+            refine = trajectory or data.u.size <= max(partition_samples, 2 * window_samples)
             verified = _inner_values(data, low, high, points, counter, refine)
-            if orders.na and data.u.size <= partition_samples:
-                low, high, verified, cells = _closed_relaxation_gap(data, low, high, points, verified, counter,
-                                                                    progress)
+            if partitioned:
+                low, high, verified, cells = _closed_relaxation_gap(
+                    data, low, high, points, verified, counter, progress,
+                    _trajectory_relaxation if trajectory else _interval_lp)
                 if cells:
                     windowing += f", partitioned again, patient, for the gap to the verified values ({cells} solved)"
             inner_low, inner_high, witness = verified
@@ -139,19 +154,32 @@ def _check_settings(method: str, **sample_counts: int) -> None:
 def _coupled_stages(data: _Data, low: NDArray[np.float64], high: NDArray[np.float64], counter: _Counter,
                     moment_notes: list[str], *, max_tightening_rounds: int, tightening_tolerance: float,
                     map_windows: MapFunction, progress: Progress | None, window_samples: int, joint_samples: int,
-                    partition_samples: int, moment_samples: int
+                    trajectory: bool, partitioned: bool, moment_samples: int
                     ) -> tuple[NDArray[np.float64], NDArray[np.float64], int, list[Any], str]:
-    """The coupled method's stages after the paper's bounds: the McCormick relaxation with iterated tightening
-    over windows and joint parts (:func:`~.windows._coupled_bounds`), then on short records the partition of the box of
-    a (:func:`~.final_tightening._partitioned_bounds`) and the moment cuts (:func:`~.final_tightening._moment_bounds`).
-    Returns the box (NaN where the set is empty), the rounds, the feasible points found, and the windowing in words."""
+    """The coupled method's stages after the paper's bounds: rounds of the trajectory relaxation over all samples
+    (``trajectory``) or the McCormick relaxation with iterated tightening over windows and joint parts
+    (:func:`~.windows._coupled_bounds`), then (``partitioned``) the partition of the box of a
+    (:func:`~.final_tightening._partitioned_bounds`) by the same relaxation and the moment cuts
+    (:func:`~.final_tightening._moment_bounds`). Returns the box (NaN where the set is empty), the rounds, the
+    feasible points found, and the windowing in words."""
     na = data.orders.na
-    low, high, rounds, points, plan = _coupled_bounds(data, low, high, counter, max_tightening_rounds,
-                                                      tightening_tolerance, map_windows, progress, window_samples,
-                                                      joint_samples)
-    windowing = _describe(plan, data.u.size, window_samples, joint_samples)
-    if not np.any(np.isnan(low)) and na and data.u.size <= partition_samples:
-        low, high, cell_points, cells = _partitioned_bounds(data, low, high, counter, progress=progress)
+    if trajectory:
+        counter.stage = f"trajectory relaxation of all {data.u.size} samples"
+        low, high, rounds, points, empty = _tighten(data, low, high, counter, _TRAJECTORY_ROUNDS, tightening_tolerance,
+                                                    True, _trajectory_relaxation, full_rounds=True)
+        if empty:
+            low, high, points = np.full(low.size, math.nan), np.full(low.size, math.nan), []
+        windowing = (f"all {data.u.size} samples in the trajectory relaxation (inner signal eliminated), {rounds} "
+                     f"round{'s' if rounds > 1 else ''}")
+    else:
+        low, high, rounds, points, plan = _coupled_bounds(data, low, high, counter, max_tightening_rounds,
+                                                          tightening_tolerance, map_windows, progress, window_samples,
+                                                          joint_samples)
+        windowing = _describe(plan, data.u.size, window_samples, joint_samples)
+    if not np.any(np.isnan(low)) and na and partitioned:
+        low, high, cell_points, cells = _partitioned_bounds(
+            data, low, high, counter, progress=progress,
+            relaxation=_trajectory_relaxation if trajectory else _interval_lp)
         points = [new if new is not None else old for new, old in zip(cell_points, points)] if points else cell_points
         windowing += f", then the box of a partitioned into cells ({cells} solved)"
     if not np.any(np.isnan(low)) and na and data.u.size <= moment_samples:

@@ -26,7 +26,6 @@ import math
 import numba
 import numpy as np
 from numpy.typing import NDArray
-from scipy.optimize import linprog
 
 from identify.linear_block_bounds.problem import _Data
 
@@ -209,23 +208,11 @@ class _PointCheck:
         self._equation[data.times] = True
         self._low, self._high = data.xc - data.dx, data.xc + data.dx
         self._scale = max(1.0, float(np.max(np.abs(data.xc))))
-        shared = data.shared
-        self._interior = None if shared is None else _chebyshev_centre(shared.rows, shared.rhs, shared.lower,
-                                                                       shared.upper)
 
     @property
     def decides(self) -> bool:
         """Whether :meth:`status` can decide points of this model order (na <= 2)."""
         return self._data.orders.na <= 2
-
-    def backlash_part(self, point: NDArray[np.float64]) -> NDArray[np.float64] | None:
-        """The [ρ_l, c_l, ρ_r, c_r] of a point (θ first, then the backlash when the record has one)."""
-        p = self._data.orders.num_parameters
-        return None if self._data.shared is None else point[p: p + 4]
-
-    def anchor_backlash(self) -> NDArray[np.float64] | None:
-        """A backlash strictly inside the polygons of D_γ (their Chebyshev centre), None without a shared backlash."""
-        return None if self._interior is None else self._interior.copy()
 
     def status(self, point: NDArray[np.float64]) -> int:
         """ACCEPTED (a point of the exact set), REFUSED or UNDECIDED for ``point`` = θ (p values), followed by
@@ -271,19 +258,3 @@ class _PointCheck:
             return found
         x = np.clip(x, shrunk_low, shrunk_high)
         return ACCEPTED if _exact_correction_fits(theta[:na].copy(), v, self._equation, x, room) else REFUSED
-
-
-def _chebyshev_centre(rows: NDArray[np.float64], rhs: NDArray[np.float64], lower: NDArray[np.float64],
-                      upper: NDArray[np.float64]) -> NDArray[np.float64]:
-    """The centre of the largest ball in {z : rows z <= rhs, lower <= z <= upper} (one small LP)."""
-    norms = np.linalg.norm(rows, axis=1)
-    width = lower.size
-    box_rows = np.vstack([np.eye(width), -np.eye(width)])
-    A = np.vstack([np.column_stack([rows, norms]), np.column_stack([box_rows, np.ones(2 * width)])])
-    b = np.concatenate([rhs, upper, -lower])
-    cost = np.zeros(width + 1)
-    cost[-1] = -1.0
-    result = linprog(cost, A_ub=A, b_ub=b, bounds=[(None, None)] * width + [(0.0, None)], method="highs")
-    if result.status != 0:
-        return 0.5 * (lower + upper)
-    return np.asarray(result.x[:width], dtype=float)

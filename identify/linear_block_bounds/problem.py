@@ -344,17 +344,6 @@ def _interval_lp(data: _Data, theta_low: NDArray[np.float64], theta_high: NDArra
     return lp if data.shared is None else _with_shared_backlash(lp, data, p)
 
 
-def _candidate(data: _Data, solution: NDArray[np.float64]) -> NDArray[np.float64]:
-    """θ of an LP solution over ``data`` followed, when the record has a shared backlash, by its [ρ_l, c_l, ρ_r, c_r]
-    (the columns :func:`_with_shared_backlash` appends last, before the ζ_t): a candidate point for
-    :class:`~.point_check._PointCheck`, small enough to hand between processes."""
-    p = data.orders.num_parameters
-    if data.shared is None:
-        return solution[:p].copy()
-    first = solution.size - data.shared.sample_indices.size - 4
-    return np.concatenate([solution[:p], solution[first: first + 4]])
-
-
 def _with_shared_backlash(lp: _LP, data: _Data, p: int) -> _LP:
     """Append the columns [ρ_l, c_l, ρ_r, c_r, ζ_1..ζ_K] and the rows that tie the inverted samples to them:
     δx_t - y_t ρ_r - c_r + ζ_t = -x_t^c (rising), δx_t - y_t ρ_l + c_l + ζ_t = -x_t^c (falling)."""

@@ -23,7 +23,7 @@ from numpy.typing import NDArray
 
 from identify.linear_block_bounds.certified_lp import _LP
 from identify.linear_block_bounds.point_check import ACCEPTED, _PointCheck
-from identify.linear_block_bounds.problem import _Data, _gain_row
+from identify.linear_block_bounds.problem import _Data, _gain_row, _interval_lp
 
 _ROW_MARGIN = 1e-6
 """Share of each row's width given up by the LP (the exact check needs 1e-9 of it, and HiGHS's tolerances are set
@@ -257,12 +257,6 @@ def _response_bound(centre: NDArray[np.float64], radius: NDArray[np.float64],
     return (_truncated_convolution(h, G, length) + tail * float(np.max(G, initial=0.0))) * (1.0 + 1e-9)
 
 
-def _trajectory_candidate(data: _Data, solution: NDArray[np.float64]) -> NDArray[np.float64]:
-    """θ of a solution of these LPs, followed by its [ρ_l, c_l, ρ_r, c_r] when the record has a shared backlash
-    (as :func:`~.problem._candidate` for the LPs with δx as columns)."""
-    return solution[: data.orders.num_parameters + (0 if data.shared is None else 4)].copy()
-
-
 def _trajectory_relaxation(data: _Data, low: NDArray[np.float64], high: NDArray[np.float64]) -> _LP:
     """A relaxation of the exact set over the box [low, high] with the inner signal eliminated.
 
@@ -279,5 +273,13 @@ def _trajectory_relaxation(data: _Data, low: NDArray[np.float64], high: NDArray[
     and its backlash rows within ζ^max_t + E_t: an LP in (θ, backlash, chain starts), all columns bounded, so the
     certified bounds of :func:`~.certified_lp._bounds_over` hold. E shrinks with the radius of the box of a (it is
     about Σ|h| r Δx), so over a narrow cell this relaxation comes close to the exact set: the cells of
-    :func:`~.final_tightening._partitioned_bounds` on long records."""
+    :func:`~.final_tightening._partitioned_bounds`.
+
+    If A(a^c) is not stable (a root of modulus 1 - 1e-9 or more), its responses do not decay and the widening would
+    make the rows useless or badly scaled: the box is then bounded by the interval relaxation
+    (:func:`~.problem._interval_lp`) instead, valid over the same box."""
+    na = data.orders.na
+    centre = 0.5 * (low[:na] + high[:na])
+    if na and np.max(np.abs(np.roots(np.concatenate([[1.0], centre])))) >= 1.0 - 1e-9:
+        return _interval_lp(data, low, high)
     return _TrajectoryProblem(data, low, high).over_box()

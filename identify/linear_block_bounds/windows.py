@@ -16,7 +16,7 @@ from numpy.typing import NDArray
 
 from identify.linear_block_bounds import MapFunction, Progress
 from identify.linear_block_bounds.certified_lp import _bounds_over, _Counter, _PartStart
-from identify.linear_block_bounds.problem import SharedBacklashConstraints, _candidate, _Data, _interval_lp, _tighten
+from identify.linear_block_bounds.problem import SharedBacklashConstraints, _Data, _interval_lp, _tighten
 
 _LOG = logging.getLogger(__package__)  # the package's logger: ``rig -v`` names identify.linear_block_bounds
 
@@ -109,7 +109,7 @@ def _window_task(task: tuple[str, _Data, NDArray[np.float64], NDArray[np.float64
         start = _PartStart() if start is None else start
         low, high, used, extreme, empty = _tighten(window, low, high, counter, max_rounds, tolerance, True,
                                                    _FULL_DATA_RELAXATION, wanted=wanted, retry=retry, start=start)
-        return (low, high, used, [None if x is None else _candidate(window, x) for x in extreme],
+        return (low, high, used, [None if x is None else x[: window.orders.num_parameters] for x in extreme],
                 empty, start), counter
     counter.stage = "window relaxation"
     new_low, new_high, _ = _bounds_over(_FULL_DATA_RELAXATION(window, low, high), window.orders.num_parameters,
