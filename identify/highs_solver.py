@@ -21,7 +21,7 @@ TESTED_HIGHSPY = "1.16.0"
 lower bound is the project's earlier one, not re-tested here)."""
 
 SOLVER_METHODS = ("setOptionValue", "passModel", "run", "getRunTime", "getModelStatus", "modelStatusToString",
-                  "changeColsCost", "getSolution", "getBasis", "setBasis", "clearSolver")
+                  "changeColsCost", "getSolution", "getBasis", "setBasis", "clearSolver", "addRows")
 """The methods of the HiGHS instance that the LP code calls."""
 
 

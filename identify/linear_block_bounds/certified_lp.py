@@ -178,6 +178,21 @@ class _Solver:
         self.warm = False
         self.solved = False
 
+    def add_rows(self, rows: sp.csr_matrix, lower: NDArray[np.float64], upper: NDArray[np.float64]) -> None:
+        """Append ranged rows to the model (and to the rows the certificate reads). The basis stays valid (the new
+        rows' slacks are basic), so the next solve goes on from it, by the dual simplex: the basis may now be primal
+        infeasible, but it stays dual feasible."""
+        rows = rows.tocsr()
+        self.highs.addRows(rows.shape[0], np.asarray(lower, dtype=float), np.asarray(upper, dtype=float), rows.nnz,
+                           rows.indptr[:-1].astype(np.int32), rows.indices.astype(np.int32),
+                           rows.data.astype(float))
+        self.A = sp.vstack([self.A, rows]).tocsr()
+        self.row_lower = np.concatenate([self.row_lower, lower])
+        self.row_upper = np.concatenate([self.row_upper, upper])
+        if self.warm:
+            self.highs.setOptionValue("simplex_strategy", 1)
+            self.warm = False
+
     def handoff(self) -> _PartStart:
         """This model's last basis (none if it has no valid one, e.g. after the interior-point method without
         crossover) and whether a presolved first solve failed on it, for the same part's next pass."""
@@ -263,9 +278,9 @@ class _Solver:
 
 _TALL_RATIO = 50
 """An LP with this many ranged rows per column or more is solved by row generation (:class:`_RowGeneratedSolver`)."""
-_TALL_START_ROWS = 2000
+_TALL_START_ROWS = 200
 """Ranged rows of the first subset (evenly spread) of :class:`_RowGeneratedSolver`."""
-_TALL_ROWS_ADDED = 100
+_TALL_ROWS_ADDED = 30
 """Most violated ranged rows added per turn."""
 _TALL_TURNS = 40
 """Turns of the row generation per objective at most (the bound after any turn is valid, only possibly looser)."""
@@ -287,41 +302,42 @@ class _RowGeneratedSolver:
 
     def __init__(self, lp: _LP, first_solve: Mapping[str, Any] | None = None) -> None:
         self.lp = lp
-        self._first_solve = first_solve
         self._rows, self._row_lower, self._row_upper = lp.ranged()
         count = self._rows.shape[0]
         self._chosen = np.zeros(count, dtype=bool)
         self._chosen[:: max(1, -(-count // _TALL_START_ROWS))] = True
-        self._solver: _Solver | None = None
-        self.warm = False
+        chosen = self._chosen
+        subset = _LP(lp.A_ub, lp.b_ub, lp.A_eq, lp.b_eq, lp.lower, lp.upper, self._rows[chosen],
+                     self._row_lower[chosen], self._row_upper[chosen])
+        self._solver = _Solver(subset, first_solve={**(first_solve or {}), "presolve": "off"})
 
     @staticmethod
     def suits(lp: _LP) -> bool:
         return lp.ranged()[0].shape[0] >= _TALL_RATIO * max(lp.lower.size, 1)
 
-    def _subset_solver(self) -> _Solver:
-        if self._solver is None:
-            lp, chosen = self.lp, self._chosen
-            subset = _LP(lp.A_ub, lp.b_ub, lp.A_eq, lp.b_eq, lp.lower, lp.upper, self._rows[chosen],
-                         self._row_lower[chosen], self._row_upper[chosen])
-            self._solver = _Solver(subset, first_solve=self._first_solve)
-        return self._solver
+    @property
+    def warm(self) -> bool:
+        return self._solver.warm
+
+    @warm.setter
+    def warm(self, value: bool) -> None:
+        self._solver.warm = value
 
     def minimize(self, cost: NDArray[np.float64], counter: _Counter) -> tuple[float, NDArray[np.float64] | None]:
         bound, x = math.inf, None
         for _ in range(_TALL_TURNS):
-            bound, x = self._subset_solver().minimize(cost, counter)
+            bound, x = self._solver.minimize(cost, counter)
             if x is None:
                 return bound, None
             values = self._rows @ x
             violation = np.maximum(values - self._row_upper, self._row_lower - values)
-            violation[self._chosen] = 0.0
-            worst = np.argsort(violation)[-_TALL_ROWS_ADDED:]
-            worst = worst[violation[worst] > _TALL_VIOLATION]
-            if not worst.size:
+            violated = np.flatnonzero((violation > _TALL_VIOLATION) & ~self._chosen)
+            if not violated.size:
                 break
-            self._chosen[worst] = True
-            self._solver = None
+            if violated.size > _TALL_ROWS_ADDED:
+                violated = violated[np.argpartition(violation[violated], -_TALL_ROWS_ADDED)[-_TALL_ROWS_ADDED:]]
+            self._chosen[violated] = True
+            self._solver.add_rows(self._rows[violated], self._row_lower[violated], self._row_upper[violated])
         return bound, x
 
 

@@ -64,6 +64,13 @@ def test_the_quiet_instance_prints_nothing_and_solves_an_lp_through_every_call_t
     highs.clearSolver()
     highs.run()
     assert highs.getModelStatus() == HighsModelStatus.kOptimal
+    # a row added to the solved model (row generation): x1 >= 0.5 moves the optimum of min 2 x0 + x1 to (0.7, 0.5)
+    highs.addRows(1, np.array([0.5]), np.array([np.inf]), 1, np.array([0], dtype=np.int32),
+                  np.array([1], dtype=np.int32), np.array([1.0]))
+    highs.setOptionValue("simplex_strategy", 1)
+    highs.run()
+    assert highs.getModelStatus() == HighsModelStatus.kOptimal
+    np.testing.assert_allclose(highs.getSolution().col_value, [0.7, 0.5], atol=1e-9)
     out, err = capfd.readouterr()  # the file descriptors: HiGHS writes from C++
     assert out == "" and err == ""
 
