@@ -128,6 +128,7 @@ def scaling(args: argparse.Namespace) -> None:
     print(f"Coupled bounds against the record length: seed {args.seed}, run r of (N, n_bit) from "
           f"default_rng([{args.seed}, N, n_bit, r]); {args.jobs} process(es) for the windows, joint_samples "
           f"{args.joint_samples}, partition_samples {args.partition_samples}, moment_samples {args.moment_samples}, "
+          f"{'windows and parts' if args.windows else 'trajectory relaxation where the record allows'}, "
           f"{os.cpu_count()} cores; medians over the "
           "runs")
     header = (f"{'N':>6} {'n_bit':>5} {'runs':>4} | {'wall s':>7} {'max':>7} {'CPU s':>7} {'peak MiB':>8} | "
@@ -151,7 +152,8 @@ def scaling(args: argparse.Namespace) -> None:
                                             joint_samples=args.joint_samples,
                                             partition_samples=args.partition_samples,
                                             moment_samples=args.moment_samples,
-                                            verify_inner=num_samples <= args.inner_max)
+                                            verify_inner=num_samples <= args.inner_max,
+                                            eliminate_inner_signal=not args.windows)
                 wall = time.perf_counter() - started
                 cpu = _cpu_s() + _pool_cpu_s(pool) - cpu
                 ratio = math.nan
@@ -198,6 +200,9 @@ def main() -> None:
                              f"{DEFAULT_PARTITION_SAMPLES}; 0: off)")
     parser.add_argument("--moment-samples", type=int, default=0,
                         help="--scaling: cuts from the moment (SDP) relaxation with cvxpy up to this N (default 0: off)")
+    parser.add_argument("--windows", action="store_true",
+                        help="--scaling: bound by windows and joint parts with δx as columns instead of the trajectory "
+                             "relaxation (eliminate_inner_signal=False)")
     parser.add_argument("--inner-max", type=int, default=10000,
                         help="--scaling: verified inner values (outer/inner) only up to this N (default 10000)")
     args = parser.parse_args()

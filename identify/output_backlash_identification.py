@@ -144,7 +144,8 @@ def bound_output_backlash_system(steady_input_rad: ArrayLike, steady_output_rad:
                                  partition_samples: int = DEFAULT_PARTITION_SAMPLES,
                                  moment_samples: int = DEFAULT_MOMENT_SAMPLES,
                                  map_windows: MapFunction | None = None,
-                                 progress: Progress | None = None) -> OutputBacklashIdentification:
+                                 progress: Progress | None = None,
+                                 eliminate_inner_signal: bool = True) -> OutputBacklashIdentification:
     """Bound the parameters of a linear system with output backlash (Cerone et al. 2009, Sections 3-5).
 
     Parameters
@@ -165,11 +166,12 @@ def bound_output_backlash_system(steady_input_rad: ArrayLike, steady_output_rad:
         r̄_F of the filter-pole search if known (α terms of eqs. (14)-(15)).
     verify_inner
         Coupled method: also compute verified inner values (see :func:`identify.linear_block_bounds.bound_linear_block`).
-    window_samples, joint_samples, partition_samples, moment_samples, map_windows, progress
+    window_samples, joint_samples, partition_samples, moment_samples, map_windows, progress, eliminate_inner_signal
         Coupled method: the windowing of long records, the length up to which the box of a is partitioned
         (the final tightening of short records), the length up to which the moment (SDP) cuts follow (0: off),
         a ``map`` that may run the windows in other processes
-        (``executor.map``) and a ``progress(stage, done, total)`` callback; see
+        (``executor.map``), a ``progress(stage, done, total)`` callback and whether a record of few gaps is
+        bounded by the trajectory relaxation instead of windows; see
         :func:`identify.linear_block_bounds.bound_linear_block`.
 
     Examples
@@ -204,5 +206,6 @@ def bound_output_backlash_system(steady_input_rad: ArrayLike, steady_output_rad:
     linear = bound_linear_block(u, inner.lower_rad, inner.upper_rad, na=na, nk=nk, nb=nb, method=method,
                                 shared_backlash=shared, verify_inner=verify_inner, window_samples=window_samples,
                                 joint_samples=joint_samples, partition_samples=partition_samples,
-                                moment_samples=moment_samples, map_windows=map_windows, progress=progress)
+                                moment_samples=moment_samples, map_windows=map_windows, progress=progress,
+                                eliminate_inner_signal=eliminate_inner_signal)
     return OutputBacklashIdentification(backlash, inner, linear, noise, method)

@@ -97,7 +97,7 @@ def test_a_partition_that_stopped_early_is_made_again_until_the_bounds_come_with
     inner = paper.inner_signal
     shared = shared_backlash_constraints(data.output_rad, data.noise_bound_rad, paper.backlash, inner)
     result = bound_linear_block(data.input_rad, inner.lower_rad, inner.upper_rad, na=2, nk=1, nb=2,
-                                shared_backlash=shared)
+                                shared_backlash=shared, eliminate_inner_signal=False)
     assert "partitioned again" in result.windowing
     for name, value in THETA.items():
         outer = result.intervals[name]
@@ -176,7 +176,8 @@ def test_long_record_tightens_on_a_window_first_and_still_contains_the_truth() -
     # N = 500 > 2 x 200: the box of a is tightened on the first 200 samples, then rounds of the interval
     # relaxation over all the data
     _, paper = _run(10, 21, "paper", num_samples=500)
-    _, coupled = _run(10, 21, "coupled", num_samples=500, partition_samples=0)  # the windows, not the partition
+    _, coupled = _run(10, 21, "coupled", num_samples=500, partition_samples=0,  # the windows, not the partition
+                      eliminate_inner_signal=False)
     for name, value in THETA.items():
         outer_paper, outer = paper.linear_intervals[name], coupled.linear_intervals[name]
         assert outer.contains(value)
@@ -225,26 +226,29 @@ def test_interval_relaxation_holds_at_the_truth_and_contains_the_mccormick_one()
     assert np.all(outer_high - outer_low < high - low)
 
 
-def test_a_bounding_lp_that_highs_cannot_solve_falls_back_to_a_valid_bound_with_a_note(monkeypatch) -> None:
+@pytest.mark.parametrize("eliminate_inner_signal", [True, False])
+def test_a_bounding_lp_that_highs_cannot_solve_falls_back_to_a_valid_bound_with_a_note(
+        monkeypatch, eliminate_inner_signal: bool) -> None:
     # At N = 10 000, 12 bits (benchmark seed [2009, 10000, 12, 1]) one LP of the full-data relaxation
     # stopped with "Solve error" under every recovery setting, which must not end in a traceback. Here every LP
-    # that bounds b2 from above in the coupled rounds "fails" the same way: the result must still contain the truth,
-    # stay inside the paper method's box, and name the parameter.
+    # that bounds b2 from above in the coupled or trajectory rounds "fails" the same way: the result must still
+    # contain the truth, stay inside the paper method's box, and name the parameter.
     import identify.linear_block_bounds.certified_lp as module
 
     data = experiment(12, 41)
-    _, reference = _run(12, 41, "coupled")
+    route = {"eliminate_inner_signal": eliminate_inner_signal}
+    _, reference = _run(12, 41, "coupled", **route)
     original = module._Solver.minimize
 
     def failing(self, cost, counter):
-        if counter.stage.startswith("coupled") and cost.size > 4 and cost[3] == -1.0:
+        if counter.stage.startswith(("coupled", "trajectory")) and cost.size > 4 and cost[3] == -1.0:
             counter.solves += 1
             raise module._SolverFailure("Solve error")
         return original(self, cost, counter)
 
     monkeypatch.setattr(module._Solver, "minimize", failing)
     _, paper = _run(12, 41, "paper")
-    _, result = _run(12, 41, "coupled")
+    _, result = _run(12, 41, "coupled", **route)
     linear = result.linear
     assert len(linear.notes) == 1 and linear.notes[0].startswith("b2 upper bound: HiGHS could not solve")
     assert "Solve error" in linear.notes[0]
@@ -286,7 +290,7 @@ def test_windowed_bounds_are_at_least_as_tight_as_the_all_data_relaxation(n_bit:
     low, high, shared, old_gap = _old_all_data_bounds(data, _Stages(paper.backlash, paper.inner_signal))
     inner = paper.inner_signal
     new = bound_linear_block(data.input_rad, inner.lower_rad, inner.upper_rad, na=2, nk=1, nb=2,
-                             shared_backlash=shared, verify_inner=False)
+                             shared_backlash=shared, verify_inner=False, eliminate_inner_signal=False)
     assert new.windowing.startswith("4 windows of 200 samples") and "then all 700 samples jointly" in new.windowing
     # at least as tight, up to what the certificates give away against the LP optima (both report it: about
     # 1e-8 here, against half-widths of 1e-5..1e-3)
@@ -307,7 +311,7 @@ def test_parts_of_a_long_record_run_through_a_map_and_give_the_same_bounds() -> 
     args = (data.input_rad, inner.lower_rad, inner.upper_rad)
     seen = []
     # the map runs the windows and parts; the partition of short records (in-process) is switched off here
-    options = {"joint_samples": 400, "partition_samples": 0, "verify_inner": False}
+    options = {"joint_samples": 400, "partition_samples": 0, "verify_inner": False, "eliminate_inner_signal": False}
     serial = bound_linear_block(*args, na=2, nk=1, nb=2, shared_backlash=shared, **options,
                                 progress=lambda stage, done, total: seen.append((stage, done, total)))
     with ThreadPoolExecutor(2) as pool:
@@ -385,7 +389,7 @@ def test_the_passes_over_the_parts_iterate_to_a_fixed_point_that_one_pass_contai
     shared = shared_backlash_constraints(data.output_rad, data.noise_bound_rad, paper.backlash, inner)
     args = (data.input_rad, inner.lower_rad, inner.upper_rad)
     options = {"na": 2, "nk": 1, "nb": 2, "shared_backlash": shared, "joint_samples": 400, "partition_samples": 0,
-               "verify_inner": False}
+               "verify_inner": False, "eliminate_inner_signal": False}
     passes = bound_linear_block(*args, **options)
     monkeypatch.setattr(module, "_PART_PASSES", 1)
     single = bound_linear_block(*args, **options)
@@ -407,7 +411,7 @@ def _long_record_options(seed: int):
     shared = shared_backlash_constraints(data.output_rad, data.noise_bound_rad, paper.backlash, inner)
     return (data.input_rad, inner.lower_rad, inner.upper_rad), {
         "na": 2, "nk": 1, "nb": 2, "shared_backlash": shared, "joint_samples": 400, "partition_samples": 0,
-        "verify_inner": False}, paper
+        "verify_inner": False, "eliminate_inner_signal": False}, paper
 
 
 def test_a_part_starts_its_next_pass_from_its_last_basis_and_gets_the_bounds_of_a_cold_start(monkeypatch) -> None:
@@ -494,7 +498,7 @@ def test_a_worker_process_that_dies_gives_valid_looser_bounds_with_a_note(monkey
     inner = paper.inner_signal
     shared = shared_backlash_constraints(data.output_rad, data.noise_bound_rad, paper.backlash, inner)
     args = (data.input_rad, inner.lower_rad, inner.upper_rad)
-    options = {"joint_samples": 400, "partition_samples": 0}
+    options = {"joint_samples": 400, "partition_samples": 0, "eliminate_inner_signal": False}
     serial = bound_linear_block(*args, na=2, nk=1, nb=2, shared_backlash=shared, **options)
     monkeypatch.setattr(module, "_ORIGINAL_WINDOW_TASK", module._window_task, raising=False)
     monkeypatch.setattr(module, "_window_task", _window_task_whose_joint_parts_kill_their_process)
