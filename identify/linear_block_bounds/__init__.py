@@ -95,7 +95,8 @@ from identify.linear_block_bounds.final_tightening import RELAXATION_GAP_TARGET 
 from identify.linear_block_bounds.pipeline import LINEAR_BOUND_METHODS, bound_linear_block  # noqa: E402
 from identify.linear_block_bounds.problem import LinearModelOrders, SharedBacklashConstraints  # noqa: E402
 from identify.linear_block_bounds.result import EmptyLinearSetExplanation, LinearBlockBounds  # noqa: E402
+from identify.linear_block_bounds.trajectory_lp import eliminates_inner_signal  # noqa: E402
 from identify.linear_block_bounds.windows import DEFAULT_JOINT_SAMPLES, DEFAULT_WINDOW_SAMPLES  # noqa: E402
 
 __all__ = ["DEFAULT_JOINT_SAMPLES", "DEFAULT_MOMENT_SAMPLES", "DEFAULT_PARTITION_SAMPLES", "DEFAULT_WINDOW_SAMPLES", "LINEAR_BOUND_METHODS", "EmptyLinearSetExplanation", "LinearBlockBounds", "LinearModelOrders", "MapFunction",
-           "Progress", "SharedBacklashConstraints", "bound_linear_block"]
+           "Progress", "SharedBacklashConstraints", "bound_linear_block", "eliminates_inner_signal"]

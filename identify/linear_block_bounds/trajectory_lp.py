@@ -37,6 +37,14 @@ _MAX_CHAIN_STARTS = 200
 """Chains of equations at most (na per chain): a record with more gaps is left to the LP with δx as columns."""
 
 
+def eliminates_inner_signal(num_samples: int, num_equations: int, na: int) -> bool:
+    """Whether a record of ``num_samples`` samples, ``num_equations`` of them with an equation of eq. (7) (its
+    inner signal and the na before it bounded), is bounded with the inner signal eliminated: every sample without an
+    equation starts a chain and is a column of the trajectory LPs, so at most :data:`_MAX_CHAIN_STARTS` chains
+    (na samples each)."""
+    return num_samples - num_equations <= _MAX_CHAIN_STARTS * max(na, 1)
+
+
 @numba.njit(cache=True)
 def _responses(a: NDArray[np.float64], u: NDArray[np.float64], nk: int, nb: int, equation: NDArray[np.bool_],
                start_column: NDArray[np.int64], num_starts: int) -> NDArray[np.float64]:
@@ -92,9 +100,8 @@ class _TrajectoryProblem:
 
     @staticmethod
     def suits(data: _Data) -> bool:
-        """Whether the record's chains of equations are few enough (:data:`_MAX_CHAIN_STARTS`)."""
-        chains = data.u.size - data.times.size
-        return chains <= _MAX_CHAIN_STARTS * max(data.orders.na, 1)
+        """Whether the record's chains of equations are few enough (:func:`eliminates_inner_signal`)."""
+        return eliminates_inner_signal(data.u.size, data.times.size, data.orders.na)
 
     @property
     def _p(self) -> int:

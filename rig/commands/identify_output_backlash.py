@@ -56,17 +56,24 @@ def register(methods: argparse._SubParsersAction) -> None:
     parser.add_argument("--scheduler", metavar="ADDRESS", default=None,
                         help="run the windows (one pair) or the pairs on the Dask cluster at ADDRESS instead "
                              "(needs dask[distributed])")
+    parser.add_argument("--windows", action="store_true",
+                        help="coupled method: bound by windows and joint parts with the inner signal's errors as LP "
+                             "columns even where the record has few gaps (by default such a record is bounded with "
+                             "the inner signal eliminated, in time linear in its length, at every length with the "
+                             "partition below and the verified inner values)")
     parser.add_argument("--window-samples", type=int, default=200, metavar="N",
-                        help="coupled method: records longer than two windows are bounded window by window, N samples "
-                             "each (default 200)")
+                        help="coupled method, windows: records longer than two windows are bounded window by window, "
+                             "N samples each (default 200)")
     parser.add_argument("--joint-samples", type=int, default=3000, metavar="N",
-                        help="coupled method: the final relaxation is solved jointly over all samples up to N, else "
-                             "over overlapping parts of N samples whose bounds are intersected (default 3000; larger "
-                             "is tighter and slower); the verified inner values are computed only up to N samples")
+                        help="coupled method, windows: the final relaxation is solved jointly over all samples up to "
+                             "N, else over overlapping parts of N samples whose bounds are intersected (default 3000; "
+                             "larger is tighter and slower); the verified inner values are computed only up to N "
+                             "samples")
     parser.add_argument("--partition-samples", type=int, default=1000, metavar="N",
-                        help="coupled method: records up to N samples (default 1000; 0: never) get a final "
-                             "tightening by partition of the box of a (a few times slower, outer bounds close to the "
-                             "verified inner values)")
+                        help="coupled method: 0 switches off the final tightening by partition of the box of a "
+                             "(outer bounds close to the verified inner values at a few times the cost); with "
+                             "--windows (or a record of many gaps) only records up to N samples get it (default "
+                             "1000)")
     parser.add_argument("--moment-samples", type=int, default=0, metavar="N",
                         help="coupled method: records up to N samples (default 0: never) get a last tightening by cuts "
                              "from the first-order moment (SDP) relaxation, solved with cvxpy (pip install "
@@ -213,7 +220,7 @@ def bound_pair(dynamic: str, steady_of: dict[str, str], options: dict) -> dict:
 
 
 _OPTIONS = ("noise_bound", "na", "nk", "nb", "method", "filter_step", "window_samples", "joint_samples",
-            "partition_samples", "moment_samples")
+            "partition_samples", "moment_samples", "windows")
 
 
 def _bound(steady: str, dynamic: str, options: dict, map_windows=None, progress=None):
@@ -230,19 +237,26 @@ def _bound(steady: str, dynamic: str, options: dict, map_windows=None, progress=
                                               joint_samples=options["joint_samples"],
                                               partition_samples=options["partition_samples"],
                                               moment_samples=options["moment_samples"], map_windows=map_windows,
-                                              progress=progress,
-                                              # on long records the verified inner points cost more than the
-                                              # bounds (each solves the exact problem over every sample)
-                                              verify_inner=len(u) <= options["joint_samples"])
+                                              progress=progress, eliminate_inner_signal=not options["windows"],
+                                              verify_inner=_verifies_inner(u, y, options))
     except InvalidInputError as err:
         raise InvalidInputError(f"{err} (--steady {steady}, --dynamic {dynamic})") from err
     return result, steady_u, steady_y, u, y, set_aside
 
 
-def _set_aside_document(set_aside, y, options: dict) -> dict:
-    """The samples of the dynamic record set aside (unusable by their flags) and the equations of eq. (7)
-    left out because their regressors need one (x_t .. x_{t-na}): as
-    :func:`identify.linear_block_bounds.bound_linear_block` counts them."""
+def _verifies_inner(u, y, options: dict) -> bool:
+    """Whether the verified inner values are computed: on a record bounded with the inner signal eliminated (their
+    LPs have a few columns), or up to --joint-samples samples (each of their LPs has a column per sample)."""
+    from identify.linear_block_bounds import eliminates_inner_signal
+
+    equations, left_out = _equation_counts(y, options)
+    return len(u) <= options["joint_samples"] or (
+        not options["windows"] and eliminates_inner_signal(len(u), equations - left_out, options["na"]))
+
+
+def _equation_counts(y, options: dict) -> tuple[int, int]:
+    """The equations of eq. (7) of the dynamic record and those left out because their regressors (x_t .. x_{t-na})
+    need a sample not measured: as :func:`identify.linear_block_bounds.bound_linear_block` counts them."""
     import numpy as np
 
     from identify.linear_block_bounds import LinearModelOrders
@@ -251,8 +265,14 @@ def _set_aside_document(set_aside, y, options: dict) -> dict:
     times = np.arange(orders.first_equation, y.size)
     known = ~np.isnan(y)
     complete = np.all([known[times - i] for i in range(orders.na + 1)], axis=0) if times.size else known[:0]
-    return {**set_aside.to_dict(), "equations_left_out": int(times.size - np.count_nonzero(complete)),
-            "equations": int(times.size)}
+    return int(times.size), int(times.size - np.count_nonzero(complete))
+
+
+def _set_aside_document(set_aside, y, options: dict) -> dict:
+    """The samples of the dynamic record set aside (unusable by their flags) and the equations of eq. (7)
+    left out because their regressors need one (:func:`_equation_counts`)."""
+    equations, left_out = _equation_counts(y, options)
+    return {**set_aside.to_dict(), "equations_left_out": left_out, "equations": equations}
 
 
 def _document(result, method: str, set_aside: dict | None = None) -> dict:
@@ -350,8 +370,9 @@ def _run_one(args: argparse.Namespace, steady: str, dynamic: str) -> int:
                 print(f"{name:<10} {low} {high}  outer/inner {ratio}")
         elif result.method == "coupled":
             print()
-            print(f"outer/inner        not computed: the verified inner values are computed for records of up to "
-                  f"--joint-samples ({args.joint_samples}) samples, this one has {inner.lower_rad.size}")
+            print(f"outer/inner        not computed: the verified inner values are computed for records bounded "
+                  f"with the inner signal eliminated (not --windows, few gaps) or of up to --joint-samples "
+                  f"({args.joint_samples}) samples, this one has {inner.lower_rad.size}")
         for note in result.linear.notes:
             print(f"note: {note}")
     sys.stdout.flush()

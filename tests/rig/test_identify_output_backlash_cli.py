@@ -157,18 +157,20 @@ def long_files(tmp_path_factory):
 
 
 def test_long_record_shows_progress_and_says_which_windowing_it_used(long_files, capsys) -> None:
-    assert main(_args(long_files, "--joint-samples", "400")) == exit_codes.SUCCESS
+    assert main(_args(long_files, "--joint-samples", "400", "--windows")) == exit_codes.SUCCESS
     captured = capsys.readouterr()
     assert "method coupled" in captured.out
     assert "windowing          5 windows of 200 samples (overlap 20)" in captured.out
     assert "overlapping parts of 400 samples jointly" in captured.out
     assert "then the box of a partitioned into cells" in captured.out  # 900 samples <= --partition-samples 1000
-    assert "outer/inner        not computed: the verified inner values are computed for records of up to " \
-           "--joint-samples (400) samples, this one has 900" in captured.out
+    assert "outer/inner        not computed: the verified inner values are computed for records bounded with the " \
+           "inner signal eliminated (not --windows, few gaps) or of up to --joint-samples (400) samples, this one " \
+           "has 900" in captured.out
     assert "window pass 1: 5/5" in captured.err and "joint relaxation of 3 part(s) of up to 400 samples: 3/3" in captured.err
     # --json keeps stdout one JSON object: the documented keys and the result's own; the
     # progress goes to stderr
-    assert main(_args(long_files, "--joint-samples", "400", "--partition-samples", "0", "--json")) == exit_codes.SUCCESS
+    assert main(_args(long_files, "--joint-samples", "400", "--partition-samples", "0", "--json", "--windows")
+                ) == exit_codes.SUCCESS
     captured = capsys.readouterr()
     assert "partitioned" not in json.loads(captured.out)["linear_bounds"]["windowing"]
     # 900 samples > --joint-samples 400: no verified inner values, so no tightness figure, and the text says so
@@ -178,8 +180,25 @@ def test_long_record_shows_progress_and_says_which_windowing_it_used(long_files,
     assert "window pass 1" in captured.err
 
 
+def test_a_long_record_of_few_gaps_is_bounded_with_the_inner_signal_eliminated_and_shows_its_tightness(
+        long_files, capsys) -> None:
+    # 900 samples > --joint-samples 400, yet no windows: the trajectory relaxation and its partition, and the
+    # verified inner values (their LPs have a few columns), so --json carries outer_inner_ratio
+    assert main(_args(long_files, "--joint-samples", "400", "--json")) == exit_codes.SUCCESS
+    captured = capsys.readouterr()
+    document = json.loads(captured.out)
+    assert document["linear_bounds"]["windowing"].startswith("all 900 samples in the trajectory relaxation")
+    assert "then the box of a partitioned into cells" in document["linear_bounds"]["windowing"]
+    ratios = document["linear_bounds"]["outer_inner_ratio"]
+    assert set(ratios) == {"a1", "a2", "b1", "b2"} and all(1.0 <= ratio <= 1.1 for ratio in ratios.values()), ratios
+    truth = {"a1": 0.5, "a2": 0.7, "b1": 1.4, "b2": 0.8}
+    for name, value in truth.items():
+        assert document["linear"][name]["lower"] <= value <= document["linear"][name]["upper"]
+    assert "partition of the box of a" in captured.err  # the progress goes to stderr
+
+
 def test_windows_of_one_record_run_in_worker_processes_with_the_same_bounds(long_files, capsys) -> None:
-    options = ("--joint-samples", "400", "--partition-samples", "0", "--json")
+    options = ("--joint-samples", "400", "--partition-samples", "0", "--json", "--windows")
     assert main(_args(long_files, *options)) == exit_codes.SUCCESS
     serial = json.loads(capsys.readouterr().out)
     assert main(_args(long_files, *options, "--jobs", "2")) == exit_codes.SUCCESS
@@ -207,7 +226,7 @@ def _bounds_without_and_with_dying_workers(long_files, capsys, monkeypatch, retr
     of every joint part killed (:func:`_window_task_that_dies_in_the_joint_parts`)."""
     import identify.linear_block_bounds.windows as module
 
-    options = ("--joint-samples", "400", "--partition-samples", "0", "--json")
+    options = ("--joint-samples", "400", "--partition-samples", "0", "--json", "--windows")
     assert main(_args(long_files, *options)) == exit_codes.SUCCESS
     whole = json.loads(capsys.readouterr().out)
     monkeypatch.setattr(module, "_ORIGINAL_WINDOW_TASK", module._window_task, raising=False)
@@ -247,7 +266,8 @@ def test_moment_samples_adds_the_moment_cuts_says_so_and_never_widens_a_bound(fi
     assert main(_args(files, "--partition-samples", "0", "--moment-samples", "100")) == exit_codes.SUCCESS
     table = capsys.readouterr().out
     assert "method coupled" in table
-    assert "windowing          all 100 samples in one McCormick relaxation, then cuts from the moment (SDP)" in table
+    assert "windowing          all 100 samples in the trajectory relaxation (inner signal eliminated)" in table
+    assert "rounds, then cuts from the moment (SDP)" in table
     rows: dict[str, list[str]] = {}
     for line in table.splitlines():  # the first row of each name: the outer bounds (the verified inner values follow)
         if line.split()[:1] in (["a1"], ["a2"], ["b1"], ["b2"]):
