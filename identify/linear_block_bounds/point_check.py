@@ -31,7 +31,7 @@ from identify.linear_block_bounds.problem import _Data
 
 _MARGIN = 1e-9
 """Share of each sample's interval width kept free by the forward sets (the room for the exact correction)."""
-_MAX_VERTICES = 64
+_MAX_VERTICES = 16
 """Vertices of a forward polygon at most (na = 2); a point whose polygon needs more is not decided here."""
 
 ACCEPTED, REFUSED, UNDECIDED = 0, 1, 2
