@@ -25,7 +25,22 @@ bounds are to the exact ones (if that a admits no exact solution, a is moved tow
 steps 0.95, 0.8, 0.5, 0 and bisection; then a few sequential-LP steps move along the exact set's boundary,
 each new a counting only once the exact problem at it is solved: :func:`~.inner_values._inner_values`).
 
-For records longer than two windows (400 samples) the work goes window by window, so that it grows about
+A record with few gaps (:func:`~.trajectory_lp.eliminates_inner_signal`) is bounded with the inner signal
+eliminated (:mod:`~.trajectory_lp`; ``eliminate_inner_signal``, the default): with a fixed, the equations make x an
+affine function of b and of the na values that start each chain of equations, x = M(a)[b; s], so the exact problem
+at fixed a is an LP of p + 4 + na columns and one row per sample. Over a box of a, with a^c its centre, every point
+of the set satisfies M(a^c)[b; s] + Σ_i (a_i - a^c_i) φ_i within its intervals widened by E_t = Σ_k |h_k| Σ_i r_i
+Δx_{t-k-i} (h: the impulse response of 1/A(a^c); φ_i: the response to the lagged centres x^c): the trajectory
+relaxation (:func:`~.trajectory_lp._trajectory_relaxation`), as tight as the interval relaxation with δx as
+columns over all samples and solved by row generation in a time linear in N. Its rounds from the paper method's box
+replace the windows and parts below; then the box of a is partitioned into cells at every record length, and
+again while the verified inner values show a gap above ``RELAXATION_GAP_TARGET``. The inner values solve the same
+exact LP at fixed a, and a value counts only once the exact O(N) check of its point (:mod:`~.point_check`: θ and
+the backlash fixed, the set of the last na inner-signal values carried forward sample by sample, a witness corrected
+exactly) accepts it.
+
+Otherwise (``eliminate_inner_signal=False``, or many gaps), for records longer than two windows (400 samples) the
+work goes window by window, so that it grows about
 linearly with the record (:func:`~.windows._coupled_bounds`). The feasible set of any subset of the
 equations contains the full one, so every window's bounds are valid. The box of a is first tightened on the
 first 200 samples (McCormick); the box of a is then narrow, and the later LPs use a smaller relaxation that is
@@ -44,7 +59,8 @@ generation (:func:`~.problem._row_generated_bounds`), so that the windows start 
 Within one LP, the bounds of the parameters are solved on one HiGHS model whose objective changes, each
 solve starting from the previous optimal basis.
 
-Records up to ``partition_samples`` (1000) get a final tightening by spatial branch and bound on the box of
+Without the trajectory relaxation, records up to ``partition_samples`` (1000) get a final tightening by spatial
+branch and bound on the box of
 a (:func:`~.final_tightening._partitioned_bounds`): the box is cut into cells, each bounded by its own interval
 relaxation, and the hull of the cells is the bound; the cells that decide a bound are halved again. One relaxation over
 the whole box left up to half of the reported width to the relaxation at 8 bits; the cells bring the

@@ -343,7 +343,9 @@ class _RowGeneratedSolver:
 
 def _solver_for(lp: _LP, first_solve: Mapping[str, Any] | None = None) -> _Solver | _RowGeneratedSolver:
     """The solver of an LP: by row generation when it is tall (:class:`_RowGeneratedSolver`), else one HiGHS model."""
-    return _RowGeneratedSolver(lp, first_solve) if _RowGeneratedSolver.suits(lp) else _Solver(lp, first_solve=first_solve)
+    if _RowGeneratedSolver.suits(lp):
+        return _RowGeneratedSolver(lp, first_solve)
+    return _Solver(lp, first_solve=first_solve)
 
 
 def _certified_minimum(lp: _LP, cost: NDArray[np.float64], counter: _Counter) -> tuple[float, NDArray[np.float64] | None]:
@@ -401,7 +403,8 @@ def _bounds_over(lp: _LP, p: int, counter: _Counter, wanted: NDArray[np.bool_] |
                                                                          handoff.presolve_failed)
 
 
-def _solved_bounds(solver: _Solver | _RowGeneratedSolver, lp: _LP, p: int, counter: _Counter, wanted: NDArray[np.bool_] | None
+def _solved_bounds(solver: _Solver | _RowGeneratedSolver, lp: _LP, p: int, counter: _Counter,
+                   wanted: NDArray[np.bool_] | None
                    ) -> tuple[NDArray[np.float64], NDArray[np.float64], list[NDArray[np.float64] | None]]:
     """The solves of :func:`_bounds_over` on its model."""
     lows, highs = lp.lower[:p].copy(), lp.upper[:p].copy()

@@ -131,10 +131,12 @@ def _inner_values(data: _Data, low: NDArray[np.float64], high: NDArray[np.float6
     farthest point towards it from an anchor that does (the centre of the box, else the first extreme point's
     a that does; weights 0.95, 0.8, 0.5, 0, then bisection);
     then local steps of a sequential LP: the bilinear terms linearised at the verified point propose a new a
-    within a trust region (:meth:`_ExactProblemAtFixedA.linearized`), which counts only once the exactly
-    linear problem at that a (in b and δx) has a solution. Every reported value is that of such a solution,
-    checked against the equations. Without ``refine`` (long records, where each exact LP spans the whole
-    record) only the weights are tried, without bisection and local steps."""
+    within a trust region (``linearized`` of the exact problem, :func:`_exact_problem`), which counts only once the
+    exactly linear problem at that a (in b and δx, or b and the chain starts) has a solution. Every reported value
+    is that of such a solution, verified: by the exact check of its θ and backlash (:mod:`~.point_check`) when the
+    inner signal is eliminated, else against the equations to 1e-7 of the signal's scale. Without ``refine`` (long
+    records whose exact LPs have a column per sample) only the weights are tried, without bisection and local
+    steps."""
     orders = data.orders
     na, p = orders.na, orders.num_parameters
     inner_low, inner_high = np.full(p, math.nan), np.full(p, math.nan)

@@ -60,8 +60,9 @@ def bound_linear_block(input_rad: ArrayLike, inner_lower_rad: ArrayLike, inner_u
         Coupled method: tie the inverted samples to one backlash in D_γ instead of letting each sample take
         its own worst case (from :func:`identify.inner_signal_bounds.shared_backlash_constraints`).
     verify_inner
-        Coupled method: compute the verified inner values (2p or more extra LPs; about a quarter of the time
-        for long records). The outer bounds do not depend on it.
+        Coupled method: compute the verified inner values (2p or more extra LPs at fixed a; with the inner signal
+        eliminated they have a few columns, else one per sample, which makes them most of the time of a long
+        record). The outer bounds do not depend on it.
     eliminate_inner_signal
         Coupled method: bound by the trajectory relaxation, the inner signal eliminated (x = M(a)[b; s], a few
         columns and one row per sample: :func:`~.trajectory_lp._trajectory_relaxation`), whenever the record has

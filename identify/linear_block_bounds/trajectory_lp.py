@@ -65,7 +65,8 @@ def _responses(a: NDArray[np.float64], u: NDArray[np.float64], nk: int, nb: int,
 
 
 @numba.njit(cache=True)
-def _a_sensitivities(a: NDArray[np.float64], x: NDArray[np.float64], equation: NDArray[np.bool_]) -> NDArray[np.float64]:
+def _a_sensitivities(a: NDArray[np.float64], x: NDArray[np.float64],
+                     equation: NDArray[np.bool_]) -> NDArray[np.float64]:
     """∂x_t/∂a_i at the trajectory x (b and the chain starts held): D_{t,i} = -x_{t-i} - Σ_j a_j D_{t-j,i}."""
     n, na = x.size, a.size
     D = np.zeros((n, na))
@@ -111,7 +112,8 @@ class _TrajectoryProblem:
         return self._p + (0 if self._data.shared is None else 4) + self._num_starts
 
     def _lp(self, trajectory: NDArray[np.float64], a_block: NDArray[np.float64] | None, row_shift: NDArray[np.float64],
-            a_low: NDArray[np.float64], a_high: NDArray[np.float64], widening: NDArray[np.float64] | None = None) -> _LP:
+            a_low: NDArray[np.float64], a_high: NDArray[np.float64],
+            widening: NDArray[np.float64] | None = None) -> _LP:
         """Rows lo_t <= [a_block | M_b | 0 | M_s] z - row_shift_t <= hi_t over the columns (θ, backlash, s), with
         every interval shrunk by ``_ROW_MARGIN`` of its width, or, given ``widening``, widened by it on both sides
         (the x_t^c ± Δx_t rows and the backlash rows alike)."""
