@@ -90,7 +90,8 @@ def bound_linear_block(input_rad: ArrayLike, inner_lower_rad: ArrayLike, inner_u
         HiGHS 1.16 can crash the process solving a bounding LP of a long record (BENCHMARKS.md, "Record
         length"); run in worker processes, a crash costs only their tasks, which are solved again
         (:class:`~.windows._GuardedMap`). ``rig identify output-backlash`` does so even with ``--jobs 1``; from Python,
-        pass ``executor.map`` of ``rig.batch.executor_for(1, isolated=True)`` for a record of many windows.
+        pass ``executor.map`` of ``rig.batch.executor_for(1, isolated=True)`` for a record of many windows. The
+        trajectory relaxation (``eliminate_inner_signal``) maps nothing: its LPs have about ten columns.
     progress
         ``progress(stage, done, total)``, called as windows finish (for long records).
     """
