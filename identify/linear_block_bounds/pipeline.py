@@ -23,10 +23,6 @@ from identify.validation import InvalidInputError
 
 
 LINEAR_BOUND_METHODS = ("paper", "coupled")
-_TRAJECTORY_ROUNDS = 12
-"""Rounds of the trajectory relaxation over all samples at most, from the paper method's box (they stop earlier once
-no interval shrinks by the tightening tolerance): N = 10 000, 8 bits, run 0 of the record-length benchmark took 7
-rounds (1.0 s) to the box of the windows and joint parts."""
 
 
 def bound_linear_block(input_rad: ArrayLike, inner_lower_rad: ArrayLike, inner_upper_rad: ArrayLike, *,
@@ -55,7 +51,8 @@ def bound_linear_block(input_rad: ArrayLike, inner_lower_rad: ArrayLike, inner_u
         ``"paper"`` (per-equation errors, Cerone 1993) or ``"coupled"`` (shared errors, McCormick
         relaxation with iterated tightening; never wider than ``"paper"``).
     max_tightening_rounds, tightening_tolerance
-        Coupled method: stop after this many rounds or when no interval shrinks by more than this fraction.
+        Coupled method: stop after this many rounds (twice as many for the trajectory relaxation, which starts from
+        the paper method's box) or when no interval shrinks by more than this fraction.
     shared_backlash
         Coupled method: tie the inverted samples to one backlash in D_γ instead of letting each sample take
         its own worst case (from :func:`identify.inner_signal_bounds.shared_backlash_constraints`).
@@ -167,8 +164,11 @@ def _coupled_stages(data: _Data, low: NDArray[np.float64], high: NDArray[np.floa
     na = data.orders.na
     if trajectory:
         counter.stage = f"trajectory relaxation of all {data.u.size} samples"
-        low, high, rounds, points, empty = _tighten(data, low, high, counter, _TRAJECTORY_ROUNDS, tightening_tolerance,
-                                                    True, _trajectory_relaxation, full_rounds=True)
+        # twice the rounds: they start from the paper method's box, not from a first window's (N = 10 000, 8 bits,
+        # run 0 of the record-length benchmark: 7 rounds, 1.0 s, to the box of the windows and joint parts)
+        low, high, rounds, points, empty = _tighten(data, low, high, counter, 2 * max_tightening_rounds,
+                                                    tightening_tolerance, True, _trajectory_relaxation,
+                                                    full_rounds=True)
         if empty:
             low, high, points = np.full(low.size, math.nan), np.full(low.size, math.nan), []
         windowing = (f"all {data.u.size} samples in the trajectory relaxation (inner signal eliminated), {rounds} "
