@@ -7,12 +7,17 @@ every sample after a gap where no equation holds): x = M(a) [b; s]. The exact pr
 (b, s, and the shared backlash [ρ_l, c_l, ρ_r, c_r]) whose rows keep every x_t within its interval (x_t^c ± Δx_t,
 and ρ y_t ± c ± ζ^max_t for an inverted sample) and b on unit gain (eq. (8)): p + 4 + na columns and about N + K
 rows, where the LP with δx as columns (:class:`~.inner_values._ExactProblemAtFixedA`) has N + K more columns and the
-equations as rows. For a stable A (the box of a holds only such A, assumption (i) of Section 2) the columns of M
-are impulse and step responses that decay or settle, so the rows are well scaled.
+equations as rows. For a stable A (assumption (i) of Section 2) the columns of M are impulse and step responses
+that decay or settle, so the rows are well scaled.
 
 Its solutions only propose points: every value reported from them is that of a point the exact check
 (:class:`~.point_check._PointCheck`) accepted. The rows are shrunk by ``_ROW_MARGIN`` of their width so that an
-optimal vertex keeps the room that check needs."""
+optimal vertex keeps the room that check needs.
+
+Over a box of a, the same elimination at the box's centre gives an outer relaxation of the exact set
+(:func:`_trajectory_relaxation`): what the centre leaves out is kept linearly in a, or bounded through the impulse
+response of 1/A at the centre (:func:`_response_bound`). A box whose centre is not stable is bounded by the interval
+relaxation instead."""
 
 from __future__ import annotations
 
