@@ -53,6 +53,9 @@ class _LP:
     A_range: sp.csr_matrix | None = None
     range_lower: NDArray[np.float64] | None = None
     range_upper: NDArray[np.float64] | None = None
+    solver_options: Mapping[str, Any] | None = None
+    """HiGHS options every solve of this LP needs, on top of :data:`_DEFAULT_SETTINGS` (a caller's
+    ``first_solve`` options go over them), e.g. feasibility tolerances below the width of its rows."""
 
     def ranged(self) -> tuple[sp.csr_matrix, NDArray[np.float64], NDArray[np.float64]]:
         """The ranged rows (an empty block when there are none)."""
@@ -155,7 +158,8 @@ class _Solver:
         self.presolve_failed = start is not None and start.presolve_failed
         start = None if self.fixed_settings else start
         unpresolved = _UNPRESOLVED if self.presolve_failed else {}
-        self.base_settings = {**_DEFAULT_SETTINGS, **(first_solve or {}), **unpresolved, **self.fixed_settings}
+        self.base_settings = {**_DEFAULT_SETTINGS, **(lp.solver_options or {}), **(first_solve or {}), **unpresolved,
+                              **self.fixed_settings}
         self._set(self.base_settings)
         # A bounded time per attempt: a warm start that stalls on a long record's LP (one part of a
         # 100 000-sample record kept a worker busy for over 15 minutes) goes on to the recovery settings and,
@@ -308,7 +312,7 @@ class _RowGeneratedSolver:
         self._chosen[:: max(1, -(-count // _TALL_START_ROWS))] = True
         chosen = self._chosen
         subset = _LP(lp.A_ub, lp.b_ub, lp.A_eq, lp.b_eq, lp.lower, lp.upper, self._rows[chosen],
-                     self._row_lower[chosen], self._row_upper[chosen])
+                     self._row_lower[chosen], self._row_upper[chosen], lp.solver_options)
         self._solver = _Solver(subset, first_solve={**(first_solve or {}), "presolve": "off"})
 
     @staticmethod
@@ -360,7 +364,7 @@ def _proven_infeasible(lp: _LP, counter: _Counter) -> bool:
     b_all = np.concatenate([lp.b_ub, range_upper, -range_lower, lp.b_eq, -lp.b_eq])
     relaxed = _LP(sp.hstack([A_all, -sp.csr_matrix(np.ones((A_all.shape[0], 1)))]).tocsr(), b_all,
                   sp.csr_matrix((0, lp.lower.size + 1)), np.zeros(0),
-                  np.append(lp.lower, 0.0), np.append(lp.upper, 1e6))
+                  np.append(lp.lower, 0.0), np.append(lp.upper, 1e6), solver_options=lp.solver_options)
     cost = np.zeros(lp.lower.size + 1)
     cost[-1] = 1.0
     reported_gap = counter.max_gap
@@ -454,4 +458,4 @@ def _widened(lp: _LP) -> _LP:
     return _LP(lp.A_ub, lp.b_ub + slack(lp.b_ub), sp.csr_matrix((0, lp.lower.size)), np.zeros(0), lp.lower, lp.upper,
                sp.vstack([A_range, lp.A_eq]).tocsr(),
                np.concatenate([range_lower - slack(range_lower), lp.b_eq - slack(lp.b_eq)]),
-               np.concatenate([range_upper + slack(range_upper), lp.b_eq + slack(lp.b_eq)]))
+               np.concatenate([range_upper + slack(range_upper), lp.b_eq + slack(lp.b_eq)]), lp.solver_options)

@@ -15,7 +15,6 @@ from identify.linear_block_bounds.certified_lp import _LP, _Counter, _solver_for
 from identify.linear_block_bounds.problem import _Data, _gain_row, _orthant_lp, _with_shared_backlash
 from identify.linear_block_bounds.point_check import _PointCheck
 from identify.linear_block_bounds.result import EmptyLinearSetExplanation
-from identify.linear_block_bounds.trajectory_lp import SOLVER_SETTINGS as TRAJECTORY_SETTINGS
 from identify.linear_block_bounds.trajectory_lp import _TrajectoryProblem
 
 
@@ -113,12 +112,13 @@ _INNER_LOCAL_STEPS = 4
 
 def _exact_problem(data: _Data, low: NDArray[np.float64], high: NDArray[np.float64]
                    ) -> tuple[_ExactProblemAtFixedA | _TrajectoryProblem, dict[str, object]]:
-    """The exact LP at fixed a that the inner values solve, with its HiGHS settings: the inner signal eliminated
-    (:class:`~.trajectory_lp._TrajectoryProblem`, its points decided by the exact check) for na <= 2 and a record
-    of few gaps, else with δx as columns (without presolve: the chained equations are solved best so)."""
+    """The exact LP at fixed a that the inner values solve, with the HiGHS settings of its solves: the inner signal
+    eliminated (:class:`~.trajectory_lp._TrajectoryProblem`, its points decided by the exact check; its LPs carry
+    their settings) for na <= 2 and a record of few gaps, else with δx as columns (without presolve: the chained
+    equations are solved best so)."""
     check = _PointCheck(data)
     if check.decides and _TrajectoryProblem.suits(data):
-        return _TrajectoryProblem(data, low, high, check), dict(TRAJECTORY_SETTINGS)
+        return _TrajectoryProblem(data, low, high, check), {}
     return _ExactProblemAtFixedA(data, low, high), {"presolve": "off"}
 
 

@@ -210,3 +210,27 @@ def test_the_trajectory_relaxation_holds_at_the_truth_and_is_as_tight_as_the_int
     for k in range(p):
         assert new_low[k] <= TRUE_THETA[k] <= new_high[k]
         assert new_high[k] - new_low[k] <= 1.05 * (old_high[k] - old_low[k]), (k, new_high - new_low, old_high - old_low)
+
+
+def test_the_trajectory_relaxation_at_one_a_bounds_b_where_the_checked_points_are() -> None:
+    # Over a box of a that is one point the relaxation is the exact set at that a, so its certified bounds of b must
+    # meet the points of that set the exact check accepts (up to the 1e-6 row margin those points keep). At 15 bits
+    # on 20 000 samples that slice of b is 3e-7 wide; solved with HiGHS's default feasibility tolerance (1e-7), the
+    # certified bounds fell 4 % of it short here.
+    data, _ = _record(15, 37, 20000)
+    p = data.orders.num_parameters
+    a = TRUE_THETA[:2]
+    low, high = np.concatenate([a, TRUE_THETA[2:] - 1e-3]), np.concatenate([a, TRUE_THETA[2:] + 1e-3])
+    counter = _Counter()
+    outer_low, outer_high, _ = _bounds_over(_trajectory_relaxation(data, low, high), p, counter)
+    exact = _TrajectoryProblem(data, low, high, _PointCheck(data))
+    lp = exact.at(a)
+    _, _, points = _bounds_over(lp, p, counter)
+    checked = [exact.verified(lp, x) for x in points[4:]]  # the points at the least and most b1, then b2
+    assert all(point is not None for point in checked)
+    for k in (2, 3):
+        inner_low, inner_high = checked[2 * (k - 2)][k], checked[2 * (k - 2) + 1][k]
+        width = inner_high - inner_low
+        assert outer_low[k] <= inner_low and inner_high <= outer_high[k]
+        assert inner_low - outer_low[k] <= 0.01 * width and outer_high[k] - inner_high <= 0.01 * width, (
+            k, inner_low - outer_low[k], outer_high[k] - inner_high, width)
