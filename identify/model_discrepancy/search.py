@@ -104,7 +104,8 @@ def _vanished(candidate: _Candidate, u: NDArray[np.float64], delta: float) -> bo
     fitted model moves its free run by less than :data:`VANISHED_PEAK_NOISE_BOUNDS` noise bounds on every
     sample. A dynamics effect's size test reads a static proxy (a friction's static error, a weight's sag); what
     it does to a moving record can be more (a friction's lag on a chirp, with a static error under the bound).
-    The size tests of the other effects are their effect on the signal itself (a play's width, a gain's scale)."""
+    The size tests of the other effects are their effect on the signal itself (an output backlash's width, a
+    gain's scale)."""
     entry = EFFECTS[candidate.kind]
     if not entry.vanished(candidate.block, delta):
         return False
