@@ -31,7 +31,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from identify.discrepancy_cases import hidden_effect_record  # noqa: E402
 from identify.effect_catalogue import EFFECT_NAMES  # noqa: E402
-from identify.model_discrepancy import fit_linear_model  # noqa: E402
+from identify.model_discrepancy import disagreement, fit_linear_model  # noqa: E402
+from identify.plant_blocks import PlantModel  # noqa: E402
 from identify.model_discrepancy.thresholds import CONSISTENT_FRACTION, ESTIMATION_FRACTION  # noqa: E402
 
 ORDERS = (1, 2, 3, 4)
@@ -45,7 +46,7 @@ def falsified_by_order(u: np.ndarray, y: np.ndarray, delta: float, period: float
     shares = {}
     for order in ORDERS:
         block = fit_linear_model(u, y, period, n_est, min_order=order, max_order=order).block
-        shares[order] = float(np.mean(np.abs(block.apply(u) - y)[n_est:] > delta))
+        shares[order] = disagreement(PlantModel((block,)), u, y, delta, n_est).falsified_fraction
     return shares
 
 
