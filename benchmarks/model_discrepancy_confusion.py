@@ -509,7 +509,7 @@ def run_independent_case(effect_name: str, case: int, cases: int, first_seed: in
                                                    truth["effect_size"].get("max_abs_rad", math.inf), delta),
             "named": list(named),
             "ambiguous_between": list(result.ambiguous_between), "verdict": result.verdict,
-            "reason": result.verdict_reason[:400],
+            "reason": result.verdict_reason[:400], "restarted": result.restart_window_samples is not None,
             "reduction": 1.0 - result.final.gap_rad / result.initial.gap_rad if result.initial.gap_rad > 0 else 0.0,
             "covered": covered, "missed": missed, "seconds": time.perf_counter() - started}
 
@@ -551,6 +551,7 @@ def independent_table(runs: dict[str, list[dict]], effects: tuple[str, ...], sta
         for r in results:
             if r["named"]:
                 label = "+".join(r["named"]) + (" (then ambiguous)" if r["verdict"] == "ambiguous" else "")
+                label += " (restarted)" if r.get("restarted") else ""
             else:
                 label = r["verdict"].split(":")[0]
             labels[label] = labels.get(label, 0) + 1

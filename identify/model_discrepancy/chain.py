@@ -22,6 +22,8 @@ from identify.effect_catalogue import EFFECTS, effect
 from identify.plant_blocks import Block, LinearBlock, PlantModel
 from identify.validation import InvalidInputError
 
+from identify.model_discrepancy.comparison import simulated
+
 from identify.model_discrepancy.thresholds import (
     EFFECT_DIFF_STEP,
     FAILED_RUN_ERROR_RAD,
@@ -163,16 +165,18 @@ def _bridged(y: NDArray[np.float64]) -> NDArray[np.float64]:
     return np.where(missing, np.interp(index, index[~missing], y[~missing]), y)
 
 
-def _free_run_error(chain: _Chain, u: NDArray[np.float64], y: NDArray[np.float64]) -> NDArray[np.float64]:
+def _run_error(chain: _Chain, u: NDArray[np.float64], y: NDArray[np.float64]) -> NDArray[np.float64]:
+    """y - y^ of ``chain`` under the comparison in force (:func:`.comparison.simulated`: the free run, or the run
+    restarted from the measured angle); a run that fails or diverges gives a huge error on every sample."""
     if not chain.linear_stable():
         return np.full(y.size, FAILED_RUN_ERROR_RAD / math.sqrt(y.size))
     try:
-        simulated = chain.model().simulate(u)
+        output = simulated(chain.model(), u, y)
     except (InvalidInputError, ValueError, OverflowError, FloatingPointError):
         return np.full(y.size, FAILED_RUN_ERROR_RAD / math.sqrt(y.size))
-    if not np.all(np.isfinite(simulated)):
+    if not np.all(np.isfinite(output)):
         return np.full(y.size, FAILED_RUN_ERROR_RAD / math.sqrt(y.size))
-    return _measured_error(y, simulated)
+    return _measured_error(y, output)
 
 
 def _rms(values: NDArray[np.float64]) -> float:
@@ -205,7 +209,7 @@ def _polish(chain: _Chain, u: NDArray[np.float64], y: NDArray[np.float64], max_e
         return chain.with_vector(theta)
 
     def error(option: _Chain) -> NDArray[np.float64]:
-        full = _free_run_error(option, u, y)
+        full = _run_error(option, u, y)
         return full if samples is None else full[samples]
 
     with np.errstate(all="ignore"):

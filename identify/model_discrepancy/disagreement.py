@@ -13,6 +13,7 @@ from numpy.typing import ArrayLike, NDArray
 from identify.plant_blocks import PlantModel
 from identify.validation import InvalidInputError, as_signal, positive, same_length
 
+from identify.model_discrepancy import comparison
 from identify.model_discrepancy.chain import _measured_error
 from identify.model_discrepancy.result import Disagreement, DisagreementWindow, GrossDisagreement
 from identify.model_discrepancy.thresholds import (
@@ -71,7 +72,7 @@ def disagreement(model: PlantModel, command_rad: ArrayLike, angle_rad: ArrayLike
     start = 0 if estimation_samples is None else int(estimation_samples)
     if not 0 <= start < u.size:
         raise InvalidInputError(f"estimation_samples: expected 0 <= n < {u.size}, got {estimation_samples!r}")
-    simulated = np.asarray(model.simulate(u), dtype=float)
+    simulated = comparison.simulated(model, u, y)
     residual = _measured_error(y, simulated)
     if not np.all(np.isfinite(residual)):
         residual = np.where(np.isfinite(residual), residual, FAILED_RUN_ERROR_RAD)

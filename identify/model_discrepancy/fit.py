@@ -26,12 +26,13 @@ from identify.model_discrepancy.candidates import (
     _merged,
     _with_loop,
 )
+from identify.model_discrepancy.comparison import simulated
 from identify.model_discrepancy.chain import (
     _Chain,
     _Component,
     _bridged,
     _build,
-    _free_run_error,
+    _run_error,
     _linear_component,
     _measured_error,
     _polish,
@@ -107,11 +108,11 @@ def _try_effect(kind: str, chain: _Chain, u: NDArray[np.float64], y: NDArray[np.
                                                                       simulated, train))]
         if entry.placement == "dynamics" and chain.components[index].loop_free and options:
             # the guesses ranked at the start model's loop; the best LOOP_START_GUESSES from every loop start
-            costs = [_rms(_free_run_error(option, u_start, y_start)) for option in options]
+            costs = [_rms(_run_error(option, u_start, y_start)) for option in options]
             ranked = [options[i] for i in np.argsort(costs)[:LOOP_START_GUESSES]]
             options = [_with_loop(option, index, loop) for option in ranked for loop in _loop_starts(train)]
     options = [_refit_last_linear(option, u_start, y_start) for option in options]
-    costs = [_rms(_free_run_error(option, u_start, y_start)) for option in options]
+    costs = [_rms(_run_error(option, u_start, y_start)) for option in options]
     if entry.placement == "dynamics" and chain.components[index].loop_free:
         starts = _distinct_loop_starts(options, costs, index, LOOP_POLISHED_STARTS)
     else:
@@ -121,12 +122,12 @@ def _try_effect(kind: str, chain: _Chain, u: NDArray[np.float64], y: NDArray[np.
         forms = [[with_effect(start, refit) for start in entry.contact_start(c_l, c_r)] for refit, c_l, c_r in
                  filter(None, (_contact_branch_start(chain, u_start, y_start, play) for play in plays))]
         for contacts in zip(*forms):  # the best start of each form, over the plays the refits began from
-            starts.append(contacts[int(np.argmin([_rms(_free_run_error(c, u_start, y_start)) for c in contacts]))])
+            starts.append(contacts[int(np.argmin([_rms(_run_error(c, u_start, y_start)) for c in contacts]))])
     starts += [with_effect(tuple(values)) for values in forced_starts]
     fits = [_polished_start(start, u_start, y_start, max_evaluations) for start in starts]
     if entry.stick_slip and train is None:
         fits = [_stick_slip_fit(fit, index, u_start, y_start, max_evaluations) for fit in fits]
-    best = fits[int(np.argmin([_rms(_free_run_error(fit, u_start, y_start)) for fit in fits]))]
+    best = fits[int(np.argmin([_rms(_run_error(fit, u_start, y_start)) for fit in fits]))]
     if n_screen < n_fit:
         best = _polished_start(best, u_est, y_est, max_evaluations)
     if not entry.searched or not entry.vanished(_build(best.components[index], best.components[index].values),
@@ -191,7 +192,7 @@ def _budget(chain: _Chain, evaluations: int) -> int:
 def _best_of(options: Sequence[_Chain], u: NDArray[np.float64], y: NDArray[np.float64],
              samples: NDArray[np.bool_] | None) -> _Chain:
     """The option with the lowest free-run error on (u, y) (only on the ``samples`` marked True if given)."""
-    errors = [_free_run_error(option, u, y) for option in options]
+    errors = [_run_error(option, u, y) for option in options]
     return options[int(np.argmin([_rms(e if samples is None else e[samples]) for e in errors]))]
 
 
@@ -224,10 +225,10 @@ def _stick_slip_fit(chain: _Chain, index: int, u: NDArray[np.float64], y: NDArra
     4.2 mrad validated and load friction was named; three rounds reach 0.51 mrad (the noise level) at
     17.2 and 7.2 mrad; seed 1000 went from 4.1 to 0.67 mrad."""
     best = _scan_breakaway(chain, index, u, y)
-    cost = _rms(_free_run_error(best, u, y))
+    cost = _rms(_run_error(best, u, y))
     for _ in range(STICK_SLIP_ROUNDS - 1):
         option = _scan_breakaway(_polished_start(best, u, y, max_evaluations), index, u, y)
-        option_cost = _rms(_free_run_error(option, u, y))
+        option_cost = _rms(_run_error(option, u, y))
         if option_cost > (1.0 - STICK_SLIP_MIN_GAIN) * cost:
             break
         best, cost = option, option_cost
@@ -294,7 +295,7 @@ def _refit_last_linear(chain: _Chain, u: NDArray[np.float64], y: NDArray[np.floa
     components = list(chain.components)
     components[index] = _linear_component(LinearBlock(a=a, b=b, sample_period_s=linear.sample_period_s))
     refit = _Chain(components)
-    return refit if _rms(_free_run_error(refit, u, y)) <= _rms(_free_run_error(chain, u, y)) else chain
+    return refit if _rms(_run_error(refit, u, y)) <= _rms(_run_error(chain, u, y)) else chain
 
 
 def _contact_branch_start(chain: _Chain, u: NDArray[np.float64], y: NDArray[np.float64], play_rad: float,
@@ -358,7 +359,7 @@ def _refine_delays(chain: _Chain, u: NDArray[np.float64], y: NDArray[np.float64]
             components = list(chain.components)
             components[index] = _Component(component.kind, (float(d),))
             options.append(_Chain(components))
-        errors = [_free_run_error(option, u, y) for option in options]
+        errors = [_run_error(option, u, y) for option in options]
         costs = [_rms(e if samples is None else e[samples]) for e in errors]
         chain = options[int(np.argmin(costs))]
     return chain
@@ -400,13 +401,13 @@ def _walk_delays(chain: _Chain, u: NDArray[np.float64], y: NDArray[np.float64], 
         if not (component.kind in EFFECTS and EFFECTS[component.kind].searched):
             continue
         start = int(round(component.values[0]))
-        cost = _rms(_free_run_error(chain, u, y))
+        cost = _rms(_run_error(chain, u, y))
         for direction in (-1, 1):
             moved = False
             stop = longest + 1 if direction > 0 else -1
             for samples in range(start + direction, stop, direction):
                 option = at(chain, index, samples)
-                option_cost = _rms(_free_run_error(option, u, y))
+                option_cost = _rms(_run_error(option, u, y))
                 if option_cost >= cost:
                     break
                 chain, cost, moved = option, option_cost, True
@@ -419,12 +420,12 @@ def _judged(kind: str, chain: _Chain, index: int, u: NDArray[np.float64], y: NDA
             n_est: int) -> _Candidate:
     """A fitted chain as a :class:`_Candidate` of effect ``kind`` at ``index``: its validated gap and error
     and its estimation error."""
-    error = (_measured_error(y, chain.model().simulate(u))[n_est:] if chain.linear_stable()
+    error = (_measured_error(y, simulated(chain.model(), u, y))[n_est:] if chain.linear_stable()
              else np.full(y.size - n_est, FAILED_RUN_ERROR_RAD))
     error = np.where(np.isfinite(error), error, FAILED_RUN_ERROR_RAD)
     component = chain.components[index]
     return _Candidate(kind, chain, _rms(error), _build(component, component.values), index,
-                      _rms(_free_run_error(chain, u[:n_est], y[:n_est])), error)
+                      _rms(_run_error(chain, u[:n_est], y[:n_est])), error)
 
 
 def _compound(kinds: Sequence[str], hysteresis: _Candidate, tried: Sequence[_Candidate], chain: _Chain,
@@ -439,9 +440,9 @@ def _compound(kinds: Sequence[str], hysteresis: _Candidate, tried: Sequence[_Can
     by_kind = {c.kind: c for c in tried}
 
     def fitted(kind: str, base: _Chain, forced: Sequence[tuple[float, ...]] = ()) -> _Candidate:
-        simulated = base.model().simulate(u)
-        return _try_effect(kind, base, u, y, n_est, delta, period, _measured_error(y, simulated),
-                           signature_scores(u, y, simulated, delta, period), options.max_delay_samples,
+        output = simulated(base.model(), u, y)
+        return _try_effect(kind, base, u, y, n_est, delta, period, _measured_error(y, output),
+                           signature_scores(u, y, output, delta, period), options.max_delay_samples,
                            options.max_evaluations, forced)
 
     parts: list[_Candidate] = []
@@ -475,7 +476,7 @@ def _fold_refit(chain: _Chain, u: NDArray[np.float64], y: NDArray[np.float64], p
     refit = _polish(_refine_delays(chain, u, y, samples=keep), u, y, min(max_evaluations, FOLD_EVALUATIONS),
                     samples=keep)
     refit = _stick_slip_scanned(refit, u, y, keep)
-    return refit, _free_run_error(refit, u, y)[part]
+    return refit, _run_error(refit, u, y)[part]
 
 
 def _fold_parts(samples: int, folds: int = FOLDS) -> list[NDArray[np.intp]]:

@@ -19,11 +19,12 @@ from identify.drive_train import DriveTrain
 from identify.effect_catalogue import EFFECTS
 from identify.plant_blocks import PlantModel
 
+from identify.model_discrepancy.comparison import simulated
 from identify.model_discrepancy.chain import (
     _Chain,
     _build,
     _effect_parameters,
-    _free_run_error,
+    _run_error,
     _measured_error,
     _polish,
     _rms,
@@ -92,7 +93,7 @@ def _fold_intervals(chain: _Chain, start_model: PlantModel, u: NDArray[np.float6
     main fit included) widened by the jackknife (:func:`_jackknife_interval`); the reduction's range is over
     the folds. The start model is not refitted per fold
     (with a fitted start, its fit saw part of the folds: the reduction is then, if anything, understated)."""
-    start_simulated = start_model.simulate(u)
+    start_simulated = simulated(start_model, u, y)
     values: dict[str, dict[str, list[float]]] = {}
 
     def collect(fitted: _Chain) -> None:
@@ -161,7 +162,7 @@ def _loop_traded_intervals(chain: _Chain, u: NDArray[np.float64], y: NDArray[np.
             held = (positions[kind][entry.loop_damping_value],)
             position = held[0] - chain.offset(index)
             key = entry.parameters[entry.loop_damping_value].name
-            fitted_error = _free_run_error(chain, u, y)
+            fitted_error = _run_error(chain, u, y)
             fitted_gap = _rms(fitted_error)
             damping, zeta = abs(holder.values[position]), train.position_loop_damping_ratio
 
@@ -175,7 +176,7 @@ def _loop_traded_intervals(chain: _Chain, u: NDArray[np.float64], y: NDArray[np.
             grid = np.linspace(0.0, damping + 2.0 * (zeta - LOOP_DAMPING_RANGE[0]) * omega_n, LOOP_TRADE_POINTS)
 
             def fits_as_well(option: _Chain) -> bool:
-                error = _free_run_error(option, u, y)
+                error = _run_error(option, u, y)
                 return _within_uncertainty(fitted_gap, fitted_error, _rms(error), error)
 
             low, high = out[kind][key]
@@ -227,7 +228,7 @@ def _feasible_intervals(chain: _Chain, u: NDArray[np.float64], y: NDArray[np.flo
     hidden-effect benchmark, seeds 1000-1019, the intervals held the truth for 458 of 460 parameters given the
     model (446 without the slice) and 416 of 418 from a fitted start (408), their median widths a few tenths
     of a per cent of the value wider (resonance 0.2 -> 1.4 %; BENCHMARKS.md, section 5)."""
-    fit_error = _free_run_error(chain, u, y)
+    fit_error = _run_error(chain, u, y)
     allowed = max(consistent_fraction, float(np.mean(np.abs(fit_error) > delta)))
     theta = chain.vector()
 
@@ -235,7 +236,7 @@ def _feasible_intervals(chain: _Chain, u: NDArray[np.float64], y: NDArray[np.flo
         moved = theta.copy()
         moved[position] = value
         option = chain.with_vector(moved)
-        if float(np.mean(np.abs(_free_run_error(option, u, y)) > delta)) > allowed:
+        if float(np.mean(np.abs(_run_error(option, u, y)) > delta)) > allowed:
             return None
         return _effect_parameters(option)
 
@@ -261,7 +262,7 @@ def _structure_profile_intervals(chain: _Chain, u: NDArray[np.float64], y: NDArr
     others at their fit recovered 1 of the 7: the bias is shared between parameters, so the others are refitted
     at every point."""
     u, y = u[:FIT_MAX_SAMPLES], y[:FIT_MAX_SAMPLES]  # a refit per point: bounded as a candidate's fit is
-    fit_error = _free_run_error(chain, u, y)
+    fit_error = _run_error(chain, u, y)
     fit_square = float(np.mean(fit_error * fit_error))
     allowed = fit_square + max(fit_square - delta * delta / 3.0, 0.0)
     theta = chain.vector()
@@ -270,7 +271,7 @@ def _structure_profile_intervals(chain: _Chain, u: NDArray[np.float64], y: NDArr
         moved = theta.copy()
         moved[position] = value
         refit = _polish(chain.with_vector(moved), u, y, max_evaluations, held=(position,))
-        error = _free_run_error(refit, u, y)
+        error = _run_error(refit, u, y)
         return _effect_parameters(refit) if float(np.mean(error * error)) <= allowed else None
 
     return _walked_out(chain, intervals, STRUCTURE_PROFILE_FIRST_STEP, STRUCTURE_PROFILE_STEPS,

@@ -13,10 +13,11 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from identify.plant_blocks import OutputOffset, PlantModel
+from identify.plant_blocks import LinearBlock, OutputOffset, PlantModel
 from identify.validation import InvalidInputError, as_signal, positive, same_length, varying, with_options
 
-from identify.model_discrepancy.candidates import _candidate_names
+from identify.model_discrepancy.candidates import _candidate_names, drive_train_like
+from identify.model_discrepancy.comparison import restartable, restarted_every
 from identify.model_discrepancy.disagreement import disagreement, gross_disagreements
 from identify.model_discrepancy.intervals import _named_intervals, _with_final_parameters
 from identify.model_discrepancy.open_world import open_world_checked
@@ -38,6 +39,8 @@ from identify.model_discrepancy.thresholds import (
     MIN_MEASURED_FRACTION,
     OPERATING_POINT_MIN_NOISE_BOUNDS,
     OPERATING_POINT_SAMPLES,
+    RESTART_FORM_NOISE_BOUNDS,
+    RESTART_WINDOW_S,
 )
 from identify.model_discrepancy.verdict import (
     _excitation,
@@ -109,6 +112,15 @@ def diagnose_model(command_rad: ArrayLike, angle_rad: ArrayLike, noise_bound_rad
     if excitation["reason"]:
         say(f"not excited: {excitation['reason']}")
         return _not_excited(u, y, delta, model, n_est, excitation, options.consistent_fraction)
+    first = _diagnosed(u, y, delta, period, model, options, n_est, excitation, say)
+    return _restarted_if_open(first, u, y, delta, period, n_est, excitation, options, say)
+
+
+def _diagnosed(u: NDArray[np.float64], y: NDArray[np.float64], delta: float, period: float, model: PlantModel | None,
+               options: DiagnoseOptions, n_est: int, excitation: dict[str, Any],
+               say: Callable[[str], None]) -> DiscrepancyResult:
+    """The start model, the search, the intervals, the verdict and the open-world check of one record, under
+    the comparison in force (:mod:`.comparison`)."""
     start_model, linear_fit, chain = _start(u, y, period, n_est, model, options.max_evaluations, say)
     initial = disagreement(start_model, u, y, delta, n_est)
     candidates = list(_candidate_names(options.candidates, model))
@@ -137,6 +149,59 @@ def diagnose_model(command_rad: ArrayLike, angle_rad: ArrayLike, noise_bound_rad
         parameter_intervals=intervals, gap_reduction=reduction, excitation=excitation, undecided=found.undecided,
         residual_structure=structure,
     )
+
+
+def _restarted_if_open(first: DiscrepancyResult, u: NDArray[np.float64], y: NDArray[np.float64], delta: float,
+                       period: float, n_est: int, excitation: dict[str, Any], options: DiagnoseOptions,
+                       say: Callable[[str], None]) -> DiscrepancyResult:
+    """``first`` (the free-run judgement), or, when it named nothing and left candidates open, the judgement of
+    those candidates on windows that restart the load from the measured angle (:mod:`.comparison`) if that one
+    names them, against the drive-train form of the same start model (:func:`_restartable_start`).
+
+    Only names the free run left open can come out, and a second judgement that names nothing, or leaves the
+    record ambiguous, leaves ``first`` as it was: the restarted comparison resolves what the free run could not
+    decide because the load's state drifted from the record's, and it cannot make a record `explained` (a
+    restarted run hides a slowly growing error, a sensor's for example, that the free run shows)."""
+    left_open = tuple(dict.fromkeys((*first.ambiguous_between, *(c.effect for c in first.undecided))))
+    if first.steps or not left_open or first.verdict not in ("ambiguous", "unexplained"):
+        return first
+    start = _restartable_start(first.start_model, u, delta)
+    if start is None:
+        return first
+    window = max(2, int(round(RESTART_WINDOW_S / period)))
+    say(f"the free run leaves {', '.join(left_open)} open; judged again on windows of {window} samples that "
+        f"restart the load from the measured angle")
+    with restarted_every(window):
+        second = _diagnosed(u, y, delta, period, start, replace(options, candidates=left_open), n_est, excitation,
+                            say)
+    if not second.steps or second.verdict != "named" or second.ambiguous_between or second.undecided:
+        say(f"the restarted comparison does not decide either ({second.verdict})")
+        return first
+    reason = (f"the free run could not decide between {', '.join(left_open)} (the model's state drifts from the "
+              f"record's, as a load rattling in a play does); compared on windows of {window} samples "
+              f"({window * period:.3g} s) that restart the load from the measured angle: {second.verdict_reason}")
+    return replace(second, start_model=first.start_model, linear_fit=first.linear_fit, verdict_reason=reason,
+                   candidates=(*first.candidates, *second.candidates), restart_window_samples=window)
+
+
+def _restartable_start(start_model: PlantModel, u: NDArray[np.float64], delta: float) -> PlantModel | None:
+    """The start model with a drive train whose load can be restarted: itself if it has one, else its linear
+    block replaced by the drive train of the same response (:func:`drive_train_like`) when that train's free
+    run stays within :data:`RESTART_FORM_NOISE_BOUNDS` noise bounds of the model's on every sample; None when
+    there is no linear block or no such train."""
+    if restartable(start_model):
+        return start_model
+    blocks = list(start_model.blocks)
+    at = next((i for i, block in enumerate(blocks) if isinstance(block, LinearBlock)), None)
+    if at is None:
+        return None
+    inner = PlantModel(tuple(blocks[:at])).simulate(u) if at else u
+    linear = blocks[at]
+    assert isinstance(linear, LinearBlock)
+    blocks[at] = drive_train_like(linear, inner)
+    train_form = PlantModel(tuple(blocks))
+    apart = float(np.max(np.abs(train_form.simulate(u) - start_model.simulate(u))))
+    return train_form if apart <= RESTART_FORM_NOISE_BOUNDS * delta else None
 
 
 def _checked_record(command_rad: ArrayLike, angle_rad: ArrayLike, noise_bound_rad: float, sample_period_s: float,

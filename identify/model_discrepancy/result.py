@@ -235,6 +235,7 @@ class DiscrepancyResult:
     undecided: tuple[CandidateResult, ...] = ()
     findings: tuple[GrossDisagreement, ...] = ()
     residual_structure: ResidualStructure | None = None
+    restart_window_samples: int | None = None
 
     def __post_init__(self) -> None:
         if self.verdict not in VERDICTS:
@@ -265,7 +266,8 @@ class DiscrepancyResult:
             gap_reduction=reduction, falsified_fraction_initial=float(self.initial.falsified_fraction),
             falsified_fraction_final=float(self.final.falsified_fraction), excitation=dict(self.excitation),
             operating_point_rad=float(self.operating_point_rad), undecided=tuple(self.undecided),
-            findings=tuple(self.findings), residual_structure=self.residual_structure)
+            findings=tuple(self.findings), residual_structure=self.residual_structure,
+            restart_window_samples=self.restart_window_samples)
 
     def to_dict(self) -> dict[str, Any]:
         """The ``rig diagnose --json`` document, ``self.report().to_dict()`` (:meth:`DiscrepancyReport.to_dict`)."""
@@ -291,7 +293,7 @@ class MissingEffect:
 @dataclass(frozen=True)
 class DiscrepancyReport:
     """What :func:`diagnose_model` found, as the ``rig diagnose --json`` document holds it (kind
-    ``"model_discrepancy"``, version 5): the verdict with its reason, the missing effects with intervals,
+    ``"model_discrepancy"``, version 6): the verdict with its reason, the missing effects with intervals,
     the candidates with their gaps, uncertainties and gap reductions, the candidates of the last round whose
     reduction straddles the acceptance (``undecided``: an ambiguous verdict after the effects named, if any),
     the gaps and falsified fractions before and after, the excitation check, the operating point and the
@@ -314,17 +316,21 @@ class DiscrepancyReport:
     undecided: tuple[CandidateResult, ...] = ()
     findings: tuple[GrossDisagreement, ...] = ()
     residual_structure: ResidualStructure | None = None
+    restart_window_samples: int | None = None
 
     KIND = "model_discrepancy"
-    VERSION = 5
-    READS = (1, 2, 3, 4, 5)
+    VERSION = 6
+    READS = (1, 2, 3, 4, 5, 6)
     """Version 2 added ``undecided`` and each candidate's ``reduction``, ``reduction_interval`` and
     ``acceptance``; version 3 each candidate's ``validation_interval``, ``fold_reductions`` and
     ``refit_interval`` (the interval judged, ``reduction_interval``, is then made of both:
     :func:`_reduction_judged`); version 4 ``findings`` (the gross disagreements of the measurement:
     :class:`GrossDisagreement`, each with ``kind``, ``ranges`` and ``text``); version 5 ``residual_structure``
-    (the open-world check: :class:`ResidualStructure`, null when not judged). :meth:`from_dict` reads versions
-    1 to 4 too (no undecided candidates, no intervals; no refits; no findings; no residual structure)."""
+    (the open-world check: :class:`ResidualStructure`, null when not judged); version 6
+    ``restart_window_samples`` (null: the models were compared by their free runs; a number: on windows of that
+    many samples restarting the load from the measured angle, :mod:`.comparison`). :meth:`from_dict` reads
+    versions 1 to 5 too (no undecided candidates, no intervals; no refits; no findings; no residual structure;
+    free runs)."""
 
     def __post_init__(self) -> None:
         if self.verdict not in VERDICTS:
@@ -350,7 +356,7 @@ class DiscrepancyReport:
         ``verdict_reason``, ``noise_bound``, ``missing_effects`` (with ``parameter_intervals``), ``ambiguous_between``,
         ``candidates``, ``gap_initial``, ``gap_final``, ``gap_reduction``, ``falsified_fraction_initial``,
         ``falsified_fraction_final``, ``excitation``, ``operating_point``, ``undecided``, ``findings``,
-        ``residual_structure``."""
+        ``residual_structure``, ``restart_window_samples``."""
         return tagged(self.KIND, self.VERSION, {
             "verdict": self.verdict,
             "verdict_reason": self.verdict_reason,
@@ -378,6 +384,7 @@ class DiscrepancyReport:
             "undecided": [candidate.to_dict() for candidate in self.undecided],
             "findings": [finding.to_dict() for finding in self.findings],
             "residual_structure": None if self.residual_structure is None else self.residual_structure.to_dict(),
+            "restart_window_samples": self.restart_window_samples,
         })
 
     @classmethod
@@ -403,7 +410,9 @@ class DiscrepancyReport:
                 undecided=tuple(CandidateResult.from_dict(c) for c in data.get("undecided", ())),
                 findings=tuple(GrossDisagreement.from_dict(f) for f in data.get("findings", ())),
                 residual_structure=None if data.get("residual_structure") is None
-                else ResidualStructure.from_dict(data["residual_structure"]))
+                else ResidualStructure.from_dict(data["residual_structure"]),
+                restart_window_samples=None if data.get("restart_window_samples") is None
+                else int(data["restart_window_samples"]))
 
 
 @dataclass(frozen=True)

@@ -26,13 +26,14 @@ from identify.effect_signatures import SignatureScore, signature_scores
 from identify.validation import InvalidInputError
 
 from identify.model_discrepancy.candidates import _Candidate, _insert_index, _without_effect
+from identify.model_discrepancy.comparison import simulated
 from identify.model_discrepancy.chain import (
     _Chain,
     _Component,
     _build,
     _effect_block,
     _effect_parameters,
-    _free_run_error,
+    _run_error,
     _linear_component,
     _measured_error,
     _polish,
@@ -318,7 +319,7 @@ def _add_step(best: _Candidate, current: Disagreement, steps: list[DiscrepancySt
               max_evaluations: int) -> _Search:
     polished = _polish(_refine_delays(best.chain, u[:n_est], y[:n_est]), u[:n_est], y[:n_est],
                        _budget(best.chain, max_evaluations))
-    if _rms(_measured_error(y, polished.model().simulate(u))[n_est:]) <= best.gap_rad:
+    if _rms(_measured_error(y, simulated(polished.model(), u, y))[n_est:]) <= best.gap_rad:
         best = _Candidate(best.kind, polished, best.gap_rad, _build(polished.components[best.index],
                                                                    polished.components[best.index].values), best.index)
     after = disagreement(best.chain.model(), u, y, delta, n_est)
@@ -450,7 +451,7 @@ def _family_rechecked(found: _Search, candidates: Sequence[str], u: NDArray[np.f
                                 _Component(other, tuple(float(v) for v in values),
                                            sample_period_s=component.sample_period_s),
                                 *chain.components[index + 1:]]) for values in starts(*half_widths)]
-            costs = [_rms(_free_run_error(option, u[:n_est], y[:n_est])) for option in swapped]
+            costs = [_rms(_run_error(option, u[:n_est], y[:n_est])) for option in swapped]
             refit = _polished_start(swapped[int(np.argmin(costs))], u[:n_est], y[:n_est], options.max_evaluations)
             if EFFECTS[other].stick_slip:
                 refit = _stick_slip_fit(refit, index, u[:n_est], y[:n_est], options.max_evaluations)
@@ -565,7 +566,7 @@ def _look_alikes_checked(found: _Search, u: NDArray[np.float64], y: NDArray[np.f
     named_output = found.current.simulated_rad
 
     def apart_from_named(chain: _Chain) -> float:
-        theirs = np.asarray(chain.model().simulate(u), dtype=float)
+        theirs = simulated(chain.model(), u, y)
         return float(np.mean(np.abs(named_output - theirs)[measured] > delta))
 
     def fitted_in_place(alike: str, reduced: _Chain, before: Disagreement) -> tuple[_Candidate, float] | None:

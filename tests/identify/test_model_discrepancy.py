@@ -121,7 +121,8 @@ def test_fitted_parameters_are_close_to_the_truth():
 
 JSON_KEYS = {"verdict", "verdict_reason", "noise_bound", "missing_effects", "ambiguous_between", "candidates",
              "gap_initial", "gap_final", "gap_reduction", "falsified_fraction_initial", "falsified_fraction_final",
-             "excitation", "operating_point", "undecided", "findings", "residual_structure", "kind", "version"}
+             "excitation", "operating_point", "undecided", "findings", "residual_structure", "restart_window_samples",
+             "kind", "version"}
 
 
 def test_json_document_has_exactly_the_documented_keys():
@@ -220,7 +221,7 @@ def test_a_named_effect_carries_parameter_intervals_containing_its_fit_and_a_gap
     # the play's map is named; from positions alone it is also friction without stiction: mechanism left open
     assert result.verdict == "ambiguous" and result.ambiguous_between == ("backlash", "coulomb_friction")
     document = result.to_dict()
-    assert document["kind"] == "model_discrepancy" and document["version"] == 5
+    assert document["kind"] == "model_discrepancy" and document["version"] == 6
     assert DiscrepancyReport.from_dict(json.loads(json.dumps(document))) == result.report()
     (entry,) = document["missing_effects"]
     truth = record.true_model.blocks[1]
@@ -387,7 +388,7 @@ def test_a_clear_effect_is_named_with_its_reduction_clear_over_validation_blocks
     assert candidate.reduction_interval == candidate.refit_interval  # the refits measure the size...
     assert candidate.reduction >= 0.15  # ... and the validation segment shows it too
     document = json.loads(json.dumps(result.to_dict()))
-    assert document["version"] == 5 and len(document["candidates"][0]["fold_reductions"]) == REFIT_FOLDS
+    assert document["version"] == 6 and len(document["candidates"][0]["fold_reductions"]) == REFIT_FOLDS
     assert DiscrepancyReport.from_dict(document) == result.report()
 
 
