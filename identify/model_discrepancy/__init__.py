@@ -9,7 +9,7 @@ per step:
    from the best low-order linear model (:func:`fit_linear_model`: output-error fit, order chosen by
    validation error).
 2. **Disagree** (:mod:`.disagreement`, :func:`disagreement`): free-run simulation y^_t of the model on the
-   measured input, residual r_t = y_t - y^_t; a sample is *falsified* when |r_t| > delta (it cannot be
+   measured input (or its restarted run, step 9), residual r_t = y_t - y^_t; a sample is *falsified* when |r_t| > delta (it cannot be
    explained by the model plus admissible noise); falsified samples are grouped into windows.
 3. **Candidates** (:mod:`.candidates`): the effects of :mod:`identify.effect_catalogue` (blocks, parameters,
    placement, guesses, "vanished"), each placed into the model; each leaves a signature in r_t
@@ -42,6 +42,10 @@ per step:
    segment and judged on the validation segment, measures the structure the final model left; the verdict
    says how much of the gap remains unexplained, and is lowered to ``ambiguous`` when the black box takes more
    off what remains than the named effects took off the start model's gap (:class:`ResidualStructure`).
+9. **Restarted** (:mod:`.comparison`): when the free run names nothing and leaves candidates open, those
+   candidates are judged again, steps 2-8 on windows that restart the drive train's load from the measured
+   angle (multiple shooting): a load rattling in a play, which no free run follows, is named there; only a
+   name left open can come out, and the record is never ``explained`` by it.
 
 :mod:`.pipeline` runs the steps (:func:`diagnose_model`, settings :class:`DiagnoseOptions` in
 :mod:`.options`); :mod:`.result` holds the result types (:class:`DiscrepancyResult`, the JSON

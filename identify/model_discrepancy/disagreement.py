@@ -46,7 +46,8 @@ def _windows(falsified: NDArray[np.bool_], residual: NDArray[np.float64], merge_
 def disagreement(model: PlantModel, command_rad: ArrayLike, angle_rad: ArrayLike, noise_bound_rad: float,
                  estimation_samples: int | None = None, *, merge_gap_samples: int = WINDOW_MERGE_GAP_SAMPLES,
                  min_window_samples: int = WINDOW_MIN_FALSIFIED_SAMPLES) -> Disagreement:
-    """Free-run residual of ``model`` against the measurement and the samples it falsifies.
+    """Residual of ``model`` against the measurement (its free run, or its restarted run under
+    :func:`.comparison.restarted_every`) and the samples it falsifies.
 
     A sample is falsified when |y_t - y^_t| > delta, the noise bound of eq. (4) of Cerone et al. (2009):
     no admissible noise sequence can explain it. Falsified samples less than ``merge_gap_samples`` apart
@@ -55,7 +56,7 @@ def disagreement(model: PlantModel, command_rad: ArrayLike, angle_rad: ArrayLike
     Parameters
     ----------
     model
-        The model, simulated from rest on the whole command.
+        The model, run on the whole command (from rest, or restarted: :mod:`.comparison`).
     command_rad, angle_rad
         u_t and the measured y_t; NaN marks a sample not measured: its residual is 0, it is never falsified,
         and the fraction and the gap are over the measured samples.
