@@ -185,11 +185,13 @@ def _restarted_if_open(first: DiscrepancyResult, u: NDArray[np.float64], y: NDAr
     if not second.steps or second.verdict != "named" or second.ambiguous_between or second.undecided:
         say(f"the restarted comparison does not decide either ({second.verdict})")
         return first
-    reason = (f"the free run could not decide between {', '.join(left_open)} (the model's state drifts from the "
-              f"record's, as a load rattling in a play does); compared on windows of {window} samples "
-              f"({window * period:.3g} s) that restart the load from the measured angle: {second.verdict_reason}")
+    reason = (f"the free run left {', '.join(left_open)} open; compared on windows of {window} samples "
+              f"({window * period:.3g} s) that restart the load from the measured angle, where a state that drifts "
+              f"from the record's (a load rattling in a play) no longer decides: {second.verdict_reason}")
+    rounds = 1 + max((c.round for c in first.candidates), default=-1)  # the restarted rounds follow the free run's
     return replace(second, start_model=first.start_model, linear_fit=first.linear_fit, verdict_reason=reason,
-                   candidates=(*first.candidates, *second.candidates), restart_window_samples=window)
+                   candidates=(*first.candidates, *(replace(c, round=c.round + rounds) for c in second.candidates)),
+                   restart_window_samples=window)
 
 
 def _restartable_start(start_model: PlantModel, u: NDArray[np.float64], delta: float) -> PlantModel | None:

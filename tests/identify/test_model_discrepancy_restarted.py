@@ -126,3 +126,26 @@ def test_the_report_says_which_comparison_it_used_and_reopens():
     assert DiscrepancyReport.from_dict(document) == report
     older = {key: value for key, value in document.items() if key != "restart_window_samples"}
     assert DiscrepancyReport.from_dict({**older, "version": 5}).restart_window_samples is None  # free runs
+
+
+@pytest.mark.parametrize("left_open, restarted", [(("offset", "gravity"), False), (("encoder_error",), False),
+                                                  (("gravity",), True)])
+def test_only_drive_train_effects_left_open_are_judged_again(left_open, restarted):
+    # a restart moves the load by a sensor's error too: with a sensor's effect left open (a drifting gain read
+    # as an offset with gravity on the clean-room generator) the free run's answer stands untouched
+    from identify.model_discrepancy import DiagnoseOptions, DiscrepancyResult, disagreement
+    from identify.model_discrepancy.pipeline import _restarted_if_open
+
+    model = PlantModel((TRAIN,))
+    u = _steps()
+    y = model.simulate(u) + 3e-3
+    n_est = 1800
+    before = disagreement(model, u, y, 1e-3, n_est)
+    first = DiscrepancyResult(steps=(), start_model=model, final_model=model, initial=before, final=before,
+                              consistent=False, unexplained="", estimation_samples=n_est, noise_bound_rad=1e-3,
+                              verdict="ambiguous", ambiguous_between=left_open)
+    tried: list[str] = []
+    answer = _restarted_if_open(first, u, y, 1e-3, 1e-3, n_est, {}, DiagnoseOptions(), tried.append)
+    assert bool(tried) == restarted
+    if not restarted:
+        assert answer is first
