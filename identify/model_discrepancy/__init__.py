@@ -9,8 +9,9 @@ per step:
    from the best low-order linear model (:func:`fit_linear_model`: output-error fit, order chosen by
    validation error).
 2. **Disagree** (:mod:`.disagreement`, :func:`disagreement`): free-run simulation y^_t of the model on the
-   measured input (or its restarted run, step 9), residual r_t = y_t - y^_t; a sample is *falsified* when |r_t| > delta (it cannot be
-   explained by the model plus admissible noise); falsified samples are grouped into windows.
+   measured input (or its restarted run, step 9), residual r_t = y_t - y^_t; a sample is *falsified* when
+   |r_t| > delta (it cannot be explained by the model plus admissible noise); falsified samples are grouped
+   into windows.
 3. **Candidates** (:mod:`.candidates`): the effects of :mod:`identify.effect_catalogue` (blocks, parameters,
    placement, guesses, "vanished"), each placed into the model; each leaves a signature in r_t
    (:mod:`identify.effect_signatures`).

@@ -1,7 +1,7 @@
 """The model every step of the workflow simulates and fits: a chain of components (fixed blocks, a linear block
 with free coefficients, effects from the catalogue with free parameters, a drive train holding dynamics
-effects) with one flat vector of free parameters, its free-run error on a record, and the least-squares polish
-of that vector (:func:`_polish`).
+effects) with one flat vector of free parameters, its error on a record (its free run, or its restarted run:
+:mod:`.comparison`), and the least-squares polish of that vector (:func:`_polish`).
 
 Shared by the steps: the start model (:mod:`.start_model`) is a chain, a candidate (:mod:`.candidates`,
 :mod:`.fit`) is a chain with one effect more, and the intervals (:mod:`.intervals`) move its parameters.
@@ -187,9 +187,8 @@ def _polish(chain: _Chain, u: NDArray[np.float64], y: NDArray[np.float64], max_e
             kinds: frozenset[str] | None = None, samples: NDArray[np.bool_] | None = None,
             held: Sequence[int] = ()) -> _Chain:
     """Least-squares fit of the free parameters of ``chain`` (only of components whose kind is in ``kinds``
-    if given; never the entries ``held`` of :meth:`_Chain.vector`) to the free-run error on (u, y) (only on
-    the ``samples`` marked True if given: the free run covers the whole record, the cost only those
-    samples)."""
+    if given; never the entries ``held`` of :meth:`_Chain.vector`) to its error on (u, y) (:func:`_run_error`; only
+    on the ``samples`` marked True if given: the run covers the whole record, the cost only those samples)."""
     theta_all = chain.vector()
     if theta_all.size == 0:
         return chain

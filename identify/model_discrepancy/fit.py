@@ -191,7 +191,8 @@ def _budget(chain: _Chain, evaluations: int) -> int:
 
 def _best_of(options: Sequence[_Chain], u: NDArray[np.float64], y: NDArray[np.float64],
              samples: NDArray[np.bool_] | None) -> _Chain:
-    """The option with the lowest free-run error on (u, y) (only on the ``samples`` marked True if given)."""
+    """The option with the lowest error on (u, y) (:func:`_run_error`; only on the ``samples`` marked True if
+    given)."""
     errors = [_run_error(option, u, y) for option in options]
     return options[int(np.argmin([_rms(e if samples is None else e[samples]) for e in errors]))]
 
