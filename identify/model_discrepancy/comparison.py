@@ -59,7 +59,7 @@ def simulated(model: PlantModel, u: NDArray[np.float64], y: NDArray[np.float64])
     """The model's output on command ``u`` under the comparison in force: its free run from rest, or its run
     restarted every window from the measured ``y`` (NaN: not measured, no restart there)."""
     window = _RESTART_SAMPLES.get()
-    if window is None or not restartable(model):
+    if window is None:
         return np.asarray(model.simulate(u), dtype=float)
     return restarted_run(model, u, y, window)
 
@@ -70,7 +70,10 @@ def restarted_run(model: PlantModel, u: NDArray[np.float64], y: NDArray[np.float
     ``window`` samples by the output error of the sample before, y_{k-1} - y^_{k-1} (the blocks after the drive
     train are taken to pass a small change of the load angle on unscaled, as a sensor's offset, gain or
     once-per-revolution error do). The blocks before the drive train run free; the train keeps every other
-    state (the load's velocity, the motor's angle and velocity, the controller's integral)."""
+    state (the load's velocity, the motor's angle and velocity, the controller's integral). A model without a
+    drive train has no load to restart: its free run."""
+    if not restartable(model):
+        return np.asarray(model.simulate(u), dtype=float)
     blocks = model.blocks
     at = max(i for i, block in enumerate(blocks) if isinstance(block, DriveTrain))
     train = blocks[at]

@@ -11,12 +11,20 @@ from numpy.typing import NDArray
 from identify.border_lifting import direction_signal
 from identify.effect_signatures import delay_regressor
 from identify.model_discrepancy import DiscrepancyReport, DiscrepancyResult, DiscrepancyStep
+from identify.model_discrepancy.comparison import restarted_run
 from rig.report import ReportFigure, ReportSection, write_report
 
 
 ZOOM_SAMPLES = 200
 """A record longer than 5 times this is also drawn over this many samples from the start of the validation
 segment: at the report's width a free run of thousands of samples is a solid band."""
+
+
+def _run_words(result: DiscrepancyResult) -> str:
+    """How the models were run against the record: freely, or restarted from the measured angle."""
+    if result.restart_window_samples is None:
+        return "free-run simulation"
+    return f"run restarted from the measured angle every {result.restart_window_samples} samples"
 
 
 def comparison_figure(result: DiscrepancyResult, angle_rad: NDArray[np.float64], time_s: NDArray[np.float64],
@@ -68,11 +76,11 @@ def comparison_figure(result: DiscrepancyResult, angle_rad: NDArray[np.float64],
     band = (f"the noise bound +-{result.noise_bound_rad:.3g} rad (dotted) and the start of the validation segment "
             "(blue line)")
     if added:
-        what = (f"Measured load angle against the free-run simulation of the start model (red) and of the final "
+        what = (f"Measured load angle against the {_run_words(result)} of the start model (red) and of the final "
                 f"model (green, dashed); below, the residuals with {band}. Gap {result.initial.gap_rad:.3g} rad "
                 f"before, {result.final.gap_rad:.3g} rad after: the green residual should stay inside the dotted band.")
     else:
-        what = (f"Measured load angle against the free-run simulation of the model (red; nothing was added, so the "
+        what = (f"Measured load angle against the {_run_words(result)} of the model (red; nothing was added, so the "
                 f"start model is the final one); below, its residual with {band}. Gap {result.initial.gap_rad:.3g} "
                 "rad: where the residual leaves the dotted band, the model and the record disagree.")
     return ReportFigure(
@@ -268,12 +276,14 @@ def discrepancy_section(result: DiscrepancyResult, command_rad: NDArray[np.float
     simulated = result.initial.simulated_rad
     for number, step in enumerate(result.steps, 1):
         figures.append(signature_figure(step, number, residual, simulated, command_rad, time_s, result.noise_bound_rad))
-        simulated = step.model.simulate(command_rad)
+        simulated = (step.model.simulate(command_rad) if result.restart_window_samples is None
+                     else restarted_run(step.model, command_rad, angle_rad, result.restart_window_samples))
         residual = angle_rad - simulated
     text = (
         f"{diagnosis_summary(report)}\n\n"
         f"Data {source}: {command_rad.size} samples; the fits use the first {result.estimation_samples}, the gaps "
-        f"(RMS free-run error) are measured on the rest. Noise bound {result.noise_bound_rad:.4g} rad. "
+        f"(RMS error of the {_run_words(result)}) are measured on the rest. "
+        f"Noise bound {result.noise_bound_rad:.4g} rad. "
         f"Gap {result.initial.gap_rad:.4g} rad -> {result.final.gap_rad:.4g} rad; falsified samples "
         f"{100 * result.initial.falsified_fraction:.1f} % -> {100 * result.final.falsified_fraction:.1f} %.\n\n"
         f"{result.unexplained[0].upper()}{result.unexplained[1:]}."

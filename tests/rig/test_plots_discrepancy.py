@@ -87,3 +87,13 @@ def test_windows_that_cover_most_of_the_record_are_not_called_a_cluster(diagnosi
     assert f"cover {100 * covered:.0f} % of the record: they do not cluster" in caption, caption
     assert "where they cluster" not in caption
 
+
+
+def test_a_diagnosis_on_restarted_windows_is_not_captioned_as_a_free_run(diagnosis):
+    import dataclasses
+
+    record, result, time_s = diagnosis
+    assert "free-run simulation" in comparison_figure(result, record.angle_rad, time_s).caption
+    restarted = dataclasses.replace(result, restart_window_samples=50)
+    caption = comparison_figure(restarted, record.angle_rad, time_s).caption
+    assert "free-run" not in caption and "run restarted from the measured angle every 50 samples" in caption
