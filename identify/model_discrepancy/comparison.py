@@ -3,13 +3,14 @@ cannot follow the record, its run on short windows that restart the load from th
 shooting: Bock and Plitt 1984; Ribeiro, Tiels, Schoukens, Aguirre 2020, "On the smoothness of nonlinear system
 identification", Automatica 121, 109158).
 
-A load that rattles in a gear's play makes the free run useless as a comparison: which flank it meets, and
-when, depends on its motion so finely that a play a tenth of a percent wider moves the simulated angle by a
-dozen noise bounds, and no fit of the play finds its true width (the cost against the play is flat and
-ragged). Restarted every :data:`~.thresholds.RESTART_WINDOW_S`, the run keeps the load's simulated velocity and
-the rest of the drive train's state, and moves the load angle by the output error of the window's last sample:
-within a window the model has to predict the motion from where the load really is, which a right play does and
-a wrong one does not. The cost against the play then has its minimum at the true width.
+A load that rattles in a gear's play makes the free run a poor comparison: which flank it meets, and when,
+depends on its motion so finely that a play a tenth of a percent wider can move the simulated angle by a dozen
+noise bounds, so the free run's error against the play is shallow and ragged (the true play lowers it by a tenth
+to a fifth on a steps record) and a fit of the play stops far from its width. Restarted every
+:data:`~.thresholds.RESTART_WINDOW_S`, the run keeps the load's simulated velocity and the rest of the drive
+train's state, and moves the load angle by the output error of the sample before: within a window the model has
+to predict the motion from where the load really is, which a right play does and a wrong one does not. The
+error against the play then has a deep minimum at the true width (``benchmarks/restarted_comparison.py``).
 
 The comparison in force is set for a block of code by :func:`restarted_every` and read by :func:`simulated`,
 the one function every residual of the workflow comes from; outside such a block the free run is used. Only a

@@ -339,11 +339,12 @@ VANISHED_PEAK_NOISE_BOUNDS = 0.5
 it out of the fitted model moves the free run by at least this many noise bounds on some sample
 (``_vanished``)."""
 
-# Evidence: the clean-room generator's play records whose load rattles (backlash seeds 1000 and 1004 steps, 1011
-# prbs, 1018 multisine; 1 kHz, play 5.6-8.3 mrad, a drive train with 0.75 times the true load friction as the
-# fitted one has): the RMS error against the play, restarted every 20, 50 or 100 samples, is least at the true
-# play (within 10 %) on all four, and at 200 samples it is no longer on record 1011; the free run's error is flat
-# and ragged against the play on all four (the fitted plays 40-50 % of the true ones).
+# Evidence: benchmarks/restarted_comparison.py (BENCHMARKS.md, "The restarted comparison"): on the clean-room
+# generator's ten play records (1 kHz, plays 2-8 mrad, eight of them left open by the free run), the nominal
+# model's drive-train form with plays from 0 to 2 times the true one is least within 20 % of the true play on
+# 10 of 10 records restarted every 20, 50 or 100 samples and 9 of 10 every 200; the least error is 12-48 % of the
+# error without a play every 50 samples, where the free run's is 80-91 % on the steps records (the play hardly
+# lowers it, and the free-run fits of the play stopped at 40-50 % of it).
 RESTART_WINDOW_S = 0.05
 """The window of the restarted comparison (:mod:`.comparison`): the load is moved to the measured angle every
 this many seconds."""
