@@ -168,7 +168,8 @@ def _restarted_if_open(first: DiscrepancyResult, u: NDArray[np.float64], y: NDAr
     sensor's error too, and on the clean-room generator's drifting sensor gain (seeds 1004, 1007, 1012, 1013,
     open between an offset and gravity or an encoder error) it then named both, where the free run had rightly
     left them open."""
-    left_open = tuple(dict.fromkeys((*first.ambiguous_between, *(c.effect for c in first.undecided))))
+    left_open = tuple(dict.fromkeys(effect for name in (*first.ambiguous_between, *(c.effect for c in first.undecided))
+                                    for effect in name.split("+")))  # an inner twin is listed as "a+b"
     if first.steps or not left_open or first.verdict not in ("ambiguous", "unexplained"):
         return first
     if not all(EFFECTS[name].placement == "dynamics" for name in left_open):

@@ -129,6 +129,7 @@ def test_the_report_says_which_comparison_it_used_and_reopens():
 
 
 @pytest.mark.parametrize("left_open, restarted", [(("offset", "gravity"), False), (("encoder_error",), False),
+                                                  (("backlash", "load_friction+shaft_play"), False),
                                                   (("gravity",), True)])
 def test_only_drive_train_effects_left_open_are_judged_again(left_open, restarted):
     # a restart moves the load by a sensor's error too: with a sensor's effect left open (a drifting gain read
