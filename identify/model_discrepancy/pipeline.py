@@ -62,7 +62,9 @@ def diagnose_model(command_rad: ArrayLike, angle_rad: ArrayLike, noise_bound_rad
     :func:`_absolute`), the excitation check (:func:`_excitation`, :func:`_not_excited`), the start model
     (:func:`_start`), the greedy search (:func:`_search`), the intervals of what was named
     (:func:`_named_intervals`), the verdict (:func:`_final_verdict`) and the open-world check of what the final
-    model leaves (:func:`open_world_checked`).
+    model leaves (:func:`open_world_checked`), all on free runs (:func:`_diagnosed`); then, when that names
+    nothing and leaves only drive-train effects open, the same steps for those on windows that restart the load
+    from the measured angle (:func:`_restarted_if_open`).
 
     Parameters
     ----------
