@@ -1,7 +1,9 @@
 """How a model is compared with the record: its free run from rest over the whole record, or, when the free run
-cannot follow the record, its run on short windows that restart the load from the measured angle (multiple
-shooting: Bock and Plitt 1984; Ribeiro, Tiels, Schoukens, Aguirre 2020, "On the smoothness of nonlinear system
-identification", Automatica 121, 109158).
+cannot follow the record, its run on short windows that restart the load from the measured angle: a
+multi-step-ahead prediction error, the simpler sibling of multiple shooting (which fits each window's initial
+state as well), both in Ribeiro, Tiels, Umenberger, Schön and Aguirre (2020), "On the smoothness of nonlinear
+system identification", Automatica 121, 109158: a free run's cost can grow ragged exponentially with its length
+where the model is not contractive, as a rattling play is not.
 
 A load that rattles in a gear's play makes the free run a poor comparison: which flank it meets, and when,
 depends on its motion so finely that a play a tenth of a percent wider can move the simulated angle by a dozen
@@ -44,11 +46,6 @@ def restarted_every(samples: int) -> Iterator[None]:
         yield
     finally:
         _RESTART_SAMPLES.reset(token)
-
-
-def restart_samples() -> int | None:
-    """The window of the comparison in force, or None for the free run."""
-    return _RESTART_SAMPLES.get()
 
 
 def restartable(model: PlantModel) -> bool:
