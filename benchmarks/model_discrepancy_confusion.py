@@ -351,6 +351,18 @@ def independent_noise_bound(nominal: dict) -> float:
     return 0.5 * float(nominal["count_rad"]) + NOISE_BOUND_SIGMAS * float(nominal["noise_std_rad"])
 
 
+def static_compliance(nominal: dict) -> float:
+    """How far a steady torque at the load moves the generator's load angle, per N m: the shaft's 1 / k, and
+    behind the cascade servo also its position loop's 1 / (K_v K_p) = 1 / (omega_c^2 (N^2 J_m + J_l)) (at rest the
+    velocity loop's torque K_v K_p (u / N - phi) holds the shaft's; the kinematic servo holds the motor exactly)."""
+    compliance = 1.0 / float(nominal["shaft_stiffness_nm_per_rad"])
+    if nominal["servo"] == "cascade":
+        wc = 2.0 * math.pi * float(nominal["position_loop_bandwidth_hz"])
+        reflected = float(nominal["gear_ratio"]) ** 2 * float(nominal["motor_inertia_kg_m2"])
+        compliance += 1.0 / (wc * wc * (reflected + float(nominal["load_inertia_kg_m2"])))
+    return compliance
+
+
 def _train_of(model: PlantModel) -> DriveTrain | None:
     return next((b for b in model.blocks if isinstance(b, DriveTrain)), None)
 
@@ -360,18 +372,19 @@ def truth_in_our_terms(truth: dict, nominal: dict, name: str, model: PlantModel,
     """The generator's truth as the parameters our effect ``name`` reports, where the two describe the same
     thing; parameters without a counterpart are left out (not compared).
 
-    A load torque tau twists the generator's shaft by tau / k behind its motor, which the servo holds exactly;
-    in our train (the rigid drive train, or one with a shaft of stiffness k') the same torque per inertia
-    X = tau / J leaves a static error X / omega_n^2 (+ X J / k'). So X is compared at the same static sag:
-    X = (tau / k) / (1 / omega_n^2 + J / k'), with omega_n and J of the train in ``model``. Output backlash and
-    Coulomb friction through a compliance report twists: the play's half-width b_h, or the sliding twist
-    F_c / k of quasi-static friction (breakaway F_s / k); the viscous friction a load friction adds is zero (the
+    A load torque tau sags the generator's load by tau times its static compliance (:func:`static_compliance`:
+    the shaft's 1 / k, behind a cascade servo also the position loop's); in our train (the rigid drive train, or
+    one with a shaft of stiffness k') the same torque per inertia X = tau / J leaves a static error
+    X / omega_n^2 (+ X J / k'). So X is compared at the same static sag: X = (tau s) / (1 / omega_n^2 + J / k'),
+    with s the generator's compliance and omega_n and J of the train in ``model``. Output backlash and Coulomb
+    friction through a compliance report twists: the play's half-width b_h, or the sliding twist F_c s of
+    quasi-static friction (breakaway F_s s); the viscous friction a load friction adds is zero (the
     nominal load's is the model's). The hanging angle is reported from the operating
     point the workflow moved to: theta_0 - y_0. A drifting gain and the effects without a catalogue
     equivalent are not compared."""
     p = truth["parameters"]
     effect_name = truth["effect"]
-    k = float(nominal["shaft_stiffness_nm_per_rad"])
+    compliance_of_generator = static_compliance(nominal)
     sliding = {"coulomb": p.get("coulomb_nm"), "stribeck": p.get("coulomb_nm")}.get(effect_name)
     breakaway = {"coulomb": p.get("coulomb_nm"), "stribeck": p.get("static_nm")}.get(effect_name)
     if name in ("load_friction", "gravity"):
@@ -381,19 +394,20 @@ def truth_in_our_terms(truth: dict, nominal: dict, name: str, model: PlantModel,
         compliance = 1.0 / train.natural_frequency_rad_per_s**2 + (
             0.0 if train.rigid else train.total_inertia_kg_m2 / train.shaft_stiffness_nm_per_rad)
         if name == "gravity" and effect_name == "gravity":
-            return {"gravity_per_inertia_rad_per_s2": p["mgr_nm"] / k / compliance,
+            return {"gravity_per_inertia_rad_per_s2": p["mgr_nm"] * compliance_of_generator / compliance,
                     "hanging_angle_rad": p["hanging_angle_rad"] - operating_point_rad}
         if name == "load_friction" and sliding is not None:
             # the effect reports the viscous friction it adds to the train, and the generator's Coulomb and
             # Stribeck frictions add none (the nominal load's viscous friction is the model's)
-            return {"coulomb_per_inertia_rad_per_s2": sliding / k / compliance,
-                    "static_per_inertia_rad_per_s2": breakaway / k / compliance,
+            return {"coulomb_per_inertia_rad_per_s2": sliding * compliance_of_generator / compliance,
+                    "static_per_inertia_rad_per_s2": breakaway * compliance_of_generator / compliance,
                     "viscous_per_inertia_per_s": 0.0}
         return {}
     if name == "coulomb_friction" and sliding is not None:
-        return {"breakaway_deflection_rad": breakaway / k, "sliding_deflection_rad": sliding / k}
+        return {"breakaway_deflection_rad": breakaway * compliance_of_generator,
+                "sliding_deflection_rad": sliding * compliance_of_generator}
     if name == "backlash" and sliding is not None:
-        return {"c_l_rad": sliding / k, "c_r_rad": sliding / k}
+        return {"c_l_rad": sliding * compliance_of_generator, "c_r_rad": sliding * compliance_of_generator}
     if name == "backlash" and effect_name == "backlash":
         return {"c_l_rad": p["half_width_rad"], "c_r_rad": p["half_width_rad"]}
     if name == "shaft_play" and effect_name == "backlash":
@@ -457,7 +471,7 @@ def independent_outcome(effect_name: str, named: tuple[str, ...], verdict: str, 
 
 def run_independent_case(effect_name: str, case: int, cases: int, first_seed: int, start: str,
                          excitations: tuple[str, ...], durations: dict[str, float], max_draws: int,
-                         bits: int, noise_std_rad: float) -> dict:
+                         bits: int, noise_std_rad: float, servo: str = "kinematic") -> dict:
     """One case of a row: the first excited record of seeds first_seed + case + j cases (j = 0, 1, ...; the
     excitation rotates with case + j), diagnosed and scored."""
     generator = generator_module()
@@ -466,7 +480,7 @@ def run_independent_case(effect_name: str, case: int, cases: int, first_seed: in
         seed = first_seed + case + draw * cases
         excitation = excitations[(case + draw) % len(excitations)]
         record = generator.generate(effect_name, seed, excitation=excitation, duration_s=durations[excitation],
-                                    bits=bits, noise_rad=noise_std_rad)
+                                    bits=bits, noise_rad=noise_std_rad, nominal={"servo": servo})
         if record["truth"]["excited"] or effect_name == "none":
             break
         skipped.append(f"{seed}/{excitation}")
@@ -516,14 +530,14 @@ def run_independent_case(effect_name: str, case: int, cases: int, first_seed: in
 
 def independent(cases: int, start: str, effects: tuple[str, ...], first_seed: int, jobs: int,
                 excitations: tuple[str, ...], durations: dict[str, float], max_draws: int, bits: int,
-                noise_std_rad: float) -> None:
+                noise_std_rad: float, servo: str = "kinematic") -> None:
     """Every row of ``effects`` on the independent generator; a line per case on stderr, then the table."""
     started = time.perf_counter()
     tasks = [(name, case) for name in effects for case in range(cases)]
     runs: dict[str, list[dict]] = {name: [] for name in effects}
     with ProcessPoolExecutor(max_workers=jobs) as pool:
         futures = [pool.submit(run_independent_case, name, case, cases, first_seed, start, excitations, durations,
-                               max_draws, bits, noise_std_rad) for name, case in tasks]
+                               max_draws, bits, noise_std_rad, servo) for name, case in tasks]
         for future in as_completed(futures):  # a line per case as soon as it is done
             result = future.result()
             runs[result["effect"]].append(result)
@@ -532,7 +546,8 @@ def independent(cases: int, start: str, effects: tuple[str, ...], first_seed: in
                   + json.dumps({"generator": "independent", "start": start, **result}),
                   file=sys.stderr, flush=True)
     print(f"\non the independent generator, start model: {start}; {cases} cases per row (seeds from {first_seed}, "
-          f"excitations {', '.join(excitations)}, {bits}-bit encoder, noise std {noise_std_rad:g} rad); "
+          f"excitations {', '.join(excitations)}, {bits}-bit encoder, noise std {noise_std_rad:g} rad, {servo} "
+          f"servo); "
           f"{time.perf_counter() - started:.0f} s in all with {jobs} process(es)")
     independent_table(runs, effects, start)
 
@@ -612,6 +627,9 @@ def main() -> None:
     parser.add_argument("--bits", type=int, default=12, help="independent generator: encoder bits (default 12)")
     parser.add_argument("--noise-std", type=float, default=NOISE_STD_RAD, metavar="RAD",
                         help="independent generator: Gaussian noise std before quantisation (default %(default)g)")
+    parser.add_argument("--servo", choices=("kinematic", "cascade"), default="kinematic",
+                        help="independent generator: kinematic (the motor follows the command whatever the load does, "
+                             "default) or cascade (position and velocity loops on a motor the shaft pushes back)")
     parser.add_argument("--emps-decimate", type=int, default=5)
     parser.add_argument("--emps-noise-bound", type=float, default=1e-6, metavar="M")
     args = parser.parse_args()
@@ -623,7 +641,7 @@ def main() -> None:
         effects = INDEPENDENT_EFFECTS if args.effects is None else tuple(e for e in args.effects.split(",") if e)
         independent(args.cases, args.start, effects, args.first_seed, args.jobs,
                     tuple(e for e in args.excitations.split(",") if e), durations, args.max_draws, args.bits,
-                    args.noise_std)
+                    args.noise_std, args.servo)
         return
     if args.effects is not None:
         effects = tuple(e for e in args.effects.split(",") if e)

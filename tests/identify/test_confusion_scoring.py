@@ -1,11 +1,15 @@
 """How the independent-generator benchmark scores a case (``model_discrepancy_confusion.independent_outcome``):
 an `explained` verdict is wrong only when the hidden effect moves the angle by more than the noise bound the
-workflow was told, since below it the model without the effect agrees with the truth within the stated error."""
+workflow was told, since below it the model without the effect agrees with the truth within the stated error;
+and how it puts the generator's truth in our terms (its static compliance)."""
 
 from __future__ import annotations
 
 import sys
 from pathlib import Path
+
+import numpy as np
+import pytest
 
 BENCHMARKS = Path(__file__).resolve().parents[2] / "benchmarks"
 sys.path.insert(0, str(BENCHMARKS))
@@ -29,3 +33,17 @@ def test_the_other_outcomes_do_not_depend_on_the_effects_size():
     assert confusion.independent_outcome("coulomb", (), "unexplained", "given", **small) == "honest"
     assert confusion.independent_outcome("none", (), "explained", "given", 0.0, BOUND) == "honest"
     assert "under_bound" in confusion.OUTCOMES
+
+
+@pytest.mark.parametrize("servo", ["kinematic", "cascade"])
+def test_the_generators_static_compliance_is_the_sag_of_its_own_equations(servo: str) -> None:
+    """A steady torque on the load moves the independent generator's load angle by ``static_compliance`` per N m:
+    the steady state of the generator's own linear equations (its A, B) with the torque on the load's row."""
+    generator = confusion.generator_module()
+    nominal = generator.nominal_parameters(servo=servo)
+    a, _ = generator.linear_matrices(nominal)
+    torque = 0.3
+    load = np.zeros(4)
+    load[3] = torque / nominal["load_inertia_kg_m2"]
+    sag = np.linalg.solve(a, -load)[2]
+    assert abs(sag) == pytest.approx(confusion.static_compliance({**nominal, "sample_period_s": 1e-3}) * torque, rel=1e-9)
