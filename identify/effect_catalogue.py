@@ -64,7 +64,7 @@ if TYPE_CHECKING:
     from identify.effect_signatures import SignatureScore
 
 __all__ = ["ANGLE_SHAPE_EXPERIMENT", "DYNAMICS_EFFECTS", "EFFECTS", "EFFECT_NAMES", "HYSTERESIS_INNER_TWIN",
-           "LINEAR_ORDER_EXPERIMENT", "LOOK_ALIKE_EXPERIMENTS",
+           "LINEAR_ORDER_EXPERIMENT", "LOOK_ALIKE_EXPERIMENTS", "MAX_RESONANCE_DAMPING",
            "SAME_MAP_READINGS",
            "PLACEMENTS", "SEARCHED_EFFECT_NAMES", "Effect",
            "GuessContext", "Parameter", "TomlKey", "effect", "effect_for_block", "effect_for_toml_type",
@@ -120,6 +120,9 @@ class GuessContext:
     """y^_t, the start model's free run (the drive-train guesses read its speeds and accelerations)."""
     train: DriveTrain | None = None
     """For a dynamics effect: the drive train it goes into (its loop bandwidth scales the guesses)."""
+    modes: tuple[tuple[float, float], ...] = ()
+    """(natural frequency Hz, damping ratio) of the lightly damped modes of higher-order linear models of the
+    record, where the start model is fitted (a mode's guesses start there)."""
 
     @property
     def residual_amplitude_rad(self) -> float:
@@ -354,7 +357,7 @@ def _resonance_guesses(context: GuessContext) -> list[tuple[float, ...]]:
     score = context.scores.get("resonance")
     peak = score.details.get("peak_frequency_hz", 0.1 * nyquist) if score is not None else 0.1 * nyquist
     frequencies = [f for f in (peak, *np.geomspace(0.02 * nyquist, 0.8 * nyquist, 16)) if 0.0 < f < 0.98 * nyquist]
-    return [(f, z) for f in frequencies for z in (0.02, 0.05, 0.1)]
+    return [*context.modes, *((f, z) for f in frequencies for z in (0.02, 0.05, 0.1))]
 
 
 def _gain_guesses(context: GuessContext) -> list[tuple[float, ...]]:

@@ -64,12 +64,14 @@ from identify.model_discrepancy.thresholds import (
 def _try_effect(kind: str, chain: _Chain, u: NDArray[np.float64], y: NDArray[np.float64], n_est: int,
                 delta: float, period: float, residual: NDArray[np.float64], scores: dict[str, SignatureScore],
                 max_delay_samples: int, max_evaluations: int,
-                forced_starts: Sequence[tuple[float, ...]] = ()) -> _Candidate:
+                forced_starts: Sequence[tuple[float, ...]] = (),
+                modes: tuple[tuple[float, float], ...] = ()) -> _Candidate:
     """The candidate of effect ``kind`` added to ``chain``: its catalogue guesses (and, for a dynamics effect
     with a free loop, the loop starts) ranked by the estimation error, the best polished, and each of
     ``forced_starts`` (values of the effect, unranked) polished too; the fit with the lowest estimation error
-    is kept, its delays walked (:func:`_walk_delays`). The fit uses the first :func:`_fit_samples` samples of the
-    estimation segment (all of it on a record of up to :data:`FIT_MAX_SAMPLES`); its starts are ranked and
+    is kept, its delays walked (:func:`_walk_delays`); ``modes`` (``start_model.record_modes``) go to the
+    guesses. The fit uses the first :func:`_fit_samples` samples of the estimation segment (all of it on a
+    record of up to :data:`FIT_MAX_SAMPLES`); its starts are ranked and
     polished on the first :func:`_screen_samples` of them (:data:`START_SCREEN_SAMPLES`), and on a record longer
     than that the best start is polished again on all the fit uses; the candidate's estimation error and
     validated gap (:func:`_judged`) are over the whole segments.
@@ -105,7 +107,7 @@ def _try_effect(kind: str, chain: _Chain, u: NDArray[np.float64], y: NDArray[np.
     else:
         simulated = np.where(np.isnan(y), _bridged(y), y - residual)  # for the guesses only
         options = [with_effect(g) for g in entry.guesses(GuessContext(u, residual, delta, period, scores,
-                                                                      simulated, train))]
+                                                                      simulated, train, modes))]
         if entry.placement == "dynamics" and chain.components[index].loop_free and options:
             # the guesses ranked at the start model's loop; the best LOOP_START_GUESSES from every loop start
             costs = [_rms(_run_error(option, u_start, y_start)) for option in options]

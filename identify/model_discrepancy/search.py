@@ -19,6 +19,7 @@ from identify.effect_catalogue import (
     EFFECTS,
     LINEAR_ORDER_EXPERIMENT,
     LOOK_ALIKE_EXPERIMENTS,
+    MAX_RESONANCE_DAMPING,
     SAME_MAP_READINGS,
     SEARCHED_EFFECT_NAMES,
 )
@@ -69,7 +70,7 @@ from identify.model_discrepancy.judgement import (
 )
 from identify.model_discrepancy.options import DiagnoseOptions
 from identify.model_discrepancy.result import CandidateResult, Disagreement, DiscrepancyStep
-from identify.model_discrepancy.start_model import fit_linear_model
+from identify.model_discrepancy.start_model import fit_linear_model, record_modes
 from identify.model_discrepancy.thresholds import (
     AMBIGUITY_MIN_MARGIN,
     BASELINE_EFFORT,
@@ -147,6 +148,9 @@ def _search(state: _Search, remaining: list[str], u: NDArray[np.float64], y: NDA
     remaining = list(remaining)
     round_index = len(steps)
     validation_error = state.validation_error_rad
+    modes = (record_modes(u, y, period, n_est, MAX_RESONANCE_DAMPING)
+             if any(c.kind == "linear" for c in chain.components)
+             and any(EFFECTS[kind].linear_dynamics for kind in remaining) else ())
 
     def to_end(followed: _Search, rest: list[str]) -> _Search:
         # a contender's own search to its end, without tie resolution, with a family member named before its
@@ -195,7 +199,7 @@ def _search(state: _Search, remaining: list[str], u: NDArray[np.float64], y: NDA
             if _insert_index(chain, kind) < 0:
                 continue  # a dynamics effect needs linear dynamics or a drive train to go into
             candidate = _try_effect(kind, chain, u, y, n_est, delta, period, current.residual_rad, scores,
-                                    options.max_delay_samples, max_evaluations)
+                                    options.max_delay_samples, max_evaluations, modes=modes)
             say(f"  {kind}: validated gap {candidate.gap_rad:.3g} rad")
             tried_all.append(entry(candidate))
             if not tried_all[-1].vanished:

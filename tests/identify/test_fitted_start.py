@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from identify.discrepancy_cases import hidden_effect_record
-from identify.effect_catalogue import effect
+from identify.effect_catalogue import SEARCHED_EFFECT_NAMES, effect
 from identify.effect_signatures import signature_scores
 from identify.model_discrepancy import ESTIMATION_FRACTION, VALIDATION_BLOCKS, diagnose_model, disagreement
 from identify.model_discrepancy.chain import _rms
@@ -138,13 +138,31 @@ def test_a_delay_that_poles_the_fitted_start_lacks_could_give_is_not_named():
     # the order-2 start holds one pole pair of the four; a delay of a few samples lowered the gap and was named
     # (6 of 6 seeds), though the plant has no delay: with a linear block of order 3-4 in the start's place the
     # delay is no longer needed, so the record cannot tell a delay from the poles, and the verdict says so
-    # without naming it
+    # without naming it (the resonance, which names those poles, left out of the candidates)
     u, y, delta = _servo_and_shaft_prbs_record(0)
-    result = diagnose_model(u, y, delta, 1e-3)
+    result = diagnose_model(u, y, delta, 1e-3,
+                            candidates=tuple(name for name in SEARCHED_EFFECT_NAMES if name != "resonance"))
     assert result.linear_fit is not None and result.linear_fit.order <= 2
     assert "delay" not in result.missing_effects
     assert result.verdict == "ambiguous" and result.ambiguous_between == ("delay",)
     assert "a linear block of order" in result.verdict_reason and "delay is not named" in result.verdict_reason
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_the_mode_a_fitted_start_lacks_is_named_a_resonance_with_the_shafts_frequency_and_damping(seed):
+    # the shaft's 30.8 Hz mode (zeta 0.05) behind the order-2 start: the resonance's grid of guesses (16
+    # frequencies, 1.28 apart) polished to 144 Hz at the damping cap, whose basin is a few damping ratios wide,
+    # and a delay stood in; started from the poles of linear models of order 3-4 it is found
+    u, y, delta = _servo_and_shaft_prbs_record(seed)
+    result = diagnose_model(u, y, delta, 1e-3)
+    assert result.verdict == "named" and result.missing_effects == ("resonance",) and result.consistent
+    stiffness, damping, inertia = 150.0, 0.0775, 0.004
+    truth = {"frequency_hz": math.sqrt(stiffness / inertia) / (2 * math.pi),
+             "damping_ratio": damping / (2 * math.sqrt(stiffness * inertia))}
+    for key, value in truth.items():
+        low, high = result.parameter_intervals["resonance"][key]
+        assert low <= value <= high, f"{key}: truth {value:g} outside [{low:g}, {high:g}]"
+        assert high - low < 0.2 * value, f"{key}: [{low:g}, {high:g}] says little about {value:g}"
 
 
 def test_a_delay_the_poles_cannot_give_is_still_named_from_a_fitted_start():
