@@ -363,6 +363,16 @@ def static_compliance(nominal: dict) -> float:
     return compliance
 
 
+def shaft_mode(nominal: dict) -> dict[str, float]:
+    """The generator's nominal plant's most lightly damped pole pair (its shaft mode: 30.8 Hz, damping ratio
+    0.05 by default), from its own continuous-time matrices, as a resonance's ``frequency_hz`` and
+    ``damping_ratio``."""
+    a, _ = generator_module().linear_matrices(nominal)
+    poles = [pole for pole in np.linalg.eigvals(a) if pole.imag > 0.0]
+    pole = min(poles, key=lambda p: -p.real / abs(p))
+    return {"frequency_hz": abs(pole) / (2.0 * math.pi), "damping_ratio": -pole.real / abs(pole)}
+
+
 def _train_of(model: PlantModel) -> DriveTrain | None:
     return next((b for b in model.blocks if isinstance(b, DriveTrain)), None)
 
@@ -380,10 +390,13 @@ def truth_in_our_terms(truth: dict, nominal: dict, name: str, model: PlantModel,
     friction through a compliance report twists: the play's half-width b_h, or the sliding twist F_c s of
     quasi-static friction (breakaway F_s s); the viscous friction a load friction adds is zero (the
     nominal load's is the model's). The hanging angle is reported from the operating
-    point the workflow moved to: theta_0 - y_0. A drifting gain and the effects without a catalogue
+    point the workflow moved to: theta_0 - y_0. A resonance (a right name from a fitted start only) is the
+    nominal plant's own shaft mode (:func:`shaft_mode`). A drifting gain and the effects without a catalogue
     equivalent are not compared."""
     p = truth["parameters"]
     effect_name = truth["effect"]
+    if name == "resonance":
+        return shaft_mode(nominal)
     compliance_of_generator = static_compliance(nominal)
     sliding = {"coulomb": p.get("coulomb_nm"), "stribeck": p.get("coulomb_nm")}.get(effect_name)
     breakaway = {"coulomb": p.get("coulomb_nm"), "stribeck": p.get("static_nm")}.get(effect_name)

@@ -47,3 +47,15 @@ def test_the_generators_static_compliance_is_the_sag_of_its_own_equations(servo:
     load[3] = torque / nominal["load_inertia_kg_m2"]
     sag = np.linalg.solve(a, -load)[2]
     assert abs(sag) == pytest.approx(confusion.static_compliance({**nominal, "sample_period_s": 1e-3}) * torque, rel=1e-9)
+
+
+def test_the_generators_shaft_mode_behind_the_kinematic_servo_is_the_loads_own():
+    # the kinematic servo holds the motor whatever the load does: the load's J s^2 + (c + b) s + k alone
+    generator = confusion.generator_module()
+    nominal = generator.nominal_parameters()
+    k, c, b = (nominal[key] for key in ("shaft_stiffness_nm_per_rad", "shaft_damping_nm_s_per_rad",
+                                        "viscous_friction_nm_s_per_rad"))
+    inertia = nominal["load_inertia_kg_m2"]
+    mode = confusion.shaft_mode(nominal)
+    assert mode["frequency_hz"] == pytest.approx(np.sqrt(k / inertia) / (2 * np.pi), rel=1e-9)
+    assert mode["damping_ratio"] == pytest.approx((c + b) / (2 * np.sqrt(k * inertia)), rel=1e-9)
