@@ -370,7 +370,7 @@ def shaft_mode(nominal: dict) -> dict[str, float]:
     a, _ = generator_module().linear_matrices(nominal)
     poles = [pole for pole in np.linalg.eigvals(a) if pole.imag > 0.0]
     pole = min(poles, key=lambda p: -p.real / abs(p))
-    return {"frequency_hz": abs(pole) / (2.0 * math.pi), "damping_ratio": -pole.real / abs(pole)}
+    return {"frequency_hz": float(abs(pole) / (2.0 * math.pi)), "damping_ratio": float(-pole.real / abs(pole))}
 
 
 def _train_of(model: PlantModel) -> DriveTrain | None:
