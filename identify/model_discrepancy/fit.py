@@ -71,10 +71,10 @@ def _try_effect(kind: str, chain: _Chain, u: NDArray[np.float64], y: NDArray[np.
     ``forced_starts`` (values of the effect, unranked) polished too; the fit with the lowest estimation error
     is kept, its delays walked (:func:`_walk_delays`); ``modes`` (``start_model.record_modes``) go to the
     guesses. The fit uses the first :func:`_fit_samples` samples of the estimation segment (all of it on a
-    record of up to :data:`FIT_MAX_SAMPLES`); its starts are ranked and
-    polished on the first :func:`_screen_samples` of them (:data:`START_SCREEN_SAMPLES`), and on a record longer
-    than that the best start is polished again on all the fit uses; the candidate's estimation error and
-    validated gap (:func:`_judged`) are over the whole segments.
+    record of up to :data:`FIT_MAX_SAMPLES`); its starts are ranked and polished on the first
+    :func:`_screen_samples` of them (:data:`START_SCREEN_SAMPLES`), and on a record longer than that the best
+    start is polished again on all the fit uses; the candidate's estimation error and validated gap
+    (:func:`_judged`) are over the whole segments.
 
     A hysteresis after the linear block (catalogue ``contact_start``) also polishes the best start of each of
     its contact-branch forms (:func:`_contact_branch_start`; friction has one per breakaway/sliding ratio),
