@@ -98,6 +98,12 @@ def run_case(effects: tuple[str, ...], seed: int, start: str) -> dict:
             "covered": covered, "missed": missed, "widths": widths, "seconds": time.perf_counter() - started}
 
 
+def _json_line(case: dict) -> str:
+    """One case as a line of JSON for the log (``--from-log`` reads it back); a numpy number in it is written as
+    the plain number, so that no case's line, and no table after it, is lost to its type."""
+    return json.dumps(case, default=lambda value: value.item() if isinstance(value, np.generic) else str(value))
+
+
 def _run_rows(rows: tuple[tuple[str, ...], ...], cases: int, start: str, first_seed: int,
               jobs: int) -> dict[tuple[str, ...], list[dict]]:
     tasks = [(row, first_seed + case) for row in rows for case in range(cases)]
@@ -107,7 +113,7 @@ def _run_rows(rows: tuple[tuple[str, ...], ...], cases: int, start: str, first_s
         for (row, seed), result in zip(tasks, results):  # one line per case as it is done, on stderr
             out[row].append(result)
             print(f"  {'+'.join(row) or 'none'} seed {seed}: {result['verdict']} {'+'.join(result['named']) or '-'} "
-                  f"({result['seconds']:.0f} s) " + json.dumps({"row": list(row), "seed": seed, **result}),
+                  f"({result['seconds']:.0f} s) " + _json_line({"row": list(row), "seed": seed, **result}),
                   file=sys.stderr, flush=True)
     return out
 
@@ -556,7 +562,7 @@ def independent(cases: int, start: str, effects: tuple[str, ...], first_seed: in
             runs[result["effect"]].append(result)
             print(f"  {result['effect']} seed {result['seed']} {result['excitation']}: {result['outcome']}: "
                   f"{result['verdict']} {'+'.join(result['named']) or '-'} ({result['seconds']:.0f} s) "
-                  + json.dumps({"generator": "independent", "start": start, **result}),
+                  + _json_line({"generator": "independent", "start": start, **result}),
                   file=sys.stderr, flush=True)
     print(f"\non the independent generator, start model: {start}; {cases} cases per row (seeds from {first_seed}, "
           f"excitations {', '.join(excitations)}, {bits}-bit encoder, noise std {noise_std_rad:g} rad, {servo} "

@@ -69,3 +69,5 @@ def test_a_case_of_the_independent_generator_from_a_fitted_start_is_a_line_of_js
                                             confusion.INDEPENDENT_DURATION_S, 40, 12, 1e-4)
     assert result["named"] == ["resonance"] and result["covered"] == [2, 2]
     assert json.loads(json.dumps(result))["covered"] == [2, 2]
+    # and the log line writes a numpy number as the number, whatever a future result holds
+    assert json.loads(confusion._json_line({**result, "covered": [np.int64(2), np.int64(2)]}))["covered"] == [2, 2]
