@@ -18,7 +18,8 @@ per step:
 4. **Fit** (:mod:`.fit`): every candidate is inserted into the model (a :mod:`.chain`), its parameters (with
    the linear block's coefficients when the start model was fitted) are fitted on the estimation segment
    (its first :data:`~.thresholds.FIT_MAX_SAMPLES` on a long record, the starts of the fit ranked on the first
-   :data:`~.thresholds.START_SCREEN_SAMPLES`; the effect kept is polished on all of it),
+   :data:`~.thresholds.START_SCREEN_SAMPLES`; the effect kept is polished on all of it; a resonance from a
+   fitted start is started also from the modes of linear models of order 3-4, :func:`.start_model.record_modes`),
    and the gap g = sqrt(mean r_t^2) is measured on the validation segment.
 5. **Judge** (:mod:`.judgement`): the effect whose penalised gap g_after (1 + penalty * n_parameters) is
    lowest is kept when its reduction of the gap is clearly above ``min_reduction``, both over the validation
