@@ -20,7 +20,7 @@ from identify.model_discrepancy import ESTIMATION_FRACTION, VALIDATION_BLOCKS, d
 from identify.model_discrepancy.chain import _rms
 from identify.model_discrepancy.fit import _try_effect
 from identify.model_discrepancy.judgement import _acceptance
-from identify.model_discrepancy.start_model import _start
+from identify.model_discrepancy.start_model import _start, record_modes
 from servo_and_shaft import servo_and_shaft_block
 
 
@@ -146,6 +146,17 @@ def test_a_delay_that_poles_the_fitted_start_lacks_could_give_is_not_named():
     assert "delay" not in result.missing_effects
     assert result.verdict == "ambiguous" and result.ambiguous_between == ("delay",)
     assert "a linear block of order" in result.verdict_reason and "delay is not named" in result.verdict_reason
+
+
+def test_the_records_modes_are_the_lightly_damped_poles_of_its_higher_order_linear_models():
+    # the servo-and-shaft plant's poles: the servo's 60 Hz at damping 0.7 (not a light mode) and the shaft's
+    # 30.82 Hz at damping 0.050, read from z-plane poles as s = ln(z) / T
+    u, y, _ = _servo_and_shaft_prbs_record(0)
+    modes = record_modes(u, y, 1e-3, int(round(ESTIMATION_FRACTION * u.size)), 0.3)
+    assert modes and all(damping < 0.3 for _, damping in modes)
+    frequency, damping = min(modes, key=lambda mode: abs(mode[0] - 30.82))
+    assert frequency == pytest.approx(math.sqrt(150.0 / 0.004) / (2 * math.pi), rel=0.01)
+    assert damping == pytest.approx(0.0775 / (2 * math.sqrt(150.0 * 0.004)), rel=0.1)
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
