@@ -357,8 +357,8 @@ def independent_noise_bound(nominal: dict) -> float:
     return 0.5 * float(nominal["count_rad"]) + NOISE_BOUND_SIGMAS * float(nominal["noise_std_rad"])
 
 
-def static_compliance(nominal: dict) -> float:
-    """How far a steady torque at the load moves the generator's load angle, per N m: the shaft's 1 / k, and
+def static_compliance_rad_per_nm(nominal: dict) -> float:
+    """How far a steady torque at the load moves the generator's load angle (rad per N m): the shaft's 1 / k, and
     behind the cascade servo also its position loop's 1 / (K_v K_p) = 1 / (omega_c^2 (N^2 J_m + J_l)) (at rest the
     velocity loop's torque K_v K_p (u / N - phi) holds the shaft's; the kinematic servo holds the motor exactly)."""
     compliance = 1.0 / float(nominal["shaft_stiffness_nm_per_rad"])
@@ -388,10 +388,10 @@ def truth_in_our_terms(truth: dict, nominal: dict, name: str, model: PlantModel,
     """The generator's truth as the parameters our effect ``name`` reports, where the two describe the same
     thing; parameters without a counterpart are left out (not compared).
 
-    A load torque tau sags the generator's load by tau times its static compliance (:func:`static_compliance`:
-    the shaft's 1 / k, behind a cascade servo also the position loop's); in our train (the rigid drive train, or
-    one with a shaft of stiffness k') the same torque per inertia X = tau / J leaves a static error
-    X / omega_n^2 (+ X J / k'). So X is compared at the same static sag: X = (tau s) / (1 / omega_n^2 + J / k'),
+    A load torque tau sags the generator's load by tau times its static compliance
+    (:func:`static_compliance_rad_per_nm`: the shaft's 1 / k, behind a cascade servo also the position loop's);
+    in our train (the rigid drive train, or one with a shaft of stiffness k') the same torque per inertia
+    X = tau / J leaves a static error X / omega_n^2 (+ X J / k'). So X is compared at the same static sag: X = (tau s) / (1 / omega_n^2 + J / k'),
     with s the generator's compliance and omega_n and J of the train in ``model``. Output backlash and Coulomb
     friction through a compliance report twists: the play's half-width b_h, or the sliding twist F_c s of
     quasi-static friction (breakaway F_s s); the viscous friction a load friction adds is zero (the
@@ -403,7 +403,7 @@ def truth_in_our_terms(truth: dict, nominal: dict, name: str, model: PlantModel,
     effect_name = truth["effect"]
     if name == "resonance":
         return shaft_mode(nominal)
-    compliance_of_generator = static_compliance(nominal)
+    compliance_of_generator = static_compliance_rad_per_nm(nominal)
     sliding = {"coulomb": p.get("coulomb_nm"), "stribeck": p.get("coulomb_nm")}.get(effect_name)
     breakaway = {"coulomb": p.get("coulomb_nm"), "stribeck": p.get("static_nm")}.get(effect_name)
     if name in ("load_friction", "gravity"):

@@ -125,8 +125,12 @@ def _vanished(candidate: _Candidate, u: NDArray[np.float64], delta: float) -> bo
 
 def _search(state: _Search, remaining: list[str], u: NDArray[np.float64], y: NDArray[np.float64], n_est: int,
             delta: float, period: float, options: DiagnoseOptions, say: Callable[[str], None],
-            resolve_ties: bool) -> _Search:
+            resolve_ties: bool, modes: tuple[tuple[float, float], ...] | None = None) -> _Search:
     """Add effects greedily until the model is consistent, nothing helps or ``max_effects`` are in.
+
+    ``modes`` (:func:`record_modes`, a property of the record) start a resonance's fit; None: found here, when
+    the chain has a free linear block and a linear-dynamics effect is still to try (the searches followed to
+    their ends are given this search's).
 
     When the best candidate of a round has rivals within its uncertainty (:func:`_rivals`) and
     ``resolve_ties`` holds, each contender is followed to the end of its own greedy search (without further
@@ -148,23 +152,25 @@ def _search(state: _Search, remaining: list[str], u: NDArray[np.float64], y: NDA
     remaining = list(remaining)
     round_index = len(steps)
     validation_error = state.validation_error_rad
-    modes = (record_modes(u, y, period, n_est, MAX_RESONANCE_DAMPING)
-             if any(c.kind == "linear" for c in chain.components)
-             and any(EFFECTS[kind].linear_dynamics for kind in remaining) else ())
+    if modes is None:
+        modes = (record_modes(u, y, period, n_est, MAX_RESONANCE_DAMPING)
+                 if any(c.kind == "linear" for c in chain.components)
+                 and any(EFFECTS[kind].linear_dynamics for kind in remaining) else ())
 
     def to_end(followed: _Search, rest: list[str]) -> _Search:
         # a contender's own search to its end, without tie resolution, with a family member named before its
         # last step decided again with every effect in (as the final model's are, :func:`_family_rechecked`);
         # when that renames one, the search goes on from the renamed model (what it left undecided was judged
         # against the other member's)
-        end = _search(followed, rest, u, y, n_est, delta, period, options, lambda _m: None, resolve_ties=False)
+        end = _search(followed, rest, u, y, n_est, delta, period, options, lambda _m: None, resolve_ties=False,
+                      modes=modes)
         rechecked = _family_rechecked(end, options.candidates, u, y, n_est, delta, options, lambda _m: None)
         named = [step.effect for step in rechecked.steps]
         if named == [step.effect for step in end.steps]:
             return end
         return _search(_Search(rechecked.chain, rechecked.current, rechecked.steps, rechecked.tried, (),
                                rechecked.validation_error_rad), [n for n in rest if n not in named], u, y, n_est,
-                       delta, period, options, lambda _m: None, resolve_ties=False)
+                       delta, period, options, lambda _m: None, resolve_ties=False, modes=modes)
 
     while len(steps) < max_effects and current.falsified_fraction > consistent_fraction and remaining:
         if steps and chain.vector().size:

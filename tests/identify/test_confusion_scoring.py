@@ -38,7 +38,7 @@ def test_the_other_outcomes_do_not_depend_on_the_effects_size():
 
 @pytest.mark.parametrize("servo", ["kinematic", "cascade"])
 def test_the_generators_static_compliance_is_the_sag_of_its_own_equations(servo: str) -> None:
-    """A steady torque on the load moves the independent generator's load angle by ``static_compliance`` per N m:
+    """A steady torque on the load moves the independent generator's load angle by ``static_compliance_rad_per_nm`` per N m:
     the steady state of the generator's own linear equations (its A, B) with the torque on the load's row."""
     generator = confusion.generator_module()
     nominal = generator.nominal_parameters(servo=servo)
@@ -47,7 +47,7 @@ def test_the_generators_static_compliance_is_the_sag_of_its_own_equations(servo:
     load = np.zeros(4)
     load[3] = torque / nominal["load_inertia_kg_m2"]
     sag = np.linalg.solve(a, -load)[2]
-    assert abs(sag) == pytest.approx(confusion.static_compliance({**nominal, "sample_period_s": 1e-3}) * torque, rel=1e-9)
+    assert abs(sag) == pytest.approx(confusion.static_compliance_rad_per_nm({**nominal, "sample_period_s": 1e-3}) * torque, rel=1e-9)
 
 
 def test_the_generators_shaft_mode_behind_the_kinematic_servo_is_the_loads_own():
