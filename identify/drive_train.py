@@ -25,6 +25,15 @@ phi = motor angle / N, J_m' = N^2 J_m, tau_drive = N tau_motor):
   tau_shaft = 0 if tau_c + tau_d <= 0 else tau_c + min(tau_c, tau_d) (for Delta > b/2; mirrored for
   Delta < -b/2), so the contact never pulls and the torque is continuous at the start of contact
   (|tau_d| <= |tau_c|). With b = 0 it is the plain spring-damper k Delta + d dDelta/dt.
+* **Dry friction inside the shaft** (a coupling's or a flexspline's internal friction, the hysteresis of
+  its torque against its twist): the friction model of Dahl (1976), "Solid friction damping of mechanical
+  vibrations", AIAA Journal 14:1675-1682, in parallel with the spring: tau_shaft gains T_h w with
+  dw/dx = (1 - w sgn(dx)) / d_h, x the spring's deflection dz(Delta), T_h the torque at which the friction
+  slides and d_h its presliding twist (its stiffness T_h / d_h at w = 0). The friction's torque stays
+  within +-T_h and is a function of the deflection's path, not of its rate. Over a drift of the deflection
+  by dx the equation is solved exactly, w <- s + (w - s) exp(-|dx| / d_h) with s = sgn(dx), so |w| never
+  exceeds 1 however stiff the friction. While a play is open the shaft carries no torque and the friction
+  relaxes (w = 0).
 * **Load friction**: Coulomb T_c, viscous d_v and static (breakaway) T_s >= T_c, with the stick model of
   Karnopp (1985), "Computer simulation of stick-slip friction in mechanical dynamic systems", J. Dyn. Sys.
   Meas. Control 107:100-103: a load at rest stays at rest while the net torque on it,
@@ -61,8 +70,8 @@ and second order, so the energy of an undamped, undriven train stays bounded wit
 (h omega)^2; the velocity-dependent torques (dampers, velocity loop) are evaluated explicitly at the start
 of each half kick, the load friction implicitly inside each half kick. The sub-step rule: h omega_max <=
 :data:`SUBSTEP_PHASE_RAD` where omega_max is the fastest rate of the linearised train (the shaft's
-two-mass mode, the velocity loop acting on the motor alone while the play is open, the position loop, the
-pendulum, and the damping rates), i.e. ``ceil(T omega_max / SUBSTEP_PHASE_RAD)`` sub-steps per sample, with
+two-mass mode, stiffened by the shaft's friction just after a reversal, the velocity loop acting on the motor
+alone while the play is open, the position loop, the pendulum, and the damping rates), i.e. ``ceil(T omega_max / SUBSTEP_PHASE_RAD)`` sub-steps per sample, with
 SUBSTEP_PHASE_RAD = 0.04 (its docstring says why). The per-sample recurrence is one function compiled with
 numba (``_run_kernel``, cached on disk): ``apply``, ``simulate`` and ``step`` all run it, so stepping gives
 ``apply`` bit for bit; IEEE arithmetic without fast-math, so a run is deterministic and equal to the pure
@@ -166,6 +175,12 @@ class DriveTrain:
     play_rad
         b >= 0, total width of the play between the two inertias, in load radians (no contact while
         |phi - theta| < b/2).
+    shaft_friction_nm
+        T_h >= 0, the dry friction inside the shaft (Dahl's model, module docstring): the torque at which it
+        slides, at the load side (0: none; a rigid shaft has none).
+    shaft_presliding_twist_rad
+        d_h > 0, the friction's presliding twist (load rad): its stiffness at zero friction torque is
+        T_h / d_h, and after a reversal it reaches 1 - 1/e of its swing within d_h.
     position_loop_bandwidth_hz
         f_n > 0, natural frequency of the closed position loop on the nominal rigid train.
     position_loop_damping_ratio
@@ -221,6 +236,8 @@ class DriveTrain:
     shaft_stiffness_nm_per_rad: float
     shaft_damping_nm_s_per_rad: float = 0.0
     play_rad: float = 0.0
+    shaft_friction_nm: float = 0.0
+    shaft_presliding_twist_rad: float = 1.0e-3
     position_loop_bandwidth_hz: float = 5.0
     position_loop_damping_ratio: float = 0.7
     velocity_feedforward: float = 0.0
@@ -242,10 +259,11 @@ class DriveTrain:
     def __post_init__(self) -> None:
         positive_fields = ("sample_period_s", "gear_ratio", "motor_inertia_kg_m2", "load_inertia_kg_m2",
                            "position_loop_bandwidth_hz",
-                           "position_loop_damping_ratio", "gravity_m_per_s2")
+                           "position_loop_damping_ratio", "gravity_m_per_s2", "shaft_presliding_twist_rad")
         for name in positive_fields:
             object.__setattr__(self, name, _positive(name, getattr(self, name)))
-        non_negative_fields = ("shaft_damping_nm_s_per_rad", "play_rad", "position_integral_gain_per_s",
+        non_negative_fields = ("shaft_damping_nm_s_per_rad", "play_rad", "shaft_friction_nm",
+                               "position_integral_gain_per_s",
                                "motor_viscous_damping_nm_s_per_rad", "coulomb_friction_nm", "static_friction_nm",
                                "viscous_friction_nm_s_per_rad", "pendulum_mass_kg", "pendulum_length_m")
         for name in non_negative_fields:
@@ -269,6 +287,11 @@ class DriveTrain:
             raise InvalidInputError(
                 f"play_rad: a rigid shaft (shaft_stiffness_nm_per_rad = inf) has no play, got {self.play_rad:g}; "
                 "give a finite stiffness for a train with play"
+            )
+        if self.rigid and self.shaft_friction_nm > 0.0:
+            raise InvalidInputError(
+                f"shaft_friction_nm: a rigid shaft (shaft_stiffness_nm_per_rad = inf) does not twist, so it has no "
+                f"friction inside it, got {self.shaft_friction_nm:g}; give a finite stiffness for a shaft with friction"
             )
         if self.static_friction_nm < self.coulomb_friction_nm:
             raise InvalidInputError(
@@ -340,9 +363,15 @@ class DriveTrain:
         return self.pendulum_mass_kg * self.gravity_m_per_s2 * self.pendulum_length_m
 
     @property
+    def shaft_peak_stiffness_nm_per_rad(self) -> float:
+        """k + 2 T_h / d_h: the shaft's stiffness just after a reversal of a sliding friction (Dahl's slope
+        (1 - w sgn(dx)) / d_h is 2 / d_h at w = -sgn(dx)); k without friction."""
+        return self.shaft_stiffness_nm_per_rad + 2.0 * self.shaft_friction_nm / self.shaft_presliding_twist_rad
+
+    @property
     def fastest_rate_rad_per_s(self) -> float:
-        """omega_max of the sub-step rule: the largest of the shaft's two-mass frequency
-        sqrt(k (1/J_m' + 1/J_l)), its damping rate d (1/J_m' + 1/J_l), the pendulum's sqrt(m g l / J_l), the
+        """omega_max of the sub-step rule: the largest of the shaft's two-mass frequency at its peak
+        stiffness sqrt((k + 2 T_h / d_h) (1/J_m' + 1/J_l)), its damping rate d (1/J_m' + 1/J_l), the pendulum's sqrt(m g l / J_l), the
         motor damping rate d_m N^2 / J_m' and, with the drive on, the velocity loop acting on the motor alone
         K_v / J_m' (the play open), omega_n, K_p and K_i."""
         motor = self.reflected_motor_inertia_kg_m2
@@ -354,7 +383,7 @@ class DriveTrain:
         else:
             compliance = 1.0 / motor + 1.0 / load
             rates = [
-                math.sqrt(self.shaft_stiffness_nm_per_rad * compliance),
+                math.sqrt(self.shaft_peak_stiffness_nm_per_rad * compliance),
                 self.shaft_damping_nm_s_per_rad * compliance,
                 math.sqrt(self.gravity_torque_nm / load),
                 self.motor_viscous_damping_nm_s_per_rad / self.motor_inertia_kg_m2,
@@ -397,7 +426,7 @@ class DriveTrain:
 
     def energy_j(self, trajectory: DriveTrainTrajectory) -> NDArray[np.float64]:
         """Kinetic + shaft + gravity energy at each sample: 1/2 J_m w_m^2 + 1/2 J_l w^2 + 1/2 k dz(Delta)^2
-        + m g l (1 - cos(theta - theta_0)) (what an undamped, undriven train conserves)."""
+        + m g l (1 - cos(theta - theta_0)) (what an undamped, undriven train without friction conserves)."""
         half = 0.5 * self.play_rad
         twist = trajectory.motor_angle_rad / self.gear_ratio - trajectory.load_angle_rad
         dead = np.where(twist > half, twist - half, np.where(twist < -half, twist + half, 0.0))
@@ -572,12 +601,13 @@ RECORD_COLUMNS = ("load_angle_rad", "load_velocity_rad_per_s", "motor_angle_refe
 load side, angle / N), then the torques of its first half sub-step at the load side."""
 
 _RECORD_SIZE = len(RECORD_COLUMNS)
-_PHI, _OMEGA_PHI, _THETA, _OMEGA, _INTEGRAL, _PREVIOUS_COMMAND, _STUCK = range(7)
-_STATE_SIZE = 7
+_PHI, _OMEGA_PHI, _THETA, _OMEGA, _INTEGRAL, _PREVIOUS_COMMAND, _STUCK, _SHAFT_FRICTION_STATE = range(8)
+_STATE_SIZE = 8
 
 
 def _rest_state(angle_rad: float) -> NDArray[np.float64]:
-    """At rest at ``angle_rad``, play centred, integrator empty, load stuck (the kernel's state layout)."""
+    """At rest at ``angle_rad``, play centred, integrator empty, load stuck, the shaft's friction relaxed
+    (w = 0) (the kernel's state layout)."""
     state = np.zeros(_STATE_SIZE)
     state[[_PHI, _THETA, _PREVIOUS_COMMAND]] = angle_rad
     state[_STUCK] = 1.0
@@ -610,6 +640,8 @@ def _kernel_constants(train: DriveTrain) -> NDArray[np.float64]:
         train.motor_speed_limit_rad_per_s / ratio,
         train.motor_torque_limit_nm * ratio,
         train.sample_period_s,
+        train.shaft_friction_nm,
+        train.shaft_presliding_twist_rad,
     ])
 
 
@@ -632,19 +664,39 @@ def _drive_torque(error, velocity, rate, integral, kp, ki, kv, speed_limit, torq
 
 
 @numba.njit(cache=True)
-def _shaft_torque(twist, twist_rate, stiffness, damping, half_play):
-    """Dead-zone shaft (Nordin and Gutman 2002) with ElastoBacklash's damping rule (module docstring)."""
-    if half_play == 0.0:
-        return stiffness * twist + damping * twist_rate
+def _deflection(twist, half_play):
+    """dz(Delta): the spring's deflection, 0 inside the play (module docstring)."""
     if twist > half_play:
-        spring = stiffness * (twist - half_play)
+        return twist - half_play
+    if twist < -half_play:
+        return twist + half_play
+    return 0.0
+
+
+@numba.njit(cache=True)
+def _shaft_torque(twist, twist_rate, stiffness, damping, half_play, friction):
+    """Dead-zone shaft (Nordin and Gutman 2002) with ElastoBacklash's damping rule, its internal friction
+    torque ``friction`` (T_h w) acting with the spring (module docstring)."""
+    if half_play == 0.0:
+        return stiffness * twist + friction + damping * twist_rate
+    if twist > half_play:
+        spring = stiffness * (twist - half_play) + friction
         damper = damping * twist_rate
         return 0.0 if spring + damper <= 0.0 else spring + (spring if spring < damper else damper)
     if twist < -half_play:
-        spring = stiffness * (twist + half_play)
+        spring = stiffness * (twist + half_play) + friction
         damper = damping * twist_rate
         return 0.0 if spring + damper >= 0.0 else spring + (spring if spring > damper else damper)
     return 0.0
+
+
+@numba.njit(cache=True)
+def _dahl_state(state, deflection_change, presliding_twist):
+    """Dahl's friction state w after the deflection moved by ``deflection_change`` (exact: module docstring)."""
+    if deflection_change == 0.0:
+        return state
+    target = 1.0 if deflection_change > 0.0 else -1.0
+    return target + (state - target) * math.exp(-abs(deflection_change) / presliding_twist)
 
 
 @numba.njit(cache=True)
@@ -670,16 +722,16 @@ def _run_kernel(state, constants, substeps, commands, record):
     that passes the gear (J_l / J of the drive's, J_m' / J of the load's)."""
     (motor_inertia, load_inertia, rigid_inertia, stiffness, damping, half_play, motor_damping, coulomb, static,
      viscous, gravity, hanging, drive_on, load_feedback, rigid, kp, ki, feedforward, kv, speed_limit,
-     torque_limit, period) = (constants[0], constants[1], constants[2], constants[3], constants[4], constants[5],
-                              constants[6], constants[7], constants[8], constants[9], constants[10], constants[11],
-                              constants[12] != 0.0, constants[13] != 0.0, constants[14] != 0.0, constants[15],
-                              constants[16], constants[17], constants[18], constants[19], constants[20],
-                              constants[21])
+     torque_limit, period, shaft_friction, presliding_twist) = (
+        constants[0], constants[1], constants[2], constants[3], constants[4], constants[5], constants[6],
+        constants[7], constants[8], constants[9], constants[10], constants[11], constants[12] != 0.0,
+        constants[13] != 0.0, constants[14] != 0.0, constants[15], constants[16], constants[17], constants[18],
+        constants[19], constants[20], constants[21], constants[22], constants[23])
     load_share = load_inertia / rigid_inertia
     h = period / substeps
     kick = 0.5 * h
     phi, omega_phi, theta, omega = state[0], state[1], state[2], state[3]
-    integral, previous, stuck = state[4], state[5], state[6] != 0.0
+    integral, previous, stuck, dahl = state[4], state[5], state[6] != 0.0, state[7]
     for sample in range(commands.size):
         r = commands[sample]
         record[sample, 0], record[sample, 1], record[sample, 2], record[sample, 3] = theta, omega, phi, omega_phi
@@ -704,19 +756,25 @@ def _run_kernel(state, constants, substeps, commands, record):
                     if substep == 0 and half == 0:
                         shaft = load_share * (drive - motor_damping * omega) + (1.0 - load_share) * (friction + weight)
                 else:
-                    shaft = _shaft_torque(phi - theta, omega_phi - omega, stiffness, damping, half_play)
+                    shaft = _shaft_torque(phi - theta, omega_phi - omega, stiffness, damping, half_play,
+                                          shaft_friction * dahl)
                     omega_phi += kick * (drive - shaft - motor_damping * omega_phi) / motor_inertia
                     omega, friction, stuck = _load_half_kick(omega, shaft - weight, stuck, load_inertia, kick, coulomb,
                                                              static, viscous)
                 if substep == 0 and half == 0:
                     record[sample, 5], record[sample, 6], record[sample, 7] = drive, shaft, friction
                 if half == 0:
+                    before = _deflection(phi - theta, half_play) if shaft_friction != 0.0 else 0.0
                     theta += h * omega
                     if not rigid:
                         phi += h * omega_phi
+                    if shaft_friction != 0.0:
+                        after = _deflection(phi - theta, half_play)
+                        dahl = 0.0 if after == 0.0 and half_play > 0.0 else _dahl_state(dahl, after - before,
+                                                                                         presliding_twist)
             if drive_on and integrating and ki != 0.0:
                 integral += h * (r - (theta if load_feedback or rigid else phi))
         if rigid:
             phi, omega_phi = theta, omega
     state[0], state[1], state[2], state[3] = phi, omega_phi, theta, omega
-    state[4], state[5], state[6] = integral, previous, 1.0 if stuck else 0.0
+    state[4], state[5], state[6], state[7] = integral, previous, 1.0 if stuck else 0.0, dahl

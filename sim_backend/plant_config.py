@@ -297,7 +297,8 @@ def _effect_reader(entry: Effect) -> Callable[[ConfigTable, float], Block]:
 
 
 DRIVE_TRAIN_REQUIRED = ("gear_ratio", "motor_inertia_kg_m2", "load_inertia_kg_m2")
-DRIVE_TRAIN_NUMBERS = ("shaft_damping_nm_s_per_rad", "play_rad", "position_loop_bandwidth_hz",
+DRIVE_TRAIN_NUMBERS = ("shaft_damping_nm_s_per_rad", "play_rad", "shaft_friction_nm", "shaft_presliding_twist_rad",
+                       "position_loop_bandwidth_hz",
                        "position_loop_damping_ratio", "velocity_feedforward", "position_integral_gain_per_s",
                        "motor_viscous_damping_nm_s_per_rad", "coulomb_friction_nm", "static_friction_nm",
                        "viscous_friction_nm_s_per_rad", "pendulum_mass_kg", "pendulum_length_m", "gravity_m_per_s2",
