@@ -16,9 +16,9 @@ order); the table gives the named sets.
 On an independent generator (``--generator independent``): the records come from
 ``benchmarks/independent_plants/drive_train_generator.py``, written from the physics alone by someone who never
 read ``identify/`` (a two-mass drive train behind a stiff position servo, sampled exactly, plus one effect, some
-of which our catalogue does not hold: encoder eccentricity, a sensor that wraps at +-pi, a drifting sensor gain,
-cogging, Stribeck friction, Bouc-Wen hysteresis in the coupling; and the catalogue-like Coulomb friction,
-gravity and backlash). Each row draws ``--cases`` records whose effect the generator says is excited (a record
+of which our catalogue does not hold: a sensor that wraps at +-pi, a drifting sensor gain, cogging; some it holds
+in another form: encoder eccentricity, Stribeck friction, Bouc-Wen hysteresis in the coupling (the catalogue's
+shaft friction is Dahl's); and the catalogue-like Coulomb friction, gravity and backlash). Each row draws ``--cases`` records whose effect the generator says is excited (a record
 whose effect is not excited is skipped, counted, and replaced by the next seed, at most ``--max-draws`` per
 case); the excitations rotate through ``--excitations``. The workflow gets the record, a noise bound of half a
 count plus 4.5 standard deviations of the generator's Gaussian noise (:func:`independent_noise_bound`), the
@@ -282,7 +282,8 @@ ACCEPTED_NAMES: dict[str, frozenset[str]] = {
     # the catalogue's friction with breakaway (load_friction: Coulomb, static, viscous; coulomb_friction: its
     # quasi-static output form), and the output backlash that quasi-static Coulomb friction maps onto
     "stribeck": frozenset({"load_friction", "coulomb_friction", "backlash"}),
-    "hysteresis": frozenset(),  # dry friction in parallel with the coupling's spring: no equivalent
+    # dry friction in parallel with the coupling's spring (Bouc-Wen): the catalogue's shaft friction (Dahl's)
+    "hysteresis": frozenset({"shaft_friction"}),
     "coulomb": frozenset({"load_friction", "coulomb_friction", "backlash"}),
     # (the encoder error is gravity's look-alike: a record that cannot tell them apart is ambiguous, listing both)
     "gravity": frozenset({"gravity"}),
@@ -397,8 +398,8 @@ def truth_in_our_terms(truth: dict, nominal: dict, name: str, model: PlantModel,
     quasi-static friction (breakaway F_s s); the viscous friction a load friction adds is zero (the
     nominal load's is the model's). The hanging angle is reported from the operating
     point the workflow moved to: theta_0 - y_0. A resonance (a right name from a fitted start only) is the
-    nominal plant's own shaft mode (:func:`shaft_mode`). A drifting gain and the effects without a catalogue
-    equivalent are not compared."""
+    nominal plant's own shaft mode (:func:`shaft_mode`). The coupling's hysteresis is the twist its friction
+    holds, T_h / k. A drifting gain and the effects without a catalogue equivalent are not compared."""
     p = truth["parameters"]
     effect_name = truth["effect"]
     if name == "resonance":
@@ -429,6 +430,10 @@ def truth_in_our_terms(truth: dict, nominal: dict, name: str, model: PlantModel,
         return {"c_l_rad": sliding * compliance_of_generator, "c_r_rad": sliding * compliance_of_generator}
     if name == "backlash" and effect_name == "backlash":
         return {"c_l_rad": p["half_width_rad"], "c_r_rad": p["half_width_rad"]}
+    if name == "shaft_friction" and effect_name == "hysteresis":
+        # the twist the friction holds against the spring, T_h / k; the presliding twists are not the same
+        # parameter (Bouc-Wen's beta = gamma = 1/2 unloads at 1 / d_h, Dahl's at up to 2 / d_h)
+        return {"friction_twist_rad": p["torque_nm"] / float(nominal["shaft_stiffness_nm_per_rad"])}
     if name == "shaft_play" and effect_name == "backlash":
         return {"play_rad": 2.0 * p["half_width_rad"]}
     if name == "coulomb_friction" and effect_name == "backlash":

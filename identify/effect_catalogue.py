@@ -250,6 +250,11 @@ class Effect:
         block of a higher order takes the start model's place; if the model fits as well without it, the
         verdict is ambiguous and the effect is not named (:data:`LINEAR_ORDER_EXPERIMENT`; ``_order_left_open``
         in :mod:`identify.model_discrepancy.search`).
+    needs_shaft
+        Dynamics effects inside the shaft (its friction): tried only when the model has a compliant shaft (a
+        given drive train with a finite stiffness, or a given linear block with a shaft mode,
+        :func:`identify.model_discrepancy.candidates.drive_train_like`); in a rigid train the effect would have
+        to invent the shaft as well.
     """
 
     name: str
@@ -285,6 +290,7 @@ class Effect:
     look_alike_only: bool = False
     added_to_train: tuple[str, ...] = ()
     order_look_alike: bool = False
+    needs_shaft: bool = False
 
     def in_train(self, values: Sequence[float], train: DriveTrain) -> DriveTrain:
         """``train`` with this dynamics effect's fields set from its free ``values``."""
@@ -608,15 +614,21 @@ at 30 Hz and 1 kHz is 38 per sample), and zeta = 0.5 lets an impact rebound by e
 zeta^2)) = 16 % of its closing speed. A train with its own finite shaft keeps its stiffness and damping."""
 
 
+def _contact_shaft(train: DriveTrain) -> dict[str, Any]:
+    """The shaft fields of ``train``: its own if it has a finite shaft, else the contact shaft of
+    :data:`PLAY_CONTACT_FREQUENCY_RATIO` (what closes a play, or holds a friction, put into a rigid train)."""
+    if not train.rigid:
+        return {"shaft_stiffness_nm_per_rad": train.shaft_stiffness_nm_per_rad,
+                "shaft_damping_nm_s_per_rad": train.shaft_damping_nm_s_per_rad}
+    compliance = 1.0 / train.reflected_motor_inertia_kg_m2 + 1.0 / train.load_inertia_kg_m2
+    contact = PLAY_CONTACT_FREQUENCY_RATIO * train.natural_frequency_rad_per_s
+    return {"shaft_stiffness_nm_per_rad": contact**2 / compliance,
+            "shaft_damping_nm_s_per_rad": 2.0 * PLAY_CONTACT_DAMPING_RATIO * contact / compliance}
+
+
 def _play_fields(v: Sequence[float], train: DriveTrain) -> dict[str, Any]:
     # the dead-zone shaft of Nordin and Gutman (2002) between the two inertias, |v0| its total width
-    fields: dict[str, Any] = {"play_rad": abs(v[0])}
-    if train.rigid:
-        compliance = 1.0 / train.reflected_motor_inertia_kg_m2 + 1.0 / train.load_inertia_kg_m2
-        contact = PLAY_CONTACT_FREQUENCY_RATIO * train.natural_frequency_rad_per_s
-        fields["shaft_stiffness_nm_per_rad"] = contact**2 / compliance
-        fields["shaft_damping_nm_s_per_rad"] = 2.0 * PLAY_CONTACT_DAMPING_RATIO * contact / compliance
-    return fields
+    return {"play_rad": abs(v[0]), **_contact_shaft(train)}
 
 
 def _shaft_play_guesses(context: GuessContext) -> list[tuple[float, ...]]:
@@ -628,6 +640,45 @@ def _shaft_play_guesses(context: GuessContext) -> list[tuple[float, ...]]:
 def _random_shaft_play(rng: np.random.Generator, u: NDArray[np.float64], f: float, period: float) -> Block:
     # a total play of 20-60 mrad at the load (output backlash's hidden half-widths are 10-40 mrad a side)
     return _train_builder(_play_fields)((rng.uniform(0.02, 0.06),), period)
+
+
+SHAFT_FRICTION_MAX_STIFFENING = 20.0
+"""The shaft's friction is at most this many times as stiff as its spring when it starts to stick (T_h / d_h
+<= 20 k: a presliding twist below a twentieth of the friction's twist T_h / k is held there), so the train
+needs at most sqrt(1 + 2 * 20) = 6.4 times the sub-steps of its spring alone. Positions sampled at a few times
+the shaft's mode cannot resolve a stiffer start of the loop (the clean-room generator's couplings reach 10 k)."""
+
+
+def _shaft_friction_fields(v: Sequence[float], train: DriveTrain) -> dict[str, Any]:
+    # Dahl's friction inside the shaft: |v0| the twist T_h / k it holds against the spring, |v1| its
+    # presliding twist d_h (at least a SHAFT_FRICTION_MAX_STIFFENING-th of |v0|)
+    shaft = _contact_shaft(train)
+    twist = abs(v[0])
+    return {**shaft, "shaft_friction_nm": twist * shaft["shaft_stiffness_nm_per_rad"],
+            "shaft_presliding_twist_rad": max(abs(v[1]), twist / SHAFT_FRICTION_MAX_STIFFENING, 1e-9)}
+
+
+def _shaft_friction_guesses(context: GuessContext) -> list[tuple[float, ...]]:
+    # friction twists from the noise bound to the residual's amplitude (the load is left up to T_h / k off the
+    # model where the shaft stops twisting), each sticking within a fifth of it or within all of it
+    return [(twist, ratio * twist) for twist in _levels(context, 4) for ratio in (0.2, 1.0)]
+
+
+def _random_shaft_friction(rng: np.random.Generator, u: NDArray[np.float64], f: float, period: float) -> Block:
+    # a compliant shaft (mode at twice the loop's bandwidth, damping ratio 0.05) whose friction holds 2-6 mrad
+    # of twist, sticking within 20-100 % of that
+    train = reference_train(period)
+    compliance = 1.0 / train.reflected_motor_inertia_kg_m2 + 1.0 / train.load_inertia_kg_m2
+    mode = 2.0 * train.natural_frequency_rad_per_s
+    shaft = replace(train, shaft_stiffness_nm_per_rad=mode**2 / compliance,
+                    shaft_damping_nm_s_per_rad=2.0 * 0.05 * mode / compliance)
+    twist = rng.uniform(2e-3, 6e-3)
+    return replace(shaft, **_shaft_friction_fields((twist, rng.uniform(0.2, 1.0) * twist), shaft))
+
+
+def _shaft_friction_report(b: DriveTrain) -> dict[str, float]:
+    return {"friction_twist_rad": b.shaft_friction_nm / b.shaft_stiffness_nm_per_rad if not b.rigid else 0.0,
+            "presliding_twist_rad": b.shaft_presliding_twist_rad}
 
 
 def _torque_resolution(train: DriveTrain, keys: Sequence[str], resolution_rad: float) -> dict[str, float]:
@@ -912,6 +963,24 @@ EFFECTS: dict[str, Effect] = {effect.name: effect for effect in (
         needs_reversals=True,
         train_fields=_play_fields,
         width_starts=lambda width, train: [(0.5 * width,), (width,)],
+    ),
+    Effect(
+        name="shaft_friction", block_class=DriveTrain, toml_type="drive_train",
+        toml_keys=(TomlKey("shaft_friction_nm"), TomlKey("shaft_presliding_twist_rad"),
+                   TomlKey("shaft_stiffness_nm_per_rad"), TomlKey("shaft_damping_nm_s_per_rad")),
+        takes_sample_period=True,
+        parameters=(Parameter("friction_twist_rad", "rad", "twist the shaft's dry friction holds against its spring "
+                              "(T_h / k)", lower=0.0),
+                    Parameter("presliding_twist_rad", "rad", "twist over which the friction goes from sticking to "
+                              "sliding (Dahl's T_h / sigma_0)", lower=0.0)),
+        placement="dynamics", free_parameters=2, build=_train_builder(_shaft_friction_fields),
+        report=_shaft_friction_report, guesses=_shaft_friction_guesses,
+        # vanished: the friction holds less than half a noise bound of twist
+        vanished=lambda b, delta: _shaft_friction_report(b)["friction_twist_rad"] < delta / 2.0,
+        random_block=_random_shaft_friction,
+        signature="the shaft's mode rings less and stiffer after small reversals, and the load stops up to T_h / k "
+                  "off where the shaft's spring alone would leave it, on the side it came from",
+        train_fields=_shaft_friction_fields, needs_shaft=True,
     ),
 )}
 """Every effect, by its diagnose name, in the order the workflow tries them."""

@@ -35,10 +35,18 @@ from identify.model_discrepancy.thresholds import (
 def _candidate_names(candidates: Sequence[str], model: PlantModel | None) -> tuple[str, ...]:
     """The candidates to try: a fitted linear start model has a free static gain, which absorbs any scale
     error, so an effect that needs a given model is not identifiable against it (docs/methods/model_discrepancy.md: a gain error can
-    only be named against a given model)."""
-    if model is None:
-        return tuple(name for name in candidates if not EFFECTS[name].needs_given_model)
-    return tuple(candidates)
+    only be named against a given model); an effect inside the shaft needs a model with a compliant shaft
+    (:func:`_has_shaft`)."""
+    shaft = model is not None and _has_shaft(model)
+    return tuple(name for name in candidates
+                 if (model is not None or not EFFECTS[name].needs_given_model) and (shaft or not EFFECTS[name].needs_shaft))
+
+
+def _has_shaft(model: PlantModel) -> bool:
+    """The model holds a compliant shaft: a drive train of finite stiffness, or a linear block with a shaft
+    mode (a lightly damped pole pair besides its loop, :func:`_shaft_mode`)."""
+    return any((isinstance(block, DriveTrain) and not block.rigid)
+               or (isinstance(block, LinearBlock) and _shaft_mode(block) is not None) for block in model.blocks)
 
 
 def _insert_index(chain: _Chain, kind: str) -> int:
