@@ -105,6 +105,8 @@ def signature_scores(command_rad: NDArray[np.float64], angle_rad: NDArray[np.flo
     # play between the inertias leaves the load on the side of the last direction too (it coasts on, or
     # stops within the play): the same regressor s_t; the fit, not this score, tells the two apart
     scores["shaft_play"] = SignatureScore("shaft_play", backlash, {"direction_reversals": reversals})
+    # so does dry friction inside the shaft (the load stops up to T_h / k off, on the side it came from)
+    scores["shaft_friction"] = SignatureScore("shaft_friction", backlash, {"direction_reversals": reversals})
 
     model_moves = np.abs(np.diff(y_hat)) > 2.0 * delta / 10.0
     measured_flat = np.abs(np.diff(y)) <= 2.0 * delta

@@ -40,13 +40,16 @@ from sim_backend.plant_config import plant_config_from_toml_text, plant_config_t
 SEED = 1000
 
 
-@pytest.mark.parametrize("name", DYNAMICS_EFFECTS)
+@pytest.mark.parametrize("name", [name for name in DYNAMICS_EFFECTS if not effect(name).needs_shaft])
 def test_a_hidden_drive_train_effect_is_named_with_intervals_holding_the_truth(name):
     record = hidden_effect_record((name,), SEED)
     result = diagnose_model(record.command_rad, record.angle_rad, record.noise_bound_rad, record.sample_period_s,
                             record.nominal_model)
     assert result.verdict == "named"
     assert result.missing_effects == (name,)
+    # the rigid model has no shaft to hold a friction inside it: that effect is not tried (it would have to
+    # invent the shaft as well)
+    assert all(not effect(c.effect).needs_shaft for c in result.candidates if c.effect in DYNAMICS_EFFECTS)
     entry = effect(name)
     (train,) = record.true_model.blocks
     truth = entry.report(train)
@@ -97,6 +100,35 @@ def test_gravity_merges_into_the_users_drive_train_and_is_reported_per_inertia()
     assert isinstance(final, DriveTrain)
     assert final.gear_ratio == 50.0 and final.total_inertia_kg_m2 == pytest.approx(true_train.total_inertia_kg_m2)
     assert final.gravity_torque_nm == pytest.approx(true_train.gravity_torque_nm, rel=0.05)
+
+
+def test_friction_inside_the_users_shaft_is_named_and_reported_as_the_twist_it_holds():
+    # the user's two-mass train (1:10, load 0.004 kg m^2 on a 150 N m/rad shaft, a 15 Hz loop on the motor)
+    # without friction in its shaft; the record's shaft holds 0.3 N m of dry friction (T_h / k = 2 mrad, Dahl's
+    # model, presliding twist 0.5 mrad), which moves the load by up to 3.2 mrad on 0.5 rad steps
+    period = 1e-3
+    model_train = DriveTrain(sample_period_s=period, gear_ratio=10.0, motor_inertia_kg_m2=2e-5,
+                             load_inertia_kg_m2=0.004, shaft_stiffness_nm_per_rad=150.0,
+                             shaft_damping_nm_s_per_rad=0.05, position_loop_bandwidth_hz=15.0,
+                             position_loop_damping_ratio=0.8)
+    true_train = dataclasses.replace(model_train, shaft_friction_nm=0.3, shaft_presliding_twist_rad=0.5e-3)
+    rng = np.random.default_rng(7)
+    u = step_excitation(3000, rng, 0.5)
+    count = 2.0 * math.pi / 4096
+    y = np.round((true_train.apply(u) + rng.uniform(-2e-4, 2e-4, u.size)) / count) * count
+    delta = 0.5 * count + 2e-4
+    result = diagnose_model(u, y, delta, period, PlantModel((model_train,)))
+    assert result.verdict == "named" and result.missing_effects == ("shaft_friction",)
+    assert result.final.gap_rad < delta
+    intervals = result.parameter_intervals["shaft_friction"]
+    low, high = intervals["friction_twist_rad"]
+    assert low <= 0.3 / 150.0 <= high
+    low, high = intervals["presliding_twist_rad"]
+    assert low <= 0.5e-3 <= high
+    # the final model is the user's train with the friction in its shaft
+    (final,) = result.final_model.blocks
+    assert isinstance(final, DriveTrain) and final.shaft_stiffness_nm_per_rad == 150.0
+    assert final.shaft_friction_nm == pytest.approx(0.3, rel=0.35)
 
 
 def test_friction_on_the_load_reports_what_it_adds_to_the_users_viscous_friction():
