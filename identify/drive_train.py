@@ -1,5 +1,5 @@
-"""A physical drive train: position-controlled motor, gear with play, compliant shaft, load with friction and
-gravity, integrated with fixed sub-steps per sample.
+"""A physical drive train: position-controlled motor, gear with play, compliant shaft with internal friction,
+load with friction and gravity, integrated with fixed sub-steps per sample.
 
 The series blocks of :mod:`identify.plant_blocks` apply one effect after another to a signal; here the
 effects act on each other inside the dynamics (the friction opposes the load's own velocity, the play opens
@@ -154,8 +154,9 @@ def _limit(name: str, value: float) -> float:
 
 @dataclass(frozen=True)
 class DriveTrain:
-    """Position-controlled motor, gear with play between the two inertias, compliant shaft, load with
-    Coulomb, viscous and static friction and an optional gravity torque; the model of the module docstring.
+    """Position-controlled motor, gear with play between the two inertias, compliant shaft (optionally with dry
+    friction inside it), load with Coulomb, viscous and static friction and an optional gravity torque; the model
+    of the module docstring.
 
     Parameters
     ----------
