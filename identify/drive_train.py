@@ -71,11 +71,12 @@ and second order, so the energy of an undamped, undriven train stays bounded wit
 of each half kick, the load friction implicitly inside each half kick. The sub-step rule: h omega_max <=
 :data:`SUBSTEP_PHASE_RAD` where omega_max is the fastest rate of the linearised train (the shaft's
 two-mass mode, stiffened by the shaft's friction just after a reversal, the velocity loop acting on the motor
-alone while the play is open, the position loop, the pendulum, and the damping rates), i.e. ``ceil(T omega_max / SUBSTEP_PHASE_RAD)`` sub-steps per sample, with
-SUBSTEP_PHASE_RAD = 0.04 (its docstring says why). The per-sample recurrence is one function compiled with
-numba (``_run_kernel``, cached on disk): ``apply``, ``simulate`` and ``step`` all run it, so stepping gives
-``apply`` bit for bit; IEEE arithmetic without fast-math, so a run is deterministic and equal to the pure
-Python recurrence it replaced (``tests/identify/drive_train_reference.py``).
+alone while the play is open, the position loop, the pendulum, and the damping rates), i.e.
+``ceil(T omega_max / SUBSTEP_PHASE_RAD)`` sub-steps per sample, with SUBSTEP_PHASE_RAD = 0.04 (its docstring
+says why). The per-sample recurrence is one function compiled with numba (``_run_kernel``, cached on disk):
+``apply``, ``simulate`` and ``step`` all run it, so stepping gives ``apply`` bit for bit; IEEE arithmetic
+without fast-math, so a run is deterministic and equal to the pure Python recurrence it replaced
+(``tests/identify/drive_train_reference.py``).
 """
 
 from __future__ import annotations
@@ -372,9 +373,9 @@ class DriveTrain:
     @property
     def fastest_rate_rad_per_s(self) -> float:
         """omega_max of the sub-step rule: the largest of the shaft's two-mass frequency at its peak
-        stiffness sqrt((k + 2 T_h / d_h) (1/J_m' + 1/J_l)), its damping rate d (1/J_m' + 1/J_l), the pendulum's sqrt(m g l / J_l), the
-        motor damping rate d_m N^2 / J_m' and, with the drive on, the velocity loop acting on the motor alone
-        K_v / J_m' (the play open), omega_n, K_p and K_i."""
+        stiffness sqrt((k + 2 T_h / d_h) (1/J_m' + 1/J_l)), its damping rate d (1/J_m' + 1/J_l), the
+        pendulum's sqrt(m g l / J_l), the motor damping rate d_m N^2 / J_m' and, with the drive on, the velocity
+        loop acting on the motor alone K_v / J_m' (the play open), omega_n, K_p and K_i."""
         motor = self.reflected_motor_inertia_kg_m2
         load = self.load_inertia_kg_m2
         if self.rigid:  # one inertia: no shaft mode, and the velocity loop acts on the whole train

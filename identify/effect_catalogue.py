@@ -645,8 +645,10 @@ def _random_shaft_play(rng: np.random.Generator, u: NDArray[np.float64], f: floa
 SHAFT_FRICTION_MAX_STIFFENING = 20.0
 """The shaft's friction is at most this many times as stiff as its spring when it starts to stick (T_h / d_h
 <= 20 k: a presliding twist below a twentieth of the friction's twist T_h / k is held there), so the train
-needs at most sqrt(1 + 2 * 20) = 6.4 times the sub-steps of its spring alone. Positions sampled at a few times
-the shaft's mode cannot resolve a stiffer start of the loop (the clean-room generator's couplings reach 10 k)."""
+needs at most sqrt(1 + 2 * 20) = 6.4 times the sub-steps of its spring alone (the fit moves d_h freely, and an
+unbounded stiffness would refuse the train for its sub-steps). A stiffer start changes the load's angle only
+within that twentieth of the friction's twist after each reversal; the clean-room generator's couplings reach
+10 k."""
 
 
 def _shaft_friction_fields(v: Sequence[float], train: DriveTrain) -> dict[str, Any]:
@@ -1080,6 +1082,8 @@ def _check() -> None:
             raise AssertionError(f"{entry.name}: free_parameters")
         if (entry.placement == "dynamics") != (entry.train_fields is not None):
             raise AssertionError(f"{entry.name}: a dynamics effect, and only one, has train_fields")
+        if entry.needs_shaft and entry.placement != "dynamics":
+            raise AssertionError(f"{entry.name}: only an effect inside the drive train can need its shaft")
         if entry.inner_twin and entry.half_widths is None:
             raise AssertionError(f"{entry.name}: an effect with an inner twin gives its hysteresis' half-widths")
         if any(EFFECTS[name].placement != "dynamics" for name in entry.inner_twin):
