@@ -614,16 +614,22 @@ at 30 Hz and 1 kHz is 38 per sample), and zeta = 0.5 lets an impact rebound by e
 zeta^2)) = 16 % of its closing speed. A train with its own finite shaft keeps its stiffness and damping."""
 
 
+def _shaft_of_mode(train: DriveTrain, frequency_ratio: float, damping_ratio: float) -> dict[str, Any]:
+    """The shaft fields that give ``train``'s two inertias a two-mass mode at ``frequency_ratio`` times its
+    loop's omega_n with ``damping_ratio``: k = w^2 / c, d = 2 zeta w / c with c = 1/J_m' + 1/J_l."""
+    compliance = 1.0 / train.reflected_motor_inertia_kg_m2 + 1.0 / train.load_inertia_kg_m2
+    mode = frequency_ratio * train.natural_frequency_rad_per_s
+    return {"shaft_stiffness_nm_per_rad": mode**2 / compliance,
+            "shaft_damping_nm_s_per_rad": 2.0 * damping_ratio * mode / compliance}
+
+
 def _contact_shaft(train: DriveTrain) -> dict[str, Any]:
     """The shaft fields of ``train``: its own if it has a finite shaft, else the contact shaft of
     :data:`PLAY_CONTACT_FREQUENCY_RATIO` (what closes a play, or holds a friction, put into a rigid train)."""
     if not train.rigid:
         return {"shaft_stiffness_nm_per_rad": train.shaft_stiffness_nm_per_rad,
                 "shaft_damping_nm_s_per_rad": train.shaft_damping_nm_s_per_rad}
-    compliance = 1.0 / train.reflected_motor_inertia_kg_m2 + 1.0 / train.load_inertia_kg_m2
-    contact = PLAY_CONTACT_FREQUENCY_RATIO * train.natural_frequency_rad_per_s
-    return {"shaft_stiffness_nm_per_rad": contact**2 / compliance,
-            "shaft_damping_nm_s_per_rad": 2.0 * PLAY_CONTACT_DAMPING_RATIO * contact / compliance}
+    return _shaft_of_mode(train, PLAY_CONTACT_FREQUENCY_RATIO, PLAY_CONTACT_DAMPING_RATIO)
 
 
 def _play_fields(v: Sequence[float], train: DriveTrain) -> dict[str, Any]:
@@ -670,10 +676,7 @@ def _random_shaft_friction(rng: np.random.Generator, u: NDArray[np.float64], f: 
     # a compliant shaft (mode at twice the loop's bandwidth, damping ratio 0.05) whose friction holds 2-6 mrad
     # of twist, sticking within 20-100 % of that
     train = reference_train(period)
-    compliance = 1.0 / train.reflected_motor_inertia_kg_m2 + 1.0 / train.load_inertia_kg_m2
-    mode = 2.0 * train.natural_frequency_rad_per_s
-    shaft = replace(train, shaft_stiffness_nm_per_rad=mode**2 / compliance,
-                    shaft_damping_nm_s_per_rad=2.0 * 0.05 * mode / compliance)
+    shaft = replace(train, **_shaft_of_mode(train, 2.0, 0.05))
     twist = rng.uniform(2e-3, 6e-3)
     return replace(shaft, **_shaft_friction_fields((twist, rng.uniform(0.2, 1.0) * twist), shaft))
 
