@@ -169,12 +169,19 @@ def _restarted_if_open(first: DiscrepancyResult, u: NDArray[np.float64], y: NDAr
     sensor's or the command's effect among those left open it is not tried: a restart moves the load by the
     sensor's error too, and on the clean-room generator's drifting sensor gain (seeds 1004, 1007, 1012, 1013,
     open between an offset and gravity or an encoder error) it then named both, where the free run had rightly
-    left them open."""
+    left them open.
+
+    A mode of the model left open beside them (catalogue ``linear_dynamics``: a resonance, which a play that
+    switches the load on and off the motor resembles) is not judged on restarted windows, where each restart
+    would ring it: the drive-train effects are, and when they are named there the mode stays open beside them
+    (``ambiguous``, the named effects kept in the model)."""
     left_open = tuple(dict.fromkeys(effect for name in (*first.ambiguous_between, *(c.effect for c in first.undecided))
                                     for effect in name.split("+")))  # an inner twin is listed as "a+b"
     if first.steps or not left_open or first.verdict not in ("ambiguous", "unexplained"):
         return first
-    if not all(EFFECTS[name].placement == "dynamics" for name in left_open):
+    modes = tuple(name for name in left_open if EFFECTS[name].linear_dynamics)
+    left_open = tuple(name for name in left_open if name not in modes)
+    if not left_open or not all(EFFECTS[name].placement == "dynamics" for name in left_open):
         return first  # a sensor's or the command's effect is judged by the free run, which a restart cannot overrule
     start = _restartable_start(first.start_model, u, delta)
     if start is None:
@@ -191,8 +198,15 @@ def _restarted_if_open(first: DiscrepancyResult, u: NDArray[np.float64], y: NDAr
     reason = (f"the free run left {', '.join(left_open)} open; compared on windows of {window} samples "
               f"({window * period:.3g} s) that restart the load from the measured angle, where a state that drifts "
               f"from the record's (a load rattling in a play) no longer decides: {second.verdict_reason}")
+    verdict, ambiguous_between = second.verdict, second.ambiguous_between
+    if modes:
+        verdict, ambiguous_between = "ambiguous", modes
+        reason = (f"{reason}; {', '.join(modes)}, left open beside {', '.join(left_open)} by the free run, is a mode "
+                  f"of the model, not of the drive train, which a restart would ring, so it is not judged on these "
+                  f"windows: whether it is there as well cannot be told from this record")
     rounds = 1 + max((c.round for c in first.candidates), default=-1)  # the restarted rounds follow the free run's
-    return replace(second, start_model=first.start_model, linear_fit=first.linear_fit, verdict_reason=reason,
+    return replace(second, start_model=first.start_model, linear_fit=first.linear_fit, verdict=verdict,
+                   verdict_reason=reason, ambiguous_between=ambiguous_between,
                    candidates=(*first.candidates, *(replace(c, round=c.round + rounds) for c in second.candidates)),
                    restart_window_samples=window)
 
