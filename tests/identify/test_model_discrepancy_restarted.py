@@ -130,7 +130,8 @@ def test_the_report_says_which_comparison_it_used_and_reopens():
 
 @pytest.mark.parametrize("left_open, restarted", [(("offset", "gravity"), False), (("encoder_error",), False),
                                                   (("backlash", "load_friction+shaft_play"), False),
-                                                  (("gravity",), True)])
+                                                  (("gravity",), True), (("resonance",), False),
+                                                  (("resonance", "shaft_play"), True)])
 def test_only_drive_train_effects_left_open_are_judged_again(left_open, restarted):
     # a restart moves the load by a sensor's error too: with a sensor's effect left open (a drifting gain read
     # as an offset with gravity on the clean-room generator) the free run's answer stands untouched
@@ -150,3 +151,25 @@ def test_only_drive_train_effects_left_open_are_judged_again(left_open, restarte
     assert bool(tried) == restarted
     if not restarted:
         assert answer is first
+
+
+def test_a_play_named_on_restarted_windows_leaves_the_resonance_open_beside_it():
+    # the free run left a play and a resonance open (a play that switches the load on and off the motor looks
+    # like a mode: the clean-room generator's plays behind its cascade servo, multisines 1006 and 1018): the
+    # restart judges the play, names it, and the mode, which a restart would ring, stays open beside it
+    from identify.model_discrepancy import DiagnoseOptions, DiscrepancyResult, disagreement
+    from identify.model_discrepancy.pipeline import _restarted_if_open
+
+    truth = PlantModel((TRAIN,))
+    model = PlantModel((dataclasses.replace(TRAIN, play_rad=0.0),))
+    u = _steps()
+    y = np.round(truth.simulate(u) / 1.5e-3) * 1.5e-3  # a 12-bit encoder's counts
+    n_est, delta = 1800, 1e-3
+    before = disagreement(model, u, y, delta, n_est)
+    first = DiscrepancyResult(steps=(), start_model=model, final_model=model, initial=before, final=before,
+                              consistent=False, unexplained="", estimation_samples=n_est, noise_bound_rad=delta,
+                              verdict="ambiguous", ambiguous_between=("resonance", "shaft_play"))
+    answer = _restarted_if_open(first, u, y, delta, 1e-3, n_est, {}, DiagnoseOptions(), lambda _line: None)
+    assert [step.effect for step in answer.steps] == ["shaft_play"], answer.verdict_reason
+    assert answer.verdict == "ambiguous" and answer.ambiguous_between == ("resonance",)
+    assert "resonance" in answer.verdict_reason and answer.restart_window_samples == 50
