@@ -45,7 +45,7 @@ per step:
    says how much of the gap remains unexplained, and is lowered to ``ambiguous`` when the black box takes more
    off what remains than the named effects took off the start model's gap (:class:`ResidualStructure`).
 9. **Restarted** (:mod:`.comparison`): when the free run names nothing and leaves only drive-train effects
-   open, those candidates are judged again, steps 2-8 on windows that restart the drive train's load from the
+   open (a resonance may be open beside them, and stays so), those candidates are judged again, steps 2-8 on windows that restart the drive train's load from the
    measured angle (a multi-step-ahead prediction error): a load rattling in a play, which no free run follows,
    is named there; only a name left open can come out, and the record is never ``explained`` by it.
 
