@@ -29,6 +29,7 @@ from identify.model_discrepancy.thresholds import (
     SHAFT_MODE_MAX_DAMPING,
     SHAFT_TRAIN_ERROR_SHARE,
     SHAFT_TRAIN_LOAD_INERTIA_STARTS,
+    SPLIT_LOAD_SHARES,
 )
 
 
@@ -104,7 +105,8 @@ def _dynamics_chain(chain: _Chain, index: int, u: NDArray[np.float64]) -> tuple[
             holder = _Component("drive_train", (fitted.position_loop_bandwidth_hz, fitted.position_loop_damping_ratio),
                                 fitted, linear.sample_period_s, loop_free=True)
         else:
-            holder = _Component("drive_train", (), fitted, linear.sample_period_s)
+            holder = _Component("drive_train", (), fitted, linear.sample_period_s,
+                                stands_for=None if fitted.rigid else linear)
     components = list(chain.components)
     components[index] = holder
     train = _build(holder, holder.values)
@@ -257,6 +259,60 @@ def two_mass_train_like(block: LinearBlock, input_rad: NDArray[np.float64], loop
             best = fit
     assert best is not None
     return _cached(key, _two_mass_train(period, best.x))
+
+
+def split_family(block: LinearBlock) -> tuple[DriveTrain, ...]:
+    """Two-mass trains of ``block``'s linear response at the load shares of :data:`SPLIT_LOAD_SHARES`: the poles
+    and the zero of a linear model fix five numbers of the six (f_n, zeta, J_l, k, d, d_v), so every split of
+    the inertia between the motor and the load has a train of that response, and a play or friction inside the
+    train behaves differently in each. Each is fitted (f_n, zeta, k, d, d_v at its J_l) to ``block``'s free run
+    on broadband steps (:func:`_split_probe`), from the shaft that gives the block's mode (:func:`_shaft_mode`)
+    as the two masses' mode (about 3 s for five shares at 1 kHz; the members need only follow the block within
+    a fraction of the noise bound, which :func:`~identify.model_discrepancy.fit._other_splits` checks on the
+    record). Empty for a block without a shaft mode. Cached per block."""
+    key = ("split", block.a, block.b, block.sample_period_s)
+    if key in _FAMILY_CACHE:
+        return _FAMILY_CACHE[key]
+    split = _shaft_mode(block)
+    family: list[DriveTrain] = []
+    if split is not None:
+        (loop, mode), period = split, block.sample_period_s
+        probe = _split_probe(abs(mode), period)
+        target = block.apply(probe)
+        nyquist = 0.5 / period
+        low = (1e-3 * nyquist, LOOP_DAMPING_RANGE[0], -np.inf, -np.inf, -np.inf)
+        high = (LOOP_BANDWIDTH_NYQUIST_SHARE * nyquist, LOOP_DAMPING_RANGE[1], np.inf, np.inf, np.inf)
+        natural, damping = abs(mode), -mode.real / abs(mode)
+        for load in SPLIT_LOAD_SHARES:
+            def error(v: NDArray[np.float64], load: float = load) -> NDArray[np.float64]:
+                try:
+                    return _two_mass_train(period, (v[0], v[1], math.log(load), *v[2:])).apply(probe) - target
+                except (InvalidInputError, OverflowError):
+                    return np.full(probe.size, FAILED_RUN_ERROR_RAD / math.sqrt(probe.size))
+
+            reduced = load * (1.0 - load)  # the two masses' mode: k = omega^2 J_m J_l / (J_m + J_l)
+            start = np.clip((loop[0], loop[1], math.log(natural ** 2 * reduced),
+                             math.log(2.0 * damping * natural * reduced), math.log(0.2 * damping * natural * reduced)),
+                            low, high)
+            with np.errstate(all="ignore"):
+                fit = optimize.least_squares(error, start, bounds=(low, high), method="trf", diff_step=1e-4,
+                                             max_nfev=30)
+            family.append(_two_mass_train(period, (fit.x[0], fit.x[1], math.log(load), *fit.x[2:])))
+    if len(_FAMILY_CACHE) > 16:
+        _FAMILY_CACHE.clear()
+    _FAMILY_CACHE[key] = tuple(family)
+    return tuple(family)
+
+
+_FAMILY_CACHE: dict[tuple[Any, ...], tuple[DriveTrain, ...]] = {}
+
+
+def _split_probe(natural_rad_per_s: float, period: float) -> NDArray[np.float64]:
+    """Broadband steps for :func:`split_family`: 0.05 rad levels held from one sample to two periods of the
+    shaft's mode at random (seeded: the same block gives the same family), 2 000 samples."""
+    rng = np.random.default_rng(0)
+    longest = max(2, int(round(2.0 * 2.0 * math.pi / (natural_rad_per_s * period))))
+    return np.repeat(rng.uniform(-0.05, 0.05, 2000), rng.integers(1, longest + 1, 2000))[:2000]
 
 
 def _cached(key: tuple[Any, ...], train: DriveTrain) -> DriveTrain:

@@ -37,7 +37,9 @@ from identify.model_discrepancy.thresholds import (
 class _Component:
     """One link of the chain: a fixed block, or a named effect with free parameters, or a drive train
     holding dynamics effects (kind ``"drive_train"``: ``block`` the train they go into, ``effects`` their
-    names in the order of ``values``, led by the loop's bandwidth and damping when ``loop_free``)."""
+    names in the order of ``values``, led by the loop's bandwidth and damping when ``loop_free``; ``stands_for``:
+    the given linear model a two-mass train was made from, which does not fix how the train's inertia is split
+    between the motor and the load)."""
 
     kind: str  # "fixed", "linear", "drive_train", or an effect name
     values: tuple[float, ...] = ()
@@ -47,6 +49,7 @@ class _Component:
     nk: int = 0  # leading zeros of B (pure delay of a linear component), not free
     effects: tuple[str, ...] = ()
     loop_free: bool = False
+    stands_for: LinearBlock | None = None
 
     @property
     def free(self) -> int:

@@ -25,6 +25,7 @@ from identify.model_discrepancy.candidates import (
     _loop_starts,
     _merged,
     _with_loop,
+    split_family,
 )
 from identify.model_discrepancy.comparison import simulated
 from identify.model_discrepancy.chain import (
@@ -37,6 +38,7 @@ from identify.model_discrepancy.chain import (
     _measured_error,
     _polish,
     _rms,
+    _train,
 )
 from identify.model_discrepancy.options import DiagnoseOptions
 from identify.model_discrepancy.start_model import _output_error_fit
@@ -54,6 +56,7 @@ from identify.model_discrepancy.thresholds import (
     LOOP_POLISHED_STARTS,
     LOOP_START_GUESSES,
     REFIT_FOLDS,
+    SPLIT_FORM_NOISE_BOUNDS,
     START_SCREEN_SAMPLES,
     STATIC_FRICTION_SCAN,
     STICK_SLIP_MIN_GAIN,
@@ -91,8 +94,10 @@ def _try_effect(kind: str, chain: _Chain, u: NDArray[np.float64], y: NDArray[np.
     u_start, y_start = u[:n_screen], y[:n_screen]
     entry = effect(kind)
     train: DriveTrain | None = None
+    splits: list[tuple[_Chain, DriveTrain]] = []
     if entry.placement == "dynamics":
         chain, train = _dynamics_chain(chain, index, u_est)
+        splits = [(chain, train), *_other_splits(chain, index, train, u_est, delta)]
 
     def with_effect(values: tuple[float, ...], base: _Chain = chain) -> _Chain:
         components = list(base.components)
@@ -106,8 +111,9 @@ def _try_effect(kind: str, chain: _Chain, u: NDArray[np.float64], y: NDArray[np.
         options = [with_effect((d,)) for d in range(1, max_delay_samples + 1)]
     else:
         simulated = np.where(np.isnan(y), _bridged(y), y - residual)  # for the guesses only
-        options = [with_effect(g) for g in entry.guesses(GuessContext(u, residual, delta, period, scores,
-                                                                      simulated, train, modes))]
+        options = [with_effect(g, base) for base, base_train in (splits or [(chain, train)])
+                   for g in entry.guesses(GuessContext(u, residual, delta, period, scores, simulated, base_train,
+                                                       modes))]
         if entry.placement == "dynamics" and chain.components[index].loop_free and options:
             # the guesses ranked at the start model's loop; the best LOOP_START_GUESSES from every loop start
             costs = [_rms(_run_error(option, u_start, y_start)) for option in options]
@@ -117,6 +123,8 @@ def _try_effect(kind: str, chain: _Chain, u: NDArray[np.float64], y: NDArray[np.
     costs = [_rms(_run_error(option, u_start, y_start)) for option in options]
     if entry.placement == "dynamics" and chain.components[index].loop_free:
         starts = _distinct_loop_starts(options, costs, index, LOOP_POLISHED_STARTS)
+    elif len(splits) > 1:
+        starts = _best_of_each_split(options, costs, index, LOOP_POLISHED_STARTS)
     else:
         starts = [options[int(np.argmin(costs))]]
     if entry.contact_start is not None:
@@ -136,6 +144,36 @@ def _try_effect(kind: str, chain: _Chain, u: NDArray[np.float64], y: NDArray[np.
                                                  delta):  # a delay the held fit found; see _walk_delays
         best = _walk_delays(best, u_est, y_est, _budget(best, max_evaluations), max_delay_samples)
     return _judged(kind, _stick_slip_scanned(best, u_est, y_est), index, u, y, n_est)
+
+
+def _other_splits(chain: _Chain, index: int, train: DriveTrain, u: NDArray[np.float64],
+                  delta: float) -> list[tuple[_Chain, DriveTrain]]:
+    """``chain`` with its drive train at ``index`` replaced by each other split of the inertia of the same linear
+    response (:func:`split_family`) whose free run on ``u`` stays within :data:`SPLIT_FORM_NOISE_BOUNDS` noise
+    bounds of the train's, when the train is a given linear model's two-mass form (``stands_for``); else none.
+    A given drive train of the user's keeps its split, and a fitted linear start has its own loop to trade."""
+    holder = chain.components[index]
+    if holder.stands_for is None or train.rigid:
+        return []
+    reference = train.apply(u)
+    out = []
+    for member in split_family(holder.stands_for):
+        if np.max(np.abs(member.apply(u) - reference)) <= SPLIT_FORM_NOISE_BOUNDS * delta:
+            components = list(chain.components)
+            components[index] = replace(holder, block=member)
+            out.append((_Chain(components), _train(member, holder.values, holder.effects, holder.loop_free)))
+    return out
+
+
+def _best_of_each_split(options: Sequence[_Chain], costs: Sequence[float], index: int, count: int) -> list[_Chain]:
+    """The best-ranked option of each split of the drive train at ``index`` (its ``block``), the ``count``
+    best of those."""
+    best: dict[int, tuple[float, _Chain]] = {}
+    for option, cost in zip(options, costs):
+        key = id(option.components[index].block)
+        if key not in best or cost < best[key][0]:
+            best[key] = (cost, option)
+    return [option for _cost, option in sorted(best.values(), key=lambda pair: pair[0])[:count]]
 
 
 def _screen_samples(n_est: int) -> int:
