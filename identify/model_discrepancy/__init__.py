@@ -19,7 +19,9 @@ per step:
    the linear block's coefficients when the start model was fitted) are fitted on the estimation segment
    (its first :data:`~.thresholds.FIT_MAX_SAMPLES` on a long record, the starts of the fit ranked on the first
    :data:`~.thresholds.START_SCREEN_SAMPLES`; the effect kept is polished on all of it; a resonance from a
-   fitted start is started also from the modes of linear models of order 3-4, :func:`.start_model.record_modes`),
+   fitted start is started also from the modes of linear models of order 3-4, :func:`.start_model.record_modes`;
+   a drive-train effect in a given linear model's two-mass form is fitted also in the other splits of its inertia
+   between motor and load that follow the model, :func:`.candidates.split_family`),
    and the gap g = sqrt(mean r_t^2) is measured on the validation segment.
 5. **Judge** (:mod:`.judgement`): the effect whose penalised gap g_after (1 + penalty * n_parameters) is
    lowest is kept when its reduction of the gap is clearly above ``min_reduction``, both over the validation

@@ -57,6 +57,7 @@ from identify.model_discrepancy.thresholds import (
     LOOP_START_GUESSES,
     REFIT_FOLDS,
     SPLIT_FORM_NOISE_BOUNDS,
+    SPLIT_POLISHED_STARTS,
     START_SCREEN_SAMPLES,
     STATIC_FRICTION_SCAN,
     STICK_SLIP_MIN_GAIN,
@@ -124,7 +125,7 @@ def _try_effect(kind: str, chain: _Chain, u: NDArray[np.float64], y: NDArray[np.
     if entry.placement == "dynamics" and chain.components[index].loop_free:
         starts = _distinct_loop_starts(options, costs, index, LOOP_POLISHED_STARTS)
     elif len(splits) > 1:
-        starts = _best_of_each_split(options, costs, index, LOOP_POLISHED_STARTS)
+        starts = _best_of_each_split(options, costs, index, SPLIT_POLISHED_STARTS)
     else:
         starts = [options[int(np.argmin(costs))]]
     if entry.contact_start is not None:

@@ -206,6 +206,12 @@ SPLIT_LOAD_SHARES = (0.1, 0.3, 0.5, 0.7, 0.85)
 (:func:`~identify.model_discrepancy.candidates.split_family`): a linear response does not fix how the inertia
 is split between the motor and the load, and an effect inside the drive train (a play, above all) does."""
 
+# Evidence: as LOOP_POLISHED_STARTS (the cost of three sub-stepped polishes); the clean-room generator's figures
+# with the splits (BENCHMARKS.md, "On the independent generator behind a servo the load pushes back") used it.
+SPLIT_POLISHED_STARTS = 3
+"""A drive-train candidate tried in several splits of the inertia is polished from the best-ranked start of
+each of this many splits, and the fit with the lowest estimation error is kept."""
+
 # Evidence: as RESTART_FORM_NOISE_BOUNDS (a quarter of the noise bound: within what any sample may disagree by).
 SPLIT_FORM_NOISE_BOUNDS = 0.25
 """Another split stands in for the given model only where its free run stays within this many noise bounds of
