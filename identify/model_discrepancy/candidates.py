@@ -236,29 +236,40 @@ def two_mass_train_like(block: LinearBlock, input_rad: NDArray[np.float64], loop
         return _TRAIN_CACHE[key]
     period = block.sample_period_s
     target = block.apply(input_rad)
+    natural, damping = abs(mode), -mode.real / abs(mode)
+    fits = []
+    for load in SHAFT_TRAIN_LOAD_INERTIA_STARTS:
+        shaft_damping = 2.0 * damping * natural * load
+        fits.append(_two_mass_fit(period, input_rad, target, (loop[0], loop[1], math.log(load),
+                                                              math.log(natural**2 * load), math.log(shaft_damping),
+                                                              math.log(0.1 * shaft_damping)), 80))
+    return _cached(key, min(fits, key=lambda fit: fit[0])[1])
+
+
+def _two_mass_fit(period: float, input_rad: NDArray[np.float64], target: NDArray[np.float64],
+                  start: Sequence[float], max_evaluations: int, load: float | None = None) -> tuple[float, DriveTrain]:
+    """(cost, train): the least-squares fit of :func:`_two_mass_train`'s (f_n, zeta, ln J_l, ln k, ln d, ln d_v)
+    to ``target`` on ``input_rad`` from ``start``, the loop within the fitted loop's range and J_l within 1e-4 to
+    0.95; with ``load`` given, J_l is held there and ``start`` has the other five."""
     nyquist = 0.5 / period
-    low = (1e-3 * nyquist, LOOP_DAMPING_RANGE[0], math.log(1e-4), -np.inf, -np.inf, -np.inf)
-    high = (LOOP_BANDWIDTH_NYQUIST_SHARE * nyquist, LOOP_DAMPING_RANGE[1], math.log(0.95), np.inf, np.inf, np.inf)
+    low = [1e-3 * nyquist, LOOP_DAMPING_RANGE[0], math.log(1e-4), -np.inf, -np.inf, -np.inf]
+    high = [LOOP_BANDWIDTH_NYQUIST_SHARE * nyquist, LOOP_DAMPING_RANGE[1], math.log(0.95), np.inf, np.inf, np.inf]
+    if load is not None:
+        del low[2], high[2]
+
+    def values(v: Sequence[float]) -> tuple[float, ...]:
+        return tuple(v) if load is None else (v[0], v[1], math.log(load), *v[2:])
 
     def error(v: NDArray[np.float64]) -> NDArray[np.float64]:
         try:
-            return _two_mass_train(period, v).apply(input_rad) - target
-        except InvalidInputError:
+            return _two_mass_train(period, values(v)).apply(input_rad) - target
+        except (InvalidInputError, OverflowError):
             return np.full(input_rad.size, FAILED_RUN_ERROR_RAD / math.sqrt(input_rad.size))
 
-    best = None
-    natural, damping = abs(mode), -mode.real / abs(mode)
-    for load in SHAFT_TRAIN_LOAD_INERTIA_STARTS:
-        shaft_damping = 2.0 * damping * natural * load
-        start = np.clip((loop[0], loop[1], math.log(load), math.log(natural**2 * load), math.log(shaft_damping),
-                         math.log(0.1 * shaft_damping)), low, high)
-        with np.errstate(all="ignore"):
-            fit = optimize.least_squares(error, start, bounds=(low, high), method="trf", diff_step=1e-4,
-                                         max_nfev=80)
-        if best is None or fit.cost < best.cost:
-            best = fit
-    assert best is not None
-    return _cached(key, _two_mass_train(period, best.x))
+    with np.errstate(all="ignore"):
+        fit = optimize.least_squares(error, np.clip(start, low, high), bounds=(low, high), method="trf",
+                                     diff_step=1e-4, max_nfev=max_evaluations)
+    return float(fit.cost), _two_mass_train(period, values(fit.x))
 
 
 def split_family(block: LinearBlock) -> tuple[DriveTrain, ...]:
@@ -279,25 +290,12 @@ def split_family(block: LinearBlock) -> tuple[DriveTrain, ...]:
         (loop, mode), period = split, block.sample_period_s
         probe = _split_probe(abs(mode), period)
         target = block.apply(probe)
-        nyquist = 0.5 / period
-        low = (1e-3 * nyquist, LOOP_DAMPING_RANGE[0], -np.inf, -np.inf, -np.inf)
-        high = (LOOP_BANDWIDTH_NYQUIST_SHARE * nyquist, LOOP_DAMPING_RANGE[1], np.inf, np.inf, np.inf)
         natural, damping = abs(mode), -mode.real / abs(mode)
         for load in SPLIT_LOAD_SHARES:
-            def error(v: NDArray[np.float64], load: float = load) -> NDArray[np.float64]:
-                try:
-                    return _two_mass_train(period, (v[0], v[1], math.log(load), *v[2:])).apply(probe) - target
-                except (InvalidInputError, OverflowError):
-                    return np.full(probe.size, FAILED_RUN_ERROR_RAD / math.sqrt(probe.size))
-
             reduced = load * (1.0 - load)  # the two masses' mode: k = omega^2 J_m J_l / (J_m + J_l)
-            start = np.clip((loop[0], loop[1], math.log(natural ** 2 * reduced),
-                             math.log(2.0 * damping * natural * reduced), math.log(0.2 * damping * natural * reduced)),
-                            low, high)
-            with np.errstate(all="ignore"):
-                fit = optimize.least_squares(error, start, bounds=(low, high), method="trf", diff_step=1e-4,
-                                             max_nfev=30)
-            family.append(_two_mass_train(period, (fit.x[0], fit.x[1], math.log(load), *fit.x[2:])))
+            start = (loop[0], loop[1], math.log(natural ** 2 * reduced), math.log(2.0 * damping * natural * reduced),
+                     math.log(0.2 * damping * natural * reduced))
+            family.append(_two_mass_fit(period, probe, target, start, 30, load=load)[1])
     if len(_FAMILY_CACHE) > 16:
         _FAMILY_CACHE.clear()
     _FAMILY_CACHE[key] = tuple(family)
