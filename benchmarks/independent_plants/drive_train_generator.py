@@ -47,13 +47,62 @@ Initial state: at rest, motor at ``u_0``; the load at the static equilibrium of 
 train with the effect present (solved by Newton's method for gravity and cogging),
 Bouc-Wen state 0, backlash twist 0 (centre of the play).
 
+Drive torque (second measured channel)
+--------------------------------------
+What a servo drive reports as its "torque actual value" (CiA 402 object 0x6077): an
+INTEGER16 in per mille of the motor's rated torque (object 0x6076, nominal
+``rated_torque_nm``, default 2.0 N m).  It is the torque the drive supplies, so a load torque
+(gravity) shows in it and a sensor error (eccentricity) does not.
+
+Gear-output side torque of the drive, ``tau_out``, and its motor-side value (reported)::
+
+    cascade:    tau_out = K_v (K_p (u/N - phi) - phi')  (= J_m' phi'' + tau_s)
+    kinematic:  tau_out = J_m' phi'' + tau_s,   J_m' = N^2 J_m,
+                phi'' = (wc^2 (u - theta_m) - 2 zeta wc theta_m') / N
+    tau_motor = tau_out / N      (positive in the direction of positive theta_m)
+
+``tau_s`` is the exact shaft torque of the effect (backlash dead band and clip, Bouc-Wen
+term T_h w).  The kinematic motor has no dynamics of its own; ``motor_inertia_kg_m2``
+(default 0.002 kg m^2, kept in ``nominal.json`` for both servos) is used there only for
+this reading.
+
+Sampling convention: sample k is the mean of ``tau_motor`` over the control cycle
+``[t_k-1, t_k]`` that ends at the angle's instant t_k (the command held there is u_k-1),
+as a drive whose current measurement is averaged over its cycle reports it.  By the
+momentum balance of the train (the shaft torque is internal) this is exact from the
+sampled states::
+
+    tau_motor,k = [J_m' (phi'_k - phi'_k-1) + J_l (theta_l'_k - theta_l'_k-1)
+                   + b (theta_l,k - theta_l,k-1) - int_{t_k-1}^{t_k} tau_effect dt] fs / N
+
+with the load-torque effect's integral taken by Gauss-Legendre on the integrator's own
+steps (dense output of the same solve_ivp call; the sampled states do not change).
+Sample 0: the train has been at rest under u_0, and the value is the static torque.
+Why not the instantaneous value at t_k: the held command makes the drive torque jump by
+``wc^2 J (u_k - u_k-1) / N`` at every update (J = J_m' kinematic, J_m' + J_l cascade), a
+sawtooth of +-0.85 v N m per rad/s of load speed v in the cascade; a sample at t_k would
+be dominated by it.  The cycle mean keeps only a small trace of it: the motor speed sampled
+at t_k is offset by alpha v (alpha = -0.012 kinematic, -0.034 cascade N = 1, at 1 kHz), so
+the mean looks like an inertia (1 + alpha) J_m'.  The record also holds the instantaneous
+value just before t_k (state x_k, command u_k-1) as ``clean_torque_instant_nm``.
+
+Reading::
+
+    torque_permille = clip(round((tau_motor + n_k) / (rated/1000)), -32768, 32767)
+    torque_nm = torque_permille * rated / 1000
+
+n_k white Gaussian, std ``torque_noise_nm`` (default 0), from its own random stream
+(``[seed, 4]``), so the angle, its noise and the excitation are those of a record without it.
+At rest with gravity: tau_motor = m g r sin(theta_l - theta_0) / N.
+
 Nominal parameters (defaults; ``nominal.json`` records them)
 ------------------------------------------------------------
 gear_ratio 1, load_inertia_kg_m2 0.004, shaft_stiffness_nm_per_rad 150,
 shaft_damping_nm_s_per_rad 0.0775 (shaft damping ratio ~0.05), viscous_friction_nm_s_per_rad
-0.005, position_loop_bandwidth_hz 60, position_loop_damping_ratio 0.7, (cascade only)
-motor_inertia_kg_m2 0.002.  Shaft resonance sqrt(k/J_l) = 193.6 rad/s = 30.8 Hz.  A load
-torque of 1 N m twists the shaft by 1/k = 6.67 mrad = 4.3 counts at 12 bit.
+0.005, position_loop_bandwidth_hz 60, position_loop_damping_ratio 0.7,
+motor_inertia_kg_m2 0.002 (cascade; kinematic: torque reading only), rated_torque_nm 2.0.
+Shaft resonance sqrt(k/J_l) = 193.6 rad/s = 30.8 Hz.  A load torque of 1 N m twists the
+shaft by 1/k = 6.67 mrad = 4.3 counts at 12 bit.
 
 Effects (``truth.json`` records the drawn values; ranges are uniform unless noted)
 ---------------------------------------------------------------------------------
@@ -100,7 +149,7 @@ ramp       from c forward n_rev revolutions and back (n_rev in [2, 4], A overrid
 prbs       bare steps c +- A (A = 0.01 rad, 6.5 counts at 12 bit) from a 10-bit
            maximum-length LFSR clocked every 20..100 ms.
 The same seed gives the same excitation and noise for every effect (separate random
-streams), so a record with an effect and its nominal twin differ only by the effect.
+streams: excitation 1, effect 2, angle noise 3, torque noise 4), so a record with an effect and its nominal twin differ only by the effect.
 """
 from __future__ import annotations
 
@@ -127,6 +176,7 @@ NOMINAL_DEFAULTS = {
     "position_loop_damping_ratio": 0.7,
     "motor_inertia_kg_m2": 0.002,
     "servo": "kinematic",
+    "rated_torque_nm": 2.0,
 }
 
 RTOL = 1e-10
@@ -137,6 +187,9 @@ ODE_METHOD = "LSODA"
 _STREAM_EXCITATION = 1
 _STREAM_EFFECT = 2
 _STREAM_NOISE = 3
+_STREAM_TORQUE_NOISE = 4  # drive torque noise: a new stream, so angles stay as they were
+
+INT16_MIN, INT16_MAX = -32768, 32767
 
 
 # ----------------------------------------------------------------------------- effects
@@ -412,6 +465,97 @@ def friction_torque(effect: str, params: dict, velocity):
     return np.array([f(0.0, float(v)) for v in np.atleast_1d(velocity)])
 
 
+def _load_torque_vec(effect: str, p: dict):
+    """Vectorised (numpy) form of _load_torque_fn: same formulas, array arguments."""
+    if effect == "cogging":
+        Tc, nc, ph = p["torque_nm"], p["periods_per_rev"], p["phase_rad"]
+        return lambda th, v: -Tc * np.sin(nc * th + ph)
+    if effect == "stribeck":
+        Fc, Fs, vs, eps = p["coulomb_nm"], p["static_nm"], p["stribeck_velocity_rad_per_s"], \
+            p["smoothing_velocity_rad_per_s"]
+        return lambda th, v: -(Fc + (Fs - Fc) * np.exp(-(v / vs) ** 2)) * np.tanh(v / eps)
+    if effect == "coulomb":
+        Fc, eps = p["coulomb_nm"], p["smoothing_velocity_rad_per_s"]
+        return lambda th, v: -Fc * np.tanh(v / eps)
+    if effect == "gravity":
+        mgr, th0 = p["mgr_nm"], p["hanging_angle_rad"]
+        return lambda th, v: -mgr * np.sin(th - th0)
+    return None
+
+
+# ---------------------------------------------------------------------- drive torque
+def shaft_torque(nom: dict, effect: str, p: dict, X: np.ndarray) -> np.ndarray:
+    """Shaft torque tau_s (gear-output side, N m) at the sampled states, as in make_rhs."""
+    N = nom["gear_ratio"]
+    k = nom["shaft_stiffness_nm_per_rad"]
+    c = nom["shaft_damping_nm_s_per_rad"]
+    d = X[:, 0] / N - X[:, 2]
+    dd = X[:, 1] / N - X[:, 3]
+    if effect == "hysteresis":
+        return k * d + c * dd + p["torque_nm"] * X[:, 4]
+    if effect == "backlash" and p["half_width_rad"] > 0.0:
+        bh = p["half_width_rad"]
+        return np.where(d > bh, np.maximum(k * (d - bh) + c * dd, 0.0),
+                        np.where(d < -bh, np.minimum(k * (d + bh) + c * dd, 0.0), 0.0))
+    return k * d + c * dd
+
+
+def instantaneous_drive_torque(nom: dict, effect: str, p: dict, X: np.ndarray,
+                               u_held: np.ndarray) -> np.ndarray:
+    """Motor-side drive torque at the states X under the held commands u_held (N m).
+
+    cascade:   tau_out = K_v (K_p (u/N - phi) - phi')
+    kinematic: tau_out = J_m' phi'' + tau_s, phi'' = (wc^2 (u - theta_m) - 2 zeta wc omega_m)/N
+    motor side tau_out / N.  (The reported reading is the cycle mean, see drive_torque.)
+    """
+    N = nom["gear_ratio"]
+    Jm = N**2 * nom["motor_inertia_kg_m2"]
+    wc = TWO_PI * nom["position_loop_bandwidth_hz"]
+    zeta = nom["position_loop_damping_ratio"]
+    phi, dphi = X[:, 0] / N, X[:, 1] / N
+    if nom["servo"] == "kinematic":
+        ddphi = (wc * wc * (u_held - X[:, 0]) - 2.0 * zeta * wc * X[:, 1]) / N
+        tau_out = Jm * ddphi + shaft_torque(nom, effect, p, X)
+    else:
+        Kv = 2 * zeta * wc * (Jm + nom["load_inertia_kg_m2"])
+        Kp = wc / (2 * zeta)
+        tau_out = Kv * (Kp * (u_held / N - phi) - dphi)
+    return tau_out / N
+
+
+def drive_torque(nom: dict, effect: str, p: dict, X: np.ndarray, u: np.ndarray, fs: float,
+                 load_integral: np.ndarray | None = None) -> np.ndarray:
+    """Motor-side drive torque, mean over the control cycle [t_k-1, t_k] (N m).
+
+    By the momentum balance of the whole train (the shaft torque is internal)::
+
+        tau_out,k = [J_m' (phi'_k - phi'_k-1) + J_l (theta_l'_k - theta_l'_k-1)
+                     + b (theta_l,k - theta_l,k-1) - int tau_effect dt] * fs
+
+    reported as tau_out,k / N.  ``load_integral[k]`` is the integral of the load-torque
+    effect over the cycle (zero for the other effects).  Sample 0: the train has been at
+    rest under u_0, so the instantaneous torque there is the cycle mean.
+    """
+    N = nom["gear_ratio"]
+    Jm = N**2 * nom["motor_inertia_kg_m2"]
+    Jl = nom["load_inertia_kg_m2"]
+    b = nom["viscous_friction_nm_s_per_rad"]
+    tau = np.empty(X.shape[0])
+    tau[0] = instantaneous_drive_torque(nom, effect, p, X[:1], u[:1])[0]
+    impulse = (Jm * np.diff(X[:, 1] / N) + Jl * np.diff(X[:, 3]) + b * np.diff(X[:, 2]))
+    if load_integral is not None:
+        impulse = impulse - load_integral[1:]
+    tau[1:] = impulse * fs / N
+    return tau
+
+
+def torque_reading(tau: np.ndarray, rated_nm: float, noise: np.ndarray):
+    """CiA 402 torque actual value: per mille of rated torque, rounded, INTEGER16."""
+    permille = np.clip(np.round((tau + noise) / (rated_nm / 1000.0)), INT16_MIN, INT16_MAX)
+    permille = permille.astype(np.int64)
+    return permille, permille * rated_nm / 1000.0
+
+
 def make_rhs(nom: dict, effect: str, p: dict):
     """Right-hand side f(t, x, u) of the plant with the effect (dynamic effects)."""
     N = nom["gear_ratio"]
@@ -469,13 +613,42 @@ def make_rhs(nom: dict, effect: str, p: dict):
     return rhs
 
 
+_GAUSS_X, _GAUSS_W = np.polynomial.legendre.leggauss(4)
+
+
+def _interval_integrals(ode_sol, f, edges: np.ndarray) -> np.ndarray:
+    """Integrals of f(state) over [edges[i], edges[i+1]] along a dense solve_ivp solution.
+
+    4-point Gauss-Legendre on every integrator step inside each interval (the steps are
+    those the error control chose for the dynamics, so a sharp feature such as a tanh
+    friction reversal is covered by short steps).
+    """
+    lo, hi = edges[0], edges[-1]
+    inner = ode_sol.ts[(ode_sol.ts > lo) & (ode_sol.ts < hi)]
+    cuts = np.union1d(edges, inner)
+    a, b = cuts[:-1], cuts[1:]
+    half, mid = 0.5 * (b - a), 0.5 * (b + a)
+    nodes = (mid[:, None] + half[:, None] * _GAUSS_X[None, :]).ravel()
+    vals = np.asarray(f(ode_sol(nodes)), dtype=float).reshape(a.size, _GAUSS_X.size)
+    pieces = half * (vals @ _GAUSS_W)
+    owner = np.searchsorted(edges, mid) - 1  # sample interval holding each piece
+    return np.bincount(owner, weights=pieces, minlength=edges.size - 1)
+
+
 def simulate_nonlinear(rhs, u: np.ndarray, fs: float, x0, *, method=ODE_METHOD, rtol=RTOL,
-                       atol=ATOL):
-    """Integrate with solve_ivp over each run of equal held commands; state at t_k."""
+                       atol=ATOL, quad=None):
+    """Integrate with solve_ivp over each run of equal held commands; state at t_k.
+
+    With ``quad`` (a vectorised function of the state, shape (n_state, m) -> (m,)), also
+    return ``Q`` with ``Q[k] = integral of quad(x(t)) over [t_k-1, t_k]`` (``Q[0] = 0``),
+    taken from the dense output of the same integration (which leaves the steps and the
+    sampled states unchanged).
+    """
     n = u.size
     x = np.array(x0, dtype=float)
     X = np.empty((n, x.size))
     X[0] = x
+    Q = np.zeros(n) if quad is not None else None
     k = 0
     while k < n - 1:
         j = k + 1
@@ -484,12 +657,16 @@ def simulate_nonlinear(rhs, u: np.ndarray, fs: float, x0, *, method=ODE_METHOD, 
         uk = float(u[k])
         t_eval = np.arange(k + 1, j + 1) / fs
         sol = solve_ivp(lambda t, y: rhs(t, y, uk), (k / fs, j / fs), x, method=method,
-                        t_eval=t_eval, rtol=rtol, atol=atol)
+                        t_eval=t_eval, rtol=rtol, atol=atol, dense_output=quad is not None)
         if not sol.success:  # pragma: no cover
             raise RuntimeError(f"integration failed at t={k / fs}: {sol.message}")
         X[k + 1:j + 1] = sol.y.T
+        if quad is not None:
+            Q[k + 1:j + 1] = _interval_integrals(sol.sol, quad, np.arange(k, j + 1) / fs)
         x = sol.y[:, -1]
         k = j
+    if quad is not None:
+        return X, Q
     return X
 
 
@@ -566,7 +743,7 @@ def wrap_counts(counts: np.ndarray, bits: int) -> np.ndarray:
 def generate(effect: str, seed: int, *, excitation: str = "multisine", duration_s: float = 10.0,
              fs_hz: float = 1000.0, bits: int = 12, noise_rad: float = 0.0,
              amplitude_rad: float | None = None, nominal: dict | None = None,
-             **effect_params) -> dict:
+             torque_noise_nm: float = 0.0, **effect_params) -> dict:
     """Make one record.
 
     Returns a dict with ``time_s``, ``command_rad`` (motor-side command), ``angle_rad``
@@ -574,6 +751,12 @@ def generate(effect: str, seed: int, *, excitation: str = "multisine", duration_
     parameters, excitation, effect size) and ``state`` (true sampled states, columns
     theta_m, omega_m, theta_l, omega_l[, w]) plus ``clean_angle_rad`` (noise-free,
     unquantised sensor angle before wrapping).
+
+    Drive torque channel (motor side, see "Drive torque" in the module docstring):
+    ``torque_permille`` (int, CiA 402 0x6077), ``torque_nm`` (= permille * rated / 1000),
+    ``clean_torque_nm`` (noise-free, unquantised cycle mean), ``clean_torque_instant_nm``
+    (instantaneous value just before t_k, with u_k-1; not what is reported) and
+    ``nominal_torque_nm`` (cycle mean of the nominal twin).
     """
     if effect not in EFFECTS:
         raise ValueError(f"unknown effect {effect!r}; choose from {sorted(EFFECTS)}")
@@ -592,7 +775,14 @@ def generate(effect: str, seed: int, *, excitation: str = "multisine", duration_
     # nominal twin (exact), also used as the plant for measurement-only effects
     x0_nom = initial_state(nom, "none", {}, float(u[0]))
     X_nom = simulate_linear(nom, u, fs_hz, x0_nom)
-    if spec.kind in ("load_torque", "shaft"):
+    load_integral = None
+    if spec.kind == "load_torque":
+        rhs = make_rhs(nom, effect, params)
+        f_load = _load_torque_vec(effect, params)
+        X, load_integral = simulate_nonlinear(
+            rhs, u, fs_hz, initial_state(nom, effect, params, float(u[0])),
+            quad=lambda y: f_load(y[2], y[3]))
+    elif spec.kind == "shaft":
         rhs = make_rhs(nom, effect, params)
         X = simulate_nonlinear(rhs, u, fs_hz, initial_state(nom, effect, params, float(u[0])))
     else:
@@ -622,6 +812,32 @@ def generate(effect: str, seed: int, *, excitation: str = "multisine", duration_
         excited = False
     else:
         excited = size["max_abs_rad"] > q / 2
+    # drive torque (motor side), cycle mean over [t_k-1, t_k]; command held there is u_k-1
+    rated = float(nom["rated_torque_nm"])
+    tau_clean = drive_torque(nom, effect, params, X, u, fs_hz, load_integral)
+    tau_nom = drive_torque(nom, "none", {}, X_nom, u, fs_hz)
+    u_held = np.concatenate([u[:1], u[:-1]])
+    tau_inst = instantaneous_drive_torque(nom, effect, params, X, u_held)
+    tau_noise = (np.random.default_rng([seed, _STREAM_TORQUE_NOISE]).normal(0.0, 1.0, n)
+                 * torque_noise_nm)
+    torque_permille, torque_nm = torque_reading(tau_clean, rated, tau_noise)
+    tdev = tau_clean - tau_nom
+    truth_torque = {
+        "quantity": "drive torque actual value (CiA 402 object 0x6077), motor side",
+        "units": "per mille of rated_torque_nm (object 0x6076), INTEGER16; torque_nm = "
+                 "torque_permille * rated_torque_nm / 1000",
+        "convention": TORQUE_CONVENTION,
+        "rated_torque_nm": rated,
+        "count_nm": rated / 1000.0,
+        "noise_std_nm": torque_noise_nm,
+        "motor_inertia_kg_m2": nom["motor_inertia_kg_m2"],
+        "clipped_samples": int(np.sum((torque_permille == INT16_MIN)
+                                      | (torque_permille == INT16_MAX))),
+        "effect_size": {"rms_nm": float(np.sqrt(np.mean(tdev**2))),
+                        "max_abs_nm": float(np.max(np.abs(tdev))),
+                        "max_abs_counts": float(np.max(np.abs(tdev)) / (rated / 1000.0)),
+                        "note": "clean drive torque minus that of the nominal twin"},
+    }
     truth = {
         "effect": effect,
         "kind": spec.kind,
@@ -640,6 +856,7 @@ def generate(effect: str, seed: int, *, excitation: str = "multisine", duration_
         "effect_size_note": ("deviation of the noise-free, unquantised sensor angle from the "
                              "nominal twin (same command, nominal initial state)"),
         "generator": "cleanroom drive_train_generator.py",
+        "torque": truth_torque,
     }
     return {
         "time_s": t,
@@ -649,15 +866,32 @@ def generate(effect: str, seed: int, *, excitation: str = "multisine", duration_
         "clean_angle_rad": clean,
         "state": X,
         "nominal_state": X_nom,
-        "nominal": nominal_description(nom, fs_hz, bits, noise_rad),
+        "nominal": nominal_description(nom, fs_hz, bits, noise_rad, torque_noise_nm),
         "truth": truth,
+        "torque_permille": torque_permille,
+        "torque_nm": torque_nm,
+        "clean_torque_nm": tau_clean,
+        "clean_torque_instant_nm": tau_inst,
+        "nominal_torque_nm": tau_nom,
     }
 
 
-def nominal_description(nom: dict, fs_hz: float, bits: int, noise_rad: float) -> dict:
+TORQUE_CONVENTION = (
+    "motor-side electromagnetic torque tau_out / N, positive in the direction of positive "
+    "theta_m; sample k is its mean over the control cycle [t_k-1, t_k] (command u_k-1 held), "
+    "= [J_m' (phi'_k - phi'_k-1) + J_l (theta_l'_k - theta_l'_k-1) + b (theta_l,k - "
+    "theta_l,k-1) - int tau_effect dt] fs / N; sample 0 is the static torque under u_0. "
+    "cascade: tau_out = K_v (K_p (u/N - phi) - phi'); kinematic: tau_out = J_m' phi'' + tau_s "
+    "with J_m' = N^2 motor_inertia_kg_m2")
+
+
+def nominal_description(nom: dict, fs_hz: float, bits: int, noise_rad: float,
+                        torque_noise_nm: float = 0.0) -> dict:
     d = {k: v for k, v in nom.items()}
     if nom["servo"] == "kinematic":
-        d["motor_inertia_kg_m2"] = None
+        d["motor_inertia_note"] = ("kinematic servo: the motor inertia does not enter the "
+                                   "motion; it is used only for the drive torque reading "
+                                   "(tau_out = J_m' phi'' + tau_s)")
     d.update(
         sample_rate_hz=fs_hz,
         sample_period_s=1.0 / fs_hz,
@@ -674,7 +908,17 @@ def nominal_description(nom: dict, fs_hz: float, bits: int, noise_rad: float) ->
             "shaft": "tau_s = k (theta_m/N - theta_l) + c (theta_m'/N - theta_l')",
             "load": "J_l theta_l'' = tau_s - b theta_l'",
             "measurement": "angle = q round((theta_l + noise) / q), q = 2 pi / 2^bits",
+            "drive_torque": "torque_permille = clip(round((tau_motor + noise) / "
+                            "(rated_torque_nm / 1000)), -32768, 32767), tau_motor = tau_out / N "
+                            "averaged over the control cycle ending at t_k",
         },
+        torque_channel={"object": "0x6077 torque actual value, INTEGER16, per mille of "
+                                  "rated torque (0x6076)",
+                        "side": "motor",
+                        "rated_torque_nm": nom["rated_torque_nm"],
+                        "count_nm": nom["rated_torque_nm"] / 1000.0,
+                        "noise_std_nm": torque_noise_nm,
+                        "convention": TORQUE_CONVENTION},
         shaft_resonance_hz=math.sqrt(nom["shaft_stiffness_nm_per_rad"]
                                      / nom["load_inertia_kg_m2"]) / TWO_PI,
         effects="none (this is the model without any extra effect)",
@@ -686,10 +930,11 @@ def nominal_description(nom: dict, fs_hz: float, bits: int, noise_rad: float) ->
 def write_record(rec: dict, out: str) -> None:
     os.makedirs(out, exist_ok=True)
     with open(os.path.join(out, "record.csv"), "w", newline="\n") as fh:
-        fh.write("time_s,command_rad,angle_rad,encoder_counts\n")
-        for t, u, y, c in zip(rec["time_s"], rec["command_rad"], rec["angle_rad"],
-                              rec["encoder_counts"]):
-            fh.write(f"{float(t)!r},{float(u)!r},{float(y)!r},{int(c)}\n")
+        fh.write("time_s,command_rad,angle_rad,encoder_counts,torque_nm,torque_permille\n")
+        for t, u, y, c, tq, tp in zip(rec["time_s"], rec["command_rad"], rec["angle_rad"],
+                                      rec["encoder_counts"], rec["torque_nm"],
+                                      rec["torque_permille"]):
+            fh.write(f"{float(t)!r},{float(u)!r},{float(y)!r},{int(c)},{float(tq)!r},{int(tp)}\n")
     with open(os.path.join(out, "truth.json"), "w") as fh:
         json.dump(rec["truth"], fh, indent=2)
         fh.write("\n")
@@ -716,6 +961,9 @@ def main(argv=None) -> int:
     ap.add_argument("--bits", type=int, default=12, help="encoder bits per revolution")
     ap.add_argument("--noise", type=float, default=0.0,
                     help="white noise std (rad), added before quantisation")
+    ap.add_argument("--torque-noise", type=float, default=0.0,
+                    help="drive torque white noise std (N m, motor side), added before "
+                         "rounding to per mille of the rated torque")
     ap.add_argument("--amplitude", type=float, default=None,
                     help="excitation amplitude, rad (ramp: total travel)")
     ap.add_argument("--gear-ratio", type=float, default=None)
@@ -739,7 +987,7 @@ def main(argv=None) -> int:
         params[key] = _parse_value(val)
     rec = generate(a.effect, a.seed, excitation=a.excitation, duration_s=a.duration, fs_hz=a.fs,
                    bits=a.bits, noise_rad=a.noise, amplitude_rad=a.amplitude, nominal=nominal,
-                   **params)
+                   torque_noise_nm=a.torque_noise, **params)
     write_record(rec, a.out)
     s = rec["truth"]["effect_size"]
     print(f"{a.effect} seed {a.seed}: {len(rec['time_s'])} samples -> {a.out}; "
