@@ -495,16 +495,19 @@ def independent_outcome(effect_name: str, named: tuple[str, ...], verdict: str, 
 
 def run_independent_case(effect_name: str, case: int, cases: int, first_seed: int, start: str,
                          excitations: tuple[str, ...], durations: dict[str, float], max_draws: int,
-                         bits: int, noise_std_rad: float, servo: str = "kinematic") -> dict:
+                         bits: int, noise_std_rad: float, servo: str = "kinematic",
+                         torque_noise_nm: float | None = None) -> dict:
     """One case of a row: the first excited record of seeds first_seed + case + j cases (j = 0, 1, ...; the
-    excitation rotates with case + j), diagnosed and scored."""
+    excitation rotates with case + j), diagnosed and scored; with ``torque_noise_nm`` the workflow also gets the
+    generator's drive torque (its torque actual value, with that noise), else the angle alone."""
     generator = generator_module()
     skipped: list[str] = []
     for draw in range(max_draws):
         seed = first_seed + case + draw * cases
         excitation = excitations[(case + draw) % len(excitations)]
         record = generator.generate(effect_name, seed, excitation=excitation, duration_s=durations[excitation],
-                                    bits=bits, noise_rad=noise_std_rad, nominal={"servo": servo})
+                                    bits=bits, noise_rad=noise_std_rad, nominal={"servo": servo},
+                                    torque_noise_nm=torque_noise_nm or 0.0)
         if record["truth"]["excited"] or effect_name == "none":
             break
         skipped.append(f"{seed}/{excitation}")
@@ -527,7 +530,8 @@ def run_independent_case(effect_name: str, case: int, cases: int, first_seed: in
             "conversion_error_rad": conversion_error}
     try:
         result = diagnose_model(command, angle, delta, float(nominal["sample_period_s"]),
-                                PlantModel((block,)) if start == "given" else None)
+                                PlantModel((block,)) if start == "given" else None,
+                                drive_torque=None if torque_noise_nm is None else record["torque_nm"])
     except Exception as err:  # a crash is a result of the benchmark, not the end of the run
         return {**base, "outcome": "not_excited", "named": [], "verdict": f"error: {type(err).__name__}: {err}",
                 "covered": [0, 0], "missed": [], "seconds": time.perf_counter() - started}
@@ -554,14 +558,14 @@ def run_independent_case(effect_name: str, case: int, cases: int, first_seed: in
 
 def independent(cases: int, start: str, effects: tuple[str, ...], first_seed: int, jobs: int,
                 excitations: tuple[str, ...], durations: dict[str, float], max_draws: int, bits: int,
-                noise_std_rad: float, servo: str = "kinematic") -> None:
+                noise_std_rad: float, servo: str = "kinematic", torque_noise_nm: float | None = None) -> None:
     """Every row of ``effects`` on the independent generator; a line per case on stderr, then the table."""
     started = time.perf_counter()
     tasks = [(name, case) for name in effects for case in range(cases)]
     runs: dict[str, list[dict]] = {name: [] for name in effects}
     with ProcessPoolExecutor(max_workers=jobs) as pool:
         futures = [pool.submit(run_independent_case, name, case, cases, first_seed, start, excitations, durations,
-                               max_draws, bits, noise_std_rad, servo) for name, case in tasks]
+                               max_draws, bits, noise_std_rad, servo, torque_noise_nm) for name, case in tasks]
         for future in as_completed(futures):  # a line per case as soon as it is done
             result = future.result()
             runs[result["effect"]].append(result)
@@ -571,7 +575,8 @@ def independent(cases: int, start: str, effects: tuple[str, ...], first_seed: in
                   file=sys.stderr, flush=True)
     print(f"\non the independent generator, start model: {start}; {cases} cases per row (seeds from {first_seed}, "
           f"excitations {', '.join(excitations)}, {bits}-bit encoder, noise std {noise_std_rad:g} rad, {servo} "
-          f"servo); "
+          f"servo; " + ("the angle alone" if torque_noise_nm is None else
+                        f"with the drive's torque, noise std {torque_noise_nm:g} N m") + "); "
           f"{time.perf_counter() - started:.0f} s in all with {jobs} process(es)")
     independent_table(runs, effects, start)
 
@@ -654,6 +659,10 @@ def main() -> None:
     parser.add_argument("--servo", choices=("kinematic", "cascade"), default="kinematic",
                         help="independent generator: kinematic (the motor follows the command whatever the load does, "
                              "default) or cascade (position and velocity loops on a motor the shaft pushes back)")
+    parser.add_argument("--drive-torque", type=float, default=None, metavar="NOISE_NM",
+                        help="independent generator: give the workflow the drive's torque too (the generator's torque "
+                             "actual value, per mille of 2 N m, with this Gaussian noise std in N m); default: the "
+                             "angle alone")
     parser.add_argument("--emps-decimate", type=int, default=5)
     parser.add_argument("--emps-noise-bound", type=float, default=1e-6, metavar="M")
     args = parser.parse_args()
@@ -665,7 +674,7 @@ def main() -> None:
         effects = INDEPENDENT_EFFECTS if args.effects is None else tuple(e for e in args.effects.split(",") if e)
         independent(args.cases, args.start, effects, args.first_seed, args.jobs,
                     tuple(e for e in args.excitations.split(",") if e), durations, args.max_draws, args.bits,
-                    args.noise_std, args.servo)
+                    args.noise_std, args.servo, args.drive_torque)
         return
     if args.effects is not None:
         effects = tuple(e for e in args.effects.split(",") if e)

@@ -243,6 +243,9 @@ class ExperimentRecord:
         :class:`SampleFlag` bits per sample (uint8); all zero by default.
     metadata
         :class:`ExperimentMetadata`.
+    drive_torque
+        The torque the drive reported at each sample (the CiA 402 torque actual value, a motor current; in the
+        unit it came in, NaN where not measured), or None for data without it.
     """
 
     time_s: NDArray[np.float64]
@@ -251,6 +254,7 @@ class ExperimentRecord:
     encoder_counts: NDArray[np.int64] | None
     flags: NDArray[np.uint8] | None
     metadata: ExperimentMetadata
+    drive_torque: NDArray[np.float64] | None = None
 
     def __eq__(self, other: object) -> bool:
         """Field by field, arrays element-wise (:func:`identify.result_format.results_equal`)."""
@@ -288,6 +292,11 @@ class ExperimentRecord:
                                         f"SampleFlag bits ({known}) or their sums ({bad.size} such samples)")
             flags = _array("flags", raw_flags, np.uint8)
             lengths["flags"] = flags.size
+        torque = None
+        if self.drive_torque is not None:
+            torque = _array("drive_torque", self.drive_torque, float)
+            lengths["drive_torque"] = torque.size
+            _first_bad("drive_torque", np.isinf(torque), torque, "expected a finite torque (or NaN: not measured)")
         if len(set(lengths.values())) > 1:
             described = ", ".join(f"{name} has {n}" for name, n in lengths.items())
             raise InvalidInputError(f"signals must have the same number of samples: {described}")
@@ -304,12 +313,13 @@ class ExperimentRecord:
             counts = np.where(lost, 0, counts)  # a LOST sample has no reading: its counts are 0 by convention
             counts.setflags(write=False)
         for name, value in (("time_s", time), ("command_rad", command), ("angle_rad", angle),
-                            ("encoder_counts", counts), ("flags", flags)):
+                            ("encoder_counts", counts), ("flags", flags), ("drive_torque", torque)):
             object.__setattr__(self, name, value)
 
     def to_pandas(self) -> Any:
         """The record as a ``pandas.DataFrame``: columns ``time_s``, ``command_rad``, ``angle_rad`` (NaN where
-        LOST), ``encoder_counts`` (nullable integers, absent for data without them) and ``flags``; the metadata
+        LOST), ``encoder_counts`` (nullable integers, absent for data without them), ``flags`` and, when there,
+        ``drive_torque``; the metadata
         as ``attrs["metadata"]`` (:meth:`ExperimentMetadata.to_dict`). Needs pandas (not a dependency)."""
         from identify.result_format import require_pandas
 
@@ -320,6 +330,8 @@ class ExperimentRecord:
             columns["encoder_counts"] = pandas.array(np.where(lost, 0, self.encoder_counts), dtype="Int64")
             columns["encoder_counts"][lost] = pandas.NA
         columns["flags"] = self.flags
+        if self.drive_torque is not None:
+            columns["drive_torque"] = self.drive_torque
         frame = pandas.DataFrame(columns)
         frame.attrs["metadata"] = self.metadata.to_dict()
         return frame

@@ -6,7 +6,8 @@ Every command that reads a record through :func:`read_measurement` accepts:
 * **JSON records**: an object with a list of per-sample objects (the K-Scale sysid logger's ``entries[]``,
   or any key given by ``records=KEY`` in ``--columns``), or a top-level list of such objects;
 * ``--columns t=timestamp,u=goal_position,y=position``: which key or CSV column is the time (s), the
-  command and the measured angle (default ``t``, ``u``, ``y``);
+  command and the measured angle (default ``t``, ``u``, ``y``), and optionally ``tau=NAME`` the torque the
+  drive reported (any unit, taken as it is: ``rig diagnose`` uses it to tell a weight from a sensor error);
 * **MDF4 and MAT files**: channels (MDF) or variables (MAT) by the same names and options; an MDF channel's
   own unit is converted (:mod:`rig.channel_units`);
 * ``--units``: ``rad`` (default), ``deg``, ``rev``, or ``counts:N`` (N counts per revolution), for u and y; it
@@ -85,12 +86,16 @@ class ImportOptions:
     def is_default(self) -> bool:
         """No column, unit or validity option given (spike and sampling rules at their defaults)."""
         return (all(self.columns.get(role) == role for role in ("t", "u", "y")) and "records" not in self.columns
+                and "tau" not in self.columns
                 and self.units is None and self.valid is None and self.remove_spikes and self.irregular == "resample")
 
     def channel_map(self) -> dict[str, str]:
-        """Role -> column, key or channel name: ``t``, ``u``, ``y`` and, with ``valid``, ``valid``. The one
+        """Role -> column, key or channel name: ``t``, ``u``, ``y``, with a torque ``tau`` and with ``valid``
+        ``valid``. The one
         channel map of every format (CSV, JSON, MDF4, MAT)."""
         wanted = {role: self.columns.get(role, role) for role in ("t", "u", "y")}
+        if "tau" in self.columns:
+            wanted["tau"] = self.columns["tau"]
         if self.valid:
             wanted["valid"] = self.valid
         return wanted
@@ -133,13 +138,14 @@ def _short(text: str) -> str:
 
 def parse_columns(text: str) -> dict[str, str]:
     """``t=timestamp,u=goal_position,y=position`` -> ``{"t": "timestamp", ...}``; missing roles keep their
-    default name; ``records=KEY`` names a JSON object's per-sample list."""
+    default name; ``tau=NAME`` names the drive's torque, ``records=KEY`` a JSON object's per-sample list."""
     columns = {"t": "t", "u": "u", "y": "y"}
     for part in filter(None, (p.strip() for p in text.split(","))):
         role, sep, name = part.partition("=")
         role, name = role.strip(), name.strip()
-        if not sep or role not in ("t", "u", "y", "records") or not name:
-            raise ValueError(f"--columns: expected t=NAME,u=NAME,y=NAME (and optionally records=KEY), got {part!r}")
+        if not sep or role not in ("t", "u", "y", "tau", "records") or not name:
+            raise ValueError(f"--columns: expected t=NAME,u=NAME,y=NAME (and optionally tau=NAME, records=KEY), got "
+                             f"{part!r}")
         columns[role] = name
     return columns
 
@@ -220,7 +226,8 @@ def _json_records(path: Path, text: str, options: ImportOptions) -> dict[str, ND
     for role, name in wanted.items():
         try:
             values = [record[name] for record in records]
-            out[role] = np.array([float(bool(v)) if role == "valid" else float(v) for v in values], dtype=float)
+            out[role] = np.array([float(bool(v)) if role == "valid" else (math.nan if v is None else float(v))
+                                  for v in values], dtype=float)
         except (KeyError, TypeError, ValueError):
             bad = next(i for i, r in enumerate(records) if not isinstance(r.get(name), (int, float, bool)))
             raise RecordImportError(f"{path}: record {bad} has no number under {name!r}") from None
@@ -260,7 +267,7 @@ def _measurement_columns(table: Any, options: ImportOptions) -> dict[str, NDArra
     from rig.measurement_files import read_channels
 
     try:
-        return read_channels(table, options.channel_map(), raw_roles=("valid",), stated_units=options.units)
+        return read_channels(table, options.channel_map(), raw_roles=("valid", "tau"), stated_units=options.units)
     except RecordImportError:
         raise
     except LogFileError as err:
@@ -309,6 +316,7 @@ def read_measurement(path: str | Path, options: ImportOptions | None = None) -> 
     exported = table is not None and options.is_default and table.metadata is not None
     is_json, text = (False, "") if binary or is_rig_log(path) else _looks_like_json(path)
     plain_options = all(options.columns.get(role) == role for role in ("t", "u", "y")) and options.valid is None \
+        and "tau" not in options.columns \
         and options.units is None
     if exported or (not binary and not is_json and plain_options):
         try:
@@ -318,7 +326,7 @@ def read_measurement(path: str | Path, options: ImportOptions | None = None) -> 
         except LogFileError as err:
             raise _bounded(err) from None
         t, u, y, valid = record.time_s, record.command_rad, record.angle_rad, None
-        metadata, flags, counts = record.metadata, record.flags, record.encoder_counts
+        metadata, flags, counts, torque = record.metadata, record.flags, record.encoder_counts, record.drive_torque
     else:
         if not binary and not is_json and is_rig_log(path):
             raise RecordImportError(f"{path}: a rig log has fixed columns and units; --columns, --units and --valid "
@@ -330,7 +338,7 @@ def read_measurement(path: str | Path, options: ImportOptions | None = None) -> 
             columns = _json_records(path, text, options) if is_json else _csv_columns(path, options)
             scale = parse_units(options.units or "rad")
         t, u, y = columns["t"], columns["u"] * scale, columns["y"] * scale
-        valid = columns.get("valid")
+        valid, torque = columns.get("valid"), columns.get("tau")
         metadata, flags, counts = None, None, None
     notes: list[str] = []
     kept = None
@@ -342,6 +350,7 @@ def read_measurement(path: str | Path, options: ImportOptions | None = None) -> 
             notes.append(f"--valid {options.valid}: kept samples {start}..{stop - 1} ({stop - start} of {valid.size}, the "
                          f"longest of {runs} stretch{'es' if runs > 1 else ''} where it holds)")
         t, u, y, kept = t[start:stop], u[start:stop], y[start:stop], (start, stop)
+        torque = None if torque is None else torque[start:stop]
     if not np.all(np.isfinite(t)) or np.any(np.diff(t) <= 0):
         bad = int(np.flatnonzero(~(np.diff(t) > 0))[0]) + 1 if np.any(np.diff(t) <= 0) else 0
         raise RecordImportError(f"{path}: the time column must increase; it does not at sample {bad}")
@@ -353,7 +362,9 @@ def read_measurement(path: str | Path, options: ImportOptions | None = None) -> 
             shown = ", ".join(str(i + offset) for i in spikes[:8]) + (" ..." if len(spikes) > 8 else "")
             notes.append(f"{len(spikes)} one-sample read failure(s) (spikes) replaced by the mean of their neighbours: "
                          f"sample(s) {shown}")
-    t, (u, y), note, spread = uniform_sampling(t, u, y, refuse=options.irregular == "refuse", source=str(path))
+    t, (u, y, *with_torque), note, spread = uniform_sampling(t, u, y, *(() if torque is None else (torque,)),
+                                                             refuse=options.irregular == "refuse", source=str(path))
+    torque = with_torque[0] if with_torque else None
     if note:
         notes.append(note)
         if flags is not None:  # the flags belong to the samples as taken; a resampled one is LOST where y is unknown
@@ -375,7 +386,7 @@ def read_measurement(path: str | Path, options: ImportOptions | None = None) -> 
                                       acquisition_start_utc=start)
     record = ExperimentRecord(time_s=np.asarray(t, dtype=float), command_rad=np.asarray(u, dtype=float),
                               angle_rad=np.asarray(y, dtype=float), encoder_counts=counts, flags=flags,
-                              metadata=metadata)
+                              metadata=metadata, drive_torque=torque)
     return record, ImportReport(notes=tuple(notes), spike_samples=spikes, resampled=bool(note),
                                 period_min_s=spread[0], period_median_s=spread[1], period_max_s=spread[2],
                                 kept_samples=kept)
@@ -386,7 +397,8 @@ def add_import_arguments(parser: Any) -> None:
     ``--keep-spikes``, ``--refuse-irregular``)."""
     parser.add_argument("--columns", default=None, metavar="t=NAME,u=NAME,y=NAME",
                         help="which CSV column or JSON record key is time (s), command and measured angle "
-                             "(default t,u,y; records=KEY names a JSON object's per-sample list)")
+                             "(default t,u,y; tau=NAME names the drive's torque, in any unit; records=KEY names a "
+                             "JSON object's per-sample list)")
     parser.add_argument("--units", default=None, metavar="UNIT",
                         help="units of u and y: rad (default; an MDF channel's own unit when not given), deg, rev, "
                              "or counts:N with N counts per revolution")

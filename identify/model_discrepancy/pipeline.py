@@ -20,6 +20,7 @@ from identify.validation import InvalidInputError, as_signal, positive, same_len
 from identify.model_discrepancy.candidates import _candidate_names, drive_train_like
 from identify.model_discrepancy.comparison import restartable, restarted_every
 from identify.model_discrepancy.disagreement import disagreement, gross_disagreements
+from identify.model_discrepancy.drive_torque import SAG_LOOK_ALIKES, load_torque_check
 from identify.model_discrepancy.intervals import _named_intervals, _with_final_parameters
 from identify.model_discrepancy.open_world import open_world_checked
 from identify.model_discrepancy.options import DiagnoseOptions
@@ -54,7 +55,8 @@ from identify.model_discrepancy.verdict import (
 
 def diagnose_model(command_rad: ArrayLike, angle_rad: ArrayLike, noise_bound_rad: float,
                    sample_period_s: float, model: PlantModel | None = None, options: DiagnoseOptions | None = None,
-                   *, progress: Callable[[str], None] | None = None, **option_values: Any) -> DiscrepancyResult:
+                   *, drive_torque: ArrayLike | None = None, progress: Callable[[str], None] | None = None,
+                   **option_values: Any) -> DiscrepancyResult:
     """Run the model-discrepancy workflow (the steps of the package docstring), one named step
     each: the checks (:func:`_checked_record`), the gross disagreements of the measurement over the whole
     record (:func:`gross_disagreements`: a sensor wrap is undone, glitches are left out, both reported in
@@ -84,6 +86,11 @@ def diagnose_model(command_rad: ArrayLike, angle_rad: ArrayLike, noise_bound_rad
     options
         The settings (:class:`DiagnoseOptions`); or give its fields as keywords (``candidates=...``,
         ``max_effects=2``, ...), which override those of ``options``.
+    drive_torque
+        The torque the drive reported at each sample (the CiA 402 torque actual value 0x6077, a motor current;
+        any unit, NaN where not measured), or None. When the angle leaves a weight (gravity) open beside the
+        sensor errors that sag it alike (an encoder error, an offset), the torque shows whether the drive carries
+        a weight (:func:`_with_drive_torque`).
     progress
         Called with one line of text per stage and candidate.
 
@@ -96,17 +103,30 @@ def diagnose_model(command_rad: ArrayLike, angle_rad: ArrayLike, noise_bound_rad
         A keyword that is no field of :class:`DiagnoseOptions` (the message lists them).
     """
     options = with_options("diagnose_model", options, DiagnoseOptions, option_values)
+    result = _diagnosed_record(command_rad, angle_rad, noise_bound_rad, sample_period_s, model, options, progress)
+    if drive_torque is None:
+        return result
+    u, y, delta, period = _checked_record(command_rad, angle_rad, noise_bound_rad, sample_period_s, model)
+    torque = as_signal("drive_torque", drive_torque, missing_allowed=True)
+    same_length(command_rad=u, drive_torque=torque)
+    return _with_drive_torque(result, u, y, torque, delta, period, model, options, progress or (lambda _message: None))
+
+
+def _diagnosed_record(command_rad: ArrayLike, angle_rad: ArrayLike, noise_bound_rad: float, sample_period_s: float,
+                      model: PlantModel | None, options: DiagnoseOptions,
+                      progress: Callable[[str], None] | None) -> DiscrepancyResult:
+    """:func:`diagnose_model` from the angle alone."""
     u, y, delta, period = _checked_record(command_rad, angle_rad, noise_bound_rad, sample_period_s, model)
     findings, cleaned = gross_disagreements(u, y, delta)
     if findings:  # measurement-side: the rest of the record is judged with them put aside, and says so
         if progress is not None:
             for finding in findings:
                 progress(finding.text())
-        return _with_findings(diagnose_model(u, cleaned, delta, period, model, options, progress=progress), findings)
+        return _with_findings(_diagnosed_record(u, cleaned, delta, period, model, options, progress), findings)
     operating_point = _operating_point(u, y, delta) if options.from_operating_point else 0.0
     if operating_point != 0.0:
-        result = diagnose_model(u - operating_point, y - operating_point, delta, period, model,
-                                replace(options, from_operating_point=False), progress=progress)
+        result = _diagnosed_record(u - operating_point, y - operating_point, delta, period, model,
+                                   replace(options, from_operating_point=False), progress)
         return _absolute(result, operating_point, period)
     n_est = int(round(options.estimation_fraction * u.size))
     _check_measured(y, n_est)
@@ -152,6 +172,29 @@ def _diagnosed(u: NDArray[np.float64], y: NDArray[np.float64], delta: float, per
         parameter_intervals=intervals, gap_reduction=reduction, excitation=excitation, undecided=found.undecided,
         residual_structure=structure,
     )
+
+
+def _with_drive_torque(result: DiscrepancyResult, u: NDArray[np.float64], y: NDArray[np.float64],
+                       torque: NDArray[np.float64], delta: float, period: float, model: PlantModel | None,
+                       options: DiagnoseOptions, say: Callable[[str], None]) -> DiscrepancyResult:
+    """``result``, or, when it leaves gravity open beside the sensor errors that sag the angle alike
+    (:data:`SAG_LOOK_ALIKES`), the drive's torque checked for the weight (:func:`.drive_torque.load_torque_check`):
+    when the drive carries it, the record diagnosed again without those sensor errors (the weight is shown,
+    they are not needed for the sag); otherwise the result as it was, the check's figures added to its reason
+    (what the torque bounds). The check is in ``load_torque_check`` either way."""
+    left_open = set(result.ambiguous_between) | {candidate.effect for candidate in result.undecided}
+    if "gravity" not in left_open or not left_open & set(SAG_LOOK_ALIKES):
+        return result
+    check = load_torque_check(u, y, torque, result.start_model, period)
+    say(f"drive torque: {check.text()}")
+    if check.outcome != "load_torque":
+        return replace(result, load_torque_check=check,
+                       verdict_reason=f"{result.verdict_reason.rstrip('.')}. The drive's torque: {check.text()}.")
+    kept = tuple(name for name in options.candidates if name not in SAG_LOOK_ALIKES)
+    again = _diagnosed_record(u, y, delta, period, model, replace(options, candidates=kept), say)
+    return replace(again, load_torque_check=check, verdict_reason=(
+        f"{again.verdict_reason.rstrip('.')}. The drive's torque: {check.text()} ({', '.join(SAG_LOOK_ALIKES)} not "
+        "tried)."))
 
 
 def _restarted_if_open(first: DiscrepancyResult, u: NDArray[np.float64], y: NDArray[np.float64], delta: float,

@@ -18,6 +18,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from identify.plant_blocks import LinearBlock, PlantModel
+from identify.model_discrepancy.drive_torque import LoadTorqueCheck
 from identify.result_format import check_kind, malformed, tagged
 from identify.validation import InvalidInputError
 
@@ -236,6 +237,7 @@ class DiscrepancyResult:
     findings: tuple[GrossDisagreement, ...] = ()
     residual_structure: ResidualStructure | None = None
     restart_window_samples: int | None = None
+    load_torque_check: LoadTorqueCheck | None = None
 
     def __post_init__(self) -> None:
         if self.verdict not in VERDICTS:
@@ -267,7 +269,7 @@ class DiscrepancyResult:
             falsified_fraction_final=float(self.final.falsified_fraction), excitation=dict(self.excitation),
             operating_point_rad=float(self.operating_point_rad), undecided=tuple(self.undecided),
             findings=tuple(self.findings), residual_structure=self.residual_structure,
-            restart_window_samples=self.restart_window_samples)
+            restart_window_samples=self.restart_window_samples, load_torque_check=self.load_torque_check)
 
     def to_dict(self) -> dict[str, Any]:
         """The ``rig diagnose --json`` document, ``self.report().to_dict()`` (:meth:`DiscrepancyReport.to_dict`)."""
@@ -317,10 +319,11 @@ class DiscrepancyReport:
     findings: tuple[GrossDisagreement, ...] = ()
     residual_structure: ResidualStructure | None = None
     restart_window_samples: int | None = None
+    load_torque_check: LoadTorqueCheck | None = None
 
     KIND = "model_discrepancy"
-    VERSION = 6
-    READS = (1, 2, 3, 4, 5, 6)
+    VERSION = 7
+    READS = (1, 2, 3, 4, 5, 6, 7)
     """Version 2 added ``undecided`` and each candidate's ``reduction``, ``reduction_interval`` and
     ``acceptance``; version 3 each candidate's ``validation_interval``, ``fold_reductions`` and
     ``refit_interval`` (the interval judged, ``reduction_interval``, is then made of both:
@@ -328,8 +331,9 @@ class DiscrepancyReport:
     :class:`GrossDisagreement`, each with ``kind``, ``ranges`` and ``text``); version 5 ``residual_structure``
     (the open-world check: :class:`ResidualStructure`, null when not judged); version 6
     ``restart_window_samples`` (null: the models were compared by their free runs; a number: on windows of that
-    many samples restarting the load from the measured angle, :mod:`.comparison`). :meth:`from_dict` reads
-    versions 1 to 5 too (no undecided candidates, no intervals; no refits; no findings; no residual structure;
+    many samples restarting the load from the measured angle, :mod:`.comparison`); version 7 ``load_torque_check``
+    (what the drive's torque says of a weight, :class:`~identify.model_discrepancy.drive_torque.LoadTorqueCheck`;
+    null when no torque was given or the angle left no weight open). :meth:`from_dict` reads versions 1 to 6 too (no undecided candidates, no intervals; no refits; no findings; no residual structure;
     free runs)."""
 
     def __post_init__(self) -> None:
@@ -356,7 +360,7 @@ class DiscrepancyReport:
         ``verdict_reason``, ``noise_bound``, ``missing_effects`` (with ``parameter_intervals``), ``ambiguous_between``,
         ``candidates``, ``gap_initial``, ``gap_final``, ``gap_reduction``, ``falsified_fraction_initial``,
         ``falsified_fraction_final``, ``excitation``, ``operating_point``, ``undecided``, ``findings``,
-        ``residual_structure``, ``restart_window_samples``."""
+        ``residual_structure``, ``restart_window_samples``, ``load_torque_check``."""
         return tagged(self.KIND, self.VERSION, {
             "verdict": self.verdict,
             "verdict_reason": self.verdict_reason,
@@ -385,6 +389,7 @@ class DiscrepancyReport:
             "findings": [finding.to_dict() for finding in self.findings],
             "residual_structure": None if self.residual_structure is None else self.residual_structure.to_dict(),
             "restart_window_samples": self.restart_window_samples,
+            "load_torque_check": None if self.load_torque_check is None else self.load_torque_check.to_dict(),
         })
 
     @classmethod
@@ -412,7 +417,9 @@ class DiscrepancyReport:
                 residual_structure=None if data.get("residual_structure") is None
                 else ResidualStructure.from_dict(data["residual_structure"]),
                 restart_window_samples=None if data.get("restart_window_samples") is None
-                else int(data["restart_window_samples"]))
+                else int(data["restart_window_samples"]),
+                load_torque_check=None if data.get("load_torque_check") is None
+                else LoadTorqueCheck.from_dict(data["load_torque_check"]))
 
 
 @dataclass(frozen=True)

@@ -605,3 +605,46 @@ the last step)."""
 # Evidence: as STRUCTURE_PROFILE_STEPS.
 STRUCTURE_PROFILE_FIRST_STEP = 5.0e-2
 """First step of the profile walk relative to the fitted value (1 for a value of 0)."""
+
+# ----------------------------------------------------------------------------------------------------------
+# Step 8: the drive's torque (identify.model_discrepancy.drive_torque)
+# ----------------------------------------------------------------------------------------------------------
+
+# Evidence: from the plants: the clean-room generator's drive trains have four states (servo pair and shaft
+# mode), our drive train up to five (with the position loop's integrator); twice that leaves room for a
+# torque reading that lags the state by a sample or two.
+TORQUE_LAGS = 8
+"""Lags of the command and of the start model's output in the torque's linear part (module docstring of
+:mod:`.drive_torque`): they span a torque linear in a state of up to this order."""
+
+# Evidence: the clean-room generator's shaft mode (30.8 Hz, damping 0.053) rings for 1 / (zeta omega) = 0.1 s;
+# with this window the once-per-revolution torque of its clean and eccentric records stayed within 1 standard
+# deviation of zero on 16 of 16 (steps, chirp, multisine, prbs; both servos; the torque then computed from its
+# states).
+TORQUE_HAC_WINDOW_S = 0.1
+"""Lags of the Newey-West covariance, in seconds: the residual torque's correlation time."""
+
+# Evidence: a judgement: five standard deviations; the clean-room generator's weights gave 10-300 standard
+# deviations on steps, chirps and multisines, under 2 on its +-0.01 rad prbs, its clean and eccentric records
+# under 1.
+TORQUE_SIGNIFICANT_SIGMAS = 5.0
+"""A harmonic this many standard deviations from zero is there (the torque's, the angle's sag)."""
+
+# Evidence: a judgement: three standard deviations, the bound the torque's absence is stated with.
+TORQUE_ABSENT_SIGMAS = 3.0
+"""An absent once-per-revolution torque is stated as under its value plus this many standard deviations."""
+
+# Evidence: a judgement: half a radian (29 degrees) between the hanging angles of the torque and of the sag,
+# whose phases a short range of angles fixes only roughly.
+TORQUE_PHASE_TOLERANCE_RAD = 0.5
+"""Largest difference between the hanging angles the torque and the angle's sag show for a weight."""
+
+# Evidence: the clean-room generator's torque actual value (noise 5 mN m, 2 mN m steps) on seeds 1000-1019 of
+# its gravity, eccentricity, clean, cogging, backlash, Coulomb, Stribeck, hysteresis and drifting-gain
+# records, both servos: where the weight's harmonic and the sag were significant and in phase, the colour of
+# the torque left was 0.98-1.34 on the weights' steps, chirps and multisines (1.96 on one multisine), 44-220 on
+# cogging; no play, friction, hysteresis, sensor error or clean record met the other conditions. The workflow
+# with the torque: benchmarks/model_discrepancy_confusion.py --drive-torque 0.005 (BENCHMARKS.md).
+TORQUE_MAX_RESIDUAL_COLOUR = 3.0
+"""Largest colour (:func:`.drive_torque._colour`: variance over half the variance of the sample-to-sample
+steps, 1 for white noise) of the torque the fit leaves, for the weight to be all that was missing."""

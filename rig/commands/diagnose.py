@@ -22,7 +22,9 @@ object with an entries[] list, as the K-Scale sysid logger writes); --columns, -
 other tools' files. One-sample read failures are replaced and counted, irregular sampling is resampled with a
 note, and a record that starts at rest is run from rest at its first command. Without --model the start
 model is the best linear model of order 1 or 2 (chosen by validation error). The noise bound must cover the
-encoder's half count.
+encoder's half count. With the drive's torque in the file (--columns ...,tau=NAME: a CiA 402 torque actual
+value or a motor current, any unit), a weight on the load that the angle alone cannot tell from a sensor error
+is checked in the torque the drive gives.
 
 Example (a K-Scale STS3215 record, 4096 counts/rev: noise bound of a few counts):
   rig diagnose sysid.json --columns t=timestamp,u=goal_position,y=position --valid torque_enable \
@@ -152,7 +154,8 @@ def diagnose_file(path_text: str, options: dict):
     progress = _progress_lines(path_text, record.command_rad.size) if options.get("progress") else None
     try:
         result = diagnose_model(record.command_rad, angle_rad, options["noise_bound"],
-                                record.metadata.sample_period_s, model, candidates=candidates, progress=progress)
+                                record.metadata.sample_period_s, model, candidates=candidates,
+                                drive_torque=record.drive_torque, progress=progress)
     except InvalidInputError as err:
         raise InvalidInputError(f"{path_text}: {err}") from err
     index = None

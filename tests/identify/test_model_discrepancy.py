@@ -221,7 +221,7 @@ def test_a_named_effect_carries_parameter_intervals_containing_its_fit_and_a_gap
     # the play's map is named; from positions alone it is also friction without stiction: mechanism left open
     assert result.verdict == "ambiguous" and result.ambiguous_between == ("backlash", "coulomb_friction")
     document = result.to_dict()
-    assert document["kind"] == "model_discrepancy" and document["version"] == 6
+    assert document["kind"] == "model_discrepancy" and document["version"] == 7
     assert DiscrepancyReport.from_dict(json.loads(json.dumps(document))) == result.report()
     (entry,) = document["missing_effects"]
     truth = record.true_model.blocks[1]
@@ -390,7 +390,7 @@ def test_a_clear_effect_is_named_with_its_reduction_clear_over_validation_blocks
     assert candidate.reduction_interval == candidate.refit_interval  # the refits measure the size...
     assert candidate.reduction >= 0.15  # ... and the validation segment shows it too
     document = json.loads(json.dumps(result.to_dict()))
-    assert document["version"] == 6 and len(document["candidates"][0]["fold_reductions"]) == REFIT_FOLDS
+    assert document["version"] == 7 and len(document["candidates"][0]["fold_reductions"]) == REFIT_FOLDS
     assert DiscrepancyReport.from_dict(document) == result.report()
 
 

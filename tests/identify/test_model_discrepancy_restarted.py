@@ -122,7 +122,7 @@ def test_the_report_says_which_comparison_it_used_and_reopens():
         gap_reduction={"value": 0.67}, falsified_fraction_initial=0.7, falsified_fraction_final=0.2, excitation={},
         operating_point_rad=0.0, restart_window_samples=50)
     document = json.loads(json.dumps(report.to_dict()))
-    assert document["restart_window_samples"] == 50 and document["version"] == 6
+    assert document["restart_window_samples"] == 50 and document["version"] == 7
     assert DiscrepancyReport.from_dict(document) == report
     older = {key: value for key, value in document.items() if key != "restart_window_samples"}
     assert DiscrepancyReport.from_dict({**older, "version": 5}).restart_window_samples is None  # free runs
