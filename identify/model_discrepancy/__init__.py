@@ -50,6 +50,9 @@ per step:
    open (a resonance may be open beside them, and stays so), those candidates are judged again, steps 2-8 on windows that restart the drive train's load from the
    measured angle (a multi-step-ahead prediction error): a load rattling in a play, which no free run follows,
    is named there; only a name left open can come out, and the record is never ``explained`` by it.
+10. **The drive's torque** (:mod:`.drive_torque`): given the torque the drive reported, a weight the angle left
+    open beside the sensor errors that sag it alike is looked for in the torque: when the drive carries it, the
+    record is diagnosed again without those sensor errors and the weight is named.
 
 :mod:`.pipeline` runs the steps (:func:`diagnose_model`, settings :class:`DiagnoseOptions` in
 :mod:`.options`); :mod:`.result` holds the result types (:class:`DiscrepancyResult`, the JSON

@@ -213,6 +213,10 @@ class DiscrepancyResult:
         Gross disagreements of the measurement found on the whole record (:class:`GrossDisagreement`: a sensor
         wrap, glitches); the workflow ran on the record with a wrap undone and glitches left out, and a record
         with findings is never ``explained``.
+    load_torque_check
+        What the drive's torque says of a weight the angle left open beside a sensor error
+        (:class:`~identify.model_discrepancy.drive_torque.LoadTorqueCheck`); None without a torque, or when the
+        angle left no weight open.
     """
 
     steps: tuple[DiscrepancyStep, ...]

@@ -607,7 +607,7 @@ STRUCTURE_PROFILE_FIRST_STEP = 5.0e-2
 """First step of the profile walk relative to the fitted value (1 for a value of 0)."""
 
 # ----------------------------------------------------------------------------------------------------------
-# Step 8: the drive's torque (identify.model_discrepancy.drive_torque)
+# Step 10: the drive's torque (identify.model_discrepancy.drive_torque)
 # ----------------------------------------------------------------------------------------------------------
 
 # Evidence: from the plants: the clean-room generator's drive trains have four states (servo pair and shaft

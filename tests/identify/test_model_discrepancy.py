@@ -122,7 +122,7 @@ def test_fitted_parameters_are_close_to_the_truth():
 JSON_KEYS = {"verdict", "verdict_reason", "noise_bound", "missing_effects", "ambiguous_between", "candidates",
              "gap_initial", "gap_final", "gap_reduction", "falsified_fraction_initial", "falsified_fraction_final",
              "excitation", "operating_point", "undecided", "findings", "residual_structure", "restart_window_samples",
-             "kind", "version"}
+             "load_torque_check", "kind", "version"}
 
 
 def test_json_document_has_exactly_the_documented_keys():

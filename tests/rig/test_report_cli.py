@@ -133,7 +133,7 @@ def test_foreign_files_are_refused_with_the_file_and_what_was_expected(data, cap
     assert main(["report", str(other_json), "--out", str(tmp_path / "r")]) == exit_codes.BAD_INPUT
     error = capsys.readouterr().err
     assert f"{other_json}: JSON without a 'kind' key (keys [name, speed])" in error
-    assert "output_backlash v1, hammerstein_model v1, model_discrepancy v1/2/3/4/5/6, run_summary v1/2/3/4, batch v1" in error
+    assert "output_backlash v1, hammerstein_model v1, model_discrepancy v1/2/3/4/5/6/7, run_summary v1/2/3/4, batch v1" in error
 
     binary = tmp_path / "figure.png"
     binary.write_bytes(b"\x89PNG\r\n\x1a\n\x00\x00\xff\xfe")
@@ -192,7 +192,7 @@ def test_a_saved_result_with_damaged_data_names_the_file_and_the_key(data, capsy
 @pytest.mark.parametrize("document, words", [
     ({"kind": "hammerstein_model", "version": 9}, "kind 'hammerstein_model' version 9 cannot be read"),
     ({"kind": "gearbox_photo", "version": 1}, "kind 'gearbox_photo' version 1 cannot be read"),
-    ({**DIAGNOSE, "version": 7}, "kind 'model_discrepancy' version 7 cannot be read"),
+    ({**DIAGNOSE, "version": 8}, "kind 'model_discrepancy' version 8 cannot be read"),
 ])
 def test_a_kind_or_version_it_cannot_read_is_named(document, words, capsys, tmp_path):
     path = tmp_path / "result.json"
