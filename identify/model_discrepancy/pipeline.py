@@ -114,19 +114,21 @@ def diagnose_model(command_rad: ArrayLike, angle_rad: ArrayLike, noise_bound_rad
 
 def _diagnosed_record(command_rad: ArrayLike, angle_rad: ArrayLike, noise_bound_rad: float, sample_period_s: float,
                       model: PlantModel | None, options: DiagnoseOptions,
-                      progress: Callable[[str], None] | None) -> DiscrepancyResult:
-    """:func:`diagnose_model` from the angle alone."""
+                      progress: Callable[[str], None] | None, sag_shape_shown: bool = False) -> DiscrepancyResult:
+    """:func:`diagnose_model` from the angle alone; ``sag_shape_shown``: the drive's torque has shown the sine
+    of a weight's sag, which the angle need not show again (:func:`_shape_left_open` is not asked)."""
     u, y, delta, period = _checked_record(command_rad, angle_rad, noise_bound_rad, sample_period_s, model)
     findings, cleaned = gross_disagreements(u, y, delta)
     if findings:  # measurement-side: the rest of the record is judged with them put aside, and says so
         if progress is not None:
             for finding in findings:
                 progress(finding.text())
-        return _with_findings(_diagnosed_record(u, cleaned, delta, period, model, options, progress), findings)
+        return _with_findings(_diagnosed_record(u, cleaned, delta, period, model, options, progress, sag_shape_shown),
+                              findings)
     operating_point = _operating_point(u, y, delta) if options.from_operating_point else 0.0
     if operating_point != 0.0:
         result = _diagnosed_record(u - operating_point, y - operating_point, delta, period, model,
-                                   replace(options, from_operating_point=False), progress)
+                                   replace(options, from_operating_point=False), progress, sag_shape_shown)
         return _absolute(result, operating_point, period)
     n_est = int(round(options.estimation_fraction * u.size))
     _check_measured(y, n_est)
@@ -135,13 +137,13 @@ def _diagnosed_record(command_rad: ArrayLike, angle_rad: ArrayLike, noise_bound_
     if excitation["reason"]:
         say(f"not excited: {excitation['reason']}")
         return _not_excited(u, y, delta, model, n_est, excitation, options.consistent_fraction)
-    first = _diagnosed(u, y, delta, period, model, options, n_est, excitation, say)
+    first = _diagnosed(u, y, delta, period, model, options, n_est, excitation, say, sag_shape_shown)
     return _restarted_if_open(first, u, y, delta, period, n_est, excitation, options, say)
 
 
 def _diagnosed(u: NDArray[np.float64], y: NDArray[np.float64], delta: float, period: float, model: PlantModel | None,
                options: DiagnoseOptions, n_est: int, excitation: dict[str, Any],
-               say: Callable[[str], None]) -> DiscrepancyResult:
+               say: Callable[[str], None], sag_shape_shown: bool = False) -> DiscrepancyResult:
     """The start model, the search, the intervals, the verdict and the open-world check of one record, under
     the comparison in force (:mod:`.comparison`)."""
     start_model, linear_fit, chain = _start(u, y, period, n_est, model, options.max_evaluations, say)
@@ -158,7 +160,8 @@ def _diagnosed(u: NDArray[np.float64], y: NDArray[np.float64], delta: float, per
     intervals, reduction = _named_intervals(chain, steps, start_model, u, y, delta, current, options, say)
     steps = _with_final_parameters(steps, chain)
     found = _mechanisms_left_open(replace(found, steps=steps), candidates, say)
-    found = _shape_left_open(found, y, delta, say)
+    if not sag_shape_shown:
+        found = _shape_left_open(found, y, delta, say)
     verdict, reason = _final_verdict(u, y, initial, current, found, consistent, delta, period, options)
     verdict, reason, structure = open_world_checked(verdict, reason, u, y, initial, current, steps, consistent, n_est)
     return DiscrepancyResult(
@@ -180,7 +183,9 @@ def _with_drive_torque(result: DiscrepancyResult, u: NDArray[np.float64], y: NDA
     """``result``, or, when it leaves gravity open beside the sensor errors that sag the angle alike
     (:data:`SAG_LOOK_ALIKES`), the drive's torque checked for the weight (:func:`.drive_torque.load_torque_check`):
     when the drive carries it, the record diagnosed again without those sensor errors (the weight is shown,
-    they are not needed for the sag); otherwise the result as it was, the check's figures added to its reason
+    they are not needed for the sag) and without asking the angle for the sine's shape, which the torque showed
+    (its harmonic is the part of a sine the lags, which hold the angle itself, cannot take: the bend a spring or
+    a constant torque has not); otherwise the result as it was, the check's figures added to its reason
     (what the torque bounds). The check is in ``load_torque_check`` either way."""
     left_open = set(result.ambiguous_between) | {candidate.effect for candidate in result.undecided}
     if "gravity" not in left_open or not left_open & set(SAG_LOOK_ALIKES):
@@ -191,7 +196,7 @@ def _with_drive_torque(result: DiscrepancyResult, u: NDArray[np.float64], y: NDA
         return replace(result, load_torque_check=check,
                        verdict_reason=f"{result.verdict_reason.rstrip('.')}. The drive's torque: {check.text()}.")
     kept = tuple(name for name in options.candidates if name not in SAG_LOOK_ALIKES)
-    again = _diagnosed_record(u, y, delta, period, model, replace(options, candidates=kept), say)
+    again = _diagnosed_record(u, y, delta, period, model, replace(options, candidates=kept), say, sag_shape_shown=True)
     return replace(again, load_torque_check=check, verdict_reason=(
         f"{again.verdict_reason.rstrip('.')}. The drive's torque: {check.text()} ({', '.join(SAG_LOOK_ALIKES)} not "
         "tried)."))

@@ -96,6 +96,19 @@ def test_the_angle_alone_leaves_the_weight_open_and_the_torque_leaves_a_sensor_e
     assert "no weight shows in the torque" in sensor.verdict_reason
 
 
+@pytest.mark.slow
+def test_the_torque_shows_the_sine_the_angles_short_span_cannot():
+    # a multisine's angles span 0.9 rad: the weight's sag departs from a straight line by less than the noise
+    # bound there, so the angle alone names gravity and leaves its shape open; the torque's harmonic is the bend
+    # of the sine beyond the straight line (the lags hold the angle itself), resolved at 12 standard deviations
+    record = _record("gravity", 1002, "multisine")
+    model = PlantModel((confusion.nominal_linear_block(record["nominal"]),))
+    result = diagnose_model(record["command_rad"], record["angle_rad"],
+                            confusion.independent_noise_bound(record["nominal"]), 1e-3, model,
+                            drive_torque=record["torque_nm"])
+    assert result.missing_effects == ("gravity",) and result.verdict == "named", result.verdict_reason
+
+
 def test_a_torque_of_another_length_is_refused_by_name():
     u = np.sin(np.linspace(0.0, 20.0, 400))
     with pytest.raises(InvalidInputError, match="drive_torque"):
