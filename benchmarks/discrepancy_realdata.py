@@ -7,9 +7,13 @@ resampled) and diagnosed from a fitted linear start model with one noise bound f
 of the 4096-count encoder). Per configuration the table gives the four verdicts, the named effects, the
 parameter intervals and whether the four agree: same verdict and same named effects, and for every named
 parameter intervals that overlap (all four share a point). The agreement rate is the share of
-configurations where they do (goal 100 %). Then the EMPS record, as in ``model_discrepancy_confusion.py``.
+configurations where they do (goal 100 %). With ``--drive-torque KEY`` the workflow also gets the servo's
+reported torque under that key (``torque`` or ``current``: ``--columns ...,tau=KEY``), and each record whose
+angle left a weight open beside a sensor error says what the torque showed. Then the EMPS record, as in
+``model_discrepancy_confusion.py``.
 
-Run: ``.venv/bin/python benchmarks/discrepancy_realdata.py [--jobs 2] [--trajectories sin_sin,sin_time_square]``.
+Run: ``.venv/bin/python benchmarks/discrepancy_realdata.py [--jobs 2] [--trajectories sin_sin,sin_time_square]
+[--drive-torque torque]``.
 """
 
 from __future__ import annotations
@@ -42,14 +46,17 @@ KSCALE = REALDATA / "kscale_sts3215"
 COUNT_RAD = 2.0 * math.pi / 4096
 
 
-def diagnose_one(path: str, noise_bound_rad: float) -> dict:
+def diagnose_one(path: str, noise_bound_rad: float, torque_key: str | None = None) -> dict:
     from identify.model_discrepancy import diagnose_model
     from rig.record_import import ImportOptions, read_measurement
 
-    options = ImportOptions(columns={"t": "timestamp", "u": "goal_position", "y": "position"}, valid="torque_enable")
-    record, imported = read_measurement(path, options)
+    columns = {"t": "timestamp", "u": "goal_position", "y": "position"}
+    if torque_key is not None:
+        columns["tau"] = torque_key
+    record, imported = read_measurement(path, ImportOptions(columns=columns, valid="torque_enable"))
     started = time.process_time()
-    result = diagnose_model(record.command_rad, record.angle_rad, noise_bound_rad, record.metadata.sample_period_s)
+    result = diagnose_model(record.command_rad, record.angle_rad, noise_bound_rad, record.metadata.sample_period_s,
+                            drive_torque=record.drive_torque)
     document = result.to_dict()
     return {"file": Path(path).name, "verdict": result.verdict, "reason": result.verdict_reason,
             "effects": tuple(result.missing_effects), "ambiguous": tuple(result.ambiguous_between),
@@ -57,7 +64,8 @@ def diagnose_one(path: str, noise_bound_rad: float) -> dict:
             "gap_initial": document["gap_initial"], "gap_final": document["gap_final"],
             "falsified_final": document["falsified_fraction_final"], "spikes": imported.spikes,
             "undecided": tuple((c.effect, c.reduction, *c.reduction_interval) for c in result.undecided),
-            "samples": int(record.command_rad.size), "cpu_s": time.process_time() - started}
+            "samples": int(record.command_rad.size), "cpu_s": time.process_time() - started,
+            "torque_check": None if result.load_torque_check is None else result.load_torque_check.text()}
 
 
 def _overlap(intervals: list[tuple[float, float]]) -> bool:
@@ -93,26 +101,29 @@ def same_contenders(runs: list[dict]) -> bool:
     return len({frozenset(run["ambiguous"]) for run in runs}) == 1
 
 
-def kscale(noise_bound_rad: float, jobs: int, trajectories: set[str] | None = None) -> None:
+def kscale(noise_bound_rad: float, jobs: int, trajectories: set[str] | None = None,
+           torque_key: str | None = None) -> None:
     with (KSCALE / "index.csv").open() as handle:
         rows = [row for row in csv.DictReader(handle) if trajectories is None or row["trajectory"] in trajectories]
     started = time.perf_counter()
     runs = []
     with ProcessPoolExecutor(max_workers=jobs) as pool:
         for row, run in zip(rows, pool.map(diagnose_one, [str(KSCALE / row["file"]) for row in rows],
-                                           [noise_bound_rad] * len(rows))):
+                                           [noise_bound_rad] * len(rows), [torque_key] * len(rows))):
             runs.append(run)  # one line per record as it is done (a long run can be read while it goes on)
             print(f"  {row['trajectory']} kp {row['kp']} {run['file']}: {run['verdict']} "
                   f"{answer(run)} ({run['cpu_s']:.1f} s CPU)"
                   + "".join(f"; {name} {100 * r:.0f} % [{100 * low:.0f}, {100 * high:.0f}]"
-                            for name, r, low, high in run["undecided"]), flush=True)
+                            for name, r, low, high in run["undecided"])
+                  + (f"; the drive's torque: {run['torque_check']}" if run["torque_check"] else ""), flush=True)
     elapsed = time.perf_counter() - started
     cpu = [run["cpu_s"] for run in runs]
     groups: dict[tuple[str, str], list[dict]] = defaultdict(list)
     for row, run in zip(rows, runs):
         groups[(row["trajectory"], row["kp"])].append(run)
     print(f"\nK-Scale STS3215: {len(runs)} records, noise bound {noise_bound_rad:.4g} rad "
-          f"({noise_bound_rad / COUNT_RAD:.2g} counts), fitted linear start model; {elapsed:.0f} s with {jobs} "
+          f"({noise_bound_rad / COUNT_RAD:.2g} counts), fitted linear start model"
+          + (f", with the servo's {torque_key!r} as the drive's torque" if torque_key else "") + f"; {elapsed:.0f} s with {jobs} "
           f"process(es); CPU per record {min(cpu):.1f}-{max(cpu):.1f} s, {sum(cpu):.0f} s in all")
     print("| trajectory | kp | verdicts (4 repetitions) | named; ? ambiguous | parameter intervals | "
           "gap initial -> final [mrad] | spikes | agree | same ambiguous set |")
@@ -179,6 +190,8 @@ def main() -> None:
     parser.add_argument("--jobs", type=int, default=2)
     parser.add_argument("--trajectories", default=None,
                         help="only these trajectories, comma-separated (default: all five)")
+    parser.add_argument("--drive-torque", default=None, metavar="KEY",
+                        help="also give the workflow the servo's torque under this record key (torque or current)")
     parser.add_argument("--no-emps", action="store_true")
     parser.add_argument("--emps-decimate", type=int, default=5)
     parser.add_argument("--emps-noise-bound", type=float, default=1e-6, metavar="M")
@@ -187,7 +200,7 @@ def main() -> None:
         print(f"{KSCALE} not found")
     else:
         kscale(args.noise_bound_counts * COUNT_RAD, args.jobs,
-               set(args.trajectories.split(",")) if args.trajectories else None)
+               set(args.trajectories.split(",")) if args.trajectories else None, args.drive_torque)
     if not args.no_emps:
         emps(args.emps_decimate, args.emps_noise_bound)
 
