@@ -56,9 +56,10 @@ from identify.model_discrepancy.thresholds import (
 )
 
 OUTCOMES = ("load_torque", "undecided")
-SAG_LOOK_ALIKES = ("encoder_error", "offset")
-"""The sensor errors that sag the angle as a weight does (gravity's look-alikes in the catalogue, and theirs):
-not tried again once the drive's torque shows the weight."""
+SAG_LOOK_ALIKES = ("encoder_error", "offset", "gain_error")
+"""The sensor errors that read like a weight's sag: a once-per-revolution error (gravity's look-alike in the
+catalogue), and over a short span of angles an offset and a gain error (the sine's value and slope there). The
+drive feels none of them: they are not tried again once its torque shows the weight."""
 
 
 @dataclass(frozen=True)

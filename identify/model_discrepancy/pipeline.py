@@ -89,8 +89,8 @@ def diagnose_model(command_rad: ArrayLike, angle_rad: ArrayLike, noise_bound_rad
     drive_torque
         The torque the drive reported at each sample (the CiA 402 torque actual value 0x6077, a motor current;
         any unit, NaN where not measured), or None. When the angle leaves a weight (gravity) open beside the
-        sensor errors that sag it alike (an encoder error, an offset), the torque shows whether the drive carries
-        a weight (:func:`_with_drive_torque`).
+        sensor errors that read like its sag (an encoder error, an offset, a gain error), the torque shows
+        whether the drive carries a weight (:func:`_with_drive_torque`).
     progress
         Called with one line of text per stage and candidate.
 
