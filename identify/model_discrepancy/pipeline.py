@@ -88,9 +88,9 @@ def diagnose_model(command_rad: ArrayLike, angle_rad: ArrayLike, noise_bound_rad
         ``max_effects=2``, ...), which override those of ``options``.
     drive_torque
         The torque the drive reported at each sample (the CiA 402 torque actual value 0x6077, a motor current;
-        any unit, NaN where not measured), or None. When the angle leaves a weight (gravity) open beside the
-        sensor errors that read like its sag (an encoder error, an offset, a gain error), the torque shows
-        whether the drive carries a weight (:func:`_with_drive_torque`).
+        any unit, NaN where not measured), or None. When the angle leaves a weight (gravity) open, beside the
+        sensor errors that read like its sag (an encoder error, an offset, a gain error) or with its shape
+        undecided, the torque shows whether the drive carries a weight (:func:`_with_drive_torque`).
     progress
         Called with one line of text per stage and candidate.
 
@@ -180,15 +180,16 @@ def _diagnosed(u: NDArray[np.float64], y: NDArray[np.float64], delta: float, per
 def _with_drive_torque(result: DiscrepancyResult, u: NDArray[np.float64], y: NDArray[np.float64],
                        torque: NDArray[np.float64], delta: float, period: float, model: PlantModel | None,
                        options: DiagnoseOptions, say: Callable[[str], None]) -> DiscrepancyResult:
-    """``result``, or, when it leaves gravity open beside the sensor errors that sag the angle alike
-    (:data:`SAG_LOOK_ALIKES`), the drive's torque checked for the weight (:func:`.drive_torque.load_torque_check`):
+    """``result``, or, when it leaves gravity open (beside the sensor errors that read like its sag,
+    :data:`SAG_LOOK_ALIKES`, or its shape undecided over a short span of angles), the drive's torque checked for
+    the weight (:func:`.drive_torque.load_torque_check`):
     when the drive carries it, the record diagnosed again without those sensor errors (the weight is shown,
     they are not needed for the sag) and without asking the angle for the sine's shape, which the torque showed
     (its harmonic is the part of a sine the lags, which hold the angle itself, cannot take: the bend a spring or
     a constant torque has not); otherwise the result as it was, the check's figures added to its reason
     (what the torque bounds). The check is in ``load_torque_check`` either way."""
     left_open = set(result.ambiguous_between) | {candidate.effect for candidate in result.undecided}
-    if "gravity" not in left_open or not left_open & set(SAG_LOOK_ALIKES):
+    if "gravity" not in left_open:
         return result
     check = load_torque_check(u, y, torque, result.start_model, period)
     say(f"drive torque: {check.text()}")
