@@ -14,26 +14,28 @@ The check (:func:`load_torque_check`) fits the torque record, by least squares, 
     \\tau_k = \\sum_{i=0}^{L} a_i \\hat y_{k-i} + \\sum_{i=0}^{L} d_i u_{k-i} + c
               + T_s \\sin \\hat y_k + T_c \\cos \\hat y_k + e_k,
 
-where u is the command, y^ the start model's free run: for a plant whose torque is a
+where u is the command and y^ the start model's free run (the harmonic of the model's angle, not of the
+measured one, whose own disagreement, a play's lag say, would leak into it). For a plant whose torque is a
 linear function of its state and command (motor and load inertias, shaft, servo), the lagged command and model
 output span that function exactly once L reaches the plant's order (:data:`TORQUE_LAGS`), so what the lags
-cannot take is the torque the start model does not hold. T = |(T_s, T_c)| is the once-per-revolution torque;
-the torque the fit leaves must then be noise (:func:`_colour`): a torque that only projects on the harmonic over
-the angles the record covers (cogging, a friction's or a play's) leaves the rest of itself.
-The angle's own disagreement with the start model, r = y - y^, is fitted with a constant and the first
-harmonic, S its amplitude. Standard deviations are from the Newey-West (Bartlett) covariance over
-:data:`TORQUE_HAC_WINDOW_S` of lags, since neither residual is white.
+cannot take is the torque the start model does not hold: T = |(T_s, T_c)| is the once-per-revolution torque
+beyond the straight line in the angle that the lags (which hold y^ itself) take, i.e. a sine's bend. The torque
+the fit leaves must then be noise (:func:`_colour`): a torque that only projects on the harmonic over the
+angles the record covers (cogging, a friction's or a play's) leaves the rest of itself. The angle's own
+disagreement with the start model, r = y - y^, is fitted with a constant and the same harmonic, S its
+amplitude. Standard deviations are from the Newey-West (Bartlett) covariance over :data:`TORQUE_HAC_WINDOW_S`
+of lags, since neither residual is white.
 
 A weight hanging at theta_0 pulls with -m g l sin(theta - theta_0), the drive holds it with +m g l sin(theta -
 theta_0), and the load sags by -C m g l sin(theta - theta_0) (C > 0 the static compliance of servo and shaft):
-the torque's harmonic and the angle's are in opposite phase. The outcome is ``load_torque`` when both
-harmonics are :data:`TORQUE_SIGNIFICANT_SIGMAS` standard deviations from zero, in opposite phase within
+the torque's harmonic and the angle's are in opposite phase. The outcome is ``load_torque`` when both harmonics
+are :data:`TORQUE_SIGNIFICANT_SIGMAS` standard deviations from zero, in opposite phase within
 :data:`TORQUE_PHASE_TOLERANCE_RAD`, and the torque left is no more coloured than
-:data:`TORQUE_MAX_RESIDUAL_COLOUR`; else
-``undecided``. The torque's absence alone does not exclude a weight: with a torque under T + 3 sigma, a weight
-would need a compliance of at least S / (T + 3 sigma), and neither the angle nor the drive's torque bounds the
-compliance from above (a light load on a soft shaft rings at the same frequency as a heavy one on a stiff
-shaft), so the text gives that least compliance for a user who knows the shaft.
+:data:`TORQUE_MAX_RESIDUAL_COLOUR`; else ``undecided``. The torque's absence alone does not exclude a weight:
+with a torque under T + 3 sigma, a weight would need a compliance of at least S / (T + 3 sigma), and neither the
+angle nor the drive's torque bounds the compliance from above (a light load on a soft shaft rings at the same
+frequency as a heavy one on a stiff shaft), so the text gives that least compliance for a user who knows the
+shaft.
 """
 
 from __future__ import annotations
@@ -48,9 +50,9 @@ from numpy.typing import NDArray
 from identify.plant_blocks import PlantModel
 from identify.model_discrepancy.thresholds import (
     TORQUE_ABSENT_SIGMAS,
-    TORQUE_MAX_RESIDUAL_COLOUR,
     TORQUE_HAC_WINDOW_S,
     TORQUE_LAGS,
+    TORQUE_MAX_RESIDUAL_COLOUR,
     TORQUE_PHASE_TOLERANCE_RAD,
     TORQUE_SIGNIFICANT_SIGMAS,
 )
