@@ -103,12 +103,12 @@ def diagnose_model(command_rad: ArrayLike, angle_rad: ArrayLike, noise_bound_rad
         A keyword that is no field of :class:`DiagnoseOptions` (the message lists them).
     """
     options = with_options("diagnose_model", options, DiagnoseOptions, option_values)
-    result = _diagnosed_record(command_rad, angle_rad, noise_bound_rad, sample_period_s, model, options, progress)
     if drive_torque is None:
-        return result
+        return _diagnosed_record(command_rad, angle_rad, noise_bound_rad, sample_period_s, model, options, progress)
     u, y, delta, period = _checked_record(command_rad, angle_rad, noise_bound_rad, sample_period_s, model)
     torque = as_signal("drive_torque", drive_torque, missing_allowed=True)
     same_length(command_rad=u, drive_torque=torque)
+    result = _diagnosed_record(u, y, delta, period, model, options, progress)
     return _with_drive_torque(result, u, y, torque, delta, period, model, options, progress or (lambda _message: None))
 
 
