@@ -226,8 +226,8 @@ def _json_records(path: Path, text: str, options: ImportOptions) -> dict[str, ND
     for role, name in wanted.items():
         try:
             values = [record[name] for record in records]
-            out[role] = np.array([float(bool(v)) if role == "valid" else (math.nan if v is None else float(v))
-                                  for v in values], dtype=float)
+            out[role] = np.array([float(bool(v)) if role == "valid" else
+                                  (math.nan if v is None and role == "tau" else float(v)) for v in values], dtype=float)
         except (KeyError, TypeError, ValueError):
             bad = next(i for i, r in enumerate(records) if not isinstance(r.get(name), (int, float, bool)))
             raise RecordImportError(f"{path}: record {bad} has no number under {name!r}") from None
