@@ -48,6 +48,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from identify.plant_blocks import PlantModel
+from identify.model_discrepancy.open_world import delayed_columns
 from identify.model_discrepancy.thresholds import (
     TORQUE_ABSENT_SIGMAS,
     TORQUE_HAC_WINDOW_S,
@@ -143,7 +144,7 @@ def load_torque_check(u: NDArray[np.float64], y: NDArray[np.float64], torque: ND
     usable[:TORQUE_LAGS] = False
     angle = y_hat[usable]
     harmonic = np.column_stack([np.sin(angle), np.cos(angle)])
-    design = np.column_stack([_lagged(y_hat, u)[usable], np.ones(angle.size), harmonic])
+    design = np.column_stack([delayed_columns((y_hat, u), range(TORQUE_LAGS + 1))[usable], np.ones(angle.size), harmonic])
     coefficients, covariance, residual = _hac_least_squares(design, torque[usable], window)
     torque_amplitude, torque_sigma, torque_phase = _harmonic(coefficients[-2:], covariance[-2:, -2:])
     sag_design = np.column_stack([np.ones(angle.size), harmonic])
@@ -167,18 +168,6 @@ def _harmonic(pair: NDArray[np.float64], covariance: NDArray[np.float64]) -> tup
     direction = pair / amplitude if amplitude > 0.0 else np.array([1.0, 0.0])
     sigma = math.sqrt(max(float(direction @ covariance @ direction), 0.0))
     return amplitude, sigma, math.atan2(pair[1], pair[0])
-
-
-def _lagged(y_hat: NDArray[np.float64], u: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Columns y^_{k-i} and u_{k-i}, i = 0..TORQUE_LAGS (the first samples repeat the first value)."""
-    columns = []
-    for lag in range(TORQUE_LAGS + 1):
-        for signal in (y_hat, u):
-            shifted = np.empty_like(signal)
-            shifted[lag:] = signal[:signal.size - lag]
-            shifted[:lag] = signal[0]
-            columns.append(shifted)
-    return np.column_stack(columns)
 
 
 def _colour(residual: NDArray[np.float64]) -> float:

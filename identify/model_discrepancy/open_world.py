@@ -39,15 +39,20 @@ from identify.model_discrepancy.thresholds import (
 __all__ = ["black_box_features", "open_world_checked", "residual_structure"]
 
 
+def delayed_columns(signals: tuple[NDArray[np.float64], ...], lags: tuple[int, ...] | range) -> NDArray[np.float64]:
+    """Each signal delayed by each of ``lags`` samples, one column each (signal by signal), the first samples
+    repeating the signal's first value (the record was at rest before it began)."""
+    n = signals[0].size
+    return np.column_stack([np.concatenate((np.full(lag, signal[0]), signal[:n - lag])) if lag else signal
+                            for signal in signals for lag in lags])
+
+
 def black_box_features(u: NDArray[np.float64], simulated: NDArray[np.float64]) -> NDArray[np.float64]:
     """The black box's regressors, one column each (module docstring): u and y^ delayed by each of
     :data:`OPEN_WORLD_LAGS` samples (the first samples repeat the first value), the sign of y^'s last move
     (held while y^ rests), sin and cos of k y^ for k = 1 .. :data:`OPEN_WORLD_HARMONICS`, 1 and t / N."""
     n = u.size
-    columns = []
-    for signal in (u, simulated):
-        for lag in OPEN_WORLD_LAGS:
-            columns.append(np.concatenate((np.full(lag, signal[0]), signal[:n - lag])) if lag else signal)
+    columns = list(delayed_columns((u, simulated), OPEN_WORLD_LAGS).T)
     moves = np.sign(np.diff(simulated, prepend=simulated[0]))
     direction = np.zeros(n)
     if np.any(moves):  # the last direction of motion, held through rests

@@ -12,15 +12,17 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from identify.plant_blocks import LinearBlock, PlantModel
-from identify.model_discrepancy.drive_torque import LoadTorqueCheck
 from identify.result_format import check_kind, malformed, tagged
 from identify.validation import InvalidInputError
+
+if TYPE_CHECKING:  # (drive_torque reaches this module through open_world: the class is read where it is used)
+    from identify.model_discrepancy.drive_torque import LoadTorqueCheck
 
 
 VERDICTS = ("explained", "named", "ambiguous", "unexplained", "not_excited")
@@ -423,7 +425,7 @@ class DiscrepancyReport:
                 restart_window_samples=None if data.get("restart_window_samples") is None
                 else int(data["restart_window_samples"]),
                 load_torque_check=None if data.get("load_torque_check") is None
-                else LoadTorqueCheck.from_dict(data["load_torque_check"]))
+                else _load_torque_check(data["load_torque_check"]))
 
 
 @dataclass(frozen=True)
@@ -511,3 +513,9 @@ ACCEPTANCES = ("clear", "undecided", "rejected", "vanished")
 whole interval above it (the effect may be named), the interval straddling it (the record cannot tell
 whether the effect is there: reported, not named), the whole interval below it, or the fitted effect does
 nothing (its catalogue ``vanished``)."""
+
+
+def _load_torque_check(data: Mapping[str, Any]) -> LoadTorqueCheck:
+    from identify.model_discrepancy.drive_torque import LoadTorqueCheck
+
+    return LoadTorqueCheck.from_dict(dict(data))
