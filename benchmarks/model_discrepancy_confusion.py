@@ -27,12 +27,14 @@ sample period and, with ``--start given``, the generator's nominal model convert
 its position servo, discretised with a zero-order hold; every case checks it against the generator's own
 nominal twin). Each case is scored as: the right name (:data:`ACCEPTED_NAMES`: the catalogue effects that are
 the same physics or its quasi-static map; none for effects the catalogue has no equivalent of; from a fitted
-start also ``resonance``, the generator's shaft mode, :func:`accepted_names`), honest
-(nothing named and the verdict ambiguous or unexplained; on the clean records, explained), explained under the
-bound (explained, and the effect moves the angle by no more than the noise bound the workflow was given: the
-model without it agrees with the truth within the stated measurement error, so the record cannot show it), confident
-wrong (only wrong effects named with a verdict that is not ambiguous, or explained when the effect moves the angle
-by more than the noise bound), hedged wrong (wrong effects named, then ambiguous), right with a wrong one besides, and not excited or an
+start also ``resonance``, the generator's shaft mode, :func:`accepted_names`), left open with its look-alikes
+(nothing named, the verdict ambiguous and an accepted name among the effects it lists: the answer asked of effects
+the record cannot separate), honest (nothing named, the verdict ambiguous or unexplained otherwise; on the clean
+records, explained), under the bound (nothing named, and the effect moves the angle by no more than the noise
+bound the workflow was given: the model without it agrees with the truth within the stated measurement error, so
+the record cannot show it), confident wrong (only wrong effects named with a verdict that is not ambiguous, or
+explained when the effect moves the angle by more than the noise bound), hedged wrong (wrong effects named, then
+ambiguous), right with a wrong one besides, and not excited or an
 error. Where the generator's truth maps onto a named parameter (:func:`truth_in_our_terms`), the intervals are
 checked against it.
 
@@ -293,7 +295,8 @@ ACCEPTED_NAMES: dict[str, frozenset[str]] = {
 }
 """Per generator effect, the catalogue names that count as naming it rightly."""
 
-OUTCOMES = ("right", "honest", "under_bound", "confident_wrong", "hedged_wrong", "right_and_wrong", "not_excited")
+OUTCOMES = ("right", "left_open", "honest", "under_bound", "confident_wrong", "hedged_wrong", "right_and_wrong",
+            "not_excited")
 
 
 def generator_module():
@@ -469,9 +472,17 @@ def accepted_names(effect_name: str, start: str) -> frozenset[str]:
 
 
 def independent_outcome(effect_name: str, named: tuple[str, ...], verdict: str, start: str = "given",
-                        effect_peak_rad: float = math.inf, noise_bound_rad: float = 0.0) -> str:
+                        effect_peak_rad: float = math.inf, noise_bound_rad: float = 0.0,
+                        left_open: tuple[str, ...] = ()) -> str:
     """The case's column (:data:`OUTCOMES`); ``effect_peak_rad`` is the most the effect moves the measured angle
-    (the generator's ``effect_size.max_abs_rad``), ``noise_bound_rad`` the bound the workflow was given."""
+    (the generator's ``effect_size.max_abs_rad``), ``noise_bound_rad`` the bound the workflow was given,
+    ``left_open`` the effects an ambiguous verdict lists (``ambiguous_between``).
+
+    A name is scored whatever the effect's size. Where nothing is named: an effect that moves the angle by no
+    more than the noise bound is ``under_bound`` (the model without it agrees with the record within the stated
+    error, so no answer can be faulted); an ambiguous verdict that lists an accepted name among the effects it
+    cannot separate is ``left_open`` (what the workflow is asked to say of look-alikes); anything else is
+    ``honest``, but ``explained`` over an effect above the bound is ``confident_wrong``."""
     if verdict == "not_excited":
         return "not_excited"
     accepted = accepted_names(effect_name, start)
@@ -481,16 +492,20 @@ def independent_outcome(effect_name: str, named: tuple[str, ...], verdict: str, 
         if named and all(name in accepted for name in named):
             return "right"
         return "confident_wrong" if named and verdict != "ambiguous" else "hedged_wrong"
+    if named:
+        right = [name in accepted for name in named]
+        if all(right):
+            return "right"
+        if any(right):
+            return "right_and_wrong"
+        return "hedged_wrong" if verdict == "ambiguous" else "confident_wrong"
+    if effect_peak_rad <= noise_bound_rad:
+        return "under_bound"
     if verdict == "explained":
-        return "under_bound" if effect_peak_rad <= noise_bound_rad else "confident_wrong"
-    if not named:
-        return "honest"
-    right = [name in accepted for name in named]
-    if all(right):
-        return "right"
-    if any(right):
-        return "right_and_wrong"
-    return "hedged_wrong" if verdict == "ambiguous" else "confident_wrong"
+        return "confident_wrong"
+    if verdict == "ambiguous" and accepted & set(left_open):
+        return "left_open"
+    return "honest"
 
 
 def run_independent_case(effect_name: str, case: int, cases: int, first_seed: int, start: str,
@@ -526,6 +541,7 @@ def run_independent_case(effect_name: str, case: int, cases: int, first_seed: in
     started = time.perf_counter()
     base = {"effect": effect_name, "case": case, "seed": seed, "excitation": excitation, "skipped": skipped,
             "effect_size_counts": truth["effect_size"].get("max_abs_counts"),
+            "effect_peak_rad": truth["effect_size"].get("max_abs_rad", math.inf),
             "in_validation": _effect_in_validation(record), "noise_bound_rad": delta,
             "conversion_error_rad": conversion_error}
     try:
@@ -548,7 +564,7 @@ def run_independent_case(effect_name: str, case: int, cases: int, first_seed: in
             if not inside:
                 missed.append(f"{name}.{key}: truth {ours[key]:.4g} outside [{low:.4g}, {high:.4g}]")
     return {**base, "outcome": independent_outcome(effect_name, named, result.verdict, start,
-                                                   truth["effect_size"].get("max_abs_rad", math.inf), delta),
+                                                   base["effect_peak_rad"], delta, result.ambiguous_between),
             "named": list(named),
             "ambiguous_between": list(result.ambiguous_between), "verdict": result.verdict,
             "reason": result.verdict_reason[:400], "restarted": result.restart_window_samples is not None,
@@ -583,9 +599,10 @@ def independent(cases: int, start: str, effects: tuple[str, ...], first_seed: in
 
 def independent_table(runs: dict[str, list[dict]], effects: tuple[str, ...], start: str = "given") -> None:
     """One row per generator effect: the outcome counts, what was named, and the intervals of right names."""
-    print("| effect | accepted names | right | honest | explained under the bound | confident wrong | hedged wrong | "
+    print("| effect | accepted names | right | left open with its look-alikes | honest | under the bound, nothing named | "
+          "confident wrong | hedged wrong | "
           "right + wrong | not excited / error | skipped (not excited) | named (count) | truth in interval | median s |")
-    print("|---" * 13 + "|")
+    print("|---" * 14 + "|")
     for name in effects:
         runs[name] = sorted(runs.get(name, []), key=lambda r: r["case"])
         results = [r for r in runs[name] if r["outcome"] != "skipped"]
@@ -606,6 +623,15 @@ def independent_table(runs: dict[str, list[dict]], effects: tuple[str, ...], sta
               + f" | {skipped} | " + ", ".join(f"{k} {v}" for k, v in sorted(labels.items(), key=lambda kv: -kv[1]))
               + " | " + (f"{covered[0]} of {covered[1]}" if covered[1] else "-")
               + f" | {np.median(seconds) if seconds else 0.0:.1f} |")
+    print("\nrows with an accepted name, on the records whose effect moves the angle by more than the noise bound:")
+    for name in effects:
+        scored = [r for r in runs[name] if r["outcome"] not in ("skipped", "under_bound", "not_excited")]
+        if name == "none" or not accepted_names(name, start) or not scored:
+            continue
+        right = sum(r["outcome"] == "right" for r in scored)
+        left_open = sum(r["outcome"] == "left_open" for r in scored)
+        print(f"  {name}: named right {right} of {len(scored)} ({100 * right / len(scored):.0f} %); named right or "
+              f"left open with its look-alikes {right + left_open} ({100 * (right + left_open) / len(scored):.0f} %)")
     results = [r for name in effects for r in runs.get(name, []) if r["outcome"] != "skipped"]
     print("\nconfident wrong answers, by what was said and the excitations it was said on:")
     for name in effects:

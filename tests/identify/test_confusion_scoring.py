@@ -1,6 +1,8 @@
 """How the independent-generator benchmark scores a case (``model_discrepancy_confusion.independent_outcome``):
 an `explained` verdict is wrong only when the hidden effect moves the angle by more than the noise bound the
-workflow was told, since below it the model without the effect agrees with the truth within the stated error;
+workflow was told, since below it the model without the effect agrees with the truth within the stated error
+(and nothing named there is "under the bound"); an ambiguous verdict that lists the truth among its look-alikes
+is told from one that does not;
 and how it puts the generator's truth in our terms (its static compliance)."""
 
 from __future__ import annotations
@@ -27,13 +29,44 @@ def test_explained_is_wrong_only_for_an_effect_above_the_noise_bound():
     assert confusion.independent_outcome("coulomb", (), "explained") == "confident_wrong"
 
 
-def test_the_other_outcomes_do_not_depend_on_the_effects_size():
+def test_a_name_is_scored_whatever_the_effects_size():
     small = dict(effect_peak_rad=0.5e-3, noise_bound_rad=BOUND)
     assert confusion.independent_outcome("coulomb", ("load_friction",), "named", "given", **small) == "right"
     assert confusion.independent_outcome("coulomb", ("gravity",), "named", "given", **small) == "confident_wrong"
-    assert confusion.independent_outcome("coulomb", (), "unexplained", "given", **small) == "honest"
+    assert confusion.independent_outcome("coulomb", ("gravity",), "ambiguous", "given", **small) == "hedged_wrong"
     assert confusion.independent_outcome("none", (), "explained", "given", 0.0, BOUND) == "honest"
-    assert "under_bound" in confusion.OUTCOMES
+
+
+def test_nothing_named_over_an_effect_under_the_bound_is_under_the_bound_whatever_the_verdict():
+    # Coulomb friction of 0.53 counts (0.81 mrad): the nominal model agrees with the record within the bound
+    small = dict(effect_peak_rad=0.81e-3, noise_bound_rad=BOUND)
+    for verdict in ("explained", "ambiguous", "unexplained"):
+        assert confusion.independent_outcome("coulomb", (), verdict, "given", **small,
+                                             left_open=("load_friction",)) == "under_bound"
+
+
+def test_an_ambiguous_verdict_listing_the_truth_among_its_look_alikes_is_told_from_one_that_does_not():
+    large = dict(effect_peak_rad=5e-3, noise_bound_rad=BOUND)
+    assert confusion.independent_outcome("gravity", (), "ambiguous", "given", **large,
+                                         left_open=("gravity", "encoder_error")) == "left_open"
+    assert confusion.independent_outcome("gravity", (), "ambiguous", "given", **large,
+                                         left_open=("offset", "encoder_error")) == "honest"
+    assert confusion.independent_outcome("gravity", (), "unexplained", "given", **large) == "honest"
+    # the clean row and the rows without an accepted name never count a look-alike as the truth
+    assert confusion.independent_outcome("cogging", (), "ambiguous", "given", **large,
+                                         left_open=("gravity",)) == "honest"
+    assert {"left_open", "under_bound"} <= set(confusion.OUTCOMES)
+
+
+def test_the_table_gives_each_catalogue_rows_share_over_the_records_above_the_bound(capsys):
+    def case(n, outcome):
+        return {"effect": "coulomb", "case": n, "outcome": outcome, "named": [], "verdict": "ambiguous",
+                "covered": [0, 0], "seconds": 1.0, "skipped": []}
+    runs = {"coulomb": [case(0, "right"), case(1, "right"), case(2, "left_open"), case(3, "honest"),
+                        case(4, "under_bound")]}
+    confusion.independent_table(runs, ("coulomb",))
+    out = capsys.readouterr().out
+    assert "coulomb: named right 2 of 4 (50 %); named right or left open with its look-alikes 3 (75 %)" in out
 
 
 @pytest.mark.parametrize("servo", ["kinematic", "cascade"])
