@@ -16,7 +16,8 @@ from numpy.typing import NDArray
 from scipy import optimize
 
 from identify.drive_train import DriveTrain
-from identify.effect_catalogue import EFFECTS, effect, reference_train
+from identify.drive_train_effects import reference_train
+from identify.effect_catalogue import EFFECTS, effect
 from identify.plant_blocks import Block, LinearBlock, PlantModel, Resonance
 from identify.validation import InvalidInputError
 
@@ -186,7 +187,7 @@ def _shaft_mode(block: LinearBlock) -> tuple[tuple[float, float], complex] | Non
 
 
 def rigid_train_like(block: LinearBlock, input_rad: NDArray[np.float64]) -> DriveTrain:
-    """The rigid drive train (:func:`identify.effect_catalogue.reference_train`) whose position loop
+    """The rigid drive train (:func:`identify.drive_train_effects.reference_train`) whose position loop
     reproduces ``block``'s free run on ``input_rad`` best (least squares on bandwidth f_n and damping zeta),
     from the loop of the block's dominant poles (:func:`_loop_start`). The same block and input give the
     same train (cached: every dynamics candidate of a round starts from it)."""

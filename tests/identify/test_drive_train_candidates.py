@@ -17,7 +17,8 @@ import pytest
 
 from identify.discrepancy_cases import hidden_effect_record, step_excitation
 from identify.drive_train import DriveTrain
-from identify.effect_catalogue import DYNAMICS_EFFECTS, effect, reference_train
+from identify.drive_train_effects import reference_train
+from identify.effect_catalogue import DYNAMICS_EFFECTS, effect
 from identify.effect_signatures import EFFECT_NAMES, signature_scores
 from identify.model_discrepancy import (
     ESTIMATION_FRACTION,

@@ -10,6 +10,7 @@ import pytest
 
 from identify.discrepancy_cases import SAMPLE_PERIOD_S, random_effect, step_excitation
 from identify.drive_train import DriveTrain
+from identify.drive_train_effects import reference_train
 from identify.effect_catalogue import (
     DYNAMICS_EFFECTS,
     EFFECT_NAMES,
@@ -17,7 +18,6 @@ from identify.effect_catalogue import (
     GuessContext,
     effect,
     effect_for_block,
-    reference_train,
 )
 from identify.effect_signatures import signature_scores
 from identify.plant_blocks import LinearBlock, PlantModel
