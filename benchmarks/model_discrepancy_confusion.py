@@ -597,6 +597,12 @@ def independent(cases: int, start: str, effects: tuple[str, ...], first_seed: in
     independent_table(runs, effects, start)
 
 
+def _above_bound(case: dict) -> bool:
+    """Whether the case's effect moves the angle by more than the noise bound the workflow was given (a case
+    logged without the two: yes)."""
+    return case.get("effect_peak_rad", math.inf) > case.get("noise_bound_rad", 0.0)
+
+
 def independent_table(runs: dict[str, list[dict]], effects: tuple[str, ...], start: str = "given") -> None:
     """One row per generator effect: the outcome counts, what was named, and the intervals of right names."""
     print("| effect | accepted names | right | left open with its look-alikes | honest | under the bound, nothing named | "
@@ -625,13 +631,17 @@ def independent_table(runs: dict[str, list[dict]], effects: tuple[str, ...], sta
               + f" | {np.median(seconds) if seconds else 0.0:.1f} |")
     print("\nrows with an accepted name, on the records whose effect moves the angle by more than the noise bound:")
     for name in effects:
-        scored = [r for r in runs[name] if r["outcome"] not in ("skipped", "under_bound", "not_excited")]
-        if name == "none" or not accepted_names(name, start) or not scored:
+        results = [r for r in runs[name] if r["outcome"] != "skipped"]
+        above = [r for r in results if _above_bound(r)]
+        if name == "none" or not accepted_names(name, start) or not above:
             continue
-        right = sum(r["outcome"] == "right" for r in scored)
-        left_open = sum(r["outcome"] == "left_open" for r in scored)
-        print(f"  {name}: named right {right} of {len(scored)} ({100 * right / len(scored):.0f} %); named right or "
-              f"left open with its look-alikes {right + left_open} ({100 * (right + left_open) / len(scored):.0f} %)")
+        right = sum(r["outcome"] == "right" for r in above)
+        left_open = sum(r["outcome"] == "left_open" for r in above)
+        under = [r for r in results if not _above_bound(r)]
+        print(f"  {name}: named right {right} of {len(above)} ({100 * right / len(above):.0f} %); named right or "
+              f"left open with its look-alikes {right + left_open} ({100 * (right + left_open) / len(above):.0f} %)"
+              + (f"; under the bound: named right {sum(r['outcome'] == 'right' for r in under)} of {len(under)}"
+                 if under else ""))
     results = [r for name in effects for r in runs.get(name, []) if r["outcome"] != "skipped"]
     print("\nconfident wrong answers, by what was said and the excitations it was said on:")
     for name in effects:

@@ -59,14 +59,16 @@ def test_an_ambiguous_verdict_listing_the_truth_among_its_look_alikes_is_told_fr
 
 
 def test_the_table_gives_each_catalogue_rows_share_over_the_records_above_the_bound(capsys):
-    def case(n, outcome):
+    def case(n, outcome, peak=5e-3):
         return {"effect": "coulomb", "case": n, "outcome": outcome, "named": [], "verdict": "ambiguous",
-                "covered": [0, 0], "seconds": 1.0, "skipped": []}
+                "covered": [0, 0], "seconds": 1.0, "skipped": [], "effect_peak_rad": peak, "noise_bound_rad": BOUND}
+    # a name given to an effect under the bound counts apart: the share's records are set by the effect's size
     runs = {"coulomb": [case(0, "right"), case(1, "right"), case(2, "left_open"), case(3, "honest"),
-                        case(4, "under_bound")]}
+                        case(4, "under_bound", 1e-3), case(5, "right", 1e-3)]}
     confusion.independent_table(runs, ("coulomb",))
     out = capsys.readouterr().out
-    assert "coulomb: named right 2 of 4 (50 %); named right or left open with its look-alikes 3 (75 %)" in out
+    assert ("coulomb: named right 2 of 4 (50 %); named right or left open with its look-alikes 3 (75 %); "
+            "under the bound: named right 1 of 2") in out
 
 
 @pytest.mark.parametrize("servo", ["kinematic", "cascade"])
