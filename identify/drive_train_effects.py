@@ -25,7 +25,12 @@ if TYPE_CHECKING:
     from identify.plant_blocks import Block
 
 __all__ = ["PLAY_CONTACT_DAMPING_RATIO", "PLAY_CONTACT_FREQUENCY_RATIO", "REFERENCE_BANDWIDTH_HZ",
-           "REFERENCE_DAMPING_RATIO", "SHAFT_FRICTION_MAX_STIFFENING", "reference_train"]
+           "REFERENCE_DAMPING_RATIO", "SHAFT_FRICTION_MAX_STIFFENING", "friction_fields", "friction_report",
+           "friction_width_starts", "gravity_fields", "gravity_guesses", "limit_resolution", "load_friction_guesses",
+           "play_fields", "random_gravity", "random_load_friction", "random_rate_limit", "random_shaft_friction",
+           "random_shaft_play", "random_torque_limit", "rate_fields", "rate_limit_guesses", "reference_train",
+           "shaft_friction_fields", "shaft_friction_guesses", "shaft_friction_report", "shaft_play_guesses",
+           "static_error", "torque_fields", "torque_limit_guesses", "torque_resolution", "train_builder"]
 
 
 REFERENCE_BANDWIDTH_HZ = 30.0
