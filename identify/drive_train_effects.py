@@ -5,7 +5,8 @@ For friction on the load, gravity, the drive's speed and torque limits, a play b
 and friction inside the shaft: the train fields its free values set (``*_fields``, per unit inertia: positions
 alone show a torque T only as T / J), the values it reports, the initial guesses of its fit, the hidden
 blocks the test records draw (``random_*``) and how finely a record resolves its size. The catalogue's entries
-refer to these; the normalised train they go into when the model has none is :func:`reference_train`.
+refer to these (they are its parts, not an API: ``__all__`` holds the constants and :func:`reference_train`, the
+normalised train the effects go into when the model has none).
 """
 
 from __future__ import annotations
@@ -25,12 +26,7 @@ if TYPE_CHECKING:
     from identify.plant_blocks import Block
 
 __all__ = ["PLAY_CONTACT_DAMPING_RATIO", "PLAY_CONTACT_FREQUENCY_RATIO", "REFERENCE_BANDWIDTH_HZ",
-           "REFERENCE_DAMPING_RATIO", "SHAFT_FRICTION_MAX_STIFFENING", "friction_fields", "friction_report",
-           "friction_width_starts", "gravity_fields", "gravity_guesses", "limit_resolution", "load_friction_guesses",
-           "play_fields", "random_gravity", "random_load_friction", "random_rate_limit", "random_shaft_friction",
-           "random_shaft_play", "random_torque_limit", "rate_fields", "rate_limit_guesses", "reference_train",
-           "shaft_friction_fields", "shaft_friction_guesses", "shaft_friction_report", "shaft_play_guesses",
-           "static_error", "torque_fields", "torque_limit_guesses", "torque_resolution", "train_builder"]
+           "REFERENCE_DAMPING_RATIO", "SHAFT_FRICTION_MAX_STIFFENING", "reference_train"]
 
 
 REFERENCE_BANDWIDTH_HZ = 30.0
