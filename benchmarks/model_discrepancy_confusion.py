@@ -471,6 +471,12 @@ def accepted_names(effect_name: str, start: str) -> frozenset[str]:
     return ACCEPTED_NAMES[effect_name] | (frozenset({"resonance"}) if start == "fitted" else frozenset())
 
 
+def _shows(effect_peak_rad: float, noise_bound_rad: float) -> bool:
+    """An effect that moves the angle by more than the noise bound can show in the record; below it the model
+    without the effect agrees with the record within the stated error."""
+    return effect_peak_rad > noise_bound_rad
+
+
 def independent_outcome(effect_name: str, named: tuple[str, ...], verdict: str, start: str = "given",
                         effect_peak_rad: float = math.inf, noise_bound_rad: float = 0.0,
                         left_open: tuple[str, ...] = ()) -> str:
@@ -499,7 +505,7 @@ def independent_outcome(effect_name: str, named: tuple[str, ...], verdict: str, 
         if any(right):
             return "right_and_wrong"
         return "hedged_wrong" if verdict == "ambiguous" else "confident_wrong"
-    if effect_peak_rad <= noise_bound_rad:
+    if not _shows(effect_peak_rad, noise_bound_rad):
         return "under_bound"
     if verdict == "explained":
         return "confident_wrong"
@@ -600,7 +606,7 @@ def independent(cases: int, start: str, effects: tuple[str, ...], first_seed: in
 def _above_bound(case: dict) -> bool:
     """Whether the case's effect moves the angle by more than the noise bound the workflow was given (a case
     logged without the two: yes)."""
-    return case.get("effect_peak_rad", math.inf) > case.get("noise_bound_rad", 0.0)
+    return _shows(case.get("effect_peak_rad", math.inf), case.get("noise_bound_rad", 0.0))
 
 
 def independent_table(runs: dict[str, list[dict]], effects: tuple[str, ...], start: str = "given") -> None:
