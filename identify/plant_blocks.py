@@ -1032,11 +1032,18 @@ class PlantModel:
 class PlantStepper:
     """Advances a :class:`PlantModel` one sample per :meth:`step`."""
 
-    __slots__ = ("_steps", "samples")
+    __slots__ = ("_steps", "_motor", "samples")
 
     def __init__(self, steppers: tuple[BlockStepper, ...]) -> None:
         self._steps = tuple(stepper.step for stepper in steppers)
+        self._motor = next((stepper for stepper in steppers if hasattr(stepper, "motor_torque_nm")), None)
         self.samples = 0
+
+    @property
+    def motor_torque_nm(self) -> float | None:
+        """The motor's torque at the start of the last sample, from the first block that models a motor (a
+        :class:`~identify.drive_train.DriveTrain`), or None for a plant without one."""
+        return None if self._motor is None else float(self._motor.motor_torque_nm)
 
     def step(self, u_t: float) -> float:
         """Feed one command sample (rad) and return the output sample (rad)."""

@@ -117,10 +117,11 @@ class SimulatedRigSession:
             url, gearbox = stack.enter_context(simulated_rig(self.config, command_rad))
             excitation = Excitation(name=name, kind=kind, command_rad=command_rad, seed=None,
                                     parameters=dict(parameters or {}))
-            writer = LogWriter(log_path, experiment_log_metadata(self.config, excitation, gearbox, command_rad.size),
-                               flush_every=100, flush_interval_s=0.1, stamp_start=True)
-            progress = self.progress(name, command_rad.size) if self.progress else None
             transport = open_transport(url, **self.config.transport_options())
+            writer = LogWriter(log_path, experiment_log_metadata(self.config, excitation, gearbox, command_rad.size),
+                               flush_every=100, flush_interval_s=0.1, stamp_start=True,
+                               drive_torque_unit=transport.drive_torque_unit)
+            progress = self.progress(name, command_rad.size) if self.progress else None
             summary = run_experiment(transport, command_rad, writer,
                                      feedback_timeout_s=self.config.feedback_timeout_s,
                                      late_tolerance_s=self.config.late_tolerance_s,

@@ -104,8 +104,8 @@ class ObservedSink(ForwardingSink):
         self._feed = feed
 
     def append(self, time_s: float, command_rad: float, angle_rad: float, encoder_counts: int | None = None,
-               flags: int = 0) -> None:
-        super().append(time_s, command_rad, angle_rad, encoder_counts, flags)  # the log first
+               flags: int = 0, **columns: float) -> None:
+        super().append(time_s, command_rad, angle_rad, encoder_counts, flags, **columns)  # the log first
         self._feed.offer(time_s, command_rad, angle_rad, flags)
 
 

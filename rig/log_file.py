@@ -11,6 +11,11 @@ Format ``rig-log v1`` (a CSV file with a commented header)::
     0.001,0.25,nan,,1                                                        <- a LOST sample
     # summary {"frame_errors": 0, "stop": "quick stop sent, ..."}              <- at the end, if the run ended
 
+Format ``rig-log v2`` is v1 with one more column, ``drive_torque``: the torque the drive reported at each sample,
+in the unit the units line names (a CiA 402 drive: its torque actual value 0x6077, in per mille of the motor's
+rated torque 0x6076; empty where not measured). A log is written as v2 only when its run's link reports the drive's
+torque (:attr:`rig.transports.base.Transport.drive_torque_unit`), so a log without it stays readable by v1 readers.
+
 * pandas: ``pandas.read_csv(path, comment="#")``; numpy:
   ``numpy.genfromtxt(path, delimiter=",", names=True, skip_header=3)`` (the header is always 3 comment
   lines); MATLAB:
@@ -63,12 +68,16 @@ from identify.validation import InvalidInputError
 from rig.protocols.errors import LogFileError
 from rig.signal_files import check_input_file
 
-__all__ = ["COLUMNS", "FORMAT_LINE", "LogWriteError", "LogWriter", "SetAside", "check_output_varies", "count_samples",
+__all__ = ["COLUMNS", "FORMAT_LINE", "TORQUE_COLUMN", "TORQUE_FORMAT_LINE", "LogWriteError", "LogWriter", "SetAside", "check_output_varies", "count_samples",
            "is_rig_log", "read_experiment_data", "read_log", "read_usable_input_output", "unusable_as_missing",
            "write_log"]
 
 FORMAT_LINE = "# rig-log v1"
+TORQUE_FORMAT_LINE = "# rig-log v2"
 COLUMNS = ("time_s", "command_rad", "angle_rad", "encoder_counts", "flags")
+TORQUE_COLUMN = "drive_torque"
+_FORMATS = {FORMAT_LINE: COLUMNS, TORQUE_FORMAT_LINE: (*COLUMNS, TORQUE_COLUMN)}
+"""The columns of each format, by its first line."""
 _METADATA_PREFIX = "# metadata "
 _SUMMARY_PREFIX = "# summary "
 _START_PREFIX = "# start "
@@ -151,7 +160,7 @@ class LogWriter:
 
     def __init__(self, path: str | Path, metadata: ExperimentMetadata | Mapping[str, Any], *,
                  flush_every: int = 1, flush_interval_s: float | None = None, fsync: bool = False,
-                 claimed: Any = None, stamp_start: bool = False) -> None:
+                 claimed: Any = None, stamp_start: bool = False, drive_torque_unit: str | None = None) -> None:
         self.path = Path(path)
         if isinstance(flush_every, bool) or not isinstance(flush_every, int) or flush_every < 1:
             raise InvalidInputError(f"flush_every: expected an integer >= 1, got {flush_every!r}")
@@ -169,6 +178,14 @@ class LogWriter:
         self.flush_every = flush_every
         self.flush_interval_s = flush_interval_s
         self.fsync = fsync
+        self.drive_torque_unit = drive_torque_unit
+        first, units, columns = FORMAT_LINE, _UNITS_LINE, COLUMNS
+        if drive_torque_unit is not None:
+            token = "_".join(str(drive_torque_unit).split())
+            if not token or "=" in token:
+                raise InvalidInputError(f"drive_torque_unit: expected a unit such as 'N_m', got {drive_torque_unit!r}")
+            first, units = TORQUE_FORMAT_LINE, f"{_UNITS_LINE} {TORQUE_COLUMN}={token}"
+            columns = _FORMATS[TORQUE_FORMAT_LINE]
         self.samples = 0
         self.flushed_samples = 0
         self._pending = 0
@@ -184,7 +201,7 @@ class LogWriter:
                                     "does not exist; create it or choose another path") from None
             raise LogWriteError(f"{self.path}: cannot open the log for writing: {_os_reason(err)}") from None
         try:  # written and fsynced at once: a full disk or a device that refuses writes shows up here, before a run
-            self._file.write(f"{FORMAT_LINE}\n{_METADATA_PREFIX}{header}\n{_UNITS_LINE}\n{','.join(COLUMNS)}\n")
+            self._file.write(f"{first}\n{_METADATA_PREFIX}{header}\n{units}\n{','.join(columns)}\n")
             self._flush(sync=True)
         except OSError as err:
             self._abandon()
@@ -226,8 +243,9 @@ class LogWriter:
         return LogWriteError(self._failure)
 
     def append(self, time_s: float, command_rad: float, angle_rad: float, encoder_counts: int | None = None,
-               flags: int | SampleFlag = SampleFlag.OK) -> None:
-        """Write one sample. A LOST sample may pass ``angle_rad=nan``; times must increase."""
+               flags: int | SampleFlag = SampleFlag.OK, drive_torque: float | None = None) -> None:
+        """Write one sample. A LOST sample may pass ``angle_rad=nan``; times must increase. ``drive_torque``
+        (None or NaN: not measured) needs a log made with a ``drive_torque_unit``."""
         if self._file is None:
             raise LogWriteError(self._failure) if self._failure else LogFileError(f"{self.path}: the log is closed")
         if self._summary_written:
@@ -247,7 +265,16 @@ class LogWriter:
         elif not math.isfinite(angle):
             raise InvalidInputError(f"angle_rad: sample {self.samples} is {angle_rad!r}; flag it LOST instead")
         counts = "" if encoder_counts is None or lost else str(int(encoder_counts))
-        line = f"{time_value!r},{command!r},{angle!r},{counts},{flag}\n"
+        line = f"{time_value!r},{command!r},{angle!r},{counts},{flag}"
+        if self.drive_torque_unit is not None:
+            torque = math.nan if drive_torque is None else float(drive_torque)
+            if math.isinf(torque):
+                raise InvalidInputError(f"drive_torque: sample {self.samples} is {drive_torque!r}")
+            line += "," if math.isnan(torque) else f",{torque!r}"
+        elif drive_torque is not None:
+            raise InvalidInputError(f"drive_torque: {self.path} has no {TORQUE_COLUMN} column; make the LogWriter "
+                                    "with the torque's drive_torque_unit (the transport's)")
+        line += "\n"
         if self._stamp_start:
             self.acquisition_start_utc = now_utc()
             line = f"{_START_PREFIX}{json.dumps({'acquisition_start_utc': self.acquisition_start_utc})}\n{line}"
@@ -268,14 +295,16 @@ class LogWriter:
             self._pending = 0
 
     def append_many(self, time_s: ArrayLike, command_rad: ArrayLike, angle_rad: ArrayLike,
-                    encoder_counts: ArrayLike | None = None, flags: ArrayLike | None = None) -> None:
+                    encoder_counts: ArrayLike | None = None, flags: ArrayLike | None = None,
+                    drive_torque: ArrayLike | None = None) -> None:
         """Write whole arrays (an offline simulation), one line per sample."""
         times = np.asarray(time_s, dtype=float)
         commands = np.asarray(command_rad, dtype=float)
         angles = np.asarray(angle_rad, dtype=float)
         counts = [None] * times.size if encoder_counts is None else np.asarray(encoder_counts).tolist()
         flag_values = [0] * times.size if flags is None else np.asarray(flags).tolist()
-        for row in zip(times.tolist(), commands.tolist(), angles.tolist(), counts, flag_values):
+        torques = [None] * times.size if drive_torque is None else np.asarray(drive_torque, dtype=float).tolist()
+        for row in zip(times.tolist(), commands.tolist(), angles.tolist(), counts, flag_values, torques):
             self.append(*row)
 
     def write_summary(self, summary: Mapping[str, Any]) -> None:
@@ -307,9 +336,12 @@ class LogWriter:
 
 
 def write_log(path: str | Path, record: ExperimentRecord) -> None:
-    """Write a whole :class:`ExperimentRecord` as a log file."""
-    with LogWriter(path, record.metadata, flush_every=max(1, len(record))) as log:
-        log.append_many(record.time_s, record.command_rad, record.angle_rad, record.encoder_counts, record.flags)
+    """Write a whole :class:`ExperimentRecord` as a log file (``rig-log v2`` with the drive's torque, if it has
+    it, in the unit ``metadata.extra["drive_torque_unit"]`` names: "as_recorded" where it names none)."""
+    unit = None if record.drive_torque is None else str(record.metadata.extra.get("drive_torque_unit", "as_recorded"))
+    with LogWriter(path, record.metadata, flush_every=max(1, len(record)), drive_torque_unit=unit) as log:
+        log.append_many(record.time_s, record.command_rad, record.angle_rad, record.encoder_counts, record.flags,
+                        record.drive_torque)
 
 
 def is_rig_log(path: Path) -> bool:
@@ -349,7 +381,9 @@ def count_samples(path: str | Path) -> int | None:
 
 
 def read_log(path: str | Path) -> ExperimentRecord:
-    """Read a ``rig-log v1`` file; raises :class:`LogFileError` naming the file, line and problem."""
+    """Read a ``rig-log v1`` or ``v2`` file; raises :class:`LogFileError` naming the file, line and problem. A v2
+    log's torque column is the record's ``drive_torque`` (None where no sample has one), its unit
+    ``metadata.extra["drive_torque_unit"]``."""
     path = check_input_file(path, "a rig-log v1 file")
     raw = path.read_bytes()
     nul = raw.find(b"\0")
@@ -370,8 +404,11 @@ def read_log(path: str | Path) -> ExperimentRecord:
             f"{path}: line 1: expected '{FORMAT_LINE}', got {first[:60]!r}; this is not a rig log "
             "(plain CSV files with columns t,u,y are read by read_experiment_data)"
         )
-    if first != FORMAT_LINE:
-        raise LogFileError(f"{path}: line 1: unsupported log format {first[2:]!r}; this version reads {FORMAT_LINE[2:]!r}")
+    expected_columns = _FORMATS.get(first)
+    if expected_columns is None:
+        raise LogFileError(f"{path}: line 1: unsupported log format {first[2:]!r}; this version reads "
+                           f"{' and '.join(repr(line[2:]) for line in _FORMATS)}")
+    torque_unit = None
     torn = not text.endswith("\n")
     if torn:
         warnings.warn(f"{path}: the last line is incomplete (the writer stopped mid-line); it was dropped",
@@ -385,6 +422,7 @@ def read_log(path: str | Path) -> ExperimentRecord:
             metadata_line = number
         elif line.startswith("# units "):
             _check_units(path, number, line)
+            torque_unit = dict(re.findall(r"(\w+)=(\S+)", line)).get(TORQUE_COLUMN)
         elif not line.startswith("#"):
             header_line = number
             break
@@ -397,10 +435,14 @@ def read_log(path: str | Path) -> ExperimentRecord:
     except (ValueError, TypeError) as err:  # InvalidInputError, or a field of the wrong type ("extra": "ab")
         raise LogFileError(f"{path}: line {metadata_line}: bad metadata: {err}") from None
     if header_line is None:
-        raise LogFileError(f"{path}: the header has no column line '{','.join(COLUMNS)}'; the file is damaged")
+        raise LogFileError(f"{path}: the header has no column line '{','.join(expected_columns)}'; the file is damaged")
     columns = tuple(name.strip() for name in lines[header_line - 1].split(","))
-    if columns != COLUMNS:
-        raise LogFileError(f"{path}: line {header_line}: expected columns {','.join(COLUMNS)}, got {','.join(columns)}")
+    if columns != expected_columns:
+        raise LogFileError(f"{path}: line {header_line}: expected columns {','.join(expected_columns)} "
+                           f"({first[2:]}), got {','.join(columns)}")
+    if torque_unit is not None and TORQUE_COLUMN in columns:
+        metadata = ExperimentMetadata.from_dict({**metadata.to_dict(),
+                                                 "extra": {**metadata.extra, "drive_torque_unit": torque_unit}})
     rows = lines[header_line:]
     if rows and rows[0].startswith(_START_PREFIX):
         number = header_line + 1
@@ -425,12 +467,19 @@ def read_log(path: str | Path) -> ExperimentRecord:
     time_s, command, angle = np.empty(n), np.empty(n), np.empty(n)
     counts = np.zeros(n, dtype=np.int64)
     flags = np.zeros(n, dtype=np.uint8)
+    torque = np.full(n, np.nan) if TORQUE_COLUMN in columns else None
     has_counts = False
     for index, row in enumerate(rows):
         number = header_line + 1 + index
         fields = row.rstrip("\r").split(",")
-        if len(fields) != len(COLUMNS):
-            raise LogFileError(f"{path}: line {number}: expected {len(COLUMNS)} values, got {len(fields)}")
+        if len(fields) != len(columns):
+            raise LogFileError(f"{path}: line {number}: expected {len(columns)} values, got {len(fields)}")
+        if torque is not None and fields[5].strip():
+            try:
+                torque[index] = float(fields[5])
+            except ValueError:
+                raise LogFileError(f"{path}: line {number}, column {TORQUE_COLUMN}: {fields[5][:40]!r} is not a "
+                                   "number") from None
         try:
             time_s[index], command[index], angle[index] = float(fields[0]), float(fields[1]), float(fields[2])
         except ValueError:
@@ -453,7 +502,8 @@ def read_log(path: str | Path) -> ExperimentRecord:
         raise LogFileError(f"{path}: the log has a header but no samples")
     try:
         record = ExperimentRecord(time_s=time_s, command_rad=command, angle_rad=angle,
-                                  encoder_counts=counts if has_counts else None, flags=flags, metadata=metadata)
+                                  encoder_counts=counts if has_counts else None, flags=flags, metadata=metadata,
+                                  drive_torque=torque if torque is not None and np.isfinite(torque).any() else None)
     except InvalidInputError as err:
         raise LogFileError(f"{path}: {_with_line(str(err), header_line)}") from None
     if n > 2:

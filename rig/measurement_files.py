@@ -10,15 +10,16 @@ Layout written by :func:`write_mdf` (ASAM MDF 4.10, with ``asammdf``, the option
 
 * one channel group ("rig-log v1 samples") whose master is the sample time, with the channels ``time_s`` (s),
   ``command_rad`` (rad), ``angle_rad`` (rad, NaN where LOST), ``encoder_counts`` (counts, 0 where LOST; absent
-  when the log has none) and ``flags`` (the SampleFlag bits, named in the channel comment), each with its unit
-  and a comment that says what it is;
+  when the log has none), ``flags`` (the SampleFlag bits, named in the channel comment) and, from a log with the
+  drive's torque (rig-log v2), ``drive_torque`` (in its unit, NaN where not measured), each with its unit and a
+  comment that says what it is;
 * the log's metadata in the header comment (``<HDcomment>``): the readable lines in ``<TX>``, and the exact
   metadata JSON as the common property ``rig_metadata`` (plus ``sample_period_s``, ``encoder_bits``, ... as
   their own properties, which CANape and the asammdf GUI show); a file-history entry names this tool and version.
 
 Layout written by :func:`write_mat` (``scipy.io.savemat``, MATLAB 5 / v7 format, which ``load`` reads): the
 columns as column vectors ``time_s``, ``command_rad``, ``angle_rad``, ``encoder_counts`` (int64), ``flags``
-(uint8), and a struct ``metadata`` with the metadata's scalar fields, ``config`` and ``extra`` as JSON text and
+(uint8), ``drive_torque`` where the log has it, and a struct ``metadata`` with the metadata's scalar fields, ``config`` and ``extra`` as JSON text and
 ``rig_log_json`` (the exact metadata, read back by :func:`read_measurement_record`).
 
 Reading a foreign file: an MDF file's channels by name (any group; the ``t`` of a ``u, y`` pair is the master
@@ -62,6 +63,8 @@ _COMMENTS = {
     "angle_rad": "load-side angle read by the encoder; NaN where the sample is LOST",
     "encoder_counts": "raw encoder reading; 0 where the sample is LOST",
     "flags": f"SampleFlag bits ({_FLAG_TEXT})",
+    "drive_torque": "the torque the drive reported (CiA 402 0x6077: per mille of the rated torque); NaN where not "
+                    "measured",
 }
 _METADATA_PROPERTY = "rig_metadata"
 
@@ -332,9 +335,10 @@ def read_measurement_record(path: str | Path) -> ExperimentRecord | None:
         raise LogFileError(f"{path}: channel 'flags', sample {row}: {int(flags[row])} is not a combination of the "
                            f"SampleFlag bits ({_FLAG_TEXT})")
     counts = None if counts_raw is None else np.asarray(counts_raw).astype(np.int64)
+    torque = _float_column(table, "drive_torque", what) if "drive_torque" in table.columns else None
     try:
         record = ExperimentRecord(time_s=time_s, command_rad=command, angle_rad=angle, encoder_counts=counts,
-                                  flags=flags.astype(np.uint8), metadata=metadata)
+                                  flags=flags.astype(np.uint8), metadata=metadata, drive_torque=torque)
     except InvalidInputError as err:
         raise LogFileError(f"{path}: {err}") from None
     if time_s.size > 1:
@@ -364,6 +368,8 @@ def _columns(record: ExperimentRecord) -> dict[str, NDArray[Any]]:
     if record.encoder_counts is not None:
         columns["encoder_counts"] = np.where(lost, 0, np.asarray(record.encoder_counts)).astype(np.int64)
     columns["flags"] = np.asarray(record.flags).astype(np.uint8)
+    if record.drive_torque is not None:
+        columns["drive_torque"] = np.asarray(record.drive_torque, dtype=float)
     return columns
 
 
@@ -380,7 +386,8 @@ def write_mdf(path: str | Path, record: ExperimentRecord) -> None:
     timestamps = columns["time_s"]
     mdf = asammdf.MDF(version="4.10")
     try:
-        signals = [asammdf.Signal(samples=values, timestamps=timestamps, name=name, unit=_UNITS[name],
+        units = {**_UNITS, "drive_torque": str(record.metadata.extra.get("drive_torque_unit", ""))}
+        signals = [asammdf.Signal(samples=values, timestamps=timestamps, name=name, unit=units[name],
                                   comment=_COMMENTS[name]) for name, values in columns.items()]
         mdf.append(signals, comment="rig-log v1 samples")
         if record.metadata.acquisition_start is not None:  # else asammdf's default: the time of the export

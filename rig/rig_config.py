@@ -204,6 +204,9 @@ def load_rig_config(path: str | Path) -> RigConfig:
     except ConfigError as err:
         raise transport.error("url", err.problem) from err
     options = _transport_options(transport, scheme)
+    for key in ("drive_eds", "encoder_eds"):  # like the plant: relative to this file
+        if key in options and not Path(options[key]).is_absolute():
+            options[key] = str(path.parent / options[key])
 
     drive_table = root.table("drive", None)
     drive = DriveScaling(drive_table.integer("counts_per_revolution", 1 << 17, minimum=1, maximum=1 << 30))

@@ -147,6 +147,8 @@ class SampleSink(Protocol):
 
     def append(self, time_s: float, command_rad: float, angle_rad: float, encoder_counts: int | None = None,
                flags: int = 0) -> None: ...
+    # from a link that reports the drive's torque (:attr:`rig.transports.base.Transport.drive_torque_unit`),
+    # each row also comes with the keyword ``drive_torque`` (:meth:`rig.sample_ledger.SampleLedger.write_final`)
 
     def close(self) -> None: ...
 
@@ -396,9 +398,10 @@ class SendLateness:
 
 def _write_summary(sink: SampleSink, transport: Transport, failure: BaseException | None,
                    timing: Mapping[str, Any] | None = None) -> None:
-    """Hand the sink what is known only at the end (``frame_errors``, ``stop`` and, once the run started, its
-    ``timing``: ``sample_clock`` ``"host"`` with the send lateness quantiles, or ``"device"`` with
-    ``min_lead_s``; nan as None), if it takes it."""
+    """Hand the sink what is known only at the end (``frame_errors``, ``stop``, the link's ``warnings`` (what it
+    rode through or did without, e.g. a drive torque it could not map) and, once the run started, its ``timing``:
+    ``sample_clock`` ``"host"`` with the send lateness quantiles, or ``"device"`` with ``min_lead_s``; nan as
+    None), if it takes it."""
     write_summary = getattr(sink, "write_summary", None)
     if write_summary is None:
         return
@@ -406,7 +409,7 @@ def _write_summary(sink: SampleSink, transport: Transport, failure: BaseExceptio
              for name, value in (timing or {}).items()}
     try:
         write_summary({"frame_errors": transport.frame_errors, "receive_drops": transport.receive_drops,
-                       "stop": str(transport.stop_report or ""), **known})
+                       "stop": str(transport.stop_report or ""), "warnings": list(transport.warnings), **known})
     except Exception:
         if failure is None:
             raise  # otherwise what ended the run is the error to report, not this one

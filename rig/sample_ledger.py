@@ -48,6 +48,7 @@ class LedgerRow:
     angle_rad: float = float("nan")
     counts: int | None = None
     flags: int = _LOST
+    drive_torque: float | None = None
 
 
 @dataclass
@@ -132,7 +133,7 @@ class SampleLedger:
             row.flags |= _DUPLICATE
             return None
         self._answered.add(sample.seq)
-        row.angle_rad, row.counts = sample.load_angle_rad, sample.encoder_counts
+        row.angle_rad, row.counts, row.drive_torque = sample.load_angle_rad, sample.encoder_counts, sample.drive_torque
         row.flags &= ~_LOST
         if sample.held:
             row.flags |= _HELD
@@ -184,10 +185,15 @@ class SampleLedger:
 
     def write_final(self, newest: int, sink) -> None:
         """Hand every row that is final at ``newest`` (:meth:`next_final`) to ``sink.append``, oldest first,
-        each once, even if Ctrl-C lands between the append and the release."""
+        each once, even if Ctrl-C lands between the append and the release. The drive's torque goes as the
+        keyword ``drive_torque``, only from a link that reports it."""
         while (row := self.next_final(newest)) is not None:
             if row.seq >= self.written:
-                sink.append(row.time_s, row.command_rad, row.angle_rad, row.counts, row.flags)
+                if row.drive_torque is None:
+                    sink.append(row.time_s, row.command_rad, row.angle_rad, row.counts, row.flags)
+                else:
+                    sink.append(row.time_s, row.command_rad, row.angle_rad, row.counts, row.flags,
+                                drive_torque=row.drive_torque)
                 self.written = row.seq + 1
             self.release()
 

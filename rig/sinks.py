@@ -17,8 +17,8 @@ class ForwardingSink:
         self._sink = sink
 
     def append(self, time_s: float, command_rad: float, angle_rad: float, encoder_counts: int | None = None,
-               flags: int = 0) -> None:
-        self._sink.append(time_s, command_rad, angle_rad, encoder_counts, flags)
+               flags: int = 0, **columns: float) -> None:
+        self._sink.append(time_s, command_rad, angle_rad, encoder_counts, flags, **columns)
 
     def write_summary(self, summary: Any) -> None:
         write_summary = getattr(self._sink, "write_summary", None)

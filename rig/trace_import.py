@@ -27,7 +27,8 @@ Raw CAN (``configs/raw_can.dbc`` or the config's ``dbc``):
   and a HELD tick is flagged HELD; LATE is not judged (the ticks carry no instant of their own).
 
 CANopen (SYNC + drive RPDO1 + TPDOs, the mapping :mod:`rig.transports.canopen_link` sets up: drive TPDO1
-0x6041 + 0x6064 at 0x180 + node, drive TPDO2 0x6062 at 0x280 + node where the drive sends it, encoder TPDO1
+0x6041 + 0x6064 (+ the torque actual value 0x6077, where the trace's start-up mapped it: the log's
+``drive_torque``) at 0x180 + node, drive TPDO2 0x6062 at 0x280 + node where the drive sends it, encoder TPDO1
 0x6004 at 0x180 + node; node-IDs and TPDO latencies from the config), frames taken in time-stamp order:
 
 * the streaming mode is the last value the master wrote to 0x6060 by SDO before the first RPDO1 (the
@@ -126,10 +127,11 @@ def import_trace(trace: str | Path, config: Any, *, dcf: Mapping[int, str | Path
 
 
 class _Row:
-    __slots__ = ("command_rad", "angle_rad", "counts", "flags")
+    __slots__ = ("command_rad", "angle_rad", "counts", "flags", "drive_torque")
 
     def __init__(self, command_rad: float) -> None:
         self.command_rad, self.angle_rad, self.counts, self.flags = command_rad, math.nan, 0, _LOST
+        self.drive_torque = math.nan
 
 
 def _import_raw_can(path: Path, config: Any) -> ExperimentRecord:
@@ -351,9 +353,9 @@ def _writes_ip_enable(data: bytes) -> bool:
 
 
 STATUSWORD, POSITION_ACTUAL, POSITION_DEMAND, TARGET_POSITION = (0x6041, 0), (0x6064, 0), (0x6062, 0), (0x607A, 0)
-INTERPOLATION_RECORD, ENCODER_POSITION = (0x60C1, 1), (0x6004, 0)
+INTERPOLATION_RECORD, ENCODER_POSITION, TORQUE_ACTUAL = (0x60C1, 1), (0x6004, 0), (0x6077, 0)
 """The objects the import reads (CiA 402: statusword, position actual value, position demand value, target
-position, interpolation data record 1; CiA 406: position value)."""
+position, interpolation data record 1, torque actual value; CiA 406: position value)."""
 
 
 def _our_mapping(drive_node: int, encoder_node: int) -> PdoMapping:
@@ -426,10 +428,14 @@ def _import_canopen(path: Path, config: Any, dcf: Mapping[int, str | Path] | Non
                          if (e.index, e.subindex) in (TARGET_POSITION, INTERPOLATION_RECORD))
     # the parts of a reading, by the PDO that carries each (a statusword and a position may share one)
     readings: dict[int, list[tuple[str, tuple[int, int]]]] = {}
+    torque_pdo = mapping.carrying(drive_node, *TORQUE_ACTUAL, receive=False)
     for part, pdo, obj in (("status", status_pdo, STATUSWORD), ("encoder", encoder_pdo, ENCODER_POSITION),
-                           ("demand", mapping.carrying(drive_node, *POSITION_DEMAND, receive=False), POSITION_DEMAND)):
+                           ("demand", mapping.carrying(drive_node, *POSITION_DEMAND, receive=False), POSITION_DEMAND),
+                           ("torque", torque_pdo, TORQUE_ACTUAL)):
         if pdo is not None:
             readings.setdefault(pdo.cob_id, []).append((part, obj))
+    torque_bits = 0 if torque_pdo is None else next(entry.bits for entry in torque_pdo.objects
+                                                    if (entry.index, entry.subindex) == TORQUE_ACTUAL)
     demand_pdo = mapping.carrying(drive_node, *POSITION_DEMAND, receive=False)
     frame_errors = 0
     has_demand = demand_pdo is not None and any(message.arbitration_id == demand_pdo.cob_id for _, _, message in frames)
@@ -530,6 +536,8 @@ def _import_canopen(path: Path, config: Any, dcf: Mapping[int, str | Path] | Non
                     value: Any = _signed32(raw)
                 elif part == "encoder":
                     value = raw - (1 << 32) if encoder.signed and raw >= 1 << 31 else raw
+                elif part == "torque":  # INTEGER16 (CiA 402)
+                    value = raw - (1 << torque_bits) if raw >= 1 << (torque_bits - 1) else raw
                 else:
                     value = raw
                 unfiled.append((part, value, stamp))
@@ -550,6 +558,7 @@ def _import_canopen(path: Path, config: Any, dcf: Mapping[int, str | Path] | Non
             statusword = answer["status"]
             counts, held = applied.get(seq, (None, False))
             row.angle_rad, row.counts = answer["angle"], answer["encoder"]
+            row.drive_torque = float(answer.get("torque", math.nan))
             row.flags &= ~_LOST
             if held:
                 row.flags |= int(SampleFlag.HELD)
@@ -579,9 +588,11 @@ def _import_canopen(path: Path, config: Any, dcf: Mapping[int, str | Path] | Non
         acquisition_start_utc=_wall_clock(syncs[origin - 1] if origin <= len(syncs) else None),
         extra={"imported_from": {"trace": str(path), "frames": len(frames), "origin_sync": origin,
                                  "pdo_mapping": mapping.source},
-               "summary": {"frame_errors": frame_errors}})
+               "summary": {"frame_errors": frame_errors},
+               **({} if torque_pdo is None else {"drive_torque_unit": cia402.TORQUE_ACTUAL_UNIT})})
     n = len(rows)
     return ExperimentRecord(time_s=np.arange(n) * period, command_rad=np.array([row.command_rad for row in rows]),
                             angle_rad=np.array([row.angle_rad for row in rows]),
                             encoder_counts=np.array([row.counts for row in rows], dtype=np.int64),
-                            flags=np.array([row.flags for row in rows], dtype=np.uint8), metadata=metadata)
+                            flags=np.array([row.flags for row in rows], dtype=np.uint8), metadata=metadata,
+                            drive_torque=None if torque_pdo is None else np.array([row.drive_torque for row in rows]))

@@ -22,7 +22,9 @@ NMT commands. This module adds what it lacks for a cyclic synchronous or interpo
 * the plant: on each SYNC in OPERATION ENABLED, from the first target (RPDO, or a record with ip mode
   active) on, the drive applies its target (0x607A) and the gearbox advances exactly one sample; the position demand value 0x6062 is the target it applied, the actual
   position 0x6064 follows it (an ideal drive); the encoder's position value (0x6004) is the gearbox's
-  encoder reading;
+  encoder reading; with an EDS that has 0x6077 (``configs/eds/sim_servo_drive_cia402.eds``) on a plant that
+  models a motor, the torque actual value 0x6077 is the motor's torque at that SYNC
+  (:mod:`sim_backend.drive_torque`);
 * EMCY, 0x603F and the error register 0x1001 on a fault, heartbeats (0x1017) from both nodes;
 * the encoder's resolution objects (0x6001, 0x6002, 0x6501, 0x6502) and code sequence (0x6000) from the
   gearbox's EncoderResolution;
@@ -56,6 +58,7 @@ from sim_backend.canopen_pdos import (
     RPDO_COMMUNICATION_INDICES, RpdoReception, RpdoValues, Tpdo, is_rpdo_transmission_type,
 )
 from sim_backend.device_record import AppliedTargets, DeviceRecord
+from sim_backend.drive_torque import drive_torque_of
 from sim_backend.eds_variants import eds_text, is_pdo_parameter, load_eds_text, static_pdo_access, with_entries
 from sim_backend.interpolation_buffer import InterpolationBuffer, ip_period_matches
 from sim_backend.plant import SimulatedGearbox
@@ -217,6 +220,9 @@ class SimulatedCanOpenRig:
         self.encoder_eds_text = _vendor_eds_text(eds_text(encoder_eds), self.encoder_behaviour)
         self.drive = canopen.LocalNode(drive_node_id, load_eds_text(self.drive_eds_text, Path(drive_eds).name))
         self.encoder = canopen.LocalNode(encoder_node_id, load_eds_text(self.encoder_eds_text, Path(encoder_eds).name))
+        self.torque = drive_torque_of(gearbox, str(drive_eds), 0x6077 in self.drive.object_dictionary)
+        if self.torque is not None:
+            self._store(self.drive, 0x6076, self.torque.rated_torque_mnm, 4)
         self.state = cia402.DriveState.SWITCH_ON_DISABLED
         self.controlword = 0
         self.controlwords: list[int] = []
@@ -742,6 +748,8 @@ class SimulatedCanOpenRig:
         applied_bytes = applied.to_bytes(4, "little", signed=True)
         self.drive.data_store.setdefault(0x6064, {})[0] = applied_bytes
         self._store(self.drive, 0x6062, applied, 4, signed=True)
+        if self.torque is not None:
+            self._store(self.drive, 0x6077, self.torque.per_mille(sample.motor_torque_nm), 2, signed=True)
         self.encoder.data_store.setdefault(0x6004, {})[0] = (sample.encoder_counts & 0xFFFFFFFF).to_bytes(4, "little")
         self.setpoints += 1
 

@@ -197,8 +197,9 @@ def _start(kind: str, args: Any, stack: contextlib.ExitStack) -> tuple[Any, str,
         return device, args.channel, None
     from sim_backend.canopen_nodes import SimulatedCanOpenRig
 
+    eds = {key: value for key, value in (("drive_eds", args.drive_eds), ("encoder_eds", args.encoder_eds)) if value}
     rig = stack.enter_context(SimulatedCanOpenRig(gearbox, drive_node_id=args.drive_node_id,
-                                                  encoder_node_id=args.encoder_node_id, **bus_options))
+                                                  encoder_node_id=args.encoder_node_id, **eds, **bus_options))
     producer = None
     if args.produce_sync:
         period_s = gearbox.sample_period_s if args.sample_period_s is None else args.sample_period_s
@@ -225,6 +226,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--bitrate", type=int, default=1_000_000, help="for the bus load (canopen, can)")
     parser.add_argument("--drive-node-id", type=int, default=1)
     parser.add_argument("--encoder-node-id", type=int, default=2)
+    parser.add_argument("--drive-eds", default=None, help="canopen: the drive's EDS (default: configs/eds/sim_drive_cia402.eds)")
+    parser.add_argument("--encoder-eds", default=None, help="canopen: the encoder's EDS (default: configs/eds/sim_encoder_cia406.eds)")
     parser.add_argument("--produce-sync", action="store_true", help="canopen: produce SYNC on the devices' clock")
     parser.add_argument("--record", default=None,
                         help="write the DeviceRecord here at the end (JSON; its targets in FILE.targets beside it)")

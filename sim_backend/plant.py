@@ -41,11 +41,15 @@ class GearboxSample:
         across the encoder's wrap).
     encoder_counts
         The position value the CiA 406 device reports (wrapped, signed or not, with direction and offset).
+    motor_torque_nm
+        The motor's torque at the sample's instant, for a plant that models a motor (a drive_train block;
+        :attr:`SimulatedGearbox.gives_motor_torque`), else None.
     """
 
     load_angle_rad: float
     measured_angle_rad: float
     encoder_counts: int
+    motor_torque_nm: float | None = None
 
 
 @dataclass(frozen=True)
@@ -126,6 +130,11 @@ class SimulatedGearbox:
         return float(self.noise.noise_bound_rad)
 
     @property
+    def gives_motor_torque(self) -> bool:
+        """Whether the plant models a motor whose torque :meth:`step` reports (a drive_train block)."""
+        return getattr(self._stepper, "motor_torque_nm", None) is not None
+
+    @property
     def measurement_error_bound_rad(self) -> float:
         """|measured - true| <= additive bound + half a count of the encoder."""
         return self.noise_bound_rad + self.encoder.quantization_bound_rad
@@ -162,7 +171,8 @@ class SimulatedGearbox:
         counts = self.encoder.counts_from_rad(noisy)
         measured = self.encoder.rad_from_counts(counts, near_rad=noisy)
         self.samples += 1
-        return GearboxSample(load_angle_rad=load, measured_angle_rad=measured, encoder_counts=counts)
+        return GearboxSample(load_angle_rad=load, measured_angle_rad=measured, encoder_counts=counts,
+                             motor_torque_nm=getattr(self._stepper, "motor_torque_nm", None))
 
     def simulate(self, command_rad: ArrayLike) -> GearboxTrajectory:
         """Run a whole command array from rest with the noise restarted from :attr:`seed`; equal, sample for

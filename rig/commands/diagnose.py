@@ -16,7 +16,7 @@ offset/drift and gain error in the residual, add the effect that lowers the vali
 40 % of the record, which no fit sees) most beyond a complexity penalty, and repeat until the model is
 consistent with the noise bound or no effect helps.
 
-DATA is a rig-log v1 file, a plain CSV with columns t, u, y (seconds, radians), an ASAM MDF4 (.mf4/.mdf) or
+DATA is a rig log, a plain CSV with columns t, u, y (seconds, radians), an ASAM MDF4 (.mf4/.mdf) or
 MATLAB (.mat) file (one written by `rig export`, or with channels t, u, y), or per-sample JSON records (an
 object with an entries[] list, as the K-Scale sysid logger writes); --columns, --units and --valid read
 other tools' files. One-sample read failures are replaced and counted, irregular sampling is resampled with a
@@ -39,7 +39,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument("data", metavar="DATA", nargs="+",
-                        help="a rig-log v1 file, a CSV with columns t,u,y, or .mf4/.mdf/.mat; several are diagnosed independently")
+                        help="a rig log, a CSV with columns t,u,y, or .mf4/.mdf/.mat; several are diagnosed independently")
     parser.add_argument("--model", metavar="PLANT.toml|PLANT.fmu", default=None,
                         help="the user's model: a plant config, or an FMU (FMI 2.0/3.0, co-simulation or model "
                              "exchange; needs fmpy: pip install 'gearbox-rig[fmu]'); default: fit a linear model")

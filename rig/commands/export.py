@@ -22,7 +22,7 @@ config, seed, software version, the run's summary):
   mat  MATLAB v7 (.mat; load('run.mat')): column vectors of the same names and a struct 'metadata'
   csv  the rig-log v1 CSV (pandas, numpy, MATLAB readtable)
 
-LOG is anything the analysis commands read: a rig-log v1 file, a CSV with columns t,u,y, or an .mf4/.mdf/.mat
+LOG is anything the analysis commands read: a rig log, a CSV with columns t,u,y, or an .mf4/.mdf/.mat
 file. Every command that reads data reads the .mf4/.mdf and .mat files written here (and MDF/MAT files of other
 tools with channels t,u,y: the t of an MDF file is its master time)."""
 
@@ -34,7 +34,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         description=DESCRIPTION,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    parser.add_argument("log", metavar="LOG", help="a rig-log v1 file, a CSV with columns t,u,y, or .mf4/.mdf/.mat")
+    parser.add_argument("log", metavar="LOG", help="a rig log, a CSV with columns t,u,y, or .mf4/.mdf/.mat")
     parser.add_argument("--format", choices=sorted(FORMATS), default=None,
                         help="output format (default: from the suffix of --out: .mf4/.mdf, .mat, .csv)")
     parser.add_argument("--out", metavar="FILE", required=True,

@@ -14,7 +14,7 @@ DESCRIPTION = """\
 Identify a state-space model of the linear part and the ascending/descending borders of an input backlash
 or switch from one experiment with the cyclic excitation of Table I (Pouliquen et al. 2013).
 
-DATA is a CSV file with columns u and y (one row per sample; other columns are ignored) or a rig-log v1
+DATA is a CSV file with columns u and y (one row per sample; other columns are ignored) or a rig log
 file (command_rad is u, angle_rad is y), in CSV or as the .mf4/.mdf/.mat of `rig export`; an MDF4 or MAT file
 of another tool with channels u and y is read too. The data start with a hold at u_min, whose mean output gives
 mu0 = H[u_min], unless --mu0 is given; without --hold-samples the hold is the leading run of samples at
@@ -49,7 +49,7 @@ def register(methods: argparse._SubParsersAction) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument("data", metavar="DATA.csv", nargs="+",
-                        help="CSV with columns u, y, a rig-log v1 file, or .mf4/.mdf/.mat with channels u, y; several files are identified independently")
+                        help="CSV with columns u, y, a rig log, or .mf4/.mdf/.mat with channels u, y; several files are identified independently")
     nodes = parser.add_mutually_exclusive_group()
     nodes.add_argument("--num-nodes", type=int, default=8, metavar="K",
                        help="equally spaced nodes on [u_min, u_max], both ends included (default 8: n_p = 7)")

@@ -26,7 +26,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         ),
     )
     parser.add_argument("log", metavar="LOG",
-                        help="a rig-log v1 file, a CSV with columns t,u,y, .mf4/.mdf/.mat, or an FMU (.fmu)")
+                        help="a rig log, a CSV with columns t,u,y, .mf4/.mdf/.mat, or an FMU (.fmu)")
     parser.add_argument("--json", action="store_true", help="print the summary as JSON")
     parser.set_defaults(handler=run)
 

@@ -38,7 +38,7 @@ __all__ = ["ResultFile", "read_result_file", "read_result_files", "readable_kind
 DESCRIPTION = """\
 Write a static HTML report (index.html and PNG figures) from result files:
 
-  experiment logs (rig-log v1) or CSV files with columns t,u,y     signals and timing (device-clocked:
+  experiment logs (rig-log v1, v2) or CSV files with columns t,u,y     signals and timing (device-clocked:
                                                                    HELD samples, smallest lead; else the
                                                                    period jitter, send lateness)
   JSON of `rig identify output-backlash --json` or --save FILE    intervals side by side (one file per
@@ -56,7 +56,7 @@ Save the JSON with e.g. `rig identify hammerstein run.csv --json > hammerstein.j
 of the Bode figure is in Hz when --sample-period is given or the experiment logs among the files share one
 period, else in cycles per sample (logs of different periods: the page says so). The command prints the path of index.html."""
 
-EXPECTED = ("a rig-log v1 experiment log, a CSV file with columns t,u,y, or the JSON printed by "
+EXPECTED = ("a rig log, a CSV file with columns t,u,y, or the JSON printed by "
             "`rig identify output-backlash --json`, `rig identify hammerstein --json`, `rig diagnose --json` "
             "(one file or several) or `rig run --json`")
 

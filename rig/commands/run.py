@@ -1,5 +1,6 @@
 """``rig run CONFIG.toml --experiment EXP.toml --out LOG``: drive a rig (real or simulated) with an
-experiment's excitation at the config's fixed rate and write a ``rig-log v1`` file.
+experiment's excitation at the config's fixed rate and write a rig log (``rig-log v1``, or ``v2`` with the
+drive's torque).
 
 A rig config with a ``[simulation]`` table runs against simulated devices started by
 :func:`rig.transports.simulated.simulated_rig` (the table of simulated devices beside the transport registry).
@@ -33,8 +34,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         description=(
             "Stream the excitation of an experiment config to the rig of a rig config at its fixed sample rate, "
             "with software limits, a feedback watchdog and a controlled stop on any fault or Ctrl-C, and write "
-            "every sample (flagged LOST/LATE/DUPLICATE/FAULT) to a rig-log v1 file. A rig config with a "
-            "[simulation] table starts simulated devices that answer on the real protocol."
+            "every sample (flagged LOST/LATE/DUPLICATE/FAULT) to a rig log (v2 with the drive's torque where the "
+            "link reports it). A rig config with a [simulation] table starts simulated devices that answer on the "
+            "real protocol."
         ),
     )
     parser.add_argument("config", metavar="CONFIG.toml", nargs="?", default=str(DEFAULT_CONFIG),
@@ -44,8 +46,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         help="experiment config (configs/experiments/*.toml), or a CSV, .mf4/.mdf or .mat file with a command_rad column "
                              "(one value per sample; an optional time_s column must step by the rig's period)")
     parser.add_argument("--out", metavar="LOG", required=True,
-                        help="log file to write (CSV, rig-log v1); an existing file is refused unless --force, and a "
-                             "file another run is writing always is")
+                        help="log file to write (CSV, rig-log v1, or v2 with the drive's torque); an existing file is "
+                             "refused unless --force, and a file another run is writing always is")
     parser.add_argument("--force", action="store_true", help="replace an existing --out log (and --can-trace file)")
     parser.add_argument("--duration", type=duration_s, default=None, metavar="S",
                         help="run for S seconds, or S with a unit: 90s, 20min, 8h (the excitation is cut, or "
@@ -133,8 +135,8 @@ class FlagCounter(ForwardingSink):
         self.lost = self.held = self.late = 0
 
     def append(self, time_s: float, command_rad: float, angle_rad: float, encoder_counts: int | None = None,
-               flags: int = 0) -> None:
-        super().append(time_s, command_rad, angle_rad, encoder_counts, flags)
+               flags: int = 0, **columns: float) -> None:
+        super().append(time_s, command_rad, angle_rad, encoder_counts, flags, **columns)
         if flags:
             self.lost += bool(flags & self._lost)
             self.held += bool(flags & self._held)
@@ -254,7 +256,8 @@ def run(args: argparse.Namespace) -> int:
 
             view = stack.enter_context(open_live_view(num_samples, config.sample_period_s, sys.stderr,
                                                       trend=_live_trend(args, metadata, config.sample_period_s)))
-        log = LogWriter(args.out, metadata, flush_every=10, flush_interval_s=0.05, claimed=claimed, stamp_start=True)
+        log = LogWriter(args.out, metadata, flush_every=10, flush_interval_s=0.05, claimed=claimed, stamp_start=True,
+                        drive_torque_unit=transport.drive_torque_unit)
         sink = log if view is None else view.observe(log)
         bar = flags = None
         if not args.json and not args.live and sys.stderr.isatty():

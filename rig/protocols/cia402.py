@@ -52,6 +52,8 @@ INTERPOLATED_POSITION_MODE = 7  # with a FIFO of interpolation data records (0x6
 CYCLIC_SYNCHRONOUS_POSITION_MODE = 8
 CONTROLWORD_ENABLE_INTERPOLATION = 0x001F  # enable operation + bit 4 (in interpolated position: enable ip mode)
 STATUSWORD_IP_MODE_ACTIVE = 0x1000  # bit 12 in interpolated position mode
+TORQUE_ACTUAL_UNIT = "permille_of_rated_torque"
+"""The unit of the torque actual value 0x6077 (INTEGER16): per mille of the motor rated torque 0x6076."""
 
 
 class DriveState(Enum):

@@ -145,6 +145,9 @@ class FeedbackSample:
         On a device-clocked link: the host did not send the planned setpoint ``seq`` but one nearer the target
         in force before it (:meth:`Transport._toward_plan`, on the way back to the plan after a stall);
         ``applied_position_rad`` is what the drive took, and the runner flags the sample LIMITED.
+    drive_torque
+        The torque the drive reported at this sample's instant, in its own unit
+        (:attr:`Transport.drive_torque_unit`), or None from a link that does not carry it.
     """
 
     seq: int
@@ -159,6 +162,7 @@ class FeedbackSample:
     ambiguous: bool = False
     instant_error_s: float = 0.0
     limited: bool = False
+    drive_torque: float | None = None
 
 
 @dataclass(frozen=True)
@@ -264,6 +268,12 @@ class Transport(ABC):
         """The shortest time between two setpoints the link carries: on CAN, the bus time of one cycle's
         frames (a SYNC sent sooner would overtake the previous cycle's answers, since it wins arbitration)."""
         return 0.0
+
+    @property
+    def drive_torque_unit(self) -> str | None:
+        """The unit of :attr:`FeedbackSample.drive_torque` where this link may report the drive's torque (known
+        before it opens, so that the log can give it a column), else None (the default)."""
+        return None
 
     @property
     def lead_samples(self) -> int:

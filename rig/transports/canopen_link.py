@@ -18,8 +18,9 @@ it can enable the drive):
    time period, CiA 402 types).
 2. PDO mapping: drive RPDO1 = target position 0x607A (synchronous) or the interpolation data record 0x60C1:1
    (asynchronous, with RPDO2 for hold records); drive TPDO1 = statusword 0x6041 + position actual
-   value 0x6064; encoder TPDO1 = position value 0x6004; TPDOs synchronous (transmission type 1: every
-   SYNC). Every PDO's communication and mapping parameters are then read back: a device with static PDOs
+   value 0x6064, and the torque actual value 0x6077 where the EDS makes it PDO-mappable (the log's
+   ``drive_torque``; a drive that refuses it streams without it, with a warning); encoder TPDO1 = position
+   value 0x6004; TPDOs synchronous (transmission type 1: every SYNC). Every PDO's communication and mapping parameters are then read back: a device with static PDOs
    refuses the writes (or canopen skips what the EDS marks read-only), so the master decodes the layout
    the device really sends, and refuses one that lacks an object or answers other than every SYNC,
    naming the object.
@@ -96,6 +97,7 @@ DEFAULT_ENCODER_EDS = _CONFIGS / "sim_encoder_cia406.eds"
 # data bytes of the frames of one cycle: SYNC, drive RPDO1 (0x607A), drive TPDO1 (0x6041 + 0x6064),
 # encoder TPDO1 (0x6004)
 CYCLE_FRAME_BYTES = (0, 4, 6, 4)
+TORQUE_TPDO_BYTES = 2  # 0x6077 torque actual value in the drive's TPDO1, where its EDS makes it PDO-mappable
 DEMAND_TPDO_BYTES = 4  # drive TPDO2 = 0x6062 position demand value, where the drive has it (latency check)
 LATENCY_EVIDENCE_SAMPLES = 3
 """Samples in a row whose 0x6062 is an earlier sample's target before the run stops for a wrong TPDO
@@ -120,7 +122,9 @@ class CanOpenTransport(CanOpenStartUp, CanOpenInterpolation, CanOpenReceiveCheck
     drive_node_id, encoder_node_id
         Node-IDs.
     drive_eds, encoder_eds
-        Object dictionaries (the vendor's EDS for a real device; the simulated devices' by default).
+        Object dictionaries (the vendor's EDS for a real device; the simulated devices' by default); in a rig
+        config, a relative path is relative to the config file, and a simulated rig's devices are built from
+        them too.
     heartbeat_ms
         Producer heartbeat time written to 0x1017 of both nodes.
     heartbeat_timeout_s
@@ -254,7 +258,10 @@ class CanOpenTransport(CanOpenStartUp, CanOpenInterpolation, CanOpenReceiveCheck
         self.trace_path = check_trace_path(trace_path)
         self._trace = None
         self._checks_latency = {0x6062, 0x1801, 0x1A01} <= set(self._drive_od)
-        frames = CYCLE_FRAME_BYTES + ((DEMAND_TPDO_BYTES,) if self._checks_latency else ())
+        self._offers_torque = 0x6077 in self._drive_od and bool(getattr(self._drive_od[0x6077], "pdo_mappable", False))
+        sync, target, drive_feedback, encoder_feedback = CYCLE_FRAME_BYTES
+        frames = (sync, target, drive_feedback + (TORQUE_TPDO_BYTES if self._offers_torque else 0), encoder_feedback,
+                  *((DEMAND_TPDO_BYTES,) if self._checks_latency else ()))
         self.load = bus_load(frames, 1.0 / self.sample_period_s, self.bitrate)
         if self.load.load > 1.0:
             raise ConfigError("<transport>", "bitrate", (
@@ -309,6 +316,12 @@ class CanOpenTransport(CanOpenStartUp, CanOpenInterpolation, CanOpenReceiveCheck
         self._arrived = threading.Condition(self._lock)
         self._emcy: tuple[str, int, int] | None = None  # (role, node-ID, EMCY code; 0: FAULT in the statusword)
         self._init_receive_checks()  # frames lost on receive (rig.transports.canopen_receive_checks)
+
+    @property
+    def drive_torque_unit(self) -> str | None:
+        """Per mille of the rated torque where the drive's EDS makes 0x6077 PDO-mappable: the master maps it into
+        the drive's TPDO1 (a drive that then refuses it streams without it, noted in ``warnings``)."""
+        return cia402.TORQUE_ACTUAL_UNIT if self._offers_torque else None
 
     @property
     def min_cycle_s(self) -> float:
@@ -415,8 +428,7 @@ class CanOpenTransport(CanOpenStartUp, CanOpenInterpolation, CanOpenReceiveCheck
             self._take_first_mode(drive)
             self._write_cycle_period(drive)
             self._hold_rpdo = self._map_hold_rpdo(drive)
-            self._drive_tpdo = self._map_pdo(drive.tpdo, "drive", [(0x6041, 0, 16), (0x6064, 0, 32)],
-                                             0x180 + self.drive_node_id)
+            self._drive_tpdo = self._map_drive_tpdo(drive)
             self._encoder_tpdo = self._map_pdo(encoder.tpdo, "encoder", [(0x6004, 0, self._encoder_value_bits())],
                                                0x180 + self.encoder_node_id)
             if self.mode == "ip_buffer":
@@ -690,13 +702,15 @@ class CanOpenTransport(CanOpenStartUp, CanOpenInterpolation, CanOpenReceiveCheck
     # -- receive side (python-can notifier thread) -----------------------------------------------------------
 
     def _on_drive_tpdo(self, pdo: Any) -> None:
+        layout = self._drive_tpdo
         try:
-            statusword = self._drive_tpdo.value(pdo.data, 0x6041)
-            actual = self._drive_tpdo.value(pdo.data, 0x6064, signed=True)
+            statusword = layout.value(pdo.data, 0x6041)
+            actual = layout.value(pdo.data, 0x6064, signed=True)
+            torque = layout.value(pdo.data, 0x6077, signed=True) if 0x6077 in layout.fields else None
         except ValueError:
             self._count_frame_errors("drive TPDO shorter than its mapping")  # CiA 301: a PDO length error
             return
-        self._file("drive", (statusword, actual), pdo.timestamp)
+        self._file("drive", (statusword, actual, torque), pdo.timestamp)
         if self._watching and cia402.state_from_statusword_or_none(statusword) in (
                 cia402.DriveState.FAULT, cia402.DriveState.FAULT_REACTION_ACTIVE):  # before: the bring-up's
             with self._arrived:
@@ -877,7 +891,7 @@ class CanOpenTransport(CanOpenStartUp, CanOpenInterpolation, CanOpenReceiveCheck
         # complete: report the sample; a node answering the same SYNC again (a repeated frame, or a frame
         # delayed past the next SYNC and filed there) reports it again, and the runner flags it DUPLICATE
         if "drive" in parts and "encoder" in parts and ("demand" in parts or self._demand_tpdo is None):
-            statusword, actual = parts["drive"]
+            statusword, actual, torque = parts["drive"]
             counts, held, limited = self._applied.get(seq, (None, False, False))
             ambiguous = (bool(self._ambiguous)
                          and any(seq + self._origin + latency in self._ambiguous for latency in self.latency_cycles.values()))
@@ -890,7 +904,7 @@ class CanOpenTransport(CanOpenStartUp, CanOpenInterpolation, CanOpenReceiveCheck
                 drive_position_rad=self.drive.rad_from_counts(actual), statusword=statusword,
                 host_time_s=received, target_ignored=self._target_ignored(statusword), held=held, limited=limited,
                 applied_position_rad=None if counts is None else self.drive.rad_from_counts(counts),
-                ambiguous=ambiguous, instant_error_s=self._instant_errors.get(seq, 0.0)))
+                ambiguous=ambiguous, instant_error_s=self._instant_errors.get(seq, 0.0), drive_torque=torque))
         if len(self._parts) > 512:
             for old in sorted(self._parts)[:256]:
                 del self._parts[old]

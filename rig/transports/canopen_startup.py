@@ -303,6 +303,19 @@ class CanOpenStartUp:
                 "only the target"))
         return layout
 
+    def _map_drive_tpdo(self, drive: Any) -> PdoLayout:
+        """Drive TPDO1 = statusword 0x6041 + position actual value 0x6064, and the torque actual value 0x6077
+        (CiA 402, INTEGER16) where the drive's EDS makes it PDO-mappable; a drive that refuses to map it (a
+        static PDO, or an EDS that promises more than the device does) streams without it, noted in
+        ``warnings``, its log's torque column empty."""
+        needed, cob_id = [(0x6041, 0, 16), (0x6064, 0, 32)], 0x180 + self.drive_node_id
+        if self.drive_torque_unit is not None:
+            try:
+                return self._map_pdo(drive.tpdo, "drive", [*needed, (0x6077, 0, 16)], cob_id)
+            except DeviceFault as err:
+                self._ride_through(f"drive {self.drive_node_id}: its torque actual value 0x6077 is not logged ({err})")
+        return self._map_pdo(drive.tpdo, "drive", needed, cob_id)
+
     def _map_demand_tpdo(self, drive: Any) -> PdoLayout | None:
         """Drive TPDO2 = 0x6062 (position demand value: the target the drive applied at that SYNC), for the
         latency check; a drive that cannot map it is streamed without the check (noted in ``warnings``)."""

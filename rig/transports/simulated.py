@@ -90,7 +90,9 @@ def _start_canopen(config: RigConfig, gearbox: SimulatedGearbox, stack: contextl
     rig = stack.enter_context(SimulatedCanOpenRig(
         gearbox, channel=channel, drive_node_id=options.get("drive_node_id", 1),
         encoder_node_id=options.get("encoder_node_id", 2), bitrate=options.get("bitrate", 1_000_000),
-        drive_counts_per_revolution=config.drive.counts_per_revolution, **device_options))  # type: ignore[arg-type]
+        drive_counts_per_revolution=config.drive.counts_per_revolution,
+        **{**{key: options[key] for key in ("drive_eds", "encoder_eds") if key in options},  # the master's EDS
+           **device_options}))  # type: ignore[arg-type]
     return config.url, rig
 
 
@@ -165,7 +167,8 @@ def start_device_process(config: RigConfig, stack: contextlib.ExitStack, *, samp
                        bitrate=config.options.get("bitrate", 1_000_000))
     if config.scheme == "canopen":
         options.update(drive_node_id=config.options.get("drive_node_id", 1),
-                       encoder_node_id=config.options.get("encoder_node_id", 2), produce_sync=produce_sync)
+                       encoder_node_id=config.options.get("encoder_node_id", 2), produce_sync=produce_sync,
+                       drive_eds=config.options.get("drive_eds"), encoder_eds=config.options.get("encoder_eds"))
     running = stack.enter_context(device_process(config.scheme, sim.plant_path, **options))
     url = f"serial://{running.address}" if config.scheme == "serial" else f"{config.scheme}://udp_multicast:{port}/{group}"
     logger.info("started the simulated %s rig of %s in process %d, plant %s, at %s", config.scheme, config.source,

@@ -115,13 +115,44 @@ def test_a_torque_of_another_length_is_refused_by_name():
         diagnose_model(u, u, 1e-3, 1e-3, drive_torque=np.zeros(399))
 
 
+def _files(tmp_path, record: dict) -> tuple[Path, Path]:
+    """The record as another tool's CSV (columns t, u, y, torque) and as the rig log a run with the drive's
+    torque writes (rig-log v2, its drive_torque column)."""
+    from identify.experiment_record import ExperimentMetadata, ExperimentRecord
+    from rig.log_file import write_log
+
+    csv = tmp_path / "run.csv"
+    csv.write_text("t,u,y,torque\n" + "".join(
+        f"{t!r},{u!r},{y!r},{q!r}\n" for t, u, y, q in zip(record["time_s"].tolist(), record["command_rad"].tolist(),
+                                                          record["angle_rad"].tolist(), record["torque_nm"].tolist())))
+    log = tmp_path / "rig_log.csv"
+    period = float(record["nominal"]["sample_period_s"])
+    write_log(log, ExperimentRecord(
+        time_s=np.arange(record["time_s"].size) * period, command_rad=record["command_rad"],
+        angle_rad=record["angle_rad"], encoder_counts=None, flags=None, drive_torque=record["torque_nm"],
+        metadata=ExperimentMetadata(sample_period_s=period, extra={"drive_torque_unit": "N_m"})))
+    return csv, log
+
+
+def test_the_torque_is_read_alike_from_a_named_column_and_from_a_rig_log(tmp_path):
+    from rig.record_import import ImportOptions, read_measurement
+
+    record = _record("gravity", 1004, "steps", "cascade")
+    csv, log = _files(tmp_path, record)
+    from_csv, _ = read_measurement(csv, ImportOptions(columns={"t": "t", "u": "u", "y": "y", "tau": "torque"}))
+    from_log, _ = read_measurement(log)
+    np.testing.assert_array_equal(from_csv.drive_torque, record["torque_nm"])
+    np.testing.assert_array_equal(from_log.drive_torque, record["torque_nm"])
+    np.testing.assert_array_equal(from_log.angle_rad, from_csv.angle_rad)
+
+
 @pytest.mark.slow
-def test_rig_diagnose_reads_the_torque_column_and_names_the_weight_the_angle_alone_leaves_open(tmp_path, capsys):
+def test_rig_diagnose_reads_the_torque_of_a_rig_log_and_names_the_weight_the_angle_alone_leaves_open(tmp_path, capsys):
     from rig import exit_codes
     from rig.cli import main
 
     # behind the cascade servo the angle alone leaves this weight open beside a gain error (over its 1.7 rad the
-    # sine's slope); the drive feels no sensor error
+    # sine's slope); the drive feels no sensor error. The log's drive_torque column is read without --columns.
     record = _record("gravity", 1004, "steps", "cascade")
     block = confusion.nominal_linear_block(record["nominal"])
     model = tmp_path / "model.toml"
@@ -129,13 +160,9 @@ def test_rig_diagnose_reads_the_torque_column_and_names_the_weight_the_angle_alo
                      'bound_rad = 0.0001\n[[blocks]]\ntype = "linear"\n'
                      f"a = [{', '.join(repr(float(v)) for v in block.a)}]\n"
                      f"b = [{', '.join(repr(float(v)) for v in block.b)}]\n")
-    data = tmp_path / "run.csv"
-    data.write_text("t,u,y,torque\n" + "".join(
-        f"{t!r},{u!r},{y!r},{q!r}\n" for t, u, y, q in zip(record["time_s"].tolist(), record["command_rad"].tolist(),
-                                                          record["angle_rad"].tolist(), record["torque_nm"].tolist())))
+    _, data = _files(tmp_path, record)
     bound = repr(confusion.independent_noise_bound(record["nominal"]))
-    assert main(["diagnose", str(data), "--model", str(model), "--noise-bound", bound, "--json",
-                 "--columns", "tau=torque"]) == exit_codes.SUCCESS
+    assert main(["diagnose", str(data), "--model", str(model), "--noise-bound", bound, "--json"]) == exit_codes.SUCCESS
     document = json.loads(capsys.readouterr().out)
     assert [entry["effect"] for entry in document["missing_effects"]] == ["gravity"]
     assert document["load_torque_check"]["outcome"] == "load_torque"

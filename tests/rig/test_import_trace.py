@@ -253,3 +253,21 @@ def test_interpolated_position_starts_where_the_bus_order_says(answer_after_sync
     frames = _ip_start_frames(answer_after_sync, first_bit_12)
     status_pdo = _our_mapping(1, 2).pdos[0x181]
     assert _ip_origin(frames, 0x080, 0x201, 1, latency=0, status_pdo=status_pdo) == origin
+
+
+def test_the_drive_torque_in_a_canopen_trace_imports_as_the_runs_torque_column(tmp_path, capsys):
+    # the simulated servo's drive maps its torque actual value 0x6077 into TPDO1: the start-up's SDO writes in the
+    # trace say so, and the import decodes it as the run did
+    config = Path(__file__).resolve().parents[2] / "configs" / "sim_pendulum_canopen.toml"
+    trace, log, imported = tmp_path / "run.blf", tmp_path / "run.csv", tmp_path / "imported.csv"
+    command = tmp_path / "swing.csv"  # 0.6 s of a swing from rest at 100 Hz
+    command.write_text("command_rad\n" + "".join(f"{0.5 * np.sin(np.pi * k / 30):.12f}\n" for k in range(60)))
+    assert main(["run", str(config), "--experiment", str(command), "--out", str(log), "--can-trace", str(trace),
+                 "--json"]) == exit_codes.SUCCESS
+    assert main(["import", str(trace), "--config", str(config), "--out", str(imported), "--json"]) == exit_codes.SUCCESS
+    capsys.readouterr()
+    run, again = read_log(log), read_log(imported)
+    assert run.drive_torque is not None and np.isfinite(run.drive_torque).all()
+    np.testing.assert_array_equal(again.drive_torque, run.drive_torque)
+    assert again.metadata.extra["drive_torque_unit"] == run.metadata.extra["drive_torque_unit"]
+    _assert_same_samples(log, imported, ignore_late=False)

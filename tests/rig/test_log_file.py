@@ -218,3 +218,53 @@ def test_a_summary_after_the_last_sample_reads_into_the_metadata_and_other_reade
     assert len(again) == len(record) == count_samples(path)
     table = np.genfromtxt(path, delimiter=",", names=True, skip_header=3)  # '#' lines are comments to numpy
     assert table.size == len(record)
+
+
+def _with_torque(record: ExperimentRecord) -> ExperimentRecord:
+    torque = np.round(np.linspace(-250.0, 310.0, len(record)))
+    torque[[5, 17, 40]] = math.nan  # LOST samples have none, and a drive may miss one
+    metadata = ExperimentMetadata.from_dict({**record.metadata.to_dict(),
+                                             "extra": {"drive_torque_unit": "permille_of_rated_torque"}})
+    return ExperimentRecord(time_s=record.time_s, command_rad=record.command_rad, angle_rad=record.angle_rad,
+                            encoder_counts=record.encoder_counts, flags=record.flags, metadata=metadata,
+                            drive_torque=torque)
+
+
+def test_a_log_with_the_drive_torque_is_v2_and_reopens_with_it_and_its_unit(tmp_path):
+    original = _with_torque(sample_record())
+    path = tmp_path / "run.csv"
+    write_log(path, original)
+    lines = path.read_text().splitlines()
+    assert lines[0] == "# rig-log v2" and lines[2].endswith(" drive_torque=permille_of_rated_torque")
+    assert lines[3] == "time_s,command_rad,angle_rad,encoder_counts,flags,drive_torque"
+    again = read_log(path)
+    assert again == original
+    assert again.metadata.extra["drive_torque_unit"] == "permille_of_rated_torque"
+    table = np.genfromtxt(path, delimiter=",", names=True, skip_header=3)  # still the 3 comment lines
+    np.testing.assert_array_equal(table["drive_torque"], original.drive_torque)
+    # without the torque the log stays v1, which readers of v1 open
+    write_log(tmp_path / "plain.csv", sample_record())
+    assert (tmp_path / "plain.csv").read_text().startswith("# rig-log v1\n")
+    assert read_log(tmp_path / "plain.csv").drive_torque is None
+
+
+def test_a_torque_for_a_log_without_its_column_is_refused_by_name(tmp_path):
+    with LogWriter(tmp_path / "run.csv", META) as log:
+        with pytest.raises(ValueError, match="has no drive_torque column.*drive_torque_unit"):
+            log.append(0.0, 0.0, 0.0, 1, 0, drive_torque=12.0)
+    with LogWriter(tmp_path / "empty.csv", META, drive_torque_unit="permille_of_rated_torque") as log:
+        log.append(0.0, 0.0, 0.0, 1, 0)  # a drive that would not map its torque: the column stays empty
+    assert read_log(tmp_path / "empty.csv").drive_torque is None
+
+
+@pytest.mark.parametrize(("mutate", "message"), [
+    (lambda text: text.replace(",drive_torque\n", "\n", 1), r"line 4: expected columns .*drive_torque \(rig-log v2\)"),
+    (lambda text: text.replace("# rig-log v2", "# rig-log v1"), r"line 4: expected columns .*flags \(rig-log v1\)"),
+    (lambda text: text.replace(",-250.0\n", ",-2.5e\n", 1), "line 5, column drive_torque: '-2.5e' is not a number"),
+])
+def test_a_damaged_v2_log_is_named(tmp_path, mutate, message):
+    path = tmp_path / "bad.csv"
+    write_log(path, _with_torque(sample_record()))
+    path.write_text(mutate(path.read_text()))
+    with pytest.raises(LogFileError, match=message):
+        read_log(path)

@@ -84,6 +84,23 @@ def test_log_to_mat_reads_back_identical_arrays(log, tmp_path, capsys):
     assert json.loads(struct["rig_log_json"])["extra"]["summary"]["frame_errors"] == 2
 
 
+@pytest.mark.parametrize("suffix", [".mf4", ".mat", ".csv"])
+def test_the_drive_torque_of_a_v2_log_survives_the_export(log, tmp_path, capsys, suffix):
+    record = read_log(log)
+    torque = np.linspace(-300.0, 300.0, len(record))
+    torque[7] = np.nan  # the LOST sample has none
+    metadata = ExperimentMetadata.from_dict({**record.metadata.to_dict(),
+                                             "extra": {**record.metadata.extra, "drive_torque_unit": "permille_of_rated_torque"}})
+    source = tmp_path / "torque.csv"
+    write_log(source, dataclasses.replace(record, metadata=metadata, drive_torque=torque))
+    out = tmp_path / f"exported{suffix}"
+    assert main(["export", str(source), "--out", str(out)]) == exit_codes.SUCCESS
+    again = read_experiment_data(out)
+    np.testing.assert_array_equal(again.drive_torque, torque)
+    assert again.metadata.extra["drive_torque_unit"] == "permille_of_rated_torque"
+    _same_record(read_log(source), again)
+
+
 def test_mdf4_layout_names_units_comments_and_history(log, tmp_path):
     mdf_path = tmp_path / "run.mf4"
     assert main(["export", str(log), "--out", str(mdf_path)]) == exit_codes.SUCCESS

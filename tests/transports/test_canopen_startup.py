@@ -151,7 +151,7 @@ def test_a_tpdo_is_filed_under_the_last_sync_before_its_bus_timestamp_once_the_n
     transport = _streaming_canopen_transport()
     transport._origin = 1  # the first SYNC seen is sample 0
     transport._on_sync_echo(0x80, b"", 10.000)  # sample 0
-    transport._file("drive", (0x1637, 100), 10.0003)
+    transport._file("drive", (0x1637, 100, None), 10.0003)
     transport._file("encoder", -1, 10.0004)
     assert not transport._ready  # the bus order around it is known only at the next SYNC
     transport._on_sync_echo(0x80, b"", 10.001)  # sample 1
@@ -166,7 +166,7 @@ def test_a_tpdo_that_reaches_the_host_before_the_echo_of_its_sync_is_filed_under
     transport = _streaming_canopen_transport()
     transport._origin = 1
     transport._on_sync_echo(0x80, b"", 20.000)  # sample 0
-    transport._file("drive", (0x1637, 100), 20.0013)  # answers sample 1, whose echo is not back yet
+    transport._file("drive", (0x1637, 100, None), 20.0013)  # answers sample 1, whose echo is not back yet
     transport._file("encoder", 3, 20.0014)
     transport._on_sync_echo(0x80, b"", 20.0010)  # sample 1
     assert not transport._ready
@@ -214,7 +214,7 @@ def test_a_configured_tpdo_latency_files_each_answer_under_the_sync_it_answers()
     transport._origin = 1
     for bus_time in (5.000, 5.001):  # samples 0, 1
         transport._on_sync_echo(0x80, b"", bus_time)
-    transport._file("drive", (0x1637, 7), 5.0013)  # between SYNC 1 and 2: the answer to SYNC 0
+    transport._file("drive", (0x1637, 7, None), 5.0013)  # between SYNC 1 and 2: the answer to SYNC 0
     transport._file("encoder", 42, 5.0014)
     transport._on_sync_echo(0x80, b"", 5.002)
     assert transport._ready.popleft().seq == 0
@@ -288,7 +288,7 @@ def test_one_demand_value_off_is_an_ambiguous_sample_and_three_in_a_row_a_wrong_
 
     def answer(demand: int) -> None:
         at = sync()
-        for part, value in (("drive", (0x1637, demand)), ("encoder", 5), ("demand", demand)):
+        for part, value in (("drive", (0x1637, demand, None)), ("encoder", 5), ("demand", demand)):
             transport._file(part, value, at + 0.0003)
 
     sync()  # the first SYNC: target 0 goes out for the next one
