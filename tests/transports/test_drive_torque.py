@@ -99,6 +99,24 @@ def test_a_drive_whose_pdo_will_not_take_the_torque_is_streamed_without_it(tmp_p
     assert "drive 1" in warning and "not logged" in warning and "TPDO1" in warning
 
 
+def test_a_device_process_is_built_from_the_eds_the_rig_config_names(tmp_path):
+    from rig.transports.simulated import PATIENT_WITH_A_DEVICE_PROCESS, start_device_process
+
+    config = load_rig_config(PENDULUM)
+    path = tmp_path / "run.csv"
+    with contextlib.ExitStack() as stack:  # the devices in a process of their own, producing SYNC on their clock
+        url, _ = start_device_process(config, stack, produce_sync=True)
+        transport = open_transport(url, **{**config.transport_options(), **PATIENT_WITH_A_DEVICE_PROCESS["canopen"],
+                                           "sync_producer": "external"})
+        with LogWriter(path, {"sample_period_s": config.sample_period_s},
+                       drive_torque_unit=transport.drive_torque_unit) as log:
+            summary = run_experiment(transport, _command(100), log, feedback_timeout_s=2.0)
+    record = read_log(path)
+    assert not any("0x6077" in warning for warning in summary.warnings)
+    assert record.drive_torque is not None and np.isfinite(record.drive_torque[record.valid_mask]).all()
+    assert np.ptp(record.drive_torque) > 100
+
+
 def test_the_master_offers_the_torque_column_only_where_the_drive_eds_has_a_mappable_0x6077():
     config = load_rig_config(PENDULUM)
     options = config.transport_options()
