@@ -271,7 +271,7 @@ def test_one_demand_value_off_is_an_ambiguous_sample_and_three_in_a_row_a_wrong_
     that crossed its SYNC (AMBIGUOUS); three in a row is a device answering a SYNC later than configured."""
     from rig.protocols.errors import DeviceFault
     from rig.transports.canopen_dictionary import PdoLayout
-    from rig.transports.canopen_link import LATENCY_EVIDENCE_SAMPLES
+    from rig.transports.canopen_filing import LATENCY_EVIDENCE_SAMPLES
 
     transport = _streaming_canopen_transport()
     transport._demand_tpdo = PdoLayout("TPDO2 of drive 1", 0x281, {0x6062: (0, 4)}, 4)
