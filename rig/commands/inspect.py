@@ -33,6 +33,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def summary(path: str) -> dict[str, Any]:
     """The JSON summary of a log: samples, lost, sample_period_s, per-flag counts and the metadata."""
+    import numpy as np
+
     from identify.experiment_record import SampleFlag
     from rig.log_file import read_experiment_data
 
@@ -48,6 +50,8 @@ def summary(path: str) -> dict[str, Any]:
         "sample_period_s": record.sample_period_s,
         "duration_s": duration,
         "has_encoder_counts": record.encoder_counts is not None,
+        # the samples with the drive's torque (rig-log v2), in its unit: None for a log without the column
+        "drive_torque_samples": None if record.drive_torque is None else int(np.isfinite(record.drive_torque).sum()),
         "flags": {flag.name.lower(): record.count_flag(flag) for flag in SampleFlag if flag.value},
         "warnings": [str(warning.message) for warning in caught],
     }

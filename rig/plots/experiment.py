@@ -42,8 +42,9 @@ def _reversals(command_rad: NDArray[np.float64]) -> NDArray[np.int64]:
 
 
 def signal_figure(record: ExperimentRecord, name: str) -> ReportFigure:
-    """Command and measured load angle against time, with unusable samples marked; a command that reverses
-    more than :data:`ZOOM_REVERSALS` times is also drawn over a window of the first ones (right column)."""
+    """Command and measured load angle against time (and the drive's torque, where the log has it), with unusable
+    samples marked; a command that reverses more than :data:`ZOOM_REVERSALS` times is also drawn over a window of
+    the first ones (right column)."""
     reversals = _reversals(record.command_rad)
     window = None
     if reversals.size > ZOOM_REVERSALS:  # from a little before the first reversal, WINDOW_REVERSALS of them
@@ -51,37 +52,43 @@ def signal_figure(record: ExperimentRecord, name: str) -> ReportFigure:
         start = max(0, first - (last - first) // 5)
         window = (float(record.time_s[start]), float(record.time_s[min(last + 1, len(record) - 1)]))
     unusable = ~record.valid_mask
+    torque_unit = str(record.metadata.extra.get("drive_torque_unit", "its unit")).replace("_", " ")
+    rows = 2 if record.drive_torque is None else 3
 
-    def draw_column(command_axes, angle_axes, where: slice) -> None:
+    def draw_column(axes, where: slice) -> None:
         time_s = record.time_s[where]
-        command_axes.step(time_s, record.command_rad[where], where="post", lw=0.8, color="tab:blue")
-        command_axes.set_ylabel("command u [rad]")
-        angle_axes.plot(time_s, record.angle_rad[where], lw=0.8, color="tab:green")
+        axes[0].step(time_s, record.command_rad[where], where="post", lw=0.8, color="tab:blue")
+        axes[0].set_ylabel("command u [rad]")
+        axes[1].plot(time_s, record.angle_rad[where], lw=0.8, color="tab:green")
         for time_of_sample in time_s[unusable[where]]:
-            angle_axes.axvline(time_of_sample, color="tab:red", lw=0.5, alpha=0.6)
-        angle_axes.set_ylabel("load angle y [rad]")
-        angle_axes.set_xlabel("time [s]")
+            axes[1].axvline(time_of_sample, color="tab:red", lw=0.5, alpha=0.6)
+        axes[1].set_ylabel("load angle y [rad]")
+        if record.drive_torque is not None:
+            axes[2].plot(time_s, record.drive_torque[where], lw=0.8, color="tab:purple")
+            axes[2].set_ylabel(f"drive torque\n[{torque_unit}]", fontsize=8)
+        axes[-1].set_xlabel("time [s]")
 
     def draw(figure) -> None:
         if window is None:
-            command_axes, angle_axes = figure.subplots(2, 1, sharex=True)
-            draw_column(command_axes, angle_axes, slice(None))
+            draw_column(figure.subplots(rows, 1, sharex=True), slice(None))
             return
-        grid = figure.subplots(2, 2, sharex="col", width_ratios=(2, 3))
-        draw_column(grid[0, 0], grid[1, 0], slice(None))
+        grid = figure.subplots(rows, 2, sharex="col", width_ratios=(2, 3))
+        draw_column(grid[:, 0], slice(None))
         inside = np.flatnonzero((record.time_s >= window[0]) & (record.time_s <= window[1]))
-        draw_column(grid[0, 1], grid[1, 1], slice(int(inside[0]), int(inside[-1]) + 1))
+        draw_column(grid[:, 1], slice(int(inside[0]), int(inside[-1]) + 1))
         for axes in grid[:, 0]:
             axes.axvspan(*window, color="tab:orange", alpha=0.2, lw=0)
         grid[0, 1].set_title(f"zoom: {window[0]:.3g}-{window[1]:.3g} s", fontsize=9)
 
     zoom_text = (f" The command reverses {reversals.size} times; right: the shaded window "
                  f"{window[0]:.3g}-{window[1]:.3g} s drawn sample by sample.") if window is not None else ""
+    panels = ("command (top) and measured load angle (bottom)" if record.drive_torque is None else
+              f"command (top), measured load angle (middle) and the drive's torque (bottom, {torque_unit})")
     return ReportFigure(
-        name, f"{record.metadata.excitation or 'experiment'}: command (top) and measured load angle (bottom) "
+        name, f"{record.metadata.excitation or 'experiment'}: {panels} "
         f"over {len(record)} samples; red lines mark the {int(np.count_nonzero(unusable))} unusable "
         f"samples ({record.lost_count} lost).{zoom_text} Look for a clean response with no gaps.", draw,
-        size_in=(9.0, 4.5) if window is not None else (7.0, 4.5))
+        size_in=(9.0, 4.5 + 1.5 * (rows - 2)) if window is not None else (7.0, 4.5 + 1.5 * (rows - 2)))
 
 
 def timing_figure(record: ExperimentRecord, name: str, *, lead_s: float | None = None,

@@ -242,6 +242,9 @@ def test_a_log_with_the_drive_torque_is_v2_and_reopens_with_it_and_its_unit(tmp_
     assert again.metadata.extra["drive_torque_unit"] == "permille_of_rated_torque"
     table = np.genfromtxt(path, delimiter=",", names=True, skip_header=3)  # still the 3 comment lines
     np.testing.assert_array_equal(table["drive_torque"], original.drive_torque)
+    from rig.commands.inspect import summary
+
+    assert summary(str(path))["drive_torque_samples"] == len(original) - 3  # rig inspect: 3 samples without one
     # without the torque the log stays v1, which readers of v1 open
     write_log(tmp_path / "plain.csv", sample_record())
     assert (tmp_path / "plain.csv").read_text().startswith("# rig-log v1\n")

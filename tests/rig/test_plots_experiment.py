@@ -78,6 +78,21 @@ def test_a_command_that_reverses_often_is_also_drawn_over_a_window():
     assert len(_drawn(signal_figure(make_record(), "prbs")).axes) == 2  # a slow command needs no window
 
 
+def test_a_log_with_the_drive_torque_shows_it_in_a_third_panel_with_its_unit():
+    import dataclasses
+
+    record = make_record()
+    torque = np.round(300 * np.cos(record.time_s * 20))
+    record = dataclasses.replace(record, drive_torque=torque, metadata=ExperimentMetadata(
+        sample_period_s=1e-3, excitation="prbs", extra={"drive_torque_unit": "permille_of_rated_torque"}))
+    report_figure = signal_figure(record, "signals")
+    figure = _drawn(report_figure)
+    assert len(figure.axes) == 3 and not unlabelled_axes(report_figure)
+    np.testing.assert_array_equal(figure.axes[2].get_lines()[0].get_ydata(), torque)
+    assert "permille of rated torque" in figure.axes[2].get_ylabel()
+    assert "the drive's torque (bottom, permille of rated torque)" in report_figure.caption
+
+
 def test_experiment_figures_render(tmp_path):
     record = make_record()
     figures = (signal_figure(record, "signals"), timing_figure(record, "timing", lead_s=0.1, min_lead_s=-0.002))
