@@ -88,7 +88,7 @@ import numba
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from identify.validation import InvalidInputError, as_signal
+from identify.validation import InvalidInputError, as_signal, finite
 
 __all__ = [
     "MAX_SUBSTEPS_PER_SAMPLE",
@@ -118,25 +118,15 @@ POSITION_FEEDBACK = ("motor", "load")
 STANDARD_GRAVITY_M_PER_S2 = 9.80665
 
 
-def _finite(name: str, value: float) -> float:
-    try:
-        number = float(value)
-    except (TypeError, ValueError) as err:
-        raise InvalidInputError(f"{name}: expected a number, got {value!r}") from err
-    if not math.isfinite(number):
-        raise InvalidInputError(f"{name}: expected a finite number, got {value!r}")
-    return number
-
-
 def _positive(name: str, value: float) -> float:
-    number = _finite(name, value)
+    number = finite(name, value)
     if number <= 0.0:
         raise InvalidInputError(f"{name}: expected a finite number > 0, got {value!r}")
     return number
 
 
 def _non_negative(name: str, value: float) -> float:
-    number = _finite(name, value)
+    number = finite(name, value)
     if number < 0.0:
         raise InvalidInputError(f"{name}: expected a finite number >= 0, got {value!r}")
     return number
@@ -271,10 +261,10 @@ class DriveTrain:
         for name in non_negative_fields:
             object.__setattr__(self, name, _non_negative(name, getattr(self, name)))
         for name in ("hanging_angle_rad", "initial_angle_rad"):
-            object.__setattr__(self, name, _finite(name, getattr(self, name)))
+            object.__setattr__(self, name, finite(name, getattr(self, name)))
         for name in ("shaft_stiffness_nm_per_rad", "motor_speed_limit_rad_per_s", "motor_torque_limit_nm"):
             object.__setattr__(self, name, _limit(name, getattr(self, name)))
-        feedforward = _finite("velocity_feedforward", self.velocity_feedforward)
+        feedforward = finite("velocity_feedforward", self.velocity_feedforward)
         if not 0.0 <= feedforward <= 1.0:
             raise InvalidInputError(f"velocity_feedforward: expected a fraction from 0 to 1, got {feedforward:g}")
         object.__setattr__(self, "velocity_feedforward", feedforward)
@@ -499,7 +489,7 @@ class DriveTrainStepper:
 
     def reset(self, angle_rad: float) -> None:
         """Back to rest at ``angle_rad`` (load and referred motor angle), play centred, integrator empty."""
-        self._state[:] = _rest_state(_finite("angle_rad", angle_rad))
+        self._state[:] = _rest_state(finite("angle_rad", angle_rad))
         self._record[:] = 0.0
         self.samples = 0
 

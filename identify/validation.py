@@ -86,6 +86,29 @@ def same_length(**signals: NDArray[np.float64]) -> int:
     return next(iter(lengths.values()))
 
 
+def finite(name: str, value: float) -> float:
+    """Return ``value`` as a float if it is a finite number, else raise naming ``name``."""
+    try:
+        number = float(value)
+    except (TypeError, ValueError) as err:
+        raise InvalidInputError(f"{name}: expected a number, got {value!r}") from err
+    if not np.isfinite(number):
+        raise InvalidInputError(f"{name}: expected a finite number, got {value!r}")
+    return number
+
+
+def finite_coefficients(name: str, values: Any) -> tuple[float, ...]:
+    """Return ``values`` as a tuple of floats if each is a finite number, else raise naming ``name[index]``."""
+    try:
+        numbers = tuple(float(v) for v in values)
+    except (TypeError, ValueError) as err:
+        raise InvalidInputError(f"{name}: expected a sequence of numbers, got {values!r}") from err
+    for index, number in enumerate(numbers):
+        if not np.isfinite(number):
+            raise InvalidInputError(f"{name}[{index}]: expected a finite number, got {number!r}")
+    return numbers
+
+
 def positive(name: str, value: float) -> float:
     """Return ``value`` as a float if it is finite and > 0, else raise naming ``name``."""
     number = float(value)

@@ -121,8 +121,8 @@ def test_every_number_parameter_of_identify_names_its_unit():
 
 def test_the_unit_rule_sees_constructors_and_methods_and_catches_the_old_names():
     seen = set(_number_parameters())
-    assert {("plant_blocks.OutputBacklash", "c_l_rad"), ("plant_blocks.InputSwitch", "initial_input_rad"),
-            ("plant_blocks.InputBacklash", "initial_output_rad"),
+    assert {("backlash_blocks.OutputBacklash", "c_l_rad"), ("backlash_blocks.InputSwitch", "initial_input_rad"),
+            ("backlash_blocks.InputBacklash", "initial_output_rad"),
             ("feasible_parameter_set.BacklashFeasibleSet.contains", "c_r_rad"),
             ("hammerstein_subspace.HammersteinModel", "residual_rms_rad")} <= seen
     # the names replaced when units joined the names fail the rule
