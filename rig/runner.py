@@ -407,9 +407,11 @@ def _write_summary(sink: SampleSink, transport: Transport, failure: BaseExceptio
         return
     known = {name: None if isinstance(value, float) and math.isnan(value) else value
              for name, value in (timing or {}).items()}
+    scale = transport.drive_torque_nm_per_unit  # for a log with the drive's torque: N m per unit of its column
     try:
         write_summary({"frame_errors": transport.frame_errors, "receive_drops": transport.receive_drops,
-                       "stop": str(transport.stop_report or ""), "warnings": list(transport.warnings), **known})
+                       "stop": str(transport.stop_report or ""), "warnings": list(transport.warnings),
+                       **({} if scale is None else {"drive_torque_nm_per_unit": scale}), **known})
     except Exception:
         if failure is None:
             raise  # otherwise what ended the run is the error to report, not this one

@@ -457,6 +457,8 @@ class SimulatedCanOpenRig:
             elif index == 0x6040:
                 self._on_controlword(value, self.clock())
                 self._follow_ip_mode()
+            elif index == 0x6076 and value == 0:  # the torque actual value is per mille of it
+                raise canopen.SdoAbortedError(SDO_ABORT_VALUE_RANGE)
             elif index == 0x60C0 and value != 0:  # interpolation sub-mode: linear (0) only
                 raise canopen.SdoAbortedError(SDO_ABORT_VALUE_RANGE)
             elif (index, subindex) == (0x60C1, 1):  # each record applied, by SDO or RPDO, goes to the buffer
@@ -749,7 +751,8 @@ class SimulatedCanOpenRig:
         self.drive.data_store.setdefault(0x6064, {})[0] = applied_bytes
         self._store(self.drive, 0x6062, applied, 4, signed=True)
         if self.torque is not None:
-            self._store(self.drive, 0x6077, self.torque.per_mille(sample.motor_torque_nm), 2, signed=True)
+            rated = self._u(self.drive, 0x6076) or self.torque.rated_torque_mnm
+            self._store(self.drive, 0x6077, self.torque.per_mille(sample.motor_torque_nm, rated), 2, signed=True)
         self.encoder.data_store.setdefault(0x6004, {})[0] = (sample.encoder_counts & 0xFFFFFFFF).to_bytes(4, "little")
         self.setpoints += 1
 

@@ -20,8 +20,9 @@ DEFAULT_RATED_TORQUE_MNM = 1000
 class DriveTorque:
     """0x6076 and 0x6077 of one simulated drive.
 
-    The rated torque is the drive train's motor torque limit (rounded to the mN m of 0x6076, at least 1), so
-    that the torque actual value spans +-1000 per mille at the limit; without a limit, 1 N m. A torque beyond
+    The rated torque at power-on is the drive train's motor torque limit (rounded to the mN m of 0x6076, at least
+    1), so that the torque actual value spans +-1000 per mille at the limit; without a limit, 1 N m. 0x6076 is
+    writable (CiA 402 sets it from the motor's data); 0x6077 is per mille of the value it holds. A torque beyond
     the INTEGER16 range saturates, as a drive's 0x6077 does."""
 
     def __init__(self, gearbox: SimulatedGearbox) -> None:
@@ -29,9 +30,10 @@ class DriveTorque:
         limit = trains[0].motor_torque_limit_nm if trains else math.inf
         self.rated_torque_mnm = max(1, round(1000.0 * limit)) if math.isfinite(limit) else DEFAULT_RATED_TORQUE_MNM
 
-    def per_mille(self, torque_nm: float) -> int:
-        """0x6077 for a motor torque of ``torque_nm``."""
-        value = round(1e6 * torque_nm / self.rated_torque_mnm)
+    @staticmethod
+    def per_mille(torque_nm: float, rated_torque_mnm: int) -> int:
+        """0x6077 for a motor torque of ``torque_nm`` and a rated torque 0x6076 of ``rated_torque_mnm`` (> 0)."""
+        value = round(1e6 * torque_nm / rated_torque_mnm)
         return max(-32768, min(32767, value))
 
 

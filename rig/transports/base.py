@@ -276,6 +276,12 @@ class Transport(ABC):
         return None
 
     @property
+    def drive_torque_nm_per_unit(self) -> float | None:
+        """N m per unit of :attr:`FeedbackSample.drive_torque`, where the link learnt it at bring-up (a CiA 402
+        drive's rated torque 0x6076), else None; the log's summary records it."""
+        return None
+
+    @property
     def lead_samples(self) -> int:
         """How many setpoints may be queued ahead of the device's own sample clock. 0 (the default): the
         link has no device clock, and the runner paces the samples from the host (one setpoint, one answer).

@@ -257,6 +257,7 @@ class CanOpenTransport(CanOpenStartUp, CanOpenSampleFiling, CanOpenInterpolation
         self._rpdo: PdoLayout | None = None
         self._hold_rpdo: PdoLayout | None = None  # interpolated position: RPDO2, the hold records
         self._drive_tpdo: PdoLayout | None = None
+        self._drive_torque_nm_per_unit: float | None = None  # 0x6076 / 1e6, read where 0x6077 is mapped
         self._demand_tpdo: PdoLayout | None = None
         self._encoder_tpdo: PdoLayout | None = None
         self._mode = self._streaming_mode  # the mode of operation last written to 0x6060
@@ -305,6 +306,11 @@ class CanOpenTransport(CanOpenStartUp, CanOpenSampleFiling, CanOpenInterpolation
         """Per mille of the rated torque where the drive's EDS makes 0x6077 PDO-mappable: the master maps it into
         the drive's TPDO1 (a drive that then refuses it streams without it, noted in ``warnings``)."""
         return cia402.TORQUE_ACTUAL_UNIT if self._offers_torque else None
+
+    @property
+    def drive_torque_nm_per_unit(self) -> float | None:
+        """The drive's rated torque 0x6076 (mN m) / 10^6, read at bring-up where 0x6077 is mapped."""
+        return self._drive_torque_nm_per_unit
 
     @property
     def min_cycle_s(self) -> float:

@@ -311,10 +311,25 @@ class CanOpenStartUp:
         needed, cob_id = [(0x6041, 0, 16), (0x6064, 0, 32)], 0x180 + self.drive_node_id
         if self.drive_torque_unit is not None:
             try:
-                return self._map_pdo(drive.tpdo, "drive", [*needed, (0x6077, 0, 16)], cob_id)
+                layout = self._map_pdo(drive.tpdo, "drive", [*needed, (0x6077, 0, 16)], cob_id)
             except DeviceFault as err:
                 self._ride_through(f"drive {self.drive_node_id}: its torque actual value 0x6077 is not logged ({err})")
+            else:
+                self._drive_torque_nm_per_unit = self._rated_torque_nm_per_mille(drive)
+                return layout
         return self._map_pdo(drive.tpdo, "drive", needed, cob_id)
+
+    def _rated_torque_nm_per_mille(self, drive: Any) -> float | None:
+        """N m per unit of 0x6077: the motor rated torque 0x6076 (UNSIGNED32, mN m) / 1000, where the drive has it
+        (else None: the log's torque stays in per mille of a rated torque the summary cannot name)."""
+        if 0x6076 not in drive.object_dictionary:
+            return None
+        try:
+            rated_mnm = self._sdo_read(drive, "drive", 0x6076, 0, "the rated torque 0x6077 is per mille of")
+        except (DeviceFault, TransportError) as err:
+            self._ride_through(f"drive {self.drive_node_id}: the motor rated torque 0x6076 is not known ({err})")
+            return None
+        return rated_mnm * 1e-6 if rated_mnm > 0 else None
 
     def _map_demand_tpdo(self, drive: Any) -> PdoLayout | None:
         """Drive TPDO2 = 0x6062 (position demand value: the target the drive applied at that SYNC), for the

@@ -77,8 +77,9 @@ def test_the_log_holds_the_motor_torque_the_drive_had_at_each_sample(tmp_path, n
     assert not np.any(record.flags & int(SampleFlag.unusable()))
     assert transport.drive_torque_unit == "permille_of_rated_torque"
     assert record.metadata.extra["drive_torque_unit"] == "permille_of_rated_torque"
-    # 0x6076 is the drive train's motor torque limit in mN m (8.522 mN m -> 9)
-    assert rated_mnm == 9
+    # 0x6076 is the drive train's motor torque limit in mN m (8.522 mN m -> 9); the master read it for the summary
+    assert rated_mnm == 9 and transport.drive_torque_nm_per_unit == pytest.approx(9e-6, rel=1e-12)
+    assert record.metadata.extra["summary"]["drive_torque_nm_per_unit"] == transport.drive_torque_nm_per_unit
     train = _gearbox(load_rig_config(PENDULUM)).plant.find(DriveTrain)[0]
     truth = train.simulate(record.command_rad).motor_torque_nm  # from rest, on the targets applied at each SYNC
     expected = np.clip(np.round(1e6 * truth / rated_mnm), -32768, 32767)
@@ -177,6 +178,8 @@ def test_a_clean_room_drive_gets_its_torque_logged_or_the_run_says_why_not(varia
         assert [record.drive_torque[k] for k, _ in rows] == [entry["torque_permille"] for _, entry in rows]
         assert len({entry["torque_permille"] for _, entry in rows}) > 10  # the torque moves with the command
         assert not result["aborts"]
+        # the peer's rated torque 0x6076 is 2390 mN m (its README): the summary gives N m per unit of the column
+        assert record.metadata.extra["summary"]["drive_torque_nm_per_unit"] == pytest.approx(2.39e-3, rel=1e-12)
     else:  # a static TPDO1 (abort 0x06010002) or a device that will not map 0x6077 (abort 0x06040041)
         assert record.drive_torque is None and record.metadata.extra["drive_torque_unit"] == "permille_of_rated_torque"
         code = {"static": "0x06010002", "refuses": "0x06040041"}[variant]
