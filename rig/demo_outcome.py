@@ -184,7 +184,7 @@ def summary_rows(outcome: DemoOutcome) -> list[tuple[str, str, str, str]]:
 
     Every verdict here is the one the figures draw: the backlash membership row is
     :meth:`DemoOutcome.truth_in_backlash_set`, the Hammerstein play
-    :meth:`identify.hammerstein_subspace.HammersteinModel.play_at_nodes` (as the borders figure quotes it), the
+    :meth:`identify.hammerstein_model.HammersteinModel.play_at_nodes` (as the borders figure quotes it), the
     discrepancy's play the sum of the fitted c with their cross-validated intervals.
     """
     truth = outcome.truth

@@ -67,7 +67,7 @@ class ResultFile:
 
     ``kind`` is ``"experiment"`` (``content`` an :class:`identify.experiment_record.ExperimentRecord`),
     ``"output_backlash"`` (an :class:`identify.output_backlash_identification.OutputBacklashIdentification`),
-    ``"hammerstein_model"`` (an :class:`identify.hammerstein_subspace.HammersteinModel`),
+    ``"hammerstein_model"`` (an :class:`identify.hammerstein_model.HammersteinModel`),
     ``"model_discrepancy"`` (an :class:`identify.model_discrepancy.DiscrepancyReport`), ``"run_summary"`` (a
     :class:`rig.runner.RunSummary`) or ``"error"`` (the
     message of a file a batch command could not process). ``entry`` names the file an entry of a batch file

@@ -6,7 +6,7 @@
 * :func:`singular_values_figure`: the singular values of the PI-MOESP projection (eq. (12)) with the chosen
   order marked.
 
-Each function takes a :class:`identify.hammerstein_subspace.HammersteinModel` (a saved one is read with
+Each function takes a :class:`identify.hammerstein_model.HammersteinModel` (a saved one is read with
 ``HammersteinModel.from_dict``) and a figure name, and returns a :class:`rig.report.ReportFigure`.
 """
 

@@ -124,7 +124,7 @@ def test_the_unit_rule_sees_constructors_and_methods_and_catches_the_old_names()
     assert {("backlash_blocks.OutputBacklash", "c_l_rad"), ("backlash_blocks.InputSwitch", "initial_input_rad"),
             ("backlash_blocks.InputBacklash", "initial_output_rad"),
             ("feasible_parameter_set.BacklashFeasibleSet.contains", "c_r_rad"),
-            ("hammerstein_subspace.HammersteinModel", "residual_rms_rad")} <= seen
+            ("hammerstein_model.HammersteinModel", "residual_rms_rad")} <= seen
     # the names replaced when units joined the names fail the rule
     old = [("OutputBacklash", "c_l"), ("OutputBacklash", "initial_output"), ("InputSwitch", "initial_input"),
            ("ArctanBorder", "input_shift"), ("HammersteinModel", "residual_rms")]
