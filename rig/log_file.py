@@ -68,9 +68,9 @@ from identify.validation import InvalidInputError
 from rig.protocols.errors import LogFileError
 from rig.signal_files import check_input_file
 
-__all__ = ["COLUMNS", "FORMAT_LINE", "TORQUE_COLUMN", "TORQUE_FORMAT_LINE", "LogWriteError", "LogWriter", "SetAside", "check_output_varies", "count_samples",
-           "is_rig_log", "read_experiment_data", "read_log", "read_usable_input_output", "unusable_as_missing",
-           "write_log"]
+__all__ = ["COLUMNS", "FORMAT_LINE", "TORQUE_COLUMN", "TORQUE_FORMAT_LINE", "LogWriteError", "LogWriter", "SetAside",
+           "check_output_varies", "count_samples", "is_rig_log", "read_experiment_data", "read_log",
+           "read_usable_input_output", "unusable_as_missing", "write_log"]
 
 FORMAT_LINE = "# rig-log v1"
 TORQUE_FORMAT_LINE = "# rig-log v2"
@@ -384,7 +384,7 @@ def read_log(path: str | Path) -> ExperimentRecord:
     """Read a ``rig-log v1`` or ``v2`` file; raises :class:`LogFileError` naming the file, line and problem. A v2
     log's torque column is the record's ``drive_torque`` (None where no sample has one), its unit
     ``metadata.extra["drive_torque_unit"]``."""
-    path = check_input_file(path, "a rig-log v1 file")
+    path = check_input_file(path, "a rig log")
     raw = path.read_bytes()
     nul = raw.find(b"\0")
     if nul >= 0:
