@@ -111,12 +111,13 @@ class Master:
 
 
 @contextlib.contextmanager
-def clocked_drive(**rig_options: Any) -> Iterator[Master]:
-    """The simulated drive and canopen's master on one scripted bus and simulated clock."""
+def clocked_drive(plant: Any = None, **rig_options: Any) -> Iterator[Master]:
+    """The simulated drive (on ``plant``, a simulated gearbox; the bench's by default) and canopen's master on one
+    scripted bus and simulated clock."""
     clock = SimulatedClock(10.0)
     bus = ClockedCanBus(clock)
     rig_options.setdefault("hold_plant_until_first_target", False)
-    rig = SimulatedCanOpenRig(gearbox(), channel="clocked", clock=clock, **rig_options)
+    rig = SimulatedCanOpenRig(gearbox() if plant is None else plant, channel="clocked", clock=clock, **rig_options)
     bus.devices(rig)
     endpoint = bus.endpoint(receive_own_messages=False)
     network = canopen.Network(endpoint)
@@ -439,3 +440,28 @@ def test_the_buffer_configuration_objects_follow_cia_402(no_leaks):
         m.drive.sdo[0x60C4][6].raw = 1
         m.drive.sdo[0x60C1][1].raw = 5  # a record written by SDO is a record too
         assert m.buffer_position() == 1
+
+
+# -- CiA 402: the motor rated torque 0x6076 scales the torque actual value 0x6077 -----------------------------------
+
+def test_a_written_rated_torque_rescales_the_torque_actual_value_and_zero_is_refused(no_leaks):
+    from pathlib import Path
+
+    from sim_backend.plant_config import load_plant_config
+
+    configs = Path(__file__).resolve().parents[2] / "configs"
+    servo = load_plant_config(configs / "plants" / "pendulum_servo.toml").gearbox(seed=1)
+    with clocked_drive(servo, drive_eds=configs / "eds" / "sim_servo_drive_cia402.eds") as m:
+        m.ip_mode_set_up(mode=8)  # cyclic synchronous position: RPDO1 is the target 0x607A
+        m.rpdo1(int(0.5 * (1 << 17) / (2 * 3.141592653589793)))  # hold the arm at 0.5 rad
+        for _ in range(600):  # 6 s of the 100 Hz plant: the arm settles, the drive holds its weight
+            m.sync()
+        rated = m.drive.sdo[0x6076].raw
+        held = m.drive.sdo[0x6077].raw
+        # 9 mN m (the motor's torque limit); the drive holds part of the weight at 0.5 rad (121 per mille with no
+        # friction; the load's stiction takes the rest)
+        assert rated == 9 and 20 < held <= 121
+        assert m.abort_code(m.drive.sdo[0x6076], 0) == 0x06090030  # per mille of nothing: value range
+        m.drive.sdo[0x6076].raw = 2 * rated
+        m.sync()
+        assert abs(m.drive.sdo[0x6077].raw - held / 2) <= 1  # the same torque, per mille of twice the rating
