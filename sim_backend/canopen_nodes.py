@@ -12,7 +12,8 @@ NMT commands. This module adds what it lacks for a cyclic synchronous or interpo
   receive buffer, a frame overwrites the one before, and the data are written into the dictionary at the
   next SYNC, before that SYNC's cycle uses them; an event-driven one (254, 255) at once; other types are
   refused by SDO (abort 0x06090030);
-* the CiA 402 state machine on 0x6040/0x6041 (:mod:`rig.protocols.cia402`), by default with the target
+* the CiA 402 state machine on 0x6040/0x6041 (:mod:`rig.protocols.cia402`; the drive's side in
+  :mod:`sim_backend.canopen_drive_states`), by default with the target
   set to the actual position on enable (no jump); statusword bit 12 in CSP = "drive follows the command
   value", in interpolated position = "ip mode active" (controlword bit 4 in OPERATION ENABLED);
 * interpolated position mode (0x6060 = 7): 0x60C0 (linear only), 0x60C2 interpolation time period and the
@@ -51,16 +52,17 @@ from rig.protocols import cia402
 from rig.protocols.can_bus_load import frame_bits
 from rig.protocols.can_interfaces import echoes_own_frames, open_bus, receive_drops
 from sim_backend.canopen_behaviour import (
-    EMCY_ERROR_RESET, EMCY_FOLLOWING_ERROR, EMCY_PARAMETER_ERROR, EMCY_POSITIONING_CONTROLLER, EMCY_SYNC_LOSS,
+    EMCY_ERROR_RESET, EMCY_FOLLOWING_ERROR, EMCY_POSITIONING_CONTROLLER,
     DriveBehaviour, EncoderBehaviour, NodeBehaviour, error_register_for,
 )
+from sim_backend.canopen_drive_states import CLOCK_TICK_S, CanOpenDriveStates
 from sim_backend.canopen_pdos import (
     RPDO_COMMUNICATION_INDICES, RpdoReception, RpdoValues, Tpdo, is_rpdo_transmission_type,
 )
 from sim_backend.device_record import AppliedTargets, DeviceRecord
 from sim_backend.drive_torque import drive_torque_of
 from sim_backend.eds_variants import eds_text, is_pdo_parameter, load_eds_text, static_pdo_access, with_entries
-from sim_backend.interpolation_buffer import InterpolationBuffer, ip_period_matches
+from sim_backend.interpolation_buffer import InterpolationBuffer
 from sim_backend.plant import SimulatedGearbox
 from sim_backend.wire_time_bus import FrameCounter, InterfaceBus, WireTimeBus
 
@@ -73,11 +75,6 @@ SYNC_COB_ID = 0x80
 SDO_ABORT_VALUE_RANGE = 0x06090030  # CiA 301: value range of parameter exceeded
 SDO_ABORT_READ_ONLY = 0x06010002  # CiA 301: attempt to write a read only object
 FOLLOWING_ERROR_OFF = 0xFFFFFFFF  # CiA 402 0x6065: the following error is not supervised
-STATUSWORD_FOLLOWS_COMMAND = 0x1000  # bit 12 in CSP: drive follows the command value
-STATUSWORD_FOLLOWING_ERROR = 0x2000  # bit 13 in CSP
-SYNC_RUNNING_MIN_WINDOW_S = 0.05  # "SYNC running" tolerates this much host jitter whatever 0x1006 says
-SYNC_RUNNING_DEFAULT_WINDOW_S = 0.3  # without a communication cycle period (0x1006 = 0 or absent)
-CLOCK_TICK_S = 0.002  # the drive's own clock, for timed transitions that no frame triggers
 NOTIFIER_CYCLE_S = 0.05  # how often the notifier thread looks up from an idle bus: close() waits that long
 _ENCODER_FIXED_OBJECTS = (0x6000, 0x6001, 0x6002, 0x6003)  # set from the plant's encoder: not changeable
 CONTROLWORD_ENABLE_IP_MODE = 0x0010  # bit 4 in interpolated position mode (CiA 402)
@@ -117,7 +114,7 @@ def _vendor_eds_text(text: str, behaviour: NodeBehaviour) -> str:
     return with_entries(text, access=static_pdo_access(text), defaults=defaults)
 
 
-class SimulatedCanOpenRig:
+class SimulatedCanOpenRig(CanOpenDriveStates):
     """Drive (CiA 402) and load encoder (CiA 406) of a simulated gearbox on one CAN bus.
 
     Parameters
@@ -557,151 +554,6 @@ class SimulatedCanOpenRig:
         if index not in node.object_dictionary:
             return None
         return int.from_bytes(node.get_data(index, 0), "little")
-
-    # -- the CiA 402 state machine -------------------------------------------------------------------------
-
-    def _quick_stop_option(self) -> int | None:
-        if self.drive_behaviour.quick_stop_option is None:
-            return None
-        value = self._u(self.drive, 0x605A)
-        return None if value is None else int.from_bytes(value.to_bytes(2, "little"), "little", signed=True)
-
-    def _on_controlword(self, controlword: int, now: float) -> None:
-        DS = cia402.DriveState
-        previous_word, self.controlword = self.controlword, controlword
-        self.controlwords.append(controlword)
-        self._advance_locked(now)
-        state = self.state
-        if state in (DS.FAULT, DS.FAULT_REACTION_ACTIVE):
-            rising = controlword & 0x0080 and not previous_word & 0x0080
-            if state is DS.FAULT and rising and self._reset_due is None:
-                self._reset_due = now + self.drive_behaviour.fault_reset_delay_s
-                self._advance_locked(now)
-            return
-        option = self._quick_stop_option()
-        if state is DS.QUICK_STOP_ACTIVE and option is not None:
-            if controlword & 0x0002 == 0 or controlword & 0x0080:
-                self.state = DS.SWITCH_ON_DISABLED  # transition 12 (disable voltage)
-            elif (5 <= option <= 8 and controlword & 0x000F == 0x000F and self._quick_stop_since is not None
-                  and now - self._quick_stop_since >= self.drive_behaviour.quick_stop_ramp_s):
-                self._enter_operation_enabled(now)  # transition 16
-            return
-        new = cia402.next_state(state, controlword, previous_word)
-        if new is DS.QUICK_STOP_ACTIVE and option is not None:
-            if option == 0:
-                new = DS.SWITCH_ON_DISABLED  # disable drive function: the motor coasts
-            else:
-                self._quick_stop_since = now
-        if new is DS.OPERATION_ENABLED and state is not DS.OPERATION_ENABLED:
-            if self.drive_behaviour.enable_requires_sync and not self._sync_running(now):
-                self.state = DS.SWITCHED_ON  # transition 4 waits for SYNC (see _advance_locked)
-            else:
-                self._enter_operation_enabled(now)
-        else:
-            self.state = new
-        starts_homing = controlword & 0x0010 and not previous_word & 0x0010
-        if (starts_homing and self.state is DS.OPERATION_ENABLED
-                and self._mode_display == cia402.HOMING_MODE):
-            # homing method 37 (CiA 402: home on the current position): nothing moves
-            self.homed = True
-
-    def _enter_operation_enabled(self, now: float) -> None:
-        self.state = cia402.DriveState.OPERATION_ENABLED
-        self._enabled_at = now
-        self._quick_stop_since = None
-        if self.drive_behaviour.copy_target_on_enable:
-            self.drive.data_store.setdefault(0x607A, {})[0] = self.drive.get_data(0x6064, 0)  # no jump on enable
-
-    def _sync_running(self, now: float) -> bool:
-        period_us = self._u(self.drive, 0x1006)
-        window_s = max(3e-6 * period_us, SYNC_RUNNING_MIN_WINDOW_S) if period_us else SYNC_RUNNING_DEFAULT_WINDOW_S
-        return len(self._sync_times) == 3 and now - self._sync_times[0] <= window_s
-
-    def _advance_locked(self, now: float) -> None:
-        """The transitions that take the drive's own time (called on every SYNC, statusword read,
-        controlword write and by the drive's clock)."""
-        DS = cia402.DriveState
-        behaviour = self.drive_behaviour
-        if self._reset_due is not None and now >= self._reset_due:
-            self._complete_fault_reset()
-        if self._mode_pending is not None and now >= self._mode_pending[1]:
-            self._mode_display, self._mode_pending = self._mode_pending[0], None
-        if self.state is DS.QUICK_STOP_ACTIVE and self._quick_stop_since is not None:
-            option = self._quick_stop_option()
-            if option is not None and 1 <= option <= 4 and now - self._quick_stop_since >= behaviour.quick_stop_ramp_s:
-                self.state, self._quick_stop_since = DS.SWITCH_ON_DISABLED, None
-        if (behaviour.enable_requires_sync and self.state is DS.SWITCHED_ON
-                and self.controlword & 0x008F == 0x000F and self._sync_running(now)):
-            self._enter_operation_enabled(now)
-        if self.state is DS.OPERATION_ENABLED and behaviour.sync_loss_timeout_s is not None:
-            last_sync = self._sync_times[-1] if self._sync_times else -float("inf")
-            if now - max(last_sync, self._enabled_at) > behaviour.sync_loss_timeout_s:
-                self._fault_locked(EMCY_SYNC_LOSS)
-        self._follow_ip_mode()
-
-    def _follow_ip_mode(self) -> None:
-        """Where ip mode has just become active (CiA 402: controlword bit 4 in OPERATION ENABLED with
-        0x6061 = 7; statusword bit 12): count the records taken afresh and, for a drive that
-        ``requires_ip_period``, check 0x60C2 (EMCY 0x6320 on a missing or wrong period)."""
-        active = self._ip_active()
-        if active and not self._ip_was_active:
-            self.interpolation.start_ip_mode()
-            if self.drive_behaviour.requires_ip_period and not ip_period_matches(
-                    int.from_bytes(self.drive.get_data(0x60C2, 1), "little"),
-                    int.from_bytes(self.drive.get_data(0x60C2, 2), "little", signed=True), self._u(self.drive, 0x1006)):
-                self._fault_locked(EMCY_PARAMETER_ERROR)
-                active = False
-        self._ip_was_active = active
-
-    def _fault_locked(self, code: int) -> None:
-        if self.state is cia402.DriveState.FAULT:
-            return
-        self.state = cia402.DriveState.FAULT
-        self.faults.append(code)
-        self._reset_due = None
-        self._quick_stop_since = None
-        self._following_error = code == EMCY_FOLLOWING_ERROR
-        register = error_register_for(code) | self._warning_registers.get(self.drive.id, 0)
-        self._store(self.drive, 0x603F, code, 2)
-        self._store(self.drive, 0x1001, register, 1)
-        if self.drive.nmt.state != "STOPPED":
-            self.drive.emcy.send(code, register=register)
-        nmt = self.drive_behaviour.nmt_on_fault
-        if nmt is not None and self.drive.nmt.state != nmt.upper():
-            self.drive.nmt.state = nmt.upper()  # heartbeat shows it (CiA 301 0x1029 error behaviour)
-            self._follow_nmt_states()
-
-    def _complete_fault_reset(self) -> None:
-        self._reset_due = None
-        self.state = cia402.DriveState.SWITCH_ON_DISABLED
-        self._following_error = False
-        register = self._warning_registers.get(self.drive.id, 0)
-        self._store(self.drive, 0x1001, register, 1)
-        if self.drive_behaviour.emcy_error_reset and self.drive.nmt.state != "STOPPED":
-            self.drive.emcy.send(EMCY_ERROR_RESET, register=register)
-
-    def _statusword_locked(self) -> int:
-        DS = cia402.DriveState
-        word = cia402.statusword_for(self.state, target_reached=True)
-        if self._mode_display == cia402.HOMING_MODE:
-            if self.homed:
-                word |= cia402.STATUSWORD_HOMING_ATTAINED
-        elif self._mode_display == cia402.INTERPOLATED_POSITION_MODE:
-            if self._ip_active():
-                word |= cia402.STATUSWORD_IP_MODE_ACTIVE
-        elif self._mode_display == cia402.CYCLIC_SYNCHRONOUS_POSITION_MODE:
-            if self.state is DS.OPERATION_ENABLED:
-                word |= STATUSWORD_FOLLOWS_COMMAND
-            if self._following_error:
-                word |= STATUSWORD_FOLLOWING_ERROR
-        if self.drive.id in self._warning_registers:
-            word |= cia402.STATUSWORD_WARNING
-        return word
-
-    def _run_clock(self) -> None:
-        while not self._clock_stop.wait(CLOCK_TICK_S):
-            with self._lock:
-                self._advance_locked(self.clock())
 
     # -- the cycle -------------------------------------------------------------------------------------------
 
