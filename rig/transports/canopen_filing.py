@@ -198,8 +198,9 @@ class CanOpenSampleFiling:
     def _file_locked(self, part: str, value: Any, timestamp: float, received: float) -> None:
         """File one TPDO under the sample of the SYNC it answers."""
         count = self._sync_before(timestamp)
-        if count is not None and self._origin is None and self._ip_enabled_at is not None:
-            self._find_ip_origin(part, value, timestamp, received, count - self.latency_cycles[part])
+        if (count is not None and self._origin is None and self._ip_enabled_at is not None
+                and self._find_ip_origin(part, value, timestamp, received, count - self.latency_cycles[part])):
+            return  # kept until sample 0 is known
         if count is None or self._origin is None:
             return  # before streaming (the drive's TPDOs run from NMT operational on)
         seq = count - self.latency_cycles[part] - self._origin

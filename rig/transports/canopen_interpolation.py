@@ -143,17 +143,27 @@ class CanOpenInterpolation:
             self._file_locked(*item)
         return True
 
-    def _find_ip_origin(self, part: str, value: Any, timestamp: float, received: float, answers: int) -> None:
+    def _find_ip_origin(self, part: str, value: Any, timestamp: float, received: float, answers: int) -> bool:
         """Interpolated position, after controlword bit 4: the first SYNC whose drive statusword shows bit 12
         (ip mode active) is sample 0, the first at which the drive took a record. Until it is seen, TPDOs are
-        kept; then the records taken at the SYNCs since are replayed, and the kept TPDOs filed."""
+        kept; then the records taken at the SYNCs since are replayed, and the kept TPDOs filed. Whether this
+        TPDO was kept (the caller files it otherwise).
+
+        The statusword's SYNC depends on ``drive_tpdo_latency_cycles``, which a user may have set for a drive
+        that answers in time but takes each record as the end point of its segment (its 0x6062 lags a SYNC,
+        as a late drive's does): such a statusword is filed up to that many SYNCs early. Where the drive
+        confirmed bit 4 after one or more SYNCs, so that sample 0 may also be one of the SYNCs after the
+        statusword's, the drive's 0x6062 decides between them (:meth:`_choose_ip_origin`)."""
         if answers <= self._ip_enabled_at:
-            return
+            return False
         if self._ip_answered_at is not None and self._ip_answered_at == self._ip_enabled_at:
-            return  # sample 0 follows from the bus order (_origin_from_the_answer), not from a statusword
+            return False  # sample 0 follows from the bus order (_origin_from_the_answer), not from a statusword
+        item = (part, value, timestamp, received)
+        if self._ip_origin_choices:
+            return self._choose_ip_origin(item)
         if part != "drive" or not value[0] & cia402.STATUSWORD_IP_MODE_ACTIVE:
-            self._before_origin.append((part, value, timestamp, received))
-            return
+            self._before_origin.append(item)
+            return True
         latest = None if self._ip_answered_at is None else self._ip_answered_at + 1
         if latest is not None and answers > latest:
             # the drive took its bit 4 before its SDO answer, so its first record went at SYNC <= latest; a
@@ -165,15 +175,57 @@ class CanOpenInterpolation:
                 f"controlword bit 4, which it had confirmed by SYNC {latest - self._ip_enabled_at}; set "
                 f"drive_tpdo_latency_cycles = {configured + answers - latest} (and check encoder_tpdo_latency_cycles)")))
             self._arrived.notify_all()
-            return
-        self._origin = answers
+            return False
+        if latest is not None and self._demand_tpdo is not None:
+            self._ip_origin_choices = tuple(range(answers, min(latest, answers + self.latency_cycles["drive"]) + 1))
+        if len(self._ip_origin_choices) > 1:
+            return self._choose_ip_origin(item)
+        self._set_ip_origin(answers)
+        return False
+
+    def _choose_ip_origin(self, item: tuple[str, Any, float, float]) -> bool:
+        """Sample 0 is one of :attr:`_ip_origin_choices` (the statusword's SYNC first): the one under which
+        the drive's 0x6062 is the record it holds, once a demand value tells them apart (their records
+        differ there). The statusword's, where a demand value fits none of them (the latency check then
+        speaks while streaming) or no demand value has told them apart while the drive's buffer lasts half
+        its records (the master sends no more until sample 0 is known). Whether ``item`` was kept."""
+        self._before_origin.append(item)
+        choices = self._ip_origin_choices
+        chosen = None
+        for part, value, timestamp, _ in self._before_origin:
+            count = self._sync_before(timestamp)
+            if part != "demand" or count is None:
+                continue
+            expected = [self._ip_record_counts(count - self.latency_cycles["demand"] - origin) for origin in choices]
+            if None in expected or len(set(expected)) < len(expected):
+                continue
+            chosen = choices[expected.index(value)] if value in expected else choices[0]
+            break
+        if chosen is None and self._sync_count - choices[0] <= max(1, self._feed.buffered // 2):
+            return True
+        self._before_origin.pop()  # (the caller files it)
+        self._set_ip_origin(choices[0] if chosen is None else chosen)
+        return False
+
+    def _ip_record_counts(self, sample: int) -> int | None:
+        """Before sample 0 is known: the record the drive holds at ``sample`` (the position it held before the
+        first, for a negative one), None past the records in its buffer."""
+        if sample < 0:
+            return self._in_force[1]
+        return self._feed.buffer[sample].counts if sample < self._feed.buffered else None
+
+    def _set_ip_origin(self, origin: int) -> None:
+        """Sample 0 is SYNC ``origin``: the records the drive took at the SYNCs since are replayed, and the kept
+        TPDOs filed."""
+        self._origin = origin
+        self._ip_origin_choices = ()
         self._feed.streaming = True
         stamps = dict((count, bus_time) for bus_time, count in self._syncs)
-        for count in range(answers, self._sync_count):  # (this SYNC's own record is taken by the caller)
+        for count in range(origin, self._sync_count):  # (this SYNC's own record is taken by the caller)
             if count in stamps and count - 1 in stamps:  # its instant's error, as _on_sync_echo records it
-                self._instant_errors[count - answers] = stamps[count] - stamps[count - 1] - self.sample_period_s
+                self._instant_errors[count - origin] = stamps[count] - stamps[count - 1] - self.sample_period_s
             self._take_ip_record(count)
-        self._device_sample = self._sync_count - 1 - answers
+        self._device_sample = self._sync_count - 1 - origin
         kept, self._before_origin = self._before_origin, []
         for item in kept:
             self._file_locked(*item)

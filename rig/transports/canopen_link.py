@@ -270,6 +270,9 @@ class CanOpenTransport(CanOpenStartUp, CanOpenSampleFiling, CanOpenInterpolation
         self._ip_enabled_at: int | None = None  # the SYNC count when controlword bit 4 went out
         self._ip_answered_at: int | None = None  # the SYNC count when the drive confirmed it (SDO response)
         self._before_origin: list[tuple[str, Any, float, float]] = []  # TPDOs after bit 4, before bit 12 was seen
+        # the SYNCs sample 0 may be at, when the statusword and the SDO answer leave more than one (the demand
+        # value 0x6062 decides: CanOpenInterpolation._choose_ip_origin)
+        self._ip_origin_choices: tuple[int, ...] = ()
         self._dry_since: int | None = None  # the SYNC count since which the buffer has been empty
         self._last_target_counts = 0
         self._watching = False  # from OPERATION ENABLED on: a FAULT statusword or a heartbeat not OPERATIONAL stops the run

@@ -14,6 +14,7 @@ SYNC, for the tests to compare with the master's log.
 from __future__ import annotations
 
 import collections
+import queue
 import threading
 import time
 from dataclasses import dataclass
@@ -167,6 +168,10 @@ class SpecCia402Rig:
     mode_switch_s, fault_reaction_s, fault_reset_s, quick_stop_ramp_s
         How long the drive takes to show a new mode in 0x6061, to go from FAULT REACTION ACTIVE to FAULT,
         to clear a fault after the reset edge, and to stop on the quick stop ramp.
+    sdo_server_delay_s
+        The drive's SDO server runs in a slower task than its SYNC and PDOs: each request is acted on, and
+        answered, this long after it reaches the drive (CiA 301 sets no SDO response time), in the order the
+        requests came. 0: at once.
     """
 
     def __init__(self, channel: str, *, drive_node_id: int = 1, encoder_node_id: int = 2, quick_stop_option: int = 2,
@@ -175,7 +180,7 @@ class SpecCia402Rig:
                  encoder_multi_turn_bits: int = 4, drive_counts_per_revolution: int = 1 << 17,
                  following_error_at_record: int | None = None, mode_switch_s: float = 0.005,
                  fault_reaction_s: float = 0.005, fault_reset_s: float = 0.005,
-                 quick_stop_ramp_s: float = 0.01) -> None:
+                 quick_stop_ramp_s: float = 0.01, sdo_server_delay_s: float = 0.0) -> None:
         if quick_stop_option not in (2, 6):
             raise ValueError(f"quick_stop_option: this drive implements 2 and 6, got {quick_stop_option}")
         self.channel = channel
@@ -189,6 +194,9 @@ class SpecCia402Rig:
         self.fault_reset_s, self.quick_stop_ramp_s = fault_reset_s, quick_stop_ramp_s
         self._lock = threading.RLock()
         self.network: canopen.Network | None = None
+        self.sdo_server_delay_s = sdo_server_delay_s
+        self._sdo_requests: queue.Queue = queue.Queue()  # (due, cob-id, data, time stamp); None ends the task
+        self._sdo_task: threading.Thread | None = None
         # the drive (CiA 402)
         self._state = SWITCH_ON_DISABLED  # transitions 0 and 1 are done at power-on
         self.transitions: list[int] = []  # every transition taken, in order
@@ -233,6 +241,11 @@ class SpecCia402Rig:
             self.network.add_node(node)
         self.drive.add_read_callback(self._on_drive_read)
         self.drive.add_write_callback(self._on_drive_write)
+        if self.sdo_server_delay_s > 0.0:  # the drive's SDO requests go through its slower task
+            self.network.unsubscribe(self.drive.sdo.rx_cobid, self.drive.sdo.on_request)
+            self.network.subscribe(self.drive.sdo.rx_cobid, self._queue_sdo_request)
+            self._sdo_task = threading.Thread(target=self._serve_sdo_requests, name="spec402-sdo", daemon=True)
+            self._sdo_task.start()
         self.encoder.add_read_callback(self._on_encoder_read)
         self.network.subscribe(0, self._on_nmt)  # after the nodes' own NMT handlers
         self.network.subscribe(SYNC_COB_ID, self._on_sync)
@@ -243,6 +256,10 @@ class SpecCia402Rig:
     def close(self) -> None:
         if self.network is None:
             return
+        if self._sdo_task is not None:
+            self._sdo_requests.put(None)
+            self._sdo_task.join()
+            self._sdo_task = None
         for node in (self.drive, self.encoder):
             node.nmt.stop_heartbeat()
         self.network.disconnect()
@@ -253,6 +270,16 @@ class SpecCia402Rig:
 
     def __exit__(self, *exc_info: object) -> None:
         self.close()
+
+    def _queue_sdo_request(self, can_id: int, data: bytearray, timestamp: float) -> None:
+        self._sdo_requests.put((time.monotonic() + self.sdo_server_delay_s, can_id, bytes(data), timestamp))
+
+    def _serve_sdo_requests(self) -> None:
+        """The drive's SDO task: each request acted on and answered ``sdo_server_delay_s`` after it came."""
+        while (request := self._sdo_requests.get()) is not None:
+            due, can_id, data, timestamp = request
+            time.sleep(max(0.0, due - time.monotonic()))
+            self.drive.sdo.on_request(can_id, bytearray(data), timestamp)
 
     @property
     def state(self) -> str:

@@ -192,6 +192,21 @@ def test_the_interpolation_lag_looks_like_a_tpdo_latency_and_the_master_says_bot
     assert [cycle.demand_counts for cycle in cycles[1:]] == [cycle.in_force_counts for cycle in cycles[:-1]]
 
 
+def test_told_a_tpdo_latency_for_the_interpolation_lag_the_master_finds_sample_0_by_the_demand(tmp_path, no_leaks):
+    """The other setting the message above offers for this drive, drive_tpdo_latency_cycles = 1, files its
+    statusword one SYNC early, so a statusword alone would put sample 0 a SYNC before the drive's first
+    record. The SDO answer to controlword bit 4 bounds it only when it comes before the next SYNC; this
+    drive's SDO server answers 2.5 periods late, so the master must take the SYNC at which the drive's 0x6062
+    shows the records it holds: every command logged is the record the drive took at that SYNC."""
+    with _rig(tmp_path, sdo_server_delay_s=2.5 / RATE_HZ) as rig:
+        transport, summary, sink = _run(rig, "ip_buffer", ip_record_is_segment_end=False,
+                                        drive_tpdo_latency_cycles=1)
+        _assert_stopped(rig)
+    first_record = next(cycle.sync for cycle in rig.cycles if cycle.record_taken)
+    assert transport._origin == first_record
+    _assert_log_is_what_the_drive_did(rig, transport, summary, sink)
+
+
 @pytest.mark.parametrize("mode", ["ip_buffer", "csp"])
 def test_a_drive_fault_mid_run_stops_the_run_and_the_drive_ends_disabled(tmp_path, no_leaks, mode):
     """A following error (IP: at record 40; CSP: injected after 40 samples): FAULT REACTION ACTIVE, EMCY
