@@ -16,7 +16,11 @@ from typing import Any
 from rig.protocols import cia402
 from rig.protocols.errors import DeviceFault, TransportError
 
-__all__ = ["IP_START_SYNCS", "CanOpenInterpolation"]
+__all__ = ["IP_ENABLE_AFTER_SYNC_WAIT_PERIODS", "IP_START_SYNCS", "CanOpenInterpolation"]
+
+IP_ENABLE_AFTER_SYNC_WAIT_PERIODS = 3
+"""How long (in sample periods) the master waits for a SYNC to send controlword bit 4 right after; a SYNC
+producer that stalls longer does not hold up the start, bit 4 then goes out when the wait ends."""
 
 IP_START_SYNCS = 50
 """SYNCs the drive may take after controlword bit 4 (enable ip mode) before its statusword shows bit 12 (ip
@@ -102,7 +106,8 @@ class CanOpenInterpolation:
         there is), check that the records really are in it (0x60C4:4 buffer position, where the EDS has it),
         then set controlword bit 4 (enable ip mode). Sample 0 is the first SYNC whose statusword shows bit 12
         (:meth:`_file_locked`); a drive that does not show it within :data:`IP_START_SYNCS` SYNCs stops the
-        run, saying so."""
+        run, saying so. Bit 4 goes out right after a SYNC: a drive that confirms it before the next SYNC fixes
+        sample 0 by the bus order alone (:meth:`_origin_from_the_answer`)."""
         with self._lock:
             enabled_at, ready = self._ip_enabled_at, self._feed.ready_to_start()
             buffered = self._feed.buffered
@@ -117,7 +122,10 @@ class CanOpenInterpolation:
         if not ready:
             return
         self._check_buffer_position(buffered)
-        with self._lock:
+        with self._arrived:  # right after a SYNC, so that the drive has most of a period to confirm it
+            seen = self._sync_count
+            self._arrived.wait_for(lambda: self._sync_count != seen, IP_ENABLE_AFTER_SYNC_WAIT_PERIODS
+                                   * self.sample_period_s)
             self._ip_enabled_at = self._sync_count
         self._write_controlword(cia402.CONTROLWORD_ENABLE_INTERPOLATION)
 
@@ -180,6 +188,13 @@ class CanOpenInterpolation:
             self._ip_origin_choices = tuple(range(answers, min(latest, answers + self.latency_cycles["drive"]) + 1))
         if len(self._ip_origin_choices) > 1:
             return self._choose_ip_origin(item)
+        self._ride_through(
+            f"drive {self.drive_node_id}: confirmed controlword bit 4 (enable ip mode) only after "
+            f"{'more than ' if latest is None else ''}{(self._sync_count if latest is None else latest - 1) - self._ip_enabled_at} "
+            f"SYNC(s), so sample 0 is where its statusword first shows bit 12 under drive_tpdo_latency_cycles = "
+            f"{self.latency_cycles['drive']}; were the drive later than that, every row would be filed as many "
+            "samples late, and nothing on the bus would show it (a drive that confirms bit 4 within a period fixes "
+            "sample 0 by the bus order)")
         self._set_ip_origin(answers)
         return False
 
