@@ -98,6 +98,10 @@ class _Search:
     mechanism_reason: str = ""
     """Set when a named effect's map is also another mechanism's (:func:`_mechanisms_left_open`): said after
     what the named map explains."""
+    beyond_device_reason: str = ""
+    """Set when a look-alike would give a named effect's output only at a size no working device has (catalogue
+    ``implausible``, :func:`_look_alikes_checked`): said after the verdict, so that the user who has such a device
+    knows what else the record allows."""
 
 
 def _vanished(candidate: _Candidate, u: NDArray[np.float64], delta: float) -> bool:
@@ -579,9 +583,13 @@ def _look_alikes_checked(found: _Search, u: NDArray[np.float64], y: NDArray[np.f
         theirs = simulated(chain.model(), u, y)
         return float(np.mean(np.abs(named_output - theirs)[measured] > delta))
 
-    def fitted_in_place(alike: str, reduced: _Chain, before: Disagreement) -> tuple[_Candidate, float] | None:
+    beyond: list[str] = []  # look-alikes fitted at a size no working device has (catalogue ``implausible``)
+
+    def fitted_in_place(alike: str, reduced: _Chain, before: Disagreement,
+                        named_effect: str) -> tuple[_Candidate, float] | None:
         """``alike`` fitted into ``reduced`` and the share of the record's measured samples where its output
-        is further than the noise bound from the named model's; None when it vanishes. Fitted to the data
+        is further than the noise bound from the named model's; None when it vanishes or no working device has
+        it (catalogue ``implausible``). Fitted to the data
         on the estimation segment, a look-alike with more freedom than the effect (a sensor error's second
         harmonic) can extrapolate far off over angles only the validation segment reaches: when its output is
         apart, it is fitted again to follow the named model's output over the whole record, which is the
@@ -589,7 +597,8 @@ def _look_alikes_checked(found: _Search, u: NDArray[np.float64], y: NDArray[np.f
         scores = signature_scores(u, y, before.simulated_rad, delta, period)
         other = _try_effect(alike, reduced, u, y, n_est, delta, period, before.residual_rad, scores,
                             options.max_delay_samples, options.max_evaluations)
-        if EFFECTS[alike].vanished(other.block, delta):
+        entry = EFFECTS[alike]
+        if entry.vanished(other.block, delta):
             return None
         apart = apart_from_named(other.chain)
         if apart > apart_allowed:
@@ -598,6 +607,11 @@ def _look_alikes_checked(found: _Search, u: NDArray[np.float64], y: NDArray[np.f
             matched_apart = apart_from_named(matched)
             if matched_apart < apart:
                 other, apart = _judged(alike, matched, other.index, u, y, n_est), matched_apart
+        why = "" if entry.implausible is None else entry.implausible(other.block)
+        if why:
+            beyond.append(f"{alike} would give the output of {named_effect} as well, but only as {why}, so it is not "
+                          "taken for a look-alike (a damaged sensor would need a second encoder to show)")
+            return None
         return other, apart
 
     for step in found.steps:
@@ -613,7 +627,7 @@ def _look_alikes_checked(found: _Search, u: NDArray[np.float64], y: NDArray[np.f
                 if (not allowed(alike) or alike == step.effect or any(alike == g[0] for g in group)
                         or _insert_index(reduced, alike) < 0):
                     continue
-                fit = fitted_in_place(alike, reduced, before)
+                fit = fitted_in_place(alike, reduced, before, step.effect)
                 if fit is None:
                     continue
                 if fit[1] > apart_allowed and fit[0].gap_rad > found.current.gap_rad and not _within_uncertainty(
@@ -631,7 +645,11 @@ def _look_alikes_checked(found: _Search, u: NDArray[np.float64], y: NDArray[np.f
         reason = _look_alike_reason(between, group, found.current.gap_rad, before.gap_rad, delta, apart_allowed)
         say(f"ambiguous: {reason}")
         return _without_step(found, step, reduced, before, between, reason, u, y, n_est, delta, options)
+    if beyond:
+        say("; ".join(beyond))
+        return replace(found, beyond_device_reason="; ".join(beyond))
     return found
+
 
 
 def _without_step(found: _Search, step: DiscrepancyStep, reduced: _Chain, before: Disagreement,

@@ -249,6 +249,8 @@ def _final_verdict(u: NDArray[np.float64], y: NDArray[np.float64], initial: Disa
                                _estimation_falsified(initial, y, n_est), n_est)
     if found.mechanism_reason and verdict == "named":  # the map is named, its mechanism left open
         verdict, reason = "ambiguous", f"{reason}; {found.mechanism_reason}"
+    if found.beyond_device_reason:
+        reason = f"{reason}; {found.beyond_device_reason}"
     if found.look_alike_reason and verdict == "ambiguous":
         named = ", ".join(step.effect for step in found.steps)
         reason = (f"{named} named (gap {initial.gap_rad:.3g} -> {final.gap_rad:.3g} rad); then " if named else "") \
