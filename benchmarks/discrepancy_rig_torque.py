@@ -11,8 +11,10 @@ The simulated rig is ``configs/sim_pendulum_canopen.toml``: the STS3215 servo wi
   bend; the drive feels nothing of it.
 
 Each record is run through the CANopen master (in-process, on python-can's virtual bus, in real time) and diagnosed
-from the model without the weight, once from the angle alone and once with the log's ``drive_torque`` column. The
-table gives the verdict, the names and what the torque check said.
+from the model without the weight, once from the angle alone and once with the log's ``drive_torque`` column and its
+scale (the summary's ``drive_torque_nm_per_unit``). The table gives the verdict, the names and what the torque check
+said: T, the once-per-revolution torque found (per mille of the rated torque), and W, the torque a weight giving
+the angle's sag would put on the drive through the model's drive train.
 
 Run: ``OMP_NUM_THREADS=1 .venv/bin/python benchmarks/discrepancy_rig_torque.py [--duration 25] [--noise-bound 0.002]``.
 """
@@ -89,9 +91,12 @@ def diagnose(log: Path, model_text: str, noise_bound_rad: float, with_torque: bo
     started = time.perf_counter()
     result = diagnose_model(record.command_rad, angle, noise_bound_rad, record.sample_period_s,
                             plant_config_from_toml_text(model_text).plant,
-                            drive_torque=record.drive_torque if with_torque else None)
+                            drive_torque=record.drive_torque if with_torque else None,
+                            drive_torque_nm_per_unit=record.metadata.extra["summary"].get("drive_torque_nm_per_unit"))
     names = ", ".join(result.missing_effects) or (" or ".join(result.ambiguous_between) or "-")
-    check = "" if result.load_torque_check is None else f"; torque check {result.load_torque_check.outcome}"
+    check = result.load_torque_check
+    check = "" if check is None else (f"; torque check {check.outcome} (T {check.torque:.3g} +- {check.torque_sigma:.2g}, "
+                                      f"a weight giving the sag: W {check.weight_torque:.3g})")
     return f"{result.verdict}: {names}{check}", time.perf_counter() - started
 
 

@@ -355,6 +355,25 @@ def nominal_linear_block(nominal: dict) -> LinearBlock:
     return LinearBlock.from_state_space(discrete[:4, :4], discrete[:4, 4], (0.0, 0.0, 1.0, 0.0), 0.0, period)
 
 
+def nominal_drive_train(nominal: dict, bandwidth_factor: float = 1.0) -> DriveTrain:
+    """The generator's nominal cascade servo as our drive train, with physical units (so that the drive's
+    torque can exclude a weight, :mod:`identify.model_discrepancy.drive_torque`). The two are the same
+    equations: P position and P velocity loops with K_v = 2 zeta omega_c (N^2 J_m + J_l) and K_p = omega_c /
+    (2 zeta) on the motor's own angle, no feedforward, a spring-damper shaft, the load's viscous friction. The
+    command is the load angle (the generator's motor command over N). ``bandwidth_factor`` scales the loop's
+    bandwidth: a start model whose servo is off (its stiffness by the factor squared)."""
+    if nominal["servo"] != "cascade":
+        raise ValueError("--start train needs --servo cascade: the kinematic servo has no motor the load pushes back")
+    return DriveTrain(sample_period_s=float(nominal["sample_period_s"]), gear_ratio=float(nominal["gear_ratio"]),
+                      motor_inertia_kg_m2=float(nominal["motor_inertia_kg_m2"]),
+                      load_inertia_kg_m2=float(nominal["load_inertia_kg_m2"]),
+                      shaft_stiffness_nm_per_rad=float(nominal["shaft_stiffness_nm_per_rad"]),
+                      shaft_damping_nm_s_per_rad=float(nominal["shaft_damping_nm_s_per_rad"]),
+                      viscous_friction_nm_s_per_rad=float(nominal["viscous_friction_nm_s_per_rad"]),
+                      position_loop_bandwidth_hz=bandwidth_factor * float(nominal["position_loop_bandwidth_hz"]),
+                      position_loop_damping_ratio=float(nominal["position_loop_damping_ratio"]))
+
+
 def independent_noise_bound(nominal: dict) -> float:
     """Half a count (the encoder rounds to the nearest count) plus :data:`NOISE_BOUND_SIGMAS` standard
     deviations of the Gaussian noise the generator adds before rounding."""
@@ -517,7 +536,7 @@ def independent_outcome(effect_name: str, named: tuple[str, ...], verdict: str, 
 def run_independent_case(effect_name: str, case: int, cases: int, first_seed: int, start: str,
                          excitations: tuple[str, ...], durations: dict[str, float], max_draws: int,
                          bits: int, noise_std_rad: float, servo: str = "kinematic",
-                         torque_noise_nm: float | None = None) -> dict:
+                         torque_noise_nm: float | None = None, bandwidth_factor: float = 1.0) -> dict:
     """One case of a row: the first excited record of seeds first_seed + case + j cases (j = 0, 1, ...; the
     excitation rotates with case + j), diagnosed and scored; with ``torque_noise_nm`` the workflow also gets the
     generator's drive torque (its torque actual value, with that noise), else the angle alone."""
@@ -537,13 +556,19 @@ def run_independent_case(effect_name: str, case: int, cases: int, first_seed: in
                 "outcome": "skipped", "named": [], "verdict": "-", "covered": [0, 0], "missed": [], "seconds": 0.0}
     truth, nominal = record["truth"], record["nominal"]
     delta = independent_noise_bound(nominal)
-    block = nominal_linear_block(nominal)
     command, angle = record["command_rad"], record["angle_rad"]
     twin = record["nominal_state"][:, 2]
-    conversion_error = float(np.max(np.abs(block.apply(command - command[0]) + command[0] - twin)))
-    if conversion_error > 1e-8:
-        raise RuntimeError(f"{effect_name} seed {seed}: our linear block differs from the generator's nominal twin "
-                           f"by {conversion_error:.3g} rad")
+    if start == "train":  # our drive train integrates the same equations: agreement to a fraction of the bound
+        block = nominal_drive_train(nominal)
+        command = command / float(nominal["gear_ratio"])
+        conversion_error, tolerance = float(np.max(np.abs(block.apply(command - command[0]) + command[0] - twin))), 0.05 * delta
+        block = nominal_drive_train(nominal, bandwidth_factor)
+    else:
+        block = nominal_linear_block(nominal)
+        conversion_error, tolerance = float(np.max(np.abs(block.apply(command - command[0]) + command[0] - twin))), 1e-8
+    if conversion_error > tolerance:
+        raise RuntimeError(f"{effect_name} seed {seed}: our {type(block).__name__} differs from the generator's nominal "
+                           f"twin by {conversion_error:.3g} rad")
     started = time.perf_counter()
     base = {"effect": effect_name, "case": case, "seed": seed, "excitation": excitation, "skipped": skipped,
             "effect_size_counts": truth["effect_size"].get("max_abs_counts"),
@@ -552,8 +577,9 @@ def run_independent_case(effect_name: str, case: int, cases: int, first_seed: in
             "conversion_error_rad": conversion_error}
     try:
         result = diagnose_model(command, angle, delta, float(nominal["sample_period_s"]),
-                                PlantModel((block,)) if start == "given" else None,
-                                drive_torque=None if torque_noise_nm is None else record["torque_nm"])
+                                None if start == "fitted" else PlantModel((block,)),
+                                drive_torque=None if torque_noise_nm is None else record["torque_nm"],
+                                drive_torque_nm_per_unit=None if torque_noise_nm is None else 1.0)
     except Exception as err:  # a crash is a result of the benchmark, not the end of the run
         return {**base, "outcome": "not_excited", "named": [], "verdict": f"error: {type(err).__name__}: {err}",
                 "covered": [0, 0], "missed": [], "seconds": time.perf_counter() - started}
@@ -574,20 +600,23 @@ def run_independent_case(effect_name: str, case: int, cases: int, first_seed: in
             "named": list(named),
             "ambiguous_between": list(result.ambiguous_between), "verdict": result.verdict,
             "reason": result.verdict_reason[:400], "restarted": result.restart_window_samples is not None,
+            "torque_check": None if result.load_torque_check is None else result.load_torque_check.outcome,
             "reduction": 1.0 - result.final.gap_rad / result.initial.gap_rad if result.initial.gap_rad > 0 else 0.0,
             "covered": covered, "missed": missed, "seconds": time.perf_counter() - started}
 
 
 def independent(cases: int, start: str, effects: tuple[str, ...], first_seed: int, jobs: int,
                 excitations: tuple[str, ...], durations: dict[str, float], max_draws: int, bits: int,
-                noise_std_rad: float, servo: str = "kinematic", torque_noise_nm: float | None = None) -> None:
+                noise_std_rad: float, servo: str = "kinematic", torque_noise_nm: float | None = None,
+                bandwidth_factor: float = 1.0) -> None:
     """Every row of ``effects`` on the independent generator; a line per case on stderr, then the table."""
     started = time.perf_counter()
     tasks = [(name, case) for name in effects for case in range(cases)]
     runs: dict[str, list[dict]] = {name: [] for name in effects}
     with ProcessPoolExecutor(max_workers=jobs) as pool:
         futures = [pool.submit(run_independent_case, name, case, cases, first_seed, start, excitations, durations,
-                               max_draws, bits, noise_std_rad, servo, torque_noise_nm) for name, case in tasks]
+                               max_draws, bits, noise_std_rad, servo, torque_noise_nm, bandwidth_factor)
+                   for name, case in tasks]
         for future in as_completed(futures):  # a line per case as soon as it is done
             result = future.result()
             runs[result["effect"]].append(result)
@@ -597,7 +626,8 @@ def independent(cases: int, start: str, effects: tuple[str, ...], first_seed: in
                   file=sys.stderr, flush=True)
     print(f"\non the independent generator, start model: {start}; {cases} cases per row (seeds from {first_seed}, "
           f"excitations {', '.join(excitations)}, {bits}-bit encoder, noise std {noise_std_rad:g} rad, {servo} "
-          f"servo; " + ("the angle alone" if torque_noise_nm is None else
+          f"servo; " + (f"start model's loop bandwidth x {bandwidth_factor:g}; " if bandwidth_factor != 1.0 else "")
+          + ("the angle alone" if torque_noise_nm is None else
                         f"with the drive's torque, noise std {torque_noise_nm:g} N m") + "); "
           f"{time.perf_counter() - started:.0f} s in all with {jobs} process(es)")
     independent_table(runs, effects, start)
@@ -648,6 +678,12 @@ def independent_table(runs: dict[str, list[dict]], effects: tuple[str, ...], sta
               f"left open with its look-alikes {right + left_open} ({100 * (right + left_open) / len(above):.0f} %)"
               + (f"; under the bound: named right {sum(r['outcome'] == 'right' for r in under)} of {len(under)}"
                  if under else ""))
+    checked = {name: [r["torque_check"] for r in runs.get(name, []) if r.get("torque_check")] for name in effects}
+    if any(checked.values()):
+        print("\nthe drive's torque check, where the angle left gravity open (outcome: cases):")
+        for name, outcomes in checked.items():
+            if outcomes:
+                print(f"  {name}: " + ", ".join(f"{o} {outcomes.count(o)}" for o in sorted(set(outcomes))))
     results = [r for name in effects for r in runs.get(name, []) if r["outcome"] != "skipped"]
     print("\nconfident wrong answers, by what was said and the excitations it was said on:")
     for name in effects:
@@ -673,7 +709,12 @@ def independent_table(runs: dict[str, list[dict]], effects: tuple[str, ...], sta
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--cases", type=int, default=20, help="random cases per true effect (default 20)")
-    parser.add_argument("--start", choices=("given", "fitted"), default="given")
+    parser.add_argument("--start", choices=("given", "fitted", "train"), default="given",
+                        help="given: the nominal model as a linear block (default); fitted: none (the workflow fits "
+                             "one); train: independent generator, cascade servo: the nominal as our drive train, "
+                             "with physical units")
+    parser.add_argument("--start-bandwidth-factor", type=float, default=1.0, metavar="F",
+                        help="--start train: the start model's position-loop bandwidth times F (a servo gain off)")
     parser.add_argument("--effects", default=None,
                         help="rows, comma-separated (default: all; with --start fitted all but gain_error, which a "
                              "fitted linear start model absorbs: no method can name it there)")
@@ -716,7 +757,7 @@ def main() -> None:
         effects = INDEPENDENT_EFFECTS if args.effects is None else tuple(e for e in args.effects.split(",") if e)
         independent(args.cases, args.start, effects, args.first_seed, args.jobs,
                     tuple(e for e in args.excitations.split(",") if e), durations, args.max_draws, args.bits,
-                    args.noise_std, args.servo, args.drive_torque)
+                    args.noise_std, args.servo, args.drive_torque, args.start_bandwidth_factor)
         return
     if args.effects is not None:
         effects = tuple(e for e in args.effects.split(",") if e)

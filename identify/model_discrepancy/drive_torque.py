@@ -31,11 +31,17 @@ theta_0), and the load sags by -C m g l sin(theta - theta_0) (C > 0 the static c
 the torque's harmonic and the angle's are in opposite phase. The outcome is ``load_torque`` when both harmonics
 are :data:`TORQUE_SIGNIFICANT_SIGMAS` standard deviations from zero, in opposite phase within
 :data:`TORQUE_PHASE_TOLERANCE_RAD`, and the torque left is no more coloured than
-:data:`TORQUE_MAX_RESIDUAL_COLOUR`; else ``undecided``. The torque's absence alone does not exclude a weight:
-with a torque under T + 3 sigma, a weight would need a compliance of at least S / (T + 3 sigma), and neither the
-angle nor the drive's torque bounds the compliance from above (a light load on a soft shaft rings at the same
-frequency as a heavy one on a stiff shaft), so the text gives that least compliance for a user who knows the
-shaft.
+:data:`TORQUE_MAX_RESIDUAL_COLOUR`.
+
+The torque's absence alone does not exclude a weight: with a torque under T + 3 sigma, a weight would need a
+compliance of at least S / (T + 3 sigma), and neither the angle nor the drive's torque bounds the compliance from
+above (a light load on a soft shaft rings at the same frequency as a heavy one on a stiff shaft). A start model
+with physical units does: the weight the workflow fitted to the sag in its drive train (gravity's m g l at the
+load), over the train's gear ratio and the record's N m per unit of torque, is the torque W such a weight puts
+on the drive. The outcome is ``no_load_torque`` when the sag is there and T + :data:`TORQUE_ABSENT_SIGMAS` sigma
+stays under W / :data:`TORQUE_EXCLUSION_MARGIN`: no weight the model's servo and shaft would sag so is carried,
+unless they are that many times softer than the model says. Else ``undecided``, and the text gives the least
+compliance a weight would need, for a user who knows the shaft.
 """
 
 from __future__ import annotations
@@ -48,9 +54,11 @@ import numpy as np
 from numpy.typing import NDArray
 
 from identify.plant_blocks import PlantModel
+from identify.result_format import number
 from identify.model_discrepancy.open_world import delayed_columns
 from identify.model_discrepancy.thresholds import (
     TORQUE_ABSENT_SIGMAS,
+    TORQUE_EXCLUSION_MARGIN,
     TORQUE_HAC_WINDOW_S,
     TORQUE_LAGS,
     TORQUE_MAX_RESIDUAL_COLOUR,
@@ -58,7 +66,7 @@ from identify.model_discrepancy.thresholds import (
     TORQUE_SIGNIFICANT_SIGMAS,
 )
 
-OUTCOMES = ("load_torque", "undecided")
+OUTCOMES = ("load_torque", "no_load_torque", "undecided")
 SAG_LOOK_ALIKES = ("encoder_error", "offset", "gain_error")
 """The sensor errors that read like a weight's sag: a once-per-revolution error (gravity's look-alike in the
 catalogue), and over a short span of angles an offset and a gain error (the sine's value and slope there). The
@@ -85,6 +93,9 @@ class LoadTorqueCheck:
         S, the angle's once-per-revolution disagreement with the start model, and its standard deviation.
     sag_hanging_angle_rad
         The angle a weight giving that sag would hang at.
+    weight_torque
+        W, the once-per-revolution torque a weight giving that sag would put on the drive (the torque record's
+        unit), from a start model with physical units (module docstring); NaN where it has none.
     """
 
     outcome: str
@@ -95,6 +106,7 @@ class LoadTorqueCheck:
     sag_rad: float
     sag_sigma_rad: float
     sag_hanging_angle_rad: float
+    weight_torque: float = math.nan
 
     @property
     def phase_apart_rad(self) -> float:
@@ -108,6 +120,12 @@ class LoadTorqueCheck:
         if self.outcome == "load_torque":
             return (f"{figures}: the drive carries the weight that sags the angle, {self.sag_rad / self.torque:.3g} rad "
                     "per unit of torque, so the sag is a load torque, not the sensor's")
+        bound = self.torque + TORQUE_ABSENT_SIGMAS * self.torque_sigma
+        if self.outcome == "no_load_torque":
+            return (f"{figures}: a weight sagging the angle so through the start model's servo and shaft would put "
+                    f"{self.weight_torque:.3g} on the drive, which shows under {bound:.3g}, less than 1/"
+                    f"{TORQUE_EXCLUSION_MARGIN:g} of it: no weight is carried (unless servo and shaft are more than "
+                    f"{TORQUE_EXCLUSION_MARGIN:g} times softer than the model says), so the sag is the sensor's")
         if self.residual_colour > TORQUE_MAX_RESIDUAL_COLOUR:
             return (f"{figures}; the torque left beside it is not noise (its variance {self.residual_colour:.3g} times "
                     "what its sample-to-sample steps give white noise): another torque (cogging, friction, a play) is "
@@ -116,28 +134,28 @@ class LoadTorqueCheck:
             return f"{figures}: the sag is not resolved, so the torque cannot be matched to it"
         if self.torque >= TORQUE_SIGNIFICANT_SIGMAS * self.torque_sigma:
             return f"{figures}: the torque is not in phase with the sag, so it does not explain it"
-        bound = self.torque + TORQUE_ABSENT_SIGMAS * self.torque_sigma
         return (f"{figures}: no weight shows in the torque; one under {bound:.3g} would need a compliance of at least "
                 f"{self.sag_rad / bound:.3g} rad per unit of torque to sag the angle so, which a stiffer servo and "
                 "shaft exclude (the sag is then the sensor's)")
 
     def to_dict(self) -> dict[str, Any]:
-        return {name: (getattr(self, name) if name == "outcome" else float(getattr(self, name)))
-                for name in _FIELDS}
+        return {name: (getattr(self, name) if name == "outcome" else number(getattr(self, name))) for name in _FIELDS}
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> LoadTorqueCheck:
-        return cls(**{name: (data[name] if name == "outcome" else float(data[name])) for name in _FIELDS})
+        """From :meth:`to_dict`; a document without ``weight_torque`` (written before it was known) has NaN."""
+        return cls(**{name: (data[name] if name == "outcome" else float(data[name])) for name in _FIELDS
+                      if name in data})
 
 
 _FIELDS = ("outcome", "torque", "torque_sigma", "torque_hanging_angle_rad", "residual_colour", "sag_rad",
-           "sag_sigma_rad", "sag_hanging_angle_rad")
+           "sag_sigma_rad", "sag_hanging_angle_rad", "weight_torque")
 
 
 def load_torque_check(u: NDArray[np.float64], y: NDArray[np.float64], torque: NDArray[np.float64],
-                      start_model: PlantModel, period: float) -> LoadTorqueCheck:
+                      start_model: PlantModel, period: float, weight_torque: float = math.nan) -> LoadTorqueCheck:
     """The check of the module docstring on one record (absolute angles; NaN marks a sample not measured, in
-    the angle or the torque)."""
+    the angle or the torque); ``weight_torque``: W, where the start model gives it."""
     y_hat = np.asarray(start_model.simulate(u), dtype=float)
     window = max(1, int(round(TORQUE_HAC_WINDOW_S / period)))
     usable = np.isfinite(y) & np.isfinite(torque)
@@ -154,12 +172,16 @@ def load_torque_check(u: NDArray[np.float64], y: NDArray[np.float64], torque: ND
     # theta_0 = pi - p in the angle (which sags by -C m g l sin(y - theta_0))
     check = LoadTorqueCheck("undecided", torque_amplitude, torque_sigma, math.remainder(-torque_phase, 2.0 * math.pi),
                             _colour(residual), sag, sag_sigma,
-                            math.remainder(math.pi - sag_phase, 2.0 * math.pi))
-    carried = (torque_amplitude >= TORQUE_SIGNIFICANT_SIGMAS * torque_sigma
-               and sag >= TORQUE_SIGNIFICANT_SIGMAS * sag_sigma
+                            math.remainder(math.pi - sag_phase, 2.0 * math.pi), float(weight_torque))
+    sagged = sag >= TORQUE_SIGNIFICANT_SIGMAS * sag_sigma
+    carried = (sagged and torque_amplitude >= TORQUE_SIGNIFICANT_SIGMAS * torque_sigma
                and check.residual_colour <= TORQUE_MAX_RESIDUAL_COLOUR
                and check.phase_apart_rad <= TORQUE_PHASE_TOLERANCE_RAD)
-    return replace(check, outcome="load_torque") if carried else check
+    if carried:
+        return replace(check, outcome="load_torque")
+    if sagged and torque_amplitude + TORQUE_ABSENT_SIGMAS * torque_sigma < weight_torque / TORQUE_EXCLUSION_MARGIN:
+        return replace(check, outcome="no_load_torque")  # (a NaN weight_torque compares False)
+    return check
 
 
 def _harmonic(pair: NDArray[np.float64], covariance: NDArray[np.float64]) -> tuple[float, float, float]:

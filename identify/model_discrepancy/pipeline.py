@@ -13,7 +13,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from identify.effect_catalogue import EFFECTS
+from identify.drive_train import DriveTrain
+from identify.effect_catalogue import EFFECTS, SEARCHED_EFFECT_NAMES
 from identify.plant_blocks import LinearBlock, OutputOffset, PlantModel
 from identify.validation import InvalidInputError, as_signal, positive, same_length, varying, with_options
 
@@ -53,10 +54,14 @@ from identify.model_discrepancy.verdict import (
 )
 
 
+GRAVITY_KEY = "gravity_per_inertia_rad_per_s2"
+"""The gravity candidate's fitted m g l / J (the catalogue's parameter)."""
+
+
 def diagnose_model(command_rad: ArrayLike, angle_rad: ArrayLike, noise_bound_rad: float,
                    sample_period_s: float, model: PlantModel | None = None, options: DiagnoseOptions | None = None,
-                   *, drive_torque: ArrayLike | None = None, progress: Callable[[str], None] | None = None,
-                   **option_values: Any) -> DiscrepancyResult:
+                   *, drive_torque: ArrayLike | None = None, drive_torque_nm_per_unit: float | None = None,
+                   progress: Callable[[str], None] | None = None, **option_values: Any) -> DiscrepancyResult:
     """Run the model-discrepancy workflow (the steps of the package docstring), one named step
     each: the checks (:func:`_checked_record`), the gross disagreements of the measurement over the whole
     record (:func:`gross_disagreements`: a sensor wrap is undone, glitches are left out, both reported in
@@ -88,9 +93,13 @@ def diagnose_model(command_rad: ArrayLike, angle_rad: ArrayLike, noise_bound_rad
         ``max_effects=2``, ...), which override those of ``options``.
     drive_torque
         The torque the drive reported at each sample (the CiA 402 torque actual value 0x6077, a motor current;
-        any unit, NaN where not measured), or None. When the angle leaves a weight (gravity) open, beside the
-        sensor errors that read like its sag (an encoder error, an offset, a gain error) or with its shape
-        undecided, the torque shows whether the drive carries a weight (:func:`_with_drive_torque`).
+        any unit, NaN where not measured), or None. When the angle names a weight (gravity) or leaves it open,
+        beside the sensor errors that read like its sag (an encoder error, an offset, a gain error) or with its
+        shape undecided, the torque shows whether the drive carries a weight (:func:`_with_drive_torque`).
+    drive_torque_nm_per_unit
+        N m at the motor per unit of ``drive_torque`` (a rig log's summary gives it for the CiA 402 torque:
+        0x6076 / 1e6), or None. With it and a ``model`` holding a :class:`~identify.drive_train.DriveTrain`, the
+        torque can also exclude a weight (:mod:`.drive_torque`).
     progress
         Called with one line of text per stage and candidate.
 
@@ -108,8 +117,10 @@ def diagnose_model(command_rad: ArrayLike, angle_rad: ArrayLike, noise_bound_rad
     u, y, delta, period = _checked_record(command_rad, angle_rad, noise_bound_rad, sample_period_s, model)
     torque = as_signal("drive_torque", drive_torque, missing_allowed=True)
     same_length(command_rad=u, drive_torque=torque)
+    scale = None if drive_torque_nm_per_unit is None else positive("drive_torque_nm_per_unit", drive_torque_nm_per_unit)
     result = _diagnosed_record(u, y, delta, period, model, options, progress)
-    return _with_drive_torque(result, u, y, torque, delta, period, model, options, progress or (lambda _message: None))
+    return _with_drive_torque(result, u, y, torque, scale, delta, period, model, options,
+                              progress or (lambda _message: None))
 
 
 def _diagnosed_record(command_rad: ArrayLike, angle_rad: ArrayLike, noise_bound_rad: float, sample_period_s: float,
@@ -178,22 +189,36 @@ def _diagnosed(u: NDArray[np.float64], y: NDArray[np.float64], delta: float, per
 
 
 def _with_drive_torque(result: DiscrepancyResult, u: NDArray[np.float64], y: NDArray[np.float64],
-                       torque: NDArray[np.float64], delta: float, period: float, model: PlantModel | None,
-                       options: DiagnoseOptions, say: Callable[[str], None]) -> DiscrepancyResult:
-    """``result``, or, when it leaves gravity open (beside the sensor errors that read like its sag,
+                       torque: NDArray[np.float64], nm_per_unit: float | None, delta: float, period: float,
+                       model: PlantModel | None, options: DiagnoseOptions,
+                       say: Callable[[str], None]) -> DiscrepancyResult:
+    """``result``, or, when it names gravity or leaves it open (beside the sensor errors that read like its sag,
     :data:`SAG_LOOK_ALIKES`, or its shape undecided over a short span of angles), the drive's torque checked for
     the weight (:func:`.drive_torque.load_torque_check`):
-    when the drive carries it, the record diagnosed again without those sensor errors (the weight is shown,
-    they are not needed for the sag) and without asking the angle for the sine's shape, which the torque showed
-    (its harmonic is the part of a sine the lags, which hold the angle itself, cannot take: the bend a spring or
-    a constant torque has not); otherwise the result as it was, the check's figures added to its reason
-    (what the torque bounds). The check is in ``load_torque_check`` either way."""
+
+    - when the torque excludes the weight the sag would need (:func:`_weight_torque`), the record diagnosed
+      again without gravity, the sensor errors that read like its sag searched with the rest (not only tried as
+      look-alikes of what is named): a weight named from the angle alone is overruled too;
+    - when the drive carries the weight gravity left open, the record diagnosed again without those sensor errors
+      (the weight is shown, they are not needed for the sag) and without asking the angle for the sine's shape,
+      which the torque showed (its harmonic is the part of a sine the lags, which hold the angle itself, cannot
+      take: the bend a spring or a constant torque has not);
+    - otherwise the result as it was, the check's figures added to its reason (what the torque bounds).
+
+    The check is in ``load_torque_check`` either way."""
     left_open = set(result.ambiguous_between) | {candidate.effect for candidate in result.undecided}
-    if "gravity" not in left_open:
+    named = "gravity" in result.missing_effects
+    if "gravity" not in left_open and not named:
         return result
-    check = load_torque_check(u, y, torque, result.start_model, period)
+    check = load_torque_check(u, y, torque, result.start_model, period, _weight_torque(result, model, nm_per_unit))
     say(f"drive torque: {check.text()}")
-    if check.outcome != "load_torque":
+    if check.outcome == "no_load_torque":  # the sensor errors that read like the sag are searched, not only tried
+        sensor = SAG_LOOK_ALIKES if set(SEARCHED_EFFECT_NAMES) <= set(options.candidates) else ()  # as look-alikes
+        kept = tuple(dict.fromkeys((*(name for name in options.candidates if name != "gravity"), *sensor)))
+        again = _diagnosed_record(u, y, delta, period, model, replace(options, candidates=kept), say)
+        return replace(again, load_torque_check=check, verdict_reason=(
+            f"{again.verdict_reason.rstrip('.')}. The drive's torque: {check.text()} (gravity not tried)."))
+    if check.outcome == "undecided" or named:
         return replace(result, load_torque_check=check,
                        verdict_reason=f"{result.verdict_reason.rstrip('.')}. The drive's torque: {check.text()}.")
     kept = tuple(name for name in options.candidates if name not in SAG_LOOK_ALIKES)
@@ -201,6 +226,23 @@ def _with_drive_torque(result: DiscrepancyResult, u: NDArray[np.float64], y: NDA
     return replace(again, load_torque_check=check, verdict_reason=(
         f"{again.verdict_reason.rstrip('.')}. The drive's torque: {check.text()} ({', '.join(SAG_LOOK_ALIKES)} not "
         "tried)."))
+
+
+def _weight_torque(result: DiscrepancyResult, model: PlantModel | None, nm_per_unit: float | None) -> float:
+    """W of :mod:`.drive_torque`: the once-per-revolution torque, in the torque record's unit, that the weight
+    fitted to the sag (the best fit of the gravity candidate, m g l at the load) puts on the drive: over the
+    start model's gear ratio and ``nm_per_unit``. NaN unless the user's ``model`` holds a
+    :class:`~identify.drive_train.DriveTrain` (a train the workflow made from a linear model has no physical
+    inertia) and the scale is known."""
+    trains = [block for block in result.start_model.blocks if isinstance(block, DriveTrain)]
+    fits = [candidate for candidate in result.candidates
+            if candidate.effect == "gravity" and math.isfinite(candidate.parameters.get(GRAVITY_KEY, math.nan))]
+    if nm_per_unit is None or model is None or not trains or not fits or not any(
+            isinstance(block, DriveTrain) for block in model.blocks):
+        return math.nan
+    best = min(fits, key=lambda candidate: candidate.gap_rad)
+    train = trains[0]
+    return best.parameters[GRAVITY_KEY] * train.total_inertia_kg_m2 / train.gear_ratio / nm_per_unit
 
 
 def _restarted_if_open(first: DiscrepancyResult, u: NDArray[np.float64], y: NDArray[np.float64], delta: float,

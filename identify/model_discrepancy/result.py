@@ -216,9 +216,9 @@ class DiscrepancyResult:
         wrap, glitches); the workflow ran on the record with a wrap undone and glitches left out, and a record
         with findings is never ``explained``.
     load_torque_check
-        What the drive's torque says of a weight the angle left open beside a sensor error
+        What the drive's torque says of a weight the angle named or left open beside a sensor error
         (:class:`~identify.model_discrepancy.drive_torque.LoadTorqueCheck`); None without a torque, or when the
-        angle left no weight open.
+        angle neither named a weight nor left one open.
     """
 
     steps: tuple[DiscrepancyStep, ...]
@@ -339,7 +339,7 @@ class DiscrepancyReport:
     ``restart_window_samples`` (null: the models were compared by their free runs; a number: on windows of that
     many samples restarting the load from the measured angle, :mod:`.comparison`); version 7 ``load_torque_check``
     (what the drive's torque says of a weight, :class:`~identify.model_discrepancy.drive_torque.LoadTorqueCheck`;
-    null when no torque was given or the angle left no weight open). :meth:`from_dict` reads versions 1 to 6 too (no undecided candidates, no intervals; no refits; no findings; no residual structure;
+    null when no torque was given or the angle neither named a weight nor left one open). :meth:`from_dict` reads versions 1 to 6 too (no undecided candidates, no intervals; no refits; no findings; no residual structure;
     free runs)."""
 
     def __post_init__(self) -> None:

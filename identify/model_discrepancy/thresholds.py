@@ -634,6 +634,14 @@ TORQUE_SIGNIFICANT_SIGMAS = 5.0
 TORQUE_ABSENT_SIGMAS = 3.0
 """An absent once-per-revolution torque is stated as under its value plus this many standard deviations."""
 
+# Evidence: a judgement, against a start model whose servo or shaft is off: a weight W' = S / C_true sags the angle
+# by S; fitted through a model of compliance C it is W = S / C, so W' = W C / C_true, and the torque shows W' >=
+# W / margin while the model is at most `margin` times too stiff. A servo gain is rarely off by 3 (a bandwidth by
+# 1.7). Measured: benchmarks/model_discrepancy_confusion.py --start train, with the start model's bandwidth off.
+TORQUE_EXCLUSION_MARGIN = 3.0
+"""How many times under the torque W a weight giving the sag would put on the drive (through the start model's
+servo and shaft) the torque's upper bound must stay for the weight to be excluded."""
+
 # Evidence: a judgement: half a radian (29 degrees) between the hanging angles of the torque and of the sag,
 # whose phases a short range of angles fixes only roughly.
 TORQUE_PHASE_TOLERANCE_RAD = 0.5

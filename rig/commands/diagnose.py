@@ -24,7 +24,9 @@ note, and a record that starts at rest is run from rest at its first command. Wi
 model is the best linear model of order 1 or 2 (chosen by validation error). The noise bound must cover the
 encoder's half count. With the drive's torque in the file (--columns ...,tau=NAME: a CiA 402 torque actual
 value or a motor current, any unit), a weight on the load that the angle alone cannot tell from a sensor error
-is checked in the torque the drive gives.
+is checked in the torque the drive gives. A rig log also gives the torque's scale (its summary's
+drive_torque_nm_per_unit, from the drive's rated torque 0x6076); with it and a --model holding a drive train,
+a torque too small for the weight the sag would need excludes the weight.
 
 Example (a K-Scale STS3215 record, 4096 counts/rev: noise bound of a few counts):
   rig diagnose sysid.json --columns t=timestamp,u=goal_position,y=position --valid torque_enable \
@@ -155,13 +157,21 @@ def diagnose_file(path_text: str, options: dict):
     try:
         result = diagnose_model(record.command_rad, angle_rad, options["noise_bound"],
                                 record.metadata.sample_period_s, model, candidates=candidates,
-                                drive_torque=record.drive_torque, progress=progress)
+                                drive_torque=record.drive_torque,
+                                drive_torque_nm_per_unit=_torque_scale(record), progress=progress)
     except InvalidInputError as err:
         raise InvalidInputError(f"{path_text}: {err}") from err
     index = None
     if options["report"] is not None:
         index = _write_report(path_text, result, record, options)
     return result, int(record.command_rad.size), index, imported, set_aside
+
+
+def _torque_scale(record) -> float | None:
+    """N m per unit of the record's torque column, where a rig log's summary gives it (else None)."""
+    summary = record.metadata.extra.get("summary")
+    scale = summary.get("drive_torque_nm_per_unit") if isinstance(summary, dict) else None
+    return None if record.drive_torque is None or not isinstance(scale, (int, float)) or scale <= 0 else float(scale)
 
 
 def _write_report(path_text: str, result, record, options: dict):

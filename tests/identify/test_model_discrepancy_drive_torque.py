@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from identify.model_discrepancy import DiscrepancyReport, diagnose_model
-from identify.model_discrepancy.drive_torque import load_torque_check
+from identify.model_discrepancy.drive_torque import LoadTorqueCheck, load_torque_check
 from identify.plant_blocks import PlantModel
 from identify.validation import InvalidInputError
 
@@ -44,9 +44,9 @@ class _AbsoluteBlock:
         return self.block.apply(np.asarray(u) - self.u0) + self.u0
 
 
-def _check(record: dict):
+def _check(record: dict, weight_torque: float = math.nan):
     return load_torque_check(record["command_rad"], record["angle_rad"], record["torque_nm"], _AbsoluteBlock(record),
-                             float(record["nominal"]["sample_period_s"]))
+                             float(record["nominal"]["sample_period_s"]), weight_torque)
 
 
 @pytest.mark.parametrize("servo", ["kinematic", "cascade"])
@@ -68,6 +68,21 @@ def test_no_weight_is_shown_where_the_drive_carries_none(effect, seed, excitatio
     check = _check(_record(effect, seed, excitation))
     assert check.outcome == "undecided", check.text()
     assert check.torque <= 4.0 * check.torque_sigma
+
+
+def test_a_torque_well_under_what_the_sags_weight_would_put_on_the_drive_excludes_the_weight():
+    # the eccentric record's sag is 7 standard deviations from zero, its torque holds none; W is what a weight
+    # giving that sag would put on the drive (the pipeline takes it from the start model's drive train)
+    record = _record("eccentricity", 1000, "steps", "cascade")
+    check = _check(record)
+    assert check.outcome == "undecided" and check.sag_rad >= 5.0 * check.sag_sigma_rad, check.text()
+    bound = check.torque + 3.0 * check.torque_sigma
+    excluded = _check(record, weight_torque=3.3 * bound)
+    assert excluded.outcome == "no_load_torque" and "the sag is the sensor's" in excluded.text()
+    assert _check(record, weight_torque=2.7 * bound).outcome == "undecided"  # within the model's margin of 3
+    assert LoadTorqueCheck.from_dict(json.loads(json.dumps(excluded.to_dict()))) == excluded
+    older = {key: value for key, value in check.to_dict().items() if key != "weight_torque"}
+    assert math.isnan(LoadTorqueCheck.from_dict(older).weight_torque)  # a document written before W was known
 
 
 def test_a_torque_the_harmonic_only_projects_on_is_not_taken_for_a_weight():
@@ -97,6 +112,46 @@ def test_the_angle_alone_leaves_the_weight_open_and_the_torque_leaves_a_sensor_e
 
 
 @pytest.mark.slow
+def test_a_drive_train_model_lets_the_torque_exclude_the_weight_and_leave_the_sensor_errors_open():
+    # the start model is the generator's nominal servo as our drive train, with physical units: the weight the
+    # sag needs (0.25 N m at the drive, gear ratio 1, the torque in N m) is 7 times the torque's upper bound, so
+    # gravity is excluded, and the sensor errors that read like the sag are searched: over this record's angles
+    # the once-per-revolution error and an offset stay alike (both listed, neither named)
+    record = _record("eccentricity", 1004, "steps", "cascade")
+    model = PlantModel((confusion.nominal_drive_train(record["nominal"]),))
+    result = diagnose_model(record["command_rad"], record["angle_rad"],
+                            confusion.independent_noise_bound(record["nominal"]), 1e-3, model,
+                            drive_torque=record["torque_nm"], drive_torque_nm_per_unit=1.0)
+    check = result.load_torque_check
+    assert check is not None and check.outcome == "no_load_torque", result.verdict_reason
+    assert check.weight_torque > 3.0 * (check.torque + 3.0 * check.torque_sigma)
+    assert "gravity" not in (*result.missing_effects, *result.ambiguous_between)
+    assert "encoder_error" in (*result.missing_effects, *result.ambiguous_between), result.verdict_reason
+    assert "no weight is carried" in result.verdict_reason and "gravity not tried" in result.verdict_reason
+
+
+@pytest.mark.slow
+def test_a_weight_named_from_the_angle_because_no_working_encoder_errs_so_much_is_overruled_by_the_torque():
+    # a once-per-revolution sensor error of 30 mrad (beyond the 20 mrad of a working encoder): from the angle alone
+    # the sag is gravity's, and the reason says what else would give it; the drive carries no weight
+    record = confusion.generator_module().generate(
+        "eccentricity", 1000, excitation="steps", duration_s=confusion.INDEPENDENT_DURATION_S["steps"], bits=12,
+        noise_rad=confusion.NOISE_STD_RAD, torque_noise_nm=TORQUE_NOISE_NM, nominal={"servo": "cascade"},
+        a1_rad=0.03, a2_rad=0.0)
+    model = PlantModel((confusion.nominal_drive_train(record["nominal"]),))
+    delta = confusion.independent_noise_bound(record["nominal"])
+    alone = diagnose_model(record["command_rad"], record["angle_rad"], delta, 1e-3, model)
+    assert alone.missing_effects == ("gravity",)
+    assert "encoder_error would give the output of gravity as well" in alone.verdict_reason
+    assert "beyond the 0.02 rad of a working encoder" in alone.verdict_reason
+    result = diagnose_model(record["command_rad"], record["angle_rad"], delta, 1e-3, model,
+                            drive_torque=record["torque_nm"], drive_torque_nm_per_unit=1.0)
+    assert result.missing_effects == ("encoder_error",) and result.load_torque_check.outcome == "no_load_torque"
+    error = result.steps[0].parameters
+    assert error["once_per_rev_rad"] == pytest.approx(0.03, rel=0.1)
+
+
+@pytest.mark.slow
 def test_the_torque_shows_the_sine_the_angles_short_span_cannot():
     # a multisine's angles span 0.9 rad: the weight's sag departs from a straight line by less than the noise
     # bound there, so the angle alone names gravity and leaves its shape open; the torque's harmonic is the bend
@@ -113,6 +168,8 @@ def test_a_torque_of_another_length_is_refused_by_name():
     u = np.sin(np.linspace(0.0, 20.0, 400))
     with pytest.raises(InvalidInputError, match="drive_torque"):
         diagnose_model(u, u, 1e-3, 1e-3, drive_torque=np.zeros(399))
+    with pytest.raises(InvalidInputError, match="drive_torque_nm_per_unit"):
+        diagnose_model(u, u, 1e-3, 1e-3, drive_torque=np.zeros(400), drive_torque_nm_per_unit=0.0)
 
 
 def _files(tmp_path, record: dict) -> tuple[Path, Path]:
@@ -144,6 +201,25 @@ def test_the_torque_is_read_alike_from_a_named_column_and_from_a_rig_log(tmp_pat
     np.testing.assert_array_equal(from_csv.drive_torque, record["torque_nm"])
     np.testing.assert_array_equal(from_log.drive_torque, record["torque_nm"])
     np.testing.assert_array_equal(from_log.angle_rad, from_csv.angle_rad)
+
+
+def test_rig_diagnose_takes_the_torques_scale_from_a_rig_logs_summary_only(tmp_path):
+    from identify.experiment_record import ExperimentMetadata
+    from rig.commands.diagnose import _torque_scale
+    from rig.log_file import LogWriter
+    from rig.record_import import ImportOptions, read_measurement
+
+    record = _record("gravity", 1004, "steps", "cascade")
+    csv, log = _files(tmp_path, record)
+    assert _torque_scale(read_measurement(log)[0]) is None  # no summary: a log of a run that did not end
+    summarised = tmp_path / "summarised.csv"
+    with LogWriter(summarised, ExperimentMetadata(sample_period_s=1e-3), drive_torque_unit="permille_of_rated_torque") as out:
+        for k in range(50):
+            out.append(k * 1e-3, 0.01 * k, 0.01 * k, drive_torque=float(k))
+        out.write_summary({"drive_torque_nm_per_unit": 0.00239})
+    assert _torque_scale(read_measurement(summarised)[0]) == 0.00239
+    columns = ImportOptions(columns={"t": "t", "u": "u", "y": "y", "tau": "torque"})
+    assert _torque_scale(read_measurement(csv, columns)[0]) is None  # another tool's column: no scale known
 
 
 @pytest.mark.slow

@@ -28,8 +28,8 @@ EXCEPTIONS = {
 
 
 UNIT_SUFFIX = re.compile(r"_(rad|s|hz|nm|samples|db|kg|m|kg_m2|per_s|rad_per_s|rad_per_s2|rad_per_sample|m_per_s2"
-                         r"|nm_per_rad|nm_s_per_rad|percent)$")
-"""Rule 3's units (and the SI compounds the drive train uses)."""
+                         r"|nm_per_rad|nm_s_per_rad|nm_per_unit|percent)$")
+"""Rule 3's units (and the SI compounds the drive train uses; N m per unit of a signal recorded in its own unit)."""
 
 DIMENSIONLESS = {
     # ratios, fractions, gains and slopes (rad per rad): a dimensionless quantity carries no suffix (rule 3)
