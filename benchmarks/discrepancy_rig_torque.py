@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import re
 import tempfile
 import time
 from pathlib import Path
@@ -93,7 +94,14 @@ def diagnose(log: Path, model_text: str, noise_bound_rad: float, with_torque: bo
                             plant_config_from_toml_text(model_text).plant,
                             drive_torque=record.drive_torque if with_torque else None,
                             drive_torque_nm_per_unit=record.metadata.extra["summary"].get("drive_torque_nm_per_unit"))
-    names = ", ".join(result.missing_effects) or (" or ".join(result.ambiguous_between) or "-")
+    names = ", ".join(result.missing_effects) or "nothing named"
+    left_open = result.ambiguous_between or tuple(candidate.effect for candidate in result.undecided)
+    if left_open:
+        names += f"; left open: {' or '.join(left_open)}"
+    beyond = re.search(r"encoder_error would give the output of \w+ as well, but only as an error of (\S+) rad",
+                       result.verdict_reason)
+    if beyond:  # a look-alike fitted beyond what a working device has: the reason says so
+        names += f" (an encoder error of {beyond.group(1)} rad would fit, beyond a working encoder's)"
     check = result.load_torque_check
     check = "" if check is None else (f"; torque check {check.outcome} (T {check.torque:.3g} +- {check.torque_sigma:.2g}, "
                                       f"a weight giving the sag: W {check.weight_torque:.3g})")

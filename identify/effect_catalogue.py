@@ -108,7 +108,7 @@ count)."""
 # matched within the noise bound by encoder errors of 0.1 rad (hidden gain_error seeds 91 and 92).
 ENCODER_ERROR_MAX_RAD = 0.02
 """The largest once- plus twice-per-revolution error (rad) a working encoder has: a fitted encoder error
-beyond it is no look-alike of another effect (catalogue ``implausible``)."""
+beyond it is no look-alike of a gain error (catalogue ``implausible``, ``bounded_look_alikes``)."""
 
 MAX_RESONANCE_DAMPING = 0.3
 """A resonance is a narrow peak: a fitted damping ratio is kept below this (a heavily damped second-order
@@ -297,9 +297,12 @@ class Effect:
         to invent the shaft as well.
     implausible
         Fitted block -> why no working device of its kind has it (an encoder's once- and twice-per-revolution
-        error beyond :data:`ENCODER_ERROR_MAX_RAD`), or "" where one could; None: any fit is plausible. A
-        look-alike fitted beyond it is not reported as one, only said: over a small range of angles a sensor
-        error of several degrees would mimic an 8 % gain error.
+        error beyond :data:`ENCODER_ERROR_MAX_RAD`), or "" where one could; None: any fit is plausible.
+    bounded_look_alikes
+        Look-alikes that count as this effect's only at a size a working device has (their ``implausible``): they
+        give this effect's output only with harmonics far larger than the effect, which cancel each other (over
+        a small range of angles a sensor error of 0.1 rad, once and twice per revolution, is an 8 % gain error's
+        line). One fitted beyond it is not reported as a look-alike, only said.
     """
 
     name: str
@@ -337,6 +340,7 @@ class Effect:
     order_look_alike: bool = False
     needs_shaft: bool = False
     implausible: Callable[[Any], str] | None = None
+    bounded_look_alikes: tuple[str, ...] = ()
 
     def in_train(self, values: Sequence[float], train: DriveTrain) -> DriveTrain:
         """``train`` with this dynamics effect's fields set from its free ``values``."""
@@ -616,7 +620,7 @@ EFFECTS: dict[str, Effect] = {effect.name: effect for effect in (
         vanished=lambda b, delta: abs(b.gain - 1.0) < NEGLIGIBLE_GAIN_ERROR,
         random_block=lambda rng, u, f, period: OutputGain(gain=1.0 + rng.choice((-1.0, 1.0)) * rng.uniform(0.03, 0.15)),
         signature="r ~ e y^: the measured output is (1 + e) times the model's",
-        needs_given_model=True, look_alikes=("encoder_error",),
+        needs_given_model=True, look_alikes=("encoder_error",), bounded_look_alikes=("encoder_error",),
     ),
     Effect(
         name="encoder_error", block_class=EncoderError, toml_type="encoder_error",

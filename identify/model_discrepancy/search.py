@@ -99,9 +99,9 @@ class _Search:
     """Set when a named effect's map is also another mechanism's (:func:`_mechanisms_left_open`): said after
     what the named map explains."""
     beyond_device_reason: str = ""
-    """Set when a look-alike would give a named effect's output only at a size no working device has (catalogue
-    ``implausible``, :func:`_look_alikes_checked`): said after the verdict, so that the user who has such a device
-    knows what else the record allows."""
+    """Set when a bounded look-alike would give a named effect's output only at a size no working device has
+    (catalogue ``bounded_look_alikes``, :func:`_look_alikes_checked`): said after the verdict, so that the user
+    who has such a device knows what else the record allows."""
 
 
 def _vanished(candidate: _Candidate, u: NDArray[np.float64], delta: float) -> bool:
@@ -583,14 +583,14 @@ def _look_alikes_checked(found: _Search, u: NDArray[np.float64], y: NDArray[np.f
         theirs = simulated(chain.model(), u, y)
         return float(np.mean(np.abs(named_output - theirs)[measured] > delta))
 
-    beyond: list[str] = []  # look-alikes fitted at a size no working device has (catalogue ``implausible``)
+    beyond: list[str] = []  # bounded look-alikes fitted at a size no working device has
 
     def fitted_in_place(alike: str, reduced: _Chain, before: Disagreement,
-                        named_effect: str) -> tuple[_Candidate, float] | None:
+                        member: str) -> tuple[_Candidate, float] | None:
         """``alike`` fitted into ``reduced`` and the share of the record's measured samples where its output
-        is further than the noise bound from the named model's; None when it vanishes or no working device has
-        it (catalogue ``implausible``). Fitted to the data
-        on the estimation segment, a look-alike with more freedom than the effect (a sensor error's second
+        is further than the noise bound from the named model's; None when it vanishes, or when it is one of the
+        ``member``'s bounded look-alikes and no working device has it (catalogue ``bounded_look_alikes``).
+        Fitted to the data on the estimation segment, a look-alike with more freedom than the effect (a sensor error's second
         harmonic) can extrapolate far off over angles only the validation segment reaches: when its output is
         apart, it is fitted again to follow the named model's output over the whole record, which is the
         question asked (can any such look-alike give what the effect gives)."""
@@ -607,9 +607,10 @@ def _look_alikes_checked(found: _Search, u: NDArray[np.float64], y: NDArray[np.f
             matched_apart = apart_from_named(matched)
             if matched_apart < apart:
                 other, apart = _judged(alike, matched, other.index, u, y, n_est), matched_apart
-        why = "" if entry.implausible is None else entry.implausible(other.block)
+        bounded = alike in EFFECTS[member].bounded_look_alikes and entry.implausible is not None
+        why = entry.implausible(other.block) if bounded else ""
         if why:
-            beyond.append(f"{alike} would give the output of {named_effect} as well, but only as {why}, so it is not "
+            beyond.append(f"{alike} would give the output of {member} as well, but only as {why}, so it is not "
                           "taken for a look-alike (a damaged sensor would need a second encoder to show)")
             return None
         return other, apart
@@ -627,7 +628,7 @@ def _look_alikes_checked(found: _Search, u: NDArray[np.float64], y: NDArray[np.f
                 if (not allowed(alike) or alike == step.effect or any(alike == g[0] for g in group)
                         or _insert_index(reduced, alike) < 0):
                     continue
-                fit = fitted_in_place(alike, reduced, before, step.effect)
+                fit = fitted_in_place(alike, reduced, before, member)
                 if fit is None:
                     continue
                 if fit[1] > apart_allowed and fit[0].gap_rad > found.current.gap_rad and not _within_uncertainty(

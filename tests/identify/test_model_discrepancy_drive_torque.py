@@ -131,24 +131,19 @@ def test_a_drive_train_model_lets_the_torque_exclude_the_weight_and_leave_the_se
 
 
 @pytest.mark.slow
-def test_a_weight_named_from_the_angle_because_no_working_encoder_errs_so_much_is_overruled_by_the_torque():
-    # a once-per-revolution sensor error of 30 mrad (beyond the 20 mrad of a working encoder): from the angle alone
-    # the sag is gravity's, and the reason says what else would give it; the drive carries no weight
+def test_a_large_sensor_error_the_angle_leaves_open_beside_a_weight_is_named_by_the_torque():
+    # a once-per-revolution sensor error of 30 mrad: from the angle alone gravity or the sensor error; the drive
+    # carries no weight (a weight giving the sag would put 3.8 N m on it), and the sensor error is named and sized
     record = confusion.generator_module().generate(
         "eccentricity", 1000, excitation="steps", duration_s=confusion.INDEPENDENT_DURATION_S["steps"], bits=12,
         noise_rad=confusion.NOISE_STD_RAD, torque_noise_nm=TORQUE_NOISE_NM, nominal={"servo": "cascade"},
         a1_rad=0.03, a2_rad=0.0)
     model = PlantModel((confusion.nominal_drive_train(record["nominal"]),))
-    delta = confusion.independent_noise_bound(record["nominal"])
-    alone = diagnose_model(record["command_rad"], record["angle_rad"], delta, 1e-3, model)
-    assert alone.missing_effects == ("gravity",)
-    assert "encoder_error would give the output of gravity as well" in alone.verdict_reason
-    assert "beyond the 0.02 rad of a working encoder" in alone.verdict_reason
-    result = diagnose_model(record["command_rad"], record["angle_rad"], delta, 1e-3, model,
+    result = diagnose_model(record["command_rad"], record["angle_rad"],
+                            confusion.independent_noise_bound(record["nominal"]), 1e-3, model,
                             drive_torque=record["torque_nm"], drive_torque_nm_per_unit=1.0)
     assert result.missing_effects == ("encoder_error",) and result.load_torque_check.outcome == "no_load_torque"
-    error = result.steps[0].parameters
-    assert error["once_per_rev_rad"] == pytest.approx(0.03, rel=0.1)
+    assert result.steps[0].parameters["once_per_rev_rad"] == pytest.approx(0.03, rel=0.1)
 
 
 @pytest.mark.slow

@@ -6,6 +6,7 @@ lists both and says what experiment would tell them apart. Records of the clean-
 
 from __future__ import annotations
 
+import re
 import sys
 from pathlib import Path
 
@@ -13,7 +14,8 @@ import numpy as np
 import pytest
 
 from identify.discrepancy_cases import hidden_effect_record
-from identify.effect_catalogue import ANGLE_SHAPE_EXPERIMENT, EFFECTS, LOOK_ALIKE_EXPERIMENTS, effect
+from identify.effect_catalogue import (ANGLE_SHAPE_EXPERIMENT, EFFECTS, ENCODER_ERROR_MAX_RAD,
+                                       LOOK_ALIKE_EXPERIMENTS, effect)
 from identify.model_discrepancy import diagnose_model
 from identify.drive_train import DriveTrain
 from identify.plant_blocks import EncoderError, LinearBlock, PlantModel
@@ -149,3 +151,15 @@ def test_a_hidden_encoder_error_whose_look_alike_fits_better_is_not_named_gravit
                             record.nominal_model)
     assert result.verdict == "ambiguous" and "gravity" not in result.missing_effects, result.verdict_reason
     assert {"gravity", "encoder_error"} <= set(result.ambiguous_between)
+
+
+def test_a_gain_error_is_named_where_only_a_sensor_error_no_working_encoder_has_would_give_it_too():
+    # a 8 % gain error over +-0.8 rad: once- and twice-per-revolution harmonics of 0.1 rad that cancel each other
+    # give the same line within the noise bound, but no working encoder errs so much; the reason says so
+    record = hidden_effect_record(("gain_error",), 91)
+    result = diagnose_model(record.command_rad, record.angle_rad, record.noise_bound_rad, record.sample_period_s,
+                            record.nominal_model)
+    assert result.verdict == "named" and result.missing_effects == ("gain_error",), result.verdict_reason
+    said = re.search(r"encoder_error would give the output of gain_error as well, but only as an error of (\S+) rad",
+                     result.verdict_reason)
+    assert said and float(said.group(1)) > ENCODER_ERROR_MAX_RAD, result.verdict_reason
