@@ -28,7 +28,8 @@ Placement (``Effect.placement``):
   on are known only as T / J), and its TOML form is the ``drive_train`` table's keys it sets.
 
 Adding an effect: write its block (a frozen dataclass with ``apply`` and ``stepper``, as in
-:mod:`identify.plant_blocks`), add one :class:`Effect` here, and, if its residual has a signature of its own,
+:mod:`identify.plant_blocks`), its guesses and builder (:mod:`identify.series_effects` for a signal-chain
+effect), add one :class:`Effect` here, and, if its residual has a signature of its own,
 score it under the same name in :func:`identify.effect_signatures.signature_scores`. The TOML reader and
 writer, the workflow's candidates, the hidden-effect cases and the confusion benchmark pick it up. A dynamics
 effect is one entry too: its ``train_fields`` (in :mod:`identify.drive_train_effects`, with its guesses and
@@ -86,6 +87,26 @@ from identify.plant_blocks import (
     Resonance,
     Saturation,
 )
+from identify.series_effects import (
+    ENCODER_ERROR_MAX_RAD,
+    MAX_RESONANCE_DAMPING,
+    NEGLIGIBLE_GAIN_ERROR,
+    backlash_guesses,
+    build_backlash,
+    build_encoder_error,
+    build_friction,
+    build_resonance,
+    build_saturation,
+    dead_zone_guesses,
+    encoder_error_guesses,
+    encoder_error_implausible,
+    friction_guesses,
+    gain_guesses,
+    random_friction,
+    random_saturation,
+    resonance_guesses,
+    saturation_guesses,
+)
 from identify.validation import InvalidInputError
 
 if TYPE_CHECKING:
@@ -96,28 +117,6 @@ __all__ = ["ANGLE_SHAPE_EXPERIMENT", "DYNAMICS_EFFECTS", "EFFECTS", "EFFECT_NAME
            "SAME_MAP_READINGS",
            "PLACEMENTS", "SEARCHED_EFFECT_NAMES", "ENCODER_ERROR_MAX_RAD", "Effect",
            "GuessContext", "Parameter", "TomlKey", "effect", "effect_for_block", "effect_for_toml_type"]
-
-NEGLIGIBLE_GAIN_ERROR = 1.0e-3
-"""A fitted gain within this of 1 is no gain error: a 0.1 % scale error is below what the workflow resolves
-on records of a few thousand samples with a 12-bit encoder (it moves a 1 rad step by 1 mrad, about half a
-count)."""
-
-# Evidence: a judgement of the largest error of a working encoder: an on-axis magnetic sensor whose magnet is off
-# centre shows about a degree, an optical encoder arc-minutes; the generators' eccentricities are 0.5-8 mrad. Set
-# when the gain error got the encoder error as its look-alike: our 6-8 % gain errors over +-0.8 rad were
-# matched within the noise bound by encoder errors of 0.1 rad (hidden gain_error seeds 91 and 92).
-ENCODER_ERROR_MAX_RAD = 0.02
-"""The largest once- plus twice-per-revolution error (rad) a working encoder has: a fitted encoder error
-beyond it is no look-alike of a gain error (catalogue ``implausible``, ``bounded_look_alikes``)."""
-
-MAX_RESONANCE_DAMPING = 0.3
-"""A resonance is a narrow peak: a fitted damping ratio is kept below this (a heavily damped second-order
-section would otherwise stand in for a delay)."""
-
-FRICTION_STIFFNESS_NM_PER_RAD = 1.0
-"""The workflow fits Coulomb friction as twists (torques over a unit stiffness): from position data only the
-ratio torque/stiffness is identifiable."""
-
 
 @dataclass(frozen=True)
 class Parameter:
@@ -297,7 +296,7 @@ class Effect:
         to invent the shaft as well.
     implausible
         Fitted block -> why no working device of its kind has it (an encoder's once- and twice-per-revolution
-        error beyond :data:`ENCODER_ERROR_MAX_RAD`), or "" where one could; None: any fit is plausible.
+        error beyond :data:`~identify.series_effects.ENCODER_ERROR_MAX_RAD`), or "" where one could; None: any fit is plausible.
     bounded_look_alikes
         Look-alikes that count as this effect's only at a size a working device has (their ``implausible``): they
         give this effect's output only with harmonics far larger than the effect, which cancel each other (over
@@ -378,115 +377,6 @@ class Effect:
 # ----------------------------------------------------------------------------------------------------------
 
 
-def _backlash_guesses(context: GuessContext) -> list[tuple[float, ...]]:
-    levels = context.levels()
-    return [(left, right) for left in levels for right in levels]
-
-
-def _friction_guesses(context: GuessContext) -> list[tuple[float, ...]]:
-    slides = np.geomspace(context.noise_bound_rad, 2.0 * context.residual_amplitude_rad, 14)
-    return [(r * c, c) for c in slides for r in (1.0, 1.25, 1.5, 1.8, 2.2, 2.8)]
-
-
-def _dead_zone_guesses(context: GuessContext) -> list[tuple[float, ...]]:
-    # each edge on its own: a record may barely reach one side's edge, and a symmetric guess misses it
-    span = float(np.max(np.abs(context.command_rad)))
-    edges = np.geomspace(max(context.noise_bound_rad, 1e-3 * span), 0.3 * span, 6)
-    return [(left, right) for left in edges for right in edges]
-
-
-def _saturation_guesses(context: GuessContext) -> list[tuple[float, ...]]:
-    # each limit from the commands on its side: travel limits need not be symmetric
-    u = context.command_rad
-    levels = (0.3, 0.5, 0.7, 0.85, 0.95)
-    below = np.quantile(-u[u < 0], levels) if np.any(u < 0) else np.zeros(1)
-    above = np.quantile(u[u > 0], levels) if np.any(u > 0) else np.zeros(1)
-    return [(float(low), float(high)) for low in below for high in above]
-
-
-def _resonance_guesses(context: GuessContext) -> list[tuple[float, ...]]:
-    nyquist = 0.5 / context.sample_period_s
-    score = context.scores.get("resonance")
-    peak = score.details.get("peak_frequency_hz", 0.1 * nyquist) if score is not None else 0.1 * nyquist
-    frequencies = [f for f in (peak, *np.geomspace(0.02 * nyquist, 0.8 * nyquist, 16)) if 0.0 < f < 0.98 * nyquist]
-    return [*context.modes, *((f, z) for f in frequencies for z in (0.02, 0.05, 0.1))]
-
-
-def _gain_guesses(context: GuessContext) -> list[tuple[float, ...]]:
-    score = context.scores.get("gain_error")
-    relative_error = score.details.get("relative_error", 0.0) if score is not None else 0.0
-    return [(relative_error,), *((e,) for e in (-0.2, -0.05, 0.05, 0.2))]
-
-
-def _build_encoder_error(v: Sequence[float], period: float) -> Block:
-    # free values (a1 cos p1, a1 sin p1, a2 cos p2, a2 sin p2): any real vector is a valid error, and the
-    # output is linear in them (a1 sin(x + p1) = a1 cos p1 sin x + a1 sin p1 cos x)
-    return EncoderError(once_per_rev_rad=math.hypot(v[0], v[1]), once_per_rev_phase_rad=math.atan2(v[1], v[0]),
-                        twice_per_rev_rad=math.hypot(v[2], v[3]), twice_per_rev_phase_rad=math.atan2(v[3], v[2]))
-
-
-def _encoder_error_implausible(block: EncoderError) -> str:
-    size = block.once_per_rev_rad + block.twice_per_rev_rad
-    if size <= ENCODER_ERROR_MAX_RAD:
-        return ""
-    return (f"an error of {size:.3g} rad once and twice per revolution, beyond the {ENCODER_ERROR_MAX_RAD:g} rad of a "
-            "working encoder")
-
-
-def _encoder_error_guesses(context: GuessContext) -> list[tuple[float, ...]]:
-    # the least-squares fit of the signature (the residual on sin y^, cos y^, sin 2y^, cos 2y^), and a small
-    # error at the noise bound
-    score = context.scores.get("encoder_error")
-    small = (context.noise_bound_rad, 0.0, 0.0, 0.0)
-    if score is None or not score.details:
-        return [small]
-    d = score.details
-    return [(d["sin_rad"], d["cos_rad"], d["sin2_rad"], d["cos2_rad"]), small]
-
-
-def _build_backlash(v: Sequence[float], period: float) -> Block:
-    return OutputBacklash(m_l=1.0, c_l_rad=max(abs(v[0]), 1e-12), m_r=1.0, c_r_rad=max(abs(v[1]), 1e-12))
-
-
-def _build_saturation(v: Sequence[float], period: float) -> Block:
-    lower, upper = -abs(v[0]), abs(v[1])
-    return Saturation(lower_rad=lower, upper_rad=max(upper, lower + 1e-9))
-
-
-def _build_friction(v: Sequence[float], period: float) -> Block:
-    slide = abs(v[1])
-    stick = max(abs(v[0]), slide, 1e-12)
-    return CoulombFriction(breakaway_torque_nm=stick * FRICTION_STIFFNESS_NM_PER_RAD,
-                           coulomb_torque_nm=slide * FRICTION_STIFFNESS_NM_PER_RAD,
-                           stiffness_nm_per_rad=FRICTION_STIFFNESS_NM_PER_RAD)
-
-
-def _build_resonance(v: Sequence[float], period: float) -> Block:
-    nyquist = 0.5 / period
-    frequency = min(max(abs(v[0]), 1e-3 * nyquist), 0.98 * nyquist)
-    damping = min(max(abs(v[1]), 1e-3), MAX_RESONANCE_DAMPING)
-    return Resonance(frequency_hz=frequency, damping_ratio=damping, sample_period_s=period)
-
-
-def _random_saturation(rng: np.random.Generator, u: NDArray[np.float64], estimation_fraction: float,
-                       period: float) -> Block:
-    # each limit lies within what both segments of the workflow's split reach on its side: a limit one
-    # segment never crosses cannot be fitted, or seen, by any method
-    split = int(round(estimation_fraction * u.size))
-    segments = (u[:split], u[split:])
-    reach_down = min(float(-np.min(segment)) for segment in segments)
-    reach_up = min(float(np.max(segment)) for segment in segments)
-    return Saturation(lower_rad=-rng.uniform(0.5, 0.75) * reach_down, upper_rad=rng.uniform(0.5, 0.75) * reach_up)
-
-
-def _random_friction(rng: np.random.Generator, u: NDArray[np.float64], estimation_fraction: float,
-                     period: float) -> Block:
-    stick = rng.uniform(0.015, 0.04)
-    return CoulombFriction(breakaway_torque_nm=stick * 2000.0, coulomb_torque_nm=stick * 2000.0 * rng.uniform(0.4, 0.75),
-                           stiffness_nm_per_rad=2000.0)
-
-
-
 HYSTERESIS_INNER_TWIN = ("load_friction", "shaft_play")
 """The inner-dynamics twin of an output-side hysteresis (backlash, Coulomb friction after the drive): Coulomb
 friction on the load's motion together with a play between the motor and the load inertia. When the drive
@@ -506,9 +396,9 @@ EFFECTS: dict[str, Effect] = {effect.name: effect for effect in (
         takes_sample_period=False,
         parameters=(Parameter("c_l_rad", "rad", "left half-width of the play", lower=0.0),
                     Parameter("c_r_rad", "rad", "right half-width of the play", lower=0.0)),
-        placement="output", free_parameters=2, build=_build_backlash,
+        placement="output", free_parameters=2, build=build_backlash,
         report=lambda b: {"c_l_rad": b.c_l_rad, "c_r_rad": b.c_r_rad},
-        guesses=_backlash_guesses,
+        guesses=backlash_guesses,
         vanished=lambda b, delta: b.c_l_rad + b.c_r_rad < delta,
         random_block=lambda rng, u, f, period: OutputBacklash(m_l=1.0, c_l_rad=rng.uniform(0.01, 0.04), m_r=1.0,
                                                       c_r_rad=rng.uniform(0.01, 0.04)),
@@ -526,7 +416,7 @@ EFFECTS: dict[str, Effect] = {effect.name: effect for effect in (
         placement="input", free_parameters=2,
         build=lambda v, period: DeadZone(left_rad=-abs(v[0]), right_rad=abs(v[1])),
         report=lambda b: {"left_rad": b.left_rad, "right_rad": b.right_rad},
-        guesses=_dead_zone_guesses,
+        guesses=dead_zone_guesses,
         vanished=lambda b, delta: b.right_rad - b.left_rad < delta,
         random_block=lambda rng, u, f, period: DeadZone(left_rad=-rng.uniform(0.03, 0.10), right_rad=rng.uniform(0.03, 0.10)),
         signature="the output stuck near zero while the model moves (r ~ -clip(y^, -w, w))",
@@ -536,11 +426,11 @@ EFFECTS: dict[str, Effect] = {effect.name: effect for effect in (
         toml_keys=(TomlKey("lower_rad"), TomlKey("upper_rad")), takes_sample_period=False,
         parameters=(Parameter("lower_rad", "rad", "lower limit of the command", upper=0.0),
                     Parameter("upper_rad", "rad", "upper limit of the command", lower=0.0)),
-        placement="input", free_parameters=2, build=_build_saturation,
+        placement="input", free_parameters=2, build=build_saturation,
         report=lambda b: {"lower_rad": b.lower_rad, "upper_rad": b.upper_rad},
-        guesses=_saturation_guesses,
+        guesses=saturation_guesses,
         vanished=lambda b, delta: False,
-        random_block=_random_saturation,
+        random_block=random_saturation,
         signature="a residual growing with |u| at the extremes (r ~ -(y^ - clip(y^, -q, q)))",
     ),
     Effect(
@@ -564,12 +454,12 @@ EFFECTS: dict[str, Effect] = {effect.name: effect for effect in (
         takes_sample_period=False,
         parameters=(Parameter("breakaway_deflection_rad", "rad", "twist at which the load breaks away", lower=0.0),
                     Parameter("sliding_deflection_rad", "rad", "twist while it slides", lower=0.0)),
-        placement="output", free_parameters=2, build=_build_friction,
+        placement="output", free_parameters=2, build=build_friction,
         report=lambda b: {"breakaway_deflection_rad": b.breakaway_deflection_rad,
                           "sliding_deflection_rad": b.sliding_deflection_rad},
-        guesses=_friction_guesses,
+        guesses=friction_guesses,
         vanished=lambda b, delta: b.breakaway_deflection_rad < delta / 2.0,
-        random_block=_random_friction,
+        random_block=random_friction,
         signature="the backlash signature, and stick-slip: the output flat while the model moves, then a jump",
         family="hysteresis", needs_reversals=True,
         contact_start=lambda c_l, c_r: [(ratio * 0.5 * (c_l + c_r), 0.5 * (c_l + c_r)) for ratio in (1.0, 1.5, 2.0)],
@@ -581,9 +471,9 @@ EFFECTS: dict[str, Effect] = {effect.name: effect for effect in (
         toml_keys=(TomlKey("frequency_hz"), TomlKey("damping_ratio")), takes_sample_period=True,
         parameters=(Parameter("frequency_hz", "Hz", "natural frequency of the mode", lower=0.0),
                     Parameter("damping_ratio", "1", "damping ratio of the mode", lower=0.0)),
-        placement="output", free_parameters=2, build=_build_resonance,
+        placement="output", free_parameters=2, build=build_resonance,
         report=lambda b: {"frequency_hz": b.frequency_hz, "damping_ratio": b.damping_ratio},
-        guesses=_resonance_guesses,
+        guesses=resonance_guesses,
         vanished=lambda b, delta: False,
         random_block=lambda rng, u, f, period: Resonance(frequency_hz=rng.uniform(60.0, 200.0),
                                                  damping_ratio=rng.uniform(0.02, 0.08),
@@ -616,7 +506,7 @@ EFFECTS: dict[str, Effect] = {effect.name: effect for effect in (
         placement="end", free_parameters=1,
         build=lambda v, period: OutputGain(gain=1.0 + v[0]),
         report=lambda b: {"gain": b.gain, "relative_error": b.gain - 1.0},
-        guesses=_gain_guesses,
+        guesses=gain_guesses,
         vanished=lambda b, delta: abs(b.gain - 1.0) < NEGLIGIBLE_GAIN_ERROR,
         random_block=lambda rng, u, f, period: OutputGain(gain=1.0 + rng.choice((-1.0, 1.0)) * rng.uniform(0.03, 0.15)),
         signature="r ~ e y^: the measured output is (1 + e) times the model's",
@@ -634,18 +524,18 @@ EFFECTS: dict[str, Effect] = {effect.name: effect for effect in (
                     Parameter("twice_per_rev_rad", "rad", "amplitude a2 of the sensor error twice per revolution",
                               lower=0.0),
                     Parameter("twice_per_rev_phase_rad", "rad", "its phase p2: a2 sin(2 angle + p2)")),
-        placement="end", free_parameters=4, build=_build_encoder_error,
+        placement="end", free_parameters=4, build=build_encoder_error,
         report=lambda b: {"once_per_rev_rad": b.once_per_rev_rad, "once_per_rev_phase_rad": b.once_per_rev_phase_rad,
                           "twice_per_rev_rad": b.twice_per_rev_rad,
                           "twice_per_rev_phase_rad": b.twice_per_rev_phase_rad},
-        guesses=_encoder_error_guesses,
+        guesses=encoder_error_guesses,
         vanished=lambda b, delta: b.once_per_rev_rad + b.twice_per_rev_rad < delta / 2.0,
         random_block=lambda rng, u, f, period: EncoderError(
             once_per_rev_rad=rng.uniform(2e-3, 6e-3), once_per_rev_phase_rad=rng.uniform(-math.pi, math.pi),
             twice_per_rev_rad=rng.uniform(0.5e-3, 2e-3), twice_per_rev_phase_rad=rng.uniform(-math.pi, math.pi)),
         signature="r ~ a1 sin(y^ + p1) + a2 sin(2 y^ + p2): the same error at the same angle, at every speed",
         look_alikes=("gravity", "offset", "gain_error"), look_alike_only=True,
-        implausible=_encoder_error_implausible,
+        implausible=encoder_error_implausible,
     ),
     Effect(
         name="load_friction", block_class=DriveTrain, toml_type="drive_train",
