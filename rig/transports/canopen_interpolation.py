@@ -188,10 +188,11 @@ class CanOpenInterpolation:
             self._ip_origin_choices = tuple(range(answers, min(latest, answers + self.latency_cycles["drive"]) + 1))
         if len(self._ip_origin_choices) > 1:
             return self._choose_ip_origin(item)
+        syncs = (self._sync_count if latest is None else latest - 1) - self._ip_enabled_at  # before its answer
         self._ride_through(
             f"drive {self.drive_node_id}: confirmed controlword bit 4 (enable ip mode) only after "
-            f"{'more than ' if latest is None else ''}{(self._sync_count if latest is None else latest - 1) - self._ip_enabled_at} "
-            f"SYNC(s), so sample 0 is where its statusword first shows bit 12 under drive_tpdo_latency_cycles = "
+            f"{'more than ' if latest is None else ''}{syncs} SYNC(s), so sample 0 is where its statusword first "
+            f"shows bit 12 under drive_tpdo_latency_cycles = "
             f"{self.latency_cycles['drive']}; were the drive later than that, every row would be filed as many "
             "samples late, and nothing on the bus would show it (a drive that confirms bit 4 within a period fixes "
             "sample 0 by the bus order)")

@@ -114,10 +114,10 @@ def test_the_angle_alone_leaves_the_weight_open_and_the_torque_leaves_a_sensor_e
 @pytest.mark.slow
 def test_a_drive_train_model_lets_the_torque_exclude_the_weight_and_leave_the_sensor_errors_open():
     # the start model is the generator's nominal servo as our drive train, with physical units: the weight the
-    # sag needs (0.25 N m at the drive, gear ratio 1, the torque in N m) is 7 times the torque's upper bound, so
+    # sag needs (N m at the drive, gear ratio 1, the torque in N m) is over 3 times the torque's upper bound, so
     # gravity is excluded, and the sensor errors that read like the sag are searched: over this record's angles
-    # the once-per-revolution error and an offset stay alike (both listed, neither named)
-    record = _record("eccentricity", 1004, "steps", "cascade")
+    # the once-per-revolution error, an offset and a gain error stay alike (listed, none named)
+    record = _record("eccentricity", 1002, "multisine", "cascade")
     model = PlantModel((confusion.nominal_drive_train(record["nominal"]),))
     result = diagnose_model(record["command_rad"], record["angle_rad"],
                             confusion.independent_noise_bound(record["nominal"]), 1e-3, model,
