@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 from pathlib import Path
 
 from rig import exit_codes
@@ -25,8 +26,9 @@ model is the best linear model of order 1 or 2 (chosen by validation error). The
 encoder's half count. With the drive's torque in the file (--columns ...,tau=NAME: a CiA 402 torque actual
 value or a motor current, any unit), a weight on the load that the angle alone cannot tell from a sensor error
 is checked in the torque the drive gives. A rig log also gives the torque's scale (its summary's
-drive_torque_nm_per_unit, from the drive's rated torque 0x6076); with it and a --model holding a drive train,
-a torque too small for the weight the sag would need excludes the weight.
+drive_torque_nm_per_unit, from the drive's rated torque 0x6076; --torque-scale gives it for another tool's
+file); with it and a --model holding a drive train, a torque too small for the weight the sag would need
+excludes the weight.
 
 Example (a K-Scale STS3215 record, 4096 counts/rev: noise bound of a few counts):
   rig diagnose sysid.json --columns t=timestamp,u=goal_position,y=position --valid torque_enable \
@@ -54,6 +56,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         help="the FMU's output that gives the load angle in rad (needed when it has several)")
     parser.add_argument("--noise-bound", type=float, required=True, metavar="RAD",
                         help="bound on the measurement error |e_t| in rad (include the encoder's half count)")
+    parser.add_argument("--torque-scale", type=float, default=None, metavar="NM_PER_UNIT",
+                        help="N m at the motor per unit of the file's torque column (default: a rig log's summary "
+                             "gives it; another tool's file none): with a --model holding the drive train, a torque "
+                             "too small for the weight the sag needs excludes the weight")
     parser.add_argument("--report", metavar="DIR", default=None,
                         help="write figures and an HTML page to DIR (with several files: DIR/<file name>/)")
     parser.add_argument("--force", action="store_true",
@@ -80,6 +86,9 @@ def run(args: argparse.Namespace) -> int:
 
     from rig.record_import import options_from_arguments
 
+    if args.torque_scale is not None and not (math.isfinite(args.torque_scale) and args.torque_scale > 0):
+        raise ValueError(f"--torque-scale: expected the N m at the motor per unit of the torque column, a number "
+                         f"> 0, got {args.torque_scale!r}")
     if args.report is not None:  # before the work: a diagnosis can take minutes
         from rig.output_paths import check_report_dir
 
@@ -91,7 +100,8 @@ def run(args: argparse.Namespace) -> int:
             Path(args.report).mkdir(parents=True, exist_ok=True)
             mark_report_dir(args.report)
     fmu = _fmu_options(args)
-    options = {"model": args.model, "fmu": fmu, "noise_bound": args.noise_bound, "report": args.report,
+    options = {"model": args.model, "fmu": fmu, "noise_bound": args.noise_bound, "torque_scale": args.torque_scale,
+               "report": args.report,
                "report_per_file": len(args.data) > 1, "import": options_from_arguments(args),
                "progress": not args.json and sys.stderr.isatty() and (args.jobs == 1 or len(args.data) == 1)
                and args.scheduler is None}
@@ -158,7 +168,8 @@ def diagnose_file(path_text: str, options: dict):
         result = diagnose_model(record.command_rad, angle_rad, options["noise_bound"],
                                 record.metadata.sample_period_s, model, candidates=candidates,
                                 drive_torque=record.drive_torque,
-                                drive_torque_nm_per_unit=_torque_scale(record), progress=progress)
+                                drive_torque_nm_per_unit=_torque_scale(record, options.get("torque_scale")),
+                                progress=progress)
     except InvalidInputError as err:
         raise InvalidInputError(f"{path_text}: {err}") from err
     index = None
@@ -167,8 +178,11 @@ def diagnose_file(path_text: str, options: dict):
     return result, int(record.command_rad.size), index, imported, set_aside
 
 
-def _torque_scale(record) -> float | None:
-    """N m per unit of the record's torque column, where a rig log's summary gives it (else None)."""
+def _torque_scale(record, given: float | None = None) -> float | None:
+    """N m per unit of the record's torque column: ``given`` (``--torque-scale``), else where a rig log's summary
+    gives it, else None."""
+    if given is not None:
+        return given if record.drive_torque is not None else None
     summary = record.metadata.extra.get("summary")
     scale = summary.get("drive_torque_nm_per_unit") if isinstance(summary, dict) else None
     return None if record.drive_torque is None or not isinstance(scale, (int, float)) or scale <= 0 else float(scale)

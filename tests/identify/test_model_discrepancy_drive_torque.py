@@ -198,7 +198,7 @@ def test_the_torque_is_read_alike_from_a_named_column_and_from_a_rig_log(tmp_pat
     np.testing.assert_array_equal(from_log.angle_rad, from_csv.angle_rad)
 
 
-def test_rig_diagnose_takes_the_torques_scale_from_a_rig_logs_summary_only(tmp_path):
+def test_rig_diagnose_takes_the_torques_scale_from_the_option_or_a_rig_logs_summary(tmp_path):
     from identify.experiment_record import ExperimentMetadata
     from rig.commands.diagnose import _torque_scale
     from rig.log_file import LogWriter
@@ -214,7 +214,20 @@ def test_rig_diagnose_takes_the_torques_scale_from_a_rig_logs_summary_only(tmp_p
         out.write_summary({"drive_torque_nm_per_unit": 0.00239})
     assert _torque_scale(read_measurement(summarised)[0]) == 0.00239
     columns = ImportOptions(columns={"t": "t", "u": "u", "y": "y", "tau": "torque"})
-    assert _torque_scale(read_measurement(csv, columns)[0]) is None  # another tool's column: no scale known
+    from_csv = read_measurement(csv, columns)[0]
+    assert _torque_scale(from_csv) is None  # another tool's column: no scale known
+    assert _torque_scale(from_csv, 1.0) == 1.0  # unless --torque-scale gives it
+    assert _torque_scale(read_measurement(summarised)[0], 0.002) == 0.002  # which overrides the summary's
+
+
+def test_rig_diagnose_refuses_a_torque_scale_that_is_not_positive_by_its_option(tmp_path, capsys):
+    from rig import exit_codes
+    from rig.cli import main
+
+    csv, _ = _files(tmp_path, _record("gravity", 1004, "steps", "cascade"))
+    code = main(["diagnose", str(csv), "--noise-bound", "0.002", "--columns", "t=t,u=u,y=y,tau=torque",
+                 "--torque-scale", "0"])
+    assert code != exit_codes.SUCCESS and "--torque-scale" in capsys.readouterr().err
 
 
 @pytest.mark.slow
