@@ -40,7 +40,7 @@ draws) map free values to the drive train's fields (placement
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any
 
@@ -116,7 +116,8 @@ __all__ = ["ANGLE_SHAPE_EXPERIMENT", "DYNAMICS_EFFECTS", "EFFECTS", "EFFECT_NAME
            "LINEAR_ORDER_EXPERIMENT", "LOOK_ALIKE_EXPERIMENTS", "MAX_RESONANCE_DAMPING",
            "SAME_MAP_READINGS",
            "PLACEMENTS", "SEARCHED_EFFECT_NAMES", "ENCODER_ERROR_MAX_RAD", "Effect",
-           "GuessContext", "Parameter", "TomlKey", "effect", "effect_for_block", "effect_for_toml_type"]
+           "GuessContext", "Parameter", "TomlKey", "effect", "effect_for_block", "effect_for_toml_type",
+           "look_alike_experiments"]
 
 @dataclass(frozen=True)
 class Parameter:
@@ -680,6 +681,21 @@ LOOK_ALIKE_EXPERIMENTS: dict[frozenset[str], str] = {
 }
 """The experiment that tells look-alike effects apart (catalogue ``look_alikes`` and ``same_map_as``), for the
 verdict's reason."""
+
+
+def look_alike_experiments(pairs: Iterable[frozenset[str]]) -> str:
+    """The experiments of :data:`LOOK_ALIKE_EXPERIMENTS` that separate ``pairs`` of effects, joined with "; and ",
+    each said once: experiments that start with the same instruction (the text before the first ": ") give it
+    once, followed by each of their reasons."""
+    reasons: dict[str, list[str]] = {}
+    for pair in dict.fromkeys(pairs):
+        if pair in LOOK_ALIKE_EXPERIMENTS:
+            instruction, _, why = LOOK_ALIKE_EXPERIMENTS[pair].partition(": ")
+            reasons.setdefault(instruction, [])
+            if why and why not in reasons[instruction]:
+                reasons[instruction].append(why)
+    return "; and ".join(": ".join((instruction, "; ".join(whys))) if whys else instruction
+                         for instruction, whys in reasons.items())
 
 
 ANGLE_SHAPE_EXPERIMENT = (

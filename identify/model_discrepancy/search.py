@@ -22,6 +22,7 @@ from identify.effect_catalogue import (
     MAX_RESONANCE_DAMPING,
     SAME_MAP_READINGS,
     SEARCHED_EFFECT_NAMES,
+    look_alike_experiments,
 )
 from identify.effect_signatures import SignatureScore, signature_scores
 from identify.validation import InvalidInputError
@@ -300,6 +301,10 @@ def _search(state: _Search, remaining: list[str], u: NDArray[np.float64], y: NDA
                         say(f"undecided alone, clear together: {', '.join(s.effect for s in chosen.steps)}")
                         return chosen
             if undecided:
+                alikes = _look_alikes_fitted(best, tuple(c.effect for c in undecided), chain, u, y, n_est, delta,
+                                             period, current, scores, options, modes)
+                tried_all.extend(replace(entry(c), round=round_index - 1) for c in alikes)
+                undecided = (*undecided, *tried_all[len(tried_all) - len(alikes):])
                 say(f"undecided: {', '.join(c.effect for c in undecided)} lower the gap by about the required "
                     f"{100 * min_reduction:.0f} % within their uncertainty")
                 return _Search(chain, current, steps, tried_all, tuple(c.effect for c in undecided), validation_error,
@@ -315,7 +320,10 @@ def _search(state: _Search, remaining: list[str], u: NDArray[np.float64], y: NDA
                 ends.append(to_end(step_state, [n for n in remaining if n != kind]))
             chosen = _clear_end(ends, complexity_penalty, consistent_fraction)
             if chosen is None:
-                ambiguous_between = (best.kind, *rivals)
+                alikes = _look_alikes_fitted(best, (best.kind, *rivals), chain, u, y, n_est, delta, period, current,
+                                             scores, options, modes)
+                tried_all.extend(replace(entry(c), round=round_index - 1) for c in alikes)
+                ambiguous_between = (best.kind, *rivals, *(c.kind for c in alikes))
                 say(f"ambiguous: {', '.join(ambiguous_between)} fit equally well within their uncertainty")
                 return _Search(chain, current, steps, tried_all, ambiguous_between, validation_error)
             say(f"the tie resolves when followed to the end: {', '.join(s.effect for s in chosen.steps)}")
@@ -325,6 +333,43 @@ def _search(state: _Search, remaining: list[str], u: NDArray[np.float64], y: NDA
         chain, current, steps, validation_error = state.chain, state.current, state.steps, state.validation_error_rad
         remaining = [name for name in remaining if name != best.kind]
     return _Search(chain, current, steps, tried_all, (), validation_error)
+
+
+def _look_alikes_fitted(best: _Candidate, members: tuple[str, ...], chain: _Chain, u: NDArray[np.float64],
+                        y: NDArray[np.float64], n_est: int, delta: float, period: float, current: Disagreement,
+                        scores: dict[str, SignatureScore], options: DiagnoseOptions,
+                        modes: tuple[tuple[float, float], ...]) -> list[_Candidate]:
+    """The effects the search never tries on their own (catalogue ``look_alike_only``: the encoder error) that
+    are look-alikes of ``members``, the candidates a round leaves open (``best`` the best of them), fitted into
+    the round's ``chain`` as they were, and kept when the record cannot tell them from ``best`` by the rule of
+    :func:`_look_alikes_checked`: the two outputs within the noise bound of each other on all but
+    :data:`LOOK_ALIKE_APART_FRACTION` of the record, or the look-alike's validated gap within the uncertainty of
+    ``best``'s or lower. Left out: a look-alike that vanishes, and one that counts as a look-alike only of members
+    that bound it and is fitted at a size no working device has (catalogue ``bounded_look_alikes``). Over a small
+    range of angles an offset and a load torque are one constant, and so is a sensor error once per revolution:
+    a round left open between the first two lists the third when it fits as well."""
+    if not set(SEARCHED_EFFECT_NAMES) <= set(options.candidates):
+        return []  # a search the user restricted to some candidates stays within them
+    measured = ~np.isnan(y)
+    best_output = simulated(best.chain.model(), u, y)
+    apart_allowed = max(options.consistent_fraction, LOOK_ALIKE_APART_FRACTION)
+    out: list[_Candidate] = []
+    for alike in dict.fromkeys(a for m in members for a in EFFECTS[m].look_alikes):
+        entry = EFFECTS[alike]
+        if alike in members or not entry.look_alike_only or _insert_index(chain, alike) < 0:
+            continue
+        candidate = _try_effect(alike, chain, u, y, n_est, delta, period, current.residual_rad, scores,
+                                options.max_delay_samples, options.max_evaluations, modes=modes)
+        if _vanished(candidate, u, delta):
+            continue
+        if all(alike in EFFECTS[m].bounded_look_alikes and entry.implausible is not None
+               and entry.implausible(candidate.block) for m in members if alike in EFFECTS[m].look_alikes):
+            continue
+        apart = float(np.mean(np.abs(simulated(candidate.chain.model(), u, y) - best_output)[measured] > delta))
+        if apart <= apart_allowed or candidate.gap_rad <= best.gap_rad or _within_uncertainty(
+                best.gap_rad, best.validation_error_rad, candidate.gap_rad, candidate.validation_error_rad):
+            out.append(candidate)
+    return out
 
 
 def _add_step(best: _Candidate, current: Disagreement, steps: list[DiscrepancyStep],
@@ -737,8 +782,7 @@ def _look_alike_reason(between: tuple[str, ...], group: Sequence[tuple[str, str,
                  "record once each is fitted" if together >= 100 * (1 - apart_allowed) else
                  f"fit the record equally well within their uncertainty, their outputs within the noise bound "
                  f"({delta:.3g} rad) of each other on {together:.1f} % of it")
-    experiments = "; and ".join(LOOK_ALIKE_EXPERIMENTS[frozenset((member, alike))] for alike, member, _, _ in group
-                                if frozenset((member, alike)) in LOOK_ALIKE_EXPERIMENTS)
+    experiments = look_alike_experiments(frozenset((member, alike)) for alike, member, _, _ in group)
     two = len(between) == 2
     told = f"{between[0]} from {between[1]}" if two else f"{names} apart"
     return (f"{names} {closeness} (validated gap {gaps}, {gap_without_rad:.3g} rad with "

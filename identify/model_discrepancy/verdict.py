@@ -14,7 +14,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from identify.border_lifting import direction_signal
-from identify.effect_catalogue import LOOK_ALIKE_EXPERIMENTS
+from identify.effect_catalogue import look_alike_experiments
 from identify.plant_blocks import Delay, PlantModel
 
 from identify.model_discrepancy.disagreement import disagreement
@@ -190,8 +190,9 @@ def _verdict(initial: Disagreement, final: Disagreement, steps: Sequence[Discrep
     if ambiguous_between:
         before = f" after {named}" if steps else ""
         pairs = [frozenset((a, b)) for i, a in enumerate(ambiguous_between) for b in ambiguous_between[i + 1:]]
-        experiments = "; and ".join(LOOK_ALIKE_EXPERIMENTS[pair] for pair in pairs if pair in LOOK_ALIKE_EXPERIMENTS)
-        return "ambiguous", (f"{' and '.join(ambiguous_between)} fit the validation segment equally well within "
+        experiments = look_alike_experiments(pairs)
+        names = " and ".join((", ".join(ambiguous_between[:-1]), ambiguous_between[-1]))
+        return "ambiguous", (f"{names} fit the validation segment equally well within "
                              f"their uncertainty{before}: none is chosen"
                              + (f". To separate them: {experiments}" if experiments else ""))
     if steps:
