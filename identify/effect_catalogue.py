@@ -257,7 +257,7 @@ class Effect:
         this effect is named, each look-alike is fitted in its place, and if the two fitted models' outputs
         are within the noise bound of each other on the record, the verdict is ambiguous between them, with
         the experiment that separates them (:data:`LOOK_ALIKE_EXPERIMENTS`; ``_look_alikes_checked`` in
-        :mod:`identify.model_discrepancy.search`).
+        :mod:`identify.model_discrepancy.left_open`).
     same_map_as
         Other mechanisms whose map from command to angle is exactly this effect's fitted map (an output
         backlash with unit slopes is Coulomb friction without stiction behind the position loop, plus an offset
@@ -265,10 +265,10 @@ class Effect:
         named it stays in the model (the map is identified) and the verdict is ambiguous between the
         mechanisms, reading the fitted sizes both ways (:data:`SAME_MAP_READINGS`) and saying what experiment
         separates them (:data:`LOOK_ALIKE_EXPERIMENTS`; ``_mechanisms_left_open`` in
-        :mod:`identify.model_discrepancy.search`).
+        :mod:`identify.model_discrepancy.left_open`).
     look_alike_only
         Not searched by default (not in :data:`SEARCHED_EFFECT_NAMES`): tried as the look-alike of a named
-        effect, or when named in the workflow's ``candidates``.
+        effect or of the effects a round leaves open, or when named in the workflow's ``candidates``.
     angle_sag
         For an effect that is a sine of the angle once per revolution (a weight's torque): fitted block ->
         the amplitude S (rad) of the sag it leaves at rest. Over a range R of angles such a sag departs from a

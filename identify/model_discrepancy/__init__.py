@@ -28,7 +28,10 @@ per step:
    blocks and over :data:`REFIT_FOLDS` cross-validation refits of the whole record; rivals within their
    uncertainty are followed to the end of their own searches. The rounds (:mod:`.search`) repeat until the
    falsified fraction on the validation segment is at most ``consistent_fraction`` or no candidate helps.
-6. **Verdict** (:mod:`.verdict`): one of :data:`VERDICTS`: ``explained`` when the start model already agrees,
+6. **Verdict** (:mod:`.verdict`). First, what the record cannot tell apart (:mod:`.left_open`): a named effect
+   whose look-alike (catalogue ``look_alikes``: a weight, a sensor error once per revolution, an offset) fits as
+   well is dropped and listed with it; one whose map is also another mechanism's keeps its sizes, listed with
+   that mechanism; a round left open lists the look-alikes that fit as well. Then one of :data:`VERDICTS`: ``explained`` when the start model already agrees,
    ``named`` when effects were kept, ``ambiguous`` when the best candidate has rivals within their
    uncertainty or its reduction straddles the acceptance, ``unexplained`` when nothing helps, and
    ``not_excited`` when a segment never sees the command turn or the output moves while command and model

@@ -31,6 +31,7 @@ from identify.model_discrepancy.thresholds import (
     SHAFT_TRAIN_ERROR_SHARE,
     SHAFT_TRAIN_LOAD_INERTIA_STARTS,
     SPLIT_LOAD_SHARES,
+    VANISHED_PEAK_NOISE_BOUNDS,
 )
 
 
@@ -343,3 +344,26 @@ def _without_effect(chain: _Chain, kind: str) -> _Chain | None:
             components[i] = _without(component, kind)
             return _Chain(components)
     return None
+
+
+def _vanished(candidate: _Candidate, u: NDArray[np.float64], delta: float) -> bool:
+    """Whether the candidate's fitted effect is nothing on this record: the catalogue's size test says so
+    (``vanished``) and, for an effect in the drive train's dynamics, the record agrees: taking it out of the
+    fitted model moves its free run by less than :data:`VANISHED_PEAK_NOISE_BOUNDS` noise bounds on every
+    sample. A dynamics effect's size test reads a static proxy (a friction's static error, a weight's sag); what
+    it does to a moving record can be more (a friction's lag on a chirp, with a static error under the bound).
+    The size tests of the other effects are their effect on the signal itself (an output backlash's width, a
+    gain's scale)."""
+    entry = EFFECTS[candidate.kind]
+    if not entry.vanished(candidate.block, delta):
+        return False
+    if entry.placement != "dynamics":
+        return True
+    without = _without_effect(candidate.chain, candidate.kind)
+    if without is None:
+        return True
+    try:
+        moved = float(np.max(np.abs(candidate.chain.model().simulate(u) - without.model().simulate(u))))
+    except InvalidInputError:
+        return True
+    return not moved >= VANISHED_PEAK_NOISE_BOUNDS * delta

@@ -2,7 +2,7 @@
 tell from a sensor error.
 
 From the angle alone, a torque ~ sin of the load angle (gravity) and a once-per-revolution encoder error look
-alike behind a stiff servo (:func:`~identify.model_discrepancy.search._look_alikes_checked`): the weight only
+alike behind a stiff servo (:func:`~identify.model_discrepancy.left_open._look_alikes_checked`): the weight only
 deflects the load by its torque over the stiffness. The drive must supply the weight's torque and never feels
 the sensor's error, so the torque it reports (the CiA 402 torque actual value, object 0x6077, or a current
 reading in any unit) tells the two apart.

@@ -26,16 +26,14 @@ from identify.model_discrepancy.intervals import _named_intervals, _with_final_p
 from identify.model_discrepancy.open_world import open_world_checked
 from identify.model_discrepancy.options import DiagnoseOptions
 from identify.model_discrepancy.result import Disagreement, DiscrepancyResult
-from identify.model_discrepancy.search import (
+from identify.model_discrepancy.left_open import (
     _look_alikes_checked,
     _mechanisms_left_open,
     _order_left_open,
     _shape_left_open,
-    _Search,
-    _family_rechecked,
-    _search,
-    _still_needed,
 )
+from identify.model_discrepancy.search import _family_rechecked, _search, _still_needed
+from identify.model_discrepancy.search_state import _Search
 from identify.model_discrepancy.start_model import _start
 from identify.model_discrepancy.thresholds import (
     AT_REST_NOISE_BOUNDS,

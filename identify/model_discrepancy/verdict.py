@@ -26,7 +26,7 @@ from identify.model_discrepancy.result import (
     DiscrepancyStep,
     GrossDisagreement,
 )
-from identify.model_discrepancy.search import _Search
+from identify.model_discrepancy.search_state import _Search
 from identify.model_discrepancy.thresholds import (
     COMMAND_STILL_RANGE_FRACTION,
     MIN_REDUCTION,
