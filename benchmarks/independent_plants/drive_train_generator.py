@@ -116,6 +116,25 @@ wrap          measurement: inside [wrap_start_s, wrap_end_s) the encoder reports
 gain_drift    measurement: y = (1 + g(t)) theta, g(t) = g_end (1 - e^(-t/tau)) / (1 - e^(-T/tau))
               (thermal first-order drift from 0 to g_end); |g_end| in [0.06, 0.15] with a
               random sign, tau in [0.3, 3] T.
+gain_heating  measurement: the sensor's scale factor has a temperature coefficient alpha and
+              the sensor is heated by the motor's copper losses, so its gain error follows
+              the work the drive does, not a fixed exponential of time:
+                  P(t) = s tau_out(t)^2            (copper loss, s = loss coefficient)
+                  C T' = P - T / R,  T(0) = 0      (sensor temperature rise above ambient)
+                  y = (1 + alpha T(t)) theta,      g(t) = alpha T(t)  (the gain error)
+              tau_out is the noise-free gear-output-side drive torque, the cycle mean the
+              torque channel reports (tau_out,k = N clean_torque_nm[k], mean over
+              [t_k-1, t_k]).  P is held at s tau_out,k^2 over [t_k-1, t_k] (zero-order hold;
+              the ripple of the torque inside a cycle is not squared in), and the ODE is
+              integrated exactly over each interval:
+                  T_k = e^(-h/tau_th) T_k-1 + (1 - e^(-h/tau_th)) R s tau_out,k^2,  h = 1/fs.
+              tau_th = R C in [0.5, 5] T; |g(T_end)| (the gain error at the last sample)
+              in [0.04, 0.15] with a random sign, which is the sign of alpha (T >= 0).
+              Conventions (only alpha R s and tau_th are observable): |alpha| = 2e-3 /K,
+              R = 1 K/W; the loss coefficient s is solved after the torque is simulated so
+              that alpha T(t_end) equals the drawn final gain error.  If the drive torque
+              stays below 1e-6 N m throughout, nothing heats: s = 0, g = 0, not excited.
+              truth.gain_error_series holds g at every sample.
 cogging       load torque: tau = -T_c sin(n_c theta_l + p_c); T_c in [0.03, 0.3] N m,
               n_c integer in [6, 36], p_c in [-pi, pi).
 stribeck      load torque: tau = -(F_c + (F_s - F_c) exp(-(v/v_s)^2)) tanh(v/eps) (the -b v
@@ -163,6 +182,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.integrate import solve_ivp
 from scipy.linalg import expm
+from scipy.signal import lfilter
 
 TWO_PI = 2.0 * math.pi
 
@@ -190,6 +210,12 @@ _STREAM_NOISE = 3
 _STREAM_TORQUE_NOISE = 4  # drive torque noise: a new stream, so angles stay as they were
 
 INT16_MIN, INT16_MAX = -32768, 32767
+
+# gain_heating conventions: only alpha R s and tau_th are observable, so |alpha| and R are
+# fixed and the loss coefficient s is solved from the drawn final gain error.
+HEATING_TEMPCO_PER_K = 2e-3        # |alpha|, 0.2 %/K: final temperature rise 20..75 K
+HEATING_THERMAL_RESISTANCE_K_PER_W = 1.0
+HEATING_TORQUE_FLOOR_NM = 1e-6     # max |tau_out| below this: no heating, effect not excited
 
 
 # ----------------------------------------------------------------------------- effects
@@ -223,6 +249,11 @@ EFFECTS = {
              "y = (1 + g(t)) theta, first-order drift of g from 0 to g_end",
              {"final_gain_error": (0.06, 0.15, "signed"),
               "time_constant_fraction": (0.3, 3.0, "uniform")}),
+        _eff("gain_heating", "measurement",
+             "y = (1 + alpha T(t)) theta, sensor temperature rise T heated by the copper "
+             "loss s tau_out^2 through a first-order thermal model C T' = s tau_out^2 - T/R",
+             {"final_gain_error": (0.04, 0.15, "signed"),
+              "thermal_time_constant_fraction": (0.5, 5.0, "uniform")}),
         _eff("cogging", "load_torque", "tau = -T_c sin(n_c theta_l + p_c)",
              {"torque_nm": (0.03, 0.3, "uniform"), "periods_per_rev": (6, 36, "int"),
               "phase_rad": (-PI, PI, "uniform")}),
@@ -272,6 +303,9 @@ def draw_effect_parameters(effect: str, seed: int, duration_s: float, overrides:
         params["wrap_end_s"] = params.pop("wrap_end_fraction") * duration_s
     if effect == "gain_drift":
         params["time_constant_s"] = params.pop("time_constant_fraction") * duration_s
+    if effect == "gain_heating":
+        params["thermal_time_constant_s"] = (params.pop("thermal_time_constant_fraction")
+                                             * duration_s)
     if effect == "stribeck":
         params["static_nm"] = params["coulomb_nm"] * params.pop("static_to_coulomb")
     allowed = set(params)
@@ -281,6 +315,8 @@ def draw_effect_parameters(effect: str, seed: int, duration_s: float, overrides:
         params[k] = int(v) if isinstance(params[k], int) else float(v)
     if effect == "stribeck" and params["static_nm"] < 0:
         raise ValueError("static_nm must be >= 0")
+    if effect == "gain_heating" and not params["thermal_time_constant_s"] > 0:
+        raise ValueError("thermal_time_constant_s must be > 0")
     return params
 
 
@@ -715,8 +751,50 @@ def initial_state(nom: dict, effect: str, p: dict, u0: float) -> np.ndarray:
 
 
 # ---------------------------------------------------------------------- measurement
-def measure(effect: str, p: dict, t: np.ndarray, theta: np.ndarray) -> np.ndarray:
-    """Noise-free, unquantised sensor angle for the measurement effects."""
+def heating_gain_error(p: dict, tau_out: np.ndarray, fs: float):
+    """Gain error g_k = alpha T_k of the self-heated sensor (effect ``gain_heating``).
+
+    ``tau_out[k]`` is the noise-free gear-output-side drive torque, mean over [t_k-1, t_k]
+    (``tau_out[0]``, the static torque before t = 0, is not used: T(0) = 0).  The copper
+    loss P = s tau_out,k^2 is held over [t_k-1, t_k], and C T' = P - T/R is integrated
+    exactly there: T_k = a T_k-1 + (1 - a) R P_k, a = exp(-1/(fs tau_th)).  The loss
+    coefficient s is solved so that alpha T at the last sample is ``final_gain_error``.
+    Returns (g, info); info holds the solved and fixed thermal quantities.
+    """
+    g_end = float(p["final_gain_error"])
+    tau_th = float(p["thermal_time_constant_s"])
+    R = HEATING_THERMAL_RESISTANCE_K_PER_W
+    alpha = math.copysign(HEATING_TEMPCO_PER_K, g_end)
+    a = math.exp(-1.0 / (fs * tau_th))
+    n = tau_out.size
+    T1 = np.zeros(n)  # temperature rise for s = 1 W per (N m)^2
+    if n > 1:
+        T1[1:] = lfilter([(1.0 - a) * R], [1.0, -a], np.asarray(tau_out[1:], float) ** 2)
+    heated = bool(n > 1 and np.max(np.abs(tau_out[1:])) >= HEATING_TORQUE_FLOOR_NM
+                  and T1[-1] > 0.0)
+    s = float(abs(g_end) / (HEATING_TEMPCO_PER_K * T1[-1])) if heated else 0.0
+    T = s * T1
+    g = alpha * T
+    info = {
+        "temperature_coefficient_per_k": alpha,
+        "temperature_coefficient_sign": int(math.copysign(1, g_end)),
+        "thermal_resistance_k_per_w": R,
+        "thermal_capacitance_j_per_k": tau_th / R,
+        "loss_coefficient_w_per_nm2": s,
+        "final_temperature_rise_k": float(T[-1]),
+        "peak_temperature_rise_k": float(np.max(T)),
+        "achieved_final_gain_error": float(g[-1]),
+        "peak_abs_gain_error": float(np.max(np.abs(g))),
+        "heated": heated,
+    }
+    return g, info
+
+
+def measure(effect: str, p: dict, t: np.ndarray, theta: np.ndarray,
+            gain_error: np.ndarray | None = None) -> np.ndarray:
+    """Noise-free, unquantised sensor angle for the measurement effects.
+
+    ``gain_error`` is g_k of ``gain_heating`` (from heating_gain_error)."""
     if effect == "eccentricity":
         return (theta + p["a1_rad"] * np.sin(theta + p["phase1_rad"])
                 + p["a2_rad"] * np.sin(2 * theta + p["phase2_rad"]))
@@ -725,6 +803,8 @@ def measure(effect: str, p: dict, t: np.ndarray, theta: np.ndarray) -> np.ndarra
         tau = p["time_constant_s"]
         g = p["final_gain_error"] * (1 - np.exp(-t / tau)) / (1 - math.exp(-T / tau))
         return (1.0 + g) * theta
+    if effect == "gain_heating":
+        return (1.0 + gain_error) * theta
     return theta.copy()
 
 
@@ -757,6 +837,9 @@ def generate(effect: str, seed: int, *, excitation: str = "multisine", duration_
     ``clean_torque_nm`` (noise-free, unquantised cycle mean), ``clean_torque_instant_nm``
     (instantaneous value just before t_k, with u_k-1; not what is reported) and
     ``nominal_torque_nm`` (cycle mean of the nominal twin).
+
+    ``gain_heating`` adds ``truth["gain_error_series"]`` (g_k = alpha T_k per sample) and the
+    solved thermal quantities to ``truth["parameters"]`` (see heating_gain_error).
     """
     if effect not in EFFECTS:
         raise ValueError(f"unknown effect {effect!r}; choose from {sorted(EFFECTS)}")
@@ -788,7 +871,13 @@ def generate(effect: str, seed: int, *, excitation: str = "multisine", duration_
     else:
         X = X_nom
     theta_l = X[:, 2]
-    clean = measure(effect, params, t, theta_l)
+    # drive torque (motor side), cycle mean over [t_k-1, t_k]; command held there is u_k-1
+    tau_clean = drive_torque(nom, effect, params, X, u, fs_hz, load_integral)
+    gain_error = None
+    if effect == "gain_heating":  # heated by the gear-output-side torque N tau_motor
+        gain_error, heating = heating_gain_error(params, nom["gear_ratio"] * tau_clean, fs_hz)
+        params.update(heating)
+    clean = measure(effect, params, t, theta_l, gain_error)
 
     noise = np.random.default_rng([seed, _STREAM_NOISE]).normal(0.0, 1.0, n) * noise_rad
     counts = quantise(clean + noise, bits)
@@ -812,9 +901,7 @@ def generate(effect: str, seed: int, *, excitation: str = "multisine", duration_
         excited = False
     else:
         excited = size["max_abs_rad"] > q / 2
-    # drive torque (motor side), cycle mean over [t_k-1, t_k]; command held there is u_k-1
     rated = float(nom["rated_torque_nm"])
-    tau_clean = drive_torque(nom, effect, params, X, u, fs_hz, load_integral)
     tau_nom = drive_torque(nom, "none", {}, X_nom, u, fs_hz)
     u_held = np.concatenate([u[:1], u[:-1]])
     tau_inst = instantaneous_drive_torque(nom, effect, params, X, u_held)
@@ -858,6 +945,13 @@ def generate(effect: str, seed: int, *, excitation: str = "multisine", duration_
         "generator": "cleanroom drive_train_generator.py",
         "torque": truth_torque,
     }
+    if effect == "gain_heating":
+        truth["gain_error_series"] = gain_error.tolist()
+        truth["gain_error_note"] = (
+            "gain_error_series[k] = alpha T(t_k): angle = (1 + g) theta_l before noise and "
+            "quantisation; T from C T' = s tau_out^2 - T/R, tau_out = gear_ratio x the clean "
+            "cycle-mean drive torque, held over [t_k-1, t_k] (zero-order hold), integrated "
+            "exactly; T(0) = 0")
     return {
         "time_s": t,
         "command_rad": u,

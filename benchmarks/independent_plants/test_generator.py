@@ -268,6 +268,130 @@ def test_gain_drift_reaches_final_gain_error():
     assert abs(y[-1] - (1 + g_end) * th[-1]) <= q
 
 
+# gain_heating: the sensor's gain error alpha T follows its temperature rise T, heated by the
+# copper loss s tau_out^2 through C T' = P - T/R (see the generator's docstring).
+
+@pytest.mark.parametrize("servo", ["kinematic", "cascade"])
+@pytest.mark.parametrize("excitation", list(g.EXCITATIONS))
+def test_gain_heating_reaches_final_gain_error(servo, excitation):
+    rec = g.generate("gain_heating", 21, excitation=excitation, duration_s=4.0, bits=16,
+                     nominal={"servo": servo})
+    tr = rec["truth"]
+    p = tr["parameters"]
+    gain = np.asarray(tr["gain_error_series"])
+    th, y, clean = rec["state"][:, 2], rec["angle_rad"], rec["clean_angle_rad"]
+    T = tr["duration_s"]
+    assert 0.04 <= abs(p["final_gain_error"]) <= 0.15
+    assert 0.5 * T <= p["thermal_time_constant_s"] <= 5.0 * T
+    assert p["heated"] and p["loss_coefficient_w_per_nm2"] > 0
+    # T(0) = 0: exact at the start; the drawn gain error exactly at the last sample
+    assert gain.size == th.size and gain[0] == 0.0
+    assert abs(gain[-1] - p["final_gain_error"]) < 1e-12
+    assert p["achieved_final_gain_error"] == gain[-1]
+    # T >= 0, so the gain error keeps the sign of alpha, which is that of the final error
+    assert np.sign(p["temperature_coefficient_per_k"]) == np.sign(p["final_gain_error"])
+    assert p["temperature_coefficient_sign"] == np.sign(p["final_gain_error"])
+    assert np.all(gain * np.sign(p["final_gain_error"]) >= 0)
+    assert abs(p["final_temperature_rise_k"] * p["temperature_coefficient_per_k"]
+               - p["final_gain_error"]) < 1e-12
+    # measurement only: the plant is the nominal twin, the sensor reads (1 + g) theta
+    assert np.array_equal(rec["state"], rec["nominal_state"])
+    assert np.allclose(clean, (1 + gain) * th, rtol=0, atol=1e-12)
+    q = TWO_PI / 2**16
+    assert np.max(np.abs(y - (1 + gain) * th)) <= q / 2 + 1e-12
+    # effect size as for every measurement effect: deviation from the nominal twin
+    dev = gain * th
+    assert abs(tr["effect_size"]["max_abs_rad"] - np.max(np.abs(dev))) < 1e-12
+    assert tr["excited"] == (np.max(np.abs(dev)) > q / 2)
+
+
+@pytest.mark.parametrize("servo,N", [("kinematic", 1.0), ("cascade", 3.0)])
+def test_gain_heating_integrates_the_thermal_model(servo, N):
+    """Re-integrate C T' = s tau_out^2 - T/R with an independent integrator, the power held
+    at the square of the cycle-mean gear-output torque N clean_torque_nm[k] over
+    [t_k-1, t_k] (the docstring's zero-order hold), from T(0) = 0."""
+    rec = g.generate("gain_heating", 5, excitation="chirp", duration_s=0.4,
+                     nominal={"servo": servo, "gear_ratio": N})
+    tr = rec["truth"]
+    p, fs = tr["parameters"], tr["fs_hz"]
+    R, C = p["thermal_resistance_k_per_w"], p["thermal_capacitance_j_per_k"]
+    assert abs(R * C - p["thermal_time_constant_s"]) < 1e-12 * p["thermal_time_constant_s"]
+    tau_out = N * rec["clean_torque_nm"]
+    P = p["loss_coefficient_w_per_nm2"] * tau_out**2
+    temp = [0.0]
+    for kk in range(1, tau_out.size):
+        sol = solve_ivp(lambda t, x: [(P[kk] - x[0] / R) / C], ((kk - 1) / fs, kk / fs),
+                        [temp[-1]], method="DOP853", rtol=1e-12, atol=1e-14)
+        temp.append(sol.y[0, -1])
+    gain = np.asarray(tr["gain_error_series"])
+    expected = p["temperature_coefficient_per_k"] * np.array(temp)
+    assert np.max(np.abs(gain - expected)) < 1e-9 * abs(p["final_gain_error"])
+    assert abs(p["final_temperature_rise_k"] - temp[-1]) < 1e-9 * temp[-1]
+
+
+def test_gain_heating_follows_the_work_not_the_clock():
+    """Unlike gain_drift (a fixed exponential in time, concave, never falling), the heated
+    sensor cools while the drive rests and heats late when the drive works late."""
+    # steps: after each move's transient (0.3 s) the drive holds with almost no torque, so
+    # T cools as exp(-t / tau_th); the gain error shrinks there.
+    for servo in ("kinematic", "cascade"):
+        rec = g.generate("gain_heating", 3, excitation="steps", duration_s=10.0,
+                         nominal={"servo": servo})
+        p = rec["truth"]["parameters"]
+        gain = np.abs(np.asarray(rec["truth"]["gain_error_series"]))
+        holds = _holds(rec["command_rad"], 600)
+        assert len(holds) >= 3
+        for start, end in holds:
+            a = start + 300
+            cooled = gain[a] * math.exp(-(end - a) / 1000.0 / p["thermal_time_constant_s"])
+            assert gain[end] < gain[a]
+            assert abs(gain[end] / cooled - 1) < 5e-3  # pure cooling, bar the shaft's ripple
+        # and it heats during the moves: net rise from one hold to the next
+        ends = [end for _, end in holds]
+        assert np.all(np.diff(gain[ends]) > 0)
+    # chirp: the torque grows as f^2 and the loss as f^4, so little heat comes before mid-
+    # record; gain_drift has |g(T/2)| >= |g_end| / 2 for every time constant.
+    for seed in range(3):
+        rec = g.generate("gain_heating", seed, excitation="chirp", duration_s=10.0)
+        gain = np.asarray(rec["truth"]["gain_error_series"])
+        assert abs(gain[gain.size // 2]) < 0.25 * abs(gain[-1])
+
+
+@pytest.mark.parametrize("servo", ["kinematic", "cascade"])
+def test_gain_heating_without_torque_is_not_excited(servo):
+    # zero amplitude: the drive never works, the sensor never heats; no division by zero
+    rec = g.generate("gain_heating", 4, excitation="chirp", duration_s=1.0, amplitude_rad=0.0,
+                     nominal={"servo": servo})
+    tr = rec["truth"]
+    assert np.max(np.abs(rec["clean_torque_nm"])) < g.HEATING_TORQUE_FLOOR_NM
+    assert not tr["parameters"]["heated"]
+    assert tr["parameters"]["loss_coefficient_w_per_nm2"] == 0.0
+    assert np.all(np.asarray(tr["gain_error_series"]) == 0.0)
+    assert np.array_equal(rec["clean_angle_rad"], rec["state"][:, 2])
+    assert tr["effect_size"]["max_abs_rad"] == 0.0 and not tr["excited"]
+    json.dumps(tr)  # still a valid truth.json
+
+
+def test_gain_heating_parameters_can_be_fixed():
+    rec = g.generate("gain_heating", 1, excitation="prbs", duration_s=2.0,
+                     final_gain_error=-0.1, thermal_time_constant_s=1.5)
+    p = rec["truth"]["parameters"]
+    assert p["thermal_time_constant_s"] == 1.5 and p["temperature_coefficient_sign"] == -1
+    assert abs(rec["truth"]["gain_error_series"][-1] + 0.1) < 1e-12
+    with pytest.raises(ValueError):
+        g.generate("gain_heating", 1, duration_s=0.1, thermal_time_constant_s=0.0)
+
+
+def test_gain_drift_records_unchanged_by_gain_heating():
+    # sha256 as in _checksum, recorded with the generator before gain_heating was added
+    # (commit c257f9d), numpy 2.4.6 / scipy 1.17.1 on this machine.
+    a = g.generate("gain_drift", 1000, excitation="steps", duration_s=2.0, noise_rad=2e-4)
+    assert _checksum(a) == "bf3abc0e3feb24fd153fac8f28f2e4b66dad208e128745677290ddc1f88125b6"
+    b = g.generate("gain_drift", 1000, excitation="chirp", duration_s=2.0,
+                   nominal={"servo": "cascade"})
+    assert _checksum(b) == "8fc556a58087b3ef7aac9794801555b8a66289772719135a463bfdb6a8b793a8"
+
+
 # ------------------------------------------------------------- seeds, ranges, files
 @pytest.mark.parametrize("effect", sorted(g.EFFECTS))
 def test_parameters_within_documented_ranges(effect):
