@@ -16,9 +16,10 @@ order); the table gives the named sets.
 On an independent generator (``--generator independent``): the records come from
 ``benchmarks/independent_plants/drive_train_generator.py``, written from the physics alone by someone who never
 read ``identify/`` (a two-mass drive train behind a stiff position servo, sampled exactly, plus one effect, some
-of which our catalogue does not hold: a sensor that wraps at +-pi, a drifting sensor gain, cogging; some it holds
-in another form: encoder eccentricity, Stribeck friction, Bouc-Wen hysteresis in the coupling (the catalogue's
-shaft friction is Dahl's); and the catalogue-like Coulomb friction, gravity and backlash). Each row draws ``--cases`` records whose effect the generator says is excited (a record
+of which our catalogue does not hold: a sensor that wraps at +-pi, cogging; some it holds in another form: encoder
+eccentricity, Stribeck friction, Bouc-Wen hysteresis in the coupling (the catalogue's shaft friction is Dahl's), a
+sensor gain heated by the motor's losses (the catalogue's drifting gain settles with one time constant); and the
+catalogue-like drifting gain, Coulomb friction, gravity and backlash). Each row draws ``--cases`` records whose effect the generator says is excited (a record
 whose effect is not excited is skipped, counted, and replaced by the next seed, at most ``--max-draws`` per
 case); the excitations rotate through ``--excitations``. The workflow gets the record, a noise bound of half a
 count plus 4.5 standard deviations of the generator's Gaussian noise (:func:`independent_noise_bound`), the
@@ -257,8 +258,8 @@ def emps(decimate: int, noise_bound_m: float) -> None:
 ESTIMATION_FRACTION = DiagnoseOptions().estimation_fraction
 """The workflow's estimation share (the rest of a record is its validation segment)."""
 GENERATOR = Path(__file__).resolve().parent / "independent_plants" / "drive_train_generator.py"
-INDEPENDENT_EFFECTS = ("none", "eccentricity", "wrap", "gain_drift", "cogging", "stribeck", "hysteresis", "coulomb",
-                       "gravity", "backlash")
+INDEPENDENT_EFFECTS = ("none", "eccentricity", "wrap", "gain_drift", "gain_heating", "cogging", "stribeck",
+                       "hysteresis", "coulomb", "gravity", "backlash")
 """The generator's effects, in the order of its README (the catalogue-like ones last)."""
 INDEPENDENT_EXCITATIONS = ("steps", "chirp", "multisine", "prbs")
 """The excitations the cases rotate through. The generator's ``ramp`` (forward, then back once at the middle) is
@@ -277,9 +278,13 @@ ACCEPTED_NAMES: dict[str, frozenset[str]] = {
     "none": frozenset(),
     "eccentricity": frozenset({"encoder_error"}),  # the catalogue's once-per-revolution (and 2nd) encoder error
     "wrap": frozenset(),  # a single-turn reading: no catalogue equivalent
-    # y = (1 + g(t)) theta on an absolute angle near c != 0: y - c = (theta - c) + g(t) c + g(t) (theta - c), a
-    # drifting offset plus a (time-varying) gain error: the two catalogue effects of the measurement's scale
-    "gain_drift": frozenset({"gain_error", "offset"}),
+    # y = (1 + g(t)) theta, g settling with one time constant: the catalogue's drifting gain; and on an absolute
+    # angle near c != 0, y - c = (theta - c) + g(t) c + g(t) (theta - c), a drifting offset plus a gain error:
+    # the two catalogue effects of the measurement's static scale
+    "gain_drift": frozenset({"gain_drift", "gain_error", "offset"}),
+    # the gain of a sensor heated by the motor's losses, (1 + alpha T(t)) theta with C T' = s tau^2 - T / R: a
+    # drifting gain whose course follows the work the drive does, not one time constant; the same names
+    "gain_heating": frozenset({"gain_drift", "gain_error", "offset"}),
     "cogging": frozenset(),  # a load torque periodic in the angle, 6-36 per revolution: none
     # the catalogue's friction with breakaway (load_friction: Coulomb, static, viscous; coulomb_friction: its
     # quasi-static output form), and the output backlash that quasi-static Coulomb friction maps onto
@@ -407,7 +412,7 @@ def _train_of(model: PlantModel) -> DriveTrain | None:
 
 
 def truth_in_our_terms(truth: dict, nominal: dict, name: str, model: PlantModel,
-                       operating_point_rad: float) -> dict[str, float]:
+                       operating_point_rad: float, duration_s: float) -> dict[str, float]:
     """The generator's truth as the parameters our effect ``name`` reports, where the two describe the same
     thing; parameters without a counterpart are left out (not compared).
 
@@ -421,7 +426,9 @@ def truth_in_our_terms(truth: dict, nominal: dict, name: str, model: PlantModel,
     nominal load's is the model's). The hanging angle is reported from the operating
     point the workflow moved to: theta_0 - y_0. A resonance (a right name from a fitted start only) is the
     nominal plant's own shaft mode (:func:`shaft_mode`). The coupling's hysteresis is the twist its friction
-    holds, T_h / k. A drifting gain and the effects without a catalogue equivalent are not compared."""
+    holds, T_h / k. A drifting gain g_end (1 - exp(-t / tau)) / (1 - exp(-L / tau)) over a record of ``duration_s``
+    L moves by dg = g_end / (1 - exp(-L / tau)) from a start of zero, and its zero, in the frame of the operating
+    point y_0 the workflow moved to, by dg y_0. The effects without a catalogue equivalent are not compared."""
     p = truth["parameters"]
     effect_name = truth["effect"]
     if name == "resonance":
@@ -452,6 +459,11 @@ def truth_in_our_terms(truth: dict, nominal: dict, name: str, model: PlantModel,
         return {"c_l_rad": sliding * compliance_of_generator, "c_r_rad": sliding * compliance_of_generator}
     if name == "backlash" and effect_name == "backlash":
         return {"c_l_rad": p["half_width_rad"], "c_r_rad": p["half_width_rad"]}
+    if name == "gain_drift" and effect_name == "gain_drift":
+        tau = p["time_constant_s"]
+        change = p["final_gain_error"] / -math.expm1(-duration_s / tau)
+        return {"start_relative_error": 0.0, "relative_error_change": change, "time_constant_s": tau,
+                "zero_change_rad": change * operating_point_rad}
     if name == "shaft_friction" and effect_name == "hysteresis":
         # the twist the friction holds against the spring, T_h / k; the presliding twists are not the same
         # parameter (Bouc-Wen's beta = gamma = 1/2 unloads at 1 / d_h, Dahl's at up to 2 / d_h)
@@ -586,7 +598,8 @@ def run_independent_case(effect_name: str, case: int, cases: int, first_seed: in
     named = tuple(result.missing_effects)
     covered, missed = [0, 0], []
     for name in set(named) & accepted_names(effect_name, start):
-        ours = truth_in_our_terms(truth, nominal, name, result.final_model, result.operating_point_rad)
+        ours = truth_in_our_terms(truth, nominal, name, result.final_model, result.operating_point_rad,
+                                  command.size * float(nominal["sample_period_s"]))
         for key, (low, high) in result.parameter_intervals.get(name, {}).items():
             if key not in ours:
                 continue

@@ -83,6 +83,7 @@ from identify.plant_blocks import (
     EncoderError,
     OutputBacklash,
     OutputGain,
+    OutputGainDrift,
     OutputOffset,
     Resonance,
     Saturation,
@@ -95,14 +96,17 @@ from identify.series_effects import (
     build_backlash,
     build_encoder_error,
     build_friction,
+    build_gain_drift,
     build_resonance,
     build_saturation,
     dead_zone_guesses,
     encoder_error_guesses,
     encoder_error_implausible,
     friction_guesses,
+    gain_drift_guesses,
     gain_guesses,
     random_friction,
+    random_gain_drift,
     random_saturation,
     resonance_guesses,
     saturation_guesses,
@@ -269,12 +273,17 @@ class Effect:
     look_alike_only
         Not searched by default (not in :data:`SEARCHED_EFFECT_NAMES`): tried as the look-alike of a named
         effect or of the effects a round leaves open, or when named in the workflow's ``candidates``.
+    generalises
+        Effects that are this one in a limit (a gain error is a drifting gain that does not move): where an end of
+        the search with this effect and one with the simpler effect in its place fit within their uncertainty of
+        each other, the simpler is named, as an end with fewer effects is (``_clear_end`` in
+        :mod:`identify.model_discrepancy.search`).
     angle_sag
         For an effect that is a sine of the angle once per revolution (a weight's torque): fitted block ->
         the amplitude S (rad) of the sag it leaves at rest. Over a range R of angles such a sag departs from a
         straight line by at most S R^2 / 8; when that is below the noise bound, the record has not shown the
         sine, and any load torque that varies smoothly with the angle (cogging, a spring) fits as well
-        (``_shape_left_open`` in :mod:`identify.model_discrepancy.search`).
+        (``_shape_left_open`` in :mod:`identify.model_discrepancy.left_open`).
     loop_damping_value
         Dynamics effects: the index of the free value that is a viscous damping per inertia d / J (1/s) on
         the load's speed, which adds to the velocity loop's own K_v / J = 2 zeta omega_n: when the loop is
@@ -289,7 +298,7 @@ class Effect:
         that poles the start model lacks also give): from a fitted start it must still be needed once a linear
         block of a higher order takes the start model's place; if the model fits as well without it, the
         verdict is ambiguous and the effect is not named (:data:`LINEAR_ORDER_EXPERIMENT`; ``_order_left_open``
-        in :mod:`identify.model_discrepancy.search`).
+        in :mod:`identify.model_discrepancy.left_open`).
     needs_shaft
         Dynamics effects inside the shaft (its friction): tried only when the model has a compliant shaft (a
         given drive train with a finite stiffness, or a given linear block with a shaft mode,
@@ -336,6 +345,7 @@ class Effect:
     look_alikes: tuple[str, ...] = ()
     same_map_as: tuple[str, ...] = ()
     look_alike_only: bool = False
+    generalises: tuple[str, ...] = ()
     added_to_train: tuple[str, ...] = ()
     order_look_alike: bool = False
     needs_shaft: bool = False
@@ -512,6 +522,29 @@ EFFECTS: dict[str, Effect] = {effect.name: effect for effect in (
         random_block=lambda rng, u, f, period: OutputGain(gain=1.0 + rng.choice((-1.0, 1.0)) * rng.uniform(0.03, 0.15)),
         signature="r ~ e y^: the measured output is (1 + e) times the model's",
         needs_given_model=True, look_alikes=("encoder_error",), bounded_look_alikes=("encoder_error",),
+    ),
+    Effect(
+        name="gain_drift", block_class=OutputGainDrift, toml_type="gain_drift",
+        toml_keys=(TomlKey("gain"), TomlKey("gain_change"), TomlKey("time_constant_s"),
+                   TomlKey("zero_change_rad", default=0.0)),
+        takes_sample_period=True,
+        parameters=(Parameter("start_relative_error", "1", "gain - 1 at the record's first sample"),
+                    Parameter("relative_error_change", "1", "dg: how far the gain moves, all of it after many tau"),
+                    Parameter("time_constant_s", "s", "tau of the first-order approach", lower=0.0),
+                    Parameter("zero_change_rad", "rad", "dz: how far the zero moves with it, in the frame the "
+                              "workflow ran in (from the operating point where it moved there; a gain drifting "
+                              "about an angle A moves the zero by -dg A)")),
+        placement="end", free_parameters=4, build=build_gain_drift,
+        report=lambda b: {"start_relative_error": b.gain - 1.0, "relative_error_change": b.gain_change,
+                          "time_constant_s": b.time_constant_s, "zero_change_rad": b.zero_change_rad},
+        guesses=gain_drift_guesses,
+        # vanished: a gain that does not move is a gain error (the catalogue's own, which it generalises)
+        vanished=lambda b, delta: abs(b.gain_change) < NEGLIGIBLE_GAIN_ERROR,
+        random_block=random_gain_drift,
+        signature="r ~ (e0 + dg s) y^ + dz s, s = 1 - exp(-t T / tau): the measured output a multiple of the "
+                  "model's that changes over the record, its zero moving with it (a sensor following its "
+                  "temperature)",
+        needs_given_model=True, generalises=("gain_error",),
     ),
     Effect(
         name="encoder_error", block_class=EncoderError, toml_type="encoder_error",

@@ -18,6 +18,8 @@ the measured input u_t, the measured output y_t and the model's simulated output
   peak frequency;
 * ``offset``: r_t ~ o + drift * t T;
 * ``gain_error``: r_t ~ e y^_t (the measured output is (1 + e) times the model's); the details give e;
+* ``gain_drift``: r_t ~ e0 y^_t + dg (1 - exp(-t T / L)) y^_t, L the record's length: a gain that changes over
+  the record;
 * ``load_friction``: r_t ~ -c sign(v^_t), v^ the model's velocity: friction inside the dynamics holds the
   load back against its motion (a lag of constant size while it moves, the load left short where it stops);
 * ``gravity``: r_t ~ alpha sin(y^_t) + beta cos(y^_t): a position-dependent load sags the output by
@@ -160,6 +162,8 @@ def signature_scores(command_rad: NDArray[np.float64], angle_rad: NDArray[np.flo
     energy = float(np.dot(y_hat, y_hat))
     relative_error = float(np.dot(r, y_hat)) / energy if energy > 0.0 else 0.0
     scores["gain_error"] = SignatureScore("gain_error", _explained(r, y_hat), {"relative_error": relative_error})
+    settling = -np.expm1(-time_s / max(r.size * sample_period_s, sample_period_s))
+    scores["gain_drift"] = SignatureScore("gain_drift", _explained(r, y_hat, settling * y_hat), {})
     scores["encoder_error"] = _encoder_error_score(r, y_hat)
     scores.update(_drive_train_scores(y, y_hat, r, sample_period_s))
     return scores

@@ -18,7 +18,7 @@ The backlash and switch blocks and their borders are defined in :mod:`identify.b
 here with the others.
 
 The remaining blocks (:class:`DeadZone`, :class:`Saturation`, :class:`Delay`, :class:`Resonance`,
-:class:`OutputOffset`, :class:`CoulombFriction`) are the usual effects a real gearbox adds; their
+:class:`OutputOffset`, :class:`OutputGainDrift`, :class:`CoulombFriction`) are the usual effects a real gearbox adds; their
 docstrings give the equation each implements. Angles are in radians throughout.
 """
 
@@ -52,6 +52,7 @@ __all__ = [
     "LinearBlock",
     "OutputBacklash",
     "OutputGain",
+    "OutputGainDrift",
     "OutputOffset",
     "PiecewiseLinearBorder",
     "PlantModel",
@@ -425,6 +426,57 @@ class OutputGain:
     def stepper(self) -> _StaticStepper:
         gain = self.gain
         return _StaticStepper(lambda x: gain * float(x))
+
+
+@dataclass(frozen=True)
+class OutputGainDrift:
+    """A measured angle whose gain and zero settle from their first values towards others with one first-order
+    time constant: y_t = (g0 + dg s_t) x_t + dz s_t, s_t = 1 - exp(-t T / tau), t the sample index from the
+    record's start.
+
+    Models a sensor whose scale and zero follow its temperature while the rig warms up (the sensitivity of a
+    magnetic or inductive sensor, a resolver's excitation amplitude): a temperature that approaches a new
+    steady value (Newton's law of cooling) moves the gain by dg and the zero by dz with the time constant tau;
+    over a record much shorter than tau both drift linearly, dg t T / tau and dz t T / tau. (A gain drifting
+    about an angle A other than the frame's zero is dz = -dg A.)"""
+
+    gain: float
+    gain_change: float
+    time_constant_s: float
+    sample_period_s: float
+    zero_change_rad: float = 0.0
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "gain", finite("gain", self.gain))
+        object.__setattr__(self, "gain_change", finite("gain_change", self.gain_change))
+        object.__setattr__(self, "time_constant_s", positive("time_constant_s", self.time_constant_s))
+        object.__setattr__(self, "sample_period_s", positive("sample_period_s", self.sample_period_s))
+        object.__setattr__(self, "zero_change_rad", finite("zero_change_rad", self.zero_change_rad))
+
+    def settled(self, samples: int) -> NDArray[np.float64]:
+        """s_t at samples 0 .. ``samples`` - 1: the share of the change done."""
+        return -np.expm1(-np.arange(samples, dtype=float) * self.sample_period_s / self.time_constant_s)
+
+    def apply(self, signal: ArrayLike) -> NDArray[np.float64]:
+        x = as_signal("signal", signal)
+        s = self.settled(x.size)
+        return (self.gain + self.gain_change * s) * x + self.zero_change_rad * s
+
+    def stepper(self) -> _GainDriftStepper:
+        return _GainDriftStepper(self)
+
+
+class _GainDriftStepper:
+    __slots__ = ("block", "k")
+
+    def __init__(self, block: OutputGainDrift) -> None:
+        self.block, self.k = block, 0
+
+    def step(self, x: float) -> float:
+        b = self.block
+        s = -math.expm1(-float(self.k) * b.sample_period_s / b.time_constant_s)
+        self.k += 1
+        return (b.gain + b.gain_change * s) * float(x) + b.zero_change_rad * s
 
 
 @dataclass(frozen=True)

@@ -1,6 +1,6 @@
 """The guesses, builders and random draws of the catalogue's signal-chain effects (placements ``input``,
 ``output`` and ``end``: a play or friction after the drive, a dead zone, a saturation, a mode, an offset, a gain
-error, an encoder error), and the constants that bound their fits; :mod:`identify.drive_train_effects` holds
+error, a drifting gain, an encoder error), and the constants that bound their fits; :mod:`identify.drive_train_effects` holds
 those of the effects inside the drive train. The table itself, one :class:`~identify.effect_catalogue.Effect`
 per effect, is :data:`identify.effect_catalogue.EFFECTS`; its entries refer to these (they are its parts, not an
 API: ``__all__`` holds the constants).
@@ -15,12 +15,14 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import NDArray
 
-from identify.plant_blocks import Block, CoulombFriction, EncoderError, OutputBacklash, Resonance, Saturation
+from identify.plant_blocks import (Block, CoulombFriction, EncoderError, OutputBacklash, OutputGainDrift, Resonance,
+                                   Saturation)
 
 if TYPE_CHECKING:
     from identify.effect_catalogue import GuessContext
 
-__all__ = ["ENCODER_ERROR_MAX_RAD", "FRICTION_STIFFNESS_NM_PER_RAD", "MAX_RESONANCE_DAMPING", "NEGLIGIBLE_GAIN_ERROR"]
+__all__ = ["ENCODER_ERROR_MAX_RAD", "FRICTION_STIFFNESS_NM_PER_RAD", "GAIN_DRIFT_TIME_CONSTANTS", "MAX_RESONANCE_DAMPING",
+           "NEGLIGIBLE_GAIN_ERROR"]
 
 NEGLIGIBLE_GAIN_ERROR = 1.0e-3
 """A fitted gain within this of 1 is no gain error: a 0.1 % scale error is below what the workflow resolves
@@ -82,6 +84,46 @@ def gain_guesses(context: GuessContext) -> list[tuple[float, ...]]:
     score = context.scores.get("gain_error")
     relative_error = score.details.get("relative_error", 0.0) if score is not None else 0.0
     return [(relative_error,), *((e,) for e in (-0.2, -0.05, 0.05, 0.2))]
+
+
+GAIN_DRIFT_TIME_CONSTANTS = (0.1, 0.3, 1.0, 3.0)
+"""The time constants, in record lengths, a gain drift's fit starts from (:func:`gain_drift_guesses`): from a
+gain that has settled early in the record to one still drifting almost linearly at its end."""
+
+
+def build_gain_drift(v: Sequence[float], period: float) -> Block:
+    # free values (e0, dg, tau in s, dz in rad): the gain starts at 1 + e0 and moves by dg, the zero by dz, with
+    # the time constant tau
+    return OutputGainDrift(gain=1.0 + v[0], gain_change=v[1], time_constant_s=max(abs(v[2]), period),
+                           sample_period_s=period, zero_change_rad=v[3])
+
+
+def gain_drift_guesses(context: GuessContext) -> list[tuple[float, ...]]:
+    # for each time constant, e0, dg and dz by least squares on r ~ e0 y^ + (dg y^ + dz) (1 - exp(-t T / tau))
+    # (linear in them once tau is fixed)
+    r, y_hat = context.residual_rad, context.simulated_rad
+    duration = r.size * context.sample_period_s
+    if y_hat is None:
+        return [(0.0, 0.05, factor * duration, 0.0) for factor in GAIN_DRIFT_TIME_CONSTANTS]
+    times = np.arange(r.size) * context.sample_period_s
+    usable = np.isfinite(r) & np.isfinite(y_hat)
+    out = []
+    for factor in GAIN_DRIFT_TIME_CONSTANTS:
+        tau = factor * duration
+        settled = -np.expm1(-times / tau)
+        phi = np.column_stack((y_hat, settled * y_hat, settled))[usable]
+        start, change, zero = np.linalg.lstsq(phi, r[usable], rcond=None)[0] if np.any(phi) else (0.0, 0.0, 0.0)
+        out.append((float(start), float(change), tau, float(zero)))
+    return out
+
+
+def random_gain_drift(rng: np.random.Generator, u: NDArray[np.float64], estimation_fraction: float,
+                      period: float) -> Block:
+    # a gain that starts within 2 % of one and moves by 3-15 % with a time constant of 0.3-3 record lengths
+    duration = u.size * period
+    return OutputGainDrift(gain=1.0 + rng.uniform(-0.02, 0.02),
+                           gain_change=rng.choice((-1.0, 1.0)) * rng.uniform(0.03, 0.15),
+                           time_constant_s=rng.uniform(0.3, 3.0) * duration, sample_period_s=period)
 
 
 def build_encoder_error(v: Sequence[float], period: float) -> Block:

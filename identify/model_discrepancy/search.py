@@ -320,8 +320,9 @@ def _add_compound(parts: Sequence[_Candidate], chain: _Chain, current: Disagreem
 def _clear_end(ends: Sequence[_Search], complexity_penalty: float, consistent_fraction: float) -> _Search | None:
     """The look-ahead of :func:`_search`: the end all contenders reach, or the one clearly better than every
     other (by :data:`AMBIGUITY_SIGMAS` and :data:`AMBIGUITY_MIN_MARGIN` on the final validation errors). An
-    end within the uncertainty of another whose effects are a subset of its own gives way to it (a gain
-    error added before the dead zone that then explains everything is no second effect). None when two ends
+    end within the uncertainty of another whose effects are simpler (:func:`_simpler`: a subset of its own, or
+    an effect it generalises in its place) gives way to it (a gain error added before the dead zone that then
+    explains everything is no second effect; a drifting gain that fits no better than a constant one). None when two ends
     with different, not nested, sets of effects are within their uncertainty of each other.
 
     When the best end is consistent with the noise bound (at most ``consistent_fraction`` of the validation
@@ -347,12 +348,21 @@ def _clear_end(ends: Sequence[_Search], complexity_penalty: float, consistent_fr
     best = ranked[0]
     ties = [other for other in ranked[1:] if effects(other) != effects(best) and tie(best, other)]
     for other in ties:
-        if effects(other) < effects(best):
-            best = other  # as good within the uncertainty with fewer effects: the simpler explanation
+        if _simpler(effects(other), effects(best)):
+            best = other  # as good within the uncertainty with fewer or simpler effects: the simpler explanation
     for other in ties:
-        if effects(other) != effects(best) and not effects(best) < effects(other):
+        if effects(other) != effects(best) and not _simpler(effects(best), effects(other)):
             return None  # different effects, equally good: ambiguous
     return best
+
+
+def _simpler(these: frozenset[str], those: frozenset[str]) -> bool:
+    """Whether the effects ``these`` are a simpler explanation than ``those``: fewer of them, or as many, each
+    of ``these`` among ``those`` or an effect one of ``those`` generalises (catalogue ``generalises``: a gain
+    error is a drifting gain that does not move)."""
+    if these == those or len(these) > len(those):
+        return False
+    return all(name in those or any(name in EFFECTS[other].generalises for other in those) for name in these)
 
 
 def _clearly_better_end(end: _Search, steps_before: int, current: Disagreement,

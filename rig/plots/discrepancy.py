@@ -159,6 +159,9 @@ def signature_figure(step: DiscrepancyStep, number: int, residual_rad: NDArray[n
         x = np.gradient(np.gradient(simulated_rad) / period) / period
         x_label = "acceleration of the model d2y^/dt2 [rad/s^2]"
         what = "the residual grows where the model accelerates harder than the drive can"
+    elif effect == "gain_drift":
+        x, x_label = time_s, "time [s]"
+        what = "the residual is a multiple of the model's output that changes over the record"
     elif effect == "gravity":
         x, x_label = simulated_rad, "model angle y^ [rad]"
         what = "the residual follows the sine of the angle: a position-dependent load"

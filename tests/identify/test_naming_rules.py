@@ -33,7 +33,7 @@ UNIT_SUFFIX = re.compile(r"_(rad|s|hz|nm|samples|db|kg|m|kg_m2|per_s|rad_per_s|r
 
 DIMENSIONLESS = {
     # ratios, fractions, gains and slopes (rad per rad): a dimensionless quantity carries no suffix (rule 3)
-    "m_l", "m_r", "slope", "gain", "gear_ratio", "velocity_feedforward", "damping_ratio",
+    "m_l", "m_r", "slope", "gain", "gain_change", "gear_ratio", "velocity_feedforward", "damping_ratio",
     "position_loop_damping_ratio", "filter_pole", "reference_pole", "pole_tolerance", "complexity_penalty",
     "min_reduction", "reduction", "consistent_fraction", "estimation_fraction", "falsified_fraction",
     "falsified_fraction_before", "falsified_fraction_after", "falsified_fraction_initial",
