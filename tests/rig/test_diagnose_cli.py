@@ -74,10 +74,12 @@ def test_the_report_page_is_headed_by_an_ambiguous_verdict_never_by_no_missing_e
                  str(report)]) == exit_codes.SUCCESS
     document = json.loads(capsys.readouterr().out)
     between = document["ambiguous_between"]
-    assert document["verdict"] == "ambiguous" and "offset" in between and len(between) == 2
+    # over so small a motion an offset, a weight and a sensor error once per revolution are one constant
+    assert document["verdict"] == "ambiguous" and "offset" in between and len(between) >= 2
+    assert set(between) <= {"offset", "gravity", "encoder_error"}
     page = (report / "index.html").read_text()
     assert "No missing effect found" not in page
-    assert f"Model discrepancy: AMBIGUOUS between {between[0]} and {between[1]}" in page
+    assert f"Model discrepancy: AMBIGUOUS between {', '.join(between[:-1])} and {between[-1]}" in page
     assert "Verdict AMBIGUOUS" in page
 
 

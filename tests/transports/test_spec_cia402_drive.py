@@ -212,7 +212,8 @@ def test_a_drive_fault_mid_run_stops_the_run_and_the_drive_ends_disabled(tmp_pat
     """A following error (IP: at record 40; CSP: injected after 40 samples): FAULT REACTION ACTIVE, EMCY
     0x8611, then FAULT; the master stops naming the code; the drive's controlwords in FAULT do nothing."""
     def fault_at_40(done: int, late: int) -> None:
-        if mode == "csp" and done == 40:
+        # once, at the first report of 40 samples or more: a device-clocked loop reports per batch it files
+        if mode == "csp" and done >= 40 and not rig.faults:
             rig.fault(EMCY_FOLLOWING_ERROR)
 
     with _rig(tmp_path, following_error_at_record=None if mode == "csp" else 40) as rig:
@@ -223,8 +224,13 @@ def test_a_drive_fault_mid_run_stops_the_run_and_the_drive_ends_disabled(tmp_pat
 
 
 def test_an_encoder_emcy_mid_run_stops_the_run_and_the_drive_ends_disabled(tmp_path, no_leaks):
+    sent = []
+
     def emcy_at_40(done: int, late: int) -> None:
-        if done == 40:
+        # once, at the first report of 40 samples or more: the device-clocked loop reports per batch it files,
+        # and on a busy machine a batch can pass 40 without reporting it
+        if done >= 40 and not sent:
+            sent.append(done)
             rig.encoder_emcy(0x5000)  # CiA 301: device hardware
 
     with _rig(tmp_path) as rig:
