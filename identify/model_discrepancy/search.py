@@ -245,8 +245,9 @@ def _search(state: _Search, remaining: list[str], u: NDArray[np.float64], y: NDA
             if undecided:
                 alikes = _look_alikes_fitted(best, tuple(c.effect for c in undecided), chain, u, y, n_est, delta,
                                              period, current, scores, options, modes)
-                tried_all.extend(replace(entry(c), round=round_index - 1) for c in alikes)
-                undecided = (*undecided, *tried_all[len(tried_all) - len(alikes):])
+                listed = [replace(entry(c), round=round_index - 1) for c in alikes]
+                tried_all.extend(listed)
+                undecided = (*undecided, *listed)
                 say(f"undecided: {', '.join(c.effect for c in undecided)} lower the gap by about the required "
                     f"{100 * min_reduction:.0f} % within their uncertainty")
                 return _Search(chain, current, steps, tried_all, tuple(c.effect for c in undecided), validation_error,
