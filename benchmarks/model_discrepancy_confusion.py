@@ -582,9 +582,12 @@ def run_independent_case(effect_name: str, case: int, cases: int, first_seed: in
         raise RuntimeError(f"{effect_name} seed {seed}: our {type(block).__name__} differs from the generator's nominal "
                            f"twin by {conversion_error:.3g} rad")
     started = time.perf_counter()
+    peak_rad = truth["effect_size"].get("max_abs_rad", math.inf)
+    if effect_name == "wrap":  # the generator sizes an effect on the clean angle, which a wrap leaves alone
+        peak_rad = float(np.max(np.abs(record["angle_rad"] - record["clean_angle_rad"])))
     base = {"effect": effect_name, "case": case, "seed": seed, "excitation": excitation, "skipped": skipped,
             "effect_size_counts": truth["effect_size"].get("max_abs_counts"),
-            "effect_peak_rad": truth["effect_size"].get("max_abs_rad", math.inf),
+            "effect_peak_rad": peak_rad,
             "in_validation": _effect_in_validation(record), "noise_bound_rad": delta,
             "conversion_error_rad": conversion_error}
     try:
