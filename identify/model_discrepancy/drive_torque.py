@@ -67,10 +67,11 @@ from identify.model_discrepancy.thresholds import (
 )
 
 OUTCOMES = ("load_torque", "no_load_torque", "undecided")
-SAG_LOOK_ALIKES = ("encoder_error", "offset", "gain_error")
+SAG_LOOK_ALIKES = ("encoder_error", "offset", "gain_error", "gain_drift")
 """The sensor errors that read like a weight's sag: a once-per-revolution error (gravity's look-alike in the
-catalogue), and over a short span of angles an offset and a gain error (the sine's value and slope there). The
-drive feels none of them: they are not tried again once its torque shows the weight."""
+catalogue), and over a short span of angles an offset and a gain error (the sine's value and slope there), or a
+gain and zero that drift (a slope and a value that change over the record: on a weight's steps, what the steps'
+sags leave). The drive feels none of them: they are not tried again once its torque shows the weight."""
 
 
 @dataclass(frozen=True)

@@ -131,6 +131,22 @@ def test_a_drive_train_model_lets_the_torque_exclude_the_weight_and_leave_the_se
 
 
 @pytest.mark.slow
+def test_a_weight_the_drive_carries_is_named_where_a_drifting_gain_reads_like_its_steps():
+    # the servo as our drive train: the angle alone leaves this weight open beside a drifting gain (what the sags
+    # of its steps leave is a slope and a value that change over the record) and the encoder error; the drive
+    # carries the weight, so the sensor errors that read like the sag are not tried again, the drifting gain among
+    # them (it was, and the weight stayed open beside it)
+    record = _record("gravity", 1012, "steps", "cascade")
+    model = PlantModel((confusion.nominal_drive_train(record["nominal"]),))
+    result = diagnose_model(record["command_rad"], record["angle_rad"],
+                            confusion.independent_noise_bound(record["nominal"]), 1e-3, model,
+                            drive_torque=record["torque_nm"], drive_torque_nm_per_unit=1.0)
+    assert result.load_torque_check is not None and result.load_torque_check.outcome == "load_torque"
+    assert result.verdict == "named" and result.missing_effects == ("gravity",), result.verdict_reason
+    assert "gain_drift not tried" in result.verdict_reason
+
+
+@pytest.mark.slow
 def test_a_large_sensor_error_the_angle_leaves_open_beside_a_weight_is_named_by_the_torque():
     # a once-per-revolution sensor error of 30 mrad: from the angle alone gravity or the sensor error; the drive
     # carries no weight (a weight giving the sag would put 3.8 N m on it), and the sensor error is named and sized
