@@ -49,6 +49,15 @@ def _check(record: dict, weight_torque: float = math.nan):
                              float(record["nominal"]["sample_period_s"]), weight_torque)
 
 
+def _diagnosed_against_the_servo(record: dict):
+    """The record diagnosed with the drive's torque (N m, gear ratio 1) from the generator's nominal servo as our
+    drive train, with physical units, so that the torque can exclude a weight."""
+    model = PlantModel((confusion.nominal_drive_train(record["nominal"]),))
+    return diagnose_model(record["command_rad"], record["angle_rad"],
+                          confusion.independent_noise_bound(record["nominal"]), 1e-3, model,
+                          drive_torque=record["torque_nm"], drive_torque_nm_per_unit=1.0)
+
+
 @pytest.mark.parametrize("servo", ["kinematic", "cascade"])
 @pytest.mark.parametrize("seed, excitation", [(1000, "steps"), (1002, "multisine")])
 def test_a_weight_shows_in_the_torque_with_its_size_and_hanging_angle(servo, seed, excitation):
@@ -118,10 +127,7 @@ def test_a_drive_train_model_lets_the_torque_exclude_the_weight_and_leave_the_se
     # gravity is excluded, and the sensor errors that read like the sag are searched: over this record's angles
     # the once-per-revolution error, an offset and a gain error stay alike (listed, none named)
     record = _record("eccentricity", 1002, "multisine", "cascade")
-    model = PlantModel((confusion.nominal_drive_train(record["nominal"]),))
-    result = diagnose_model(record["command_rad"], record["angle_rad"],
-                            confusion.independent_noise_bound(record["nominal"]), 1e-3, model,
-                            drive_torque=record["torque_nm"], drive_torque_nm_per_unit=1.0)
+    result = _diagnosed_against_the_servo(record)
     check = result.load_torque_check
     assert check is not None and check.outcome == "no_load_torque", result.verdict_reason
     assert check.weight_torque > 3.0 * (check.torque + 3.0 * check.torque_sigma)
@@ -137,10 +143,7 @@ def test_a_weight_the_drive_carries_is_named_where_a_drifting_gain_reads_like_it
     # carries the weight, so the sensor errors that read like the sag are not tried again, the drifting gain among
     # them (it was, and the weight stayed open beside it)
     record = _record("gravity", 1012, "steps", "cascade")
-    model = PlantModel((confusion.nominal_drive_train(record["nominal"]),))
-    result = diagnose_model(record["command_rad"], record["angle_rad"],
-                            confusion.independent_noise_bound(record["nominal"]), 1e-3, model,
-                            drive_torque=record["torque_nm"], drive_torque_nm_per_unit=1.0)
+    result = _diagnosed_against_the_servo(record)
     assert result.load_torque_check is not None and result.load_torque_check.outcome == "load_torque"
     assert result.verdict == "named" and result.missing_effects == ("gravity",), result.verdict_reason
     assert "gain_drift not tried" in result.verdict_reason
@@ -154,10 +157,7 @@ def test_a_large_sensor_error_the_angle_leaves_open_beside_a_weight_is_named_by_
         "eccentricity", 1000, excitation="steps", duration_s=confusion.INDEPENDENT_DURATION_S["steps"], bits=12,
         noise_rad=confusion.NOISE_STD_RAD, torque_noise_nm=TORQUE_NOISE_NM, nominal={"servo": "cascade"},
         a1_rad=0.03, a2_rad=0.0)
-    model = PlantModel((confusion.nominal_drive_train(record["nominal"]),))
-    result = diagnose_model(record["command_rad"], record["angle_rad"],
-                            confusion.independent_noise_bound(record["nominal"]), 1e-3, model,
-                            drive_torque=record["torque_nm"], drive_torque_nm_per_unit=1.0)
+    result = _diagnosed_against_the_servo(record)
     assert result.missing_effects == ("encoder_error",) and result.load_torque_check.outcome == "no_load_torque"
     assert result.steps[0].parameters["once_per_rev_rad"] == pytest.approx(0.03, rel=0.1)
 
