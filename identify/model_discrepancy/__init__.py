@@ -35,7 +35,9 @@ per step:
    ``named`` when effects were kept, ``ambiguous`` when the best candidate has rivals within their
    uncertainty or its reduction straddles the acceptance, ``unexplained`` when nothing helps, and
    ``not_excited`` when a segment never sees the command turn or the output moves while command and model
-   rest. The verdict judges the whole record: ``explained`` needs agreement on the estimation segment too,
+   rest. The verdict judges the whole record: ``explained`` needs agreement on the estimation segment too
+   (a start model that agrees with the validation segment only is judged again on the estimation segment
+   alone, split as a record is, :func:`.pipeline._judged_where_it_disagrees`),
    and a gross disagreement of the measurement with itself, found before any model runs
    (:func:`gross_disagreements`: a sensor wrap, jumps of 2 pi between consecutive samples; glitches,
    isolated spikes), is reported with its sample ranges (:class:`GrossDisagreement`, the result's

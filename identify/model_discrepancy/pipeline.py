@@ -44,6 +44,7 @@ from identify.model_discrepancy.thresholds import (
     RESTART_WINDOW_S,
 )
 from identify.model_discrepancy.verdict import (
+    _estimation_falsified,
     _excitation,
     _final_verdict,
     _left_unexplained,
@@ -147,7 +148,8 @@ def _diagnosed_record(command_rad: ArrayLike, angle_rad: ArrayLike, noise_bound_
         say(f"not excited: {excitation['reason']}")
         return _not_excited(u, y, delta, model, n_est, excitation, options.consistent_fraction)
     first = _diagnosed(u, y, delta, period, model, options, n_est, excitation, say, sag_shape_shown)
-    return _restarted_if_open(first, u, y, delta, period, n_est, excitation, options, say)
+    first = _restarted_if_open(first, u, y, delta, period, n_est, excitation, options, say)
+    return _judged_where_it_disagrees(first, u, y, delta, period, model, n_est, options, say)
 
 
 def _diagnosed(u: NDArray[np.float64], y: NDArray[np.float64], delta: float, period: float, model: PlantModel | None,
@@ -298,6 +300,64 @@ def _restarted_if_open(first: DiscrepancyResult, u: NDArray[np.float64], y: NDAr
                    verdict_reason=reason, ambiguous_between=ambiguous_between,
                    candidates=(*first.candidates, *(replace(c, round=c.round + rounds) for c in second.candidates)),
                    restart_window_samples=window)
+
+
+def _judged_where_it_disagrees(first: DiscrepancyResult, u: NDArray[np.float64], y: NDArray[np.float64],
+                               delta: float, period: float, model: PlantModel | None, n_est: int,
+                               options: DiagnoseOptions, say: Callable[[str], None]) -> DiscrepancyResult:
+    """``first``, or, when the start model agrees with the validation segment but not with the estimation
+    segment (``first`` is then ``unexplained``, :func:`.verdict._verdict`), the record judged where it disagrees:
+    steps 2-9 on the estimation segment alone, split as a record is (its first ``estimation_fraction`` fits, the
+    rest validates). The validation segment then has nothing to judge an effect on, and the estimation segment
+    does (an effect the validation segment's commands hardly excite, a sensor error small at the angles it
+    visits).
+
+    What that names or leaves open is kept only when the model with it still agrees with the record's validation
+    segment, as the start model does; the result then describes the judgement made: its estimation segment is
+    the estimation segment's first part, its validated gaps are over the rest of the record. Otherwise, and when
+    the estimation segment's own split is not excited or the disagreement lies in its first part only (nothing
+    left to validate on), ``first``, with what the estimation segment alone said added to its reason."""
+    if first.steps or first.verdict != "unexplained" or \
+            first.initial.falsified_fraction > options.consistent_fraction or \
+            _estimation_falsified(first.initial, y, n_est) <= options.consistent_fraction:
+        return first
+    n_part = int(round(options.estimation_fraction * n_est))
+    part = (f"the estimation segment alone (samples 0-{n_part - 1} fitting, {n_part}-{n_est - 1} validating)")
+    u_part, y_part = u[:n_est], y[:n_est]
+    excitation = _excitation(u_part, n_part)
+    try:
+        _check_measured(y_part, n_part)
+    except InvalidInputError as too_few:
+        excitation = {**excitation, "reason": str(too_few)}
+    if excitation["reason"]:
+        say(f"{part} is not judged: {excitation['reason']}")
+        return replace(first, verdict_reason=f"{first.verdict_reason}. Judged on {part}: not excited "
+                                             f"({excitation['reason']})")
+    say(f"judged on {part}, where the record disagrees with the start model")
+    found = _diagnosed(u_part, y_part, delta, period, model, options, n_part, excitation, say)
+    found = _restarted_if_open(found, u_part, y_part, delta, period, n_part, excitation, options, say)
+    if found.initial.falsified_fraction <= options.consistent_fraction:
+        return replace(first, verdict_reason=(
+            f"{first.verdict_reason}. Its last {n_est - n_part} samples agree with the start model too: the "
+            "disagreement lies where an effect would be fitted, and no part of the record that shows it is left to "
+            "validate one on"))
+    if found.verdict not in ("named", "ambiguous"):
+        return replace(first, verdict_reason=f"{first.verdict_reason}. Judged on {part}: {found.verdict} "
+                                             f"({found.verdict_reason})")
+    validation = disagreement(found.final_model, u, y, delta, n_est)
+    named = ", ".join(found.missing_effects)
+    if validation.falsified_fraction > options.consistent_fraction:
+        return replace(first, verdict_reason=(
+            f"{first.verdict_reason}. Judged on {part}: {found.verdict} ({found.verdict_reason}); but the model with "
+            f"{named or 'what it left open'} disagrees with the validation segment on {100 * validation.falsified_fraction:.1f} % of its "
+            "samples, where the start model agrees: rejected"))
+    initial = disagreement(found.start_model, u, y, delta, n_part)
+    final = disagreement(found.final_model, u, y, delta, n_part)
+    return replace(found, initial=initial, final=final,
+                   consistent=final.falsified_fraction <= options.consistent_fraction,
+                   verdict_reason=f"{first.verdict_reason}. Judged on {part}: {found.verdict_reason}" + (
+                       f"; the model with {named} still agrees with the validation segment (samples {n_est}-"
+                       f"{u.size - 1}) within the noise bound" if found.steps else ""))
 
 
 def _restartable_start(start_model: PlantModel, u: NDArray[np.float64], delta: float) -> PlantModel | None:

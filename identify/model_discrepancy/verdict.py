@@ -173,8 +173,8 @@ def _verdict(initial: Disagreement, final: Disagreement, steps: Sequence[Discrep
             return "unexplained", (
                 f"the start model agrees with the validation segment within the noise bound ({delta:.3g} rad), but "
                 f"{100 * estimation_falsified:.1f} % of the estimation segment's samples are outside it"
-                f"{' (samples ' + where + ')' if where else ''}: the record disagrees with the model there, and no "
-                "effect can be judged on a validation segment that does not show it")
+                f"{' (samples ' + where + ')' if where else ''}: the record disagrees with the model there, which a "
+                "validation segment that does not show it cannot judge")
         return "explained", (f"the start model agrees with the data within the noise bound ({delta:.3g} rad) on "
                              f"{100 * (1 - initial.falsified_fraction):.1f} % of validation samples and "
                              f"{100 * (1 - estimation_falsified):.1f} % of estimation samples; an effect that moves "
