@@ -22,6 +22,7 @@ other model runs free under either comparison.
 
 from __future__ import annotations
 
+import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
 from contextvars import ContextVar
@@ -30,7 +31,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from identify.drive_train import DriveTrain
-from identify.plant_blocks import PlantModel
+from identify.plant_blocks import Block, PlantModel
 
 _RESTART_SAMPLES: ContextVar[int | None] = ContextVar("restart_samples", default=None)
 
@@ -58,8 +59,48 @@ def simulated(model: PlantModel, u: NDArray[np.float64], y: NDArray[np.float64])
     restarted every window from the measured ``y`` (NaN: not measured, no restart there)."""
     window = _RESTART_SAMPLES.get()
     if window is None:
-        return np.asarray(model.simulate(u), dtype=float)
+        return free_run(model, u)
     return restarted_run(model, u, y, window)
+
+
+TRAIN_RUNS_KEPT = 4
+"""How many runs of a drive train (with the blocks before it, on one command) :func:`free_run` keeps per thread:
+a fit of a sensor's effect runs one train hundreds of times, and the search moves between a few."""
+
+_TRAIN_RUNS = threading.local()
+
+
+def free_run(model: PlantModel, u: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``model.simulate(u)``, bit for bit, with the run of its blocks up to its last drive train kept for the next
+    runs of the same blocks on the same command (:data:`TRAIN_RUNS_KEPT`): a fit of an effect after the train (a
+    sensor's offset, gain or once-per-revolution error) moves only the blocks after it, and the train's kernel
+    is most of what a run costs."""
+    blocks = model.blocks
+    at = max((i for i, block in enumerate(blocks) if isinstance(block, DriveTrain)), default=None)
+    if at is None:
+        return np.asarray(model.simulate(u), dtype=float)
+    through_train = blocks[:at + 1]
+    runs: list[tuple[tuple[Block, ...], NDArray[np.float64], NDArray[np.float64]]] = getattr(_TRAIN_RUNS, "runs", [])
+    _TRAIN_RUNS.runs = runs
+    for kept_blocks, command, output in runs:
+        if command.shape == u.shape and _same_blocks(kept_blocks, through_train) and np.array_equal(command, u):
+            break
+    else:
+        output = np.asarray(PlantModel(through_train).simulate(u), dtype=float)
+        runs.insert(0, (through_train, np.array(u, dtype=float), output))
+        del runs[TRAIN_RUNS_KEPT:]
+    signal = output.copy()
+    for block in blocks[at + 1:]:
+        signal = block.apply(signal)
+    return np.asarray(signal, dtype=float)
+
+
+def _same_blocks(a: tuple[Block, ...], b: tuple[Block, ...]) -> bool:
+    """Whether two chains of blocks are equal field by field (a block holding an array compares as different)."""
+    try:
+        return bool(a == b)
+    except ValueError:
+        return False
 
 
 def restarted_run(model: PlantModel, u: NDArray[np.float64], y: NDArray[np.float64],

@@ -17,7 +17,7 @@ import pytest
 
 from identify.drive_train import DriveTrain
 from identify.model_discrepancy import DiscrepancyReport
-from identify.model_discrepancy.comparison import restarted_every, restarted_run, simulated
+from identify.model_discrepancy.comparison import free_run, restarted_every, restarted_run, simulated
 from identify.model_discrepancy.pipeline import _restartable_start
 from identify.plant_blocks import LinearBlock, OutputOffset, PlantModel
 
@@ -59,6 +59,21 @@ def test_a_restart_moves_the_output_to_the_measured_angle_and_only_under_the_com
         assert np.array_equal(simulated(model, u, y), restarted)
         linear = PlantModel((LinearBlock(a=(-0.5,), b=(0.0, 0.5), sample_period_s=1e-3),))
         assert np.array_equal(simulated(linear, u, y), linear.simulate(u))  # no load to restart: free run
+
+
+def test_a_kept_train_run_serves_only_the_same_train_on_the_same_command():
+    # free_run keeps the run through the train for the fits of a sensor's effect after it; every answer must be
+    # the model's own run, bit for bit, whichever train or command came before
+    offset = OutputOffset(offset_rad=1e-3, drift_rad_per_s=0.0, sample_period_s=1e-3)
+    u = _steps()
+    wider = dataclasses.replace(TRAIN, play_rad=5e-3)
+    for model, command in [(PlantModel((TRAIN, offset)), u), (PlantModel((TRAIN,)), u),
+                           (PlantModel((wider, offset)), u), (PlantModel((TRAIN, offset)), 0.5 * u),
+                           (PlantModel((TRAIN, dataclasses.replace(offset, offset_rad=-2e-3))), u)]:
+        run = free_run(model, command)
+        assert np.array_equal(run, model.simulate(command))
+        run += 1.0  # the caller's copy: what is kept does not change
+        assert np.array_equal(free_run(model, command), model.simulate(command))
 
 
 def test_a_nan_sample_restarts_nothing():
