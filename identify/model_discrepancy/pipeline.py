@@ -346,18 +346,19 @@ def _judged_where_it_disagrees(first: DiscrepancyResult, u: NDArray[np.float64],
                                              f"({found.verdict_reason})")
     validation = disagreement(found.final_model, u, y, delta, n_est)
     named = ", ".join(found.missing_effects)
+    judged_model = f"the model with {named}" if named else "the start model of that part"
     if validation.falsified_fraction > options.consistent_fraction:
         return replace(first, verdict_reason=(
-            f"{first.verdict_reason}. Judged on {part}: {found.verdict} ({found.verdict_reason}); but the model with "
-            f"{named or 'what it left open'} disagrees with the validation segment on {100 * validation.falsified_fraction:.1f} % of its "
-            "samples, where the start model agrees: rejected"))
+            f"{first.verdict_reason}. Judged on {part}: {found.verdict} ({found.verdict_reason}); but {judged_model} "
+            f"disagrees with the validation segment on {100 * validation.falsified_fraction:.1f} % of its samples, "
+            "where the start model agrees: rejected"))
     initial = disagreement(found.start_model, u, y, delta, n_part)
     final = disagreement(found.final_model, u, y, delta, n_part)
     return replace(found, initial=initial, final=final,
                    consistent=final.falsified_fraction <= options.consistent_fraction,
-                   verdict_reason=f"{first.verdict_reason}. Judged on {part}: {found.verdict_reason}" + (
-                       f"; the model with {named} still agrees with the validation segment (samples {n_est}-"
-                       f"{u.size - 1}) within the noise bound" if found.steps else ""))
+                   verdict_reason=(f"{first.verdict_reason}. Judged on {part}: {found.verdict_reason}; "
+                                   f"{judged_model} agrees with the validation segment (samples {n_est}-{u.size - 1}) "
+                                   "within the noise bound too"))
 
 
 def _restartable_start(start_model: PlantModel, u: NDArray[np.float64], delta: float) -> PlantModel | None:

@@ -122,3 +122,19 @@ def test_a_sensor_error_the_validation_segment_does_not_show_is_judged_where_the
     assert "Judged on the estimation segment alone (samples 0-1799 fitting, 1800-2999 validating)" in \
         result.verdict_reason
     assert result.estimation_samples == 1800 and result.initial.simulated_rad.size == 5000
+
+
+def test_what_the_estimation_segment_alone_leaves_open_is_rejected_when_the_validation_segment_falsifies_it():
+    # hysteresis seed 1004, steps, no model given: the start model fitted on the first 60 % agrees with the
+    # validation segment; the one fitted on the estimation segment's own first part does not (1.7 % of the
+    # validation samples outside the noise bound), so what that part leaves open is not reported
+    record = lookalikes.generator_module().generate(
+        "hysteresis", 1004, excitation="steps", duration_s=lookalikes.DURATION_S["steps"], bits=12,
+        noise_rad=lookalikes.NOISE_STD_RAD)
+    nominal = record["nominal"]
+    result = diagnose_model(record["command_rad"], record["angle_rad"], lookalikes.noise_bound(nominal),
+                            float(nominal["sample_period_s"]))
+    assert result.verdict == "unexplained" and result.ambiguous_between == (), result.verdict_reason
+    assert "Judged on the estimation segment alone" in result.verdict_reason
+    assert result.verdict_reason.endswith("where the start model agrees: rejected")
+    assert result.estimation_samples == 3000
