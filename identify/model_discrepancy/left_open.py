@@ -57,13 +57,12 @@ def _look_alikes_fitted(best: _Candidate, members: tuple[str, ...], chain: _Chai
     range of angles an offset and a load torque are one constant, and so is a sensor error once per revolution:
     a round left open between the first two lists the third when it fits as well.
 
-    Each look-alike is fitted twice when the first does not pass: to the record, and to ``best``'s output (then
-    judged against the record). Over the small range of angles an estimation segment may cover, the encoder
-    error's harmonics are nearly one polynomial, and its fit to the record chases the quantisation with errors
-    of a tenth of a radian that cancel there and not over the validation segment's angles (the clean-room
-    eccentricity on cascade steps seed 1035: 104 and 55 mrad fitted, 16.7 mrad validated, where 1.0 and 0.5 mrad
-    fit the estimation segment within 0.05 mrad rms and validate at 0.68); fitted to the smooth output of the
-    effect it would stand in for, it answers the question asked: whether it draws the same record."""
+    A look-alike fitted to the record that does not pass is made to follow ``best``'s output instead
+    (:func:`_following`), as a named effect's look-alike is: over the small range of angles an estimation segment
+    may cover, the encoder error's harmonics are nearly one polynomial, and its fit to the record chases the
+    quantisation with errors of a tenth of a radian that cancel there and not over the validation segment's
+    angles (the clean-room eccentricity on cascade steps seed 1035: 104 and 55 mrad fitted, 16.7 mrad validated,
+    where 1.0 and 0.5 mrad fit the estimation segment within 0.05 mrad rms and validate at 0.68)."""
     if not set(SEARCHED_EFFECT_NAMES) <= set(options.candidates):
         return []  # a search the user restricted to some candidates stays within them
     measured = ~np.isnan(y)
@@ -93,15 +92,24 @@ def _look_alike_fits(alike: str, chain: _Chain, best_output: NDArray[np.float64]
                      y: NDArray[np.float64], n_est: int, delta: float, period: float, current: Disagreement,
                      scores: dict[str, SignatureScore], options: DiagnoseOptions,
                      modes: tuple[tuple[float, float], ...]) -> Iterator[_Candidate]:
-    """Look-alike ``alike`` in ``chain``: fitted to the record, then (only if asked for) fitted to
-    ``best_output`` on the estimation segment and judged against the record (:func:`_look_alikes_fitted`)."""
-    yield _try_effect(alike, chain, u, y, n_est, delta, period, current.residual_rad, scores,
-                      options.max_delay_samples, options.max_evaluations, modes=modes)
-    chain_output = simulated(chain.model(), u, y)
-    drawn = _try_effect(alike, chain, u, best_output, n_est, delta, period, best_output - chain_output,
-                        signature_scores(u, best_output, chain_output, delta, period), options.max_delay_samples,
-                        options.max_evaluations, modes=modes)
-    yield _judged(alike, drawn.chain, drawn.index, u, y, n_est)
+    """Look-alike ``alike`` in ``chain``: fitted to the record, then (only if asked for) made to follow
+    ``best_output`` (:func:`_following`)."""
+    fitted = _try_effect(alike, chain, u, y, n_est, delta, period, current.residual_rad, scores,
+                         options.max_delay_samples, options.max_evaluations, modes=modes)
+    yield fitted
+    yield _following(fitted, best_output, u, y, n_est, options)
+
+
+def _following(candidate: _Candidate, output: NDArray[np.float64], u: NDArray[np.float64], y: NDArray[np.float64],
+               n_est: int, options: DiagnoseOptions) -> _Candidate:
+    """``candidate`` polished to follow ``output`` (another model's free run) on the whole record's measured
+    samples, then judged against the record: whether any such look-alike gives what that model gives, the
+    question a look-alike answers. Fitted to the data on the estimation segment, a look-alike with more freedom
+    than the effect (a sensor error's second harmonic) can extrapolate far off over angles only the validation
+    segment reaches."""
+    matched = _polish(candidate.chain, u, output, _budget(candidate.chain, options.max_evaluations),
+                      samples=~np.isnan(y))
+    return _judged(candidate.kind, matched, candidate.index, u, y, n_est)
 
 
 def _look_alikes_checked(found: _Search, u: NDArray[np.float64], y: NDArray[np.float64], n_est: int,
@@ -147,11 +155,8 @@ def _look_alikes_checked(found: _Search, u: NDArray[np.float64], y: NDArray[np.f
                         member: str) -> tuple[_Candidate, float] | None:
         """``alike`` fitted into ``reduced`` and the share of the record's measured samples where its output
         is further than the noise bound from the named model's; None when it vanishes, or when it is one of the
-        ``member``'s bounded look-alikes and no working device has it (catalogue ``bounded_look_alikes``).
-        Fitted to the data on the estimation segment, a look-alike with more freedom than the effect (a sensor error's second
-        harmonic) can extrapolate far off over angles only the validation segment reaches: when its output is
-        apart, it is fitted again to follow the named model's output over the whole record, which is the
-        question asked (can any such look-alike give what the effect gives)."""
+        ``member``'s bounded look-alikes and no working device has it (catalogue ``bounded_look_alikes``). When
+        its output is apart, it is made to follow the named model's output instead (:func:`_following`)."""
         scores = signature_scores(u, y, before.simulated_rad, delta, period)
         other = _try_effect(alike, reduced, u, y, n_est, delta, period, before.residual_rad, scores,
                             options.max_delay_samples, options.max_evaluations)
@@ -160,11 +165,10 @@ def _look_alikes_checked(found: _Search, u: NDArray[np.float64], y: NDArray[np.f
             return None
         apart = apart_from_named(other.chain)
         if apart > apart_allowed:
-            matched = _polish(other.chain, u, named_output, _budget(other.chain, options.max_evaluations),
-                              samples=measured)
-            matched_apart = apart_from_named(matched)
+            matched = _following(other, named_output, u, y, n_est, options)
+            matched_apart = apart_from_named(matched.chain)
             if matched_apart < apart:
-                other, apart = _judged(alike, matched, other.index, u, y, n_est), matched_apart
+                other, apart = matched, matched_apart
         bounded = alike in EFFECTS[member].bounded_look_alikes and entry.implausible is not None
         why = entry.implausible(other.block) if bounded else ""
         if why:
