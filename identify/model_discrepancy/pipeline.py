@@ -322,7 +322,7 @@ def _judged_where_it_disagrees(first: DiscrepancyResult, u: NDArray[np.float64],
             _estimation_falsified(first.initial, y, n_est) <= options.consistent_fraction:
         return first
     n_part = int(round(options.estimation_fraction * n_est))
-    part = (f"the estimation segment alone (samples 0-{n_part - 1} fitting, {n_part}-{n_est - 1} validating)")
+    part = f"the estimation segment alone (samples 0-{n_part - 1} fitting, {n_part}-{n_est - 1} validating)"
     u_part, y_part = u[:n_est], y[:n_est]
     excitation = _excitation(u_part, n_part)
     try:
