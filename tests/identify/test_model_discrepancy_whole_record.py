@@ -21,15 +21,16 @@ sys.path.insert(0, str(BENCHMARKS))
 import discrepancy_lookalikes as lookalikes  # noqa: E402  (the generator's record and nominal model)
 
 
-def independent(effect: str, seed: int, excitation: str):
-    """A clean-room record diagnosed against the generator's exact nominal model (the benchmark's protocol)."""
+def independent(effect: str, seed: int, excitation: str, given_model: bool = True):
+    """A clean-room record diagnosed against the generator's exact nominal model (the benchmark's protocol), or
+    from a fitted start without ``given_model``."""
     record = lookalikes.generator_module().generate(
         effect, seed, excitation=excitation, duration_s=lookalikes.DURATION_S[excitation], bits=12,
         noise_rad=lookalikes.NOISE_STD_RAD)
     nominal = record["nominal"]
+    model = PlantModel((lookalikes.nominal_linear_block(nominal),)) if given_model else None
     result = diagnose_model(record["command_rad"], record["angle_rad"], lookalikes.noise_bound(nominal),
-                            float(nominal["sample_period_s"]),
-                            PlantModel((lookalikes.nominal_linear_block(nominal),)))
+                            float(nominal["sample_period_s"]), model)
     return record, result
 
 
@@ -128,12 +129,7 @@ def test_what_the_estimation_segment_alone_leaves_open_is_rejected_when_the_vali
     # hysteresis seed 1004, steps, no model given: the start model fitted on the first 60 % agrees with the
     # validation segment; the one fitted on the estimation segment's own first part does not (1.7 % of the
     # validation samples outside the noise bound), so what that part leaves open is not reported
-    record = lookalikes.generator_module().generate(
-        "hysteresis", 1004, excitation="steps", duration_s=lookalikes.DURATION_S["steps"], bits=12,
-        noise_rad=lookalikes.NOISE_STD_RAD)
-    nominal = record["nominal"]
-    result = diagnose_model(record["command_rad"], record["angle_rad"], lookalikes.noise_bound(nominal),
-                            float(nominal["sample_period_s"]))
+    _, result = independent("hysteresis", 1004, "steps", given_model=False)
     assert result.verdict == "unexplained" and result.ambiguous_between == (), result.verdict_reason
     assert "Judged on the estimation segment alone" in result.verdict_reason
     assert result.verdict_reason.endswith("where the start model agrees: rejected")
