@@ -641,12 +641,12 @@ def _run_device_clocked(transport: Transport, command: CheckedCommand, sink: Sam
 
     def file_what_arrived() -> None:
         """After a failure (Ctrl-C, SIGTERM, a link error), before the stop: file the answers the transport
-        has already received (a turn files at most a batch), so that no row whose answer came is written
-        LOST. Best effort: a fault or a link error ends it."""
+        has already received (a turn files at most a batch, and a fault is raised before the answers that
+        came with it), so that no row whose answer came is written LOST. Best effort: a link error ends it."""
         known = command.total if command.total is not None else max(next_seq, next_row, transport.device_sample + 1)
         for _ in range(known + 2 * pending_cycles):
             try:
-                sample = transport.receive(0.0)
+                sample = transport.receive_received()
             except Exception:  # noqa: BLE001 - the error that ended the run is the one to report
                 return
             if sample is None:

@@ -507,6 +507,13 @@ class Transport(ABC):
         if note not in getattr(err, "__notes__", ()):
             err.add_note(note)
 
+    def receive_received(self) -> FeedbackSample | None:
+        """After a failure, before the stop: the next answer the link has already received, without raising
+        the fault that ended the run (so that no row whose answer came is written LOST); None when there is
+        none. Never waits."""
+        self._require_open()
+        return self._recv_internal(0.0)
+
     def raise_fault(self) -> None:
         """Raise the fault a device reported asynchronously, if any."""
         with self._fault_lock:

@@ -21,18 +21,24 @@ cycle's bus time flag their samples AMBIGUOUS.
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Any
 
 from rig.protocols import cia402
 from rig.protocols.errors import DeviceFault, TransportError
 from rig.transports.base import FeedbackSample
 
-__all__ = ["CanOpenSampleFiling", "LATENCY_EVIDENCE_SAMPLES"]
+__all__ = ["CanOpenSampleFiling", "LATENCY_EVIDENCE_SAMPLES", "LATENCY_UNCONFIRMED_HOLD_LEADS"]
 
 LATENCY_EVIDENCE_SAMPLES = 3
 """Samples in a row whose 0x6062 is an earlier sample's target before the run stops for a wrong TPDO
 latency: a wrong latency shows on every sample whose target changed, a target that crossed its SYNC on a
 bus whose receivers see concurrent frames in different orders (python-can's virtual bus) on one."""
+
+LATENCY_UNCONFIRMED_HOLD_LEADS = 0.5
+"""How long, as a fraction of the lead, a row waits for a changed target to confirm the TPDO latency before it
+is reported AMBIGUOUS: the runner waits for an answer as long as the lead lasts, so half of it leaves the other
+half for a busy host (a command that starts at rest for longer has its first rows AMBIGUOUS)."""
 
 
 class CanOpenSampleFiling:
@@ -219,7 +225,7 @@ class CanOpenSampleFiling:
                 mismatch = parts["demand"] != counts
                 ambiguous = ambiguous or mismatch
                 self._check_latency(seq, parts["demand"] if mismatch else None)
-            self._report(FeedbackSample(
+            self._report_once_filed_right(FeedbackSample(
                 seq=seq, encoder_counts=parts["encoder"], load_angle_rad=self._decode_encoder(parts["encoder"]),
                 drive_position_rad=self.drive.rad_from_counts(actual), statusword=statusword,
                 host_time_s=received, target_ignored=self._target_ignored(statusword), held=held, limited=limited,
@@ -229,17 +235,43 @@ class CanOpenSampleFiling:
             for old in sorted(self._parts)[:256]:
                 del self._parts[old]
 
+    def _report_once_filed_right(self, sample: FeedbackSample) -> None:
+        """Report ``sample`` once the drive's 0x6062 has shown that the configured latency files its answers
+        under the right SYNC. Before a changed target has come back at its own sample, a row at rest reads the
+        same whichever SYNC it answers, so the rows wait (in order) for the evidence: released as they are
+        once a changed target came back in time, AMBIGUOUS once the latency is refuted, the run fails, or a
+        row has waited :data:`LATENCY_UNCONFIRMED_HOLD_LEADS` of the lead. Without a mapped 0x6062 nothing
+        can tell, and every row is reported at once."""
+        if self._filed_right is not None or self._demand_tpdo is None:
+            self._report(sample if self._filed_right is not False else dataclasses.replace(sample, ambiguous=True))
+            return
+        self._unconfirmed.append(sample)
+        hold = max(1, int(LATENCY_UNCONFIRMED_HOLD_LEADS * self.lead_samples))
+        while self._unconfirmed and self._unconfirmed[0].seq <= sample.seq - hold:
+            self._report(dataclasses.replace(self._unconfirmed.popleft(), ambiguous=True))
+
+    def _release_unconfirmed(self, *, filed_right: bool) -> None:
+        """The latency confirmed (``filed_right``) or refuted: the rows waiting for the evidence go to the
+        runner, as they are or AMBIGUOUS."""
+        self._filed_right = filed_right
+        while self._unconfirmed:
+            sample = self._unconfirmed.popleft()
+            self._report(sample if filed_right else dataclasses.replace(sample, ambiguous=True))
+
     def _check_latency(self, seq: int, demand: int | None) -> None:
         """Compare the drive's 0x6062 for sample ``seq`` with the target in force at its SYNC (``demand``
         None: they agree). A demand that is an earlier sample's target is evidence that the drive answers
         later than ``drive_tpdo_latency_cycles`` says; a wrong latency shows on every sample whose target
         changed, so after :data:`LATENCY_EVIDENCE_SAMPLES` such samples in a row the run stops saying what
         to set. A single mismatch (a target that reached the drive on the other side of its SYNC than the
-        echoes say) only makes that sample AMBIGUOUS."""
+        echoes say) only makes that sample AMBIGUOUS. The first changed target that comes back at its own
+        sample confirms the latency (:meth:`_report_once_filed_right`)."""
         counts = self._applied[seq][0]
         if demand is None:
             if self._applied.get(seq - 1, (counts,))[0] != counts:
                 self._latency_evidence = 0  # a changed target the drive reported in time
+                if self._filed_right is None:
+                    self._release_unconfirmed(filed_right=True)
             return
         for late in range(1, 4):
             earlier = self._applied.get(seq - late)
@@ -253,6 +285,7 @@ class CanOpenSampleFiling:
                     # drive that takes record k as the end point of the segment k..k+1 (0x6062 at SYNC k is
                     # record k - 1, the segment's start) sends what a late one sends, and the same setting
                     # files both right (the encoder's latency is its own)
+                    self._release_unconfirmed(filed_right=False)
                     self._report_fault(DeviceFault(self.drive_label, None, (
                         f"its position demand value 0x6062 at sample {seq} is the record of sample {seq - 1} "
                         f"({LATENCY_EVIDENCE_SAMPLES} samples in a row): either it takes each interpolation record "
@@ -262,6 +295,7 @@ class CanOpenSampleFiling:
                         "two look the same on the bus while streaming: its manual says which (a drive whose "
                         "statusword shows bit 12 at the SYNC after it confirmed controlword bit 4 answers in time)")))
                     return
+                self._release_unconfirmed(filed_right=False)
                 self._report_fault(DeviceFault(self.drive_label, None, (
                     f"answers SYNC k after SYNC k + {configured + late}: its position demand value 0x6062 at sample "
                     f"{seq} is the target of sample {seq - late} ({LATENCY_EVIDENCE_SAMPLES} samples in a row); set "

@@ -295,6 +295,10 @@ class CanOpenTransport(CanOpenStartUp, CanOpenSampleFiling, CanOpenInterpolation
         self._ambiguous: set[int] = set()  # SYNC counts whose answers cannot be filed for certain
         self._device_sample = -1
         self._latency_evidence = 0  # samples in a row whose 0x6062 was an earlier target (_check_latency)
+        # does the configured TPDO latency file the drive's answers under the right SYNC? None until 0x6062
+        # shows a changed target (_check_latency); the rows before wait in _unconfirmed
+        self._filed_right: bool | None = None
+        self._unconfirmed: collections.deque[FeedbackSample] = collections.deque()
         self._fault_sample: int | None = None  # the last sample instant passed when a fault was reported
         self._min_lead_s = float("inf")
         self._lock = threading.Lock()
@@ -671,6 +675,8 @@ class CanOpenTransport(CanOpenStartUp, CanOpenSampleFiling, CanOpenInterpolation
             self._start_interpolation()
         self._wait_for(lambda: self._ready or self._emcy is not None or self._fault is not None, timeout_s)
         with self._lock:
+            if self._fault is not None and self._unconfirmed:  # a failed run's rows whose filing is unconfirmed
+                self._release_unconfirmed(filed_right=False)
             if self._emcy is None and self._ready:
                 return self._ready.popleft()
         self._raise_device_fault()

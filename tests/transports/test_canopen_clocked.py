@@ -176,7 +176,7 @@ def test_every_buffer_size_and_underflow_behaviour_runs_clean_through_a_stall(ca
     assert transport.mode == "ip_buffer" and transport._ip_capacity == capacity
     assert stalled and summary.samples == 400 and summary.lost == 0 and summary.held > 0
     assert not faults and underruns == 0 and state is cia402.DriveState.SWITCH_ON_DISABLED
-    assert not np.any(_flags(sink) & SampleFlag.unusable())
+    assert not np.any(_flags(sink) & SampleFlag.unusable()), np.flatnonzero(_flags(sink) & SampleFlag.unusable())
     _answered_rows_equal_the_offline_simulation(sink, 1000.0, tmp_path)
 
 
@@ -306,16 +306,46 @@ def test_a_drive_answering_each_sync_one_sync_late_is_no_drop_out(tmp_path):
     _answered_rows_equal_the_offline_simulation(sink, 1000.0, tmp_path)
 
 
-def test_a_drive_answering_later_than_configured_is_named_as_such_not_as_a_drop_out(tmp_path):
+@pytest.mark.parametrize("rest", [0, 5])
+def test_a_drive_answering_later_than_configured_is_named_as_such_not_as_a_drop_out(tmp_path, rest):
+    """Both nodes answer one SYNC later than configured. The run stops naming the setting, and no row it
+    logged is filed as certain: until a changed target comes back in 0x6062 at its own sample, nothing
+    shows which SYNC a frame answers (the rows of a command at rest look the same either way). The rows
+    that waited for that evidence are in the log, AMBIGUOUS, not LOST."""
     from rig.protocols.errors import DeviceFault
 
-    with _clocked_rig(tmp_path, mode="csp", drive_behaviour=DriveBehaviour(tpdo_latency_cycles=1)) as (
-            bus, transport, rig, clock):
+    command = np.concatenate([np.full(rest, _command(1)[0]), _command(300)])
+    sink = ListSink()
+    with _clocked_rig(tmp_path, mode="csp", drive_behaviour=DriveBehaviour(tpdo_latency_cycles=1),
+                      encoder_behaviour=EncoderBehaviour(tpdo_latency_cycles=1)) as (bus, transport, rig, clock):
         with pytest.raises(DeviceFault, match=r"set drive_tpdo_latency_cycles = 1") as caught:
-            _run(bus, transport, clock, _command(300))
+            run_experiment(transport, command, sink, feedback_timeout_s=0.5, clock=clock)
         state = rig.state
     assert "left OPERATION ENABLED" not in str(caught.value)
     assert state is cia402.DriveState.SWITCH_ON_DISABLED
+    flags = _flags(sink)  # the last row: the faulted sample
+    assert flags.size >= rest + 2 and flags[-1] & SampleFlag.FAULT
+    assert np.all(flags[:-1] & SampleFlag.AMBIGUOUS), flags
+    assert not np.any(flags[:-1] & SampleFlag.LOST), flags  # every answer that came is in the log
+
+
+def test_a_command_at_rest_waits_for_the_first_changed_target_to_confirm_the_latency(tmp_path):
+    """A correctly configured drive and a command that rests for 80 samples first: the rows at rest wait for
+    the first changed target's 0x6062 (the evidence that they are filed under the right SYNC) as long as half
+    the lead; those released earlier are AMBIGUOUS, the rest clean, none lost."""
+    from rig.transports.canopen_filing import LATENCY_UNCONFIRMED_HOLD_LEADS
+
+    rest = 80
+    command = np.concatenate([np.zeros(rest), _command(200)[1:]])
+    with _clocked_rig(tmp_path, mode="csp") as (bus, transport, rig, clock):
+        summary, sink, _ = _run(bus, transport, clock, command)
+        hold = int(LATENCY_UNCONFIRMED_HOLD_LEADS * transport.lead_samples)
+    flags = _flags(sink)
+    assert summary.samples == len(command) and summary.lost == 0
+    assert 0 < hold < rest
+    np.testing.assert_array_equal(np.flatnonzero(flags & SampleFlag.unusable()), np.arange(rest - hold))
+    assert np.all(flags[:rest - hold] == SampleFlag.AMBIGUOUS)
+    _answered_rows_equal_the_offline_simulation(sink, 1000.0, tmp_path)
 
 
 def test_the_feedback_watchdog_stops_a_silent_drive_and_the_drive_ends_disabled(tmp_path):
