@@ -510,9 +510,13 @@ class Transport(ABC):
     def receive_received(self) -> FeedbackSample | None:
         """After a failure, before the stop: the next answer the link has already received, without raising
         the fault that ended the run (so that no row whose answer came is written LOST); None when there is
-        none. Never waits."""
+        none. Never waits, and never starts what the run had not started (interpolation, the device's clock)."""
         self._require_open()
-        return self._recv_internal(0.0)
+        return self._received_without_starting()
+
+    def _received_without_starting(self) -> FeedbackSample | None:
+        """:meth:`receive_received` of a backend (the base has no receive queue of its own: nothing)."""
+        return None
 
     def raise_fault(self) -> None:
         """Raise the fault a device reported asynchronously, if any."""

@@ -674,13 +674,21 @@ class CanOpenTransport(CanOpenStartUp, CanOpenSampleFiling, CanOpenInterpolation
                 timeout_s = max(deadline - self.clock(), 0.0)
             self._start_interpolation()
         self._wait_for(lambda: self._ready or self._emcy is not None or self._fault is not None, timeout_s)
+        sample = self._received_without_starting()
+        if sample is not None:
+            return sample
+        self._raise_device_fault()
+        self._check_heartbeats()
+        return None
+
+    def _received_without_starting(self) -> FeedbackSample | None:
+        """The next sample filed (none after an EMCY); once the run has failed, the rows still waiting for the
+        latency's evidence are filed AMBIGUOUS first (:meth:`_report_once_filed_right`)."""
         with self._lock:
-            if self._fault is not None and self._unconfirmed:  # a failed run's rows whose filing is unconfirmed
+            if self._fault is not None and self._unconfirmed:
                 self._release_unconfirmed(filed_right=False)
             if self._emcy is None and self._ready:
                 return self._ready.popleft()
-        self._raise_device_fault()
-        self._check_heartbeats()
         return None
 
     def _close(self) -> None:

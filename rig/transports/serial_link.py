@@ -249,6 +249,12 @@ class SerialTransport(Transport):
             self._ticks = TickBuffer(self.sample_period_s, self.drive.counts_from_rad(self.initial_position_rad))
         return self._ticks
 
+    def _received_without_starting(self) -> FeedbackSample | None:
+        """Before START (version 2 on) nothing: the device's clock is not started after a failure."""
+        if self.version >= 2 and not self._started:
+            return None
+        return self._recv_internal(0.0)
+
     def _recv_internal(self, timeout_s: float) -> FeedbackSample | None:
         if self.version >= 2 and not self._started and self._queued_any:
             self._started = True

@@ -348,6 +348,27 @@ def test_a_command_at_rest_waits_for_the_first_changed_target_to_confirm_the_lat
     _answered_rows_equal_the_offline_simulation(sink, 1000.0, tmp_path)
 
 
+def test_a_run_interrupted_before_interpolation_started_never_starts_it(tmp_path):
+    """Ctrl-C while the first setpoints are queued, before the drive's buffer is started: the runner files what
+    had come before the stop, and that never sets controlword bit 4 (enable ip mode): the drive takes no record
+    and ends disabled."""
+    with _clocked_rig(tmp_path) as (bus, transport, rig, clock):
+        send = transport.send
+
+        def interrupted(setpoint):
+            if setpoint.seq == 80:
+                raise KeyboardInterrupt
+            return send(setpoint)
+
+        transport.send = interrupted
+        with pytest.raises(KeyboardInterrupt):
+            run_experiment(transport, _command(400), ListSink(), feedback_timeout_s=0.5, clock=clock)
+        controlwords, state = list(rig.controlwords), rig.state
+    assert transport.mode == "ip_buffer"
+    assert not any(word & 0x10 for word in controlwords), controlwords  # bit 4: enable ip mode
+    assert state is cia402.DriveState.SWITCH_ON_DISABLED
+
+
 def test_the_feedback_watchdog_stops_a_silent_drive_and_the_drive_ends_disabled(tmp_path):
     """The drive's TPDOs stop after sample 100 (its heartbeat goes on): the runner's watchdog stops the run
     once nothing has come for feedback_timeout_s and the grace after it, on the simulated clock; the stop

@@ -101,6 +101,23 @@ def test_the_host_keeps_the_lead_and_every_row_is_the_devices_tick(rig):
     assert device.controlwords == [0x0006, 0x0007, 0x000F, 0x0002, 0x0000]
 
 
+def test_a_run_interrupted_before_start_never_starts_the_devices_clock(rig):
+    """Ctrl-C while the first setpoints are queued, before START: the runner files what had come before the
+    stop, and that never sends START: the device never ticks, and ends disabled."""
+    line, transport, device, clock = rig()
+    send = transport.send
+
+    def interrupted(setpoint):
+        if setpoint.seq == LEAD // 2:
+            raise KeyboardInterrupt
+        return send(setpoint)
+
+    transport.send = interrupted
+    with pytest.raises(KeyboardInterrupt):
+        run_experiment(transport, _command(), ListSink(), feedback_timeout_s=0.5, clock=clock)
+    assert not device.ticks and device.state == SWITCH_ON_DISABLED
+
+
 def test_a_host_stall_shorter_than_the_lead_costs_nothing(rig):
     line, transport, device, clock = rig()
     stall_s = 0.0325  # 6.5 ticks, within the 10-tick lead
