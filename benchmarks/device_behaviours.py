@@ -16,7 +16,8 @@ Columns:
   more than any HELD stretch under 8 samples gives), ``traceback`` (an error outside the rig's error tree);
   for a peer variant, the peer's own verdict;
 * wrong rows: usable logged rows whose command differs from the target the simulated drive applied at that
-  sample (``SimulatedCanOpenRig.record().applied_targets``; row k is sample k); for a peer variant its ``cmd_wrong``;
+  sample (``DeviceRecord.wrong_rows``: row k is sample k, or k plus the samples a late first target left HELD at
+  the start); for a peer variant its ``cmd_wrong``;
 * applied / command step: the largest change of the applied target between two consecutive SYNCs (from the
   position before sample 0 on), against the largest change between two consecutive commands, in drive counts
   (2**17 per revolution); for a peer variant its ``max_jump`` (actual position 0x6064) and ``cmd_max_step``;
@@ -132,17 +133,15 @@ def run_one(name: str, behaviours, mode: str, num_samples: int, rate_hz: float, 
             outcome, message = "traceback", f"{type(err).__name__}: {err}"
         message = message.replace(f"{url} ", "")
         state = rig.state.name.replace("_", " ")
-        applied = rig.record().applied_targets.tolist()
+        record = rig.record()
+        applied = record.applied_targets.tolist()
         before = rig.position_before_samples
         mode_used = getattr(transport, "mode", "?")
     scaling = rig.drive_scaling
     flags = np.array(rows.flags, dtype=int)
     usable = (flags & int(SampleFlag.unusable())) == 0
-    wrong = 0
-    for time_s, command_rad, ok in zip(rows.time_s, rows.command_rad, usable):
-        k = int(round(time_s * rate_hz))
-        if ok and (k >= len(applied) or scaling.counts_from_rad(command_rad) != applied[k]):
-            wrong += 1
+    # row k is the drive's sample k, or k + the offset of a first target that came too late (HELD rows at the start)
+    wrong = record.wrong_rows([scaling.counts_from_rad(value) for value in rows.command_rad], usable)
     applied_step = _largest_step(([before] if before is not None else []) + applied)
     command_step = _largest_step([scaling.counts_from_rad(value) for value in command])
     if state in ENABLED_STATES or applied_step > UNSAFE_STEP_FACTOR * max(command_step, 1):
