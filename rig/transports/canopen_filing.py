@@ -37,8 +37,9 @@ bus whose receivers see concurrent frames in different orders (python-can's virt
 
 LATENCY_UNCONFIRMED_HOLD_LEADS = 0.5
 """How long, as a fraction of the lead, a row waits for a changed target to confirm the TPDO latency before it
-is reported AMBIGUOUS: the runner waits for an answer as long as the lead lasts, so half of it leaves the other
-half for a busy host (a command that starts at rest for longer has its first rows AMBIGUOUS)."""
+is reported as filed: the lead is about the feedback watchdog's timeout, so half of it leaves the other half for
+a busy host. A latency refuted later than that (a command at rest for longer at its start) leaves those first
+rows filed under the configured latency, as every row was before this wait."""
 
 
 class CanOpenSampleFiling:
@@ -236,19 +237,20 @@ class CanOpenSampleFiling:
                 del self._parts[old]
 
     def _report_once_filed_right(self, sample: FeedbackSample) -> None:
-        """Report ``sample`` once the drive's 0x6062 has shown that the configured latency files its answers
-        under the right SYNC. Before a changed target has come back at its own sample, a row at rest reads the
-        same whichever SYNC it answers, so the rows wait (in order) for the evidence: released as they are
-        once a changed target came back in time, AMBIGUOUS once the latency is refuted, the run fails, or a
-        row has waited :data:`LATENCY_UNCONFIRMED_HOLD_LEADS` of the lead. Without a mapped 0x6062 nothing
-        can tell, and every row is reported at once."""
+        """Report ``sample`` once the drive's 0x6062 has had the chance to show whether the configured latency
+        files its answers under the right SYNC. Before a changed target has come back at its own sample, a row
+        at rest reads the same whichever SYNC it answers, so the rows wait (in order) for the evidence:
+        AMBIGUOUS once the latency is refuted or the run fails; released as they are once a changed target came
+        back in time, or when a row has waited :data:`LATENCY_UNCONFIRMED_HOLD_LEADS` of the lead (the
+        runner's feedback watchdog counts rows handed out, so a row cannot wait longer). Without a mapped
+        0x6062 nothing can tell, and every row is reported at once."""
         if self._filed_right is not None or self._demand_tpdo is None:
             self._report(sample if self._filed_right is not False else dataclasses.replace(sample, ambiguous=True))
             return
         self._unconfirmed.append(sample)
         hold = max(1, int(LATENCY_UNCONFIRMED_HOLD_LEADS * self.lead_samples))
         while self._unconfirmed and self._unconfirmed[0].seq <= sample.seq - hold:
-            self._report(dataclasses.replace(self._unconfirmed.popleft(), ambiguous=True))
+            self._report(self._unconfirmed.popleft())
 
     def _release_unconfirmed(self, *, filed_right: bool) -> None:
         """The latency confirmed (``filed_right``) or refuted: the rows waiting for the evidence go to the
